@@ -1,0 +1,204 @@
+"""Pinhole cameras in numpy: intrinsics, pose, view and projection matrices.
+
+Image pixels: u to the right from the left edge, v down from the top edge, pixel centres at
+half-integers. Camera frame: OpenGL's (x right, y up, looking down -z). World: local ENU metres.
+The window camera and the projector ("depth camera") both use this module.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from app import rotations
+from app.constants import DEFAULT_FAR_M, DEFAULT_NEAR_M, EPS_DEGENERATE
+
+FloatArray = npt.NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class Intrinsics:
+    """Pinhole intrinsics of an image width x height pixels; fx, fy, cx, cy in pixels."""
+
+    width: int
+    height: int
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+
+    def __post_init__(self) -> None:
+        if self.width <= 0 or self.height <= 0:
+            raise ValueError(f"image size must be positive, got {self.width}x{self.height}")
+        if self.fx <= 0 or self.fy <= 0:
+            raise ValueError(f"focal lengths must be positive, got fx={self.fx}, fy={self.fy}")
+
+    @classmethod
+    def from_fov(cls, width: int, height: int, fov_deg: float, axis: str = "horizontal") -> "Intrinsics":
+        """Square pixels, principal point at the image centre, FOV (deg) across the given axis."""
+        if not 0.0 < fov_deg < 180.0:
+            raise ValueError(f"field of view must be in (0, 180) degrees, got {fov_deg}")
+        span = width if axis == "horizontal" else height
+        if axis not in ("horizontal", "vertical"):
+            raise ValueError(f"axis must be 'horizontal' or 'vertical', got {axis!r}")
+        f = 0.5 * span / np.tan(np.radians(fov_deg) / 2.0)
+        return cls(width, height, float(f), float(f), width / 2.0, height / 2.0)
+
+    @classmethod
+    def from_focal_length(
+        cls, width: int, height: int, focal_mm: float, sensor_width_mm: float, sensor_height_mm: float | None = None
+    ) -> "Intrinsics":
+        """From a focal length and the sensor size (mm) that the full image covers."""
+        fx = focal_mm / sensor_width_mm * width
+        fy = fx if sensor_height_mm is None else focal_mm / sensor_height_mm * height
+        return cls(width, height, float(fx), float(fy), width / 2.0, height / 2.0)
+
+    @property
+    def hfov_deg(self) -> float:
+        """Horizontal field of view, degrees."""
+        return float(np.degrees(2.0 * np.arctan(self.width / (2.0 * self.fx))))
+
+    @property
+    def vfov_deg(self) -> float:
+        """Vertical field of view, degrees."""
+        return float(np.degrees(2.0 * np.arctan(self.height / (2.0 * self.fy))))
+
+    @property
+    def aspect(self) -> float:
+        return self.width / self.height
+
+    def scaled(self, width: int, height: int) -> "Intrinsics":
+        """The same camera sampled at another resolution (same field of view)."""
+        sx, sy = width / self.width, height / self.height
+        return Intrinsics(width, height, self.fx * sx, self.fy * sy, self.cx * sx, self.cy * sy)
+
+
+def projection_matrix(intr: Intrinsics, near: float = DEFAULT_NEAR_M, far: float = DEFAULT_FAR_M) -> FloatArray:
+    """OpenGL clip-from-camera 4x4 matrix (column vectors) for the pinhole intrinsics.
+
+    A camera point (x, y, z), z < 0, lands at pixel u = fx x/(-z) + cx, v = cy - fy y/(-z);
+    NDC depth is -1 at `near` and +1 at `far` (metres).
+    """
+    if not 0.0 < near < far:
+        raise ValueError(f"need 0 < near < far, got near={near}, far={far}")
+    w, h = intr.width, intr.height
+    p = np.zeros((4, 4))
+    p[0, 0] = 2.0 * intr.fx / w
+    p[1, 1] = 2.0 * intr.fy / h
+    p[0, 2] = 1.0 - 2.0 * intr.cx / w
+    p[1, 2] = 2.0 * intr.cy / h - 1.0
+    p[2, 2] = -(far + near) / (far - near)
+    p[2, 3] = -2.0 * far * near / (far - near)
+    p[3, 2] = -1.0
+    return p
+
+
+def view_matrix(position_enu: npt.ArrayLike, q_cam_to_world: npt.ArrayLike) -> FloatArray:
+    """Camera-from-world 4x4 matrix for a camera at position (ENU m) with orientation q ([w,x,y,z])."""
+    r = rotations.to_matrix(q_cam_to_world)
+    t = np.asarray(position_enu, np.float64)
+    v = np.eye(4)
+    v[:3, :3] = r.T
+    v[:3, 3] = -r.T @ t
+    return v
+
+
+def look_at_quat(eye: npt.ArrayLike, target: npt.ArrayLike, up: npt.ArrayLike = (0.0, 0.0, 1.0)) -> FloatArray:
+    """Camera -> ENU quaternion for a camera at eye looking at target with the given world up."""
+    eye, target, up = (np.asarray(a, np.float64) for a in (eye, target, up))
+    f = target - eye
+    if np.linalg.norm(f) < EPS_DEGENERATE:
+        raise ValueError("look-at target coincides with the eye")
+    f /= np.linalg.norm(f)
+    x = np.cross(f, up)
+    if np.linalg.norm(x) < 1e-9:  # looking straight up or down: pick north as up
+        x = np.cross(f, np.array([0.0, 1.0, 0.0]))
+    x /= np.linalg.norm(x)
+    y = np.cross(x, f)
+    return rotations.from_matrix(np.stack([x, y, -f], axis=1))
+
+
+@dataclass(frozen=True)
+class Camera:
+    """A posed pinhole camera: intrinsics, near/far planes (m), ENU position (m), orientation q."""
+
+    intrinsics: Intrinsics
+    position: tuple[float, float, float]
+    orientation: tuple[float, float, float, float]
+    near: float = DEFAULT_NEAR_M
+    far: float = DEFAULT_FAR_M
+
+    @classmethod
+    def create(
+        cls,
+        intrinsics: Intrinsics,
+        position: npt.ArrayLike,
+        orientation: npt.ArrayLike,
+        near: float = DEFAULT_NEAR_M,
+        far: float = DEFAULT_FAR_M,
+    ) -> "Camera":
+        p = np.asarray(position, np.float64).reshape(3)
+        q = rotations.canonical(np.asarray(orientation, np.float64).reshape(4))
+        return cls(intrinsics, tuple(map(float, p)), tuple(map(float, q)), near, far)
+
+    @property
+    def view(self) -> FloatArray:
+        return view_matrix(self.position, self.orientation)
+
+    @property
+    def projection(self) -> FloatArray:
+        return projection_matrix(self.intrinsics, self.near, self.far)
+
+    @property
+    def view_projection(self) -> FloatArray:
+        return self.projection @ self.view
+
+    def project(self, points_enu: npt.ArrayLike) -> tuple[FloatArray, FloatArray]:
+        """World points (N, 3) -> pixel coordinates (N, 2) as (u, v) and camera depth (N,) metres.
+
+        Depth is the distance along the optical axis (positive in front of the camera).
+        """
+        p = np.atleast_2d(np.asarray(points_enu, np.float64))
+        cam = (p - np.asarray(self.position)) @ rotations.to_matrix(self.orientation)
+        depth = -cam[:, 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u = self.intrinsics.fx * cam[:, 0] / depth + self.intrinsics.cx
+            v = self.intrinsics.cy - self.intrinsics.fy * cam[:, 1] / depth
+        return np.stack([u, v], axis=1), depth
+
+    def pixel_rays(self, uv: npt.ArrayLike) -> FloatArray:
+        """Unit ray directions (N, 3) in ENU through pixel coordinates (N, 2) (u, v)."""
+        uv = np.atleast_2d(np.asarray(uv, np.float64))
+        d = np.stack(
+            [
+                (uv[:, 0] - self.intrinsics.cx) / self.intrinsics.fx,
+                (self.intrinsics.cy - uv[:, 1]) / self.intrinsics.fy,
+                -np.ones(len(uv)),
+            ],
+            axis=1,
+        )
+        d = d @ rotations.to_matrix(self.orientation).T
+        return d / np.linalg.norm(d, axis=1, keepdims=True)
+
+    def frustum_corners(self, distance: float | None = None) -> FloatArray:
+        """(8, 3) ENU corners: the near plane's four then the plane at `distance` (default far),
+        each in the order top-left, top-right, bottom-right, bottom-left."""
+        w, h = self.intrinsics.width, self.intrinsics.height
+        uv = np.array([[0.0, 0.0], [w, 0.0], [w, h], [0.0, h]])
+        rays = self.pixel_rays(uv)
+        fwd = -rotations.to_matrix(self.orientation)[:, 2]
+        cos = rays @ fwd
+        pos = np.asarray(self.position)
+        far = self.far if distance is None else distance
+        near_pts = pos + rays * (self.near / cos)[:, None]
+        far_pts = pos + rays * (far / cos)[:, None]
+        return np.concatenate([near_pts, far_pts])
+
+
+def depth_map_size(video_width: int, video_height: int, long_side: int) -> tuple[int, int]:
+    """Depth-map (width, height) in texels: `long_side` on the video's long side, its aspect."""
+    if video_width >= video_height:
+        return long_side, max(1, round(long_side * video_height / video_width))
+    return max(1, round(long_side * video_width / video_height)), long_side

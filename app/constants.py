@@ -1,0 +1,22 @@
+"""Named tolerances and physical constants in one place (units in the names or comments)."""
+
+from __future__ import annotations
+
+# WGS84 ellipsoid
+WGS84_A = 6378137.0  # semi-major axis, metres
+WGS84_F = 1.0 / 298.257223563  # flattening
+WGS84_E2 = WGS84_F * (2.0 - WGS84_F)  # first eccentricity squared
+
+# Coordinates whose magnitude exceeds this are taken to be ECEF (metres); a local model is far smaller.
+ECEF_MIN_RADIUS_M = 6.0e6
+
+# Geometry checks
+EPS_DEGENERATE = 1e-12  # below this a vector or quaternion norm is treated as zero
+
+# Rendering defaults
+DEFAULT_NEAR_M = 0.5
+DEFAULT_FAR_M = 2000.0
+DEFAULT_DEPTH_LONG_SIDE_PX = 2048
+DEFAULT_DEPTH_BIAS_M = 0.05  # constant part of the projection depth bias, metres
+DEFAULT_DEPTH_SLOPE_BIAS = 2.0  # slope-scaled part, in depth-map texels of surface slope
+DEFAULT_ALPHA = 1.0  # video opacity over the model: 0 = model only, 1 = video only

@@ -1,0 +1,29 @@
+"""OpenGL contexts: a standalone EGL one for tests, CLI export and benchmarks."""
+
+from __future__ import annotations
+
+import moderngl
+
+from app.errors import GeofuseError
+
+GL_REQUIRE = 330
+
+
+class RenderUnavailable(GeofuseError):
+    """No OpenGL 3.3 context could be made (no EGL / Mesa on this machine)."""
+
+
+def create_offscreen_context() -> moderngl.Context:
+    """A headless OpenGL >= 3.3 core context through EGL (Mesa llvmpipe without a GPU)."""
+    try:
+        return moderngl.create_context(standalone=True, backend="egl", require=GL_REQUIRE)
+    except Exception as exc:
+        raise RenderUnavailable(
+            f"cannot create an EGL OpenGL {GL_REQUIRE // 100}.{GL_REQUIRE % 100 // 10} context ({exc}); "
+            "install Mesa: apt-get install libegl1 libegl-mesa0 libgl1-mesa-dri libgbm1"
+        ) from exc
+
+
+def describe(ctx: moderngl.Context) -> str:
+    """'renderer, GL version' of a context, for logs and benchmark reports."""
+    return f"{ctx.info['GL_RENDERER']}, {ctx.info['GL_VERSION']}"

@@ -1,0 +1,141 @@
+"""The two passes of the method: the depth map from the video's camera (paper 2.2.1, shadow
+mapping), then the scene seen from the window camera with the video projected (paper 2.2.2)."""
+
+from __future__ import annotations
+
+import moderngl
+import numpy as np
+
+from app.camera import Camera
+from app.config import ProjectionSettings
+from app.render.gpu_scene import GpuScene
+from app.render.programs import load_program
+
+LIGHT_DIR = np.array([0.35, -0.45, 0.82]) / np.linalg.norm([0.35, -0.45, 0.82])
+
+
+def _mat(m: np.ndarray) -> bytes:
+    """A 4x4 row-major numpy matrix as the column-major float32 bytes GLSL expects."""
+    return np.asarray(m, np.float32).T.tobytes()
+
+
+class DepthPass:
+    """Renders the scene's depth from the depth camera into a depth texture of a given size."""
+
+    def __init__(self, ctx: moderngl.Context, scene: GpuScene) -> None:
+        self.ctx = ctx
+        self.program = load_program(ctx, "depth.vert", "depth.frag")
+        self.vaos = scene.vertex_arrays(self.program, ("in_position",))
+        self.texture: moderngl.Texture | None = None
+        self.fbo: moderngl.Framebuffer | None = None
+        self.camera: Camera | None = None
+        self.renders = 0  # how many times the depth map was actually redrawn
+
+    @property
+    def size(self) -> tuple[int, int]:
+        return (0, 0) if self.texture is None else self.texture.size
+
+    def _ensure_size(self, size: tuple[int, int]) -> None:
+        if self.texture is not None and self.texture.size == size:
+            return
+        if self.fbo is not None:
+            self.fbo.release()
+            self.texture.release()
+        self.texture = self.ctx.depth_texture(size)
+        self.texture.compare_func = ""  # sample raw depth values, not a comparison
+        self.texture.filter = (moderngl.NEAREST, moderngl.NEAREST)
+        self.texture.repeat_x = self.texture.repeat_y = False
+        self.fbo = self.ctx.framebuffer(depth_attachment=self.texture)
+        self.camera = None
+
+    def update(self, camera: Camera, size: tuple[int, int]) -> bool:
+        """Redraw the depth map for `camera` at `size` (w, h) texels, only if either changed.
+
+        Returns True when it redrew. Leaves the depth framebuffer bound: callers bind theirs.
+        """
+        self._ensure_size(size)
+        if camera == self.camera:
+            return False
+        self.fbo.use()
+        self.fbo.clear(depth=1.0)
+        self.ctx.enable(moderngl.DEPTH_TEST)
+        self.ctx.disable(moderngl.CULL_FACE)
+        self.program["u_view_proj"].write(_mat(camera.view_projection))
+        for vao in self.vaos:
+            vao.render(moderngl.TRIANGLES)
+        self.camera = camera
+        self.renders += 1
+        return True
+
+    def read(self) -> np.ndarray:
+        """The depth map as (h, w) float32 window depth in [0, 1], row 0 at the image bottom."""
+        w, h = self.size
+        return np.frombuffer(self.texture.read(), np.float32).reshape(h, w)
+
+    def release(self) -> None:
+        for vao in self.vaos:
+            vao.release()
+        if self.fbo is not None:
+            self.fbo.release()
+            self.texture.release()
+        self.program.release()
+
+
+class ScenePass:
+    """Draws the scene from the window camera, projecting the video where the depth test allows."""
+
+    def __init__(self, ctx: moderngl.Context, scene: GpuScene) -> None:
+        self.ctx = ctx
+        self.scene = scene
+        self.program = load_program(ctx, "scene.vert", "scene.frag")
+        self.vaos = scene.vertex_arrays(self.program, ("in_position", "in_uv", "in_color"))
+        self.program["u_base_texture"].value = 0
+        self.program["u_depth_map"].value = 1
+        self.program["u_video"].value = 2
+        self.program["u_light_dir"].value = tuple(LIGHT_DIR)
+        # A 1x1 stand-in so that unused samplers are always complete.
+        self._blank = ctx.texture((1, 1), 4, bytes([255, 255, 255, 255]))
+
+    def render(
+        self,
+        view: Camera,
+        settings: ProjectionSettings,
+        projector: Camera | None,
+        depth: DepthPass | None,
+        video: moderngl.Texture | None,
+    ) -> None:
+        """Draw into the bound framebuffer. Projection needs projector, depth and video."""
+        p = self.program
+        p["u_view_proj"].write(_mat(view.view_projection))
+        p["u_eye"].value = view.position
+        on = settings.enabled and projector is not None and depth is not None and video is not None
+        p["u_projection_on"].value = on
+        if on:
+            size = depth.size
+            p["u_proj_view_proj"].write(_mat(projector.view_projection))
+            p["u_proj_position"].value = projector.position
+            p["u_proj_near"].value = projector.near
+            p["u_proj_far"].value = projector.far
+            scale = size[0] / projector.intrinsics.width
+            p["u_proj_focal_texels"].value = max(projector.intrinsics.fx, projector.intrinsics.fy) * scale
+            p["u_alpha"].value = settings.alpha
+            p["u_bias_constant"].value = settings.bias_constant_m
+            p["u_bias_slope"].value = settings.bias_slope
+            p["u_neighbourhood"].value = settings.neighbourhood
+            depth.texture.use(1)
+            video.use(2)
+        else:
+            self._blank.use(1)
+            self._blank.use(2)
+        self.ctx.enable(moderngl.DEPTH_TEST)
+        self.ctx.disable(moderngl.CULL_FACE)
+        for prim, vao in zip(self.scene.primitives, self.vaos):
+            p["u_has_texture"].value = prim.texture is not None
+            (prim.texture or self._blank).use(0)
+            vao.render(moderngl.TRIANGLES)
+
+    def release(self) -> None:
+        for vao in self.vaos:
+            vao.release()
+        self._blank.release()
+        self.program.release()

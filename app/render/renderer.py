@@ -1,0 +1,84 @@
+"""FusionRenderer: the scene, a video frame and a depth camera, drawn into any framebuffer.
+
+The same object draws into the viewer's window, an EGL off-screen framebuffer in tests, and the
+CLI's still export. All GL calls happen on the thread that owns the context.
+"""
+
+from __future__ import annotations
+
+import moderngl
+import numpy as np
+import numpy.typing as npt
+
+from app.camera import Camera, depth_map_size
+from app.config import OverlaySettings, ProjectionSettings
+from app.render.gpu_scene import GpuScene
+from app.render.overlays import FRUSTUM_COLOR, TRAJECTORY_COLOR, LineOverlay, frustum_segments
+from app.render.passes import DepthPass, ScenePass
+from app.scene.mesh import MeshData
+
+BACKGROUND = (0.62, 0.74, 0.86)
+
+
+class FusionRenderer:
+    """Owns every GL object of one scene; call from the GL thread only."""
+
+    def __init__(self, ctx: moderngl.Context, mesh: MeshData) -> None:
+        self.ctx = ctx
+        self.scene = GpuScene(ctx, mesh)
+        self.depth = DepthPass(ctx, self.scene)
+        self.scene_pass = ScenePass(ctx, self.scene)
+        self.lines = LineOverlay(ctx)
+        self.video: moderngl.Texture | None = None
+        self.projector: Camera | None = None
+        self.trajectory: np.ndarray | None = None
+
+    def set_video_frame(self, rgb: npt.NDArray[np.uint8]) -> None:
+        """Upload one video frame (H, W, 3) uint8 RGB, row 0 = the image's top row."""
+        img = np.ascontiguousarray(rgb, dtype=np.uint8)
+        if img.ndim != 3 or img.shape[2] not in (3, 4):
+            raise ValueError(f"video frame must be (H, W, 3|4) uint8, got {img.shape}")
+        size = (img.shape[1], img.shape[0])
+        if self.video is None or self.video.size != size or self.video.components != img.shape[2]:
+            if self.video is not None:
+                self.video.release()
+            self.video = self.ctx.texture(size, img.shape[2])
+            self.video.filter = (moderngl.LINEAR, moderngl.LINEAR)
+            self.video.repeat_x = self.video.repeat_y = False
+        self.video.write(img.tobytes())
+
+    def set_projector(self, camera: Camera | None) -> None:
+        """The depth camera (the video's camera) for the next draws."""
+        self.projector = camera
+
+    def set_trajectory(self, points_enu: npt.ArrayLike | None) -> None:
+        """A polyline (N, 3) ENU metres drawn by the trajectory overlay."""
+        self.trajectory = None if points_enu is None else np.asarray(points_enu, np.float64)
+
+    def draw(
+        self,
+        view: Camera,
+        fbo: moderngl.Framebuffer,
+        settings: ProjectionSettings = ProjectionSettings(),
+        overlays: OverlaySettings = OverlaySettings(frustum=False, trajectory=False),
+    ) -> None:
+        """Draw one frame from the window camera `view` into `fbo` (its viewport is used whole)."""
+        if settings.enabled and self.projector is not None and self.video is not None:
+            w, h = self.projector.intrinsics.width, self.projector.intrinsics.height
+            self.depth.update(self.projector, depth_map_size(w, h, settings.depth_long_side))
+        fbo.use()
+        fbo.clear(*BACKGROUND, 1.0, depth=1.0)
+        self.scene_pass.render(view, settings, self.projector, self.depth, self.video)
+        vp = view.view_projection
+        if overlays.frustum and self.projector is not None:
+            self.lines.draw(vp, frustum_segments(self.projector, overlays.frustum_length_m), FRUSTUM_COLOR, moderngl.LINES)
+        if overlays.trajectory and self.trajectory is not None:
+            self.lines.draw(vp, self.trajectory, TRAJECTORY_COLOR, moderngl.LINE_STRIP)
+
+    def release(self) -> None:
+        self.lines.release()
+        self.scene_pass.release()
+        self.depth.release()
+        self.scene.release()
+        if self.video is not None:
+            self.video.release()

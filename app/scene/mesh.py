@@ -1,0 +1,70 @@
+"""The scene as plain arrays: what the renderer uploads. No GL here.
+
+Positions are float32 metres in the session's ENU frame relative to its origin (float32-safe
+for scenes a few kilometres across); texture images are uint8 RGBA stored bottom row first, so
+that uv = (0, 0) is the image's bottom-left corner, as OpenGL samples it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import numpy.typing as npt
+
+
+@dataclass
+class Primitive:
+    """One draw call's worth of triangles sharing a material.
+
+    positions: (N, 3) float32 ENU m; uvs: (N, 2) float32 or None; colors: (N, 4) float32 in
+    [0, 1] (vertex colour times base colour); indices: (M, 3) uint32; texture: (H, W, 4) uint8,
+    bottom row first, or None. Normals are not stored: the shaders derive each face's normal
+    from screen-space derivatives, which is exact for flat faces and costs no memory.
+    """
+
+    positions: npt.NDArray[np.float32]
+    colors: npt.NDArray[np.float32]
+    indices: npt.NDArray[np.uint32]
+    uvs: npt.NDArray[np.float32] | None = None
+    texture: npt.NDArray[np.uint8] | None = None
+    name: str = ""
+
+    def __post_init__(self) -> None:
+        n = len(self.positions)
+        if self.colors.shape != (n, 4):
+            raise ValueError(f"primitive {self.name!r}: colors shape {self.colors.shape}, expected ({n}, 4)")
+        if self.uvs is not None and self.uvs.shape != (n, 2):
+            raise ValueError(f"primitive {self.name!r}: uvs shape {self.uvs.shape}, expected ({n}, 2)")
+        if self.indices.ndim != 2 or self.indices.shape[1] != 3:
+            raise ValueError(f"primitive {self.name!r}: indices shape {self.indices.shape}, expected (M, 3)")
+        if len(self.indices) and int(self.indices.max()) >= n:
+            raise ValueError(f"primitive {self.name!r}: index {int(self.indices.max())} >= {n} vertices")
+
+    @property
+    def textured(self) -> bool:
+        return self.texture is not None and self.uvs is not None
+
+
+@dataclass
+class MeshData:
+    """A whole scene: primitives in the session ENU frame."""
+
+    primitives: list[Primitive] = field(default_factory=list)
+
+    @property
+    def triangle_count(self) -> int:
+        return sum(len(p.indices) for p in self.primitives)
+
+    @property
+    def vertex_count(self) -> int:
+        return sum(len(p.positions) for p in self.primitives)
+
+    def bounds(self) -> npt.NDArray[np.float64]:
+        """(2, 3) min and max corner in ENU metres."""
+        if not self.primitives:
+            return np.zeros((2, 3))
+        lo = np.min([p.positions.min(axis=0) for p in self.primitives], axis=0)
+        hi = np.max([p.positions.max(axis=0) for p in self.primitives], axis=0)
+        return np.stack([lo, hi]).astype(np.float64)
+

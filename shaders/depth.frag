@@ -1,0 +1,4 @@
+#version 330 core
+// Depth pass: nothing but the fixed-function depth write.
+void main() {
+}

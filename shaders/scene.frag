@@ -1,0 +1,60 @@
+#version 330 core
+// Scene pass with projective video texturing (paper 2.2.2).
+#include "projective.glsl"
+
+uniform sampler2D u_base_texture;
+uniform bool u_has_texture;
+uniform vec3 u_eye;            // window camera position, ENU metres
+uniform vec3 u_light_dir;      // unit vector toward the light, ENU
+
+uniform bool u_projection_on;
+uniform mat4 u_proj_view_proj; // depth camera clip-from-world
+uniform vec3 u_proj_position;  // depth camera position, ENU metres
+uniform float u_proj_near;
+uniform float u_proj_far;
+uniform float u_proj_focal_texels; // depth-map focal length, texels
+uniform sampler2D u_depth_map;
+uniform sampler2D u_video;
+uniform float u_alpha;         // video opacity: 0 = model, 1 = video
+uniform float u_bias_constant; // metres
+uniform float u_bias_slope;    // depth-map texels of surface slope
+uniform bool u_neighbourhood;
+
+in vec3 v_world;
+in vec2 v_uv;
+in vec4 v_color;
+
+out vec4 f_color;
+
+vec3 model_colour(vec3 normal) {
+    vec4 base = v_color;
+    if (u_has_texture) {
+        base *= texture(u_base_texture, v_uv);
+    }
+    float light = 0.6 + 0.4 * max(dot(normal, u_light_dir), 0.0);
+    return base.rgb * light;
+}
+
+void main() {
+    vec3 normal = normalize(cross(dFdx(v_world), dFdy(v_world)));
+    if (dot(normal, u_eye - v_world) < 0.0) {
+        normal = -normal;
+    }
+    vec3 colour = model_colour(normal);
+
+    vec3 ndc;
+    float eye_depth;
+    if (u_projection_on && projector_ndc(v_world, u_proj_view_proj, ndc, eye_depth)) {
+        vec2 st = ndc.xy * 0.5 + 0.5;  // bottom-left origin
+        ivec2 size = textureSize(u_depth_map, 0);
+        ivec2 texel = clamp(ivec2(st * vec2(size)), ivec2(0), size - 1);
+        vec3 to_projector = normalize(u_proj_position - v_world);
+        float texel_m = eye_depth / u_proj_focal_texels;
+        float bias = projector_bias(u_bias_constant, u_bias_slope, texel_m, abs(dot(normal, to_projector)));
+        if (projector_visible(u_depth_map, texel, eye_depth, bias, u_proj_near, u_proj_far, u_neighbourhood)) {
+            vec3 video = texture(u_video, vec2(st.x, 1.0 - st.y)).rgb;
+            colour = mix(colour, video, u_alpha);
+        }
+    }
+    f_color = vec4(colour, 1.0);
+}

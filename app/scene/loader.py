@@ -8,6 +8,8 @@ Placement (applied in this order to the model's own coordinates, float64):
    elsewhere than the session origin lands exactly (curvature included).
 A model whose coordinates are already ECEF (as in exported 3D Tiles content; detected by their
 distance from the Earth's centre) skips 1-4 and goes ECEF -> session ENU directly.
+ECEF stored as float32 (as some PLY writers do) is only good to ~0.5 m at the Earth's radius:
+prefer float64 or a node translation carrying the large offset, as 3D Tiles content does.
 """
 
 from __future__ import annotations

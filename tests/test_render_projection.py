@@ -1,0 +1,247 @@
+"""The projection renderer against numbers derived by hand/numpy (paper 2.2.1-2.2.2).
+
+Scenes are built in code in ENU metres; expected pixels come from ray casting with the numpy
+camera model (itself checked against hand-computed matrices in test_camera.py).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial import ConvexHull
+
+from app import rotations
+from app.camera import Camera, Intrinsics, look_at_quat
+from app.config import ProjectionSettings
+from app.scene import shapes
+from app.scene.mesh import MeshData
+
+pytestmark = pytest.mark.gl
+
+WALL_Y = 20.0
+WALL_COLOR = (0.7, 0.7, 0.7, 1.0)
+VIDEO_W, VIDEO_H = 64, 48
+BLOCK = 8  # texels per checkerboard block
+
+
+def make_renderer(ctx, prims):
+    from app.render.renderer import FusionRenderer
+
+    return FusionRenderer(ctx, MeshData(prims))
+
+
+def render(renderer, view, **settings):
+    from app.render.offscreen import render_to_array
+
+    return render_to_array(renderer, view, ProjectionSettings(**settings)).astype(int)
+
+
+def wall():
+    return shapes.quad([-20, WALL_Y, 0], [40, 0, 0], [0, 0, 20]).primitive(WALL_COLOR)
+
+
+def projector(heading=0.0, pitch=0.0, position=(0, 0, 10)):
+    return Camera.create(Intrinsics.from_fov(VIDEO_W, VIDEO_H, 60), position, rotations.camera_quat_from_hpr(heading, pitch, 0.0), near=1.0, far=200.0)
+
+
+def view_camera(eye, target, w=320, h=240):
+    return Camera.create(Intrinsics.from_fov(w, h, 60), eye, look_at_quat(eye, target), near=0.5, far=500.0)
+
+
+def pixel_centres(cam):
+    w, h = cam.intrinsics.width, cam.intrinsics.height
+    v, u = np.mgrid[0:h, 0:w]
+    return np.column_stack([u.ravel() + 0.5, v.ravel() + 0.5])
+
+
+def hit_plane(cam, axis, value):
+    """World points where each pixel's ray meets the plane coordinate[axis] = value (NaN if not ahead)."""
+    rays = cam.pixel_rays(pixel_centres(cam))
+    origin = np.asarray(cam.position)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = (value - origin[axis]) / rays[:, axis]
+    t[~(t > 0)] = np.nan
+    return origin + rays * t[:, None], t
+
+
+def checkerboard():
+    """VIDEO_H x VIDEO_W RGB image of 8x8-texel blocks, each block a distinct colour."""
+    v, u = np.mgrid[0:VIDEO_H, 0:VIDEO_W]
+    bx, by = u // BLOCK, v // BLOCK
+    return np.stack([20 + 30 * bx, 20 + 40 * by, np.full_like(bx, 200)], -1).astype(np.uint8)
+
+
+def test_checkerboard_texels_land_where_the_frustum_says(gl_ctx):
+    r = make_renderer(gl_ctx, [wall()])
+    image = checkerboard()
+    r.set_video_frame(image)
+    proj = projector()
+    r.set_projector(proj)
+    view = view_camera([4, 2, 12], [0, WALL_Y, 10])
+    out = render(r, view, alpha=1.0).reshape(-1, 3)
+
+    world, _ = hit_plane(view, 1, WALL_Y)
+    uv, depth = proj.project(world)
+    inside_block = np.abs((uv % BLOCK) - BLOCK / 2) <= BLOCK / 2 - 1.0  # >= 1 texel from block edges
+    ok = (depth > 0) & np.all(inside_block, axis=1) & np.all((uv >= 0) & (uv < [VIDEO_W, VIDEO_H]), axis=1)
+    assert ok.sum() > 5000
+    texel = np.floor(uv[ok]).astype(int)
+    expected = image[texel[:, 1], texel[:, 0]].astype(int)
+    diff = np.abs(out[ok] - expected).max(axis=1)
+    assert diff.max() <= 1, f"{(diff > 1).sum()} pixels off, worst {diff.max()}"
+    r.release()
+
+
+def test_box_shadow_keeps_model_colour_behind_occluder(gl_ctx):
+    box_lo, box_hi = np.array([-3.0, 10.0, 5.0]), np.array([3.0, 12.0, 12.0])
+    r = make_renderer(gl_ctx, [wall(), shapes.box(box_lo, box_hi, bottom=True).primitive((0.8, 0.4, 0.2, 1))])
+    r.set_video_frame(np.full((VIDEO_H, VIDEO_W, 3), (255, 0, 255), np.uint8))
+    proj = projector()
+    r.set_projector(proj)
+    long_side = 256
+    view = view_camera([14, -4, 9], [0, WALL_Y, 9])
+    out = render(r, view, alpha=1.0, depth_long_side=long_side).reshape(-1, 3)
+    is_video = (out[:, 0] > 200) & (out[:, 1] < 60) & (out[:, 2] > 200)
+
+    world, t_wall = hit_plane(view, 1, WALL_Y)
+    on_wall = (np.abs(world[:, 0]) < 19) & (world[:, 2] > 0.5) & (world[:, 2] < 19.5)
+    # Exclude pixels whose view ray meets the box first (slab test, 1 px margin in world terms).
+    rays = view.pixel_rays(pixel_centres(view))
+    eye = np.asarray(view.position)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t0 = (box_lo - 0.3 - eye) / rays
+        t1 = (box_hi + 0.3 - eye) / rays
+    t_near = np.nanmax(np.minimum(t0, t1), axis=1)
+    t_far = np.nanmin(np.maximum(t0, t1), axis=1)
+    hits_box_first = (t_near <= t_far) & (t_near < t_wall)
+    usable = on_wall & ~hits_box_first
+
+    # Shadow polygon: the box's corners projected into the depth map, in texels.
+    scale = long_side / VIDEO_W
+    corners = np.array([[x, y, z] for x in (box_lo[0], box_hi[0]) for y in (box_lo[1], box_hi[1]) for z in (box_lo[2], box_hi[2])])
+    hull = ConvexHull(proj.project(corners)[0] * scale)
+    uv, _ = proj.project(world)
+    p = uv * scale
+    # Signed distance to the hull (negative inside), in depth-map texels.
+    eq = hull.equations  # n . x + d <= 0 inside, n unit
+    signed = np.max(p @ eq[:, :2].T + eq[:, 2], axis=1)
+    in_frame = np.all((uv > 2) & (uv < [VIDEO_W - 2, VIDEO_H - 2]), axis=1)
+
+    deep_shadow = usable & in_frame & (signed < -1.0)
+    lit = usable & in_frame & (signed > 2.0)
+    assert deep_shadow.sum() > 300 and lit.sum() > 3000
+    assert not is_video[deep_shadow].any(), f"{is_video[deep_shadow].sum()} video pixels > 1 texel inside the shadow"
+    assert is_video[lit].mean() > 0.995
+    r.release()
+
+
+def test_outside_frustum_and_behind_are_bit_identical_to_projection_off(gl_ctx):
+    ground = shapes.quad([-80, -80, 0], [160, 0, 0], [0, 160, 0]).primitive((0.35, 0.6, 0.3, 1))
+    r = make_renderer(gl_ctx, [ground, wall()])
+    r.set_video_frame(checkerboard())
+    # Pitched up at the wall: the mirror image of its frustum behind it points down at the ground.
+    proj = projector(heading=0.0, pitch=20.0, position=(0, 0, 3))
+    r.set_projector(proj)
+    view = view_camera([0, -60, 50], [0, 10, 0], 400, 300)
+    on = render(r, view, alpha=1.0).reshape(-1, 3)
+    off = render(r, view, enabled=False).reshape(-1, 3)
+
+    on_ground, t_ground = hit_plane(view, 2, 0.0)
+    on_wall, t_wall = hit_plane(view, 1, WALL_Y)
+    wall_hit = (np.abs(on_wall[:, 0]) < 20) & (on_wall[:, 2] > 0) & (on_wall[:, 2] < 20)
+    use_wall = wall_hit & ~(t_ground < t_wall)
+    world = np.where(use_wall[:, None], on_wall, on_ground)
+    valid = (use_wall | np.all(np.abs(on_ground[:, :2]) < 79, axis=1)) & np.all(np.isfinite(world), axis=1)
+    uv, depth = proj.project(world)
+    behind = valid & (depth <= 0)
+    margin = 1.0
+    outside = valid & (depth > 0) & ~np.all((uv > -margin) & (uv < [VIDEO_W + margin, VIDEO_H + margin]), axis=1)
+    inside = use_wall & (depth > 1) & np.all((uv > margin) & (uv < [VIDEO_W - margin, VIDEO_H - margin]), axis=1)
+    # Behind-the-camera points whose perspective division lands inside the image in x and y:
+    # the w <= 0 (and z) checks are what keep the video off them.
+    clip = np.c_[world, np.ones(len(world))] @ proj.view_projection.T
+    with np.errstate(divide="ignore", invalid="ignore"):
+        naive = np.all(np.abs(clip[:, :2] / clip[:, 3:4]) <= 1, axis=1)
+    assert (behind & naive).sum() > 1000 and outside.sum() > 5000 and inside.sum() > 1000
+    np.testing.assert_array_equal(on[behind], off[behind])
+    np.testing.assert_array_equal(on[outside], off[outside])
+    assert (np.abs(on[inside] - off[inside]).max(axis=1) > 0).mean() > 0.95
+    r.release()
+
+
+def test_transparency_blends_model_and_video(gl_ctx):
+    r = make_renderer(gl_ctx, [wall()])
+    video_rgb = np.array([200, 40, 90])
+    r.set_video_frame(np.tile(video_rgb.astype(np.uint8), (VIDEO_H, VIDEO_W, 1)))
+    r.set_projector(projector())
+    view = view_camera([0, 5, 10], [0, WALL_Y, 10], 160, 120)  # wall fills the centre, all projected
+    model = render(r, view, enabled=False)[40:80, 60:100].reshape(-1, 3)
+    a0 = render(r, view, alpha=0.0)[40:80, 60:100].reshape(-1, 3)
+    a5 = render(r, view, alpha=0.5)[40:80, 60:100].reshape(-1, 3)
+    a1 = render(r, view, alpha=1.0)[40:80, 60:100].reshape(-1, 3)
+    np.testing.assert_array_equal(a0, model)
+    assert np.abs(a1 - video_rgb).max() <= 1
+    assert np.abs(a5 - (model + video_rgb) / 2).max() <= 1
+    assert np.abs(model - video_rgb).max() > 50  # the two really differ
+    r.release()
+
+
+def test_neighbourhood_rule_trims_the_occlusion_edge(gl_ctx):
+    """With the nine-case rule off, video reaches closer to the shadow edge than with it on."""
+    box_lo, box_hi = np.array([-3.0, 10.0, 5.0]), np.array([3.0, 12.0, 12.0])
+    r = make_renderer(gl_ctx, [wall(), shapes.box(box_lo, box_hi, bottom=True).primitive((0.8, 0.4, 0.2, 1))])
+    r.set_video_frame(np.full((VIDEO_H, VIDEO_W, 3), (255, 0, 255), np.uint8))
+    r.set_projector(projector())
+    view = view_camera([14, -4, 9], [0, WALL_Y, 9])
+    count = {}
+    for rule in (True, False):
+        out = render(r, view, alpha=1.0, depth_long_side=128, neighbourhood=rule).reshape(-1, 3)
+        count[rule] = int(((out[:, 0] > 200) & (out[:, 1] < 60) & (out[:, 2] > 200)).sum())
+    assert count[False] > count[True]
+    r.release()
+
+
+def test_depth_map_redrawn_only_when_the_pose_changes(gl_ctx):
+    r = make_renderer(gl_ctx, [wall()])
+    r.set_video_frame(checkerboard())
+    view = view_camera([0, 0, 10], [0, WALL_Y, 10], 64, 48)
+    r.set_projector(projector())
+    render(r, view)
+    render(r, view)
+    assert r.depth.renders == 1
+    r.set_projector(projector(heading=1.0))
+    render(r, view)
+    assert r.depth.renders == 2
+    assert r.depth.size == (2048, 1536)  # default: 2048 on the long side, the video's aspect
+    r.release()
+
+
+def test_vertex_at_known_latitude_longitude_appears_where_geo_says(gl_ctx, tmp_path):
+    import trimesh
+
+    from app.geo import LocalFrame
+    from app.scene import load_scene
+
+    frame = LocalFrame(34.80, 113.53, 110.0)
+    marker = (34.8009, 113.5311, 112.0)  # ~100 m north, ~101 m east, 2 m up
+    centre_enu = frame.geodetic_to_enu(*marker)
+    # Write the marker (a 4 m square) and the ground as ECEF, as exported 3D Tiles content is.
+    square = centre_enu + np.array([[-2, -2, 0], [2, -2, 0], [2, 2, 0], [-2, 2, 0]])
+    ground = np.array([[-300, -300, 0], [300, -300, 0], [300, 300, 0], [-300, 300, 0]], float)
+    verts = frame.enu_to_ecef(np.vstack([square, ground]))
+    faces = [[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]]
+    colors = np.array([[255, 0, 0, 255]] * 4 + [[60, 60, 60, 255]] * 4, np.uint8)
+    path = tmp_path / "ecef.obj"
+    trimesh.Trimesh(vertices=verts, faces=faces, vertex_colors=colors, process=False).export(path, digits=6)
+    mesh = load_scene(path, frame)
+
+    r = make_renderer(gl_ctx, mesh.primitives)
+    cam = Camera.create(Intrinsics.from_fov(400, 400, 60), [0, 0, 400], rotations.camera_quat_from_hpr(0, -90, 0), near=1, far=1000)
+    out = render(r, cam, enabled=False)
+    red = (out[:, :, 0] > 120) & (out[:, :, 1] < 40)
+    assert red.sum() > 4
+    v, u = np.nonzero(red)
+    expected_uv, _ = cam.project(centre_enu)
+    assert np.hypot(u.mean() + 0.5 - expected_uv[0, 0], v.mean() + 0.5 - expected_uv[0, 1]) < 1.0
+    assert centre_enu[0] == pytest.approx(101.6, abs=1) and centre_enu[1] == pytest.approx(99.8, abs=1)
+    r.release()

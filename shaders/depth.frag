@@ -1,4 +1,4 @@
-#version 330 core
+#version 400 core
 // Depth pass: nothing but the fixed-function depth write.
 void main() {
 }

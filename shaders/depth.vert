@@ -1,4 +1,4 @@
-#version 330 core
+#version 400 core
 // Depth pass: the scene seen from the depth camera; only depth is written.
 uniform mat4 u_view_proj;
 in vec3 in_position;

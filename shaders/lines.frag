@@ -1,4 +1,4 @@
-#version 330 core
+#version 400 core
 uniform vec4 u_color;
 out vec4 f_color;
 

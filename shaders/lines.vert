@@ -1,4 +1,4 @@
-#version 330 core
+#version 400 core
 // Overlay lines (frustum, trajectory) in world coordinates.
 uniform mat4 u_view_proj;
 in vec3 in_position;

@@ -1,4 +1,4 @@
-#version 330 core
+#version 400 core
 // Scene pass with projective video texturing (paper 2.2.2).
 #include "projective.glsl"
 
@@ -18,7 +18,7 @@ uniform sampler2D u_video;
 uniform float u_alpha;         // video opacity: 0 = model, 1 = video
 uniform float u_bias_constant; // metres
 uniform float u_bias_slope;    // depth-map texels of surface slope
-uniform bool u_neighbourhood;
+uniform bool u_neighbourhood;  // the paper's nine-case rule
 
 in vec3 v_world;
 in vec2 v_uv;

@@ -1,4 +1,4 @@
-#version 330 core
+#version 400 core
 // Scene pass: world (ENU, origin-relative metres) positions to the window camera.
 uniform mat4 u_view_proj;
 

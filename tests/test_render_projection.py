@@ -245,3 +245,16 @@ def test_vertex_at_known_latitude_longitude_appears_where_geo_says(gl_ctx, tmp_p
     assert np.hypot(u.mean() + 0.5 - expected_uv[0, 0], v.mean() + 0.5 - expected_uv[0, 1]) < 1.0
     assert centre_enu[0] == pytest.approx(101.6, abs=1) and centre_enu[1] == pytest.approx(99.8, abs=1)
     r.release()
+
+
+def test_border_texels_with_fewer_neighbours_still_take_the_video(gl_ctx):
+    """Edge and corner texels have fewer than eight neighbours; those outside the image are not
+    cases that can fail. A wall filling the frustum, seen through the projector, is all video."""
+    r = make_renderer(gl_ctx, [shapes.quad([-60, WALL_Y, -40], [120, 0, 0], [0, 0, 100]).primitive(WALL_COLOR)])
+    r.set_video_frame(np.full((VIDEO_H, VIDEO_W, 3), (255, 0, 255), np.uint8))
+    proj = projector()
+    r.set_projector(proj)
+    view = Camera.create(proj.intrinsics.scaled(4 * VIDEO_W, 4 * VIDEO_H), proj.position, proj.orientation, near=1.0, far=200.0)
+    out = render(r, view, alpha=1.0, depth_long_side=VIDEO_W)
+    assert (np.abs(out - [255, 0, 255]).max(axis=2) <= 1).all()
+    r.release()

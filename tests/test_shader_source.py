@@ -8,7 +8,7 @@ def test_include_is_inlined_with_line_directives():
     src = preprocess("scene.frag")
     assert src.files == ["scene.frag", "include/projective.glsl"]
     lines = src.text.splitlines()
-    assert lines[0].startswith("#version 330")
+    assert lines[0].startswith("#version 400")
     assert lines[1] == "#line 2 0"
     assert "#include" not in src.text
     assert "bool projector_visible(" in src.text

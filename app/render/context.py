@@ -6,7 +6,7 @@ import moderngl
 
 from app.errors import GeofuseError
 
-GL_REQUIRE = 330
+GL_REQUIRE = 400  # textureGather (nine-case rule) needs GLSL 4.00
 
 
 class RenderUnavailable(GeofuseError):
@@ -19,7 +19,7 @@ def create_offscreen_context() -> moderngl.Context:
         return moderngl.create_context(standalone=True, backend="egl", require=GL_REQUIRE)
     except Exception as exc:
         raise RenderUnavailable(
-            f"cannot create an EGL OpenGL {GL_REQUIRE // 100}.{GL_REQUIRE % 100 // 10} context ({exc}); "
+            f"cannot create an EGL OpenGL {GL_REQUIRE // 100}.{GL_REQUIRE % 100 // 10} core context ({exc}); "
             "install Mesa: apt-get install libegl1 libegl-mesa0 libgl1-mesa-dri libgbm1"
         ) from exc
 

@@ -43,6 +43,7 @@ class DepthPass:
             self.texture.release()
         self.texture = self.ctx.depth_texture(size)
         self.texture.compare_func = ""  # sample raw depth values, not a comparison
+        # clamp-to-edge: the nine-case gathers rely on it at the image border (projective.glsl)
         self.texture.filter = (moderngl.NEAREST, moderngl.NEAREST)
         self.texture.repeat_x = self.texture.repeat_y = False
         self.fbo = self.ctx.framebuffer(depth_attachment=self.texture)

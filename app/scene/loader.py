@@ -82,9 +82,11 @@ def _material(visual: object) -> tuple[np.ndarray, np.ndarray | None]:
     factor = getattr(material, "baseColorFactor", None)
     if factor is None:
         factor = getattr(material, "diffuse", None)
-    color = DEFAULT_COLOR.copy() if factor is None else np.asarray(factor, np.float64)
-    if color.max() > 1.0:
-        color = color / 255.0
+    if factor is None:
+        color = DEFAULT_COLOR.astype(np.float64)
+    else:
+        raw = np.asarray(factor)
+        color = raw / 255.0 if np.issubdtype(raw.dtype, np.integer) or raw.max() > 1.0 else raw.astype(np.float64)
     if len(color) == 3:
         color = np.append(color, 1.0)
     tex = None

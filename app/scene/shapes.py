@@ -72,3 +72,35 @@ def box(min_corner: npt.ArrayLike, max_corner: npt.ArrayLike, top: bool = True, 
     if bottom:
         faces.append(quad([lo[0], hi[1], lo[2]], ex * dx, -ey * dy))
     return Shape.concat(faces)
+
+
+def prism_sides(min_corner: npt.ArrayLike, max_corner: npt.ArrayLike) -> Shape:
+    """The four walls of an axis-aligned block, textured as one strip wrapped around it.
+
+    u runs along the perimeter (south wall west->east, then east, north, west walls) from 0 to 1;
+    v runs from 0 at the base to 1 at the top. So one image of (perimeter x height) proportions
+    paints every wall without seams or stretching.
+    """
+    lo, hi = np.asarray(min_corner, np.float64), np.asarray(max_corner, np.float64)
+    dx, dy, dz = hi - lo
+    perimeter = 2.0 * (dx + dy)
+    ex, ey, ez = np.eye(3)
+    walls = [
+        ([lo[0], lo[1], lo[2]], ex * dx, dx),
+        ([hi[0], lo[1], lo[2]], ey * dy, dy),
+        ([hi[0], hi[1], lo[2]], -ex * dx, dx),
+        ([lo[0], hi[1], lo[2]], -ey * dy, dy),
+    ]
+    out, start = [], 0.0
+    for origin, edge, length in walls:
+        u0, u1 = start / perimeter, (start + length) / perimeter
+        out.append(quad(origin, edge, ez * dz, (u0, 0.0, u1, 1.0)))
+        start += length
+    return Shape.concat(out)
+
+
+def wall_spans(min_corner: npt.ArrayLike, max_corner: npt.ArrayLike) -> list[tuple[str, float, float]]:
+    """(facing, start, end) of each wall along the prism_sides strip, in metres."""
+    lo, hi = np.asarray(min_corner, np.float64), np.asarray(max_corner, np.float64)
+    dx, dy = (hi - lo)[:2]
+    return [("S", 0.0, dx), ("E", dx, dx + dy), ("N", dx + dy, 2 * dx + dy), ("W", 2 * dx + dy, 2 * (dx + dy))]

@@ -17,10 +17,11 @@ bool projector_ndc(vec3 world, mat4 proj_view_proj, out vec3 ndc, out float eye_
     return all(lessThanEqual(abs(ndc), vec3(1.0)));
 }
 
-// Window depth in [0, 1] -> distance along the optical axis in metres.
-float linearise_depth(float window_depth, float near, float far) {
-    float z = window_depth * 2.0 - 1.0;
-    return 2.0 * near * far / (far + near - z * (far - near));
+// Distance along the optical axis (metres, > 0) -> window depth in [0, 1] of the projection
+// with planes near/far. Monotonic, so comparisons can be made in either space.
+float window_depth(float eye_depth, float near, float far) {
+    float ndc = (far + near) / (far - near) - 2.0 * far * near / ((far - near) * eye_depth);
+    return ndc * 0.5 + 0.5;
 }
 
 // Depth bias in metres: a constant plus a slope-scaled part. `texel_m` is the size of one
@@ -32,24 +33,24 @@ float projector_bias(float constant_m, float slope_texels, float texel_m, float 
     return constant_m + slope_texels * texel_m * tan_incidence;
 }
 
-// The depth test. With `neighbourhood` on, the paper's nine-case rule: the fragment must be
-// visible at its own texel and at each of the eight neighbours that lie inside the map (edge
-// and corner texels have fewer); otherwise only its own texel is tested.
+// The nearest depth among a texel and each of its eight neighbours that lie inside the map (the
+// paper's nine-case rule: edge and corner texels have fewer neighbours). Four gathers at the
+// texel's corners fetch the 3x3 block; the map is sampled clamp-to-edge, so a neighbour outside
+// the image reads as an in-image texel that is already part of the block and adds nothing.
+float neighbourhood_min_depth(sampler2D depth_map, ivec2 texel) {
+    vec2 size = vec2(textureSize(depth_map, 0));
+    vec2 corner = vec2(texel) / size;  // between texels texel-1 and texel
+    vec2 step = 1.0 / size;
+    vec4 m = min(min(textureGather(depth_map, corner), textureGather(depth_map, corner + vec2(step.x, 0.0))),
+                 min(textureGather(depth_map, corner + vec2(0.0, step.y)), textureGather(depth_map, corner + step)));
+    return min(min(m.x, m.y), min(m.z, m.w));
+}
+
+// The depth test: the fragment, pulled toward the depth camera by the bias, must not lie behind
+// the depth map at its texel (or, with `neighbourhood`, at any of the nine-case texels).
 bool projector_visible(sampler2D depth_map, ivec2 texel, float eye_depth, float bias_m,
                        float near, float far, bool neighbourhood) {
-    ivec2 size = textureSize(depth_map, 0);
-    int reach = neighbourhood ? 1 : 0;
-    for (int dy = -reach; dy <= reach; ++dy) {
-        for (int dx = -reach; dx <= reach; ++dx) {
-            ivec2 t = texel + ivec2(dx, dy);
-            if (any(lessThan(t, ivec2(0))) || any(greaterThanEqual(t, size))) {
-                continue;  // neighbour outside the image: not part of this case
-            }
-            float occluder = linearise_depth(texelFetch(depth_map, t, 0).r, near, far);
-            if (eye_depth - bias_m > occluder) {
-                return false;
-            }
-        }
-    }
-    return true;
+    float mine = window_depth(max(eye_depth - bias_m, near), near, far);
+    float occluder = neighbourhood ? neighbourhood_min_depth(depth_map, texel) : texelFetch(depth_map, texel, 0).r;
+    return mine <= occluder;
 }

@@ -1,0 +1,203 @@
+"""`geofuse` command line: argument parsing only; the work happens in the modules it calls.
+
+Every GeofuseError (bad file, bad value) is printed as one line naming the file and field, and
+the command exits with status 2; no traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from app.errors import GeofuseError
+
+
+def _floats(text: str, count: int, what: str) -> tuple[float, ...]:
+    parts = text.split(",")
+    try:
+        values = tuple(float(p) for p in parts)
+    except ValueError:
+        values = ()
+    if len(values) != count:
+        raise argparse.ArgumentTypeError(f"{what}: expected {count} comma-separated numbers, got {text!r}")
+    return values
+
+
+def _size(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(f"size: expected WIDTHxHEIGHT, got {text!r}") from exc
+    if w <= 0 or h <= 0:
+        raise argparse.ArgumentTypeError(f"size must be positive, got {text!r}")
+    return w, h
+
+
+def _add_projection_options(p: argparse.ArgumentParser) -> None:
+    from app.constants import DEFAULT_DEPTH_BIAS_M, DEFAULT_DEPTH_LONG_SIDE_PX, DEFAULT_DEPTH_SLOPE_BIAS
+
+    p.add_argument("--alpha", type=float, default=1.0, help="video opacity over the model, 0..1 (default 1)")
+    p.add_argument("--bias", type=float, default=DEFAULT_DEPTH_BIAS_M, help="constant depth bias, metres")
+    p.add_argument("--slope-bias", type=float, default=DEFAULT_DEPTH_SLOPE_BIAS, help="slope-scaled depth bias, depth-map texels")
+    p.add_argument("--depth-size", type=int, default=DEFAULT_DEPTH_LONG_SIDE_PX, help="depth-map texels on the video's long side")
+    p.add_argument("--no-neighbourhood", action="store_true", help="test only the fragment's own depth texel (not the nine-case rule)")
+    p.add_argument("--no-frustum", action="store_true", help="do not draw the depth camera's frustum")
+
+
+def _projection_settings(args: argparse.Namespace):
+    from app.config import ProjectionSettings
+
+    try:
+        return ProjectionSettings(
+            alpha=args.alpha,
+            bias_constant_m=args.bias,
+            bias_slope=args.slope_bias,
+            neighbourhood=not args.no_neighbourhood,
+            depth_long_side=args.depth_size,
+        )
+    except ValueError as exc:
+        raise GeofuseError(f"projection settings: {exc}") from exc
+
+
+def cmd_render(args: argparse.Namespace) -> int:
+    from app import rotations
+    from app.camera import Camera, Intrinsics
+    from app.config import OverlaySettings
+    from app.geo import LocalFrame
+    from app.imageio import read_rgb, write_rgb
+    from app.render.still import render_still, window_camera
+    from app.scene import Placement, load_scene
+
+    frame = LocalFrame(*args.origin)
+    mesh = load_scene(args.scene, frame, Placement(up_axis=args.up, heading_deg=args.scene_heading, scale=args.scene_scale))
+    image = read_rgb(args.image)
+    lat, lon, h, heading, pitch, roll = args.pose
+    try:
+        intr = Intrinsics.from_fov(image.shape[1], image.shape[0], args.fov)
+        view_intr = Intrinsics.from_fov(args.size[0], args.size[1], args.view_fov)
+    except ValueError as exc:
+        raise GeofuseError(f"--fov: {exc}") from exc
+    projector = Camera.create(intr, frame.geodetic_to_enu(lat, lon, h), rotations.camera_quat_from_hpr(heading, pitch, roll), near=0.5, far=args.far)
+    view = window_camera(projector, view_intr, args.view_from, args.look_at, args.far)
+    rgb = render_still(mesh, image, projector, view, _projection_settings(args), OverlaySettings(frustum=not args.no_frustum, trajectory=False))
+    out = write_rgb(args.out, rgb)
+    print(f"wrote {out} ({rgb.shape[1]}x{rgb.shape[0]})")
+    return 0
+
+
+def cmd_simulate_scene(args: argparse.Namespace) -> int:
+    from app.simulate.stadium import write_site
+
+    out = write_site(args.out, seed=args.seed)
+    print(f"wrote {out} ({out.stat().st_size / 1e6:.2f} MB)")
+    return 0
+
+
+def cmd_simulate_photo(args: argparse.Namespace) -> int:
+    from app.demo import SAMPLE_ORIGIN, SAMPLE_PHOTO_POSE
+    from app.geo import LocalFrame
+    from app.imageio import write_rgb
+    from app.scene import load_scene
+    from app.simulate.photo import make_photo, photo_camera
+
+    frame = LocalFrame(*SAMPLE_ORIGIN)
+    mesh = load_scene(args.scene, frame)
+    out = write_rgb(args.out, make_photo(mesh, photo_camera(SAMPLE_PHOTO_POSE, frame)))
+    print(f"wrote {out}")
+    return 0
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    from app.demo import SAMPLE_ORIGIN, SAMPLE_PHOTO, SAMPLE_PHOTO_POSE, SAMPLE_SCENE
+
+    p = SAMPLE_PHOTO_POSE
+    argv = [
+        "render",
+        "--scene", str(SAMPLE_SCENE),
+        "--origin", ",".join(map(str, SAMPLE_ORIGIN)),
+        "--image", str(SAMPLE_PHOTO),
+        "--pose", f"{p.lat_deg},{p.lon_deg},{p.h_m},{p.heading_deg},{p.pitch_deg},{p.roll_deg}",
+        "--fov", str(p.hfov_deg),
+        "--view-from", "35,-160,40",
+        "--look-at", "0,-20,8",
+        "--alpha", "0.85",
+        "--out", str(args.out),
+    ]  # fmt: skip
+    code = main(argv)
+    if code == 0:
+        print(f"The demo still is at {Path(args.out).resolve()} (the interactive viewer is not built yet).")
+    return code
+
+
+BENCHMARKS = {"render": "bench_render.py"}
+
+
+def cmd_bench(args: argparse.Namespace) -> int:
+    import runpy
+
+    from app.demo import ROOT
+
+    script = ROOT / "bench" / BENCHMARKS[args.what]
+    if not script.is_file():
+        raise GeofuseError(f"{script}: benchmark script not found (benchmarks run from a source checkout)")
+    return int(runpy.run_path(str(script))["main"](args.rest))
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="geofuse", description="Drape mobile video onto a georeferenced 3D model.")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    r = sub.add_parser("render", help="render one image projected onto a scene to a PNG")
+    r.add_argument("--scene", required=True, type=Path, help="glTF/GLB, OBJ or PLY scene")
+    r.add_argument("--origin", required=True, type=lambda s: _floats(s, 3, "--origin"), metavar="LAT,LON,H", help="the scene's origin: degrees, degrees, ellipsoidal metres")
+    r.add_argument("--up", choices=["Y", "Z"], default=None, help="the scene's up axis (default: Y for glTF, Z otherwise)")
+    r.add_argument("--scene-heading", type=float, default=0.0, help="rotate the scene clockwise about Up, degrees")
+    r.add_argument("--scene-scale", type=float, default=1.0, help="scene units -> metres")
+    r.add_argument("--image", required=True, type=Path, help="the image (video frame) to project: PNG or JPEG")
+    r.add_argument("--pose", required=True, type=lambda s: _floats(s, 6, "--pose"), metavar="LAT,LON,H,HEADING,PITCH,ROLL", help="the image's camera: position (deg, deg, ellipsoidal m) and optical-axis heading (deg from true north, clockwise), pitch (deg above horizon), roll (deg)")
+    r.add_argument("--fov", required=True, type=float, help="the image's horizontal field of view, degrees")
+    r.add_argument("--view-from", type=lambda s: _floats(s, 3, "--view-from"), metavar="E,N,U", default=None, help="window camera position, ENU metres (default: behind and above the image's camera)")
+    r.add_argument("--look-at", type=lambda s: _floats(s, 3, "--look-at"), metavar="E,N,U", default=None, help="window camera target, ENU metres")
+    r.add_argument("--view-fov", type=float, default=60.0, help="window camera horizontal field of view, degrees")
+    r.add_argument("--size", type=_size, default=(1280, 720), help="output WIDTHxHEIGHT (default 1280x720)")
+    r.add_argument("--far", type=float, default=2000.0, help="far plane of both cameras, metres")
+    _add_projection_options(r)
+    r.add_argument("--out", required=True, type=Path, help="output PNG")
+    r.set_defaults(func=cmd_render)
+
+    s = sub.add_parser("simulate", help="generate sample data")
+    ssub = s.add_subparsers(dest="what", required=True)
+    sc = ssub.add_parser("scene", help="the procedural sample site (stadium hall and surroundings) as GLB")
+    sc.add_argument("--out", required=True, type=Path)
+    sc.add_argument("--seed", type=int, default=7)
+    sc.set_defaults(func=cmd_simulate_scene)
+    sp = ssub.add_parser("photo", help="the sample photo: the site seen from the sample pose, plus a banner, people, a car")
+    sp.add_argument("--scene", required=True, type=Path)
+    sp.add_argument("--out", required=True, type=Path)
+    sp.set_defaults(func=cmd_simulate_photo)
+
+    d = sub.add_parser("demo", help="render the bundled sample to a PNG")
+    d.add_argument("--out", type=Path, default=Path("out/demo.png"))
+    d.set_defaults(func=cmd_demo)
+
+    b = sub.add_parser("bench", help="benchmarks (results go to docs/PERFORMANCE.md)")
+    b.add_argument("what", choices=sorted(BENCHMARKS))
+    b.add_argument("rest", nargs=argparse.REMAINDER, help="the benchmark's own options")
+    b.set_defaults(func=cmd_bench)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args))
+    except GeofuseError as exc:
+        print(f"geofuse: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,69 @@
+"""One still: a scene, an image and the image's camera pose, rendered off-screen to an array.
+
+This is what `geofuse render` and the demo call; tests call it too.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from app.camera import Camera, look_at_quat
+from app.config import OverlaySettings, ProjectionSettings
+from app.render.context import create_offscreen_context
+from app.render.offscreen import render_to_array
+from app.render.renderer import FusionRenderer
+from app.scene.mesh import MeshData
+
+
+@dataclass(frozen=True)
+class ThirdPerson:
+    """Default window camera: `back_m` behind and `up_m` above the projector, looking at the
+    point `ahead_m` along its optical axis."""
+
+    back_m: float = 18.0
+    up_m: float = 10.0
+    ahead_m: float = 35.0
+
+    def eye_and_target(self, projector: Camera) -> tuple[np.ndarray, np.ndarray]:
+        from app import rotations
+
+        forward = rotations.rotate(projector.orientation, [0.0, 0.0, -1.0])
+        flat = np.array([forward[0], forward[1], 0.0])
+        flat = flat / max(np.linalg.norm(flat), 1e-9)
+        pos = np.asarray(projector.position)
+        return pos - flat * self.back_m + [0.0, 0.0, self.up_m], pos + forward * self.ahead_m
+
+
+def window_camera(projector: Camera, intrinsics, eye: npt.ArrayLike | None, target: npt.ArrayLike | None, far: float) -> Camera:
+    """The window camera at eye looking at target, or the third-person default."""
+    if eye is None or target is None:
+        default_eye, default_target = ThirdPerson().eye_and_target(projector)
+        eye = default_eye if eye is None else eye
+        target = default_target if target is None else target
+    return Camera.create(intrinsics, eye, look_at_quat(eye, target), near=0.5, far=far)
+
+
+def render_still(
+    mesh: MeshData,
+    image: npt.NDArray[np.uint8] | None,
+    projector: Camera,
+    view: Camera,
+    settings: ProjectionSettings = ProjectionSettings(),
+    overlays: OverlaySettings = OverlaySettings(),
+    trajectory: npt.ArrayLike | None = None,
+) -> np.ndarray:
+    """Render `mesh` from `view` with `image` projected from `projector`: (H, W, 3) uint8 RGB."""
+    ctx = create_offscreen_context()
+    renderer = FusionRenderer(ctx, mesh)
+    try:
+        if image is not None:
+            renderer.set_video_frame(image)
+        renderer.set_projector(projector)
+        renderer.set_trajectory(trajectory)
+        return render_to_array(renderer, view, settings, overlays)
+    finally:
+        renderer.release()
+        ctx.release()

@@ -1,0 +1,1 @@
+"""Procedural, reproducible sample data: the sample site (and, later, a ground-truth session)."""

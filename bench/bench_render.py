@@ -1,0 +1,145 @@
+"""Render benchmark: frame time of the sample scene with projection on vs off, the depth-pass cost
+against depth-map size, and the load time of a large scene.
+
+    python bench/bench_render.py [--frames 120] [--size 1280x720] [--big-triangles 1000000]
+
+Runs off-screen through EGL (Mesa llvmpipe on a machine without a GPU). Frame times are medians
+over `--frames` frames, each closed with glFinish; on/off frames are interleaved so that machine
+noise hits both alike, and their ratio is taken in the same run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from bench.common import machine, median_ms, p95_ms, table, time_calls  # noqa: E402
+
+
+def _big_scene(path: Path, triangles: int) -> None:
+    import trimesh
+
+    n = int(np.sqrt(triangles / 2))
+    grid = trimesh.creation.box()  # replaced below
+    y, x = np.mgrid[0 : n + 1, 0 : n + 1].astype(np.float64)
+    z = np.sin(x / 7.0) * np.cos(y / 5.0)
+    verts = np.column_stack([x.ravel(), z.ravel(), -y.ravel()])
+    idx = np.arange((n + 1) * (n + 1)).reshape(n + 1, n + 1)
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, 1:].ravel(), idx[1:, :-1].ravel()
+    faces = np.concatenate([np.column_stack([a, b, c]), np.column_stack([a, c, d])])
+    grid = trimesh.Trimesh(vertices=verts, faces=faces, process=False)
+    grid.export(path)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--frames", type=int, default=120)
+    parser.add_argument("--size", default="1280x720")
+    parser.add_argument("--big-triangles", type=int, default=1_000_000)
+    args = parser.parse_args(argv)
+    w, h = (int(v) for v in args.size.split("x"))
+
+    from app.camera import Intrinsics, depth_map_size
+    from app.config import ProjectionSettings
+    from app.demo import SAMPLE_ORIGIN, SAMPLE_PHOTO, SAMPLE_PHOTO_POSE, SAMPLE_SCENE
+    from app.geo import LocalFrame
+    from app.imageio import read_rgb
+    from app.render.context import create_offscreen_context, describe
+    from app.render.offscreen import OffscreenTarget
+    from app.render.renderer import FusionRenderer
+    from app.render.still import window_camera
+    from app.scene import load_scene
+    from app.simulate.photo import photo_camera
+
+    frame = LocalFrame(*SAMPLE_ORIGIN)
+    mesh = load_scene(SAMPLE_SCENE, frame)
+    ctx = create_offscreen_context()
+    renderer = FusionRenderer(ctx, mesh)
+    photo = read_rgb(SAMPLE_PHOTO)
+    renderer.set_video_frame(photo)
+    projector = photo_camera(SAMPLE_PHOTO_POSE, frame)
+    renderer.set_projector(projector)
+    view = window_camera(projector, Intrinsics.from_fov(w, h, 60.0), (35.0, -160.0, 40.0), (0.0, -20.0, 8.0), 2000.0)
+    target = OffscreenTarget(ctx, w, h)
+
+    print(f"# render benchmark\n\n{machine()}; GL: {describe(ctx)}; view {w}x{h}; sample scene {mesh.triangle_count} triangles\n")
+
+    on, off = ProjectionSettings(), ProjectionSettings(enabled=False)
+
+    def draw(settings: ProjectionSettings) -> None:
+        renderer.draw(view, target.fbo, settings)
+        ctx.finish()
+
+    for _ in range(5):
+        draw(on)
+        draw(off)
+    t_on, t_off = [], []
+    for _ in range(args.frames):
+        for settings, bucket in ((on, t_on), (off, t_off)):
+            t0 = time.perf_counter()
+            draw(settings)
+            bucket.append(time.perf_counter() - t0)
+    ratio = median_ms(t_on) / median_ms(t_off)
+    print("## Frame time, projection on vs off (depth map cached: the pose does not change)\n")
+    print(
+        table(
+            ["projection", "median ms", "p95 ms", "fps (median)"],
+            [
+                ["off", f"{median_ms(t_off):.2f}", f"{p95_ms(t_off):.2f}", f"{1000 / median_ms(t_off):.1f}"],
+                ["on", f"{median_ms(t_on):.2f}", f"{p95_ms(t_on):.2f}", f"{1000 / median_ms(t_on):.1f}"],
+            ],
+        )
+    )
+    print(f"\nratio on/off (medians, same run): **{ratio:.3f}** (goal <= 1.35)\n")
+
+    print("## Depth pass against depth-map size (redrawn every frame: the pose changes each frame)\n")
+    rows = []
+    for long_side in (1024, 2048, 4096):
+        settings = ProjectionSettings(depth_long_side=long_side)
+        size = depth_map_size(projector.intrinsics.width, projector.intrinsics.height, long_side)
+        k = [0]
+
+        def depth_only() -> None:
+            k[0] += 1
+            cam = photo_camera(SAMPLE_PHOTO_POSE.__class__(**{**SAMPLE_PHOTO_POSE.__dict__, "heading_deg": SAMPLE_PHOTO_POSE.heading_deg + 1e-3 * (k[0] % 2)}), frame)
+            renderer.depth.update(cam, size)
+            ctx.finish()
+
+        def full_frame() -> None:
+            depth_only()
+            renderer.set_projector(renderer.depth.camera)
+            draw(settings)
+
+        d = time_calls(depth_only, max(20, args.frames // 3))
+        f = time_calls(full_frame, max(20, args.frames // 3))
+        rows.append([f"{size[0]}x{size[1]}", f"{median_ms(d):.2f}", f"{median_ms(f):.2f}", f"{1000 / median_ms(f):.1f}"])
+    print(table(["depth map", "depth pass median ms", "frame with depth redraw median ms", "fps"], rows))
+
+    print("\n## Scene load (trimesh -> ENU arrays) of a large mesh\n")
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "big.glb"
+        _big_scene(path, args.big_triangles)
+        loads = time_calls(lambda: load_scene(path, frame), 3, warmup=1)
+        big = load_scene(path, frame)
+        t0 = time.perf_counter()
+        big_renderer = FusionRenderer(ctx, big)
+        ctx.finish()
+        upload = time.perf_counter() - t0
+        big_renderer.release()
+    print(table(["triangles", "load median s", "GPU upload s"], [[big.triangle_count, f"{median_ms(loads) / 1000:.2f}", f"{upload:.2f}"]]))
+    renderer.release()
+    target.release()
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,88 @@
+import numpy as np
+import pytest
+from PIL import Image
+
+from app.cli import main
+from app.demo import SAMPLE_ORIGIN, SAMPLE_PHOTO, SAMPLE_PHOTO_POSE, SAMPLE_SCENE
+
+ORIGIN = ",".join(map(str, SAMPLE_ORIGIN))
+P = SAMPLE_PHOTO_POSE
+POSE = f"{P.lat_deg},{P.lon_deg},{P.h_m},{P.heading_deg},{P.pitch_deg},{P.roll_deg}"
+
+
+def base_args(out, **over):
+    args = {
+        "--scene": str(SAMPLE_SCENE),
+        "--origin": ORIGIN,
+        "--image": str(SAMPLE_PHOTO),
+        "--pose": POSE,
+        "--fov": str(P.hfov_deg),
+        "--size": "320x180",
+        "--out": str(out),
+    }
+    args.update(over)
+    return ["render", *[x for kv in args.items() for x in kv]]
+
+
+@pytest.mark.gl
+def test_render_through_the_phone_reproduces_the_photo(tmp_path, gl_ctx):
+    """Seen from the photo's own pose with its own field of view, the projected video is the photo."""
+    from app import rotations
+    from app.geo import LocalFrame
+    from app.simulate.photo import photo_camera
+
+    cam = photo_camera(SAMPLE_PHOTO_POSE, LocalFrame(*SAMPLE_ORIGIN))
+    target = np.asarray(cam.position) + 10 * rotations.rotate(cam.orientation, [0, 0, -1])
+    out = tmp_path / "through.png"
+    argv = base_args(
+        out,
+        **{
+            "--size": f"{P.width}x{P.height}",
+            "--view-from": ",".join(map(str, cam.position)),
+            "--look-at": ",".join(map(str, target)),
+            "--view-fov": str(P.hfov_deg),
+        },
+    )
+    assert main([*argv, "--no-frustum"]) == 0
+    rendered = np.asarray(Image.open(out).convert("RGB"), int)
+    photo = np.asarray(Image.open(SAMPLE_PHOTO).convert("RGB"), int)
+    # The sample roll is -1.5 deg and look-at has none, so compare near the centre only.
+    h, w = photo.shape[:2]
+    centre = (slice(h // 2 - 20, h // 2 + 20), slice(w // 2 - 20, w // 2 + 20))
+    assert np.median(np.abs(rendered[centre] - photo[centre])) <= 12
+
+
+@pytest.mark.gl
+def test_render_writes_a_png(tmp_path, gl_ctx):
+    out = tmp_path / "o.png"
+    assert main(base_args(out)) == 0
+    assert Image.open(out).size == (320, 180)
+
+
+@pytest.mark.parametrize(
+    "override, message",
+    [
+        ({"--scene": "missing.glb"}, "missing.glb: scene file does not exist"),
+        ({"--image": "nope.png"}, "nope.png: image file does not exist"),
+        ({"--alpha": "1.5"}, "alpha must be in [0, 1]"),
+        ({"--fov": "200"}, "field of view"),
+    ],
+)
+def test_bad_input_exits_2_with_a_clear_message(tmp_path, capsys, override, message):
+    assert main(base_args(tmp_path / "o.png", **override)) == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err
+
+
+def test_corrupt_image_names_the_file(tmp_path, capsys):
+    bad = tmp_path / "frame.jpg"
+    bad.write_bytes(b"\xff\xd8\xff not a jpeg")
+    assert main(base_args(tmp_path / "o.png", **{"--image": str(bad)})) == 2
+    assert "frame.jpg: cannot read image" in capsys.readouterr().err
+
+
+def test_malformed_pose_is_an_argument_error(tmp_path, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(base_args(tmp_path / "o.png", **{"--pose": "1,2,3"}))
+    assert exc.value.code == 2
+    assert "expected 6 comma-separated numbers" in capsys.readouterr().err

@@ -131,7 +131,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return code
 
 
-BENCHMARKS = {"render": "bench_render.py"}
+BENCHMARKS = {"render": "bench_render.py", "attitude": "bench_attitude.py"}
 
 
 def cmd_bench(args: argparse.Namespace) -> int:

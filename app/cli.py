@@ -62,6 +62,11 @@ def _projection_settings(args: argparse.Namespace):
 
 
 def cmd_render(args: argparse.Namespace) -> int:
+    if args.session is not None:
+        return _render_session(args)
+    missing = [f"--{k.replace('_', '-')}" for k in ("scene", "origin", "image", "pose", "fov") if getattr(args, k) is None]
+    if missing:
+        raise GeofuseError(f"render: give --session MANIFEST --time T, or all of {', '.join(missing)}")
     from app import rotations
     from app.camera import Camera, Intrinsics
     from app.config import OverlaySettings
@@ -84,6 +89,53 @@ def cmd_render(args: argparse.Namespace) -> int:
     rgb = render_still(mesh, image, projector, view, _projection_settings(args), OverlaySettings(frustum=not args.no_frustum, trajectory=False))
     out = write_rgb(args.out, rgb)
     print(f"wrote {out} ({rgb.shape[1]}x{rgb.shape[0]})")
+    return 0
+
+
+def _render_session(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from app.camera import Camera, Intrinsics
+    from app.config import OverlaySettings
+    from app.imageio import write_rgb
+    from app.io.video import read_frame
+    from app.render.still import render_still, window_camera
+    from app.scene import load_scene
+    from app.session import open_session, pose_track
+
+    session = open_session(args.session)
+    source = args.filter or session.filters[0]
+    if args.time is None:
+        raise GeofuseError("render --session needs --time T (seconds from the video's first frame)")
+    rel = session.frame_times - session.frame_times[0]
+    index = int(np.argmin(np.abs(rel - args.time)))
+    try:
+        track = pose_track(session, source)
+    except ValueError as exc:
+        raise GeofuseError(f"--filter: {exc}") from exc
+    enu, _, q = track.at(session.frame_times[index : index + 1])
+    image = read_frame(session.video.path, index, session.video)
+    projector = Camera.create(session.intrinsics, enu[0], q[0], near=0.5, far=args.far)
+    mesh = load_scene(session.scene_path, session.frame, session.placement)
+    view = window_camera(projector, Intrinsics.from_fov(args.size[0], args.size[1], args.view_fov), args.view_from, args.look_at, args.far)
+    positions, _, _ = track.at(session.frame_times)
+    rgb = render_still(mesh, image, projector, view, _projection_settings(args), OverlaySettings(frustum=not args.no_frustum), trajectory=positions)
+    out = write_rgb(args.out, rgb)
+    print(f"wrote {out}: frame {index} at {rel[index]:.3f} s, attitude from {source}")
+    return 0
+
+
+def cmd_solve(args: argparse.Namespace) -> int:
+    from app.session import open_session
+    from app.solve import solve_to_csv
+
+    session = open_session(args.manifest)
+    for w in session.warnings.items:
+        print(f"warning: {w}", file=sys.stderr)
+    if args.filter not in session.filters:
+        raise GeofuseError(f"--filter {args.filter}: this session offers {', '.join(session.filters)}")
+    rows = solve_to_csv(session, args.filter, args.out, progress=sys.stderr)
+    print(f"wrote {args.out}: {rows} frames, attitude from {args.filter}")
     return 0
 
 
@@ -150,14 +202,17 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
 
     r = sub.add_parser("render", help="render one image projected onto a scene to a PNG")
-    r.add_argument("--scene", required=True, type=Path, help="glTF/GLB, OBJ or PLY scene")
-    r.add_argument("--origin", required=True, type=lambda s: _floats(s, 3, "--origin"), metavar="LAT,LON,H", help="the scene's origin: degrees, degrees, ellipsoidal metres")
+    r.add_argument("--session", type=Path, default=None, help="a session manifest: the frame at --time with its solved pose")
+    r.add_argument("--time", type=float, default=None, help="with --session: seconds from the video's first frame")
+    r.add_argument("--filter", default=None, help="with --session: attitude source (default: the first the session offers)")
+    r.add_argument("--scene", type=Path, help="glTF/GLB, OBJ or PLY scene")
+    r.add_argument("--origin", type=lambda s: _floats(s, 3, "--origin"), metavar="LAT,LON,H", help="the scene's origin: degrees, degrees, ellipsoidal metres")
     r.add_argument("--up", choices=["Y", "Z"], default=None, help="the scene's up axis (default: Y for glTF, Z otherwise)")
     r.add_argument("--scene-heading", type=float, default=0.0, help="rotate the scene clockwise about Up, degrees")
     r.add_argument("--scene-scale", type=float, default=1.0, help="scene units -> metres")
-    r.add_argument("--image", required=True, type=Path, help="the image (video frame) to project: PNG or JPEG")
-    r.add_argument("--pose", required=True, type=lambda s: _floats(s, 6, "--pose"), metavar="LAT,LON,H,HEADING,PITCH,ROLL", help="the image's camera: position (deg, deg, ellipsoidal m) and optical-axis heading (deg from true north, clockwise), pitch (deg above horizon), roll (deg)")
-    r.add_argument("--fov", required=True, type=float, help="the image's horizontal field of view, degrees")
+    r.add_argument("--image", type=Path, help="the image (video frame) to project: PNG or JPEG")
+    r.add_argument("--pose", type=lambda s: _floats(s, 6, "--pose"), metavar="LAT,LON,H,HEADING,PITCH,ROLL", help="the image's camera: position (deg, deg, ellipsoidal m) and optical-axis heading (deg from true north, clockwise), pitch (deg above horizon), roll (deg)")
+    r.add_argument("--fov", type=float, help="the image's horizontal field of view, degrees")
     r.add_argument("--view-from", type=lambda s: _floats(s, 3, "--view-from"), metavar="E,N,U", default=None, help="window camera position, ENU metres (default: behind and above the image's camera)")
     r.add_argument("--look-at", type=lambda s: _floats(s, 3, "--look-at"), metavar="E,N,U", default=None, help="window camera target, ENU metres")
     r.add_argument("--view-fov", type=float, default=60.0, help="window camera horizontal field of view, degrees")
@@ -166,6 +221,12 @@ def build_parser() -> argparse.ArgumentParser:
     _add_projection_options(r)
     r.add_argument("--out", required=True, type=Path, help="output PNG")
     r.set_defaults(func=cmd_render)
+
+    so = sub.add_parser("solve", help="a camera pose for every video frame of a session, as CSV")
+    so.add_argument("manifest", type=Path)
+    so.add_argument("--filter", default="gd-ahrs", help="gd-ahrs | gd-imu | cf-ahrs | cf-imu | offline | phone | truth")
+    so.add_argument("--out", type=Path, required=True)
+    so.set_defaults(func=cmd_solve)
 
     s = sub.add_parser("simulate", help="generate sample data")
     ssub = s.add_subparsers(dest="what", required=True)

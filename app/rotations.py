@@ -142,3 +142,20 @@ def hpr_from_camera_quat(q: npt.ArrayLike) -> FloatArray:
 def wrap_degrees(a: npt.ArrayLike) -> FloatArray:
     """Wrap angles (deg) into [-180, 180)."""
     return (np.asarray(a, np.float64) + 180.0) % 360.0 - 180.0
+
+
+def slerp(t_source: npt.ArrayLike, q_source: npt.ArrayLike, t_query: npt.ArrayLike) -> FloatArray:
+    """Spherical linear interpolation of quaternions (N, 4) at t_source onto t_query; times
+    outside the source range take the first/last quaternion. Never interpolates Euler angles,
+    so the +-180 deg heading wrap is harmless."""
+    from scipy.spatial.transform import Slerp
+
+    ts = np.asarray(t_source, np.float64)
+    tq = np.clip(np.asarray(t_query, np.float64), ts[0], ts[-1])
+    return from_scipy(Slerp(ts, to_scipy(q_source))(tq))
+
+
+def about_z(angle_deg: float) -> FloatArray:
+    """Quaternion of a rotation by angle_deg (counter-clockwise seen from +z) about z."""
+    half = np.radians(angle_deg) / 2.0
+    return np.array([np.cos(half), 0.0, 0.0, np.sin(half)])

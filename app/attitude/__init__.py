@@ -38,7 +38,7 @@ class Gains:
     """
 
     beta: float = 0.015
-    beta_start: float = 2.0
+    beta_start: float = 0.5
     ramp_s: float = 3.0
     tau_acc: float = 10.0
     tau_mag: float = 20.0
@@ -97,9 +97,16 @@ def initial_orientation(acc: npt.ArrayLike, mag: npt.ArrayLike | None = None) ->
     return rotations.from_matrix(np.stack([east, north, up]))
 
 
-def _init_samples(t: FloatArray, seconds: float) -> slice:
-    k = int(np.searchsorted(t, t[0] + seconds)) + 1
-    return slice(0, max(1, min(k, len(t))))
+INIT_MAX_TURN_RAD = np.radians(0.5)  # averaging over a window in which the device turns more is biased
+
+
+def _init_samples(t: FloatArray, seconds: float, gyr: FloatArray | None = None) -> slice:
+    """The first `seconds` of samples to average for the initial orientation, or only the first
+    sample when the device turns by more than INIT_MAX_TURN_RAD within that window."""
+    k = max(1, min(int(np.searchsorted(t, t[0] + seconds)) + 1, len(t)))
+    if gyr is not None and k > 1 and np.linalg.norm(gyr[:k], axis=1).max() * (t[k - 1] - t[0]) > INIT_MAX_TURN_RAD:
+        return slice(0, 1)
+    return slice(0, k)
 
 
 def _declination(q: FloatArray, declination_deg: float) -> FloatArray:
@@ -140,7 +147,7 @@ def estimate(
         raise ValueError(f"unknown gains {sorted(unknown)}; known: {sorted(Gains.__dataclass_fields__)}")
     g = replace(DEFAULT_GAINS[method], **gains)
     use_mag = mag is not None
-    init = _init_samples(t, g.init_s)
+    init = _init_samples(t, g.init_s, gyr)
     q0 = initial_orientation(acc[init], m[init] if use_mag else None)
     if method == "offline":
         from app.attitude.offline import forward_backward

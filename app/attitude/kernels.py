@@ -21,6 +21,8 @@ EPS = 1e-12
 REST_RATE = 0.05  # rad/s: below this (raw) the device may be at rest
 REST_ACC = 0.03  # fraction: accelerometer norm steadiness at rest
 REST_MIN_S = 1.0  # seconds of rest before the bias estimate follows the rate
+REST_STEADY = 0.01  # rad/s: at rest the rate stays this close to its own low-passed value ...
+REST_SMOOTH_S = 0.5  # ... low-passed with this time constant (s); slow pans are not steady
 
 
 @njit(cache=True, inline="always")
@@ -71,16 +73,21 @@ def field_gradient(w: float, x: float, y: float, z: float, dx: float, dy: float,
 @njit(cache=True, inline="always")
 def _rest_bias(
     gx: float, gy: float, gz: float, acc_norm: float, norm_ref: float, dt: float, rest_s: float,
-    bx: float, by: float, bz: float, bias_tau: float,
+    bx: float, by: float, bz: float, bias_tau: float, lx: float, ly: float, lz: float,
 ) -> tuple:
-    """Causal gyroscope-bias estimate from rest: while the raw rate stays under REST_RATE (rad/s)
-    and the accelerometer norm within REST_ACC of its running value for more than REST_MIN_S
-    seconds, low-pass the raw rate into the bias with time constant `bias_tau` (s; 0 = off).
-    Returns (rest_s, bx, by, bz)."""
+    """Causal gyroscope-bias estimate from rest: while the raw rate stays under REST_RATE (rad/s),
+    within REST_STEADY of its low-passed value (lx, ly, lz), and the accelerometer norm within
+    REST_ACC of its running value, for more than REST_MIN_S seconds, low-pass the raw rate into
+    the bias with time constant `bias_tau` (s; 0 = off). Returns (rest_s, bx, by, bz, lx, ly, lz)."""
     if bias_tau <= 0.0:
-        return 0.0, bx, by, bz
+        return 0.0, bx, by, bz, lx, ly, lz
+    k = dt / (REST_SMOOTH_S + dt)
+    lx += k * (gx - lx)
+    ly += k * (gy - ly)
+    lz += k * (gz - lz)
     rate = math.sqrt(gx * gx + gy * gy + gz * gz)
-    if rate < REST_RATE and norm_ref > 0.0 and abs(acc_norm - norm_ref) < REST_ACC * norm_ref:
+    wobble = math.sqrt((gx - lx) ** 2 + (gy - ly) ** 2 + (gz - lz) ** 2)
+    if rate < REST_RATE and wobble < REST_STEADY and norm_ref > 0.0 and abs(acc_norm - norm_ref) < REST_ACC * norm_ref:
         rest_s += dt
     else:
         rest_s = 0.0
@@ -89,7 +96,7 @@ def _rest_bias(
         bx += k * (gx - bx)
         by += k * (gy - by)
         bz += k * (gz - bz)
-    return rest_s, bx, by, bz
+    return rest_s, bx, by, bz, lx, ly, lz
 
 
 @njit(cache=True, inline="always")
@@ -122,12 +129,13 @@ def madgwick(
     out[0, 0], out[0, 1], out[0, 2], out[0, 3] = w, x, y, z
     norm_ref = 0.0
     bx = by = bz = 0.0
+    lx, ly, lz = gyr[0, 0], gyr[0, 1], gyr[0, 2]
     rest_s = 0.0
     for i in range(1, n):
         dt = t[i] - t[i - 1]
         if dt > 0.0 and dt <= 1.0:
             ax, ay, az = acc[i - 1, 0], acc[i - 1, 1], acc[i - 1, 2]
-            rest_s, bx, by, bz = _rest_bias(gyr[i - 1, 0], gyr[i - 1, 1], gyr[i - 1, 2], math.sqrt(ax * ax + ay * ay + az * az), norm_ref, dt, rest_s, bx, by, bz, bias_tau)
+            rest_s, bx, by, bz, lx, ly, lz = _rest_bias(gyr[i - 1, 0], gyr[i - 1, 1], gyr[i - 1, 2], math.sqrt(ax * ax + ay * ay + az * az), norm_ref, dt, rest_s, bx, by, bz, bias_tau, lx, ly, lz)
             gx, gy, gz = gyr[i - 1, 0] - bx, gyr[i - 1, 1] - by, gyr[i - 1, 2] - bz
             dw = 0.5 * (-x * gx - y * gy - z * gz)
             dx_ = 0.5 * (w * gx + y * gz - z * gy)
@@ -189,12 +197,13 @@ def complementary(
     out[0, 0], out[0, 1], out[0, 2], out[0, 3] = w, x, y, z
     norm_ref = 0.0
     bx = by = bz = 0.0
+    lx, ly, lz = gyr[0, 0], gyr[0, 1], gyr[0, 2]
     rest_s = 0.0
     for i in range(1, n):
         dt = t[i] - t[i - 1]
         if dt > 0.0 and dt <= 1.0:
             ax, ay, az = acc[i - 1, 0], acc[i - 1, 1], acc[i - 1, 2]
-            rest_s, bx, by, bz = _rest_bias(gyr[i - 1, 0], gyr[i - 1, 1], gyr[i - 1, 2], math.sqrt(ax * ax + ay * ay + az * az), norm_ref, dt, rest_s, bx, by, bz, bias_tau)
+            rest_s, bx, by, bz, lx, ly, lz = _rest_bias(gyr[i - 1, 0], gyr[i - 1, 1], gyr[i - 1, 2], math.sqrt(ax * ax + ay * ay + az * az), norm_ref, dt, rest_s, bx, by, bz, bias_tau, lx, ly, lz)
             gx, gy, gz = gyr[i - 1, 0] - bx, gyr[i - 1, 1] - by, gyr[i - 1, 2] - bz
             rate = math.sqrt(gx * gx + gy * gy + gz * gz)
             if rate > EPS:

@@ -1,0 +1,134 @@
+"""Video metadata through PyAV: every frame's presentation time, frame rates, display rotation,
+creation time. Decodes only the first frame (for its rotation side data); the rest is demuxing."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from datetime import datetime
+from pathlib import Path
+
+import numpy as np
+
+from app.errors import VideoError
+
+
+@dataclass(frozen=True)
+class VideoInfo:
+    """pts_s: (N,) presentation times of the frames in display order, seconds from the stream's
+    start; width/height: stored (coded) size; rotation_cw: the clockwise rotation a player applies
+    for display (a phone's `rotate` tag: 90 for portrait upright); nominal_fps: the stream's
+    declared rate; average_fps: frames / duration; creation_time: Unix seconds or None."""
+
+    path: str
+    pts_s: np.ndarray
+    width: int
+    height: int
+    rotation_cw: int
+    nominal_fps: float
+    average_fps: float
+    creation_time: float | None
+    codec: str
+
+    @property
+    def display_size(self) -> tuple[int, int]:
+        return (self.height, self.width) if self.rotation_cw in (90, 270) else (self.width, self.height)
+
+    @property
+    def duration_s(self) -> float:
+        return float(self.pts_s[-1] - self.pts_s[0]) if len(self.pts_s) else 0.0
+
+    @property
+    def variable_rate(self) -> bool:
+        """True when frame intervals vary by more than 5 % (phones record variable frame rate)."""
+        if len(self.pts_s) < 3:
+            return False
+        d = np.diff(self.pts_s)
+        return bool(np.std(d) > 0.05 * np.mean(d))
+
+    def eq5_times(self) -> np.ndarray:
+        """The paper's Eq. 5 fallback: frame i at i / nominal_fps (constant rate)."""
+        return np.arange(len(self.pts_s)) / self.nominal_fps
+
+
+def _creation_time(meta: dict[str, str]) -> float | None:
+    value = meta.get("creation_time") or meta.get("com.apple.quicktime.creationdate")
+    if not value:
+        return None
+    try:
+        return datetime.fromisoformat(value.replace("Z", "+00:00")).timestamp()
+    except ValueError:
+        return None
+
+
+def probe(path: str | Path) -> VideoInfo:
+    """Read a video's timing and orientation. Raises VideoError naming the file."""
+    import av
+
+    path = Path(path)
+    if not path.is_file():
+        raise VideoError(path, "video file does not exist")
+    try:
+        container = av.open(str(path))
+    except (av.FFmpegError, OSError) as exc:
+        raise VideoError(path, f"cannot open video ({exc})") from exc
+    with container:
+        if not container.streams.video:
+            raise VideoError(path, "no video stream")
+        stream = container.streams.video[0]
+        tb = stream.time_base
+        rotation = 0
+        try:
+            first = next(container.decode(stream))
+            rotation = int(round(getattr(first, "rotation", 0) or 0))
+        except (StopIteration, av.FFmpegError) as exc:
+            raise VideoError(path, f"no decodable frame ({exc})") from exc
+        container.seek(0)
+        pts = []
+        try:
+            for packet in container.demux(stream):
+                if packet.pts is not None and packet.size:
+                    pts.append(packet.pts)
+        except av.FFmpegError:
+            pass  # a truncated file: keep the packets read so far
+        if not pts:
+            raise VideoError(path, "no frames with presentation timestamps")
+        pts_s = np.sort(np.asarray(pts, np.float64)) * float(tb)
+        start = float(stream.start_time * tb) if stream.start_time is not None else pts_s[0]
+        pts_s = pts_s - start
+        nominal = float(stream.guessed_rate or stream.average_rate or 0.0)
+        span = pts_s[-1] - pts_s[0]
+        average = (len(pts_s) - 1) / span if span > 0 else nominal
+        meta = {**container.metadata, **stream.metadata}
+        return VideoInfo(
+            str(path), pts_s, stream.codec_context.width, stream.codec_context.height,
+            (-rotation) % 360,  # FFmpeg's display matrix turns counter-clockwise; the tag clockwise
+            nominal, float(average), _creation_time(meta), stream.codec_context.name,
+        )
+
+
+def rotate_for_display(rgb: np.ndarray, rotation_cw: int) -> np.ndarray:
+    """A stored frame (H, W, 3) turned clockwise by rotation_cw degrees, as a player shows it."""
+    return np.ascontiguousarray(np.rot90(rgb, k=-(rotation_cw // 90) % 4))
+
+
+def read_frame(path: str | Path, index: int, info: VideoInfo | None = None) -> np.ndarray:
+    """Frame `index` (display order) as (H, W, 3) uint8 RGB in display orientation."""
+    import av
+
+    path = Path(path)
+    info = info or probe(path)
+    if not 0 <= index < len(info.pts_s):
+        raise VideoError(path, f"frame {index} out of range (0..{len(info.pts_s) - 1})")
+    target = info.pts_s[index]
+    with av.open(str(path)) as container:
+        stream = container.streams.video[0]
+        tb = float(stream.time_base)
+        start = float(stream.start_time * stream.time_base) if stream.start_time is not None else 0.0
+        container.seek(int((target + start) / tb), stream=stream, backward=True, any_frame=False)
+        try:
+            for frame in container.decode(stream):
+                if frame.pts is not None and frame.pts * tb - start >= target - 0.5 / max(info.nominal_fps, 1.0):
+                    return rotate_for_display(frame.to_ndarray(format="rgb24"), info.rotation_cw)
+        except av.FFmpegError as exc:
+            raise VideoError(path, f"cannot decode frame {index} ({exc})") from exc
+    raise VideoError(path, f"frame {index} not found")

@@ -1,0 +1,304 @@
+"""One session = one TOML manifest naming the scene and its placement, the video, the sensor and
+GNSS logs, the camera intrinsics, the time offset and optional reference attitudes.
+
+    [origin]                      # optional: the session's ENU origin (default: the scene's)
+    lat = 34.80                   # degrees
+    lon = 113.53                  # degrees
+    h = 110.0                     # ellipsoidal metres
+
+    [scene]
+    path = "scene.glb"            # glTF/GLB, OBJ, PLY
+    origin = [34.80, 113.53, 110.0]
+    up_axis = "Y"                 # optional: Y for glTF, Z otherwise
+    heading_deg = 0.0             # optional
+    scale = 1.0                   # optional
+
+    [video]
+    path = "clip.mp4"
+    start_time = 1700000000.0     # optional: session-clock seconds of the first frame (default:
+                                  # the video's creation time)
+    time_offset_s = 0.0           # optional: added to every frame time (sync correction)
+    timing = "pts"                # or "eq5": frame i at i / nominal fps (paper Eq. 5)
+
+    [camera]
+    hfov_deg = 66.0               # or focal_mm + sensor_width_mm
+    rotation_cw = 90              # optional: override the video's display rotation
+
+    [sensors]
+    format = "csv"                # "csv": acc, gyr, mag, orientation files below;
+    acc = "acc.csv"               # "sensorlogger": path = folder or zip
+    gyr = "gyr.csv"
+    mag = "mag.csv"               # optional: without it only IMU filters are offered
+    orientation = "phone.csv"     # optional: the phone's own attitude (reference)
+
+    [gnss]
+    path = "gnss.csv"             # CSV (csvlog.py) or GPX
+    height_offset_m = 0.0         # optional: added to heights (e.g. geoid separation for GPX)
+
+    [truth]                       # optional, for simulated sessions
+    orientation = "truth.csv"     # device -> ENU quaternions
+
+Relative paths resolve against the manifest's folder. Times of every log and of the video must be
+on one clock (Unix seconds for phone apps). Every error names the manifest key.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from app.attitude import estimate, resample
+from app.camera import Intrinsics
+from app.errors import DataFormatError, ManifestError
+from app.geo import LocalFrame
+from app.io.streams import GnssTrack, OrientationStream, VectorStream, Warnings
+from app.io.video import VideoInfo, probe
+from app.scene import Placement
+from app.trajectory import PoseTrack, PositionTrack, device_to_camera
+
+FILTERS = {
+    "gd-ahrs": ("gd", True),
+    "gd-imu": ("gd", False),
+    "cf-ahrs": ("cf", True),
+    "cf-imu": ("cf", False),
+    "offline": ("offline", True),
+}
+REFERENCE_SOURCES = ("phone", "truth")
+
+
+@dataclass(frozen=True)
+class Manifest:
+    path: Path
+    data: dict[str, Any]
+
+    def section(self, name: str, required: bool = True) -> dict[str, Any]:
+        value = self.data.get(name)
+        if value is None:
+            if required:
+                raise ManifestError(self.path, f"missing section [{name}]", field=name)
+            return {}
+        if not isinstance(value, dict):
+            raise ManifestError(self.path, f"[{name}] must be a table", field=name)
+        return value
+
+    def get(self, section: str, key: str, kind: type | tuple[type, ...], default: Any = ..., required_section: bool = True) -> Any:
+        sec = self.section(section, required_section)
+        if key not in sec:
+            if default is ...:
+                raise ManifestError(self.path, f"missing key (expected {getattr(kind, '__name__', kind)})", field=f"{section}.{key}")
+            return default
+        value = sec[key]
+        kinds = kind if isinstance(kind, tuple) else (kind,)
+        if float in kinds and isinstance(value, int) and not isinstance(value, bool):
+            value = float(value)
+        if not isinstance(value, kinds):
+            raise ManifestError(self.path, f"got {value!r}, expected {' or '.join(k.__name__ for k in kinds)}", field=f"{section}.{key}")
+        return value
+
+    def file(self, section: str, key: str, required: bool = True, required_section: bool = True) -> Path | None:
+        value = self.get(section, key, str, ... if required else None, required_section)
+        if value is None:
+            return None
+        p = (self.path.parent / value).resolve()
+        if not p.exists():
+            raise ManifestError(self.path, f"names {value!r}, which does not exist ({p})", field=f"{section}.{key}")
+        return p
+
+    def triple(self, section: str, key: str, default: Any = ...) -> tuple[float, float, float] | None:
+        value = self.get(section, key, list, default)
+        if value is None:
+            return None
+        if len(value) != 3 or not all(isinstance(v, (int, float)) for v in value):
+            raise ManifestError(self.path, f"got {value!r}, expected [latitude, longitude, height]", field=f"{section}.{key}")
+        return tuple(float(v) for v in value)
+
+
+def load_manifest(path: str | Path) -> Manifest:
+    path = Path(path)
+    if not path.is_file():
+        raise ManifestError(path, "manifest does not exist")
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise ManifestError(path, f"not valid TOML ({exc})") from exc
+    return Manifest(path.resolve(), data)
+
+
+@dataclass
+class Session:
+    """Everything a solve needs, read and validated; times on the session clock (seconds)."""
+
+    manifest: Manifest
+    frame: LocalFrame
+    scene_path: Path
+    placement: Placement
+    video: VideoInfo
+    frame_times: np.ndarray
+    intrinsics: Intrinsics
+    rotation_cw: int
+    acc: VectorStream
+    gyr: VectorStream
+    mag: VectorStream | None
+    gnss: GnssTrack
+    references: dict[str, OrientationStream]
+    declination_deg: float
+    warnings: Warnings = field(default_factory=Warnings)
+
+    @property
+    def filters(self) -> list[str]:
+        """The attitude sources this session offers (AHRS ones only with a magnetometer)."""
+        own = [k for k, (_, ahrs) in FILTERS.items() if self.mag is not None or not ahrs]
+        if self.mag is None:
+            own.append("offline")
+        return own + [r for r in REFERENCE_SOURCES if r in self.references]
+
+
+WMM_EPOCHS = (2010, 2015, 2020, 2025)  # coefficient files pygeomag ships (wmm/WMM_YYYY.COF)
+
+
+def declination(lat: float, lon: float, h_m: float, when_unix_s: float) -> float:
+    """World Magnetic Model declination (degrees, east positive) at a place and time (pygeomag),
+    with the model epoch that covers the date (the nearest one outside 2010-2030)."""
+    from pygeomag import GeoMag, decimal_year_from_date
+
+    year = decimal_year_from_date(datetime.fromtimestamp(when_unix_s, timezone.utc).date())
+    epoch = max([e for e in WMM_EPOCHS if e <= year] or [WMM_EPOCHS[0]])
+    gm = GeoMag(coefficients_file=f"wmm/WMM_{epoch}.COF")
+    return float(gm.calculate(glat=lat, glon=lon, alt=h_m / 1000.0, time=year, allow_date_outside_lifespan=True).d)
+
+
+def _intrinsics(m: Manifest, width: int, height: int) -> Intrinsics:
+    cam = m.section("camera")
+    try:
+        if "hfov_deg" in cam:
+            return Intrinsics.from_fov(width, height, m.get("camera", "hfov_deg", float))
+        if "focal_mm" in cam:
+            return Intrinsics.from_focal_length(width, height, m.get("camera", "focal_mm", float), m.get("camera", "sensor_width_mm", float))
+    except ValueError as exc:
+        raise ManifestError(m.path, str(exc), field="camera") from exc
+    raise ManifestError(m.path, "expected hfov_deg, or focal_mm and sensor_width_mm", field="camera")
+
+
+def _sensors(m: Manifest, warnings: Warnings) -> tuple[VectorStream, VectorStream, VectorStream | None, dict[str, OrientationStream], GnssTrack | None]:
+    from app.io import csvlog
+
+    fmt = m.get("sensors", "format", str, "csv")
+    refs: dict[str, OrientationStream] = {}
+    gnss = None
+    if fmt == "sensorlogger":
+        from app.io.sensorlogger import read_sensorlogger
+
+        rec = read_sensorlogger(m.file("sensors", "path"), bool(m.get("sensors", "standardised", bool, False)), warnings)
+        acc, gyr, mag, gnss = rec.acc, rec.gyr, rec.mag, rec.gnss
+        if rec.orientation is not None:
+            refs["phone"] = rec.orientation
+    elif fmt == "csv":
+        acc = csvlog.read_vector(m.file("sensors", "acc"), "acc", warnings)
+        gyr = csvlog.read_vector(m.file("sensors", "gyr"), "gyr", warnings)
+        mag_path = m.file("sensors", "mag", required=False)
+        mag = csvlog.read_vector(mag_path, "mag", warnings) if mag_path else None
+        ori = m.file("sensors", "orientation", required=False)
+        if ori:
+            refs["phone"] = csvlog.read_orientation(ori, warnings)
+    else:
+        raise ManifestError(m.path, f"got {fmt!r}, expected 'csv' or 'sensorlogger'", field="sensors.format")
+    truth = m.file("truth", "orientation", required=False, required_section=False)
+    if truth:
+        refs["truth"] = csvlog.read_orientation(truth, warnings)
+    return acc, gyr, mag, refs, gnss
+
+
+def _gnss(m: Manifest, fallback: GnssTrack | None, warnings: Warnings) -> GnssTrack:
+    from app.io import csvlog
+    from app.io.gpx import read_gpx
+
+    path = m.file("gnss", "path", required=fallback is None, required_section=fallback is None)
+    track = fallback
+    if path is not None:
+        track = read_gpx(path, warnings) if path.suffix.lower() == ".gpx" else csvlog.read_gnss(path, warnings)
+    offset = m.get("gnss", "height_offset_m", float, 0.0, required_section=False)
+    return GnssTrack(track.t, track.lat, track.lon, track.h + offset, track.vel_enu, track.h_acc, track.source)
+
+
+def open_session(path: str | Path) -> Session:
+    """Read and validate a manifest and every file it names."""
+    m = load_manifest(path)
+    warnings = Warnings()
+    scene_path = m.file("scene", "path")
+    scene_origin = m.triple("scene", "origin", None)
+    placement = Placement(scene_origin, m.get("scene", "up_axis", str, None), m.get("scene", "heading_deg", float, 0.0), m.get("scene", "scale", float, 1.0))
+    origin_sec = m.section("origin", required=False)
+    if origin_sec:
+        origin = (m.get("origin", "lat", float), m.get("origin", "lon", float), m.get("origin", "h", float))
+    elif scene_origin is not None:
+        origin = scene_origin
+    else:
+        raise ManifestError(m.path, "give [origin] or scene.origin: the session needs a geographic origin", field="origin")
+    try:
+        frame = LocalFrame(*origin)
+    except ValueError as exc:
+        raise ManifestError(m.path, str(exc), field="origin") from exc
+
+    video = probe(m.file("video", "path"))
+    start = m.get("video", "start_time", float, video.creation_time)
+    if start is None:
+        raise ManifestError(m.path, "the video has no creation time: give video.start_time (session-clock seconds)", field="video.start_time")
+    timing = m.get("video", "timing", str, "pts")
+    if timing not in ("pts", "eq5"):
+        raise ManifestError(m.path, f"got {timing!r}, expected 'pts' or 'eq5'", field="video.timing")
+    rel = video.pts_s if timing == "pts" else video.eq5_times()
+    frame_times = start + rel + m.get("video", "time_offset_s", float, 0.0)
+    rotation = int(m.get("camera", "rotation_cw", int, video.rotation_cw))
+    if rotation % 90:
+        raise ManifestError(m.path, f"got {rotation}, expected 0, 90, 180 or 270", field="camera.rotation_cw")
+    w, h = (video.height, video.width) if rotation % 180 else (video.width, video.height)
+    intr = _intrinsics(m, w, h)
+
+    acc, gyr, mag, refs, logged_gnss = _sensors(m, warnings)
+    gnss = _gnss(m, logged_gnss, warnings)
+    covered = (frame_times >= gyr.t[0]) & (frame_times <= gyr.t[-1])
+    if not covered.any():
+        raise ManifestError(
+            m.path,
+            f"no video frame lies within the sensor log (frames {frame_times[0]:.3f}..{frame_times[-1]:.3f} s, "
+            f"gyroscope {gyr.t[0]:.3f}..{gyr.t[-1]:.3f} s): check video.start_time and the logs' clocks",
+            field="video.start_time",
+        )
+    if not covered.all():
+        warnings.add(f"{int((~covered).sum())} video frames lie outside the sensor log; their attitude is held")
+    decl = declination(*origin, float(frame_times[0]))
+    return Session(m, frame, scene_path, placement, video, frame_times, intr, rotation, acc, gyr, mag, gnss, refs, decl, warnings)
+
+
+def device_attitude(session: Session, source: str) -> tuple[np.ndarray, np.ndarray]:
+    """(t, device -> ENU quaternions, true north) for a filter name or reference source."""
+    if source in session.references:
+        ref = session.references[source]
+        return ref.t, ref.q
+    if source not in FILTERS:
+        raise ValueError(f"unknown attitude source {source!r}; this session offers {session.filters}")
+    method, ahrs = FILTERS[source]
+    use_mag = ahrs and session.mag is not None
+    if ahrs and session.mag is None and method != "offline":
+        raise ValueError(f"{source} needs a magnetometer, which this session lacks; use one of {session.filters}")
+    t = session.gyr.t
+    acc = resample(t, session.acc.t, session.acc.values)
+    mag = resample(t, session.mag.t, session.mag.values) if use_mag else None
+    q = estimate(t, session.gyr.values, acc, mag, method=method, declination_deg=session.declination_deg if use_mag else 0.0)
+    return t, q
+
+
+def pose_track(session: Session, source: str) -> PoseTrack:
+    """The camera pose track of one attitude source."""
+    t_att, q = device_attitude(session, source)
+    g = session.gnss
+    try:
+        positions = PositionTrack.from_fixes(g.t, g.lat, g.lon, g.h, g.vel_enu)
+    except ValueError as exc:
+        raise DataFormatError(g.source, f"GNSS: {exc}") from exc
+    return PoseTrack(session.frame, positions, t_att, q, device_to_camera(session.rotation_cw))

@@ -81,6 +81,7 @@ def write_video(path: Path, times: np.ndarray, size: tuple[int, int], rotation_c
         s = c.add_stream("libx264", rate=30)
         s.width, s.height, s.pix_fmt = w, h, "yuv420p"
         s.time_base = fractions.Fraction(1, 90000)
+        s.codec_context.time_base = s.time_base  # keep real presentation times (variable rate)
         s.codec_context.options = {"preset": "ultrafast", "crf": "18", "bf": "0"}
         s.set_display_rotation(-rotation_cw)  # FFmpeg's display matrix turns counter-clockwise
         for k, ts in enumerate(times):

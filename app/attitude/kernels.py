@@ -71,32 +71,36 @@ def field_gradient(w: float, x: float, y: float, z: float, dx: float, dy: float,
 
 
 @njit(cache=True, inline="always")
-def _rest_bias(
-    gx: float, gy: float, gz: float, acc_norm: float, norm_ref: float, dt: float, rest_s: float,
-    bx: float, by: float, bz: float, bias_tau: float, lx: float, ly: float, lz: float,
-) -> tuple:
-    """Causal gyroscope-bias estimate from rest: while the raw rate stays under REST_RATE (rad/s),
-    within REST_STEADY of its low-passed value (lx, ly, lz), and the accelerometer norm within
-    REST_ACC of its running value, for more than REST_MIN_S seconds, low-pass the raw rate into
-    the bias with time constant `bias_tau` (s; 0 = off). Returns (rest_s, bx, by, bz, lx, ly, lz)."""
+def _unbiased_rate(gyr: np.ndarray, acc: np.ndarray, i: int, dt: float, norm_ref: float, rest: np.ndarray, bias_tau: float) -> tuple:
+    """The rate held over [t[i-1], t[i]] less the causal gyroscope-bias estimate made at rest.
+
+    Rest: the raw rate under REST_RATE (rad/s), within REST_STEADY of its REST_SMOOTH_S low-pass,
+    and the accelerometer norm within REST_ACC of its running value `norm_ref`, for more than
+    REST_MIN_S seconds; then the raw rate is low-passed into the bias with time constant
+    `bias_tau` (s; 0 = off). `rest` is the estimator's state, updated in place:
+    [seconds at rest, bias x, y, z, low-passed rate x, y, z].
+    """
+    gx, gy, gz = gyr[i - 1, 0], gyr[i - 1, 1], gyr[i - 1, 2]
     if bias_tau <= 0.0:
-        return 0.0, bx, by, bz, lx, ly, lz
+        return gx, gy, gz
+    ax, ay, az = acc[i - 1, 0], acc[i - 1, 1], acc[i - 1, 2]
+    acc_norm = math.sqrt(ax * ax + ay * ay + az * az)
     k = dt / (REST_SMOOTH_S + dt)
-    lx += k * (gx - lx)
-    ly += k * (gy - ly)
-    lz += k * (gz - lz)
+    rest[4] += k * (gx - rest[4])
+    rest[5] += k * (gy - rest[5])
+    rest[6] += k * (gz - rest[6])
     rate = math.sqrt(gx * gx + gy * gy + gz * gz)
-    wobble = math.sqrt((gx - lx) ** 2 + (gy - ly) ** 2 + (gz - lz) ** 2)
+    wobble = math.sqrt((gx - rest[4]) ** 2 + (gy - rest[5]) ** 2 + (gz - rest[6]) ** 2)
     if rate < REST_RATE and wobble < REST_STEADY and norm_ref > 0.0 and abs(acc_norm - norm_ref) < REST_ACC * norm_ref:
-        rest_s += dt
+        rest[0] += dt
     else:
-        rest_s = 0.0
-    if rest_s > REST_MIN_S:
-        k = dt / (bias_tau + dt)
-        bx += k * (gx - bx)
-        by += k * (gy - by)
-        bz += k * (gz - bz)
-    return rest_s, bx, by, bz, lx, ly, lz
+        rest[0] = 0.0
+    if rest[0] > REST_MIN_S:
+        kb = dt / (bias_tau + dt)
+        rest[1] += kb * (gx - rest[1])
+        rest[2] += kb * (gy - rest[2])
+        rest[3] += kb * (gz - rest[3])
+    return gx - rest[1], gy - rest[2], gz - rest[3]
 
 
 @njit(cache=True, inline="always")
@@ -128,15 +132,12 @@ def madgwick(
     w, x, y, z = _normalised(q0[0], q0[1], q0[2], q0[3])
     out[0, 0], out[0, 1], out[0, 2], out[0, 3] = w, x, y, z
     norm_ref = 0.0
-    bx = by = bz = 0.0
-    lx, ly, lz = gyr[0, 0], gyr[0, 1], gyr[0, 2]
-    rest_s = 0.0
+    rest = np.zeros(7)
+    rest[4], rest[5], rest[6] = gyr[0, 0], gyr[0, 1], gyr[0, 2]
     for i in range(1, n):
         dt = t[i] - t[i - 1]
         if dt > 0.0 and dt <= 1.0:
-            ax, ay, az = acc[i - 1, 0], acc[i - 1, 1], acc[i - 1, 2]
-            rest_s, bx, by, bz, lx, ly, lz = _rest_bias(gyr[i - 1, 0], gyr[i - 1, 1], gyr[i - 1, 2], math.sqrt(ax * ax + ay * ay + az * az), norm_ref, dt, rest_s, bx, by, bz, bias_tau, lx, ly, lz)
-            gx, gy, gz = gyr[i - 1, 0] - bx, gyr[i - 1, 1] - by, gyr[i - 1, 2] - bz
+            gx, gy, gz = _unbiased_rate(gyr, acc, i, dt, norm_ref, rest, bias_tau)
             dw = 0.5 * (-x * gx - y * gy - z * gz)
             dx_ = 0.5 * (w * gx + y * gz - z * gy)
             dy_ = 0.5 * (w * gy - x * gz + z * gx)
@@ -196,15 +197,12 @@ def complementary(
     w, x, y, z = _normalised(q0[0], q0[1], q0[2], q0[3])
     out[0, 0], out[0, 1], out[0, 2], out[0, 3] = w, x, y, z
     norm_ref = 0.0
-    bx = by = bz = 0.0
-    lx, ly, lz = gyr[0, 0], gyr[0, 1], gyr[0, 2]
-    rest_s = 0.0
+    rest = np.zeros(7)
+    rest[4], rest[5], rest[6] = gyr[0, 0], gyr[0, 1], gyr[0, 2]
     for i in range(1, n):
         dt = t[i] - t[i - 1]
         if dt > 0.0 and dt <= 1.0:
-            ax, ay, az = acc[i - 1, 0], acc[i - 1, 1], acc[i - 1, 2]
-            rest_s, bx, by, bz, lx, ly, lz = _rest_bias(gyr[i - 1, 0], gyr[i - 1, 1], gyr[i - 1, 2], math.sqrt(ax * ax + ay * ay + az * az), norm_ref, dt, rest_s, bx, by, bz, bias_tau, lx, ly, lz)
-            gx, gy, gz = gyr[i - 1, 0] - bx, gyr[i - 1, 1] - by, gyr[i - 1, 2] - bz
+            gx, gy, gz = _unbiased_rate(gyr, acc, i, dt, norm_ref, rest, bias_tau)
             rate = math.sqrt(gx * gx + gy * gy + gz * gz)
             if rate > EPS:
                 rw, rx, ry, rz = _rotation(gx / rate, gy / rate, gz / rate, rate * dt)

@@ -161,6 +161,19 @@ def cmd_simulate_photo(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_simulate_session(args: argparse.Namespace) -> int:
+    from app.demo import SAMPLE_SCENE
+    from app.simulate.session import SampleConfig, write_sample_session
+
+    scene = args.scene or SAMPLE_SCENE
+    if not Path(scene).is_file():
+        raise GeofuseError(f"{scene}: scene file does not exist (make one with `geofuse simulate scene`)")
+    manifest = write_sample_session(args.out, scene, SampleConfig(seed=args.seed, duration_s=args.duration))
+    total = sum(p.stat().st_size for p in Path(args.out).iterdir() if p.is_file())
+    print(f"wrote {manifest} ({total / 1e6:.1f} MB in {args.out})")
+    return 0
+
+
 def cmd_demo(args: argparse.Namespace) -> int:
     from app.demo import SAMPLE_ORIGIN, SAMPLE_PHOTO, SAMPLE_PHOTO_POSE, SAMPLE_SCENE
 
@@ -234,6 +247,12 @@ def build_parser() -> argparse.ArgumentParser:
     sc.add_argument("--out", required=True, type=Path)
     sc.add_argument("--seed", type=int, default=7)
     sc.set_defaults(func=cmd_simulate_scene)
+    ss = ssub.add_parser("session", help="the sample session: a phone filming the sample site while walking, with truth")
+    ss.add_argument("--out", required=True, type=Path)
+    ss.add_argument("--scene", type=Path, default=None, help="the site GLB (default: the bundled sample)")
+    ss.add_argument("--seed", type=int, default=2026)
+    ss.add_argument("--duration", type=float, default=80.0, help="seconds of video")
+    ss.set_defaults(func=cmd_simulate_session)
     sp = ssub.add_parser("photo", help="the sample photo: the site seen from the sample pose, plus a banner, people, a car")
     sp.add_argument("--scene", required=True, type=Path)
     sp.add_argument("--out", required=True, type=Path)

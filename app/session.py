@@ -36,7 +36,9 @@ GNSS logs, the camera intrinsics, the time offset and optional reference attitud
     height_offset_m = 0.0         # optional: added to heights (e.g. geoid separation for GPX)
 
     [truth]                       # optional, for simulated sessions
-    orientation = "truth.csv"     # device -> ENU quaternions
+    orientation = "truth.csv"     # device -> ENU quaternions (t, qw, qx, qy, qz)
+    position = "truth_pos.csv"    # optional: t, lat, lon, h
+    frame_times = "frames.csv"    # optional: frame, t (each frame's true session time)
 
 Relative paths resolve against the manifest's folder. Times of every log and of the video must be
 on one clock (Unix seconds for phone apps). Every error names the manifest key.
@@ -46,7 +48,6 @@ from __future__ import annotations
 
 import tomllib
 from dataclasses import dataclass, field
-from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
@@ -55,6 +56,7 @@ import numpy as np
 from app.attitude import estimate, resample
 from app.camera import Intrinsics
 from app.errors import DataFormatError, ManifestError
+from app.geomag import declination
 from app.geo import LocalFrame
 from app.io.streams import GnssTrack, OrientationStream, VectorStream, Warnings
 from app.io.video import VideoInfo, probe
@@ -148,6 +150,8 @@ class Session:
     references: dict[str, OrientationStream]
     declination_deg: float
     warnings: Warnings = field(default_factory=Warnings)
+    truth_position: GnssTrack | None = None
+    truth_frame_times: np.ndarray | None = None
 
     @property
     def filters(self) -> list[str]:
@@ -156,20 +160,6 @@ class Session:
         if self.mag is None:
             own.append("offline")
         return own + [r for r in REFERENCE_SOURCES if r in self.references]
-
-
-WMM_EPOCHS = (2010, 2015, 2020, 2025)  # coefficient files pygeomag ships (wmm/WMM_YYYY.COF)
-
-
-def declination(lat: float, lon: float, h_m: float, when_unix_s: float) -> float:
-    """World Magnetic Model declination (degrees, east positive) at a place and time (pygeomag),
-    with the model epoch that covers the date (the nearest one outside 2010-2030)."""
-    from pygeomag import GeoMag, decimal_year_from_date
-
-    year = decimal_year_from_date(datetime.fromtimestamp(when_unix_s, timezone.utc).date())
-    epoch = max([e for e in WMM_EPOCHS if e <= year] or [WMM_EPOCHS[0]])
-    gm = GeoMag(coefficients_file=f"wmm/WMM_{epoch}.COF")
-    return float(gm.calculate(glat=lat, glon=lon, alt=h_m / 1000.0, time=year, allow_date_outside_lifespan=True).d)
 
 
 def _intrinsics(m: Manifest, width: int, height: int) -> Intrinsics:
@@ -272,7 +262,25 @@ def open_session(path: str | Path) -> Session:
     if not covered.all():
         warnings.add(f"{int((~covered).sum())} video frames lie outside the sensor log; their attitude is held")
     decl = declination(*origin, float(frame_times[0]))
-    return Session(m, frame, scene_path, placement, video, frame_times, intr, rotation, acc, gyr, mag, gnss, refs, decl, warnings)
+    session = Session(m, frame, scene_path, placement, video, frame_times, intr, rotation, acc, gyr, mag, gnss, refs, decl, warnings)
+    _truth_extras(m, session, warnings)
+    return session
+
+
+def _truth_extras(m: Manifest, session: Session, warnings: Warnings) -> None:
+    """Optional true positions and true frame times of a simulated session."""
+    from app.io import csvlog
+
+    pos = m.file("truth", "position", required=False, required_section=False)
+    if pos:
+        session.truth_position = csvlog.read_gnss(pos, warnings)
+    frames = m.file("truth", "frame_times", required=False, required_section=False)
+    if frames:
+        columns, _, rows, first = csvlog.read_table(frames)
+        values, _ = csvlog.numeric(frames, rows, columns, ["frame", "t"], first, warnings)
+        if len(values) != len(session.frame_times):
+            raise ManifestError(m.path, f"{len(values)} true frame times for {len(session.frame_times)} video frames", field="truth.frame_times")
+        session.truth_frame_times = values[np.argsort(values[:, 0]), 1]
 
 
 def device_attitude(session: Session, source: str) -> tuple[np.ndarray, np.ndarray]:
@@ -294,9 +302,9 @@ def device_attitude(session: Session, source: str) -> tuple[np.ndarray, np.ndarr
 
 
 def pose_track(session: Session, source: str) -> PoseTrack:
-    """The camera pose track of one attitude source."""
+    """The camera pose track of one attitude source (for "truth": true positions too, if known)."""
     t_att, q = device_attitude(session, source)
-    g = session.gnss
+    g = session.truth_position if source == "truth" and session.truth_position is not None else session.gnss
     try:
         positions = PositionTrack.from_fixes(g.t, g.lat, g.lon, g.h, g.vel_enu)
     except ValueError as exc:

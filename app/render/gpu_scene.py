@@ -27,13 +27,18 @@ class GpuPrimitive:
 VERTEX_FORMAT = ("3f 2f 4f", "in_position", "in_uv", "in_color")
 
 
-def _upload(ctx: moderngl.Context, prim: Primitive, anisotropy: float) -> GpuPrimitive:
+def interleave(prim: Primitive) -> np.ndarray:
+    """(N, 9) float32 rows of position, uv, colour: the vertex buffer layout (VERTEX_FORMAT)."""
     n = len(prim.positions)
-    uv = prim.uvs if prim.uvs is not None else np.zeros((n, 2), np.float32)
     data = np.empty((n, 9), np.float32)
     data[:, 0:3] = prim.positions
-    data[:, 3:5] = uv
+    data[:, 3:5] = prim.uvs if prim.uvs is not None else 0.0
     data[:, 5:9] = prim.colors
+    return data
+
+
+def _upload(ctx: moderngl.Context, prim: Primitive, anisotropy: float) -> GpuPrimitive:
+    data = interleave(prim)
     texture = None
     if prim.textured:
         img = np.ascontiguousarray(prim.texture)
@@ -54,7 +59,17 @@ class GpuScene:
         self.mesh = mesh
         if anisotropy is None:
             anisotropy = 1.0 if "llvmpipe" in ctx.info.get("GL_RENDERER", "") else 8.0
-        self.primitives = [_upload(ctx, p, anisotropy) for p in mesh.primitives if len(p.indices)]
+        self.sources = [p for p in mesh.primitives if len(p.indices)]
+        self.primitives = [_upload(ctx, p, anisotropy) for p in self.sources]
+
+    def update_positions(self, index: int, positions: np.ndarray) -> None:
+        """Replace primitive `index`'s vertex positions (same vertex count), keeping uv and colour:
+        moving objects without re-creating GL objects."""
+        prim = self.sources[index]
+        if positions.shape != prim.positions.shape:
+            raise ValueError(f"positions shape {positions.shape}, expected {prim.positions.shape}")
+        prim.positions = np.asarray(positions, np.float32)
+        self.primitives[index].vbo.write(interleave(prim).tobytes())
 
     def vertex_arrays(self, program: moderngl.Program, attributes: tuple[str, ...]) -> list[moderngl.VertexArray]:
         """One VAO per primitive for `program`, binding only the attributes it uses."""

@@ -69,12 +69,34 @@ def write_csv(path: Path, header: list[str], columns: list[np.ndarray]) -> Path:
     return path
 
 
-def write_video(path: Path, times: np.ndarray, size: tuple[int, int], rotation_cw: int, creation_time: str | None = None) -> Path:
-    """A small H.264 MP4 whose frames carry the given presentation times (s) and display rotation.
-    Frame k shows a bar at a position that encodes k (for tests that read frames back)."""
+def bar_frame(k: int, size: tuple[int, int]) -> np.ndarray:
+    """A test frame (H, W, 3) whose yellow bar's position encodes k (mod 8)."""
+    w, h = size
+    img = np.full((h, w, 3), 40, np.uint8)
+    x = int((k % 8) * w / 8)
+    img[:, x : x + max(1, w // 8)] = (230, 200, 40)
+    return img
+
+
+def write_video(
+    path: Path,
+    times: np.ndarray,
+    size: tuple[int, int],
+    rotation_cw: int,
+    creation_time: str | None = None,
+    frame: Callable[[int], np.ndarray] | None = None,
+    crf: int = 18,
+) -> Path:
+    """An H.264 MP4 whose frames carry the given presentation times (s) and display rotation.
+
+    size: the stored (coded) width and height; frame(k) returns frame k as a player displays it
+    (turned by rotation_cw); by default `bar_frame`. Frames are stored turned back by rotation_cw.
+    """
     import av
 
     w, h = size
+    display = (h, w) if rotation_cw % 180 else (w, h)
+    frame = frame or (lambda k: bar_frame(k, display))
     with av.open(str(path), "w") as c:
         if creation_time:
             c.metadata["creation_time"] = creation_time
@@ -82,13 +104,11 @@ def write_video(path: Path, times: np.ndarray, size: tuple[int, int], rotation_c
         s.width, s.height, s.pix_fmt = w, h, "yuv420p"
         s.time_base = fractions.Fraction(1, 90000)
         s.codec_context.time_base = s.time_base  # keep real presentation times (variable rate)
-        s.codec_context.options = {"preset": "ultrafast", "crf": "18", "bf": "0"}
+        s.codec_context.options = {"preset": "veryfast", "crf": str(crf), "bf": "0"}
         s.set_display_rotation(-rotation_cw)  # FFmpeg's display matrix turns counter-clockwise
         for k, ts in enumerate(times):
-            img = np.full((h, w, 3), 40, np.uint8)
-            x = int((k % 8) * w / 8)
-            img[:, x : x + max(1, w // 8)] = (230, 200, 40)
-            f = av.VideoFrame.from_ndarray(img, format="rgb24")
+            stored = np.ascontiguousarray(np.rot90(frame(k), k=(rotation_cw // 90) % 4))
+            f = av.VideoFrame.from_ndarray(stored, format="rgb24")
             f.pts = int(round(ts * 90000))
             f.time_base = s.time_base
             for p in s.encode(f):

@@ -1,0 +1,54 @@
+"""Where each pixel of a camera lands on the model: world positions read back from the GPU."""
+
+from __future__ import annotations
+
+import moderngl
+import numpy as np
+
+from app.camera import Camera
+from app.render.gpu_scene import GpuScene
+from app.render.passes import _mat
+from app.render.programs import load_program
+
+
+class PositionPass:
+    """Renders world positions (float32 ENU) of the nearest surface per pixel of a camera."""
+
+    def __init__(self, ctx: moderngl.Context, scene: GpuScene) -> None:
+        self.ctx = ctx
+        self.program = load_program(ctx, "scene.vert", "position.frag")
+        self.vaos = scene.vertex_arrays(self.program, ("in_position",))
+        self._targets: dict[tuple[int, int], tuple[moderngl.Framebuffer, moderngl.Renderbuffer, moderngl.Renderbuffer]] = {}
+
+    def _target(self, size: tuple[int, int]) -> moderngl.Framebuffer:
+        if size not in self._targets:
+            color = self.ctx.renderbuffer(size, 4, dtype="f4")
+            depth = self.ctx.depth_renderbuffer(size)
+            self._targets[size] = (self.ctx.framebuffer([color], depth), color, depth)
+        return self._targets[size][0]
+
+    def render(self, camera: Camera) -> np.ndarray:
+        """(H, W, 3) ENU metres of the surface seen at each pixel centre (row 0 = top); NaN where
+        the pixel sees no surface."""
+        w, h = camera.intrinsics.width, camera.intrinsics.height
+        fbo = self._target((w, h))
+        fbo.use()
+        fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+        self.ctx.enable(moderngl.DEPTH_TEST)
+        self.ctx.disable(moderngl.CULL_FACE)
+        self.program["u_view_proj"].write(_mat(camera.view_projection))
+        for vao in self.vaos:
+            vao.render(moderngl.TRIANGLES)
+        data = np.frombuffer(fbo.read(components=4, dtype="f4"), np.float32).reshape(h, w, 4)[::-1]
+        out = data[:, :, :3].astype(np.float64)
+        out[data[:, :, 3] < 0.5] = np.nan
+        return out
+
+    def release(self) -> None:
+        for fbo, color, depth in self._targets.values():
+            fbo.release()
+            color.release()
+            depth.release()
+        for vao in self.vaos:
+            vao.release()
+        self.program.release()

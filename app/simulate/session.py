@@ -1,0 +1,310 @@
+"""The bundled sample session: a person walks past the sample stadium's south front filming it
+with a phone held in landscape, and everything a phone would record, plus the truth.
+
+Motion (80 s): along the service path 62 m south of the hall's centre, eastward at 1.4 m/s with
+handheld sway and step bounce; a 5 s stop (t = 30-35 s); the camera follows the hall with a slow
+left-right pan, swings 70 deg right and back quickly (t = 40-46 s), points up at the roof edge
+(t = 55-63 s). The phone is held in landscape with its top to the right, so the video is stored
+turned (display rotation 180 deg), as phones do. The video shows cars, people and a banner that
+the model lacks. Sensors: app/simulate/sensors.py (error model with sources). The manifest's
+video start time is 80 ms late, as a start time taken from a file timestamp would be; the truth
+says by how much (docs/ACCURACY.md measures what that costs).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+from PIL import Image, ImageDraw, ImageFont
+
+from app import rotations
+from app.camera import Camera, Intrinsics
+from app.config import ProjectionSettings
+from app.geo import LocalFrame
+from app.geomag import field_enu
+from app.scene import load_scene, shapes
+from app.scene.mesh import MeshData
+from app.simulate import sensors
+from app.simulate.phone import Motion, body_rates, specific_force, write_video
+from app.simulate.stadium import HALL_MAX, HALL_MIN, SITE_ORIGIN
+from app.trajectory import device_to_camera
+
+START_UNIX_S = 1_763_200_000.0  # 2025-11-15T09:46:40Z
+DURATION_S = 80.0
+SPEED = 1.4
+PATH_Y = -62.0
+STOP = (30.0, 35.0)
+QUICK_PAN = (40.0, 46.0)
+ROOF_LOOK = (55.0, 63.0)
+ROTATION_CW = 180  # landscape, phone top to the right
+VIDEO_SIZE = (640, 360)
+HFOV_DEG = 66.0
+FPS = 30.0
+SYNC_ERROR_S = 0.08
+
+
+def _smoothstep(u: np.ndarray) -> np.ndarray:
+    u = np.clip(u, 0.0, 1.0)
+    return u * u * (3 - 2 * u)
+
+
+def _window(t: np.ndarray, a: float, c: float, ramp: float = 1.0) -> np.ndarray:
+    """0 before a, rising to 1 over `ramp` s, 1 until c, falling to 0 over `ramp` s."""
+    return _smoothstep((t - a) / ramp) * (1.0 - _smoothstep((t - c) / ramp))
+
+
+def _window_integral(t: np.ndarray, a: float, c: float, ramp: float = 1.0) -> np.ndarray:
+    """Integral of _window from -inf to t (closed form: the smoothstep integrates to u^3 - u^4/2)."""
+
+    def ramp_int(u: np.ndarray) -> np.ndarray:
+        u = np.clip(u, 0.0, 1.0)
+        return ramp * (u**3 - u**4 / 2)
+
+    rise = ramp_int((t - a) / ramp)
+    hold = np.clip(t - (a + ramp), 0.0, c - (a + ramp))
+    fall = np.where(t > c, np.clip(t - c, 0.0, ramp) - ramp_int((t - c) / ramp), 0.0)
+    return rise + hold + fall
+
+
+def _stop_window(t: np.ndarray) -> np.ndarray:
+    return _window(t, STOP[0] - 1.0, STOP[1])
+
+
+def walk_position(t: np.ndarray) -> np.ndarray:
+    """ENU metres at t (seconds from the video start)."""
+    t = np.asarray(t, np.float64)
+    along = SPEED * (t - _window_integral(t, STOP[0] - 1.0, STOP[1]))
+    walking = 1.0 - _stop_window(t)
+    x = -45.0 + along
+    y = PATH_Y + 0.4 * np.sin(2 * np.pi * 0.05 * t) + 0.015 * walking * np.sin(2 * np.pi * 0.9 * t)
+    z = 1.45 + 0.03 * walking * np.sin(2 * np.pi * 1.8 * t)
+    return np.column_stack([x, y, z])
+
+
+def camera_hpr(t: np.ndarray) -> np.ndarray:
+    """Heading, pitch, roll (deg) of the camera's optical axis at t."""
+    t = np.asarray(t, np.float64)
+    p = walk_position(t)
+    target = np.array([0.0, 0.0, 8.0])
+    d = target - p
+    heading = np.degrees(np.arctan2(d[:, 0], d[:, 1]))
+    heading = heading + 12.0 * np.sin(2 * np.pi * t / 20.0) + 70.0 * _window(t, QUICK_PAN[0], QUICK_PAN[1] - 2.0, 2.0)
+    heading = heading + 1.0 * np.sin(2 * np.pi * 0.7 * t + 0.3) + 0.5 * np.sin(2 * np.pi * 1.3 * t)
+    pitch = np.degrees(np.arctan2(d[:, 2], np.hypot(d[:, 0], d[:, 1]))) + 2.0
+    pitch = pitch + 22.0 * _window(t, ROOF_LOOK[0], ROOF_LOOK[1] - 2.0, 2.0)
+    pitch = pitch + 0.8 * np.sin(2 * np.pi * 0.9 * t + 1.0) + 0.4 * np.sin(2 * np.pi * 1.8 * t)
+    roll = -1.0 + 1.2 * np.sin(2 * np.pi * 0.6 * t + 2.0)
+    return np.column_stack([heading, pitch, roll])
+
+
+def camera_attitude(t: np.ndarray) -> np.ndarray:
+    return rotations.camera_quat_from_hpr(*camera_hpr(t).T)
+
+
+def device_motion() -> Motion:
+    """The phone's motion: device -> ENU = camera -> ENU turned back by the camera's mounting."""
+    q_dc_inv = rotations.conjugate(device_to_camera(ROTATION_CW))
+    return Motion(walk_position, lambda t: rotations.canonical(rotations.multiply(camera_attitude(t), q_dc_inv)))
+
+
+# --- content the model lacks ---------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class Mover:
+    size: tuple[float, float, float]
+    colour: tuple[float, float, float]
+    y: float
+    x0: float
+    speed: float  # m/s along x, wrapping in [-150, 150]
+
+
+MOVERS = (
+    Mover((4.4, 1.8, 1.5), (0.75, 0.1, 0.1), -55.5, -80.0, 6.0),
+    Mover((4.6, 1.9, 1.6), (0.1, 0.25, 0.7), -57.5, 40.0, -7.5),
+    Mover((4.2, 1.8, 1.45), (0.9, 0.9, 0.88), -55.5, 60.0, 5.0),
+    Mover((0.5, 0.4, 1.75), (0.2, 0.5, 0.2), -47.0, -20.0, 1.2),
+    Mover((0.5, 0.4, 1.65), (0.6, 0.3, 0.5), -45.5, 10.0, -1.0),
+    Mover((0.5, 0.4, 1.80), (0.9, 0.6, 0.1), -46.2, 30.0, 1.3),
+)
+
+
+def _banner_texture() -> np.ndarray:
+    img = Image.new("RGB", (512, 64), (190, 20, 30))
+    d = ImageDraw.Draw(img)
+    d.rectangle([2, 2, 509, 61], outline=(255, 255, 255), width=3)
+    d.text((256, 32), "OPEN DAY  15 NOV", fill=(255, 255, 255), font=ImageFont.load_default(size=40), anchor="mm")
+    return np.asarray(img)
+
+
+def _mover_vertices(m: Mover, t: float) -> np.ndarray:
+    x = (m.x0 + m.speed * t + 150.0) % 300.0 - 150.0
+    sx, sy, sz = m.size
+    return shapes.box([x - sx / 2, m.y - sy / 2, 0.0], [x + sx / 2, m.y + sy / 2, sz]).vertices
+
+
+def extras() -> list:
+    """Primitives of the banner (static) and the movers (their positions updated per frame)."""
+    banner = shapes.quad([-10.0, HALL_MIN[1] - 0.15, 5.0], [20.0, 0, 0], [0, 0, 2.5]).primitive((1, 1, 1, 1), _banner_texture(), "banner")
+    movers = [shapes.box(*np.split(np.zeros(6), 2)).primitive((*m.colour, 1.0), name=f"mover{i}") for i, m in enumerate(MOVERS)]
+    for m, prim in zip(MOVERS, movers):
+        prim.positions = _mover_vertices(m, 0.0).astype(np.float32)
+    return [banner, *movers]
+
+
+# --- writing the session -------------------------------------------------------------------------
+
+def _csv(path: Path, header: list[str], columns: list[np.ndarray], time_columns: int = 1) -> None:
+    data = np.column_stack(columns)
+    fmt = ["%.5f"] * time_columns + ["%.7g"] * (data.shape[1] - time_columns)
+    np.savetxt(path, data, delimiter=",", header=",".join(header), comments="", fmt=fmt)
+
+
+def _disturbance(p: np.ndarray, e: sensors.SensorErrors) -> np.ndarray:
+    """Extra field near the hall's steel and concrete: e.disturbance_ut at 1 m, falling as 1/d^3,
+    pointing away from the nearest wall point (a crude dipole stand-in)."""
+    lo, hi = np.array(HALL_MIN), np.array(HALL_MAX)
+    nearest = np.clip(p, lo, hi)
+    d = p - nearest
+    dist = np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1.0)
+    return e.disturbance_ut * d / dist / dist**3
+
+
+@dataclass(frozen=True)
+class SampleConfig:
+    seed: int = 2026
+    duration_s: float = DURATION_S
+    errors: sensors.SensorErrors = sensors.SensorErrors()
+    render_video: bool = True
+    crf: int = 30
+
+
+def write_sample_session(out: str | Path, scene_path: str | Path, config: SampleConfig = SampleConfig()) -> Path:
+    """Write the sample session (manifest, video, logs, truth) into `out`; returns the manifest."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(config.seed)
+    e = config.errors
+    motion = device_motion()
+    frame = LocalFrame(*SITE_ORIGIN)
+    t0 = START_UNIX_S
+    span = (t0 - 2.0, t0 + config.duration_s + 2.0)
+
+    def rel(t: np.ndarray) -> np.ndarray:
+        return t - t0
+
+    tg = sensors.callback_clock(*span, 100.0, e, rng)
+    _csv(out / "gyr.csv", ["t", "x", "y", "z"], [tg, sensors.gyroscope(tg, body_rates(motion, rel(tg)), e, rng)])
+    ta = sensors.callback_clock(*span, 100.0, e, rng)
+    _csv(out / "acc.csv", ["t", "x", "y", "z"], [ta, sensors.accelerometer(ta, specific_force(motion, rel(ta)), e, rng)])
+    tm = sensors.callback_clock(*span, 50.0, e, rng)
+    qm = motion.attitude(rel(tm))
+    field = field_enu(*SITE_ORIGIN, t0)
+    _csv(out / "mag.csv", ["t", "x", "y", "z"], [tm, sensors.magnetometer(qm, field, _disturbance(motion.position(rel(tm)), e), e, rng)])
+    to = sensors.callback_clock(*span, 50.0, e, rng)
+    q_phone = sensors.phone_orientation(to, motion.attitude(rel(to)), e, rng)
+    _csv(out / "phone_orientation.csv", ["t", "qw", "qx", "qy", "qz"], [to, q_phone])
+
+    tf = np.arange(np.ceil(span[0]), span[1], 1.0)
+    p_true = motion.position(rel(tf))
+    err = np.column_stack([sensors.gauss_markov(tf, e.gnss_sigma_h_m, e.gnss_tau_s, rng, 2), sensors.gauss_markov(tf, e.gnss_sigma_v_m, e.gnss_tau_s, rng)])
+    llh = frame.enu_to_geodetic(p_true + err)
+    v = (motion.position(rel(tf) + 0.05) - motion.position(rel(tf) - 0.05)) / 0.1 + rng.normal(0, e.gnss_speed_sigma, (len(tf), 3))
+    speed = np.hypot(v[:, 0], v[:, 1])
+    bearing = np.degrees(np.arctan2(v[:, 0], v[:, 1])) % 360.0
+    _csv(out / "gnss.csv", ["t", "lat", "lon", "h", "speed", "bearing", "h_acc"], [tf, llh[:, 0], llh[:, 1], llh[:, 2], speed, bearing, np.full(len(tf), e.gnss_sigma_h_m)])
+
+    tt = np.arange(span[0], span[1], 0.01)
+    _csv(out / "truth_orientation.csv", ["t", "qw", "qx", "qy", "qz"], [tt, motion.attitude(rel(tt))])
+    llh_true = frame.enu_to_geodetic(motion.position(rel(tt)))
+    _csv(out / "truth_position.csv", ["t", "lat", "lon", "h"], [tt, llh_true[:, 0], llh_true[:, 1], llh_true[:, 2]])
+
+    n = int(config.duration_s * FPS)
+    pts = np.arange(n) / FPS + np.concatenate([[0.0], rng.uniform(-0.003, 0.003, n - 1)])
+    _csv(out / "truth_frames.csv", ["frame", "t"], [np.arange(n), t0 + pts], time_columns=0)
+    if config.render_video:
+        render_frames(out / "clip.mp4", scene_path, pts, config.crf)
+    scene_rel = Path(scene_path).resolve()
+    try:
+        scene_rel = scene_rel.relative_to(out.resolve())
+    except ValueError:
+        pass
+    manifest = out / "session.toml"
+    manifest.write_text(MANIFEST.format(scene=scene_rel.as_posix(), origin=SITE_ORIGIN, start=t0 + SYNC_ERROR_S, hfov=HFOV_DEG, sync=SYNC_ERROR_S * 1000))
+    return manifest
+
+
+MANIFEST = """# geofuse sample session: a phone filming the sample stadium while its owner walks past it.
+# Generated by `geofuse simulate session` (app/simulate/session.py); the [truth] files are what a
+# real session would not have.
+
+[scene]
+path = "{scene}"
+origin = [{origin[0]}, {origin[1]}, {origin[2]}]
+up_axis = "Y"
+
+[video]
+path = "clip.mp4"
+start_time = {start:.3f}    # from the file's timestamp: {sync:.0f} ms late (see truth_frames.csv)
+time_offset_s = 0.0
+
+[camera]
+hfov_deg = {hfov}
+
+[sensors]
+format = "csv"
+acc = "acc.csv"
+gyr = "gyr.csv"
+mag = "mag.csv"
+orientation = "phone_orientation.csv"
+
+[gnss]
+path = "gnss.csv"
+
+[truth]
+orientation = "truth_orientation.csv"
+position = "truth_position.csv"
+frame_times = "truth_frames.csv"
+"""
+
+
+def render_frames(path: Path, scene_path: str | Path, pts: np.ndarray, crf: int) -> Path:
+    """Render the video from the true camera poses with the project's renderer, extras included."""
+    from app.render.context import create_offscreen_context
+    from app.render.offscreen import OffscreenTarget
+    from app.render.renderer import FusionRenderer
+
+    frame = LocalFrame(*SITE_ORIGIN)
+    base = load_scene(scene_path, frame)
+    extra = extras()
+    mesh = MeshData(base.primitives + extra)
+    first_mover = len(mesh.primitives) - len(MOVERS)
+    ctx = create_offscreen_context()
+    renderer = FusionRenderer(ctx, mesh)
+    w, h = VIDEO_SIZE
+    intr = Intrinsics.from_fov(w, h, HFOV_DEG)
+    target = OffscreenTarget(ctx, w, h)
+    positions = walk_position(pts)
+    attitudes = camera_attitude(pts)
+    off = ProjectionSettings(enabled=False)
+
+    def frame_at(k: int) -> np.ndarray:
+        for i, m in enumerate(MOVERS):
+            renderer.scene.update_positions(first_mover + i, _mover_vertices(m, float(pts[k])).astype(np.float32))
+        cam = Camera.create(intr, positions[k], attitudes[k], near=0.3, far=2000.0)
+        renderer.draw(cam, target.fbo, off)
+        return target.read()
+
+    try:
+        write_video(path, pts, VIDEO_SIZE, ROTATION_CW, creation_time="2025-11-15T09:46:40Z", frame=frame_at, crf=crf)
+    finally:
+        target.release()
+        renderer.release()
+        ctx.release()
+    return path
+
+
+def quick_config(duration_s: float = 8.0) -> SampleConfig:
+    """A short session for tests (same generator, fewer seconds)."""
+    return replace(SampleConfig(), duration_s=duration_s)

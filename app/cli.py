@@ -196,7 +196,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return code
 
 
-BENCHMARKS = {"render": "bench_render.py", "attitude": "bench_attitude.py"}
+BENCHMARKS = {"render": "bench_render.py", "attitude": "bench_attitude.py", "accuracy": "bench_accuracy.py"}
 
 
 def cmd_bench(args: argparse.Namespace) -> int:

@@ -34,6 +34,8 @@ GNSS logs, the camera intrinsics, the time offset and optional reference attitud
     [gnss]
     path = "gnss.csv"             # CSV (csvlog.py) or GPX
     height_offset_m = 0.0         # optional: added to heights (e.g. geoid separation for GPX)
+    height = "gnss"               # or "ground": the model's ground under each fix + mount height
+    mount_height_m = 1.5          # with height = "ground": camera above the ground (hand-held 1.5)
 
     [truth]                       # optional, for simulated sessions
     orientation = "truth.csv"     # device -> ENU quaternions (t, qw, qx, qy, qz)
@@ -152,6 +154,30 @@ class Session:
     warnings: Warnings = field(default_factory=Warnings)
     truth_position: GnssTrack | None = None
     truth_frame_times: np.ndarray | None = None
+    height_mode: str = "gnss"
+    mount_height_m: float = 1.5
+    _positions: PositionTrack | None = None
+
+    def positions(self) -> PositionTrack:
+        """The GNSS position track, with heights from the model's ground when asked (cached)."""
+        if self._positions is None:
+            g = self.gnss
+            h = g.h
+            if self.height_mode == "ground":
+                from app.scene import load_scene
+                from app.scene.ground import ground_heights
+
+                enu = self.frame.geodetic_to_enu(g.lat, g.lon, g.h)
+                ground = ground_heights(load_scene(self.scene_path, self.frame, self.placement), enu[:, :2])
+                if np.isnan(ground).any():
+                    self.warnings.add(f"{int(np.isnan(ground).sum())} GNSS fixes lie off the model: their GNSS height is kept")
+                enu[:, 2] = np.where(np.isnan(ground), enu[:, 2], ground + self.mount_height_m)
+                h = self.frame.enu_to_geodetic(enu)[:, 2]
+            try:
+                self._positions = PositionTrack.from_fixes(g.t, g.lat, g.lon, h, g.vel_enu)
+            except ValueError as exc:
+                raise DataFormatError(g.source, f"GNSS: {exc}") from exc
+        return self._positions
 
     @property
     def filters(self) -> list[str]:
@@ -264,6 +290,10 @@ def open_session(path: str | Path) -> Session:
     decl = declination(*origin, float(frame_times[0]))
     session = Session(m, frame, scene_path, placement, video, frame_times, intr, rotation, acc, gyr, mag, gnss, refs, decl, warnings)
     _truth_extras(m, session, warnings)
+    session.height_mode = m.get("gnss", "height", str, "gnss", required_section=False)
+    if session.height_mode not in ("gnss", "ground"):
+        raise ManifestError(m.path, f"got {session.height_mode!r}, expected 'gnss' or 'ground'", field="gnss.height")
+    session.mount_height_m = m.get("gnss", "mount_height_m", float, 1.5, required_section=False)
     return session
 
 
@@ -298,15 +328,31 @@ def device_attitude(session: Session, source: str) -> tuple[np.ndarray, np.ndarr
     acc = resample(t, session.acc.t, session.acc.values)
     mag = resample(t, session.mag.t, session.mag.values) if use_mag else None
     q = estimate(t, session.gyr.values, acc, mag, method=method, declination_deg=session.declination_deg if use_mag else 0.0)
+    if not use_mag and session.mag is not None:
+        q = anchor_heading(q, resample(t, session.mag.t, session.mag.values), session.declination_deg)
     return t, q
+
+
+def anchor_heading(q: np.ndarray, mag: np.ndarray, declination_deg: float) -> np.ndarray:
+    """An IMU (6D) track's arbitrary heading fixed once: the constant turn about Up that makes the
+    magnetometer point to magnetic north on average (circular mean over the clip), then to true
+    north. The track's dynamics stay those of the IMU filter; transient magnetic disturbances
+    cannot steer it."""
+    from app import rotations
+
+    h = rotations.rotate(q, mag)
+    angle = np.arctan2(h[:, 0], h[:, 1])  # the field's horizontal angle east of north
+    mean = np.arctan2(np.mean(np.sin(angle)), np.mean(np.cos(angle)))
+    turn = rotations.about_z(np.degrees(mean) - declination_deg)
+    return rotations.canonical(rotations.multiply(turn, q))
 
 
 def pose_track(session: Session, source: str) -> PoseTrack:
     """The camera pose track of one attitude source (for "truth": true positions too, if known)."""
     t_att, q = device_attitude(session, source)
-    g = session.truth_position if source == "truth" and session.truth_position is not None else session.gnss
-    try:
+    if source == "truth" and session.truth_position is not None:
+        g = session.truth_position
         positions = PositionTrack.from_fixes(g.t, g.lat, g.lon, g.h, g.vel_enu)
-    except ValueError as exc:
-        raise DataFormatError(g.source, f"GNSS: {exc}") from exc
+    else:
+        positions = session.positions()
     return PoseTrack(session.frame, positions, t_att, q, device_to_camera(session.rotation_cw))

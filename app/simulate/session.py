@@ -155,9 +155,15 @@ def extras() -> list:
 
 # --- writing the session -------------------------------------------------------------------------
 
-def _csv(path: Path, header: list[str], columns: list[np.ndarray], time_columns: int = 1) -> None:
+TIME_FMT = "%.5f"  # Unix seconds to 10 us
+VALUE_FMT = "%.7g"  # sensor values: 7 significant digits is below every noise level
+DEGREE_FMT = "%.9f"  # latitude/longitude: 1e-9 deg is 0.1 mm
+
+
+def _csv(path: Path, header: list[str], columns: list[np.ndarray], fmt: list[str] | None = None) -> None:
+    """Write columns under a header; the first column is a time unless `fmt` says otherwise."""
     data = np.column_stack(columns)
-    fmt = ["%.5f"] * time_columns + ["%.7g"] * (data.shape[1] - time_columns)
+    fmt = fmt or [TIME_FMT] + [VALUE_FMT] * (data.shape[1] - 1)
     np.savetxt(path, data, delimiter=",", header=",".join(header), comments="", fmt=fmt)
 
 
@@ -213,16 +219,17 @@ def write_sample_session(out: str | Path, scene_path: str | Path, config: Sample
     v = (motion.position(rel(tf) + 0.05) - motion.position(rel(tf) - 0.05)) / 0.1 + rng.normal(0, e.gnss_speed_sigma, (len(tf), 3))
     speed = np.hypot(v[:, 0], v[:, 1])
     bearing = np.degrees(np.arctan2(v[:, 0], v[:, 1])) % 360.0
-    _csv(out / "gnss.csv", ["t", "lat", "lon", "h", "speed", "bearing", "h_acc"], [tf, llh[:, 0], llh[:, 1], llh[:, 2], speed, bearing, np.full(len(tf), e.gnss_sigma_h_m)])
+    _csv(out / "gnss.csv", ["t", "lat", "lon", "h", "speed", "bearing", "h_acc"], [tf, llh[:, 0], llh[:, 1], llh[:, 2], speed, bearing, np.full(len(tf), e.gnss_sigma_h_m)],
+         [TIME_FMT, DEGREE_FMT, DEGREE_FMT, "%.3f", "%.3f", "%.2f", "%.1f"])
 
     tt = np.arange(span[0], span[1], 0.01)
     _csv(out / "truth_orientation.csv", ["t", "qw", "qx", "qy", "qz"], [tt, motion.attitude(rel(tt))])
     llh_true = frame.enu_to_geodetic(motion.position(rel(tt)))
-    _csv(out / "truth_position.csv", ["t", "lat", "lon", "h"], [tt, llh_true[:, 0], llh_true[:, 1], llh_true[:, 2]])
+    _csv(out / "truth_position.csv", ["t", "lat", "lon", "h"], [tt, llh_true[:, 0], llh_true[:, 1], llh_true[:, 2]], [TIME_FMT, DEGREE_FMT, DEGREE_FMT, "%.4f"])
 
     n = int(config.duration_s * FPS)
     pts = np.arange(n) / FPS + np.concatenate([[0.0], rng.uniform(-0.003, 0.003, n - 1)])
-    _csv(out / "truth_frames.csv", ["frame", "t"], [np.arange(n), t0 + pts], time_columns=0)
+    _csv(out / "truth_frames.csv", ["frame", "t"], [np.arange(n), t0 + pts], ["%d", TIME_FMT])
     if config.render_video:
         render_frames(out / "clip.mp4", scene_path, pts, config.crf)
     scene_rel = Path(scene_path).resolve()
@@ -261,6 +268,8 @@ orientation = "phone_orientation.csv"
 
 [gnss]
 path = "gnss.csv"
+height = "ground"             # phone GNSS heights are metres off; the model's ground is not
+mount_height_m = 1.45
 
 [truth]
 orientation = "truth_orientation.csv"

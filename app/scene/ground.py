@@ -1,0 +1,46 @@
+"""Ground height under points: vertical rays against the scene's triangles (pure numpy).
+
+Used to place a hand-held or body-worn camera at the model's ground plus a mount height, because
+phone GNSS heights are off by metres while the model's ground is not.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+
+from app.scene.mesh import MeshData
+
+CHUNK = 200_000  # triangles per vectorised batch
+
+
+def ground_heights(mesh: MeshData, xy: npt.ArrayLike) -> np.ndarray:
+    """(N,) lowest surface height (ENU z, m) under each (x, y); NaN where no triangle lies below.
+
+    The lowest surface is taken so that a position that strays into a building's footprint (GNSS
+    error) lands on the street level under it rather than on its roof.
+    """
+    pts = np.atleast_2d(np.asarray(xy, np.float64))[:, :2]
+    best = np.full(len(pts), np.inf)
+    for prim in mesh.primitives:
+        tri = prim.positions[prim.indices].astype(np.float64)  # (M, 3, 3)
+        for start in range(0, len(tri), CHUNK):
+            t = tri[start : start + CHUNK]
+            lo, hi = t[:, :, :2].min(axis=1), t[:, :, :2].max(axis=1)
+            for i, p in enumerate(pts):
+                cand = np.flatnonzero(np.all((lo <= p) & (p <= hi), axis=1))
+                if not len(cand):
+                    continue
+                a, b, c = t[cand, 0], t[cand, 1], t[cand, 2]
+                v0, v1 = b[:, :2] - a[:, :2], c[:, :2] - a[:, :2]
+                v2 = p - a[:, :2]
+                den = v0[:, 0] * v1[:, 1] - v1[:, 0] * v0[:, 1]
+                ok = np.abs(den) > 1e-12  # vertical faces have no area seen from above
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    u = (v2[:, 0] * v1[:, 1] - v1[:, 0] * v2[:, 1]) / den
+                    v = (v0[:, 0] * v2[:, 1] - v2[:, 0] * v0[:, 1]) / den
+                inside = ok & (u >= -1e-9) & (v >= -1e-9) & (u + v <= 1 + 1e-9)
+                if inside.any():
+                    z = a[inside, 2] + u[inside] * (b[inside, 2] - a[inside, 2]) + v[inside] * (c[inside, 2] - a[inside, 2])
+                    best[i] = min(best[i], float(z.min()))
+    return np.where(np.isfinite(best), best, np.nan)

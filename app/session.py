@@ -25,6 +25,7 @@ GNSS logs, the camera intrinsics, the time offset and optional reference attitud
     rotation_cw = 90              # optional: override the video's display rotation
 
     [sensors]
+    mag_calibration = "clip"      # or "none": fit hard-iron offset and scale on the clip
     format = "csv"                # "csv": acc, gyr, mag, orientation files below;
     acc = "acc.csv"               # "sensorlogger": path = folder or zip
     gyr = "gyr.csv"
@@ -288,6 +289,7 @@ def open_session(path: str | Path) -> Session:
     if not covered.all():
         warnings.add(f"{int((~covered).sum())} video frames lie outside the sensor log; their attitude is held")
     decl = declination(*origin, float(frame_times[0]))
+    mag = _calibrate_magnetometer(m, mag, origin, float(frame_times[0]), warnings)
     session = Session(m, frame, scene_path, placement, video, frame_times, intr, rotation, acc, gyr, mag, gnss, refs, decl, warnings)
     _truth_extras(m, session, warnings)
     session.height_mode = m.get("gnss", "height", str, "gnss", required_section=False)
@@ -295,6 +297,24 @@ def open_session(path: str | Path) -> Session:
         raise ManifestError(m.path, f"got {session.height_mode!r}, expected 'gnss' or 'ground'", field="gnss.height")
     session.mount_height_m = m.get("gnss", "mount_height_m", float, 1.5, required_section=False)
     return session
+
+
+def _calibrate_magnetometer(m: Manifest, mag: VectorStream | None, origin: tuple[float, float, float], when: float, warnings: Warnings) -> VectorStream | None:
+    """The magnetometer calibrated on the clip (app.attitude.magcal), unless switched off."""
+    from app.attitude import magcal
+    from app.geomag import field_enu
+
+    mode = m.get("sensors", "mag_calibration", str, "clip")
+    if mode not in ("clip", "none"):
+        raise ManifestError(m.path, f"got {mode!r}, expected 'clip' or 'none'", field="sensors.mag_calibration")
+    if mag is None or mode == "none":
+        return mag
+    cal = magcal.fit(mag.values, float(np.linalg.norm(field_enu(*origin, when))))
+    if isinstance(cal, str):
+        warnings.add(f"magnetometer not calibrated: {cal}")
+        return mag
+    warnings.add(f"magnetometer calibrated on the clip: {cal.describe()}")
+    return VectorStream(mag.name, mag.t, cal.apply(mag.values), mag.unit, mag.source)
 
 
 def _truth_extras(m: Manifest, session: Session, warnings: Warnings) -> None:

@@ -1,6 +1,7 @@
 #version 400 core
 // Scene pass with projective video texturing (paper 2.2.2).
 #include "projective.glsl"
+#include "video.glsl"
 
 uniform sampler2D u_base_texture;
 uniform bool u_has_texture;
@@ -14,7 +15,6 @@ uniform float u_proj_near;
 uniform float u_proj_far;
 uniform float u_proj_focal_texels; // depth-map focal length, texels
 uniform sampler2D u_depth_map;
-uniform sampler2D u_video;
 uniform float u_alpha;         // video opacity: 0 = model, 1 = video
 uniform float u_bias_constant; // metres
 uniform float u_bias_slope;    // depth-map texels of surface slope
@@ -52,7 +52,7 @@ void main() {
         float texel_m = eye_depth / u_proj_focal_texels;
         float bias = projector_bias(u_bias_constant, u_bias_slope, texel_m, abs(dot(normal, to_projector)));
         if (projector_visible(u_depth_map, texel, eye_depth, bias, u_proj_near, u_proj_far, u_neighbourhood)) {
-            vec3 video = texture(u_video, vec2(st.x, 1.0 - st.y)).rgb;
+            vec3 video = video_colour(vec2(st.x, 1.0 - st.y));
             colour = mix(colour, video, u_alpha);
         }
     }

@@ -258,3 +258,34 @@ def test_border_texels_with_fewer_neighbours_still_take_the_video(gl_ctx):
     out = render(r, view, alpha=1.0, depth_long_side=VIDEO_W)
     assert (np.abs(out - [255, 0, 255]).max(axis=2) <= 1).all()
     r.release()
+
+
+@pytest.mark.parametrize("rotation", [0, 90, 180, 270])
+def test_yuv_playback_frame_matches_the_rgb_still(gl_ctx, rotation):
+    """A stored YUV frame turned by the shader lands exactly where the same frame, turned on the
+    CPU and given as an RGB still, lands (to the YUV conversion's rounding)."""
+    from app.io.video import rotate_for_display
+    from app.render.video_texture import yuv_to_rgb
+
+    rng = np.random.default_rng(rotation)
+    h, w = (48, 64) if rotation % 180 == 0 else (64, 48)  # stored so that the display is 64x48
+    y = np.kron(rng.integers(40, 220, (h // 8, w // 8)), np.ones((8, 8))).astype(np.uint8)
+    u = np.kron(rng.integers(60, 200, (h // 8, w // 8)), np.ones((4, 4))).astype(np.uint8)
+    v = np.kron(rng.integers(60, 200, (h // 8, w // 8)), np.ones((4, 4))).astype(np.uint8)
+    r = make_renderer(gl_ctx, [wall()])
+    r.set_projector(projector())
+    view = view_camera([0, 5, 10], [0, WALL_Y, 10], 160, 120)
+    r.set_video_yuv(y, u, v, rotation, bt709=False)
+    from_yuv = render(r, view, alpha=1.0)
+    r.set_video_frame(rotate_for_display(yuv_to_rgb(y, u, v), rotation))
+    from_rgb = render(r, view, alpha=1.0)
+    # Compare away from block edges: there, bilinear filtering of half-resolution chroma planes
+    # and of CPU-upsampled RGB legitimately differ within a couple of texels.
+    world, _ = hit_plane(view, 1, WALL_Y)
+    uv, depth = r.projector.project(world)
+    inner = np.minimum(uv % 8, 8 - uv % 8).min(axis=1) >= 2.5
+    inside = (depth > 0) & np.all((uv > 0) & (uv < [VIDEO_W, VIDEO_H]), axis=1) & inner
+    assert inside.sum() > 2000
+    diff = np.abs(from_yuv - from_rgb).reshape(-1, 3).max(axis=1)[inside]
+    assert np.median(diff) <= 1 and np.percentile(diff, 99) <= 3
+    r.release()

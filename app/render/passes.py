@@ -10,6 +10,7 @@ from app.camera import Camera
 from app.config import ProjectionSettings
 from app.render.gpu_scene import GpuScene
 from app.render.programs import load_program
+from app.render.video_texture import VideoTexture
 
 LIGHT_DIR = np.array([0.35, -0.45, 0.82]) / np.linalg.norm([0.35, -0.45, 0.82])
 
@@ -93,6 +94,8 @@ class ScenePass:
         self.program["u_base_texture"].value = 0
         self.program["u_depth_map"].value = 1
         self.program["u_video"].value = 2
+        self.program["u_video_u"].value = 3
+        self.program["u_video_v"].value = 4
         self.program["u_light_dir"].value = tuple(LIGHT_DIR)
         # A 1x1 stand-in so that unused samplers are always complete.
         self._blank = ctx.texture((1, 1), 4, bytes([255, 255, 255, 255]))
@@ -103,13 +106,13 @@ class ScenePass:
         settings: ProjectionSettings,
         projector: Camera | None,
         depth: DepthPass | None,
-        video: moderngl.Texture | None,
+        video: VideoTexture | None,
     ) -> None:
         """Draw into the bound framebuffer. Projection needs projector, depth and video."""
         p = self.program
         p["u_view_proj"].write(_mat(view.view_projection))
         p["u_eye"].value = view.position
-        on = settings.enabled and projector is not None and depth is not None and video is not None
+        on = settings.enabled and projector is not None and depth is not None and video is not None and video.ready
         p["u_projection_on"].value = on
         if on:
             size = depth.size
@@ -124,10 +127,10 @@ class ScenePass:
             p["u_bias_slope"].value = settings.bias_slope
             p["u_neighbourhood"].value = settings.neighbourhood
             depth.texture.use(1)
-            video.use(2)
+            video.bind(p)
         else:
-            self._blank.use(1)
-            self._blank.use(2)
+            for unit in (1, 2, 3, 4):
+                self._blank.use(unit)
         self.ctx.enable(moderngl.DEPTH_TEST)
         self.ctx.disable(moderngl.CULL_FACE)
         for prim, vao in zip(self.scene.primitives, self.vaos):

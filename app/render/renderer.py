@@ -15,6 +15,7 @@ from app.config import OverlaySettings, ProjectionSettings
 from app.render.gpu_scene import GpuScene
 from app.render.overlays import FRUSTUM_COLOR, TRAJECTORY_COLOR, LineOverlay, frustum_segments
 from app.render.passes import DepthPass, ScenePass
+from app.render.video_texture import VideoTexture
 from app.scene.mesh import MeshData
 
 BACKGROUND = (0.62, 0.74, 0.86)
@@ -29,23 +30,17 @@ class FusionRenderer:
         self.depth = DepthPass(ctx, self.scene)
         self.scene_pass = ScenePass(ctx, self.scene)
         self.lines = LineOverlay(ctx)
-        self.video: moderngl.Texture | None = None
+        self.video = VideoTexture(ctx)
         self.projector: Camera | None = None
         self.trajectory: np.ndarray | None = None
 
     def set_video_frame(self, rgb: npt.NDArray[np.uint8]) -> None:
-        """Upload one video frame (H, W, 3) uint8 RGB, row 0 = the image's top row."""
-        img = np.ascontiguousarray(rgb, dtype=np.uint8)
-        if img.ndim != 3 or img.shape[2] not in (3, 4):
-            raise ValueError(f"video frame must be (H, W, 3|4) uint8, got {img.shape}")
-        size = (img.shape[1], img.shape[0])
-        if self.video is None or self.video.size != size or self.video.components != img.shape[2]:
-            if self.video is not None:
-                self.video.release()
-            self.video = self.ctx.texture(size, img.shape[2])
-            self.video.filter = (moderngl.LINEAR, moderngl.LINEAR)
-            self.video.repeat_x = self.video.repeat_y = False
-        self.video.write(img.tobytes())
+        """Upload one display-oriented video frame (H, W, 3) uint8 RGB, row 0 = the top row."""
+        self.video.set_rgb(rgb)
+
+    def set_video_yuv(self, y: np.ndarray, u: np.ndarray, v: np.ndarray, rotation_cw: int, bt709: bool, full_range: bool = False) -> None:
+        """Upload one stored playback frame's planes; the shader turns it by rotation_cw."""
+        self.video.set_yuv(y, u, v, rotation_cw, bt709, full_range)
 
     def set_projector(self, camera: Camera | None) -> None:
         """The depth camera (the video's camera) for the next draws."""
@@ -63,7 +58,7 @@ class FusionRenderer:
         overlays: OverlaySettings = OverlaySettings(frustum=False, trajectory=False),
     ) -> None:
         """Draw one frame from the window camera `view` into `fbo` (its viewport is used whole)."""
-        if settings.enabled and self.projector is not None and self.video is not None:
+        if settings.enabled and self.projector is not None and self.video.ready:
             w, h = self.projector.intrinsics.width, self.projector.intrinsics.height
             self.depth.update(self.projector, depth_map_size(w, h, settings.depth_long_side))
         fbo.use()
@@ -80,5 +75,4 @@ class FusionRenderer:
         self.scene_pass.release()
         self.depth.release()
         self.scene.release()
-        if self.video is not None:
-            self.video.release()
+        self.video.release()

@@ -1,0 +1,158 @@
+"""Video decoding on a worker thread: PyAV (FFmpeg's own threading on) into a bounded queue of
+YUV frames. The thread only decodes; every GL call stays on the render thread.
+
+A seek request carries the clock's serial; frames decoded after it carry that serial, so the
+render thread drops anything older (ffplay's scheme). Corrupt packets are skipped and counted.
+"""
+
+from __future__ import annotations
+
+import queue
+import threading
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+QUEUE_FRAMES = 12  # about 0.4 s of 30 fps video: enough to ride out decoder hiccups
+
+
+@dataclass(frozen=True)
+class DecodedFrame:
+    """One frame as stored (not yet turned for display): Y (H, W), U and V (H/2, W/2) uint8;
+    pts_s: seconds from the stream's first frame; bt709: the stream's colour matrix."""
+
+    serial: int
+    pts_s: float
+    y: np.ndarray
+    u: np.ndarray
+    v: np.ndarray
+    bt709: bool
+    full_range: bool
+
+
+def yuv_planes(frame) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The Y, U, V planes of a PyAV frame as contiguous arrays (converted to yuv420p if needed)."""
+    if frame.format.name not in ("yuv420p", "yuvj420p"):
+        frame = frame.reformat(format="yuv420p")
+    a = frame.to_ndarray()
+    h, w = frame.height, frame.width
+    y = a[:h]
+    chroma = a[h:].reshape(2, h // 2, w // 2)
+    return np.ascontiguousarray(y), np.ascontiguousarray(chroma[0]), np.ascontiguousarray(chroma[1])
+
+
+class Decoder:
+    """Decodes `path` on a daemon thread into `frames` (a bounded queue)."""
+
+    def __init__(self, path: str | Path, start_time_s: float = 0.0) -> None:
+        self.path = str(path)
+        self.frames: queue.Queue[DecodedFrame | None] = queue.Queue(maxsize=QUEUE_FRAMES)
+        self.corrupt_packets = 0
+        self.error: str | None = None
+        self._commands: queue.Queue[tuple[float, int] | None] = queue.Queue()
+        self._commands.put((start_time_s, 0))
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="geofuse-decoder", daemon=True)
+        self._thread.start()
+
+    def seek(self, media_time_s: float, serial: int) -> None:
+        """Decode from the frame at media_time_s on; frames will carry `serial`."""
+        self._commands.put((media_time_s, serial))
+
+    def close(self) -> None:
+        self._stop.set()
+        self._commands.put(None)
+        try:
+            while True:
+                self.frames.get_nowait()
+        except queue.Empty:
+            pass
+        self._thread.join(timeout=2.0)
+
+    def _put(self, item: DecodedFrame) -> bool:
+        """Block until there is room, unless a command or stop arrives (then False)."""
+        while not self._stop.is_set():
+            if not self._commands.empty():
+                return False
+            try:
+                self.frames.put(item, timeout=0.05)
+                return True
+            except queue.Full:
+                continue
+        return False
+
+    def _run(self) -> None:
+        try:
+            self._decode_all()
+        except Exception as exc:  # a worker must not die silently: the viewer shows this
+            self.error = f"{self.path}: decoding stopped ({type(exc).__name__}: {exc})"
+
+    def _decode_all(self) -> None:
+        import av
+
+        try:
+            container = av.open(self.path)
+        except (av.FFmpegError, OSError) as exc:
+            self.error = f"{self.path}: cannot open video ({exc})"
+            return
+        with container:
+            if not container.streams.video:
+                self.error = f"{self.path}: no video stream"
+                return
+            stream = container.streams.video[0]
+            stream.thread_type = "AUTO"  # FFmpeg's frame and slice threads
+            tb = float(stream.time_base)
+            start = float(stream.start_time * stream.time_base) if stream.start_time is not None else 0.0
+            rate = float(stream.guessed_rate or 30.0)
+            bt709 = stream.codec_context.height >= 720
+            command = self._commands.get()
+            while command is not None and not self._stop.is_set():
+                target, serial = command
+                container.seek(int((target + start) / tb), stream=stream, backward=True, any_frame=False)
+                command = self._decode_from(container, stream, target, serial, tb, start, rate, bt709)
+                if command is None and not self._stop.is_set():
+                    command = self._commands.get()  # end of stream: wait for a seek or stop
+
+    def _decode_from(self, container, stream, target: float, serial: int, tb: float, start: float, rate: float, bt709: bool):
+        """Decode forward from the last seek; returns the next command, or None at end of stream."""
+        import av
+
+        packets = container.demux(stream)
+        while not self._stop.is_set():
+            if not self._commands.empty():
+                return self._latest_command()
+            try:
+                packet = next(packets)
+            except StopIteration:
+                return None
+            except av.FFmpegError:
+                self.corrupt_packets += 1
+                continue
+            try:
+                frames = packet.decode()
+            except av.FFmpegError:
+                self.corrupt_packets += 1
+                continue
+            for frame in frames:
+                if frame.pts is None:
+                    continue
+                pts = frame.pts * tb - start
+                if pts < target - 0.5 / rate:
+                    continue  # before the seek target: decoded only to reach it
+                space = getattr(frame, "colorspace", None)
+                item = DecodedFrame(serial, pts, *yuv_planes(frame), bt709 if space in (None, 2) else int(space) == 1, frame.format.name == "yuvj420p")
+                if not self._put(item):
+                    return self._latest_command()
+        return None
+
+    def _latest_command(self):
+        """Collapse queued seeks to the newest (scrubbing sends many)."""
+        command = self._commands.get()
+        while command is not None:
+            try:
+                nxt = self._commands.get_nowait()
+            except queue.Empty:
+                break
+            command = nxt
+        return command

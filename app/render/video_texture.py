@@ -1,0 +1,87 @@
+"""The video frame on the GPU: an RGB still, or a playback frame's Y, U, V planes (converted to RGB
+in the shader, shaders/include/video.glsl), with the display rotation applied there."""
+
+from __future__ import annotations
+
+import moderngl
+import numpy as np
+
+# Studio-swing (limited range) Y'CbCr -> R'G'B', per ITU-R BT.601 and BT.709, as column-major
+# mat3 rows: R = 1.164 (Y-16) + ... (values from the standards' inverse matrices, scaled by 255/219
+# for luma and 255/224 for chroma).
+_BT601 = np.array([[1.164, 0.0, 1.596], [1.164, -0.392, -0.813], [1.164, 2.017, 0.0]])
+_BT709 = np.array([[1.164, 0.0, 1.793], [1.164, -0.213, -0.533], [1.164, 2.112, 0.0]])
+_FULL601 = np.array([[1.0, 0.0, 1.402], [1.0, -0.344, -0.714], [1.0, 1.772, 0.0]])
+_LIMITED_OFFSET = np.array([16.0, 128.0, 128.0]) / 255.0
+_FULL_OFFSET = np.array([0.0, 128.0, 128.0]) / 255.0
+
+
+def yuv_to_rgb(y: np.ndarray, u: np.ndarray, v: np.ndarray, bt709: bool = False, full_range: bool = False) -> np.ndarray:
+    """CPU reference of the shader's conversion: planes (chroma upsampled by repetition) -> RGB uint8."""
+    m = _FULL601 if full_range else (_BT709 if bt709 else _BT601)
+    off = _FULL_OFFSET if full_range else _LIMITED_OFFSET
+    uu = np.repeat(np.repeat(u, 2, axis=0), 2, axis=1)[: y.shape[0], : y.shape[1]]
+    vv = np.repeat(np.repeat(v, 2, axis=0), 2, axis=1)[: y.shape[0], : y.shape[1]]
+    yuv = np.stack([y, uu, vv], -1) / 255.0 - off
+    return np.clip(np.rint(yuv @ m.T * 255.0), 0, 255).astype(np.uint8)
+
+
+class VideoTexture:
+    """Owns the video textures; `bind(program)` sets the sampler units 2, 3, 4 and the uniforms."""
+
+    def __init__(self, ctx: moderngl.Context) -> None:
+        self.ctx = ctx
+        self.planes: list[moderngl.Texture] = []
+        self.yuv = False
+        self.rotation = 0
+        self.bt709 = False
+        self.full_range = False
+        self.size = (0, 0)  # displayed size (w, h)
+
+    def _textures(self, shapes: list[tuple[int, int, int]]) -> None:
+        if [(t.width, t.height, t.components) for t in self.planes] == [(w, h, c) for w, h, c in shapes]:
+            return
+        for t in self.planes:
+            t.release()
+        self.planes = []
+        for w, h, c in shapes:
+            t = self.ctx.texture((w, h), c)
+            t.filter = (moderngl.LINEAR, moderngl.LINEAR)
+            t.repeat_x = t.repeat_y = False
+            self.planes.append(t)
+
+    def set_rgb(self, rgb: np.ndarray) -> None:
+        """A display-oriented (H, W, 3|4) uint8 frame, row 0 = top."""
+        img = np.ascontiguousarray(rgb, dtype=np.uint8)
+        if img.ndim != 3 or img.shape[2] not in (3, 4):
+            raise ValueError(f"video frame must be (H, W, 3|4) uint8, got {img.shape}")
+        self._textures([(img.shape[1], img.shape[0], img.shape[2])])
+        self.planes[0].write(img.tobytes())
+        self.yuv, self.rotation, self.size = False, 0, (img.shape[1], img.shape[0])
+
+    def set_yuv(self, y: np.ndarray, u: np.ndarray, v: np.ndarray, rotation_cw: int, bt709: bool, full_range: bool = False) -> None:
+        """Stored planes: Y (H, W), U and V (H/2, W/2) uint8; rotation_cw turns them for display."""
+        h, w = y.shape
+        self._textures([(w, h, 1), (u.shape[1], u.shape[0], 1), (v.shape[1], v.shape[0], 1)])
+        for tex, plane in zip(self.planes, (y, u, v)):
+            tex.write(np.ascontiguousarray(plane).tobytes())
+        self.yuv, self.rotation, self.bt709, self.full_range = True, int(rotation_cw) % 360, bt709, full_range
+        self.size = (h, w) if self.rotation % 180 else (w, h)
+
+    @property
+    def ready(self) -> bool:
+        return bool(self.planes)
+
+    def bind(self, program: moderngl.Program) -> None:
+        program["u_video_yuv"].value = self.yuv
+        program["u_video_rotation"].value = self.rotation
+        m = _FULL601 if self.full_range else (_BT709 if self.bt709 else _BT601)
+        program["u_yuv_matrix"].write(np.asarray(m, np.float32).T.tobytes())
+        program["u_yuv_offset"].value = tuple(_FULL_OFFSET if self.full_range else _LIMITED_OFFSET)
+        for unit, tex in zip((2, 3, 4), self.planes + [self.planes[0]] * (3 - len(self.planes))):
+            tex.use(unit)
+
+    def release(self) -> None:
+        for t in self.planes:
+            t.release()
+        self.planes = []

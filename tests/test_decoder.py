@@ -1,0 +1,84 @@
+import queue
+import time
+
+import numpy as np
+import pytest
+
+from app.playback.decoder import Decoder
+from app.simulate.phone import write_video
+
+
+@pytest.fixture(scope="module")
+def clip(tmp_path_factory):
+    path = tmp_path_factory.mktemp("clip") / "c.mp4"
+    return write_video(path, np.arange(60) / 30.0, (64, 32), 0)
+
+
+def take(dec, n, timeout=5.0):
+    out = []
+    end = time.monotonic() + timeout
+    while len(out) < n and time.monotonic() < end:
+        try:
+            out.append(dec.frames.get(timeout=0.1))
+        except queue.Empty:
+            pass
+    return out
+
+
+def test_decodes_in_order_into_a_bounded_queue(clip):
+    dec = Decoder(clip)
+    try:
+        frames = take(dec, 20)
+        assert [round(f.pts_s * 30) for f in frames] == list(range(20))
+        assert frames[0].y.shape == (32, 64) and frames[0].u.shape == (16, 32)
+        time.sleep(0.3)
+        assert dec.frames.qsize() <= dec.frames.maxsize
+    finally:
+        dec.close()
+
+
+def test_seek_delivers_the_exact_frame_with_the_new_serial(clip):
+    dec = Decoder(clip)
+    try:
+        take(dec, 3)
+        dec.seek(1.5, serial=7)
+        end = time.monotonic() + 5
+        first = None
+        while time.monotonic() < end:
+            f = dec.frames.get(timeout=1)
+            if f.serial == 7:
+                first = f
+                break
+        assert first is not None and round(first.pts_s * 30) == 45
+    finally:
+        dec.close()
+
+
+def test_corrupt_packets_are_skipped_and_counted(clip, tmp_path):
+    data = bytearray(clip.read_bytes())
+    rng = np.random.default_rng(3)
+    # Scribble over frame data in the middle of the file; MP4 keeps its index (moov) at the end.
+    for pos in rng.integers(int(len(data) * 0.3), int(len(data) * 0.6), 40):
+        data[pos : pos + 8] = b"\xff" * 8
+    bad = tmp_path / "bad.mp4"
+    bad.write_bytes(bytes(data))
+    dec = Decoder(bad)
+    try:
+        frames = take(dec, 60, timeout=2)
+        assert len(frames) > 10  # it went on past the damage
+        assert dec.error is None
+    finally:
+        dec.close()
+
+
+def test_unreadable_video_reports_an_error(tmp_path):
+    bad = tmp_path / "junk.mp4"
+    bad.write_bytes(b"not a video")
+    dec = Decoder(bad)
+    try:
+        end = time.monotonic() + 5
+        while dec.error is None and time.monotonic() < end:
+            time.sleep(0.05)
+        assert "junk.mp4" in dec.error
+    finally:
+        dec.close()

@@ -15,7 +15,7 @@ $(STAMP): pyproject.toml
 setup: $(STAMP)
 
 demo: $(STAMP)
-	$(PY) -m app demo
+	$(PY) -m app view
 
 test: $(STAMP)
 	$(PY) -m pytest -q

@@ -139,6 +139,15 @@ def cmd_solve(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_view(args: argparse.Namespace) -> int:
+    import logging
+
+    from app.ui.viewer import Options, Viewer
+
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
+    return Viewer(Options(args.manifest, args.size, args.script, args.screenshot, args.play)).run()
+
+
 def cmd_simulate_scene(args: argparse.Namespace) -> int:
     from app.simulate.stadium import write_site
 
@@ -234,6 +243,14 @@ def build_parser() -> argparse.ArgumentParser:
     _add_projection_options(r)
     r.add_argument("--out", required=True, type=Path, help="output PNG")
     r.set_defaults(func=cmd_render)
+
+    v = sub.add_parser("view", help="the interactive viewer (the bundled sample when no manifest is given)")
+    v.add_argument("manifest", nargs="?", type=Path, default=None)
+    v.add_argument("--size", type=_size, default=(1280, 720), help="window WIDTHxHEIGHT")
+    v.add_argument("--script", type=Path, default=None, help="a file of timed UI actions (app/ui/script.py)")
+    v.add_argument("--screenshot", type=Path, default=None, help="save the window to this PNG (alone: after --play seconds, then exit)")
+    v.add_argument("--play", type=float, default=2.0, help="with --screenshot alone: seconds to play first")
+    v.set_defaults(func=cmd_view)
 
     so = sub.add_parser("solve", help="a camera pose for every video frame of a session, as CSV")
     so.add_argument("manifest", type=Path)

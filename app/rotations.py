@@ -144,15 +144,24 @@ def wrap_degrees(a: npt.ArrayLike) -> FloatArray:
     return (np.asarray(a, np.float64) + 180.0) % 360.0 - 180.0
 
 
-def slerp(t_source: npt.ArrayLike, q_source: npt.ArrayLike, t_query: npt.ArrayLike) -> FloatArray:
-    """Spherical linear interpolation of quaternions (N, 4) at t_source onto t_query; times
-    outside the source range take the first/last quaternion. Never interpolates Euler angles,
-    so the +-180 deg heading wrap is harmless."""
-    from scipy.spatial.transform import Slerp
+class Interpolator:
+    """Spherical linear interpolation of quaternions (N, 4) given at times t_source (built once,
+    queried many times); times outside the source range take the first/last quaternion. Never
+    interpolates Euler angles, so the +-180 deg heading wrap is harmless."""
 
-    ts = np.asarray(t_source, np.float64)
-    tq = np.clip(np.asarray(t_query, np.float64), ts[0], ts[-1])
-    return from_scipy(Slerp(ts, to_scipy(q_source))(tq))
+    def __init__(self, t_source: npt.ArrayLike, q_source: npt.ArrayLike) -> None:
+        from scipy.spatial.transform import Slerp
+
+        self.t = np.asarray(t_source, np.float64)
+        self._slerp = Slerp(self.t, to_scipy(q_source))
+
+    def __call__(self, t_query: npt.ArrayLike) -> FloatArray:
+        return from_scipy(self._slerp(np.clip(np.asarray(t_query, np.float64), self.t[0], self.t[-1])))
+
+
+def slerp(t_source: npt.ArrayLike, q_source: npt.ArrayLike, t_query: npt.ArrayLike) -> FloatArray:
+    """One-off `Interpolator(t_source, q_source)(t_query)`."""
+    return Interpolator(t_source, q_source)(t_query)
 
 
 def about_z(angle_deg: float) -> FloatArray:

@@ -115,6 +115,8 @@ class PoseTrack:
         """(ENU (M, 3) m, geodetic (M, 3) deg/deg/m, camera -> ENU quaternions (M, 4)) at tq."""
         geo = self.positions.geodetic_at(tq)
         enu = self.frame.geodetic_to_enu(geo[:, 0], geo[:, 1], geo[:, 2])
-        q_dev = rotations.slerp(self.t_att, self.q_device, np.atleast_1d(tq))
+        if "_slerp" not in self.__dict__:  # built once: the viewer asks for one time per frame
+            object.__setattr__(self, "_slerp", rotations.Interpolator(self.t_att, self.q_device))
+        q_dev = self.__dict__["_slerp"](np.atleast_1d(tq))
         q_cam = rotations.canonical(rotations.multiply(q_dev, self.q_dev_to_cam))
         return enu, geo, q_cam

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from app.playback.clock import FrameSchedule, LatencyMeter, PlaybackClock
+from app.playback.clock import FrameSchedule, PlaybackClock
 
 
 def test_clock_accumulates_speed_pause_and_seek():
@@ -36,15 +36,3 @@ def test_due_frame_and_wall_time():
     c = PlaybackClock(duration=1.0, speed=0.5)
     c.time(10.0)
     assert c.wall_time_of(0.1, 10.0) == pytest.approx(10.2)
-
-
-def test_latency_and_dropped_frames():
-    m = LatencyMeter()
-    m.shown(0, 1.000, 1.004, contiguous=True)
-    m.shown(1, 1.033, 1.040, contiguous=True)
-    m.shown(3, 1.100, 1.101, contiguous=True)  # frame 2 was never shown
-    assert m.dropped == 1
-    m.shown(10, 2.0, 2.002, contiguous=False)  # after a seek: not a drop
-    assert m.dropped == 1
-    current, mean, p95 = m.summary()
-    assert current == pytest.approx(2.0) and mean == pytest.approx((4 + 7 + 1 + 2) / 4)

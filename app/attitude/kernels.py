@@ -113,7 +113,7 @@ def _accept(an: float, norm_ref: float, acc_reject: float) -> tuple:
     return ok, norm_ref + 0.001 * (an - norm_ref)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def madgwick(
     t: np.ndarray, gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray, use_mag: bool,
     q0: np.ndarray, beta: float, beta_start: float, ramp_s: float, acc_reject: float, bias_tau: float,
@@ -177,7 +177,7 @@ def _rotation(ax: float, ay: float, az: float, angle: float) -> tuple:
     return math.cos(0.5 * angle), ax * s, ay * s, az * s
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def complementary(
     t: np.ndarray, gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray, use_mag: bool,
     q0: np.ndarray, tau_acc: float, tau_mag: float, acc_reject: float, bias_tau: float,

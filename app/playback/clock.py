@@ -76,31 +76,3 @@ class FrameSchedule:
 
     def step(self, index: int, frames: int) -> int:
         return int(np.clip(index + frames, 0, len(self.pts) - 1))
-
-
-@dataclass
-class LatencyMeter:
-    """Playback latency as the paper defines it (a frame's due time to its first display), and
-    dropped frames (due, but never shown because a later frame was due first). Seconds."""
-
-    latencies: list[float] = field(default_factory=list)
-    dropped: int = 0
-    last_shown: int = -1
-
-    def shown(self, index: int, due_wall: float, shown_wall: float, contiguous: bool) -> None:
-        """Record frame `index` first displayed at shown_wall; `contiguous`: no seek since the
-        previous frame, so skipped indices count as dropped."""
-        if contiguous and self.last_shown >= 0 and index > self.last_shown + 1:
-            self.dropped += index - self.last_shown - 1
-        self.latencies.append(max(0.0, shown_wall - due_wall))
-        self.last_shown = index
-
-    def reset_sequence(self) -> None:
-        self.last_shown = -1
-
-    def summary(self) -> tuple[float, float, float]:
-        """(current, mean, 95th percentile) latency in milliseconds."""
-        if not self.latencies:
-            return 0.0, 0.0, 0.0
-        a = np.asarray(self.latencies[-2000:]) * 1000.0
-        return float(a[-1]), float(a.mean()), float(np.percentile(a, 95))

@@ -13,7 +13,7 @@ import numpy.typing as npt
 from app.camera import Camera, depth_map_size
 from app.config import OverlaySettings, ProjectionSettings
 from app.render.gpu_scene import GpuScene
-from app.render.overlays import FRUSTUM_COLOR, TRAJECTORY_COLOR, LineOverlay, frustum_segments
+from app.render.overlays import FRUSTUM_COLOR, REFERENCE_COLOR, TRAJECTORY_COLOR, LineOverlay, frustum_segments
 from app.render.passes import DepthPass, ScenePass
 from app.render.video_texture import VideoTexture
 from app.scene.mesh import MeshData
@@ -32,6 +32,7 @@ class FusionRenderer:
         self.lines = LineOverlay(ctx)
         self.video = VideoTexture(ctx)
         self.projector: Camera | None = None
+        self.reference: Camera | None = None
         self.trajectory: np.ndarray | None = None
 
     def set_video_frame(self, rgb: npt.NDArray[np.uint8]) -> None:
@@ -45,6 +46,10 @@ class FusionRenderer:
     def set_projector(self, camera: Camera | None) -> None:
         """The depth camera (the video's camera) for the next draws."""
         self.projector = camera
+
+    def set_reference(self, camera: Camera | None) -> None:
+        """A second camera drawn as a frustum beside the projector's (e.g. the true pose)."""
+        self.reference = camera
 
     def set_trajectory(self, points_enu: npt.ArrayLike | None) -> None:
         """A polyline (N, 3) ENU metres drawn by the trajectory overlay."""
@@ -67,6 +72,8 @@ class FusionRenderer:
         vp = view.view_projection
         if overlays.frustum and self.projector is not None:
             self.lines.draw(vp, frustum_segments(self.projector, overlays.frustum_length_m), FRUSTUM_COLOR, moderngl.LINES)
+        if overlays.frustum and self.reference is not None:
+            self.lines.draw(vp, frustum_segments(self.reference, overlays.frustum_length_m), REFERENCE_COLOR, moderngl.LINES)
         if overlays.trajectory and self.trajectory is not None:
             self.lines.draw(vp, self.trajectory, TRAJECTORY_COLOR, moderngl.LINE_STRIP)
 

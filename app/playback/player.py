@@ -1,0 +1,112 @@
+"""The render thread's side of playback, without GL: the clock, the decoder's queue, which frame
+is due, and the playback latency of each frame as the paper defines it (due time -> first
+display). The viewer and the off-screen playback benchmark both drive this.
+
+The frame due is chosen for the moment it will appear, not the moment the loop starts: the loop
+looks ahead by its own recent render time (an exponential average), the way a player schedules a
+frame for its presentation time. Latencies are recorded signed: a frame shown early counts as
+negative, not as zero.
+"""
+
+from __future__ import annotations
+
+import queue
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from app.playback.clock import FrameSchedule, PlaybackClock
+from app.playback.decoder import DecodedFrame, Decoder
+
+LOOKAHEAD_SMOOTHING = 0.1  # weight of the newest render time in the look-ahead average
+
+
+@dataclass
+class PlayerStats:
+    latencies: list[float] = field(default_factory=list)  # seconds, signed
+    dropped: int = 0
+
+    def summary(self) -> tuple[float, float, float]:
+        """(current, mean, 95th percentile) latency in milliseconds over the last 2000 frames."""
+        if not self.latencies:
+            return 0.0, 0.0, 0.0
+        a = np.asarray(self.latencies[-2000:]) * 1000.0
+        return float(a[-1]), float(a.mean()), float(np.percentile(a, 95))
+
+
+class Player:
+    """pts: (N,) frame times in seconds from the first frame (display order)."""
+
+    def __init__(self, video_path: str, pts: np.ndarray, loop: bool = True) -> None:
+        self.schedule = FrameSchedule(np.asarray(pts, np.float64))
+        self.clock = PlaybackClock(duration=float(pts[-1]), loop=loop, paused=True)
+        self.decoder = Decoder(video_path)
+        self.current: DecodedFrame | None = None
+        self.index = -1
+        self.stats = PlayerStats()
+        self.lookahead_s = 0.0
+        self._pending: DecodedFrame | None = None
+        self._fresh: tuple[int, float] | None = None  # (frame index, due wall time) not yet shown
+        self._last_shown = -1
+        self._serial_seen = 0
+
+    # --- control --------------------------------------------------------------------------------
+
+    def seek(self, media_time: float, now: float) -> None:
+        self.clock.seek(media_time, now)
+        self._restart(now)
+
+    def step(self, frames: int, now: float) -> None:
+        self.clock.set_paused(True, now)
+        self.seek(float(self.schedule.pts[self.schedule.step(max(self.index, 0), frames)]), now)
+
+    def _restart(self, now: float) -> None:
+        self.decoder.seek(self.clock.time(now), self.clock.serial)
+        self._pending = None
+        self._last_shown = -1
+        self._serial_seen = self.clock.serial
+
+    def close(self) -> None:
+        self.decoder.close()
+
+    # --- the frame loop -------------------------------------------------------------------------
+
+    def tick(self, now: float) -> bool:
+        """Advance to the frame due when this tick's image will appear; True if it changed."""
+        media = self.clock.time(now)
+        if self.clock.serial != self._serial_seen:  # the clock looped: decode from the start again
+            self._restart(now)
+        target = media + (0.0 if self.clock.paused else self.lookahead_s * self.clock.speed)
+        changed = False
+        while True:
+            if self._pending is None:
+                try:
+                    item = self.decoder.frames.get_nowait()
+                except queue.Empty:
+                    return changed
+                if item is None or item.serial != self.clock.serial:
+                    continue  # decoded before the last seek
+                self._pending = item
+            first_after_seek = self.current is None or self.current.serial != self.clock.serial
+            if self._pending.pts_s > target + 1e-6 and not first_after_seek:
+                return changed
+            self.current, self._pending = self._pending, None
+            index = self.schedule.due(self.current.pts_s)
+            if index != self.index:
+                self.index = index
+                due = now if self.clock.paused else self.clock.wall_time_of(float(self.schedule.pts[index]), now)
+                self._fresh = (index, due)
+                changed = True
+
+    def shown(self, now: float, render_s: float) -> None:
+        """The tick's image appeared at `now`; render_s: how long the tick took to draw."""
+        self.lookahead_s += LOOKAHEAD_SMOOTHING * (render_s - self.lookahead_s)
+        if self._fresh is None:
+            return
+        index, due = self._fresh
+        if not self.clock.paused:
+            if self._last_shown >= 0 and index > self._last_shown + 1:
+                self.stats.dropped += index - self._last_shown - 1
+            self.stats.latencies.append(now - due)
+        self._last_shown = index
+        self._fresh = None

@@ -1,0 +1,84 @@
+"""Window-camera navigation, pure numpy: free roam (WASD/QE + mouse look, speed on the wheel),
+orbit around a picked point, and "through the phone" (riding the video's camera)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from app import rotations
+from app.camera import Camera, Intrinsics, look_at_quat
+
+MODES = ("free", "orbit", "phone")
+
+
+@dataclass
+class Navigator:
+    """yaw: degrees clockwise from north of the view direction; pitch: degrees above the horizon;
+    speed: m/s of free roam; orbit target and distance in ENU metres."""
+
+    position: np.ndarray = field(default_factory=lambda: np.array([35.0, -160.0, 40.0]))
+    yaw: float = -12.0
+    pitch: float = -12.0
+    speed: float = 10.0
+    mode: str = "free"
+    target: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    distance: float = 60.0
+    home: tuple | None = None
+
+    def __post_init__(self) -> None:
+        self.home = (self.position.copy(), self.yaw, self.pitch)
+
+    def forward(self) -> np.ndarray:
+        y, p = np.radians(self.yaw), np.radians(self.pitch)
+        return np.array([np.sin(y) * np.cos(p), np.cos(y) * np.cos(p), np.sin(p)])
+
+    def move(self, dt: float, forward: float, right: float, up: float) -> None:
+        """Free roam by key axes in [-1, 1] for dt seconds (W/S, D/A, E/Q)."""
+        if self.mode == "phone":
+            return
+        f = self.forward()
+        r = np.array([np.cos(np.radians(self.yaw)), -np.sin(np.radians(self.yaw)), 0.0])
+        step = (f * forward + r * right + np.array([0.0, 0.0, 1.0]) * up) * self.speed * dt
+        if self.mode == "orbit":
+            self.target = self.target + step
+        else:
+            self.position = self.position + step
+
+    def look(self, dx_px: float, dy_px: float, deg_per_px: float = 0.15) -> None:
+        """Mouse look (free) or orbit drag (orbit): pixels of mouse motion."""
+        if self.mode == "phone":
+            return
+        self.yaw = (self.yaw + dx_px * deg_per_px + 180.0) % 360.0 - 180.0
+        self.pitch = float(np.clip(self.pitch - dy_px * deg_per_px, -89.0, 89.0))
+
+    def wheel(self, steps: float) -> None:
+        """Wheel: free roam speed (x1.25 per step) or orbit distance."""
+        if self.mode == "orbit":
+            self.distance = float(np.clip(self.distance * 0.85**steps, 2.0, 5000.0))
+        else:
+            self.speed = float(np.clip(self.speed * 1.25**steps, 0.5, 500.0))
+
+    def orbit_around(self, point: np.ndarray) -> None:
+        """Orbit the picked point, keeping the current view direction and position."""
+        self.target = np.asarray(point, np.float64)
+        self.distance = float(max(2.0, np.linalg.norm(self.position - self.target)))
+        d = self.target - self.position
+        self.yaw = float(np.degrees(np.arctan2(d[0], d[1])))
+        self.pitch = float(np.degrees(np.arcsin(np.clip(d[2] / max(np.linalg.norm(d), 1e-9), -1, 1))))
+        self.mode = "orbit"
+
+    def reset(self) -> None:
+        self.position, self.yaw, self.pitch = self.home[0].copy(), self.home[1], self.home[2]
+        self.mode = "free"
+
+    def camera(self, intrinsics: Intrinsics, phone: Camera | None, near: float = 0.3, far: float = 3000.0) -> Camera:
+        """The window camera for the current mode."""
+        if self.mode == "phone" and phone is not None:
+            return Camera.create(intrinsics, phone.position, phone.orientation, near, far)
+        if self.mode == "orbit":
+            eye = self.target - self.forward() * self.distance
+            return Camera.create(intrinsics, eye, look_at_quat(eye, self.target), near, far)
+        q = rotations.camera_quat_from_hpr(self.yaw % 360.0, self.pitch, 0.0)
+        return Camera.create(intrinsics, self.position, q, near, far)

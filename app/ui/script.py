@@ -1,0 +1,64 @@
+"""Scripted viewer sessions: a text file of timed UI actions, one per line, for tests and the
+README's screenshots. Times are seconds of wall time since the viewer opened.
+
+    # comment
+    0.0  play
+    2.0  pause
+    2.1  seek 12.5          # media seconds from the first frame
+    2.5  step 1             # frames, either way
+    3.0  speed 2
+    3.2  source gd-imu      # any attitude source the session offers
+    3.4  ahrs off           # the AHRS / IMU toggle
+    3.5  alpha 0.5
+    3.6  view phone         # free | orbit | phone | reset
+    3.7  open path/to/other.toml
+    3.8  panels off         # hide the panels (a scene-only screenshot)
+    4.0  screenshot out.png
+    4.1  state out.json     # the viewer's state (camera, frame, source, errors) as JSON
+    4.5  quit
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from app.errors import DataFormatError
+
+ACTIONS = {
+    "play": 0, "pause": 0, "seek": 1, "step": 1, "speed": 1, "source": 1, "ahrs": 1, "alpha": 1,
+    "view": 1, "open": 1, "screenshot": 1, "quit": 0, "overlay": 1, "offset": 1, "panels": 1, "state": 1,
+}
+
+
+@dataclass(frozen=True)
+class Action:
+    at_s: float
+    name: str
+    arg: str | None
+    line: int
+
+
+def parse_script(path: str | Path) -> list[Action]:
+    """Actions sorted by time. Errors name the file and line."""
+    path = Path(path)
+    if not path.is_file():
+        raise DataFormatError(path, "script file does not exist")
+    out = []
+    for number, raw in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1):
+        text = raw.split("#", 1)[0].strip()
+        if not text:
+            continue
+        parts = text.split(None, 2)
+        try:
+            at = float(parts[0])
+        except ValueError:
+            raise DataFormatError(path, f"expected a time in seconds, got {parts[0]!r}", line=number) from None
+        if len(parts) < 2 or parts[1] not in ACTIONS:
+            raise DataFormatError(path, f"unknown action {parts[1] if len(parts) > 1 else ''!r} (expected one of {sorted(ACTIONS)})", line=number)
+        name = parts[1]
+        arg = parts[2].strip() if len(parts) > 2 else None
+        if ACTIONS[name] and arg is None:
+            raise DataFormatError(path, f"{name} needs an argument", line=number)
+        out.append(Action(at, name, arg, number))
+    return sorted(out, key=lambda a: a.at_s)

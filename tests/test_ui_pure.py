@@ -1,0 +1,55 @@
+import numpy as np
+import pytest
+
+from app import rotations
+from app.camera import Camera, Intrinsics
+from app.errors import DataFormatError
+from app.ui.navigation import Navigator
+from app.ui.script import parse_script
+
+
+def test_free_roam_moves_along_the_view():
+    nav = Navigator(position=np.zeros(3), yaw=90.0, pitch=0.0, speed=2.0)
+    nav.move(1.5, forward=1, right=0, up=0)
+    np.testing.assert_allclose(nav.position, [3, 0, 0], atol=1e-12)  # yaw 90 = east
+    nav.move(1.0, forward=0, right=1, up=1)
+    np.testing.assert_allclose(nav.position, [3, -2, 2], atol=1e-12)  # right of east is south
+    cam = nav.camera(Intrinsics.from_fov(100, 50, 60), None)
+    np.testing.assert_allclose(rotations.rotate(cam.orientation, [0, 0, -1]), [1, 0, 0], atol=1e-12)
+
+
+def test_orbit_keeps_the_target_in_the_centre_and_wheel_zooms():
+    nav = Navigator(position=np.array([0.0, -50.0, 10.0]))
+    nav.orbit_around(np.array([0.0, 0.0, 10.0]))
+    nav.look(100, 0)
+    nav.wheel(2)
+    cam = nav.camera(Intrinsics.from_fov(100, 100, 60), None)
+    uv, depth = cam.project([[0.0, 0.0, 10.0]])
+    np.testing.assert_allclose(uv[0], [50, 50], atol=1e-9)
+    assert depth[0] == pytest.approx(50 * 0.85**2)
+
+
+def test_phone_mode_rides_the_video_camera_and_reset_returns_home():
+    nav = Navigator()
+    phone = Camera.create(Intrinsics.from_fov(64, 36, 66), [1, 2, 3], rotations.camera_quat_from_hpr(30, 5, 0))
+    nav.mode = "phone"
+    cam = nav.camera(Intrinsics.from_fov(200, 100, 66), phone)
+    assert cam.position == phone.position and cam.orientation == phone.orientation
+    home = nav.position.copy()
+    nav.mode = "free"
+    nav.move(1.0, 1, 0, 0)
+    nav.reset()
+    np.testing.assert_allclose(nav.position, home)
+
+
+def test_script_parsing(tmp_path):
+    p = tmp_path / "s.txt"
+    p.write_text("# a test\n0 play\n2.5 alpha 0.5  # half\n1 seek 10\n3 quit\n")
+    actions = parse_script(p)
+    assert [(a.at_s, a.name, a.arg) for a in actions] == [(0.0, "play", None), (1.0, "seek", "10"), (2.5, "alpha", "0.5"), (3.0, "quit", None)]
+    p.write_text("0 play\nsoon quit\n")
+    with pytest.raises(DataFormatError, match=r"s.txt:2"):
+        parse_script(p)
+    p.write_text("0 dance\n")
+    with pytest.raises(DataFormatError, match="unknown action 'dance'"):
+        parse_script(p)

@@ -40,9 +40,12 @@ class ProjectionSettings:
 
 @dataclass(frozen=True)
 class OverlaySettings:
-    """What is drawn over the scene: the depth camera's frustum (lines out to `frustum_length_m`)
-    and the trajectory polyline."""
+    """What is drawn over the scene: the depth camera's frustum (lines out to `frustum_length_m`),
+    the trajectory polyline, and the projection error in metres as colours on the model."""
 
     frustum: bool = True
     trajectory: bool = True
     frustum_length_m: float = 25.0
+    error_map: bool = False  # colour the model by projection error (needs a truth camera)
+    error_scale_m: float = 4.0  # error at the red end of the colour ramp, metres
+    error_map_texels: int = 512  # the truth position map's long side

@@ -20,11 +20,26 @@ uniform float u_bias_constant; // metres
 uniform float u_bias_slope;    // depth-map texels of surface slope
 uniform bool u_neighbourhood;  // the paper's nine-case rule
 
+// Error overlay (sessions with ground truth): the true camera's position map. The video texel
+// that lands on this fragment truly shows the model point stored at the same texel.
+uniform bool u_error_overlay;
+uniform sampler2D u_truth_positions;
+uniform float u_error_scale_m;  // the colour ramp's top, metres
+
 in vec3 v_world;
 in vec2 v_uv;
 in vec4 v_color;
 
 out vec4 f_color;
+
+// Green (0 m) -> yellow (half the scale) -> red (the scale and beyond).
+vec3 error_colour(float metres) {
+    float x = clamp(metres / u_error_scale_m, 0.0, 1.0);
+    vec3 green = vec3(0.10, 0.80, 0.25);
+    vec3 yellow = vec3(1.00, 0.85, 0.10);
+    vec3 red = vec3(0.90, 0.10, 0.10);
+    return x < 0.5 ? mix(green, yellow, 2.0 * x) : mix(yellow, red, 2.0 * x - 1.0);
+}
 
 vec3 model_colour(vec3 normal) {
     vec4 base = v_color;
@@ -54,6 +69,12 @@ void main() {
         if (projector_visible(u_depth_map, texel, eye_depth, bias, u_proj_near, u_proj_far, u_neighbourhood)) {
             vec3 video = video_colour(vec2(st.x, 1.0 - st.y));
             colour = mix(colour, video, u_alpha);
+            if (u_error_overlay) {
+                vec4 truth = texture(u_truth_positions, st);
+                if (truth.w > 0.5) {
+                    colour = mix(colour, error_colour(distance(v_world, truth.xyz)), 0.7);
+                }
+            }
         }
     }
     f_color = vec4(colour, 1.0);

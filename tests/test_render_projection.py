@@ -289,3 +289,28 @@ def test_yuv_playback_frame_matches_the_rgb_still(gl_ctx, rotation):
     diff = np.abs(from_yuv - from_rgb).reshape(-1, 3).max(axis=1)[inside]
     assert np.median(diff) <= 1 and np.percentile(diff, 99) <= 3
     r.release()
+
+
+def test_error_overlay_colours_the_projection_error_in_metres(gl_ctx):
+    """The true camera 2 m east of the estimated one, both facing the wall: every covered wall
+    point is off by exactly 2 m, half of a 4 m scale: yellow."""
+    from app.config import OverlaySettings
+
+    r = make_renderer(gl_ctx, [wall()])
+    r.set_video_frame(np.full((VIDEO_H, VIDEO_W, 3), 128, np.uint8))
+    est = projector()
+    r.set_projector(est)
+    view = view_camera([0, 5, 10], [0, WALL_Y, 10], 160, 120)
+    from app.render.offscreen import render_to_array
+
+    def colour(truth_offset):
+        r.set_truth(Camera.create(est.intrinsics, np.asarray(est.position) + truth_offset, est.orientation, est.near, est.far))
+        out = render_to_array(r, view, ProjectionSettings(alpha=1.0), OverlaySettings(frustum=False, trajectory=False, error_map=True, error_scale_m=4.0))
+        return out[50:70, 70:90].reshape(-1, 3).astype(int)
+
+    same = colour([0.0, 0.0, 0.0])
+    off = colour([2.0, 0.0, 0.0])
+    # 70 % of the ramp colour over the video's grey 128: green at 0 m, yellow at 2 m of 4.
+    np.testing.assert_allclose(np.median(same, axis=0), 0.3 * 128 + 0.7 * np.array([0.10, 0.80, 0.25]) * 255, atol=3)
+    np.testing.assert_allclose(np.median(off, axis=0), 0.3 * 128 + 0.7 * np.array([1.00, 0.85, 0.10]) * 255, atol=3)
+    r.release()

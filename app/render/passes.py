@@ -96,6 +96,7 @@ class ScenePass:
         self.program["u_video"].value = 2
         self.program["u_video_u"].value = 3
         self.program["u_video_v"].value = 4
+        self.program["u_truth_positions"].value = 5
         self.program["u_light_dir"].value = tuple(LIGHT_DIR)
         # A 1x1 stand-in so that unused samplers are always complete.
         self._blank = ctx.texture((1, 1), 4, bytes([255, 255, 255, 255]))
@@ -107,8 +108,11 @@ class ScenePass:
         projector: Camera | None,
         depth: DepthPass | None,
         video: VideoTexture | None,
+        truth_positions: moderngl.Texture | None = None,
+        error_scale_m: float = 4.0,
     ) -> None:
-        """Draw into the bound framebuffer. Projection needs projector, depth and video."""
+        """Draw into the bound framebuffer. Projection needs projector, depth and video; the error
+        overlay a position map from the true camera."""
         p = self.program
         p["u_view_proj"].write(_mat(view.view_projection))
         p["u_eye"].value = view.position
@@ -131,6 +135,9 @@ class ScenePass:
         else:
             for unit in (1, 2, 3, 4):
                 self._blank.use(unit)
+        p["u_error_overlay"].value = on and truth_positions is not None
+        p["u_error_scale_m"].value = error_scale_m
+        (truth_positions or self._blank).use(5)
         self.ctx.enable(moderngl.DEPTH_TEST)
         self.ctx.disable(moderngl.CULL_FACE)
         for prim, vao in zip(self.scene.primitives, self.vaos):

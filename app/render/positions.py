@@ -18,7 +18,31 @@ class PositionPass:
         self.ctx = ctx
         self.program = load_program(ctx, "scene.vert", "position.frag")
         self.vaos = scene.vertex_arrays(self.program, ("in_position",))
-        self._targets: dict[tuple[int, int], tuple[moderngl.Framebuffer, moderngl.Renderbuffer, moderngl.Renderbuffer]] = {}
+        self._targets: dict[tuple, tuple] = {}
+
+    def render_texture(self, camera: Camera) -> moderngl.Texture:
+        """The position map of `camera` in a float texture (row 0 = bottom, as GL samples it;
+        w = 1 where a surface was hit, 0 elsewhere), for shaders that look positions up."""
+        size = (camera.intrinsics.width, camera.intrinsics.height)
+        key = ("texture", size)
+        if key not in self._targets:
+            tex = self.ctx.texture(size, 4, dtype="f4")
+            tex.filter = (moderngl.NEAREST, moderngl.NEAREST)  # never blend across depth edges
+            tex.repeat_x = tex.repeat_y = False
+            depth = self.ctx.depth_renderbuffer(size)
+            self._targets[key] = (self.ctx.framebuffer([tex], depth), tex, depth)
+        fbo, tex, _ = self._targets[key]
+        self._draw(fbo, camera)
+        return tex
+
+    def _draw(self, fbo: moderngl.Framebuffer, camera: Camera) -> None:
+        fbo.use()
+        fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+        self.ctx.enable(moderngl.DEPTH_TEST)
+        self.ctx.disable(moderngl.CULL_FACE)
+        self.program["u_view_proj"].write(_mat(camera.view_projection))
+        for vao in self.vaos:
+            vao.render(moderngl.TRIANGLES)
 
     def _target(self, size: tuple[int, int]) -> moderngl.Framebuffer:
         if size not in self._targets:
@@ -32,13 +56,7 @@ class PositionPass:
         the pixel sees no surface."""
         w, h = camera.intrinsics.width, camera.intrinsics.height
         fbo = self._target((w, h))
-        fbo.use()
-        fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
-        self.ctx.enable(moderngl.DEPTH_TEST)
-        self.ctx.disable(moderngl.CULL_FACE)
-        self.program["u_view_proj"].write(_mat(camera.view_projection))
-        for vao in self.vaos:
-            vao.render(moderngl.TRIANGLES)
+        self._draw(fbo, camera)
         data = np.frombuffer(fbo.read(components=4, dtype="f4"), np.float32).reshape(h, w, 4)[::-1]
         out = data[:, :, :3].astype(np.float64)
         out[data[:, :, 3] < 0.5] = np.nan

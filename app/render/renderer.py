@@ -33,6 +33,10 @@ class FusionRenderer:
         self.video = VideoTexture(ctx)
         self.projector: Camera | None = None
         self.reference: Camera | None = None
+        self.truth: Camera | None = None
+        self._positions = None  # PositionPass, made on first use of the error overlay
+        self._truth_map = None
+        self._truth_map_camera: Camera | None = None
         self.trajectory: np.ndarray | None = None
 
     def set_video_frame(self, rgb: npt.NDArray[np.uint8]) -> None:
@@ -51,6 +55,25 @@ class FusionRenderer:
         """A second camera drawn as a frustum beside the projector's (e.g. the true pose)."""
         self.reference = camera
 
+    def set_truth(self, camera: Camera | None) -> None:
+        """The video's true camera, for the projection-error overlay (simulated sessions)."""
+        self.truth = camera
+
+    def _truth_positions(self, overlays: OverlaySettings):
+        if not overlays.error_map or self.truth is None:
+            return None
+        from app.render.positions import PositionPass
+
+        if self._positions is None:
+            self._positions = PositionPass(self.ctx, self.scene)
+        w, h = self.truth.intrinsics.width, self.truth.intrinsics.height
+        s = overlays.error_map_texels / max(w, h)
+        cam = Camera.create(self.truth.intrinsics.scaled(max(1, round(w * s)), max(1, round(h * s))), self.truth.position, self.truth.orientation, self.truth.near, self.truth.far)
+        if cam != self._truth_map_camera:  # redrawn only when the true pose changes
+            self._truth_map = self._positions.render_texture(cam)
+            self._truth_map_camera = cam
+        return self._truth_map
+
     def set_trajectory(self, points_enu: npt.ArrayLike | None) -> None:
         """A polyline (N, 3) ENU metres drawn by the trajectory overlay."""
         self.trajectory = None if points_enu is None else np.asarray(points_enu, np.float64)
@@ -66,9 +89,10 @@ class FusionRenderer:
         if settings.enabled and self.projector is not None and self.video.ready:
             w, h = self.projector.intrinsics.width, self.projector.intrinsics.height
             self.depth.update(self.projector, depth_map_size(w, h, settings.depth_long_side))
+        truth_map = self._truth_positions(overlays)
         fbo.use()
         fbo.clear(*BACKGROUND, 1.0, depth=1.0)
-        self.scene_pass.render(view, settings, self.projector, self.depth, self.video)
+        self.scene_pass.render(view, settings, self.projector, self.depth, self.video, truth_map, overlays.error_scale_m)
         vp = view.view_projection
         if overlays.frustum and self.projector is not None:
             self.lines.draw(vp, frustum_segments(self.projector, overlays.frustum_length_m), FRUSTUM_COLOR, moderngl.LINES)
@@ -78,6 +102,8 @@ class FusionRenderer:
             self.lines.draw(vp, self.trajectory, TRAJECTORY_COLOR, moderngl.LINE_STRIP)
 
     def release(self) -> None:
+        if self._positions is not None:
+            self._positions.release()
         self.lines.release()
         self.scene_pass.release()
         self.depth.release()

@@ -243,6 +243,19 @@ def _projection(v) -> None:
         imgui.same_line()
         _, tr = imgui.checkbox("trajectory", o.trajectory)
         v.overlays = replace(o, frustum=fr, trajectory=tr)
+        if v.loaded is not None and "truth" in v.loaded.session.filters:
+            _, em = imgui.checkbox("projection error on the model (m)", v.overlays.error_map)
+            _, scale = imgui.slider_float("error scale (m)", v.overlays.error_scale_m, 0.5, 20.0, "%.1f")
+            v.overlays = replace(v.overlays, error_map=em, error_scale_m=scale)
+            if em:
+                for frac, colour in ((0.0, (0.10, 0.80, 0.25, 1.0)), (0.5, (1.00, 0.85, 0.10, 1.0)), (1.0, (0.90, 0.10, 0.10, 1.0))):
+                    imgui.color_button(f"##legend{frac}", imgui.ImVec4(*colour), 0, imgui.ImVec2(14, 14))
+                    imgui.same_line()
+                    imgui.text(f"{frac * scale:.1f} m" + (" and more" if frac == 1.0 else ""))
+                    if frac < 1.0:
+                        imgui.same_line()
+        else:
+            imgui.text_disabled("projection error: needs a session with ground truth")
         _, v.time_offset_s = imgui.slider_float("time offset (s)", v.time_offset_s, -1.0, 1.0, "%+.3f")
     imgui.end()
 

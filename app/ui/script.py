@@ -10,6 +10,8 @@ README's screenshots. Times are seconds of wall time since the viewer opened.
     3.2  source gd-imu      # any attitude source the session offers
     3.4  ahrs off           # the AHRS / IMU toggle
     3.5  alpha 0.5
+    3.55 overlay on         # the projection-error colours (sessions with ground truth)
+    3.58 offset 0.08        # the session's time offset, seconds
     3.6  view phone         # free | orbit | phone | reset
     3.7  open path/to/other.toml
     3.8  panels off         # hide the panels (a scene-only screenshot)

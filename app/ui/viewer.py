@@ -79,7 +79,6 @@ class Viewer:
         self.script: list[Action] = []
         self.show_help = False
         self.open_path = ""
-        self.error_overlay = False
         self.screenshot_request: Path | None = None
         self.state_request: Path | None = None
         self.show_panels = True
@@ -209,6 +208,16 @@ class Viewer:
         enu, _, q = track.at(np.array([t]))
         return Camera.create(L.session.intrinsics, enu[0], q[0], near=0.5, far=2000.0)
 
+    def _truth_camera(self) -> Camera | None:
+        """The video's true camera for the current frame (sessions with ground truth)."""
+        L = self.loaded
+        track = L.tracks.tracks.get("truth")
+        if track is None or self.current_index < 0 or not self.overlays.error_map:
+            return None
+        times = L.session.truth_frame_times if L.session.truth_frame_times is not None else L.session.frame_times
+        enu, _, q = track.at(times[self.current_index : self.current_index + 1])
+        return Camera.create(L.session.intrinsics, enu[0], q[0], near=0.5, far=2000.0)
+
     def _update(self, now: float) -> None:
         L = self.loaded
         if L is None:
@@ -222,6 +231,7 @@ class Viewer:
         projector = self._projector()
         L.renderer.set_projector(projector)
         L.renderer.set_reference(self._reference_camera())
+        L.renderer.set_truth(self._truth_camera())
         if L.trajectory is None and L.source in L.tracks.tracks:
             enu, _, _ = L.tracks.tracks[L.source].at(L.session.frame_times[::TRAJECTORY_STEP])
             L.trajectory = enu
@@ -330,7 +340,7 @@ class Viewer:
         elif name == "offset":
             self.time_offset_s = float(arg)
         elif name == "overlay":
-            self.error_overlay = arg == "on"
+            self.overlays = replace(self.overlays, error_map=arg == "on")
         elif name == "view":
             if arg == "reset":
                 self.nav.reset()

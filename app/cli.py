@@ -205,7 +205,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return code
 
 
-BENCHMARKS = {"render": "bench_render.py", "attitude": "bench_attitude.py", "accuracy": "bench_accuracy.py"}
+BENCHMARKS = {"render": "bench_render.py", "attitude": "bench_attitude.py", "accuracy": "bench_accuracy.py", "playback": "bench_playback.py"}
 
 
 def cmd_bench(args: argparse.Namespace) -> int:

@@ -76,3 +76,16 @@ def test_seek_and_step_show_the_exact_frame(clip):
         assert settle(p, 0.0) == 43
     finally:
         p.close()
+
+
+def test_next_due_wall_lets_an_idle_loop_sleep(clip):
+    p = Player(str(clip), np.arange(90) / 30.0, loop=False)
+    try:
+        assert p.next_due_wall(0.0) is None  # paused
+        shown = run(p, 0.2, tick_s=0.004, render_s=0.003, start=50.0)
+        now = 50.2
+        due = p.next_due_wall(now)
+        assert due is not None and 0.0 <= due - now <= 1 / 30 + 0.004
+        assert float(p.schedule.pts[p.index + 1]) > float(p.schedule.pts[p.index]) and shown
+    finally:
+        p.close()

@@ -98,6 +98,13 @@ class Player:
                 self._fresh = (index, due)
                 changed = True
 
+    def next_due_wall(self, now: float) -> float | None:
+        """Wall time at which the frame after the current one becomes due (None when paused or
+        at the end): a loop with nothing else to draw can sleep until then, less its look-ahead."""
+        if self.clock.paused or self.index < 0 or self.index + 1 >= len(self.schedule.pts):
+            return None
+        return self.clock.wall_time_of(float(self.schedule.pts[self.index + 1]), now)
+
     def shown(self, now: float, render_s: float) -> None:
         """The tick's image appeared at `now`; render_s: how long the tick took to draw."""
         self.lookahead_s += LOOKAHEAD_SMOOTHING * (render_s - self.lookahead_s)

@@ -1,0 +1,194 @@
+"""DJI drone subtitle telemetry (.SRT): one entry per second or per video frame, in the layouts DJI
+has written over its generations (see docs/FORMATS.md for each, with the traps):
+
+- P4 / P4 RTK / Mavic 2 era, one line: `GPS (lon, lat, sats)`, `HOME (lon, lat, alt m)`, `D`, `H`
+  (height above take-off), `H.S`, `V.S`, `F.PRY (pitch, roll, yaw)` (aircraft) and `G.PRY (...)`
+  (gimbal = camera);
+- Mavic Pro era: `HOME(lon,lat) YYYY.MM.DD hh:mm:ss` then `GPS(lon,lat,n) BAROMETER:h` (height
+  above take-off);
+- Matrice 300 era: a `YYYY.MM.DD hh:mm:ss` line then `GPS(lat,lon,altM) BAROMETER:hM` (latitude
+  first: the altitude carries an `M`);
+- Mavic Air 2 / Air 2S / Mini era, per frame: `SrtCnt`, `DiffTime`, `YYYY-MM-DD hh:mm:ss,mmm,uuu`,
+  `[latitude: ..] [longitude: ..]` (or `longtitude`), `[altitude: ..]` or `[rel_alt: .. abs_alt: ..]`,
+  `[focal_len: ..]`, sometimes `[gb_yaw: .. gb_pitch: .. gb_roll: ..]`.
+
+Entries without a position are kept (time only) and counted; a file cut mid-entry keeps its complete
+entries with a warning; a byte-order mark and CR/LF line ends are accepted; one file may mix layouts.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from pathlib import Path
+
+import numpy as np
+
+from app.errors import DataFormatError
+from app.io.streams import Warnings
+
+_TIMING = re.compile(r"(\d+):(\d\d):(\d\d)[,.](\d{1,3})\s*-->\s*(\d+):(\d\d):(\d\d)[,.](\d{1,3})")
+_NUM = r"([-+]?\d+(?:\.\d+)?)"
+_GPS_PAREN = re.compile(r"GPS\s*\(\s*" + _NUM + r"\s*,\s*" + _NUM + r"\s*,\s*" + _NUM + r"(M?)\s*\)", re.I)
+_HOME = re.compile(r"HOME\s*\(\s*" + _NUM + r"\s*,\s*" + _NUM + r"(?:\s*,\s*" + _NUM + r"\s*m?)?\s*\)", re.I)
+_LAT = re.compile(r"\[?\s*latitude\s*:\s*" + _NUM, re.I)
+_LON = re.compile(r"\[?\s*long?t?itude\s*:\s*" + _NUM, re.I)  # DJI also writes "longtitude"
+_ALT = re.compile(r"\[\s*altitude\s*:\s*" + _NUM, re.I)
+_REL_ALT = re.compile(r"rel_alt\s*:\s*" + _NUM, re.I)
+_ABS_ALT = re.compile(r"abs_alt\s*:\s*" + _NUM, re.I)
+_BARO = re.compile(r"BAROMETER\s*:\s*" + _NUM, re.I)
+_H = re.compile(r"(?<![.\w])H\s+" + _NUM + r"\s*m", re.I)
+_PRY = {
+    "F": re.compile(r"F\.PRY\s*\(\s*" + _NUM + r"\S*\s*,\s*" + _NUM + r"\S*\s*,\s*" + _NUM, re.I),
+    "G": re.compile(r"G\.PRY\s*\(\s*" + _NUM + r"\S*\s*,\s*" + _NUM + r"\S*\s*,\s*" + _NUM, re.I),
+}
+_GB = {k: re.compile(rf"gb_{k}\s*:\s*" + _NUM, re.I) for k in ("yaw", "pitch", "roll")}
+_FOCAL = re.compile(r"focal_len\s*:\s*" + _NUM, re.I)
+_DATE_DASH = re.compile(r"(\d{4})-(\d\d)-(\d\d)\s+(\d\d):(\d\d):(\d\d)(?:[,.](\d{1,3}))?(?:[,.](\d{1,3}))?")
+_DATE_DOT = re.compile(r"(\d{4})\.(\d\d)\.(\d\d)\s+(\d\d):(\d\d):(\d\d)")
+
+
+@dataclass(frozen=True)
+class SrtTrack:
+    """Per entry: t (N,) seconds from the clip start (the entry's start time); lat, lon (deg; NaN
+    where the entry has none); height (m) and whether it is relative to take-off; wall-clock time
+    (Unix s, local time of the aircraft taken as UTC: DJI writes no zone) or NaN; gimbal and
+    aircraft pitch, roll, yaw (deg) or NaN; focal length (mm-equivalent x10 as DJI writes) or NaN."""
+
+    path: str
+    t: np.ndarray
+    t_end: np.ndarray
+    lat: np.ndarray
+    lon: np.ndarray
+    height: np.ndarray
+    height_relative: bool
+    wall_clock: np.ndarray
+    gimbal_pry: np.ndarray
+    aircraft_pry: np.ndarray
+    focal_len: np.ndarray
+    layouts: tuple[str, ...]
+
+    @property
+    def has_position(self) -> np.ndarray:
+        return np.isfinite(self.lat) & np.isfinite(self.lon)
+
+    @property
+    def has_gimbal(self) -> bool:
+        return bool(np.isfinite(self.gimbal_pry).all(axis=1).any())
+
+
+def _seconds(h: str, m: str, s: str, ms: str) -> float:
+    return int(h) * 3600 + int(m) * 60 + int(s) + int(ms.ljust(3, "0")) / 1000.0
+
+
+def _entry_fields(text: str) -> tuple[dict[str, float], str]:
+    """The numbers of one entry's text and the name of its layout."""
+    f: dict[str, float] = {}
+    layout = "unknown"
+    gps = _GPS_PAREN.search(text)
+    if gps:
+        a, b, c, m = float(gps.group(1)), float(gps.group(2)), float(gps.group(3)), gps.group(4)
+        if m or abs(b) > 90.0:  # Matrice 300 era: latitude first, altitude with an M
+            f["lat"], f["lon"], f["alt"] = a, b, c
+            layout = "GPS(lat,lon,altM)"
+        else:  # older: longitude first, then satellites (or a rough altitude)
+            f["lon"], f["lat"] = a, b
+            layout = "GPS(lon,lat,n)"
+            if abs(a) <= 90.0 and abs(b) > 90.0:
+                f["lon"], f["lat"] = b, a
+    lat, lon = _LAT.search(text), _LON.search(text)
+    if lat and lon:
+        f["lat"], f["lon"] = float(lat.group(1)), float(lon.group(1))
+        layout = "[latitude][longitude]"
+    for key, rx in (("rel", _REL_ALT), ("abs", _ABS_ALT), ("altitude", _ALT), ("baro", _BARO), ("H", _H), ("focal", _FOCAL)):
+        m = rx.search(text)
+        if m:
+            f[key] = float(m.group(1))
+    for k, rx in _PRY.items():
+        m = rx.search(text)
+        if m:
+            f[f"{k}p"], f[f"{k}r"], f[f"{k}y"] = (float(m.group(i)) for i in (1, 2, 3))
+    if all(rx.search(text) for rx in _GB.values()):
+        f["Gp"], f["Gr"], f["Gy"] = (float(_GB[k].search(text).group(1)) for k in ("pitch", "roll", "yaw"))
+    d = _DATE_DASH.search(text)
+    if d:
+        g = d.groups()
+        base = datetime(*(int(x) for x in g[:6]), tzinfo=timezone.utc).timestamp()
+        f["wall"] = base + (int(g[6]) / 1000.0 if g[6] else 0.0) + (int(g[7]) / 1e6 if g[7] else 0.0)
+    else:
+        d = _DATE_DOT.search(text)
+        if d:
+            f["wall"] = datetime(*(int(x) for x in d.groups()), tzinfo=timezone.utc).timestamp()
+    return f, layout
+
+
+def read_srt(path: str | Path, warnings: Warnings | None = None) -> SrtTrack:
+    """Every entry of a DJI .SRT. Raises DataFormatError naming the file and entry for an empty
+    file, a file without a single complete entry, or one without any position."""
+    path = Path(path)
+    warnings = warnings if warnings is not None else Warnings()
+    if not path.is_file():
+        raise DataFormatError(path, "subtitle file does not exist")
+    raw = path.read_bytes()
+    if not raw.strip():
+        raise DataFormatError(path, "empty subtitle file (expected DJI telemetry entries)")
+    text = raw.decode("utf-8-sig", errors="replace").replace("\r\n", "\n").replace("\r", "\n")
+    blocks = [b for b in re.split(r"\n\s*\n", text.strip()) if b.strip()]
+    rows = []
+    layouts: set[str] = set()
+    incomplete = []
+    usual = int(np.median([len(b.strip().split("\n")) for b in blocks]))
+    for n, block in enumerate(blocks, start=1):
+        lines = block.strip().split("\n")
+        if n == len(blocks) and n > 1 and len(lines) < usual:
+            incomplete.append(n)  # the file stops inside its last entry
+            continue
+        timing = next((_TIMING.search(line) for line in lines[:3] if _TIMING.search(line)), None)
+        body = "\n".join(line for line in lines if not _TIMING.search(line) and not line.strip().isdigit())
+        if timing is None or not body.strip():
+            incomplete.append(n)
+            continue
+        g = timing.groups()
+        fields, layout = _entry_fields(re.sub(r"<[^>]+>", " ", body))
+        layouts.add(layout)
+        rows.append((_seconds(*g[:4]), _seconds(*g[4:]), fields))
+    if incomplete:
+        last = incomplete[-1] == len(blocks)
+        where = "the last entry" if incomplete == [len(blocks)] else f"entries {incomplete[:5]}"
+        warnings.add(f"{path.name}: {where} {'is cut short' if last else 'are incomplete'}; the {len(rows)} complete entries are kept")
+    if not rows:
+        raise DataFormatError(path, f"no complete subtitle entry among {len(blocks)} blocks (expected 'index, start --> end, telemetry')")
+
+    def col(key: str) -> np.ndarray:
+        return np.array([r[2].get(key, np.nan) for r in rows], np.float64)
+
+    lat, lon = col("lat"), col("lon")
+    missing = ~(np.isfinite(lat) & np.isfinite(lon))
+    if missing.all():
+        raise DataFormatError(path, f"none of the {len(rows)} entries has a position (GPS, latitude/longitude)")
+    if missing.any():
+        warnings.add(f"{path.name}: {int(missing.sum())} entries without a position (first: entry {int(np.flatnonzero(missing)[0]) + 1})")
+    if len(layouts - {"unknown"}) > 1:
+        warnings.add(f"{path.name}: mixes layouts {sorted(layouts - {'unknown'})}")
+    # Heights: relative to take-off where the layout says so (H, rel_alt, BAROMETER), else absolute.
+    for key, relative in (("rel", True), ("H", True), ("baro", True), ("abs", False), ("altitude", False), ("alt", False)):
+        h = col(key)
+        if np.isfinite(h).any():
+            height, height_relative = h, relative
+            break
+    else:
+        height, height_relative = np.full(len(rows), np.nan), True
+    t = np.array([r[0] for r in rows])
+    return SrtTrack(
+        str(path), t, np.array([r[1] for r in rows]), lat, lon, height, height_relative, col("wall"),
+        np.column_stack([col("Gp"), col("Gr"), col("Gy")]), np.column_stack([col("Fp"), col("Fr"), col("Fy")]), col("focal"),
+        tuple(sorted(layouts)),
+    )
+
+
+def check_duration(track: SrtTrack, video_duration_s: float, tolerance_s: float = 2.0) -> None:
+    """An SRT whose entries run past the video (or stop far short of it) belongs to another clip."""
+    end = float(track.t_end.max())
+    if end > video_duration_s + tolerance_s or end < video_duration_s - max(tolerance_s, 0.2 * video_duration_s):
+        raise DataFormatError(track.path, f"its entries span 0-{end:.1f} s but the video lasts {video_duration_s:.1f} s: is it the subtitle of another clip?", field="timing")

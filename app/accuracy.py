@@ -18,7 +18,7 @@ from app.attitude import estimate, resample
 from app.attitude.metrics import hpr_rms
 from app.camera import Camera, Intrinsics
 from app.session import Session, pose_track
-from app.trajectory import PoseTrack, device_to_camera
+from app.trajectory import PoseTrack
 
 EDGE_FRACTION = 0.1  # the outer 10 % of columns on each side count as the image's edges
 
@@ -59,7 +59,7 @@ def paper_track(session: Session) -> tuple[Callable[[np.ndarray], Poses], np.nda
     acc = resample(t, session.acc.t, session.acc.values)
     mag = resample(t, session.mag.t, session.mag.values)
     q_dev = estimate(t, session.gyr.values, acc, mag, method="gd")
-    q_cam = rotations.multiply(q_dev, device_to_camera(session.rotation_cw))
+    q_cam = rotations.multiply(q_dev, session.camera_mount())
     hpr = rotations.hpr_from_camera_quat(q_cam)
     positions = session.positions()
     eq5 = session.frame_times[0] + session.video.eq5_times()
@@ -97,11 +97,10 @@ class ProjectionProbe:
         from app.render.context import create_offscreen_context
         from app.render.gpu_scene import GpuScene
         from app.render.positions import PositionPass
-        from app.scene import load_scene
 
         self.intrinsics: Intrinsics = session.intrinsics.scaled(*grid)
         self.ctx = create_offscreen_context()
-        self.scene = GpuScene(self.ctx, load_scene(session.scene_path, session.frame, session.placement))
+        self.scene = GpuScene(self.ctx, session.scene())
         self.pass_ = PositionPass(self.ctx, self.scene)
 
     def points(self, enu: np.ndarray, q: np.ndarray) -> np.ndarray:

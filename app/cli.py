@@ -100,10 +100,10 @@ def _render_session(args: argparse.Namespace) -> int:
     from app.imageio import write_rgb
     from app.io.video import read_frame
     from app.render.still import render_still, window_camera
-    from app.scene import load_scene
-    from app.session import open_session, pose_track
+    from app.clips import open_any
+    from app.session import pose_track
 
-    session = open_session(args.session)
+    session = open_any(args.session)
     source = args.filter or session.filters[0]
     if args.time is None:
         raise GeofuseError("render --session needs --time T (seconds from the video's first frame)")
@@ -116,7 +116,7 @@ def _render_session(args: argparse.Namespace) -> int:
     enu, _, q = track.at(session.frame_times[index : index + 1])
     image = read_frame(session.video.path, index, session.video)
     projector = Camera.create(session.intrinsics, enu[0], q[0], near=0.5, far=args.far)
-    mesh = load_scene(session.scene_path, session.frame, session.placement)
+    mesh = session.scene()
     view = window_camera(projector, Intrinsics.from_fov(args.size[0], args.size[1], args.view_fov), args.view_from, args.look_at, args.far)
     positions, _, _ = track.at(session.frame_times)
     rgb = render_still(mesh, image, projector, view, _projection_settings(args), OverlaySettings(frustum=not args.no_frustum), trajectory=positions)
@@ -126,12 +126,14 @@ def _render_session(args: argparse.Namespace) -> int:
 
 
 def cmd_solve(args: argparse.Namespace) -> int:
-    from app.session import open_session
+    from app.clips import open_any
     from app.solve import solve_to_csv
 
-    session = open_session(args.manifest)
+    session = open_any(args.manifest, args.srt, args.fov)
     for w in session.warnings.items:
         print(f"warning: {w}", file=sys.stderr)
+    if args.filter is None:
+        args.filter = session.filters[0]
     if args.filter not in session.filters:
         raise GeofuseError(f"--filter {args.filter}: this session offers {', '.join(session.filters)}")
     rows = solve_to_csv(session, args.filter, args.out, progress=sys.stderr)
@@ -145,7 +147,17 @@ def cmd_view(args: argparse.Namespace) -> int:
     from app.ui.viewer import Options, Viewer
 
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
-    return Viewer(Options(args.manifest, args.size, args.script, args.screenshot, args.play)).run()
+    return Viewer(Options(args.manifest, args.size, args.script, args.screenshot, args.play, srt=args.srt)).run()
+
+
+def cmd_telemetry(args: argparse.Namespace) -> int:
+    from app.telemetry import describe, inspect, write_csv
+
+    tel = inspect(args.file)
+    print(describe(tel))
+    if args.csv is not None:
+        print(f"wrote {args.csv}: {write_csv(tel, args.csv)} positions")
+    return 0
 
 
 def cmd_simulate_scene(args: argparse.Namespace) -> int:
@@ -245,18 +257,26 @@ def build_parser() -> argparse.ArgumentParser:
     r.set_defaults(func=cmd_render)
 
     v = sub.add_parser("view", help="the interactive viewer (the bundled sample when no manifest is given)")
-    v.add_argument("manifest", nargs="?", type=Path, default=None)
+    v.add_argument("manifest", nargs="?", type=Path, default=None, help="a session manifest, a GoPro MP4 or a DJI clip (default: the bundled sample)")
+    v.add_argument("--srt", type=Path, default=None, help="the DJI subtitle of the clip, when not beside it")
     v.add_argument("--size", type=_size, default=(1280, 720), help="window WIDTHxHEIGHT")
     v.add_argument("--script", type=Path, default=None, help="a file of timed UI actions (app/ui/script.py)")
     v.add_argument("--screenshot", type=Path, default=None, help="save the window to this PNG (alone: after --play seconds, then exit)")
     v.add_argument("--play", type=float, default=2.0, help="with --screenshot alone: seconds to play first")
     v.set_defaults(func=cmd_view)
 
-    so = sub.add_parser("solve", help="a camera pose for every video frame of a session, as CSV")
-    so.add_argument("manifest", type=Path)
-    so.add_argument("--filter", default="gd-ahrs", help="gd-ahrs | gd-imu | cf-ahrs | cf-imu | offline | phone | truth")
+    so = sub.add_parser("solve", help="a camera pose for every video frame of a session or clip, as CSV")
+    so.add_argument("manifest", type=Path, help="a session manifest (.toml), a GoPro MP4, or a DJI clip (its .SRT beside it)")
+    so.add_argument("--filter", default=None, help="gd-ahrs | gd-imu | cf-ahrs | cf-imu | offline | phone | camera | telemetry | course | truth (default: the first the session offers)")
+    so.add_argument("--srt", type=Path, default=None, help="the DJI subtitle of the clip, when not beside it")
+    so.add_argument("--fov", type=float, default=None, help="override the lens's horizontal field of view, degrees")
     so.add_argument("--out", type=Path, required=True)
     so.set_defaults(func=cmd_solve)
+
+    te = sub.add_parser("telemetry", help="what a telemetry file holds: streams, rates, gaps, fixes, warnings")
+    te.add_argument("file", type=Path, help="a GoPro MP4, a DJI .SRT, a GPX, a Sensor Logger folder/zip or a geofuse CSV")
+    te.add_argument("--csv", type=Path, default=None, help="write the position track: time_s,latitude,longitude,height[,attitude...]")
+    te.set_defaults(func=cmd_telemetry)
 
     s = sub.add_parser("simulate", help="generate sample data")
     ssub = s.add_subparsers(dest="what", required=True)

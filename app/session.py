@@ -64,6 +64,7 @@ from app.geo import LocalFrame
 from app.io.streams import GnssTrack, OrientationStream, VectorStream, Warnings
 from app.io.video import VideoInfo, probe
 from app.scene import Placement
+from app.scene.mesh import MeshData
 from app.trajectory import PoseTrack, PositionTrack, device_to_camera
 
 FILTERS = {
@@ -140,14 +141,14 @@ class Session:
 
     manifest: Manifest
     frame: LocalFrame
-    scene_path: Path
+    scene_path: Path | None
     placement: Placement
     video: VideoInfo
     frame_times: np.ndarray
     intrinsics: Intrinsics
     rotation_cw: int
-    acc: VectorStream
-    gyr: VectorStream
+    acc: VectorStream | None
+    gyr: VectorStream | None
     mag: VectorStream | None
     gnss: GnssTrack
     references: dict[str, OrientationStream]
@@ -157,7 +158,28 @@ class Session:
     truth_frame_times: np.ndarray | None = None
     height_mode: str = "gnss"
     mount_height_m: float = 1.5
+    heading_note: str = ""  # how heading was obtained, when not from a magnetometer
+    device_is_camera: bool = False  # action cameras and drones: the device frame is the camera's
+    mesh: MeshData | None = None  # the scene, when it is generated rather than loaded
     _positions: PositionTrack | None = None
+
+    def camera_mount(self) -> np.ndarray:
+        """Quaternion of the camera (of the displayed video) in the device frame: a phone's back
+        camera turns with the display rotation (app.trajectory.device_to_camera); an action
+        camera's or drone's device frame is its camera's, turned only when the video is."""
+        from app import rotations
+
+        if self.device_is_camera:
+            return rotations.about_z(-float(self.rotation_cw))  # a clockwise display turn of the image
+        return device_to_camera(self.rotation_cw)
+
+    def scene(self) -> MeshData:
+        """The scene's arrays in the session's ENU frame (loaded once)."""
+        if self.mesh is None:
+            from app.scene import load_scene
+
+            self.mesh = load_scene(self.scene_path, self.frame, self.placement)
+        return self.mesh
 
     def positions(self) -> PositionTrack:
         """The GNSS position track, with heights from the model's ground when asked (cached)."""
@@ -165,11 +187,10 @@ class Session:
             g = self.gnss
             h = g.h
             if self.height_mode == "ground":
-                from app.scene import load_scene
                 from app.scene.ground import ground_heights
 
                 enu = self.frame.geodetic_to_enu(g.lat, g.lon, g.h)
-                ground = ground_heights(load_scene(self.scene_path, self.frame, self.placement), enu[:, :2])
+                ground = ground_heights(self.scene(), enu[:, :2])
                 if np.isnan(ground).any():
                     self.warnings.add(f"{int(np.isnan(ground).sum())} GNSS fixes lie off the model: their GNSS height is kept")
                 enu[:, 2] = np.where(np.isnan(ground), enu[:, 2], ground + self.mount_height_m)
@@ -182,11 +203,14 @@ class Session:
 
     @property
     def filters(self) -> list[str]:
-        """The attitude sources this session offers (AHRS ones only with a magnetometer)."""
-        own = [k for k, (_, ahrs) in FILTERS.items() if self.mag is not None or not ahrs]
-        if self.mag is None:
-            own.append("offline")
-        return own + [r for r in REFERENCE_SOURCES if r in self.references]
+        """The attitude sources this session offers (AHRS ones only with a magnetometer; none of
+        the filters without an IMU), then its recorded attitudes (phone, camera, telemetry...)."""
+        own: list[str] = []
+        if self.gyr is not None and self.acc is not None:
+            own = [k for k, (_, ahrs) in FILTERS.items() if self.mag is not None or not ahrs]
+            if self.mag is None:
+                own.append("offline")
+        return own + [r for r in self.references if r != "truth"] + (["truth"] if "truth" in self.references else [])
 
 
 def _intrinsics(m: Manifest, width: int, height: int) -> Intrinsics:
@@ -333,10 +357,46 @@ def _truth_extras(m: Manifest, session: Session, warnings: Warnings) -> None:
         session.truth_frame_times = values[np.argsort(values[:, 0]), 1]
 
 
+COURSE_MIN_SPEED = 0.7  # m/s: slower, the direction of travel is too noisy to give a heading
+
+
+def course_heading_turn(session: Session, t: np.ndarray, q_device: np.ndarray) -> np.ndarray | None:
+    """The one constant turn about Up that best aligns the camera's forward direction with the
+    direction of travel while the camera moves (circular mean of the differences), as a
+    quaternion; None when the clip never moves fast enough."""
+    from app import rotations
+
+    pos = session.positions()
+    speed = np.hypot(pos.vel_enu[:, 0], pos.vel_enu[:, 1])
+    moving = (speed > COURSE_MIN_SPEED) & (pos.t >= t[0]) & (pos.t <= t[-1])
+    if moving.sum() < 3:
+        return None
+    course = np.arctan2(pos.vel_enu[moving, 0], pos.vel_enu[moving, 1])
+    q_cam = rotations.multiply(rotations.slerp(t, q_device, pos.t[moving]), session.camera_mount())
+    heading = np.radians(rotations.hpr_from_camera_quat(q_cam)[:, 0])
+    d = course - heading
+    offset = np.arctan2(np.mean(np.sin(d)), np.mean(np.cos(d)))
+    return rotations.about_z(-np.degrees(offset))  # a clockwise (heading-increasing) turn
+
+
+def _course_aligned(session: Session, t: np.ndarray, q: np.ndarray) -> np.ndarray:
+    from app import rotations
+
+    turn = course_heading_turn(session, t, q)
+    if turn is None:
+        if not any("never moves fast enough" in w for w in session.warnings.items):
+            session.warnings.add(f"the camera never moves faster than {COURSE_MIN_SPEED} m/s: heading cannot come from the course and stays arbitrary")
+        return q
+    return rotations.canonical(rotations.multiply(turn, q))
+
+
 def device_attitude(session: Session, source: str) -> tuple[np.ndarray, np.ndarray]:
     """(t, device -> ENU quaternions, true north) for a filter name or reference source."""
+    course = session.heading_note.startswith("heading from the GNSS course")
     if source in session.references:
         ref = session.references[source]
+        if source == "camera" and course:
+            return ref.t, _course_aligned(session, ref.t, ref.q)
         return ref.t, ref.q
     if source not in FILTERS:
         raise ValueError(f"unknown attitude source {source!r}; this session offers {session.filters}")
@@ -344,12 +404,16 @@ def device_attitude(session: Session, source: str) -> tuple[np.ndarray, np.ndarr
     use_mag = ahrs and session.mag is not None
     if ahrs and session.mag is None and method != "offline":
         raise ValueError(f"{source} needs a magnetometer, which this session lacks; use one of {session.filters}")
+    if session.gyr is None or session.acc is None:
+        raise ValueError(f"{source} needs the camera's IMU, which this clip lacks; use one of {session.filters}")
     t = session.gyr.t
     acc = resample(t, session.acc.t, session.acc.values)
     mag = resample(t, session.mag.t, session.mag.values) if use_mag else None
     q = estimate(t, session.gyr.values, acc, mag, method=method, declination_deg=session.declination_deg if use_mag else 0.0)
     if not use_mag and session.mag is not None:
         q = anchor_heading(q, resample(t, session.mag.t, session.mag.values), session.declination_deg)
+    elif not use_mag and course:
+        q = _course_aligned(session, t, q)
     return t, q
 
 
@@ -375,4 +439,4 @@ def pose_track(session: Session, source: str) -> PoseTrack:
         positions = PositionTrack.from_fixes(g.t, g.lat, g.lon, g.h, g.vel_enu)
     else:
         positions = session.positions()
-    return PoseTrack(session.frame, positions, t_att, q, device_to_camera(session.rotation_cw))
+    return PoseTrack(session.frame, positions, t_att, q, session.camera_mount())

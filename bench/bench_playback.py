@@ -50,13 +50,12 @@ def playback(video: Path, pts: np.ndarray, seconds: float, size: tuple[int, int]
     from app.render.context import create_offscreen_context, wait_for_gpu
     from app.render.offscreen import OffscreenTarget
     from app.render.renderer import FusionRenderer
-    from app.scene import load_scene
     from app.session import open_session, pose_track
 
     session = open_session(SAMPLE_DIR / "session.toml")
     track = pose_track(session, "gd-ahrs")
     ctx = create_offscreen_context()
-    renderer = FusionRenderer(ctx, load_scene(session.scene_path, session.frame, session.placement))
+    renderer = FusionRenderer(ctx, session.scene())
     target = OffscreenTarget(ctx, *size)
     view = Camera.create(Intrinsics.from_fov(*size, 60.0), [35.0, -160.0, 40.0], look_at_quat([35.0, -160.0, 40.0], [0.0, -20.0, 8.0]), 0.5, 3000.0)
     player = Player(str(video), pts, loop=True)

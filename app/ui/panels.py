@@ -141,6 +141,8 @@ def _session(v) -> None:
             imgui.text(Path(s.manifest.path).name)
             imgui.text(f"{len(s.frame_times)} frames, {s.video.display_size[0]}x{s.video.display_size[1]}, rotate {s.rotation_cw}")
             imgui.text(f"declination {s.declination_deg:+.2f} deg")
+            if s.scene_path is None:
+                imgui.text_colored(_vec4(AMBER), "no scene: the ground is assumed (flat, 1 m grid)")
         _, v.open_path = imgui.input_text("manifest", v.open_path)
         imgui.same_line()
         if imgui.button("Open") and v.open_path.strip():
@@ -218,7 +220,9 @@ def _attitude(v) -> None:
             changed, ahrs = imgui.checkbox("AHRS (with magnetometer)", ahrs)
             if changed:
                 v.toggle_ahrs(ahrs)
-        if L.session.mag is None:
+        if L.session.heading_note:
+            imgui.text_colored(_vec4(AMBER), L.session.heading_note)
+        elif L.session.mag is None:
             imgui.text_colored(_vec4(AMBER), "no magnetometer: IMU filters only")
         elif not L.source.endswith("-ahrs") and L.source[:3] in ("gd-", "cf-"):
             imgui.text_wrapped("IMU heading anchored to the compass's mean over the clip")

@@ -39,6 +39,7 @@ class Options:
     screenshot: Path | None = None
     play_seconds: float = 2.0  # with --screenshot alone: play this long, then save and exit
     visible: bool = True
+    srt: Path | None = None
 
 
 @dataclass
@@ -125,15 +126,14 @@ class Viewer:
 
     def open(self, manifest: Path | None) -> bool:
         """Open a session (the bundled sample when None); on failure keep the current one."""
+        from app.clips import open_any
         from app.demo import SAMPLE_DIR
         from app.render.renderer import FusionRenderer
-        from app.scene import load_scene
-        from app.session import open_session
 
         path = Path(manifest) if manifest is not None else SAMPLE_DIR / "session.toml"
         try:
-            session = open_session(path)
-            mesh = load_scene(session.scene_path, session.frame, session.placement)
+            session = open_any(path, self.options.srt if path == self.options.manifest else None)
+            mesh = session.scene()
         except GeofuseError as exc:
             self.errors.append(str(exc))
             log.error("%s", exc)

@@ -1,0 +1,35 @@
+"""The assumed ground when a clip comes without a model: a flat square at a given height with a
+metric grid (1 m lines, darker every 10 m), so that distances can be read off the projection."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from app.scene import shapes
+from app.scene.mesh import MeshData
+
+TILE_M = 10.0  # one texture tile covers 10 m x 10 m
+TILE_PX = 400
+
+
+def grid_tile() -> np.ndarray:
+    """(H, W, 3) uint8: one 10 m tile, 1 m minor lines, a 10 m major line on its border."""
+    img = np.full((TILE_PX, TILE_PX, 3), (150, 152, 145), np.uint8)
+    px_per_m = TILE_PX / TILE_M
+    for k in range(int(TILE_M)):
+        p = int(round(k * px_per_m))
+        width = 4 if k == 0 else 1
+        colour = (60, 62, 58) if k == 0 else (115, 117, 110)
+        img[:, p : p + width] = colour
+        img[p : p + width, :] = colour
+    return img
+
+
+def ground_plane(centre_xy: np.ndarray, height_m: float, half_size_m: float) -> MeshData:
+    """A (2 half_size)^2 m square at ENU height `height_m`, centred on centre_xy, grid-textured."""
+    cx, cy = (float(v) for v in centre_xy)
+    h = float(half_size_m)
+    quad = shapes.quad([cx - h, cy - h, height_m], [2 * h, 0.0, 0.0], [0.0, 2 * h, 0.0])
+    # Texture coordinates in tiles, anchored at the ENU origin so the grid lines fall on whole metres.
+    quad.uvs = (quad.vertices[:, :2]) / TILE_M
+    return MeshData([quad.primitive((1.0, 1.0, 1.0, 1.0), grid_tile(), name="assumed ground")])

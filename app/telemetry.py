@@ -1,0 +1,185 @@
+"""`geofuse telemetry FILE [--csv OUT]`: what a file holds, for every format geofuse reads
+(GoPro MP4, DJI SRT, GPX, Sensor Logger exports, geofuse CSV logs): each stream with its sample
+count, rate, time range and gaps, the GNSS fixes, and every warning. `--csv` writes the position
+track: one row per position sample, `time_s,latitude,longitude,height` (seconds from the start of
+the clip or log, degrees, metres) and any attitude columns after them."""
+
+from __future__ import annotations
+
+import csv
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from app.errors import DataFormatError
+from app.io.streams import GAP_FACTOR, Warnings
+
+
+@dataclass
+class Stream:
+    name: str
+    t: np.ndarray
+    unit: str = ""
+
+
+@dataclass
+class Telemetry:
+    """Streams and a position track (t s from the start, lat, lon, height, extra named columns)."""
+
+    path: Path
+    kind: str
+    streams: list[Stream] = field(default_factory=list)
+    position: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
+    height_note: str = ""
+    attitude: dict[str, np.ndarray] = field(default_factory=dict)
+    warnings: Warnings = field(default_factory=Warnings)
+    info: list[str] = field(default_factory=list)
+
+
+def inspect(path: str | Path) -> Telemetry:
+    """Read any supported telemetry file. Raises DataFormatError naming the file otherwise."""
+    path = Path(path)
+    if not path.exists():
+        raise DataFormatError(path, "file does not exist")
+    suffix = path.suffix.lower()
+    if suffix == ".srt":
+        return _srt(path)
+    if suffix == ".gpx":
+        return _gpx(path)
+    if suffix in (".mp4", ".mov", ".360"):
+        return _gopro(path)
+    if path.is_dir() or suffix == ".zip":
+        return _sensorlogger(path)
+    if suffix == ".csv":
+        return _csv(path)
+    raise DataFormatError(path, f"unknown telemetry format {suffix!r} (expected .MP4 from a GoPro, .SRT, .GPX, .CSV, or a Sensor Logger folder or zip)")
+
+
+def _srt(path: Path) -> Telemetry:
+    from app.io.dji_srt import read_srt
+
+    out = Telemetry(path, "DJI subtitle telemetry")
+    tr = read_srt(path, out.warnings)
+    ok = tr.has_position
+    out.streams.append(Stream("entries", tr.t))
+    out.position = (tr.t[ok], tr.lat[ok], tr.lon[ok], tr.height[ok])
+    out.height_note = "above take-off" if tr.height_relative else "absolute (as the aircraft reports it)"
+    if tr.has_gimbal:
+        out.attitude = {"gimbal_pitch": tr.gimbal_pry[ok, 0], "gimbal_roll": tr.gimbal_pry[ok, 1], "gimbal_yaw": tr.gimbal_pry[ok, 2]}
+    out.info.append(f"layouts: {', '.join(tr.layouts)}")
+    return out
+
+
+def _gpx(path: Path) -> Telemetry:
+    from app.io.gpx import read_gpx
+
+    out = Telemetry(path, "GPX track")
+    g = read_gpx(path, out.warnings)
+    t = g.t - g.t[0]
+    out.streams.append(Stream("track points", g.t))
+    out.position = (t, g.lat, g.lon, g.h)
+    out.height_note = "<ele> (usually above mean sea level)"
+    return out
+
+
+def _gopro(path: Path) -> Telemetry:
+    from app.io.gopro import read_gopro
+
+    out = Telemetry(path, "GoPro MP4 (GPMF telemetry)")
+    r = read_gopro(path, out.warnings)
+    out.info.append(f"camera: {r.model}; lens horizontal FOV {r.hfov_deg:g} deg (default for the model)")
+    for s in (r.acc, r.gyr, r.mag):
+        if s is not None:
+            out.streams.append(Stream({"acc": "ACCL accelerometer", "gyr": "GYRO gyroscope", "mag": "MAGN magnetometer"}[s.name], s.t, s.unit))
+    if r.camera is not None:
+        out.streams.append(Stream("CORI camera orientation", r.camera.t))
+    if r.gnss is not None:
+        out.streams.append(Stream(f"GPS (averaged to {1 / 0.5:g} Hz; {r.dropped_no_fix} samples without fix dropped)", r.gnss.t))
+        out.position = (r.gnss.t, r.gnss.lat, r.gnss.lon, r.gnss.h)
+        out.height_note = "GPS altitude (WGS84)"
+    if r.gps_precision is not None and len(r.gps_precision):
+        out.info.append(f"GPS precision (DOP): median {np.median(r.gps_precision[:, 1]):.2f}")
+    if r.gps_utc_at_zero:
+        from datetime import datetime, timezone
+
+        out.info.append(f"clip start (GPSU): {datetime.fromtimestamp(r.gps_utc_at_zero, timezone.utc).isoformat()}")
+    return out
+
+
+def _sensorlogger(path: Path) -> Telemetry:
+    from app.io.sensorlogger import read_sensorlogger
+
+    out = Telemetry(path, "Sensor Logger recording")
+    rec = read_sensorlogger(path, warnings=out.warnings)
+    t0 = min(s.t[0] for s in (rec.acc, rec.gyr) if s is not None)
+    for s in (rec.acc, rec.gyr, rec.mag):
+        if s is not None:
+            out.streams.append(Stream(s.name, s.t, s.unit))
+    if rec.orientation is not None:
+        out.streams.append(Stream(f"orientation ({rec.orientation.note})", rec.orientation.t))
+    if rec.gnss is not None:
+        g = rec.gnss
+        out.streams.append(Stream("location", g.t))
+        out.position = (g.t - t0, g.lat, g.lon, g.h)
+        out.height_note = "ellipsoidal (the app's altitude)"
+    return out
+
+
+def _csv(path: Path) -> Telemetry:
+    from app.io import csvlog
+
+    out = Telemetry(path, "geofuse CSV log")
+    columns, _, _, _ = csvlog.read_table(path)
+    if {"lat", "lon", "h"} <= set(columns):
+        g = csvlog.read_gnss(path, out.warnings)
+        out.streams.append(Stream("GNSS", g.t))
+        out.position = (g.t - g.t[0], g.lat, g.lon, g.h)
+        out.height_note = "ellipsoidal"
+    elif {"qw", "qx", "qy", "qz"} <= set(columns):
+        o = csvlog.read_orientation(path, out.warnings)
+        out.streams.append(Stream("orientation", o.t))
+    else:
+        kind = "gyr" if "gyr" in path.stem.lower() else "mag" if "mag" in path.stem.lower() else "acc"
+        s = csvlog.read_vector(path, kind, out.warnings)
+        out.streams.append(Stream(kind, s.t, s.unit))
+    return out
+
+
+def describe(tel: Telemetry) -> str:
+    """A human-readable report."""
+    lines = [f"{tel.path}: {tel.kind}"]
+    lines += [f"  {i}" for i in tel.info]
+    for s in tel.streams:
+        n = len(s.t)
+        if n > 1:
+            dt = np.diff(s.t)
+            med = float(np.median(dt))
+            gaps = int((dt > GAP_FACTOR * med).sum()) if med > 0 else 0
+            lines.append(f"  {s.name}: {n} samples, {1 / med if med > 0 else 0:.2f} Hz, {s.t[0]:.3f}..{s.t[-1]:.3f} s, {gaps} gaps" + (f" [{s.unit}]" if s.unit else ""))
+        else:
+            lines.append(f"  {s.name}: {n} sample(s)")
+    if tel.position is not None:
+        t, lat, lon, h = tel.position
+        lines.append(f"  positions: {len(t)} fixes, first ({lat[0]:.6f}, {lon[0]:.6f}, {h[0]:.1f} m), last ({lat[-1]:.6f}, {lon[-1]:.6f}, {h[-1]:.1f} m); heights {tel.height_note}")
+    for w in tel.warnings.items:
+        lines.append(f"  warning: {w}")
+    return "\n".join(lines)
+
+
+def write_csv(tel: Telemetry, out: str | Path) -> int:
+    """The position track as CSV (never onto the input); returns the number of rows."""
+    out = Path(out)
+    if tel.position is None:
+        raise DataFormatError(tel.path, "holds no positions to write")
+    if out.resolve() == tel.path.resolve():
+        raise DataFormatError(out, "refusing to overwrite the input file")
+    t, lat, lon, h = tel.position
+    extra = list(tel.attitude)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with out.open("w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["time_s", "latitude", "longitude", "height", *extra])
+        for i in range(len(t)):
+            w.writerow([f"{t[i]:.3f}", f"{lat[i]:.9f}", f"{lon[i]:.9f}", f"{h[i]:.3f}", *(f"{tel.attitude[k][i]:.2f}" for k in extra)])
+    return len(t)

@@ -36,13 +36,14 @@ def solve_frames(session: Session, source: str) -> np.ndarray:
 
 def solve_to_csv(session: Session, source: str, out: str | Path, progress: TextIO | None = None) -> int:
     """Write the rows of `solve_frames` to `out` (never to an input file); returns the row count."""
-    long_input = len(session.gyr.t) >= PROGRESS_MIN_SAMPLES
+    long_input = session.gyr is not None and len(session.gyr.t) >= PROGRESS_MIN_SAMPLES
     bar = progress if long_input else None
     _bar(bar, f"solving {source}", 0.0)
     rows = solve_frames(session, source)
     _bar(bar, f"solving {source}", 1.0)
     out = Path(out)
-    if out.resolve() in {Path(p).resolve() for p in (session.manifest.path, session.video.path, session.gyr.source, session.acc.source)}:
+    inputs = [session.manifest.path, session.video.path, session.gnss.source] + [s.source for s in (session.gyr, session.acc, session.mag) if s is not None]
+    if out.resolve() in {Path(p).resolve() for p in inputs if p}:
         raise ValueError(f"{out}: refusing to overwrite an input file")
     out.parent.mkdir(parents=True, exist_ok=True)
     with out.open("w", newline="") as f:

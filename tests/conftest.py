@@ -3,6 +3,10 @@
 from __future__ import annotations
 
 import os
+import shutil
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -37,3 +41,32 @@ def shared_data() -> Path:
     if not SHARED_DATA.is_dir():
         _unavailable(f"{SHARED_DATA} is absent (a user's clone has no ../shared)")
     return SHARED_DATA
+
+
+@pytest.fixture(scope="session")
+def display():
+    """An X display: the existing one, or a private Xvfb started for these tests."""
+    if os.environ.get("DISPLAY"):
+        yield os.environ["DISPLAY"]
+        return
+    if shutil.which("Xvfb") is None:
+        if IN_CI:
+            pytest.fail("Xvfb is not installed (CI installs xvfb)")
+        pytest.skip("Xvfb is not installed (apt-get install xvfb)")
+    number = 90 + os.getpid() % 100
+    proc = subprocess.Popen(["Xvfb", f":{number}", "-screen", "0", "1280x800x24", "-nolisten", "tcp"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    socket = Path(f"/tmp/.X11-unix/X{number}")
+    for _ in range(100):
+        if socket.exists():
+            break
+        time.sleep(0.05)
+    yield f":{number}"
+    proc.terminate()
+    proc.wait(timeout=5)
+
+
+
+def run_viewer(display: str, *args: str, timeout: float = 120):
+    """`geofuse view ARGS` as a subprocess on the given X display."""
+    env = dict(os.environ, DISPLAY=display)
+    return subprocess.run([sys.executable, "-m", "app", "view", *args], cwd=ROOT, env=env, capture_output=True, text=True, timeout=timeout)

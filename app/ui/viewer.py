@@ -64,6 +64,22 @@ class Stats:
     depth_redraws: int = 0
 
 
+def home_view(session, mesh) -> Navigator:
+    """Where the window camera starts: for a real scene, south of it looking across it; on an
+    assumed ground, behind and above the camera's track so that its frustum and footprint show."""
+    if session.scene_path is None:
+        g = session.gnss
+        enu = session.frame.geodetic_to_enu(g.lat, g.lon, g.h)
+        centre = (enu.min(axis=0) + enu.max(axis=0)) / 2
+        size = float(max(np.ptp(enu[:, 0]), np.ptp(enu[:, 1]), 10.0))
+        eye = centre + np.array([-0.4 * size - 12.0, -0.8 * size - 25.0, 0.5 * size + 18.0])
+        d = centre - eye
+        return Navigator(position=eye, yaw=float(np.degrees(np.arctan2(d[0], d[1]))), pitch=float(np.degrees(np.arctan2(d[2], np.hypot(d[0], d[1])))))
+    lo, hi = mesh.bounds()
+    centre = (lo + hi) / 2
+    return Navigator(position=np.array([centre[0] + 35.0, lo[1] - 20.0, 40.0]), yaw=-15.0, pitch=-15.0)
+
+
 class Viewer:
     def __init__(self, options: Options) -> None:
         self.options = options
@@ -149,9 +165,7 @@ class Viewer:
         self.loaded = Loaded(session, renderer, Player(session.video.path, pts), TrackLibrary(session, first=first), first)
         self.notices = list(session.warnings.items)
         self.stats = Stats()
-        lo, hi = mesh.bounds()
-        centre = (lo + hi) / 2
-        self.nav = Navigator(position=np.array([centre[0] + 35.0, lo[1] - 20.0, 40.0]), yaw=-15.0, pitch=-15.0)
+        self.nav = home_view(session, mesh)
         log.info("opened %s: %d frames, sources %s", path, len(pts), session.filters)
         return True
 

@@ -1,0 +1,106 @@
+"""Clips opened with no manifest (DJI video + SRT made here from a real sample's entries), and the
+telemetry inspector on every real SRT and GPX."""
+
+from __future__ import annotations
+
+import csv
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from app.cli import main
+from tests.conftest import run_viewer
+
+pytestmark = pytest.mark.shared_data
+
+
+@pytest.fixture(scope="module")
+def dji_clip(shared_data, tmp_path_factory):
+    """A 10 s H.264 clip with P4 RTK subtitle entries (gimbal attitude included) beside it, named
+    in another letter case, as DJI cameras write them."""
+    from app.simulate.phone import write_video
+
+    folder = tmp_path_factory.mktemp("dji")
+    video = write_video(folder / "DJI_0001.MP4", np.arange(300) / 30.0, (96, 54), 0)
+    entries = (shared_data / "real" / "dji" / "p4_rtk.SRT").read_text(encoding="utf-8").strip().split("\n\n")[:10]
+    (folder / "dji_0001.srt").write_text("\n\n".join(entries) + "\n", encoding="utf-8")
+    return video
+
+
+def test_dji_clip_solves_from_gimbal_telemetry(dji_clip, tmp_path, capsys):
+    out = tmp_path / "poses.csv"
+    assert main(["solve", str(dji_clip), "--out", str(out)]) == 0
+    with out.open() as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == 300
+    assert "attitude from telemetry" in capsys.readouterr().out
+    # G.PRY of the first entries: pitch -24.4, roll 0.0, yaw 110.x
+    first = rows[0]
+    assert float(first["pitch"]) == pytest.approx(-24.4, abs=0.05)
+    assert 105 < float(first["heading"]) < 116
+    # Heights are above take-off: the camera flies ~85.8 m over the assumed ground.
+    assert float(first["U"]) == pytest.approx(85.8, abs=0.5)
+
+
+def test_dji_clip_without_attitude_uses_the_course(shared_data, tmp_path, capsys):
+    from app.simulate.phone import write_video
+
+    video = write_video(tmp_path / "clip.mp4", np.arange(150) / 30.0, (96, 54), 0)
+    (tmp_path / "clip.SRT").write_text((shared_data / "real" / "dji" / "p4p_sample.SRT").read_text())
+    out = tmp_path / "p.csv"
+    assert main(["solve", str(video), "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "heading from the track" in err and "pitch -30 deg assumed" in err
+    with out.open() as f:
+        assert float(next(csv.DictReader(f))["pitch"]) == pytest.approx(-30.0, abs=0.01)
+
+
+def test_srt_that_does_not_fit_the_video(shared_data, tmp_path, capsys):
+    from app.simulate.phone import write_video
+
+    video = write_video(tmp_path / "short.mp4", np.arange(30) / 30.0, (96, 54), 0)  # 1 s of video
+    (tmp_path / "short.srt").write_text((shared_data / "real" / "dji" / "mavic_pro.SRT").read_text())  # 468 s
+    assert main(["solve", str(video), "--out", str(tmp_path / "p.csv")]) == 2
+    assert "is it the subtitle of another clip" in capsys.readouterr().err
+
+
+def test_view_a_dji_clip_screenshot(dji_clip, display, tmp_path):
+    out = tmp_path / "dji.png"
+    result = run_viewer(display, str(dji_clip), "--screenshot", str(out), "--size", "640x360", "--play", "1.5")
+    assert result.returncode == 0, result.stderr[-2000:]
+    img = np.asarray(Image.open(out).convert("RGB"))
+    assert img.shape == (360, 640, 3) and img.std() > 15
+
+
+SRT_ROWS = {"air2s.srt": 17, "mavic_air2.srt": 25, "matrice_300.srt": 381, "mavic_pro.SRT": 468, "p4_rtk.SRT": 55, "p4p_sample.SRT": 5, "broken_incomplete.SRT": 19}
+GPX_ROWS = {"around-visnjan-with-car.gpx": 104, "cerknicko-jezero.gpx": 296, "gpx1.0_with_all_fields.gpx": 1, "track-with-empty-segment.gpx": 9, "track_with_speed.gpx": 3}
+
+
+@pytest.mark.parametrize("name", sorted(SRT_ROWS) + sorted(GPX_ROWS))
+def test_telemetry_csv_rows(shared_data, tmp_path, name):
+    folder = shared_data / "real" / ("dji" if name in SRT_ROWS else "gpx")
+    out = tmp_path / "track.csv"
+    assert main(["telemetry", str(folder / name), "--csv", str(out)]) == 0
+    with out.open() as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == {**SRT_ROWS, **GPX_ROWS}[name]
+    assert list(rows[0])[:4] == ["time_s", "latitude", "longitude", "height"]
+    assert float(rows[0]["time_s"]) >= 0.0
+    if name == "p4_rtk.SRT":
+        assert "gimbal_yaw" in rows[0] and float(rows[-1]["gimbal_yaw"]) == pytest.approx(111.9)
+        assert (float(rows[-1]["latitude"]), float(rows[-1]["longitude"])) == pytest.approx((-34.232349, -58.849196))
+
+
+@pytest.mark.parametrize(
+    "folder, name, message",
+    [
+        ("dji", "broken_empty.SRT", "empty subtitle file"),
+        ("gpx", "cerknicko-without-times.gpx", "has no <time>"),
+        ("gpx", "Mojstrovka.gpx", "broken logger clock"),
+    ],
+)
+def test_telemetry_bad_files_exit_2(shared_data, capsys, folder, name, message):
+    assert main(["telemetry", str(shared_data / "real" / folder / name)]) == 2
+    err = capsys.readouterr().err
+    assert name in err and message in err and "Traceback" not in err

@@ -129,7 +129,7 @@ def cmd_solve(args: argparse.Namespace) -> int:
     from app.clips import open_any
     from app.solve import solve_to_csv
 
-    session = open_any(args.manifest, args.srt, args.fov)
+    session = open_any(args.manifest, args.srt, args.fov, args.pitch)
     for w in session.warnings.items:
         print(f"warning: {w}", file=sys.stderr)
     if args.filter is None:
@@ -270,6 +270,7 @@ def build_parser() -> argparse.ArgumentParser:
     so.add_argument("--filter", default=None, help="gd-ahrs | gd-imu | cf-ahrs | cf-imu | offline | phone | camera | telemetry | course | truth (default: the first the session offers)")
     so.add_argument("--srt", type=Path, default=None, help="the DJI subtitle of the clip, when not beside it")
     so.add_argument("--fov", type=float, default=None, help="override the lens's horizontal field of view, degrees")
+    so.add_argument("--pitch", type=float, default=-30.0, help="a drone clip without gimbal attitude: the camera's pitch, degrees (default -30)")
     so.add_argument("--out", type=Path, required=True)
     so.set_defaults(func=cmd_solve)
 

@@ -22,7 +22,7 @@ from app import rotations
 from app.camera import Intrinsics
 from app.errors import DataFormatError, GeofuseError
 from app.geo import LocalFrame
-from app.geomag import declination, field_enu
+from app.geomag import declination
 from app.io.streams import GnssTrack, OrientationStream, Warnings
 from app.io.video import probe
 from app.scene import Placement
@@ -32,7 +32,6 @@ from app.session import Manifest, Session
 HANDHELD_MOUNT_M = 1.5
 DRONE_DEFAULT_PITCH_DEG = -30.0  # camera pitch assumed for a drone clip without gimbal attitude
 DJI_DEFAULT_FOCAL_MM = 24.0  # 35 mm equivalent focal length of most DJI main cameras
-MAG_PLAUSIBLE = (0.5, 1.5)  # magnetometer strength / WMM strength accepted
 
 
 def find_srt(video: Path) -> Path | None:
@@ -82,13 +81,7 @@ def _gopro_session(path: Path, hfov_deg: float | None) -> Session:
     when = rec.gps_utc_at_zero or video.creation_time or 0.0
     frame, mesh = _frame_and_ground(rec.gnss, float(rec.gnss.h[0]) - HANDHELD_MOUNT_M, 300.0)
     decl = declination(frame.lat_deg, frame.lon_deg, frame.h_m, when)
-    mag = rec.mag
-    if mag is not None:
-        expected = float(np.linalg.norm(field_enu(frame.lat_deg, frame.lon_deg, frame.h_m, when)))
-        measured = float(np.median(np.linalg.norm(mag.values, axis=1)))
-        if not MAG_PLAUSIBLE[0] <= measured / expected <= MAG_PLAUSIBLE[1]:
-            warnings.add(f"{path.name}: magnetometer reads {measured:.0f} uT where the World Magnetic Model expects {expected:.0f} uT: not used; heading comes from the GNSS course")
-            mag = None
+    mag = rec.mag  # already checked against the World Magnetic Model by the reader
     refs = {}
     if rec.camera is not None:
         refs["camera"] = rec.camera
@@ -155,8 +148,9 @@ def _course_headings(frame: LocalFrame, gnss: GnssTrack) -> np.ndarray:
     return heading[idx]
 
 
-def open_any(path: str | Path, srt: str | Path | None = None, hfov_deg: float | None = None) -> Session:
-    """A manifest (.toml) or a clip."""
+def open_any(path: str | Path, srt: str | Path | None = None, hfov_deg: float | None = None, pitch_deg: float = DRONE_DEFAULT_PITCH_DEG) -> Session:
+    """A manifest (.toml) or a clip (pitch_deg: a drone clip's camera pitch when its subtitle has
+    no gimbal attitude)."""
     from app.session import open_session
 
     path = Path(path)
@@ -164,4 +158,4 @@ def open_any(path: str | Path, srt: str | Path | None = None, hfov_deg: float | 
         if srt is not None:
             raise GeofuseError("--srt goes with a clip, not with a manifest")
         return open_session(path)
-    return open_clip(path, srt, hfov_deg)
+    return open_clip(path, srt, hfov_deg, pitch_deg)

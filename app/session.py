@@ -27,13 +27,18 @@ GNSS logs, the camera intrinsics, the time offset and optional reference attitud
     [sensors]
     mag_calibration = "clip"      # or "none": fit hard-iron offset and scale on the clip
     format = "csv"                # "csv": acc, gyr, mag, orientation files below;
+                                  # "gopro": the GPMF telemetry inside [video]'s MP4;
+                                  # "none": no IMU (a drone clip with its .SRT as [gnss]);
     acc = "acc.csv"               # "sensorlogger": path = folder or zip
     gyr = "gyr.csv"
     mag = "mag.csv"               # optional: without it only IMU filters are offered
     orientation = "phone.csv"     # optional: the phone's own attitude (reference)
 
     [gnss]
-    path = "gnss.csv"             # CSV (csvlog.py) or GPX
+    path = "gnss.csv"             # CSV (csvlog.py), GPX, or a DJI .SRT (times from the clip start)
+    takeoff_height_m = 110.0      # optional, for heights above take-off: the take-off point's
+                                  # ellipsoidal height (default: the scene's ground under the
+                                  # first position)
     height_offset_m = 0.0         # optional: added to heights (e.g. geoid separation for GPX)
     height = "gnss"               # or "ground": the model's ground under each fix + mount height
     mount_height_m = 1.5          # with height = "ground": camera above the ground (hand-held 1.5)
@@ -225,13 +230,30 @@ def _intrinsics(m: Manifest, width: int, height: int) -> Intrinsics:
     raise ManifestError(m.path, "expected hfov_deg, or focal_mm and sensor_width_mm", field="camera")
 
 
-def _sensors(m: Manifest, warnings: Warnings) -> tuple[VectorStream, VectorStream, VectorStream | None, dict[str, OrientationStream], GnssTrack | None]:
+def _shifted(stream, dt: float):
+    """A stream or track with its times moved by dt seconds (clip clock -> session clock)."""
+    from dataclasses import replace as _replace
+
+    return None if stream is None else _replace(stream, t=stream.t + dt)
+
+
+def _sensors(m: Manifest, warnings: Warnings, video_start: float = 0.0) -> tuple[VectorStream, VectorStream, VectorStream | None, dict[str, OrientationStream], GnssTrack | None]:
     from app.io import csvlog
 
     fmt = m.get("sensors", "format", str, "csv")
     refs: dict[str, OrientationStream] = {}
     gnss = None
-    if fmt == "sensorlogger":
+    if fmt == "none":
+        acc = gyr = mag = None
+    elif fmt == "gopro":
+        from app.io.gopro import read_gopro
+
+        rec = read_gopro(m.file("video", "path"), warnings)
+        # GPMF times count from the clip start; the session clock adds the video's start time.
+        acc, gyr, mag, gnss = (_shifted(x, video_start) for x in (rec.acc, rec.gyr, rec.mag, rec.gnss))
+        if rec.camera is not None:
+            refs["camera"] = _shifted(rec.camera, video_start)
+    elif fmt == "sensorlogger":
         from app.io.sensorlogger import read_sensorlogger
 
         rec = read_sensorlogger(m.file("sensors", "path"), bool(m.get("sensors", "standardised", bool, False)), warnings)
@@ -247,23 +269,64 @@ def _sensors(m: Manifest, warnings: Warnings) -> tuple[VectorStream, VectorStrea
         if ori:
             refs["phone"] = csvlog.read_orientation(ori, warnings)
     else:
-        raise ManifestError(m.path, f"got {fmt!r}, expected 'csv' or 'sensorlogger'", field="sensors.format")
+        raise ManifestError(m.path, f"got {fmt!r}, expected 'csv', 'sensorlogger', 'gopro' or 'none'", field="sensors.format")
     truth = m.file("truth", "orientation", required=False, required_section=False)
     if truth:
         refs["truth"] = csvlog.read_orientation(truth, warnings)
     return acc, gyr, mag, refs, gnss
 
 
-def _gnss(m: Manifest, fallback: GnssTrack | None, warnings: Warnings) -> GnssTrack:
+def _gnss(m: Manifest, fallback: GnssTrack | None, warnings: Warnings, video_start: float, refs: dict[str, OrientationStream]) -> GnssTrack:
     from app.io import csvlog
     from app.io.gpx import read_gpx
 
     path = m.file("gnss", "path", required=fallback is None, required_section=fallback is None)
     track = fallback
+    if path is not None and path.suffix.lower() == ".srt":
+        return _srt_gnss(m, path, warnings, video_start, refs)
     if path is not None:
         track = read_gpx(path, warnings) if path.suffix.lower() == ".gpx" else csvlog.read_gnss(path, warnings)
     offset = m.get("gnss", "height_offset_m", float, 0.0, required_section=False)
     return GnssTrack(track.t, track.lat, track.lon, track.h + offset, track.vel_enu, track.h_acc, track.source)
+
+
+def _srt_gnss(m: Manifest, path: Path, warnings: Warnings, video_start: float, refs: dict[str, OrientationStream]) -> GnssTrack:
+    """A DJI subtitle as the session's GNSS (its times are the clip's, shifted to the session
+    clock) and, with gimbal angles, its `telemetry` attitude. Heights above take-off get the
+    take-off height later (`_takeoff_heights`), when the scene is at hand."""
+    from app import rotations
+    from app.io.dji_srt import read_srt
+
+    tr = read_srt(path, warnings)
+    ok = tr.has_position
+    h = np.where(np.isfinite(tr.height), tr.height, 0.0)[ok]
+    if tr.has_gimbal:
+        g = np.isfinite(tr.gimbal_pry).all(axis=1)
+        p, r, y = tr.gimbal_pry[g].T
+        refs["telemetry"] = OrientationStream(video_start + tr.t[g], rotations.camera_quat_from_hpr(y % 360.0, p, r), str(path), "DJI gimbal (G.PRY)")
+    source = f"{path}#relative" if tr.height_relative else str(path)
+    return GnssTrack(video_start + tr.t[ok], tr.lat[ok], tr.lon[ok], h, None, None, source)
+
+
+def _takeoff_heights(m: Manifest, session: "Session") -> None:
+    """Heights above take-off + the take-off point's height: the manifest's value, else the
+    scene's ground under the first position; says which."""
+    g = session.gnss
+    if not g.source.endswith("#relative"):
+        return
+    value = m.get("gnss", "takeoff_height_m", float, None, required_section=False)
+    if value is None:
+        from app.scene.ground import ground_heights
+
+        first = session.frame.geodetic_to_enu(g.lat[0], g.lon[0], 0.0)
+        ground = ground_heights(session.scene(), np.atleast_2d(first)[:, :2])[0]
+        if not np.isfinite(ground):
+            raise ManifestError(m.path, "heights are above take-off and the scene has no ground under the first position: give gnss.takeoff_height_m", field="gnss.takeoff_height_m")
+        value = float(session.frame.enu_to_geodetic(np.array([first[0], first[1], ground]))[2])
+        session.warnings.add(f"heights above take-off: take-off height {value:.2f} m from the scene's ground under the first position")
+    else:
+        session.warnings.add(f"heights above take-off: take-off height {value:.2f} m from gnss.takeoff_height_m")
+    session.gnss = GnssTrack(g.t, g.lat, g.lon, g.h + value, g.vel_enu, g.h_acc, g.source.removesuffix("#relative"))
 
 
 def open_session(path: str | Path) -> Session:
@@ -300,14 +363,16 @@ def open_session(path: str | Path) -> Session:
     w, h = (video.height, video.width) if rotation % 180 else (video.width, video.height)
     intr = _intrinsics(m, w, h)
 
-    acc, gyr, mag, refs, logged_gnss = _sensors(m, warnings)
-    gnss = _gnss(m, logged_gnss, warnings)
-    covered = (frame_times >= gyr.t[0]) & (frame_times <= gyr.t[-1])
+    clip_start = float(start) + m.get("video", "time_offset_s", float, 0.0)
+    acc, gyr, mag, refs, logged_gnss = _sensors(m, warnings, clip_start)
+    gnss = _gnss(m, logged_gnss, warnings, clip_start, refs)
+    log = gyr if gyr is not None else gnss
+    covered = (frame_times >= log.t[0]) & (frame_times <= log.t[-1])
     if not covered.any():
         raise ManifestError(
             m.path,
             f"no video frame lies within the sensor log (frames {frame_times[0]:.3f}..{frame_times[-1]:.3f} s, "
-            f"gyroscope {gyr.t[0]:.3f}..{gyr.t[-1]:.3f} s): check video.start_time and the logs' clocks",
+            f"log {log.t[0]:.3f}..{log.t[-1]:.3f} s): check video.start_time and the logs' clocks",
             field="video.start_time",
         )
     if not covered.all():
@@ -320,7 +385,16 @@ def open_session(path: str | Path) -> Session:
     if session.height_mode not in ("gnss", "ground"):
         raise ManifestError(m.path, f"got {session.height_mode!r}, expected 'gnss' or 'ground'", field="gnss.height")
     session.mount_height_m = m.get("gnss", "mount_height_m", float, 1.5, required_section=False)
+    _takeoff_heights(m, session)
+    if fmt_is(m, "gopro") or fmt_is(m, "none"):
+        session.device_is_camera = True  # action cameras and drones: the video is the device's view
+        if session.mag is None and session.gyr is not None:
+            session.heading_note = "heading from the GNSS course"
     return session
+
+
+def fmt_is(m: Manifest, fmt: str) -> bool:
+    return m.get("sensors", "format", str, "csv") == fmt
 
 
 def _calibrate_magnetometer(m: Manifest, mag: VectorStream | None, origin: tuple[float, float, float], when: float, warnings: Warnings) -> VectorStream | None:

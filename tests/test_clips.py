@@ -104,3 +104,46 @@ def test_telemetry_bad_files_exit_2(shared_data, capsys, folder, name, message):
     assert main(["telemetry", str(shared_data / "real" / folder / name)]) == 2
     err = capsys.readouterr().err
     assert name in err and message in err and "Traceback" not in err
+
+
+def test_manifest_naming_gopro_telemetry(shared_data, tmp_path):
+    from app.session import open_session, pose_track
+
+    clip = shared_data / "real" / "gopro" / "max-heromode.mp4"
+    scene = tmp_path / "ground.obj"
+    scene.write_text("v -500 -500 -2\nv 500 -500 -2\nv 500 500 -2\nv -500 500 -2\nf 1 2 3\nf 1 3 4\n")
+    manifest = tmp_path / "walk.toml"
+    manifest.write_text(
+        f'[origin]\nlat = 33.1268\nlon = -117.3273\nh = -21.0\n\n[scene]\npath = "{scene}"\norigin = [33.1268, -117.3273, -21.0]\n\n'
+        f'[video]\npath = "{clip}"\nstart_time = 1000.0\n\n[camera]\nhfov_deg = 92.0\n\n[sensors]\nformat = "gopro"\n'
+    )
+    s = open_session(manifest)
+    assert s.heading_note.startswith("heading from the GNSS course") and s.device_is_camera
+    assert s.gyr.t[0] > 1000.0 and s.gnss.t[0] > 1000.0  # clip seconds moved onto the session clock
+    assert "camera" in s.filters and "gd-imu" in s.filters
+    enu, _, _ = pose_track(s, "camera").at(s.frame_times[:1])
+    assert np.all(np.isfinite(enu))
+
+
+def test_manifest_naming_a_dji_subtitle_takes_off_from_the_scene(dji_clip, tmp_path):
+    """Heights above take-off + the scene's ground under the first position (20 m here)."""
+    from app.geo import LocalFrame
+    from app.session import open_session
+    from app.solve import solve_frames
+
+    lat, lon = -34.237922, -58.851745  # the first P4 RTK position
+    frame = LocalFrame(lat, lon, 20.0)
+    scene = tmp_path / "flat.obj"
+    corners = frame.enu_to_ecef(np.array([[-2000, -2000, 0], [2000, -2000, 0], [2000, 2000, 0], [-2000, 2000, 0]], float))
+    scene.write_text("".join(f"v {x:.4f} {y:.4f} {z:.4f}\n" for x, y, z in corners) + "f 1 2 3\nf 1 3 4\n")
+    manifest = tmp_path / "dji.toml"
+    srt = dji_clip.parent / "dji_0001.srt"
+    manifest.write_text(
+        f'[origin]\nlat = {lat}\nlon = {lon}\nh = 20.0\n\n[scene]\npath = "{scene}"\n\n[video]\npath = "{dji_clip}"\nstart_time = 0.0\n\n'
+        f'[camera]\nhfov_deg = 73.7\n\n[sensors]\nformat = "none"\n\n[gnss]\npath = "{srt}"\n'
+    )
+    s = open_session(manifest)
+    assert any("take-off height 20.00 m from the scene" in w for w in s.warnings.items)
+    rows = solve_frames(s, "telemetry")
+    assert rows[0, 4] == pytest.approx(20.0 + 85.8, abs=0.05)  # ellipsoidal height of the first pose
+    assert rows[0, 7] == pytest.approx(85.8, abs=0.05)  # Up above the scene's ground

@@ -187,8 +187,27 @@ def read_gopro(path: str | Path, warnings: Warnings | None = None) -> GoProRecor
         tm, mv = _gather(by_key["MAGN"])
         orin_m = str(by_key["MAGN"][0].modifiers.get("ORIN", orin_a))
         mag = VectorStream("mag", tm, orin_map(orin_m, mv) @ to_dev.T, "uT", str(path))
+        mag = _plausible(mag, gnss, utc0, path, warnings)
     lens = next((v for k, v in HFOV_DEG.items() if k in model.lower()), HFOV_DEG["default"])
     return GoProRecording(str(path), model or "GoPro", acc, gyr, mag, gnss, precision, utc0, camera, lens, counts, dropped)
+
+
+MAG_PLAUSIBLE = (0.5, 1.5)  # magnetometer strength / World Magnetic Model strength accepted
+
+
+def _plausible(mag: VectorStream, gnss: GnssTrack | None, utc0: float | None, path: Path, warnings: Warnings) -> VectorStream | None:
+    """The magnetometer, if its field strength is plausible for the place (WMM), else None."""
+    from app.geomag import field_enu
+
+    if gnss is None:
+        warnings.add(f"{path.name}: no GPS fix to check the magnetometer against the World Magnetic Model: not used")
+        return None
+    expected = float(np.linalg.norm(field_enu(float(gnss.lat[0]), float(gnss.lon[0]), float(gnss.h[0]), utc0 or 0.0)))
+    measured = float(np.median(np.linalg.norm(mag.values, axis=1)))
+    if MAG_PLAUSIBLE[0] <= measured / expected <= MAG_PLAUSIBLE[1]:
+        return mag
+    warnings.add(f"{path.name}: magnetometer reads {measured:.0f} uT where the World Magnetic Model expects {expected:.0f} uT: not used; heading comes from the GNSS course")
+    return None
 
 
 def _level(camera: OrientationStream, acc: VectorStream) -> OrientationStream:

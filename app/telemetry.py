@@ -88,7 +88,11 @@ def _gopro(path: Path) -> Telemetry:
 
     out = Telemetry(path, "GoPro MP4 (GPMF telemetry)")
     r = read_gopro(path, out.warnings)
-    out.info.append(f"camera: {r.model}; lens horizontal FOV {r.hfov_deg:g} deg (default for the model)")
+    from app.io.gopro import global_settings
+
+    settings = global_settings(path)
+    mode = settings.get("VFOV", "?")
+    out.info.append(f"camera: {r.model}; lens mode {mode}, horizontal FOV {r.hfov_deg:.1f} deg")
     for s in (r.acc, r.gyr, r.mag):
         if s is not None:
             out.streams.append(Stream({"acc": "ACCL accelerometer", "gyr": "GYRO gyroscope", "mag": "MAGN magnetometer"}[s.name], s.t, s.unit))

@@ -114,3 +114,15 @@ def test_mp4_without_telemetry_and_truncated_mp4(gopro, tmp_path, capsys):
     assert main(["telemetry", str(cut)]) == 2
     err = capsys.readouterr().err
     assert "cut.mp4" in err and "Traceback" not in err
+
+
+def test_lens_field_of_view_from_the_metadata(gopro):
+    from app.io.gopro import global_settings, lens_hfov
+
+    settings = global_settings(gopro / "max-heromode.mp4")
+    assert settings["VFOV"] == "W"  # the recorded lens mode: wide
+    assert float(settings["ZFOV"].ravel()[0]) == pytest.approx(137.39, abs=0.01)  # diagonal, degrees
+    hfov = lens_hfov(settings, 848, 480)
+    # tan(h/2) = tan(d/2) * 848 / hypot(848, 480)
+    assert hfov == pytest.approx(np.degrees(2 * np.arctan(np.tan(np.radians(137.39) / 2) * 848 / np.hypot(848, 480))), abs=0.01)
+    assert lens_hfov({}, 848, 480) is None

@@ -12,6 +12,8 @@
   Tested with gravity on a camera held upright: the accelerometer reads +g along device +y.
 - GPS5/GPS9: samples of payloads without a 2D/3D fix (GPSF < 2, or GPS9's own fix field) are
   dropped and counted; GPSP (precision, DOP x 100) is kept; GPSU gives the absolute time.
+- Lens: the recorded lens mode's diagonal field of view (ZFOV, and the mode VFOV, in the GPMF
+  box of moov/udta) where present, otherwise a documented default per model; `--fov` overrides.
 - MAGN is used only when its field strength is plausible for the place (within 50 % of the World
   Magnetic Model's); otherwise heading comes from the GNSS course.
 - CORI (camera orientation since the start of capture) becomes the `camera` pose source: its
@@ -87,6 +89,68 @@ def read_payloads(path: Path) -> list[tuple[bytes, float, float]]:
     if not out:
         raise DataFormatError(path, "the telemetry track holds no payload (a truncated file?)")
     return out
+
+
+def _boxes(data: bytes, start: int, end: int):
+    """(type, payload start, payload end) of the MP4 boxes in data[start:end]."""
+    pos = start
+    while pos + 8 <= end:
+        size = int.from_bytes(data[pos : pos + 4], "big")
+        kind = data[pos + 4 : pos + 8].decode("latin-1")
+        head = 8
+        if size == 1:
+            size = int.from_bytes(data[pos + 8 : pos + 16], "big")
+            head = 16
+        elif size == 0:
+            size = end - pos
+        if size < head or pos + size > end:
+            return
+        yield kind, pos + head, pos + size
+        pos += size
+
+
+def global_settings(path: str | Path) -> dict[str, object]:
+    """The camera's global settings: the GPMF box in moov/udta (lens mode VFOV, field of view
+    ZFOV in degrees, ...). Empty when absent. Reads only the file's box headers and that box."""
+    path = Path(path)
+    with path.open("rb") as f:
+        data = f.read()
+    for kind, a, b in _boxes(data, 0, len(data)):
+        if kind != "moov":
+            continue
+        for kind2, a2, b2 in _boxes(data, a, b):
+            if kind2 != "udta":
+                continue
+            for kind3, a3, b3 in _boxes(data, a2, b2):
+                if kind3 == "GPMF":
+                    try:
+                        return _flatten(parse(data[a3:b3], f"{path} udta"))
+                    except DataFormatError:
+                        return {}
+    return {}
+
+
+def _flatten(klvs: list) -> dict[str, object]:
+    """Every non-nested KLV of a tree by key (the first occurrence wins)."""
+    out: dict[str, object] = {}
+    for k in klvs:
+        if isinstance(k.value, list) and k.value and hasattr(k.value[0], "key"):
+            for key, value in _flatten(k.value).items():
+                out.setdefault(key, value)
+        else:
+            out.setdefault(k.key, k.value)
+    return out
+
+
+def lens_hfov(settings: dict[str, object], width: int, height: int) -> float | None:
+    """Horizontal FOV (deg) of a pinhole with the recorded diagonal field of view ZFOV (deg) over
+    a width x height image; None without ZFOV. GoPro's wide modes are not rectilinear: the pinhole
+    matches the diagonal, not the distortion (which geofuse, like the paper, does not model)."""
+    z = settings.get("ZFOV")
+    if not isinstance(z, np.ndarray) or not 1.0 < float(z.ravel()[0]) < 179.0:
+        return None
+    half_diag = np.tan(np.radians(float(z.ravel()[0])) / 2)
+    return float(np.degrees(2 * np.arctan(half_diag * width / np.hypot(width, height))))
 
 
 def orin_map(orin: str, values: np.ndarray) -> np.ndarray:
@@ -189,6 +253,15 @@ def read_gopro(path: str | Path, warnings: Warnings | None = None) -> GoProRecor
         mag = VectorStream("mag", tm, orin_map(orin_m, mv) @ to_dev.T, "uT", str(path))
         mag = _plausible(mag, gnss, utc0, path, warnings)
     lens = next((v for k, v in HFOV_DEG.items() if k in model.lower()), HFOV_DEG["default"])
+    settings = global_settings(path)
+    from app.io.video import probe
+
+    w, h = probe(path).display_size
+    recorded = lens_hfov(settings, w, h)
+    if recorded is not None:
+        lens = recorded
+    else:
+        warnings.add(f"{path.name}: no lens field of view in the metadata: {lens:g} deg horizontal assumed for {model or 'this camera'}")
     return GoProRecording(str(path), model or "GoPro", acc, gyr, mag, gnss, precision, utc0, camera, lens, counts, dropped)
 
 

@@ -118,9 +118,7 @@ def _dji_session(path: Path, srt: Path, hfov_deg: float | None, pitch_deg: float
         q = rotations.camera_quat_from_hpr(y % 360.0, p, r)  # the gimbal is the camera: device = camera
         refs["telemetry"] = OrientationStream(track.t[g], q, str(srt), "DJI gimbal pitch, roll, yaw (G.PRY)")
     else:
-        heading = _course_headings(frame, gnss)
-        q = rotations.camera_quat_from_hpr(heading, np.full(len(heading), pitch_deg), np.zeros(len(heading)))
-        refs["course"] = OrientationStream(gnss.t, q, str(srt), f"heading from the direction of travel, pitch {pitch_deg:g} deg (a setting)")
+        refs["course"] = course_reference(frame, gnss, pitch_deg)
         note = f"no camera attitude in the subtitle: heading from the track, pitch {pitch_deg:g} deg assumed"
         warnings.add(f"{srt.name}: {note}")
     focal = track.focal_len[np.isfinite(track.focal_len)]
@@ -130,6 +128,19 @@ def _dji_session(path: Path, srt: Path, hfov_deg: float | None, pitch_deg: float
         hfov_deg = float(np.degrees(2 * np.arctan(18.0 / focal_mm)))  # 36 mm wide full frame equivalent
     intr = Intrinsics.from_fov(w, h, hfov_deg)
     return _session(path, frame, mesh, video, video.pts_s.copy(), intr, video.rotation_cw, None, None, None, gnss, refs, decl, warnings, note)
+
+
+def course_reference(frame: LocalFrame, gnss: GnssTrack, pitch_deg: float) -> OrientationStream:
+    """The `course` pose source: heading along the direction of travel, pitch a setting (deg)."""
+    heading = _course_headings(frame, gnss)
+    q = rotations.camera_quat_from_hpr(heading, np.full(len(heading), pitch_deg), np.zeros(len(heading)))
+    return OrientationStream(gnss.t, q, gnss.source, f"heading from the direction of travel, pitch {pitch_deg:g} deg (a setting)")
+
+
+def set_course_pitch(session: Session, pitch_deg: float) -> None:
+    """Change the assumed camera pitch of a session's `course` source (the viewer's slider)."""
+    session.references["course"] = course_reference(session.frame, session.gnss, pitch_deg)
+    session.heading_note = f"no camera attitude in the subtitle: heading from the track, pitch {pitch_deg:g} deg assumed"
 
 
 def _course_headings(frame: LocalFrame, gnss: GnssTrack) -> np.ndarray:

@@ -147,3 +147,17 @@ def test_manifest_naming_a_dji_subtitle_takes_off_from_the_scene(dji_clip, tmp_p
     rows = solve_frames(s, "telemetry")
     assert rows[0, 4] == pytest.approx(20.0 + 85.8, abs=0.05)  # ellipsoidal height of the first pose
     assert rows[0, 7] == pytest.approx(85.8, abs=0.05)  # Up above the scene's ground
+
+
+def test_course_pitch_setting_resolves_the_track(shared_data, tmp_path):
+    from app.clips import open_clip, set_course_pitch
+    from app.simulate.phone import write_video
+    from app.solve import solve_frames
+
+    video = write_video(tmp_path / "c.mp4", np.arange(150) / 30.0, (96, 54), 0)
+    (tmp_path / "c.srt").write_text((shared_data / "real" / "dji" / "p4p_sample.SRT").read_text())
+    s = open_clip(video)
+    assert solve_frames(s, "course")[0, 9] == pytest.approx(-30.0, abs=0.01)
+    set_course_pitch(s, -60.0)
+    assert solve_frames(s, "course")[0, 9] == pytest.approx(-60.0, abs=0.01)
+    assert "pitch -60 deg assumed" in s.heading_note

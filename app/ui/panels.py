@@ -222,6 +222,12 @@ def _attitude(v) -> None:
                 v.toggle_ahrs(ahrs)
         if L.session.heading_note:
             imgui.text_colored(_vec4(AMBER), L.session.heading_note)
+        if "course" in L.session.references:
+            current = float(v.__dict__.setdefault("_course_pitch", -30.0))
+            _, pitch = imgui.slider_float("camera pitch (deg)", current, -90.0, 30.0, "%.0f")
+            v._course_pitch = pitch
+            if imgui.is_item_deactivated_after_edit():
+                v.set_course_pitch(pitch)
         elif L.session.mag is None:
             imgui.text_colored(_vec4(AMBER), "no magnetometer: IMU filters only")
         elif not L.source.endswith("-ahrs") and L.source[:3] in ("gd-", "cf-"):

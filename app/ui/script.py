@@ -12,6 +12,7 @@ README's screenshots. Times are seconds of wall time since the viewer opened.
     3.5  alpha 0.5
     3.55 overlay on         # the projection-error colours (sessions with ground truth)
     3.58 offset 0.08        # the session's time offset, seconds
+    3.59 pitch -45          # a drone clip without gimbal attitude: the assumed camera pitch
     3.6  view phone         # free | orbit | phone | reset
     3.7  open path/to/other.toml
     3.8  panels off         # hide the panels (a scene-only screenshot)
@@ -29,7 +30,7 @@ from app.errors import DataFormatError
 
 ACTIONS = {
     "play": 0, "pause": 0, "seek": 1, "step": 1, "speed": 1, "source": 1, "ahrs": 1, "alpha": 1,
-    "view": 1, "open": 1, "screenshot": 1, "quit": 0, "overlay": 1, "offset": 1, "panels": 1, "state": 1,
+    "view": 1, "open": 1, "screenshot": 1, "quit": 0, "overlay": 1, "offset": 1, "panels": 1, "state": 1, "pitch": 1,
 }
 
 

@@ -191,6 +191,20 @@ class Viewer:
         if self.loaded is not None and name in self.loaded.session.filters:
             self.loaded.source = name
 
+    def set_course_pitch(self, pitch_deg: float) -> None:
+        """A drone clip without gimbal attitude: change the assumed camera pitch and re-solve
+        that one source (a fraction of a second)."""
+        from app.clips import set_course_pitch
+        from app.session import pose_track
+
+        L = self.loaded
+        if L is None or "course" not in L.session.references:
+            return
+        set_course_pitch(L.session, pitch_deg)
+        L.tracks.tracks["course"] = pose_track(L.session, "course")
+        L.tracks.curves.pop("course", None)
+        L.trajectory = None
+
     def toggle_ahrs(self, on: bool | None = None) -> None:
         """Switch between the AHRS and IMU forms of the current filter."""
         if self.loaded is None:
@@ -353,6 +367,8 @@ class Viewer:
             self.settings = replace(self.settings, alpha=float(arg))
         elif name == "offset":
             self.time_offset_s = float(arg)
+        elif name == "pitch":
+            self.set_course_pitch(float(arg))
         elif name == "overlay":
             self.overlays = replace(self.overlays, error_map=arg == "on")
         elif name == "view":

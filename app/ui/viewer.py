@@ -217,34 +217,28 @@ class Viewer:
         elif src in inverse and on is not False:
             self.set_source(inverse[src])
 
-    def _projector(self) -> Camera | None:
+    def _camera_of(self, source: str | None, times: np.ndarray | None = None) -> Camera | None:
+        """The video's camera for the current frame under `source`, at the pipeline's frame time
+        plus the live time offset, or at `times` (one per frame) when given."""
         L = self.loaded
-        track = L.tracks.tracks.get(L.source)
+        track = L.tracks.tracks.get(source) if source else None
         if track is None or self.current_index < 0:
             return None
-        t = L.session.frame_times[self.current_index] + self.time_offset_s
+        t = L.session.frame_times[self.current_index] + self.time_offset_s if times is None else times[self.current_index]
         enu, _, q = track.at(np.array([t]))
         return Camera.create(L.session.intrinsics, enu[0], q[0], near=0.5, far=2000.0)
 
     def _reference_camera(self) -> Camera | None:
-        L = self.loaded
-        ref = L.tracks.reference()
-        track = L.tracks.tracks.get(ref) if ref and ref != L.source else None
-        if track is None or self.current_index < 0:
-            return None
-        t = L.session.frame_times[self.current_index] + self.time_offset_s
-        enu, _, q = track.at(np.array([t]))
-        return Camera.create(L.session.intrinsics, enu[0], q[0], near=0.5, far=2000.0)
+        """The reference (truth or the phone's own) beside the chosen source's frustum."""
+        ref = self.loaded.tracks.reference()
+        return self._camera_of(ref) if ref != self.loaded.source else None
 
     def _truth_camera(self) -> Camera | None:
-        """The video's true camera for the current frame (sessions with ground truth)."""
-        L = self.loaded
-        track = L.tracks.tracks.get("truth")
-        if track is None or self.current_index < 0 or not self.overlays.error_map:
+        """The video's true camera, at the frame's true time (for the error overlay)."""
+        if not self.overlays.error_map:
             return None
-        times = L.session.truth_frame_times if L.session.truth_frame_times is not None else L.session.frame_times
-        enu, _, q = track.at(times[self.current_index : self.current_index + 1])
-        return Camera.create(L.session.intrinsics, enu[0], q[0], near=0.5, far=2000.0)
+        s = self.loaded.session
+        return self._camera_of("truth", s.truth_frame_times if s.truth_frame_times is not None else s.frame_times)
 
     def _update(self, now: float) -> None:
         L = self.loaded
@@ -256,7 +250,7 @@ class Viewer:
         if L.player.tick(now):
             f = L.player.current
             L.renderer.set_video_yuv(f.y, f.u, f.v, L.session.rotation_cw, f.bt709, f.full_range)
-        projector = self._projector()
+        projector = self._camera_of(L.source)
         L.renderer.set_projector(projector)
         L.renderer.set_reference(self._reference_camera())
         L.renderer.set_truth(self._truth_camera())

@@ -3,7 +3,7 @@ import pytest
 
 from app import rotations
 from app.geo import LocalFrame, meridian_radius, prime_vertical_radius
-from app.trajectory import PositionTrack, device_to_camera, geodetic_rates, hermite
+from app.trajectory import PositionTrack, device_to_camera, geodetic_rates
 
 ORIGIN = (34.80, 113.53, 110.0)
 

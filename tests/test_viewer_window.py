@@ -6,7 +6,6 @@ error is reported and rendering goes on."""
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest

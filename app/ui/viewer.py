@@ -10,7 +10,6 @@ A bad file never crashes it: the error panel says what is wrong and the viewer k
 from __future__ import annotations
 
 import logging
-import queue
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path

@@ -15,7 +15,7 @@ $(STAMP): pyproject.toml
 setup: $(STAMP)
 
 demo: $(STAMP)
-	$(PY) -m app view
+	$(PY) -m app view || { echo "no display for the viewer: rendering a still instead"; $(PY) -m app demo; }
 
 test: $(STAMP)
 	$(PY) -m pytest -q

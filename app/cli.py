@@ -213,7 +213,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     ]  # fmt: skip
     code = main(argv)
     if code == 0:
-        print(f"The demo still is at {Path(args.out).resolve()} (the interactive viewer is not built yet).")
+        print(f"The demo still is at {Path(args.out).resolve()}; with a display, `geofuse view` opens the interactive viewer.")
     return code
 
 

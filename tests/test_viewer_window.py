@@ -32,6 +32,7 @@ def scripted(display, tmp_path_factory):
 2.8 ahrs on
 3.0 alpha 1.0
 3.2 panels off
+3.2 lines off
 4.5 screenshot {d / "scene.png"}
 4.5 state {d / "scene.json"}
 4.7 panels on
@@ -89,9 +90,9 @@ def test_video_lands_where_an_offscreen_render_puts_it(scripted, gl_ctx):
     assert covered.sum() > 2000
     to_on = np.abs(shot - on).max(axis=2)[covered]
     to_off = np.abs(shot - off).max(axis=2)[covered]
-    # The window shows the video where the off-screen render does (YUV path and overlay lines
-    # differ slightly), and not the bare model.
-    assert np.median(to_on) <= 6 and np.mean(to_on <= 16) > 0.9
+    # The window shows the video where the off-screen render does (the YUV path differs from the
+    # RGB still by its rounding and chroma filtering), and not the bare model.
+    assert np.median(to_on) <= 6 and np.mean(to_on <= 16) > 0.98
     assert np.median(to_off) > 40
 
 

@@ -16,6 +16,7 @@ README's screenshots. Times are seconds of wall time since the viewer opened.
     3.6  view phone         # free | orbit | phone | reset
     3.7  open path/to/other.toml
     3.8  panels off         # hide the panels (a scene-only screenshot)
+    3.9  lines off          # hide the frustum and trajectory lines
     4.0  screenshot out.png
     4.1  state out.json     # the viewer's state (camera, frame, source, errors) as JSON
     4.5  quit
@@ -30,7 +31,7 @@ from app.errors import DataFormatError
 
 ACTIONS = {
     "play": 0, "pause": 0, "seek": 1, "step": 1, "speed": 1, "source": 1, "ahrs": 1, "alpha": 1,
-    "view": 1, "open": 1, "screenshot": 1, "quit": 0, "overlay": 1, "offset": 1, "panels": 1, "state": 1, "pitch": 1,
+    "view": 1, "open": 1, "screenshot": 1, "quit": 0, "overlay": 1, "offset": 1, "panels": 1, "state": 1, "pitch": 1, "lines": 1,
 }
 
 

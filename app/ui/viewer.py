@@ -338,6 +338,8 @@ class Viewer:
             self.state_request = Path(arg)
         elif name == "panels":
             self.show_panels = arg == "on"
+        elif name == "lines":
+            self.overlays = replace(self.overlays, frustum=arg == "on", trajectory=arg == "on")
         elif L is None:
             raise ValueError("no session is open")
         elif name == "play":

@@ -15,7 +15,7 @@ SHORTCUTS = (
     ("W A S D, Q E", "move (free roam) / move the orbit target"),
     ("right mouse drag", "look around / orbit"),
     ("mouse wheel", "roam speed / orbit distance"),
-    ("O", "orbit around the point under the window centre"),
+    ("O", "orbit around the point under the mouse cursor"),
     ("F", "free roam"),
     ("P", "through the phone: ride the video's camera"),
     ("R", "reset the view"),
@@ -83,8 +83,10 @@ def handle_keys(v, dt: float, now: float) -> None:
 
 
 def orbit_pick(v) -> None:
-    """Orbit around the model point under the window centre (GPU position pass), or a point 50 m
-    ahead when the centre sees no model."""
+    """Orbit around the model point under the mouse cursor (GPU position pass at a quarter of the
+    window's resolution), or a point 50 m ahead when the cursor sees no model."""
+    import glfw
+
     from app import rotations
     from app.render.positions import PositionPass
 
@@ -94,8 +96,13 @@ def orbit_pick(v) -> None:
     if getattr(r, "_picker", None) is None:
         r._picker = PositionPass(v.ctx, r.scene)
     cam = v.window_camera
-    small = type(cam).create(cam.intrinsics.scaled(64, 36), cam.position, cam.orientation, cam.near, cam.far)
-    p = r._picker.render(small)[18, 32]
+    w, h = max(1, cam.intrinsics.width // 4), max(1, cam.intrinsics.height // 4)
+    small = type(cam).create(cam.intrinsics.scaled(w, h), cam.position, cam.orientation, cam.near, cam.far)
+    win_w, win_h = glfw.get_window_size(v.window)
+    x, y = glfw.get_cursor_pos(v.window)
+    col = int(np.clip(x / max(win_w, 1) * w, 0, w - 1))
+    row = int(np.clip(y / max(win_h, 1) * h, 0, h - 1))
+    p = r._picker.render(small)[row, col]
     if not np.all(np.isfinite(p)):
         p = np.asarray(cam.position) + 50.0 * rotations.rotate(cam.orientation, [0, 0, -1])
     v.nav.orbit_around(p)

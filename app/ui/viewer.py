@@ -369,6 +369,10 @@ class Viewer:
         elif name == "view":
             if arg == "reset":
                 self.nav.reset()
+            elif arg == "orbit":
+                from app.ui import panels
+
+                panels.orbit_pick(self)  # as the O key: around the point under the cursor
             else:
                 self.nav.mode = arg
 

@@ -113,6 +113,18 @@ def _accept(an: float, norm_ref: float, acc_reject: float) -> tuple:
     return ok, norm_ref + 0.001 * (an - norm_ref)
 
 
+@njit(cache=True)
+def _start(q0: np.ndarray, gyr: np.ndarray, n: int) -> tuple:
+    """(output (n, 4) with row 0 = the normalised q0, its w, x, y, z, and the initial state of
+    `_unbiased_rate`: no rest yet, zero bias, the low-passed rate at the first sample)."""
+    out = np.empty((n, 4))
+    w, x, y, z = _normalised(q0[0], q0[1], q0[2], q0[3])
+    out[0, 0], out[0, 1], out[0, 2], out[0, 3] = w, x, y, z
+    rest = np.zeros(7)
+    rest[4], rest[5], rest[6] = gyr[0, 0], gyr[0, 1], gyr[0, 2]
+    return out, w, x, y, z, rest
+
+
 @njit(cache=True, nogil=True)
 def madgwick(
     t: np.ndarray, gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray, use_mag: bool,
@@ -128,12 +140,8 @@ def madgwick(
     over [t[i-1], t[i]].
     """
     n = t.shape[0]
-    out = np.empty((n, 4))
-    w, x, y, z = _normalised(q0[0], q0[1], q0[2], q0[3])
-    out[0, 0], out[0, 1], out[0, 2], out[0, 3] = w, x, y, z
+    out, w, x, y, z, rest = _start(q0, gyr, n)
     norm_ref = 0.0
-    rest = np.zeros(7)
-    rest[4], rest[5], rest[6] = gyr[0, 0], gyr[0, 1], gyr[0, 2]
     for i in range(1, n):
         dt = t[i] - t[i - 1]
         if dt > 0.0 and dt <= 1.0:
@@ -193,12 +201,8 @@ def complementary(
     acc_reject and bias_tau as in `madgwick`.
     """
     n = t.shape[0]
-    out = np.empty((n, 4))
-    w, x, y, z = _normalised(q0[0], q0[1], q0[2], q0[3])
-    out[0, 0], out[0, 1], out[0, 2], out[0, 3] = w, x, y, z
+    out, w, x, y, z, rest = _start(q0, gyr, n)
     norm_ref = 0.0
-    rest = np.zeros(7)
-    rest[4], rest[5], rest[6] = gyr[0, 0], gyr[0, 1], gyr[0, 2]
     for i in range(1, n):
         dt = t[i] - t[i - 1]
         if dt > 0.0 and dt <= 1.0:

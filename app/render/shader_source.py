@@ -68,7 +68,7 @@ def preprocess(name: str, root: Path = SHADER_DIR) -> ShaderSource:
                 out.append(f"#line {number + 1} {sid}")
             elif _VERSION.match(line):
                 if stack or number != 1 and any(s.strip() for s in lines[: number - 1]):
-                    raise ShaderError(f"{path.relative_to(root)}:{number}: #version must be the first line of the main file")
+                    raise ShaderError(f"{path.relative_to(root)}:{number}: the version directive must be the first line of the main file")
                 out.append(line)
                 out.append(f"#line {number + 1} {sid}")
             else:

@@ -142,7 +142,7 @@ def _window(title: str, x: float, y: float, w: float = 0.0, h: float = 0.0) -> b
 def _session(v) -> None:
     from imgui_bundle import imgui
 
-    if _window("Session", 10, 10, 330, 0):
+    if _window("Session", 10, 10, 330, 165):
         if v.loaded is not None:
             s = v.loaded.session
             imgui.text(Path(s.manifest.path).name)
@@ -212,7 +212,7 @@ def _attitude(v) -> None:
     from imgui_bundle import imgui
 
     L = v.loaded
-    if _window("Attitude", 10, 230, 330, 0):
+    if _window("Attitude", 10, 180, 330, 215):
         lib = L.tracks
         if not lib.done:
             imgui.progress_bar(lib.progress, imgui.ImVec2(-1, 0), f"solving {len(lib.tracks)}/{len(lib.order)}")
@@ -245,7 +245,7 @@ def _attitude(v) -> None:
 def _projection(v) -> None:
     from imgui_bundle import imgui
 
-    if _window("Projection", 10, 470, 330, 0):
+    if _window("Projection", 10, 400, 330, 310):
         s = v.settings
         _, enabled = imgui.checkbox("project the video", s.enabled)
         _, alpha = imgui.slider_float("transparency", s.alpha, 0.0, 1.0, "%.2f")

@@ -65,7 +65,7 @@ def paper_track(session: Session) -> tuple[Callable[[np.ndarray], Poses], np.nda
     eq5 = session.frame_times[0] + session.video.eq5_times()
 
     def at(times: np.ndarray) -> Poses:
-        h, p, r = (np.interp(times, t, hpr[:, k]) for k in range(3))
+        h, p, r = resample(times, t, hpr).T  # Euler angles, linearly: the paper's way
         geo = positions.geodetic_at(times)
         return Poses(session.frame.geodetic_to_enu(geo[:, 0], geo[:, 1], geo[:, 2]), rotations.camera_quat_from_hpr(h, p, r))
 

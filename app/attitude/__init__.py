@@ -20,6 +20,7 @@ import numpy.typing as npt
 
 from app import rotations
 from app.attitude import kernels
+from app.io.streams import resample  # noqa: F401  (re-exported: part of this package's API)
 
 FloatArray = npt.NDArray[np.float64]
 METHODS = ("gd", "cf", "offline")
@@ -156,11 +157,3 @@ def estimate(
     else:
         q = _run(method, t, gyr, acc, m, use_mag, g, q0)
     return _declination(rotations.canonical(q), declination_deg)
-
-
-def resample(t_target: npt.ArrayLike, t_source: npt.ArrayLike, values: npt.ArrayLike) -> FloatArray:
-    """Linear interpolation of (M, K) samples at t_source onto t_target (held at the ends)."""
-    t_target = np.asarray(t_target, np.float64)
-    t_source = np.asarray(t_source, np.float64)
-    v = np.asarray(values, np.float64)
-    return np.column_stack([np.interp(t_target, t_source, v[:, k]) for k in range(v.shape[1])])

@@ -33,7 +33,7 @@ import numpy as np
 from app import rotations
 from app.errors import DataFormatError
 from app.io.gpmf import Counts, StreamChunk, chunks, parse
-from app.io.streams import GnssTrack, OrientationStream, VectorStream, Warnings
+from app.io.streams import GnssTrack, OrientationStream, VectorStream, Warnings, resample
 
 CV_TO_DEVICE = np.diag([1.0, -1.0, -1.0])  # camera (X right, Y down, Z forward) -> device frame
 DEFAULT_IMU_TO_CV = np.array([[-1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, -1.0, 0.0]])  # fitted on the MAX sample
@@ -180,7 +180,7 @@ def fit_imu_to_camera(t_gyr: np.ndarray, gyr: np.ndarray, t_cori: np.ndarray, co
     dq = rotations.multiply(rotations.conjugate(q[:-1]), q[1:])
     w = rotations.to_scipy(dq).as_rotvec() / np.maximum(np.diff(t_cori), 1e-6)[:, None]
     tm = (t_cori[:-1] + t_cori[1:]) / 2
-    g = np.column_stack([np.interp(tm, t_gyr, gyr[:, k]) for k in range(3)])
+    g = resample(tm, t_gyr, gyr)
     best = (np.inf, DEFAULT_IMU_TO_CV)
     for perm in itertools.permutations(range(3)):
         for signs in itertools.product((1.0, -1.0), repeat=3):

@@ -27,7 +27,7 @@ import numpy as np
 
 from app import rotations
 from app.errors import DataFormatError
-from app.io.streams import GnssTrack, OrientationStream, VectorStream, Warnings, clean_times, require_samples
+from app.io.streams import GnssTrack, OrientationStream, VectorStream, Warnings, clean_times, require_samples, resample
 
 
 @dataclass(frozen=True)
@@ -113,7 +113,7 @@ def read_sensorlogger(path: str | Path, standardised: bool = False, warnings: Wa
     elif src.has("accelerometer.csv") and src.has("gravity.csv"):
         user = _vector(src, "Accelerometer.csv", "acc", "m/s^2", warnings)
         grav = _vector(src, "Gravity.csv", "acc", "m/s^2", warnings)
-        total = user.values + np.column_stack([np.interp(user.t, grav.t, grav.values[:, k]) for k in range(3)])
+        total = user.values + resample(user.t, grav.t, grav.values)
         sign = -1.0 if platform == "ios" and not standardised else 1.0
         if platform == "unknown":
             warnings.add(f"{path.name}: no platform in Metadata.csv; acceleration taken in Android's sign convention")
@@ -148,16 +148,16 @@ def reference_orientation(raw: OrientationStream, acc: VectorStream, mag: Vector
     """The recording's own attitude in our convention (device -> ENU), choosing among q and its
     conjugate and among world frames turned 0/90/180/270 deg about Up the one under which the
     logged gravity points up and the logged field points north (magnetic)."""
-    a = np.column_stack([np.interp(raw.t, acc.t, acc.values[:, k]) for k in range(3)])
+    a = resample(raw.t, acc.t, acc.values)
     a /= np.linalg.norm(a, axis=1, keepdims=True)
+    m = None if mag is None else resample(raw.t, mag.t, mag.values)
     best = None
     for name, q in (("as logged", raw.q), ("conjugated", rotations.conjugate(raw.q))):
         up_err = np.mean(np.linalg.norm(rotations.rotate(q, a) - [0, 0, 1], axis=1))
         for turn in (0.0, 90.0, 180.0, -90.0):
             qq = rotations.multiply(rotations.about_z(turn), q)
             score = up_err
-            if mag is not None:
-                m = np.column_stack([np.interp(raw.t, mag.t, mag.values[:, k]) for k in range(3)])
+            if m is not None:
                 h = rotations.rotate(qq, m)
                 score += np.mean(np.abs(np.arctan2(h[:, 0], h[:, 1]))) / np.pi
             elif turn != (90.0 if platform == "ios" else 0.0):

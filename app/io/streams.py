@@ -74,6 +74,14 @@ class GnssTrack:
     source: str = ""
 
 
+def resample(t_target: npt.ArrayLike, t_source: npt.ArrayLike, values: npt.ArrayLike) -> FloatArray:
+    """Linear interpolation of (M, K) samples at t_source onto t_target (held at the ends)."""
+    t_target = np.asarray(t_target, np.float64)
+    t_source = np.asarray(t_source, np.float64)
+    v = np.asarray(values, np.float64)
+    return np.column_stack([np.interp(t_target, t_source, v[:, k]) for k in range(v.shape[1])])
+
+
 def clean_times(t: FloatArray, rows: npt.NDArray[np.int64], path: Path, label: str, warnings: Warnings) -> npt.NDArray[np.bool_]:
     """Mask of samples to keep so that time strictly increases: drops NaN times, repeats and
     samples that go backwards (counted, with the first offending line). Notes gaps."""

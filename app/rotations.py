@@ -139,6 +139,12 @@ def hpr_from_camera_quat(q: npt.ArrayLike) -> FloatArray:
     return hpr_from_camera_matrix(to_matrix(q))
 
 
+def circular_mean(angles_rad: npt.ArrayLike) -> float:
+    """Mean direction (radians, in (-pi, pi]) of angles in radians: the angle of their mean unit vector."""
+    a = np.asarray(angles_rad, np.float64)
+    return float(np.arctan2(np.mean(np.sin(a)), np.mean(np.cos(a))))
+
+
 def wrap_degrees(a: npt.ArrayLike) -> FloatArray:
     """Wrap angles (deg) into [-180, 180)."""
     return (np.asarray(a, np.float64) + 180.0) % 360.0 - 180.0

@@ -448,8 +448,7 @@ def course_heading_turn(session: Session, t: np.ndarray, q_device: np.ndarray) -
     course = np.arctan2(pos.vel_enu[moving, 0], pos.vel_enu[moving, 1])
     q_cam = rotations.multiply(rotations.slerp(t, q_device, pos.t[moving]), session.camera_mount())
     heading = np.radians(rotations.hpr_from_camera_quat(q_cam)[:, 0])
-    d = course - heading
-    offset = np.arctan2(np.mean(np.sin(d)), np.mean(np.cos(d)))
+    offset = rotations.circular_mean(course - heading)
     return rotations.about_z(-np.degrees(offset))  # a clockwise (heading-increasing) turn
 
 
@@ -499,8 +498,7 @@ def anchor_heading(q: np.ndarray, mag: np.ndarray, declination_deg: float) -> np
     from app import rotations
 
     h = rotations.rotate(q, mag)
-    angle = np.arctan2(h[:, 0], h[:, 1])  # the field's horizontal angle east of north
-    mean = np.arctan2(np.mean(np.sin(angle)), np.mean(np.cos(angle)))
+    mean = rotations.circular_mean(np.arctan2(h[:, 0], h[:, 1]))  # the field's angle east of north
     turn = rotations.about_z(np.degrees(mean) - declination_deg)
     return rotations.canonical(rotations.multiply(turn, q))
 

@@ -61,3 +61,8 @@ def test_angle_between():
     q1 = rotations.camera_quat_from_hpr(10.0, 0.0, 0.0)
     q2 = rotations.camera_quat_from_hpr(13.0, 0.0, 0.0)
     assert np.degrees(rotations.angle_between(q1, q2)) == pytest.approx(3.0)
+
+
+def test_circular_mean_across_the_wrap():
+    assert rotations.circular_mean(np.radians([179.0, -179.0])) == pytest.approx(np.pi)
+    assert rotations.circular_mean(np.radians([10.0, 30.0])) == pytest.approx(np.radians(20.0))

@@ -28,6 +28,7 @@ from app.io.video import probe
 from app.scene import Placement
 from app.scene.ground_plane import ground_plane
 from app.session import Manifest, Session
+from app.trajectory import estimate_velocity
 
 HANDHELD_MOUNT_M = 1.5
 DRONE_DEFAULT_PITCH_DEG = -30.0  # camera pitch assumed for a drone clip without gimbal attitude
@@ -145,8 +146,7 @@ def set_course_pitch(session: Session, pitch_deg: float) -> None:
 
 def _course_headings(frame: LocalFrame, gnss: GnssTrack) -> np.ndarray:
     """Direction of travel (deg from north) at each fix; held through stops."""
-    enu = frame.geodetic_to_enu(gnss.lat, gnss.lon, gnss.h)
-    v = np.gradient(enu[:, :2], gnss.t, axis=0) if len(gnss.t) > 1 else np.zeros((1, 2))
+    v = estimate_velocity(gnss.t, frame.geodetic_to_enu(gnss.lat, gnss.lon, gnss.h))
     speed = np.hypot(v[:, 0], v[:, 1])
     heading = np.degrees(np.arctan2(v[:, 0], v[:, 1])) % 360.0
     moving = speed > 0.5

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from app import rotations
+from app.attitude.metrics import hpr_rms
 from app.session import Session, pose_track
 from app.trajectory import PoseTrack
 
@@ -95,8 +96,5 @@ class TrackLibrary:
             c = self.curves.get(name)
             if c is None or name == ref:
                 continue
-            d = rotations.wrap_degrees(c.hpr - r.hpr)
-            total = np.degrees(rotations.angle_between(c.q, r.q))
-            rms = np.sqrt(np.mean(d * d, axis=0))
-            out.append((name, float(rms[0]), float(rms[1]), float(rms[2]), float(np.sqrt(np.mean(total**2)))))
+            out.append((name, *hpr_rms(c.q, r.q)))
         return out

@@ -66,6 +66,7 @@ def _session(path: Path, frame: LocalFrame, mesh, video, times, intr, rotation, 
     s = Session(Manifest(path.resolve(), {}), frame, None, Placement(), video, times, intr, rotation, acc, gyr, mag, gnss, refs, decl, warnings)
     s.mesh = mesh
     s.heading_note = note
+    s.heading_from_course = gyr is not None and mag is None
     s.device_is_camera = True
     warnings.add("no scene given: the video is projected on an assumed flat ground with a 1 m grid")
     return s

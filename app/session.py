@@ -163,7 +163,8 @@ class Session:
     truth_frame_times: np.ndarray | None = None
     height_mode: str = "gnss"
     mount_height_m: float = 1.5
-    heading_note: str = ""  # how heading was obtained, when not from a magnetometer
+    heading_note: str = ""  # how heading was obtained, when not from a magnetometer (for display)
+    heading_from_course: bool = False  # IMU filters and the camera's own attitude: heading fitted to the course
     device_is_camera: bool = False  # action cameras and drones: the device frame is the camera's
     mesh: MeshData | None = None  # the scene, when it is generated rather than loaded
     _positions: PositionTrack | None = None
@@ -355,15 +356,14 @@ def open_session(path: str | Path) -> Session:
     timing = m.get("video", "timing", str, "pts")
     if timing not in ("pts", "eq5"):
         raise ManifestError(m.path, f"got {timing!r}, expected 'pts' or 'eq5'", field="video.timing")
-    rel = video.pts_s if timing == "pts" else video.eq5_times()
-    frame_times = start + rel + m.get("video", "time_offset_s", float, 0.0)
+    clip_start = float(start) + m.get("video", "time_offset_s", float, 0.0)  # session-clock seconds
+    frame_times = clip_start + (video.pts_s if timing == "pts" else video.eq5_times())
     rotation = int(m.get("camera", "rotation_cw", int, video.rotation_cw))
     if rotation % 90:
         raise ManifestError(m.path, f"got {rotation}, expected 0, 90, 180 or 270", field="camera.rotation_cw")
     w, h = (video.height, video.width) if rotation % 180 else (video.width, video.height)
     intr = _intrinsics(m, w, h)
 
-    clip_start = float(start) + m.get("video", "time_offset_s", float, 0.0)
     acc, gyr, mag, refs, logged_gnss = _sensors(m, warnings, clip_start)
     gnss = _gnss(m, logged_gnss, warnings, clip_start, refs)
     log = gyr if gyr is not None else gnss
@@ -386,15 +386,12 @@ def open_session(path: str | Path) -> Session:
         raise ManifestError(m.path, f"got {session.height_mode!r}, expected 'gnss' or 'ground'", field="gnss.height")
     session.mount_height_m = m.get("gnss", "mount_height_m", float, 1.5, required_section=False)
     _takeoff_heights(m, session)
-    if fmt_is(m, "gopro") or fmt_is(m, "none"):
+    if m.get("sensors", "format", str, "csv") in ("gopro", "none"):
         session.device_is_camera = True  # action cameras and drones: the video is the device's view
         if session.mag is None and session.gyr is not None:
+            session.heading_from_course = True
             session.heading_note = "heading from the GNSS course"
     return session
-
-
-def fmt_is(m: Manifest, fmt: str) -> bool:
-    return m.get("sensors", "format", str, "csv") == fmt
 
 
 def _calibrate_magnetometer(m: Manifest, mag: VectorStream | None, origin: tuple[float, float, float], when: float, warnings: Warnings) -> VectorStream | None:
@@ -465,7 +462,7 @@ def _course_aligned(session: Session, t: np.ndarray, q: np.ndarray) -> np.ndarra
 
 def device_attitude(session: Session, source: str) -> tuple[np.ndarray, np.ndarray]:
     """(t, device -> ENU quaternions, true north) for a filter name or reference source."""
-    course = session.heading_note.startswith("heading from the GNSS course")
+    course = session.heading_from_course
     if source in session.references:
         ref = session.references[source]
         if source == "camera" and course:

@@ -118,7 +118,7 @@ def test_manifest_naming_gopro_telemetry(shared_data, tmp_path):
         f'[video]\npath = "{clip}"\nstart_time = 1000.0\n\n[camera]\nhfov_deg = 92.0\n\n[sensors]\nformat = "gopro"\n'
     )
     s = open_session(manifest)
-    assert s.heading_note.startswith("heading from the GNSS course") and s.device_is_camera
+    assert s.heading_from_course and s.heading_note.startswith("heading from the GNSS course") and s.device_is_camera
     assert s.gyr.t[0] > 1000.0 and s.gnss.t[0] > 1000.0  # clip seconds moved onto the session clock
     assert "camera" in s.filters and "gd-imu" in s.filters
     enu, _, _ = pose_track(s, "camera").at(s.frame_times[:1])

@@ -9,6 +9,7 @@ from typing import TextIO
 import numpy as np
 
 from app import rotations
+from app.errors import refuse_overwriting_inputs
 from app.session import Session, pose_track
 
 COLUMNS = ("frame", "time_s", "latitude", "longitude", "height", "E", "N", "U", "heading", "pitch", "roll", "qw", "qx", "qy", "qz")
@@ -35,16 +36,15 @@ def solve_frames(session: Session, source: str) -> np.ndarray:
 
 
 def solve_to_csv(session: Session, source: str, out: str | Path, progress: TextIO | None = None) -> int:
-    """Write the rows of `solve_frames` to `out` (never to an input file); returns the row count."""
+    """Write the rows of `solve_frames` to `out` (never to an input file: checked before solving);
+    returns the row count."""
+    out = Path(out)
+    refuse_overwriting_inputs(out, [session.manifest.path, session.video.path, session.gnss.source] + [s.source for s in (session.gyr, session.acc, session.mag) if s is not None])
     long_input = session.gyr is not None and len(session.gyr.t) >= PROGRESS_MIN_SAMPLES
     bar = progress if long_input else None
     _bar(bar, f"solving {source}", 0.0)
     rows = solve_frames(session, source)
     _bar(bar, f"solving {source}", 1.0)
-    out = Path(out)
-    inputs = [session.manifest.path, session.video.path, session.gnss.source] + [s.source for s in (session.gyr, session.acc, session.mag) if s is not None]
-    if out.resolve() in {Path(p).resolve() for p in inputs if p}:
-        raise ValueError(f"{out}: refusing to overwrite an input file")
     out.parent.mkdir(parents=True, exist_ok=True)
     with out.open("w", newline="") as f:
         w = csv.writer(f)

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from app.errors import DataFormatError
+from app.errors import DataFormatError, refuse_overwriting_inputs
 from app.io.streams import GAP_FACTOR, Warnings
 
 
@@ -176,8 +176,7 @@ def write_csv(tel: Telemetry, out: str | Path) -> int:
     out = Path(out)
     if tel.position is None:
         raise DataFormatError(tel.path, "holds no positions to write")
-    if out.resolve() == tel.path.resolve():
-        raise DataFormatError(out, "refusing to overwrite the input file")
+    refuse_overwriting_inputs(out, [tel.path])
     t, lat, lon, h = tel.position
     extra = list(tel.attitude)
     out.parent.mkdir(parents=True, exist_ok=True)

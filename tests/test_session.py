@@ -113,3 +113,11 @@ def test_render_session_frame(session_dir, tmp_path, gl_ctx):
     out = tmp_path / "frame.png"
     assert main(["render", "--session", str(session_dir / "session.toml"), "--time", "5", "--size", "160x90", "--out", str(out)]) == 0
     assert out.stat().st_size > 0
+
+
+def test_solve_never_overwrites_an_input(session_dir, capsys):
+    gyr = session_dir / "gyr.csv"
+    before = gyr.read_bytes()
+    assert main(["solve", str(session_dir / "session.toml"), "--out", str(gyr)]) == 2
+    assert "refusing to overwrite" in capsys.readouterr().err
+    assert gyr.read_bytes() == before

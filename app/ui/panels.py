@@ -200,10 +200,8 @@ def _playback(v, now: float) -> None:
         imgui.set_next_item_width(-1)
         changed, t = imgui.slider_float("##scrub", media, 0.0, clock.duration, "%.2f s")
         if changed:
-            v.scrubbing = True
-            v.seek(t, now)
+            v.seek(t, now)  # dragging scrubs
         if imgui.is_item_deactivated_after_edit():
-            v.scrubbing = False
             v.seek(t, now)  # release: show the exact frame
     imgui.end()
 

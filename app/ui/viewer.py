@@ -90,7 +90,6 @@ class Viewer:
         self.time_offset_s = 0.0
         self.nav = Navigator()
         self.stats = Stats()
-        self.scrubbing = False
         self.quit = False
         self.script: list[Action] = []
         self.show_help = False

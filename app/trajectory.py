@@ -10,6 +10,7 @@ it is estimated from the neighbouring fixes (central differences in the local EN
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 import numpy.typing as npt
@@ -70,12 +71,17 @@ class PositionTrack:
             vel = np.asarray(vel_enu, np.float64)
         return cls(t, lat, lon, h, vel)
 
+    @cached_property
+    def _hermite_nodes(self) -> tuple[FloatArray, FloatArray]:
+        """(lat rad, lon rad, h m) and their rates at the fixes: computed once, used per query."""
+        p = np.column_stack([np.radians(self.lat), np.radians(self.lon), self.h])
+        return p, geodetic_rates(self.lat, self.h, self.vel_enu)
+
     def geodetic_at(self, tq: npt.ArrayLike) -> FloatArray:
         """(M, 3) latitude deg, longitude deg, height m at times tq (held outside the fixes' span)."""
         tq = np.clip(np.atleast_1d(np.asarray(tq, np.float64)), self.t[0], self.t[-1])
         i = np.clip(np.searchsorted(self.t, tq, side="right") - 1, 0, len(self.t) - 2)
-        rates = geodetic_rates(self.lat, self.h, self.vel_enu)
-        p = np.column_stack([np.radians(self.lat), np.radians(self.lon), self.h])
+        p, rates = self._hermite_nodes
         out = hermite(self.t[i, None], self.t[i + 1, None], p[i], p[i + 1], rates[i], rates[i + 1], tq[:, None])
         return np.column_stack([np.degrees(out[:, 0]), np.degrees(out[:, 1]), out[:, 2]])
 

@@ -9,7 +9,7 @@ them, swapping one input at a time for the truth: attitude, position, frame time
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -17,8 +17,8 @@ from app import rotations
 from app.attitude import estimate, resample
 from app.attitude.metrics import hpr_rms
 from app.camera import Camera, Intrinsics
-from app.session import Session, pose_track
-from app.trajectory import PoseTrack
+from app.camera_track import CameraTrack, camera_track, frame_clock
+from app.session import Session
 
 EDGE_FRACTION = 0.1  # the outer 10 % of columns on each side count as the image's edges
 
@@ -47,9 +47,10 @@ def true_frame_times(session: Session) -> np.ndarray:
     return session.truth_frame_times
 
 
-def poses_at(track: PoseTrack, times: np.ndarray) -> Poses:
-    enu, _, q = track.at(times)
-    return Poses(enu, q)
+def poses_at(track: CameraTrack, frames: np.ndarray) -> Poses:
+    """The track's camera poses at video frames `frames` (on the track's own frame clock)."""
+    p = track.poses_at(track.clock.media_s[frames], frames)
+    return Poses(p.enu, p.q)
 
 
 def paper_track(session: Session) -> tuple[Callable[[np.ndarray], Poses], np.ndarray]:
@@ -135,16 +136,17 @@ class SourceReport:
 def evaluate(session: Session, sources: list[str], every: int = 10, grid: tuple[int, int] = (64, 36), paper: bool = True) -> list[SourceReport]:
     """Attitude RMS and projection error for each source (and the paper's pipeline)."""
     t_true = true_frame_times(session)
+    true_clock, pipeline_clock = frame_clock(session, true_timing=True), frame_clock(session)
     frames = np.arange(0, len(t_true), every)
-    truth_track = pose_track(session, "truth")
-    truth = poses_at(truth_track, t_true[frames])
+    truth_track = replace(camera_track(session, "truth"), clock=true_clock)
+    truth = poses_at(truth_track, frames)
     probe = ProjectionProbe(session, grid)
     reports = []
     try:
         entries: list[tuple[str, Callable[[np.ndarray], Poses], np.ndarray]] = []
         for name in sources:
-            track = pose_track(session, name)
-            entries.append((name, lambda tt, tr=track: poses_at(tr, tt), session.frame_times[frames]))
+            pose_track = camera_track(session, name).poses
+            entries.append((name, lambda tt, tr=pose_track: Poses(*tr.at(tt)[::2]), pipeline_clock.session_s[frames]))
         if paper and session.mag is not None:
             at, eq5 = paper_track(session)
             entries.append(("paper pipeline", at, eq5[frames]))
@@ -154,7 +156,7 @@ def evaluate(session: Session, sources: list[str], every: int = 10, grid: tuple[
             by_cause = {
                 "attitude": Poses(truth.enu, est_true_time.q),
                 "position": Poses(est_true_time.enu, truth.q),
-                "time": poses_at(truth_track, pipeline_times),
+                "time": poses_at(replace(truth_track, clock=pipeline_clock), frames),
             }
             total = split_stats(*probe.errors(est, truth), grid[0])
             causes = {k: split_stats(*probe.errors(v, truth), grid[0]) for k, v in by_cause.items()}

@@ -11,7 +11,9 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from app.errors import GeofuseError
+from app.attitude.heading import DRONE_DEFAULT_PITCH_DEG
+from app.constants import DEFAULT_FAR_M, DEFAULT_NEAR_M
+from app.errors import GeofuseError, refuse_overwriting_inputs
 
 
 def _floats(text: str, count: int, what: str) -> tuple[float, ...]:
@@ -84,7 +86,7 @@ def cmd_render(args: argparse.Namespace) -> int:
         view_intr = Intrinsics.from_fov(args.size[0], args.size[1], args.view_fov)
     except ValueError as exc:
         raise GeofuseError(f"--fov: {exc}") from exc
-    projector = Camera.create(intr, frame.geodetic_to_enu(lat, lon, h), rotations.camera_quat_from_hpr(heading, pitch, roll), near=0.5, far=args.far)
+    projector = Camera.create(intr, frame.geodetic_to_enu(lat, lon, h), rotations.camera_quat_from_hpr(heading, pitch, roll), near=DEFAULT_NEAR_M, far=args.far)
     view = window_camera(projector, view_intr, args.view_from, args.look_at, args.far)
     rgb = render_still(mesh, image, projector, view, _projection_settings(args), OverlaySettings(frustum=not args.no_frustum, trajectory=False))
     out = write_rgb(args.out, rgb)
@@ -95,33 +97,31 @@ def cmd_render(args: argparse.Namespace) -> int:
 def _render_session(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from app.camera import Camera, Intrinsics
+    from app.camera import Intrinsics
+    from app.camera_track import camera_track
+    from app.clips import open_any
     from app.config import OverlaySettings
     from app.imageio import write_rgb
     from app.io.video import read_frame
     from app.render.still import render_still, window_camera
-    from app.clips import open_any
-    from app.session import pose_track
 
     session = open_any(args.session)
-    source = args.filter or session.filters[0]
+    source = args.filter or session.sources[0]
     if args.time is None:
         raise GeofuseError("render --session needs --time T (seconds from the video's first frame)")
-    rel = session.frame_times - session.frame_times[0]
-    index = int(np.argmin(np.abs(rel - args.time)))
+    pts = session.video.pts_s
+    index = int(np.argmin(np.abs(pts - args.time)))
     try:
-        track = pose_track(session, source)
+        track = camera_track(session, source).with_clip(DEFAULT_NEAR_M, args.far)
     except ValueError as exc:
         raise GeofuseError(f"--filter: {exc}") from exc
-    enu, _, q = track.at(session.frame_times[index : index + 1])
+    refuse_overwriting_inputs(args.out, list(session.inputs))
+    projector = track.frame_camera(index)
     image = read_frame(session.video.path, index, session.video)
-    projector = Camera.create(session.intrinsics, enu[0], q[0], near=0.5, far=args.far)
-    mesh = session.scene()
     view = window_camera(projector, Intrinsics.from_fov(args.size[0], args.size[1], args.view_fov), args.view_from, args.look_at, args.far)
-    positions, _, _ = track.at(session.frame_times)
-    rgb = render_still(mesh, image, projector, view, _projection_settings(args), OverlaySettings(frustum=not args.no_frustum), trajectory=positions)
+    rgb = render_still(session.scene(), image, projector, view, _projection_settings(args), OverlaySettings(frustum=not args.no_frustum), trajectory=track.frame_poses().enu)
     out = write_rgb(args.out, rgb)
-    print(f"wrote {out}: frame {index} at {rel[index]:.3f} s, attitude from {source}")
+    print(f"wrote {out}: frame {index} at {pts[index]:.3f} s, attitude from {source}")
     return 0
 
 
@@ -133,9 +133,9 @@ def cmd_solve(args: argparse.Namespace) -> int:
     for w in session.warnings.items:
         print(f"warning: {w}", file=sys.stderr)
     if args.filter is None:
-        args.filter = session.filters[0]
-    if args.filter not in session.filters:
-        raise GeofuseError(f"--filter {args.filter}: this session offers {', '.join(session.filters)}")
+        args.filter = session.sources[0]
+    if args.filter not in session.sources:
+        raise GeofuseError(f"--filter {args.filter}: this session offers {', '.join(session.sources)}")
     rows = solve_to_csv(session, args.filter, args.out, progress=sys.stderr)
     print(f"wrote {args.out}: {rows} frames, attitude from {args.filter}")
     return 0
@@ -251,7 +251,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--look-at", type=lambda s: _floats(s, 3, "--look-at"), metavar="E,N,U", default=None, help="window camera target, ENU metres")
     r.add_argument("--view-fov", type=float, default=60.0, help="window camera horizontal field of view, degrees")
     r.add_argument("--size", type=_size, default=(1280, 720), help="output WIDTHxHEIGHT (default 1280x720)")
-    r.add_argument("--far", type=float, default=2000.0, help="far plane of both cameras, metres")
+    r.add_argument("--far", type=float, default=DEFAULT_FAR_M, help="far plane of both cameras, metres")
     _add_projection_options(r)
     r.add_argument("--out", required=True, type=Path, help="output PNG")
     r.set_defaults(func=cmd_render)
@@ -270,7 +270,7 @@ def build_parser() -> argparse.ArgumentParser:
     so.add_argument("--filter", default=None, help="gd-ahrs | gd-imu | cf-ahrs | cf-imu | offline | phone | camera | telemetry | course | truth (default: the first the session offers)")
     so.add_argument("--srt", type=Path, default=None, help="the DJI subtitle of the clip, when not beside it")
     so.add_argument("--fov", type=float, default=None, help="override the lens's horizontal field of view, degrees")
-    so.add_argument("--pitch", type=float, default=-30.0, help="a drone clip without gimbal attitude: the camera's pitch, degrees (default -30)")
+    so.add_argument("--pitch", type=float, default=DRONE_DEFAULT_PITCH_DEG, help=f"a drone clip without gimbal attitude: the camera's pitch, degrees (default {DRONE_DEFAULT_PITCH_DEG:g})")
     so.add_argument("--out", type=Path, required=True)
     so.set_defaults(func=cmd_solve)
 

@@ -1,15 +1,13 @@
 """Sessions straight from a camera's own files, with no manifest: a GoPro MP4 (GPMF telemetry
-inside) or a DJI clip with its .SRT subtitle beside it. The same Session as a manifest gives,
-so everything downstream (solve, render, view) works unchanged.
+inside) or a DJI clip with its .SRT subtitle beside it. The same frozen Session as a manifest
+gives, so everything downstream (solve, render, view) works unchanged.
 
 Without a scene, the video is projected on an assumed flat ground: at the first GNSS height
 minus a mount height (hand-held or body camera 1.5 m; a drone's heights are above take-off, so
 its ground is the take-off height), large enough for every footprint in the clip, with a metric
 grid. The viewer says that the ground is assumed.
 
-Heading without a trustworthy magnetometer comes from the GNSS course: while the camera moves,
-the one constant heading rotation that best aligns its forward direction with the direction of
-travel (app.session.course_heading_turn).
+Heading without a trustworthy magnetometer comes from the GNSS course (app.attitude.heading).
 """
 
 from __future__ import annotations
@@ -18,21 +16,21 @@ from pathlib import Path
 
 import numpy as np
 
-from app import rotations
+from app.attitude.heading import DRONE_DEFAULT_PITCH_DEG
 from app.camera import Intrinsics
 from app.errors import DataFormatError, GeofuseError
 from app.geo import LocalFrame
 from app.geomag import declination
 from app.io.streams import GnssTrack, OrientationStream, Warnings
-from app.io.video import probe
+from app.io.video import VideoInfo, probe
 from app.scene import Placement
 from app.scene.ground_plane import ground_plane
-from app.session import Manifest, Session
-from app.trajectory import estimate_velocity
+from app.session.config import HANDHELD_MOUNT_M
+from app.session.model import Session
 
-HANDHELD_MOUNT_M = 1.5
-DRONE_DEFAULT_PITCH_DEG = -30.0  # camera pitch assumed for a drone clip without gimbal attitude
 DJI_DEFAULT_FOCAL_MM = 24.0  # 35 mm equivalent focal length of most DJI main cameras
+HANDHELD_GROUND_MARGIN_M = 300.0  # assumed ground beyond the track of a hand-held clip
+DRONE_GROUND_MARGIN_M = 500.0  # ... of a drone clip, plus 10x its height above the ground
 
 
 def find_srt(video: Path) -> Path | None:
@@ -62,18 +60,19 @@ def _frame_and_ground(gnss: GnssTrack, ground_h: float, margin_m: float) -> tupl
     return frame, ground_plane((lo + hi) / 2, 0.0, half)
 
 
-def _session(path: Path, frame: LocalFrame, mesh, video, times, intr, rotation, acc, gyr, mag, gnss, refs, decl, warnings, note) -> Session:
-    s = Session(Manifest(path.resolve(), {}), frame, None, Placement(), video, times, intr, rotation, acc, gyr, mag, gnss, refs, decl, warnings)
-    s.mesh = mesh
-    s.heading_note = note
-    s.heading_from_course = gyr is not None and mag is None
-    s.device_is_camera = True
+def _clip_session(path: Path, inputs: tuple[Path, ...], frame: LocalFrame, mesh, video: VideoInfo, intr: Intrinsics, acc, gyr, mag, gnss: GnssTrack, recorded: dict[str, OrientationStream], decl: float, warnings: Warnings, course_pitch_deg: float | None = None, note: str = "") -> Session:
     warnings.add("no scene given: the video is projected on an assumed flat ground with a 1 m grid")
-    return s
+    from_course = gyr is not None and mag is None
+    return Session(
+        path.resolve(), frame, None, Placement(), video, video.pts_s.copy(), intr, video.rotation_cw,
+        acc, gyr, mag, gnss, recorded, decl, warnings, inputs=inputs,
+        heading_note="heading from the GNSS course" if from_course else note,
+        heading_from_course=from_course, device_is_camera=True, course_pitch_deg=course_pitch_deg, mesh=mesh,
+    )  # fmt: skip
 
 
 def _gopro_session(path: Path, hfov_deg: float | None) -> Session:
-    from app.io.gopro import read_gopro
+    from app.attitude.gopro import read_gopro
 
     warnings = Warnings()
     rec = read_gopro(path, warnings)
@@ -81,20 +80,16 @@ def _gopro_session(path: Path, hfov_deg: float | None) -> Session:
         raise DataFormatError(path, "the GoPro telemetry has no GPS fix: the camera cannot be placed (enable GPS, or use a manifest)")
     video = probe(path)
     when = rec.gps_utc_at_zero or video.creation_time or 0.0
-    frame, mesh = _frame_and_ground(rec.gnss, float(rec.gnss.h[0]) - HANDHELD_MOUNT_M, 300.0)
+    frame, mesh = _frame_and_ground(rec.gnss, float(rec.gnss.h[0]) - HANDHELD_MOUNT_M, HANDHELD_GROUND_MARGIN_M)
     decl = declination(frame.lat_deg, frame.lon_deg, frame.h_m, when)
-    mag = rec.mag  # already checked against the World Magnetic Model by the reader
-    refs = {}
-    if rec.camera is not None:
-        refs["camera"] = rec.camera
-    w, h = video.display_size
-    intr = Intrinsics.from_fov(w, h, hfov_deg or rec.hfov_deg)
-    note = "" if mag is not None else "heading from the GNSS course"
-    return _session(path, frame, mesh, video, video.pts_s.copy(), intr, video.rotation_cw, rec.acc, rec.gyr, mag, rec.gnss, refs, decl, warnings, note)
+    recorded = {"camera": rec.camera} if rec.camera is not None else {}
+    intr = Intrinsics.from_fov(*video.display_size, hfov_deg or rec.hfov_deg)
+    return _clip_session(path, (path.resolve(),), frame, mesh, video, intr, rec.acc, rec.gyr, rec.mag, rec.gnss, recorded, decl, warnings)
 
 
 def _dji_session(path: Path, srt: Path, hfov_deg: float | None, pitch_deg: float) -> Session:
     from app.io.dji_srt import check_duration, read_srt
+    from app.session.assemble import gimbal_attitude
 
     warnings = Warnings()
     track = read_srt(srt, warnings)
@@ -109,55 +104,24 @@ def _dji_session(path: Path, srt: Path, hfov_deg: float | None, pitch_deg: float
         ground = float(np.nanmin(heights))
         warnings.add(f"{srt.name}: absolute heights; the assumed ground is the lowest height of the flight ({ground:.1f} m)")
     gnss = GnssTrack(track.t[ok], track.lat[ok], track.lon[ok], heights, None, None, str(srt))
-    frame, mesh = _frame_and_ground(gnss, ground, 500.0 + 10.0 * float(np.max(heights - ground)))
+    frame, mesh = _frame_and_ground(gnss, ground, DRONE_GROUND_MARGIN_M + 10.0 * float(np.max(heights - ground)))
     when = float(np.nanmin(track.wall_clock)) if np.isfinite(track.wall_clock).any() else (video.creation_time or 0.0)
     decl = declination(frame.lat_deg, frame.lon_deg, frame.h_m, when)
-    refs: dict[str, OrientationStream] = {}
+    recorded: dict[str, OrientationStream] = {}
+    course_pitch = None
     note = ""
     if track.has_gimbal:
-        g = np.isfinite(track.gimbal_pry).all(axis=1)
-        p, r, y = track.gimbal_pry[g].T
-        q = rotations.camera_quat_from_hpr(y % 360.0, p, r)  # the gimbal is the camera: device = camera
-        refs["telemetry"] = OrientationStream(track.t[g], q, str(srt), "DJI gimbal pitch, roll, yaw (G.PRY)")
+        recorded["telemetry"] = gimbal_attitude(track, srt)  # the gimbal is the camera: device = camera
     else:
-        refs["course"] = course_reference(frame, gnss, pitch_deg)
+        course_pitch = pitch_deg
         note = f"no camera attitude in the subtitle: heading from the track, pitch {pitch_deg:g} deg assumed"
         warnings.add(f"{srt.name}: {note}")
     focal = track.focal_len[np.isfinite(track.focal_len)]
     focal_mm = float(np.median(focal)) / 10.0 if len(focal) else DJI_DEFAULT_FOCAL_MM
-    w, h = video.display_size
     if hfov_deg is None:
         hfov_deg = float(np.degrees(2 * np.arctan(18.0 / focal_mm)))  # 36 mm wide full frame equivalent
-    intr = Intrinsics.from_fov(w, h, hfov_deg)
-    return _session(path, frame, mesh, video, video.pts_s.copy(), intr, video.rotation_cw, None, None, None, gnss, refs, decl, warnings, note)
-
-
-def course_reference(frame: LocalFrame, gnss: GnssTrack, pitch_deg: float) -> OrientationStream:
-    """The `course` pose source: heading along the direction of travel, pitch a setting (deg)."""
-    heading = _course_headings(frame, gnss)
-    q = rotations.camera_quat_from_hpr(heading, np.full(len(heading), pitch_deg), np.zeros(len(heading)))
-    return OrientationStream(gnss.t, q, gnss.source, f"heading from the direction of travel, pitch {pitch_deg:g} deg (a setting)")
-
-
-def set_course_pitch(session: Session, pitch_deg: float) -> None:
-    """Change the assumed camera pitch of a session's `course` source (the viewer's slider)."""
-    session.references["course"] = course_reference(session.frame, session.gnss, pitch_deg)
-    session.heading_note = f"no camera attitude in the subtitle: heading from the track, pitch {pitch_deg:g} deg assumed"
-
-
-def _course_headings(frame: LocalFrame, gnss: GnssTrack) -> np.ndarray:
-    """Direction of travel (deg from north) at each fix; held through stops."""
-    v = estimate_velocity(gnss.t, frame.geodetic_to_enu(gnss.lat, gnss.lon, gnss.h))
-    speed = np.hypot(v[:, 0], v[:, 1])
-    heading = np.degrees(np.arctan2(v[:, 0], v[:, 1])) % 360.0
-    moving = speed > 0.5
-    if not moving.any():
-        return np.zeros(len(heading))
-    idx = np.where(moving, np.arange(len(heading)), -1)
-    idx = np.maximum.accumulate(idx)
-    first = int(np.flatnonzero(moving)[0])
-    idx[idx < 0] = first
-    return heading[idx]
+    intr = Intrinsics.from_fov(*video.display_size, hfov_deg)
+    return _clip_session(path, (path.resolve(), srt.resolve()), frame, mesh, video, intr, None, None, None, gnss, recorded, decl, warnings, course_pitch, note)
 
 
 def open_any(path: str | Path, srt: str | Path | None = None, hfov_deg: float | None = None, pitch_deg: float = DRONE_DEFAULT_PITCH_DEG) -> Session:

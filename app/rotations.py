@@ -68,6 +68,11 @@ def conjugate(q: npt.ArrayLike) -> FloatArray:
     return q * np.array([1.0, -1.0, -1.0, -1.0])
 
 
+def from_rotvec(v: npt.ArrayLike) -> FloatArray:
+    """Quaternion(s) [w, x, y, z] of rotation vectors (..., 3): axis times angle in radians."""
+    return from_scipy(Rotation.from_rotvec(np.asarray(v, np.float64)))
+
+
 def to_matrix(q: npt.ArrayLike) -> FloatArray:
     """[w, x, y, z] (..., 4) -> rotation matrices (..., 3, 3) with v_world = R @ v."""
     return to_scipy(q).as_matrix()
@@ -171,6 +176,13 @@ def slerp(t_source: npt.ArrayLike, q_source: npt.ArrayLike, t_query: npt.ArrayLi
 
 
 def about_z(angle_deg: float) -> FloatArray:
-    """Quaternion of a rotation by angle_deg (counter-clockwise seen from +z) about z."""
+    """Quaternion of a rotation by angle_deg (counter-clockwise seen from +z) about z. In the
+    device frame this is a roll of the device; in ENU use `heading_turn`."""
     half = np.radians(angle_deg) / 2.0
     return np.array([np.cos(half), 0.0, 0.0, np.sin(half)])
+
+
+def heading_turn(heading_deg: float) -> FloatArray:
+    """The world-frame turn about Up that adds heading_deg to every heading (clockwise seen from
+    above, as headings count): left-multiply an ENU attitude by it. The one way to write it."""
+    return about_z(-heading_deg)

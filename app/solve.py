@@ -6,11 +6,9 @@ import csv
 from pathlib import Path
 from typing import TextIO
 
-import numpy as np
-
-from app import rotations
+from app.camera_track import FramePoses, camera_track
 from app.errors import refuse_overwriting_inputs
-from app.session import Session, pose_track
+from app.session.model import Session
 
 COLUMNS = ("frame", "time_s", "latitude", "longitude", "height", "E", "N", "U", "heading", "pitch", "roll", "qw", "qx", "qy", "qz")
 PROGRESS_MIN_SAMPLES = 100_000
@@ -25,30 +23,35 @@ def _bar(out: TextIO | None, label: str, fraction: float) -> None:
         out.flush()
 
 
-def solve_frames(session: Session, source: str) -> np.ndarray:
-    """(F, 15) rows in COLUMNS order: time in session seconds; lat/lon deg, height m ellipsoidal;
-    ENU m; heading/pitch/roll of the optical axis in degrees; camera -> ENU quaternion."""
-    track = pose_track(session, source)
-    enu, geo, q = track.at(session.frame_times)
-    hpr = rotations.hpr_from_camera_quat(q)
-    idx = np.arange(len(session.frame_times))
-    return np.column_stack([idx, session.frame_times, geo, enu, hpr, q])
+def solve_frames(session: Session, source: str) -> FramePoses:
+    """The camera's pose at every video frame under one source (app.camera_track.FramePoses):
+    time in session seconds; lat/lon deg, height m ellipsoidal; ENU m; heading/pitch/roll of the
+    optical axis in degrees; camera -> ENU quaternion."""
+    return camera_track(session, source).frame_poses()
+
+
+def csv_rows(poses: FramePoses):
+    """FramePoses as text rows in COLUMNS order (fixed precision per column)."""
+    for i in range(len(poses)):
+        yield [
+            int(poses.index[i]), f"{poses.time_s[i]:.6f}", f"{poses.geodetic[i, 0]:.9f}", f"{poses.geodetic[i, 1]:.9f}",
+            *(f"{v:.4f}" for v in (poses.geodetic[i, 2], *poses.enu[i], *poses.hpr[i])), *(f"{v:.8f}" for v in poses.q[i]),
+        ]  # fmt: skip
 
 
 def solve_to_csv(session: Session, source: str, out: str | Path, progress: TextIO | None = None) -> int:
     """Write the rows of `solve_frames` to `out` (never to an input file: checked before solving);
     returns the row count."""
     out = Path(out)
-    refuse_overwriting_inputs(out, [session.manifest.path, session.video.path, session.gnss.source] + [s.source for s in (session.gyr, session.acc, session.mag) if s is not None])
+    refuse_overwriting_inputs(out, list(session.inputs) + [session.path, session.video.path, session.gnss.source])
     long_input = session.gyr is not None and len(session.gyr.t) >= PROGRESS_MIN_SAMPLES
     bar = progress if long_input else None
     _bar(bar, f"solving {source}", 0.0)
-    rows = solve_frames(session, source)
+    poses = solve_frames(session, source)
     _bar(bar, f"solving {source}", 1.0)
     out.parent.mkdir(parents=True, exist_ok=True)
     with out.open("w", newline="") as f:
         w = csv.writer(f)
         w.writerow(COLUMNS)
-        for r in rows:
-            w.writerow([int(r[0]), f"{r[1]:.6f}", f"{r[2]:.9f}", f"{r[3]:.9f}", *(f"{v:.4f}" for v in r[4:11]), *(f"{v:.8f}" for v in r[11:])])
-    return len(rows)
+        w.writerows(csv_rows(poses))
+    return len(poses)

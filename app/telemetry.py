@@ -84,7 +84,7 @@ def _gpx(path: Path) -> Telemetry:
 
 
 def _gopro(path: Path) -> Telemetry:
-    from app.io.gopro import read_gopro
+    from app.attitude.gopro import read_gopro
 
     out = Telemetry(path, "GoPro MP4 (GPMF telemetry)")
     r = read_gopro(path, out.warnings)
@@ -92,18 +92,18 @@ def _gopro(path: Path) -> Telemetry:
 
     settings = global_settings(path)
     mode = settings.get("VFOV", "?")
-    out.info.append(f"camera: {r.model}; lens mode {mode}, horizontal FOV {r.hfov_deg:.1f} deg")
+    out.info.append(f"camera: {r.raw.model}; lens mode {mode}, horizontal FOV {r.hfov_deg:.1f} deg")
     for s in (r.acc, r.gyr, r.mag):
         if s is not None:
             out.streams.append(Stream({"acc": "ACCL accelerometer", "gyr": "GYRO gyroscope", "mag": "MAGN magnetometer"}[s.name], s.t, s.unit))
     if r.camera is not None:
         out.streams.append(Stream("CORI camera orientation", r.camera.t))
     if r.gnss is not None:
-        out.streams.append(Stream(f"GPS (averaged to {1 / 0.5:g} Hz; {r.dropped_no_fix} samples without fix dropped)", r.gnss.t))
+        out.streams.append(Stream(f"GPS (averaged to {1 / 0.5:g} Hz; {r.raw.dropped_no_fix} samples without fix dropped)", r.gnss.t))
         out.position = (r.gnss.t, r.gnss.lat, r.gnss.lon, r.gnss.h)
         out.height_note = "GPS altitude (WGS84)"
-    if r.gps_precision is not None and len(r.gps_precision):
-        out.info.append(f"GPS precision (DOP): median {np.median(r.gps_precision[:, 1]):.2f}")
+    if r.raw.gps_precision is not None and len(r.raw.gps_precision):
+        out.info.append(f"GPS precision (DOP): median {np.median(r.raw.gps_precision[:, 1]):.2f}")
     if r.gps_utc_at_zero:
         from datetime import datetime, timezone
 

@@ -117,12 +117,16 @@ class PoseTrack:
     q_device: FloatArray
     q_dev_to_cam: FloatArray
 
+    @cached_property
+    def _slerp(self) -> rotations.Interpolator:
+        """Built once: the viewer asks for one time per frame."""
+        return rotations.Interpolator(self.t_att, self.q_device)
+
     def at(self, tq: npt.ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """(ENU (M, 3) m, geodetic (M, 3) deg/deg/m, camera -> ENU quaternions (M, 4)) at tq."""
+        """(ENU (M, 3) m, geodetic (M, 3) deg/deg/m, camera -> ENU quaternions (M, 4)) at session
+        times tq (s). Callers outside this module go through app.camera_track.CameraTrack."""
         geo = self.positions.geodetic_at(tq)
         enu = self.frame.geodetic_to_enu(geo[:, 0], geo[:, 1], geo[:, 2])
-        if "_slerp" not in self.__dict__:  # built once: the viewer asks for one time per frame
-            object.__setattr__(self, "_slerp", rotations.Interpolator(self.t_att, self.q_device))
-        q_dev = self.__dict__["_slerp"](np.atleast_1d(tq))
+        q_dev = self._slerp(np.atleast_1d(tq))
         q_cam = rotations.canonical(rotations.multiply(q_dev, self.q_dev_to_cam))
         return enu, geo, q_cam

@@ -34,7 +34,7 @@ def main(argv: list[str] | None = None) -> int:
 
     t0 = time.perf_counter()
     session = open_session(args.manifest)
-    sources = [s for s in session.filters if s != "truth"]
+    sources = [s for s in session.sources if s != "truth"]
     reports = evaluate(session, sources, args.every, grid)
     n = (len(session.frame_times) + args.every - 1) // args.every
     print(f"# accuracy: {args.manifest}\n\n{n} frames (every {args.every}th), a {grid[0]}x{grid[1]} pixel grid each; "

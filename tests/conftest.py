@@ -66,7 +66,11 @@ def display():
 
 
 
-def run_viewer(display: str, *args: str, timeout: float = 120):
-    """`geofuse view ARGS` as a subprocess on the given X display."""
-    env = dict(os.environ, DISPLAY=display)
+def run_viewer(display: str, *args: str, timeout: float = 300, config_home: Path | None = None):
+    """`geofuse view ARGS` as a subprocess on the given X display, remembering its panel layout
+    in `config_home` (default: a fresh folder, so that no earlier run's layout is used)."""
+    import tempfile
+
+    home = config_home or Path(tempfile.mkdtemp(prefix="geofuse-config-"))
+    env = dict(os.environ, DISPLAY=display, XDG_CONFIG_HOME=str(home))
     return subprocess.run([sys.executable, "-m", "app", "view", *args], cwd=ROOT, env=env, capture_output=True, text=True, timeout=timeout)

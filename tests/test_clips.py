@@ -107,7 +107,8 @@ def test_telemetry_bad_files_exit_2(shared_data, capsys, folder, name, message):
 
 
 def test_manifest_naming_gopro_telemetry(shared_data, tmp_path):
-    from app.session import open_session, pose_track
+    from app.camera_track import camera_track
+    from app.session import open_session
 
     clip = shared_data / "real" / "gopro" / "max-heromode.mp4"
     scene = tmp_path / "ground.obj"
@@ -120,9 +121,8 @@ def test_manifest_naming_gopro_telemetry(shared_data, tmp_path):
     s = open_session(manifest)
     assert s.heading_from_course and s.heading_note.startswith("heading from the GNSS course") and s.device_is_camera
     assert s.gyr.t[0] > 1000.0 and s.gnss.t[0] > 1000.0  # clip seconds moved onto the session clock
-    assert "camera" in s.filters and "gd-imu" in s.filters
-    enu, _, _ = pose_track(s, "camera").at(s.frame_times[:1])
-    assert np.all(np.isfinite(enu))
+    assert "camera" in s.sources and "gd-imu" in s.sources
+    assert np.all(np.isfinite(camera_track(s, "camera").frame_camera(0).position))
 
 
 def test_manifest_naming_a_dji_subtitle_takes_off_from_the_scene(dji_clip, tmp_path):
@@ -145,19 +145,26 @@ def test_manifest_naming_a_dji_subtitle_takes_off_from_the_scene(dji_clip, tmp_p
     s = open_session(manifest)
     assert any("take-off height 20.00 m from the scene" in w for w in s.warnings.items)
     rows = solve_frames(s, "telemetry")
-    assert rows[0, 4] == pytest.approx(20.0 + 85.8, abs=0.05)  # ellipsoidal height of the first pose
-    assert rows[0, 7] == pytest.approx(85.8, abs=0.05)  # Up above the scene's ground
+    assert rows.geodetic[0, 2] == pytest.approx(20.0 + 85.8, abs=0.05)  # ellipsoidal height of the first pose
+    assert rows.enu[0, 2] == pytest.approx(85.8, abs=0.05)  # Up above the scene's ground
 
 
 def test_course_pitch_setting_resolves_the_track(shared_data, tmp_path):
-    from app.clips import open_clip, set_course_pitch
+    """The viewer asks the solver library for another pitch; the library re-solves the course
+    source under its own lock and bumps its version; the session itself never changes."""
+    from app.clips import open_clip
+    from app.playback.library import SolverLibrary
     from app.simulate.phone import write_video
-    from app.solve import solve_frames
 
     video = write_video(tmp_path / "c.mp4", np.arange(150) / 30.0, (96, 54), 0)
     (tmp_path / "c.srt").write_text((shared_data / "real" / "dji" / "p4p_sample.SRT").read_text())
     s = open_clip(video)
-    assert solve_frames(s, "course")[0, 9] == pytest.approx(-30.0, abs=0.01)
-    set_course_pitch(s, -60.0)
-    assert solve_frames(s, "course")[0, 9] == pytest.approx(-60.0, abs=0.01)
-    assert "pitch -60 deg assumed" in s.heading_note
+    assert s.sources == ["course"] and "pitch -30 deg assumed" in s.heading_note
+    lib = SolverLibrary(s)
+    assert lib.wait(timeout=60)
+    assert lib.track("course").frame_poses().hpr[0, 1] == pytest.approx(-30.0, abs=0.01)
+    before = lib.version
+    lib.set_course_pitch(-60.0)
+    assert lib.wait(timeout=60) and lib.version > before
+    assert lib.track("course").frame_poses().hpr[0, 1] == pytest.approx(-60.0, abs=0.01)
+    assert lib.course_pitch_deg == -60.0 and s.course_pitch_deg == -30.0

@@ -9,7 +9,8 @@ import pytest
 
 from app.cli import main
 from app.errors import DataFormatError
-from app.io.gopro import orin_map, read_gopro
+from app.attitude.gopro import read_gopro
+from app.io.gopro import orin_map
 from app.io.gpmf import Counts, chunks, parse
 
 pytestmark = pytest.mark.shared_data
@@ -55,7 +56,7 @@ def test_gravity_on_an_upright_camera(max_recording):
     """The camera is carried upright: the accelerometer's mean points along device +y (up)."""
     a = max_recording.acc.values.mean(axis=0)
     assert a[1] > 9.0 and abs(a[0]) < 1.0 and abs(a[2]) < 3.0
-    assert max_recording.model == "GoPro Max"
+    assert max_recording.raw.model == "GoPro Max"
     assert 190 < 1 / np.median(np.diff(max_recording.gyr.t)) < 205
 
 
@@ -88,7 +89,7 @@ def test_solve_every_source_one_row_per_frame(gopro, tmp_path, capsys):
     assert "magnetometer reads" in " ".join(session.warnings.items)  # 521 uT: rejected
     assert session.mag is None and session.heading_from_course and session.heading_note.startswith("heading from the GNSS course")
     track = session.positions()
-    for source in session.filters:
+    for source in session.sources:
         out = tmp_path / f"{source}.csv"
         assert main(["solve", str(clip), "--filter", source, "--out", str(out)]) == 0
         with out.open() as f:

@@ -9,7 +9,8 @@ import pytest
 
 from app.accuracy import Poses, ProjectionProbe, evaluate, true_frame_times
 from app.demo import SAMPLE_DIR, SAMPLE_SCENE
-from app.session import open_session, pose_track
+from app.camera_track import camera_track
+from app.session import open_session
 from app.simulate import session as sample
 
 pytestmark = pytest.mark.gl
@@ -35,7 +36,7 @@ def test_committed_sample_is_small_and_opens(session):
     assert len(session.frame_times) == 2400 and session.video.display_size == (640, 360)
     assert session.rotation_cw == 180  # landscape, phone top to the right
     assert session.video.variable_rate  # +-3 ms presentation-time jitter, as phones record
-    assert session.filters == ["gd-ahrs", "gd-imu", "cf-ahrs", "cf-imu", "offline", "phone", "truth"]
+    assert session.sources == ["gd-ahrs", "gd-imu", "cf-ahrs", "cf-imu", "offline", "phone", "truth"]
     assert any("hard-iron offset" in w for w in session.warnings.items)
     # The manifest's start time is 80 ms late, as the generator documents.
     np.testing.assert_allclose(session.frame_times - true_frame_times(session), sample.SYNC_ERROR_S, atol=1e-4)
@@ -65,7 +66,7 @@ def test_truth_pose_projects_within_centimetres(session):
     """The truth track (interpolated 100 Hz truth, slerp, device -> camera mounting) against the
     exact simulated camera: pixels land within centimetres on the model."""
     t_true = true_frame_times(session)[::120]
-    enu, _, q = pose_track(session, "truth").at(t_true)
+    enu, _, q = camera_track(session, "truth").poses.at(t_true)
     rel = t_true - sample.START_UNIX_S
     exact = Poses(sample.walk_position(rel), sample.camera_attitude(rel))
     probe = ProjectionProbe(session, (64, 36))

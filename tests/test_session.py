@@ -29,7 +29,7 @@ def session(session_dir):
 
 
 def test_session_reads_everything(session):
-    assert session.filters == ["gd-ahrs", "gd-imu", "cf-ahrs", "cf-imu", "offline", "truth"]
+    assert session.sources == ["gd-ahrs", "gd-imu", "cf-ahrs", "cf-imu", "offline", "truth"]
     assert len(session.frame_times) == 600
     assert session.video.rotation_cw == 90
     assert (session.intrinsics.width, session.intrinsics.height) == (36, 64)  # portrait display
@@ -43,18 +43,18 @@ def test_session_reads_everything(session):
 def test_solved_attitude_matches_the_truth(session, source, bound_deg):
     truth = solve_frames(session, "truth")
     rows = solve_frames(session, source)
-    heading, pitch, roll, total = hpr_rms(rows[:, 11:15], truth[:, 11:15])
+    heading, pitch, roll, total = hpr_rms(rows.q, truth.q)
     assert total < bound_deg, (heading, pitch, roll, total)
 
 
 def test_positions_follow_the_simulated_walk(session):
     rows = solve_frames(session, "truth")
-    t = rows[:, 1] - 1_700_000_000.0
+    t = rows.time_s - 1_700_000_000.0
     expected = walking_pan().position(t)
     # 1 Hz fixes with exact velocities: the Hermite curve follows the horizontal path to a
     # millimetre; the 3 cm step bounce at 1.8 Hz is beyond what 1 Hz fixes can see.
-    assert np.abs(rows[:, 5:7] - expected[:, :2]).max() < 0.001
-    assert np.abs(rows[:, 7] - expected[:, 2]).max() < 0.07
+    assert np.abs(rows.enu[:, :2] - expected[:, :2]).max() < 0.001
+    assert np.abs(rows.enu[:, 2] - expected[:, 2]).max() < 0.07
 
 
 def test_solve_cli_writes_one_row_per_frame(session_dir, tmp_path, capsys):
@@ -72,7 +72,7 @@ def test_imu_only_session_offers_imu_filters(session_dir, tmp_path, capsys):
     text = (folder / "session.toml").read_text().replace('mag = "mag.csv"\n', "")
     (folder / "session.toml").write_text(text)
     s = open_session(folder / "session.toml")
-    assert s.filters == ["gd-imu", "cf-imu", "offline", "truth"]
+    assert s.sources == ["gd-imu", "cf-imu", "offline", "truth"]
     assert main(["solve", str(folder / "session.toml"), "--filter", "gd-ahrs", "--out", str(tmp_path / "p.csv")]) == 2
     assert "this session offers gd-imu, cf-imu, offline, truth" in capsys.readouterr().err
 

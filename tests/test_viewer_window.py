@@ -6,6 +6,7 @@ error is reported and rendering goes on."""
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -25,7 +26,10 @@ def scripted(display, tmp_path_factory):
     bad.write_text((ROOT / "assets/sample/session.toml").read_text().replace('path = "clip.mp4"', 'path = "missing.mp4"').replace('path = "scene.glb"', f'path = "{ROOT / "assets/sample/scene.glb"}"'))
     script = d / "script.txt"
     script.write_text(
-        f"""0.0 play
+        f"""0.0 clock 0.0333333
+0.0 wait solved
+0.0 play
+2.0 state {d / "played.json"}
 2.0 pause
 2.2 seek 20
 2.6 source gd-imu
@@ -49,12 +53,30 @@ def scripted(display, tmp_path_factory):
 
 def test_scripted_session_state(scripted):
     d, _ = scripted
+    played = json.loads((d / "played.json").read_text())
+    # Two seconds of the script's clock went by, whatever this machine's speed: the frame shown is
+    # the one due, and every frame due was either shown or counted as dropped.
+    assert played["frame"] == played["due_frame"] == 60
+    assert played["frames_shown"] + played["dropped"] == played["frame"] + 1
+    assert played["frames_shown"] >= 30  # the sample is ~30 fps VFR; a 30 Hz clock shows most frames
+    assert sorted(played["solved"]) == sorted(["gd-ahrs", "gd-imu", "cf-ahrs", "cf-imu", "offline", "phone", "truth"])
     state = json.loads((d / "scene.json").read_text())
     assert state["source"] == "gd-ahrs"  # gd-imu, then the AHRS toggle back on
     assert state["alpha"] == 1.0
-    assert state["frame"] == 600  # paused after seeking to 20 s at 30 fps
-    assert state["frames_shown"] > 20  # two seconds of playback went by
+    assert state["frame"] == state["due_frame"] == 600  # paused after seeking to 20 s at 30 fps
     assert state["errors"] == []
+    assert state["view_rect"] == [0, 0, 960, 540]  # panels off: the 3D view is the whole window
+
+
+def test_the_docked_panels_leave_the_3d_view_most_of_the_window(scripted):
+    d, _ = scripted
+    played = json.loads((d / "played.json").read_text())
+    x, y, w, h = played["view_rect"]
+    W, H = played["window"]
+    assert w * h >= 0.6 * W * H and x + w <= W and y + h <= H
+    shot = np.asarray(Image.open(d / "after_error.png").convert("RGB"), int)
+    # The panels sit outside the 3D view: ImGui's dark panel background fills the left column.
+    assert shot[:, : max(1, x - 2)].mean() < 80 and shot[y + h // 2, x + w // 2].mean() > 60
 
 
 def test_video_lands_where_an_offscreen_render_puts_it(scripted, gl_ctx):
@@ -64,16 +86,16 @@ def test_video_lands_where_an_offscreen_render_puts_it(scripted, gl_ctx):
     from app.render.offscreen import render_to_array
     from app.render.renderer import FusionRenderer
     from app.scene import load_scene
-    from app.session import open_session, pose_track
+    from app.camera_track import camera_track
+    from app.session import open_session
 
     d, _ = scripted
     state = json.loads((d / "scene.json").read_text())
     shot = np.asarray(Image.open(d / "scene.png").convert("RGB"), int)
     session = open_session(state["manifest"])
     k = state["frame"]
-    enu, _, q = pose_track(session, state["source"]).at(session.frame_times[k : k + 1])
-    np.testing.assert_allclose(enu[0], state["projector"]["position"], atol=1e-3)
-    projector = Camera.create(session.intrinsics, enu[0], q[0], near=0.5, far=2000.0)
+    projector = camera_track(session, state["source"]).frame_camera(k)
+    np.testing.assert_allclose(projector.position, state["projector"]["position"], atol=1e-3)
     wc = state["window_camera"]
     view = Camera.create(Intrinsics(*wc["size"], wc["fx"], wc["fy"], wc["cx"], wc["cy"]), wc["position"], wc["orientation"], wc["near"], wc["far"])
     renderer = FusionRenderer(gl_ctx, load_scene(session.scene_path, session.frame, session.placement))
@@ -102,7 +124,10 @@ def test_a_broken_manifest_shows_an_error_and_rendering_goes_on(scripted):
     after = json.loads((d / "after_error.json").read_text())
     assert any("missing.mp4" in e and "does not exist" in e for e in after["errors"])
     assert after["manifest"] == before["manifest"]  # the sample stays open
-    assert after["frames_drawn"] > before["frames_drawn"] and (d / "after_error.png").stat().st_size > 10_000
+    assert after["frames_drawn"] > before["frames_drawn"]
+    shot = np.asarray(Image.open(d / "after_error.png").convert("RGB"), int)
+    x, y, w, h = after["view_rect"]
+    assert shot[y : y + h, x : x + w].std() > 20  # the scene is still drawn, not a blank window
     assert "missing.mp4" in result.stderr  # and it is logged
 
 
@@ -112,3 +137,26 @@ def test_screenshot_alone_plays_the_sample_and_exits(display, tmp_path):
     assert result.returncode == 0, result.stderr[-2000:]
     img = np.asarray(Image.open(out).convert("RGB"))
     assert img.shape == (450, 800, 3) and img.std() > 20
+
+
+def test_the_panel_layout_is_remembered_between_runs(display, tmp_path):
+    """A run saves its docked layout in $XDG_CONFIG_HOME/geofuse/imgui.ini; the next run reads it
+    back (here: a layout with a narrower left column, written by hand) instead of the default."""
+    script = tmp_path / "s.txt"
+    script.write_text(f"0.0 clock 0.05\n0.2 state {tmp_path / 'first.json'}\n0.3 quit\n")
+    result = run_viewer(display, "--script", str(script), "--size", "800x450", config_home=tmp_path)
+    assert result.returncode == 0, result.stderr[-2000:]
+    ini = tmp_path / "geofuse" / "imgui.ini"
+    text = ini.read_text()
+    assert "[Docking]" in text and "Timeline" in text
+    first = json.loads((tmp_path / "first.json").read_text())
+    central = re.search(r"SizeRef=(\d+),(\d+) CentralNode=1", text)
+    cw, ch = int(central[1]), int(central[2])
+    left = int(re.search(r"SizeRef=(\d+),\d+ Split=Y", text)[1])  # the left column
+    text = text.replace(f"SizeRef={left},", f"SizeRef={left // 2},").replace(central[0], f"SizeRef={cw + left - left // 2},{ch} CentralNode=1")
+    ini.write_text(text)
+    script.write_text(f"0.0 clock 0.05\n0.2 state {tmp_path / 'second.json'}\n0.3 quit\n")
+    result = run_viewer(display, "--script", str(script), "--size", "800x450", config_home=tmp_path)
+    assert result.returncode == 0, result.stderr[-2000:]
+    second = json.loads((tmp_path / "second.json").read_text())
+    assert second["view_rect"][2] > first["view_rect"][2]  # the edited, narrower column was used

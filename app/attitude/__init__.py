@@ -114,9 +114,8 @@ def _declination(q: FloatArray, declination_deg: float) -> FloatArray:
     """Rotate a magnetic-north-referenced ENU attitude to true north (east declination positive)."""
     if not declination_deg:
         return q
-    half = np.radians(-declination_deg) / 2.0  # true heading = magnetic heading + declination
-    rz = np.array([np.cos(half), 0.0, 0.0, np.sin(half)])
-    return rotations.canonical(rotations.multiply(rz, q))
+    # true heading = magnetic heading + declination
+    return rotations.canonical(rotations.multiply(rotations.heading_turn(declination_deg), q))
 
 
 def _run(method: str, t: FloatArray, gyr: FloatArray, acc: FloatArray, mag: FloatArray, use_mag: bool, g: Gains, q0: FloatArray) -> FloatArray:

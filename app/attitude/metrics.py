@@ -37,9 +37,8 @@ def remove_heading_offset(q_est: npt.ArrayLike, q_ref: npt.ArrayLike) -> FloatAr
     """q_est rotated about the world vertical by the one constant angle that best aligns it with
     q_ref (circular mean of the per-sample heading errors)."""
     e = earth_error(q_est, q_ref)
-    offset = rotations.circular_mean(2.0 * np.arctan2(e[:, 3], e[:, 0]))
-    rz = np.array([np.cos(-offset / 2), 0.0, 0.0, np.sin(-offset / 2)])
-    return rotations.multiply(rz, q_est)
+    offset = rotations.circular_mean(2.0 * np.arctan2(e[:, 3], e[:, 0]))  # counter-clockwise, rad
+    return rotations.multiply(rotations.heading_turn(np.degrees(offset)), q_est)
 
 
 def broad_rms(q_est: npt.ArrayLike, q_ref: npt.ArrayLike, mask: npt.ArrayLike | None = None, remove_heading: bool = False) -> ErrorRMS:

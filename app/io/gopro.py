@@ -1,58 +1,52 @@
-"""GoPro MP4 telemetry (GPMF) as the streams of a session, in the conventions of DESIGN.md.
+"""GoPro MP4 telemetry (GPMF) as stored, read through the MP4 boxes and the GPMF parser (app.io.gpmf).
 
 - The telemetry track is found through PyAV by its handler name ("GoPro MET"); each payload's
   samples are spread evenly over the payload's MP4 time span (plus TIMO where present), on the same
   clock as the video frames' presentation times (seconds from the clip start).
 - Axes: ORIN maps the stored values to the IMU's X, Y, Z (a lowercase letter is a negated axis).
-  The IMU axes are then turned into GoPro's camera frame (CORI/GRAV's: X right, Y down, Z out of
-  the lens, which GRAV shows: gravity along +Y on an upright camera). That turn is fitted per file
-  as the signed axis permutation under which the gyroscope matches the rates of the camera's own
-  orientation (CORI); without CORI, the one fitted on the GoPro MAX sample is assumed. Finally the
-  camera frame becomes our device frame (x right, y up, z toward the viewer): (x, -y, -z).
-  Tested with gravity on a camera held upright: the accelerometer reads +g along device +y.
+  Turning the IMU's axes into the device frame (fitted against CORI), levelling CORI and checking
+  MAGN against the World Magnetic Model are attitude work: app/attitude/gopro.py.
 - GPS5/GPS9: samples of payloads without a 2D/3D fix (GPSF < 2, or GPS9's own fix field) are
   dropped and counted; GPSP (precision, DOP x 100) is kept; GPSU gives the absolute time.
 - Lens: the recorded lens mode's diagonal field of view (ZFOV, and the mode VFOV, in the GPMF
   box of moov/udta) where present, otherwise a documented default per model; `--fov` overrides.
-- MAGN is used only when its field strength is plausible for the place (within 50 % of the World
-  Magnetic Model's); otherwise heading comes from the GNSS course.
-- CORI (camera orientation since the start of capture) becomes the `camera` pose source: its
-  conjugate maps the camera to the capture-start frame; tilt is aligned with gravity here and
-  heading by the course later (app/clips.py).
 """
 
 from __future__ import annotations
 
-import itertools
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
 
-from app import rotations
 from app.errors import DataFormatError
 from app.io.gpmf import Counts, StreamChunk, chunks, parse
-from app.io.streams import GnssTrack, OrientationStream, VectorStream, Warnings, resample
+from app.io.streams import GnssTrack, Warnings
 
-CV_TO_DEVICE = np.diag([1.0, -1.0, -1.0])  # camera (X right, Y down, Z forward) -> device frame
-DEFAULT_IMU_TO_CV = np.array([[-1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, -1.0, 0.0]])  # fitted on the MAX sample
 DEFAULT_ORIN = {"HERO5": "ZXY", "HERO6": "YxZ", "Fusion": "yXZ"}  # documented data orders where ORIN is absent
 GPS_BIN_S = 0.5  # 18 Hz GPS averaged into 2 Hz fixes: smoother velocities for the Hermite track
 HFOV_DEG = {"max": 92.0, "fusion": 100.0, "default": 94.4}  # horizontal FOV of the linear-ish default lens modes (assumption)
 
 
-@dataclass
-class GoProRecording:
-    path: str
+Samples = tuple[np.ndarray, np.ndarray]  # (t (N,) clip seconds, values (N, K))
+
+
+@dataclass(frozen=True)
+class GoProRaw:
+    """A GoPro clip's telemetry as stored. acc m/s^2 and gyr rad/s in the IMU's X, Y, Z (ORIN
+    applied); cori: CORI quaternions [w, x, y, z] (camera orientation since capture start);
+    magn uT in the IMU's axes; times: clip seconds (the video's presentation-time clock)."""
+
+    path: Path
     model: str
-    acc: VectorStream
-    gyr: VectorStream
-    mag: VectorStream | None
+    acc: Samples
+    gyr: Samples
+    cori: Samples | None
+    magn: Samples | None
     gnss: GnssTrack | None
     gps_precision: np.ndarray | None  # (n, 2): time s, DOP
     gps_utc_at_zero: float | None  # Unix time of the clip's t = 0, from GPSU
-    camera: OrientationStream | None
     hfov_deg: float
     counts: Counts = field(default_factory=Counts)
     dropped_no_fix: int = 0
@@ -173,30 +167,10 @@ def _gather(parts: list[StreamChunk]) -> tuple[np.ndarray, np.ndarray]:
     return t, v
 
 
-def fit_imu_to_camera(t_gyr: np.ndarray, gyr: np.ndarray, t_cori: np.ndarray, cori: np.ndarray) -> tuple[np.ndarray, float]:
-    """The signed axis permutation M (proper rotation) with camera rate = M @ gyro rate that best
-    matches the rates of conj(CORI); returns (M, median residual / median rate)."""
-    q = rotations.conjugate(cori / np.linalg.norm(cori, axis=1, keepdims=True))
-    dq = rotations.multiply(rotations.conjugate(q[:-1]), q[1:])
-    w = rotations.to_scipy(dq).as_rotvec() / np.maximum(np.diff(t_cori), 1e-6)[:, None]
-    tm = (t_cori[:-1] + t_cori[1:]) / 2
-    g = resample(tm, t_gyr, gyr)
-    best = (np.inf, DEFAULT_IMU_TO_CV)
-    for perm in itertools.permutations(range(3)):
-        for signs in itertools.product((1.0, -1.0), repeat=3):
-            m = np.zeros((3, 3))
-            for i, (j, s) in enumerate(zip(perm, signs)):
-                m[i, j] = s
-            if np.linalg.det(m) < 0:
-                continue
-            r = float(np.median(np.linalg.norm(g @ m.T - w, axis=1)))
-            if r < best[0]:
-                best = (r, m)
-    scale = float(np.median(np.linalg.norm(w, axis=1))) or 1.0
-    return best[1], best[0] / scale
-
-
-def read_gopro(path: str | Path, warnings: Warnings | None = None) -> GoProRecording:
+def read_gopro_raw(path: str | Path, warnings: Warnings | None = None) -> GoProRaw:
+    """The telemetry of a GoPro MP4 as stored: IMU samples in the IMU's axes (ORIN applied), CORI,
+    MAGN, GPS, the lens's field of view. Turning them into the device frame is
+    app.attitude.gopro's job."""
     path = Path(path)
     warnings = warnings if warnings is not None else Warnings()
     if not path.is_file():
@@ -223,80 +197,22 @@ def read_gopro(path: str | Path, warnings: Warnings | None = None) -> GoProRecor
     orin_g = str(by_key["GYRO"][0].modifiers.get("ORIN", orin_default))
     ta, a = _gather(by_key["ACCL"])
     tg, g = _gather(by_key["GYRO"])
-    a, g = orin_map(orin_a, a), orin_map(orin_g, g)
-
-    camera = None
-    imu_to_cv = DEFAULT_IMU_TO_CV
-    if "CORI" in by_key:
-        tc, cq = _gather(by_key["CORI"])
-        m, rel = fit_imu_to_camera(tg, g, tc, cq)
-        if rel < 0.5:
-            imu_to_cv = m
-        else:
-            warnings.add(f"{path.name}: the gyroscope does not match CORI under any axis order (residual {rel:.0%}); the MAX axis mapping is assumed")
-        q_cv = rotations.conjugate(cq / np.linalg.norm(cq, axis=1, keepdims=True))
-        q_dev = rotations.multiply(q_cv, np.array([0.0, 1.0, 0.0, 0.0]))  # device -> camera-cv is a half turn about x
-        camera = OrientationStream(tc, q_dev, str(path), "GoPro CORI: camera orientation since capture start")
-    else:
-        warnings.add(f"{path.name}: no CORI stream: the IMU axis mapping fitted on the GoPro MAX is assumed")
-    to_dev = CV_TO_DEVICE @ imu_to_cv
-    acc = VectorStream("acc", ta, a @ to_dev.T, "m/s^2", str(path))
-    gyr = VectorStream("gyr", tg, g @ to_dev.T, "rad/s", str(path))
-    if camera is not None:
-        camera = _level(camera, acc)
-
-    gnss, precision, utc0, dropped = _gps(by_key, path, warnings)
-    mag = None
+    cori = _gather(by_key["CORI"]) if "CORI" in by_key else None
+    magn = None
     if "MAGN" in by_key:
         tm, mv = _gather(by_key["MAGN"])
-        orin_m = str(by_key["MAGN"][0].modifiers.get("ORIN", orin_a))
-        mag = VectorStream("mag", tm, orin_map(orin_m, mv) @ to_dev.T, "uT", str(path))
-        mag = _plausible(mag, gnss, utc0, path, warnings)
+        magn = (tm, orin_map(str(by_key["MAGN"][0].modifiers.get("ORIN", orin_a)), mv))
+    gnss, precision, utc0, dropped = _gps(by_key, path, warnings)
     lens = next((v for k, v in HFOV_DEG.items() if k in model.lower()), HFOV_DEG["default"])
-    settings = global_settings(path)
     from app.io.video import probe
 
     w, h = probe(path).display_size
-    recorded = lens_hfov(settings, w, h)
+    recorded = lens_hfov(global_settings(path), w, h)
     if recorded is not None:
         lens = recorded
     else:
         warnings.add(f"{path.name}: no lens field of view in the metadata: {lens:g} deg horizontal assumed for {model or 'this camera'}")
-    return GoProRecording(str(path), model or "GoPro", acc, gyr, mag, gnss, precision, utc0, camera, lens, counts, dropped)
-
-
-MAG_PLAUSIBLE = (0.5, 1.5)  # magnetometer strength / World Magnetic Model strength accepted
-
-
-def _plausible(mag: VectorStream, gnss: GnssTrack | None, utc0: float | None, path: Path, warnings: Warnings) -> VectorStream | None:
-    """The magnetometer, if its field strength is plausible for the place (WMM), else None."""
-    from app.geomag import field_enu
-
-    if gnss is None:
-        warnings.add(f"{path.name}: no GPS fix to check the magnetometer against the World Magnetic Model: not used")
-        return None
-    expected = float(np.linalg.norm(field_enu(float(gnss.lat[0]), float(gnss.lon[0]), float(gnss.h[0]), utc0 or 0.0)))
-    measured = float(np.median(np.linalg.norm(mag.values, axis=1)))
-    if MAG_PLAUSIBLE[0] <= measured / expected <= MAG_PLAUSIBLE[1]:
-        return mag
-    warnings.add(f"{path.name}: magnetometer reads {measured:.0f} uT where the World Magnetic Model expects {expected:.0f} uT: not used; heading comes from the GNSS course")
-    return None
-
-
-def _level(camera: OrientationStream, acc: VectorStream) -> OrientationStream:
-    """CORI's start frame has an arbitrary tilt: turn it so that the accelerometer's mean up (over
-    the first second) points to world Up. Heading stays arbitrary until the course fixes it."""
-    first = acc.t <= acc.t[0] + 1.0
-    up_dev = acc.values[first].mean(axis=0)
-    q0 = rotations.slerp(camera.t, camera.q, [acc.t[0] + 0.5])[0]
-    up = rotations.rotate(q0, up_dev / np.linalg.norm(up_dev))
-    axis = np.cross(up, [0.0, 0.0, 1.0])
-    s = np.linalg.norm(axis)
-    if s < 1e-9:
-        return camera
-    angle = np.arctan2(s, up[2])
-    turn = np.concatenate([[np.cos(angle / 2)], np.sin(angle / 2) * axis / s])
-    return OrientationStream(camera.t, rotations.canonical(rotations.multiply(turn, camera.q)), camera.source, camera.note)
+    return GoProRaw(path, model or "GoPro", (ta, orin_map(orin_a, a)), (tg, orin_map(orin_g, g)), cori, magn, gnss, precision, utc0, lens, counts, dropped)
 
 
 def _gps(by_key: dict[str, list[StreamChunk]], path: Path, warnings: Warnings) -> tuple[GnssTrack | None, np.ndarray | None, float | None, int]:

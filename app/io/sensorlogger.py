@@ -155,7 +155,7 @@ def reference_orientation(raw: OrientationStream, acc: VectorStream, mag: Vector
     for name, q in (("as logged", raw.q), ("conjugated", rotations.conjugate(raw.q))):
         up_err = np.mean(np.linalg.norm(rotations.rotate(q, a) - [0, 0, 1], axis=1))
         for turn in (0.0, 90.0, 180.0, -90.0):
-            qq = rotations.multiply(rotations.about_z(turn), q)
+            qq = rotations.multiply(rotations.heading_turn(-turn), q)  # counter-clockwise seen from above
             score = up_err
             if m is not None:
                 h = rotations.rotate(qq, m)

@@ -24,9 +24,17 @@ class Warnings:
     """Counted, human-readable notes about repaired input (dropped rows, gaps, unit guesses)."""
 
     items: list[str] = field(default_factory=list)
+    keys: set[str] = field(default_factory=set)
 
     def add(self, message: str) -> None:
         self.items.append(message)
+
+    def add_once(self, key: str, message: str) -> None:
+        """Add `message` unless a note with the same key was added before (solving the same
+        source twice must not repeat its notes)."""
+        if key not in self.keys:
+            self.keys.add(key)
+            self.items.append(message)
 
     def extend(self, other: "Warnings") -> None:
         self.items.extend(other.items)

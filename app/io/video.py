@@ -28,6 +28,7 @@ class VideoInfo:
     average_fps: float
     creation_time: float | None
     codec: str
+    origin_s: float = 0.0  # the stream-clock seconds that are media time 0 (see media_seconds)
 
     @property
     def display_size(self) -> tuple[int, int]:
@@ -48,6 +49,19 @@ class VideoInfo:
     def eq5_times(self) -> np.ndarray:
         """The paper's Eq. 5 fallback: frame i at i / nominal_fps (constant rate)."""
         return np.arange(len(self.pts_s)) / self.nominal_fps
+
+
+def media_seconds(pts: int, time_base, origin_s: float) -> float:
+    """A packet's or frame's presentation timestamp as media seconds: pts x time_base on the
+    stream's clock, less `origin_s` (the stream's start_time, or its first presentation time
+    when the container gives none). The one conversion: the probe, the decoder thread and
+    read_frame all use it, so a frame's media time is the same everywhere."""
+    return float(pts * time_base) - origin_s
+
+
+def stream_origin_s(stream, first_pts_s: float) -> float:
+    """Media time 0 on the stream's clock: its start_time, else its first presentation time."""
+    return float(stream.start_time * stream.time_base) if stream.start_time is not None else float(first_pts_s)
 
 
 def _creation_time(meta: dict[str, str]) -> float | None:
@@ -92,9 +106,9 @@ def probe(path: str | Path) -> VideoInfo:
             pass  # a truncated file: keep the packets read so far
         if not pts:
             raise VideoError(path, "no frames with presentation timestamps")
-        pts_s = np.sort(np.asarray(pts, np.float64)) * float(tb)
-        start = float(stream.start_time * tb) if stream.start_time is not None else pts_s[0]
-        pts_s = pts_s - start
+        pts.sort()
+        origin = stream_origin_s(stream, float(pts[0] * tb))
+        pts_s = np.array([media_seconds(p, tb, origin) for p in pts])
         nominal = float(stream.guessed_rate or stream.average_rate or 0.0)
         span = pts_s[-1] - pts_s[0]
         average = (len(pts_s) - 1) / span if span > 0 else nominal
@@ -102,7 +116,7 @@ def probe(path: str | Path) -> VideoInfo:
         return VideoInfo(
             str(path), pts_s, stream.codec_context.width, stream.codec_context.height,
             (-rotation) % 360,  # FFmpeg's display matrix turns counter-clockwise; the tag clockwise
-            nominal, float(average), _creation_time(meta), stream.codec_context.name,
+            nominal, float(average), _creation_time(meta), stream.codec_context.name, origin,
         )
 
 
@@ -122,12 +136,11 @@ def read_frame(path: str | Path, index: int, info: VideoInfo | None = None) -> n
     target = info.pts_s[index]
     with av.open(str(path)) as container:
         stream = container.streams.video[0]
-        tb = float(stream.time_base)
-        start = float(stream.start_time * stream.time_base) if stream.start_time is not None else 0.0
-        container.seek(int((target + start) / tb), stream=stream, backward=True, any_frame=False)
+        tb = stream.time_base
+        container.seek(int((target + info.origin_s) / tb), stream=stream, backward=True, any_frame=False)
         try:
             for frame in container.decode(stream):
-                if frame.pts is not None and frame.pts * tb - start >= target - 0.5 / max(info.nominal_fps, 1.0):
+                if frame.pts is not None and media_seconds(frame.pts, tb, info.origin_s) >= target - 0.5 / max(info.nominal_fps, 1.0):
                     return rotate_for_display(frame.to_ndarray(format="rgb24"), info.rotation_cw)
         except av.FFmpegError as exc:
             raise VideoError(path, f"cannot decode frame {index} ({exc})") from exc

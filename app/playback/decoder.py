@@ -3,6 +3,12 @@ YUV frames. The thread only decodes; every GL call stays on the render thread.
 
 A seek request carries the clock's serial; frames decoded after it carry that serial, so the
 render thread drops anything older (ffplay's scheme). Corrupt packets are skipped and counted.
+
+When drawing or decoding is slower than the video, the decoder keeps up with the clock instead of
+falling behind it: the render thread publishes the media time it will show next (`due_s`);
+frames already late by more than LATE_S are decoded (the codec needs them) but neither converted
+nor queued, and when the decoder is more than RESEEK_BEHIND_S behind, it seeks forward to the
+keyframe before the due time. Frames skipped either way are counted in `skipped`.
 """
 
 from __future__ import annotations
@@ -15,6 +21,8 @@ from pathlib import Path
 import numpy as np
 
 QUEUE_FRAMES = 12  # about 0.4 s of 30 fps video: enough to ride out decoder hiccups
+LATE_S = 0.05  # a frame this far behind the media time due is not converted nor queued
+RESEEK_BEHIND_S = 2.0  # this far behind the media time due, seek forward instead of decoding on
 
 
 @dataclass(frozen=True)
@@ -45,8 +53,12 @@ def yuv_planes(frame) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 class Decoder:
     """Decodes `path` on a daemon thread into `frames` (a bounded queue)."""
 
-    def __init__(self, path: str | Path, start_time_s: float = 0.0) -> None:
+    def __init__(self, path: str | Path, origin_s: float = 0.0, start_time_s: float = 0.0) -> None:
+        """origin_s: the stream-clock seconds of media time 0 (app.io.video.VideoInfo.origin_s)."""
         self.path = str(path)
+        self.origin_s = origin_s
+        self.due_s: float | None = None  # set by the render thread: the media time it shows next
+        self.skipped = 0
         self.frames: queue.Queue[DecodedFrame | None] = queue.Queue(maxsize=QUEUE_FRAMES)
         self.corrupt_packets = 0
         self.error: str | None = None
@@ -102,23 +114,24 @@ class Decoder:
                 return
             stream = container.streams.video[0]
             stream.thread_type = "AUTO"  # FFmpeg's frame and slice threads
-            tb = float(stream.time_base)
-            start = float(stream.start_time * stream.time_base) if stream.start_time is not None else 0.0
             rate = float(stream.guessed_rate or 30.0)
             bt709 = stream.codec_context.height >= 720
             command = self._commands.get()
             while command is not None and not self._stop.is_set():
                 target, serial = command
-                container.seek(int((target + start) / tb), stream=stream, backward=True, any_frame=False)
-                command = self._decode_from(container, stream, target, serial, tb, start, rate, bt709)
+                container.seek(int((target + self.origin_s) / stream.time_base), stream=stream, backward=True, any_frame=False)
+                command = self._decode_from(container, stream, target, serial, rate, bt709)
                 if command is None and not self._stop.is_set():
                     command = self._commands.get()  # end of stream: wait for a seek or stop
 
-    def _decode_from(self, container, stream, target: float, serial: int, tb: float, start: float, rate: float, bt709: bool):
+    def _decode_from(self, container, stream, target: float, serial: int, rate: float, bt709: bool):
         """Decode forward from the last seek; returns the next command, or None at end of stream."""
         import av
 
+        from app.io.video import media_seconds
+
         packets = container.demux(stream)
+        delivered = False  # the first frame after a seek is always delivered
         while not self._stop.is_set():
             if not self._commands.empty():
                 return self._latest_command()
@@ -137,9 +150,16 @@ class Decoder:
             for frame in frames:
                 if frame.pts is None:
                     continue
-                pts = frame.pts * tb - start
+                pts = media_seconds(frame.pts, stream.time_base, self.origin_s)
                 if pts < target - 0.5 / rate:
                     continue  # before the seek target: decoded only to reach it
+                due = self.due_s
+                if delivered and due is not None and pts < due - LATE_S:
+                    self.skipped += 1
+                    if pts < due - RESEEK_BEHIND_S:
+                        return (due, serial)  # too far behind: jump to the keyframe before the due time
+                    continue
+                delivered = True
                 space = getattr(frame, "colorspace", None)
                 item = DecodedFrame(serial, pts, *yuv_planes(frame), bt709 if space in (None, 2) else int(space) == 1, frame.format.name == "yuvj420p")
                 if not self._put(item):

@@ -6,6 +6,11 @@ The frame due is chosen for the moment it will appear, not the moment the loop s
 looks ahead by its own recent render time (an exponential average), the way a player schedules a
 frame for its presentation time. Latencies are recorded signed: a frame shown early counts as
 negative, not as zero.
+
+Nothing here reads a clock: every call takes `now` (seconds) from the caller. A scripted run on a
+fixed-step clock passes `wait_s` to `tick`, which then waits for the decoder to deliver the frame
+due, so that each tick shows exactly the frame due whatever the machine's speed; the viewer on
+the wall clock never waits (wait_s = 0) and drops frames instead.
 """
 
 from __future__ import annotations
@@ -15,6 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from app.io.video import VideoInfo
 from app.playback.clock import FrameSchedule, PlaybackClock
 from app.playback.decoder import DecodedFrame, Decoder
 
@@ -35,12 +41,13 @@ class PlayerStats:
 
 
 class Player:
-    """pts: (N,) frame times in seconds from the first frame (display order)."""
+    """Plays one video: its frames' media times (video.pts_s, display order) on a PlaybackClock."""
 
-    def __init__(self, video_path: str, pts: np.ndarray, loop: bool = True) -> None:
-        self.schedule = FrameSchedule(np.asarray(pts, np.float64))
+    def __init__(self, video: VideoInfo, loop: bool = True) -> None:
+        pts = np.asarray(video.pts_s, np.float64)
+        self.schedule = FrameSchedule(pts)
         self.clock = PlaybackClock(duration=float(pts[-1]), loop=loop, paused=True)
-        self.decoder = Decoder(video_path)
+        self.decoder = Decoder(video.path, video.origin_s)
         self.current: DecodedFrame | None = None
         self.index = -1
         self.stats = PlayerStats()
@@ -71,17 +78,28 @@ class Player:
 
     # --- the frame loop -------------------------------------------------------------------------
 
-    def tick(self, now: float) -> bool:
-        """Advance to the frame due when this tick's image will appear; True if it changed."""
-        media = self.clock.time(now)
+    def due_index(self, now: float) -> int:
+        """The frame due at `now` (media time plus the look-ahead while playing)."""
+        return self.schedule.due(self._target(now))
+
+    def _target(self, now: float) -> float:
+        return self.clock.time(now) + (0.0 if self.clock.paused else self.lookahead_s * self.clock.speed)
+
+    def tick(self, now: float, wait_s: float = 0.0) -> bool:
+        """Advance to the frame due when this tick's image will appear; True if it changed.
+        wait_s > 0: wait up to that long (real seconds) for the decoder to deliver it."""
+        self.clock.time(now)
         if self.clock.serial != self._serial_seen:  # the clock looped: decode from the start again
             self._restart(now)
-        target = media + (0.0 if self.clock.paused else self.lookahead_s * self.clock.speed)
+        target = self._target(now)
+        self.decoder.due_s = target
+        due_index = self.schedule.due(target)
         changed = False
         while True:
             if self._pending is None:
                 try:
-                    item = self.decoder.frames.get_nowait()
+                    behind = self.current is None or self.current.serial != self.clock.serial or self.schedule.due(self.current.pts_s) < due_index
+                    item = self.decoder.frames.get(timeout=wait_s) if wait_s > 0 and behind and self.decoder.error is None else self.decoder.frames.get_nowait()
                 except queue.Empty:
                     return changed
                 if item is None or item.serial != self.clock.serial:

@@ -19,6 +19,7 @@ from app.render.video_texture import VideoTexture
 from app.scene.mesh import MeshData
 
 BACKGROUND = (0.62, 0.74, 0.86)
+PICK_DOWNSCALE = 4  # picking renders positions at a quarter of the view's resolution
 
 
 class FusionRenderer:
@@ -62,17 +63,32 @@ class FusionRenderer:
     def _truth_positions(self, overlays: OverlaySettings):
         if not overlays.error_map or self.truth is None:
             return None
-        from app.render.positions import PositionPass
-
-        if self._positions is None:
-            self._positions = PositionPass(self.ctx, self.scene)
         w, h = self.truth.intrinsics.width, self.truth.intrinsics.height
         s = overlays.error_map_texels / max(w, h)
         cam = Camera.create(self.truth.intrinsics.scaled(max(1, round(w * s)), max(1, round(h * s))), self.truth.position, self.truth.orientation, self.truth.near, self.truth.far)
         if cam != self._truth_map_camera:  # redrawn only when the true pose changes
-            self._truth_map = self._positions.render_texture(cam)
+            self._truth_map = self._position_pass().render_texture(cam)
             self._truth_map_camera = cam
         return self._truth_map
+
+    def _position_pass(self):
+        from app.render.positions import PositionPass
+
+        if self._positions is None:
+            self._positions = PositionPass(self.ctx, self.scene)
+        return self._positions
+
+    def pick(self, view: Camera, x: float, y: float, downscale: int = PICK_DOWNSCALE) -> np.ndarray | None:
+        """The model point (ENU m) seen at window position (x, y) in [0, 1] from the left/top,
+        through the GPU position pass at 1/downscale of the view's resolution; None where the
+        view sees no model."""
+        w = max(1, view.intrinsics.width // downscale)
+        h = max(1, view.intrinsics.height // downscale)
+        small = Camera.create(view.intrinsics.scaled(w, h), view.position, view.orientation, view.near, view.far)
+        col = int(np.clip(x * w, 0, w - 1))
+        row = int(np.clip(y * h, 0, h - 1))
+        p = self._position_pass().render(small)[row, col]
+        return p.astype(np.float64) if np.all(np.isfinite(p)) else None
 
     def set_trajectory(self, points_enu: npt.ArrayLike | None) -> None:
         """A polyline (N, 3) ENU metres drawn by the trajectory overlay."""

@@ -1,12 +1,25 @@
-"""ImGui panels and keyboard/mouse handling of the viewer. Each control calls the same Viewer
-methods that the script actions call (app/ui/viewer.py: Viewer.apply)."""
+"""ImGui panels, their docked layout, and keyboard/mouse handling of the viewer. Every control
+runs the same commands as the script (app.ui.commands) or the same Viewer methods.
+
+Layout: the panels dock around the 3D view (imgui-bundle's docking): Session, Attitude and
+Projection as tabs at the top left, Error inspection and Stats below them, the Timeline along the
+bottom. The 3D view is the dock space's central node and keeps about two thirds of the window; the
+user may move, collapse and re-dock panels, and the layout is remembered between runs in
+$XDG_CONFIG_HOME/geofuse/imgui.ini (never in the user's working folder).
+"""
 
 from __future__ import annotations
 
+import logging
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+
+from app.playback.clock import SPEEDS
+from app.session.model import COURSE
+
+log = logging.getLogger("geofuse.viewer")
 
 SHORTCUTS = (
     ("Space", "play / pause"),
@@ -21,11 +34,23 @@ SHORTCUTS = (
     ("R", "reset the view"),
     ("I", "AHRS / IMU toggle"),
     ("H or F1", "this help"),
+    ("Ctrl+O, or drop a file", "open a manifest or clip"),
 )
-SPEEDS = (0.25, 0.5, 1.0, 1.5, 2.0, 4.0)
 DEPTH_SIZES = (1024, 2048, 4096)
 RED = (1.0, 0.35, 0.3, 1.0)
 AMBER = (1.0, 0.8, 0.3, 1.0)
+LEFT_FRACTION = 0.26  # of the window's width: the left panel column
+BOTTOM_FRACTION = 0.13  # of the window's height: the timeline
+LEFT_LOWER_FRACTION = 0.45  # of the left column: Error inspection and Stats
+TOP_PANELS = ("Session", "Attitude", "Projection")
+LOWER_PANELS = ("Error inspection", "Stats")
+OPEN_FILTERS = ["Sessions and clips", "*.toml *.TOML *.mp4 *.MP4 *.mov *.MOV", "All files", "*"]
+KEY_COMMANDS = {  # key name in glfw -> (command, argument)
+    "KEY_SPACE": ("toggle", None), "KEY_RIGHT": ("step", "1"), "KEY_LEFT": ("step", "-1"),
+    "KEY_RIGHT_BRACKET": ("faster", None), "KEY_LEFT_BRACKET": ("slower", None), "KEY_I": ("ahrs", None),
+    "KEY_O": ("view", "orbit"), "KEY_F": ("view", "free"), "KEY_P": ("view", "phone"), "KEY_R": ("view", "reset"),
+    "KEY_H": ("help", None), "KEY_F1": ("help", None),
+}  # fmt: skip
 
 
 def _vec4(c):
@@ -34,88 +59,164 @@ def _vec4(c):
     return imgui.ImVec4(*c)
 
 
+class Gui:
+    """ImGui and ImPlot on a window: docking on, the layout remembered in `ini_path`."""
+
+    def __init__(self, window, ini_path: Path) -> None:
+        from imgui_bundle import imgui, implot
+        from imgui_bundle.python_backends.glfw_backend import GlfwRenderer
+
+        imgui.create_context()
+        implot.create_context()
+        io = imgui.get_io()
+        io.config_flags |= imgui.ConfigFlags_.docking_enable
+        try:
+            ini_path.parent.mkdir(parents=True, exist_ok=True)
+            io.set_ini_filename(str(ini_path))
+        except OSError:  # a read-only home: run with the default layout, remember nothing
+            io.set_ini_filename("")
+        self.window = window
+        self.renderer = GlfwRenderer(window.handle)
+        self.dock_id = 0
+        self._layout_checked = False
+
+    def begin_frame(self) -> None:
+        from imgui_bundle import imgui
+
+        self.renderer.process_inputs()
+        imgui.new_frame()
+
+    def wants_mouse(self) -> bool:
+        from imgui_bundle import imgui
+
+        return bool(imgui.get_io().want_capture_mouse)
+
+    def wants_keyboard(self) -> bool:
+        from imgui_bundle import imgui
+
+        return bool(imgui.get_io().want_capture_keyboard)
+
+    def layout(self, viewer) -> tuple[int, int, int, int]:
+        """Lay the dock space over the window (building the default layout when none was saved);
+        returns the 3D view's rectangle (x, y from the top, w, h) in framebuffer pixels."""
+        from imgui_bundle import imgui
+
+        internal = imgui.internal
+        viewport = imgui.get_main_viewport()
+        self.dock_id = imgui.dock_space_over_viewport(0, viewport, imgui.DockNodeFlags_.passthru_central_node)
+        if not self._layout_checked:
+            self._layout_checked = True
+            node = internal.dock_builder_get_node(self.dock_id)
+            if node is None or node.is_leaf_node():
+                self._build_default_layout(viewport)
+        central = internal.dock_builder_get_central_node(self.dock_id)
+        fb_w, fb_h = self.window.framebuffer_size()
+        io = imgui.get_io()
+        sx = fb_w / max(io.display_size.x, 1.0)
+        sy = fb_h / max(io.display_size.y, 1.0)
+        if central is None:
+            return 0, 0, fb_w, fb_h
+        x0, y0 = (central.pos.x - viewport.pos.x) * sx, (central.pos.y - viewport.pos.y) * sy
+        return int(round(x0)), int(round(y0)), max(1, int(round(central.size.x * sx))), max(1, int(round(central.size.y * sy)))
+
+    def _build_default_layout(self, viewport) -> None:
+        from imgui_bundle import imgui
+
+        internal = imgui.internal
+        internal.dock_builder_remove_node(self.dock_id)
+        internal.dock_builder_add_node(self.dock_id, internal.DockNodeFlagsPrivate_.dock_space | imgui.DockNodeFlags_.passthru_central_node)
+        internal.dock_builder_set_node_size(self.dock_id, viewport.size)
+        _, bottom, rest = internal.dock_builder_split_node_py(self.dock_id, imgui.Dir.down, BOTTOM_FRACTION)
+        _, left, _ = internal.dock_builder_split_node_py(rest, imgui.Dir.left, LEFT_FRACTION)
+        _, lower, upper = internal.dock_builder_split_node_py(left, imgui.Dir.down, LEFT_LOWER_FRACTION)
+        for name in TOP_PANELS:
+            internal.dock_builder_dock_window(name, upper)
+        for name in LOWER_PANELS:
+            internal.dock_builder_dock_window(name, lower)
+        internal.dock_builder_dock_window("Timeline", bottom)
+        internal.dock_builder_finish(self.dock_id)
+
+    def render(self) -> None:
+        from imgui_bundle import imgui
+
+        imgui.render()
+        self.renderer.render(imgui.get_draw_data())
+
+    def shutdown(self) -> None:
+        from imgui_bundle import imgui
+
+        ini = imgui.get_io().get_ini_filename()
+        if ini:
+            try:
+                imgui.save_ini_settings_to_disk(ini)
+            except OSError as exc:
+                log.warning("could not save the panel layout to %s (%s)", ini, exc)
+        try:
+            self.renderer.shutdown()
+        except Exception:  # PyOpenGL may already have lost the context at exit: nothing to free
+            log.debug("imgui renderer shutdown failed", exc_info=True)
+
+
 # --- input ---------------------------------------------------------------------------------------
 
-def handle_keys(v, dt: float, now: float) -> None:
+def handle_input(v, gui: Gui, dt: float, now: float) -> None:
+    """Keys run commands (edge-triggered), WASD/QE and the right mouse button navigate."""
     import glfw
-    from imgui_bundle import imgui
 
-    io = imgui.get_io()
-    w = v.window
-    if not io.want_capture_keyboard:
-        def pressed(key: int) -> bool:
-            state = glfw.get_key(w, key) == glfw.PRESS
-            was = v.__dict__.setdefault("_keys", {}).get(key, False)
-            v._keys[key] = state
-            return state and not was
+    from app.errors import GeofuseError
 
-        if v.loaded is not None:
-            clock = v.loaded.clock
-            if pressed(glfw.KEY_SPACE):
-                clock.set_paused(not clock.paused, now)
-            if pressed(glfw.KEY_RIGHT):
-                v.step(1, now)
-            if pressed(glfw.KEY_LEFT):
-                v.step(-1, now)
-            if pressed(glfw.KEY_RIGHT_BRACKET):
-                clock.set_speed(min(4.0, clock.speed * 2), now)
-            if pressed(glfw.KEY_LEFT_BRACKET):
-                clock.set_speed(max(0.25, clock.speed / 2), now)
-            if pressed(glfw.KEY_I):
-                v.toggle_ahrs()
-        if pressed(glfw.KEY_O):
-            orbit_pick(v)
-        if pressed(glfw.KEY_F):
-            v.nav.mode = "free"
-        if pressed(glfw.KEY_P):
-            v.nav.mode = "phone"
-        if pressed(glfw.KEY_R):
-            v.nav.reset()
-        if pressed(glfw.KEY_H) or pressed(glfw.KEY_F1):
-            v.show_help = not v.show_help
-        axis = lambda plus, minus: float(glfw.get_key(w, plus) == glfw.PRESS) - float(glfw.get_key(w, minus) == glfw.PRESS)  # noqa: E731
+    w, ui = v.window, v.ui
+    if not gui.wants_keyboard():
+        for key_name, (command, arg) in KEY_COMMANDS.items():
+            key = getattr(glfw, key_name)
+            down = w.key_down(key)
+            pressed = down and not ui.keys_down.get(key, False)
+            ui.keys_down[key] = down
+            if pressed and (command in ("view", "help") or v.loaded is not None):
+                try:
+                    v.apply(command, arg, now)
+                except (ValueError, GeofuseError) as exc:
+                    ui.error(f"{command}: {exc}")
+        ctrl = w.key_down(glfw.KEY_LEFT_CONTROL) or w.key_down(glfw.KEY_RIGHT_CONTROL)
+        o = w.key_down(glfw.KEY_O)
+        if ctrl and o and not ui.keys_down.get(-1, False):
+            open_dialog(v)
+        ui.keys_down[-1] = ctrl and o
+        axis = lambda plus, minus: float(w.key_down(plus)) - float(w.key_down(minus))  # noqa: E731
         v.nav.move(dt, axis(glfw.KEY_W, glfw.KEY_S), axis(glfw.KEY_D, glfw.KEY_A), axis(glfw.KEY_E, glfw.KEY_Q))
-    x, y = glfw.get_cursor_pos(w)
-    last = v.__dict__.get("_cursor")
-    v._cursor = (x, y)
-    if last is not None and not io.want_capture_mouse and glfw.get_mouse_button(w, glfw.MOUSE_BUTTON_RIGHT) == glfw.PRESS:
+    x, y = w.cursor()
+    last, ui.cursor = ui.cursor, (x, y)
+    if last is not None and not gui.wants_mouse() and w.mouse_down(glfw.MOUSE_BUTTON_RIGHT):
         v.nav.look(x - last[0], y - last[1])
 
 
-def orbit_pick(v) -> None:
-    """Orbit around the model point under the mouse cursor (GPU position pass at a quarter of the
-    window's resolution), or a point 50 m ahead when the cursor sees no model."""
-    import glfw
+def open_dialog(v) -> None:
+    """The system's file dialog (portable-file-dialogs: zenity or kdialog on Linux), polled each
+    frame; where no dialog program exists the Session panel's path field still works."""
+    from imgui_bundle import portable_file_dialogs as pfd
 
-    from app import rotations
-    from app.render.positions import PositionPass
+    if v.ui.file_dialog is None:
+        try:
+            v.ui.file_dialog = pfd.open_file("Open a session manifest or a clip", str(Path.cwd()), OPEN_FILTERS)
+        except Exception as exc:  # no dialog program on this desktop
+            v.ui.error(f"no file dialog available ({exc}): type the path in the Session panel")
 
-    if v.loaded is None or v.window_camera is None:
-        return
-    r = v.loaded.renderer
-    if getattr(r, "_picker", None) is None:
-        r._picker = PositionPass(v.ctx, r.scene)
-    cam = v.window_camera
-    w, h = max(1, cam.intrinsics.width // 4), max(1, cam.intrinsics.height // 4)
-    small = type(cam).create(cam.intrinsics.scaled(w, h), cam.position, cam.orientation, cam.near, cam.far)
-    win_w, win_h = glfw.get_window_size(v.window)
-    x, y = glfw.get_cursor_pos(v.window)
-    col = int(np.clip(x / max(win_w, 1) * w, 0, w - 1))
-    row = int(np.clip(y / max(win_h, 1) * h, 0, h - 1))
-    p = r._picker.render(small)[row, col]
-    if not np.all(np.isfinite(p)):
-        p = np.asarray(cam.position) + 50.0 * rotations.rotate(cam.orientation, [0, 0, -1])
-    v.nav.orbit_around(p)
+
+def _poll_dialog(v) -> None:
+    d = v.ui.file_dialog
+    if d is not None and d.ready():
+        v.ui.file_dialog = None
+        chosen = d.result()
+        if chosen:
+            v.ui.open_request = Path(chosen[0])
 
 
 # --- panels --------------------------------------------------------------------------------------
 
-def draw(v, now: float) -> None:
-    from imgui_bundle import imgui
-
-    imgui.new_frame()
-    if not v.show_panels:
-        imgui.render()
+def draw(v, gui: Gui, now: float) -> None:
+    """The panels of this frame (after `Gui.begin_frame` and `Gui.layout`)."""
+    _poll_dialog(v)
+    if not v.ui.show_panels:
         return
     _session(v)
     if v.loaded is not None:
@@ -124,74 +225,80 @@ def draw(v, now: float) -> None:
         _projection(v)
         _error_inspection(v)
         _stats(v)
-    if v.show_help:
+    if v.ui.show_help:
         _help(v)
-    imgui.render()
 
 
-def _window(title: str, x: float, y: float, w: float = 0.0, h: float = 0.0) -> bool:
+def _window(title: str) -> bool:
     from imgui_bundle import imgui
 
-    imgui.set_next_window_pos(imgui.ImVec2(x, y), imgui.Cond_.first_use_ever)
-    if w:
-        imgui.set_next_window_size(imgui.ImVec2(w, h), imgui.Cond_.first_use_ever)
     expanded, _ = imgui.begin(title)
     return expanded
+
+
+def _run(v, name: str, arg: str | None, now: float = 0.0) -> None:
+    from app.errors import GeofuseError
+
+    try:
+        v.apply(name, arg, now)
+    except (ValueError, GeofuseError) as exc:
+        v.ui.error(f"{name}: {exc}")
 
 
 def _session(v) -> None:
     from imgui_bundle import imgui
 
-    if _window("Session", 10, 10, 330, 165):
+    ui = v.ui
+    if _window("Session"):
         if v.loaded is not None:
             s = v.loaded.session
-            imgui.text(Path(s.manifest.path).name)
+            imgui.text(Path(s.path).name)
             imgui.text(f"{len(s.frame_times)} frames, {s.video.display_size[0]}x{s.video.display_size[1]}, rotate {s.rotation_cw}")
             imgui.text(f"declination {s.declination_deg:+.2f} deg")
             if s.scene_path is None:
                 imgui.text_colored(_vec4(AMBER), "no scene: the ground is assumed (flat, 1 m grid)")
-        _, v.open_path = imgui.input_text("manifest", v.open_path)
+        if imgui.button("Open..."):
+            open_dialog(v)
         imgui.same_line()
-        if imgui.button("Open") and v.open_path.strip():
-            v.open(Path(v.open_path.strip()))
-        for note in v.notices[-4:]:
+        imgui.set_next_item_width(-60)
+        _, ui.open_path = imgui.input_text("##path", ui.open_path)
+        imgui.same_line()
+        if imgui.button("Open") and ui.open_path.strip():
+            ui.open_request = Path(ui.open_path.strip())
+        for note in ui.notices[-4:]:
             imgui.text_wrapped(f"note: {note}")
-        if v.errors:
+        if ui.errors:
             imgui.separator()
-            imgui.text_colored(_vec4(RED), f"{len(v.errors)} error(s):")
-            for e in v.errors[-5:]:
-                imgui.push_text_wrap_pos(320)
+            imgui.text_colored(_vec4(RED), f"{len(ui.errors)} error(s):")
+            imgui.push_text_wrap_pos(0.0)
+            for e in ui.errors[-5:]:
                 imgui.text_colored(_vec4(RED), e)
-                imgui.pop_text_wrap_pos()
+            imgui.pop_text_wrap_pos()
             if imgui.button("Clear errors"):
-                v.errors.clear()
-        imgui.text_disabled("H: help and shortcuts")
+                ui.errors.clear()
+        imgui.text_disabled("H: help and shortcuts; drop a file here to open it")
     imgui.end()
 
 
 def _playback(v, now: float) -> None:
-    import glfw
     from imgui_bundle import imgui
 
-    L = v.loaded
-    _, fb_h = glfw.get_window_size(v.window)
-    fb_w, _ = glfw.get_window_size(v.window)
-    if _window("Timeline", 350, max(10, fb_h - 110), max(400, fb_w - 360), 95):
-        clock = L.clock
+    if _window("Timeline"):
+        clock = v.loaded.clock
         if imgui.button("Pause" if not clock.paused else "Play"):
-            clock.set_paused(not clock.paused, now)
+            _run(v, "toggle", None, now)
         imgui.same_line()
         if imgui.button("<"):
-            v.step(-1, now)
+            _run(v, "step", "-1", now)
         imgui.same_line()
         if imgui.button(">"):
-            v.step(1, now)
+            _run(v, "step", "1", now)
         imgui.same_line()
         imgui.set_next_item_width(80)
-        idx = SPEEDS.index(clock.speed) if clock.speed in SPEEDS else 2
+        idx = SPEEDS.index(clock.speed) if clock.speed in SPEEDS else SPEEDS.index(1.0)
         changed, idx = imgui.combo("speed", idx, [f"{s:g}x" for s in SPEEDS])
         if changed:
-            clock.set_speed(SPEEDS[idx], now)
+            _run(v, "speed", str(SPEEDS[idx]), now)
         imgui.same_line()
         _, clock.loop = imgui.checkbox("loop", clock.loop)
         imgui.same_line()
@@ -199,10 +306,8 @@ def _playback(v, now: float) -> None:
         imgui.text(f"{media:7.2f} / {clock.duration:.2f} s   frame {max(v.current_index, 0)}")
         imgui.set_next_item_width(-1)
         changed, t = imgui.slider_float("##scrub", media, 0.0, clock.duration, "%.2f s")
-        if changed:
-            v.seek(t, now)  # dragging scrubs
-        if imgui.is_item_deactivated_after_edit():
-            v.seek(t, now)  # release: show the exact frame
+        if changed or imgui.is_item_deactivated_after_edit():
+            _run(v, "seek", str(t), now)  # dragging scrubs; release shows the exact frame
     imgui.end()
 
 
@@ -210,29 +315,28 @@ def _attitude(v) -> None:
     from imgui_bundle import imgui
 
     L = v.loaded
-    if _window("Attitude", 10, 180, 330, 215):
-        lib = L.tracks
+    if _window("Attitude"):
+        lib = L.library
+        solved, errors = lib.solved(), lib.errors()
         if not lib.done:
-            imgui.progress_bar(lib.progress, imgui.ImVec2(-1, 0), f"solving {len(lib.tracks)}/{len(lib.order)}")
-        for name in L.session.filters:
-            label = name + ("" if name in lib.tracks else " (solving)" if name not in lib.errors else " (failed)")
-            if imgui.radio_button(label, L.source == name) and name in lib.tracks:
-                v.set_source(name)
-        for name, err in lib.errors.items():
+            imgui.progress_bar(lib.progress, imgui.ImVec2(-1, 0), f"solving {len(solved)}/{len(lib.order)}")
+        for name in L.session.sources:
+            label = name + ("" if name in solved else " (failed)" if name in errors else " (solving)")
+            if imgui.radio_button(label, L.source == name) and name in solved:
+                _run(v, "source", name)
+        for name, err in errors.items():
             imgui.text_colored(_vec4(RED), f"{name}: {err}")
         ahrs = L.source.endswith("-ahrs")
-        if L.source[:3] in ("gd-", "cf-"):
+        if L.source[:3] in ("gd-", "cf-") and L.session.mag is not None:
             changed, ahrs = imgui.checkbox("AHRS (with magnetometer)", ahrs)
             if changed:
-                v.toggle_ahrs(ahrs)
+                _run(v, "ahrs", "on" if ahrs else "off")
         if L.session.heading_note:
             imgui.text_colored(_vec4(AMBER), L.session.heading_note)
-        if "course" in L.session.references:
-            current = float(v.__dict__.setdefault("_course_pitch", -30.0))
-            _, pitch = imgui.slider_float("camera pitch (deg)", current, -90.0, 30.0, "%.0f")
-            v._course_pitch = pitch
+        if COURSE in L.session.sources:
+            _, v.ui.course_pitch_deg = imgui.slider_float("camera pitch (deg)", v.ui.course_pitch_deg, -90.0, 30.0, "%.0f")
             if imgui.is_item_deactivated_after_edit():
-                v.set_course_pitch(pitch)
+                _run(v, "pitch", str(v.ui.course_pitch_deg))
         elif L.session.mag is None:
             imgui.text_colored(_vec4(AMBER), "no magnetometer: IMU filters only")
         elif not L.source.endswith("-ahrs") and L.source[:3] in ("gd-", "cf-"):
@@ -243,8 +347,9 @@ def _attitude(v) -> None:
 def _projection(v) -> None:
     from imgui_bundle import imgui
 
-    if _window("Projection", 10, 400, 330, 310):
-        s = v.settings
+    ui = v.ui
+    if _window("Projection"):
+        s = ui.settings
         _, enabled = imgui.checkbox("project the video", s.enabled)
         _, alpha = imgui.slider_float("transparency", s.alpha, 0.0, 1.0, "%.2f")
         _, bias = imgui.slider_float("depth bias (m)", s.bias_constant_m, 0.0, 1.0, "%.2f")
@@ -252,16 +357,16 @@ def _projection(v) -> None:
         _, rule = imgui.checkbox("nine-case neighbourhood rule", s.neighbourhood)
         idx = DEPTH_SIZES.index(s.depth_long_side) if s.depth_long_side in DEPTH_SIZES else 1
         _, idx = imgui.combo("depth map", idx, [str(d) for d in DEPTH_SIZES])
-        v.settings = replace(s, enabled=enabled, alpha=alpha, bias_constant_m=bias, bias_slope=slope, neighbourhood=rule, depth_long_side=DEPTH_SIZES[idx])
-        o = v.overlays
+        ui.settings = replace(s, enabled=enabled, alpha=alpha, bias_constant_m=bias, bias_slope=slope, neighbourhood=rule, depth_long_side=DEPTH_SIZES[idx])
+        o = ui.overlays
         _, fr = imgui.checkbox("frustum", o.frustum)
         imgui.same_line()
         _, tr = imgui.checkbox("trajectory", o.trajectory)
-        v.overlays = replace(o, frustum=fr, trajectory=tr)
-        if v.loaded is not None and "truth" in v.loaded.session.filters:
-            _, em = imgui.checkbox("projection error on the model (m)", v.overlays.error_map)
-            _, scale = imgui.slider_float("error scale (m)", v.overlays.error_scale_m, 0.5, 20.0, "%.1f")
-            v.overlays = replace(v.overlays, error_map=em, error_scale_m=scale)
+        ui.overlays = replace(o, frustum=fr, trajectory=tr)
+        if v.loaded is not None and "truth" in v.loaded.session.sources:
+            _, em = imgui.checkbox("projection error on the model (m)", ui.overlays.error_map)
+            _, scale = imgui.slider_float("error scale (m)", ui.overlays.error_scale_m, 0.5, 20.0, "%.1f")
+            ui.overlays = replace(ui.overlays, error_map=em, error_scale_m=scale)
             if em:
                 for frac, colour in ((0.0, (0.10, 0.80, 0.25, 1.0)), (0.5, (1.00, 0.85, 0.10, 1.0)), (1.0, (0.90, 0.10, 0.10, 1.0))):
                     imgui.color_button(f"##legend{frac}", imgui.ImVec4(*colour), 0, imgui.ImVec2(14, 14))
@@ -271,36 +376,35 @@ def _projection(v) -> None:
                         imgui.same_line()
         else:
             imgui.text_disabled("projection error: needs a session with ground truth")
-        _, v.time_offset_s = imgui.slider_float("time offset (s)", v.time_offset_s, -1.0, 1.0, "%+.3f")
+        if v.loaded is not None:
+            _, ui.time_offset_s = imgui.slider_float("time offset (s)", ui.time_offset_s, -1.0, 1.0, "%+.3f")
+            if imgui.is_item_deactivated_after_edit():
+                _run(v, "offset", str(ui.time_offset_s))
     imgui.end()
 
 
 def _error_inspection(v) -> None:
-    import glfw
     from imgui_bundle import imgui, implot
 
     L = v.loaded
-    lib = L.tracks
+    lib = L.library
     ref = lib.reference()
-    fb_w, _ = glfw.get_window_size(v.window)
-    if _window("Error inspection", max(350, fb_w - 460), 10, 450, 430):
+    if _window("Error inspection"):
+        est, truth = lib.curves(L.source), lib.curves(ref)
         if ref is None:
-            imgui.text_wrapped("This session has no reference attitude (phone or truth) to compare with.")
-        elif L.source in lib.curves and ref in lib.curves:
-            est, truth = lib.curves[L.source], lib.curves[ref]
+            imgui.text_disabled("no reference attitude (phone or truth) to compare with")
+        elif est is not None and truth is not None and L.source != ref:
             k = max(v.current_index, 0)
             d = ((est.hpr[k] - truth.hpr[k]) + 180.0) % 360.0 - 180.0
-            imgui.text(f"{L.source} vs {ref}, this frame: heading {d[0]:+.2f}, pitch {d[1]:+.2f}, roll {d[2]:+.2f} deg")
+            imgui.text_wrapped(f"{L.source} vs {ref}, this frame: heading {d[0]:+.2f}, pitch {d[1]:+.2f}, roll {d[2]:+.2f} deg")
             step = max(1, len(est.t) // 1500)
             for i, label in enumerate(("heading", "pitch", "roll")):
-                if implot.begin_plot(f"{label} (deg)##{i}", imgui.ImVec2(-1, 95)):
+                if implot.begin_plot(f"{label} (deg)##{i}", imgui.ImVec2(-1, 90)):
                     implot.setup_axes("", "", implot.AxisFlags_.no_tick_labels if i < 2 else 0, 0)
                     wrap = (lambda a: (a + 180.0) % 360.0 - 180.0) if i == 0 else (lambda a: a)  # noqa: E731
-                    ys_est = np.ascontiguousarray(wrap(est.hpr[::step, i]))
-                    ys_ref = np.ascontiguousarray(wrap(truth.hpr[::step, i]))
                     xs = np.ascontiguousarray(est.t[::step])
-                    implot.plot_line(L.source, xs, ys_est)
-                    implot.plot_line(ref, xs, ys_ref)
+                    implot.plot_line(L.source, xs, np.ascontiguousarray(wrap(est.hpr[::step, i])))
+                    implot.plot_line(ref, xs, np.ascontiguousarray(wrap(truth.hpr[::step, i])))
                     implot.plot_inf_lines("now", np.array([est.t[k]]))
                     implot.end_plot()
         table = lib.rms_table()
@@ -318,28 +422,25 @@ def _error_inspection(v) -> None:
 
 
 def _stats(v) -> None:
-    import glfw
     from imgui_bundle import imgui
 
-    L = v.loaded
-    fb_w, _ = glfw.get_window_size(v.window)
-    if _window("Stats", max(350, fb_w - 460), 450, 450, 0):
+    if _window("Stats"):
         ft = np.asarray(v.stats.frame_times[-120:] or [0.0]) * 1000.0
         fps = 1000.0 / max(np.mean(ft), 1e-6)
-        player = L.player
+        player = v.loaded.player
         current, mean, p95 = player.stats.summary()
         imgui.text(f"frame rate {fps:6.1f} fps   frame time {np.median(ft):5.1f} ms")
         imgui.text(f"decode queue {player.decoder.frames.qsize()}/{player.decoder.frames.maxsize}   corrupt packets {player.decoder.corrupt_packets}")
         imgui.text(f"latency now {current:5.1f} ms  mean {mean:5.1f} ms  p95 {p95:5.1f} ms")
-        imgui.text(f"dropped frames {player.stats.dropped}   depth redraws {v.stats.depth_redraws}")
+        imgui.text(f"dropped frames {player.stats.dropped} (decoder skipped {player.decoder.skipped})   depth redraws {v.stats.depth_redraws}")
     imgui.end()
 
 
 def _help(v) -> None:
     from imgui_bundle import imgui
 
-    if _window("Help", 360, 120, 420, 0):
+    imgui.set_next_window_pos(imgui.ImVec2(360, 120), imgui.Cond_.first_use_ever)
+    if _window("Help"):
         for key, what in SHORTCUTS:
-            imgui.text(f"{key:<18} {what}")
+            imgui.text(f"{key:<22} {what}")
     imgui.end()
-

@@ -1,7 +1,11 @@
 """Scripted viewer sessions: a text file of timed UI actions, one per line, for tests and the
-README's screenshots. Times are seconds of wall time since the viewer opened.
+README's screenshots. Times are seconds on the viewer's clock since it opened: wall time, or a
+fixed-step clock that the script sets (`clock STEP`: every drawn frame advances it by STEP s), on
+which a run does the same thing on a fast machine and on a loaded one.
 
     # comment
+    0.0  clock 0.0333       # a fixed-step clock (or: clock wall)
+    0.0  wait solved        # hold the clock until every attitude source is solved
     0.0  play
     2.0  pause
     2.1  seek 12.5          # media seconds from the first frame
@@ -29,10 +33,9 @@ from pathlib import Path
 
 from app.errors import DataFormatError
 
-ACTIONS = {
-    "play": 0, "pause": 0, "seek": 1, "step": 1, "speed": 1, "source": 1, "ahrs": 1, "alpha": 1,
-    "view": 1, "open": 1, "screenshot": 1, "quit": 0, "overlay": 1, "offset": 1, "panels": 1, "state": 1, "pitch": 1, "lines": 1,
-}
+from app.ui.commands import COMMANDS
+
+ACTIONS = {name: int(c.takes_arg) for name, c in COMMANDS.items()}
 
 
 @dataclass(frozen=True)

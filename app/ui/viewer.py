@@ -1,33 +1,42 @@
-"""The interactive viewer: a GLFW window with a ModernGL renderer and ImGui panels.
+"""The interactive viewer: a window (app.render.window) with the fusion renderer and ImGui panels.
 
-The frame loop pulls: each tick it advances the playback clock, takes the frame due from the
-decoder's queue (stale serials dropped), looks up the pose for that frame's time, updates the
-projector (the depth map is redrawn only when the pose changed), draws the scene and the panels,
-and records each frame's playback latency (due time -> first display, as the paper defines it).
-A bad file never crashes it: the error panel says what is wrong and the viewer keeps running.
+The frame loop pulls: each tick it reads its clock (injected: the wall clock, or a fixed-step
+clock a script sets), advances playback to the frame due, asks the session's camera track for
+that frame's camera (app.camera_track: the one place a pose for display is computed), updates
+the projector (the depth map is redrawn only when the pose changed), draws the scene into the 3D
+view's rectangle and the panels around it, and records each frame's playback latency (due time ->
+first display, as the paper defines it). When drawing is slower than the video, frames are
+dropped and counted (app.playback.player, app.playback.decoder), so the frame shown stays the one
+due. A bad file never crashes it: the error panel says what is wrong and the viewer keeps running.
 """
 
 from __future__ import annotations
 
 import logging
+import os
 import time
-from dataclasses import dataclass, field, replace
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from app.camera import Camera, Intrinsics
-from app.config import OverlaySettings, ProjectionSettings
 from app.errors import GeofuseError
-from app.playback.clock import PlaybackClock
+from app.playback.clock import SPEEDS, PlaybackClock
+from app.playback.library import SolverLibrary
 from app.playback.player import Player
-from app.playback.tracks import TrackLibrary
+from app.ui.commands import run_command
 from app.ui.navigation import Navigator
 from app.ui.script import Action, parse_script
+from app.ui.state import UiState
 
 log = logging.getLogger("geofuse.viewer")
-GL_VERSION = (4, 1)
 TRAJECTORY_STEP = 5  # frames between trajectory polyline vertices
+VIEW_HFOV_DEG = 60.0  # the window camera's horizontal field of view
+FIXED_CLOCK_WAIT_S = 30.0  # on a fixed-step clock, wait this long at most for a decoded frame
+SOLVE_WAIT_S = 600.0  # `wait solved` gives up after this long (real seconds)
+FRAME_HISTORY = 600  # frame times kept for the Stats panel
 
 
 @dataclass
@@ -48,9 +57,9 @@ class Loaded:
     session: object
     renderer: object
     player: Player
-    tracks: TrackLibrary
+    library: SolverLibrary
     source: str
-    trajectory: np.ndarray | None = None
+    trajectory_version: tuple[int, str] | None = None  # (library version, source) drawn
 
     @property
     def clock(self) -> PlaybackClock:
@@ -61,6 +70,21 @@ class Loaded:
 class Stats:
     frame_times: list[float] = field(default_factory=list)
     depth_redraws: int = 0
+
+
+class FixedStepClock:
+    """A clock a script controls: `now()` stays put within a frame; `advance()` moves it by step s."""
+
+    def __init__(self, start: float, step: float) -> None:
+        if not 0.0 < step <= 10.0:
+            raise ValueError(f"clock step must be in (0, 10] seconds, got {step}")
+        self.t, self.step = float(start), float(step)
+
+    def __call__(self) -> float:
+        return self.t
+
+    def advance(self) -> None:
+        self.t += self.step
 
 
 def home_view(session, mesh) -> Navigator:
@@ -79,67 +103,47 @@ def home_view(session, mesh) -> Navigator:
     return Navigator(position=np.array([centre[0] + 35.0, lo[1] - 20.0, 40.0]), yaw=-15.0, pitch=-15.0)
 
 
+def config_dir() -> Path:
+    """Where the viewer remembers its panel layout: $XDG_CONFIG_HOME/geofuse (~/.config/geofuse)."""
+    base = os.environ.get("XDG_CONFIG_HOME") or str(Path.home() / ".config")
+    return Path(base) / "geofuse"
+
+
 class Viewer:
-    def __init__(self, options: Options) -> None:
+    def __init__(self, options: Options, clock: Callable[[], float] = time.perf_counter) -> None:
         self.options = options
+        self.clock = clock
         self.loaded: Loaded | None = None
-        self.errors: list[str] = []
-        self.notices: list[str] = []
-        self.settings = ProjectionSettings(alpha=0.85)
-        self.overlays = OverlaySettings()
-        self.time_offset_s = 0.0
+        self.ui = UiState()
         self.nav = Navigator()
         self.stats = Stats()
-        self.quit = False
         self.script: list[Action] = []
-        self.show_help = False
-        self.open_path = ""
-        self.screenshot_request: Path | None = None
-        self.state_request: Path | None = None
-        self.show_panels = True
+        self.window = None
         self.window_camera: Camera | None = None
+        self.view_rect: tuple[int, int, int, int] | None = None  # x, y (from the top), w, h in framebuffer pixels
 
-    # --- setup ----------------------------------------------------------------------------------
+    # --- clocks ---------------------------------------------------------------------------------
 
-    def _window(self) -> None:
-        import glfw
-        import moderngl
+    def use_fixed_clock(self, step_s: float) -> None:
+        """From now on every frame advances the clock by step_s, whatever the machine's speed."""
+        self.clock = FixedStepClock(self.clock(), step_s)
 
-        if not glfw.init():
-            raise GeofuseError("cannot initialise GLFW: no display? (set DISPLAY, or run under Xvfb)")
-        glfw.window_hint(glfw.CONTEXT_VERSION_MAJOR, GL_VERSION[0])
-        glfw.window_hint(glfw.CONTEXT_VERSION_MINOR, GL_VERSION[1])
-        glfw.window_hint(glfw.OPENGL_PROFILE, glfw.OPENGL_CORE_PROFILE)
-        glfw.window_hint(glfw.OPENGL_FORWARD_COMPAT, True)
-        glfw.window_hint(glfw.VISIBLE, self.options.visible)
-        w, h = self.options.size
-        self.window = glfw.create_window(w, h, "geofuse", None, None)
-        if not self.window:
-            glfw.terminate()
-            raise GeofuseError(f"cannot open an OpenGL {GL_VERSION[0]}.{GL_VERSION[1]} core window")
-        glfw.make_context_current(self.window)
-        glfw.swap_interval(0)  # the clock paces playback; never block on vsync
-        self.ctx = moderngl.create_context(require=400)
-        from imgui_bundle import imgui, implot
-        from imgui_bundle.python_backends.glfw_backend import GlfwRenderer
+    def use_wall_clock(self) -> None:
+        self.clock = time.perf_counter
 
-        imgui.create_context()
-        implot.create_context()
-        imgui.get_io().set_ini_filename("")  # never write imgui.ini into the user's folder
-        self.imgui_renderer = GlfwRenderer(self.window)
-        glfw.set_scroll_callback(self.window, self._on_scroll)
+    @property
+    def fixed_clock(self) -> bool:
+        return isinstance(self.clock, FixedStepClock)
 
-    def _on_scroll(self, window, dx: float, dy: float) -> None:
-        from imgui_bundle import imgui
-
-        self.imgui_renderer.scroll_callback(window, dx, dy)
-        if not imgui.get_io().want_capture_mouse:
-            self.nav.wheel(dy)
+    def wait_until_solved(self) -> None:
+        """Hold everything until every attitude source is solved (a script's `wait solved`)."""
+        if self.loaded is not None and not self.loaded.library.wait(SOLVE_WAIT_S):
+            raise GeofuseError(f"the attitude sources were not solved within {SOLVE_WAIT_S:g} s")
 
     # --- sessions -------------------------------------------------------------------------------
 
     def open(self, manifest: Path | None) -> bool:
-        """Open a session (the bundled sample when None); on failure keep the current one."""
+        """Open a session or clip (the bundled sample when None); on failure keep the current one."""
         from app.clips import open_any
         from app.demo import SAMPLE_DIR
         from app.render.renderer import FusionRenderer
@@ -149,285 +153,240 @@ class Viewer:
             session = open_any(path, self.options.srt if path == self.options.manifest else None)
             mesh = session.scene()
         except GeofuseError as exc:
-            self.errors.append(str(exc))
+            self.ui.error(str(exc))
             log.error("%s", exc)
             return False
         except Exception as exc:  # an unexpected reader failure is still only an error panel entry
-            self.errors.append(f"{path}: {type(exc).__name__}: {exc}")
+            self.ui.error(f"{path}: {type(exc).__name__}: {exc}")
             log.exception("opening %s", path)
             return False
         self.close_session()
-        renderer = FusionRenderer(self.ctx, mesh)
-        pts = session.video.pts_s
-        first = session.filters[0]
-        self.loaded = Loaded(session, renderer, Player(session.video.path, pts), TrackLibrary(session, first=first), first)
-        self.notices = list(session.warnings.items)
+        first = session.sources[0]
+        self.loaded = Loaded(session, FusionRenderer(self.window.ctx, mesh), Player(session.video), SolverLibrary(session, first=first), first)
+        self.ui.notices = list(session.warnings.items)
+        self.ui.time_offset_s = 0.0
+        if session.course_pitch_deg is not None:
+            self.ui.course_pitch_deg = session.course_pitch_deg
         self.stats = Stats()
         self.nav = home_view(session, mesh)
-        log.info("opened %s: %d frames, sources %s", path, len(pts), session.filters)
+        log.info("opened %s: %d frames, sources %s", path, len(session.video.pts_s), session.sources)
         return True
 
     def close_session(self) -> None:
         if self.loaded is not None:
             self.loaded.player.close()
+            self.loaded.library.close()
             self.loaded.renderer.release()
             self.loaded = None
 
-    # --- playback -------------------------------------------------------------------------------
+    # --- actions (app.ui.commands calls these) -------------------------------------------------
+
+    def apply(self, name: str, arg: str | None, now: float) -> None:
+        """One action by name (the script's vocabulary; keys and panels call the same table)."""
+        run_command(self, name, arg, now)
 
     @property
     def current_index(self) -> int:
         return self.loaded.player.index if self.loaded is not None else -1
 
-    def seek(self, media_time: float, now: float) -> None:
-        self.loaded.player.seek(media_time, now)
-
-    def step(self, frames: int, now: float) -> None:
-        self.loaded.player.step(frames, now)
-
     def set_source(self, name: str) -> None:
-        if self.loaded is not None and name in self.loaded.session.filters:
-            self.loaded.source = name
-
-    def set_course_pitch(self, pitch_deg: float) -> None:
-        """A drone clip without gimbal attitude: change the assumed camera pitch and re-solve
-        that one source (a fraction of a second)."""
-        from app.clips import set_course_pitch
-        from app.session import pose_track
-
-        L = self.loaded
-        if L is None or "course" not in L.session.references:
-            return
-        set_course_pitch(L.session, pitch_deg)
-        L.tracks.tracks["course"] = pose_track(L.session, "course")
-        L.tracks.curves.pop("course", None)
-        L.trajectory = None
+        self.loaded.session.check_source(name)
+        self.loaded.source = name
 
     def toggle_ahrs(self, on: bool | None = None) -> None:
         """Switch between the AHRS and IMU forms of the current filter."""
-        if self.loaded is None:
-            return
         src = self.loaded.source
         pairs = {"gd-ahrs": "gd-imu", "cf-ahrs": "cf-imu"}
         inverse = {v: k for k, v in pairs.items()}
-        if src in pairs and on is not True:
+        if src in pairs and on is not True and pairs[src] in self.loaded.session.sources:
             self.set_source(pairs[src])
-        elif src in inverse and on is not False:
+        elif src in inverse and on is not False and inverse[src] in self.loaded.session.sources:
             self.set_source(inverse[src])
 
-    def _camera_of(self, source: str | None, times: np.ndarray | None = None) -> Camera | None:
-        """The video's camera for the current frame under `source`, at the pipeline's frame time
-        plus the live time offset, or at `times` (one per frame) when given."""
-        L = self.loaded
-        track = L.tracks.tracks.get(source) if source else None
-        if track is None or self.current_index < 0:
-            return None
-        t = L.session.frame_times[self.current_index] + self.time_offset_s if times is None else times[self.current_index]
-        enu, _, q = track.at(np.array([t]))
-        return Camera.create(L.session.intrinsics, enu[0], q[0], near=0.5, far=2000.0)
+    def change_speed(self, direction: int, now: float) -> None:
+        clock = self.loaded.clock
+        i = min(range(len(SPEEDS)), key=lambda k: abs(SPEEDS[k] - clock.speed))
+        clock.set_speed(SPEEDS[int(np.clip(i + direction, 0, len(SPEEDS) - 1))], now)
 
-    def _reference_camera(self) -> Camera | None:
-        """The reference (truth or the phone's own) beside the chosen source's frustum."""
-        ref = self.loaded.tracks.reference()
-        return self._camera_of(ref) if ref != self.loaded.source else None
+    def set_time_offset(self, offset_s: float) -> None:
+        """The session's time offset (s), applied by the solver library to every track."""
+        self.ui.time_offset_s = offset_s
+        self.loaded.library.set_time_offset(offset_s)
 
-    def _truth_camera(self) -> Camera | None:
-        """The video's true camera, at the frame's true time (for the error overlay)."""
-        if not self.overlays.error_map:
-            return None
-        s = self.loaded.session
-        return self._camera_of("truth", s.truth_frame_times if s.truth_frame_times is not None else s.frame_times)
+    def set_course_pitch(self, pitch_deg: float) -> None:
+        """A drone clip without gimbal attitude: ask the library to re-solve at this pitch."""
+        if not -90.0 <= pitch_deg <= 90.0:
+            raise ValueError(f"pitch must be in [-90, 90] degrees, got {pitch_deg}")
+        self.ui.course_pitch_deg = pitch_deg
+        self.loaded.library.set_course_pitch(pitch_deg)
+
+    def orbit_pick(self) -> None:
+        """Orbit around the model point under the mouse cursor, or a point 50 m ahead when the
+        cursor sees no model."""
+        from app import rotations
+
+        cam = self.window_camera
+        if self.loaded is None or cam is None or self.view_rect is None:
+            return
+        x, y = self.window.cursor()
+        sw, sh = self.window.size()
+        fw, fh = self.window.framebuffer_size()
+        vx, vy, vw, vh = self.view_rect
+        px, py = x * fw / max(sw, 1), y * fh / max(sh, 1)
+        p = self.loaded.renderer.pick(cam, (px - vx) / max(vw, 1), (py - vy) / max(vh, 1))
+        if p is None:
+            p = np.asarray(cam.position) + 50.0 * rotations.rotate(cam.orientation, [0, 0, -1])
+        self.nav.orbit_around(p)
+
+    # --- one frame ------------------------------------------------------------------------------
 
     def _update(self, now: float) -> None:
         L = self.loaded
         if L is None:
             return
-        error = L.player.decoder.error
-        if error and error not in self.errors:
-            self.errors.append(error)
-        if L.player.tick(now):
+        if L.player.decoder.error:
+            self.ui.error(L.player.decoder.error)
+        wait = FIXED_CLOCK_WAIT_S if self.fixed_clock else 0.0
+        if L.player.tick(now, wait_s=wait):
             f = L.player.current
             L.renderer.set_video_yuv(f.y, f.u, f.v, L.session.rotation_cw, f.bt709, f.full_range)
-        projector = self._camera_of(L.source)
-        L.renderer.set_projector(projector)
-        L.renderer.set_reference(self._reference_camera())
-        L.renderer.set_truth(self._truth_camera())
-        if L.trajectory is None and L.source in L.tracks.tracks:
-            enu, _, _ = L.tracks.tracks[L.source].at(L.session.frame_times[::TRAJECTORY_STEP])
-            L.trajectory = enu
-            L.renderer.set_trajectory(enu)
-
-    # --- drawing --------------------------------------------------------------------------------
+        lib = L.library
+        k = self.current_index
+        track = lib.track(L.source)
+        reference = lib.reference()
+        L.renderer.set_projector(track.frame_camera(k) if track is not None and k >= 0 else None)
+        ref_track = lib.track(reference) if reference != L.source else None
+        L.renderer.set_reference(ref_track.frame_camera(k) if ref_track is not None and k >= 0 else None)
+        truth = lib.truth_track() if self.ui.overlays.error_map else None
+        L.renderer.set_truth(truth.frame_camera(k) if truth is not None and k >= 0 else None)
+        if track is not None and L.trajectory_version != (lib.version, L.source):
+            L.renderer.set_trajectory(track.frame_poses(TRAJECTORY_STEP).enu)
+            L.trajectory_version = (lib.version, L.source)
 
     def _draw(self) -> None:
-        import glfw
+        from app.render.renderer import BACKGROUND
 
-        fb_w, fb_h = glfw.get_framebuffer_size(self.window)
+        ctx = self.window.ctx
+        fb_w, fb_h = self.window.framebuffer_size()
         if fb_w <= 0 or fb_h <= 0:
             return
-        self.ctx.screen.use()
-        self.ctx.viewport = (0, 0, fb_w, fb_h)
+        ctx.screen.use()
+        ctx.viewport = (0, 0, fb_w, fb_h)
+        ctx.clear(*BACKGROUND)
         if self.loaded is None:
-            self.ctx.clear(0.62, 0.74, 0.86)
             return
+        x, y, w, h = self.view_rect or (0, 0, fb_w, fb_h)
+        ctx.screen.viewport = (x, fb_h - y - h, w, h)  # GL counts rows from the bottom
         L = self.loaded
-        self.window_camera = self.nav.camera(Intrinsics.from_fov(fb_w, fb_h, 60.0), L.renderer.projector)
+        self.window_camera = self.nav.camera(Intrinsics.from_fov(w, h, VIEW_HFOV_DEG), L.renderer.projector)
         before = L.renderer.depth.renders
-        L.renderer.draw(self.window_camera, self.ctx.screen, self.settings, self.overlays)
+        L.renderer.draw(self.window_camera, ctx.screen, self.ui.settings, self.ui.overlays)
         self.stats.depth_redraws += L.renderer.depth.renders - before
+        ctx.screen.viewport = (0, 0, fb_w, fb_h)
 
     def screenshot(self, path: Path) -> Path:
         """The window's current back buffer (scene and panels) as PNG."""
-        import glfw
-
         from app.imageio import write_rgb
 
-        import OpenGL.GL as gl
-
-        w, h = glfw.get_framebuffer_size(self.window)
-        # moderngl's read of the default framebuffer selects GL_COLOR_ATTACHMENT0, which is invalid
-        # there (GL_INVALID_OPERATION, then PyOpenGL raises at ImGui's next call): read GL_BACK.
-        gl.glBindFramebuffer(gl.GL_READ_FRAMEBUFFER, 0)
-        gl.glReadBuffer(gl.GL_BACK)
-        gl.glPixelStorei(gl.GL_PACK_ALIGNMENT, 1)
-        data = np.frombuffer(gl.glReadPixels(0, 0, w, h, gl.GL_RGB, gl.GL_UNSIGNED_BYTE), np.uint8)
-        out = write_rgb(path, data.reshape(h, w, 3)[::-1])
+        out = write_rgb(path, self.window.read_back_buffer())
         log.info("screenshot %s", out)
         return out
 
-    def write_state(self, path: Path) -> None:
+    def write_state(self, path: Path, now: float) -> None:
         """The state a test needs to reproduce this frame off-screen, as JSON."""
         import json
 
-        state: dict = {"errors": self.errors, "notices": self.notices, "frames_drawn": len(self.stats.frame_times)}
+        ui = self.ui
+        fb = self.window.framebuffer_size()
+        state: dict = {"errors": ui.errors, "notices": ui.notices, "frames_drawn": len(self.stats.frame_times), "window": list(fb), "view_rect": list(self.view_rect or (0, 0, *fb)), "clock": self.clock()}
         L = self.loaded
         if L is not None:
             cam = self.window_camera
             i = cam.intrinsics
             proj = L.renderer.projector
+            s = L.player.stats
             state.update(
-                manifest=str(L.session.manifest.path), source=L.source, frame=self.current_index,
-                frames_shown=len(L.player.stats.latencies), dropped=L.player.stats.dropped,
-                alpha=self.settings.alpha, time_offset_s=self.time_offset_s,
+                manifest=str(L.session.path), source=L.source, frame=self.current_index, due_frame=L.player.due_index(now),
+                frames_shown=len(s.latencies), dropped=s.dropped, latency_ms=list(s.summary()), skipped_by_decoder=L.player.decoder.skipped,
+                solved=L.library.solved(), alpha=ui.settings.alpha, time_offset_s=L.library.time_offset_s,
                 window_camera={"size": [i.width, i.height], "fx": i.fx, "fy": i.fy, "cx": i.cx, "cy": i.cy, "position": list(cam.position), "orientation": list(cam.orientation), "near": cam.near, "far": cam.far},
                 projector=None if proj is None else {"position": list(proj.position), "orientation": list(proj.orientation)},
-            )
+                frame_ms=float(np.median(self.stats.frame_times) * 1000) if self.stats.frame_times else None,
+            )  # fmt: skip
         Path(path).write_text(json.dumps(state, indent=1))
 
-    # --- script ---------------------------------------------------------------------------------
-
     def _run_script(self, elapsed: float, now: float) -> None:
-        while self.script and self.script[0].at_s <= elapsed:
+        while self.script and self.script[0].at_s <= elapsed + 1e-9:
             a = self.script.pop(0)
             try:
                 self.apply(a.name, a.arg, now)
             except (ValueError, GeofuseError) as exc:
-                self.errors.append(f"script line {a.line}: {a.name}: {exc}")
+                self.ui.error(f"script line {a.line}: {a.name}: {exc}")
 
-    def apply(self, name: str, arg: str | None, now: float) -> None:
-        """One UI action by name (the script's vocabulary; the panels call the same methods)."""
-        L = self.loaded
-        if name == "quit":
-            self.quit = True
-        elif name == "open":
-            self.open(Path(arg))
-        elif name == "screenshot":
-            self.screenshot_request = Path(arg)  # taken after this frame's panels are drawn
-        elif name == "state":
-            self.state_request = Path(arg)
-        elif name == "panels":
-            self.show_panels = arg == "on"
-        elif name == "lines":
-            self.overlays = replace(self.overlays, frustum=arg == "on", trajectory=arg == "on")
-        elif L is None:
-            raise ValueError("no session is open")
-        elif name == "play":
-            L.clock.set_paused(False, now)
-        elif name == "pause":
-            L.clock.set_paused(True, now)
-        elif name == "seek":
-            self.seek(float(arg), now)
-        elif name == "step":
-            self.step(int(arg), now)
-        elif name == "speed":
-            L.clock.set_speed(float(arg), now)
-        elif name == "source":
-            if arg not in L.session.filters:
-                raise ValueError(f"unknown source {arg!r}; the session offers {L.session.filters}")
-            self.set_source(arg)
-        elif name == "ahrs":
-            self.toggle_ahrs(arg == "on")
-        elif name == "alpha":
-            self.settings = replace(self.settings, alpha=float(arg))
-        elif name == "offset":
-            self.time_offset_s = float(arg)
-        elif name == "pitch":
-            self.set_course_pitch(float(arg))
-        elif name == "overlay":
-            self.overlays = replace(self.overlays, error_map=arg == "on")
-        elif name == "view":
-            if arg == "reset":
-                self.nav.reset()
-            elif arg == "orbit":
-                from app.ui import panels
-
-                panels.orbit_pick(self)  # as the O key: around the point under the cursor
-            else:
-                self.nav.mode = arg
+    def _end_of_frame(self, now: float) -> None:
+        ui = self.ui
+        if ui.screenshot_request is not None:
+            self.screenshot(ui.screenshot_request)
+            ui.screenshot_request = None
+        if ui.state_request is not None:
+            self.write_state(ui.state_request, now)
+            ui.state_request = None
+        if ui.open_request is not None:
+            path, ui.open_request = ui.open_request, None
+            self.open(path)
 
     # --- the loop -------------------------------------------------------------------------------
 
     def run(self) -> int:
-        import glfw
-        from imgui_bundle import imgui
-
+        from app.render.window import Window
         from app.ui import panels
 
-        self._window()
+        self.window = Window(self.options.size, self.options.visible)
+        gui = panels.Gui(self.window, config_dir() / "imgui.ini")
+        self.window.on_scroll(lambda dx, dy: None if gui.wants_mouse() else self.nav.wheel(dy))
+        self.window.on_drop(lambda paths: setattr(self.ui, "open_request", Path(paths[0])) if paths else None)
         if self.options.script is not None:
             try:
                 self.script = parse_script(self.options.script)
             except GeofuseError as exc:
-                self.errors.append(str(exc))
+                self.ui.error(str(exc))
         self.open(self.options.manifest)
+        start = self.clock()
+        self._run_script(0.0, start)  # clock and wait directives at 0 apply before the first frame
+        start = self.clock()
         if self.loaded is not None and self.options.script is None:
-            self.loaded.clock.set_paused(False, time.perf_counter())
-        start = time.perf_counter()
+            self.loaded.clock.set_paused(False, start)
         last = start
         try:
-            while not glfw.window_should_close(self.window) and not self.quit:
-                now = time.perf_counter()
+            while not self.window.should_close and not self.ui.quit:
+                frame_start = time.perf_counter()  # for the Stats panel only; playback uses self.clock
+                now = self.clock()
                 dt, last = now - last, now
-                glfw.poll_events()
-                self.imgui_renderer.process_inputs()
-                panels.handle_keys(self, dt, now)
+                self.window.poll()
+                gui.begin_frame()
+                panels.handle_input(self, gui, dt, now)
                 self._run_script(now - start, now)
                 self._update(now)
+                self.view_rect = gui.layout(self) if self.ui.show_panels else None
                 self._draw()
-                panels.draw(self, now)
-                self.imgui_renderer.render(imgui.get_draw_data())
+                panels.draw(self, gui, now)
+                gui.render()
                 if self.options.screenshot is not None and self.options.script is None and now - start >= self.options.play_seconds:
-                    self.screenshot_request, self.quit = self.options.screenshot, True
-                if self.screenshot_request is not None:
-                    self.screenshot(self.screenshot_request)
-                    self.screenshot_request = None
-                if self.state_request is not None:
-                    self.write_state(self.state_request)
-                    self.state_request = None
-                glfw.swap_buffers(self.window)
-                shown = time.perf_counter()
+                    self.ui.screenshot_request, self.ui.quit = self.options.screenshot, True
+                self._end_of_frame(now)
+                self.window.swap()
+                shown = self.clock()
                 if self.loaded is not None:
                     self.loaded.player.shown(shown, shown - now)
-                self.stats.frame_times.append(shown - now)
-                del self.stats.frame_times[:-600]
+                self.stats.frame_times.append(time.perf_counter() - frame_start)
+                del self.stats.frame_times[:-FRAME_HISTORY]
+                if self.fixed_clock:
+                    self.clock.advance()
         finally:
             if self.loaded is not None:
                 _, mean, p95 = self.loaded.player.stats.summary()
                 log.info("latency mean %.1f ms, p95 %.1f ms, dropped %d", mean, p95, self.loaded.player.stats.dropped)
             self.close_session()
-            try:
-                self.imgui_renderer.shutdown()
-            except Exception:  # PyOpenGL may already have lost the context at exit: nothing to free
-                log.debug("imgui renderer shutdown failed", exc_info=True)
-            glfw.terminate()
+            gui.shutdown()
+            self.window.close()
         return 0

@@ -1,0 +1,134 @@
+"""The camera at any media time: the one owner of "where is the video's camera at time t, with
+which lens, seen through which mount". Built once per session and source, it answers
+`camera_at(t_media) -> Camera`; the viewer, `render`, `solve`, the accuracy report and the
+benchmarks all ask it, so a pose for display is computed in one place.
+
+Times: *media time* is a frame's presentation time in seconds from the video's first frame (what
+the decoder hands over, app.io.video.media_seconds); *session time* is the session clock's
+seconds. `FrameClock` maps one to the other through the frames' own session times (so the
+paper's Eq. 5 timing and true frame times of a simulation map the same way), plus a live time
+offset. World: local ENU metres; quaternions camera -> ENU, [w, x, y, z].
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+import numpy.typing as npt
+
+from app import rotations
+from app.camera import Camera, Intrinsics
+from app.constants import DEFAULT_FAR_M, DEFAULT_NEAR_M
+from app.session.model import TRUTH, Session, device_attitude
+from app.trajectory import PoseTrack, PositionTrack
+
+FloatArray = npt.NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class FrameClock:
+    """Media time -> session time. media_s: (F,) each frame's presentation time (s from the first
+    frame); session_s: (F,) the session time the pipeline gives that frame; offset_s: a live time
+    offset added on top (sync correction, seconds)."""
+
+    media_s: FloatArray
+    session_s: FloatArray
+    offset_s: float = 0.0
+
+    def session_time(self, t_media: npt.ArrayLike) -> FloatArray:
+        """Session seconds at media times (any shape): interpolated between frames, extended at
+        the ends with the first/last frame's offset between the two clocks."""
+        t = np.asarray(t_media, np.float64)
+        m, s = self.media_s, self.session_s
+        inside = np.interp(t, m, s)
+        before = s[0] + (t - m[0])
+        after = s[-1] + (t - m[-1])
+        return np.where(t < m[0], before, np.where(t > m[-1], after, inside)) + self.offset_s
+
+
+@dataclass(frozen=True)
+class FramePoses:
+    """Camera poses at F times: index (F,) frame numbers; time_s (F,) session seconds; geodetic
+    (F, 3) lat deg, lon deg, ellipsoidal height m; enu (F, 3) m; hpr (F, 3) heading, pitch, roll
+    of the optical axis in degrees; q (F, 4) camera -> ENU."""
+
+    index: npt.NDArray[np.int64]
+    time_s: FloatArray
+    geodetic: FloatArray
+    enu: FloatArray
+    hpr: FloatArray
+    q: FloatArray
+
+    def __len__(self) -> int:
+        return len(self.time_s)
+
+
+@dataclass(frozen=True)
+class CameraTrack:
+    """One session's video camera under one attitude source: pose track (position, attitude,
+    device -> camera mount), frame clock, intrinsics and clipping planes (m)."""
+
+    source: str
+    poses: PoseTrack
+    clock: FrameClock
+    intrinsics: Intrinsics
+    near: float = DEFAULT_NEAR_M
+    far: float = DEFAULT_FAR_M
+
+    @property
+    def frame_count(self) -> int:
+        return len(self.clock.media_s)
+
+    def with_offset(self, offset_s: float) -> "CameraTrack":
+        """The same track with another live time offset (seconds)."""
+        return replace(self, clock=replace(self.clock, offset_s=float(offset_s)))
+
+    def with_clip(self, near: float, far: float) -> "CameraTrack":
+        return replace(self, near=near, far=far)
+
+    def camera_at(self, t_media: float) -> Camera:
+        """The posed camera at one media time (seconds from the video's first frame)."""
+        enu, _, q = self.poses.at(self.clock.session_time([float(t_media)]))
+        return Camera.create(self.intrinsics, enu[0], q[0], self.near, self.far)
+
+    def frame_camera(self, index: int) -> Camera:
+        """The posed camera of video frame `index`."""
+        return self.camera_at(float(self.clock.media_s[index]))
+
+    def poses_at(self, t_media: npt.ArrayLike, index: npt.ArrayLike | None = None) -> FramePoses:
+        """Poses at media times (M,); `index` labels them (default 0..M-1)."""
+        t = self.clock.session_time(np.atleast_1d(np.asarray(t_media, np.float64)))
+        enu, geo, q = self.poses.at(t)
+        idx = np.arange(len(t)) if index is None else np.asarray(index, np.int64)
+        return FramePoses(idx, t, geo, enu, rotations.hpr_from_camera_quat(q), q)
+
+    def frame_poses(self, step: int = 1) -> FramePoses:
+        """Poses of every `step`-th video frame."""
+        idx = np.arange(0, self.frame_count, step)
+        return self.poses_at(self.clock.media_s[idx], idx)
+
+
+def frame_clock(session: Session, true_timing: bool = False) -> FrameClock:
+    """The session's media -> session time map: the pipeline's frame times, or (true_timing) the
+    simulation's true ones where the session has them."""
+    times = session.truth_frame_times if true_timing and session.truth_frame_times is not None else session.frame_times
+    return FrameClock(np.asarray(session.video.pts_s, np.float64), np.asarray(times, np.float64))
+
+
+def pose_track(session: Session, source: str, course_pitch_deg: float | None = None) -> PoseTrack:
+    """Positions and attitude of one source (for truth: true positions too, where known)."""
+    t_att, q = device_attitude(session, source, course_pitch_deg)
+    if source == TRUTH and session.truth_position is not None:
+        g = session.truth_position
+        positions = PositionTrack.from_fixes(g.t, g.lat, g.lon, g.h, g.vel_enu)
+    else:
+        positions = session.positions()
+    return PoseTrack(session.frame, positions, t_att, q, session.camera_mount())
+
+
+def camera_track(session: Session, source: str, *, course_pitch_deg: float | None = None, true_timing: bool = False, time_offset_s: float = 0.0) -> CameraTrack:
+    """Solve one source of a session into its camera track. ValueError for a source the session
+    does not offer (naming those it does)."""
+    clock = replace(frame_clock(session, true_timing), offset_s=float(time_offset_s))
+    return CameraTrack(source, pose_track(session, source, course_pitch_deg), clock, session.intrinsics)

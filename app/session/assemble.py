@@ -1,0 +1,209 @@
+"""Session assembly: a validated manifest (app.session.config) -> the readers -> one frozen
+`Session`. Every value is final before the Session is made: take-off heights, heading policy,
+magnetometer calibration, true frame times."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from app import rotations
+from app.attitude import magcal
+from app.camera import Intrinsics
+from app.errors import ManifestError
+from app.geo import LocalFrame
+from app.geomag import declination, field_enu
+from app.io import csvlog
+from app.io.dji_srt import read_srt
+from app.io.gpx import read_gpx
+from app.io.streams import GnssTrack, OrientationStream, VectorStream, Warnings
+from app.io.video import VideoInfo, probe
+from app.scene import load_scene
+from app.scene.ground import ground_heights
+from app.session.config import SessionConfig, read_config
+from app.session.model import Session
+
+
+def open_session(path: str | Path) -> Session:
+    """Read and validate a manifest and every file it names."""
+    return assemble(read_config(path))
+
+
+def _intrinsics(cfg: SessionConfig, width: int, height: int) -> Intrinsics:
+    cam = cfg.camera
+    try:
+        if cam.hfov_deg is not None:
+            return Intrinsics.from_fov(width, height, cam.hfov_deg)
+        return Intrinsics.from_focal_length(width, height, cam.focal_mm, cam.sensor_width_mm)
+    except ValueError as exc:
+        raise ManifestError(cfg.path, str(exc), field="camera") from exc
+
+
+def _shifted(stream, dt: float):
+    """A stream or track with its times moved by dt seconds (clip clock -> session clock)."""
+    return None if stream is None else replace(stream, t=stream.t + dt)
+
+
+def _sensors(cfg: SessionConfig, warnings: Warnings, clip_start: float):
+    """(acc, gyr, mag, recorded attitudes, GNSS from the sensors or None)."""
+    s = cfg.sensors
+    recorded: dict[str, OrientationStream] = {}
+    acc = gyr = mag = gnss = None
+    if s.format == "gopro":
+        from app.attitude.gopro import read_gopro
+
+        rec = read_gopro(cfg.video.path, warnings)
+        # GPMF times count from the clip start; the session clock adds the video's start time.
+        acc, gyr, mag, gnss = (_shifted(x, clip_start) for x in (rec.acc, rec.gyr, rec.mag, rec.gnss))
+        if rec.camera is not None:
+            recorded["camera"] = _shifted(rec.camera, clip_start)
+    elif s.format == "sensorlogger":
+        from app.io.sensorlogger import read_sensorlogger
+
+        rec = read_sensorlogger(s.path, s.standardised, warnings)
+        acc, gyr, mag, gnss = rec.acc, rec.gyr, rec.mag, rec.gnss
+        if rec.orientation is not None:
+            recorded["phone"] = rec.orientation
+    elif s.format == "csv":
+        acc = csvlog.read_vector(s.acc, "acc", warnings)
+        gyr = csvlog.read_vector(s.gyr, "gyr", warnings)
+        mag = csvlog.read_vector(s.mag, "mag", warnings) if s.mag else None
+        if s.orientation:
+            recorded["phone"] = csvlog.read_orientation(s.orientation, warnings)
+    if cfg.truth.orientation:
+        recorded["truth"] = csvlog.read_orientation(cfg.truth.orientation, warnings)
+    return acc, gyr, mag, recorded, gnss
+
+
+def _gnss(cfg: SessionConfig, logged: GnssTrack | None, warnings: Warnings, clip_start: float, recorded: dict[str, OrientationStream]) -> tuple[GnssTrack, bool]:
+    """(the session's GNSS track, whether its heights are above take-off)."""
+    path = cfg.gnss.path
+    if path is None and logged is None:
+        raise ManifestError(cfg.path, "the sensors hold no GNSS track: give gnss.path", field="gnss.path")
+    if path is not None and path.suffix.lower() == ".srt":
+        return _srt_gnss(path, warnings, clip_start, recorded)
+    track = logged
+    if path is not None:
+        track = read_gpx(path, warnings) if path.suffix.lower() == ".gpx" else csvlog.read_gnss(path, warnings)
+    return replace(track, h=track.h + cfg.gnss.height_offset_m), False
+
+
+def _srt_gnss(path: Path, warnings: Warnings, clip_start: float, recorded: dict[str, OrientationStream]) -> tuple[GnssTrack, bool]:
+    """A DJI subtitle as the session's GNSS (its times are the clip's, shifted to the session
+    clock) and, with gimbal angles, its `telemetry` attitude."""
+    tr = read_srt(path, warnings)
+    ok = tr.has_position
+    h = np.where(np.isfinite(tr.height), tr.height, 0.0)[ok]
+    if tr.has_gimbal:
+        recorded["telemetry"] = _shifted(gimbal_attitude(tr, path), clip_start)
+    return GnssTrack(clip_start + tr.t[ok], tr.lat[ok], tr.lon[ok], h, None, None, str(path)), bool(tr.height_relative)
+
+
+def gimbal_attitude(track, path: Path) -> OrientationStream:
+    """A DJI subtitle's gimbal pitch, roll, yaw as camera -> ENU quaternions (clip seconds)."""
+    g = np.isfinite(track.gimbal_pry).all(axis=1)
+    p, r, y = track.gimbal_pry[g].T
+    return OrientationStream(track.t[g], rotations.camera_quat_from_hpr(y % 360.0, p, r), str(path), "DJI gimbal pitch, roll, yaw (G.PRY)")
+
+
+def _takeoff_height(cfg: SessionConfig, frame: LocalFrame, gnss: GnssTrack, mesh, warnings: Warnings) -> float:
+    """The take-off point's ellipsoidal height: the manifest's, else the scene's ground under the
+    first position; says which."""
+    value = cfg.gnss.takeoff_height_m
+    if value is not None:
+        warnings.add(f"heights above take-off: take-off height {value:.2f} m from gnss.takeoff_height_m")
+        return value
+    first = frame.geodetic_to_enu(gnss.lat[0], gnss.lon[0], 0.0)
+    ground = ground_heights(mesh, np.atleast_2d(first)[:, :2])[0]
+    if not np.isfinite(ground):
+        raise ManifestError(cfg.path, "heights are above take-off and the scene has no ground under the first position: give gnss.takeoff_height_m", field="gnss.takeoff_height_m")
+    value = float(frame.enu_to_geodetic(np.array([first[0], first[1], ground]))[2])
+    warnings.add(f"heights above take-off: take-off height {value:.2f} m from the scene's ground under the first position")
+    return value
+
+
+def _frame_times(cfg: SessionConfig, video: VideoInfo) -> tuple[float, np.ndarray]:
+    """(the session time of media time 0, every frame's session time)."""
+    start = cfg.video.start_time if cfg.video.start_time is not None else video.creation_time
+    if start is None:
+        raise ManifestError(cfg.path, "the video has no creation time: give video.start_time (session-clock seconds)", field="video.start_time")
+    clip_start = float(start) + cfg.video.time_offset_s
+    return clip_start, clip_start + (video.pts_s if cfg.video.timing == "pts" else video.eq5_times())
+
+
+def _check_coverage(cfg: SessionConfig, frame_times: np.ndarray, log_t: np.ndarray, warnings: Warnings) -> None:
+    covered = (frame_times >= log_t[0]) & (frame_times <= log_t[-1])
+    if not covered.any():
+        raise ManifestError(
+            cfg.path,
+            f"no video frame lies within the sensor log (frames {frame_times[0]:.3f}..{frame_times[-1]:.3f} s, "
+            f"log {log_t[0]:.3f}..{log_t[-1]:.3f} s): check video.start_time and the logs' clocks",
+            field="video.start_time",
+        )
+    if not covered.all():
+        warnings.add(f"{int((~covered).sum())} video frames lie outside the sensor log; their attitude is held")
+
+
+def _calibrate_magnetometer(cfg: SessionConfig, mag: VectorStream | None, when: float, warnings: Warnings) -> VectorStream | None:
+    """The magnetometer calibrated on the clip (app.attitude.magcal), unless switched off."""
+    if mag is None or cfg.sensors.mag_calibration == "none":
+        return mag
+    cal = magcal.fit(mag.values, float(np.linalg.norm(field_enu(*cfg.origin, when))))
+    if isinstance(cal, str):
+        warnings.add(f"magnetometer not calibrated: {cal}")
+        return mag
+    warnings.add(f"magnetometer calibrated on the clip: {cal.describe()}")
+    return replace(mag, values=cal.apply(mag.values))
+
+
+def _true_frame_times(cfg: SessionConfig, count: int, warnings: Warnings) -> np.ndarray | None:
+    path = cfg.truth.frame_times
+    if path is None:
+        return None
+    columns, _, rows, first = csvlog.read_table(path)
+    values, _ = csvlog.numeric(path, rows, columns, ["frame", "t"], first, warnings)
+    if len(values) != count:
+        raise ManifestError(cfg.path, f"{len(values)} true frame times for {count} video frames", field="truth.frame_times")
+    return values[np.argsort(values[:, 0]), 1]
+
+
+def assemble(cfg: SessionConfig) -> Session:
+    """Every reader the config names, on one clock, into one frozen Session."""
+    warnings = Warnings()
+    try:
+        frame = LocalFrame(*cfg.origin)
+    except ValueError as exc:
+        raise ManifestError(cfg.path, str(exc), field="origin") from exc
+    video = probe(cfg.video.path)
+    clip_start, frame_times = _frame_times(cfg, video)
+    rotation = video.rotation_cw if cfg.camera.rotation_cw is None else cfg.camera.rotation_cw
+    w, h = (video.height, video.width) if rotation % 180 else (video.width, video.height)
+    intr = _intrinsics(cfg, w, h)
+
+    acc, gyr, mag, recorded, logged_gnss = _sensors(cfg, warnings, clip_start)
+    gnss, above_takeoff = _gnss(cfg, logged_gnss, warnings, clip_start, recorded)
+    _check_coverage(cfg, frame_times, (gyr if gyr is not None else gnss).t, warnings)
+    mag = _calibrate_magnetometer(cfg, mag, float(frame_times[0]), warnings)
+    mesh = None
+    if above_takeoff or cfg.gnss.height == "ground":
+        mesh = load_scene(cfg.scene.path, frame, cfg.scene.placement)
+    if above_takeoff:
+        gnss = replace(gnss, h=gnss.h + _takeoff_height(cfg, frame, gnss, mesh, warnings))
+    truth_position = csvlog.read_gnss(cfg.truth.position, warnings) if cfg.truth.position else None
+
+    device_is_camera = cfg.sensors.format in ("gopro", "none")  # action cameras and drones
+    from_course = device_is_camera and mag is None and gyr is not None
+    no_attitude = gyr is None and not recorded
+    return Session(
+        cfg.path, frame, cfg.scene.path, cfg.scene.placement, video, frame_times, intr, rotation,
+        acc, gyr, mag, gnss, recorded, declination(*cfg.origin, float(frame_times[0])), warnings,
+        inputs=tuple(cfg.inputs()), truth_position=truth_position,
+        truth_frame_times=_true_frame_times(cfg, len(frame_times), warnings),
+        height_mode=cfg.gnss.height, mount_height_m=cfg.gnss.mount_height_m,
+        heading_note="heading from the GNSS course" if from_course else
+        (f"no camera attitude in the subtitle: heading from the track, pitch {cfg.gnss.pitch_deg:g} deg assumed" if no_attitude else ""),
+        heading_from_course=from_course, device_is_camera=device_is_camera,
+        course_pitch_deg=cfg.gnss.pitch_deg if no_attitude else None, mesh=mesh,
+    )  # fmt: skip

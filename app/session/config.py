@@ -1,0 +1,274 @@
+"""The session manifest: its schema, read and validated once into a frozen `SessionConfig`.
+
+    [origin]                      # optional: the session's ENU origin (default: the scene's)
+    lat = 34.80                   # degrees
+    lon = 113.53                  # degrees
+    h = 110.0                     # ellipsoidal metres
+
+    [scene]
+    path = "scene.glb"            # glTF/GLB, OBJ, PLY
+    origin = [34.80, 113.53, 110.0]
+    up_axis = "Y"                 # optional: Y for glTF, Z otherwise
+    heading_deg = 0.0             # optional
+    scale = 1.0                   # optional
+
+    [video]
+    path = "clip.mp4"
+    start_time = 1700000000.0     # optional: session-clock seconds of the first frame (default:
+                                  # the video's creation time)
+    time_offset_s = 0.0           # optional: added to every frame time (sync correction)
+    timing = "pts"                # or "eq5": frame i at i / nominal fps (paper Eq. 5)
+
+    [camera]
+    hfov_deg = 66.0               # or focal_mm + sensor_width_mm
+    rotation_cw = 90              # optional: override the video's display rotation
+
+    [sensors]
+    mag_calibration = "clip"      # or "none": fit hard-iron offset and scale on the clip
+    format = "csv"                # "csv": acc, gyr, mag, orientation files below;
+                                  # "gopro": the GPMF telemetry inside [video]'s MP4;
+                                  # "none": no IMU (a drone clip with its .SRT as [gnss]);
+    acc = "acc.csv"               # "sensorlogger": path = folder or zip
+    gyr = "gyr.csv"
+    mag = "mag.csv"               # optional: without it only IMU filters are offered
+    orientation = "phone.csv"     # optional: the phone's own attitude (a recorded source)
+
+    [gnss]
+    path = "gnss.csv"             # CSV (csvlog.py), GPX, or a DJI .SRT (times from the clip start)
+    takeoff_height_m = 110.0      # optional, for heights above take-off: the take-off point's
+                                  # ellipsoidal height (default: the scene's ground under the
+                                  # first position)
+    height_offset_m = 0.0         # optional: added to heights (e.g. geoid separation for GPX)
+    height = "gnss"               # or "ground": the model's ground under each fix + mount height
+    mount_height_m = 1.5          # with height = "ground": camera above the ground (hand-held 1.5)
+    pitch_deg = -30.0             # a DJI subtitle without gimbal attitude: the camera's pitch
+
+    [truth]                       # optional, for simulated sessions
+    orientation = "truth.csv"     # device -> ENU quaternions (t, qw, qx, qy, qz)
+    position = "truth_pos.csv"    # optional: t, lat, lon, h
+    frame_times = "frames.csv"    # optional: frame, t (each frame's true session time)
+
+Relative paths resolve against the manifest's folder. Times of every log and of the video must be
+on one clock (Unix seconds for phone apps). Every error names the manifest key; every number is
+checked for finiteness and range here, where it enters.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from app.attitude.heading import DRONE_DEFAULT_PITCH_DEG
+from app.errors import ManifestError
+from app.scene import Placement
+
+HANDHELD_MOUNT_M = 1.5  # a hand-held or body camera's height above the ground, metres
+SENSOR_FORMATS = ("csv", "sensorlogger", "gopro", "none")
+
+
+@dataclass(frozen=True)
+class Manifest:
+    """The TOML tables of a manifest, with typed look-ups whose errors name the key."""
+
+    path: Path
+    data: dict[str, Any]
+
+    def section(self, name: str, required: bool = True) -> dict[str, Any]:
+        value = self.data.get(name)
+        if value is None:
+            if required:
+                raise ManifestError(self.path, f"missing section [{name}]", field=name)
+            return {}
+        if not isinstance(value, dict):
+            raise ManifestError(self.path, f"[{name}] must be a table", field=name)
+        return value
+
+    def get(self, section: str, key: str, kind: type | tuple[type, ...], default: Any = ..., required_section: bool = True) -> Any:
+        sec = self.section(section, required_section)
+        if key not in sec:
+            if default is ...:
+                raise ManifestError(self.path, f"missing key (expected {getattr(kind, '__name__', kind)})", field=f"{section}.{key}")
+            return default
+        value = sec[key]
+        kinds = kind if isinstance(kind, tuple) else (kind,)
+        if float in kinds and isinstance(value, int) and not isinstance(value, bool):
+            value = float(value)
+        if not isinstance(value, kinds):
+            raise ManifestError(self.path, f"got {value!r}, expected {' or '.join(k.__name__ for k in kinds)}", field=f"{section}.{key}")
+        return value
+
+    def number(self, section: str, key: str, default: Any = ..., *, low: float = -math.inf, high: float = math.inf, open_low: bool = False, required_section: bool = True) -> float | None:
+        """A finite float in [low, high] (or (low, high] with open_low)."""
+        value = self.get(section, key, float, default, required_section)
+        if value is None:
+            return None
+        if not math.isfinite(value) or value < low or value > high or (open_low and value == low):
+            bracket = "(" if open_low else "["
+            raise ManifestError(self.path, f"got {value!r}, expected a finite number in {bracket}{low:g}, {high:g}]", field=f"{section}.{key}")
+        return value
+
+    def choice(self, section: str, key: str, options: tuple[str, ...], default: str, required_section: bool = True) -> str:
+        value = self.get(section, key, str, default, required_section)
+        if value not in options:
+            raise ManifestError(self.path, f"got {value!r}, expected {' or '.join(repr(o) for o in options)}", field=f"{section}.{key}")
+        return value
+
+    def file(self, section: str, key: str, required: bool = True, required_section: bool = True) -> Path | None:
+        value = self.get(section, key, str, ... if required else None, required_section)
+        if value is None:
+            return None
+        p = (self.path.parent / value).resolve()
+        if not p.exists():
+            raise ManifestError(self.path, f"names {value!r}, which does not exist ({p})", field=f"{section}.{key}")
+        return p
+
+    def geodetic(self, section: str, key: str) -> tuple[float, float, float] | None:
+        value = self.get(section, key, list, None)
+        if value is None:
+            return None
+        if len(value) != 3 or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
+            raise ManifestError(self.path, f"got {value!r}, expected [latitude, longitude, height]", field=f"{section}.{key}")
+        return _checked_geodetic(self.path, f"{section}.{key}", *(float(v) for v in value))
+
+
+def _checked_geodetic(path: Path, field: str, lat: float, lon: float, h: float) -> tuple[float, float, float]:
+    if not (math.isfinite(lat) and -90.0 <= lat <= 90.0 and math.isfinite(lon) and -180.0 <= lon <= 360.0 and math.isfinite(h) and -12_000.0 <= h <= 100_000.0):
+        raise ManifestError(path, f"got ({lat}, {lon}, {h}), expected latitude in [-90, 90], longitude in [-180, 360] deg, height in [-12000, 100000] m", field=field)
+    return lat, lon, h
+
+
+@dataclass(frozen=True)
+class SceneConfig:
+    path: Path
+    origin: tuple[float, float, float] | None  # the scene's origin: deg, deg, ellipsoidal m
+    placement: Placement
+
+
+@dataclass(frozen=True)
+class VideoConfig:
+    path: Path
+    start_time: float | None  # session-clock seconds of the first frame; None: the video's creation time
+    time_offset_s: float
+    timing: str  # "pts" or "eq5"
+
+
+@dataclass(frozen=True)
+class CameraConfig:
+    hfov_deg: float | None
+    focal_mm: float | None
+    sensor_width_mm: float | None
+    rotation_cw: int | None  # None: the video's display rotation
+
+
+@dataclass(frozen=True)
+class SensorsConfig:
+    format: str  # one of SENSOR_FORMATS
+    acc: Path | None = None
+    gyr: Path | None = None
+    mag: Path | None = None
+    orientation: Path | None = None
+    path: Path | None = None  # a Sensor Logger folder or zip
+    standardised: bool = False
+    mag_calibration: str = "clip"
+
+
+@dataclass(frozen=True)
+class GnssConfig:
+    path: Path | None  # None: the positions come from the sensors (GoPro, Sensor Logger)
+    takeoff_height_m: float | None
+    height_offset_m: float
+    height: str  # "gnss" or "ground"
+    mount_height_m: float
+    pitch_deg: float  # a subtitle without gimbal attitude: the camera's assumed pitch
+
+
+@dataclass(frozen=True)
+class TruthConfig:
+    orientation: Path | None = None
+    position: Path | None = None
+    frame_times: Path | None = None
+
+
+@dataclass(frozen=True)
+class SessionConfig:
+    """A validated manifest. `origin`: the session's ENU origin (deg, deg, ellipsoidal m)."""
+
+    path: Path
+    origin: tuple[float, float, float]
+    scene: SceneConfig
+    video: VideoConfig
+    camera: CameraConfig
+    sensors: SensorsConfig
+    gnss: GnssConfig
+    truth: TruthConfig
+
+    def inputs(self) -> list[Path]:
+        """Every file the session reads (never to be written)."""
+        s, g, t = self.sensors, self.gnss, self.truth
+        files = [self.path, self.scene.path, self.video.path, s.acc, s.gyr, s.mag, s.orientation, s.path, g.path, t.orientation, t.position, t.frame_times]
+        return [p for p in files if p is not None]
+
+
+def load_manifest(path: str | Path) -> Manifest:
+    path = Path(path)
+    if not path.is_file():
+        raise ManifestError(path, "manifest does not exist")
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise ManifestError(path, f"not valid TOML ({exc})") from exc
+    return Manifest(path.resolve(), data)
+
+
+def read_config(path: str | Path) -> SessionConfig:
+    """Read and validate a manifest (files named must exist; values typed and in range)."""
+    m = load_manifest(path)
+    scene_origin = m.geodetic("scene", "origin")
+    up = m.get("scene", "up_axis", str, None)
+    if up is not None and up not in ("Y", "Z"):
+        raise ManifestError(m.path, f"got {up!r}, expected 'Y' or 'Z'", field="scene.up_axis")
+    placement = Placement(scene_origin, up, m.number("scene", "heading_deg", 0.0, low=-360.0, high=360.0), m.number("scene", "scale", 1.0, low=0.0, high=1e6, open_low=True))
+    scene = SceneConfig(m.file("scene", "path"), scene_origin, placement)
+    if m.section("origin", required=False):
+        origin = _checked_geodetic(m.path, "origin", *(m.get("origin", k, float) for k in ("lat", "lon", "h")))
+    elif scene_origin is not None:
+        origin = scene_origin
+    else:
+        raise ManifestError(m.path, "give [origin] or scene.origin: the session needs a geographic origin", field="origin")
+
+    video = VideoConfig(m.file("video", "path"), m.number("video", "start_time", None), m.number("video", "time_offset_s", 0.0, low=-86400.0, high=86400.0), m.choice("video", "timing", ("pts", "eq5"), "pts"))
+    m.section("camera")
+    rotation = m.get("camera", "rotation_cw", int, None)
+    if rotation is not None and rotation % 90:
+        raise ManifestError(m.path, f"got {rotation}, expected 0, 90, 180 or 270", field="camera.rotation_cw")
+    camera = CameraConfig(
+        m.number("camera", "hfov_deg", None, low=0.0, high=180.0, open_low=True),
+        m.number("camera", "focal_mm", None, low=0.0, high=10_000.0, open_low=True),
+        m.number("camera", "sensor_width_mm", None, low=0.0, high=1_000.0, open_low=True),
+        None if rotation is None else rotation % 360,
+    )
+    if camera.hfov_deg is None and (camera.focal_mm is None or camera.sensor_width_mm is None):
+        raise ManifestError(m.path, "expected hfov_deg, or focal_mm and sensor_width_mm", field="camera")
+
+    fmt = m.choice("sensors", "format", SENSOR_FORMATS, "csv")
+    calibration = m.choice("sensors", "mag_calibration", ("clip", "none"), "clip")
+    if fmt == "csv":
+        sensors = SensorsConfig(fmt, m.file("sensors", "acc"), m.file("sensors", "gyr"), m.file("sensors", "mag", required=False), m.file("sensors", "orientation", required=False), mag_calibration=calibration)
+    elif fmt == "sensorlogger":
+        sensors = SensorsConfig(fmt, path=m.file("sensors", "path"), standardised=bool(m.get("sensors", "standardised", bool, False)), mag_calibration=calibration)
+    else:
+        sensors = SensorsConfig(fmt, mag_calibration=calibration)
+    own_positions = fmt in ("gopro", "sensorlogger")
+    gnss = GnssConfig(
+        m.file("gnss", "path", required=not own_positions, required_section=not own_positions),
+        m.number("gnss", "takeoff_height_m", None, low=-12_000.0, high=100_000.0, required_section=False),
+        m.number("gnss", "height_offset_m", 0.0, low=-1_000.0, high=1_000.0, required_section=False),
+        m.choice("gnss", "height", ("gnss", "ground"), "gnss", required_section=False),
+        m.number("gnss", "mount_height_m", HANDHELD_MOUNT_M, low=0.0, high=10_000.0, required_section=False),
+        m.number("gnss", "pitch_deg", DRONE_DEFAULT_PITCH_DEG, low=-90.0, high=90.0, required_section=False),
+    )
+    truth = TruthConfig(*(m.file("truth", k, required=False, required_section=False) for k in ("orientation", "position", "frame_times")))
+    return SessionConfig(m.path, origin, scene, video, camera, sensors, gnss, truth)

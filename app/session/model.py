@@ -1,0 +1,162 @@
+"""A session: every input of one clip read, validated and placed on one clock, frozen. Built by
+`app.session.assemble` (from a manifest) or `app.clips` (straight from a camera's files), read by
+everything downstream. `device_attitude` answers "the device's attitude under this source".
+
+Names: a *filter* is one of our estimators (FILTERS); a *recorded* attitude is one the device or
+the simulation wrote (phone, camera, telemetry, truth); a *source* is either, or the derived
+`course` attitude of a drone clip without gimbal angles; the *reference* is the source that others
+are compared with (app.playback.library).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import cached_property
+from pathlib import Path
+
+import numpy as np
+
+from app import rotations
+from app.attitude import estimate, heading, resample
+from app.camera import Intrinsics
+from app.errors import DataFormatError
+from app.geo import LocalFrame
+from app.io.streams import GnssTrack, OrientationStream, VectorStream, Warnings
+from app.io.video import VideoInfo
+from app.scene import Placement, load_scene
+from app.scene.ground import ground_heights
+from app.scene.mesh import MeshData
+from app.trajectory import PositionTrack, device_to_camera
+
+FILTERS = {
+    "gd-ahrs": ("gd", True),
+    "gd-imu": ("gd", False),
+    "cf-ahrs": ("cf", True),
+    "cf-imu": ("cf", False),
+    "offline": ("offline", True),
+}
+COURSE = "course"  # the derived source: heading along the track, pitch a setting
+TRUTH = "truth"
+
+
+@dataclass(frozen=True)
+class Session:
+    """Everything a solve needs, read and validated; times on the session clock (seconds).
+
+    frame_times: (F,) session seconds of each video frame (presentation time + start + offset, or
+    the paper's Eq. 5); recorded: device -> ENU attitudes written by the device or the
+    simulation; heading_from_course: IMU filters and the camera's own attitude get their heading
+    from the GNSS course; device_is_camera: action cameras and drones, whose device frame is the
+    camera's; course_pitch_deg: with a `course` source, its default pitch (deg); mesh: the scene
+    when it is generated (an assumed ground) or was loaded while assembling.
+    """
+
+    path: Path  # the manifest, or the clip opened directly
+    frame: LocalFrame
+    scene_path: Path | None
+    placement: Placement
+    video: VideoInfo
+    frame_times: np.ndarray
+    intrinsics: Intrinsics
+    rotation_cw: int
+    acc: VectorStream | None
+    gyr: VectorStream | None
+    mag: VectorStream | None
+    gnss: GnssTrack
+    recorded: dict[str, OrientationStream]
+    declination_deg: float
+    warnings: Warnings = field(default_factory=Warnings)
+    inputs: tuple[Path, ...] = ()
+    truth_position: GnssTrack | None = None
+    truth_frame_times: np.ndarray | None = None
+    height_mode: str = "gnss"
+    mount_height_m: float = 1.5
+    heading_note: str = ""
+    heading_from_course: bool = False
+    device_is_camera: bool = False
+    course_pitch_deg: float | None = None
+    mesh: MeshData | None = None
+
+    def camera_mount(self) -> np.ndarray:
+        """Quaternion of the camera (of the displayed video) in the device frame: a phone's back
+        camera turns with the display rotation (app.trajectory.device_to_camera); an action
+        camera's or drone's device frame is its camera's, turned only when the video is."""
+        if self.device_is_camera:
+            return rotations.about_z(-float(self.rotation_cw))  # a clockwise display turn of the image
+        return device_to_camera(self.rotation_cw)
+
+    def scene(self) -> MeshData:
+        """The scene's arrays in the session's ENU frame (loaded once)."""
+        return self._scene
+
+    @cached_property
+    def _scene(self) -> MeshData:
+        return self.mesh if self.mesh is not None else load_scene(self.scene_path, self.frame, self.placement)
+
+    def positions(self) -> PositionTrack:
+        """The GNSS position track, with heights from the model's ground when asked (cached)."""
+        return self._positions
+
+    @cached_property
+    def _positions(self) -> PositionTrack:
+        g = self.gnss
+        h = g.h
+        if self.height_mode == "ground":
+            enu = self.frame.geodetic_to_enu(g.lat, g.lon, g.h)
+            ground = ground_heights(self.scene(), enu[:, :2])
+            if np.isnan(ground).any():
+                self.warnings.add_once("fixes-off-model", f"{int(np.isnan(ground).sum())} GNSS fixes lie off the model: their GNSS height is kept")
+            enu[:, 2] = np.where(np.isnan(ground), enu[:, 2], ground + self.mount_height_m)
+            h = self.frame.enu_to_geodetic(enu)[:, 2]
+        try:
+            return PositionTrack.from_fixes(g.t, g.lat, g.lon, h, g.vel_enu)
+        except ValueError as exc:
+            raise DataFormatError(g.source, f"GNSS: {exc}") from exc
+
+    @property
+    def sources(self) -> list[str]:
+        """The attitude sources this session offers: our filters (AHRS ones only with a
+        magnetometer; none without an IMU), the derived course, then the recorded attitudes,
+        truth last."""
+        own: list[str] = []
+        if self.gyr is not None and self.acc is not None:
+            own = [k for k, (_, ahrs) in FILTERS.items() if self.mag is not None or not ahrs]
+            if self.mag is None:
+                own.append("offline")
+        if self.course_pitch_deg is not None:
+            own.append(COURSE)
+        recorded = [r for r in self.recorded if r != TRUTH]
+        return own + recorded + ([TRUTH] if TRUTH in self.recorded else [])
+
+    def check_source(self, source: str) -> None:
+        """ValueError naming what the session offers, for a source it does not."""
+        if source not in self.sources:
+            raise ValueError(f"unknown attitude source {source!r}; this session offers {', '.join(self.sources)}")
+
+
+def device_attitude(session: Session, source: str, course_pitch_deg: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(t (N,) session s, device -> ENU quaternions (N, 4), true north) for one source.
+
+    course_pitch_deg: the `course` source's pitch (default: the session's)."""
+    session.check_source(source)
+    pos = session.positions()
+    if source == COURSE:
+        pitch = session.course_pitch_deg if course_pitch_deg is None else course_pitch_deg
+        ref = heading.course_attitude(pos.t, pos.vel_enu, pitch, session.gnss.source)
+        return ref.t, ref.q  # the device is the camera (drones), unturned
+    if source in session.recorded:
+        ref = session.recorded[source]
+        if source == "camera" and session.heading_from_course:
+            return ref.t, heading.align_to_course(pos.t, pos.vel_enu, ref.t, ref.q, session.camera_mount(), session.warnings)
+        return ref.t, ref.q
+    method, ahrs = FILTERS[source]
+    use_mag = ahrs and session.mag is not None
+    t = session.gyr.t
+    acc = resample(t, session.acc.t, session.acc.values)
+    mag = resample(t, session.mag.t, session.mag.values) if use_mag else None
+    q = estimate(t, session.gyr.values, acc, mag, method=method, declination_deg=session.declination_deg if use_mag else 0.0)
+    if not use_mag and session.mag is not None:
+        q = heading.anchor_heading(q, resample(t, session.mag.t, session.mag.values), session.declination_deg)
+    elif not use_mag and session.heading_from_course:
+        q = heading.align_to_course(pos.t, pos.vel_enu, t, q, session.camera_mount(), session.warnings)
+    return t, q

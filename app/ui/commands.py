@@ -1,0 +1,102 @@
+"""The viewer's actions by name: one table that the script, the keyboard and the panels share.
+Each command takes the viewer, its text argument and the clock's `now` (seconds)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+
+@dataclass(frozen=True)
+class Command:
+    run: Callable[..., None]  # (viewer, arg, now)
+    needs_session: bool
+    takes_arg: bool
+    help: str
+
+
+def _on(arg: str | None) -> bool:
+    if arg not in ("on", "off"):
+        raise ValueError(f"expected on or off, got {arg!r}")
+    return arg == "on"
+
+
+def _number(arg: str | None) -> float:
+    try:
+        return float(arg)
+    except (TypeError, ValueError):
+        raise ValueError(f"expected a number, got {arg!r}") from None
+
+
+def _clock(v, arg, now) -> None:
+    if arg == "wall":
+        v.use_wall_clock()
+    else:
+        v.use_fixed_clock(_number(arg))
+
+
+def _wait(v, arg, now) -> None:
+    if arg != "solved":
+        raise ValueError(f"expected 'solved', got {arg!r}")
+    v.wait_until_solved()
+
+
+def _view(v, arg, now) -> None:
+    if arg == "reset":
+        v.nav.reset()
+    elif arg == "orbit":
+        v.orbit_pick()  # as the O key: around the point under the cursor
+    elif arg in ("free", "phone"):
+        v.nav.mode = arg
+    else:
+        raise ValueError(f"expected free, orbit, phone or reset, got {arg!r}")
+
+
+def _set_ui(**changes) -> Callable:
+    def run(v, arg, now) -> None:
+        on = _on(arg)
+        for key, fields in changes.items():
+            setattr(v.ui, key, replace(getattr(v.ui, key), **{f: on for f in fields}) if fields else on)
+
+    return run
+
+
+COMMANDS: dict[str, Command] = {
+    "quit": Command(lambda v, a, n: setattr(v.ui, "quit", True), False, False, "close the viewer"),
+    "open": Command(lambda v, a, n: v.open(Path(a)), False, True, "open a manifest or clip"),
+    "screenshot": Command(lambda v, a, n: setattr(v.ui, "screenshot_request", Path(a)), False, True, "save the window as PNG"),
+    "state": Command(lambda v, a, n: setattr(v.ui, "state_request", Path(a)), False, True, "write the viewer's state as JSON"),
+    "panels": Command(_set_ui(show_panels=()), False, True, "show or hide the panels"),
+    "lines": Command(_set_ui(overlays=("frustum", "trajectory")), False, True, "frustum and trajectory lines"),
+    "clock": Command(_clock, False, True, "STEP: a fixed-step clock (seconds per frame), or wall"),
+    "wait": Command(_wait, False, True, "solved: hold the clock until every source is solved"),
+    "play": Command(lambda v, a, n: v.loaded.clock.set_paused(False, n), True, False, "play"),
+    "pause": Command(lambda v, a, n: v.loaded.clock.set_paused(True, n), True, False, "pause"),
+    "toggle": Command(lambda v, a, n: v.loaded.clock.set_paused(not v.loaded.clock.paused, n), True, False, "play / pause"),
+    "seek": Command(lambda v, a, n: v.loaded.player.seek(_number(a), n), True, True, "media seconds"),
+    "step": Command(lambda v, a, n: v.loaded.player.step(int(_number(a)), n), True, True, "frames, either way"),
+    "speed": Command(lambda v, a, n: v.loaded.clock.set_speed(_number(a), n), True, True, "playback speed"),
+    "faster": Command(lambda v, a, n: v.change_speed(+1, n), True, False, "next playback speed"),
+    "slower": Command(lambda v, a, n: v.change_speed(-1, n), True, False, "previous playback speed"),
+    "source": Command(lambda v, a, n: v.set_source(a), True, True, "attitude source"),
+    "ahrs": Command(lambda v, a, n: v.toggle_ahrs(None if a is None else _on(a)), True, False, "AHRS / IMU"),
+    "alpha": Command(lambda v, a, n: setattr(v.ui, "settings", replace(v.ui.settings, alpha=_number(a))), False, True, "video opacity 0..1"),
+    "offset": Command(lambda v, a, n: v.set_time_offset(_number(a)), True, True, "time offset, seconds"),
+    "pitch": Command(lambda v, a, n: v.set_course_pitch(_number(a)), True, True, "assumed camera pitch of a drone clip"),
+    "overlay": Command(lambda v, a, n: setattr(v.ui, "overlays", replace(v.ui.overlays, error_map=_on(a))), False, True, "projection-error colours"),
+    "view": Command(_view, False, True, "free | orbit | phone | reset"),
+    "help": Command(lambda v, a, n: setattr(v.ui, "show_help", not v.ui.show_help), False, False, "help and shortcuts"),
+}
+
+
+def run_command(viewer, name: str, arg: str | None, now: float) -> None:
+    """Run one command; ValueError for an unknown name, a missing argument or no open session."""
+    command = COMMANDS.get(name)
+    if command is None:
+        raise ValueError(f"unknown action {name!r}")
+    if command.takes_arg and arg is None:
+        raise ValueError(f"{name} needs an argument")
+    if command.needs_session and viewer.loaded is None:
+        raise ValueError("no session is open")
+    command.run(viewer, arg, now)

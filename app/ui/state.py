@@ -1,0 +1,36 @@
+"""The viewer's UI state, explicit and in one place: what the panels show and edit, what the
+keyboard and mouse did last frame, requests that wait for the end of a frame. Pure data."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from app.attitude.heading import DRONE_DEFAULT_PITCH_DEG
+from app.config import OverlaySettings, ProjectionSettings
+
+VIEWER_ALPHA = 0.85  # the viewer's default video opacity: the model shows through a little
+
+
+@dataclass
+class UiState:
+    settings: ProjectionSettings = field(default_factory=lambda: ProjectionSettings(alpha=VIEWER_ALPHA))
+    overlays: OverlaySettings = field(default_factory=OverlaySettings)
+    show_help: bool = False
+    show_panels: bool = True
+    open_path: str = ""  # the Session panel's text field
+    errors: list[str] = field(default_factory=list)
+    notices: list[str] = field(default_factory=list)
+    keys_down: dict[int, bool] = field(default_factory=dict)  # last frame's key states (edge detection)
+    cursor: tuple[float, float] | None = None  # last frame's cursor position, screen coordinates
+    course_pitch_deg: float = DRONE_DEFAULT_PITCH_DEG  # the pitch slider (applied on release)
+    time_offset_s: float = 0.0  # the time-offset slider (the library holds the applied value)
+    file_dialog: object | None = None  # an open portable-file-dialogs request
+    screenshot_request: Path | None = None  # taken after this frame's panels are drawn
+    state_request: Path | None = None
+    open_request: Path | None = None  # a file dropped on the window or chosen in the dialog
+    quit: bool = False
+
+    def error(self, message: str) -> None:
+        if message not in self.errors:
+            self.errors.append(message)

@@ -1,19 +1,21 @@
-"""Playback benchmark, off-screen on the machine's OpenGL (Mesa llvmpipe without a GPU): playback
-latency (a frame's due time -> its first display, the paper's measure) and dropped frames over
-`--seconds` of 1x playback, for the bundled sample and for a 1080p30 clip; decode throughput
-against real time; seek time to an exact frame.
+"""Playback benchmark: the viewer's own frame loop (`geofuse view` in a real window, the code path
+a person runs), playing at 1x on the wall clock for `--seconds`: playback latency (a frame's due
+time -> its first display, the paper's measure), frames shown and dropped, frame time; for the
+bundled sample and for a 1080p30 clip on the same model and sensors. Then the decoder alone:
+throughput against real time, and seek time to an exact frame.
 
-    python bench/bench_playback.py [--seconds 60] [--size 1280x720] [--depth 2048]
+    python bench/bench_playback.py [--seconds 60] [--size 1280x720]
 
-The loop is the viewer's (app/playback/player.py): tick, upload the frame's Y/U/V planes, update
-the projector from the pose track, draw (depth map redrawn when the pose changed), glFinish with
-the GIL released; the view is still, so the loop draws only when a frame is due and sleeps
-otherwise. "loop fps" is the draws per second.
+The window needs an X display: the current one, or a private Xvfb that the benchmark starts.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import os
+import shutil
+import subprocess
 import sys
 import tempfile
 import time
@@ -41,67 +43,54 @@ def make_1080p_clip(path: Path, seconds: float) -> Path:
     return write_video(path, np.arange(n) / 30.0, (1920, 1080), 0, frame=frame, crf=23)
 
 
-def playback(video: Path, pts: np.ndarray, seconds: float, size: tuple[int, int], depth: int) -> dict[str, float]:
-    """Play `video` at 1x for `seconds`, drawing the sample scene with the sample's GD-AHRS track."""
-    from app.camera import Camera, Intrinsics, look_at_quat
-    from app.config import ProjectionSettings
+def sample_session_with(video: Path, out: Path) -> Path:
+    """The sample session's manifest with another video (same start time, model and sensors)."""
     from app.demo import SAMPLE_DIR
-    from app.playback.player import Player
-    from app.render.context import create_offscreen_context, wait_for_gpu
-    from app.render.offscreen import OffscreenTarget
-    from app.render.renderer import FusionRenderer
-    from app.session import open_session, pose_track
 
-    session = open_session(SAMPLE_DIR / "session.toml")
-    track = pose_track(session, "gd-ahrs")
-    ctx = create_offscreen_context()
-    renderer = FusionRenderer(ctx, session.scene())
-    target = OffscreenTarget(ctx, *size)
-    view = Camera.create(Intrinsics.from_fov(*size, 60.0), [35.0, -160.0, 40.0], look_at_quat([35.0, -160.0, 40.0], [0.0, -20.0, 8.0]), 0.5, 3000.0)
-    player = Player(str(video), pts, loop=True)
-    settings = ProjectionSettings(alpha=0.85, depth_long_side=depth)
-    frames = 0
-    renders = []
-    try:
-        time.sleep(0.5)  # let the decoder fill its queue, as the viewer's start-up does
-        start = time.perf_counter()
-        player.clock.set_paused(False, start)
-        while True:
-            now = time.perf_counter()
-            if now - start >= seconds:
+    text = (SAMPLE_DIR / "session.toml").read_text()
+    for name in ("scene.glb", "acc.csv", "gyr.csv", "mag.csv", "phone_orientation.csv", "gnss.csv", "truth_orientation.csv", "truth_position.csv"):
+        text = text.replace(f'"{name}"', f'"{SAMPLE_DIR / name}"')
+    text = text.replace('path = "clip.mp4"', f'path = "{video}"').replace('frame_times = "truth_frames.csv"\n', "")
+    out.write_text(text)
+    return out
+
+
+class Display:
+    """The current X display, or a private Xvfb for the benchmark's lifetime."""
+
+    def __enter__(self) -> str:
+        self.proc = None
+        if os.environ.get("DISPLAY"):
+            return os.environ["DISPLAY"]
+        if shutil.which("Xvfb") is None:
+            raise SystemExit("no DISPLAY and no Xvfb (apt-get install xvfb): the viewer needs a window")
+        number = 150 + os.getpid() % 100
+        self.proc = subprocess.Popen(["Xvfb", f":{number}", "-screen", "0", "1920x1080x24", "-nolisten", "tcp"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        socket = Path(f"/tmp/.X11-unix/X{number}")
+        for _ in range(200):
+            if socket.exists():
                 break
-            if not player.tick(now):
-                # The view is still: nothing to draw until the next frame is due (less the
-                # look-ahead); sleeping leaves the cores to the decoder.
-                due = player.next_due_wall(now)
-                wake = now + 0.002 if due is None else due - player.lookahead_s
-                time.sleep(min(0.005, max(0.0, wake - now)))
-                continue
-            f = player.current
-            renderer.set_video_yuv(f.y, f.u, f.v, 0 if video != session.video.path else session.rotation_cw, f.bt709, f.full_range)
-            k = min(player.index, len(session.frame_times) - 1)
-            enu, _, q = track.at(session.frame_times[k : k + 1])
-            renderer.set_projector(Camera.create(Intrinsics.from_fov(*renderer.video.size, 66.0), enu[0], q[0], 0.5, 2000.0))
-            renderer.draw(view, target.fbo, settings)
-            wait_for_gpu(ctx)
-            shown = time.perf_counter()
-            renders.append(shown - now)
-            player.shown(shown, shown - now)
-            frames += 1
-        _, mean, p95 = player.stats.summary()
-        return {
-            "frames shown": len(player.stats.latencies),
-            "dropped": player.stats.dropped,
-            "latency mean ms": mean,
-            "latency p95 ms": p95,
-            "render median ms": 1000 * float(np.median(renders)),
-            "loop fps": frames / seconds,
-        }
-    finally:
-        player.close()
-        target.release()
-        renderer.release()
-        ctx.release()
+            time.sleep(0.05)
+        return f":{number}"
+
+    def __exit__(self, *exc) -> None:
+        if self.proc is not None:
+            self.proc.terminate()
+            self.proc.wait(timeout=5)
+
+
+def viewer_playback(display: str, manifest: Path, seconds: float, size: tuple[int, int], tmp: Path) -> dict:
+    """Run the viewer on `manifest`: wait for every source to be solved, play `seconds` of wall
+    time at 1x, write its state (latency, frames shown and dropped, frame times) and quit."""
+    state = tmp / f"{manifest.stem}.json"
+    script = tmp / f"{manifest.stem}.txt"
+    script.write_text(f"0 wait solved\n0 play\n{seconds} state {state}\n{seconds} quit\n")
+    env = dict(os.environ, DISPLAY=display, XDG_CONFIG_HOME=str(tmp / "config"))
+    cmd = [sys.executable, "-m", "app", "view", str(manifest), "--script", str(script), "--size", f"{size[0]}x{size[1]}"]
+    result = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=seconds + 600)
+    if result.returncode != 0 or not state.is_file():
+        raise SystemExit(f"the viewer failed on {manifest}:\n{result.stderr[-3000:]}")
+    return json.loads(state.read_text())
 
 
 def decode_throughput(video: Path, fps: float) -> float:
@@ -123,12 +112,13 @@ def decode_throughput(video: Path, fps: float) -> float:
     return n / dt / fps
 
 
-def seek_times(video: Path, pts: np.ndarray, count: int = 15) -> list[float]:
+def seek_times(video: Path, info, count: int = 15) -> list[float]:
     """Seconds from a seek request to the exact frame arriving from the decoder thread."""
     from app.playback.decoder import Decoder
 
+    pts = info.pts_s
     rng = np.random.default_rng(1)
-    dec = Decoder(str(video))
+    dec = Decoder(str(video), info.origin_s)
     out = []
     try:
         for i, target in enumerate(rng.uniform(0, pts[-1], count)):
@@ -151,29 +141,28 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=60.0)
     parser.add_argument("--size", default="1280x720")
-    parser.add_argument("--depth", type=int, default=2048, help="depth-map texels on the video's long side")
     args = parser.parse_args(argv)
     size = tuple(int(v) for v in args.size.split("x"))
 
     from app.demo import SAMPLE_DIR
     from app.io.video import probe
-    from app.render.context import create_offscreen_context, describe
 
-    ctx = create_offscreen_context()
-    gl = describe(ctx)
-    ctx.release()
-    print(f"# playback benchmark\n\n{machine()}; GL: {gl}; view {size[0]}x{size[1]}, depth map {args.depth}; {args.seconds:g} s of 1x playback each\n")
-    with tempfile.TemporaryDirectory() as tmp:
-        sample = probe(SAMPLE_DIR / "clip.mp4")
-        clip = make_1080p_clip(Path(tmp) / "1080p30.mp4", min(args.seconds, 60.0) + 1.0)
-        hd = probe(clip)
-        rows = []
-        for label, info in (("sample 640x360 (VFR ~30 fps)", sample), ("1080p30", hd)):
-            r = playback(Path(info.path), info.pts_s, args.seconds, size, args.depth)
-            seeks = np.asarray(seek_times(Path(info.path), info.pts_s)) * 1000
-            rows.append([label, r["frames shown"], r["dropped"], f"{r['latency mean ms']:.1f}", f"{r['latency p95 ms']:.1f}", f"{r['render median ms']:.1f}", f"{r['loop fps']:.1f}",
-                         f"{decode_throughput(Path(info.path), info.nominal_fps):.1f}x", f"{np.median(seeks):.0f} / {np.percentile(seeks, 95):.0f}"])
-        print(table(["clip", "frames shown", "dropped", "latency mean ms", "latency p95 ms", "render median ms", "loop fps", "decode vs real time", "seek median / p95 ms"], rows))
+    print(f"# playback benchmark\n\n{machine()}; the viewer's window {size[0]}x{size[1]} (default panels and depth map); {args.seconds:g} s of 1x playback each\n")
+    with tempfile.TemporaryDirectory() as tmp, Display() as display:
+        tmp = Path(tmp)
+        clip = make_1080p_clip(tmp / "1080p30.mp4", min(args.seconds, 70.0) + 1.0)
+        rows, decode_rows = [], []
+        for label, manifest in (("sample 640x360 (VFR ~30 fps)", SAMPLE_DIR / "session.toml"), ("1080p30", sample_session_with(clip, tmp / "hd.toml"))):
+            r = viewer_playback(display, manifest, args.seconds, size, tmp)
+            _, mean, p95 = r["latency_ms"]
+            due = r["frames_shown"] + r["dropped"]
+            rows.append([label, r["frames_shown"], r["dropped"], f"{100 * r['dropped'] / max(due, 1):.1f} %", r["skipped_by_decoder"], f"{mean:.1f}", f"{p95:.1f}", f"{r['frame_ms']:.1f}", f"{1000 / r['frame_ms']:.1f}"])
+            info = probe(manifest.parent / "clip.mp4") if manifest.name == "session.toml" else probe(clip)
+            seeks = np.asarray(seek_times(Path(info.path), info)) * 1000
+            decode_rows.append([label, f"{decode_throughput(Path(info.path), info.nominal_fps):.1f}x", f"{np.median(seeks):.0f} / {np.percentile(seeks, 95):.0f}"])
+        print(table(["clip", "frames shown", "dropped", "dropped share", "skipped by the decoder", "latency mean ms", "latency p95 ms", "frame time median ms", "loop fps"], rows))
+        print()
+        print(table(["clip", "decode vs real time", "seek median / p95 ms"], decode_rows))
     return 0
 
 

@@ -68,7 +68,8 @@ class Loaded:
 
 @dataclass
 class Stats:
-    frame_times: list[float] = field(default_factory=list)
+    frames: int = 0  # frames drawn since the session opened
+    frame_times: list[float] = field(default_factory=list)  # the last FRAME_HISTORY, seconds
     depth_redraws: int = 0
 
 
@@ -298,7 +299,7 @@ class Viewer:
 
         ui = self.ui
         fb = self.window.framebuffer_size()
-        state: dict = {"errors": ui.errors, "notices": ui.notices, "frames_drawn": len(self.stats.frame_times), "window": list(fb), "view_rect": list(self.view_rect or (0, 0, *fb)), "clock": self.clock()}
+        state: dict = {"errors": ui.errors, "notices": ui.notices, "frames_drawn": self.stats.frames, "window": list(fb), "view_rect": list(self.view_rect or (0, 0, *fb)), "clock": self.clock()}
         L = self.loaded
         if L is not None:
             cam = self.window_camera
@@ -378,6 +379,7 @@ class Viewer:
                 shown = self.clock()
                 if self.loaded is not None:
                     self.loaded.player.shown(shown, shown - now)
+                self.stats.frames += 1
                 self.stats.frame_times.append(time.perf_counter() - frame_start)
                 del self.stats.frame_times[:-FRAME_HISTORY]
                 if self.fixed_clock:

@@ -66,11 +66,26 @@ def test_srt_that_does_not_fit_the_video(shared_data, tmp_path, capsys):
 
 
 def test_view_a_dji_clip_screenshot(dji_clip, display, tmp_path):
-    out = tmp_path / "dji.png"
-    result = run_viewer(display, str(dji_clip), "--screenshot", str(out), "--size", "640x360", "--play", "1.5")
+    """The viewer opens a DJI clip straight away: the projector rides the gimbal telemetry, 85.8 m
+    above the assumed ground (the subtitle's height above take-off), at the frame due."""
+    import json
+
+    from app.camera_track import camera_track
+    from app.clips import open_clip
+
+    out, state = tmp_path / "dji.png", tmp_path / "dji.json"
+    script = tmp_path / "s.txt"
+    script.write_text(f"0 clock 0.05\n0 wait solved\n0 play\n1.5 screenshot {out}\n1.5 state {state}\n1.6 quit\n")
+    result = run_viewer(display, str(dji_clip), "--script", str(script), "--size", "640x360")
     assert result.returncode == 0, result.stderr[-2000:]
-    img = np.asarray(Image.open(out).convert("RGB"))
-    assert img.shape == (360, 640, 3) and img.std() > 15
+    s = json.loads(state.read_text())
+    assert s["source"] == "telemetry" and s["frame"] == s["due_frame"] == 45 and s["errors"] == []
+    expected = camera_track(open_clip(dji_clip), "telemetry").frame_camera(45)
+    np.testing.assert_allclose(s["projector"]["position"], expected.position, atol=1e-6)
+    assert s["projector"]["position"][2] == pytest.approx(85.8, abs=0.2)
+    img = np.asarray(Image.open(out).convert("RGB"), int)
+    x, y, w, h = s["view_rect"]
+    assert img.shape == (360, 640, 3) and img[y : y + h, x : x + w].std() > 15
 
 
 SRT_ROWS = {"air2s.srt": 17, "mavic_air2.srt": 25, "matrice_300.srt": 381, "mavic_pro.SRT": 468, "p4_rtk.SRT": 55, "p4p_sample.SRT": 5, "broken_incomplete.SRT": 19}

@@ -26,13 +26,20 @@ def take(dec, n, timeout=5.0):
 
 
 def test_decodes_in_order_into_a_bounded_queue(clip):
+    """The queue fills to its bound and the decoder then waits: nothing is dropped, so the frames
+    taken after a pause carry on where the first ones stopped."""
     dec = Decoder(clip)
     try:
         frames = take(dec, 20)
         assert [round(f.pts_s * 30) for f in frames] == list(range(20))
         assert frames[0].y.shape == (32, 64) and frames[0].u.shape == (16, 32)
-        time.sleep(0.3)
-        assert dec.frames.qsize() <= dec.frames.maxsize
+        end = time.monotonic() + 10
+        while dec.frames.qsize() < dec.frames.maxsize and time.monotonic() < end:
+            time.sleep(0.01)
+        assert dec.frames.qsize() == dec.frames.maxsize  # the bound is reached (40 frames remain)...
+        rest = take(dec, 40)
+        assert [round(f.pts_s * 30) for f in rest] == list(range(20, 60))  # ...and nothing was lost at it
+        assert dec.skipped == 0  # no media time was published: no frame counts as late
     finally:
         dec.close()
 
@@ -64,9 +71,11 @@ def test_corrupt_packets_are_skipped_and_counted(clip, tmp_path):
     bad.write_bytes(bytes(data))
     dec = Decoder(bad)
     try:
-        frames = take(dec, 60, timeout=2)
-        assert len(frames) > 10  # it went on past the damage
+        frames = take(dec, 60, timeout=5)
         assert dec.error is None
+        assert dec.corrupt_packets > 0  # the damage was met and counted...
+        assert len(frames) > 10 and max(round(f.pts_s * 30) for f in frames) >= 55  # ...and decoding went on past it
+        assert len(frames) + dec.corrupt_packets >= 40  # frames are missing only where packets failed
     finally:
         dec.close()
 

@@ -8,6 +8,7 @@ import shutil
 import numpy as np
 import pytest
 
+from app import rotations
 from app.attitude.metrics import hpr_rms
 from app.cli import main
 from app.errors import ManifestError
@@ -109,10 +110,36 @@ def test_eq5_timing_fallback(session_dir, tmp_path):
 
 
 @pytest.mark.gl
-def test_render_session_frame(session_dir, tmp_path, gl_ctx):
-    out = tmp_path / "frame.png"
-    assert main(["render", "--session", str(session_dir / "session.toml"), "--time", "5", "--size", "160x90", "--out", str(out)]) == 0
-    assert out.stat().st_size > 0
+def test_render_session_frame(session_dir, tmp_path, gl_ctx, capsys):
+    """The frame at --time lands on the model: riding the video's own camera (--view-from its
+    position, looking along its axis), the still shows the video frame wherever the model is
+    behind it, so with the video opaque it differs from the model-only render over most of it."""
+    from PIL import Image
+
+    from app.camera_track import camera_track
+    from app.io.video import read_frame
+
+    session = open_session(session_dir / "session.toml")
+    k = int(np.argmin(np.abs(session.video.pts_s - 5.0)))
+    cam = camera_track(session, "gd-ahrs").frame_camera(k)
+    ahead = np.asarray(cam.position) + 10.0 * rotations.rotate(cam.orientation, [0.0, 0.0, -1.0])
+    w, h = session.intrinsics.width * 4, session.intrinsics.height * 4
+    common = ["render", "--session", str(session_dir / "session.toml"), "--time", "5", "--filter", "gd-ahrs", "--size", f"{w}x{h}", "--no-frustum",
+              "--view-from=" + ",".join(f"{v:.4f}" for v in cam.position), "--look-at=" + ",".join(f"{v:.4f}" for v in ahead), "--view-fov", f"{session.intrinsics.hfov_deg:.6f}"]  # fmt: skip
+    assert main([*common, "--out", str(tmp_path / "video.png")]) == 0
+    assert f"frame {k} at" in capsys.readouterr().out
+    assert main([*common, "--alpha", "0", "--out", str(tmp_path / "model.png")]) == 0
+    video = np.asarray(Image.open(tmp_path / "video.png").convert("RGB"), int)
+    model = np.asarray(Image.open(tmp_path / "model.png").convert("RGB"), int)
+    frame = np.asarray(Image.fromarray(read_frame(session.video.path, k, session.video)).resize((w, h)), int)
+    assert video.shape == model.shape == frame.shape
+    on_model = np.abs(model - np.array([158, 189, 219])).max(axis=2) > 3  # not the background
+    assert on_model.mean() > 0.3
+    to_frame = np.abs(video - frame).max(axis=2)[on_model]
+    # Seen from the projector itself, the projected video is the frame (filtering aside) ...
+    assert np.median(to_frame) < 25
+    # ... and not the bare model.
+    assert np.median(np.abs(model - frame).max(axis=2)[on_model]) > np.median(to_frame) + 30
 
 
 def test_solve_never_overwrites_an_input(session_dir, capsys):

@@ -135,8 +135,13 @@ def test_screenshot_alone_plays_the_sample_and_exits(display, tmp_path):
     out = tmp_path / "view.png"
     result = run_viewer(display, "--screenshot", str(out), "--size", "800x450", "--play", "1.0")
     assert result.returncode == 0, result.stderr[-2000:]
-    img = np.asarray(Image.open(out).convert("RGB"))
-    assert img.shape == (450, 800, 3) and img.std() > 20
+    img = np.asarray(Image.open(out).convert("RGB"), int)
+    assert img.shape == (450, 800, 3)
+    # Default layout: panels (dark) down the left, the 3D view with the sky (the renderer's
+    # background colour) at its top right.
+    assert img[:300, :150].mean() < 80
+    sky = np.abs(img[5:40, 500:790] - np.array([158, 189, 219])).max(axis=2) <= 3
+    assert sky.mean() > 0.5
 
 
 def test_the_panel_layout_is_remembered_between_runs(display, tmp_path):

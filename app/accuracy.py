@@ -19,6 +19,7 @@ from app.attitude.metrics import hpr_rms
 from app.camera import Camera, Intrinsics
 from app.camera_track import CameraTrack, camera_track, frame_clock
 from app.session import Session
+from app.constants import VIEW_FAR_M, VIEW_NEAR_M
 
 EDGE_FRACTION = 0.1  # the outer 10 % of columns on each side count as the image's edges
 
@@ -105,7 +106,7 @@ class ProjectionProbe:
         self.pass_ = PositionPass(self.ctx, self.scene)
 
     def points(self, enu: np.ndarray, q: np.ndarray) -> np.ndarray:
-        cam = Camera.create(self.intrinsics, enu, q, near=0.3, far=3000.0)
+        cam = Camera.create(self.intrinsics, enu, q, near=VIEW_NEAR_M, far=VIEW_FAR_M)
         return self.pass_.render(cam)
 
     def errors(self, est: Poses, truth: Poses) -> tuple[np.ndarray, np.ndarray]:

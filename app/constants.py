@@ -14,8 +14,10 @@ ECEF_MIN_RADIUS_M = 6.0e6
 EPS_DEGENERATE = 1e-12  # below this a vector or quaternion norm is treated as zero
 
 # Rendering defaults
-DEFAULT_NEAR_M = 0.5
+DEFAULT_NEAR_M = 0.5  # the video's camera (projector): near and far clipping planes, metres
 DEFAULT_FAR_M = 2000.0
+VIEW_NEAR_M = 0.3  # the window camera and analysis cameras, which may come closer to surfaces
+VIEW_FAR_M = 3000.0
 DEFAULT_DEPTH_LONG_SIDE_PX = 2048
 DEFAULT_DEPTH_BIAS_M = 0.05  # constant part of the projection depth bias, metres
 DEFAULT_DEPTH_SLOPE_BIAS = 2.0  # slope-scaled part, in depth-map texels of surface slope

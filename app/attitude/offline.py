@@ -16,9 +16,10 @@ import numpy as np
 from app import rotations
 from app.attitude import kernels
 
-STILL_RATE = 0.05  # rad/s: below this the device counts as still (for the bias estimate)
-STILL_ACC = 0.03  # fraction of g: accelerometer norm steadiness while still
-MIN_STILL_S = 1.0  # seconds of stillness needed to trust the bias estimate
+# "Still" is the causal filters' "at rest" (app.attitude.kernels), one set of thresholds.
+STILL_RATE = kernels.REST_RATE  # rad/s
+STILL_ACC = kernels.REST_ACC  # fraction of g: accelerometer norm steadiness
+MIN_STILL_S = kernels.REST_MIN_S  # seconds of stillness needed to trust the bias estimate
 
 
 def gyro_bias(t: np.ndarray, gyr: np.ndarray, acc: np.ndarray) -> np.ndarray:

@@ -16,6 +16,7 @@ from app.render.context import create_offscreen_context
 from app.render.offscreen import render_to_array
 from app.render.renderer import FusionRenderer
 from app.scene.mesh import MeshData
+from app.constants import DEFAULT_NEAR_M
 
 
 @dataclass(frozen=True)
@@ -43,7 +44,7 @@ def window_camera(projector: Camera, intrinsics, eye: npt.ArrayLike | None, targ
         default_eye, default_target = ThirdPerson().eye_and_target(projector)
         eye = default_eye if eye is None else eye
         target = default_target if target is None else target
-    return Camera.create(intrinsics, eye, look_at_quat(eye, target), near=0.5, far=far)
+    return Camera.create(intrinsics, eye, look_at_quat(eye, target), near=DEFAULT_NEAR_M, far=far)
 
 
 def render_still(

@@ -14,6 +14,7 @@ from app.config import ProjectionSettings
 from app.geo import LocalFrame
 from app.render.still import render_still
 from app.scene.mesh import MeshData
+from app.constants import DEFAULT_FAR_M, DEFAULT_NEAR_M
 
 
 @dataclass(frozen=True)
@@ -35,7 +36,7 @@ def photo_camera(pose: PhotoPose, frame: LocalFrame) -> Camera:
     """The projector camera of a pose in `frame`."""
     position = frame.geodetic_to_enu(pose.lat_deg, pose.lon_deg, pose.h_m)
     q = rotations.camera_quat_from_hpr(pose.heading_deg, pose.pitch_deg, pose.roll_deg)
-    return Camera.create(Intrinsics.from_fov(pose.width, pose.height, pose.hfov_deg), position, q, near=0.5, far=2000.0)
+    return Camera.create(Intrinsics.from_fov(pose.width, pose.height, pose.hfov_deg), position, q, near=DEFAULT_NEAR_M, far=DEFAULT_FAR_M)
 
 
 def make_photo(mesh: MeshData, camera: Camera, seed: int = 11) -> np.ndarray:

@@ -30,6 +30,7 @@ from app.simulate import sensors
 from app.simulate.phone import Motion, body_rates, specific_force, write_video
 from app.simulate.stadium import HALL_MAX, HALL_MIN, SITE_ORIGIN
 from app.trajectory import device_to_camera
+from app.constants import DEFAULT_FAR_M, VIEW_NEAR_M
 
 START_UNIX_S = 1_763_200_000.0  # 2025-11-15T09:46:40Z
 DURATION_S = 80.0
@@ -301,7 +302,7 @@ def render_frames(path: Path, scene_path: str | Path, pts: np.ndarray, crf: int)
     def frame_at(k: int) -> np.ndarray:
         for i, m in enumerate(MOVERS):
             renderer.scene.update_positions(first_mover + i, _mover_vertices(m, float(pts[k])).astype(np.float32))
-        cam = Camera.create(intr, positions[k], attitudes[k], near=0.3, far=2000.0)
+        cam = Camera.create(intr, positions[k], attitudes[k], near=VIEW_NEAR_M, far=DEFAULT_FAR_M)
         renderer.draw(cam, target.fbo, off)
         return target.read()
 

@@ -9,6 +9,7 @@ import numpy as np
 
 from app import rotations
 from app.camera import Camera, Intrinsics, look_at_quat
+from app.constants import VIEW_FAR_M, VIEW_NEAR_M
 
 MODES = ("free", "orbit", "phone")
 
@@ -73,7 +74,7 @@ class Navigator:
         self.position, self.yaw, self.pitch = self.home[0].copy(), self.home[1], self.home[2]
         self.mode = "free"
 
-    def camera(self, intrinsics: Intrinsics, phone: Camera | None, near: float = 0.3, far: float = 3000.0) -> Camera:
+    def camera(self, intrinsics: Intrinsics, phone: Camera | None, near: float = VIEW_NEAR_M, far: float = VIEW_FAR_M) -> Camera:
         """The window camera for the current mode."""
         if self.mode == "phone" and phone is not None:
             return Camera.create(intrinsics, phone.position, phone.orientation, near, far)

@@ -106,7 +106,7 @@ def _render_session(args: argparse.Namespace) -> int:
     from app.render.still import render_still, window_camera
 
     session = open_any(args.session)
-    source = args.filter or session.sources[0]
+    source = args.source or session.sources[0]
     if args.time is None:
         raise GeofuseError("render --session needs --time T (seconds from the video's first frame)")
     pts = session.video.pts_s
@@ -114,7 +114,7 @@ def _render_session(args: argparse.Namespace) -> int:
     try:
         track = camera_track(session, source).with_clip(DEFAULT_NEAR_M, args.far)
     except ValueError as exc:
-        raise GeofuseError(f"--filter: {exc}") from exc
+        raise GeofuseError(f"--source: {exc}") from exc
     refuse_overwriting_inputs(args.out, list(session.inputs))
     projector = track.frame_camera(index)
     image = read_frame(session.video.path, index, session.video)
@@ -132,12 +132,11 @@ def cmd_solve(args: argparse.Namespace) -> int:
     session = open_any(args.manifest, args.srt, args.fov, args.pitch)
     for w in session.warnings.items:
         print(f"warning: {w}", file=sys.stderr)
-    if args.filter is None:
-        args.filter = session.sources[0]
-    if args.filter not in session.sources:
-        raise GeofuseError(f"--filter {args.filter}: this session offers {', '.join(session.sources)}")
-    rows = solve_to_csv(session, args.filter, args.out, progress=sys.stderr)
-    print(f"wrote {args.out}: {rows} frames, attitude from {args.filter}")
+    source = args.source or session.sources[0]
+    if source not in session.sources:
+        raise GeofuseError(f"--source {source}: this session offers {', '.join(session.sources)}")
+    rows = solve_to_csv(session, source, args.out, progress=sys.stderr)
+    print(f"wrote {args.out}: {rows} frames, attitude from {source}")
     return 0
 
 
@@ -238,7 +237,7 @@ def build_parser() -> argparse.ArgumentParser:
     r = sub.add_parser("render", help="render one image projected onto a scene to a PNG")
     r.add_argument("--session", type=Path, default=None, help="a session manifest: the frame at --time with its solved pose")
     r.add_argument("--time", type=float, default=None, help="with --session: seconds from the video's first frame")
-    r.add_argument("--filter", default=None, help="with --session: attitude source (default: the first the session offers)")
+    r.add_argument("--source", "--filter", dest="source", default=None, help="with --session: attitude source (default: the first the session offers)")
     r.add_argument("--scene", type=Path, help="glTF/GLB, OBJ or PLY scene")
     r.add_argument("--origin", type=lambda s: _floats(s, 3, "--origin"), metavar="LAT,LON,H", help="the scene's origin: degrees, degrees, ellipsoidal metres")
     r.add_argument("--up", choices=["Y", "Z"], default=None, help="the scene's up axis (default: Y for glTF, Z otherwise)")
@@ -267,7 +266,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     so = sub.add_parser("solve", help="a camera pose for every video frame of a session or clip, as CSV")
     so.add_argument("manifest", type=Path, help="a session manifest (.toml), a GoPro MP4, or a DJI clip (its .SRT beside it)")
-    so.add_argument("--filter", default=None, help="gd-ahrs | gd-imu | cf-ahrs | cf-imu | offline | phone | camera | telemetry | course | truth (default: the first the session offers)")
+    so.add_argument("--source", "--filter", dest="source", default=None, help="attitude source: gd-ahrs | gd-imu | cf-ahrs | cf-imu | offline | phone | camera | telemetry | course | truth (default: the first the session offers)")
     so.add_argument("--srt", type=Path, default=None, help="the DJI subtitle of the clip, when not beside it")
     so.add_argument("--fov", type=float, default=None, help="override the lens's horizontal field of view, degrees")
     so.add_argument("--pitch", type=float, default=DRONE_DEFAULT_PITCH_DEG, help=f"a drone clip without gimbal attitude: the camera's pitch, degrees (default {DRONE_DEFAULT_PITCH_DEG:g})")

@@ -16,15 +16,18 @@ from pathlib import Path
 
 import numpy as np
 
+from app.attitude.gopro import read_gopro
 from app.attitude.heading import DRONE_DEFAULT_PITCH_DEG
 from app.camera import Intrinsics
 from app.errors import DataFormatError, GeofuseError
 from app.geo import LocalFrame
 from app.geomag import declination
+from app.io.dji_srt import check_duration, read_srt
 from app.io.streams import GnssTrack, OrientationStream, Warnings
 from app.io.video import VideoInfo, probe
 from app.scene import Placement
 from app.scene.ground_plane import ground_plane
+from app.session.assemble import gimbal_attitude, open_session
 from app.session.config import HANDHELD_MOUNT_M
 from app.session.model import Session
 
@@ -72,8 +75,6 @@ def _clip_session(path: Path, inputs: tuple[Path, ...], frame: LocalFrame, mesh,
 
 
 def _gopro_session(path: Path, hfov_deg: float | None) -> Session:
-    from app.attitude.gopro import read_gopro
-
     warnings = Warnings()
     rec = read_gopro(path, warnings)
     if rec.gnss is None:
@@ -88,9 +89,6 @@ def _gopro_session(path: Path, hfov_deg: float | None) -> Session:
 
 
 def _dji_session(path: Path, srt: Path, hfov_deg: float | None, pitch_deg: float) -> Session:
-    from app.io.dji_srt import check_duration, read_srt
-    from app.session.assemble import gimbal_attitude
-
     warnings = Warnings()
     track = read_srt(srt, warnings)
     video = probe(path)
@@ -127,8 +125,6 @@ def _dji_session(path: Path, srt: Path, hfov_deg: float | None, pitch_deg: float
 def open_any(path: str | Path, srt: str | Path | None = None, hfov_deg: float | None = None, pitch_deg: float = DRONE_DEFAULT_PITCH_DEG) -> Session:
     """A manifest (.toml) or a clip (pitch_deg: a drone clip's camera pitch when its subtitle has
     no gimbal attitude)."""
-    from app.session import open_session
-
     path = Path(path)
     if path.suffix.lower() == ".toml":
         if srt is not None:

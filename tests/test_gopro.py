@@ -91,7 +91,7 @@ def test_solve_every_source_one_row_per_frame(gopro, tmp_path, capsys):
     track = session.positions()
     for source in session.sources:
         out = tmp_path / f"{source}.csv"
-        assert main(["solve", str(clip), "--filter", source, "--out", str(out)]) == 0
+        assert main(["solve", str(clip), "--source", source, "--out", str(out)]) == 0
         with out.open() as f:
             rows = list(csv.DictReader(f))
         assert len(rows) == 315, source

@@ -60,7 +60,7 @@ def test_positions_follow_the_simulated_walk(session):
 
 def test_solve_cli_writes_one_row_per_frame(session_dir, tmp_path, capsys):
     out = tmp_path / "poses.csv"
-    assert main(["solve", str(session_dir / "session.toml"), "--filter", "gd-ahrs", "--out", str(out)]) == 0
+    assert main(["solve", str(session_dir / "session.toml"), "--source", "gd-ahrs", "--out", str(out)]) == 0
     with out.open() as f:
         rows = list(csv.reader(f))
     assert tuple(rows[0]) == COLUMNS and len(rows) == 601
@@ -74,7 +74,7 @@ def test_imu_only_session_offers_imu_filters(session_dir, tmp_path, capsys):
     (folder / "session.toml").write_text(text)
     s = open_session(folder / "session.toml")
     assert s.sources == ["gd-imu", "cf-imu", "offline", "truth"]
-    assert main(["solve", str(folder / "session.toml"), "--filter", "gd-ahrs", "--out", str(tmp_path / "p.csv")]) == 2
+    assert main(["solve", str(folder / "session.toml"), "--source", "gd-ahrs", "--out", str(tmp_path / "p.csv")]) == 2
     assert "this session offers gd-imu, cf-imu, offline, truth" in capsys.readouterr().err
 
 
@@ -124,7 +124,7 @@ def test_render_session_frame(session_dir, tmp_path, gl_ctx, capsys):
     cam = camera_track(session, "gd-ahrs").frame_camera(k)
     ahead = np.asarray(cam.position) + 10.0 * rotations.rotate(cam.orientation, [0.0, 0.0, -1.0])
     w, h = session.intrinsics.width * 4, session.intrinsics.height * 4
-    common = ["render", "--session", str(session_dir / "session.toml"), "--time", "5", "--filter", "gd-ahrs", "--size", f"{w}x{h}", "--no-frustum",
+    common = ["render", "--session", str(session_dir / "session.toml"), "--time", "5", "--source", "gd-ahrs", "--size", f"{w}x{h}", "--no-frustum",
               "--view-from=" + ",".join(f"{v:.4f}" for v in cam.position), "--look-at=" + ",".join(f"{v:.4f}" for v in ahead), "--view-fov", f"{session.intrinsics.hfov_deg:.6f}"]  # fmt: skip
     assert main([*common, "--out", str(tmp_path / "video.png")]) == 0
     assert f"frame {k} at" in capsys.readouterr().out

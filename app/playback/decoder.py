@@ -59,6 +59,7 @@ class Decoder:
         self.origin_s = origin_s
         self.due_s: float | None = None  # set by the render thread: the media time it shows next
         self.skipped = 0
+        self.at_end = False  # the last frame of the stream has been queued; no more until a seek
         self.frames: queue.Queue[DecodedFrame | None] = queue.Queue(maxsize=QUEUE_FRAMES)
         self.corrupt_packets = 0
         self.error: str | None = None
@@ -70,6 +71,7 @@ class Decoder:
 
     def seek(self, media_time_s: float, serial: int) -> None:
         """Decode from the frame at media_time_s on; frames will carry `serial`."""
+        self.at_end = False
         self._commands.put((media_time_s, serial))
 
     def close(self) -> None:
@@ -120,8 +122,10 @@ class Decoder:
             while command is not None and not self._stop.is_set():
                 target, serial = command
                 container.seek(int((target + self.origin_s) / stream.time_base), stream=stream, backward=True, any_frame=False)
+                self.at_end = False
                 command = self._decode_from(container, stream, target, serial, rate, bt709)
                 if command is None and not self._stop.is_set():
+                    self.at_end = True
                     command = self._commands.get()  # end of stream: wait for a seek or stop
 
     def _decode_from(self, container, stream, target: float, serial: int, rate: float, bt709: bool):

@@ -99,7 +99,8 @@ class Player:
             if self._pending is None:
                 try:
                     behind = self.current is None or self.current.serial != self.clock.serial or self.schedule.due(self.current.pts_s) < due_index
-                    item = self.decoder.frames.get(timeout=wait_s) if wait_s > 0 and behind and self.decoder.error is None else self.decoder.frames.get_nowait()
+                    waiting = wait_s > 0 and behind and self.decoder.error is None and not (self.decoder.at_end and self.decoder.frames.empty())
+                    item = self.decoder.frames.get(timeout=wait_s) if waiting else self.decoder.frames.get_nowait()
                 except queue.Empty:
                     return changed
                 if item is None or item.serial != self.clock.serial:

@@ -11,6 +11,7 @@ import numpy as np
 
 from app import rotations
 from app.attitude import magcal
+from app.attitude.gopro import read_gopro
 from app.camera import Intrinsics
 from app.errors import ManifestError
 from app.geo import LocalFrame
@@ -18,6 +19,7 @@ from app.geomag import declination, field_enu
 from app.io import csvlog
 from app.io.dji_srt import read_srt
 from app.io.gpx import read_gpx
+from app.io.sensorlogger import read_sensorlogger
 from app.io.streams import GnssTrack, OrientationStream, VectorStream, Warnings
 from app.io.video import VideoInfo, probe
 from app.scene import load_scene
@@ -52,16 +54,12 @@ def _sensors(cfg: SessionConfig, warnings: Warnings, clip_start: float):
     recorded: dict[str, OrientationStream] = {}
     acc = gyr = mag = gnss = None
     if s.format == "gopro":
-        from app.attitude.gopro import read_gopro
-
         rec = read_gopro(cfg.video.path, warnings)
         # GPMF times count from the clip start; the session clock adds the video's start time.
         acc, gyr, mag, gnss = (_shifted(x, clip_start) for x in (rec.acc, rec.gyr, rec.mag, rec.gnss))
         if rec.camera is not None:
             recorded["camera"] = _shifted(rec.camera, clip_start)
     elif s.format == "sensorlogger":
-        from app.io.sensorlogger import read_sensorlogger
-
         rec = read_sensorlogger(s.path, s.standardised, warnings)
         acc, gyr, mag, gnss = rec.acc, rec.gyr, rec.mag, rec.gnss
         if rec.orientation is not None:

@@ -7,48 +7,91 @@ the command exits with status 2; no traceback.
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from collections.abc import Sequence
 from pathlib import Path
 
 from app.attitude.heading import DRONE_DEFAULT_PITCH_DEG
 from app.constants import DEFAULT_FAR_M, DEFAULT_NEAR_M
-from app.errors import GeofuseError, refuse_overwriting_inputs
+from app.errors import GeofuseError
+from app.outputs import CSV_SUFFIXES, IMAGE_SUFFIXES, check_output
 
 
-def _floats(text: str, count: int, what: str) -> tuple[float, ...]:
+MAX_IMAGE_SIDE = 8192  # pixels: what every OpenGL 4 renderbuffer (and llvmpipe) can hold
+COMMA_OPTIONS = ("--origin", "--pose", "--view-from", "--look-at")  # values that may start with '-'
+GEODETIC = ((-90.0, 90.0, "latitude"), (-180.0, 360.0, "longitude"), (-12_000.0, 100_000.0, "height"))
+ATTITUDE = ((-360.0, 360.0, "heading"), (-90.0, 90.0, "pitch"), (-180.0, 180.0, "roll"))
+
+
+def _floats(text: str, count: int, ranges: tuple[tuple[float, float, str], ...] = ()) -> tuple[float, ...]:
+    """COUNT comma-separated finite numbers, each within its (low, high, name) range if given."""
     parts = text.split(",")
     try:
         values = tuple(float(p) for p in parts)
     except ValueError:
         values = ()
-    if len(values) != count:
-        raise argparse.ArgumentTypeError(f"{what}: expected {count} comma-separated numbers, got {text!r}")
+    if len(values) != count or not all(math.isfinite(v) for v in values):
+        raise argparse.ArgumentTypeError(f"expected {count} comma-separated finite numbers, got {text!r}")
+    for v, (low, high, name) in zip(values, ranges):
+        if not low <= v <= high:
+            raise argparse.ArgumentTypeError(f"{name} {v:g} is outside [{low:g}, {high:g}]")
     return values
+
+
+def _number(low: float, high: float, open_low: bool = False):
+    """An argparse type: a finite float in [low, high] ((low, high] with open_low)."""
+
+    def parse(text: str) -> float:
+        try:
+            v = float(text)
+        except ValueError:
+            v = math.nan
+        if not math.isfinite(v) or not low <= v <= high or (open_low and v == low):
+            raise argparse.ArgumentTypeError(f"expected a finite number in {'(' if open_low else '['}{low:g}, {high:g}], got {text!r}")
+        return v
+
+    return parse
 
 
 def _size(text: str) -> tuple[int, int]:
     try:
         w, h = (int(v) for v in text.lower().split("x"))
     except ValueError as exc:
-        raise argparse.ArgumentTypeError(f"size: expected WIDTHxHEIGHT, got {text!r}") from exc
-    if w <= 0 or h <= 0:
-        raise argparse.ArgumentTypeError(f"size must be positive, got {text!r}")
+        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT, got {text!r}") from exc
+    if not (0 < w <= MAX_IMAGE_SIDE and 0 < h <= MAX_IMAGE_SIDE):
+        raise argparse.ArgumentTypeError(f"each side must be 1 to {MAX_IMAGE_SIDE} pixels, got {text!r}")
     return w, h
+
+
+def _joined_negative_values(argv: Sequence[str]) -> list[str]:
+    """`--view-from -150,-150,120` as `--view-from=-150,-150,120`: argparse takes a value that
+    starts with '-' for an option unless it is joined to its option."""
+    out: list[str] = []
+    args = list(argv)
+    i = 0
+    while i < len(args):
+        if args[i] in COMMA_OPTIONS and i + 1 < len(args) and args[i + 1][:1] == "-" and args[i + 1][1:2].isdigit() | (args[i + 1][1:2] == "."):
+            out.append(f"{args[i]}={args[i + 1]}")
+            i += 2
+            continue
+        out.append(args[i])
+        i += 1
+    return out
 
 
 def _add_projection_options(p: argparse.ArgumentParser) -> None:
     from app.constants import DEFAULT_DEPTH_BIAS_M, DEFAULT_DEPTH_LONG_SIDE_PX, DEFAULT_DEPTH_SLOPE_BIAS
 
-    p.add_argument("--alpha", type=float, default=1.0, help="video opacity over the model, 0..1 (default 1)")
-    p.add_argument("--bias", type=float, default=DEFAULT_DEPTH_BIAS_M, help="constant depth bias, metres")
-    p.add_argument("--slope-bias", type=float, default=DEFAULT_DEPTH_SLOPE_BIAS, help="slope-scaled depth bias, depth-map texels")
+    p.add_argument("--alpha", type=_number(0.0, 1.0), default=1.0, help="video opacity over the model, 0..1 (default 1)")
+    p.add_argument("--bias", type=_number(0.0, 100.0), default=DEFAULT_DEPTH_BIAS_M, help="constant depth bias, metres")
+    p.add_argument("--slope-bias", type=_number(0.0, 100.0), default=DEFAULT_DEPTH_SLOPE_BIAS, help="slope-scaled depth bias, depth-map texels")
     p.add_argument("--depth-size", type=int, default=DEFAULT_DEPTH_LONG_SIDE_PX, help="depth-map texels on the video's long side")
     p.add_argument("--no-neighbourhood", action="store_true", help="test only the fragment's own depth texel (not the nine-case rule)")
     p.add_argument("--no-frustum", action="store_true", help="do not draw the depth camera's frustum")
 
 
-def _projection_settings(args: argparse.Namespace):
+def _projection_settings(args: argparse.Namespace):  # values range-checked by ProjectionSettings
     from app.config import ProjectionSettings
 
     try:
@@ -69,6 +112,7 @@ def cmd_render(args: argparse.Namespace) -> int:
     missing = [f"--{k.replace('_', '-')}" for k in ("scene", "origin", "image", "pose", "fov") if getattr(args, k) is None]
     if missing:
         raise GeofuseError(f"render: give --session MANIFEST --time T, or all of {', '.join(missing)}")
+    check_output(args.out, "--out", IMAGE_SUFFIXES, [args.scene, args.image])
     from app import rotations
     from app.camera import Camera, Intrinsics
     from app.config import OverlaySettings
@@ -105,17 +149,22 @@ def _render_session(args: argparse.Namespace) -> int:
     from app.io.video import read_frame
     from app.render.still import render_still, window_camera
 
-    session = open_any(args.session)
-    source = args.source or session.sources[0]
     if args.time is None:
         raise GeofuseError("render --session needs --time T (seconds from the video's first frame)")
+    check_output(args.out, "--out", IMAGE_SUFFIXES, [args.session])
+    session = open_any(args.session)
+    check_output(args.out, "--out", IMAGE_SUFFIXES, session.inputs)
+    for w in session.warnings.items:
+        print(f"warning: {w}", file=sys.stderr)
+    source = args.source or session.sources[0]
     pts = session.video.pts_s
+    if not pts[0] - 0.5 <= args.time <= pts[-1] + 0.5:
+        raise GeofuseError(f"--time {args.time:g}: the video runs from {pts[0]:.3f} to {pts[-1]:.3f} s")
     index = int(np.argmin(np.abs(pts - args.time)))
     try:
         track = camera_track(session, source).with_clip(DEFAULT_NEAR_M, args.far)
     except ValueError as exc:
         raise GeofuseError(f"--source: {exc}") from exc
-    refuse_overwriting_inputs(args.out, list(session.inputs))
     projector = track.frame_camera(index)
     image = read_frame(session.video.path, index, session.video)
     view = window_camera(projector, Intrinsics.from_fov(args.size[0], args.size[1], args.view_fov), args.view_from, args.look_at, args.far)
@@ -128,6 +177,8 @@ def _render_session(args: argparse.Namespace) -> int:
 def cmd_solve(args: argparse.Namespace) -> int:
     from app.clips import open_any
     from app.solve import solve_to_csv
+
+    check_output(args.out, "--out", CSV_SUFFIXES, [args.manifest, args.srt])
 
     session = open_any(args.manifest, args.srt, args.fov, args.pitch)
     for w in session.warnings.items:
@@ -152,6 +203,8 @@ def cmd_view(args: argparse.Namespace) -> int:
 def cmd_telemetry(args: argparse.Namespace) -> int:
     from app.telemetry import describe, inspect, write_csv
 
+    if args.csv is not None:
+        check_output(args.csv, "--csv", CSV_SUFFIXES, [args.file])
     tel = inspect(args.file)
     print(describe(tel))
     if args.csv is not None:
@@ -230,27 +283,34 @@ def cmd_bench(args: argparse.Namespace) -> int:
     return int(runpy.run_path(str(script))["main"](args.rest))
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with the project's one-line errors (`geofuse: error: ...`, exit status 2)."""
+
+    def error(self, message: str):
+        self.exit(2, f"geofuse: error: {self.prog.split(' ', 1)[-1]}: {message}\n" if " " in self.prog else f"geofuse: error: {message}\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="geofuse", description="Drape mobile video onto a georeferenced 3D model.")
+    parser = _Parser(prog="geofuse", description="Drape mobile video onto a georeferenced 3D model.")
     sub = parser.add_subparsers(dest="command", required=True)
 
     r = sub.add_parser("render", help="render one image projected onto a scene to a PNG")
     r.add_argument("--session", type=Path, default=None, help="a session manifest: the frame at --time with its solved pose")
-    r.add_argument("--time", type=float, default=None, help="with --session: seconds from the video's first frame")
+    r.add_argument("--time", type=_number(-1e6, 1e6), default=None, help="with --session: seconds from the video's first frame")
     r.add_argument("--source", "--filter", dest="source", default=None, help="with --session: attitude source (default: the first the session offers)")
     r.add_argument("--scene", type=Path, help="glTF/GLB, OBJ or PLY scene")
-    r.add_argument("--origin", type=lambda s: _floats(s, 3, "--origin"), metavar="LAT,LON,H", help="the scene's origin: degrees, degrees, ellipsoidal metres")
+    r.add_argument("--origin", type=lambda s: _floats(s, 3, GEODETIC), metavar="LAT,LON,H", help="the scene's origin: degrees, degrees, ellipsoidal metres")
     r.add_argument("--up", choices=["Y", "Z"], default=None, help="the scene's up axis (default: Y for glTF, Z otherwise)")
-    r.add_argument("--scene-heading", type=float, default=0.0, help="rotate the scene clockwise about Up, degrees")
-    r.add_argument("--scene-scale", type=float, default=1.0, help="scene units -> metres")
+    r.add_argument("--scene-heading", type=_number(-360.0, 360.0), default=0.0, help="rotate the scene clockwise about Up, degrees")
+    r.add_argument("--scene-scale", type=_number(0.0, 1e6, open_low=True), default=1.0, help="scene units -> metres")
     r.add_argument("--image", type=Path, help="the image (video frame) to project: PNG or JPEG")
-    r.add_argument("--pose", type=lambda s: _floats(s, 6, "--pose"), metavar="LAT,LON,H,HEADING,PITCH,ROLL", help="the image's camera: position (deg, deg, ellipsoidal m) and optical-axis heading (deg from true north, clockwise), pitch (deg above horizon), roll (deg)")
-    r.add_argument("--fov", type=float, help="the image's horizontal field of view, degrees")
-    r.add_argument("--view-from", type=lambda s: _floats(s, 3, "--view-from"), metavar="E,N,U", default=None, help="window camera position, ENU metres (default: behind and above the image's camera)")
-    r.add_argument("--look-at", type=lambda s: _floats(s, 3, "--look-at"), metavar="E,N,U", default=None, help="window camera target, ENU metres")
-    r.add_argument("--view-fov", type=float, default=60.0, help="window camera horizontal field of view, degrees")
+    r.add_argument("--pose", type=lambda s: _floats(s, 6, GEODETIC + ATTITUDE), metavar="LAT,LON,H,HEADING,PITCH,ROLL", help="the image's camera: position (deg, deg, ellipsoidal m) and optical-axis heading (deg from true north, clockwise), pitch (deg above horizon), roll (deg)")
+    r.add_argument("--fov", type=_number(0.0, 180.0, open_low=True), help="the image's horizontal field of view, degrees")
+    r.add_argument("--view-from", type=lambda s: _floats(s, 3), metavar="E,N,U", default=None, help="window camera position, ENU metres (default: behind and above the image's camera)")
+    r.add_argument("--look-at", type=lambda s: _floats(s, 3), metavar="E,N,U", default=None, help="window camera target, ENU metres")
+    r.add_argument("--view-fov", type=_number(0.0, 180.0, open_low=True), default=60.0, help="window camera horizontal field of view, degrees")
     r.add_argument("--size", type=_size, default=(1280, 720), help="output WIDTHxHEIGHT (default 1280x720)")
-    r.add_argument("--far", type=float, default=DEFAULT_FAR_M, help="far plane of both cameras, metres")
+    r.add_argument("--far", type=_number(1.0, 1e7), default=DEFAULT_FAR_M, help="far plane of both cameras, metres")
     _add_projection_options(r)
     r.add_argument("--out", required=True, type=Path, help="output PNG")
     r.set_defaults(func=cmd_render)
@@ -261,15 +321,15 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("--size", type=_size, default=(1280, 720), help="window WIDTHxHEIGHT")
     v.add_argument("--script", type=Path, default=None, help="a file of timed UI actions (app/ui/script.py)")
     v.add_argument("--screenshot", type=Path, default=None, help="save the window to this PNG (alone: after --play seconds, then exit)")
-    v.add_argument("--play", type=float, default=2.0, help="with --screenshot alone: seconds to play first")
+    v.add_argument("--play", type=_number(0.0, 3600.0), default=2.0, help="with --screenshot alone: seconds to play first")
     v.set_defaults(func=cmd_view)
 
     so = sub.add_parser("solve", help="a camera pose for every video frame of a session or clip, as CSV")
     so.add_argument("manifest", type=Path, help="a session manifest (.toml), a GoPro MP4, or a DJI clip (its .SRT beside it)")
     so.add_argument("--source", "--filter", dest="source", default=None, help="attitude source: gd-ahrs | gd-imu | cf-ahrs | cf-imu | offline | phone | camera | telemetry | course | truth (default: the first the session offers)")
     so.add_argument("--srt", type=Path, default=None, help="the DJI subtitle of the clip, when not beside it")
-    so.add_argument("--fov", type=float, default=None, help="override the lens's horizontal field of view, degrees")
-    so.add_argument("--pitch", type=float, default=DRONE_DEFAULT_PITCH_DEG, help=f"a drone clip without gimbal attitude: the camera's pitch, degrees (default {DRONE_DEFAULT_PITCH_DEG:g})")
+    so.add_argument("--fov", type=_number(0.0, 180.0, open_low=True), default=None, help="override the lens's horizontal field of view, degrees")
+    so.add_argument("--pitch", type=_number(-90.0, 90.0), default=DRONE_DEFAULT_PITCH_DEG, help=f"a drone clip without gimbal attitude: the camera's pitch, degrees (default {DRONE_DEFAULT_PITCH_DEG:g})")
     so.add_argument("--out", type=Path, required=True)
     so.set_defaults(func=cmd_solve)
 
@@ -288,7 +348,7 @@ def build_parser() -> argparse.ArgumentParser:
     ss.add_argument("--out", required=True, type=Path)
     ss.add_argument("--scene", type=Path, default=None, help="the site GLB (default: the bundled sample)")
     ss.add_argument("--seed", type=int, default=2026)
-    ss.add_argument("--duration", type=float, default=80.0, help="seconds of video")
+    ss.add_argument("--duration", type=_number(1.0, 3600.0), default=80.0, help="seconds of video")
     ss.set_defaults(func=cmd_simulate_session)
     sp = ssub.add_parser("photo", help="the sample photo: the site seen from the sample pose, plus a banner, people, a car")
     sp.add_argument("--scene", required=True, type=Path)
@@ -308,11 +368,17 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(_joined_negative_values(sys.argv[1:] if argv is None else argv))
+    except SystemExit as exc:  # --help, or an argument error already printed as one line
+        return int(exc.code or 0)
     try:
         return int(args.func(args))
     except GeofuseError as exc:
         print(f"geofuse: error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:  # the file system said no (a folder given for a file, no permission, a full disk)
+        print(f"geofuse: error: {exc.filename or ''}: {exc.strerror or exc}", file=sys.stderr)
         return 2
 
 

@@ -22,7 +22,7 @@ from app.camera import Intrinsics
 from app.errors import DataFormatError, GeofuseError
 from app.geo import LocalFrame
 from app.geomag import declination
-from app.io.dji_srt import check_duration, read_srt
+from app.io.dji_srt import check_duration, read_srt, srt_fixes
 from app.io.streams import GnssTrack, OrientationStream, Warnings
 from app.io.video import VideoInfo, probe
 from app.scene import Placement
@@ -93,15 +93,14 @@ def _dji_session(path: Path, srt: Path, hfov_deg: float | None, pitch_deg: float
     track = read_srt(srt, warnings)
     video = probe(path)
     check_duration(track, video.duration_s + 1.0 / max(video.nominal_fps, 1.0))
-    ok = track.has_position
-    heights = np.where(np.isfinite(track.height), track.height, 0.0)[ok]
+    gnss = srt_fixes(track, warnings)
+    heights = gnss.h
     if track.height_relative:
         warnings.add(f"{srt.name}: heights are relative to take-off; the assumed ground is the take-off height (0 m)")
         ground = 0.0
     else:
         ground = float(np.nanmin(heights))
         warnings.add(f"{srt.name}: absolute heights; the assumed ground is the lowest height of the flight ({ground:.1f} m)")
-    gnss = GnssTrack(track.t[ok], track.lat[ok], track.lon[ok], heights, None, None, str(srt))
     frame, mesh = _frame_and_ground(gnss, ground, DRONE_GROUND_MARGIN_M + 10.0 * float(np.max(heights - ground)))
     when = float(np.nanmin(track.wall_clock)) if np.isfinite(track.wall_clock).any() else (video.creation_time or 0.0)
     decl = declination(frame.lat_deg, frame.lon_deg, frame.h_m, when)

@@ -47,12 +47,5 @@ class ManifestError(DataFormatError):
     """A session manifest with a missing or invalid key (``field`` names the key)."""
 
 
-def refuse_overwriting_inputs(out: str | Path, inputs: list[str | Path]) -> None:
-    """Raise DataFormatError if `out` is one of the input files: geofuse never writes into them."""
-    target = Path(out).resolve()
-    if any(p and Path(p).resolve() == target for p in inputs):
-        raise DataFormatError(out, "is an input file of this command: refusing to overwrite it (choose another --out)")
-
-
 class ShaderError(GeofuseError):
     """A GLSL source that fails to preprocess or compile; the message points at file:line."""

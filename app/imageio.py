@@ -8,6 +8,7 @@ import numpy as np
 from PIL import Image, UnidentifiedImageError
 
 from app.errors import DataFormatError
+from app.outputs import IMAGE_SUFFIXES, check_output, write_atomically
 
 
 def read_rgb(path: str | Path) -> np.ndarray:
@@ -22,9 +23,9 @@ def read_rgb(path: str | Path) -> np.ndarray:
         raise DataFormatError(path, f"cannot read image ({exc}); expected PNG or JPEG") from exc
 
 
-def write_rgb(path: str | Path, rgb: np.ndarray) -> Path:
-    """Write (H, W, 3) uint8 RGB to PNG/JPEG by suffix; creates the folder."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    Image.fromarray(np.asarray(rgb, np.uint8)).save(path)
-    return path
+def write_rgb(path: str | Path, rgb: np.ndarray, option: str = "--out") -> Path:
+    """Write (H, W, 3) uint8 RGB to PNG/JPEG by suffix, atomically (app.outputs); creates the folder."""
+    path = check_output(path, option, IMAGE_SUFFIXES)
+    image = Image.fromarray(np.asarray(rgb, np.uint8))
+    fmt = "PNG" if path.suffix.lower() == ".png" else "JPEG"
+    return write_atomically(path, option, lambda f: image.save(f, format=fmt), binary=True)

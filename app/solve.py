@@ -7,7 +7,7 @@ from pathlib import Path
 from typing import TextIO
 
 from app.camera_track import FramePoses, camera_track
-from app.errors import refuse_overwriting_inputs
+from app.outputs import CSV_SUFFIXES, check_output, write_atomically
 from app.session.model import Session
 
 COLUMNS = ("frame", "time_s", "latitude", "longitude", "height", "E", "N", "U", "heading", "pitch", "roll", "qw", "qx", "qy", "qz")
@@ -42,16 +42,16 @@ def csv_rows(poses: FramePoses):
 def solve_to_csv(session: Session, source: str, out: str | Path, progress: TextIO | None = None) -> int:
     """Write the rows of `solve_frames` to `out` (never to an input file: checked before solving);
     returns the row count."""
-    out = Path(out)
-    refuse_overwriting_inputs(out, list(session.inputs) + [session.path, session.video.path, session.gnss.source])
+    out = check_output(out, "--out", CSV_SUFFIXES, list(session.inputs) + [session.path, session.video.path, session.gnss.source])
     long_input = session.gyr is not None and len(session.gyr.t) >= PROGRESS_MIN_SAMPLES
     bar = progress if long_input else None
     _bar(bar, f"solving {source}", 0.0)
     poses = solve_frames(session, source)
     _bar(bar, f"solving {source}", 1.0)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    with out.open("w", newline="") as f:
+    def write(f) -> None:
         w = csv.writer(f)
         w.writerow(COLUMNS)
         w.writerows(csv_rows(poses))
+
+    write_atomically(out, "--out", write)
     return len(poses)

@@ -12,7 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from app.errors import DataFormatError, refuse_overwriting_inputs
+from app.errors import DataFormatError
+from app.outputs import CSV_SUFFIXES, check_output, write_atomically
 from app.io.streams import GAP_FACTOR, Warnings
 
 
@@ -176,13 +177,15 @@ def write_csv(tel: Telemetry, out: str | Path) -> int:
     out = Path(out)
     if tel.position is None:
         raise DataFormatError(tel.path, "holds no positions to write")
-    refuse_overwriting_inputs(out, [tel.path])
+    out = check_output(out, "--csv", CSV_SUFFIXES, [tel.path])
     t, lat, lon, h = tel.position
     extra = list(tel.attitude)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    with out.open("w", newline="") as f:
+
+    def rows(f) -> None:
         w = csv.writer(f)
         w.writerow(["time_s", "latitude", "longitude", "height", *extra])
         for i in range(len(t)):
             w.writerow([f"{t[i]:.3f}", f"{lat[i]:.9f}", f"{lon[i]:.9f}", f"{h[i]:.3f}", *(f"{tel.attitude[k][i]:.2f}" for k in extra)])
+
+    write_atomically(out, "--csv", rows)
     return len(t)

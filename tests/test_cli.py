@@ -64,14 +64,18 @@ def test_render_writes_a_png(tmp_path, gl_ctx):
     [
         ({"--scene": "missing.glb"}, "missing.glb: scene file does not exist"),
         ({"--image": "nope.png"}, "nope.png: image file does not exist"),
-        ({"--alpha": "1.5"}, "alpha must be in [0, 1]"),
-        ({"--fov": "200"}, "field of view"),
+        ({"--alpha": "1.5"}, "argument --alpha: expected a finite number in [0, 1], got '1.5'"),
+        ({"--fov": "200"}, "argument --fov: expected a finite number in (0, 180]"),
+        ({"--far": "0"}, "argument --far"),
+        ({"--origin": "95,0,0"}, "argument --origin: latitude 95 is outside [-90, 90]"),
+        ({"--pose": "nan,113.53,110,0,0,0"}, "argument --pose: expected 6 comma-separated finite numbers"),
+        ({"--size": "20000x100"}, "argument --size: each side must be 1 to 8192 pixels"),
     ],
 )
 def test_bad_input_exits_2_with_a_clear_message(tmp_path, capsys, override, message):
     assert main(base_args(tmp_path / "o.png", **override)) == 2
     err = capsys.readouterr().err
-    assert message in err and "Traceback" not in err
+    assert message in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
 
 
 def test_corrupt_image_names_the_file(tmp_path, capsys):
@@ -82,7 +86,27 @@ def test_corrupt_image_names_the_file(tmp_path, capsys):
 
 
 def test_malformed_pose_is_an_argument_error(tmp_path, capsys):
-    with pytest.raises(SystemExit) as exc:
-        main(base_args(tmp_path / "o.png", **{"--pose": "1,2,3"}))
-    assert exc.value.code == 2
-    assert "expected 6 comma-separated numbers" in capsys.readouterr().err
+    assert main(base_args(tmp_path / "o.png", **{"--pose": "1,2,3"})) == 2
+    assert "expected 6 comma-separated finite numbers" in capsys.readouterr().err
+
+
+def test_negative_numbers_in_comma_separated_values(tmp_path, capsys):
+    """`--view-from -150,-150,120` is a value, not an option (argparse takes it for one)."""
+    args = base_args(tmp_path / "o.png", **{"--size": "160x90"})
+    assert main([*args, "--view-from", "-150,-150,120", "--look-at", "-1.5,0,0"]) == 0, capsys.readouterr().err
+
+
+def test_outputs_are_checked_before_any_work(tmp_path, capsys):
+    """A folder, a parent that is a file, a suffix the command cannot write, or the command's own
+    input: one line naming --out, exit 2, nothing written."""
+    (tmp_path / "file").write_text("x")
+    image = tmp_path / "photo.png"
+    image.write_bytes(SAMPLE_PHOTO.read_bytes())
+    cases = [(tmp_path, "is a folder"), (tmp_path / "file" / "o.png", "is a file, not a folder"), (tmp_path / "o.txt", "expected a file ending in .png"), (image, "is an input file")]
+    for out, message in cases:
+        args = base_args(out, **{"--image": str(image)})
+        before = image.read_bytes()
+        assert main(args) == 2
+        err = capsys.readouterr().err
+        assert message in err and "--out" in err and len(err.strip().splitlines()) == 1, err
+        assert image.read_bytes() == before

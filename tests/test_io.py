@@ -58,8 +58,11 @@ def test_gnss_csv_with_speed_and_bearing(tmp_path):
     p = write(tmp_path / "gnss.csv", "t,lat,lon,h,speed,bearing\n0,34.8,113.53,110,2,90\n1,34.8,113.53002,110,2,90\n")
     g = csvlog.read_gnss(p)
     np.testing.assert_allclose(g.vel_enu[0], [2, 0, 0], atol=1e-12)
-    with pytest.raises(DataFormatError, match="out of range"):
-        csvlog.read_gnss(write(tmp_path / "bad.csv", "t,lat,lon,h\n0,134.8,113,0\n1,34,113,0\n"))
+    warnings = Warnings()
+    g = csvlog.read_gnss(write(tmp_path / "some.csv", "t,lat,lon,h\n0,134.8,113,0\n1,34,113,0\n2,34,113.00001,0\n"), warnings)
+    assert list(g.t) == [1, 2] and any("1 out of range" in w for w in warnings.items)
+    with pytest.raises(DataFormatError, match="no fix has a latitude in"):
+        csvlog.read_gnss(write(tmp_path / "bad.csv", "t,lat,lon,h\n0,134.8,113,0\n1,95,113,0\n"))
 
 
 def test_orientation_csv_must_hold_unit_quaternions(tmp_path):

@@ -26,7 +26,7 @@ from app import rotations
 from app.attitude.heading import magnetometer_plausible
 from app.geomag import field_enu
 from app.io.gopro import GoProRaw, read_gopro_raw
-from app.io.streams import GnssTrack, OrientationStream, VectorStream, Warnings, resample
+from app.io.streams import GnssTrack, OrientationStream, VectorStream, Warnings, checked_vector, resample
 
 CV_TO_DEVICE = np.diag([1.0, -1.0, -1.0])  # camera (X right, Y down, Z forward) -> device frame
 DEFAULT_IMU_TO_CV = np.array([[-1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, -1.0, 0.0]])  # fitted on the MAX sample
@@ -114,8 +114,17 @@ def to_device_frame(raw: GoProRaw, warnings: Warnings) -> GoProRecording:
     (ta, a), (tg, g) = raw.acc, raw.gyr
     camera = None
     imu_to_cv = DEFAULT_IMU_TO_CV
-    if raw.cori is not None:
-        tc, cq = raw.cori
+    cori = raw.cori
+    if cori is not None:
+        unit = np.abs(np.linalg.norm(cori[1], axis=1) - 1.0) < 0.1
+        if unit.sum() < 2:
+            warnings.add(f"{path.name}: CORI holds no unit quaternions ({int((~unit).sum())} of {len(unit)} are not): not used")
+            cori = None
+        elif not unit.all():
+            warnings.add(f"{path.name}: {int((~unit).sum())} CORI samples that are not unit quaternions dropped")
+            cori = (cori[0][unit], cori[1][unit])
+    if cori is not None:
+        tc, cq = cori
         m, rel = fit_imu_to_camera(tg, g, tc, cq)
         if rel < FIT_MAX_RESIDUAL:
             imu_to_cv = m
@@ -127,14 +136,16 @@ def to_device_frame(raw: GoProRaw, warnings: Warnings) -> GoProRecording:
     else:
         warnings.add(f"{path.name}: no CORI stream: the IMU axis mapping fitted on the GoPro MAX is assumed")
     to_dev = CV_TO_DEVICE @ imu_to_cv
-    acc = VectorStream("acc", ta, a @ to_dev.T, "m/s^2", str(path))
-    gyr = VectorStream("gyr", tg, g @ to_dev.T, "rad/s", str(path))
+    acc = checked_vector(VectorStream("acc", ta, a @ to_dev.T, "m/s^2", str(path)), warnings)
+    gyr = checked_vector(VectorStream("gyr", tg, g @ to_dev.T, "rad/s", str(path)), warnings)
     if camera is not None:
         camera = level(camera, acc)
     mag = None
     if raw.magn is not None:
         tm, mv = raw.magn
-        mag = _checked_magnetometer(VectorStream("mag", tm, mv @ to_dev.T, "uT", str(path)), raw.gnss, raw.gps_utc_at_zero, path, warnings)
+        mag = checked_vector(VectorStream("mag", tm, mv @ to_dev.T, "uT", str(path)), warnings)
+        if mag is not None:
+            mag = _checked_magnetometer(mag, raw.gnss, raw.gps_utc_at_zero, path, warnings)
     return GoProRecording(raw, acc, gyr, mag, camera)
 
 

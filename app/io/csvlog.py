@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from app.errors import DataFormatError
-from app.io.streams import GnssTrack, OrientationStream, VectorStream, Warnings, clean_times, require_samples
+from app.io.streams import GnssTrack, OrientationStream, VectorStream, Warnings, checked_vector, clean_times, plausible_fixes, require_samples
 
 TIME_SCALE = {"t": 1.0, "time": 1.0, "time_s": 1.0, "time_ms": 1e-3, "time_us": 1e-6, "time_ns": 1e-9, "timestamp_ns": 1e-9}
 UNIT_SCALE = {
@@ -107,8 +107,9 @@ def _timed(path: Path, wanted: list[str], label: str, warnings: Warnings) -> tup
     return t[keep], values[keep, 1:], units
 
 
-def read_vector(path: str | Path, kind: str, warnings: Warnings | None = None) -> VectorStream:
-    """An accelerometer ("acc"), gyroscope ("gyr") or magnetometer ("mag") CSV in SI-ish units."""
+def read_vector(path: str | Path, kind: str, warnings: Warnings | None = None) -> VectorStream | None:
+    """An accelerometer ("acc"), gyroscope ("gyr") or magnetometer ("mag") CSV in SI-ish units;
+    None for a magnetometer that reads nothing (streams.checked_vector)."""
     path = Path(path)
     warnings = warnings if warnings is not None else Warnings()
     if kind not in UNIT_SCALE:
@@ -123,7 +124,7 @@ def read_vector(path: str | Path, kind: str, warnings: Warnings | None = None) -
     if kind == "gyr" and "x" not in units and np.percentile(np.abs(v), 99) > GYRO_DEG_SUSPECT:
         v = np.radians(v)
         warnings.add(f"{path.name}: gyroscope values up to {np.abs(v).max() * 180 / np.pi:.0f} look like deg/s (no unit in the header); converted to rad/s")
-    return VectorStream(kind, t, v, DEFAULT_UNIT[kind], str(path))
+    return checked_vector(VectorStream(kind, t, v, DEFAULT_UNIT[kind], str(path)), warnings)
 
 
 def read_gnss(path: str | Path, warnings: Warnings | None = None) -> GnssTrack:
@@ -138,9 +139,6 @@ def read_gnss(path: str | Path, warnings: Warnings | None = None) -> GnssTrack:
         extra = ["speed", "bearing"]
     acc_col = ["h_acc"] if "h_acc" in columns else []
     t, v, _ = _timed(path, ["lat", "lon", "h", *extra, *acc_col], "GNSS", warnings)
-    bad = (np.abs(v[:, 0]) > 90) | (np.abs(v[:, 1]) > 180)
-    if bad.any():
-        raise DataFormatError(path, f"latitude/longitude out of range at {int(bad.sum())} rows (expected degrees)", field="lat")
     require_samples(len(t), 2, path, "GNSS")
     vel = None
     if extra[:2] == ["vel_e", "vel_n"]:
@@ -149,7 +147,7 @@ def read_gnss(path: str | Path, warnings: Warnings | None = None) -> GnssTrack:
         speed, bearing = v[:, 3], np.radians(v[:, 4])
         vel = np.column_stack([speed * np.sin(bearing), speed * np.cos(bearing), np.zeros(len(t))])
     h_acc = v[:, -1] if acc_col else None
-    return GnssTrack(t, v[:, 0], v[:, 1], v[:, 2], vel, h_acc, str(path))
+    return plausible_fixes(GnssTrack(t, v[:, 0], v[:, 1], v[:, 2], vel, h_acc, str(path)), warnings)
 
 
 def read_orientation(path: str | Path, warnings: Warnings | None = None) -> OrientationStream:

@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from app.errors import DataFormatError
-from app.io.streams import Warnings
+from app.io.streams import GnssTrack, Warnings, plausible_fixes
 
 _TIMING = re.compile(r"(\d+):(\d\d):(\d\d)[,.](\d{1,3})\s*-->\s*(\d+):(\d\d):(\d\d)[,.](\d{1,3})")
 _NUM = r"([-+]?\d+(?:\.\d+)?)"
@@ -134,25 +134,32 @@ def read_srt(path: str | Path, warnings: Warnings | None = None) -> SrtTrack:
     if not raw.strip():
         raise DataFormatError(path, "empty subtitle file (expected DJI telemetry entries)")
     text = raw.decode("utf-8-sig", errors="replace").replace("\r\n", "\n").replace("\r", "\n")
-    blocks = [b for b in re.split(r"\n\s*\n", text.strip()) if b.strip()]
+    blocks = split_entries(text)
     rows = []
     layouts: set[str] = set()
     incomplete = []
-    usual = int(np.median([len(b.strip().split("\n")) for b in blocks]))
-    for n, block in enumerate(blocks, start=1):
-        lines = block.strip().split("\n")
+    usual = int(np.median([len(b) for b in blocks]))
+    undated = 0
+    for n, lines in enumerate(blocks, start=1):
         if n == len(blocks) and n > 1 and len(lines) < usual:
             incomplete.append(n)  # the file stops inside its last entry
             continue
         timing = next((_TIMING.search(line) for line in lines[:3] if _TIMING.search(line)), None)
         body = "\n".join(line for line in lines if not _TIMING.search(line) and not line.strip().isdigit())
+        fields, layout = _entry_fields(re.sub(r"<[^>]+>", " ", body))
+        if timing is None and "wall" in fields:  # older layouts: a date-time line instead of the timing line
+            rows.append((np.nan, np.nan, fields))
+            layouts.add(layout + ", dated entries")
+            undated += 1
+            continue
         if timing is None or not body.strip():
             incomplete.append(n)
             continue
         g = timing.groups()
-        fields, layout = _entry_fields(re.sub(r"<[^>]+>", " ", body))
         layouts.add(layout)
         rows.append((_seconds(*g[:4]), _seconds(*g[4:]), fields))
+    if undated:
+        rows = _times_from_dates(rows)
     if incomplete:
         last = incomplete[-1] == len(blocks)
         where = "the last entry" if incomplete == [len(blocks)] else f"entries {incomplete[:5]}"
@@ -185,6 +192,50 @@ def read_srt(path: str | Path, warnings: Warnings | None = None) -> SrtTrack:
         np.column_stack([col("Gp"), col("Gr"), col("Gy")]), np.column_stack([col("Fp"), col("Fr"), col("Fy")]), col("focal"),
         tuple(sorted(layouts)),
     )
+
+
+def split_entries(text: str) -> list[list[str]]:
+    """A subtitle's non-blank lines grouped into entries. An entry starts at its index line (digits
+    alone) followed by a timing line (`start --> end`) or, in older layouts, by a date-time line;
+    blank lines inside an entry (newer enterprise layouts) do not split it."""
+    lines = [line for line in text.split("\n") if line.strip()]
+    entries: list[list[str]] = []
+    for i, line in enumerate(lines):
+        nxt = lines[i + 1] if i + 1 < len(lines) else ""
+        header = line.strip().isdigit() and bool(_TIMING.search(nxt) or _DATE_DASH.match(nxt.strip()) or _DATE_DOT.match(nxt.strip()))
+        if header or not entries:
+            entries.append([])
+        entries[-1].append(line)
+    return entries
+
+
+def _times_from_dates(rows: list[tuple[float, float, dict[str, float]]]) -> list[tuple[float, float, dict[str, float]]]:
+    """Entries of a layout without timing lines: times from their date-time lines, counted from
+    the first entry's; each lasts until the next (the last one the median step)."""
+    wall = np.array([r[2].get("wall", np.nan) for r in rows])
+    if not np.isfinite(wall).any():
+        return [r for r in rows if np.isfinite(r[0])]
+    w0 = float(np.nanmin(wall))
+    out = [(float(w - w0), np.nan, f) if not np.isfinite(t0) else (t0, t1, f) for (t0, t1, f), w in zip(rows, wall)]
+    starts = np.array([r[0] for r in out])
+    step = float(np.median(np.diff(starts))) if len(starts) > 1 else 1.0
+    ends = np.append(starts[1:], starts[-1] + step)
+    return [(t0, t1 if np.isfinite(t1) else float(e), f) for (t0, t1, f), e in zip(out, ends)]
+
+
+def srt_fixes(track: SrtTrack, warnings: Warnings, offset_s: float = 0.0) -> GnssTrack:
+    """The subtitle's positions as a GNSS track (times + offset_s), through the same plausibility
+    gate as every reader (streams.plausible_fixes); heights as the subtitle gives them (missing
+    ones 0: above take-off, or the lowest flight height for absolute layouts)."""
+    ok = track.has_position
+    h = track.height[ok]
+    missing = ~np.isfinite(h)
+    if missing.any() and not missing.all():
+        warnings.add(f"{Path(track.path).name}: {int(missing.sum())} entries without a height: interpolated")
+        h = np.interp(track.t[ok], track.t[ok][~missing], h[~missing])
+    elif missing.all():
+        h = np.zeros(len(h))
+    return plausible_fixes(GnssTrack(offset_s + track.t[ok], track.lat[ok], track.lon[ok], h, None, None, track.path), warnings)
 
 
 def check_duration(track: SrtTrack, video_duration_s: float, tolerance_s: float = 2.0) -> None:

@@ -22,7 +22,7 @@ import numpy as np
 
 from app.errors import DataFormatError
 from app.io.gpmf import Counts, StreamChunk, chunks, parse
-from app.io.streams import GnssTrack, Warnings
+from app.io.streams import GnssTrack, Warnings, plausible_fixes
 
 DEFAULT_ORIN = {"HERO5": "ZXY", "HERO6": "YxZ", "Fusion": "yXZ"}  # documented data orders where ORIN is absent
 GPS_BIN_S = 0.5  # 18 Hz GPS averaged into 2 Hz fixes: smoother velocities for the Hermite track
@@ -148,7 +148,10 @@ def lens_hfov(settings: dict[str, object], width: int, height: int) -> float | N
 
 
 def orin_map(orin: str, values: np.ndarray) -> np.ndarray:
-    """Stored values -> IMU X, Y, Z per the ORIN string (lowercase = negated axis)."""
+    """Stored values -> IMU X, Y, Z per the ORIN string (lowercase = negated axis). ValueError
+    unless ORIN names X, Y and Z once each."""
+    if len(orin) < 3 or sorted(orin[:3].upper()) != ["X", "Y", "Z"] or values.ndim != 2 or values.shape[1] < 3:
+        raise ValueError(f"ORIN {orin!r} on {values.shape} samples: expected a permutation of X, Y, Z (lower case negated) on 3-axis samples")
     out = np.zeros_like(values[:, :3])
     for i, ch in enumerate(orin[:3]):
         out[:, "XYZ".index(ch.upper())] = values[:, i] * (1.0 if ch.isupper() else -1.0)
@@ -197,11 +200,18 @@ def read_gopro_raw(path: str | Path, warnings: Warnings | None = None) -> GoProR
     orin_g = str(by_key["GYRO"][0].modifiers.get("ORIN", orin_default))
     ta, a = _gather(by_key["ACCL"])
     tg, g = _gather(by_key["GYRO"])
+    try:
+        a, g = orin_map(orin_a, a), orin_map(orin_g, g)
+    except ValueError as exc:
+        raise DataFormatError(path, str(exc), field="ORIN") from exc
     cori = _gather(by_key["CORI"]) if "CORI" in by_key else None
     magn = None
     if "MAGN" in by_key:
         tm, mv = _gather(by_key["MAGN"])
-        magn = (tm, orin_map(str(by_key["MAGN"][0].modifiers.get("ORIN", orin_a)), mv))
+        try:
+            magn = (tm, orin_map(str(by_key["MAGN"][0].modifiers.get("ORIN", orin_a)), mv))
+        except ValueError as exc:
+            warnings.add(f"{path.name}: MAGN not used ({exc})")
     gnss, precision, utc0, dropped = _gps(by_key, path, warnings)
     lens = next((v for k, v in HFOV_DEG.items() if k in model.lower()), HFOV_DEG["default"])
     from app.io.video import probe
@@ -212,7 +222,7 @@ def read_gopro_raw(path: str | Path, warnings: Warnings | None = None) -> GoProR
         lens = recorded
     else:
         warnings.add(f"{path.name}: no lens field of view in the metadata: {lens:g} deg horizontal assumed for {model or 'this camera'}")
-    return GoProRaw(path, model or "GoPro", (ta, orin_map(orin_a, a)), (tg, orin_map(orin_g, g)), cori, magn, gnss, precision, utc0, lens, counts, dropped)
+    return GoProRaw(path, model or "GoPro", (ta, a), (tg, g), cori, magn, gnss, precision, utc0, lens, counts, dropped)
 
 
 def _gps(by_key: dict[str, list[StreamChunk]], path: Path, warnings: Warnings) -> tuple[GnssTrack | None, np.ndarray | None, float | None, int]:
@@ -220,18 +230,21 @@ def _gps(by_key: dict[str, list[StreamChunk]], path: Path, warnings: Warnings) -
     if key is None:
         warnings.add(f"{path.name}: no GPS stream (GPS5/GPS9): the camera's position is unknown")
         return None, None, None, 0
-    ts, vals, dop, utc0, dropped = [], [], [], None, 0
+    ts, vals, fixes, dops, dop, utc0, dropped = [], [], [], [], [], None, 0
     for c in by_key[key]:
         t = _times(c)
-        fix = np.ravel(c.modifiers["GPSF"])[0] if isinstance(c.modifiers.get("GPSF"), np.ndarray) else 3.0
-        ok = np.full(len(t), fix >= 2)
+        fix = np.full(len(t), float(np.ravel(c.modifiers["GPSF"])[0]) if isinstance(c.modifiers.get("GPSF"), np.ndarray) else 3.0)
         if key == "GPS9" and c.samples.shape[1] >= 9:
-            ok = c.samples[:, 8] >= 2
+            fix = c.samples[:, 8].astype(np.float64)
+        ok = fix >= 2
         dropped += int((~ok).sum())
+        precision = float(np.ravel(c.modifiers["GPSP"])[0]) / 100.0 if isinstance(c.modifiers.get("GPSP"), np.ndarray) else np.nan
         ts.append(t[ok])
         vals.append(c.samples[ok, :5])
-        if isinstance(c.modifiers.get("GPSP"), np.ndarray):
-            dop.append((c.t0, float(np.ravel(c.modifiers["GPSP"])[0]) / 100.0))
+        fixes.append(fix[ok])
+        dops.append(np.full(int(ok.sum()), precision))
+        if np.isfinite(precision):
+            dop.append((c.t0, precision))
         if utc0 is None and isinstance(c.modifiers.get("GPSU"), str):
             try:
                 when = datetime.strptime(c.modifiers["GPSU"][:16], "%y%m%d%H%M%S.%f").replace(tzinfo=timezone.utc)
@@ -245,6 +258,13 @@ def _gps(by_key: dict[str, list[StreamChunk]], path: Path, warnings: Warnings) -
     if len(t) < 2:
         warnings.add(f"{path.name}: fewer than two GPS samples with a fix")
         return None, np.array(dop) if dop else None, utc0, dropped
+    try:
+        raw = plausible_fixes(GnssTrack(t, v[:, 0], v[:, 1], v[:, 2], None, None, str(path)), warnings, np.concatenate(fixes), np.nan_to_num(np.concatenate(dops), nan=0.0))
+    except DataFormatError as exc:
+        warnings.add(f"{path.name}: GPS not used ({exc.detail})")
+        return None, np.array(dop) if dop else None, utc0, dropped
+    t = raw.t
+    v = np.column_stack([raw.lat, raw.lon, raw.h, np.zeros((len(t), 2))])
     # Average into GPS_BIN_S bins: 18 Hz fixes jitter by decimetres, which Hermite velocities amplify.
     bins = np.floor((t - t[0]) / GPS_BIN_S).astype(int)
     keep = np.unique(bins)

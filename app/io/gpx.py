@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from app.errors import DataFormatError
-from app.io.streams import GnssTrack, Warnings
+from app.io.streams import GnssTrack, Warnings, plausible_fixes
 
 GPS_EPOCH_UNIX_S = 315964800.0  # 1980-01-06: no GNSS receiver time can be earlier
 
@@ -42,6 +42,7 @@ def read_gpx(path: str | Path, warnings: Warnings | None = None) -> GnssTrack:
         raise DataFormatError(path, f"root element is <{_local(root.tag)}>, expected <gpx>")
     rows = []
     speeds = []
+    unparsable: dict[str, int] = {}
     point = 0
     for seg_index, seg in enumerate(e for e in root.iter() if _local(e.tag) == "trkseg"):
         pts = [e for e in seg if _local(e.tag) == "trkpt"]
@@ -61,11 +62,13 @@ def read_gpx(path: str | Path, warnings: Warnings | None = None) -> GnssTrack:
                 t = _parse_time(fields["time"])
             except ValueError as exc:
                 raise DataFormatError(path, f"track point {point}: unparsable <time> {fields['time']!r}", field="time") from exc
-            ele = float(fields["ele"]) if fields.get("ele", "").strip() else np.nan
+            ele = _optional_number(fields.get("ele", ""), unparsable, "ele")
             rows.append((t, lat, lon, ele))
-            speeds.append(float(fields["speed"]) if fields.get("speed", "").strip() else np.nan)
+            speeds.append(_optional_number(fields.get("speed", ""), unparsable, "speed"))
     if not rows:
         raise DataFormatError(path, "no track points (expected <trk><trkseg><trkpt>)")
+    for name, count in unparsable.items():
+        warnings.add(f"{path.name}: {count} track points with an unparsable <{name}>: taken as missing")
     arr = np.array(rows)
     early = arr[:, 0] < GPS_EPOCH_UNIX_S
     if early.any():
@@ -94,4 +97,18 @@ def read_gpx(path: str | Path, warnings: Warnings | None = None) -> GnssTrack:
         warnings.add(f"{path.name}: {int(np.isnan(arr[:, 3]).sum())} track points without <ele>; heights interpolated")
         ok = ~np.isnan(arr[:, 3])
         arr[:, 3] = np.interp(arr[:, 0], arr[ok, 0], arr[ok, 3]) if ok.any() else 0.0
-    return GnssTrack(arr[:, 0], arr[:, 1], arr[:, 2], arr[:, 3], None, None, str(path))
+    return plausible_fixes(GnssTrack(arr[:, 0], arr[:, 1], arr[:, 2], arr[:, 3], None, None, str(path)), warnings)
+
+
+def _optional_number(text: str, unparsable: dict[str, int], name: str) -> float:
+    """A number, NaN when the element is absent or empty, NaN counted in `unparsable` when it is
+    not a finite number."""
+    if not text.strip():
+        return np.nan
+    try:
+        value = float(text)
+    except ValueError:
+        value = np.nan
+    if not np.isfinite(value):
+        unparsable[name] = unparsable.get(name, 0) + 1
+    return value

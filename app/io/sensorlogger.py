@@ -27,7 +27,7 @@ import numpy as np
 
 from app import rotations
 from app.errors import DataFormatError
-from app.io.streams import GnssTrack, OrientationStream, VectorStream, Warnings, clean_times, require_samples, resample
+from app.io.streams import GnssTrack, OrientationStream, VectorStream, Warnings, checked_vector, clean_times, plausible_fixes, require_samples, resample
 
 
 @dataclass(frozen=True)
@@ -120,8 +120,10 @@ def read_sensorlogger(path: str | Path, standardised: bool = False, warnings: Wa
         acc = VectorStream("acc", user.t, sign * total, "m/s^2", user.source)
     else:
         raise DataFormatError(path, "no acceleration with gravity: expected TotalAcceleration.csv, or Accelerometer.csv and Gravity.csv")
+    gyr, acc = checked_vector(gyr, warnings), checked_vector(acc, warnings)
     mag = _vector(src, "Magnetometer.csv", "mag", "uT", warnings) if src.has("magnetometer.csv") else None
-    if mag is None:
+    mag = None if mag is None else checked_vector(mag, warnings)
+    if mag is None and not src.has("magnetometer.csv"):
         warnings.add(f"{path.name}: no Magnetometer.csv: only the IMU (6D) filters are available")
     gnss = None
     if src.has("location.csv"):
@@ -136,7 +138,7 @@ def read_sensorlogger(path: str | Path, standardised: bool = False, warnings: Wa
                 vel = np.column_stack([sb[:, 0] * np.sin(b), sb[:, 0] * np.cos(b), np.zeros(len(b))])
             else:
                 warnings.add(f"{path.name}: Location.csv has {int((~valid).sum())} fixes with invalid speed/bearing; velocity estimated from positions")
-        gnss = GnssTrack(t, v[:, 0], v[:, 1], v[:, 2], vel, None, str(src.where("Location.csv")))
+        gnss = plausible_fixes(GnssTrack(t, v[:, 0], v[:, 1], v[:, 2], vel, None, str(src.where("Location.csv"))), warnings)
     orientation = None
     if src.has("orientation.csv"):
         t, q = _columns(src, "Orientation.csv", ["qw", "qx", "qy", "qz"], "orientation", warnings)

@@ -126,3 +126,104 @@ def clean_times(t: FloatArray, rows: npt.NDArray[np.int64], path: Path, label: s
 def require_samples(n: int, minimum: int, path: Path, label: str) -> None:
     if n < minimum:
         raise DataFormatError(path, f"{label}: {n} usable samples, expected at least {minimum}")
+
+
+# --- where numbers enter: one set of plausibility checks for every reader ---------------------------
+
+RATE_RANGE_HZ = (0.5, 20_000.0)  # an IMU sample rate outside this is a time-unit mistake or a broken log
+DEAD_SENSOR = {"acc": 0.5, "mag": 0.5}  # median norm (m/s^2, uT) below which a sensor reads nothing
+MAX_SPEED_MPS = 150.0  # horizontal: no phone, car, action camera or small drone moves faster
+MAX_CLIMB_MPS = 60.0  # vertical speed beyond which a height is a jump, not motion
+MAX_DOP = 5.0  # fixes with a worse dilution of precision are not positions to use
+HEIGHT_RANGE_M = (-1_000.0, 20_000.0)  # ellipsoidal heights a fix can have
+
+
+def checked_vector(stream: VectorStream, warnings: Warnings) -> VectorStream | None:
+    """A sensor stream as it enters: rows with non-finite values dropped and counted; a sample
+    rate in RATE_RANGE_HZ (else DataFormatError: the time unit is wrong); a dead accelerometer
+    (reads ~0 throughout) is an error, a dead magnetometer is dropped (None) with a warning."""
+    path = Path(stream.source or stream.name)
+    finite = np.isfinite(stream.values).all(axis=1) & np.isfinite(stream.t)
+    if not finite.all():
+        warnings.add(f"{path.name}: {int((~finite).sum())} {stream.name} samples with non-finite values dropped")
+        stream = VectorStream(stream.name, stream.t[finite], stream.values[finite], stream.unit, stream.source)
+    require_samples(len(stream.t), 2, path, stream.name)
+    rate = stream.rate_hz
+    if not RATE_RANGE_HZ[0] <= rate <= RATE_RANGE_HZ[1]:
+        raise DataFormatError(path, f"{stream.name}: sample rate {rate:.3g} Hz, expected {RATE_RANGE_HZ[0]:g} to {RATE_RANGE_HZ[1]:g} Hz (are the times in the unit the file says?)", field="t")
+    floor = DEAD_SENSOR.get(stream.name)
+    if floor is not None:
+        norm = float(np.median(np.linalg.norm(stream.values, axis=1)))
+        if norm < floor:
+            if stream.name == "acc":
+                raise DataFormatError(path, f"the accelerometer reads {norm:.3g} {stream.unit} (median norm): a dead or disconnected sensor, expected about 9.8 m/s^2 of gravity", field="acc")
+            warnings.add(f"{path.name}: the magnetometer reads {norm:.3g} {stream.unit} (median norm): a dead sensor, not used")
+            return None
+    return stream
+
+
+def plausible_fixes(track: GnssTrack, warnings: Warnings, fix_type: npt.ArrayLike | None = None, dop: npt.ArrayLike | None = None, minimum: int = 1) -> GnssTrack:
+    """The fixes of a track that are positions, as they enter: dropped and counted, by class, are
+    fixes that are not positions (non-finite, out of range, 0 N 0 E before a lock, heights beyond
+    HEIGHT_RANGE_M), fixes the receiver itself marks poor (2D fixes where 3D ones exist, DOP above
+    MAX_DOP), and jumps (a speed above MAX_SPEED_MPS or a climb above MAX_CLIMB_MPS from the last
+    kept fix). DataFormatError when fewer than `minimum` fixes remain, or none is in range."""
+    path = Path(track.source or "GNSS")
+    t, lat, lon, h = track.t, track.lat, track.lon, track.h
+    finite = np.isfinite(t) & np.isfinite(lat) & np.isfinite(lon)
+    in_range = finite & (np.abs(np.nan_to_num(lat)) <= 90.0) & (np.abs(np.nan_to_num(lon)) <= 180.0)
+    null_island = in_range & (np.abs(lat) < 1e-6) & (np.abs(lon) < 1e-6)
+    bad_h = in_range & ~((h >= HEIGHT_RANGE_M[0]) & (h <= HEIGHT_RANGE_M[1]))
+    keep = in_range & ~null_island & ~bad_h
+    if not in_range[finite].any() and finite.any():
+        raise DataFormatError(path, f"no fix has a latitude in [-90, 90] and a longitude in [-180, 180] degrees (first: {lat[finite][0]:g}, {lon[finite][0]:g})", field="lat")
+    notes = []
+    for label, mask in (("non-finite", ~finite), ("out of range", finite & ~in_range), ("at 0 N 0 E (no lock yet)", null_island), ("with impossible heights", bad_h)):
+        if mask.any():
+            notes.append(f"{int(mask.sum())} {label}")
+    if fix_type is not None:
+        f = np.asarray(fix_type, np.float64)
+        poor = keep & (f < 3) if (keep & (f >= 3)).any() else np.zeros_like(keep)
+        if poor.any():
+            notes.append(f"{int(poor.sum())} 2D fixes (3D ones exist)")
+        keep &= ~poor
+    if dop is not None:
+        d = np.asarray(dop, np.float64)
+        poor = keep & (d > MAX_DOP)
+        if poor.any():
+            notes.append(f"{int(poor.sum())} with DOP above {MAX_DOP:g}")
+        keep &= ~poor
+    jumps = _jumps(t, lat, lon, h, keep)
+    if jumps.any():
+        notes.append(f"{int(jumps.sum())} jumps (faster than {MAX_SPEED_MPS:g} m/s or climbing faster than {MAX_CLIMB_MPS:g} m/s)")
+    keep &= ~jumps
+    if notes:
+        warnings.add(f"{path.name}: fixes that are not usable positions dropped: {', '.join(notes)}; {int(keep.sum())} of {len(t)} kept")
+    if keep.sum() < max(minimum, 1):
+        raise DataFormatError(path, f"{int(keep.sum())} usable GNSS fixes of {len(t)}, expected at least {max(minimum, 1)}")
+    sub = lambda a: None if a is None else np.asarray(a)[keep]  # noqa: E731
+    return GnssTrack(t[keep], lat[keep], lon[keep], h[keep], sub(track.vel_enu), sub(track.h_acc), track.source)
+
+
+def _jumps(t: FloatArray, lat: FloatArray, lon: FloatArray, h: FloatArray, keep: npt.NDArray[np.bool_]) -> npt.NDArray[np.bool_]:
+    """Fixes whose speed from the last accepted fix is impossible: one pass forward and one
+    backward from the fix nearest the track's median position (so a bad first fix cannot condemn
+    all the others), in local metres."""
+    out = np.zeros(len(t), bool)
+    idx = np.flatnonzero(keep)
+    if len(idx) < 2:
+        return out
+    k_lat = np.cos(np.radians(np.median(lat[idx])))
+    anchor = int(np.argmin(np.hypot(lat[idx] - np.median(lat[idx]), (lon[idx] - np.median(lon[idx])) * k_lat)))
+    for order in (idx[anchor:], idx[anchor::-1]):
+        last = order[0]
+        for i in order[1:]:
+            dt = abs(t[i] - t[last])
+            dn = np.radians(lat[i] - lat[last]) * 6_371_000.0
+            de = np.radians((lon[i] - lon[last] + 180.0) % 360.0 - 180.0) * 6_371_000.0 * k_lat
+            dh = h[i] - h[last] if np.isfinite(h[i]) and np.isfinite(h[last]) else 0.0
+            if np.hypot(dn, de) > MAX_SPEED_MPS * dt + 5.0 or abs(dh) > MAX_CLIMB_MPS * dt + 5.0:
+                out[i] = True
+            else:
+                last = i
+    return out

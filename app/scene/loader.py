@@ -7,7 +7,10 @@ Placement (applied in this order to the model's own coordinates, float64):
 4. the model's origin (lat, lon, h) -> the session frame through ECEF, so a model anchored
    elsewhere than the session origin lands exactly (curvature included).
 A model whose coordinates are already ECEF (as in exported 3D Tiles content; detected by their
-distance from the Earth's centre) skips 1-4 and goes ECEF -> session ENU directly.
+distance from the Earth's centre) skips 2-4 and goes ECEF -> session ENU directly. A glTF's ECEF
+may be Z-up as stored (a root node that turns Y-up to Z-up, or Z-up vertices) or still Y-up (the
+offset in a node translation, the Y-up -> Z-up turn left to the 3D Tiles runtime, as the official
+3D Tiles tools write it): both readings are tried and the one nearer the session's origin is taken.
 ECEF stored as float32 (as some PLY writers do) is only good to ~0.5 m at the Earth's radius:
 prefer float64 or a node translation carrying the large offset, as 3D Tiles content does.
 """
@@ -52,13 +55,22 @@ def _up_axis(path: Path, placement: Placement) -> str:
     return up
 
 
+def _y_up_to_z_up(p: np.ndarray) -> np.ndarray:
+    """glTF's Y-up -> Z-up (the 3D Tiles rule): (x, y, z) -> (x, -z, y)."""
+    return np.stack([p[:, 0], -p[:, 2], p[:, 1]], axis=1)
+
+
 def model_to_enu(points: np.ndarray, path: Path, placement: Placement, frame: LocalFrame) -> np.ndarray:
     """Model coordinates (N, 3) -> session ENU (N, 3) float64 metres, per the module docstring."""
     p = np.asarray(points, np.float64)
+    y_up = _up_axis(path, placement) == "Y"
     if len(p) and np.linalg.norm(p.mean(axis=0)) > ECEF_MIN_RADIUS_M:
-        return frame.ecef_to_enu(p)
-    if _up_axis(path, placement) == "Y":
-        p = np.stack([p[:, 0], -p[:, 2], p[:, 1]], axis=1)
+        if not y_up:
+            return frame.ecef_to_enu(p)
+        candidates = [frame.ecef_to_enu(p), frame.ecef_to_enu(_y_up_to_z_up(p))]
+        return min(candidates, key=lambda e: float(np.linalg.norm(e.mean(axis=0))))
+    if y_up:
+        p = _y_up_to_z_up(p)
     p = p * float(placement.scale)
     if placement.heading_deg:
         a = np.radians(placement.heading_deg)

@@ -68,3 +68,11 @@ class MeshData:
         hi = np.max([p.positions.max(axis=0) for p in self.primitives], axis=0)
         return np.stack([lo, hi]).astype(np.float64)
 
+
+    def horizontal_distance(self, points_enu: npt.ArrayLike) -> float:
+        """The horizontal distance (m) from the nearest of the points (N, 3 or 2; ENU) to the
+        scene's bounding box: 0 when a point lies over the scene."""
+        p = np.atleast_2d(np.asarray(points_enu, np.float64))[:, :2]
+        lo, hi = self.bounds()[:, :2]
+        gap = np.maximum(np.maximum(lo - p, p - hi), 0.0)
+        return float(np.hypot(gap[:, 0], gap[:, 1]).min()) if len(p) else 0.0

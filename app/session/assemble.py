@@ -17,7 +17,7 @@ from app.errors import ManifestError
 from app.geo import LocalFrame
 from app.geomag import declination, field_enu
 from app.io import csvlog
-from app.io.dji_srt import read_srt
+from app.io.dji_srt import read_srt, srt_fixes
 from app.io.gpx import read_gpx
 from app.io.sensorlogger import read_sensorlogger
 from app.io.streams import GnssTrack, OrientationStream, VectorStream, Warnings
@@ -92,11 +92,9 @@ def _srt_gnss(path: Path, warnings: Warnings, clip_start: float, recorded: dict[
     """A DJI subtitle as the session's GNSS (its times are the clip's, shifted to the session
     clock) and, with gimbal angles, its `telemetry` attitude."""
     tr = read_srt(path, warnings)
-    ok = tr.has_position
-    h = np.where(np.isfinite(tr.height), tr.height, 0.0)[ok]
     if tr.has_gimbal:
         recorded["telemetry"] = _shifted(gimbal_attitude(tr, path), clip_start)
-    return GnssTrack(clip_start + tr.t[ok], tr.lat[ok], tr.lon[ok], h, None, None, str(path)), bool(tr.height_relative)
+    return srt_fixes(tr, warnings, clip_start), bool(tr.height_relative)
 
 
 def gimbal_attitude(track, path: Path) -> OrientationStream:
@@ -120,6 +118,17 @@ def _takeoff_height(cfg: SessionConfig, frame: LocalFrame, gnss: GnssTrack, mesh
     value = float(frame.enu_to_geodetic(np.array([first[0], first[1], ground]))[2])
     warnings.add(f"heights above take-off: take-off height {value:.2f} m from the scene's ground under the first position")
     return value
+
+
+SCENE_FAR_M = 500.0  # a scene farther than this from every fix of the track is misplaced, or the track is
+
+
+def warn_if_scene_is_far(mesh, track_enu: np.ndarray, scene_path: Path, warnings: Warnings) -> None:
+    """A warning with the distance when the scene lies away from the camera's track (a wrong
+    origin, up axis or ECEF reading places a model thousands of kilometres off)."""
+    far = mesh.horizontal_distance(track_enu)
+    if far > SCENE_FAR_M:
+        warnings.add(f"{scene_path.name}: the scene lies {far / 1000:.1f} km from the camera's track: check scene.origin, scene.up_axis and the GNSS positions")
 
 
 def _frame_times(cfg: SessionConfig, video: VideoInfo) -> tuple[float, np.ndarray]:
@@ -184,11 +193,10 @@ def assemble(cfg: SessionConfig) -> Session:
     gnss, above_takeoff = _gnss(cfg, logged_gnss, warnings, clip_start, recorded)
     _check_coverage(cfg, frame_times, (gyr if gyr is not None else gnss).t, warnings)
     mag = _calibrate_magnetometer(cfg, mag, float(frame_times[0]), warnings)
-    mesh = None
-    if above_takeoff or cfg.gnss.height == "ground":
-        mesh = load_scene(cfg.scene.path, frame, cfg.scene.placement)
+    mesh = load_scene(cfg.scene.path, frame, cfg.scene.placement)
     if above_takeoff:
         gnss = replace(gnss, h=gnss.h + _takeoff_height(cfg, frame, gnss, mesh, warnings))
+    warn_if_scene_is_far(mesh, frame.geodetic_to_enu(gnss.lat, gnss.lon, gnss.h), cfg.scene.path, warnings)
     truth_position = csvlog.read_gnss(cfg.truth.position, warnings) if cfg.truth.position else None
 
     device_is_camera = cfg.sensors.format in ("gopro", "none")  # action cameras and drones

@@ -52,7 +52,11 @@ def parse_script(path: str | Path) -> list[Action]:
     if not path.is_file():
         raise DataFormatError(path, "script file does not exist")
     out = []
-    for number, raw in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1):
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:
+        raise DataFormatError(path, f"not UTF-8 text (byte {exc.start}): expected lines of 'TIME ACTION [ARGUMENT]'") from exc
+    for number, raw in enumerate(text.splitlines(), start=1):
         text = raw.split("#", 1)[0].strip()
         if not text:
             continue

@@ -154,12 +154,14 @@ def _render_session(args: argparse.Namespace) -> int:
     check_output(args.out, "--out", IMAGE_SUFFIXES, [args.session])
     session = open_any(args.session)
     check_output(args.out, "--out", IMAGE_SUFFIXES, session.inputs)
-    for w in session.warnings.items:
-        print(f"warning: {w}", file=sys.stderr)
     source = args.source or session.sources[0]
     pts = session.video.pts_s
     if not pts[0] - 0.5 <= args.time <= pts[-1] + 0.5:
         raise GeofuseError(f"--time {args.time:g}: the video runs from {pts[0]:.3f} to {pts[-1]:.3f} s")
+    if source not in session.sources:
+        raise GeofuseError(f"--source {source}: this session offers {', '.join(session.sources)}")
+    for w in session.warnings.items:
+        print(f"warning: {w}", file=sys.stderr)
     index = int(np.argmin(np.abs(pts - args.time)))
     try:
         track = camera_track(session, source).with_clip(DEFAULT_NEAR_M, args.far)
@@ -181,11 +183,12 @@ def cmd_solve(args: argparse.Namespace) -> int:
     check_output(args.out, "--out", CSV_SUFFIXES, [args.manifest, args.srt])
 
     session = open_any(args.manifest, args.srt, args.fov, args.pitch)
-    for w in session.warnings.items:
-        print(f"warning: {w}", file=sys.stderr)
+    check_output(args.out, "--out", CSV_SUFFIXES, list(session.inputs))
     source = args.source or session.sources[0]
     if source not in session.sources:
         raise GeofuseError(f"--source {source}: this session offers {', '.join(session.sources)}")
+    for w in session.warnings.items:
+        print(f"warning: {w}", file=sys.stderr)
     rows = solve_to_csv(session, source, args.out, progress=sys.stderr)
     print(f"wrote {args.out}: {rows} frames, attitude from {source}")
     return 0
@@ -194,8 +197,11 @@ def cmd_solve(args: argparse.Namespace) -> int:
 def cmd_view(args: argparse.Namespace) -> int:
     import logging
 
+    from app.ui.script import parse_script
     from app.ui.viewer import Options, Viewer
 
+    if args.script is not None:
+        parse_script(args.script)  # a bad script is refused before a window opens
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
     return Viewer(Options(args.manifest, args.size, args.script, args.screenshot, args.play, srt=args.srt)).run()
 

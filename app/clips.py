@@ -80,6 +80,7 @@ def _gopro_session(path: Path, hfov_deg: float | None) -> Session:
     if rec.gnss is None:
         raise DataFormatError(path, "the GoPro telemetry has no GPS fix: the camera cannot be placed (enable GPS, or use a manifest)")
     video = probe(path)
+    video.note_damage(warnings)
     when = rec.gps_utc_at_zero or video.creation_time or 0.0
     frame, mesh = _frame_and_ground(rec.gnss, float(rec.gnss.h[0]) - HANDHELD_MOUNT_M, HANDHELD_GROUND_MARGIN_M)
     decl = declination(frame.lat_deg, frame.lon_deg, frame.h_m, when)
@@ -92,6 +93,7 @@ def _dji_session(path: Path, srt: Path, hfov_deg: float | None, pitch_deg: float
     warnings = Warnings()
     track = read_srt(srt, warnings)
     video = probe(path)
+    video.note_damage(warnings)
     check_duration(track, video.duration_s + 1.0 / max(video.nominal_fps, 1.0))
     gnss = srt_fixes(track, warnings)
     heights = gnss.h

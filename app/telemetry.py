@@ -50,21 +50,52 @@ def inspect(path: str | Path) -> Telemetry:
         return _gpx(path)
     if suffix in (".mp4", ".mov", ".360"):
         return _gopro(path)
+    if suffix in RAW_GPMF_SUFFIXES:
+        return _gpmf_payload(path)
     if path.is_dir() or suffix == ".zip":
         return _sensorlogger(path)
     if suffix == ".csv":
         return _csv(path)
-    raise DataFormatError(path, f"unknown telemetry format {suffix!r} (expected .MP4 from a GoPro, .SRT, .GPX, .CSV, or a Sensor Logger folder or zip)")
+    raise DataFormatError(path, f"unknown telemetry format {suffix!r} (expected .MP4 from a GoPro, raw GPMF .bin/.gpmd/.raw, .SRT, .GPX, .CSV, or a Sensor Logger folder or zip)")
+
+
+RAW_GPMF_SUFFIXES = (".bin", ".gpmd", ".raw", ".gpmf")  # GPMF extracted from an MP4 by other tools
+
+
+def _gpmf_payload(path: Path) -> Telemetry:
+    """GPMF bytes extracted from a GoPro MP4 (one payload or several back to back): its streams
+    and sample counts. Without the MP4's sample table there is no time span: the streams are
+    listed by count, and positions (GPS5/GPS9) by order."""
+    from app.io.gpmf import Counts, chunks, parse
+
+    out = Telemetry(path, "GoPro GPMF telemetry, raw (no MP4 timing)")
+    counts = Counts()
+    tree = parse(path.read_bytes(), str(path), counts)
+    by_key: dict[str, list] = {}
+    device = ""
+    for c in chunks(tree, 0.0, 1.0):
+        device = device or c.device
+        by_key.setdefault(c.key, []).append(c)
+    if not by_key:
+        raise DataFormatError(path, "no GPMF stream with samples (expected DEVC > STRM entries)")
+    out.info.append(f"camera: {device or 'unnamed'}; streams: {', '.join(sorted(by_key))}")
+    for key, parts in sorted(by_key.items()):
+        n = sum(len(c.samples) for c in parts)
+        out.info.append(f"{key}: {n} samples in {len(parts)} chunk(s)" + (f", ORIN {parts[0].modifiers['ORIN']}" if "ORIN" in parts[0].modifiers else ""))
+    if counts.skipped:
+        out.warnings.add(f"{path.name}: telemetry keys skipped (undecodable): {counts.skipped}")
+    return out
 
 
 def _srt(path: Path) -> Telemetry:
-    from app.io.dji_srt import read_srt
+    from app.io.dji_srt import read_srt, srt_fixes
 
     out = Telemetry(path, "DJI subtitle telemetry")
     tr = read_srt(path, out.warnings)
-    ok = tr.has_position
     out.streams.append(Stream("entries", tr.t))
-    out.position = (tr.t[ok], tr.lat[ok], tr.lon[ok], tr.height[ok])
+    fixes = srt_fixes(tr, out.warnings)
+    ok = np.isin(tr.t, fixes.t)
+    out.position = (fixes.t, fixes.lat, fixes.lon, fixes.h)
     out.height_note = "above take-off" if tr.height_relative else "absolute (as the aircraft reports it)"
     if tr.has_gimbal:
         out.attitude = {"gimbal_pitch": tr.gimbal_pry[ok, 0], "gimbal_roll": tr.gimbal_pry[ok, 1], "gimbal_yaw": tr.gimbal_pry[ok, 2]}

@@ -29,7 +29,7 @@ from app.errors import DataFormatError
 from app.io.streams import GnssTrack, Warnings, plausible_fixes
 
 _TIMING = re.compile(r"(\d+):(\d\d):(\d\d)[,.](\d{1,3})\s*-->\s*(\d+):(\d\d):(\d\d)[,.](\d{1,3})")
-_NUM = r"([-+]?\d+(?:\.\d+)?)"
+_NUM = r"([-+]?\d+(?:\.\d+)?(?:[eE][-+]?\d+)?)"
 _GPS_PAREN = re.compile(r"GPS\s*\(\s*" + _NUM + r"\s*,\s*" + _NUM + r"\s*,\s*" + _NUM + r"(M?)\s*\)", re.I)
 _HOME = re.compile(r"HOME\s*\(\s*" + _NUM + r"\s*,\s*" + _NUM + r"(?:\s*,\s*" + _NUM + r"\s*m?)?\s*\)", re.I)
 _LAT = re.compile(r"\[?\s*latitude\s*:\s*" + _NUM, re.I)

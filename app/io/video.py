@@ -29,6 +29,13 @@ class VideoInfo:
     creation_time: float | None
     codec: str
     origin_s: float = 0.0  # the stream-clock seconds that are media time 0 (see media_seconds)
+    declared_frames: int = 0  # frames the container's index announces (0: it does not say)
+
+    def note_damage(self, warnings) -> None:
+        """A warning when fewer frames can be read than the index announces (a file cut short
+        with its index at the front): only the frames present are used."""
+        if self.declared_frames > len(self.pts_s) + 1:
+            warnings.add(f"{Path(self.path).name}: the video is cut short: {len(self.pts_s)} of the {self.declared_frames} frames its index announces can be read; only those are used")
 
     @property
     def display_size(self) -> tuple[int, int]:
@@ -116,7 +123,7 @@ def probe(path: str | Path) -> VideoInfo:
         return VideoInfo(
             str(path), pts_s, stream.codec_context.width, stream.codec_context.height,
             (-rotation) % 360,  # FFmpeg's display matrix turns counter-clockwise; the tag clockwise
-            nominal, float(average), _creation_time(meta), stream.codec_context.name, origin,
+            nominal, float(average), _creation_time(meta), stream.codec_context.name, origin, int(stream.frames or 0),
         )
 
 

@@ -184,6 +184,7 @@ def assemble(cfg: SessionConfig) -> Session:
     except ValueError as exc:
         raise ManifestError(cfg.path, str(exc), field="origin") from exc
     video = probe(cfg.video.path)
+    video.note_damage(warnings)
     clip_start, frame_times = _frame_times(cfg, video)
     rotation = video.rotation_cw if cfg.camera.rotation_cw is None else cfg.camera.rotation_cw
     w, h = (video.height, video.width) if rotation % 180 else (video.width, video.height)

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from app.attitude.gopro import read_gopro
-from app.attitude.heading import DRONE_DEFAULT_PITCH_DEG
+from app.attitude.heading import DRONE_DEFAULT_PITCH_DEG, heading_policy
 from app.camera import Intrinsics
 from app.errors import DataFormatError, GeofuseError
 from app.geo import LocalFrame
@@ -26,7 +26,7 @@ from app.io.dji_srt import check_duration, read_srt, srt_fixes
 from app.io.streams import GnssTrack, OrientationStream, Warnings
 from app.io.video import VideoInfo, probe
 from app.scene import Placement
-from app.scene.ground_plane import ground_plane
+from app.scene.ground_plane import ground_under_track
 from app.session.assemble import gimbal_attitude, open_session
 from app.session.config import HANDHELD_MOUNT_M
 from app.session.model import Session
@@ -57,20 +57,18 @@ def open_clip(path: str | Path, srt: str | Path | None = None, hfov_deg: float |
 
 def _frame_and_ground(gnss: GnssTrack, ground_h: float, margin_m: float) -> tuple[LocalFrame, object]:
     frame = LocalFrame(float(gnss.lat[0]), float(gnss.lon[0]), float(ground_h))
-    enu = frame.geodetic_to_enu(gnss.lat, gnss.lon, gnss.h)
-    lo, hi = enu[:, :2].min(axis=0), enu[:, :2].max(axis=0)
-    half = float(max(hi - lo) / 2 + margin_m)
-    return frame, ground_plane((lo + hi) / 2, 0.0, half)
+    return frame, ground_under_track(frame, gnss.lat, gnss.lon, ground_h, margin_m)
 
 
-def _clip_session(path: Path, inputs: tuple[Path, ...], frame: LocalFrame, mesh, video: VideoInfo, intr: Intrinsics, acc, gyr, mag, gnss: GnssTrack, recorded: dict[str, OrientationStream], decl: float, warnings: Warnings, course_pitch_deg: float | None = None, note: str = "") -> Session:
+def _clip_session(path: Path, inputs: tuple[Path, ...], frame: LocalFrame, mesh, video: VideoInfo, intr: Intrinsics, acc, gyr, mag, gnss: GnssTrack, recorded: dict[str, OrientationStream], decl: float, warnings: Warnings, pitch_deg: float = DRONE_DEFAULT_PITCH_DEG, aircraft_yaw: tuple | None = None) -> Session:
     warnings.add("no scene given: the video is projected on an assumed flat ground with a 1 m grid")
-    from_course = gyr is not None and mag is None
+    policy = heading_policy(gyr is not None, mag is not None, recorded, pitch_deg, aircraft_yaw is not None)
+    if policy.note:
+        warnings.add(f"{path.name}: {policy.note}")
     return Session(
         path.resolve(), frame, None, Placement(), video, video.pts_s.copy(), intr, video.rotation_cw,
-        acc, gyr, mag, gnss, recorded, decl, warnings, inputs=inputs,
-        heading_note="heading from the GNSS course" if from_course else note,
-        heading_from_course=from_course, device_is_camera=True, course_pitch_deg=course_pitch_deg, mesh=mesh,
+        acc, gyr, mag, gnss, recorded, decl, warnings, inputs=inputs, heading=policy, device_is_camera=True,
+        aircraft_yaw=aircraft_yaw, mesh=mesh,
     )  # fmt: skip
 
 
@@ -107,20 +105,17 @@ def _dji_session(path: Path, srt: Path, hfov_deg: float | None, pitch_deg: float
     when = float(np.nanmin(track.wall_clock)) if np.isfinite(track.wall_clock).any() else (video.creation_time or 0.0)
     decl = declination(frame.lat_deg, frame.lon_deg, frame.h_m, when)
     recorded: dict[str, OrientationStream] = {}
-    course_pitch = None
-    note = ""
+    yaw = None
     if track.has_gimbal:
         recorded["telemetry"] = gimbal_attitude(track, srt)  # the gimbal is the camera: device = camera
     else:
-        course_pitch = pitch_deg
-        note = f"no camera attitude in the subtitle: heading from the track, pitch {pitch_deg:g} deg assumed"
-        warnings.add(f"{srt.name}: {note}")
+        yaw = track.aircraft_yaw()
     focal = track.focal_len[np.isfinite(track.focal_len)]
     focal_mm = float(np.median(focal)) / 10.0 if len(focal) else DJI_DEFAULT_FOCAL_MM
     if hfov_deg is None:
         hfov_deg = float(np.degrees(2 * np.arctan(18.0 / focal_mm)))  # 36 mm wide full frame equivalent
     intr = Intrinsics.from_fov(*video.display_size, hfov_deg)
-    return _clip_session(path, (path.resolve(), srt.resolve()), frame, mesh, video, intr, None, None, None, gnss, recorded, decl, warnings, course_pitch, note)
+    return _clip_session(path, (path.resolve(), srt.resolve()), frame, mesh, video, intr, None, None, None, gnss, recorded, decl, warnings, pitch_deg, yaw)
 
 
 def open_any(path: str | Path, srt: str | Path | None = None, hfov_deg: float | None = None, pitch_deg: float = DRONE_DEFAULT_PITCH_DEG) -> Session:

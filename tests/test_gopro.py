@@ -127,3 +127,38 @@ def test_lens_field_of_view_from_the_metadata(gopro):
     # tan(h/2) = tan(d/2) * 848 / hypot(848, 480)
     assert hfov == pytest.approx(np.degrees(2 * np.arctan(np.tan(np.radians(137.39) / 2) * 848 / np.hypot(848, 480))), abs=0.01)
     assert lens_hfov({}, 848, 480) is None
+
+
+@pytest.mark.parametrize("name, model, expected", [("hero5", "Camera", "ZXY"), ("hero6", "Hero6 Black", "ZXY"), ("Fusion", "Fusion", "yXZ")])
+def test_axis_order_without_orin_comes_from_gravity(shared_data, name, model, expected):
+    """Raw payloads of cameras that write no ORIN (and no CORI): a HERO5 names itself 'Camera',
+    so its documented order cannot be found by name; the order under which gravity points up
+    for a camera held level is chosen instead. (HERO6's documented 'YxZ' put gravity along the
+    lens axis here: the camera would have come out turned on its back.)"""
+    from app.attitude.gopro import LEVEL_TOLERANCE_DEG, choose_axis_order
+    from app.io.gpmf import Counts, chunks, parse
+
+    tree = parse((shared_data / "real" / "gopro" / f"{name}.raw").read_bytes(), name, Counts())
+    parts = chunks(tree, 0.0, 1.0)
+    acc = np.concatenate([c.samples for c in parts if c.key == "ACCL"])
+    gyr = np.concatenate([c.samples for c in parts if c.key == "GYRO"])
+    assert "ORIN" not in next(c for c in parts if c.key == "ACCL").modifiers
+    order, angle = choose_axis_order(acc, gyr, model)
+    assert order == expected and angle < LEVEL_TOLERANCE_DEG
+
+
+def test_a_time_lapse_is_recognised_by_its_gps_clock(shared_data):
+    """Real time against video time from GPSU: the real MAX clip runs at 1x; a TimeWarp whose
+    GPS clock advances 10 s per video second is refused (by the same ratio)."""
+    from app.io.gopro import TIMELAPSE_RATIO, gpsu_times, read_payloads, real_time_ratio
+    from app.io.gpmf import Counts, chunks, parse
+
+    by_key: dict = {}
+    path = shared_data / "real" / "gopro" / "max-heromode.mp4"
+    for i, (payload, t0, t1) in enumerate(read_payloads(path)):
+        for c in chunks(parse(payload, str(i), Counts()), t0, t1):
+            by_key.setdefault(c.key, []).append(c)
+    pairs = gpsu_times(by_key)
+    assert real_time_ratio(pairs) == pytest.approx(1.0, abs=0.15)
+    warped = [(v, pairs[0][1] + 10.0 * (v - pairs[0][0])) for v, _ in pairs]
+    assert real_time_ratio(warped) == pytest.approx(10.0) and real_time_ratio(warped) > TIMELAPSE_RATIO

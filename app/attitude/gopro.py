@@ -25,7 +25,7 @@ import numpy as np
 from app import rotations
 from app.attitude.heading import magnetometer_plausible
 from app.geomag import field_enu
-from app.io.gopro import GoProRaw, read_gopro_raw
+from app.io.gopro import DEFAULT_ORIN, GoProRaw, orin_map, read_gopro_raw
 from app.io.streams import GnssTrack, OrientationStream, VectorStream, Warnings, checked_vector, resample
 
 CV_TO_DEVICE = np.diag([1.0, -1.0, -1.0])  # camera (X right, Y down, Z forward) -> device frame
@@ -108,10 +108,44 @@ def _checked_magnetometer(mag: VectorStream, gnss: GnssTrack | None, utc0: float
     return None
 
 
+STILL_RATE_RAD_S = 0.1  # gyroscope rates below this count as still, for the gravity check
+LEVEL_TOLERANCE_DEG = 35.0  # gravity within this of the device's up: the camera was held level
+
+
+def gravity_up_angle(acc_imu: np.ndarray, gyr_imu: np.ndarray, imu_to_cv: np.ndarray = DEFAULT_IMU_TO_CV) -> float:
+    """Angle (deg) between the device's +y (up on an upright camera) and the mean accelerometer
+    direction over still samples, IMU-axis samples mapped to the device frame by imu_to_cv."""
+    n = min(len(acc_imu), len(gyr_imu))
+    still = np.linalg.norm(gyr_imu[:n], axis=1) < STILL_RATE_RAD_S if n else np.zeros(0, bool)
+    sample = acc_imu[:n][still] if still.sum() >= 10 else acc_imu
+    up = sample.mean(axis=0) @ (CV_TO_DEVICE @ imu_to_cv).T
+    return float(np.degrees(np.arccos(np.clip(up[1] / max(np.linalg.norm(up), 1e-9), -1.0, 1.0))))
+
+
+def choose_axis_order(acc_stored: np.ndarray, gyr_stored: np.ndarray, model: str) -> tuple[str, float]:
+    """For a file without ORIN or CORI: the data order (among the documented ones, the model's
+    first, and XYZ) under which gravity in still sections points up for a camera held level;
+    returns (order, its angle from up in degrees). Orders within 5 deg of the best keep their
+    rank (the model's documented one wins a tie)."""
+    documented = [v for k, v in DEFAULT_ORIN.items() if k.lower() in model.lower()]
+    candidates = list(dict.fromkeys(documented + list(DEFAULT_ORIN.values()) + ["XYZ"]))
+    angles = [gravity_up_angle(orin_map(o, acc_stored), orin_map(o, gyr_stored)) for o in candidates]
+    best = min(angles)
+    k = next(i for i, a in enumerate(angles) if a <= best + 5.0)
+    return candidates[k], angles[k]
+
+
 def to_device_frame(raw: GoProRaw, warnings: Warnings) -> GoProRecording:
     """Turn a clip's raw telemetry into device-frame streams (see the module docstring)."""
     path = raw.path
     (ta, a), (tg, g) = raw.acc, raw.gyr
+    if not raw.orin_recorded and raw.cori is None and raw.acc_stored is not None:
+        order, angle = choose_axis_order(raw.acc_stored, raw.gyr_stored, raw.model)
+        a, g = orin_map(order, raw.acc_stored), orin_map(order, raw.gyr_stored)
+        if angle <= LEVEL_TOLERANCE_DEG:
+            warnings.add(f"{path.name}: no ORIN or CORI: axis order {order} chosen, under which gravity points up ({angle:.0f} deg off) for a camera held level")
+        else:
+            warnings.add(f"{path.name}: no ORIN or CORI, and no axis order puts gravity up (best {order}, {angle:.0f} deg off): the camera's axes cannot be verified; attitude may be turned")
     camera = None
     imu_to_cv = DEFAULT_IMU_TO_CV
     cori = raw.cori

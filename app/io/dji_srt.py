@@ -44,6 +44,8 @@ _PRY = {
     "G": re.compile(r"G\.PRY\s*\(\s*" + _NUM + r"\S*\s*,\s*" + _NUM + r"\S*\s*,\s*" + _NUM, re.I),
 }
 _GB = {k: re.compile(rf"gb_{k}\s*:\s*" + _NUM, re.I) for k in ("yaw", "pitch", "roll")}
+_DRONE = {k: re.compile(rf"drone_{k}\s*:\s*" + _NUM, re.I) for k in ("yaw", "pitch", "roll")}  # newer Mini / Air
+_DRONE_BRACKET = re.compile(r"\[\s*Drone\s*:\s*Yaw\s*:\s*" + _NUM + r"\s*,\s*Pitch\s*:\s*" + _NUM + r"\s*,\s*Roll\s*:\s*" + _NUM, re.I)
 _FOCAL = re.compile(r"focal_len\s*:\s*" + _NUM, re.I)
 _DATE_DASH = re.compile(r"(\d{4})-(\d\d)-(\d\d)\s+(\d\d):(\d\d):(\d\d)(?:[,.](\d{1,3}))?(?:[,.](\d{1,3}))?")
 _DATE_DOT = re.compile(r"(\d{4})\.(\d\d)\.(\d\d)\s+(\d\d):(\d\d):(\d\d)")
@@ -76,6 +78,12 @@ class SrtTrack:
     @property
     def has_gimbal(self) -> bool:
         return bool(np.isfinite(self.gimbal_pry).all(axis=1).any())
+
+    def aircraft_yaw(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """(t s, yaw deg clockwise from north) of the entries that carry the aircraft's own yaw
+        (F.PRY, drone_yaw, [Drone: Yaw ...]), or None."""
+        ok = np.isfinite(self.aircraft_pry[:, 2])
+        return (self.t[ok], self.aircraft_pry[ok, 2] % 360.0) if ok.sum() >= 2 else None
 
 
 def _seconds(h: str, m: str, s: str, ms: str) -> float:
@@ -111,6 +119,11 @@ def _entry_fields(text: str) -> tuple[dict[str, float], str]:
             f[f"{k}p"], f[f"{k}r"], f[f"{k}y"] = (float(m.group(i)) for i in (1, 2, 3))
     if all(rx.search(text) for rx in _GB.values()):
         f["Gp"], f["Gr"], f["Gy"] = (float(_GB[k].search(text).group(1)) for k in ("pitch", "roll", "yaw"))
+    if all(rx.search(text) for rx in _DRONE.values()):
+        f["Fp"], f["Fr"], f["Fy"] = (float(_DRONE[k].search(text).group(1)) for k in ("pitch", "roll", "yaw"))
+    m = _DRONE_BRACKET.search(text)
+    if m:
+        f["Fy"], f["Fp"], f["Fr"] = (float(m.group(i)) for i in (1, 2, 3))
     d = _DATE_DASH.search(text)
     if d:
         g = d.groups()

@@ -50,6 +50,9 @@ class GoProRaw:
     hfov_deg: float
     counts: Counts = field(default_factory=Counts)
     dropped_no_fix: int = 0
+    orin_recorded: bool = True  # False: the file has no ORIN and a default order was applied
+    acc_stored: np.ndarray | None = None  # ACCL as stored (no ORIN applied), for choosing an order
+    gyr_stored: np.ndarray | None = None
 
 
 def telemetry_stream(container):
@@ -200,6 +203,8 @@ def read_gopro_raw(path: str | Path, warnings: Warnings | None = None) -> GoProR
     orin_g = str(by_key["GYRO"][0].modifiers.get("ORIN", orin_default))
     ta, a = _gather(by_key["ACCL"])
     tg, g = _gather(by_key["GYRO"])
+    a_stored, g_stored = a, g
+    orin_recorded = "ORIN" in by_key["ACCL"][0].modifiers and "ORIN" in by_key["GYRO"][0].modifiers
     try:
         a, g = orin_map(orin_a, a), orin_map(orin_g, g)
     except ValueError as exc:
@@ -212,6 +217,14 @@ def read_gopro_raw(path: str | Path, warnings: Warnings | None = None) -> GoProR
             magn = (tm, orin_map(str(by_key["MAGN"][0].modifiers.get("ORIN", orin_a)), mv))
         except ValueError as exc:
             warnings.add(f"{path.name}: MAGN not used ({exc})")
+    ratio = real_time_ratio(gpsu_times(by_key))
+    if ratio is not None and ratio > TIMELAPSE_RATIO:
+        raise DataFormatError(
+            path,
+            f"a time-lapse or TimeWarp clip: its GPS clock (GPSU) runs {ratio:.1f}x faster than the video; "
+            "geofuse places only real-time video (record in normal video mode)",
+            field="GPSU",
+        )
     gnss, precision, utc0, dropped = _gps(by_key, path, warnings)
     lens = next((v for k, v in HFOV_DEG.items() if k in model.lower()), HFOV_DEG["default"])
     from app.io.video import probe
@@ -222,7 +235,43 @@ def read_gopro_raw(path: str | Path, warnings: Warnings | None = None) -> GoProR
         lens = recorded
     else:
         warnings.add(f"{path.name}: no lens field of view in the metadata: {lens:g} deg horizontal assumed for {model or 'this camera'}")
-    return GoProRaw(path, model or "GoPro", (ta, a), (tg, g), cori, magn, gnss, precision, utc0, lens, counts, dropped)
+    return GoProRaw(path, model or "GoPro", (ta, a), (tg, g), cori, magn, gnss, precision, utc0, lens, counts, dropped, orin_recorded, a_stored, g_stored)
+
+
+TIMELAPSE_RATIO = 1.5  # real seconds per video second above which a clip is a time-lapse
+TIMELAPSE_MIN_SPAN_S = 3.0  # of video, for the ratio to mean anything (GPSU has 1 s payloads)
+
+
+def _gpsu_seconds(text: str) -> float | None:
+    try:
+        return datetime.strptime(text[:16], "%y%m%d%H%M%S.%f").replace(tzinfo=timezone.utc).timestamp()
+    except ValueError:
+        return None
+
+
+def gpsu_times(by_key: dict[str, list[StreamChunk]]) -> list[tuple[float, float]]:
+    """(video seconds of the payload, GPSU Unix seconds) for every GPS chunk that carries GPSU."""
+    out = []
+    for key in ("GPS9", "GPS5"):
+        for c in by_key.get(key, []):
+            u = c.modifiers.get("GPSU")
+            s = _gpsu_seconds(u) if isinstance(u, str) else None
+            if s is not None:
+                out.append((c.t0, s))
+        if out:
+            break
+    return out
+
+
+def real_time_ratio(pairs: list[tuple[float, float]]) -> float | None:
+    """Real seconds per video second over the clip (GPS clock against the MP4's), or None when
+    the clip is too short or the GPS clock does not advance."""
+    if len(pairs) < 2:
+        return None
+    (v0, u0), (v1, u1) = pairs[0], pairs[-1]
+    if v1 - v0 < TIMELAPSE_MIN_SPAN_S or u1 <= u0:
+        return None
+    return (u1 - u0) / (v1 - v0)
 
 
 def _gps(by_key: dict[str, list[StreamChunk]], path: Path, warnings: Warnings) -> tuple[GnssTrack | None, np.ndarray | None, float | None, int]:
@@ -246,11 +295,11 @@ def _gps(by_key: dict[str, list[StreamChunk]], path: Path, warnings: Warnings) -
         if np.isfinite(precision):
             dop.append((c.t0, precision))
         if utc0 is None and isinstance(c.modifiers.get("GPSU"), str):
-            try:
-                when = datetime.strptime(c.modifiers["GPSU"][:16], "%y%m%d%H%M%S.%f").replace(tzinfo=timezone.utc)
-                utc0 = when.timestamp() - c.t0
-            except ValueError:
+            when = _gpsu_seconds(c.modifiers["GPSU"])
+            if when is None:
                 warnings.add(f"{path.name}: unparsable GPSU {c.modifiers['GPSU']!r}")
+            else:
+                utc0 = when - c.t0
     if dropped:
         warnings.add(f"{path.name}: {dropped} GPS samples without a fix dropped")
     t = np.concatenate(ts) if ts else np.zeros(0)

@@ -33,3 +33,11 @@ def ground_plane(centre_xy: np.ndarray, height_m: float, half_size_m: float) -> 
     # Texture coordinates in tiles, anchored at the ENU origin so the grid lines fall on whole metres.
     quad.uvs = (quad.vertices[:, :2]) / TILE_M
     return MeshData([quad.primitive((1.0, 1.0, 1.0, 1.0), grid_tile(), name="assumed ground")])
+
+
+def ground_under_track(frame, lat: np.ndarray, lon: np.ndarray, ground_h: float, margin_m: float) -> MeshData:
+    """The assumed ground for sessions without a model: a flat grid at ellipsoidal height
+    ground_h (m) under every fix (deg, deg) of a track plus margin_m, in `frame` (a LocalFrame)."""
+    enu = frame.geodetic_to_enu(lat, lon, np.full(len(lat), float(ground_h)))
+    lo, hi = enu[:, :2].min(axis=0), enu[:, :2].max(axis=0)
+    return ground_plane((lo + hi) / 2, float(enu[0, 2]), float(max(hi - lo) / 2 + margin_m))

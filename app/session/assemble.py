@@ -12,6 +12,7 @@ import numpy as np
 from app import rotations
 from app.attitude import magcal
 from app.attitude.gopro import read_gopro
+from app.attitude.heading import heading_policy
 from app.camera import Intrinsics
 from app.errors import ManifestError
 from app.geo import LocalFrame
@@ -22,7 +23,8 @@ from app.io.gpx import read_gpx
 from app.io.sensorlogger import read_sensorlogger
 from app.io.streams import GnssTrack, OrientationStream, VectorStream, Warnings
 from app.io.video import VideoInfo, probe
-from app.scene import load_scene
+from app.scene import Placement, load_scene
+from app.scene.ground_plane import ground_under_track
 from app.scene.ground import ground_heights
 from app.session.config import SessionConfig, read_config
 from app.session.model import Session
@@ -75,8 +77,9 @@ def _sensors(cfg: SessionConfig, warnings: Warnings, clip_start: float):
     return acc, gyr, mag, recorded, gnss
 
 
-def _gnss(cfg: SessionConfig, logged: GnssTrack | None, warnings: Warnings, clip_start: float, recorded: dict[str, OrientationStream]) -> tuple[GnssTrack, bool]:
-    """(the session's GNSS track, whether its heights are above take-off)."""
+def _gnss(cfg: SessionConfig, logged: GnssTrack | None, warnings: Warnings, clip_start: float, recorded: dict[str, OrientationStream]) -> tuple[GnssTrack, bool, tuple | None]:
+    """(the session's GNSS track, whether its heights are above take-off, a drone's own yaw
+    (t session s, deg) when its subtitle has one and no gimbal attitude)."""
     path = cfg.gnss.path
     if path is None and logged is None:
         raise ManifestError(cfg.path, "the sensors hold no GNSS track: give gnss.path", field="gnss.path")
@@ -85,16 +88,20 @@ def _gnss(cfg: SessionConfig, logged: GnssTrack | None, warnings: Warnings, clip
     track = logged
     if path is not None:
         track = read_gpx(path, warnings) if path.suffix.lower() == ".gpx" else csvlog.read_gnss(path, warnings)
-    return replace(track, h=track.h + cfg.gnss.height_offset_m), False
+    return replace(track, h=track.h + cfg.gnss.height_offset_m), False, None
 
 
-def _srt_gnss(path: Path, warnings: Warnings, clip_start: float, recorded: dict[str, OrientationStream]) -> tuple[GnssTrack, bool]:
+def _srt_gnss(path: Path, warnings: Warnings, clip_start: float, recorded: dict[str, OrientationStream]) -> tuple[GnssTrack, bool, tuple | None]:
     """A DJI subtitle as the session's GNSS (its times are the clip's, shifted to the session
-    clock) and, with gimbal angles, its `telemetry` attitude."""
+    clock) and, with gimbal angles, its `telemetry` attitude, else the aircraft's yaw."""
     tr = read_srt(path, warnings)
+    yaw = None
     if tr.has_gimbal:
         recorded["telemetry"] = _shifted(gimbal_attitude(tr, path), clip_start)
-    return srt_fixes(tr, warnings, clip_start), bool(tr.height_relative)
+    elif tr.aircraft_yaw() is not None:
+        t, deg = tr.aircraft_yaw()
+        yaw = (t + clip_start, deg)
+    return srt_fixes(tr, warnings, clip_start), bool(tr.height_relative), yaw
 
 
 def gimbal_attitude(track, path: Path) -> OrientationStream:
@@ -153,11 +160,11 @@ def _check_coverage(cfg: SessionConfig, frame_times: np.ndarray, log_t: np.ndarr
         warnings.add(f"{int((~covered).sum())} video frames lie outside the sensor log; their attitude is held")
 
 
-def _calibrate_magnetometer(cfg: SessionConfig, mag: VectorStream | None, when: float, warnings: Warnings) -> VectorStream | None:
-    """The magnetometer calibrated on the clip (app.attitude.magcal), unless switched off."""
-    if mag is None or cfg.sensors.mag_calibration == "none":
+def _calibrate_magnetometer(mag: VectorStream | None, origin: tuple[float, float, float], when: float, mode: str, warnings: Warnings) -> VectorStream | None:
+    """The magnetometer calibrated on the clip (app.attitude.magcal), unless mode is "none"."""
+    if mag is None or mode == "none":
         return mag
-    cal = magcal.fit(mag.values, float(np.linalg.norm(field_enu(*cfg.origin, when))))
+    cal = magcal.fit(mag.values, float(np.linalg.norm(field_enu(*origin, when))))
     if isinstance(cal, str):
         warnings.add(f"magnetometer not calibrated: {cal}")
         return mag
@@ -176,13 +183,35 @@ def _true_frame_times(cfg: SessionConfig, count: int, warnings: Warnings) -> np.
     return values[np.argsort(values[:, 0]), 1]
 
 
-def assemble(cfg: SessionConfig) -> Session:
-    """Every reader the config names, on one clock, into one frozen Session."""
-    warnings = Warnings()
+ASSUMED_GROUND_MARGIN_M = 300.0  # the assumed ground reaches this far beyond the track
+
+
+def _place(cfg: SessionConfig, gnss: GnssTrack, above_takeoff: bool, warnings: Warnings):
+    """(frame, mesh, gnss with final heights): the session's ENU frame and scene. Without a scene,
+    an assumed flat ground under the track (the first fix's height less the mount height, or
+    the take-off height for heights above take-off), as for clips opened directly."""
+    if cfg.scene is None:
+        takeoff = cfg.gnss.takeoff_height_m or 0.0
+        if above_takeoff:
+            gnss = replace(gnss, h=gnss.h + takeoff)
+        ground = takeoff if above_takeoff else float(gnss.h[0]) - cfg.gnss.mount_height_m
+        frame = LocalFrame(*cfg.origin) if cfg.origin is not None else LocalFrame(float(gnss.lat[0]), float(gnss.lon[0]), ground)
+        warnings.add("no scene given: the video is projected on an assumed flat ground with a 1 m grid")
+        return frame, ground_under_track(frame, gnss.lat, gnss.lon, ground, ASSUMED_GROUND_MARGIN_M), gnss
     try:
         frame = LocalFrame(*cfg.origin)
     except ValueError as exc:
         raise ManifestError(cfg.path, str(exc), field="origin") from exc
+    mesh = load_scene(cfg.scene.path, frame, cfg.scene.placement)
+    if above_takeoff:
+        gnss = replace(gnss, h=gnss.h + _takeoff_height(cfg, frame, gnss, mesh, warnings))
+    warn_if_scene_is_far(mesh, frame.geodetic_to_enu(gnss.lat, gnss.lon, gnss.h), cfg.scene.path, warnings)
+    return frame, mesh, gnss
+
+
+def assemble(cfg: SessionConfig) -> Session:
+    """Every reader the config names, on one clock, into one frozen Session."""
+    warnings = Warnings()
     video = probe(cfg.video.path)
     video.note_damage(warnings)
     clip_start, frame_times = _frame_times(cfg, video)
@@ -191,26 +220,21 @@ def assemble(cfg: SessionConfig) -> Session:
     intr = _intrinsics(cfg, w, h)
 
     acc, gyr, mag, recorded, logged_gnss = _sensors(cfg, warnings, clip_start)
-    gnss, above_takeoff = _gnss(cfg, logged_gnss, warnings, clip_start, recorded)
+    gnss, above_takeoff, yaw = _gnss(cfg, logged_gnss, warnings, clip_start, recorded)
     _check_coverage(cfg, frame_times, (gyr if gyr is not None else gnss).t, warnings)
-    mag = _calibrate_magnetometer(cfg, mag, float(frame_times[0]), warnings)
-    mesh = load_scene(cfg.scene.path, frame, cfg.scene.placement)
-    if above_takeoff:
-        gnss = replace(gnss, h=gnss.h + _takeoff_height(cfg, frame, gnss, mesh, warnings))
-    warn_if_scene_is_far(mesh, frame.geodetic_to_enu(gnss.lat, gnss.lon, gnss.h), cfg.scene.path, warnings)
+    frame, mesh, gnss = _place(cfg, gnss, above_takeoff, warnings)
+    origin = (frame.lat_deg, frame.lon_deg, frame.h_m)
+    mag = _calibrate_magnetometer(mag, origin, float(frame_times[0]), cfg.sensors.mag_calibration, warnings)
     truth_position = csvlog.read_gnss(cfg.truth.position, warnings) if cfg.truth.position else None
-
-    device_is_camera = cfg.sensors.format in ("gopro", "none")  # action cameras and drones
-    from_course = device_is_camera and mag is None and gyr is not None
-    no_attitude = gyr is None and not recorded
+    policy = heading_policy(gyr is not None, mag is not None, recorded, cfg.gnss.pitch_deg, yaw is not None)
+    if policy.note:
+        warnings.add(policy.note)
     return Session(
-        cfg.path, frame, cfg.scene.path, cfg.scene.placement, video, frame_times, intr, rotation,
-        acc, gyr, mag, gnss, recorded, declination(*cfg.origin, float(frame_times[0])), warnings,
+        cfg.path, frame, cfg.scene.path if cfg.scene else None, cfg.scene.placement if cfg.scene else Placement(), video, frame_times, intr, rotation,
+        acc, gyr, mag, gnss, recorded, declination(*origin, float(frame_times[0])), warnings,
         inputs=tuple(cfg.inputs()), truth_position=truth_position,
         truth_frame_times=_true_frame_times(cfg, len(frame_times), warnings),
-        height_mode=cfg.gnss.height, mount_height_m=cfg.gnss.mount_height_m,
-        heading_note="heading from the GNSS course" if from_course else
-        (f"no camera attitude in the subtitle: heading from the track, pitch {cfg.gnss.pitch_deg:g} deg assumed" if no_attitude else ""),
-        heading_from_course=from_course, device_is_camera=device_is_camera,
-        course_pitch_deg=cfg.gnss.pitch_deg if no_attitude else None, mesh=mesh,
+        height_mode=cfg.gnss.height if cfg.scene else "gnss", mount_height_m=cfg.gnss.mount_height_m, heading=policy,
+        device_is_camera=cfg.sensors.format in ("gopro", "none"),  # action cameras and drones
+        aircraft_yaw=yaw, mesh=mesh,
     )  # fmt: skip

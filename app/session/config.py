@@ -1,11 +1,12 @@
 """The session manifest: its schema, read and validated once into a frozen `SessionConfig`.
 
-    [origin]                      # optional: the session's ENU origin (default: the scene's)
+    [origin]                      # optional: the session's ENU origin (default: the scene's, else
+                                  # the first GNSS fix)
     lat = 34.80                   # degrees
     lon = 113.53                  # degrees
     h = 110.0                     # ellipsoidal metres
 
-    [scene]
+    [scene]                       # optional: without it, an assumed flat ground under the track
     path = "scene.glb"            # glTF/GLB, OBJ, PLY
     origin = [34.80, 113.53, 110.0]
     up_axis = "Y"                 # optional: Y for glTF, Z otherwise
@@ -197,8 +198,8 @@ class SessionConfig:
     """A validated manifest. `origin`: the session's ENU origin (deg, deg, ellipsoidal m)."""
 
     path: Path
-    origin: tuple[float, float, float]
-    scene: SceneConfig
+    origin: tuple[float, float, float] | None  # None: the first GNSS fix (sessions without a scene)
+    scene: SceneConfig | None  # None: an assumed flat ground
     video: VideoConfig
     camera: CameraConfig
     sensors: SensorsConfig
@@ -208,7 +209,7 @@ class SessionConfig:
     def inputs(self) -> list[Path]:
         """Every file the session reads (never to be written)."""
         s, g, t = self.sensors, self.gnss, self.truth
-        files = [self.path, self.scene.path, self.video.path, s.acc, s.gyr, s.mag, s.orientation, s.path, g.path, t.orientation, t.position, t.frame_times]
+        files = [self.path, self.scene.path if self.scene else None, self.video.path, s.acc, s.gyr, s.mag, s.orientation, s.path, g.path, t.orientation, t.position, t.frame_times]
         return [p for p in files if p is not None]
 
 
@@ -223,19 +224,25 @@ def load_manifest(path: str | Path) -> Manifest:
     return Manifest(path.resolve(), data)
 
 
-def read_config(path: str | Path) -> SessionConfig:
-    """Read and validate a manifest (files named must exist; values typed and in range)."""
-    m = load_manifest(path)
-    scene_origin = m.geodetic("scene", "origin")
+def _scene(m: Manifest) -> SceneConfig:
+    origin = m.geodetic("scene", "origin")
     up = m.get("scene", "up_axis", str, None)
     if up is not None and up not in ("Y", "Z"):
         raise ManifestError(m.path, f"got {up!r}, expected 'Y' or 'Z'", field="scene.up_axis")
-    placement = Placement(scene_origin, up, m.number("scene", "heading_deg", 0.0, low=-360.0, high=360.0), m.number("scene", "scale", 1.0, low=0.0, high=1e6, open_low=True))
-    scene = SceneConfig(m.file("scene", "path"), scene_origin, placement)
+    placement = Placement(origin, up, m.number("scene", "heading_deg", 0.0, low=-360.0, high=360.0), m.number("scene", "scale", 1.0, low=0.0, high=1e6, open_low=True))
+    return SceneConfig(m.file("scene", "path"), origin, placement)
+
+
+def read_config(path: str | Path) -> SessionConfig:
+    """Read and validate a manifest (files named must exist; values typed and in range)."""
+    m = load_manifest(path)
+    scene = _scene(m) if m.section("scene", required=False) else None
     if m.section("origin", required=False):
         origin = _checked_geodetic(m.path, "origin", *(m.get("origin", k, float) for k in ("lat", "lon", "h")))
-    elif scene_origin is not None:
-        origin = scene_origin
+    elif scene is not None and scene.origin is not None:
+        origin = scene.origin
+    elif scene is None:
+        origin = None  # the first GNSS fix
     else:
         raise ManifestError(m.path, "give [origin] or scene.origin: the session needs a geographic origin", field="origin")
 

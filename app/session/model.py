@@ -18,6 +18,7 @@ import numpy as np
 
 from app import rotations
 from app.attitude import estimate, heading, resample
+from app.attitude.heading import HeadingPolicy
 from app.camera import Intrinsics
 from app.errors import DataFormatError
 from app.geo import LocalFrame
@@ -45,10 +46,10 @@ class Session:
 
     frame_times: (F,) session seconds of each video frame (presentation time + start + offset, or
     the paper's Eq. 5); recorded: device -> ENU attitudes written by the device or the
-    simulation; heading_from_course: IMU filters and the camera's own attitude get their heading
-    from the GNSS course; device_is_camera: action cameras and drones, whose device frame is the
-    camera's; course_pitch_deg: with a `course` source, its default pitch (deg); mesh: the scene
-    when it is generated (an assumed ground) or was loaded while assembling.
+    simulation; heading: where heading comes from (app.attitude.heading.HeadingPolicy);
+    device_is_camera: action cameras and drones, whose device frame is the camera's;
+    aircraft_yaw: a drone's own yaw (t s, deg) for the `course` source; mesh: the scene when it is
+    generated (an assumed ground) or was loaded while assembling.
     """
 
     path: Path  # the manifest, or the clip opened directly
@@ -71,11 +72,22 @@ class Session:
     truth_frame_times: np.ndarray | None = None
     height_mode: str = "gnss"
     mount_height_m: float = 1.5
-    heading_note: str = ""
-    heading_from_course: bool = False
+    heading: HeadingPolicy = HeadingPolicy()
     device_is_camera: bool = False
-    course_pitch_deg: float | None = None
+    aircraft_yaw: tuple[np.ndarray, np.ndarray] | None = None  # (t session s, yaw deg) for `course`
     mesh: MeshData | None = None
+
+    @property
+    def heading_note(self) -> str:
+        return self.heading.note
+
+    @property
+    def heading_from_course(self) -> bool:
+        return self.heading.from_course
+
+    @property
+    def course_pitch_deg(self) -> float | None:
+        return self.heading.course_pitch_deg
 
     def camera_mount(self) -> np.ndarray:
         """Quaternion of the camera (of the displayed video) in the device frame: a phone's back
@@ -126,7 +138,9 @@ class Session:
         if self.course_pitch_deg is not None:
             own.append(COURSE)
         recorded = [r for r in self.recorded if r != TRUTH]
-        return own + recorded + ([TRUTH] if TRUTH in self.recorded else [])
+        out = own + recorded + ([TRUTH] if TRUTH in self.recorded else [])
+        prefer = self.heading.prefer
+        return [prefer] + [s for s in out if s != prefer] if prefer in out else out
 
     def check_source(self, source: str) -> None:
         """ValueError naming what the session offers, for a source it does not."""
@@ -142,7 +156,7 @@ def device_attitude(session: Session, source: str, course_pitch_deg: float | Non
     pos = session.positions()
     if source == COURSE:
         pitch = session.course_pitch_deg if course_pitch_deg is None else course_pitch_deg
-        ref = heading.course_attitude(pos.t, pos.vel_enu, pitch, session.gnss.source)
+        ref = heading.course_attitude(pos.t, pos.vel_enu, pitch, session.gnss.source, session.aircraft_yaw)
         return ref.t, ref.q  # the device is the camera (drones), unturned
     if source in session.recorded:
         ref = session.recorded[source]

@@ -13,7 +13,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from app.attitude.heading import DRONE_DEFAULT_PITCH_DEG
-from app.constants import DEFAULT_FAR_M, DEFAULT_NEAR_M
+from app.constants import DEFAULT_DEPTH_BIAS_M, DEFAULT_DEPTH_LONG_SIDE_PX, DEFAULT_DEPTH_SLOPE_BIAS, DEFAULT_FAR_M, DEFAULT_NEAR_M
 from app.errors import GeofuseError
 from app.outputs import CSV_SUFFIXES, IMAGE_SUFFIXES, check_output
 
@@ -81,8 +81,6 @@ def _joined_negative_values(argv: Sequence[str]) -> list[str]:
 
 
 def _add_projection_options(p: argparse.ArgumentParser) -> None:
-    from app.constants import DEFAULT_DEPTH_BIAS_M, DEFAULT_DEPTH_LONG_SIDE_PX, DEFAULT_DEPTH_SLOPE_BIAS
-
     p.add_argument("--alpha", type=_number(0.0, 1.0), default=1.0, help="video opacity over the model, 0..1 (default 1)")
     p.add_argument("--bias", type=_number(0.0, 100.0), default=DEFAULT_DEPTH_BIAS_M, help="constant depth bias, metres")
     p.add_argument("--slope-bias", type=_number(0.0, 100.0), default=DEFAULT_DEPTH_SLOPE_BIAS, help="slope-scaled depth bias, depth-map texels")

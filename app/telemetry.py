@@ -12,9 +12,16 @@ from pathlib import Path
 
 import numpy as np
 
+from app.attitude.gopro import read_gopro
 from app.errors import DataFormatError
-from app.outputs import CSV_SUFFIXES, check_output, write_atomically
+from app.io import csvlog
+from app.io.dji_srt import read_srt, srt_fixes
+from app.io.gopro import global_settings
+from app.io.gpmf import Counts, chunks, parse
+from app.io.gpx import read_gpx
+from app.io.sensorlogger import read_sensorlogger
 from app.io.streams import GAP_FACTOR, Warnings
+from app.outputs import CSV_SUFFIXES, check_output, write_atomically
 
 
 @dataclass
@@ -66,8 +73,6 @@ def _gpmf_payload(path: Path) -> Telemetry:
     """GPMF bytes extracted from a GoPro MP4 (one payload or several back to back): its streams
     and sample counts. Without the MP4's sample table there is no time span: the streams are
     listed by count, and positions (GPS5/GPS9) by order."""
-    from app.io.gpmf import Counts, chunks, parse
-
     out = Telemetry(path, "GoPro GPMF telemetry, raw (no MP4 timing)")
     counts = Counts()
     tree = parse(path.read_bytes(), str(path), counts)
@@ -88,8 +93,6 @@ def _gpmf_payload(path: Path) -> Telemetry:
 
 
 def _srt(path: Path) -> Telemetry:
-    from app.io.dji_srt import read_srt, srt_fixes
-
     out = Telemetry(path, "DJI subtitle telemetry")
     tr = read_srt(path, out.warnings)
     out.streams.append(Stream("entries", tr.t))
@@ -104,8 +107,6 @@ def _srt(path: Path) -> Telemetry:
 
 
 def _gpx(path: Path) -> Telemetry:
-    from app.io.gpx import read_gpx
-
     out = Telemetry(path, "GPX track")
     g = read_gpx(path, out.warnings)
     t = g.t - g.t[0]
@@ -116,12 +117,8 @@ def _gpx(path: Path) -> Telemetry:
 
 
 def _gopro(path: Path) -> Telemetry:
-    from app.attitude.gopro import read_gopro
-
     out = Telemetry(path, "GoPro MP4 (GPMF telemetry)")
     r = read_gopro(path, out.warnings)
-    from app.io.gopro import global_settings
-
     settings = global_settings(path)
     mode = settings.get("VFOV", "?")
     out.info.append(f"camera: {r.raw.model}; lens mode {mode}, horizontal FOV {r.hfov_deg:.1f} deg")
@@ -144,8 +141,6 @@ def _gopro(path: Path) -> Telemetry:
 
 
 def _sensorlogger(path: Path) -> Telemetry:
-    from app.io.sensorlogger import read_sensorlogger
-
     out = Telemetry(path, "Sensor Logger recording")
     rec = read_sensorlogger(path, warnings=out.warnings)
     t0 = min(s.t[0] for s in (rec.acc, rec.gyr) if s is not None)
@@ -163,8 +158,6 @@ def _sensorlogger(path: Path) -> Telemetry:
 
 
 def _csv(path: Path) -> Telemetry:
-    from app.io import csvlog
-
     out = Telemetry(path, "geofuse CSV log")
     columns, _, _, _ = csvlog.read_table(path)
     if {"lat", "lon", "h"} <= set(columns):

@@ -26,7 +26,14 @@ from app import rotations
 from app.attitude.heading import magnetometer_plausible
 from app.geomag import field_enu
 from app.io.gopro import DEFAULT_ORIN, GoProRaw, orin_map, read_gopro_raw
-from app.io.streams import GnssTrack, OrientationStream, VectorStream, Warnings, checked_vector, resample
+from app.io.streams import (
+    GnssTrack,
+    OrientationStream,
+    VectorStream,
+    Warnings,
+    checked_vector,
+    resample,
+)
 
 CV_TO_DEVICE = np.diag([1.0, -1.0, -1.0])  # camera (X right, Y down, Z forward) -> device frame
 DEFAULT_IMU_TO_CV = np.array([[-1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, -1.0, 0.0]])  # fitted on the MAX sample

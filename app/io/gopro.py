@@ -23,6 +23,7 @@ import numpy as np
 from app.errors import DataFormatError
 from app.io.gpmf import Counts, StreamChunk, chunks, parse
 from app.io.streams import GnssTrack, Warnings, plausible_fixes
+from app.io.video import probe
 
 DEFAULT_ORIN = {"HERO5": "ZXY", "HERO6": "YxZ", "Fusion": "yXZ"}  # documented data orders where ORIN is absent
 GPS_BIN_S = 0.5  # 18 Hz GPS averaged into 2 Hz fixes: smoother velocities for the Hermite track
@@ -227,8 +228,6 @@ def read_gopro_raw(path: str | Path, warnings: Warnings | None = None) -> GoProR
         )
     gnss, precision, utc0, dropped = _gps(by_key, path, warnings)
     lens = next((v for k, v in HFOV_DEG.items() if k in model.lower()), HFOV_DEG["default"])
-    from app.io.video import probe
-
     w, h = probe(path).display_size
     recorded = lens_hfov(global_settings(path), w, h)
     if recorded is not None:

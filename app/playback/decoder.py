@@ -20,6 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
+from app.io.video import media_seconds
+
 QUEUE_FRAMES = 12  # about 0.4 s of 30 fps video: enough to ride out decoder hiccups
 LATE_S = 0.05  # a frame this far behind the media time due is not converted nor queued
 RESEEK_BEHIND_S = 2.0  # this far behind the media time due, seek forward instead of decoding on
@@ -131,8 +133,6 @@ class Decoder:
     def _decode_from(self, container, stream, target: float, serial: int, rate: float, bt709: bool):
         """Decode forward from the last seek; returns the next command, or None at end of stream."""
         import av
-
-        from app.io.video import media_seconds
 
         packets = container.demux(stream)
         delivered = False  # the first frame after a seek is always delivered

@@ -24,8 +24,8 @@ from app.io.sensorlogger import read_sensorlogger
 from app.io.streams import GnssTrack, OrientationStream, VectorStream, Warnings
 from app.io.video import VideoInfo, probe
 from app.scene import Placement, load_scene
-from app.scene.ground_plane import ground_under_track
 from app.scene.ground import ground_heights
+from app.scene.ground_plane import ground_under_track
 from app.session.config import SessionConfig, read_config
 from app.session.model import Session
 

@@ -93,21 +93,16 @@ def split_stats(errors: np.ndarray, columns: np.ndarray, width: int) -> Stats:
 
 
 class ProjectionProbe:
-    """Model points seen at a grid of image pixels, through the GPU position pass."""
+    """Model points seen at a grid of image pixels (app.render.probe.SurfaceProbe)."""
 
     def __init__(self, session: Session, grid: tuple[int, int]) -> None:
-        from app.render.context import create_offscreen_context
-        from app.render.gpu_scene import GpuScene
-        from app.render.positions import PositionPass
+        from app.render.probe import SurfaceProbe
 
         self.intrinsics: Intrinsics = session.intrinsics.scaled(*grid)
-        self.ctx = create_offscreen_context()
-        self.scene = GpuScene(self.ctx, session.scene())
-        self.pass_ = PositionPass(self.ctx, self.scene)
+        self.surface = SurfaceProbe(session.scene())
 
     def points(self, enu: np.ndarray, q: np.ndarray) -> np.ndarray:
-        cam = Camera.create(self.intrinsics, enu, q, near=VIEW_NEAR_M, far=VIEW_FAR_M)
-        return self.pass_.render(cam)
+        return self.surface.points(Camera.create(self.intrinsics, enu, q, near=VIEW_NEAR_M, far=VIEW_FAR_M))
 
     def errors(self, est: Poses, truth: Poses) -> tuple[np.ndarray, np.ndarray]:
         """(per-pixel distances (m), their column indices) over all frames."""
@@ -121,9 +116,7 @@ class ProjectionProbe:
         return np.concatenate(dist), np.concatenate(cols)
 
     def release(self) -> None:
-        self.pass_.release()
-        self.scene.release()
-        self.ctx.release()
+        self.surface.release()
 
 
 @dataclass(frozen=True)

@@ -204,6 +204,59 @@ def cmd_view(args: argparse.Namespace) -> int:
     return Viewer(Options(args.manifest, args.size, args.script, args.screenshot, args.play, srt=args.srt)).run()
 
 
+EXPORT_SUFFIXES = {"footprints": (".geojson", ".json", ".kml", ".kmz"), "fmv-csv": (".csv",), "klv": (".ts",), "video": (".mp4",)}
+
+
+def cmd_export(args: argparse.Namespace) -> int:
+    """footprints / fmv-csv / klv / video of a session or clip (app/export)."""
+    import numpy as np
+
+    from app.camera_track import camera_track
+    from app.clips import open_any
+    from app.export.gis import write_records
+    from app.export.records import frame_records
+    from app.outputs import write_atomically, write_via_path
+    from app.progress import ProgressBar
+
+    suffixes = EXPORT_SUFFIXES[args.what]
+    check_output(args.out, "--out", suffixes, [args.input, args.srt])
+    session = open_any(args.input, args.srt, args.fov, args.pitch)
+    check_output(args.out, "--out", suffixes, list(session.inputs))
+    source = args.source or session.sources[0]
+    if source not in session.sources:
+        raise GeofuseError(f"--source {source}: this session offers {', '.join(session.sources)}")
+    for w in session.warnings.items:
+        print(f"warning: {w}", file=sys.stderr)
+    track = camera_track(session, source)
+    bar = ProgressBar(f"export {args.what}", sys.stderr)
+    out = Path(args.out)
+    if args.what == "video":
+        from app.export.video import export_video
+
+        pts = session.video.pts_s
+        first = int(np.searchsorted(pts, args.start - 1e-6)) if args.start is not None else 0
+        last = int(np.searchsorted(pts, args.end + 1e-6)) - 1 if args.end is not None else len(pts) - 1
+        if not 0 <= first <= last < len(pts):
+            raise GeofuseError(f"--from/--to: no frame between {args.start} and {args.end} s (the video runs 0 to {pts[-1]:.3f} s)")
+        n = [0]
+        write_via_path(out, "--out", lambda tmp: n.__setitem__(0, export_video(session.video, session.rotation_cw, track, session.scene(), tmp, args.size, args.view, first, last, bar)))
+        print(f"wrote {out}: {n[0]} frames, {args.size[0]}x{args.size[1]}, view {args.view}, attitude from {source}")
+        return 0
+    records = list(frame_records(session, source, args.every, progress=bar, track=track))
+    if args.what == "klv":
+        from app.export.klv import write_klv_ts
+
+        n = [0]
+        write_via_path(out, "--out", lambda tmp: n.__setitem__(0, write_klv_ts(session.video, records, tmp)))
+        print(f"wrote {out}: the video with {n[0]} MISB ST 0601 local sets, attitude from {source}")
+        return 0
+    binary = out.suffix.lower() == ".kmz"
+    write_atomically(out, "--out", lambda f: write_records(records, f, out.suffix.lower(), Path(args.input).stem), binary=binary)
+    clipped = sum(r.clipped for r in records)
+    print(f"wrote {out}: {len(records)} frames, attitude from {source}" + (f"; {clipped} footprints clipped at the range limit" if clipped else ""))
+    return 0
+
+
 def cmd_telemetry(args: argparse.Namespace) -> int:
     from app.telemetry import describe, inspect, write_csv
 
@@ -336,6 +389,21 @@ def build_parser() -> argparse.ArgumentParser:
     so.add_argument("--pitch", type=_number(-90.0, 90.0), default=DRONE_DEFAULT_PITCH_DEG, help=f"a drone clip without gimbal attitude: the camera's pitch, degrees (default {DRONE_DEFAULT_PITCH_DEG:g})")
     so.add_argument("--out", type=Path, required=True)
     so.set_defaults(func=cmd_solve)
+
+    ex = sub.add_parser("export", help="footprints (GeoJSON/KML/KMZ), an FMV metadata CSV, MISB KLV in MPEG-TS, or the fused view as a video")
+    ex.add_argument("what", choices=sorted(EXPORT_SUFFIXES), help="footprints: .geojson/.kml/.kmz; fmv-csv: .csv; klv: .ts; video: .mp4")
+    ex.add_argument("input", type=Path, help="a session manifest, a GoPro MP4 or a DJI clip")
+    ex.add_argument("--out", type=Path, required=True)
+    ex.add_argument("--source", "--filter", dest="source", default=None, help="attitude source (default: the first the session offers)")
+    ex.add_argument("--every", type=int, default=1, help="footprints, CSV, KLV: every Nth frame")
+    ex.add_argument("--from", dest="start", type=_number(0.0, 1e7), default=None, help="video: first second (media time)")
+    ex.add_argument("--to", dest="end", type=_number(0.0, 1e7), default=None, help="video: last second (media time)")
+    ex.add_argument("--size", type=_size, default=(1280, 720), help="video: WIDTHxHEIGHT")
+    ex.add_argument("--view", choices=("ride", "follow", "orbit", "top"), default="follow", help="video: the window camera")
+    ex.add_argument("--srt", type=Path, default=None, help="the DJI subtitle of the clip, when not beside it")
+    ex.add_argument("--fov", type=_number(0.0, 180.0, open_low=True), default=None, help="override the lens's horizontal field of view, degrees")
+    ex.add_argument("--pitch", type=_number(-90.0, 90.0), default=DRONE_DEFAULT_PITCH_DEG, help="a drone clip without gimbal attitude: the camera's pitch, degrees")
+    ex.set_defaults(func=cmd_export)
 
     te = sub.add_parser("telemetry", help="what a telemetry file holds: streams, rates, gaps, fixes, warnings")
     te.add_argument("file", type=Path, help="a GoPro MP4, a DJI .SRT, a GPX, a Sensor Logger folder/zip or a geofuse CSV")

@@ -45,14 +45,28 @@ def check_output(path: str | Path, option: str, suffixes: tuple[str, ...], input
 def write_atomically(path: Path, option: str, write: Callable[[IO], None], binary: bool = False) -> Path:
     """Create the parent folder, write through `write(file)` to a temporary file beside `path`,
     then rename it over `path`. OSError (full disk, permissions) -> OutputError."""
+
+    def through_file(tmp: Path) -> None:
+        with tmp.open("wb" if binary else "w", **({} if binary else {"newline": "", "encoding": "utf-8"})) as f:
+            write(f)
+
+    return write_via_path(path, option, through_file)
+
+
+def write_via_path(path: Path, option: str, write: Callable[[Path], None]) -> Path:
+    """As write_atomically, for writers that open the file themselves: write(temporary path),
+    where the temporary path keeps the output's suffix (muxers choose the format by it)."""
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent)
+        os.close(fd)
     except OSError as exc:
         raise OutputError(f"{option} {path}: cannot create it ({exc.strerror or exc})") from exc
     try:
-        with os.fdopen(fd, "wb" if binary else "w", **({} if binary else {"newline": "", "encoding": "utf-8"})) as f:
-            write(f)
+        write(Path(tmp))
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)  # mkstemp's 0600 is for the temporary file, not the user's output
         os.replace(tmp, path)
     except OSError as exc:
         Path(tmp).unlink(missing_ok=True)

@@ -8,19 +8,11 @@ from typing import TextIO
 
 from app.camera_track import FramePoses, camera_track
 from app.outputs import CSV_SUFFIXES, check_output, write_atomically
+from app.progress import ProgressBar
 from app.session.model import Session
 
 COLUMNS = ("frame", "time_s", "latitude", "longitude", "height", "E", "N", "U", "heading", "pitch", "roll", "qw", "qx", "qy", "qz")
 PROGRESS_MIN_SAMPLES = 100_000
-
-
-def _bar(out: TextIO | None, label: str, fraction: float) -> None:
-    if out is not None:
-        filled = int(30 * fraction)
-        out.write(f"\r{label:<28} [{'#' * filled}{'.' * (30 - filled)}] {100 * fraction:5.1f}%")
-        if fraction >= 1.0:
-            out.write("\n")
-        out.flush()
 
 
 def solve_frames(session: Session, source: str) -> FramePoses:
@@ -44,10 +36,10 @@ def solve_to_csv(session: Session, source: str, out: str | Path, progress: TextI
     returns the row count."""
     out = check_output(out, "--out", CSV_SUFFIXES, list(session.inputs) + [session.path, session.video.path, session.gnss.source])
     long_input = session.gyr is not None and len(session.gyr.t) >= PROGRESS_MIN_SAMPLES
-    bar = progress if long_input else None
-    _bar(bar, f"solving {source}", 0.0)
+    bar = ProgressBar(f"solving {source}", progress if long_input else None)
+    bar(0.0)
     poses = solve_frames(session, source)
-    _bar(bar, f"solving {source}", 1.0)
+    bar(1.0)
     def write(f) -> None:
         w = csv.writer(f)
         w.writerow(COLUMNS)

@@ -1,0 +1,127 @@
+"""What every export says about a frame: the sensor's place and attitude, its field of view, and
+where the image lands on the scene (frame centre, corners, footprint), from the session's camera
+track (app.camera_track) and the model (or assumed ground) through the GPU position pass.
+
+Frames: WGS84 latitude/longitude in degrees, ellipsoidal heights in metres; heading, pitch, roll
+of the optical axis in degrees (DESIGN.md); times in seconds. A border ray that meets no surface
+(above the horizon, or past the model's edge) is clipped at `max_range_m` along the ray, and the
+record says so (`clipped`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+
+import numpy as np
+
+from app import rotations
+from app.camera import Camera
+from app.camera_track import CameraTrack, camera_track
+from app.constants import VIEW_FAR_M, VIEW_NEAR_M
+from app.render.probe import SurfaceProbe, border_sampling
+from app.session.model import Session
+
+FOOTPRINT_MAX_RANGE_M = 2000.0  # border rays that meet nothing are clipped at this range
+FOOTPRINT_SAMPLES = (33, 19)  # rays across the image, and down it (the border's samples)
+UNIX_TIME_FLOOR_S = 946_684_800.0  # 2000-01-01: session clocks past this are Unix time (UTC)
+
+
+@dataclass(frozen=True)
+class FrameRecord:
+    """One exported frame. utc_s: Unix seconds when the session clock is absolute, else None;
+    sensor: (lat, lon, h); hpr: heading, pitch, roll (deg); centre: (lat, lon, h) where the
+    optical axis meets the scene, slant_m its distance (NaN when the axis meets nothing);
+    corners: (4, 3) top-left, top-right, bottom-right, bottom-left image corners on the scene;
+    footprint: (N, 3) the image border on the scene, clockwise in the image from the top-left
+    corner (not closed); clipped: some border ray met no surface."""
+
+    index: int
+    media_s: float
+    session_s: float
+    utc_s: float | None
+    sensor: tuple[float, float, float]
+    hpr: tuple[float, float, float]
+    hfov_deg: float
+    vfov_deg: float
+    centre: tuple[float, float, float]
+    slant_m: float
+    corners: np.ndarray
+    footprint: np.ndarray
+    clipped: bool
+
+
+def border_indices(columns: int, rows: int) -> np.ndarray:
+    """(N, 2) (row, column) of a grid's border, clockwise from the top-left corner, each once."""
+    top = [(0, c) for c in range(columns)]
+    right = [(r, columns - 1) for r in range(1, rows)]
+    bottom = [(rows - 1, c) for c in range(columns - 2, -1, -1)]
+    left = [(r, 0) for r in range(rows - 2, 0, -1)]
+    return np.array(top + right + bottom + left)
+
+
+def landing_points(camera: Camera, grid_points: np.ndarray, max_range_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """(points (H, W, 3) ENU, hit mask): the probe's points, with rays that met nothing (or met
+    it beyond max_range_m) replaced by the point at max_range_m along the pixel's ray."""
+    h, w = grid_points.shape[:2]
+    v, u = np.mgrid[0:h, 0:w] + 0.5  # pixel centres of the grid camera itself
+    rays = camera.pixel_rays(np.column_stack([u.ravel(), v.ravel()])).reshape(h, w, 3)
+    far = np.asarray(camera.position) + rays * max_range_m
+    dist = np.linalg.norm(grid_points - np.asarray(camera.position), axis=2)
+    hit = np.isfinite(dist) & (dist <= max_range_m)
+    return np.where(hit[..., None], grid_points, far), hit
+
+
+class FootprintCaster:
+    """Frame records from posed cameras: the border-sampling grid (FOOTPRINT_SAMPLES) rendered
+    through the position pass of one scene."""
+
+    def __init__(self, mesh, frame, intrinsics, max_range_m: float = FOOTPRINT_MAX_RANGE_M) -> None:
+        self.frame, self.intrinsics, self.max_range_m = frame, intrinsics, max_range_m
+        self.grid = border_sampling(intrinsics, *FOOTPRINT_SAMPLES)
+        self.border = border_indices(*FOOTPRINT_SAMPLES)
+        g = self.grid
+        self.corners = [(0, 0), (0, g.width - 1), (g.height - 1, g.width - 1), (g.height - 1, 0)]
+        self.centre = ((g.height - 1) // 2, (g.width - 1) // 2)
+        self.probe = SurfaceProbe(mesh)
+
+    def record(self, cam: Camera, index: int = 0, media_s: float = 0.0, session_s: float = 0.0) -> FrameRecord:
+        small = Camera.create(self.grid, cam.position, cam.orientation, VIEW_NEAR_M, max(VIEW_FAR_M, 2.0 * self.max_range_m))
+        pts, hit = landing_points(small, self.probe.points(small), self.max_range_m)
+        cr, cc = self.centre
+        b = self.border
+        geo = self.frame.enu_to_geodetic(np.vstack([[cam.position], [pts[cr, cc]], [pts[r, c] for r, c in self.corners], pts[b[:, 0], b[:, 1]]]))
+        centre_hit = bool(hit[cr, cc])
+        return FrameRecord(
+            index=index, media_s=media_s, session_s=session_s, utc_s=session_s if session_s > UNIX_TIME_FLOOR_S else None,
+            sensor=tuple(map(float, geo[0])), hpr=tuple(map(float, rotations.hpr_from_camera_quat(cam.orientation))),
+            hfov_deg=self.intrinsics.hfov_deg, vfov_deg=self.intrinsics.vfov_deg,
+            centre=tuple(map(float, geo[1])) if centre_hit else (np.nan, np.nan, np.nan),
+            slant_m=float(np.linalg.norm(pts[cr, cc] - np.asarray(cam.position))) if centre_hit else np.nan,
+            corners=geo[2:6], footprint=geo[6:], clipped=not bool(hit[b[:, 0], b[:, 1]].all()),
+        )  # fmt: skip
+
+    def release(self) -> None:
+        self.probe.release()
+
+
+def frame_records(
+    session: Session,
+    source: str,
+    every: int = 1,
+    max_range_m: float = FOOTPRINT_MAX_RANGE_M,
+    progress: Callable[[float], None] | None = None,
+    track: CameraTrack | None = None,
+) -> Iterator[FrameRecord]:
+    """A record for every `every`-th video frame under one source (see the module docstring)."""
+    track = track or camera_track(session, source)
+    caster = FootprintCaster(session.scene(), session.frame, session.intrinsics, max_range_m)
+    frames = range(0, track.frame_count, max(1, every))
+    try:
+        for n, k in enumerate(frames):
+            media = float(track.clock.media_s[k])
+            yield caster.record(track.frame_camera(k), k, media, float(track.clock.session_time(media)))
+            if progress is not None:
+                progress((n + 1) / len(frames))
+    finally:
+        caster.release()

@@ -220,6 +220,8 @@ def cmd_export(args: argparse.Namespace) -> int:
 
     suffixes = EXPORT_SUFFIXES[args.what]
     check_output(args.out, "--out", suffixes, [args.input, args.srt])
+    if args.preview is not None:
+        check_output(args.preview, "--preview", IMAGE_SUFFIXES, [args.input, args.srt, args.out])
     session = open_any(args.input, args.srt, args.fov, args.pitch)
     check_output(args.out, "--out", suffixes, list(session.inputs))
     source = args.source or session.sources[0]
@@ -252,6 +254,11 @@ def cmd_export(args: argparse.Namespace) -> int:
         return 0
     binary = out.suffix.lower() == ".kmz"
     write_atomically(out, "--out", lambda f: write_records(records, f, out.suffix.lower(), Path(args.input).stem), binary=binary)
+    if args.preview is not None:
+        from app.export.preview import footprint_preview
+        from app.imageio import write_rgb
+
+        write_rgb(args.preview, footprint_preview(session.scene(), session.frame, records, args.size), "--preview")
     clipped = sum(r.clipped for r in records)
     print(f"wrote {out}: {len(records)} frames, attitude from {source}" + (f"; {clipped} footprints clipped at the range limit" if clipped else ""))
     return 0
@@ -400,6 +407,7 @@ def build_parser() -> argparse.ArgumentParser:
     ex.add_argument("--to", dest="end", type=_number(0.0, 1e7), default=None, help="video: last second (media time)")
     ex.add_argument("--size", type=_size, default=(1280, 720), help="video: WIDTHxHEIGHT")
     ex.add_argument("--view", choices=("ride", "follow", "orbit", "top"), default="follow", help="video: the window camera")
+    ex.add_argument("--preview", type=Path, default=None, help="footprints, CSV, KLV: also a PNG of the footprints seen from above (--size)")
     ex.add_argument("--srt", type=Path, default=None, help="the DJI subtitle of the clip, when not beside it")
     ex.add_argument("--fov", type=_number(0.0, 180.0, open_low=True), default=None, help="override the lens's horizontal field of view, degrees")
     ex.add_argument("--pitch", type=_number(-90.0, 90.0), default=DRONE_DEFAULT_PITCH_DEG, help="a drone clip without gimbal attitude: the camera's pitch, degrees")

@@ -165,3 +165,27 @@ def test_the_panel_layout_is_remembered_between_runs(display, tmp_path):
     assert result.returncode == 0, result.stderr[-2000:]
     second = json.loads((tmp_path / "second.json").read_text())
     assert second["view_rect"][2] > first["view_rect"][2]  # the edited, narrower column was used
+
+
+def test_export_and_record_from_the_viewer(display, tmp_path):
+    """The Export panel's commands: footprints exported in the background while the viewer runs
+    (then checked as GeoJSON), and the window recorded: the recording has the window's size and
+    one frame per drawn frame of the fixed-step clock."""
+    import av
+
+    fp, rec, state = tmp_path / "fp.geojson", tmp_path / "rec.mp4", tmp_path / "s.json"
+    script = tmp_path / "s.txt"
+    script.write_text(
+        f"0 clock 0.05\n0 wait solved\n0 export footprints {fp}\n0 record start {rec}\n0 play\n"
+        f"1.0 record stop\n1.0 wait exported\n1.05 state {state}\n1.1 quit\n"
+    )
+    result = run_viewer(display, "--script", str(script), "--size", "640x360")
+    assert result.returncode == 0, result.stderr[-2000:]
+    s = json.loads(state.read_text())
+    assert s["errors"] == [] and any(n.startswith(f"recorded {rec}") for n in s["notices"])
+    doc = json.loads(fp.read_text())
+    assert doc["type"] == "FeatureCollection" and len(doc["features"]) == 2400 + 1  # every frame and the track
+    with av.open(str(rec)) as c:
+        frames = [f for f in c.decode(c.streams.video[0])]
+    assert (frames[0].width, frames[0].height) == (640, 360)
+    assert 19 <= len(frames) <= 21  # 1 s of a 20 Hz clock

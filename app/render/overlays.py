@@ -11,6 +11,7 @@ from app.camera import Camera
 FRUSTUM_COLOR = (1.0, 0.85, 0.1, 1.0)
 TRAJECTORY_COLOR = (0.1, 0.9, 1.0, 1.0)
 REFERENCE_COLOR = (0.2, 1.0, 0.3, 1.0)
+OUTLINE_COLOR = (1.0, 0.55, 0.0, 1.0)  # exported footprints
 
 
 def frustum_segments(camera: Camera, length_m: float) -> np.ndarray:

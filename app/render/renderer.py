@@ -13,7 +13,7 @@ import numpy.typing as npt
 from app.camera import Camera, depth_map_size
 from app.config import OverlaySettings, ProjectionSettings
 from app.render.gpu_scene import GpuScene
-from app.render.overlays import FRUSTUM_COLOR, REFERENCE_COLOR, TRAJECTORY_COLOR, LineOverlay, frustum_segments
+from app.render.overlays import FRUSTUM_COLOR, OUTLINE_COLOR, REFERENCE_COLOR, TRAJECTORY_COLOR, LineOverlay, frustum_segments
 from app.render.passes import DepthPass, ScenePass
 from app.render.video_texture import VideoTexture
 from app.scene.mesh import MeshData
@@ -39,6 +39,7 @@ class FusionRenderer:
         self._truth_map = None
         self._truth_map_camera: Camera | None = None
         self.trajectory: np.ndarray | None = None
+        self.outlines: np.ndarray | None = None
 
     def set_video_frame(self, rgb: npt.NDArray[np.uint8]) -> None:
         """Upload one display-oriented video frame (H, W, 3) uint8 RGB, row 0 = the top row."""
@@ -90,6 +91,10 @@ class FusionRenderer:
         p = self._position_pass().render(small)[row, col]
         return p.astype(np.float64) if np.all(np.isfinite(p)) else None
 
+    def set_outlines(self, segments_enu: npt.ArrayLike | None) -> None:
+        """Line segments (2N, 3) ENU metres, drawn in pairs over the scene (e.g. footprints)."""
+        self.outlines = None if segments_enu is None else np.asarray(segments_enu, np.float64)
+
     def set_trajectory(self, points_enu: npt.ArrayLike | None) -> None:
         """A polyline (N, 3) ENU metres drawn by the trajectory overlay."""
         self.trajectory = None if points_enu is None else np.asarray(points_enu, np.float64)
@@ -116,6 +121,8 @@ class FusionRenderer:
             self.lines.draw(vp, frustum_segments(self.reference, overlays.frustum_length_m), REFERENCE_COLOR, moderngl.LINES)
         if overlays.trajectory and self.trajectory is not None:
             self.lines.draw(vp, self.trajectory, TRAJECTORY_COLOR, moderngl.LINE_STRIP)
+        if self.outlines is not None and len(self.outlines) >= 2:
+            self.lines.draw(vp, self.outlines, OUTLINE_COLOR, moderngl.LINES)
 
     def release(self) -> None:
         if self._positions is not None:

@@ -37,9 +37,29 @@ def _clock(v, arg, now) -> None:
 
 
 def _wait(v, arg, now) -> None:
-    if arg != "solved":
-        raise ValueError(f"expected 'solved', got {arg!r}")
-    v.wait_until_solved()
+    if arg == "solved":
+        v.wait_until_solved()
+    elif arg == "exported":
+        v.wait_until_exported()
+    else:
+        raise ValueError(f"expected 'solved' or 'exported', got {arg!r}")
+
+
+def _export(v, arg, now) -> None:
+    what, _, path = (arg or "").partition(" ")
+    if not path.strip():
+        raise ValueError("expected WHAT PATH (footprints, fmv-csv, klv or video, and the output file)")
+    v.start_export(what, Path(path.strip()))
+
+
+def _record(v, arg, now) -> None:
+    action, _, path = (arg or "").partition(" ")
+    if action == "start":
+        v.start_recording(Path(path.strip() or v.ui.record_path))
+    elif action == "stop":
+        v.stop_recording()
+    else:
+        raise ValueError(f"expected 'start [PATH]' or 'stop', got {arg!r}")
 
 
 def _view(v, arg, now) -> None:
@@ -70,7 +90,9 @@ COMMANDS: dict[str, Command] = {
     "panels": Command(_set_ui(show_panels=()), False, True, "show or hide the panels"),
     "lines": Command(_set_ui(overlays=("frustum", "trajectory")), False, True, "frustum and trajectory lines"),
     "clock": Command(_clock, False, True, "STEP: a fixed-step clock (seconds per frame), or wall"),
-    "wait": Command(_wait, False, True, "solved: hold the clock until every source is solved"),
+    "wait": Command(_wait, False, True, "solved | exported: hold the clock until every source is solved, or the export has finished"),
+    "export": Command(_export, True, True, "WHAT PATH: export the session (footprints, fmv-csv, klv, video) in the background"),
+    "record": Command(_record, True, True, "start [PATH] | stop: record what the window shows"),
     "play": Command(lambda v, a, n: v.loaded.clock.set_paused(False, n), True, False, "play"),
     "pause": Command(lambda v, a, n: v.loaded.clock.set_paused(True, n), True, False, "pause"),
     "toggle": Command(lambda v, a, n: v.loaded.clock.set_paused(not v.loaded.clock.paused, n), True, False, "play / pause"),

@@ -42,7 +42,8 @@ AMBER = (1.0, 0.8, 0.3, 1.0)
 LEFT_FRACTION = 0.26  # of the window's width: the left panel column
 BOTTOM_FRACTION = 0.13  # of the window's height: the timeline
 LEFT_LOWER_FRACTION = 0.45  # of the left column: Error inspection and Stats
-TOP_PANELS = ("Session", "Attitude", "Projection")
+TOP_PANELS = ("Session", "Attitude", "Projection", "Export")
+EXPORTS = (("footprints", ".geojson"), ("footprints", ".kml"), ("footprints", ".kmz"), ("fmv-csv", ".csv"), ("klv", ".ts"), ("video", ".mp4"))
 LOWER_PANELS = ("Error inspection", "Stats")
 OPEN_FILTERS = ["Sessions and clips", "*.toml *.TOML *.mp4 *.MP4 *.mov *.MOV", "All files", "*"]
 KEY_COMMANDS = {  # key name in glfw -> (command, argument)
@@ -225,6 +226,7 @@ def draw(v, gui: Gui, now: float) -> None:
         _projection(v)
         _error_inspection(v)
         _stats(v)
+        _export(v, now)
     if v.ui.show_help:
         _help(v)
 
@@ -433,6 +435,46 @@ def _stats(v) -> None:
         imgui.text(f"decode queue {player.decoder.frames.qsize()}/{player.decoder.frames.maxsize}   corrupt packets {player.decoder.corrupt_packets}")
         imgui.text(f"latency now {current:5.1f} ms  mean {mean:5.1f} ms  p95 {p95:5.1f} ms")
         imgui.text(f"dropped frames {player.stats.dropped} (decoder skipped {player.decoder.skipped})   depth redraws {v.stats.depth_redraws}")
+    imgui.end()
+
+
+def _export(v, now: float) -> None:
+    from imgui_bundle import imgui
+
+    ui = v.ui
+    if _window("Export"):
+        labels = [f"{what} ({suffix})" for what, suffix in EXPORTS]
+        _, ui.export_what = imgui.combo("format", ui.export_what, labels)
+        what, suffix = EXPORTS[ui.export_what]
+        default = str(Path("out") / f"{Path(v.loaded.session.path).stem}-{what}{suffix}")
+        imgui.set_next_item_width(-60)
+        _, ui.export_path = imgui.input_text("##export", ui.export_path or default)
+        if not ui.export_path.lower().endswith(suffix):
+            ui.export_path = str(Path(ui.export_path).with_suffix(suffix))
+        imgui.same_line()
+        job = ui.export_job
+        if job is None or job.done:
+            if imgui.button("Export"):
+                _run(v, "export", f"{what} {ui.export_path}", now)
+        elif imgui.button("Cancel"):
+            job.cancel()
+        if job is not None:
+            imgui.progress_bar(job.progress, imgui.ImVec2(-1, 0), f"{job.what} {100 * job.progress:.0f} %")
+            if job.done:
+                imgui.text_colored(_vec4((0.5, 1.0, 0.5, 1.0) if job.ok else RED), job.message)
+        imgui.separator()
+        rec = ui.recorder
+        if rec is None:
+            imgui.set_next_item_width(-80)
+            _, ui.record_path = imgui.input_text("##record", ui.record_path)
+            imgui.same_line()
+            if imgui.button("Record"):
+                _run(v, "record", f"start {ui.record_path}", now)
+        else:
+            imgui.text_colored(_vec4(RED), f"recording {rec.out.name}: {rec.frames} frames")
+            imgui.same_line()
+            if imgui.button("Stop"):
+                _run(v, "record", "stop", now)
     imgui.end()
 
 

@@ -6,6 +6,9 @@ which a run does the same thing on a fast machine and on a loaded one.
     # comment
     0.0  clock 0.0333       # a fixed-step clock (or: clock wall)
     0.0  wait solved        # hold the clock until every attitude source is solved
+    1.0  export footprints out/fp.geojson   # footprints | fmv-csv | klv | video, in the background
+    1.0  wait exported      # hold the clock until the export has finished
+    1.5  record start out/rec.mp4           # record what the window shows (record stop)
     0.0  play
     2.0  pause
     2.1  seek 12.5          # media seconds from the first frame

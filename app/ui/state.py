@@ -29,6 +29,11 @@ class UiState:
     screenshot_request: Path | None = None  # taken after this frame's panels are drawn
     state_request: Path | None = None
     open_request: Path | None = None  # a file dropped on the window or chosen in the dialog
+    export_what: int = 0  # the Export panel's choice (app.ui.panels.EXPORTS)
+    export_path: str = ""  # the Export panel's output path ("" = a name from the session's)
+    export_job: object | None = None  # the running or last app.ui.exporter.ExportJob
+    recorder: object | None = None  # an app.ui.exporter.Recorder while recording
+    record_path: str = "out/recording.mp4"
     quit: bool = False
 
     def error(self, message: str) -> None:

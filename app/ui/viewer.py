@@ -136,6 +136,43 @@ class Viewer:
     def fixed_clock(self) -> bool:
         return isinstance(self.clock, FixedStepClock)
 
+    def wait_until_exported(self) -> None:
+        """Hold everything until the running export has finished (a script's `wait exported`)."""
+        job = self.ui.export_job
+        if job is not None and not job.wait(SOLVE_WAIT_S):
+            raise GeofuseError(f"the export did not finish within {SOLVE_WAIT_S:g} s")
+
+    def start_export(self, what: str, out: Path) -> None:
+        """Export the open session under the current source, in a child process (app.ui.exporter)."""
+        from app.cli import EXPORT_SUFFIXES
+        from app.outputs import check_output
+        from app.ui.exporter import ExportJob
+
+        if what not in EXPORT_SUFFIXES:
+            raise ValueError(f"expected one of {sorted(EXPORT_SUFFIXES)}, got {what!r}")
+        if self.ui.export_job is not None and not self.ui.export_job.done:
+            raise ValueError("an export is running; wait for it or cancel it")
+        s = self.loaded.session
+        check_output(out, "export", EXPORT_SUFFIXES[what], s.inputs)
+        extra = ["--srt", str(self.options.srt)] if self.options.srt is not None and s.path.suffix.lower() != ".toml" else []
+        self.ui.export_job = ExportJob(what, s.path, out, self.loaded.source, extra)
+
+    def start_recording(self, out: Path) -> None:
+        from app.outputs import check_output
+        from app.ui.exporter import Recorder
+
+        if self.ui.recorder is not None:
+            raise ValueError("already recording")
+        check_output(out, "record", (".mp4",), self.loaded.session.inputs)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        self.ui.recorder = Recorder(out, self.window.framebuffer_size())
+
+    def stop_recording(self) -> None:
+        rec, self.ui.recorder = self.ui.recorder, None
+        if rec is not None:
+            rec.stop()
+            self.ui.notices.append(rec.error or f"recorded {rec.out}: {rec.frames} frames" + (f", {rec.dropped} dropped" if rec.dropped else ""))
+
     def wait_until_solved(self) -> None:
         """Hold everything until every attitude source is solved (a script's `wait solved`)."""
         if self.loaded is not None and not self.loaded.library.wait(SOLVE_WAIT_S):
@@ -375,6 +412,8 @@ class Viewer:
                 if self.options.screenshot is not None and self.options.script is None and now - start >= self.options.play_seconds:
                     self.ui.screenshot_request, self.ui.quit = self.options.screenshot, True
                 self._end_of_frame(now)
+                if self.ui.recorder is not None:
+                    self.ui.recorder.add(self.window.read_back_buffer(), now)
                 self.window.swap()
                 shown = self.clock()
                 if self.loaded is not None:
@@ -385,6 +424,8 @@ class Viewer:
                 if self.fixed_clock:
                     self.clock.advance()
         finally:
+            if self.ui.recorder is not None:
+                self.stop_recording()
             if self.loaded is not None:
                 _, mean, p95 = self.loaded.player.stats.summary()
                 log.info("latency mean %.1f ms, p95 %.1f ms, dropped %d", mean, p95, self.loaded.player.stats.dropped)

@@ -33,7 +33,11 @@ def _outputs(case_dir: Path, before: dict[Path, str]) -> list[Path]:
 
 
 def _no_nan(path: Path) -> None:
-    if path.suffix == ".csv":
+    if path.suffix == ".geojson":
+        import json
+
+        json.loads(path.read_text(), parse_constant=lambda c: pytest.fail(f"{path}: {c} in JSON"))
+    elif path.suffix == ".csv":
         with path.open() as f:
             rows = list(csv.reader(f))
         cells = [c for r in rows[1:] for c in r]

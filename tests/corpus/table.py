@@ -72,6 +72,9 @@ CASES = (
     Case("solve to .txt", "nothing", _with(SOLVE, "--out", "{d}/poses.txt"), "error", "--out"),
     Case("render onto its image", "photo_copy", _with(RENDER, "--out", "{d}/photo.jpg"), "error", "--out"),
     Case("render clean", "photo_copy", RENDER, "ok", ""),
+    Case("export footprints onto the manifest", "nothing", ("export", "footprints", "{s}", "--out", "{d}/session/session.toml"), "error", "--out"),
+    Case("export klv to an .mp4", "nothing", ("export", "klv", "{s}", "--out", "{d}/k.mp4"), "error", "--out"),
+    Case("export footprints clean", "nothing", ("export", "footprints", "{s}", "--out", "{d}/fp.geojson", "--every", "30"), "ok", ""),
     # option values
     Case("render --origin 95", "photo_copy", _with(RENDER, "--origin", "95,0,0"), "error", "--origin"),
     Case("render --pose nan", "photo_copy", _with(RENDER, "--pose", "nan,113.53,111,0,0,0"), "error", "--pose"),

@@ -122,13 +122,17 @@ def look_at_quat(eye: npt.ArrayLike, target: npt.ArrayLike, up: npt.ArrayLike = 
 
 @dataclass(frozen=True)
 class Camera:
-    """A posed pinhole camera: intrinsics, near/far planes (m), ENU position (m), orientation q."""
+    """A posed camera: intrinsics, near/far planes (m), ENU position (m), orientation q, and an
+    optional real lens (app.lens.Lens). With a lens, `intrinsics` is the pinhole that encloses
+    the lens's whole image (the depth pass's frustum) and `project`/`pixel_rays` go through the
+    lens model."""
 
     intrinsics: Intrinsics
     position: tuple[float, float, float]
     orientation: tuple[float, float, float, float]
     near: float = DEFAULT_NEAR_M
     far: float = DEFAULT_FAR_M
+    lens: object | None = None
 
     @classmethod
     def create(
@@ -138,10 +142,11 @@ class Camera:
         orientation: npt.ArrayLike,
         near: float = DEFAULT_NEAR_M,
         far: float = DEFAULT_FAR_M,
+        lens: object | None = None,
     ) -> "Camera":
         p = np.asarray(position, np.float64).reshape(3)
         q = rotations.canonical(np.asarray(orientation, np.float64).reshape(4))
-        return cls(intrinsics, tuple(map(float, p)), tuple(map(float, q)), near, far)
+        return cls(intrinsics, tuple(map(float, p)), tuple(map(float, q)), near, far, lens)
 
     @property
     def view(self) -> FloatArray:
@@ -163,6 +168,9 @@ class Camera:
         p = np.atleast_2d(np.asarray(points_enu, np.float64))
         cam = (p - np.asarray(self.position)) @ rotations.to_matrix(self.orientation)
         depth = -cam[:, 2]
+        if self.lens is not None:
+            with np.errstate(divide="ignore", invalid="ignore"):
+                return self.lens.distort(np.column_stack([cam[:, 0] / depth, -cam[:, 1] / depth])), depth
         with np.errstate(divide="ignore", invalid="ignore"):
             u = self.intrinsics.fx * cam[:, 0] / depth + self.intrinsics.cx
             v = self.intrinsics.cy - self.intrinsics.fy * cam[:, 1] / depth
@@ -171,14 +179,18 @@ class Camera:
     def pixel_rays(self, uv: npt.ArrayLike) -> FloatArray:
         """Unit ray directions (N, 3) in ENU through pixel coordinates (N, 2) (u, v)."""
         uv = np.atleast_2d(np.asarray(uv, np.float64))
-        d = np.stack(
-            [
-                (uv[:, 0] - self.intrinsics.cx) / self.intrinsics.fx,
-                (self.intrinsics.cy - uv[:, 1]) / self.intrinsics.fy,
-                -np.ones(len(uv)),
-            ],
-            axis=1,
-        )
+        if self.lens is not None:
+            ab = self.lens.undistort(uv)
+            d = np.column_stack([ab[:, 0], -ab[:, 1], -np.ones(len(uv))])
+        else:
+            d = np.stack(
+                [
+                    (uv[:, 0] - self.intrinsics.cx) / self.intrinsics.fx,
+                    (self.intrinsics.cy - uv[:, 1]) / self.intrinsics.fy,
+                    -np.ones(len(uv)),
+                ],
+                axis=1,
+            )
         d = d @ rotations.to_matrix(self.orientation).T
         return d / np.linalg.norm(d, axis=1, keepdims=True)
 

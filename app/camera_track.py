@@ -75,6 +75,7 @@ class CameraTrack:
     intrinsics: Intrinsics
     near: float = DEFAULT_NEAR_M
     far: float = DEFAULT_FAR_M
+    lens: object | None = None  # app.lens.Lens; intrinsics then enclose its image
 
     @property
     def frame_count(self) -> int:
@@ -90,7 +91,7 @@ class CameraTrack:
     def camera_at(self, t_media: float) -> Camera:
         """The posed camera at one media time (seconds from the video's first frame)."""
         enu, _, q = self.poses.at(self.clock.session_time([float(t_media)]))
-        return Camera.create(self.intrinsics, enu[0], q[0], self.near, self.far)
+        return Camera.create(self.intrinsics, enu[0], q[0], self.near, self.far, self.lens)
 
     def frame_camera(self, index: int) -> Camera:
         """The posed camera of video frame `index`."""
@@ -131,4 +132,4 @@ def camera_track(session: Session, source: str, *, course_pitch_deg: float | Non
     """Solve one source of a session into its camera track. ValueError for a source the session
     does not offer (naming those it does)."""
     clock = replace(frame_clock(session, true_timing), offset_s=float(time_offset_s))
-    return CameraTrack(source, pose_track(session, source, course_pitch_deg), clock, session.intrinsics)
+    return CameraTrack(source, pose_track(session, source, course_pitch_deg), clock, session.intrinsics, lens=session.lens)

@@ -107,10 +107,12 @@ def _projection_settings(args: argparse.Namespace):  # values range-checked by P
 def cmd_render(args: argparse.Namespace) -> int:
     if args.session is not None:
         return _render_session(args)
-    missing = [f"--{k.replace('_', '-')}" for k in ("scene", "origin", "image", "pose", "fov") if getattr(args, k) is None]
+    missing = [f"--{k.replace('_', '-')}" for k in ("scene", "origin", "image", "pose") if getattr(args, k) is None]
+    if args.fov is None and args.lens is None:
+        missing.append("--fov (or --lens)")
     if missing:
         raise GeofuseError(f"render: give --session MANIFEST --time T, or all of {', '.join(missing)}")
-    check_output(args.out, "--out", IMAGE_SUFFIXES, [args.scene, args.image])
+    check_output(args.out, "--out", IMAGE_SUFFIXES, [args.scene, args.image, args.lens])
     from app import rotations
     from app.camera import Camera, Intrinsics
     from app.config import OverlaySettings
@@ -123,12 +125,19 @@ def cmd_render(args: argparse.Namespace) -> int:
     mesh = load_scene(args.scene, frame, Placement(up_axis=args.up, heading_deg=args.scene_heading, scale=args.scene_scale))
     image = read_rgb(args.image)
     lat, lon, h, heading, pitch, roll = args.pose
+    lens = None
     try:
-        intr = Intrinsics.from_fov(image.shape[1], image.shape[0], args.fov)
+        if args.lens is not None:
+            from app.lens import enclosing_intrinsics, read_profile
+
+            lens = read_profile(args.lens).scaled(image.shape[1], image.shape[0])
+            intr = enclosing_intrinsics(lens)
+        else:
+            intr = Intrinsics.from_fov(image.shape[1], image.shape[0], args.fov)
         view_intr = Intrinsics.from_fov(args.size[0], args.size[1], args.view_fov)
     except ValueError as exc:
         raise GeofuseError(f"--fov: {exc}") from exc
-    projector = Camera.create(intr, frame.geodetic_to_enu(lat, lon, h), rotations.camera_quat_from_hpr(heading, pitch, roll), near=DEFAULT_NEAR_M, far=args.far)
+    projector = Camera.create(intr, frame.geodetic_to_enu(lat, lon, h), rotations.camera_quat_from_hpr(heading, pitch, roll), near=DEFAULT_NEAR_M, far=args.far, lens=lens)
     view = window_camera(projector, view_intr, args.view_from, args.look_at, args.far)
     rgb = render_still(mesh, image, projector, view, _projection_settings(args), OverlaySettings(frustum=not args.no_frustum, trajectory=False))
     out = write_rgb(args.out, rgb)
@@ -149,8 +158,8 @@ def _render_session(args: argparse.Namespace) -> int:
 
     if args.time is None:
         raise GeofuseError("render --session needs --time T (seconds from the video's first frame)")
-    check_output(args.out, "--out", IMAGE_SUFFIXES, [args.session])
-    session = open_any(args.session)
+    check_output(args.out, "--out", IMAGE_SUFFIXES, [args.session, args.lens])
+    session = open_any(args.session, lens=args.lens)
     check_output(args.out, "--out", IMAGE_SUFFIXES, session.inputs)
     source = args.source or session.sources[0]
     pts = session.video.pts_s
@@ -180,7 +189,7 @@ def cmd_solve(args: argparse.Namespace) -> int:
 
     check_output(args.out, "--out", CSV_SUFFIXES, [args.manifest, args.srt])
 
-    session = open_any(args.manifest, args.srt, args.fov, args.pitch)
+    session = open_any(args.manifest, args.srt, args.fov, args.pitch, args.lens)
     check_output(args.out, "--out", CSV_SUFFIXES, list(session.inputs))
     source = args.source or session.sources[0]
     if source not in session.sources:
@@ -201,7 +210,7 @@ def cmd_view(args: argparse.Namespace) -> int:
     if args.script is not None:
         parse_script(args.script)  # a bad script is refused before a window opens
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
-    return Viewer(Options(args.manifest, args.size, args.script, args.screenshot, args.play, srt=args.srt)).run()
+    return Viewer(Options(args.manifest, args.size, args.script, args.screenshot, args.play, srt=args.srt, lens=args.lens)).run()
 
 
 EXPORT_SUFFIXES = {"footprints": (".geojson", ".json", ".kml", ".kmz"), "fmv-csv": (".csv",), "klv": (".ts",), "video": (".mp4",)}
@@ -222,7 +231,7 @@ def cmd_export(args: argparse.Namespace) -> int:
     check_output(args.out, "--out", suffixes, [args.input, args.srt])
     if args.preview is not None:
         check_output(args.preview, "--preview", IMAGE_SUFFIXES, [args.input, args.srt, args.out])
-    session = open_any(args.input, args.srt, args.fov, args.pitch)
+    session = open_any(args.input, args.srt, args.fov, args.pitch, args.lens)
     check_output(args.out, "--out", suffixes, list(session.inputs))
     source = args.source or session.sources[0]
     if source not in session.sources:
@@ -370,6 +379,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--image", type=Path, help="the image (video frame) to project: PNG or JPEG")
     r.add_argument("--pose", type=lambda s: _floats(s, 6, GEODETIC + ATTITUDE), metavar="LAT,LON,H,HEADING,PITCH,ROLL", help="the image's camera: position (deg, deg, ellipsoidal m) and optical-axis heading (deg from true north, clockwise), pitch (deg above horizon), roll (deg)")
     r.add_argument("--fov", type=_number(0.0, 180.0, open_low=True), help="the image's horizontal field of view, degrees")
+    r.add_argument("--lens", type=Path, default=None, help="a gyroflow lens profile (JSON) of the image's camera, instead of --fov; with --session, of a clip")
     r.add_argument("--view-from", type=lambda s: _floats(s, 3), metavar="E,N,U", default=None, help="window camera position, ENU metres (default: behind and above the image's camera)")
     r.add_argument("--look-at", type=lambda s: _floats(s, 3), metavar="E,N,U", default=None, help="window camera target, ENU metres")
     r.add_argument("--view-fov", type=_number(0.0, 180.0, open_low=True), default=60.0, help="window camera horizontal field of view, degrees")
@@ -382,6 +392,7 @@ def build_parser() -> argparse.ArgumentParser:
     v = sub.add_parser("view", help="the interactive viewer (the bundled sample when no manifest is given)")
     v.add_argument("manifest", nargs="?", type=Path, default=None, help="a session manifest, a GoPro MP4 or a DJI clip (default: the bundled sample)")
     v.add_argument("--srt", type=Path, default=None, help="the DJI subtitle of the clip, when not beside it")
+    v.add_argument("--lens", type=Path, default=None, help="a gyroflow lens profile (JSON) for a clip (default: chosen from the file)")
     v.add_argument("--size", type=_size, default=(1280, 720), help="window WIDTHxHEIGHT")
     v.add_argument("--script", type=Path, default=None, help="a file of timed UI actions (app/ui/script.py)")
     v.add_argument("--screenshot", type=Path, default=None, help="save the window to this PNG (alone: after --play seconds, then exit)")
@@ -392,6 +403,7 @@ def build_parser() -> argparse.ArgumentParser:
     so.add_argument("manifest", type=Path, help="a session manifest (.toml), a GoPro MP4, or a DJI clip (its .SRT beside it)")
     so.add_argument("--source", "--filter", dest="source", default=None, help="attitude source: gd-ahrs | gd-imu | cf-ahrs | cf-imu | offline | phone | camera | telemetry | course | truth (default: the first the session offers)")
     so.add_argument("--srt", type=Path, default=None, help="the DJI subtitle of the clip, when not beside it")
+    so.add_argument("--lens", type=Path, default=None, help="a gyroflow lens profile (JSON) for a clip (default: chosen from the file)")
     so.add_argument("--fov", type=_number(0.0, 180.0, open_low=True), default=None, help="override the lens's horizontal field of view, degrees")
     so.add_argument("--pitch", type=_number(-90.0, 90.0), default=DRONE_DEFAULT_PITCH_DEG, help=f"a drone clip without gimbal attitude: the camera's pitch, degrees (default {DRONE_DEFAULT_PITCH_DEG:g})")
     so.add_argument("--out", type=Path, required=True)
@@ -409,6 +421,7 @@ def build_parser() -> argparse.ArgumentParser:
     ex.add_argument("--view", choices=("ride", "follow", "orbit", "top"), default="follow", help="video: the window camera")
     ex.add_argument("--preview", type=Path, default=None, help="footprints, CSV, KLV: also a PNG of the footprints seen from above (--size)")
     ex.add_argument("--srt", type=Path, default=None, help="the DJI subtitle of the clip, when not beside it")
+    ex.add_argument("--lens", type=Path, default=None, help="a gyroflow lens profile (JSON) for a clip (default: chosen from the file)")
     ex.add_argument("--fov", type=_number(0.0, 180.0, open_low=True), default=None, help="override the lens's horizontal field of view, degrees")
     ex.add_argument("--pitch", type=_number(-90.0, 90.0), default=DRONE_DEFAULT_PITCH_DEG, help="a drone clip without gimbal attitude: the camera's pitch, degrees")
     ex.set_defaults(func=cmd_export)

@@ -24,7 +24,9 @@ from app.geo import LocalFrame
 from app.geomag import declination
 from app.io.dji_srt import check_duration, read_srt, srt_fixes
 from app.io.streams import GnssTrack, OrientationStream, Warnings
+from app.io.gopro import global_settings
 from app.io.video import VideoInfo, probe
+from app.lens import LENS_MODES, Lens, choose_profile, enclosing_intrinsics, lens_for_video, read_profile
 from app.scene import Placement
 from app.scene.ground_plane import ground_under_track
 from app.session.assemble import gimbal_attitude, open_session
@@ -44,15 +46,17 @@ def find_srt(video: Path) -> Path | None:
     return None
 
 
-def open_clip(path: str | Path, srt: str | Path | None = None, hfov_deg: float | None = None, drone_pitch_deg: float = DRONE_DEFAULT_PITCH_DEG) -> Session:
-    """A session from a GoPro MP4, or from a video with a DJI subtitle (`srt`, or found beside it)."""
+def open_clip(path: str | Path, srt: str | Path | None = None, hfov_deg: float | None = None, drone_pitch_deg: float = DRONE_DEFAULT_PITCH_DEG, lens: str | Path | None = None) -> Session:
+    """A session from a GoPro MP4, or from a video with a DJI subtitle (`srt`, or found beside it).
+    lens: a gyroflow profile to use instead of the one chosen from the file (GoPro) or the pinhole
+    field of view; hfov_deg: a pinhole field of view instead of any lens."""
     path = Path(path)
     if not path.is_file():
         raise DataFormatError(path, "video file does not exist")
     srt = Path(srt) if srt is not None else find_srt(path)
     if srt is not None:
-        return _dji_session(path, srt, hfov_deg, drone_pitch_deg)
-    return _gopro_session(path, hfov_deg)
+        return _dji_session(path, srt, hfov_deg, drone_pitch_deg, lens)
+    return _gopro_session(path, hfov_deg, lens)
 
 
 def _frame_and_ground(gnss: GnssTrack, ground_h: float, margin_m: float) -> tuple[LocalFrame, object]:
@@ -60,7 +64,18 @@ def _frame_and_ground(gnss: GnssTrack, ground_h: float, margin_m: float) -> tupl
     return frame, ground_under_track(frame, gnss.lat, gnss.lon, ground_h, margin_m)
 
 
-def _clip_session(path: Path, inputs: tuple[Path, ...], frame: LocalFrame, mesh, video: VideoInfo, intr: Intrinsics, acc, gyr, mag, gnss: GnssTrack, recorded: dict[str, OrientationStream], decl: float, warnings: Warnings, pitch_deg: float = DRONE_DEFAULT_PITCH_DEG, aircraft_yaw: tuple | None = None) -> Session:
+def _camera_model(video: VideoInfo, hfov_deg: float, lens_path: str | Path | None, choice: tuple[Path, str] | None, warnings: Warnings) -> tuple[Intrinsics, Lens | None, tuple[Path, ...]]:
+    """(intrinsics, lens, lens files read): a given profile, else the chosen one, else a pinhole
+    of hfov_deg; says which."""
+    path = Path(lens_path) if lens_path is not None else choice[0] if choice else None
+    if path is None:
+        return Intrinsics.from_fov(*video.display_size, hfov_deg), None, ()
+    lens = lens_for_video(read_profile(path), *video.display_size, video.rotation_cw)
+    warnings.add(f"lens: {lens.kind} model from {'--lens ' + path.name if lens_path is not None else choice[1]}")
+    return enclosing_intrinsics(lens), lens, (path.resolve(),) if lens_path is not None else ()
+
+
+def _clip_session(path: Path, inputs: tuple[Path, ...], frame: LocalFrame, mesh, video: VideoInfo, intr: Intrinsics, acc, gyr, mag, gnss: GnssTrack, recorded: dict[str, OrientationStream], decl: float, warnings: Warnings, pitch_deg: float = DRONE_DEFAULT_PITCH_DEG, aircraft_yaw: tuple | None = None, lens: Lens | None = None) -> Session:
     warnings.add("no scene given: the video is projected on an assumed flat ground with a 1 m grid")
     policy = heading_policy(gyr is not None, mag is not None, recorded, pitch_deg, aircraft_yaw is not None)
     if policy.note:
@@ -68,11 +83,11 @@ def _clip_session(path: Path, inputs: tuple[Path, ...], frame: LocalFrame, mesh,
     return Session(
         path.resolve(), frame, None, Placement(), video, video.pts_s.copy(), intr, video.rotation_cw,
         acc, gyr, mag, gnss, recorded, decl, warnings, inputs=inputs, heading=policy, device_is_camera=True,
-        aircraft_yaw=aircraft_yaw, mesh=mesh,
+        aircraft_yaw=aircraft_yaw, mesh=mesh, lens=lens,
     )  # fmt: skip
 
 
-def _gopro_session(path: Path, hfov_deg: float | None) -> Session:
+def _gopro_session(path: Path, hfov_deg: float | None, lens_path: str | Path | None = None) -> Session:
     warnings = Warnings()
     rec = read_gopro(path, warnings)
     if rec.gnss is None:
@@ -83,11 +98,18 @@ def _gopro_session(path: Path, hfov_deg: float | None) -> Session:
     frame, mesh = _frame_and_ground(rec.gnss, float(rec.gnss.h[0]) - HANDHELD_MOUNT_M, HANDHELD_GROUND_MARGIN_M)
     decl = declination(frame.lat_deg, frame.lon_deg, frame.h_m, when)
     recorded = {"camera": rec.camera} if rec.camera is not None else {}
-    intr = Intrinsics.from_fov(*video.display_size, hfov_deg or rec.hfov_deg)
-    return _clip_session(path, (path.resolve(),), frame, mesh, video, intr, rec.acc, rec.gyr, rec.mag, rec.gnss, recorded, decl, warnings)
+    choice = None
+    if hfov_deg is None and lens_path is None:
+        mode = LENS_MODES.get(str(global_settings(path).get("VFOV", "")).strip()[:1].upper(), "")
+        stored = (video.height, video.width) if video.rotation_cw % 180 else (video.width, video.height)
+        choice = choose_profile("GoPro", rec.raw.model, *stored, mode)
+        if choice is None:
+            warnings.add(f"{path.name}: no lens profile for {rec.raw.model}: a pinhole of {rec.hfov_deg:.1f} deg is assumed (give --lens PROFILE.json)")
+    intr, lens, lens_files = _camera_model(video, hfov_deg or rec.hfov_deg, lens_path, choice, warnings)
+    return _clip_session(path, (path.resolve(), *lens_files), frame, mesh, video, intr, rec.acc, rec.gyr, rec.mag, rec.gnss, recorded, decl, warnings, lens=lens)
 
 
-def _dji_session(path: Path, srt: Path, hfov_deg: float | None, pitch_deg: float) -> Session:
+def _dji_session(path: Path, srt: Path, hfov_deg: float | None, pitch_deg: float, lens_path: str | Path | None = None) -> Session:
     warnings = Warnings()
     track = read_srt(srt, warnings)
     video = probe(path)
@@ -114,16 +136,16 @@ def _dji_session(path: Path, srt: Path, hfov_deg: float | None, pitch_deg: float
     focal_mm = float(np.median(focal)) / 10.0 if len(focal) else DJI_DEFAULT_FOCAL_MM
     if hfov_deg is None:
         hfov_deg = float(np.degrees(2 * np.arctan(18.0 / focal_mm)))  # 36 mm wide full frame equivalent
-    intr = Intrinsics.from_fov(*video.display_size, hfov_deg)
-    return _clip_session(path, (path.resolve(), srt.resolve()), frame, mesh, video, intr, None, None, None, gnss, recorded, decl, warnings, pitch_deg, yaw)
+    intr, lens, lens_files = _camera_model(video, hfov_deg, lens_path, None, warnings)
+    return _clip_session(path, (path.resolve(), srt.resolve(), *lens_files), frame, mesh, video, intr, None, None, None, gnss, recorded, decl, warnings, pitch_deg, yaw, lens)
 
 
-def open_any(path: str | Path, srt: str | Path | None = None, hfov_deg: float | None = None, pitch_deg: float = DRONE_DEFAULT_PITCH_DEG) -> Session:
+def open_any(path: str | Path, srt: str | Path | None = None, hfov_deg: float | None = None, pitch_deg: float = DRONE_DEFAULT_PITCH_DEG, lens: str | Path | None = None) -> Session:
     """A manifest (.toml) or a clip (pitch_deg: a drone clip's camera pitch when its subtitle has
     no gimbal attitude)."""
     path = Path(path)
     if path.suffix.lower() == ".toml":
-        if srt is not None:
-            raise GeofuseError("--srt goes with a clip, not with a manifest")
+        if srt is not None or lens is not None:
+            raise GeofuseError(f"{'--srt' if srt is not None else '--lens'} goes with a clip, not with a manifest (a manifest names its subtitle in [gnss] and its lens as camera.lens)")
         return open_session(path)
-    return open_clip(path, srt, hfov_deg, pitch_deg)
+    return open_clip(path, srt, hfov_deg, pitch_deg, lens)

@@ -1,6 +1,7 @@
 #version 400 core
 // Scene pass with projective video texturing (paper 2.2.2).
 #include "projective.glsl"
+#include "lens.glsl"
 #include "video.glsl"
 
 uniform sampler2D u_base_texture;
@@ -19,6 +20,18 @@ uniform float u_alpha;         // video opacity: 0 = model, 1 = video
 uniform float u_bias_constant; // metres
 uniform float u_bias_slope;    // depth-map texels of surface slope
 uniform bool u_neighbourhood;  // the paper's nine-case rule
+
+// The video camera's lens (lens.glsl): with one, u_proj_view_proj is the pinhole enclosing its
+// image (the depth map's), and the video texel comes from the lens model.
+uniform mat4 u_proj_view;      // depth camera camera-from-world (OpenGL camera frame)
+uniform int u_lens_kind;       // LENS_PINHOLE, LENS_FISHEYE or LENS_BROWN
+uniform vec4 u_lens_k;         // fisheye k1..k4; Brown k1, k2 (z, w unused)
+uniform vec2 u_lens_p;         // Brown p1, p2
+uniform float u_lens_k3;       // Brown k3
+uniform vec2 u_lens_f;         // focal lengths, video pixels
+uniform vec2 u_lens_c;         // principal point, video pixels
+uniform vec2 u_lens_size;      // video size, pixels
+uniform float u_lens_stretch;  // horizontal stretch of digital lens modes
 
 // Error overlay (sessions with ground truth): the true camera's position map. The video texel
 // that lands on this fragment truly shows the model point stored at the same texel.
@@ -66,8 +79,16 @@ void main() {
         vec3 to_projector = normalize(u_proj_position - v_world);
         float texel_m = eye_depth / u_proj_focal_texels;
         float bias = projector_bias(u_bias_constant, u_bias_slope, texel_m, abs(dot(normal, to_projector)));
-        if (projector_visible(u_depth_map, texel, eye_depth, bias, u_proj_near, u_proj_far, u_neighbourhood)) {
-            vec3 video = video_colour(vec2(st.x, 1.0 - st.y));
+        vec2 video_st = vec2(st.x, 1.0 - st.y);  // top-left origin
+        bool in_image = true;
+        if (u_lens_kind != LENS_PINHOLE) {
+            vec3 c = (u_proj_view * vec4(v_world, 1.0)).xyz;
+            vec2 uv = lens_distort(vec2(c.x, -c.y) / -c.z, u_lens_kind, u_lens_k, u_lens_p, u_lens_k3, u_lens_f, u_lens_c, u_lens_stretch);
+            video_st = uv / u_lens_size;
+            in_image = all(greaterThanEqual(video_st, vec2(0.0))) && all(lessThanEqual(video_st, vec2(1.0)));
+        }
+        if (in_image && projector_visible(u_depth_map, texel, eye_depth, bias, u_proj_near, u_proj_far, u_neighbourhood)) {
+            vec3 video = video_colour(video_st);
             colour = mix(colour, video, u_alpha);
             if (u_error_overlay) {
                 vec4 truth = texture(u_truth_positions, st);

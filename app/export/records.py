@@ -24,6 +24,7 @@ from app.session.model import Session
 
 FOOTPRINT_MAX_RANGE_M = 2000.0  # border rays that meet nothing are clipped at this range
 FOOTPRINT_SAMPLES = (33, 19)  # rays across the image, and down it (the border's samples)
+LENS_PROBE_PX = 1024  # width of the position map looked up for cameras with a real lens
 UNIX_TIME_FLOOR_S = 946_684_800.0  # 2000-01-01: session clocks past this are Unix time (UTC)
 
 
@@ -76,8 +77,10 @@ class FootprintCaster:
     """Frame records from posed cameras: the border-sampling grid (FOOTPRINT_SAMPLES) rendered
     through the position pass of one scene."""
 
-    def __init__(self, mesh, frame, intrinsics, max_range_m: float = FOOTPRINT_MAX_RANGE_M) -> None:
+    def __init__(self, mesh, frame, intrinsics, max_range_m: float = FOOTPRINT_MAX_RANGE_M, lens=None) -> None:
         self.frame, self.intrinsics, self.max_range_m = frame, intrinsics, max_range_m
+        fov = lens if lens is not None else intrinsics  # a lens's own fields of view, not its enclosing pinhole's
+        self.hfov_deg, self.vfov_deg = fov.hfov_deg, fov.vfov_deg
         self.grid = border_sampling(intrinsics, *FOOTPRINT_SAMPLES)
         self.border = border_indices(*FOOTPRINT_SAMPLES)
         g = self.grid
@@ -85,9 +88,31 @@ class FootprintCaster:
         self.centre = ((g.height - 1) // 2, (g.width - 1) // 2)
         self.probe = SurfaceProbe(mesh)
 
+    def _grid_points(self, cam: Camera) -> tuple[np.ndarray, np.ndarray]:
+        """(points (rows, cols, 3), hit mask) at the border-sampling grid of the real image."""
+        far = max(VIEW_FAR_M, 2.0 * self.max_range_m)
+        if cam.lens is None:  # a pinhole: the grid camera's own pixels are the rays, exactly
+            small = Camera.create(self.grid, cam.position, cam.orientation, VIEW_NEAR_M, far)
+            return landing_points(small, self.probe.points(small), self.max_range_m)
+        # A real lens: rays through the image's own border (the lens's inverse), looked up in a
+        # fine position map of the pinhole that encloses the image.
+        g = self.grid
+        v, u = np.mgrid[0 : g.height, 0 : g.width]
+        uv = np.column_stack([u.ravel() * cam.lens.width / (g.width - 1), v.ravel() * cam.lens.height / (g.height - 1)])
+        rays = cam.pixel_rays(uv)
+        fine = Camera.create(cam.intrinsics.scaled(LENS_PROBE_PX, max(2, round(LENS_PROBE_PX * cam.intrinsics.height / cam.intrinsics.width))), cam.position, cam.orientation, VIEW_NEAR_M, far)
+        points = self.probe.points(fine)
+        px, _ = fine.project(np.asarray(cam.position) + rays)
+        col = np.clip(px[:, 0].astype(int), 0, fine.intrinsics.width - 1)
+        row = np.clip(px[:, 1].astype(int), 0, fine.intrinsics.height - 1)
+        seen = points[row, col]
+        dist = np.linalg.norm(seen - np.asarray(cam.position), axis=1)
+        hit = np.isfinite(dist) & (dist <= self.max_range_m)
+        out = np.where(hit[:, None], seen, np.asarray(cam.position) + rays * self.max_range_m)
+        return out.reshape(g.height, g.width, 3), hit.reshape(g.height, g.width)
+
     def record(self, cam: Camera, index: int = 0, media_s: float = 0.0, session_s: float = 0.0) -> FrameRecord:
-        small = Camera.create(self.grid, cam.position, cam.orientation, VIEW_NEAR_M, max(VIEW_FAR_M, 2.0 * self.max_range_m))
-        pts, hit = landing_points(small, self.probe.points(small), self.max_range_m)
+        pts, hit = self._grid_points(cam)
         cr, cc = self.centre
         b = self.border
         geo = self.frame.enu_to_geodetic(np.vstack([[cam.position], [pts[cr, cc]], [pts[r, c] for r, c in self.corners], pts[b[:, 0], b[:, 1]]]))
@@ -95,7 +120,7 @@ class FootprintCaster:
         return FrameRecord(
             index=index, media_s=media_s, session_s=session_s, utc_s=session_s if session_s > UNIX_TIME_FLOOR_S else None,
             sensor=tuple(map(float, geo[0])), hpr=tuple(map(float, rotations.hpr_from_camera_quat(cam.orientation))),
-            hfov_deg=self.intrinsics.hfov_deg, vfov_deg=self.intrinsics.vfov_deg,
+            hfov_deg=self.hfov_deg, vfov_deg=self.vfov_deg,
             centre=tuple(map(float, geo[1])) if centre_hit else (np.nan, np.nan, np.nan),
             slant_m=float(np.linalg.norm(pts[cr, cc] - np.asarray(cam.position))) if centre_hit else np.nan,
             corners=geo[2:6], footprint=geo[6:], clipped=not bool(hit[b[:, 0], b[:, 1]].all()),
@@ -115,7 +140,7 @@ def frame_records(
 ) -> Iterator[FrameRecord]:
     """A record for every `every`-th video frame under one source (see the module docstring)."""
     track = track or camera_track(session, source)
-    caster = FootprintCaster(session.scene(), session.frame, session.intrinsics, max_range_m)
+    caster = FootprintCaster(session.scene(), session.frame, session.intrinsics, max_range_m, session.lens)
     frames = range(0, track.frame_count, max(1, every))
     try:
         for n, k in enumerate(frames):

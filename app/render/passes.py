@@ -130,6 +130,7 @@ class ScenePass:
             p["u_bias_constant"].value = settings.bias_constant_m
             p["u_bias_slope"].value = settings.bias_slope
             p["u_neighbourhood"].value = settings.neighbourhood
+            _set_lens(p, projector)
             depth.texture.use(1)
             video.bind(p)
         else:
@@ -150,3 +151,23 @@ class ScenePass:
             vao.release()
         self._blank.release()
         self.program.release()
+
+
+LENS_KIND = {None: 0, "fisheye": 1, "brown": 2}  # shaders/include/lens.glsl's constants
+
+
+def _set_lens(p: moderngl.Program, projector: Camera) -> None:
+    """The projector's lens uniforms (pinhole when it has none)."""
+    lens = projector.lens
+    p["u_lens_kind"].value = LENS_KIND[None if lens is None else lens.kind]
+    if lens is None:
+        return
+    p["u_proj_view"].write(_mat(projector.view))
+    k = lens.coeffs
+    p["u_lens_k"].value = tuple(k) if lens.kind == "fisheye" else (k[0], k[1], 0.0, 0.0)
+    p["u_lens_p"].value = (0.0, 0.0) if lens.kind == "fisheye" else (k[2], k[3])
+    p["u_lens_k3"].value = 0.0 if lens.kind == "fisheye" else k[4]
+    p["u_lens_f"].value = (lens.fx, lens.fy)
+    p["u_lens_c"].value = (lens.cx, lens.cy)
+    p["u_lens_size"].value = (float(lens.width), float(lens.height))
+    p["u_lens_stretch"].value = lens.stretch

@@ -23,6 +23,7 @@ from app.io.gpx import read_gpx
 from app.io.sensorlogger import read_sensorlogger
 from app.io.streams import GnssTrack, OrientationStream, VectorStream, Warnings
 from app.io.video import VideoInfo, probe
+from app.lens import Lens, enclosing_intrinsics, lens_for_video, read_profile
 from app.scene import Placement, load_scene
 from app.scene.ground import ground_heights
 from app.scene.ground_plane import ground_under_track
@@ -35,7 +36,20 @@ def open_session(path: str | Path) -> Session:
     return assemble(read_config(path))
 
 
-def _intrinsics(cfg: SessionConfig, width: int, height: int) -> Intrinsics:
+def _intrinsics(cfg: SessionConfig, width: int, height: int, rotation_cw: int, warnings: Warnings) -> tuple[Intrinsics, Lens | None]:
+    """(the pinhole the depth pass uses, the real lens or None), for the displayed video."""
+    cam = cfg.camera
+    if cam.lens is not None:
+        try:
+            lens = lens_for_video(read_profile(cam.lens), width, height, rotation_cw)
+        except ValueError as exc:
+            raise ManifestError(cfg.path, str(exc), field="camera.lens") from exc
+        warnings.add(f"lens: {lens.kind} model from {cam.lens.name}")
+        return enclosing_intrinsics(lens), lens
+    return _pinhole(cfg, width, height), None
+
+
+def _pinhole(cfg: SessionConfig, width: int, height: int) -> Intrinsics:
     cam = cfg.camera
     try:
         if cam.hfov_deg is not None:
@@ -217,7 +231,7 @@ def assemble(cfg: SessionConfig) -> Session:
     clip_start, frame_times = _frame_times(cfg, video)
     rotation = video.rotation_cw if cfg.camera.rotation_cw is None else cfg.camera.rotation_cw
     w, h = (video.height, video.width) if rotation % 180 else (video.width, video.height)
-    intr = _intrinsics(cfg, w, h)
+    intr, lens = _intrinsics(cfg, w, h, rotation, warnings)
 
     acc, gyr, mag, recorded, logged_gnss = _sensors(cfg, warnings, clip_start)
     gnss, above_takeoff, yaw = _gnss(cfg, logged_gnss, warnings, clip_start, recorded)
@@ -236,5 +250,5 @@ def assemble(cfg: SessionConfig) -> Session:
         truth_frame_times=_true_frame_times(cfg, len(frame_times), warnings),
         height_mode=cfg.gnss.height if cfg.scene else "gnss", mount_height_m=cfg.gnss.mount_height_m, heading=policy,
         device_is_camera=cfg.sensors.format in ("gopro", "none"),  # action cameras and drones
-        aircraft_yaw=yaw, mesh=mesh,
+        aircraft_yaw=yaw, mesh=mesh, lens=lens,
     )  # fmt: skip

@@ -21,7 +21,8 @@
     timing = "pts"                # or "eq5": frame i at i / nominal fps (paper Eq. 5)
 
     [camera]
-    hfov_deg = 66.0               # or focal_mm + sensor_width_mm
+    hfov_deg = 66.0               # or focal_mm + sensor_width_mm, or a lens profile:
+    lens = "profile.json"         # optional: a gyroflow lens profile (fisheye or Brown-Conrady)
     rotation_cw = 90              # optional: override the video's display rotation
 
     [sensors]
@@ -162,6 +163,7 @@ class CameraConfig:
     focal_mm: float | None
     sensor_width_mm: float | None
     rotation_cw: int | None  # None: the video's display rotation
+    lens: Path | None = None  # a gyroflow lens profile
 
 
 @dataclass(frozen=True)
@@ -209,7 +211,7 @@ class SessionConfig:
     def inputs(self) -> list[Path]:
         """Every file the session reads (never to be written)."""
         s, g, t = self.sensors, self.gnss, self.truth
-        files = [self.path, self.scene.path if self.scene else None, self.video.path, s.acc, s.gyr, s.mag, s.orientation, s.path, g.path, t.orientation, t.position, t.frame_times]
+        files = [self.path, self.scene.path if self.scene else None, self.video.path, self.camera.lens, s.acc, s.gyr, s.mag, s.orientation, s.path, g.path, t.orientation, t.position, t.frame_times]
         return [p for p in files if p is not None]
 
 
@@ -256,9 +258,10 @@ def read_config(path: str | Path) -> SessionConfig:
         m.number("camera", "focal_mm", None, low=0.0, high=10_000.0, open_low=True),
         m.number("camera", "sensor_width_mm", None, low=0.0, high=1_000.0, open_low=True),
         None if rotation is None else rotation % 360,
+        m.file("camera", "lens", required=False),
     )
-    if camera.hfov_deg is None and (camera.focal_mm is None or camera.sensor_width_mm is None):
-        raise ManifestError(m.path, "expected hfov_deg, or focal_mm and sensor_width_mm", field="camera")
+    if camera.hfov_deg is None and camera.lens is None and (camera.focal_mm is None or camera.sensor_width_mm is None):
+        raise ManifestError(m.path, "expected hfov_deg, focal_mm and sensor_width_mm, or lens", field="camera")
 
     fmt = m.choice("sensors", "format", SENSOR_FORMATS, "csv")
     calibration = m.choice("sensors", "mag_calibration", ("clip", "none"), "clip")

@@ -75,6 +75,7 @@ class Session:
     heading: HeadingPolicy = HeadingPolicy()
     device_is_camera: bool = False
     aircraft_yaw: tuple[np.ndarray, np.ndarray] | None = None  # (t session s, yaw deg) for `course`
+    lens: object | None = None  # app.lens.Lens of the displayed video; intrinsics then enclose it
     mesh: MeshData | None = None
 
     @property

@@ -48,6 +48,7 @@ class Options:
     play_seconds: float = 2.0  # with --screenshot alone: play this long, then save and exit
     visible: bool = True
     srt: Path | None = None
+    lens: Path | None = None  # a lens profile for a clip opened from the command line
 
 
 @dataclass
@@ -154,7 +155,8 @@ class Viewer:
             raise ValueError("an export is running; wait for it or cancel it")
         s = self.loaded.session
         check_output(out, "export", EXPORT_SUFFIXES[what], s.inputs)
-        extra = ["--srt", str(self.options.srt)] if self.options.srt is not None and s.path.suffix.lower() != ".toml" else []
+        clip = s.path.suffix.lower() != ".toml"
+        extra = [*(["--srt", str(self.options.srt)] if clip and self.options.srt else []), *(["--lens", str(self.options.lens)] if clip and self.options.lens else [])]
         self.ui.export_job = ExportJob(what, s.path, out, self.loaded.source, extra)
 
     def start_recording(self, out: Path) -> None:
@@ -188,7 +190,8 @@ class Viewer:
 
         path = Path(manifest) if manifest is not None else SAMPLE_DIR / "session.toml"
         try:
-            session = open_any(path, self.options.srt if path == self.options.manifest else None)
+            own = path == self.options.manifest
+            session = open_any(path, self.options.srt if own else None, lens=self.options.lens if own else None)
             mesh = session.scene()
         except GeofuseError as exc:
             self.ui.error(str(exc))

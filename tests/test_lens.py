@@ -1,0 +1,169 @@
+"""Real lenses (issue 13): the models against OpenCV's, profiles in the gyroflow format, and a
+checkerboard filmed through a fisheye lens projected on a wall with straight edges."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from app import rotations
+from app.camera import Camera, Intrinsics
+from app.errors import DataFormatError
+from app.lens import Lens, enclosing_intrinsics, read_profile
+from app.scene.mesh import MeshData, Primitive
+
+FISHEYE = Lens("fisheye", 1920, 1080, 846.7, 846.3, 951.3, 547.6, (0.0734, -0.0208, 0.0452, -0.0252))
+BROWN = Lens("brown", 1280, 720, 1000.0, 1002.0, 645.0, 355.0, (-0.21, 0.08, 0.001, -0.0015, -0.01))
+
+
+@pytest.mark.parametrize("lens", [FISHEYE, BROWN], ids=["fisheye", "brown"])
+def test_the_model_matches_opencv(lens):
+    cv2 = pytest.importorskip("cv2")
+    rng = np.random.default_rng(2)
+    ab = rng.uniform(-0.9, 0.9, (200, 2)) * [1.0, 0.55]
+    k = np.array([[lens.fx, 0, lens.cx], [0, lens.fy, lens.cy], [0, 0, 1]])
+    pts = np.column_stack([ab, np.ones(len(ab))])[:, None, :]
+    if lens.kind == "fisheye":
+        expected, _ = cv2.fisheye.projectPoints(pts, np.zeros(3), np.zeros(3), k, np.array(lens.coeffs))
+    else:
+        expected, _ = cv2.projectPoints(pts, np.zeros(3), np.zeros(3), k, np.array(lens.coeffs))
+    np.testing.assert_allclose(lens.distort(ab), expected[:, 0, :], atol=1e-6)
+    np.testing.assert_allclose(lens.undistort(lens.distort(ab)), ab, atol=1e-9)
+
+
+def test_a_stretch_and_a_new_resolution():
+    lens = Lens("fisheye", 1920, 1080, 846.7, 846.3, 951.3, 547.6, FISHEYE.coeffs, stretch=1.25)
+    ab = np.array([[0.5, -0.2], [0.0, 0.0]])
+    plain = FISHEYE.distort(ab)
+    np.testing.assert_allclose(lens.distort(ab)[:, 0] - lens.cx, 1.25 * (plain[:, 0] - FISHEYE.cx))
+    half = lens.scaled(960, 540)
+    np.testing.assert_allclose(half.distort(ab), lens.distort(ab) / 2, atol=1e-9)
+    np.testing.assert_allclose(half.undistort(half.distort(ab)), ab, atol=1e-9)
+
+
+def test_profiles_in_the_gyroflow_format(shared_data, tmp_path):
+    path = next((shared_data / "lens_profiles" / "GoPro").glob("GoPro_HERO (2014)*1920x1080*.json"))
+    lens = read_profile(path)
+    assert lens.kind == "fisheye" and (lens.width, lens.height) == (1920, 1080) and lens.fx == pytest.approx(846.707, abs=1e-3)
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps({"calib_dimension": {"w": 10}}))
+    with pytest.raises(DataFormatError, match="bad.json"):
+        read_profile(bad)
+
+
+def test_the_enclosing_pinhole_sees_the_whole_image():
+    intr = enclosing_intrinsics(FISHEYE)
+    a0, a1, b0, b1 = FISHEYE.border_extent()
+    assert intr.width / (2 * intr.fx) >= max(-a0, a1) and intr.height / (2 * intr.fy) >= max(-b0, b1)
+
+
+def _checker(ab: np.ndarray, cell: float = 0.08) -> np.ndarray:
+    """Black and white cells of `cell` normalised units: a board on a wall facing the camera."""
+    on = (np.floor(ab[..., 0] / cell).astype(int) + np.floor(ab[..., 1] / cell).astype(int)) % 2 == 0
+    return np.where(on[..., None], 235, 20).astype(np.uint8).repeat(3, axis=-1)
+
+
+def _pixels(w: int, h: int) -> np.ndarray:
+    v, u = np.mgrid[0:h, 0:w] + 0.5
+    return np.column_stack([u.ravel(), v.ravel()])
+
+
+def _cells(img: np.ndarray) -> np.ndarray:
+    from scipy import ndimage
+
+    dark = ndimage.binary_erosion(img.mean(axis=2) < 110, iterations=2)  # cells meet only at corners: part them
+    labels, n = ndimage.label(dark)
+    h, w = dark.shape
+    whole = [k + 1 for k, (r, c) in enumerate(ndimage.find_objects(labels)) if r.start > 0 and c.start > 0 and r.stop < h and c.stop < w]
+    return np.array(ndimage.center_of_mass(dark, labels, whole))  # cells cut by the image's edge left out
+
+
+@pytest.mark.gl
+def test_a_fisheye_checkerboard_lands_straight_on_a_wall(gl_ctx):
+    """A board filmed through a GoPro-like fisheye (its image bent), projected with the lens model
+    onto a wall 10 m ahead, and seen from the camera's place through a pinhole: the cells land
+    where the pinhole render of the straight board puts them (centres within 2 px). Projected
+    as if pinhole, they do not."""
+    from app.config import OverlaySettings, ProjectionSettings
+    from app.render.offscreen import render_to_array
+    from app.render.renderer import FusionRenderer
+
+    lens = FISHEYE.scaled(640, 360)
+    distorted = _checker(lens.undistort(_pixels(640, 360)).reshape(360, 640, 2))
+    pin = Intrinsics(640, 360, 420.0, 420.0, 320.0, 180.0)
+    straight = _checker(np.stack(np.meshgrid((np.arange(640) + 0.5 - 320) / 420, (np.arange(360) + 0.5 - 180) / 420), axis=-1))
+    wall = np.array([[-40, 10, -25], [40, 10, -25], [40, 10, 25], [-40, 10, 25]], np.float32)  # y = 10 m ahead (north)
+    mesh = MeshData([Primitive(positions=wall, colors=np.full((4, 4), 0.5, np.float32), indices=np.array([[0, 1, 2], [0, 2, 3]], np.uint32))])
+    q = rotations.camera_quat_from_hpr(0.0, 0.0, 0.0)  # looking north, level
+    view = Camera.create(pin, [0, 0, 0], q, 0.5, 100.0)
+    settings, none = ProjectionSettings(alpha=1.0), OverlaySettings(frustum=False, trajectory=False)
+    renderer = FusionRenderer(gl_ctx, mesh)
+    try:
+        renderer.set_video_frame(distorted)
+        renderer.set_projector(Camera.create(enclosing_intrinsics(lens), [0, 0, 0], q, 0.5, 100.0, lens))
+        with_lens = render_to_array(renderer, view, settings, none)
+        renderer.set_projector(Camera.create(Intrinsics(640, 360, lens.fx, lens.fy, lens.cx, lens.cy), [0, 0, 0], q, 0.5, 100.0))
+        as_pinhole = render_to_array(renderer, view, settings, none)
+        renderer.set_video_frame(straight)
+        renderer.set_projector(Camera.create(pin, [0, 0, 0], q, 0.5, 100.0))
+        reference = render_to_array(renderer, view, settings, none)
+    finally:
+        renderer.release()
+    ref = _cells(reference)
+    assert len(ref) > 40
+    for img, ok in ((with_lens, True), (as_pinhole, False)):
+        got = _cells(img)
+        d = np.linalg.norm(ref[:, None, :] - got[None, :, :], axis=2).min(axis=1)
+        if ok:
+            assert np.max(d) <= 2.0, np.max(d)
+        else:
+            assert np.max(d) > 5.0, np.max(d)
+
+
+def test_a_gopro_clip_gets_a_lens_profile_chosen_and_said(shared_data, tmp_path):
+    from app.clips import open_clip
+
+    clip = shared_data / "real" / "gopro" / "max-heromode.mp4"
+    s = open_clip(clip)
+    assert s.lens is not None and s.lens.kind == "fisheye" and (s.lens.width, s.lens.height) == (848, 480)
+    assert any(w.startswith("lens: fisheye model from Max profile") for w in s.warnings.items)
+    assert s.intrinsics.hfov_deg > 2 * np.degrees(np.arctan(848 / 2 / s.lens.fx)) - 1e-6  # the depth pass encloses the image
+    own = tmp_path / "mine.json"
+    profile = json.loads(next((shared_data / "lens_profiles" / "GoPro").glob("GoPro_HERO (2014)*1920x1080*.json")).read_text())
+    own.write_text(json.dumps(profile))
+    mine = open_clip(clip, lens=own)
+    assert mine.lens.fx == pytest.approx(846.7074163244357 * 848 / 1920) and own.resolve() in mine.inputs
+    assert open_clip(clip, hfov_deg=90.0).lens is None  # --fov: a pinhole, as asked
+
+
+@pytest.mark.gl
+def test_footprints_through_a_lens_use_its_own_border():
+    """A fisheye camera 40 m over flat ground looking straight down: each exported corner lies
+    where the lens's own (undistorted) corner ray meets the ground, not the enclosing pinhole's."""
+    from app.export.records import FootprintCaster
+    from app.geo import LocalFrame
+    from app.scene.ground_plane import ground_plane
+
+    lens = FISHEYE.scaled(960, 540)
+    frame = LocalFrame(46.05, 14.5, 300.0)
+    q = rotations.camera_quat_from_hpr(0.0, -90.0, 0.0)
+    cam = Camera.create(enclosing_intrinsics(lens), [0.0, 0.0, 40.0], q, lens=lens)
+    caster = FootprintCaster(ground_plane(np.zeros(2), 0.0, 2000.0), frame, cam.intrinsics)
+    try:
+        r = caster.record(cam)
+    finally:
+        caster.release()
+    rays = cam.pixel_rays([[0, 0], [960, 0], [960, 540], [0, 540]])
+    expected = np.array([0.0, 0.0, 40.0]) + rays * (40.0 / -rays[:, 2:3])
+    got = frame.geodetic_to_enu(r.corners[:, 0], r.corners[:, 1], r.corners[:, 2])
+    np.testing.assert_allclose(got[:, :2], expected[:, :2], atol=0.25)  # the 1024-texel position map
+    naive = 40.0 * (lens.width - lens.cx) / lens.fx  # the same focal length taken as a pinhole
+    assert abs(got[1, 0]) > naive + 20.0  # the fisheye sees far wider than that
+
+
+def test_fields_of_view_of_a_lens():
+    pin = Lens("brown", 1000, 500, 500.0, 500.0, 500.0, 250.0, (0.0, 0.0, 0.0, 0.0, 0.0))
+    assert pin.hfov_deg == pytest.approx(90.0) and pin.vfov_deg == pytest.approx(2 * np.degrees(np.arctan(0.5)))
+    assert FISHEYE.hfov_deg > 2 * np.degrees(np.arctan(FISHEYE.cx / FISHEYE.fx))  # wider than its focal length says

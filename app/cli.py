@@ -273,6 +273,35 @@ def cmd_export(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_sync(args: argparse.Namespace) -> int:
+    """The video <-> gyroscope time offset of a session or clip (app/sync.py)."""
+    from app.clips import open_any
+    from app.outputs import write_atomically
+    from app.progress import ProgressBar
+    from app.sync import settings_path, settings_text, sync_session
+
+    base = 0.0
+    if Path(args.input).suffix.lower() == ".toml":  # the manifest's own timing, never an "auto" offset
+        from app.session import assemble, read_config
+
+        cfg = read_config(args.input)
+        base = cfg.video.time_offset_s
+        session = assemble(cfg)
+    else:
+        session = open_any(args.input, lens=args.lens)
+    for w in session.warnings.items:
+        print(f"warning: {w}", file=sys.stderr)
+    result = sync_session(session, ProgressBar("optical flow", sys.stderr))
+    ms = 1000 * result.offset_s
+    print(f"{args.input}: the video's times need {ms:+.1f} ms (confidence {result.confidence:.3f}; coarse {1000 * result.coarse_s:+.0f} ms)")
+    print(f"fitted on {len(result.windows)} windows of {result.windows[0][1] - result.windows[0][0]:.1f} s with the most rotation" if result.windows else "no window with rotation")
+    if args.write:
+        out = check_output(settings_path(Path(args.input)), "--write", (".toml",), list(session.inputs))
+        write_atomically(out, "--write", lambda f: f.write(settings_text(result, base + result.offset_s)))
+        print(f"wrote {out}: a manifest with video.time_offset_s = \"auto\" reads it")
+    return 0
+
+
 def cmd_telemetry(args: argparse.Namespace) -> int:
     from app.telemetry import describe, inspect, write_csv
 
@@ -425,6 +454,12 @@ def build_parser() -> argparse.ArgumentParser:
     ex.add_argument("--fov", type=_number(0.0, 180.0, open_low=True), default=None, help="override the lens's horizontal field of view, degrees")
     ex.add_argument("--pitch", type=_number(-90.0, 90.0), default=DRONE_DEFAULT_PITCH_DEG, help="a drone clip without gimbal attitude: the camera's pitch, degrees")
     ex.set_defaults(func=cmd_export)
+
+    sy = sub.add_parser("sync", help="the time offset between the video and the gyroscope, from the camera's rotation seen in the video")
+    sy.add_argument("input", type=Path, help="a session manifest or a GoPro MP4")
+    sy.add_argument("--write", action="store_true", help="keep it in NAME.geofuse.toml beside the input (never in an input)")
+    sy.add_argument("--lens", type=Path, default=None, help="a gyroflow lens profile (JSON) for a clip")
+    sy.set_defaults(func=cmd_sync)
 
     te = sub.add_parser("telemetry", help="what a telemetry file holds: streams, rates, gaps, fixes, warnings")
     te.add_argument("file", type=Path, help="a GoPro MP4, a DJI .SRT, a GPX, a Sensor Logger folder/zip or a geofuse CSV")

@@ -98,9 +98,15 @@ def _gopro_session(path: Path, hfov_deg: float | None, lens_path: str | Path | N
     frame, mesh = _frame_and_ground(rec.gnss, float(rec.gnss.h[0]) - HANDHELD_MOUNT_M, HANDHELD_GROUND_MARGIN_M)
     decl = declination(frame.lat_deg, frame.lon_deg, frame.h_m, when)
     recorded = {"camera": rec.camera} if rec.camera is not None else {}
+    settings = global_settings(path)
+    if str(settings.get("EISE", "")).strip().upper() == "Y":
+        warnings.add(
+            f"{path.name}: in-camera stabilisation was on ({str(settings.get('EISA', '')).strip() or 'EIS'}): the video no longer has the "
+            "sensor's geometry, so its projection is approximate and `geofuse sync` cannot see the camera turn"
+        )
     choice = None
     if hfov_deg is None and lens_path is None:
-        mode = LENS_MODES.get(str(global_settings(path).get("VFOV", "")).strip()[:1].upper(), "")
+        mode = LENS_MODES.get(str(settings.get("VFOV", "")).strip()[:1].upper(), "")
         stored = (video.height, video.width) if video.rotation_cw % 180 else (video.width, video.height)
         choice = choose_profile("GoPro", rec.raw.model, *stored, mode)
         if choice is None:

@@ -32,8 +32,22 @@ from app.session.model import Session
 
 
 def open_session(path: str | Path) -> Session:
-    """Read and validate a manifest and every file it names."""
-    return assemble(read_config(path))
+    """Read and validate a manifest and every file it names; with video.time_offset_s = "auto",
+    the offset stored by `geofuse sync --write`, or found now."""
+    cfg = read_config(path)
+    session = assemble(cfg)
+    if not cfg.video.auto_offset:
+        return session
+    from app.sync import sync_session, synced_offset
+
+    offset = synced_offset(cfg.path)
+    if offset is not None:
+        session.warnings.add(f"time offset {1000 * offset:+.1f} ms from {cfg.path.stem}.geofuse.toml (geofuse sync --write)")
+    else:
+        result = sync_session(session)
+        offset = result.offset_s
+        session.warnings.add(f"time offset {1000 * offset:+.1f} ms found from the video against the gyroscope (confidence {result.confidence:.2f}); geofuse sync --write keeps it")
+    return replace(session, frame_times=session.frame_times + offset)
 
 
 def _intrinsics(cfg: SessionConfig, width: int, height: int, rotation_cw: int, warnings: Warnings) -> tuple[Intrinsics, Lens | None]:

@@ -17,7 +17,9 @@
     path = "clip.mp4"
     start_time = 1700000000.0     # optional: session-clock seconds of the first frame (default:
                                   # the video's creation time)
-    time_offset_s = 0.0           # optional: added to every frame time (sync correction)
+    time_offset_s = 0.0           # optional: added to every frame time (sync correction), or
+                                  # "auto": found from the video against the gyroscope (geofuse
+                                  # sync; NAME.geofuse.toml beside the manifest keeps it)
     timing = "pts"                # or "eq5": frame i at i / nominal fps (paper Eq. 5)
 
     [camera]
@@ -155,6 +157,7 @@ class VideoConfig:
     start_time: float | None  # session-clock seconds of the first frame; None: the video's creation time
     time_offset_s: float
     timing: str  # "pts" or "eq5"
+    auto_offset: bool = False  # time_offset_s = "auto"
 
 
 @dataclass(frozen=True)
@@ -248,7 +251,9 @@ def read_config(path: str | Path) -> SessionConfig:
     else:
         raise ManifestError(m.path, "give [origin] or scene.origin: the session needs a geographic origin", field="origin")
 
-    video = VideoConfig(m.file("video", "path"), m.number("video", "start_time", None), m.number("video", "time_offset_s", 0.0, low=-86400.0, high=86400.0), m.choice("video", "timing", ("pts", "eq5"), "pts"))
+    auto = m.get("video", "time_offset_s", (float, str), 0.0) == "auto"
+    offset = 0.0 if auto else m.number("video", "time_offset_s", 0.0, low=-86400.0, high=86400.0)
+    video = VideoConfig(m.file("video", "path"), m.number("video", "start_time", None), offset, m.choice("video", "timing", ("pts", "eq5"), "pts"), auto)
     m.section("camera")
     rotation = m.get("camera", "rotation_cw", int, None)
     if rotation is not None and rotation % 90:

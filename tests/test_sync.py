@@ -1,0 +1,62 @@
+"""Automatic video <-> gyroscope sync (issue 13): the sample session's video shifted by known
+offsets (either way, whole frames and fractions of one) is put back within 10 ms."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from app import rotations
+from app.demo import SAMPLE_DIR
+from app.sync import estimate_offset, frame_rotation, gyro_rates, synced_offset, video_rates, bearings_of
+
+
+@pytest.fixture(scope="module")
+def sample_rates():
+    from app.session import open_session
+
+    s = open_session(SAMPLE_DIR / "session.toml")
+    return s, video_rates(s.video, bearings_of(s), s.rotation_cw), gyro_rates(s)
+
+
+def test_frame_rotation_recovers_a_known_turn():
+    rng = np.random.default_rng(5)
+    b1 = rng.normal(size=(80, 3)) + [0, 0, 4]
+    b1 /= np.linalg.norm(b1, axis=1, keepdims=True)
+    r = rotations.to_matrix(rotations.from_rotvec([0.01, -0.02, 0.005]))
+    b2 = b1 @ r.T
+    b2[:10] = rng.normal(size=(10, 3))  # a few bad tracks
+    b2 /= np.linalg.norm(b2, axis=1, keepdims=True)
+    np.testing.assert_allclose(frame_rotation(b1, b2), r, atol=1e-3)
+
+
+@pytest.mark.parametrize("shift_s", [0.0, 0.25, -0.4, 0.1, -1 / 30, 0.017])
+def test_known_offsets_are_recovered_within_10_ms(sample_rates, shift_s):
+    """The video is made `shift_s` late on the session clock (its start time moved): sync must
+    find the sample's own error (its start time is 80 ms off, truth_frames.csv says exactly how
+    much) plus the shift."""
+    s, rates, gyro = sample_rates
+    truth = float(np.mean(s.truth_frame_times - s.frame_times))
+    clip_start = float(s.frame_times[0] - s.video.pts_s[0]) - shift_s
+    result = estimate_offset(rates, gyro, clip_start)
+    assert result.offset_s == pytest.approx(truth + shift_s, abs=0.010)
+    assert result.confidence > 0.9 and len(result.windows) >= 10
+
+
+def test_sync_write_keeps_the_offset_for_an_auto_manifest(tmp_path, capsys):
+    from app.cli import main
+    from app.session import open_session
+
+    text = (SAMPLE_DIR / "session.toml").read_text()
+    for name in ("scene.glb", "clip.mp4", "acc.csv", "gyr.csv", "mag.csv", "phone_orientation.csv", "gnss.csv", "truth_orientation.csv", "truth_position.csv", "truth_frames.csv"):
+        text = text.replace(f'"{name}"', f'"{SAMPLE_DIR / name}"')
+    manifest = tmp_path / "walk.toml"
+    manifest.write_text(text.replace("time_offset_s = 0.0", 'time_offset_s = "auto"'))
+    assert main(["sync", str(manifest), "--write"]) == 0
+    out = capsys.readouterr().out
+    assert "the video's times need" in out and "walk.geofuse.toml" in out
+    offset = synced_offset(manifest)
+    s = open_session(manifest)
+    truth = float(np.mean(s.truth_frame_times - s.frame_times))
+    assert abs(truth) < 0.010 and offset == pytest.approx(-0.080, abs=0.010)  # the offset was applied
+    assert any("walk.geofuse.toml" in w for w in s.warnings.items)

@@ -189,3 +189,16 @@ def test_export_and_record_from_the_viewer(display, tmp_path):
         frames = [f for f in c.decode(c.streams.video[0])]
     assert (frames[0].width, frames[0].height) == (640, 360)
     assert 19 <= len(frames) <= 21  # 1 s of a 20 Hz clock
+
+
+def test_sync_from_the_viewer_applies_the_offset(display, tmp_path):
+    """The Sync button's command: the offset found (the sample's start time is 80 ms off) becomes
+    the session's time offset, and the panel shows it."""
+    state, shot = tmp_path / "s.json", tmp_path / "sync.png"
+    script = tmp_path / "s.txt"
+    script.write_text(f"0 clock 0.05\n0 wait solved\n0 sync\n0 wait synced\n0.2 screenshot {shot}\n0.2 state {state}\n0.3 quit\n")
+    result = run_viewer(display, "--script", str(script), "--size", "1280x720")
+    assert result.returncode == 0, result.stderr[-2000:]
+    s = json.loads(state.read_text())
+    assert s["errors"] == [] and s["sync"]["confidence"] > 0.9
+    assert s["time_offset_s"] == pytest.approx(s["sync"]["offset_s"]) == pytest.approx(-0.08, abs=0.01)

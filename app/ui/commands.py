@@ -41,8 +41,10 @@ def _wait(v, arg, now) -> None:
         v.wait_until_solved()
     elif arg == "exported":
         v.wait_until_exported()
+    elif arg == "synced":
+        v.wait_until_synced()
     else:
-        raise ValueError(f"expected 'solved' or 'exported', got {arg!r}")
+        raise ValueError(f"expected 'solved', 'exported' or 'synced', got {arg!r}")
 
 
 def _export(v, arg, now) -> None:
@@ -93,6 +95,7 @@ COMMANDS: dict[str, Command] = {
     "wait": Command(_wait, False, True, "solved | exported: hold the clock until every source is solved, or the export has finished"),
     "export": Command(_export, True, True, "WHAT PATH: export the session (footprints, fmv-csv, klv, video) in the background"),
     "record": Command(_record, True, True, "start [PATH] | stop: record what the window shows"),
+    "sync": Command(lambda v, a, n: v.start_sync(), True, False, "find the video <-> gyroscope offset and apply it"),
     "play": Command(lambda v, a, n: v.loaded.clock.set_paused(False, n), True, False, "play"),
     "pause": Command(lambda v, a, n: v.loaded.clock.set_paused(True, n), True, False, "pause"),
     "toggle": Command(lambda v, a, n: v.loaded.clock.set_paused(not v.loaded.clock.paused, n), True, False, "play / pause"),

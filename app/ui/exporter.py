@@ -126,3 +126,54 @@ class Recorder:
             self.error = f"{self.out}: recording stopped ({type(exc).__name__}: {exc})"
         finally:
             self._container.close()
+
+
+class SyncJob:
+    """`geofuse sync` for the open session on a worker thread (app.sync): the video's rotation
+    rates, the gyroscope's, and the offset between them; `curves()` gives both magnitudes for the
+    viewer's plot, on the session clock, before and after the offset."""
+
+    def __init__(self, session) -> None:
+        self.session = session
+        self.progress = 0.0
+        self.result = None
+        self.error: str | None = None
+        self.video = self.gyro = None
+        self._thread = threading.Thread(target=self._run, name="geofuse-sync", daemon=True)
+        self._thread.start()
+
+    @property
+    def done(self) -> bool:
+        return not self._thread.is_alive()
+
+    def wait(self, timeout: float | None = None) -> bool:
+        self._thread.join(timeout)
+        return self.done
+
+    def _run(self) -> None:
+        from app.errors import GeofuseError
+        from app.sync import bearings_of, estimate_offset, gyro_rates, video_rates
+
+        s = self.session
+        try:
+            self.gyro = gyro_rates(s)
+            self.video = video_rates(s.video, bearings_of(s), s.rotation_cw, lambda f: setattr(self, "progress", f))
+            self.result = estimate_offset(self.video, self.gyro, float(s.frame_times[0] - s.video.pts_s[0]))
+        except GeofuseError as exc:
+            self.error = str(exc)
+        except Exception as exc:  # shown in the viewer, which keeps running
+            self.error = f"sync failed: {type(exc).__name__}: {exc}"
+
+    def curves(self, points: int = 600) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        """Rate magnitudes (rad/s) against seconds from the first frame: video before and after
+        the offset, and the gyroscope."""
+        if self.result is None:
+            return {}
+        start = float(self.session.frame_times[0] - self.session.video.pts_s[0])
+        t = np.linspace(self.video.t[0], self.video.t[-1], points)
+        mag = lambda c, tt: np.linalg.norm(np.column_stack([np.interp(tt, c.t, c.omega[:, j]) for j in range(3)]), axis=1)  # noqa: E731
+        return {
+            "video": (t, mag(self.video, t)),
+            "gyroscope, before": (t, mag(self.gyro, t + start)),
+            "gyroscope, after": (t, mag(self.gyro, t + start + self.result.offset_s)),
+        }

@@ -251,6 +251,10 @@ def _session(v) -> None:
     from imgui_bundle import imgui
 
     ui = v.ui
+    if ui.show_session_tab > 0:
+        ui.show_session_tab -= 1
+        if ui.show_session_tab == 0:  # once the docks exist: the first tab, whatever was docked last
+            imgui.set_next_window_focus()
     if _window("Session"):
         if v.loaded is not None:
             s = v.loaded.session
@@ -379,10 +383,37 @@ def _projection(v) -> None:
         else:
             imgui.text_disabled("projection error: needs a session with ground truth")
         if v.loaded is not None:
-            _, ui.time_offset_s = imgui.slider_float("time offset (s)", ui.time_offset_s, -1.0, 1.0, "%+.3f")
+            imgui.set_next_item_width(-110)
+            _, ui.time_offset_s = imgui.slider_float("##offset", ui.time_offset_s, -1.0, 1.0, "offset %+.3f s")
             if imgui.is_item_deactivated_after_edit():
                 _run(v, "offset", str(ui.time_offset_s))
+            imgui.same_line()
+            job = ui.sync_job
+            if v.loaded.session.gyr is not None and (job is None or job.done) and imgui.button("Sync"):
+                _run(v, "sync", None)
+            _sync_curves(ui.sync_job)
     imgui.end()
+
+
+def _sync_curves(job) -> None:
+    """The sync's progress, then the two rate curves before and after the offset."""
+    from imgui_bundle import imgui, implot
+
+    if job is None:
+        return
+    if not job.done:
+        imgui.progress_bar(job.progress, imgui.ImVec2(-1, 0), "optical flow")
+        return
+    if job.error:
+        imgui.text_colored(_vec4(RED), job.error)
+        return
+    r = job.result
+    imgui.text(f"sync: {1000 * r.offset_s:+.1f} ms, confidence {r.confidence:.2f}")
+    curves = job.curves()
+    if curves and implot.begin_plot("rotation rate (rad/s)##sync", imgui.ImVec2(-1, 110)):
+        for label, (t, y) in curves.items():
+            implot.plot_line(label, np.ascontiguousarray(t), np.ascontiguousarray(y))
+        implot.end_plot()
 
 
 def _error_inspection(v) -> None:

@@ -34,6 +34,9 @@ class UiState:
     export_job: object | None = None  # the running or last app.ui.exporter.ExportJob
     recorder: object | None = None  # an app.ui.exporter.Recorder while recording
     record_path: str = "out/recording.mp4"
+    sync_job: object | None = None  # the running or last app.ui.exporter.SyncJob
+    sync_applied: bool = False
+    show_session_tab: int = 2  # frames until the Session tab is brought to the front (once, at start)
     quit: bool = False
 
     def error(self, message: str) -> None:

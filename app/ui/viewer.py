@@ -159,6 +159,35 @@ class Viewer:
         extra = [*(["--srt", str(self.options.srt)] if clip and self.options.srt else []), *(["--lens", str(self.options.lens)] if clip and self.options.lens else [])]
         self.ui.export_job = ExportJob(what, s.path, out, self.loaded.source, extra)
 
+    def start_sync(self) -> None:
+        """Find the video <-> gyroscope offset in the background (app.ui.exporter.SyncJob); it
+        becomes the session's time offset when found."""
+        from app.ui.exporter import SyncJob
+
+        job = self.ui.sync_job
+        if job is not None and not job.done:
+            raise ValueError("a sync is running")
+        if self.loaded.session.gyr is None:
+            raise ValueError("this session has no gyroscope: the offset cannot be found from rotation")
+        self.ui.sync_job, self.ui.sync_applied = SyncJob(self.loaded.session), False
+
+    def wait_until_synced(self) -> None:
+        job = self.ui.sync_job
+        if job is not None and not job.wait(SOLVE_WAIT_S):
+            raise GeofuseError(f"the sync did not finish within {SOLVE_WAIT_S:g} s")
+        self._apply_sync()
+
+    def _apply_sync(self) -> None:
+        job = self.ui.sync_job
+        if job is None or not job.done or self.ui.sync_applied:
+            return
+        self.ui.sync_applied = True
+        if job.error:
+            self.ui.error(job.error)
+        elif job.result is not None:
+            self.set_time_offset(job.result.offset_s)
+            self.ui.notices.append(f"time offset {1000 * job.result.offset_s:+.1f} ms from the video against the gyroscope (confidence {job.result.confidence:.2f})")
+
     def start_recording(self, out: Path) -> None:
         from app.outputs import check_output
         from app.ui.exporter import Recorder
@@ -287,6 +316,7 @@ class Viewer:
             return
         if L.player.decoder.error:
             self.ui.error(L.player.decoder.error)
+        self._apply_sync()
         wait = FIXED_CLOCK_WAIT_S if self.fixed_clock else 0.0
         if L.player.tick(now, wait_s=wait):
             f = L.player.current
@@ -350,6 +380,7 @@ class Viewer:
                 manifest=str(L.session.path), source=L.source, frame=self.current_index, due_frame=L.player.due_index(now),
                 frames_shown=len(s.latencies), dropped=s.dropped, latency_ms=list(s.summary()), skipped_by_decoder=L.player.decoder.skipped,
                 solved=L.library.solved(), alpha=ui.settings.alpha, time_offset_s=L.library.time_offset_s,
+                sync=None if ui.sync_job is None or ui.sync_job.result is None else {"offset_s": ui.sync_job.result.offset_s, "confidence": ui.sync_job.result.confidence},
                 window_camera={"size": [i.width, i.height], "fx": i.fx, "fy": i.fy, "cx": i.cx, "cy": i.cy, "position": list(cam.position), "orientation": list(cam.orientation), "near": cam.near, "far": cam.far},
                 projector=None if proj is None else {"position": list(proj.position), "orientation": list(proj.orientation)},
                 frame_ms=float(np.median(self.stats.frame_times) * 1000) if self.stats.frame_times else None,

@@ -133,6 +133,7 @@ class Camera:
     near: float = DEFAULT_NEAR_M
     far: float = DEFAULT_FAR_M
     lens: object | None = None
+    rs_turn: tuple[float, float, float] | None = None  # rolling shutter: the camera's turn (rad, camera frame) from first to last row
 
     @classmethod
     def create(
@@ -143,10 +144,12 @@ class Camera:
         near: float = DEFAULT_NEAR_M,
         far: float = DEFAULT_FAR_M,
         lens: object | None = None,
+        rs_turn: npt.ArrayLike | None = None,
     ) -> "Camera":
         p = np.asarray(position, np.float64).reshape(3)
         q = rotations.canonical(np.asarray(orientation, np.float64).reshape(4))
-        return cls(intrinsics, tuple(map(float, p)), tuple(map(float, q)), near, far, lens)
+        turn = None if rs_turn is None else tuple(float(v) for v in np.asarray(rs_turn, np.float64).reshape(3))
+        return cls(intrinsics, tuple(map(float, p)), tuple(map(float, q)), near, far, lens, turn)
 
     @property
     def view(self) -> FloatArray:

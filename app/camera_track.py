@@ -76,6 +76,8 @@ class CameraTrack:
     near: float = DEFAULT_NEAR_M
     far: float = DEFAULT_FAR_M
     lens: object | None = None  # app.lens.Lens; intrinsics then enclose its image
+    readout_s: float | None = None  # rolling shutter: first row to last, seconds (None: off)
+    readout_sign: float = 1.0  # -1 when the displayed image is the sensor upside down
 
     @property
     def frame_count(self) -> int:
@@ -90,8 +92,13 @@ class CameraTrack:
 
     def camera_at(self, t_media: float) -> Camera:
         """The posed camera at one media time (seconds from the video's first frame)."""
-        enu, _, q = self.poses.at(self.clock.session_time([float(t_media)]))
-        return Camera.create(self.intrinsics, enu[0], q[0], self.near, self.far, self.lens)
+        t = float(self.clock.session_time([float(t_media)])[0])
+        enu, _, q = self.poses.at([t])
+        turn = None
+        if self.readout_s:
+            _, _, qq = self.poses.at([t - self.readout_s / 2, t + self.readout_s / 2])
+            turn = self.readout_sign * rotations.to_scipy(rotations.multiply(rotations.conjugate(qq[0]), qq[1])).as_rotvec()
+        return Camera.create(self.intrinsics, enu[0], q[0], self.near, self.far, self.lens, turn)
 
     def frame_camera(self, index: int) -> Camera:
         """The posed camera of video frame `index`."""
@@ -132,4 +139,9 @@ def camera_track(session: Session, source: str, *, course_pitch_deg: float | Non
     """Solve one source of a session into its camera track. ValueError for a source the session
     does not offer (naming those it does)."""
     clock = replace(frame_clock(session, true_timing), offset_s=float(time_offset_s))
-    return CameraTrack(source, pose_track(session, source, course_pitch_deg), clock, session.intrinsics, lens=session.lens)
+    readout, sign = session.readout_s, 1.0
+    if readout and session.rotation_cw % 180:
+        readout = None  # a portrait display of a landscape sensor: rows are read across the image
+    elif session.rotation_cw == 180:
+        sign = -1.0
+    return CameraTrack(source, pose_track(session, source, course_pitch_deg), clock, session.intrinsics, lens=session.lens, readout_s=readout, readout_sign=sign)

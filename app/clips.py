@@ -75,7 +75,7 @@ def _camera_model(video: VideoInfo, hfov_deg: float, lens_path: str | Path | Non
     return enclosing_intrinsics(lens), lens, (path.resolve(),) if lens_path is not None else ()
 
 
-def _clip_session(path: Path, inputs: tuple[Path, ...], frame: LocalFrame, mesh, video: VideoInfo, intr: Intrinsics, acc, gyr, mag, gnss: GnssTrack, recorded: dict[str, OrientationStream], decl: float, warnings: Warnings, pitch_deg: float = DRONE_DEFAULT_PITCH_DEG, aircraft_yaw: tuple | None = None, lens: Lens | None = None) -> Session:
+def _clip_session(path: Path, inputs: tuple[Path, ...], frame: LocalFrame, mesh, video: VideoInfo, intr: Intrinsics, acc, gyr, mag, gnss: GnssTrack, recorded: dict[str, OrientationStream], decl: float, warnings: Warnings, pitch_deg: float = DRONE_DEFAULT_PITCH_DEG, aircraft_yaw: tuple | None = None, lens: Lens | None = None, readout_s: float | None = None) -> Session:
     warnings.add("no scene given: the video is projected on an assumed flat ground with a 1 m grid")
     policy = heading_policy(gyr is not None, mag is not None, recorded, pitch_deg, aircraft_yaw is not None)
     if policy.note:
@@ -83,7 +83,7 @@ def _clip_session(path: Path, inputs: tuple[Path, ...], frame: LocalFrame, mesh,
     return Session(
         path.resolve(), frame, None, Placement(), video, video.pts_s.copy(), intr, video.rotation_cw,
         acc, gyr, mag, gnss, recorded, decl, warnings, inputs=inputs, heading=policy, device_is_camera=True,
-        aircraft_yaw=aircraft_yaw, mesh=mesh, lens=lens,
+        aircraft_yaw=aircraft_yaw, mesh=mesh, lens=lens, readout_s=readout_s,
     )  # fmt: skip
 
 
@@ -112,7 +112,22 @@ def _gopro_session(path: Path, hfov_deg: float | None, lens_path: str | Path | N
         if choice is None:
             warnings.add(f"{path.name}: no lens profile for {rec.raw.model}: a pinhole of {rec.hfov_deg:.1f} deg is assumed (give --lens PROFILE.json)")
     intr, lens, lens_files = _camera_model(video, hfov_deg or rec.hfov_deg, lens_path, choice, warnings)
-    return _clip_session(path, (path.resolve(), *lens_files), frame, mesh, video, intr, rec.acc, rec.gyr, rec.mag, rec.gnss, recorded, decl, warnings, lens=lens)
+    readout = _gopro_readout(settings, lens, path, warnings)
+    return _clip_session(path, (path.resolve(), *lens_files), frame, mesh, video, intr, rec.acc, rec.gyr, rec.mag, rec.gnss, recorded, decl, warnings, lens=lens, readout_s=readout)
+
+
+def _gopro_readout(settings: dict, lens: Lens | None, path: Path, warnings: Warnings) -> float | None:
+    """The sensor's readout time: GoPro's SROT (ms, in the clip's metadata), else the profile's."""
+    srot = settings.get("SROT")
+    value = float(np.ravel(srot)[0]) / 1000.0 if isinstance(srot, np.ndarray) and np.ravel(srot).size else None
+    origin = "SROT in the clip's metadata"
+    if not value and lens is not None and lens.readout_s:
+        value, origin = lens.readout_s, "the lens profile"
+    if value and 0.0 < value < 0.2:
+        warnings.add(f"{path.name}: rolling shutter: readout {1000 * value:.1f} ms from {origin}, corrected row by row")
+        return value
+    warnings.add(f"{path.name}: rolling shutter: readout time unknown: not corrected")
+    return None
 
 
 def _dji_session(path: Path, srt: Path, hfov_deg: float | None, pitch_deg: float, lens_path: str | Path | None = None) -> Session:

@@ -32,6 +32,23 @@ uniform vec2 u_lens_f;         // focal lengths, video pixels
 uniform vec2 u_lens_c;         // principal point, video pixels
 uniform vec2 u_lens_size;      // video size, pixels
 uniform float u_lens_stretch;  // horizontal stretch of digital lens modes
+uniform bool u_exact_video;    // look the video up through the lens and rolling-shutter model
+uniform vec3 u_rs_turn;        // rolling shutter: the camera's turn from the first row to the last
+                               // (radians, camera frame); the frame's pose is its middle row's
+
+// The video pixel of a camera-frame point (OpenGL axes): through the lens, and with a rolling
+// shutter, from the pose of the row that saw it (two fixed-point steps: the row depends on the
+// pixel, the pixel on the row's pose).
+vec2 video_pixel(vec3 c) {
+    vec2 uv = vec2(0.0);
+    vec3 p = c;
+    for (int i = 0; i < 3; ++i) {
+        uv = lens_distort(vec2(p.x, -p.y) / -p.z, u_lens_kind, u_lens_k, u_lens_p, u_lens_k3, u_lens_f, u_lens_c, u_lens_stretch);
+        float row = clamp(uv.y / u_lens_size.y, 0.0, 1.0) - 0.5;
+        p = rotate_by(c, -row * u_rs_turn);  // the point in the camera frame of that row
+    }
+    return uv;
+}
 
 // Error overlay (sessions with ground truth): the true camera's position map. The video texel
 // that lands on this fragment truly shows the model point stored at the same texel.
@@ -81,9 +98,8 @@ void main() {
         float bias = projector_bias(u_bias_constant, u_bias_slope, texel_m, abs(dot(normal, to_projector)));
         vec2 video_st = vec2(st.x, 1.0 - st.y);  // top-left origin
         bool in_image = true;
-        if (u_lens_kind != LENS_PINHOLE) {
-            vec3 c = (u_proj_view * vec4(v_world, 1.0)).xyz;
-            vec2 uv = lens_distort(vec2(c.x, -c.y) / -c.z, u_lens_kind, u_lens_k, u_lens_p, u_lens_k3, u_lens_f, u_lens_c, u_lens_stretch);
+        if (u_exact_video) {
+            vec2 uv = video_pixel((u_proj_view * vec4(v_world, 1.0)).xyz);
             video_st = uv / u_lens_size;
             in_image = all(greaterThanEqual(video_st, vec2(0.0))) && all(lessThanEqual(video_st, vec2(1.0)));
         }

@@ -157,12 +157,21 @@ LENS_KIND = {None: 0, "fisheye": 1, "brown": 2}  # shaders/include/lens.glsl's c
 
 
 def _set_lens(p: moderngl.Program, projector: Camera) -> None:
-    """The projector's lens uniforms (pinhole when it has none)."""
+    """The projector's lens and rolling-shutter uniforms: the exact path when it has either,
+    else the pinhole's texture coordinates from its projection matrix."""
     lens = projector.lens
-    p["u_lens_kind"].value = LENS_KIND[None if lens is None else lens.kind]
-    if lens is None:
+    exact = lens is not None or projector.rs_turn is not None
+    p["u_exact_video"].value = exact
+    if not exact:
         return
     p["u_proj_view"].write(_mat(projector.view))
+    p["u_rs_turn"].value = projector.rs_turn or (0.0, 0.0, 0.0)
+    p["u_lens_kind"].value = LENS_KIND[None if lens is None else lens.kind]
+    if lens is None:
+        i = projector.intrinsics
+        p["u_lens_f"].value, p["u_lens_c"].value = (i.fx, i.fy), (i.cx, i.cy)
+        p["u_lens_size"].value, p["u_lens_stretch"].value = (float(i.width), float(i.height)), 1.0
+        return
     k = lens.coeffs
     p["u_lens_k"].value = tuple(k) if lens.kind == "fisheye" else (k[0], k[1], 0.0, 0.0)
     p["u_lens_p"].value = (0.0, 0.0) if lens.kind == "fisheye" else (k[2], k[3])

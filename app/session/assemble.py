@@ -63,6 +63,17 @@ def _intrinsics(cfg: SessionConfig, width: int, height: int, rotation_cw: int, w
     return _pinhole(cfg, width, height), None
 
 
+def _readout(cfg: SessionConfig, lens: Lens | None, warnings: Warnings) -> float | None:
+    """The rolling shutter's readout time (s): the manifest's, else the lens profile's; says so."""
+    if cfg.camera.readout_ms is not None:
+        return cfg.camera.readout_ms / 1000.0 or None
+    if lens is not None and lens.readout_s:
+        warnings.add(f"rolling shutter: readout {1000 * lens.readout_s:.1f} ms from the lens profile, corrected row by row")
+        return lens.readout_s
+    warnings.add("rolling shutter: readout time unknown (camera.readout_ms): not corrected")
+    return None
+
+
 def _pinhole(cfg: SessionConfig, width: int, height: int) -> Intrinsics:
     cam = cfg.camera
     try:
@@ -264,5 +275,5 @@ def assemble(cfg: SessionConfig) -> Session:
         truth_frame_times=_true_frame_times(cfg, len(frame_times), warnings),
         height_mode=cfg.gnss.height if cfg.scene else "gnss", mount_height_m=cfg.gnss.mount_height_m, heading=policy,
         device_is_camera=cfg.sensors.format in ("gopro", "none"),  # action cameras and drones
-        aircraft_yaw=yaw, mesh=mesh, lens=lens,
+        aircraft_yaw=yaw, mesh=mesh, lens=lens, readout_s=_readout(cfg, lens, warnings),
     )  # fmt: skip

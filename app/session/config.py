@@ -25,6 +25,8 @@
     [camera]
     hfov_deg = 66.0               # or focal_mm + sensor_width_mm, or a lens profile:
     lens = "profile.json"         # optional: a gyroflow lens profile (fisheye or Brown-Conrady)
+    readout_ms = 30.0             # optional: rolling-shutter readout, first row to last (default:
+                                  # the lens profile's; unknown: not corrected)
     rotation_cw = 90              # optional: override the video's display rotation
 
     [sensors]
@@ -167,6 +169,7 @@ class CameraConfig:
     sensor_width_mm: float | None
     rotation_cw: int | None  # None: the video's display rotation
     lens: Path | None = None  # a gyroflow lens profile
+    readout_ms: float | None = None  # rolling shutter
 
 
 @dataclass(frozen=True)
@@ -264,6 +267,7 @@ def read_config(path: str | Path) -> SessionConfig:
         m.number("camera", "sensor_width_mm", None, low=0.0, high=1_000.0, open_low=True),
         None if rotation is None else rotation % 360,
         m.file("camera", "lens", required=False),
+        m.number("camera", "readout_ms", None, low=0.0, high=200.0),
     )
     if camera.hfov_deg is None and camera.lens is None and (camera.focal_mm is None or camera.sensor_width_mm is None):
         raise ManifestError(m.path, "expected hfov_deg, focal_mm and sensor_width_mm, or lens", field="camera")

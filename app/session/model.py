@@ -76,6 +76,7 @@ class Session:
     device_is_camera: bool = False
     aircraft_yaw: tuple[np.ndarray, np.ndarray] | None = None  # (t session s, yaw deg) for `course`
     lens: object | None = None  # app.lens.Lens of the displayed video; intrinsics then enclose it
+    readout_s: float | None = None  # rolling shutter: the sensor's readout time, seconds (None: unknown, off)
     mesh: MeshData | None = None
 
     @property

@@ -9,6 +9,16 @@ const int LENS_PINHOLE = 0;
 const int LENS_FISHEYE = 1;
 const int LENS_BROWN = 2;
 
+// v rotated by the rotation vector r (axis * angle, radians): Rodrigues' formula.
+vec3 rotate_by(vec3 v, vec3 r) {
+    float angle = length(r);
+    if (angle < 1e-12) {
+        return v;
+    }
+    vec3 k = r / angle;
+    return v * cos(angle) + cross(k, v) * sin(angle) + k * dot(k, v) * (1.0 - cos(angle));
+}
+
 vec2 lens_distort(vec2 ab, int kind, vec4 k, vec2 p, float k3, vec2 f, vec2 c, float stretch) {
     vec2 xy = ab;
     if (kind == LENS_FISHEYE) {

@@ -183,3 +183,17 @@ def test_course_pitch_setting_resolves_the_track(shared_data, tmp_path):
     assert lib.wait(timeout=60) and lib.version > before
     assert lib.track("course").frame_poses().hpr[0, 1] == pytest.approx(-60.0, abs=0.01)
     assert lib.course_pitch_deg == -60.0 and s.course_pitch_deg == -30.0
+
+
+def test_the_viewer_reopens_a_clip_through_another_lens(dji_clip, display, tmp_path, shared_data):
+    import json
+
+    profile = next((shared_data / "lens_profiles" / "DJI").glob("*.json"))
+    state1, state2 = tmp_path / "a.json", tmp_path / "b.json"
+    script = tmp_path / "s.txt"
+    script.write_text(f"0 clock 0.05\n0 wait solved\n0.1 state {state1}\n0.2 lens {profile}\n0.3 wait solved\n0.4 state {state2}\n0.5 quit\n")
+    result = run_viewer(display, str(dji_clip), "--script", str(script), "--size", "640x360")
+    assert result.returncode == 0, result.stderr[-2000:]
+    a, b = json.loads(state1.read_text()), json.loads(state2.read_text())
+    assert a["lens"] is None and b["lens"] == json.loads(profile.read_text())["name"] and b["errors"] == []
+    assert any(n.startswith("lens: ") for n in b["notices"])

@@ -95,6 +95,7 @@ COMMANDS: dict[str, Command] = {
     "wait": Command(_wait, False, True, "solved | exported: hold the clock until every source is solved, or the export has finished"),
     "export": Command(_export, True, True, "WHAT PATH: export the session (footprints, fmv-csv, klv, video) in the background"),
     "record": Command(_record, True, True, "start [PATH] | stop: record what the window shows"),
+    "lens": Command(lambda v, a, n: v.use_lens(None if a == "auto" else Path(a)), True, True, "PROFILE.json | auto: reopen the clip through this lens profile"),
     "sync": Command(lambda v, a, n: v.start_sync(), True, False, "find the video <-> gyroscope offset and apply it"),
     "play": Command(lambda v, a, n: v.loaded.clock.set_paused(False, n), True, False, "play"),
     "pause": Command(lambda v, a, n: v.loaded.clock.set_paused(True, n), True, False, "pause"),

@@ -263,6 +263,14 @@ def _session(v) -> None:
             imgui.text(f"declination {s.declination_deg:+.2f} deg")
             if s.scene_path is None:
                 imgui.text_colored(_vec4(AMBER), "no scene: the ground is assumed (flat, 1 m grid)")
+            lens = s.lens
+            imgui.text_wrapped(f"lens: {lens.kind}, {lens.name or 'profile'}" if lens is not None else f"lens: pinhole, {s.intrinsics.hfov_deg:.1f} deg across")
+            if Path(s.path).suffix.lower() != ".toml":
+                imgui.set_next_item_width(-100)
+                _, ui.lens_path = imgui.input_text("##lens", ui.lens_path)
+                imgui.same_line()
+                if imgui.button("Use lens") and ui.lens_path.strip():
+                    _run(v, "lens", ui.lens_path.strip())
         if imgui.button("Open..."):
             open_dialog(v)
         imgui.same_line()

@@ -36,6 +36,7 @@ class UiState:
     record_path: str = "out/recording.mp4"
     sync_job: object | None = None  # the running or last app.ui.exporter.SyncJob
     sync_applied: bool = False
+    lens_path: str = ""  # the Session panel's lens profile field (clips)
     show_session_tab: int = 2  # frames until the Session tab is brought to the front (once, at start)
     quit: bool = False
 

@@ -159,6 +159,17 @@ class Viewer:
         extra = [*(["--srt", str(self.options.srt)] if clip and self.options.srt else []), *(["--lens", str(self.options.lens)] if clip and self.options.lens else [])]
         self.ui.export_job = ExportJob(what, s.path, out, self.loaded.source, extra)
 
+    def use_lens(self, profile: Path | None) -> None:
+        """Reopen the clip through another lens profile (None: the one chosen from the file)."""
+        s = self.loaded.session
+        if s.path.suffix.lower() == ".toml":
+            raise ValueError("a manifest names its lens as camera.lens; edit it and reopen")
+        previous = self.options.lens
+        self.options.lens = profile
+        self.options.manifest = s.path
+        if not self.open(s.path):
+            self.options.lens = previous
+
     def start_sync(self) -> None:
         """Find the video <-> gyroscope offset in the background (app.ui.exporter.SyncJob); it
         becomes the session's time offset when found."""
@@ -377,7 +388,7 @@ class Viewer:
             proj = L.renderer.projector
             s = L.player.stats
             state.update(
-                manifest=str(L.session.path), source=L.source, frame=self.current_index, due_frame=L.player.due_index(now),
+                manifest=str(L.session.path), source=L.source, lens=None if L.session.lens is None else L.session.lens.name, frame=self.current_index, due_frame=L.player.due_index(now),
                 frames_shown=len(s.latencies), dropped=s.dropped, latency_ms=list(s.summary()), skipped_by_decoder=L.player.decoder.skipped,
                 solved=L.library.solved(), alpha=ui.settings.alpha, time_offset_s=L.library.time_offset_s,
                 sync=None if ui.sync_job is None or ui.sync_job.result is None else {"offset_s": ui.sync_job.result.offset_s, "confidence": ui.sync_job.result.confidence},

@@ -159,16 +159,11 @@ def _render_session(args: argparse.Namespace) -> int:
     if args.time is None:
         raise GeofuseError("render --session needs --time T (seconds from the video's first frame)")
     check_output(args.out, "--out", IMAGE_SUFFIXES, [args.session, args.lens])
-    session = open_any(args.session, lens=args.lens)
-    check_output(args.out, "--out", IMAGE_SUFFIXES, session.inputs)
-    source = args.source or session.sources[0]
+    session, source = _open_with_source(args.session, args, IMAGE_SUFFIXES)
     pts = session.video.pts_s
     if not pts[0] - 0.5 <= args.time <= pts[-1] + 0.5:
         raise GeofuseError(f"--time {args.time:g}: the video runs from {pts[0]:.3f} to {pts[-1]:.3f} s")
-    if source not in session.sources:
-        raise GeofuseError(f"--source {source}: this session offers {', '.join(session.sources)}")
-    for w in session.warnings.items:
-        print(f"warning: {w}", file=sys.stderr)
+    _print_warnings(session)
     index = int(np.argmin(np.abs(pts - args.time)))
     try:
         track = camera_track(session, source).with_clip(DEFAULT_NEAR_M, args.far)
@@ -183,19 +178,31 @@ def _render_session(args: argparse.Namespace) -> int:
     return 0
 
 
+def _open_with_source(path: Path, args: argparse.Namespace, suffixes: tuple[str, ...]):
+    """(session, source) for a command that writes --out: the session or clip opened, --out
+    checked against every file it reads, --source checked against what it offers."""
+    from app.clips import open_any
+
+    session = open_any(path, getattr(args, "srt", None), getattr(args, "fov", None), getattr(args, "pitch", DRONE_DEFAULT_PITCH_DEG), args.lens)
+    check_output(args.out, "--out", suffixes, list(session.inputs))
+    source = args.source or session.sources[0]
+    if source not in session.sources:
+        raise GeofuseError(f"--source {source}: this session offers {', '.join(session.sources)}")
+    return session, source
+
+
+def _print_warnings(session) -> None:
+    for w in session.warnings.items:
+        print(f"warning: {w}", file=sys.stderr)
+
+
 def cmd_solve(args: argparse.Namespace) -> int:
     from app.clips import open_any
     from app.solve import solve_to_csv
 
     check_output(args.out, "--out", CSV_SUFFIXES, [args.manifest, args.srt])
-
-    session = open_any(args.manifest, args.srt, args.fov, args.pitch, args.lens)
-    check_output(args.out, "--out", CSV_SUFFIXES, list(session.inputs))
-    source = args.source or session.sources[0]
-    if source not in session.sources:
-        raise GeofuseError(f"--source {source}: this session offers {', '.join(session.sources)}")
-    for w in session.warnings.items:
-        print(f"warning: {w}", file=sys.stderr)
+    session, source = _open_with_source(args.manifest, args, CSV_SUFFIXES)
+    _print_warnings(session)
     rows = solve_to_csv(session, source, args.out, progress=sys.stderr)
     print(f"wrote {args.out}: {rows} frames, attitude from {source}")
     return 0
@@ -231,13 +238,8 @@ def cmd_export(args: argparse.Namespace) -> int:
     check_output(args.out, "--out", suffixes, [args.input, args.srt])
     if args.preview is not None:
         check_output(args.preview, "--preview", IMAGE_SUFFIXES, [args.input, args.srt, args.out])
-    session = open_any(args.input, args.srt, args.fov, args.pitch, args.lens)
-    check_output(args.out, "--out", suffixes, list(session.inputs))
-    source = args.source or session.sources[0]
-    if source not in session.sources:
-        raise GeofuseError(f"--source {source}: this session offers {', '.join(session.sources)}")
-    for w in session.warnings.items:
-        print(f"warning: {w}", file=sys.stderr)
+    session, source = _open_with_source(args.input, args, suffixes)
+    _print_warnings(session)
     track = camera_track(session, source)
     bar = ProgressBar(f"export {args.what}", sys.stderr)
     out = Path(args.out)
@@ -289,8 +291,7 @@ def cmd_sync(args: argparse.Namespace) -> int:
         session = assemble(cfg)
     else:
         session = open_any(args.input, lens=args.lens)
-    for w in session.warnings.items:
-        print(f"warning: {w}", file=sys.stderr)
+    _print_warnings(session)
     result = sync_session(session, ProgressBar("optical flow", sys.stderr))
     ms = 1000 * result.offset_s
     print(f"{args.input}: the video's times need {ms:+.1f} ms (confidence {result.confidence:.3f}; coarse {1000 * result.coarse_s:+.0f} ms)")

@@ -70,6 +70,25 @@ def _pixels(w: int, h: int) -> np.ndarray:
     return np.column_stack([u.ravel(), v.ravel()])
 
 
+def _renders(renderer, view: Camera, shots: list[tuple[np.ndarray, Camera]]) -> list[np.ndarray]:
+    """One off-screen render of `view` per (video frame, projector), the video opaque."""
+    from app.config import OverlaySettings, ProjectionSettings
+    from app.render.offscreen import render_to_array
+
+    out = []
+    for image, projector in shots:
+        renderer.set_video_frame(image)
+        renderer.set_projector(projector)
+        out.append(render_to_array(renderer, view, ProjectionSettings(alpha=1.0), OverlaySettings(frustum=False, trajectory=False)))
+    return out
+
+
+def _wall() -> MeshData:
+    """A wall 80 m x 50 m, 10 m north of the origin."""
+    wall = np.array([[-40, 10, -25], [40, 10, -25], [40, 10, 25], [-40, 10, 25]], np.float32)
+    return MeshData([Primitive(positions=wall, colors=np.full((4, 4), 0.5, np.float32), indices=np.array([[0, 1, 2], [0, 2, 3]], np.uint32))])
+
+
 def _cells(img: np.ndarray) -> np.ndarray:
     from scipy import ndimage
 
@@ -86,29 +105,21 @@ def test_a_fisheye_checkerboard_lands_straight_on_a_wall(gl_ctx):
     onto a wall 10 m ahead, and seen from the camera's place through a pinhole: the cells land
     where the pinhole render of the straight board puts them (centres within 2 px). Projected
     as if pinhole, they do not."""
-    from app.config import OverlaySettings, ProjectionSettings
-    from app.render.offscreen import render_to_array
     from app.render.renderer import FusionRenderer
 
     lens = FISHEYE.scaled(640, 360)
     distorted = _checker(lens.undistort(_pixels(640, 360)).reshape(360, 640, 2))
     pin = Intrinsics(640, 360, 420.0, 420.0, 320.0, 180.0)
     straight = _checker(np.stack(np.meshgrid((np.arange(640) + 0.5 - 320) / 420, (np.arange(360) + 0.5 - 180) / 420), axis=-1))
-    wall = np.array([[-40, 10, -25], [40, 10, -25], [40, 10, 25], [-40, 10, 25]], np.float32)  # y = 10 m ahead (north)
-    mesh = MeshData([Primitive(positions=wall, colors=np.full((4, 4), 0.5, np.float32), indices=np.array([[0, 1, 2], [0, 2, 3]], np.uint32))])
     q = rotations.camera_quat_from_hpr(0.0, 0.0, 0.0)  # looking north, level
     view = Camera.create(pin, [0, 0, 0], q, 0.5, 100.0)
-    settings, none = ProjectionSettings(alpha=1.0), OverlaySettings(frustum=False, trajectory=False)
-    renderer = FusionRenderer(gl_ctx, mesh)
+    renderer = FusionRenderer(gl_ctx, _wall())
     try:
-        renderer.set_video_frame(distorted)
-        renderer.set_projector(Camera.create(enclosing_intrinsics(lens), [0, 0, 0], q, 0.5, 100.0, lens))
-        with_lens = render_to_array(renderer, view, settings, none)
-        renderer.set_projector(Camera.create(Intrinsics(640, 360, lens.fx, lens.fy, lens.cx, lens.cy), [0, 0, 0], q, 0.5, 100.0))
-        as_pinhole = render_to_array(renderer, view, settings, none)
-        renderer.set_video_frame(straight)
-        renderer.set_projector(Camera.create(pin, [0, 0, 0], q, 0.5, 100.0))
-        reference = render_to_array(renderer, view, settings, none)
+        with_lens, as_pinhole, reference = _renders(renderer, view, [
+            (distorted, Camera.create(enclosing_intrinsics(lens), [0, 0, 0], q, 0.5, 100.0, lens)),
+            (distorted, Camera.create(Intrinsics(640, 360, lens.fx, lens.fy, lens.cx, lens.cy), [0, 0, 0], q, 0.5, 100.0)),
+            (straight, Camera.create(pin, [0, 0, 0], q, 0.5, 100.0)),
+        ])  # fmt: skip
     finally:
         renderer.release()
     ref = _cells(reference)
@@ -190,8 +201,6 @@ def test_rolling_shutter_is_undone_row_by_row(gl_ctx):
     from the first row to the last. Projected with the rows' own poses (the shader's rolling
     shutter model), the cells land where a global shutter's would (within 2 px); projected as
     if every row were exposed at once, they do not."""
-    from app.config import OverlaySettings, ProjectionSettings
-    from app.render.offscreen import render_to_array
     from app.render.renderer import FusionRenderer
 
     intr = Intrinsics(640, 360, 420.0, 420.0, 320.0, 180.0)
@@ -199,20 +208,14 @@ def test_rolling_shutter_is_undone_row_by_row(gl_ctx):
     turn = np.array([0.0, np.radians(60.0) * 0.030, 0.0])  # a pan about the camera's up axis
     sheared = _wall_image(intr, q_mid, turn)
     still = _wall_image(intr, q_mid, np.zeros(3))
-    wall = np.array([[-40, 10, -25], [40, 10, -25], [40, 10, 25], [-40, 10, 25]], np.float32)
-    mesh = MeshData([Primitive(positions=wall, colors=np.full((4, 4), 0.5, np.float32), indices=np.array([[0, 1, 2], [0, 2, 3]], np.uint32))])
     view = Camera.create(intr, [0, 0, 0], q_mid, 0.5, 100.0)
-    settings, none = ProjectionSettings(alpha=1.0), OverlaySettings(frustum=False, trajectory=False)
-    renderer = FusionRenderer(gl_ctx, mesh)
+    renderer = FusionRenderer(gl_ctx, _wall())
     try:
-        renderer.set_video_frame(still)
-        renderer.set_projector(Camera.create(intr, [0, 0, 0], q_mid, 0.5, 100.0))
-        reference = render_to_array(renderer, view, settings, none)
-        renderer.set_video_frame(sheared)
-        renderer.set_projector(Camera.create(intr, [0, 0, 0], q_mid, 0.5, 100.0, rs_turn=turn))
-        corrected = render_to_array(renderer, view, settings, none)
-        renderer.set_projector(Camera.create(intr, [0, 0, 0], q_mid, 0.5, 100.0))
-        global_shutter = render_to_array(renderer, view, settings, none)
+        reference, corrected, global_shutter = _renders(renderer, view, [
+            (still, view),
+            (sheared, Camera.create(intr, [0, 0, 0], q_mid, 0.5, 100.0, rs_turn=turn)),
+            (sheared, view),
+        ])  # fmt: skip
     finally:
         renderer.release()
     ref = _cells(reference)

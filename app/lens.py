@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
+from app.camera import Intrinsics
 from app.errors import DataFormatError
 
 FloatArray = npt.NDArray[np.float64]
@@ -31,17 +32,12 @@ NEWTON_STEPS = 20
 
 @dataclass(frozen=True)
 class Lens:
-    """A calibrated lens at an image size (pixels): focal lengths and principal point (pixels),
+    """A calibrated lens: its camera matrix at an image size (`k`, app.camera.Intrinsics: pixels),
     coefficients (fisheye: k1..k4; brown: k1, k2, p1, p2, k3), the horizontal stretch of the
     video, the sensor's readout time (s, None when unknown), and the profile's name."""
 
     kind: str
-    width: int
-    height: int
-    fx: float
-    fy: float
-    cx: float
-    cy: float
+    k: Intrinsics
     coeffs: tuple[float, ...]
     stretch: float = 1.0
     readout_s: float | None = None
@@ -53,26 +49,37 @@ class Lens:
         wanted = 4 if self.kind == "fisheye" else 5
         if len(self.coeffs) != wanted or not all(np.isfinite(self.coeffs)):
             raise ValueError(f"a {self.kind} lens needs {wanted} finite coefficients, got {self.coeffs}")
-        if not (self.fx > 0 and self.fy > 0 and self.width > 0 and self.height > 0 and self.stretch > 0):
-            raise ValueError("focal lengths, image size and stretch must be positive")
+        if not self.stretch > 0:
+            raise ValueError(f"the stretch must be positive, got {self.stretch}")
+
+    @classmethod
+    def create(cls, kind: str, width: int, height: int, fx: float, fy: float, cx: float, cy: float, coeffs, **rest) -> "Lens":
+        return cls(kind, Intrinsics(int(width), int(height), float(fx), float(fy), float(cx), float(cy)), tuple(float(c) for c in coeffs), **rest)
+
+    width = property(lambda self: self.k.width)
+    height = property(lambda self: self.k.height)
+    fx = property(lambda self: self.k.fx)
+    fy = property(lambda self: self.k.fy)
+    cx = property(lambda self: self.k.cx)
+    cy = property(lambda self: self.k.cy)
 
     def scaled(self, width: int, height: int) -> "Lens":
         """The same lens at another resolution of the same field of view."""
-        sx, sy = width / self.width, height / self.height
-        return replace(self, width=width, height=height, fx=self.fx * sx, fy=self.fy * sy, cx=self.cx * sx, cy=self.cy * sy)
+        return replace(self, k=self.k.scaled(width, height))
 
     def rotated(self, quarter_turns_cw: int) -> "Lens":
         """The lens of the image turned clockwise by 90 deg steps (a video stored landscape and
         shown portrait): only the symmetric models turn exactly; the stretch must be 1."""
-        k = quarter_turns_cw % 4
-        if k == 0:
+        q = quarter_turns_cw % 4
+        if q == 0:
             return self
         if self.stretch != 1.0 or (self.kind == "brown" and any(self.coeffs[2:4])):
             raise ValueError("a stretched or decentred lens cannot be turned")
-        if k == 2:
-            return replace(self, cx=self.width - self.cx, cy=self.height - self.cy)
-        cx, cy = (self.height - self.cy, self.cx) if k == 1 else (self.cy, self.width - self.cx)
-        return replace(self, width=self.height, height=self.width, fx=self.fy, fy=self.fx, cx=cx, cy=cy)
+        k = self.k
+        if q == 2:
+            return replace(self, k=replace(k, cx=k.width - k.cx, cy=k.height - k.cy))
+        cx, cy = (k.height - k.cy, k.cx) if q == 1 else (k.cy, k.width - k.cx)
+        return replace(self, k=Intrinsics(k.height, k.width, k.fy, k.fx, cx, cy))
 
     # --- the model ------------------------------------------------------------------------------
 
@@ -139,11 +146,9 @@ class Lens:
         return float(ab[:, 0].min()), float(ab[:, 0].max()), float(ab[:, 1].min()), float(ab[:, 1].max())
 
 
-def enclosing_intrinsics(lens: Lens, margin: float = 1.02):
+def enclosing_intrinsics(lens: Lens, margin: float = 1.02) -> Intrinsics:
     """The pinhole whose image encloses the lens's whole (undistorted) image, at the lens's
     resolution: what the depth pass renders (its frustum sees everything the video covers)."""
-    from app.camera import Intrinsics
-
     a0, a1, b0, b1 = lens.border_extent()
     ax, bx = max(-a0, a1) * margin, max(-b0, b1) * margin
     fx, fy = lens.width / (2 * ax), lens.height / (2 * bx)
@@ -170,9 +175,9 @@ def read_profile(path: str | Path) -> Lens:
         if not fisheye and len(coeffs) > 5:
             coeffs = coeffs[:5]
         readout = d.get("frame_readout_time")
-        return Lens(
-            "fisheye" if fisheye else "brown", int(dim["w"]), int(dim["h"]), float(m[0][0]), float(m[1][1]), float(m[0][2]), float(m[1][2]),
-            coeffs, float(d.get("input_horizontal_stretch") or 1.0), float(readout) / 1000.0 if readout else None, str(d.get("name", path.stem)),
+        return Lens.create(
+            "fisheye" if fisheye else "brown", dim["w"], dim["h"], m[0][0], m[1][1], m[0][2], m[1][2], coeffs,
+            stretch=float(d.get("input_horizontal_stretch") or 1.0), readout_s=float(readout) / 1000.0 if readout else None, name=str(d.get("name", path.stem)),
         )  # fmt: skip
     except (KeyError, IndexError, TypeError, ValueError) as exc:
         raise DataFormatError(path, f"not a usable lens profile ({type(exc).__name__}: {exc})", field="fisheye_params") from exc

@@ -14,8 +14,8 @@ from app.errors import DataFormatError
 from app.lens import Lens, enclosing_intrinsics, read_profile
 from app.scene.mesh import MeshData, Primitive
 
-FISHEYE = Lens("fisheye", 1920, 1080, 846.7, 846.3, 951.3, 547.6, (0.0734, -0.0208, 0.0452, -0.0252))
-BROWN = Lens("brown", 1280, 720, 1000.0, 1002.0, 645.0, 355.0, (-0.21, 0.08, 0.001, -0.0015, -0.01))
+FISHEYE = Lens.create("fisheye", 1920, 1080, 846.7, 846.3, 951.3, 547.6, (0.0734, -0.0208, 0.0452, -0.0252))
+BROWN = Lens.create("brown", 1280, 720, 1000.0, 1002.0, 645.0, 355.0, (-0.21, 0.08, 0.001, -0.0015, -0.01))
 
 
 @pytest.mark.parametrize("lens", [FISHEYE, BROWN], ids=["fisheye", "brown"])
@@ -34,7 +34,7 @@ def test_the_model_matches_opencv(lens):
 
 
 def test_a_stretch_and_a_new_resolution():
-    lens = Lens("fisheye", 1920, 1080, 846.7, 846.3, 951.3, 547.6, FISHEYE.coeffs, stretch=1.25)
+    lens = Lens.create("fisheye", 1920, 1080, 846.7, 846.3, 951.3, 547.6, FISHEYE.coeffs, stretch=1.25)
     ab = np.array([[0.5, -0.2], [0.0, 0.0]])
     plain = FISHEYE.distort(ab)
     np.testing.assert_allclose(lens.distort(ab)[:, 0] - lens.cx, 1.25 * (plain[:, 0] - FISHEYE.cx))
@@ -175,7 +175,7 @@ def test_footprints_through_a_lens_use_its_own_border():
 
 
 def test_fields_of_view_of_a_lens():
-    pin = Lens("brown", 1000, 500, 500.0, 500.0, 500.0, 250.0, (0.0, 0.0, 0.0, 0.0, 0.0))
+    pin = Lens.create("brown", 1000, 500, 500.0, 500.0, 500.0, 250.0, (0.0, 0.0, 0.0, 0.0, 0.0))
     assert pin.hfov_deg == pytest.approx(90.0) and pin.vfov_deg == pytest.approx(2 * np.degrees(np.arctan(0.5)))
     assert FISHEYE.hfov_deg > 2 * np.degrees(np.arctan(FISHEYE.cx / FISHEYE.fx))  # wider than its focal length says
 

@@ -295,6 +295,8 @@ def cmd_sync(args: argparse.Namespace) -> int:
     result = sync_session(session, ProgressBar("optical flow", sys.stderr))
     ms = 1000 * result.offset_s
     print(f"{args.input}: the video's times need {ms:+.1f} ms (confidence {result.confidence:.3f}; coarse {1000 * result.coarse_s:+.0f} ms)")
+    if result.drift_ppm:
+        print(f"clock drift: the video's clock runs {result.drift_ppm:+.0f} ppm against the sensors' ({result.drift_ppm * 1e-6 * 60 * 1000:+.1f} ms a minute); the offset holds at {result.reference_s - float(session.frame_times[0]):.1f} s")
     print(f"fitted on {len(result.windows)} windows of {result.windows[0][1] - result.windows[0][0]:.1f} s with the most rotation" if result.windows else "no window with rotation")
     if args.write:
         out = check_output(settings_path(Path(args.input)), "--write", (".toml",), list(session.inputs))

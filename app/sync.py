@@ -10,6 +10,8 @@ video against the gyroscope's.
    whole clip (+-MAX_LAG_S); fine: the lag, in 1 ms steps within +-FINE_RANGE_S of it and refined
    by a parabola, that best fits the three rate components on the windows with the most
    rotation. The result is the offset to add to the video's times (seconds; video.time_offset_s).
+4. Drift, on long clips: each strong window's own lag, regressed on time; kept when it moves the
+   clip's ends by DRIFT_MIN_EFFECT_S or more.
 
 Times: media seconds (the video's presentation times) and session seconds.
 """
@@ -32,6 +34,9 @@ MAX_LAG_S = 2.0
 FINE_RANGE_S = 0.25  # the fine fit searches this far either side of the coarse lag
 GRID_HZ = 500.0  # both rate curves are resampled on this grid
 WINDOW_S = 1.0
+DRIFT_MIN_SPAN_S = 40.0  # a clock drift is fitted only over clips whose strong windows span this
+DRIFT_LOCAL_S = 0.05  # each window's own offset is searched this far around the clip's
+DRIFT_MIN_EFFECT_S = 0.005  # a fitted drift that moves the clip's ends by less than this is noise: 0
 STRONG_FRACTION = 0.3  # the fine fit uses the windows whose rotation is in the top 30 %
 
 
@@ -53,6 +58,8 @@ class SyncResult:
     confidence: float
     windows: tuple[tuple[float, float], ...]
     coarse_s: float
+    drift_ppm: float = 0.0  # the video clock's rate error against the sensors' (parts per million)
+    reference_s: float = 0.0  # session time at which offset_s holds exactly (the drift's pivot)
 
 
 def _kabsch(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -153,7 +160,8 @@ def estimate_offset(video: RateCurve, gyro: RateCurve, clip_start_s: float) -> S
     for e in strong_edges:
         mask |= (t >= e) & (t < e + WINDOW_S)
     fine_lags = np.arange(coarse - FINE_RANGE_S, coarse + FINE_RANGE_S + 1e-9, 0.001)
-    scores = np.array([_score(v, gyro, lag, t, mask) for lag in fine_lags])
+    tm = t[mask]  # the strong windows' grid only
+    scores = np.array([_score(v, gyro, lag, tm) for lag in fine_lags])
     k = int(np.argmin(scores))
     best = float(fine_lags[k])
     if 0 < k < len(scores) - 1 and np.isfinite(scores[k - 1 : k + 2]).all():
@@ -164,7 +172,26 @@ def estimate_offset(video: RateCurve, gyro: RateCurve, clip_start_s: float) -> S
     a, b = _on_grid(v, t), _on_grid(gyro, t + best)
     ok = np.isfinite(a).all(axis=1) & np.isfinite(b).all(axis=1) & mask
     confidence = float(np.mean([np.corrcoef(a[ok, j], b[ok, j])[0, 1] for j in range(3)])) if ok.sum() > 10 else 0.0
-    return SyncResult(best, max(0.0, confidence), tuple((float(e), float(e + WINDOW_S)) for e in strong_edges), coarse)
+    drift, pivot = _drift(v, gyro, best, strong_edges, t)
+    return SyncResult(best, max(0.0, confidence), tuple((float(e), float(e + WINDOW_S)) for e in strong_edges), coarse, drift, pivot)
+
+
+def _drift(v: RateCurve, gyro: RateCurve, offset: float, edges: np.ndarray, t: np.ndarray) -> tuple[float, float]:
+    """(drift ppm, pivot time): each strong window's own best lag near the clip's, regressed on
+    time; 0 when the windows span less than DRIFT_MIN_SPAN_S (too short a clip to see it)."""
+    pivot = float(np.mean(edges + WINDOW_S / 2)) if len(edges) else float(t[0])
+    if len(edges) < 6 or np.ptp(edges) < DRIFT_MIN_SPAN_S:
+        return 0.0, pivot
+    lags = np.arange(offset - DRIFT_LOCAL_S, offset + DRIFT_LOCAL_S + 1e-9, 0.001)
+    local = []
+    for e in edges:
+        tw = t[(t >= e) & (t < e + WINDOW_S)]  # this window's grid only
+        scores = [_score(v, gyro, lag, tw) for lag in lags]
+        local.append(lags[int(np.argmin(scores))])
+    slope, _ = np.polyfit(edges + WINDOW_S / 2 - pivot, np.asarray(local), 1)
+    if abs(slope) * np.ptp(edges) < DRIFT_MIN_EFFECT_S:
+        return 0.0, pivot
+    return float(slope * 1e6), pivot
 
 
 def gyro_rates(session) -> RateCurve:
@@ -215,10 +242,25 @@ def synced_offset(source: Path) -> float | None:
     return float(value) if isinstance(value, (int, float)) and np.isfinite(value) else None
 
 
+def synced_drift(source: Path) -> tuple[float, float]:
+    """(drift ppm, pivot session time) stored beside the offset, or (0, 0)."""
+    sync = read_settings(source).get("sync", {})
+    drift, pivot = sync.get("drift_ppm", 0.0), sync.get("drift_pivot_s", 0.0)
+    ok = all(isinstance(x, (int, float)) and np.isfinite(x) for x in (drift, pivot))
+    return (float(drift), float(pivot)) if ok else (0.0, 0.0)
+
+
+def corrected_times(frame_times: np.ndarray, offset_s: float, drift_ppm: float, pivot_s: float) -> np.ndarray:
+    """Frame times (session s) with an offset, and a drift about a pivot time, applied."""
+    return frame_times + offset_s + drift_ppm * 1e-6 * (frame_times - pivot_s)
+
+
 def settings_text(result: SyncResult, total_offset_s: float) -> str:
     return (
         "# written by `geofuse sync --write`: the session's own settings (its inputs are never written)\n"
         f"[sync]\ntime_offset_s = {total_offset_s:.6f}   # seconds added to the video's times\n"
+        f"drift_ppm = {result.drift_ppm:.2f}   # the video clock's rate error (fitted on long clips; 0 otherwise)\n"
+        f"drift_pivot_s = {result.reference_s:.6f}   # session time at which the offset holds exactly\n"
         f"confidence = {result.confidence:.4f}\nwindows = {len(result.windows)}\n"
     )
 

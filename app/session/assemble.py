@@ -38,16 +38,17 @@ def open_session(path: str | Path) -> Session:
     session = assemble(cfg)
     if not cfg.video.auto_offset:
         return session
-    from app.sync import sync_session, synced_offset
+    from app.sync import corrected_times, sync_session, synced_drift, synced_offset
 
     offset = synced_offset(cfg.path)
     if offset is not None:
-        session.warnings.add(f"time offset {1000 * offset:+.1f} ms from {cfg.path.stem}.geofuse.toml (geofuse sync --write)")
+        drift, pivot = synced_drift(cfg.path)
+        session.warnings.add(f"time offset {1000 * offset:+.1f} ms (drift {drift:+.0f} ppm) from {cfg.path.stem}.geofuse.toml (geofuse sync --write)")
     else:
         result = sync_session(session)
-        offset = result.offset_s
-        session.warnings.add(f"time offset {1000 * offset:+.1f} ms found from the video against the gyroscope (confidence {result.confidence:.2f}); geofuse sync --write keeps it")
-    return replace(session, frame_times=session.frame_times + offset)
+        offset, drift, pivot = result.offset_s, result.drift_ppm, result.reference_s
+        session.warnings.add(f"time offset {1000 * offset:+.1f} ms (drift {drift:+.0f} ppm) found from the video against the gyroscope (confidence {result.confidence:.2f}); geofuse sync --write keeps it")
+    return replace(session, frame_times=corrected_times(session.frame_times, offset, drift, pivot))
 
 
 def _intrinsics(cfg: SessionConfig, width: int, height: int, rotation_cw: int, warnings: Warnings) -> tuple[Intrinsics, Lens | None]:

@@ -162,18 +162,24 @@ def estimate_offset(video: RateCurve, gyro: RateCurve, clip_start_s: float) -> S
     fine_lags = np.arange(coarse - FINE_RANGE_S, coarse + FINE_RANGE_S + 1e-9, 0.001)
     tm = t[mask]  # the strong windows' grid only
     scores = np.array([_score(v, gyro, lag, tm) for lag in fine_lags])
-    k = int(np.argmin(scores))
-    best = float(fine_lags[k])
-    if 0 < k < len(scores) - 1 and np.isfinite(scores[k - 1 : k + 2]).all():
-        s0, s1, s2 = scores[k - 1 : k + 2]
-        denom = s0 - 2 * s1 + s2
-        if denom > 0:
-            best += 0.001 * 0.5 * (s0 - s2) / denom
+    best = _parabolic_min(fine_lags, scores)
     a, b = _on_grid(v, t), _on_grid(gyro, t + best)
     ok = np.isfinite(a).all(axis=1) & np.isfinite(b).all(axis=1) & mask
     confidence = float(np.mean([np.corrcoef(a[ok, j], b[ok, j])[0, 1] for j in range(3)])) if ok.sum() > 10 else 0.0
     drift, pivot = _drift(v, gyro, best, strong_edges, t)
     return SyncResult(best, max(0.0, confidence), tuple((float(e), float(e + WINDOW_S)) for e in strong_edges), coarse, drift, pivot)
+
+
+def _parabolic_min(lags: np.ndarray, scores: np.ndarray) -> float:
+    """The lag of the lowest score, refined by the parabola through it and its neighbours."""
+    k = int(np.argmin(scores))
+    best = float(lags[k])
+    if 0 < k < len(scores) - 1 and np.isfinite(scores[k - 1 : k + 2]).all():
+        s0, s1, s2 = scores[k - 1 : k + 2]
+        denom = s0 - 2 * s1 + s2
+        if denom > 0:
+            best += float(lags[1] - lags[0]) * 0.5 * (s0 - s2) / denom
+    return best
 
 
 def _drift(v: RateCurve, gyro: RateCurve, offset: float, edges: np.ndarray, t: np.ndarray) -> tuple[float, float]:
@@ -186,8 +192,7 @@ def _drift(v: RateCurve, gyro: RateCurve, offset: float, edges: np.ndarray, t: n
     local = []
     for e in edges:
         tw = t[(t >= e) & (t < e + WINDOW_S)]  # this window's grid only
-        scores = [_score(v, gyro, lag, tw) for lag in lags]
-        local.append(lags[int(np.argmin(scores))])
+        local.append(_parabolic_min(lags, np.array([_score(v, gyro, lag, tw) for lag in lags])))
     slope, _ = np.polyfit(edges + WINDOW_S / 2 - pivot, np.asarray(local), 1)
     if abs(slope) * np.ptp(edges) < DRIFT_MIN_EFFECT_S:
         return 0.0, pivot

@@ -64,14 +64,14 @@ def test_sync_write_keeps_the_offset_for_an_auto_manifest(tmp_path, capsys):
 
 def test_a_clock_drift_is_fitted_on_a_long_clip(sample_rates):
     """The video clock running 300 ppm fast over the 80 s sample (24 ms from end to end) is seen
-    as a drift of that size; the sample as recorded shows none beyond the estimator's noise
-    (per-window lags on a 1 ms grid: +-60 ppm over 80 s)."""
+    as a drift of that size; the sample as recorded shows none (its per-window lags trend by
+    ~-40 ppm from the walk's translation, under the 5 ms significance)."""
     from app.sync import RateCurve
 
     s, rates, gyro = sample_rates
     clip_start = float(s.frame_times[0] - s.video.pts_s[0])
     plain = estimate_offset(rates, gyro, clip_start)
-    assert abs(plain.drift_ppm) < 60
+    assert plain.drift_ppm == 0.0  # below what moves the clip's ends by 5 ms: not a drift
     fast = RateCurve(rates.t * (1 - 300e-6), rates.omega)  # video times read too short: its clock runs fast
     drifted = estimate_offset(fast, gyro, clip_start)
-    assert drifted.drift_ppm - plain.drift_ppm == pytest.approx(300, abs=60)  # the estimator's own noise: +-60 ppm
+    assert drifted.drift_ppm == pytest.approx(300, abs=100)  # the estimator's error on this walk: ~70 ppm (5 ms over 80 s)

@@ -150,7 +150,6 @@ def _render_session(args: argparse.Namespace) -> int:
 
     from app.camera import Intrinsics
     from app.camera_track import camera_track
-    from app.clips import open_any
     from app.config import OverlaySettings
     from app.imageio import write_rgb
     from app.io.video import read_frame
@@ -197,7 +196,6 @@ def _print_warnings(session) -> None:
 
 
 def cmd_solve(args: argparse.Namespace) -> int:
-    from app.clips import open_any
     from app.solve import solve_to_csv
 
     check_output(args.out, "--out", CSV_SUFFIXES, [args.manifest, args.srt])
@@ -228,7 +226,6 @@ def cmd_export(args: argparse.Namespace) -> int:
     import numpy as np
 
     from app.camera_track import camera_track
-    from app.clips import open_any
     from app.export.gis import write_records
     from app.export.records import frame_records
     from app.outputs import write_atomically, write_via_path

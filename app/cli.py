@@ -15,6 +15,7 @@ from pathlib import Path
 from app.attitude.heading import DRONE_DEFAULT_PITCH_DEG
 from app.constants import DEFAULT_DEPTH_BIAS_M, DEFAULT_DEPTH_LONG_SIDE_PX, DEFAULT_DEPTH_SLOPE_BIAS, DEFAULT_FAR_M, DEFAULT_NEAR_M
 from app.errors import GeofuseError
+from app.export import EXPORT_SUFFIXES
 from app.outputs import CSV_SUFFIXES, IMAGE_SUFFIXES, check_output
 
 
@@ -216,9 +217,6 @@ def cmd_view(args: argparse.Namespace) -> int:
         parse_script(args.script)  # a bad script is refused before a window opens
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
     return Viewer(Options(args.manifest, args.size, args.script, args.screenshot, args.play, srt=args.srt, lens=args.lens)).run()
-
-
-EXPORT_SUFFIXES = {"footprints": (".geojson", ".json", ".kml", ".kmz"), "fmv-csv": (".csv",), "klv": (".ts",), "video": (".mp4",)}
 
 
 def cmd_export(args: argparse.Namespace) -> int:

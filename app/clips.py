@@ -26,16 +26,15 @@ from app.io.dji_srt import check_duration, read_srt, srt_fixes
 from app.io.streams import GnssTrack, OrientationStream, Warnings
 from app.io.gopro import global_settings
 from app.io.video import VideoInfo, probe
-from app.lens import LENS_MODES, Lens, choose_profile, enclosing_intrinsics, lens_for_video, read_profile
+from app.lens import LENS_MODES, Lens, choose_profile, video_camera
 from app.scene import Placement
-from app.scene.ground_plane import ground_under_track
+from app.scene.ground_plane import ASSUMED_GROUND_MARGIN_M, ground_under_track
 from app.session.assemble import gimbal_attitude, open_session
 from app.session.config import HANDHELD_MOUNT_M
 from app.session.model import Session
 
 DJI_DEFAULT_FOCAL_MM = 24.0  # 35 mm equivalent focal length of most DJI main cameras
-HANDHELD_GROUND_MARGIN_M = 300.0  # assumed ground beyond the track of a hand-held clip
-DRONE_GROUND_MARGIN_M = 500.0  # ... of a drone clip, plus 10x its height above the ground
+DRONE_GROUND_MARGIN_M = 500.0  # the assumed ground beyond a drone clip's track, plus 10x its height above the ground
 
 
 def find_srt(video: Path) -> Path | None:
@@ -70,9 +69,9 @@ def _camera_model(video: VideoInfo, hfov_deg: float, lens_path: str | Path | Non
     path = Path(lens_path) if lens_path is not None else choice[0] if choice else None
     if path is None:
         return Intrinsics.from_fov(*video.display_size, hfov_deg), None, ()
-    lens = lens_for_video(read_profile(path), *video.display_size, video.rotation_cw)
+    intr, lens = video_camera(path, *video.display_size, video.rotation_cw)
     warnings.add(f"lens: {lens.kind} model from {'--lens ' + path.name if lens_path is not None else choice[1]}")
-    return enclosing_intrinsics(lens), lens, (path.resolve(),) if lens_path is not None else ()
+    return intr, lens, (path.resolve(),) if lens_path is not None else ()
 
 
 def _clip_session(path: Path, inputs: tuple[Path, ...], frame: LocalFrame, mesh, video: VideoInfo, intr: Intrinsics, acc, gyr, mag, gnss: GnssTrack, recorded: dict[str, OrientationStream], decl: float, warnings: Warnings, pitch_deg: float = DRONE_DEFAULT_PITCH_DEG, aircraft_yaw: tuple | None = None, lens: Lens | None = None, readout_s: float | None = None) -> Session:
@@ -95,7 +94,7 @@ def _gopro_session(path: Path, hfov_deg: float | None, lens_path: str | Path | N
     video = probe(path)
     video.note_damage(warnings)
     when = rec.gps_utc_at_zero or video.creation_time or 0.0
-    frame, mesh = _frame_and_ground(rec.gnss, float(rec.gnss.h[0]) - HANDHELD_MOUNT_M, HANDHELD_GROUND_MARGIN_M)
+    frame, mesh = _frame_and_ground(rec.gnss, float(rec.gnss.h[0]) - HANDHELD_MOUNT_M, ASSUMED_GROUND_MARGIN_M)
     decl = declination(frame.lat_deg, frame.lon_deg, frame.h_m, when)
     recorded = {"camera": rec.camera} if rec.camera is not None else {}
     settings = global_settings(path)

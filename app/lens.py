@@ -225,3 +225,10 @@ def lens_for_video(lens: Lens, width: int, height: int, rotation_cw: int) -> Len
     to the stored size, then turned for display."""
     stored = (height, width) if rotation_cw % 180 else (width, height)
     return lens.scaled(*stored).rotated(rotation_cw // 90)
+
+
+def video_camera(profile: str | Path, width: int, height: int, rotation_cw: int) -> tuple[Intrinsics, Lens]:
+    """(the pinhole the depth pass renders, the lens) of a video shown width x height through a
+    profile file."""
+    lens = lens_for_video(read_profile(profile), width, height, rotation_cw)
+    return enclosing_intrinsics(lens), lens

@@ -17,7 +17,6 @@ import math
 import zipfile
 from collections.abc import Iterable
 from datetime import datetime, timezone
-from pathlib import Path
 from xml.sax.saxutils import escape
 
 import numpy as np
@@ -148,11 +147,8 @@ def write_fmv_csv(records: Iterable[FrameRecord], f) -> None:
         w.writerow(fmv_row(r))
 
 
-FORMATS = {".geojson": ("GeoJSON", False), ".json": ("GeoJSON", False), ".kml": ("KML", False), ".kmz": ("KMZ", True), ".csv": ("FMV CSV", False)}
-
-
 def write_records(records: Iterable[FrameRecord], f, suffix: str, name: str) -> None:
-    """Write records in the format the output's suffix names (FORMATS)."""
+    """Write records in the format the output's suffix names: .geojson/.json, .kml, .kmz, .csv."""
     if suffix in (".geojson", ".json"):
         write_geojson(records, f)
     elif suffix == ".kml":
@@ -164,6 +160,3 @@ def write_records(records: Iterable[FrameRecord], f, suffix: str, name: str) -> 
     else:
         raise ValueError(f"unknown export suffix {suffix!r}")
 
-
-def suffix_of(path: Path) -> str:
-    return path.suffix.lower()

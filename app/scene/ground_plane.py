@@ -8,6 +8,7 @@ import numpy as np
 from app.scene import shapes
 from app.scene.mesh import MeshData
 
+ASSUMED_GROUND_MARGIN_M = 300.0  # the assumed ground reaches this far beyond a hand-held track
 TILE_M = 10.0  # one texture tile covers 10 m x 10 m
 TILE_PX = 400
 

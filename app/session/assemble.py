@@ -23,10 +23,10 @@ from app.io.gpx import read_gpx
 from app.io.sensorlogger import read_sensorlogger
 from app.io.streams import GnssTrack, OrientationStream, VectorStream, Warnings
 from app.io.video import VideoInfo, probe
-from app.lens import Lens, enclosing_intrinsics, lens_for_video, read_profile
+from app.lens import Lens, video_camera
 from app.scene import Placement, load_scene
 from app.scene.ground import ground_heights
-from app.scene.ground_plane import ground_under_track
+from app.scene.ground_plane import ASSUMED_GROUND_MARGIN_M, ground_under_track
 from app.session.config import SessionConfig, read_config
 from app.session.model import Session
 
@@ -56,11 +56,11 @@ def _intrinsics(cfg: SessionConfig, width: int, height: int, rotation_cw: int, w
     cam = cfg.camera
     if cam.lens is not None:
         try:
-            lens = lens_for_video(read_profile(cam.lens), width, height, rotation_cw)
+            intr, lens = video_camera(cam.lens, width, height, rotation_cw)
         except ValueError as exc:
             raise ManifestError(cfg.path, str(exc), field="camera.lens") from exc
         warnings.add(f"lens: {lens.kind} model from {cam.lens.name}")
-        return enclosing_intrinsics(lens), lens
+        return intr, lens
     return _pinhole(cfg, width, height), None
 
 
@@ -221,9 +221,6 @@ def _true_frame_times(cfg: SessionConfig, count: int, warnings: Warnings) -> np.
     if len(values) != count:
         raise ManifestError(cfg.path, f"{len(values)} true frame times for {count} video frames", field="truth.frame_times")
     return values[np.argsort(values[:, 0]), 1]
-
-
-ASSUMED_GROUND_MARGIN_M = 300.0  # the assumed ground reaches this far beyond the track
 
 
 def _place(cfg: SessionConfig, gnss: GnssTrack, above_takeoff: bool, warnings: Warnings):

@@ -145,7 +145,7 @@ class Viewer:
 
     def start_export(self, what: str, out: Path) -> None:
         """Export the open session under the current source, in a child process (app.ui.exporter)."""
-        from app.cli import EXPORT_SUFFIXES
+        from app.export import EXPORT_SUFFIXES
         from app.outputs import check_output
         from app.ui.exporter import ExportJob
 

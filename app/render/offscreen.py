@@ -38,8 +38,12 @@ def render_to_array(
     settings: ProjectionSettings = ProjectionSettings(),
     overlays: OverlaySettings = OverlaySettings(frustum=False, trajectory=False),
     target: OffscreenTarget | None = None,
+    settle: bool = True,
 ) -> np.ndarray:
-    """Render one view (the size of `view`'s intrinsics) to (H, W, 3) uint8 RGB, top row first."""
+    """Render one view (the size of `view`'s intrinsics) to (H, W, 3) uint8 RGB, top row first.
+    With settle, streamed tiles are loaded to full detail for the view and the projector first."""
+    if settle:
+        renderer.settle(view, settings)
     own = target is None
     if target is None:
         target = OffscreenTarget(renderer.ctx, view.intrinsics.width, view.intrinsics.height)

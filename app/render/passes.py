@@ -25,12 +25,14 @@ class DepthPass:
 
     def __init__(self, ctx: moderngl.Context, scene: GpuScene) -> None:
         self.ctx = ctx
+        self.scene = scene
         self.program = load_program(ctx, "depth.vert", "depth.frag")
-        self.vaos = scene.vertex_arrays(self.program, ("in_position",))
         self.texture: moderngl.Texture | None = None
         self.fbo: moderngl.Framebuffer | None = None
         self.camera: Camera | None = None
+        self._drawn: tuple[int, ...] = ()  # the primitives the map was drawn with
         self.renders = 0  # how many times the depth map was actually redrawn
+        self.triangles = 0  # in the last redraw
 
     @property
     def size(self) -> tuple[int, int]:
@@ -50,22 +52,28 @@ class DepthPass:
         self.fbo = self.ctx.framebuffer(depth_attachment=self.texture)
         self.camera = None
 
-    def update(self, camera: Camera, size: tuple[int, int]) -> bool:
-        """Redraw the depth map for `camera` at `size` (w, h) texels, only if either changed.
+    def update(self, camera: Camera, size: tuple[int, int], force: bool = False) -> bool:
+        """Redraw the depth map for `camera` at `size` (w, h) texels, only if either changed or
+        the geometry it sees did (streamed tiles chosen for the projector at the depth map's
+        resolution), or when forced (a redraw every frame, for benchmarks).
 
         Returns True when it redrew. Leaves the depth framebuffer bound: callers bind theirs.
         """
         self._ensure_size(size)
-        if camera == self.camera:
+        focal = max(camera.intrinsics.fx, camera.intrinsics.fy) * size[1] / camera.intrinsics.height
+        prims = self.scene.drawables(camera, focal, "projector")
+        drawn = tuple(id(p) for p in prims)
+        if camera == self.camera and drawn == self._drawn and not force:
             return False
         self.fbo.use()
         self.fbo.clear(depth=1.0)
         self.ctx.enable(moderngl.DEPTH_TEST)
         self.ctx.disable(moderngl.CULL_FACE)
         self.program["u_view_proj"].write(_mat(camera.view_projection))
-        for vao in self.vaos:
-            vao.render(moderngl.TRIANGLES)
-        self.camera = camera
+        for prim in prims:
+            prim.vao(self.ctx, self.program, ("in_position",)).render(moderngl.TRIANGLES)
+        self.camera, self._drawn = camera, drawn
+        self.triangles = sum(p.count for p in prims) // 3
         self.renders += 1
         return True
 
@@ -75,8 +83,7 @@ class DepthPass:
         return np.frombuffer(self.texture.read(), np.float32).reshape(h, w)
 
     def release(self) -> None:
-        for vao in self.vaos:
-            vao.release()
+        self.scene.forget(self.program)
         if self.fbo is not None:
             self.fbo.release()
             self.texture.release()
@@ -90,7 +97,7 @@ class ScenePass:
         self.ctx = ctx
         self.scene = scene
         self.program = load_program(ctx, "scene.vert", "scene.frag")
-        self.vaos = scene.vertex_arrays(self.program, ("in_position", "in_uv", "in_color"))
+        self.triangles = 0  # drawn in the last frame
         self.program["u_base_texture"].value = 0
         self.program["u_depth_map"].value = 1
         self.program["u_video"].value = 2
@@ -141,14 +148,15 @@ class ScenePass:
         (truth_positions or self._blank).use(5)
         self.ctx.enable(moderngl.DEPTH_TEST)
         self.ctx.disable(moderngl.CULL_FACE)
-        for prim, vao in zip(self.scene.primitives, self.vaos):
+        prims = self.scene.drawables(view, None, "view")
+        for prim in prims:
             p["u_has_texture"].value = prim.texture is not None
             (prim.texture or self._blank).use(0)
-            vao.render(moderngl.TRIANGLES)
+            prim.vao(self.ctx, p, ("in_position", "in_uv", "in_color")).render(moderngl.TRIANGLES)
+        self.triangles = sum(q.count for q in prims) // 3
 
     def release(self) -> None:
-        for vao in self.vaos:
-            vao.release()
+        self.scene.forget(self.program)
         self._blank.release()
         self.program.release()
 

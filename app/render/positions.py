@@ -16,8 +16,8 @@ class PositionPass:
 
     def __init__(self, ctx: moderngl.Context, scene: GpuScene) -> None:
         self.ctx = ctx
+        self.scene = scene
         self.program = load_program(ctx, "scene.vert", "position.frag")
-        self.vaos = scene.vertex_arrays(self.program, ("in_position",))
         self._targets: dict[tuple, tuple] = {}
 
     def render_texture(self, camera: Camera) -> moderngl.Texture:
@@ -41,8 +41,8 @@ class PositionPass:
         self.ctx.enable(moderngl.DEPTH_TEST)
         self.ctx.disable(moderngl.CULL_FACE)
         self.program["u_view_proj"].write(_mat(camera.view_projection))
-        for vao in self.vaos:
-            vao.render(moderngl.TRIANGLES)
+        for prim in self.scene.drawables(camera, None, "positions"):
+            prim.vao(self.ctx, self.program, ("in_position",)).render(moderngl.TRIANGLES)
 
     def _target(self, size: tuple[int, int]) -> moderngl.Framebuffer:
         if size not in self._targets:
@@ -67,6 +67,5 @@ class PositionPass:
             fbo.release()
             color.release()
             depth.release()
-        for vao in self.vaos:
-            vao.release()
+        self.scene.forget(self.program)
         self.program.release()

@@ -33,7 +33,9 @@ class SurfaceProbe:
         self.pass_ = PositionPass(self.ctx, self.scene)
 
     def points(self, camera: Camera) -> np.ndarray:
-        """(H, W, 3) ENU metres at each pixel centre of `camera` (row 0 = top); NaN: no surface."""
+        """(H, W, 3) ENU metres at each pixel centre of `camera` (row 0 = top); NaN: no surface.
+        Streamed tiles are loaded to full detail for the camera first."""
+        self.scene.settle([(camera, None, "positions")])
         return self.pass_.render(camera)
 
     def release(self) -> None:

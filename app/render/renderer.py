@@ -99,6 +99,17 @@ class FusionRenderer:
         """A polyline (N, 3) ENU metres drawn by the trajectory overlay."""
         self.trajectory = None if points_enu is None else np.asarray(points_enu, np.float64)
 
+    def settle(self, view: Camera, settings: ProjectionSettings = ProjectionSettings(), timeout_s: float = 300.0) -> bool:
+        """Load every streamed tile that `view` and the projector's depth map need at full
+        detail (off-screen renders and exports; the viewer never calls this). True when done
+        within timeout_s."""
+        cameras = [(view, None, "view")]
+        if settings.enabled and self.projector is not None:
+            size = depth_map_size(self.projector.intrinsics.width, self.projector.intrinsics.height, settings.depth_long_side)
+            focal = max(self.projector.intrinsics.fx, self.projector.intrinsics.fy) * size[1] / self.projector.intrinsics.height
+            cameras.append((self.projector, focal, "projector"))
+        return self.scene.settle(cameras, timeout_s)
+
     def draw(
         self,
         view: Camera,
@@ -106,7 +117,9 @@ class FusionRenderer:
         settings: ProjectionSettings = ProjectionSettings(),
         overlays: OverlaySettings = OverlaySettings(frustum=False, trajectory=False),
     ) -> None:
-        """Draw one frame from the window camera `view` into `fbo` (its viewport is used whole)."""
+        """Draw one frame from the window camera `view` into `fbo` (its viewport is used whole).
+        Streamed tiles that finished loading are uploaded first, within a small time budget."""
+        self.scene.update()
         if settings.enabled and self.projector is not None and self.video.ready:
             w, h = self.projector.intrinsics.width, self.projector.intrinsics.height
             self.depth.update(self.projector, depth_map_size(w, h, settings.depth_long_side))

@@ -48,9 +48,16 @@ class Primitive:
 
 @dataclass
 class MeshData:
-    """A whole scene: primitives in the session ENU frame."""
+    """A whole scene in the session ENU frame: static primitives (model files, terrain, the
+    assumed ground) and streamed 3D Tiles layers (app.scene.tiles.Tileset), whose tiles the
+    renderer loads as cameras need them."""
 
     primitives: list[Primitive] = field(default_factory=list)
+    tilesets: list = field(default_factory=list)
+
+    def merged(self, other: "MeshData") -> "MeshData":
+        """Both scenes' layers in one."""
+        return MeshData(self.primitives + other.primitives, self.tilesets + other.tilesets)
 
     @property
     def triangle_count(self) -> int:
@@ -61,11 +68,13 @@ class MeshData:
         return sum(len(p.positions) for p in self.primitives)
 
     def bounds(self) -> npt.NDArray[np.float64]:
-        """(2, 3) min and max corner in ENU metres."""
-        if not self.primitives:
+        """(2, 3) min and max corner in ENU metres (a tileset's by its root volume)."""
+        boxes = [np.stack([p.positions.min(axis=0), p.positions.max(axis=0)]) for p in self.primitives if len(p.positions)]
+        boxes += [np.asarray(t.bounds(), np.float64) for t in self.tilesets]
+        if not boxes:
             return np.zeros((2, 3))
-        lo = np.min([p.positions.min(axis=0) for p in self.primitives], axis=0)
-        hi = np.max([p.positions.max(axis=0) for p in self.primitives], axis=0)
+        lo = np.min([b[0] for b in boxes], axis=0)
+        hi = np.max([b[1] for b in boxes], axis=0)
         return np.stack([lo, hi]).astype(np.float64)
 
 

@@ -90,6 +90,42 @@ def _add_projection_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-frustum", action="store_true", help="do not draw the depth camera's frustum")
 
 
+def _add_layer_options(p: argparse.ArgumentParser, placed_models: bool = False) -> None:
+    """--scene (repeatable), --dem, --ortho, --dem-vertical, --dem-error: a clip's scene."""
+    what = "a model (glTF/GLB, OBJ, PLY) placed by --origin, " if placed_models else "a model in ECEF, "
+    p.add_argument("--scene", action="append", default=None, metavar="PATH|URL", help=f"a scene layer, repeatable: a 3D Tiles tileset.json (folder or http(s) URL), a DEM .tif, or {what}drawn together")
+    p.add_argument("--dem", type=Path, default=None, help="terrain from a GeoTIFF DEM in any CRS (the same as --scene DEM.tif)")
+    p.add_argument("--ortho", type=Path, default=None, help="an orthophoto GeoTIFF draped on the DEM")
+    p.add_argument("--dem-vertical", choices=("ellipsoid", "egm2008", "egm96"), default=None, help="the DEM's heights are above this (default: the file's vertical CRS, else EGM2008)")
+    p.add_argument("--dem-error", type=_number(0.01, 100.0), default=0.5, help="the terrain mesh's largest vertical error, metres (default 0.5)")
+
+
+def _layers(args: argparse.Namespace, placement=None) -> tuple:
+    """The layers --scene/--dem/--ortho name (app.scene.layers), checked: files exist, kinds known."""
+    from app.scene.layers import Layer
+    from app.scene.tiles.fetch import is_url
+
+    names = list(getattr(args, "scene", None) or [])
+    if getattr(args, "dem", None) is not None:
+        names.append(str(args.dem))
+    out = []
+    for name in names:
+        if not is_url(name) and not Path(name).exists():
+            raise GeofuseError(f"{name}: scene file does not exist")
+        layer = Layer.of(name)
+        if layer.kind == "dem":
+            layer = Layer.of(name, ortho=args.ortho, vertical=args.dem_vertical, max_error_m=args.dem_error)
+        elif layer.kind == "mesh" and placement is not None:
+            layer = Layer.of(name, placement=placement)
+        out.append(layer)
+    if args.ortho is not None:
+        if not any(layer.kind == "dem" for layer in out):
+            raise GeofuseError("--ortho drapes a DEM: give --dem DEM.tif (or --scene DEM.tif) too")
+        if not args.ortho.is_file():
+            raise GeofuseError(f"{args.ortho}: orthophoto file does not exist")
+    return tuple(out)
+
+
 def _projection_settings(args: argparse.Namespace):  # values range-checked by ProjectionSettings
     from app.config import ProjectionSettings
 
@@ -108,24 +144,34 @@ def _projection_settings(args: argparse.Namespace):  # values range-checked by P
 def cmd_render(args: argparse.Namespace) -> int:
     if args.session is not None:
         return _render_session(args)
-    missing = [f"--{k.replace('_', '-')}" for k in ("scene", "origin", "image", "pose") if getattr(args, k) is None]
+    from app.scene import Placement
+
+    layers = _layers(args, Placement(up_axis=args.up, heading_deg=args.scene_heading, scale=args.scene_scale))
+    missing = [f"--{k.replace('_', '-')}" for k in ("image", "pose") if getattr(args, k) is None]
+    if not layers:
+        missing.insert(0, "--scene (or --dem)")
+    if args.origin is None and any(not layer.georeferenced for layer in layers):
+        missing.append("--origin (a model's origin)")
     if args.fov is None and args.lens is None:
         missing.append("--fov (or --lens)")
     if missing:
         raise GeofuseError(f"render: give --session MANIFEST --time T, or all of {', '.join(missing)}")
-    check_output(args.out, "--out", IMAGE_SUFFIXES, [args.scene, args.image, args.lens])
+    check_output(args.out, "--out", IMAGE_SUFFIXES, [*(f for layer in layers for f in layer.files()), args.image, args.lens])
     from app import rotations
     from app.camera import Camera, Intrinsics
     from app.config import OverlaySettings
     from app.geo import LocalFrame
     from app.imageio import read_rgb, write_rgb
     from app.render.still import render_still, window_camera
-    from app.scene import Placement, load_scene
+    from app.scene.layers import load_layers
 
-    frame = LocalFrame(*args.origin)
-    mesh = load_scene(args.scene, frame, Placement(up_axis=args.up, heading_deg=args.scene_heading, scale=args.scene_scale))
-    image = read_rgb(args.image)
     lat, lon, h, heading, pitch, roll = args.pose
+    frame = LocalFrame(*(args.origin or (lat, lon, h)))
+    loaded = load_layers(layers, frame, [[lat, lon]])
+    for note in loaded.notes:
+        print(f"note: {note}", file=sys.stderr)
+    mesh = loaded.mesh
+    image = read_rgb(args.image)
     lens = None
     try:
         if args.lens is not None:
@@ -183,7 +229,7 @@ def _open_with_source(path: Path, args: argparse.Namespace, suffixes: tuple[str,
     checked against every file it reads, --source checked against what it offers."""
     from app.clips import open_any
 
-    session = open_any(path, getattr(args, "srt", None), getattr(args, "fov", None), getattr(args, "pitch", DRONE_DEFAULT_PITCH_DEG), args.lens)
+    session = open_any(path, getattr(args, "srt", None), getattr(args, "fov", None), getattr(args, "pitch", DRONE_DEFAULT_PITCH_DEG), args.lens, _layers(args))
     check_output(args.out, "--out", suffixes, list(session.inputs))
     source = args.source or session.sources[0]
     if source not in session.sources:
@@ -216,7 +262,7 @@ def cmd_view(args: argparse.Namespace) -> int:
     if args.script is not None:
         parse_script(args.script)  # a bad script is refused before a window opens
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
-    return Viewer(Options(args.manifest, args.size, args.script, args.screenshot, args.play, srt=args.srt, lens=args.lens)).run()
+    return Viewer(Options(args.manifest, args.size, args.script, args.screenshot, args.play, srt=args.srt, lens=args.lens, layers=_layers(args))).run()
 
 
 def cmd_export(args: argparse.Namespace) -> int:
@@ -398,7 +444,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--session", type=Path, default=None, help="a session manifest: the frame at --time with its solved pose")
     r.add_argument("--time", type=_number(-1e6, 1e6), default=None, help="with --session: seconds from the video's first frame")
     r.add_argument("--source", "--filter", dest="source", default=None, help="with --session: attitude source (default: the first the session offers)")
-    r.add_argument("--scene", type=Path, help="glTF/GLB, OBJ or PLY scene")
+    _add_layer_options(r, placed_models=True)
     r.add_argument("--origin", type=lambda s: _floats(s, 3, GEODETIC), metavar="LAT,LON,H", help="the scene's origin: degrees, degrees, ellipsoidal metres")
     r.add_argument("--up", choices=["Y", "Z"], default=None, help="the scene's up axis (default: Y for glTF, Z otherwise)")
     r.add_argument("--scene-heading", type=_number(-360.0, 360.0), default=0.0, help="rotate the scene clockwise about Up, degrees")
@@ -420,6 +466,7 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("manifest", nargs="?", type=Path, default=None, help="a session manifest, a GoPro MP4 or a DJI clip (default: the bundled sample)")
     v.add_argument("--srt", type=Path, default=None, help="the DJI subtitle of the clip, when not beside it")
     v.add_argument("--lens", type=Path, default=None, help="a gyroflow lens profile (JSON) for a clip (default: chosen from the file)")
+    _add_layer_options(v)
     v.add_argument("--size", type=_size, default=(1280, 720), help="window WIDTHxHEIGHT")
     v.add_argument("--script", type=Path, default=None, help="a file of timed UI actions (app/ui/script.py)")
     v.add_argument("--screenshot", type=Path, default=None, help="save the window to this PNG (alone: after --play seconds, then exit)")
@@ -431,6 +478,7 @@ def build_parser() -> argparse.ArgumentParser:
     so.add_argument("--source", "--filter", dest="source", default=None, help="attitude source: gd-ahrs | gd-imu | cf-ahrs | cf-imu | offline | phone | camera | telemetry | course | truth (default: the first the session offers)")
     so.add_argument("--srt", type=Path, default=None, help="the DJI subtitle of the clip, when not beside it")
     so.add_argument("--lens", type=Path, default=None, help="a gyroflow lens profile (JSON) for a clip (default: chosen from the file)")
+    _add_layer_options(so)
     so.add_argument("--fov", type=_number(0.0, 180.0, open_low=True), default=None, help="override the lens's horizontal field of view, degrees")
     so.add_argument("--pitch", type=_number(-90.0, 90.0), default=DRONE_DEFAULT_PITCH_DEG, help=f"a drone clip without gimbal attitude: the camera's pitch, degrees (default {DRONE_DEFAULT_PITCH_DEG:g})")
     so.add_argument("--out", type=Path, required=True)
@@ -449,6 +497,7 @@ def build_parser() -> argparse.ArgumentParser:
     ex.add_argument("--preview", type=Path, default=None, help="footprints, CSV, KLV: also a PNG of the footprints seen from above (--size)")
     ex.add_argument("--srt", type=Path, default=None, help="the DJI subtitle of the clip, when not beside it")
     ex.add_argument("--lens", type=Path, default=None, help="a gyroflow lens profile (JSON) for a clip (default: chosen from the file)")
+    _add_layer_options(ex)
     ex.add_argument("--fov", type=_number(0.0, 180.0, open_low=True), default=None, help="override the lens's horizontal field of view, degrees")
     ex.add_argument("--pitch", type=_number(-90.0, 90.0), default=DRONE_DEFAULT_PITCH_DEG, help="a drone clip without gimbal attitude: the camera's pitch, degrees")
     ex.set_defaults(func=cmd_export)

@@ -12,6 +12,7 @@ Heading without a trustworthy magnetometer comes from the GNSS course (app.attit
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -28,8 +29,11 @@ from app.io.gopro import global_settings
 from app.io.video import VideoInfo, probe
 from app.lens import LENS_MODES, Lens, choose_profile, video_camera
 from app.scene import Placement
+from app.scene.ground import ground_heights
 from app.scene.ground_plane import ASSUMED_GROUND_MARGIN_M, ground_under_track
-from app.session.assemble import gimbal_attitude, open_session
+from app.scene.layers import Layer, load_layers
+from app.scene.mesh import MeshData
+from app.session.assemble import gimbal_attitude, open_session, warn_if_scene_is_far
 from app.session.config import HANDHELD_MOUNT_M
 from app.session.model import Session
 
@@ -45,22 +49,42 @@ def find_srt(video: Path) -> Path | None:
     return None
 
 
-def open_clip(path: str | Path, srt: str | Path | None = None, hfov_deg: float | None = None, drone_pitch_deg: float = DRONE_DEFAULT_PITCH_DEG, lens: str | Path | None = None) -> Session:
+def open_clip(path: str | Path, srt: str | Path | None = None, hfov_deg: float | None = None, drone_pitch_deg: float = DRONE_DEFAULT_PITCH_DEG, lens: str | Path | None = None, layers: tuple[Layer, ...] = ()) -> Session:
     """A session from a GoPro MP4, or from a video with a DJI subtitle (`srt`, or found beside it).
     lens: a gyroflow profile to use instead of the one chosen from the file (GoPro) or the pinhole
-    field of view; hfov_deg: a pinhole field of view instead of any lens."""
+    field of view; hfov_deg: a pinhole field of view instead of any lens; layers: the scene
+    (tilesets, DEMs, models placed by themselves) instead of an assumed ground."""
     path = Path(path)
     if not path.is_file():
         raise DataFormatError(path, "video file does not exist")
     srt = Path(srt) if srt is not None else find_srt(path)
     if srt is not None:
-        return _dji_session(path, srt, hfov_deg, drone_pitch_deg, lens)
-    return _gopro_session(path, hfov_deg, lens)
+        return _dji_session(path, srt, hfov_deg, drone_pitch_deg, lens, layers)
+    return _gopro_session(path, hfov_deg, lens, layers)
 
 
-def _frame_and_ground(gnss: GnssTrack, ground_h: float, margin_m: float) -> tuple[LocalFrame, object]:
+def _frame_and_ground(gnss: GnssTrack, ground_h: float, margin_m: float, layers: tuple[Layer, ...], warnings: Warnings, above_takeoff: bool = False) -> tuple[LocalFrame, MeshData, GnssTrack]:
+    """(frame, scene, gnss with final heights): the layers around the track, else an assumed
+    flat ground at ground_h (ellipsoidal m). Heights above take-off get the terrain's height
+    under the first fix, where a layer has ground there."""
     frame = LocalFrame(float(gnss.lat[0]), float(gnss.lon[0]), float(ground_h))
-    return frame, ground_under_track(frame, gnss.lat, gnss.lon, ground_h, margin_m)
+    if not layers:
+        warnings.add("no scene given: the video is projected on an assumed flat ground with a 1 m grid")
+        return frame, ground_under_track(frame, gnss.lat, gnss.lon, ground_h, margin_m), gnss
+    loaded = load_layers(layers, frame, np.column_stack([gnss.lat, gnss.lon]))
+    for note in loaded.notes:
+        warnings.add(note)
+    if above_takeoff:
+        first = frame.geodetic_to_enu(gnss.lat[0], gnss.lon[0], ground_h)
+        z = ground_heights(loaded.mesh, np.atleast_2d(first)[:, :2])[0]
+        if np.isfinite(z):
+            takeoff = float(frame.enu_to_geodetic(np.array([first[0], first[1], z]))[2])
+            gnss = replace(gnss, h=gnss.h + takeoff - ground_h)
+            warnings.add(f"heights above take-off: take-off height {takeoff:.2f} m from the terrain under the first position")
+        else:
+            warnings.add("heights above take-off: no terrain under the first position, so heights stay above an assumed take-off at 0 m")
+    warn_if_scene_is_far(loaded, frame.geodetic_to_enu(gnss.lat, gnss.lon, gnss.h), warnings)
+    return frame, loaded.mesh, gnss
 
 
 def _camera_model(video: VideoInfo, hfov_deg: float, lens_path: str | Path | None, choice: tuple[Path, str] | None, warnings: Warnings) -> tuple[Intrinsics, Lens | None, tuple[Path, ...]]:
@@ -74,19 +98,18 @@ def _camera_model(video: VideoInfo, hfov_deg: float, lens_path: str | Path | Non
     return intr, lens, (path.resolve(),) if lens_path is not None else ()
 
 
-def _clip_session(path: Path, inputs: tuple[Path, ...], frame: LocalFrame, mesh, video: VideoInfo, intr: Intrinsics, acc, gyr, mag, gnss: GnssTrack, recorded: dict[str, OrientationStream], decl: float, warnings: Warnings, pitch_deg: float = DRONE_DEFAULT_PITCH_DEG, aircraft_yaw: tuple | None = None, lens: Lens | None = None, readout_s: float | None = None) -> Session:
-    warnings.add("no scene given: the video is projected on an assumed flat ground with a 1 m grid")
+def _clip_session(path: Path, inputs: tuple[Path, ...], frame: LocalFrame, mesh, video: VideoInfo, intr: Intrinsics, acc, gyr, mag, gnss: GnssTrack, recorded: dict[str, OrientationStream], decl: float, warnings: Warnings, pitch_deg: float = DRONE_DEFAULT_PITCH_DEG, aircraft_yaw: tuple | None = None, lens: Lens | None = None, readout_s: float | None = None, layers: tuple[Layer, ...] = ()) -> Session:
     policy = heading_policy(gyr is not None, mag is not None, recorded, pitch_deg, aircraft_yaw is not None)
     if policy.note:
         warnings.add(f"{path.name}: {policy.note}")
     return Session(
-        path.resolve(), frame, None, Placement(), video, video.pts_s.copy(), intr, video.rotation_cw,
-        acc, gyr, mag, gnss, recorded, decl, warnings, inputs=inputs, heading=policy, device_is_camera=True,
+        path.resolve(), frame, Path(layers[0].location) if layers else None, Placement(), video, video.pts_s.copy(), intr, video.rotation_cw,
+        acc, gyr, mag, gnss, recorded, decl, warnings, inputs=(*inputs, *(f.resolve() for layer in layers for f in layer.files())), heading=policy, device_is_camera=True,
         aircraft_yaw=aircraft_yaw, mesh=mesh, lens=lens, readout_s=readout_s,
     )  # fmt: skip
 
 
-def _gopro_session(path: Path, hfov_deg: float | None, lens_path: str | Path | None = None) -> Session:
+def _gopro_session(path: Path, hfov_deg: float | None, lens_path: str | Path | None = None, layers: tuple[Layer, ...] = ()) -> Session:
     warnings = Warnings()
     rec = read_gopro(path, warnings)
     if rec.gnss is None:
@@ -94,7 +117,7 @@ def _gopro_session(path: Path, hfov_deg: float | None, lens_path: str | Path | N
     video = probe(path)
     video.note_damage(warnings)
     when = rec.gps_utc_at_zero or video.creation_time or 0.0
-    frame, mesh = _frame_and_ground(rec.gnss, float(rec.gnss.h[0]) - HANDHELD_MOUNT_M, ASSUMED_GROUND_MARGIN_M)
+    frame, mesh, gnss = _frame_and_ground(rec.gnss, float(rec.gnss.h[0]) - HANDHELD_MOUNT_M, ASSUMED_GROUND_MARGIN_M, layers, warnings)
     decl = declination(frame.lat_deg, frame.lon_deg, frame.h_m, when)
     recorded = {"camera": rec.camera} if rec.camera is not None else {}
     settings = global_settings(path)
@@ -112,7 +135,7 @@ def _gopro_session(path: Path, hfov_deg: float | None, lens_path: str | Path | N
             warnings.add(f"{path.name}: no lens profile for {rec.raw.model}: a pinhole of {rec.hfov_deg:.1f} deg is assumed (give --lens PROFILE.json)")
     intr, lens, lens_files = _camera_model(video, hfov_deg or rec.hfov_deg, lens_path, choice, warnings)
     readout = _gopro_readout(settings, lens, path, warnings)
-    return _clip_session(path, (path.resolve(), *lens_files), frame, mesh, video, intr, rec.acc, rec.gyr, rec.mag, rec.gnss, recorded, decl, warnings, lens=lens, readout_s=readout)
+    return _clip_session(path, (path.resolve(), *lens_files), frame, mesh, video, intr, rec.acc, rec.gyr, rec.mag, gnss, recorded, decl, warnings, lens=lens, readout_s=readout, layers=layers)
 
 
 def _gopro_readout(settings: dict, lens: Lens | None, path: Path, warnings: Warnings) -> float | None:
@@ -129,7 +152,7 @@ def _gopro_readout(settings: dict, lens: Lens | None, path: Path, warnings: Warn
     return None
 
 
-def _dji_session(path: Path, srt: Path, hfov_deg: float | None, pitch_deg: float, lens_path: str | Path | None = None) -> Session:
+def _dji_session(path: Path, srt: Path, hfov_deg: float | None, pitch_deg: float, lens_path: str | Path | None = None, layers: tuple[Layer, ...] = ()) -> Session:
     warnings = Warnings()
     track = read_srt(srt, warnings)
     video = probe(path)
@@ -138,12 +161,14 @@ def _dji_session(path: Path, srt: Path, hfov_deg: float | None, pitch_deg: float
     gnss = srt_fixes(track, warnings)
     heights = gnss.h
     if track.height_relative:
-        warnings.add(f"{srt.name}: heights are relative to take-off; the assumed ground is the take-off height (0 m)")
+        if not layers:
+            warnings.add(f"{srt.name}: heights are relative to take-off; the assumed ground is the take-off height (0 m)")
         ground = 0.0
     else:
         ground = float(np.nanmin(heights))
-        warnings.add(f"{srt.name}: absolute heights; the assumed ground is the lowest height of the flight ({ground:.1f} m)")
-    frame, mesh = _frame_and_ground(gnss, ground, DRONE_GROUND_MARGIN_M + 10.0 * float(np.max(heights - ground)))
+        if not layers:
+            warnings.add(f"{srt.name}: absolute heights; the assumed ground is the lowest height of the flight ({ground:.1f} m)")
+    frame, mesh, gnss = _frame_and_ground(gnss, ground, DRONE_GROUND_MARGIN_M + 10.0 * float(np.max(heights - ground)), layers, warnings, track.height_relative)
     when = float(np.nanmin(track.wall_clock)) if np.isfinite(track.wall_clock).any() else (video.creation_time or 0.0)
     decl = declination(frame.lat_deg, frame.lon_deg, frame.h_m, when)
     recorded: dict[str, OrientationStream] = {}
@@ -157,15 +182,16 @@ def _dji_session(path: Path, srt: Path, hfov_deg: float | None, pitch_deg: float
     if hfov_deg is None:
         hfov_deg = float(np.degrees(2 * np.arctan(18.0 / focal_mm)))  # 36 mm wide full frame equivalent
     intr, lens, lens_files = _camera_model(video, hfov_deg, lens_path, None, warnings)
-    return _clip_session(path, (path.resolve(), srt.resolve(), *lens_files), frame, mesh, video, intr, None, None, None, gnss, recorded, decl, warnings, pitch_deg, yaw, lens)
+    return _clip_session(path, (path.resolve(), srt.resolve(), *lens_files), frame, mesh, video, intr, None, None, None, gnss, recorded, decl, warnings, pitch_deg, yaw, lens, layers=layers)
 
 
-def open_any(path: str | Path, srt: str | Path | None = None, hfov_deg: float | None = None, pitch_deg: float = DRONE_DEFAULT_PITCH_DEG, lens: str | Path | None = None) -> Session:
+def open_any(path: str | Path, srt: str | Path | None = None, hfov_deg: float | None = None, pitch_deg: float = DRONE_DEFAULT_PITCH_DEG, lens: str | Path | None = None, layers: tuple[Layer, ...] = ()) -> Session:
     """A manifest (.toml) or a clip (pitch_deg: a drone clip's camera pitch when its subtitle has
-    no gimbal attitude)."""
+    no gimbal attitude; layers: its scene, see open_clip)."""
     path = Path(path)
     if path.suffix.lower() == ".toml":
-        if srt is not None or lens is not None:
-            raise GeofuseError(f"{'--srt' if srt is not None else '--lens'} goes with a clip, not with a manifest (a manifest names its subtitle in [gnss] and its lens as camera.lens)")
+        given = "--srt" if srt is not None else "--lens" if lens is not None else "--scene/--dem" if layers else None
+        if given:
+            raise GeofuseError(f"{given} goes with a clip, not with a manifest (a manifest names its subtitle in [gnss], its lens as camera.lens, its scene in [scene], [[layers]] and [dem])")
         return open_session(path)
-    return open_clip(path, srt, hfov_deg, pitch_deg, lens)
+    return open_clip(path, srt, hfov_deg, pitch_deg, lens, layers)

@@ -24,7 +24,8 @@ from app.io.sensorlogger import read_sensorlogger
 from app.io.streams import GnssTrack, OrientationStream, VectorStream, Warnings
 from app.io.video import VideoInfo, probe
 from app.lens import Lens, video_camera
-from app.scene import Placement, load_scene
+from app.scene import Placement
+from app.scene.layers import LoadedLayers, load_layers
 from app.scene.ground import ground_heights
 from app.scene.ground_plane import ASSUMED_GROUND_MARGIN_M, ground_under_track
 from app.session.config import SessionConfig, read_config
@@ -170,12 +171,14 @@ def _takeoff_height(cfg: SessionConfig, frame: LocalFrame, gnss: GnssTrack, mesh
 SCENE_FAR_M = 500.0  # a scene farther than this from every fix of the track is misplaced, or the track is
 
 
-def warn_if_scene_is_far(mesh, track_enu: np.ndarray, scene_path: Path, warnings: Warnings) -> None:
-    """A warning with the distance when the scene lies away from the camera's track (a wrong
-    origin, up axis or ECEF reading places a model thousands of kilometres off)."""
-    far = mesh.horizontal_distance(track_enu)
-    if far > SCENE_FAR_M:
-        warnings.add(f"{scene_path.name}: the scene lies {far / 1000:.1f} km from the camera's track: check scene.origin, scene.up_axis and the GNSS positions")
+def warn_if_scene_is_far(loaded: LoadedLayers, track_enu: np.ndarray, warnings: Warnings) -> None:
+    """A warning with the distance for each layer that lies away from the camera's track (a
+    wrong origin, up axis or ECEF reading places a model thousands of kilometres off)."""
+    for layer, part in loaded.parts:
+        far = part.horizontal_distance(track_enu)
+        if far > SCENE_FAR_M:
+            hint = "its georeferencing" if layer.georeferenced else "scene.origin, scene.up_axis"
+            warnings.add(f"{layer.name}: the scene lies {far / 1000:.1f} km from the camera's track: check {hint} and the GNSS positions")
 
 
 def _frame_times(cfg: SessionConfig, video: VideoInfo) -> tuple[float, np.ndarray]:
@@ -224,10 +227,10 @@ def _true_frame_times(cfg: SessionConfig, count: int, warnings: Warnings) -> np.
 
 
 def _place(cfg: SessionConfig, gnss: GnssTrack, above_takeoff: bool, warnings: Warnings):
-    """(frame, mesh, gnss with final heights): the session's ENU frame and scene. Without a scene,
-    an assumed flat ground under the track (the first fix's height less the mount height, or
-    the take-off height for heights above take-off), as for clips opened directly."""
-    if cfg.scene is None:
+    """(frame, mesh, gnss with final heights): the session's ENU frame and scene. Without any
+    layer, an assumed flat ground under the track (the first fix's height less the mount height,
+    or the take-off height for heights above take-off), as for clips opened directly."""
+    if not cfg.layers:
         takeoff = cfg.gnss.takeoff_height_m or 0.0
         if above_takeoff:
             gnss = replace(gnss, h=gnss.h + takeoff)
@@ -236,14 +239,17 @@ def _place(cfg: SessionConfig, gnss: GnssTrack, above_takeoff: bool, warnings: W
         warnings.add("no scene given: the video is projected on an assumed flat ground with a 1 m grid")
         return frame, ground_under_track(frame, gnss.lat, gnss.lon, ground, ASSUMED_GROUND_MARGIN_M), gnss
     try:
-        frame = LocalFrame(*cfg.origin)
+        origin = cfg.origin or (float(gnss.lat[0]), float(gnss.lon[0]), 0.0 if above_takeoff else float(gnss.h[0]))
+        frame = LocalFrame(*origin)
     except ValueError as exc:
         raise ManifestError(cfg.path, str(exc), field="origin") from exc
-    mesh = load_scene(cfg.scene.path, frame, cfg.scene.placement)
+    loaded = load_layers(cfg.layers, frame, np.column_stack([gnss.lat, gnss.lon]))
+    for note in loaded.notes:
+        warnings.add(note)
     if above_takeoff:
-        gnss = replace(gnss, h=gnss.h + _takeoff_height(cfg, frame, gnss, mesh, warnings))
-    warn_if_scene_is_far(mesh, frame.geodetic_to_enu(gnss.lat, gnss.lon, gnss.h), cfg.scene.path, warnings)
-    return frame, mesh, gnss
+        gnss = replace(gnss, h=gnss.h + _takeoff_height(cfg, frame, gnss, loaded.mesh, warnings))
+    warn_if_scene_is_far(loaded, frame.geodetic_to_enu(gnss.lat, gnss.lon, gnss.h), warnings)
+    return frame, loaded.mesh, gnss
 
 
 def assemble(cfg: SessionConfig) -> Session:
@@ -267,11 +273,11 @@ def assemble(cfg: SessionConfig) -> Session:
     if policy.note:
         warnings.add(policy.note)
     return Session(
-        cfg.path, frame, cfg.scene.path if cfg.scene else None, cfg.scene.placement if cfg.scene else Placement(), video, frame_times, intr, rotation,
+        cfg.path, frame, Path(cfg.layers[0].location) if cfg.layers else None, cfg.scene.placement if cfg.scene else Placement(), video, frame_times, intr, rotation,
         acc, gyr, mag, gnss, recorded, declination(*origin, float(frame_times[0])), warnings,
         inputs=tuple(cfg.inputs()), truth_position=truth_position,
         truth_frame_times=_true_frame_times(cfg, len(frame_times), warnings),
-        height_mode=cfg.gnss.height if cfg.scene else "gnss", mount_height_m=cfg.gnss.mount_height_m, heading=policy,
+        height_mode=cfg.gnss.height if cfg.layers else "gnss", mount_height_m=cfg.gnss.mount_height_m, heading=policy,
         device_is_camera=cfg.sensors.format in ("gopro", "none"),  # action cameras and drones
         aircraft_yaw=yaw, mesh=mesh, lens=lens, readout_s=_readout(cfg, lens, warnings),
     )  # fmt: skip

@@ -6,12 +6,25 @@
     lon = 113.53                  # degrees
     h = 110.0                     # ellipsoidal metres
 
-    [scene]                       # optional: without it, an assumed flat ground under the track
-    path = "scene.glb"            # glTF/GLB, OBJ, PLY
-    origin = [34.80, 113.53, 110.0]
+    [scene]                       # optional: without it (and without layers or a DEM), an
+                                  # assumed flat ground under the track
+    path = "scene.glb"            # glTF/GLB, OBJ, PLY; or a 3D Tiles tileset.json (folder or
+                                  # http(s) URL) or a DEM .tif, which place themselves
+    origin = [34.80, 113.53, 110.0]  # a model's origin (tilesets and DEMs need none)
     up_axis = "Y"                 # optional: Y for glTF, Z otherwise
     heading_deg = 0.0             # optional
     scale = 1.0                   # optional
+
+    [[layers]]                    # optional, repeated: more layers drawn together with [scene]
+    path = "city/tileset.json"    # same kinds as scene.path; a model here takes the same keys
+                                  # (origin, up_axis, heading_deg, scale)
+
+    [dem]                         # optional: terrain from a GeoTIFF DEM in any CRS
+    path = "dem.tif"
+    ortho = "ortho.tif"           # optional: an orthophoto GeoTIFF draped on it
+    vertical = "egm2008"          # optional: "ellipsoid", "egm2008" or "egm96" (default: the
+                                  # file's vertical CRS, else EGM2008)
+    max_error_m = 0.5             # optional: the terrain mesh's largest vertical error
 
     [video]
     path = "clip.mp4"
@@ -68,8 +81,11 @@ from pathlib import Path
 from typing import Any
 
 from app.attitude.heading import DRONE_DEFAULT_PITCH_DEG
-from app.errors import ManifestError
+from app.errors import ManifestError, SceneError
+from app.geoid import VERTICAL_DATUMS
 from app.scene import Placement
+from app.scene.layers import Layer, layer_kind
+from app.scene.tiles import fetch
 
 HANDHELD_MOUNT_M = 1.5  # a hand-held or body camera's height above the ground, metres
 SENSOR_FORMATS = ("csv", "sensorlogger", "gopro", "none")
@@ -148,9 +164,18 @@ def _checked_geodetic(path: Path, field: str, lat: float, lon: float, h: float) 
 
 @dataclass(frozen=True)
 class SceneConfig:
-    path: Path
+    """The [scene] table: its layer and, for a model, the geographic origin it gives."""
+
+    layer: Layer
     origin: tuple[float, float, float] | None  # the scene's origin: deg, deg, ellipsoidal m
-    placement: Placement
+
+    @property
+    def path(self) -> str:
+        return self.layer.location
+
+    @property
+    def placement(self) -> Placement:
+        return self.layer.placement
 
 
 @dataclass(frozen=True)
@@ -207,17 +232,18 @@ class SessionConfig:
 
     path: Path
     origin: tuple[float, float, float] | None  # None: the first GNSS fix (sessions without a scene)
-    scene: SceneConfig | None  # None: an assumed flat ground
+    scene: SceneConfig | None  # the [scene] table, if any
     video: VideoConfig
     camera: CameraConfig
     sensors: SensorsConfig
     gnss: GnssConfig
     truth: TruthConfig
+    layers: tuple[Layer, ...] = ()  # [scene], [[layers]] and [dem], in that order; () : an assumed ground
 
     def inputs(self) -> list[Path]:
         """Every file the session reads (never to be written)."""
         s, g, t = self.sensors, self.gnss, self.truth
-        files = [self.path, self.scene.path if self.scene else None, self.video.path, self.camera.lens, s.acc, s.gyr, s.mag, s.orientation, s.path, g.path, t.orientation, t.position, t.frame_times]
+        files = [self.path, *(f for layer in self.layers for f in layer.files()), self.video.path, self.camera.lens, s.acc, s.gyr, s.mag, s.orientation, s.path, g.path, t.orientation, t.position, t.frame_times]
         return [p for p in files if p is not None]
 
 
@@ -232,24 +258,57 @@ def load_manifest(path: str | Path) -> Manifest:
     return Manifest(path.resolve(), data)
 
 
-def _scene(m: Manifest) -> SceneConfig:
-    origin = m.geodetic("scene", "origin")
-    up = m.get("scene", "up_axis", str, None)
+def _location(m: Manifest, section: str, key: str) -> str:
+    """A layer's location: an http(s) URL as written, or an existing file's resolved path."""
+    value = m.get(section, key, str)
+    return value if fetch.is_url(value) else str(m.file(section, key))
+
+
+def _layer(m: Manifest, section: str) -> tuple[Layer, tuple[float, float, float] | None]:
+    """(layer, model origin) of a [scene] or [[layers]] table."""
+    location = _location(m, section, "path")
+    try:
+        kind = layer_kind(location)
+    except SceneError as exc:
+        raise ManifestError(m.path, exc.detail, field=f"{section}.path") from exc
+    origin = m.geodetic(section, "origin")
+    up = m.get(section, "up_axis", str, None)
     if up is not None and up not in ("Y", "Z"):
-        raise ManifestError(m.path, f"got {up!r}, expected 'Y' or 'Z'", field="scene.up_axis")
-    placement = Placement(origin, up, m.number("scene", "heading_deg", 0.0, low=-360.0, high=360.0), m.number("scene", "scale", 1.0, low=0.0, high=1e6, open_low=True))
-    return SceneConfig(m.file("scene", "path"), origin, placement)
+        raise ManifestError(m.path, f"got {up!r}, expected 'Y' or 'Z'", field=f"{section}.up_axis")
+    placement = Placement(origin, up, m.number(section, "heading_deg", 0.0, low=-360.0, high=360.0), m.number(section, "scale", 1.0, low=0.0, high=1e6, open_low=True))
+    return Layer(location, kind, placement), origin
+
+
+def _layers(m: Manifest) -> list[Layer]:
+    """[[layers]] tables, then [dem]."""
+    tables = m.data.get("layers", [])
+    if not isinstance(tables, list) or not all(isinstance(t, dict) for t in tables):
+        raise ManifestError(m.path, "expected [[layers]] tables, each with a path", field="layers")
+    out = []
+    for i, table in enumerate(tables):
+        name = f"layers[{i}]"
+        out.append(_layer(Manifest(m.path, {name: table}), name)[0])
+    if m.section("dem", required=False):
+        path = m.file("dem", "path")
+        if layer_kind(path) != "dem":
+            raise ManifestError(m.path, f"got {path.name!r}, expected a GeoTIFF (.tif)", field="dem.path")
+        vertical = m.get("dem", "vertical", str, None)
+        if vertical is not None and vertical not in VERTICAL_DATUMS:
+            raise ManifestError(m.path, f"got {vertical!r}, expected {' or '.join(repr(v) for v in VERTICAL_DATUMS)}", field="dem.vertical")
+        out.append(Layer(str(path), "dem", ortho=m.file("dem", "ortho", required=False), vertical=vertical, max_error_m=m.number("dem", "max_error_m", 0.5, low=0.01, high=100.0)))
+    return out
 
 
 def read_config(path: str | Path) -> SessionConfig:
     """Read and validate a manifest (files named must exist; values typed and in range)."""
     m = load_manifest(path)
-    scene = _scene(m) if m.section("scene", required=False) else None
+    scene = SceneConfig(*_layer(m, "scene")) if m.section("scene", required=False) else None
+    layers = ([scene.layer] if scene else []) + _layers(m)
     if m.section("origin", required=False):
         origin = _checked_geodetic(m.path, "origin", *(m.get("origin", k, float) for k in ("lat", "lon", "h")))
     elif scene is not None and scene.origin is not None:
         origin = scene.origin
-    elif scene is None:
+    elif all(layer.georeferenced for layer in layers):
         origin = None  # the first GNSS fix
     else:
         raise ManifestError(m.path, "give [origin] or scene.origin: the session needs a geographic origin", field="origin")
@@ -290,4 +349,4 @@ def read_config(path: str | Path) -> SessionConfig:
         m.number("gnss", "pitch_deg", DRONE_DEFAULT_PITCH_DEG, low=-90.0, high=90.0, required_section=False),
     )
     truth = TruthConfig(*(m.file("truth", k, required=False, required_section=False) for k in ("orientation", "position", "frame_times")))
-    return SessionConfig(m.path, origin, scene, video, camera, sensors, gnss, truth)
+    return SessionConfig(m.path, origin, scene, video, camera, sensors, gnss, truth, tuple(layers))

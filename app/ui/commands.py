@@ -43,8 +43,10 @@ def _wait(v, arg, now) -> None:
         v.wait_until_exported()
     elif arg == "synced":
         v.wait_until_synced()
+    elif arg == "tiles":
+        v.wait_until_tiles_loaded()
     else:
-        raise ValueError(f"expected 'solved', 'exported' or 'synced', got {arg!r}")
+        raise ValueError(f"expected 'solved', 'exported', 'synced' or 'tiles', got {arg!r}")
 
 
 def _export(v, arg, now) -> None:
@@ -92,7 +94,7 @@ COMMANDS: dict[str, Command] = {
     "panels": Command(_set_ui(show_panels=()), False, True, "show or hide the panels"),
     "lines": Command(_set_ui(overlays=("frustum", "trajectory")), False, True, "frustum and trajectory lines"),
     "clock": Command(_clock, False, True, "STEP: a fixed-step clock (seconds per frame), or wall"),
-    "wait": Command(_wait, False, True, "solved | exported: hold the clock until every source is solved, or the export has finished"),
+    "wait": Command(_wait, False, True, "solved | exported | synced | tiles: hold the clock until every source is solved, the export or sync has finished, or the 3D Tiles this view needs are loaded"),
     "export": Command(_export, True, True, "WHAT PATH: export the session (footprints, fmv-csv, klv, video) in the background"),
     "record": Command(_record, True, True, "start [PATH] | stop: record what the window shows"),
     "lens": Command(lambda v, a, n: v.use_lens(None if a == "auto" else Path(a)), True, True, "PROFILE.json | auto: reopen the clip through this lens profile"),
@@ -110,6 +112,7 @@ COMMANDS: dict[str, Command] = {
     "alpha": Command(lambda v, a, n: setattr(v.ui, "settings", replace(v.ui.settings, alpha=_number(a))), False, True, "video opacity 0..1"),
     "offset": Command(lambda v, a, n: v.set_time_offset(_number(a)), True, True, "time offset, seconds"),
     "pitch": Command(lambda v, a, n: v.set_course_pitch(_number(a)), True, True, "assumed camera pitch of a drone clip"),
+    "detail": Command(lambda v, a, n: v.set_tile_detail(_number(a)), False, True, "3D Tiles: the screen-space error in pixels above which tiles refine (default 16)"),
     "overlay": Command(lambda v, a, n: setattr(v.ui, "overlays", replace(v.ui.overlays, error_map=_on(a))), False, True, "projection-error colours"),
     "view": Command(_view, False, True, "free | orbit | phone | reset"),
     "help": Command(lambda v, a, n: setattr(v.ui, "show_help", not v.ui.show_help), False, False, "help and shortcuts"),

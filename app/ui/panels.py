@@ -371,6 +371,8 @@ def _projection(v) -> None:
         _, rule = imgui.checkbox("nine-case neighbourhood rule", s.neighbourhood)
         idx = DEPTH_SIZES.index(s.depth_long_side) if s.depth_long_side in DEPTH_SIZES else 1
         _, idx = imgui.combo("depth map", idx, [str(d) for d in DEPTH_SIZES])
+        if v.loaded is not None and v.loaded.renderer.scene.tilesets:
+            _, ui.max_sse_px = imgui.slider_float("3D Tiles detail (px error)", ui.max_sse_px, 1.0, 64.0, "%.0f")
         ui.settings = replace(s, enabled=enabled, alpha=alpha, bias_constant_m=bias, bias_slope=slope, neighbourhood=rule, depth_long_side=DEPTH_SIZES[idx])
         o = ui.overlays
         _, fr = imgui.checkbox("frustum", o.frustum)
@@ -474,6 +476,15 @@ def _stats(v) -> None:
         imgui.text(f"decode queue {player.decoder.frames.qsize()}/{player.decoder.frames.maxsize}   corrupt packets {player.decoder.corrupt_packets}")
         imgui.text(f"latency now {current:5.1f} ms  mean {mean:5.1f} ms  p95 {p95:5.1f} ms")
         imgui.text(f"dropped frames {player.stats.dropped} (decoder skipped {player.decoder.skipped})   depth redraws {v.stats.depth_redraws}")
+        r = v.loaded.renderer
+        imgui.text(f"triangles drawn {r.scene_pass.triangles:,}   in the depth map {r.depth.triangles:,}")
+        for layer in r.scene.tilesets:
+            s = layer.stream
+            skipped = ", ".join(f"{n} {k}" for k, n in s.skipped.counts.items())
+            imgui.text_wrapped(
+                f"{Path(layer.tileset.location.rstrip('/')).name}: {len(layer.resident)} tiles on the GPU ({layer.bytes_held / 2**20:.0f} MB of {layer.cache_bytes / 2**20:.0f}), "
+                f"{s.pending} loading, {s.failures} failed" + (f"; skipped {skipped}" if skipped else "")
+            )
     imgui.end()
 
 

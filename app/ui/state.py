@@ -37,6 +37,8 @@ class UiState:
     sync_job: object | None = None  # the running or last app.ui.exporter.SyncJob
     sync_applied: bool = False
     lens_path: str = ""  # the Session panel's lens profile field (clips)
+    max_sse_px: float = 16.0  # 3D Tiles: refine tiles whose screen-space error exceeds this
+    tile_errors_said: int = 0  # tile load errors already shown as notices
     show_session_tab: int = 2  # frames until the Session tab is brought to the front (once, at start)
     quit: bool = False
 

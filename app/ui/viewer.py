@@ -49,6 +49,7 @@ class Options:
     visible: bool = True
     srt: Path | None = None
     lens: Path | None = None  # a lens profile for a clip opened from the command line
+    layers: tuple = ()  # app.scene.layers.Layer: the scene of a clip opened from the command line
 
 
 @dataclass
@@ -90,9 +91,10 @@ class FixedStepClock:
 
 
 def home_view(session, mesh) -> Navigator:
-    """Where the window camera starts: for a real scene, south of it looking across it; on an
-    assumed ground, behind and above the camera's track so that its frustum and footprint show."""
-    if session.scene_path is None:
+    """Where the window camera starts: for a model of a site, south of it looking across it; on an
+    assumed ground, a tileset or terrain larger than a site, behind and above the camera's track
+    so that its frustum and footprint show."""
+    if session.scene_path is None or mesh.tilesets or float(np.ptp(mesh.bounds()[:, :2], axis=0).max()) > 2000.0:
         g = session.gnss
         enu = session.frame.geodetic_to_enu(g.lat, g.lon, g.h)
         centre = (enu.min(axis=0) + enu.max(axis=0)) / 2
@@ -182,6 +184,29 @@ class Viewer:
             raise ValueError("this session has no gyroscope: the offset cannot be found from rotation")
         self.ui.sync_job, self.ui.sync_applied = SyncJob(self.loaded.session), False
 
+    def set_tile_detail(self, max_sse_px: float) -> None:
+        """3D Tiles refine where their screen-space error exceeds max_sse_px (1..256 px)."""
+        if not 1.0 <= max_sse_px <= 256.0:
+            raise ValueError(f"expected 1..256 pixels, got {max_sse_px:g}")
+        self.ui.max_sse_px = float(max_sse_px)
+
+    def wait_until_tiles_loaded(self) -> None:
+        """Load the tiles the current view and the projector need (scripts, screenshots)."""
+        L = self.loaded
+        if L is None or not L.renderer.scene.tilesets or self.window_camera is None:
+            return
+        for layer in L.renderer.scene.tilesets:
+            layer.max_sse_px = self.ui.max_sse_px
+        if not L.renderer.settle(self.window_camera, self.ui.settings, SOLVE_WAIT_S):
+            raise GeofuseError(f"the 3D Tiles did not load within {SOLVE_WAIT_S:g} s")
+
+    def _tile_notices(self) -> None:
+        """Tile load failures and skipped content, said once each as notices."""
+        errors = [e for layer in self.loaded.renderer.scene.tilesets for e in layer.stream.errors]
+        for e in errors[self.ui.tile_errors_said :]:
+            self.ui.notices.append(f"3D Tiles: {e}")
+        self.ui.tile_errors_said = len(errors)
+
     def wait_until_synced(self) -> None:
         job = self.ui.sync_job
         if job is not None and not job.wait(SOLVE_WAIT_S):
@@ -231,7 +256,7 @@ class Viewer:
         path = Path(manifest) if manifest is not None else SAMPLE_DIR / "session.toml"
         try:
             own = path == self.options.manifest
-            session = open_any(path, self.options.srt if own else None, lens=self.options.lens if own else None)
+            session = open_any(path, self.options.srt if own else None, lens=self.options.lens if own else None, layers=self.options.layers if own else ())
             mesh = session.scene()
         except GeofuseError as exc:
             self.ui.error(str(exc))
@@ -361,9 +386,13 @@ class Viewer:
         ctx.screen.viewport = (x, fb_h - y - h, w, h)  # GL counts rows from the bottom
         L = self.loaded
         self.window_camera = self.nav.camera(Intrinsics.from_fov(w, h, VIEW_HFOV_DEG), L.renderer.projector)
+        for layer in L.renderer.scene.tilesets:
+            layer.max_sse_px = self.ui.max_sse_px
         before = L.renderer.depth.renders
         L.renderer.draw(self.window_camera, ctx.screen, self.ui.settings, self.ui.overlays)
         self.stats.depth_redraws += L.renderer.depth.renders - before
+        if L.renderer.scene.tilesets:
+            self._tile_notices()
         ctx.screen.viewport = (0, 0, fb_w, fb_h)
 
     def screenshot(self, path: Path) -> Path:

@@ -1,0 +1,114 @@
+"""A session's scene as layers: model files, 3D Tiles tilesets (folders or URLs), DEM terrain
+with its orthophoto; all placed in one ENU frame into one MeshData.
+
+The kind of a layer comes from its name: `.json` or an http(s) URL is a tileset, `.tif`/`.tiff`
+a DEM, `.glb`/`.gltf`/`.obj`/`.ply` a model. Tilesets and DEMs are georeferenced by themselves;
+models by their placement (app.scene.loader).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy.typing as npt
+
+from app.errors import SceneError
+from app.geo import LocalFrame
+from app.scene.loader import SUPPORTED_SUFFIXES, Placement, load_scene
+from app.scene.mesh import MeshData
+from app.scene.terrain import DEFAULT_MAX_ERROR_M, DEM_SUFFIXES, read_terrain
+from app.scene.tiles import fetch
+
+KINDS = ("mesh", "tileset", "dem")
+
+
+def layer_kind(location: str | Path) -> str:
+    """'tileset', 'dem' or 'mesh' from a layer's name; raises SceneError for anything else."""
+    text = str(location)
+    suffix = Path(text.split("?")[0]).suffix.lower()
+    if fetch.is_url(text) or suffix == ".json":
+        return "tileset"
+    if suffix in DEM_SUFFIXES:
+        return "dem"
+    if suffix in SUPPORTED_SUFFIXES:
+        return "mesh"
+    raise SceneError(text, f"unknown scene layer {suffix or 'without a suffix'!r} (expected a 3D Tiles tileset.json or URL, a DEM .tif, or {', '.join(SUPPORTED_SUFFIXES)})")
+
+
+@dataclass(frozen=True)
+class Layer:
+    """One layer. location: a file path or URL; placement: a model's (app.scene.loader); ortho,
+    vertical, max_error_m: a DEM's orthophoto, vertical datum (None: the file's, else EGM2008)
+    and largest vertical error of its mesh, m."""
+
+    location: str
+    kind: str
+    placement: Placement = Placement()
+    ortho: Path | None = None
+    vertical: str | None = None
+    max_error_m: float = DEFAULT_MAX_ERROR_M
+
+    @classmethod
+    def of(cls, location: str | Path, **options) -> "Layer":
+        return cls(str(location), layer_kind(location), **options)
+
+    @property
+    def name(self) -> str:
+        return self.location.rstrip("/").rsplit("/", 1)[-1]
+
+    @property
+    def georeferenced(self) -> bool:
+        """Placed by its own coordinates (a tileset, a DEM), not by a manifest's origin."""
+        return self.kind != "mesh"
+
+    def files(self) -> list[Path]:
+        """Local files this layer reads (never to be written)."""
+        out = [] if fetch.is_url(self.location) else [Path(self.location)]
+        return out + ([self.ortho] if self.ortho is not None else [])
+
+
+@dataclass
+class LoadedLayers:
+    """Every layer in one MeshData, each layer's own (for per-layer checks), and what was said."""
+
+    mesh: MeshData
+    parts: list[tuple[Layer, MeshData]] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+
+
+def _tileset(layer: Layer, frame: LocalFrame):
+    from app.scene.tiles.tileset import Tileset, TilesetError
+
+    try:
+        return Tileset(layer.location, frame)
+    except fetch.FetchError as exc:
+        raise SceneError(exc.location, str(exc).split(": ", 1)[-1]) from exc
+    except TilesetError as exc:
+        raise SceneError(exc.location, exc.detail, field=exc.field) from exc
+
+
+def load_layers(layers: list[Layer] | tuple[Layer, ...], frame: LocalFrame, track_ll: npt.ArrayLike | None = None) -> LoadedLayers:
+    """Every layer in `frame`, in one MeshData. track_ll: (N, 2) lat, lon (deg) of the clip's
+    track: DEMs are read around it. Raises SceneError naming the file at fault."""
+    out = LoadedLayers(MeshData())
+    notes = out.notes
+    for layer in layers:
+        if layer.kind == "mesh":
+            part = load_scene(layer.location, frame, layer.placement)
+        elif layer.kind == "tileset":
+            ts = _tileset(layer, frame)
+            part = MeshData(tilesets=[ts])
+            notes.append(f"{layer.name}: 3D Tiles {ts.version}, streamed by level of detail")
+        else:
+            terrain = read_terrain(layer.location, frame, track_ll, layer.ortho, layer.vertical, layer.max_error_m)
+            part = terrain.mesh
+            notes += terrain.notes
+            notes.append(
+                f"{layer.name}: terrain of {terrain.mesh.triangle_count} triangles from {terrain.grid_shape[0]}x{terrain.grid_shape[1]} samples "
+                f"(~{terrain.cell_m:.1f} m apart), within {terrain.error_m:.2f} m of them, heights from {terrain.datum}"
+                + (f", draped with {layer.ortho.name}" if layer.ortho is not None else "")
+            )
+        out.parts.append((layer, part))
+        out.mesh = out.mesh.merged(part)
+    return out

@@ -245,15 +245,20 @@ def _block_shape(lo: np.ndarray, hi: np.ndarray, detail: int) -> shapes.Shape:
 
 def write_city(folder: Path, origin: tuple[float, float, float], size_m: float = 800.0, levels: int = 4, blocks_per_leaf: int = 16, leaf_detail: int = 24) -> CityStats:
     """A city tileset: a quadtree of `levels` levels over size_m x size_m, b3dm content with
-    RTC_CENTER, REPLACE refinement. Leaf tiles hold blocks_per_leaf^... blocks with walls of
-    leaf_detail^2 quads; each coarser level halves the wall detail and doubles the block size.
+    RTC_CENTER, REPLACE refinement. Leaf tiles hold blocks_per_leaf blocks with walls of
+    leaf_detail^2 quads; each coarser level merges 2 x 2 blocks into one of their mean height and
+    halves the wall detail. A tile's geometricError is what its merging changes (the height range
+    of a merged group, the gaps it fills), 0 at the leaves.
     """
     folder.mkdir(parents=True, exist_ok=True)
     frame = LocalFrame(*origin)
     rng = np.random.default_rng(7)
     n_leaf = 1 << (levels - 1)
     side = int(np.sqrt(blocks_per_leaf))
-    heights = rng.uniform(8.0, 60.0, (n_leaf * side, n_leaf * side))
+    # block heights: districts of taller and lower buildings (smooth) with a few metres of variety
+    k = n_leaf * side
+    gy, gx = np.mgrid[0:k, 0:k] * (size_m / k)
+    heights = 30.0 + 22.0 * np.sin(gx / 260.0) * np.cos(gy / 210.0) + rng.uniform(-3.0, 3.0, (k, k))
     counts = {"tiles": 0, "triangles": 0, "leaf": 0}
 
     def tile(level: int, x: int, y: int) -> dict:
@@ -268,10 +273,17 @@ def write_city(folder: Path, origin: tuple[float, float, float], size_m: float =
         detail = max(1, leaf_detail >> (levels - 1 - level))
         parts = []
         top = 0.0
+        # geometric error: how far this level's merged blocks stray from the full-detail ones
+        # (the height range within a merged group; the gaps between blocks they fill)
+        error = 0.0
+        leaf_step = size_m / (n_leaf * side)
         for i in range(per):
             for j in range(per):
                 gi, gj = (x * per + i) * merge, (y * per + j) * merge
-                h = float(heights[gi : gi + merge, gj : gj + merge].mean())
+                group = heights[gi : gi + merge, gj : gj + merge]
+                h = float(group.mean())
+                if merge > 1:
+                    error = max(error, float(group.max() - group.min()), 0.3 * leaf_step)
                 b_lo = lo + [i * step + step * 0.15, j * step + step * 0.15, 0.0]
                 b_hi = lo + [(i + 1) * step - step * 0.15, (j + 1) * step - step * 0.15, h]
                 parts.append(_block_shape(b_lo, b_hi, detail))
@@ -289,7 +301,7 @@ def write_city(folder: Path, origin: tuple[float, float, float], size_m: float =
         counts["triangles"] += len(shape.faces)
         node = {
             "boundingVolume": {"region": region_of(frame, lo - [0, 0, 1], hi + [0, 0, top + 1])},
-            "geometricError": 0.0 if level == levels - 1 else float(cell / 16),
+            "geometricError": error,
             "content": {"uri": name},
         }
         if level == levels - 1:

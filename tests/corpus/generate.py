@@ -272,3 +272,73 @@ def photo_copy(d: Path) -> None:
 
 def nothing(d: Path) -> None:
     """The clean session, for output-path and option cases."""
+
+
+# --- 3D Tiles and DEM layers ----------------------------------------------------------------------
+
+PHONE_ORIGIN = (34.80, 113.53, 110.0)
+
+
+def _ground_tileset(folder: Path, north_m: float = 0.0) -> Path:
+    """A tileset of one b3dm: a 400 m square of ground at the phone session's origin height,
+    its centre north_m north of the origin (RTC_CENTER, region volume)."""
+    from app.geo import LocalFrame
+    from app.scene import shapes
+    from app.simulate import tileset as tw
+
+    frame = LocalFrame(*PHONE_ORIGIN)
+    quad = shapes.quad([-200, north_m - 200, 0], [400, 0, 0], [0, 400, 0])
+    rtc = frame.enu_to_ecef(np.array([0.0, north_m, 0.0]))
+    (folder / "ground.b3dm").write_bytes(tw.b3dm(tw.glb(frame.enu_to_ecef(quad.vertices) - rtc, quad.faces), rtc))
+    region = tw.region_of(frame, [-200, north_m - 200, -1], [200, north_m + 200, 1])
+    return tw.write_json(folder / "tileset.json", {"asset": {"version": "1.0"}, "geometricError": 10, "root": {"boundingVolume": {"region": region}, "geometricError": 0, "refine": "REPLACE", "content": {"uri": "ground.b3dm"}}})
+
+
+def tileset_scene(d: Path) -> None:
+    _ground_tileset(d / "session")
+    set_manifest(d / "session/session.toml", "scene", "path", '"tileset.json"')
+
+
+def tileset_far_away(d: Path) -> None:
+    _ground_tileset(d / "session", north_m=5000.0)
+    set_manifest(d / "session/session.toml", "scene", "path", '"tileset.json"')
+
+
+def tileset_without_root(d: Path) -> None:
+    (d / "session/tileset.json").write_text('{"asset": {"version": "1.0"}, "geometricError": 1}')
+    set_manifest(d / "session/session.toml", "scene", "path", '"tileset.json"')
+
+
+def _dem(d: Path, lat: float, lon: float, holes: bool = False) -> Path:
+    from app.simulate.terrain import write_geotiff
+
+    step = 1.0 / 3600
+    h = np.full((240, 240), 110.0 - 20.0)
+    if holes:
+        h[100:140, 100:140] = np.nan
+    return write_geotiff(d / "session/dem.tif", h, "EPSG:4326", lon - 120 * step, lat + 120 * step, step, step)
+
+
+def _with_dem(d: Path) -> None:
+    text = (d / "session/session.toml").read_text()
+    (d / "session/session.toml").write_text(text + '\n[dem]\npath = "dem.tif"\n')
+
+
+def dem_with_holes(d: Path) -> None:
+    _dem(d, PHONE_ORIGIN[0], PHONE_ORIGIN[1], holes=True)
+    _with_dem(d)
+
+
+def dem_far_away(d: Path) -> None:
+    _dem(d, PHONE_ORIGIN[0] + 0.5, PHONE_ORIGIN[1])
+    _with_dem(d)
+
+
+def dem_not_a_geotiff(d: Path) -> None:
+    (d / "session/dem.tif").write_bytes(b"II*\x00" + b"\x00" * 64)
+    _with_dem(d)
+
+
+def tileset_and_photo(d: Path) -> None:
+    tileset_scene(d)
+    photo_copy(d)

@@ -61,6 +61,13 @@ CASES = (
     Case("scene truncated glb", "scene_truncated_glb", SOLVE, "error", "scene.glb"),
     Case("scene 111 km away", "scene_far_away", SOLVE, "ok", "km from the camera's track"),
     Case("render --session, scene far", "scene_far_away", RENDER_SESSION, "ok", "km from the camera's track"),
+    Case("scene a 3D Tiles tileset", "tileset_scene", RENDER_SESSION, "ok", "3D Tiles 1.0"),
+    Case("tileset 5 km away", "tileset_far_away", SOLVE, "ok", "4.8 km from the camera's track"),
+    Case("tileset without root", "tileset_without_root", SOLVE, "error", "tileset.json"),
+    Case("render a still on a tileset, no --origin", "tileset_and_photo", ("render", "--scene", "{d}/session/tileset.json", *RENDER[5:]), "ok", "3D Tiles 1.0"),
+    Case("DEM with nodata holes", "dem_with_holes", SOLVE, "ok", "nodata"),
+    Case("DEM 55 km away", "dem_far_away", SOLVE, "error", "dem.tif"),
+    Case("DEM not a GeoTIFF", "dem_not_a_geotiff", SOLVE, "error", "dem.tif"),
     # video
     Case("video not a video", "video_not_a_video", SOLVE, "error", "clip.mp4"),
     Case("video cut short, index first", "video_cut_short_index_first", SOLVE, "ok", "cut short"),

@@ -271,7 +271,9 @@ def test_damaged_and_unsupported_content_is_counted_never_fatal(tmp_path):
     (tmp_path / "points.pnts").write_bytes(tw.other_tile(b"pnts"))
     ktx = tw.glb(WALL.vertices, WALL.faces, extensions_required=("EXT_meshopt_compression",))
     (tmp_path / "meshopt.glb").write_bytes(ktx)
-    kids = [region_tile(n) for n in ("good.b3dm", "cut.b3dm", "points.pnts", "meshopt.glb", "missing.b3dm")]
+    uv = np.array([[0, 1], [1, 1], [1, 0], [0, 0]], np.float32)
+    (tmp_path / "ktx2.glb").write_bytes(tw.glb(FRAME.enu_to_ecef(WALL.vertices), WALL.faces, uvs=uv, texture_rgb=np.zeros((4, 4, 3), np.uint8), ktx2=True))
+    kids = [region_tile(n) for n in ("good.b3dm", "cut.b3dm", "points.pnts", "meshopt.glb", "missing.b3dm", "ktx2.glb")]
     path = tw.write_json(tmp_path / "tileset.json", tileset_doc(enu_box_tile(None, 100.0, transform=tw.column_major(np.eye(4)), children=kids) | {"boundingVolume": {"region": tw.region_of(FRAME, LO, HI)}}))
     stream = TileStream(Tileset(str(path), FRAME))
     try:
@@ -280,7 +282,8 @@ def test_damaged_and_unsupported_content_is_counted_never_fatal(tmp_path):
         assert any("cut.b3dm" in e for e in stream.errors) and any("missing.b3dm" in e and "does not exist" in e for e in stream.errors)
         assert stream.skipped.counts["point clouds (pnts)"] == 1
         assert stream.skipped.counts["content needing EXT_meshopt_compression"] == 1
-        assert len(sel.tiles) == 5  # all drawn, three of them empty
+        assert stream.skipped.counts["KTX2/Basis textures (drawn untextured)"] == 1
+        assert len(sel.tiles) == 6  # all drawn, three of them empty, the KTX2 one untextured
     finally:
         stream.close()
 

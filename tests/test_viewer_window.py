@@ -202,3 +202,66 @@ def test_sync_from_the_viewer_applies_the_offset(display, tmp_path):
     s = json.loads(state.read_text())
     assert s["errors"] == [] and s["sync"]["confidence"] > 0.9
     assert s["time_offset_s"] == pytest.approx(s["sync"]["offset_s"]) == pytest.approx(-0.08, abs=0.01)
+
+
+def test_a_tileset_session_in_the_window_matches_the_model_it_was_made_from(display, tmp_path, gl_ctx):
+    """The sample's stadium as 3D Tiles (plus a generated city as a second layer) in the window:
+    once its tiles are loaded, the screenshot shows what an off-screen render of the same state
+    shows, and the tileset's stadium is the sample GLB drawn in place."""
+    from app.camera import Camera, Intrinsics
+    from app.camera_track import camera_track
+    from app.config import OverlaySettings, ProjectionSettings
+    from app.io.video import read_frame
+    from app.render.offscreen import render_to_array
+    from app.render.renderer import FusionRenderer
+    from app.scene import load_scene
+    from app.session import open_session
+    from tools.gis_sessions import tiles
+
+    manifest = tiles(tmp_path)
+    script = tmp_path / "script.txt"
+    script.write_text(
+        f"""0.0 clock 0.0333333
+0.0 wait solved
+0.0 seek 20
+0.0 pause
+0.1 panels off
+0.1 lines off
+0.2 look -150,-170,70 0,0,10
+0.3 wait tiles
+0.4 wait tiles
+0.5 screenshot {tmp_path / "tiles.png"}
+0.5 state {tmp_path / "tiles.json"}
+0.6 quit
+"""
+    )
+    result = run_viewer(display, str(manifest), "--script", str(script), "--size", "640x360")
+    assert result.returncode == 0, result.stderr[-3000:]
+    state = json.loads((tmp_path / "tiles.json").read_text())
+    assert state["errors"] == []
+    shot = np.asarray(Image.open(tmp_path / "tiles.png").convert("RGB"), int)
+    session = open_session(manifest)
+    assert len(session.scene().tilesets) == 2
+    k = state["frame"]
+    projector = camera_track(session, state["source"]).frame_camera(k)
+    wc = state["window_camera"]
+    view = Camera.create(Intrinsics(*wc["size"], wc["fx"], wc["fy"], wc["cx"], wc["cy"]), wc["position"], wc["orientation"], wc["near"], wc["far"])
+    none = OverlaySettings(frustum=False, trajectory=False)
+    renderer = FusionRenderer(gl_ctx, session.scene())
+    try:
+        renderer.set_video_frame(read_frame(session.video.path, k, session.video))
+        renderer.set_projector(projector)
+        on = render_to_array(renderer, view, ProjectionSettings(alpha=1.0), none).astype(int)
+        tiles_off = render_to_array(renderer, view, ProjectionSettings(enabled=False), none).astype(int)
+    finally:
+        renderer.release()
+    model = FusionRenderer(gl_ctx, load_scene(ROOT / "assets/sample/scene.glb", session.frame))
+    try:
+        glb_off = render_to_array(model, view, ProjectionSettings(enabled=False), none).astype(int)
+    finally:
+        model.release()
+    diff = np.abs(shot - on).max(axis=2)
+    assert np.median(diff) <= 4 and np.mean(diff <= 16) > 0.97
+    assert (np.abs(on - tiles_off).max(axis=2) > 40).sum() > 500  # the video is on the stadium
+    stadium = np.abs(glb_off - tiles_off).max(axis=2) <= 3  # the city only adds to the model
+    assert np.mean(stadium) > 0.8

@@ -55,7 +55,9 @@ class Layer:
 
     @property
     def name(self) -> str:
-        return self.location.rstrip("/").rsplit("/", 1)[-1]
+        """The file's name; a tileset.json with its folder (most tilesets are called that)."""
+        parts = self.location.replace("\\", "/").rstrip("/").split("/")
+        return "/".join(parts[-2:]) if parts[-1].lower() == "tileset.json" and len(parts) > 1 else parts[-1]
 
     @property
     def georeferenced(self) -> bool:

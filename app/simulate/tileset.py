@@ -38,11 +38,13 @@ def glb(
     node_matrix: np.ndarray | None = None,
     draco: bool = False,
     extensions_required: tuple[str, ...] = (),
+    ktx2: bool = False,
 ) -> bytes:
     """One mesh as GLB. positions (N, 3) in the tile's Z-up frame (stored Y-up, as float32);
     uvs with v = 0 at the image's top (glTF); texture_rgb (H, W, 3) uint8 top row first, PNG;
     node_matrix: the root node's 4x4 (applied in glTF's Y-up space); draco: compress with
-    KHR_draco_mesh_compression."""
+    KHR_draco_mesh_compression; ktx2: the texture is declared as KTX2 (KHR_texture_basisu), as
+    tilesets with GPU-compressed textures do (the bytes stay PNG: readers must not decode them)."""
     p = np.asarray(positions, np.float64) @ Z_UP_TO_Y_UP.T
     f = np.asarray(faces, np.uint32).reshape(-1, 3)
     t = None if uvs is None else np.asarray(uvs, np.float32)
@@ -89,8 +91,10 @@ def glb(
 
         png = io.BytesIO()
         Image.fromarray(np.asarray(texture_rgb, np.uint8)).save(png, "PNG")
-        doc["images"] = [{"bufferView": add_view(png.getvalue()), "mimeType": "image/png"}]
-        doc["textures"] = [{"source": 0}]
+        doc["images"] = [{"bufferView": add_view(png.getvalue()), "mimeType": "image/ktx2" if ktx2 else "image/png"}]
+        doc["textures"] = [{"extensions": {"KHR_texture_basisu": {"source": 0}}} if ktx2 else {"source": 0}]
+        if ktx2:
+            extensions_required = (*extensions_required, "KHR_texture_basisu")
         material["pbrMetallicRoughness"]["baseColorTexture"] = {"index": 0}
     node: dict = {"mesh": 0}
     if node_matrix is not None:

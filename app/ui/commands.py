@@ -7,6 +7,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
 
+import numpy as np
+
 
 @dataclass(frozen=True)
 class Command:
@@ -77,6 +79,13 @@ def _view(v, arg, now) -> None:
         raise ValueError(f"expected free, orbit, phone or reset, got {arg!r}")
 
 
+def _look(v, arg, now) -> None:
+    values = [float(x) for x in (arg or "").replace(",", " ").split()]
+    if len(values) != 6 or not all(np.isfinite(values)):
+        raise ValueError(f"expected E,N,U E,N,U (eye and target, ENU metres), got {arg!r}")
+    v.nav.look_at(np.array(values[:3]), np.array(values[3:]))
+
+
 def _set_ui(**changes) -> Callable:
     def run(v, arg, now) -> None:
         on = _on(arg)
@@ -115,6 +124,7 @@ COMMANDS: dict[str, Command] = {
     "detail": Command(lambda v, a, n: v.set_tile_detail(_number(a)), False, True, "3D Tiles: the screen-space error in pixels above which tiles refine (default 16)"),
     "overlay": Command(lambda v, a, n: setattr(v.ui, "overlays", replace(v.ui.overlays, error_map=_on(a))), False, True, "projection-error colours"),
     "view": Command(_view, False, True, "free | orbit | phone | reset"),
+    "look": Command(_look, False, True, "E,N,U E,N,U: the window camera at an eye looking at a target (ENU metres)"),
     "help": Command(lambda v, a, n: setattr(v.ui, "show_help", not v.ui.show_help), False, False, "help and shortcuts"),
 }
 

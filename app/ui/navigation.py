@@ -31,6 +31,14 @@ class Navigator:
     def __post_init__(self) -> None:
         self.home = (self.position.copy(), self.yaw, self.pitch)
 
+    def look_at(self, eye: np.ndarray, target: np.ndarray) -> None:
+        """Free roam from `eye` looking at `target` (ENU m)."""
+        d = np.asarray(target, np.float64) - np.asarray(eye, np.float64)
+        self.mode = "free"
+        self.position = np.asarray(eye, np.float64).copy()
+        self.yaw = float(np.degrees(np.arctan2(d[0], d[1])))
+        self.pitch = float(np.degrees(np.arctan2(d[2], np.hypot(d[0], d[1]))))
+
     def forward(self) -> np.ndarray:
         y, p = np.radians(self.yaw), np.radians(self.pitch)
         return np.array([np.sin(y) * np.cos(p), np.cos(y) * np.cos(p), np.sin(p)])

@@ -31,7 +31,8 @@ COMPONENT = {5120: np.int8, 5121: np.uint8, 5122: np.int16, 5123: np.uint16, 512
 NORMALIZER = {5120: 127.0, 5121: 255.0, 5122: 32767.0, 5123: 65535.0, 5125: 4294967295.0}
 WIDTH = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
 Y_UP_TO_Z_UP = np.array([[1.0, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0, 1]])  # (x, y, z) -> (x, -z, y)
-SUPPORTED_REQUIRED = {"KHR_draco_mesh_compression", "KHR_mesh_quantization", "KHR_materials_unlit", "CESIUM_RTC", "KHR_texture_transform", "EXT_texture_webp"}
+# required extensions we can honour (KTX2/Basis textures: the mesh is drawn untextured and counted)
+SUPPORTED_REQUIRED = {"KHR_texture_basisu", "KHR_draco_mesh_compression", "KHR_mesh_quantization", "KHR_materials_unlit", "CESIUM_RTC", "KHR_texture_transform", "EXT_texture_webp"}
 WHITE = (1.0, 1.0, 1.0, 1.0)
 
 

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.common import median_ms, p95_ms, table
+from bench.common import interleaved, median_ms, on_off_table, table
 
 CITY_ORIGIN = (47.0, 8.0, 400.0)
 
@@ -44,16 +44,9 @@ def _steady(ctx, renderer, view, projector, target, frames: int):
         renderer.draw(view, target.fbo, settings)
         ctx.finish()
 
-    for _ in range(3):
-        draw(on)
-        draw(off)
-    t_on, t_off = [], []
+    interleaved(draw, on, off, 3, warmup=0)  # warm-up
     redraws = renderer.depth.renders
-    for _ in range(frames):
-        for settings, bucket in ((on, t_on), (off, t_off)):
-            t0 = time.perf_counter()
-            draw(settings)
-            bucket.append(time.perf_counter() - t0)
+    t_on, t_off = interleaved(draw, on, off, frames, warmup=0)
     if renderer.depth.renders - redraws != frames:
         raise RuntimeError(f"the depth map was redrawn {renderer.depth.renders - redraws} times in {frames} projection-on frames")
     return t_on, t_off
@@ -106,10 +99,7 @@ def city(ctx, photo, target, w: int, h: int, frames: int, sample_off_ms: float, 
             ["tiles on the GPU / GPU memory held", f"{len(layer.resident)} / {layer.bytes_held / 2**20:.0f} MiB (cap {layer.cache_bytes / 2**20:.0f} MiB)"],
         ]))  # fmt: skip
         print()
-        print(table(["projection", "median ms", "p95 ms", "fps (median)"], [
-            ["off", f"{median_ms(t_off):.2f}", f"{p95_ms(t_off):.2f}", f"{1000 / median_ms(t_off):.1f}"],
-            ["on, depth redrawn every frame", f"{median_ms(t_on):.2f}", f"{p95_ms(t_on):.2f}", f"{1000 / median_ms(t_on):.1f}"],
-        ]))  # fmt: skip
+        print(on_off_table(t_on, t_off, "on, depth redrawn every frame"))
         print(f"\nratio on/off: **{median_ms(t_on) / median_ms(t_off):.3f}** (goal <= 1.35); city off / sample off: **{median_ms(t_off) / sample_off_ms:.2f}** (goal <= 1.5)")
         renderer.release()
 
@@ -148,9 +138,6 @@ def dem(ctx, photo, target, w: int, h: int, frames: int, sample_off_ms: float, s
             ["grid meshed / triangles / measured error", f"{terrain.grid_shape[0]} x {terrain.grid_shape[1]} / {terrain.mesh.triangle_count:,} / {terrain.error_m:.3f} m (bound 0.5 m)"],
         ]))  # fmt: skip
         print()
-        print(table(["projection", "median ms", "p95 ms", "fps (median)"], [
-            ["off", f"{median_ms(t_off):.2f}", f"{p95_ms(t_off):.2f}", f"{1000 / median_ms(t_off):.1f}"],
-            ["on, depth redrawn every frame", f"{median_ms(t_on):.2f}", f"{p95_ms(t_on):.2f}", f"{1000 / median_ms(t_on):.1f}"],
-        ]))  # fmt: skip
+        print(on_off_table(t_on, t_off, "on, depth redrawn every frame"))
         print(f"\nratio on/off: **{median_ms(t_on) / median_ms(t_off):.3f}**; terrain off / sample off: **{median_ms(t_off) / sample_off_ms:.2f}**")
         renderer.release()

@@ -26,7 +26,7 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from bench.common import machine, median_ms, p95_ms, table, time_calls  # noqa: E402
+from bench.common import interleaved, machine, median_ms, on_off_table, table, time_calls  # noqa: E402
 
 
 def _big_scene(path: Path, triangles: int) -> None:
@@ -86,26 +86,10 @@ def main(argv: list[str] | None = None) -> int:
         renderer.draw(view, target.fbo, settings)
         ctx.finish()
 
-    for _ in range(5):
-        draw(on)
-        draw(off)
-    t_on, t_off = [], []
-    for _ in range(args.frames):
-        for settings, bucket in ((on, t_on), (off, t_off)):
-            t0 = time.perf_counter()
-            draw(settings)
-            bucket.append(time.perf_counter() - t0)
+    t_on, t_off = interleaved(draw, on, off, args.frames, warmup=5)
     ratio = median_ms(t_on) / median_ms(t_off)
     print("## Frame time, projection on vs off (depth map cached: the pose does not change)\n")
-    print(
-        table(
-            ["projection", "median ms", "p95 ms", "fps (median)"],
-            [
-                ["off", f"{median_ms(t_off):.2f}", f"{p95_ms(t_off):.2f}", f"{1000 / median_ms(t_off):.1f}"],
-                ["on", f"{median_ms(t_on):.2f}", f"{p95_ms(t_on):.2f}", f"{1000 / median_ms(t_on):.1f}"],
-            ],
-        )
-    )
+    print(on_off_table(t_on, t_off))
     print(f"\nratio on/off (medians, same run): **{ratio:.3f}** (goal <= 1.35)\n")
 
     print("## Depth pass against depth-map size (redrawn every frame: the pose changes each frame)\n")
@@ -183,24 +167,14 @@ def dense_scene(ctx, renderer, mesh, photo, target, w: int, h: int, frames: int)
         ctx.finish()
 
     on, off = ProjectionSettings(), ProjectionSettings(enabled=False)
-    for _ in range(3):
-        draw(on)
-        draw(off)
-    t_on, t_off = [], []
+    interleaved(draw, on, off, 3, warmup=0)  # warm-up
     redraws = renderer.depth.renders
-    for _ in range(max(20, frames // 3)):
-        for settings, bucket in ((on, t_on), (off, t_off)):
-            t0 = time.perf_counter()
-            draw(settings)
-            bucket.append(time.perf_counter() - t0)
+    t_on, t_off = interleaved(draw, on, off, max(20, frames // 3), warmup=0)
     if renderer.depth.renders - redraws != len(t_on):  # the measurement means nothing otherwise
         raise RuntimeError(f"the depth map was redrawn {renderer.depth.renders - redraws} times in {len(t_on)} projection-on frames")
     print(f"\n## A dense scene drawn whole: {mesh.triangle_count} triangles, {100 * inside:.0f} % of its vertices inside the view\n")
     print("Projection on: depth map (2048 texels) redrawn every frame; off: no depth pass.\n")
-    print(table(["projection", "median ms", "p95 ms", "fps (median)"], [
-        ["off", f"{median_ms(t_off):.2f}", f"{p95_ms(t_off):.2f}", f"{1000 / median_ms(t_off):.1f}"],
-        ["on, depth redrawn", f"{median_ms(t_on):.2f}", f"{p95_ms(t_on):.2f}", f"{1000 / median_ms(t_on):.1f}"],
-    ]))  # fmt: skip
+    print(on_off_table(t_on, t_off, "on, depth redrawn"))
     print(f"\nratio on/off (medians, same run): **{median_ms(t_on) / median_ms(t_off):.3f}**")
 
 

@@ -38,3 +38,27 @@ def table(header: list[str], rows: list[list[object]]) -> str:
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     lines += ["| " + " | ".join(str(c) for c in r) + " |" for r in rows]
     return "\n".join(lines)
+
+
+def interleaved(draw: Callable[[object], None], on: object, off: object, frames: int, warmup: int = 3) -> tuple[list[float], list[float]]:
+    """(on, off) seconds per call of draw(on) and draw(off), alternated frame by frame so that
+    machine noise hits both alike."""
+    for _ in range(warmup):
+        draw(on)
+        draw(off)
+    t_on: list[float] = []
+    t_off: list[float] = []
+    for _ in range(frames):
+        for settings, bucket in ((on, t_on), (off, t_off)):
+            t0 = time.perf_counter()
+            draw(settings)
+            bucket.append(time.perf_counter() - t0)
+    return t_on, t_off
+
+
+def on_off_table(t_on: list[float], t_off: list[float], on_label: str = "on") -> str:
+    """The markdown table of projection off and on frame times (median, p95, fps)."""
+    return table(["projection", "median ms", "p95 ms", "fps (median)"], [
+        ["off", f"{median_ms(t_off):.2f}", f"{p95_ms(t_off):.2f}", f"{1000 / median_ms(t_off):.1f}"],
+        [on_label, f"{median_ms(t_on):.2f}", f"{p95_ms(t_on):.2f}", f"{1000 / median_ms(t_on):.1f}"],
+    ])  # fmt: skip

@@ -107,7 +107,7 @@ def test_geographic_dem_without_a_vertical_datum_is_taken_as_egm2008_and_said(tm
     [
         (lambda d: d / "missing.tif", "does not exist"),
         (lambda d: (d / "junk.tif").write_bytes(b"II*\x00garbage") and d / "junk.tif", "cannot read"),
-        (lambda d: utm_dem(d / "far.tif", crs="EPSG:32633"), "does not cover"),  # the same numbers one zone east: 400 km off
+        (lambda d: utm_dem(d / "far.tif", crs="EPSG:32633"), "lies 45"),  # the same numbers one zone east: ~455 km west of the track
     ],
 )
 def test_a_bad_dem_names_the_file(tmp_path, make, message):
@@ -128,7 +128,13 @@ def test_projected_pixel_lands_on_the_terrain_height_with_the_orthophoto(gl_ctx,
     from app.render.offscreen import render_to_array
     from app.render.probe import SurfaceProbe
     from app.render.renderer import FusionRenderer
-    from tests.test_render_projection import BLOCK, VIDEO_H, VIDEO_W, checkerboard, hit_plane
+    from tests.test_render_projection import (
+        BLOCK,
+        VIDEO_H,
+        VIDEO_W,
+        checkerboard,
+        hit_plane,
+    )
 
     step = 1.0 / 3600
     size = 200
@@ -173,3 +179,23 @@ def test_projected_pixel_lands_on_the_terrain_height_with_the_orthophoto(gl_ctx,
         assert (seen_px[east, 2] > seen_px[east, 0] + 60).mean() > 0.99
     finally:
         r.release()
+
+
+def test_drone_heights_above_take_off_start_from_the_terrain_under_the_first_fix(tmp_path):
+    """A clip's subtitle gives heights above take-off: with a DEM layer, the take-off height is
+    the terrain's (250 m above EGM2008 here) under the first fix, and every height is shifted by it."""
+    from app.clips import _frame_and_ground
+    from app.io.streams import GnssTrack, Warnings
+    from app.scene.layers import Layer
+
+    step = 1.0 / 3600
+    dem = write_geotiff(tmp_path / "dem.tif", np.full((300, 300), 250.0), "EPSG:4326+3855", LON0 - 150 * step, LAT0 + 150 * step, step, step)
+    lat = LAT0 + np.array([0.0, 0.0002, 0.0004])
+    lon = np.full(3, LON0)
+    relative = np.array([0.0, 30.0, 60.0])
+    gnss = GnssTrack(np.arange(3.0), lat, lon, relative.copy())
+    warnings = Warnings()
+    frame, mesh, placed = _frame_and_ground(gnss, 0.0, 500.0, (Layer.of(dem),), warnings, above_takeoff=True)
+    takeoff = 250.0 + float(geoid.undulation(LAT0, LON0))
+    np.testing.assert_allclose(placed.h, relative + takeoff, atol=0.05)
+    assert any("take-off height" in w and "terrain" in w for w in warnings.items)

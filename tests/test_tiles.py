@@ -20,7 +20,16 @@ from app.scene.mesh import MeshData
 from app.scene.tiles.stream import TileStream, TileView
 from app.scene.tiles.tileset import Tileset, TilesetError
 from app.simulate import tileset as tw
-from tests.test_render_projection import BLOCK, VIDEO_H, VIDEO_W, WALL_Y, checkerboard, hit_plane, projector, view_camera
+from tests.test_render_projection import (
+    BLOCK,
+    VIDEO_H,
+    VIDEO_W,
+    WALL_Y,
+    checkerboard,
+    hit_plane,
+    projector,
+    view_camera,
+)
 
 FRAME = LocalFrame(47.0, 8.0, 400.0)
 WALL = shapes.quad([-20, WALL_Y, 0], [40, 0, 0], [0, 0, 20])  # the facade, ENU m
@@ -137,9 +146,9 @@ def open_tileset(location: str) -> Tileset:
 
 
 def assert_video_lands_on_wall(ctx, tileset: Tileset) -> None:
+    from app.config import ProjectionSettings
     from app.render.offscreen import render_to_array
     from app.render.renderer import FusionRenderer
-    from app.config import ProjectionSettings
 
     r = FusionRenderer(ctx, MeshData(tilesets=[tileset]))
     try:

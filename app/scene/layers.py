@@ -50,7 +50,7 @@ class Layer:
     max_error_m: float = DEFAULT_MAX_ERROR_M
 
     @classmethod
-    def of(cls, location: str | Path, **options) -> "Layer":
+    def of(cls, location: str | Path, **options) -> Layer:
         return cls(str(location), layer_kind(location), **options)
 
     @property

@@ -55,7 +55,7 @@ class MeshData:
     primitives: list[Primitive] = field(default_factory=list)
     tilesets: list = field(default_factory=list)
 
-    def merged(self, other: "MeshData") -> "MeshData":
+    def merged(self, other: MeshData) -> MeshData:
         """Both scenes' layers in one."""
         return MeshData(self.primitives + other.primitives, self.tilesets + other.tilesets)
 

@@ -18,7 +18,7 @@ class Shape:
     uvs: np.ndarray
 
     @staticmethod
-    def concat(shapes: list["Shape"]) -> "Shape":
+    def concat(shapes: list[Shape]) -> Shape:
         offsets = np.cumsum([0] + [len(s.vertices) for s in shapes[:-1]])
         return Shape(
             np.concatenate([s.vertices for s in shapes]),

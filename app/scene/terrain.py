@@ -261,6 +261,22 @@ def _window_around(src, track_ll: np.ndarray | None, margin_m: float):
     return win if win.width >= 2 and win.height >= 2 else None
 
 
+def _distance_to_raster(src, frame: LocalFrame, track_ll: np.ndarray) -> float:
+    """Horizontal distance (m) from the track's nearest fix to the raster's extent (ENU box)."""
+    import pyproj
+
+    b = src.bounds
+    t = np.linspace(0.0, 1.0, 21)
+    xs = np.concatenate([b.left + (b.right - b.left) * t, np.full(21, b.right), b.left + (b.right - b.left) * t, np.full(21, b.left)])
+    ys = np.concatenate([np.full(21, b.bottom), b.bottom + (b.top - b.bottom) * t, np.full(21, b.top), b.bottom + (b.top - b.bottom) * t])
+    lon, lat = pyproj.Transformer.from_crs(_horizontal(src.crs), "EPSG:4326", always_xy=True).transform(xs, ys)
+    edge = frame.geodetic_to_enu(np.asarray(lat), np.asarray(lon), np.zeros(len(xs)))[:, :2]
+    pts = frame.geodetic_to_enu(track_ll[:, 0], track_ll[:, 1], np.zeros(len(track_ll)))[:, :2]
+    lo, hi = edge.min(axis=0), edge.max(axis=0)
+    gap = np.maximum(np.maximum(lo - pts, pts - hi), 0.0)
+    return float(np.hypot(gap[:, 0], gap[:, 1]).min())
+
+
 def _grid_size(rows: int, cols: int) -> int:
     n = max(rows, cols, 3)
     k = int(np.ceil(np.log2(n - 1)))
@@ -302,7 +318,8 @@ def read_terrain(
         track = None if track_ll is None else np.atleast_2d(np.asarray(track_ll, np.float64))
         win = _window_around(src, track, margin_m)
         if win is None:
-            raise SceneError(path, f"the DEM does not cover the clip's track (nor {margin_m / 1000:.1f} km around it)")
+            far = _distance_to_raster(src, frame, track)
+            raise SceneError(path, f"the DEM does not cover the clip's track (nor {margin_m / 1000:.1f} km around it): it lies {far / 1000:.1f} km from the track")
         size = _grid_size(int(win.height), int(win.width))
         try:
             band = src.read(1, window=win, out_shape=(size, size), resampling=Resampling.bilinear, masked=True)

@@ -321,4 +321,4 @@ def write_city(folder: Path, origin: tuple[float, float, float], size_m: float =
     return CityStats(path, counts["tiles"], counts["triangles"], counts["leaf"], levels)
 
 
-__all__ = ["b3dm", "cmpt", "glb", "subtree", "write_city", "geodetic_to_ecef"]
+__all__ = ["b3dm", "cmpt", "geodetic_to_ecef", "glb", "subtree", "write_city"]

@@ -342,3 +342,21 @@ def dem_not_a_geotiff(d: Path) -> None:
 def tileset_and_photo(d: Path) -> None:
     tileset_scene(d)
     photo_copy(d)
+
+
+def dem_under_gopro_clip(d: Path, shared: Path) -> None:
+    """A DEM (flat, 1 arc-second, 0.04 deg square) around the first GPS fix of a real GoPro clip."""
+    from app.attitude.gopro import read_gopro
+    from app.io.streams import Warnings
+    from app.simulate.terrain import write_geotiff
+
+    rec = read_gopro(shared / "real/gopro/max-heromode.mp4", Warnings())
+    lat, lon = float(rec.gnss.lat[0]), float(rec.gnss.lon[0])
+    step = 1.0 / 3600
+    write_geotiff(d / "dem.tif", np.full((144, 144), float(rec.gnss.h[0]) - 60.0), "EPSG:4326", lon - 72 * step, lat + 72 * step, step, step)
+
+
+def dem_vertical_unknown(d: Path) -> None:
+    _dem(d, PHONE_ORIGIN[0], PHONE_ORIGIN[1])
+    text = (d / "session/session.toml").read_text()
+    (d / "session/session.toml").write_text(text + '\n[dem]\npath = "dem.tif"\nvertical = "navd88"\n')

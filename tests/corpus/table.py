@@ -68,6 +68,8 @@ CASES = (
     Case("DEM with nodata holes", "dem_with_holes", SOLVE, "ok", "nodata"),
     Case("DEM 55 km away", "dem_far_away", SOLVE, "error", "dem.tif"),
     Case("DEM not a GeoTIFF", "dem_not_a_geotiff", SOLVE, "error", "dem.tif"),
+    Case("DEM vertical datum unknown", "dem_vertical_unknown", SOLVE, "error", "dem.vertical"),
+    Case("--scene with a manifest", "nothing", (*SOLVE[:2], "--scene", "{d}/session/scene.obj", *SOLVE[2:]), "error", "--scene/--dem goes with a clip"),
     # video
     Case("video not a video", "video_not_a_video", SOLVE, "error", "clip.mp4"),
     Case("video cut short, index first", "video_cut_short_index_first", SOLVE, "ok", "cut short"),
@@ -100,6 +102,7 @@ CASES = (
     Case("gpx latitude 95", "gpx_latitude_95", ("telemetry", "{d}/track.gpx"), "error", "track.gpx", True),
     # GoPro
     Case("gopro unknown ORIN letter", "gopro_unknown_orin", ("telemetry", "{d}/gopro.mp4"), "error", "ORIN", True),
+    Case("gopro clip on a DEM", "dem_under_gopro_clip", ("solve", "{shared}/real/gopro/max-heromode.mp4", "--dem", "{d}/dem.tif", "--out", "{d}/poses.csv"), "ok", "terrain of", True),
     Case("gopro all-zero CORI", "gopro_zero_cori", ("solve", "{d}/gopro.mp4", "--out", "{d}/poses.csv"), "ok", "CORI", True),
     Case("gopro all-zero ACCL", "gopro_zero_accl", ("telemetry", "{d}/gopro.mp4"), "error", "gopro.mp4", True),
     Case("raw GPMF payload", "gopro_raw_payload", ("telemetry", "{d}/hero6.gpmd"), "ok", "", True),

@@ -19,8 +19,8 @@ import io
 import json
 import struct
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 
@@ -49,7 +49,7 @@ class Skipped:
     def add(self, kind: str, n: int = 1) -> None:
         self.counts[kind] += n
 
-    def merge(self, other: "Skipped") -> None:
+    def merge(self, other: Skipped) -> None:
         self.counts.update(other.counts)
 
 

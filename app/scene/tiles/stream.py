@@ -17,8 +17,8 @@ few), and it is drawn as empty so that refinement goes on around it.
 from __future__ import annotations
 
 import threading
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 
@@ -46,7 +46,7 @@ class TileView:
     focal_px: float
 
     @classmethod
-    def of(cls, camera: object, focal_px: float | None = None) -> "TileView":
+    def of(cls, camera: object, focal_px: float | None = None) -> TileView:
         """From an app.camera.Camera; focal_px defaults to its intrinsics' fy."""
         m = np.asarray(camera.view_projection, np.float64)  # row-major, clip = m @ [x, y, z, 1]
         planes = np.stack([m[3] + m[0], m[3] - m[0], m[3] + m[1], m[3] - m[1], m[3] + m[2], m[3] - m[2]])

@@ -23,7 +23,13 @@ import numpy as np
 
 from app.geo import LocalFrame, geodetic_to_ecef
 from app.scene.tiles import fetch
-from app.scene.tiles.implicit import Subtree, expand_template, level_offset, morton, read_subtree
+from app.scene.tiles.implicit import (
+    Subtree,
+    expand_template,
+    level_offset,
+    morton,
+    read_subtree,
+)
 
 REFINES = ("ADD", "REPLACE")
 
@@ -68,7 +74,7 @@ class Tile:
     refine: str
     contents: tuple[str, ...]  # absolute locations
     source: str  # the tileset JSON that holds the tile
-    children: list["Tile"] | None = field(default_factory=list)
+    children: list[Tile] | None = field(default_factory=list)
     external: str | None = None  # the external tileset JSON its content names (read by expand())
     implicit: Implicit | None = None
 

@@ -121,13 +121,15 @@ def volume_points(volume: dict, transform: np.ndarray, source: str, where: str) 
 
 class Tileset:
     """The tile tree of one tileset in `frame`. Thread safety: `expand()` runs on worker threads
-    and only assigns a tile's `children` at its end; readers treat None as "not yet"."""
+    (of one or several streams: the viewer and an off-screen probe may share a tileset), expands a
+    tile once, and assigns its `children` at its end; readers treat None as "not yet"."""
 
     def __init__(self, location: str, frame: LocalFrame) -> None:
         self.location = location
         self.frame = frame
         self._ids = itertools.count()
         self._lock = threading.Lock()
+        self._expanding = [threading.Lock() for _ in range(16)]  # striped by tile id
         self.tile_count = 0
         doc = self._read_json(location)
         self.version = str(doc.get("asset", {}).get("version", "?"))
@@ -293,17 +295,18 @@ class Tileset:
     def expand(self, tile: Tile) -> None:
         """Read what a tile's children need (an external tileset, a subtree) and set them. Runs
         on a worker; raises FetchError, TilesetError or SubtreeError naming the file."""
-        if tile.children is not None:
-            return
-        if tile.implicit is not None:
-            kids = self._expand_implicit(tile)
-        else:
-            location = tile.external
-            doc = self._read_json(location)
-            if "root" not in doc:
-                raise TilesetError(location, "no root tile", "root")
-            kids = [self._tile(doc["root"], tile.transform, tile, location, tile.depth + 1, "root")]
-        tile.children = kids
+        with self._expanding[tile.id % len(self._expanding)]:  # several streams may share a tileset
+            if tile.children is not None:
+                return
+            if tile.implicit is not None:
+                kids = self._expand_implicit(tile)
+            else:
+                location = tile.external
+                doc = self._read_json(location)
+                if "root" not in doc:
+                    raise TilesetError(location, "no root tile", "root")
+                kids = [self._tile(doc["root"], tile.transform, tile, location, tile.depth + 1, "root")]
+            tile.children = kids
 
     def bounds(self) -> np.ndarray:
         """(2, 3) ENU box of the root's bounding volume, m."""

@@ -265,3 +265,31 @@ def test_a_tileset_session_in_the_window_matches_the_model_it_was_made_from(disp
     assert (np.abs(on - tiles_off).max(axis=2) > 40).sum() > 500  # the video is on the stadium
     stadium = np.abs(glb_off - tiles_off).max(axis=2) <= 3  # the city only adds to the model
     assert np.mean(stadium) > 0.8
+
+
+def test_a_dem_dropped_on_an_open_clip_becomes_its_terrain(display, tmp_path, shared_data):
+    """Opening a .tif while a clip is open adds it to the clip's scene (the clip reopens on it);
+    with a manifest open it is refused with a message, and the viewer goes on."""
+    from tests.corpus.generate import dem_under_gopro_clip
+
+    dem_under_gopro_clip(tmp_path, shared_data)
+    clip = shared_data / "real/gopro/max-heromode.mp4"
+    script = tmp_path / "script.txt"
+    script.write_text(
+        f"""0.0 clock 0.0333333
+0.2 open {tmp_path / "dem.tif"}
+0.4 state {tmp_path / "with_dem.json"}
+0.5 open {ROOT / "assets/sample/session.toml"}
+0.7 open {tmp_path / "dem.tif"}
+0.9 state {tmp_path / "manifest.json"}
+1.0 quit
+"""
+    )
+    result = run_viewer(display, str(clip), "--script", str(script), "--size", "640x360")
+    assert result.returncode == 0, result.stderr[-3000:]
+    with_dem = json.loads((tmp_path / "with_dem.json").read_text())
+    assert with_dem["errors"] == [] and any("terrain of" in n for n in with_dem["notices"])
+    assert with_dem["manifest"].endswith("max-heromode.mp4")
+    refused = json.loads((tmp_path / "manifest.json").read_text())
+    assert any("a manifest names its scene" in e for e in refused["errors"])
+    assert refused["manifest"].endswith("session.toml")

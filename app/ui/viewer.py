@@ -107,6 +107,16 @@ def home_view(session, mesh) -> Navigator:
     return Navigator(position=np.array([centre[0] + 35.0, lo[1] - 20.0, 40.0]), yaw=-15.0, pitch=-15.0)
 
 
+def _is_layer(path: Path) -> bool:
+    """A tileset, a DEM or a model: added to the open clip's scene rather than opened."""
+    from app.scene.layers import layer_kind
+
+    try:
+        return layer_kind(path) in ("tileset", "dem") or (layer_kind(path) == "mesh" and path.suffix.lower() != ".toml")
+    except GeofuseError:
+        return False
+
+
 def config_dir() -> Path:
     """Where the viewer remembers its panel layout: $XDG_CONFIG_HOME/geofuse (~/.config/geofuse)."""
     base = os.environ.get("XDG_CONFIG_HOME") or str(Path.home() / ".config")
@@ -171,6 +181,20 @@ class Viewer:
         self.options.manifest = s.path
         if not self.open(s.path):
             self.options.lens = previous
+
+    def add_layer(self, location: str) -> None:
+        """Reopen the clip with one more scene layer (a tileset, a DEM, a model in ECEF), as a
+        dropped or opened tileset.json or .tif does."""
+        from app.scene.layers import Layer
+
+        s = self.loaded.session if self.loaded is not None else None
+        if s is None or s.path.suffix.lower() == ".toml":
+            raise ValueError(f"{location}: a manifest names its scene ([scene], [[layers]], [dem]); edit it and reopen, or open a clip first")
+        previous = self.options.layers
+        self.options.layers = (*previous, Layer.of(location))
+        self.options.manifest = s.path
+        if not self.open(s.path):
+            self.options.layers = previous
 
     def start_sync(self) -> None:
         """Find the video <-> gyroscope offset in the background (app.ui.exporter.SyncJob); it
@@ -254,6 +278,13 @@ class Viewer:
         from app.render.renderer import FusionRenderer
 
         path = Path(manifest) if manifest is not None else SAMPLE_DIR / "session.toml"
+        if manifest is not None and _is_layer(path):
+            try:
+                self.add_layer(str(path))
+            except (ValueError, GeofuseError) as exc:
+                self.ui.error(str(exc))
+                return False
+            return True
         try:
             own = path == self.options.manifest
             session = open_any(path, self.options.srt if own else None, lens=self.options.lens if own else None, layers=self.options.layers if own else ())

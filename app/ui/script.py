@@ -21,6 +21,9 @@ which a run does the same thing on a fast machine and on a loaded one.
     3.58 offset 0.08        # the session's time offset, seconds
     3.59 pitch -45          # a drone clip without gimbal attitude: the assumed camera pitch
     3.6  view phone         # free | orbit | phone | reset
+    3.65 look -150,-170,70 0,0,10   # the window camera at an eye looking at a target (ENU m)
+    3.66 detail 32          # 3D Tiles: refine above this screen-space error (px; default 16)
+    3.67 wait tiles         # hold the clock until the tiles this view and the projector need are loaded
     3.7  open path/to/other.toml
     3.8  panels off         # hide the panels (a scene-only screenshot)
     3.9  lines off          # hide the frustum and trajectory lines

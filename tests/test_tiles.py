@@ -344,3 +344,17 @@ def test_gpu_cache_stays_under_its_cap_evicting_least_recently_used(gl_ctx, tmp_
         assert not set(map(id, west)) & set(map(id, drawn))  # the west tiles were evicted and loaded again
     finally:
         scene.release()
+
+
+def test_ground_heights_under_a_track_come_from_a_tileset_as_from_its_model(tmp_path):
+    """height = "ground" on the sample stadium as 3D Tiles gives the camera the same heights as
+    on the GLB it was made from (the tiles under the track are read on the CPU)."""
+    from app.demo import SAMPLE_DIR
+    from app.session import open_session
+    from tools.gis_sessions import tiles
+
+    tiled = open_session(tiles(tmp_path))
+    model = open_session(SAMPLE_DIR / "session.toml")
+    t = np.linspace(model.gnss.t[0], model.gnss.t[-1], 50)
+    np.testing.assert_allclose(tiled.positions().geodetic_at(t), model.positions().geodetic_at(t), atol=1e-6)
+    assert not any("off the model" in w for w in tiled.warnings.items)

@@ -59,7 +59,7 @@ def tiles(out: Path) -> Path:
     manifest = d / "session.toml"
     manifest.write_text(
         f"[origin]\nlat = {SAMPLE_ORIGIN[0]}\nlon = {SAMPLE_ORIGIN[1]}\nh = {SAMPLE_ORIGIN[2]}\n\n"
-        '[scene]\npath = "stadium/tileset.json"\n\n[[layers]]\npath = "city/tileset.json"\n\n' + rest.replace('height = "ground"', 'height = "gnss"')
+        '[scene]\npath = "stadium/tileset.json"\n\n[[layers]]\npath = "city/tileset.json"\n\n' + rest
     )
     return manifest
 

@@ -14,15 +14,48 @@ from app.scene.mesh import MeshData
 CHUNK = 200_000  # triangles per vectorised batch
 
 
+def tileset_surface(tileset, xy: np.ndarray) -> list:
+    """The primitives (ENU) of every tile at full detail whose box lies over any of the points
+    (N, 2) ENU m: read and decoded here, on the CPU, once (a tileset's ground under a track).
+    Tiles that cannot be read are left out."""
+    from app.scene.tiles.gltf import Skipped
+    from app.scene.tiles.stream import LOAD_ERRORS, decode_tile
+
+    found, stack, skipped = [], [tileset.root], Skipped()
+    while stack:
+        tile = stack.pop()
+        lo, hi = tile.box[0, :2] - 1.0, tile.box[1, :2] + 1.0
+        if not np.any(np.all((xy >= lo) & (xy <= hi), axis=1)):
+            continue
+        try:
+            tileset.expand(tile)
+        except LOAD_ERRORS:
+            tile.children = tile.children or []
+        if tile.contents and (not tile.children or tile.refine == "ADD"):
+            found.append(tile)
+        stack.extend(tile.children or [])
+    prims = []
+    for tile in found:
+        try:
+            prims += decode_tile(tileset, tile, skipped).primitives
+        except LOAD_ERRORS:
+            continue
+    return prims
+
+
 def ground_heights(mesh: MeshData, xy: npt.ArrayLike) -> np.ndarray:
     """(N,) lowest surface height (ENU z, m) under each (x, y); NaN where no triangle lies below.
+    Streamed tilesets count with their full-detail tiles under the points.
 
     The lowest surface is taken so that a position that strays into a building's footprint (GNSS
     error) lands on the street level under it rather than on its roof.
     """
     pts = np.atleast_2d(np.asarray(xy, np.float64))[:, :2]
     best = np.full(len(pts), np.inf)
-    for prim in mesh.primitives:
+    prims = list(mesh.primitives)
+    for tileset in mesh.tilesets:
+        prims += tileset_surface(tileset, pts)
+    for prim in prims:
         tri = prim.positions[prim.indices].astype(np.float64)  # (M, 3, 3)
         for start in range(0, len(tri), CHUNK):
             t = tri[start : start + CHUNK]

@@ -502,7 +502,7 @@ def build_parser() -> argparse.ArgumentParser:
     ex.add_argument("--pitch", type=_number(-90.0, 90.0), default=DRONE_DEFAULT_PITCH_DEG, help="a drone clip without gimbal attitude: the camera's pitch, degrees")
     ex.set_defaults(func=cmd_export)
 
-    sy = sub.add_parser("sync", help="the time offset between the video and the gyroscope, from the camera's rotation seen in the video")
+    sy = sub.add_parser("sync", help="the time offset between the video and the gyroscope (or a recorded attitude: a DJI gimbal, a camera, a phone), from the camera's rotation seen in the video")
     sy.add_argument("input", type=Path, help="a session manifest or a GoPro MP4")
     sy.add_argument("--write", action="store_true", help="keep it in NAME.geofuse.toml beside the input (never in an input)")
     sy.add_argument("--lens", type=Path, default=None, help="a gyroflow lens profile (JSON) for a clip")

@@ -199,12 +199,55 @@ def _drift(v: RateCurve, gyro: RateCurve, offset: float, edges: np.ndarray, t: n
     return float(slope * 1e6), pivot
 
 
+ATTITUDE_SMOOTH_S = 0.15  # moving average of rates differentiated from recorded attitudes
+RECORDED_FOR_RATES = ("telemetry", "camera", "phone")  # recorded attitudes, best first, when no gyroscope
+
+
+def attitude_rates(t: np.ndarray, q: np.ndarray) -> RateCurve:
+    """Body rates (rad/s, the device frame) between successive attitudes q (N, 4) device -> world
+    at times t (N,) s, at the midpoints: the rotation vector of q_i* q_(i+1) over the interval.
+    (`omega` is then in the device frame; gyro_rates turns it into the camera frame.)"""
+    t = np.asarray(t, np.float64)
+    dt = np.diff(t)
+    keep = dt > 1e-6
+    step = rotations.multiply(rotations.conjugate(q[:-1]), q[1:])[keep]
+    rates = rotations.to_scipy(step).as_rotvec() / dt[keep, None]
+    mid = (t[:-1] + t[1:])[keep] / 2.0
+    # attitudes carry sample-to-sample noise that differentiation amplifies: a centred moving
+    # average over ATTITUDE_SMOOTH_S (symmetric, so it moves no time) keeps the turns
+    n = max(1, int(round(ATTITUDE_SMOOTH_S / max(float(np.median(dt[keep])), 1e-6))) | 1)
+    if n > 1 and len(rates) > n:
+        from scipy.ndimage import uniform_filter1d
+
+        rates = uniform_filter1d(rates, n, axis=0, mode="nearest")
+    return RateCurve(mid, rates)
+
+
+def rate_source(session) -> str | None:
+    """What times the video: 'gyroscope', a recorded attitude's name, or None (nothing turns)."""
+    if session.gyr is not None:
+        return "gyroscope"
+    return next((n for n in RECORDED_FOR_RATES if n in session.recorded), None)
+
+
 def gyro_rates(session) -> RateCurve:
-    """The session's gyroscope rates in the camera frame of the displayed video."""
-    if session.gyr is None:
-        raise GeofuseError(f"{session.path}: no gyroscope: the offset cannot be found from rotation (a DJI subtitle has none; set video.time_offset_s by hand)")
+    """The session's rotation rates in the camera frame of the displayed video: its gyroscope's,
+    or, without one, those of a recorded attitude (a DJI gimbal's, a camera's or a phone's own),
+    differentiated; raises when it has neither."""
     mount = rotations.conjugate(session.camera_mount())
-    return RateCurve(session.gyr.t, rotations.rotate(np.tile(mount, (len(session.gyr.t), 1)), session.gyr.values))
+    name = rate_source(session)
+    if name == "gyroscope":
+        t, body = session.gyr.t, session.gyr.values
+    else:
+        if name is None:
+            raise GeofuseError(
+                f"{session.path}: no gyroscope and no recorded attitude: the offset cannot be found from rotation "
+                "(a GNSS course is too slow to time a video by; set video.time_offset_s by hand)"
+            )
+        stream = session.recorded[name]
+        curve = attitude_rates(stream.t, stream.q)
+        t, body = curve.t, curve.omega
+    return RateCurve(t, rotations.rotate(np.tile(mount, (len(t), 1)), body))
 
 
 def bearings_of(session) -> Callable[[np.ndarray], np.ndarray]:
@@ -271,7 +314,8 @@ def settings_text(result: SyncResult, total_offset_s: float) -> str:
 
 
 def sync_session(session, progress: Callable[[float], None] | None = None) -> SyncResult:
-    """The offset to add to the session's video times so that they agree with its gyroscope."""
+    """The offset to add to the session's video times so that they agree with its gyroscope (or,
+    without one, with a recorded attitude's rates)."""
     gyro = gyro_rates(session)
     rates = video_rates(session.video, bearings_of(session), session.rotation_cw, progress)
     clip_start = float(session.frame_times[0] - session.video.pts_s[0])

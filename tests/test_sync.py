@@ -75,3 +75,17 @@ def test_a_clock_drift_is_fitted_on_a_long_clip(sample_rates):
     fast = RateCurve(rates.t * (1 - 300e-6), rates.omega)  # video times read too short: its clock runs fast
     drifted = estimate_offset(fast, gyro, clip_start)
     assert drifted.drift_ppm == pytest.approx(300, abs=100)  # the estimator's error on this walk: ~70 ppm (5 ms over 80 s)
+
+
+def test_without_a_gyroscope_the_recorded_attitude_times_the_video(sample_rates):
+    """The sample with its gyroscope taken away: the phone's own attitude stream, differentiated,
+    finds the same offset (the sample's 80 ms) within 10 ms."""
+    from dataclasses import replace
+
+    s, rates, _ = sample_rates
+    no_gyro = replace(s, gyr=None)
+    truth = float(np.mean(s.truth_frame_times - s.frame_times))
+    result = estimate_offset(rates, gyro_rates(no_gyro), float(s.frame_times[0] - s.video.pts_s[0]))
+    assert result.offset_s == pytest.approx(truth, abs=0.010)
+    with pytest.raises(Exception, match="no gyroscope and no recorded attitude"):
+        gyro_rates(replace(s, gyr=None, recorded={}))

@@ -361,6 +361,8 @@ def _attitude(v) -> None:
 def _projection(v) -> None:
     from imgui_bundle import imgui
 
+    from app.sync import rate_source
+
     ui = v.ui
     if _window("Projection"):
         s = ui.settings
@@ -399,7 +401,7 @@ def _projection(v) -> None:
                 _run(v, "offset", str(ui.time_offset_s))
             imgui.same_line()
             job = ui.sync_job
-            if v.loaded.session.gyr is not None and (job is None or job.done) and imgui.button("Sync"):
+            if rate_source(v.loaded.session) is not None and (job is None or job.done) and imgui.button("Sync"):
                 _run(v, "sync", None)
             _sync_curves(ui.sync_job)
     imgui.end()

@@ -204,8 +204,10 @@ class Viewer:
         job = self.ui.sync_job
         if job is not None and not job.done:
             raise ValueError("a sync is running")
-        if self.loaded.session.gyr is None:
-            raise ValueError("this session has no gyroscope: the offset cannot be found from rotation")
+        from app.sync import rate_source
+
+        if rate_source(self.loaded.session) is None:
+            raise ValueError("this session has no gyroscope and no recorded attitude: the offset cannot be found from rotation")
         self.ui.sync_job, self.ui.sync_applied = SyncJob(self.loaded.session), False
 
     def set_tile_detail(self, max_sse_px: float) -> None:

@@ -204,6 +204,14 @@ def test_sync_from_the_viewer_applies_the_offset(display, tmp_path):
     assert s["time_offset_s"] == pytest.approx(s["sync"]["offset_s"]) == pytest.approx(-0.08, abs=0.01)
 
 
+def run_script(display, folder, target: str, text: str) -> None:
+    """Run the viewer on `target` with a script (640x360) and check it exited cleanly."""
+    script = folder / "script.txt"
+    script.write_text(text)
+    result = run_viewer(display, target, "--script", str(script), "--size", "640x360")
+    assert result.returncode == 0, result.stderr[-3000:]
+
+
 def test_a_tileset_session_in_the_window_matches_the_model_it_was_made_from(display, tmp_path, gl_ctx):
     """The sample's stadium as 3D Tiles (plus a generated city as a second layer) in the window:
     once its tiles are loaded, the screenshot shows what an off-screen render of the same state
@@ -219,9 +227,7 @@ def test_a_tileset_session_in_the_window_matches_the_model_it_was_made_from(disp
     from tools.gis_sessions import tiles
 
     manifest = tiles(tmp_path)
-    script = tmp_path / "script.txt"
-    script.write_text(
-        f"""0.0 clock 0.0333333
+    run_script(display, tmp_path, str(manifest), f"""0.0 clock 0.0333333
 0.0 wait solved
 0.0 seek 20
 0.0 pause
@@ -233,10 +239,7 @@ def test_a_tileset_session_in_the_window_matches_the_model_it_was_made_from(disp
 0.5 screenshot {tmp_path / "tiles.png"}
 0.5 state {tmp_path / "tiles.json"}
 0.6 quit
-"""
-    )
-    result = run_viewer(display, str(manifest), "--script", str(script), "--size", "640x360")
-    assert result.returncode == 0, result.stderr[-3000:]
+""")
     state = json.loads((tmp_path / "tiles.json").read_text())
     assert state["errors"] == []
     shot = np.asarray(Image.open(tmp_path / "tiles.png").convert("RGB"), int)
@@ -274,19 +277,14 @@ def test_a_dem_dropped_on_an_open_clip_becomes_its_terrain(display, tmp_path, sh
 
     dem_under_gopro_clip(tmp_path, shared_data)
     clip = shared_data / "real/gopro/max-heromode.mp4"
-    script = tmp_path / "script.txt"
-    script.write_text(
-        f"""0.0 clock 0.0333333
+    run_script(display, tmp_path, str(clip), f"""0.0 clock 0.0333333
 0.2 open {tmp_path / "dem.tif"}
 0.4 state {tmp_path / "with_dem.json"}
 0.5 open {ROOT / "assets/sample/session.toml"}
 0.7 open {tmp_path / "dem.tif"}
 0.9 state {tmp_path / "manifest.json"}
 1.0 quit
-"""
-    )
-    result = run_viewer(display, str(clip), "--script", str(script), "--size", "640x360")
-    assert result.returncode == 0, result.stderr[-3000:]
+""")
     with_dem = json.loads((tmp_path / "with_dem.json").read_text())
     assert with_dem["errors"] == [] and any("terrain of" in n for n in with_dem["notices"])
     assert with_dem["manifest"].endswith("max-heromode.mp4")

@@ -232,6 +232,11 @@ class Viewer:
         for e in errors[self.ui.tile_errors_said :]:
             self.ui.notices.append(f"3D Tiles: {e}")
         self.ui.tile_errors_said = len(errors)
+        for layer in self.loaded.renderer.scene.tilesets:
+            for kind in list(layer.stream.skipped.counts):
+                note = f"3D Tiles: skipped {kind} (the Stats panel counts them)"
+                if note not in self.ui.notices:
+                    self.ui.notices.append(note)
 
     def wait_until_synced(self) -> None:
         job = self.ui.sync_job

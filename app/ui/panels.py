@@ -482,7 +482,7 @@ def _stats(v) -> None:
         imgui.text(f"triangles drawn {r.scene_pass.triangles:,}   in the depth map {r.depth.triangles:,}")
         for layer in r.scene.tilesets:
             s = layer.stream
-            skipped = ", ".join(f"{n} {k}" for k, n in s.skipped.counts.items())
+            skipped = ", ".join(f"{n} {k}" for k, n in s.skipped.snapshot().items())
             imgui.text_wrapped(
                 f"{Path(layer.tileset.location.rstrip('/')).name}: {len(layer.resident)} tiles on the GPU ({layer.bytes_held / 2**20:.0f} MB of {layer.cache_bytes / 2**20:.0f}), "
                 f"{s.pending} loading, {s.failures} failed" + (f"; skipped {skipped}" if skipped else "")

@@ -233,7 +233,7 @@ class Viewer:
             self.ui.notices.append(f"3D Tiles: {e}")
         self.ui.tile_errors_said = len(errors)
         for layer in self.loaded.renderer.scene.tilesets:
-            for kind in list(layer.stream.skipped.counts):
+            for kind in layer.stream.skipped.snapshot():
                 note = f"3D Tiles: skipped {kind} (the Stats panel counts them)"
                 if note not in self.ui.notices:
                     self.ui.notices.append(note)

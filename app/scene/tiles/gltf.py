@@ -18,6 +18,7 @@ import base64
 import io
 import json
 import struct
+import threading
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -42,15 +43,19 @@ class GltfError(ValueError):
 
 @dataclass
 class Skipped:
-    """What a reader left out, by kind (e.g. 'point primitives', 'KTX2 textures'), as counts."""
+    """What readers left out, by kind (e.g. 'point primitives', 'KTX2 textures'), as counts.
+    Worker threads add to it while the render thread reads `snapshot()`."""
 
     counts: Counter = field(default_factory=Counter)
+    _lock: threading.Lock = field(default_factory=threading.Lock, repr=False, compare=False)
 
     def add(self, kind: str, n: int = 1) -> None:
-        self.counts[kind] += n
+        with self._lock:
+            self.counts[kind] += n
 
-    def merge(self, other: Skipped) -> None:
-        self.counts.update(other.counts)
+    def snapshot(self) -> dict[str, int]:
+        with self._lock:
+            return dict(self.counts)
 
 
 @dataclass

@@ -26,7 +26,7 @@ import trimesh
 from app.constants import ECEF_MIN_RADIUS_M
 from app.errors import SceneError
 from app.geo import LocalFrame
-from app.scene.mesh import MeshData, Primitive
+from app.scene.mesh import MeshData, Primitive, merge_untextured
 
 SUPPORTED_SUFFIXES = (".glb", ".gltf", ".obj", ".ply")
 DEFAULT_COLOR = np.array([0.75, 0.75, 0.72, 1.0], np.float32)
@@ -129,21 +129,6 @@ def _primitive(mesh: trimesh.Trimesh, name: str, path: Path, placement: Placemen
     return Primitive(positions=positions, colors=colors.astype(np.float32), indices=faces, uvs=uvs, texture=texture, name=name)
 
 
-def _merge_untextured(prims: list[Primitive]) -> list[Primitive]:
-    """Concatenate every untextured primitive into one draw call; textured ones stay apart."""
-    flat = [p for p in prims if not p.textured]
-    if len(flat) <= 1:
-        return prims
-    offsets = np.cumsum([0] + [len(p.positions) for p in flat[:-1]])
-    merged = Primitive(
-        positions=np.concatenate([p.positions for p in flat]),
-        colors=np.concatenate([p.colors for p in flat]),
-        indices=np.concatenate([p.indices + np.uint32(o) for p, o in zip(flat, offsets)]),
-        name="untextured",
-    )
-    return [p for p in prims if p.textured] + [merged]
-
-
 def load_scene(path: str | Path, frame: LocalFrame, placement: Placement | None = None) -> MeshData:
     """Load a scene file and place it in `frame` (see the module docstring for the placement).
 
@@ -164,4 +149,4 @@ def load_scene(path: str | Path, frame: LocalFrame, placement: Placement | None 
     if not meshes:
         raise SceneError(path, "the scene holds no mesh with faces (expected triangles to draw)")
     prims = [_primitive(m, str(m.metadata.get("name", i)), path, placement, frame) for i, m in enumerate(meshes)]
-    return MeshData(_merge_untextured(prims))
+    return MeshData(merge_untextured(prims))

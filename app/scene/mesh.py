@@ -85,3 +85,19 @@ class MeshData:
         lo, hi = self.bounds()[:, :2]
         gap = np.maximum(np.maximum(lo - p, p - hi), 0.0)
         return float(np.hypot(gap[:, 0], gap[:, 1]).min()) if len(p) else 0.0
+
+
+def merge_untextured(prims: list[Primitive], name: str = "untextured") -> list[Primitive]:
+    """Every untextured primitive concatenated into one draw call (named `name`); textured ones
+    stay apart, first."""
+    flat = [p for p in prims if not p.textured]
+    if len(flat) <= 1:
+        return prims
+    offsets = np.cumsum([0] + [len(p.positions) for p in flat[:-1]])
+    merged = Primitive(
+        positions=np.concatenate([p.positions for p in flat]),
+        colors=np.concatenate([p.colors for p in flat]),
+        indices=np.concatenate([p.indices + np.uint32(o) for p, o in zip(flat, offsets)]),
+        name=name,
+    )
+    return [p for p in prims if p.textured] + [merged]

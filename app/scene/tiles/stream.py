@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from app.scene.mesh import MeshData, Primitive
+from app.scene.mesh import MeshData, Primitive, merge_untextured
 from app.scene.tiles import fetch
 from app.scene.tiles.content import ContentError, read_content
 from app.scene.tiles.gltf import GltfError, Skipped
@@ -72,8 +72,7 @@ class Selection:
 def decode_tile(tileset: Tileset, tile: Tile, skipped: Skipped) -> MeshData:
     """Read and decode every content of `tile` into MeshData in the tileset's ENU frame."""
     frame = tileset.frame
-    flat: list[Primitive] = []
-    textured: list[Primitive] = []
+    prims: list[Primitive] = []
     for location in tile.contents:
         data = fetch.read(location)
         try:
@@ -82,19 +81,8 @@ def decode_tile(tileset: Tileset, tile: Tile, skipped: Skipped) -> MeshData:
             raise ContentError(f"{location}: {exc}") from exc
         for raw in raws:
             enu = frame.ecef_to_enu(raw.positions).astype(np.float32)
-            prim = Primitive(enu, raw.colors.astype(np.float32), raw.indices, raw.uvs, raw.texture, name=f"tile {tile.id}")
-            (textured if prim.textured else flat).append(prim)
-    if len(flat) > 1:  # one draw call for every untextured primitive of the tile
-        offsets = np.cumsum([0] + [len(p.positions) for p in flat[:-1]])
-        flat = [
-            Primitive(
-                np.concatenate([p.positions for p in flat]),
-                np.concatenate([p.colors for p in flat]),
-                np.concatenate([p.indices + np.uint32(o) for p, o in zip(flat, offsets)]),
-                name=f"tile {tile.id}",
-            )
-        ]
-    return MeshData(textured + flat)
+            prims.append(Primitive(enu, raw.colors.astype(np.float32), raw.indices, raw.uvs, raw.texture, name=f"tile {tile.id}"))
+    return MeshData(merge_untextured(prims, f"tile {tile.id}"))  # one draw call for the untextured ones
 
 
 @dataclass

@@ -134,6 +134,7 @@ class Camera:
     far: float = DEFAULT_FAR_M
     lens: object | None = None
     rs_turn: tuple[float, float, float] | None = None  # rolling shutter: the camera's turn (rad, camera frame) from first to last row
+    rs_axis: tuple[float, float, float] = (0.0, 1.0, 0.0)  # the sensor row's read fraction = a u/W + b v/H + c of the displayed pixel
 
     @classmethod
     def create(
@@ -145,11 +146,12 @@ class Camera:
         far: float = DEFAULT_FAR_M,
         lens: object | None = None,
         rs_turn: npt.ArrayLike | None = None,
+        rs_axis: tuple[float, float, float] = (0.0, 1.0, 0.0),
     ) -> "Camera":
         p = np.asarray(position, np.float64).reshape(3)
         q = rotations.canonical(np.asarray(orientation, np.float64).reshape(4))
         turn = None if rs_turn is None else tuple(float(v) for v in np.asarray(rs_turn, np.float64).reshape(3))
-        return cls(intrinsics, tuple(map(float, p)), tuple(map(float, q)), near, far, lens, turn)
+        return cls(intrinsics, tuple(map(float, p)), tuple(map(float, q)), near, far, lens, turn, tuple(map(float, rs_axis)))
 
     @property
     def view(self) -> FloatArray:

@@ -77,7 +77,7 @@ class CameraTrack:
     far: float = DEFAULT_FAR_M
     lens: object | None = None  # app.lens.Lens; intrinsics then enclose its image
     readout_s: float | None = None  # rolling shutter: first row to last, seconds (None: off)
-    readout_sign: float = 1.0  # -1 when the displayed image is the sensor upside down
+    readout_axis: tuple[float, float, float] = (0.0, 1.0, 0.0)  # where the sensor's rows run in the displayed image (readout_axis())
 
     @property
     def frame_count(self) -> int:
@@ -97,8 +97,8 @@ class CameraTrack:
         turn = None
         if self.readout_s:
             _, _, qq = self.poses.at([t - self.readout_s / 2, t + self.readout_s / 2])
-            turn = self.readout_sign * rotations.to_scipy(rotations.multiply(rotations.conjugate(qq[0]), qq[1])).as_rotvec()
-        return Camera.create(self.intrinsics, enu[0], q[0], self.near, self.far, self.lens, turn)
+            turn = rotations.to_scipy(rotations.multiply(rotations.conjugate(qq[0]), qq[1])).as_rotvec()
+        return Camera.create(self.intrinsics, enu[0], q[0], self.near, self.far, self.lens, turn, self.readout_axis)
 
     def frame_camera(self, index: int) -> Camera:
         """The posed camera of video frame `index`."""
@@ -139,9 +139,15 @@ def camera_track(session: Session, source: str, *, course_pitch_deg: float | Non
     """Solve one source of a session into its camera track. ValueError for a source the session
     does not offer (naming those it does)."""
     clock = replace(frame_clock(session, true_timing), offset_s=float(time_offset_s))
-    readout, sign = session.readout_s, 1.0
-    if readout and session.rotation_cw % 180:
-        readout = None  # a portrait display of a landscape sensor: rows are read across the image
-    elif session.rotation_cw == 180:
-        sign = -1.0
-    return CameraTrack(source, pose_track(session, source, course_pitch_deg), clock, session.intrinsics, lens=session.lens, readout_s=readout, readout_sign=sign)
+    return CameraTrack(
+        source, pose_track(session, source, course_pitch_deg), clock, session.intrinsics, lens=session.lens,
+        readout_s=session.readout_s, readout_axis=readout_axis(session.rotation_cw),
+    )  # fmt: skip
+
+
+def readout_axis(rotation_cw: int) -> tuple[float, float, float]:
+    """(a, b, c): the fraction of the sensor's readout at which the displayed pixel (u, v) of a
+    W x H display was exposed is a u/W + b v/H + c. The sensor reads its stored rows top to
+    bottom; the display turns the stored image by rotation_cw clockwise, which takes its top row
+    to the right edge (90), the bottom (180) or the left edge (270)."""
+    return {0: (0.0, 1.0, 0.0), 90: (-1.0, 0.0, 1.0), 180: (0.0, -1.0, 1.0), 270: (1.0, 0.0, 0.0)}[int(rotation_cw) % 360]

@@ -35,6 +35,8 @@ uniform float u_lens_stretch;  // horizontal stretch of digital lens modes
 uniform bool u_exact_video;    // look the video up through the lens and rolling-shutter model
 uniform vec3 u_rs_turn;        // rolling shutter: the camera's turn from the first row to the last
                                // (radians, camera frame); the frame's pose is its middle row's
+uniform vec3 u_rs_axis;        // the readout fraction of a displayed pixel: dot(axis, (u/W, v/H, 1));
+                               // (0, 1, 0) for a landscape display, u for a portrait one
 
 // The video pixel of a camera-frame point (OpenGL axes): through the lens, and with a rolling
 // shutter, from the pose of the row that saw it (two fixed-point steps: the row depends on the
@@ -44,7 +46,7 @@ vec2 video_pixel(vec3 c) {
     vec3 p = c;
     for (int i = 0; i < 3; ++i) {
         uv = lens_distort(vec2(p.x, -p.y) / -p.z, u_lens_kind, u_lens_k, u_lens_p, u_lens_k3, u_lens_f, u_lens_c, u_lens_stretch);
-        float row = clamp(uv.y / u_lens_size.y, 0.0, 1.0) - 0.5;
+        float row = clamp(dot(u_rs_axis, vec3(uv / u_lens_size, 1.0)), 0.0, 1.0) - 0.5;
         p = rotate_by(c, -row * u_rs_turn);  // the point in the camera frame of that row
     }
     return uv;

@@ -174,6 +174,7 @@ def _set_lens(p: moderngl.Program, projector: Camera) -> None:
         return
     p["u_proj_view"].write(_mat(projector.view))
     p["u_rs_turn"].value = projector.rs_turn or (0.0, 0.0, 0.0)
+    p["u_rs_axis"].value = projector.rs_axis
     p["u_lens_kind"].value = LENS_KIND[None if lens is None else lens.kind]
     if lens is None:
         i = projector.intrinsics

@@ -240,9 +240,11 @@ class TileStream:
             with self._cond:
                 self._done.append(item)
 
-    def close(self) -> None:
+    def close(self, wait_s: float = 1.0) -> None:
+        """Stop the workers: idle ones at once; one still reading a slow URL finishes that read on
+        its own (daemon threads touch no GL), so closing a session never hangs on the network."""
         with self._cond:
             self._closed = True
             self._cond.notify_all()
         for t in self._threads:
-            t.join(timeout=5.0)
+            t.join(timeout=wait_s / len(self._threads))

@@ -105,7 +105,7 @@ def _clip_session(path: Path, inputs: tuple[Path, ...], frame: LocalFrame, mesh,
     return Session(
         path.resolve(), frame, Path(layers[0].location) if layers else None, Placement(), video, video.pts_s.copy(), intr, video.rotation_cw,
         acc, gyr, mag, gnss, recorded, decl, warnings, inputs=(*inputs, *(f.resolve() for layer in layers for f in layer.files())), heading=policy, device_is_camera=True,
-        aircraft_yaw=aircraft_yaw, mesh=mesh, lens=lens, readout_s=readout_s,
+        aircraft_yaw=aircraft_yaw, mesh=mesh, lens=lens, readout_s=readout_s, layers=tuple(layers),
     )  # fmt: skip
 
 

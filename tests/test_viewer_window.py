@@ -241,7 +241,7 @@ def test_a_tileset_session_in_the_window_matches_the_model_it_was_made_from(disp
 0.6 quit
 """)
     state = json.loads((tmp_path / "tiles.json").read_text())
-    assert state["errors"] == []
+    assert state["errors"] == [] and state["layers"] == ["tileset:stadium/tileset.json", "tileset:city/tileset.json"]
     shot = np.asarray(Image.open(tmp_path / "tiles.png").convert("RGB"), int)
     session = open_session(manifest)
     assert len(session.scene().tilesets) == 2
@@ -287,7 +287,7 @@ def test_a_dem_dropped_on_an_open_clip_becomes_its_terrain(display, tmp_path, sh
 """)
     with_dem = json.loads((tmp_path / "with_dem.json").read_text())
     assert with_dem["errors"] == [] and any("terrain of" in n for n in with_dem["notices"])
-    assert with_dem["manifest"].endswith("max-heromode.mp4")
+    assert with_dem["manifest"].endswith("max-heromode.mp4") and with_dem["layers"] == ["dem:dem.tif"]
     refused = json.loads((tmp_path / "manifest.json").read_text())
     assert any("a manifest names its scene" in e for e in refused["errors"])
     assert refused["manifest"].endswith("session.toml")

@@ -279,5 +279,5 @@ def assemble(cfg: SessionConfig) -> Session:
         truth_frame_times=_true_frame_times(cfg, len(frame_times), warnings),
         height_mode=cfg.gnss.height if cfg.layers else "gnss", mount_height_m=cfg.gnss.mount_height_m, heading=policy,
         device_is_camera=cfg.sensors.format in ("gopro", "none"),  # action cameras and drones
-        aircraft_yaw=yaw, mesh=mesh, lens=lens, readout_s=_readout(cfg, lens, warnings),
+        aircraft_yaw=yaw, mesh=mesh, lens=lens, readout_s=_readout(cfg, lens, warnings), layers=cfg.layers,
     )  # fmt: skip

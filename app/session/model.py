@@ -78,6 +78,7 @@ class Session:
     lens: object | None = None  # app.lens.Lens of the displayed video; intrinsics then enclose it
     readout_s: float | None = None  # rolling shutter: the sensor's readout time, seconds (None: unknown, off)
     mesh: MeshData | None = None
+    layers: tuple = ()  # app.scene.layers.Layer: the scene's layers as named ((): an assumed ground)
 
     @property
     def heading_note(self) -> str:

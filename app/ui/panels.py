@@ -263,6 +263,8 @@ def _session(v) -> None:
             imgui.text(f"declination {s.declination_deg:+.2f} deg")
             if s.scene_path is None:
                 imgui.text_colored(_vec4(AMBER), "no scene: the ground is assumed (flat, 1 m grid)")
+            for layer in s.layers:
+                imgui.text_wrapped(f"layer: {layer.name} ({layer.kind}" + (f", draped with {layer.ortho.name}" if layer.ortho is not None else "") + ")")
             lens = s.lens
             imgui.text_wrapped(f"lens: {lens.kind}, {lens.name or 'profile'}" if lens is not None else f"lens: pinhole, {s.intrinsics.hfov_deg:.1f} deg across")
             if Path(s.path).suffix.lower() != ".toml":

@@ -455,7 +455,7 @@ class Viewer:
             proj = L.renderer.projector
             s = L.player.stats
             state.update(
-                manifest=str(L.session.path), source=L.source, lens=None if L.session.lens is None else L.session.lens.name, frame=self.current_index, due_frame=L.player.due_index(now),
+                manifest=str(L.session.path), source=L.source, lens=None if L.session.lens is None else L.session.lens.name, layers=[f"{layer.kind}:{layer.name}" for layer in L.session.layers], frame=self.current_index, due_frame=L.player.due_index(now),
                 frames_shown=len(s.latencies), dropped=s.dropped, latency_ms=list(s.summary()), skipped_by_decoder=L.player.decoder.skipped,
                 solved=L.library.solved(), alpha=ui.settings.alpha, time_offset_s=L.library.time_offset_s,
                 sync=None if ui.sync_job is None or ui.sync_job.result is None else {"offset_s": ui.sync_job.result.offset_s, "confidence": ui.sync_job.result.confidence},

@@ -358,3 +358,20 @@ def test_ground_heights_under_a_track_come_from_a_tileset_as_from_its_model(tmp_
     t = np.linspace(model.gnss.t[0], model.gnss.t[-1], 50)
     np.testing.assert_allclose(tiled.positions().geodetic_at(t), model.positions().geodetic_at(t), atol=1e-6)
     assert not any("off the model" in w for w in tiled.warnings.items)
+
+
+def test_a_worker_survives_any_failure_of_one_tile(tmp_path):
+    """An unexpected exception while decoding (here a KeyError) fails that tile only: it is
+    counted and named, drawn empty, and the selection still completes."""
+    path = b3dm_rtc_region(tmp_path)
+
+    def broken(tileset, tile, skipped):
+        raise KeyError("accessors")
+
+    stream = TileStream(Tileset(str(path), FRAME), decode=broken, workers=1)
+    try:
+        sel = settle(stream, TileView.of(view_camera([4, 2, 12], [0, WALL_Y, 10])))
+        assert stream.failures == 1 and "wall.b3dm: KeyError" in stream.errors[0]
+        assert len(sel.tiles) == 1
+    finally:
+        stream.close()

@@ -10,8 +10,9 @@ queued for the workers and the best ready tiles are drawn meanwhile.
 
 Workers read and decode content into MeshData in the session's ENU frame (float32 positions,
 float64 arithmetic until then), expand external tilesets and implicit subtrees, and hand the
-results over through `take_ready()`. A tile that fails is counted and its error kept (the first
-few), and it is drawn as empty so that refinement goes on around it.
+results over through `take_loaded()`. A tile that fails, for whatever reason, is counted and its
+error kept (the first few), and it is drawn as empty so that refinement goes on around it: a
+worker never dies on bad data.
 """
 
 from __future__ import annotations
@@ -225,11 +226,12 @@ class TileStream:
                     item.mesh = self.decode(self.tileset, tile, self.skipped)
                 else:
                     self.tileset.expand(tile)
-            except LOAD_ERRORS as exc:
+            except Exception as exc:  # a thread boundary: any failure of one tile is that tile's
+                message = str(exc) if isinstance(exc, LOAD_ERRORS) else f"{tile.contents[0] if tile.contents else tile.source}: {type(exc).__name__}: {exc}"
                 with self._cond:
                     self.failures += 1
                     if len(self.errors) < MAX_ERRORS_KEPT:
-                        self.errors.append(str(exc))
+                        self.errors.append(message)
                 if content_job:
                     item.failed = True
                 else:  # nothing below this tile can be read: stop refining it

@@ -53,7 +53,12 @@ class GpuTileset:
             changed = True
             if item.mesh is None:
                 continue
-            prims = [upload(self.ctx, p, self.anisotropy) for p in item.mesh.primitives if len(p.indices)]
+            try:
+                prims = [upload(self.ctx, p, self.anisotropy) for p in item.mesh.primitives if len(p.indices)]
+            except Exception as exc:  # e.g. a texture larger than this GL allows: that tile only
+                self.stream.failures += 1
+                self.stream.errors.append(f"{item.tile.contents[0] if item.tile.contents else self.tileset.location}: cannot upload to the GPU: {exc}")
+                prims = []
             self._drop(item.tile.id)
             self.resident[item.tile.id] = (item.tile, prims)
             self.bytes_held += sum(p.nbytes for p in prims)

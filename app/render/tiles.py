@@ -53,9 +53,14 @@ class GpuTileset:
             changed = True
             if item.mesh is None:
                 continue
+            prims: list[GpuPrimitive] = []
             try:
-                prims = [upload(self.ctx, p, self.anisotropy) for p in item.mesh.primitives if len(p.indices)]
+                for p in item.mesh.primitives:
+                    if len(p.indices):
+                        prims.append(upload(self.ctx, p, self.anisotropy))
             except Exception as exc:  # e.g. a texture larger than this GL allows: that tile only
+                for done in prims:
+                    done.release()
                 self.stream.failures += 1
                 self.stream.errors.append(f"{item.tile.contents[0] if item.tile.contents else self.tileset.location}: cannot upload to the GPU: {exc}")
                 prims = []

@@ -415,7 +415,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return code
 
 
-BENCHMARKS = {"render": "bench_render.py", "attitude": "bench_attitude.py", "accuracy": "bench_accuracy.py", "playback": "bench_playback.py"}
+BENCHMARKS = {"render": "bench_render.py", "attitude": "bench_attitude.py", "accuracy": "bench_accuracy.py", "playback": "bench_playback.py", "lens": "bench_lens.py"}
 
 
 def cmd_bench(args: argparse.Namespace) -> int:

@@ -88,7 +88,7 @@ class FootprintCaster:
         self.centre = ((g.height - 1) // 2, (g.width - 1) // 2)
         self.probe = SurfaceProbe(mesh)
 
-    def _grid_points(self, cam: Camera) -> tuple[np.ndarray, np.ndarray]:
+    def grid_points(self, cam: Camera) -> tuple[np.ndarray, np.ndarray]:
         """(points (rows, cols, 3), hit mask) at the border-sampling grid of the real image."""
         far = max(VIEW_FAR_M, 2.0 * self.max_range_m)
         if cam.lens is None:  # a pinhole: the grid camera's own pixels are the rays, exactly
@@ -112,7 +112,7 @@ class FootprintCaster:
         return out.reshape(g.height, g.width, 3), hit.reshape(g.height, g.width)
 
     def record(self, cam: Camera, index: int = 0, media_s: float = 0.0, session_s: float = 0.0) -> FrameRecord:
-        pts, hit = self._grid_points(cam)
+        pts, hit = self.grid_points(cam)
         cr, cc = self.centre
         b = self.border
         geo = self.frame.enu_to_geodetic(np.vstack([[cam.position], [pts[cr, cc]], [pts[r, c] for r, c in self.corners], pts[b[:, 0], b[:, 1]]]))

@@ -29,11 +29,11 @@ from app.io.gopro import global_settings
 from app.io.video import VideoInfo, probe
 from app.lens import LENS_MODES, Lens, choose_profile, video_camera
 from app.scene import Placement
-from app.scene.ground import ground_heights
+from app.scene.ground import ellipsoidal_ground
 from app.scene.ground_plane import ASSUMED_GROUND_MARGIN_M, ground_under_track
-from app.scene.layers import Layer, load_layers
+from app.scene.layers import Layer
 from app.scene.mesh import MeshData
-from app.session.assemble import gimbal_attitude, open_session, warn_if_scene_is_far
+from app.session.assemble import gimbal_attitude, load_scene_layers, open_session
 from app.session.config import HANDHELD_MOUNT_M
 from app.session.model import Session
 
@@ -71,20 +71,15 @@ def _frame_and_ground(gnss: GnssTrack, ground_h: float, margin_m: float, layers:
     if not layers:
         warnings.add("no scene given: the video is projected on an assumed flat ground with a 1 m grid")
         return frame, ground_under_track(frame, gnss.lat, gnss.lon, ground_h, margin_m), gnss
-    loaded = load_layers(layers, frame, np.column_stack([gnss.lat, gnss.lon]))
-    for note in loaded.notes:
-        warnings.add(note)
+    mesh = load_scene_layers(layers, frame, gnss, warnings)
     if above_takeoff:
-        first = frame.geodetic_to_enu(gnss.lat[0], gnss.lon[0], ground_h)
-        z = ground_heights(loaded.mesh, np.atleast_2d(first)[:, :2])[0]
-        if np.isfinite(z):
-            takeoff = float(frame.enu_to_geodetic(np.array([first[0], first[1], z]))[2])
+        takeoff = ellipsoidal_ground(mesh, frame, float(gnss.lat[0]), float(gnss.lon[0]))
+        if takeoff is not None:
             gnss = replace(gnss, h=gnss.h + takeoff - ground_h)
             warnings.add(f"heights above take-off: take-off height {takeoff:.2f} m from the terrain under the first position")
         else:
             warnings.add("heights above take-off: no terrain under the first position, so heights stay above an assumed take-off at 0 m")
-    warn_if_scene_is_far(loaded, frame.geodetic_to_enu(gnss.lat, gnss.lon, gnss.h), warnings)
-    return frame, loaded.mesh, gnss
+    return frame, mesh, gnss
 
 
 def _camera_model(video: VideoInfo, hfov_deg: float, lens_path: str | Path | None, choice: tuple[Path, str] | None, warnings: Warnings) -> tuple[Intrinsics, Lens | None, tuple[Path, ...]]:

@@ -77,3 +77,13 @@ def ground_heights(mesh: MeshData, xy: npt.ArrayLike) -> np.ndarray:
                     z = a[inside, 2] + u[inside] * (b[inside, 2] - a[inside, 2]) + v[inside] * (c[inside, 2] - a[inside, 2])
                     best[i] = min(best[i], float(z.min()))
     return np.where(np.isfinite(best), best, np.nan)
+
+
+def ellipsoidal_ground(mesh: MeshData, frame, lat_deg: float, lon_deg: float) -> float | None:
+    """The ellipsoidal height (m) of the scene's lowest surface at (lat, lon) degrees in `frame`
+    (an app.geo.LocalFrame), or None where the scene has no surface there."""
+    xy = frame.geodetic_to_enu(lat_deg, lon_deg, 0.0)
+    z = ground_heights(mesh, np.atleast_2d(xy)[:, :2])[0]
+    if not np.isfinite(z):
+        return None
+    return float(frame.enu_to_geodetic(np.array([xy[0], xy[1], z]))[2])

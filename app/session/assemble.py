@@ -25,8 +25,9 @@ from app.io.streams import GnssTrack, OrientationStream, VectorStream, Warnings
 from app.io.video import VideoInfo, probe
 from app.lens import Lens, video_camera
 from app.scene import Placement
-from app.scene.layers import LoadedLayers, load_layers
-from app.scene.ground import ground_heights
+from app.scene.layers import load_layers
+from app.scene.mesh import MeshData
+from app.scene.ground import ellipsoidal_ground
 from app.scene.ground_plane import ASSUMED_GROUND_MARGIN_M, ground_under_track
 from app.session.config import SessionConfig, read_config
 from app.session.model import Session
@@ -159,11 +160,9 @@ def _takeoff_height(cfg: SessionConfig, frame: LocalFrame, gnss: GnssTrack, mesh
     if value is not None:
         warnings.add(f"heights above take-off: take-off height {value:.2f} m from gnss.takeoff_height_m")
         return value
-    first = frame.geodetic_to_enu(gnss.lat[0], gnss.lon[0], 0.0)
-    ground = ground_heights(mesh, np.atleast_2d(first)[:, :2])[0]
-    if not np.isfinite(ground):
+    value = ellipsoidal_ground(mesh, frame, float(gnss.lat[0]), float(gnss.lon[0]))
+    if value is None:
         raise ManifestError(cfg.path, "heights are above take-off and the scene has no ground under the first position: give gnss.takeoff_height_m", field="gnss.takeoff_height_m")
-    value = float(frame.enu_to_geodetic(np.array([first[0], first[1], ground]))[2])
     warnings.add(f"heights above take-off: take-off height {value:.2f} m from the scene's ground under the first position")
     return value
 
@@ -171,14 +170,21 @@ def _takeoff_height(cfg: SessionConfig, frame: LocalFrame, gnss: GnssTrack, mesh
 SCENE_FAR_M = 500.0  # a scene farther than this from every fix of the track is misplaced, or the track is
 
 
-def warn_if_scene_is_far(loaded: LoadedLayers, track_enu: np.ndarray, warnings: Warnings) -> None:
-    """A warning with the distance for each layer that lies away from the camera's track (a
-    wrong origin, up axis or ECEF reading places a model thousands of kilometres off)."""
+def load_scene_layers(layers, frame: LocalFrame, gnss: GnssTrack, warnings: Warnings) -> MeshData:
+    """Every layer in `frame`, read around the track (app.scene.layers.load_layers), with what
+    reading them found said, and a warning with the distance for each layer that lies away from
+    the camera's track (a wrong origin, up axis or ECEF reading places a model thousands of
+    kilometres off)."""
+    loaded = load_layers(layers, frame, np.column_stack([gnss.lat, gnss.lon]))
+    for note in loaded.notes:
+        warnings.add(note)
+    track_enu = frame.geodetic_to_enu(gnss.lat, gnss.lon, gnss.h)
     for layer, part in loaded.parts:
         far = part.horizontal_distance(track_enu)
         if far > SCENE_FAR_M:
             hint = "its georeferencing" if layer.georeferenced else "scene.origin, scene.up_axis"
             warnings.add(f"{layer.name}: the scene lies {far / 1000:.1f} km from the camera's track: check {hint} and the GNSS positions")
+    return loaded.mesh
 
 
 def _frame_times(cfg: SessionConfig, video: VideoInfo) -> tuple[float, np.ndarray]:
@@ -243,13 +249,10 @@ def _place(cfg: SessionConfig, gnss: GnssTrack, above_takeoff: bool, warnings: W
         frame = LocalFrame(*origin)
     except ValueError as exc:
         raise ManifestError(cfg.path, str(exc), field="origin") from exc
-    loaded = load_layers(cfg.layers, frame, np.column_stack([gnss.lat, gnss.lon]))
-    for note in loaded.notes:
-        warnings.add(note)
+    mesh = load_scene_layers(cfg.layers, frame, gnss, warnings)
     if above_takeoff:
-        gnss = replace(gnss, h=gnss.h + _takeoff_height(cfg, frame, gnss, loaded.mesh, warnings))
-    warn_if_scene_is_far(loaded, frame.geodetic_to_enu(gnss.lat, gnss.lon, gnss.h), warnings)
-    return frame, loaded.mesh, gnss
+        gnss = replace(gnss, h=gnss.h + _takeoff_height(cfg, frame, gnss, mesh, warnings))
+    return frame, mesh, gnss
 
 
 def assemble(cfg: SessionConfig) -> Session:

@@ -196,68 +196,61 @@ def _wall_image(intr: Intrinsics, q_mid: np.ndarray, turn: np.ndarray, axis=(0.0
     return np.where(on, 235, 20).astype(np.uint8).reshape(h, w, 1).repeat(3, axis=2)
 
 
+def _shutter_misses(gl_ctx, intr: Intrinsics, turn: np.ndarray, axis: tuple, undone: Camera, as_if: Camera) -> tuple[float, float]:
+    """90th percentiles (px) of how far the checkerboard cells land from a global shutter's when
+    a frame read along `axis` while turning by `turn` is projected through `undone`, and through
+    `as_if`. 90 %: a few cells at the frame's edge are cut by the image border (the sheared frame
+    covers a slightly different part of the wall) and their centres move."""
+    from app.render.renderer import FusionRenderer
+
+    q_mid = np.asarray(undone.orientation)
+    sheared = _wall_image(intr, q_mid, turn, axis)
+    still = _wall_image(intr, q_mid, np.zeros(3))
+    view = Camera.create(intr, [0, 0, 0], q_mid, 0.5, 100.0)
+    renderer = FusionRenderer(gl_ctx, _wall())
+    try:
+        reference, corrected, wrong = _renders(renderer, view, [(still, view), (sheared, undone), (sheared, as_if)])
+    finally:
+        renderer.release()
+    ref = _cells(reference)
+    assert len(ref) > 30
+    return tuple(float(np.percentile(np.linalg.norm(ref[:, None, :] - _cells(img)[None, :, :], axis=2).min(axis=1), 90)) for img in (corrected, wrong))
+
+
 @pytest.mark.gl
 def test_rolling_shutter_is_undone_row_by_row(gl_ctx):
     """A camera panning at 60 deg/s with a 30 ms readout shears a wall's checkerboard by ~20 px
     from the first row to the last. Projected with the rows' own poses (the shader's rolling
     shutter model), the cells land where a global shutter's would (within 2 px); projected as
     if every row were exposed at once, they do not."""
-    from app.render.renderer import FusionRenderer
-
     intr = Intrinsics(640, 360, 420.0, 420.0, 320.0, 180.0)
     q_mid = rotations.camera_quat_from_hpr(0.0, 0.0, 0.0)
     turn = np.array([0.0, np.radians(60.0) * 0.030, 0.0])  # a pan about the camera's up axis
-    sheared = _wall_image(intr, q_mid, turn)
-    still = _wall_image(intr, q_mid, np.zeros(3))
-    view = Camera.create(intr, [0, 0, 0], q_mid, 0.5, 100.0)
-    renderer = FusionRenderer(gl_ctx, _wall())
-    try:
-        reference, corrected, global_shutter = _renders(renderer, view, [
-            (still, view),
-            (sheared, Camera.create(intr, [0, 0, 0], q_mid, 0.5, 100.0, rs_turn=turn)),
-            (sheared, view),
-        ])  # fmt: skip
-    finally:
-        renderer.release()
-    ref = _cells(reference)
-    assert len(ref) > 30
-    for img, ok in ((corrected, True), (global_shutter, False)):
-        d = np.linalg.norm(ref[:, None, :] - _cells(img)[None, :, :], axis=2).min(axis=1)
-        # 90 % of the cells: a few at the frame's edge are cut by the image border (the sheared
-        # frame covers a slightly different part of the wall) and their centres move.
-        assert (np.percentile(d, 90) <= 2.0) if ok else (np.percentile(d, 90) > 5.0), np.percentile(d, 90)
+    undone, global_shutter = _shutter_misses(
+        gl_ctx, intr, turn, (0.0, 1.0, 0.0),
+        Camera.create(intr, [0, 0, 0], q_mid, 0.5, 100.0, rs_turn=turn), Camera.create(intr, [0, 0, 0], q_mid, 0.5, 100.0),
+    )  # fmt: skip
+    assert undone <= 2.0 and global_shutter > 5.0, (undone, global_shutter)
 
 
+@pytest.mark.gl
 def test_rolling_shutter_of_a_portrait_display_runs_across_its_columns(gl_ctx):
     """A phone held upright shows its landscape sensor turned 90 deg clockwise: the sensor's rows
     are read from the display's right edge to its left. A 60 deg/s tilt with a 30 ms readout,
     corrected along that axis, lands the cells where a global shutter's would (within 2 px);
     corrected along the display's rows, as for a landscape video, it does not."""
     from app.camera_track import readout_axis
-    from app.render.renderer import FusionRenderer
 
     intr = Intrinsics(360, 640, 420.0, 420.0, 180.0, 320.0)
     q_mid = rotations.camera_quat_from_hpr(0.0, 0.0, 0.0)
     turn = np.array([0.0, np.radians(60.0) * 0.030, 0.0])
     axis = readout_axis(90)
     assert axis == (-1.0, 0.0, 1.0)
-    sheared = _wall_image(intr, q_mid, turn, axis)
-    still = _wall_image(intr, q_mid, np.zeros(3))
-    view = Camera.create(intr, [0, 0, 0], q_mid, 0.5, 100.0)
-    renderer = FusionRenderer(gl_ctx, _wall())
-    try:
-        reference, corrected, as_landscape = _renders(renderer, view, [
-            (still, view),
-            (sheared, Camera.create(intr, [0, 0, 0], q_mid, 0.5, 100.0, rs_turn=turn, rs_axis=axis)),
-            (sheared, Camera.create(intr, [0, 0, 0], q_mid, 0.5, 100.0, rs_turn=turn)),
-        ])  # fmt: skip
-    finally:
-        renderer.release()
-    ref = _cells(reference)
-    assert len(ref) > 30
-    for img, ok in ((corrected, True), (as_landscape, False)):
-        d = np.linalg.norm(ref[:, None, :] - _cells(img)[None, :, :], axis=2).min(axis=1)
-        assert (np.percentile(d, 90) <= 2.0) if ok else (np.percentile(d, 90) > 5.0), np.percentile(d, 90)
+    undone, as_landscape = _shutter_misses(
+        gl_ctx, intr, turn, axis,
+        Camera.create(intr, [0, 0, 0], q_mid, 0.5, 100.0, rs_turn=turn, rs_axis=axis), Camera.create(intr, [0, 0, 0], q_mid, 0.5, 100.0, rs_turn=turn),
+    )  # fmt: skip
+    assert undone <= 2.0 and as_landscape > 5.0, (undone, as_landscape)
 
 
 def test_a_session_track_carries_the_rolling_shutter_turn(tmp_path):

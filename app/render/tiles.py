@@ -32,7 +32,6 @@ class GpuTileset:
         self.bytes_held = 0
         self.frame = 0
         self._used_frame: dict[int, int] = {}
-        self.last_triangles: dict[str, int] = {}  # triangles drawn per camera key, last selection
         self.evictions = 0
 
     @property
@@ -73,6 +72,7 @@ class GpuTileset:
 
     def _drop(self, tile_id: int) -> None:
         if tile_id in self.resident:
+            self._used_frame.pop(tile_id, None)
             tile, prims = self.resident.pop(tile_id)
             for p in prims:
                 self.bytes_held -= p.nbytes
@@ -96,7 +96,6 @@ class GpuTileset:
     def drawables(self, camera: object, focal_px: float | None, key: str) -> list[GpuPrimitive]:
         """The ready primitives chosen for `camera` (marks them most recently used)."""
         out: list[GpuPrimitive] = []
-        triangles = 0
         for tile in self._selection(camera, focal_px, key).tiles:
             entry = self.resident.get(tile.id)
             if entry is None:
@@ -104,8 +103,6 @@ class GpuTileset:
             self.resident.move_to_end(tile.id)
             self._used_frame[tile.id] = self.frame
             out += entry[1]
-            triangles += sum(p.count for p in entry[1]) // 3
-        self.last_triangles[key] = triangles
         return out
 
     def complete(self, camera: object, focal_px: float | None, key: str) -> bool:

@@ -78,10 +78,6 @@ class Tile:
     external: str | None = None  # the external tileset JSON its content names (read by expand())
     implicit: Implicit | None = None
 
-    @property
-    def needs_expand(self) -> bool:
-        return self.children is None
-
 
 def _matrix(values: object, where: str, source: str) -> np.ndarray:
     try:
@@ -136,7 +132,6 @@ class Tileset:
         if "root" not in doc:
             raise TilesetError(location, "no root tile", "root")
         self.root = self._tile(doc["root"], np.eye(4), None, location, 0, "root")
-        self.geometric_error = float(doc.get("geometricError", self.root.geometric_error))
 
     def _read_json(self, location: str) -> dict:
         try:

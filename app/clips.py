@@ -20,9 +20,10 @@ import numpy as np
 from app.attitude.gopro import read_gopro
 from app.attitude.heading import DRONE_DEFAULT_PITCH_DEG, heading_policy
 from app.camera import Intrinsics
-from app.errors import DataFormatError, GeofuseError
+from app.errors import DataFormatError, GeofuseError, VideoError
 from app.geo import LocalFrame
 from app.geomag import declination
+from app.io.dji_mp4 import read_dji_camera
 from app.io.dji_srt import check_duration, read_srt, srt_fixes
 from app.io.streams import GnssTrack, OrientationStream, Warnings
 from app.io.gopro import global_settings
@@ -124,19 +125,29 @@ def _gopro_session(path: Path, hfov_deg: float | None, lens_path: str | Path | N
     choice = None
     if hfov_deg is None and lens_path is None:
         mode = LENS_MODES.get(str(settings.get("VFOV", "")).strip()[:1].upper(), "")
-        stored = (video.height, video.width) if video.rotation_cw % 180 else (video.width, video.height)
-        choice = choose_profile("GoPro", rec.raw.model, *stored, mode)
-        if choice is None:
-            warnings.add(f"{path.name}: no lens profile for {rec.raw.model}: a pinhole of {rec.hfov_deg:.1f} deg is assumed (give --lens PROFILE.json)")
+        choice = _auto_profile("GoPro", rec.raw.model, rec.raw.model, video, mode, f"{path.name}: ", f"a pinhole of {rec.hfov_deg:.1f} deg", warnings)
     intr, lens, lens_files = _camera_model(video, hfov_deg or rec.hfov_deg, lens_path, choice, warnings)
-    readout = _gopro_readout(settings, lens, path, warnings)
+    srot = settings.get("SROT")
+    srot_s = float(np.ravel(srot)[0]) / 1000.0 if isinstance(srot, np.ndarray) and np.ravel(srot).size else None
+    readout = _readout(srot_s, lens, path, warnings)
     return _clip_session(path, (path.resolve(), *lens_files), frame, mesh, video, intr, rec.acc, rec.gyr, rec.mag, gnss, recorded, decl, warnings, lens=lens, readout_s=readout, layers=layers)
 
 
-def _gopro_readout(settings: dict, lens: Lens | None, path: Path, warnings: Warnings) -> float | None:
-    """The sensor's readout time: GoPro's SROT (ms, in the clip's metadata), else the profile's."""
-    srot = settings.get("SROT")
-    value = float(np.ravel(srot)[0]) / 1000.0 if isinstance(srot, np.ndarray) and np.ravel(srot).size else None
+def _auto_profile(brand: str, model: str, named: str, video: VideoInfo, mode: str, where: str, fallback: str, warnings: Warnings) -> tuple[Path, str] | None:
+    """The bundled profile for a camera model at the video's stored size, the reason prefixed
+    with how the camera was named; without one, a warning that `fallback` is assumed."""
+    stored = (video.height, video.width) if video.rotation_cw % 180 else (video.width, video.height)
+    choice = choose_profile(brand, model, *stored, mode)
+    if choice is None:
+        warnings.add(f"{where}no lens profile for {named} at {stored[0]}x{stored[1]}: {fallback} is assumed (give --lens PROFILE.json)")
+        return None
+    return choice[0], f"{named}: {choice[1]}" if named != model else choice[1]
+
+
+def _readout(recorded_s: float | None, lens: Lens | None, path: Path, warnings: Warnings) -> float | None:
+    """The sensor's readout time (s): the clip's own (GoPro's SROT), else the lens profile's;
+    says which, or that the rolling shutter is not corrected."""
+    value = recorded_s
     origin = "SROT in the clip's metadata"
     if not value and lens is not None and lens.readout_s:
         value, origin = lens.readout_s, "the lens profile"
@@ -174,10 +185,29 @@ def _dji_session(path: Path, srt: Path, hfov_deg: float | None, pitch_deg: float
         yaw = track.aircraft_yaw()
     focal = track.focal_len[np.isfinite(track.focal_len)]
     focal_mm = float(np.median(focal)) / 10.0 if len(focal) else DJI_DEFAULT_FOCAL_MM
+    choice = None
     if hfov_deg is None:
         hfov_deg = float(np.degrees(2 * np.arctan(18.0 / focal_mm)))  # 36 mm wide full frame equivalent
-    intr, lens, lens_files = _camera_model(video, hfov_deg, lens_path, None, warnings)
-    return _clip_session(path, (path.resolve(), srt.resolve(), *lens_files), frame, mesh, video, intr, None, None, None, gnss, recorded, decl, warnings, pitch_deg, yaw, lens, layers=layers)
+        if lens_path is None:
+            choice = _dji_profile(path, video, f"a pinhole of {hfov_deg:.1f} deg (the subtitle's {focal_mm:g} mm equivalent focal length)", warnings)
+    intr, lens, lens_files = _camera_model(video, hfov_deg, lens_path, choice, warnings)
+    readout = _readout(None, lens, path, warnings)
+    return _clip_session(path, (path.resolve(), srt.resolve(), *lens_files), frame, mesh, video, intr, None, None, None, gnss, recorded, decl, warnings, pitch_deg, yaw, lens, readout, layers)
+
+
+def _dji_profile(path: Path, video: VideoInfo, fallback: str, warnings: Warnings) -> tuple[Path, str] | None:
+    """The bundled profile of the DJI camera the MP4's metadata names (DJI subtitles name none)."""
+    try:
+        cam = read_dji_camera(path)
+    except OSError as exc:
+        raise VideoError(path, f"cannot read the file's metadata ({exc})") from exc
+    if cam is None:
+        warnings.add(f"{path.name}: the video's metadata names no DJI camera (no camera code, no DJI encoder): {fallback} is assumed (give --lens PROFILE.json)")
+        return None
+    if not cam.model:
+        warnings.add(f"{path.name}: DJI camera code {cam.code} is not one geofuse knows: {fallback} is assumed (give --lens PROFILE.json)")
+        return None
+    return _auto_profile("DJI", cam.model, f"DJI {cam.model} ({cam.source})", video, "", f"{path.name}: ", fallback, warnings)
 
 
 def open_any(path: str | Path, srt: str | Path | None = None, hfov_deg: float | None = None, pitch_deg: float = DRONE_DEFAULT_PITCH_DEG, lens: str | Path | None = None, layers: tuple[Layer, ...] = ()) -> Session:

@@ -187,34 +187,73 @@ PROFILE_DIR = Path(__file__).resolve().parent / "lens_profiles"  # GoPro and DJI
 LENS_MODES = {"W": "wide", "L": "linear", "S": "superview", "H": "hyperview", "N": "narrow", "M": "medium", "X": "max"}
 
 
+ASPECT_TOLERANCE = 0.02  # a profile fits a video whose width/height is within 2 % of its own
+
+# How the gyroflow database's DJI profiles spell a camera (normalized, 'DJI' dropped), beside the
+# camera's own name: the database is written by its users, so one drone has several spellings.
+DJI_PROFILE_NAMES = {
+    "mavicair": ("mavicair1",),
+    "mavicair2": ("air2",),
+    "air2s": ("mavicair2s", "mavicair2s4k"),
+    "mavicpro": ("mavicpro1",),
+    "mini2": ("mini24k30fps",),
+    "mini2se": ("mavicmini2se27k",),
+    "mini3pro": ("minipro3",),
+    "mavic3pro": ("mavic3prohasselblad43",),
+    "phantom4pro": ("phantom4prov1", "phantom4prov2"),
+    "zenmusex7": ("x7", "zemmusex7"),
+    "fpv": ("fpvdrone",),
+}
+
+
 def _norm(text: str) -> str:
     return "".join(ch for ch in text.lower() if ch.isalnum())
 
 
+def _camera_key(brand: str, model: str) -> str:
+    """A camera's name as compared: lower-case letters and digits, the brand's name dropped
+    ('GoPro Max' -> 'max', 'DJI Mini 3 Pro' -> 'mini3pro')."""
+    key, prefix = _norm(model), _norm(brand)
+    return key[len(prefix) :] if key.startswith(prefix) and len(key) > len(prefix) else key
+
+
+def profile_names(brand: str, model: str) -> set[str]:
+    """Every spelling of a camera's name (as _camera_key gives) that a bundled profile may use."""
+    key = _camera_key(brand, model)
+    return {key, *DJI_PROFILE_NAMES.get(key, ())} if brand == "DJI" else {key}
+
+
 def choose_profile(brand: str, model: str, width: int, height: int, mode: str = "") -> tuple[Path, str] | None:
     """The bundled profile that best fits a camera: (path, why) or None. The camera model must
-    match (GoPro's GPMF device name, e.g. 'HERO8 Black' or 'GoPro Max'); then the image's aspect
-    ratio, the lens mode's name where known (wide, linear, superview...), profiles calibrated
-    without in-camera stabilisation, and the closest resolution decide."""
+    match (GoPro's GPMF device name, e.g. 'HERO8 Black' or 'GoPro Max'; a DJI aircraft's name,
+    e.g. 'Mavic Air 2', see profile_names); then the image's aspect ratio, the lens mode's name
+    where known (wide, linear, superview...), profiles calibrated without in-camera
+    stabilisation, the closest resolution, then the calibration's RMS error and a known readout
+    time decide. Profiles of another aspect ratio (beyond
+    ASPECT_TOLERANCE) are never chosen: a 16:9 video cut from a 4:3 sensor has its own field."""
     folder = PROFILE_DIR / brand
     if not folder.is_dir() or not model:
         return None
-    want = _norm(model.replace("GoPro", ""))
+    want = profile_names(brand, model)
     aspect = width / height
     best: tuple[float, Path, str] | None = None
-    for path in folder.glob("*.json"):
+    for path in sorted(folder.glob("*.json")):
         try:
             d = json.loads(path.read_text(encoding="utf-8"))
             cal = d["calib_dimension"]
         except (OSError, ValueError, KeyError):
             continue
-        if _norm(str(d.get("camera_model", ""))) != want:
+        if _camera_key(brand, str(d.get("camera_model", ""))) not in want:
             continue
+        if abs(cal["w"] / cal["h"] / aspect - 1.0) > ASPECT_TOLERANCE:
+            continue  # another frame shape: how it was cropped from the sensor is not known
         name = path.stem.lower()
         score = 10.0 * abs(cal["w"] / cal["h"] - aspect)
         score += 0.0 if not mode or mode in name.replace(" ", "") else 3.0
         score += 1.0 if "eis" in name and "no-eis" not in name else 0.0
         score += abs(cal["w"] - width) / max(width, 1)
+        score += 0.05 * min(float(d.get("fisheye_params", {}).get("RMS_error") or 5.0), 5.0)  # the better calibration
+        score += 0.0 if d.get("frame_readout_time") else 0.05  # one that can undo the rolling shutter
         if best is None or score < best[0]:
             best = (score, path, f"{d.get('camera_model')} profile '{path.stem}' for {width}x{height}" + (f", {mode} lens mode" if mode else ""))
     return None if best is None else (best[1], best[2])

@@ -16,6 +16,7 @@ from app.attitude.gopro import read_gopro
 from app.errors import DataFormatError
 from app.io import csvlog
 from app.io.dji_srt import read_srt, srt_fixes
+from app.io.dji_mp4 import read_dji_camera
 from app.io.gopro import global_settings
 from app.io.gpmf import Counts, chunks, parse
 from app.io.gpx import read_gpx
@@ -56,6 +57,7 @@ def inspect(path: str | Path) -> Telemetry:
     if suffix == ".gpx":
         return _gpx(path)
     if suffix in (".mp4", ".mov", ".360"):
+        _refuse_dji_video(path)
         return _gopro(path)
     if suffix in RAW_GPMF_SUFFIXES:
         return _gpmf_payload(path)
@@ -114,6 +116,17 @@ def _gpx(path: Path) -> Telemetry:
     out.position = (t, g.lat, g.lon, g.h)
     out.height_note = "<ele> (usually above mean sea level)"
     return out
+
+
+def _refuse_dji_video(path: Path) -> None:
+    """A DJI video keeps its telemetry in the subtitle beside it: say so, naming the camera."""
+    try:
+        cam = read_dji_camera(path)
+    except OSError:
+        return  # the GoPro reader names the file's fault
+    if cam is not None:
+        named = f"DJI {cam.model} ({cam.source})" if cam.model else f"a DJI camera ({cam.source})"
+        raise DataFormatError(path, f"a video from {named}: DJI keeps the telemetry in the subtitle beside it: give the .SRT to geofuse telemetry")
 
 
 def _gopro(path: Path) -> Telemetry:

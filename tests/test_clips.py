@@ -56,6 +56,51 @@ def test_dji_clip_without_attitude_uses_the_course(shared_data, tmp_path, capsys
         assert float(next(csv.DictReader(f))["pitch"]) == pytest.approx(-30.0, abs=0.01)
 
 
+def _dji_clip_naming(folder, shared_data, items):
+    from app.simulate.mp4meta import add_user_data
+    from app.simulate.phone import write_video
+
+    folder.mkdir(exist_ok=True)
+    video = add_user_data(write_video(folder / "DJI_0002.MP4", np.arange(60) / 30.0, (192, 108), 0), items)
+    entries = (shared_data / "real" / "dji" / "mavic_air2.srt").read_text(encoding="utf-8").strip().split("\n\n")[:120]
+    (folder / "DJI_0002.SRT").write_text("\n\n".join(entries) + "\n", encoding="utf-8")
+    return video
+
+
+def test_a_dji_clip_gets_the_lens_profile_of_the_camera_its_mp4_names(shared_data, tmp_path, capsys):
+    """The subtitle names no aircraft; the MP4's camera code (FC3170: a Mavic Air 2) chooses the
+    profile, which is said with its reason, scaled to the video, and brings its readout time;
+    --lens overrides it; a file naming no camera, or an unknown one, is said to get a pinhole."""
+    from app.clips import open_clip
+    from app.lens import read_profile
+    from app.simulate.mp4meta import intl_text
+
+    video = _dji_clip_naming(tmp_path / "a", shared_data, {"\xa9mdl": b"FC3170", "\xa9too": intl_text("DJIMavicAir2")})
+    s = open_clip(video)
+    said = [w for w in s.warnings.items if w.startswith("lens: ")]
+    assert len(said) == 1 and "DJI Mavic Air 2 (camera code FC3170 in the MP4)" in said[0], s.warnings.items
+    profile = next(p for p in (shared_data / "lens_profiles" / "DJI").glob("*.json") if p.stem in said[0])
+    want = read_profile(profile).scaled(192, 108)
+    assert s.lens.kind == want.kind and s.lens.coeffs == want.coeffs and s.lens.fx == pytest.approx(want.fx)
+    said = "from the lens profile" if want.readout_s else "readout time unknown"  # most DJI profiles have none
+    assert s.readout_s == want.readout_s and any(said in w for w in s.warnings.items)
+    assert s.intrinsics.hfov_deg > want.hfov_deg  # the depth pass encloses the undistorted image
+
+    other = next((shared_data / "lens_profiles" / "GoPro").glob("*1920x1080*.json"))
+    assert open_clip(video, lens=other).lens.name == read_profile(other).name
+    assert open_clip(video, hfov_deg=80.0).lens is None
+
+    anonymous = open_clip(_dji_clip_naming(tmp_path / "b", shared_data, {}))
+    assert anonymous.lens is None and any("names no DJI camera" in w and "pinhole of" in w for w in anonymous.warnings.items)
+    unknown = open_clip(_dji_clip_naming(tmp_path / "c", shared_data, {"\xa9mdl": b"FC9999"}))
+    assert unknown.lens is None and any("FC9999 is not one geofuse knows" in w for w in unknown.warnings.items)
+
+    assert main(["solve", str(video), "--out", str(tmp_path / "p.csv")]) == 0
+    assert "DJI Mavic Air 2 (camera code FC3170 in the MP4)" in capsys.readouterr().err
+    assert main(["telemetry", str(video)]) == 2  # its telemetry is in the subtitle: said, naming the camera
+    assert "DJI Mavic Air 2" in capsys.readouterr().err
+
+
 def test_srt_that_does_not_fit_the_video(shared_data, tmp_path, capsys):
     from app.simulate.phone import write_video
 

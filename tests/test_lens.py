@@ -149,6 +149,52 @@ def test_a_gopro_clip_gets_a_lens_profile_chosen_and_said(shared_data, tmp_path)
     assert open_clip(clip, hfov_deg=90.0).lens is None  # --fov: a pinhole, as asked
 
 
+def _dji_mp4(path, items):
+    from app.simulate.mp4meta import add_user_data
+    from app.simulate.phone import write_video
+
+    return add_user_data(write_video(path, np.arange(6) / 30.0, (96, 54), 0), items)
+
+
+def test_the_dji_camera_is_read_from_the_mp4(tmp_path):
+    """DJI subtitles never name the aircraft; the MP4 does, in the layouts DJI writes: a bare
+    camera code, an encoder string in QuickTime text or in an iTunes-style item list. Files that
+    name nothing DJI (a re-encode: Lavf) give None; a code geofuse does not know is kept."""
+    from app.io.dji_mp4 import read_dji_camera
+    from app.simulate.mp4meta import box, intl_text
+
+    cam = read_dji_camera(_dji_mp4(tmp_path / "a.mp4", {"\xa9mdl": b"FC3411\0\0", "\xa9too": intl_text("DJIAir2S")}))
+    assert (cam.model, cam.code, cam.encoder) == ("Air 2S", "FC3411", "DJIAir2S") and "FC3411" in cam.source
+    cam = read_dji_camera(_dji_mp4(tmp_path / "b.mp4", {"\xa9too": intl_text("DJIMavic3Classic")}))
+    assert (cam.model, cam.code) == ("Mavic3Classic", "") and "encoder" in cam.source
+    ilst = box("ilst", box("\xa9too", box("data", b"\0\0\0\x01\0\0\0\0DJI Air3")))
+    hdlr = box("hdlr", bytes(8) + b"mdirappl" + bytes(9))
+    assert read_dji_camera(_dji_mp4(tmp_path / "c.mp4", {"meta": bytes(4) + hdlr + ilst})).model == "Air3"
+    assert read_dji_camera(_dji_mp4(tmp_path / "d.mp4", {})) is None  # PyAV's own encoder string: Lavf...
+    cam = read_dji_camera(_dji_mp4(tmp_path / "e.mp4", {"\xa9mdl": b"fc9999"}))
+    assert (cam.model, cam.code) == ("", "FC9999")
+    truncated = tmp_path / "f.mp4"
+    data = (tmp_path / "a.mp4").read_bytes()
+    truncated.write_bytes(data[: data.index(b"moov") - 4 + 100])  # cut inside the movie box
+    assert read_dji_camera(truncated) is None
+
+
+def test_dji_profiles_are_found_under_their_many_spellings_and_shapes():
+    """The database's users spell one drone several ways ('Mavic Air 2', 'AIR2', 'Air 2'); a
+    profile of another frame shape is never stretched onto the video."""
+    from app.lens import choose_profile, profile_names
+
+    for model in ("Mavic Air 2", "Air3", "Mini 3 Pro", "Mavic3Classic", "Phantom 4"):
+        path, why = choose_profile("DJI", model, 3840, 2160)
+        d = json.loads(path.read_text())
+        assert (d["calib_dimension"]["w"] / d["calib_dimension"]["h"]) == pytest.approx(16 / 9, rel=0.02), why
+        assert any(n in profile_names("DJI", model) for n in ("".join(c for c in d["camera_model"].lower() if c.isalnum()).removeprefix("dji"),))
+    assert "air2" in profile_names("DJI", "Mavic Air 2") and profile_names("GoPro", "GoPro Max") == {"max"}
+    assert choose_profile("DJI", "Mavic 3", 3840, 2160) is None  # its profiles are all 1.90:1
+    assert choose_profile("DJI", "Mavic 3", 5120, 2700) is not None
+    assert choose_profile("DJI", "Spark", 1920, 1080) is None  # no profile at all
+
+
 @pytest.mark.gl
 def test_footprints_through_a_lens_use_its_own_border():
     """A fisheye camera 40 m over flat ground looking straight down: each exported corner lies

@@ -22,6 +22,7 @@ import numpy as np
 
 from app.errors import DataFormatError
 from app.io.gpmf import Counts, StreamChunk, chunks, parse
+from app.io.mp4box import user_data
 from app.io.streams import GnssTrack, Warnings, plausible_fixes
 from app.io.video import probe
 
@@ -89,43 +90,16 @@ def read_payloads(path: Path) -> list[tuple[bytes, float, float]]:
     return out
 
 
-def _boxes(data: bytes, start: int, end: int):
-    """(type, payload start, payload end) of the MP4 boxes in data[start:end]."""
-    pos = start
-    while pos + 8 <= end:
-        size = int.from_bytes(data[pos : pos + 4], "big")
-        kind = data[pos + 4 : pos + 8].decode("latin-1")
-        head = 8
-        if size == 1:
-            size = int.from_bytes(data[pos + 8 : pos + 16], "big")
-            head = 16
-        elif size == 0:
-            size = end - pos
-        if size < head or pos + size > end:
-            return
-        yield kind, pos + head, pos + size
-        pos += size
-
-
 def global_settings(path: str | Path) -> dict[str, object]:
     """The camera's global settings: the GPMF box in moov/udta (lens mode VFOV, field of view
-    ZFOV in degrees, ...). Empty when absent. Reads only the file's box headers and that box."""
-    path = Path(path)
-    with path.open("rb") as f:
-        data = f.read()
-    for kind, a, b in _boxes(data, 0, len(data)):
-        if kind != "moov":
-            continue
-        for kind2, a2, b2 in _boxes(data, a, b):
-            if kind2 != "udta":
-                continue
-            for kind3, a3, b3 in _boxes(data, a2, b2):
-                if kind3 == "GPMF":
-                    try:
-                        return _flatten(parse(data[a3:b3], f"{path} udta"))
-                    except DataFormatError:
-                        return {}
-    return {}
+    ZFOV in degrees, ...). Empty when absent. Reads only box headers and that box."""
+    box = user_data(path).get("GPMF")
+    if box is None:
+        return {}
+    try:
+        return _flatten(parse(box, f"{path} udta"))
+    except DataFormatError:
+        return {}
 
 
 def _flatten(klvs: list) -> dict[str, object]:

@@ -20,17 +20,16 @@ import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
 from app import rotations
-from app.camera import Camera, Intrinsics
-from app.config import ProjectionSettings
+from app.camera import Intrinsics
 from app.geo import LocalFrame
 from app.geomag import field_enu
 from app.scene import load_scene, shapes
 from app.scene.mesh import MeshData
 from app.simulate import sensors
-from app.simulate.phone import Motion, body_rates, specific_force, write_video
+from app.simulate.phone import Motion, body_rates, specific_force
+from app.simulate.video import render_video
 from app.simulate.stadium import HALL_MAX, HALL_MIN, SITE_ORIGIN
 from app.trajectory import device_to_camera
-from app.constants import DEFAULT_FAR_M, VIEW_NEAR_M
 
 START_UNIX_S = 1_763_200_000.0  # 2025-11-15T09:46:40Z
 DURATION_S = 80.0
@@ -281,38 +280,16 @@ frame_times = "truth_frames.csv"
 
 def render_frames(path: Path, scene_path: str | Path, pts: np.ndarray, crf: int) -> Path:
     """Render the video from the true camera poses with the project's renderer, extras included."""
-    from app.render.context import create_offscreen_context
-    from app.render.offscreen import OffscreenTarget
-    from app.render.renderer import FusionRenderer
-
-    frame = LocalFrame(*SITE_ORIGIN)
-    base = load_scene(scene_path, frame)
-    extra = extras()
-    mesh = MeshData(base.primitives + extra)
+    base = load_scene(scene_path, LocalFrame(*SITE_ORIGIN))
+    mesh = MeshData(base.primitives + extras())
     first_mover = len(mesh.primitives) - len(MOVERS)
-    ctx = create_offscreen_context()
-    renderer = FusionRenderer(ctx, mesh)
-    w, h = VIDEO_SIZE
-    intr = Intrinsics.from_fov(w, h, HFOV_DEG)
-    target = OffscreenTarget(ctx, w, h)
-    positions = walk_position(pts)
-    attitudes = camera_attitude(pts)
-    off = ProjectionSettings(enabled=False)
 
-    def frame_at(k: int) -> np.ndarray:
+    def move(renderer, k: int) -> None:
         for i, m in enumerate(MOVERS):
             renderer.scene.update_positions(first_mover + i, _mover_vertices(m, float(pts[k])).astype(np.float32))
-        cam = Camera.create(intr, positions[k], attitudes[k], near=VIEW_NEAR_M, far=DEFAULT_FAR_M)
-        renderer.draw(cam, target.fbo, off)
-        return target.read()
 
-    try:
-        write_video(path, pts, VIDEO_SIZE, ROTATION_CW, creation_time="2025-11-15T09:46:40Z", frame=frame_at, crf=crf)
-    finally:
-        target.release()
-        renderer.release()
-        ctx.release()
-    return path
+    w, h = VIDEO_SIZE
+    return render_video(path, mesh, Intrinsics.from_fov(w, h, HFOV_DEG), walk_position(pts), camera_attitude(pts), pts, ROTATION_CW, crf, "2025-11-15T09:46:40Z", move)
 
 
 def quick_config(duration_s: float = 8.0) -> SampleConfig:

@@ -316,12 +316,21 @@ def cmd_export(args: argparse.Namespace) -> int:
     return 0
 
 
+SYNC_SOURCES = {
+    "gyroscope": "the gyroscope",
+    "telemetry": "the recorded gimbal attitude",
+    "camera": "the camera's recorded attitude",
+    "phone": "the phone's recorded attitude",
+    "course": "the aircraft's course (the GNSS track's lag behind the video)",
+}
+
+
 def cmd_sync(args: argparse.Namespace) -> int:
     """The video <-> gyroscope time offset of a session or clip (app/sync.py)."""
     from app.clips import open_any
     from app.outputs import write_atomically
     from app.progress import ProgressBar
-    from app.sync import settings_path, settings_text, sync_session
+    from app.sync import rate_source, settings_path, settings_text, sync_session
 
     base = 0.0
     if Path(args.input).suffix.lower() == ".toml":  # the manifest's own timing, never an "auto" offset
@@ -335,10 +344,10 @@ def cmd_sync(args: argparse.Namespace) -> int:
     _print_warnings(session)
     result = sync_session(session, ProgressBar("optical flow", sys.stderr))
     ms = 1000 * result.offset_s
-    print(f"{args.input}: the video's times need {ms:+.1f} ms (confidence {result.confidence:.3f}; coarse {1000 * result.coarse_s:+.0f} ms)")
+    print(f"{args.input}: the video's times need {ms:+.1f} ms (confidence {result.confidence:.3f}; coarse {1000 * result.coarse_s:+.0f} ms), timed by {SYNC_SOURCES.get(rate_source(session), rate_source(session))}")
     if result.drift_ppm:
         print(f"clock drift: the video's clock runs {result.drift_ppm:+.0f} ppm against the sensors' ({result.drift_ppm * 1e-6 * 60 * 1000:+.1f} ms a minute); the offset holds at {result.reference_s - float(session.frame_times[0]):.1f} s")
-    print(f"fitted on {len(result.windows)} windows of {result.windows[0][1] - result.windows[0][0]:.1f} s with the most rotation" if result.windows else "no window with rotation")
+    print(f"fitted on {len(result.windows)} windows of {result.windows[0][1] - result.windows[0][0]:.1f} s that say most about time (where the rates change fastest)" if result.windows else "no window with rotation")
     if args.write:
         out = check_output(settings_path(Path(args.input)), "--write", (".toml",), list(session.inputs))
         write_atomically(out, "--write", lambda f: f.write(settings_text(result, base + result.offset_s)))
@@ -415,7 +424,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return code
 
 
-BENCHMARKS = {"render": "bench_render.py", "attitude": "bench_attitude.py", "accuracy": "bench_accuracy.py", "playback": "bench_playback.py", "lens": "bench_lens.py"}
+BENCHMARKS = {"render": "bench_render.py", "attitude": "bench_attitude.py", "accuracy": "bench_accuracy.py", "playback": "bench_playback.py", "lens": "bench_lens.py", "sync": "bench_sync.py"}
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
@@ -502,8 +511,8 @@ def build_parser() -> argparse.ArgumentParser:
     ex.add_argument("--pitch", type=_number(-90.0, 90.0), default=DRONE_DEFAULT_PITCH_DEG, help="a drone clip without gimbal attitude: the camera's pitch, degrees")
     ex.set_defaults(func=cmd_export)
 
-    sy = sub.add_parser("sync", help="the time offset between the video and the gyroscope (or a recorded attitude: a DJI gimbal, a camera, a phone), from the camera's rotation seen in the video")
-    sy.add_argument("input", type=Path, help="a session manifest or a GoPro MP4")
+    sy = sub.add_parser("sync", help="the time offset between the video and the gyroscope (or a recorded attitude: a DJI gimbal, a camera, a phone; or a drone's course: the lag of its GNSS track), from the camera's rotation seen in the video")
+    sy.add_argument("input", type=Path, help="a session manifest, a GoPro MP4, or a DJI MP4 with its subtitle")
     sy.add_argument("--write", action="store_true", help="keep it in NAME.geofuse.toml beside the input (never in an input)")
     sy.add_argument("--lens", type=Path, default=None, help="a gyroflow lens profile (JSON) for a clip")
     sy.set_defaults(func=cmd_sync)

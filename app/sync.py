@@ -1,15 +1,22 @@
 """Automatic video <-> sensor time offset (`geofuse sync`): the camera's rotation rate seen in the
-video against the gyroscope's.
+video against the gyroscope's (or, without one, a recorded attitude's, or a drone's course).
 
 1. Video: sparse optical flow (OpenCV's pyramidal Lucas-Kanade on corners) between consecutive
    frames of a reduced grey copy; each pair's feature bearings (through the session's lens or
    pinhole) give the frame-to-frame rotation by a least-squares fit (Kabsch) with outlier
    rejection; rotation / time step = the rate (rad/s, camera frame) at the pair's mid time.
-2. Gyroscope: its rates turned from the device frame into the camera frame by the mount.
+2. Reference: the gyroscope's rates turned from the device frame into the camera frame by the
+   mount; else a recorded attitude (a DJI gimbal's, a camera's, a phone's own) differentiated;
+   else, for a drone whose subtitle has no gimbal angles, the turn rate of its heading (its
+   recorded yaw, or its direction of travel from the GNSS track) about the world's up axis, which
+   the video's rates are projected on: the offset found is then the lag of the GNSS track (or
+   the yaw) behind the video. A course that hardly turns is refused with the reason.
 3. Coarse: the lag that maximises the cross-correlation of the two rate magnitudes over the
    whole clip (+-MAX_LAG_S); fine: the lag, in 1 ms steps within +-FINE_RANGE_S of it and refined
-   by a parabola, that best fits the three rate components on the windows with the most
-   rotation. The result is the offset to add to the video's times (seconds; video.time_offset_s).
+   by a parabola, that best fits the rate components on the windows that say most about time:
+   those where the reference's rates change fastest (a time error dt moves a rate w by
+   dt * dw/dt; the steady middle of a turn says little). The result is the offset to add to the
+   video's times (seconds; video.time_offset_s).
 4. Drift, on long clips: each strong window's own lag, regressed on time; kept when it moves the
    clip's ends by DRIFT_MIN_EFFECT_S or more.
 
@@ -26,6 +33,8 @@ import numpy as np
 
 from app import rotations
 from app.errors import GeofuseError
+from app.attitude.heading import COURSE_HOLD_SPEED_MPS, smoothed_velocity
+from app.session.model import COURSE
 
 FLOW_WIDTH_PX = 320  # the video is reduced to this width for the flow
 MAX_FEATURES = 200
@@ -37,21 +46,32 @@ WINDOW_S = 1.0
 DRIFT_MIN_SPAN_S = 40.0  # a clock drift is fitted only over clips whose strong windows span this
 DRIFT_LOCAL_S = 0.05  # each window's own offset is searched this far around the clip's
 DRIFT_MIN_EFFECT_S = 0.005  # a fitted drift that moves the clip's ends by less than this is noise: 0
-STRONG_FRACTION = 0.3  # the fine fit uses the windows whose rotation is in the top 30 %
+TIMING_SMOOTH_S = 0.1  # the reference's rates are smoothed over this before their change is taken
+STRONG_FRACTION = 0.3  # the fine fit uses the 30 % of windows that say most about time
 
 
 @dataclass(frozen=True)
 class RateCurve:
-    """Rotation rates: t (N,) seconds; omega (N, 3) rad/s in the camera frame (OpenGL axes)."""
+    """Rotation rates: t (N,) seconds; omega (N, 3) rad/s in the camera frame (OpenGL axes), or,
+    with an axis ((3,) unit vector in that frame), omega (N, 1): the rate about that axis only
+    (a course knows only how the heading turns)."""
 
     t: np.ndarray
     omega: np.ndarray
+    axis: np.ndarray | None = None
+
+    def along(self, reference: "RateCurve") -> "RateCurve":
+        """This three-axis curve made comparable with `reference`: its rate about the
+        reference's axis where the reference has one, else itself."""
+        if reference.axis is None:
+            return self
+        return RateCurve(self.t, (self.omega @ reference.axis)[:, None], reference.axis)
 
 
 @dataclass(frozen=True)
 class SyncResult:
     """offset_s: add to the video's times; confidence: the mean correlation coefficient (0..1) of
-    the three rate components at that offset, on the fitted windows; windows: (start, end) session seconds of the windows fitted;
+    the rate components (three, or the one about a course's axis) at that offset, on the fitted windows; windows: (start, end) session seconds of the windows fitted;
     coarse_s: the magnitude correlation's lag."""
 
     offset_s: float
@@ -128,11 +148,11 @@ def video_rates(video, bearings: Callable[[np.ndarray], np.ndarray], rotation_cw
 
 
 def _on_grid(curve: RateCurve, t: np.ndarray) -> np.ndarray:
-    return np.column_stack([np.interp(t, curve.t, curve.omega[:, j], left=np.nan, right=np.nan) for j in range(3)])
+    return np.column_stack([np.interp(t, curve.t, curve.omega[:, j], left=np.nan, right=np.nan) for j in range(curve.omega.shape[1])])
 
 
 def _score(video: RateCurve, gyro: RateCurve, lag: float, t: np.ndarray, mask: np.ndarray | None = None) -> float:
-    """Mean squared difference of the three components, video at t against gyro at t + lag."""
+    """Mean squared difference of the components, video at t against gyro at t + lag."""
     a, b = _on_grid(video, t), _on_grid(gyro, t + lag)
     ok = np.isfinite(a).all(axis=1) & np.isfinite(b).all(axis=1)
     if mask is not None:
@@ -142,7 +162,9 @@ def _score(video: RateCurve, gyro: RateCurve, lag: float, t: np.ndarray, mask: n
 
 def estimate_offset(video: RateCurve, gyro: RateCurve, clip_start_s: float) -> SyncResult:
     """The offset (s) that aligns the video's rates (media time + clip_start_s) with the
-    gyroscope's (session time); see the module docstring."""
+    gyroscope's (session time); see the module docstring. A reference with an axis (the
+    course) is compared with the video's rate about that axis."""
+    video = video.along(gyro)
     v = RateCurve(video.t + clip_start_s, video.omega)
     t = np.arange(v.t[0], v.t[-1], 1.0 / GRID_HZ)
     mag_v = np.nan_to_num(np.linalg.norm(_on_grid(v, t), axis=1))
@@ -152,9 +174,9 @@ def estimate_offset(video: RateCurve, gyro: RateCurve, clip_start_s: float) -> S
     mv = mag_v - mag_v.mean()
     corr = np.array([np.dot(mv, mag_g_full[i : i + len(mv)] - mag_g_full[i : i + len(mv)].mean()) for i in range(len(lags))])
     coarse = float(lags[int(np.argmax(corr))])
-    # Windows with the most rotation (where timing errors show most).
+    # The windows that say most about time (see _timing_energy).
     edges = np.arange(t[0], t[-1], WINDOW_S)
-    energy = np.array([np.mean(mag_v[(t >= e) & (t < e + WINDOW_S)] ** 2) for e in edges])
+    energy = _timing_energy(gyro, t + coarse, edges, t)
     strong_edges = edges[energy >= np.quantile(energy, 1.0 - STRONG_FRACTION)]
     mask = np.zeros(len(t), bool)
     for e in strong_edges:
@@ -165,9 +187,29 @@ def estimate_offset(video: RateCurve, gyro: RateCurve, clip_start_s: float) -> S
     best = _parabolic_min(fine_lags, scores)
     a, b = _on_grid(v, t), _on_grid(gyro, t + best)
     ok = np.isfinite(a).all(axis=1) & np.isfinite(b).all(axis=1) & mask
-    confidence = float(np.mean([np.corrcoef(a[ok, j], b[ok, j])[0, 1] for j in range(3)])) if ok.sum() > 10 else 0.0
+    confidence = float(np.mean([np.corrcoef(a[ok, j], b[ok, j])[0, 1] for j in range(a.shape[1])])) if ok.sum() > 10 else 0.0
     drift, pivot = _drift(v, gyro, best, strong_edges, t)
     return SyncResult(best, max(0.0, confidence), tuple((float(e), float(e + WINDOW_S)) for e in strong_edges), coarse, drift, pivot)
+
+
+def _timing_energy(reference: RateCurve, t_ref: np.ndarray, edges: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """How much each window (start edges, WINDOW_S long, on grid t) says about time: the mean
+    squared rate of change of the reference's rates (read at t_ref, smoothed over
+    TIMING_SMOOTH_S), since a time error dt changes a rate w by dt * dw/dt. (Peaks of a smooth
+    turn, however strong, say little; its onsets and reversals say most.)"""
+    from scipy.ndimage import uniform_filter1d
+
+    ref = _on_grid(reference, t_ref)  # NaN where the reference has no rate (before, after, gaps)
+    valid = np.isfinite(ref).all(axis=1)
+    n = max(1, int(round(TIMING_SMOOTH_S * GRID_HZ)))
+    smooth = uniform_filter1d(np.where(valid[:, None], ref, 0.0), n, axis=0, mode="nearest")
+    change = np.sum(np.gradient(smooth, axis=0) ** 2, axis=1) * GRID_HZ**2
+    change[uniform_filter1d(valid.astype(np.float64), n + 2, mode="constant") < 1.0 - 1e-9] = np.nan  # near a gap
+    out = np.zeros(len(edges))
+    for i, e in enumerate(edges):
+        window = change[(t >= e) & (t < e + WINDOW_S)]
+        out[i] = np.mean(window) if len(window) and np.isfinite(window).all() else 0.0  # a window the reference does not cover says nothing
+    return out
 
 
 def _parabolic_min(lags: np.ndarray, scores: np.ndarray) -> float:
@@ -201,6 +243,9 @@ def _drift(v: RateCurve, gyro: RateCurve, offset: float, edges: np.ndarray, t: n
 
 ATTITUDE_SMOOTH_S = 0.15  # moving average of rates differentiated from recorded attitudes
 RECORDED_FOR_RATES = ("telemetry", "camera", "phone")  # recorded attitudes, best first, when no gyroscope
+MIN_COURSE_TURN_DEG_S = 3.0  # a course turning slower than this carries no usable timing
+MIN_COURSE_TURNING_S = 4.0  # ... and it must turn that fast for this long over the clip
+SYNC_COURSE_SMOOTH_S = 1.0  # s: velocities are averaged, and the course's turn taken, over this
 
 
 def attitude_rates(t: np.ndarray, q: np.ndarray) -> RateCurve:
@@ -224,30 +269,79 @@ def attitude_rates(t: np.ndarray, q: np.ndarray) -> RateCurve:
 
 
 def rate_source(session) -> str | None:
-    """What times the video: 'gyroscope', a recorded attitude's name, or None (nothing turns)."""
+    """What times the video: 'gyroscope', a recorded attitude's name, 'course' (a drone without
+    gimbal angles: the heading it flies, from its yaw or its GNSS track), or None."""
     if session.gyr is not None:
         return "gyroscope"
-    return next((n for n in RECORDED_FOR_RATES if n in session.recorded), None)
+    recorded = next((n for n in RECORDED_FOR_RATES if n in session.recorded), None)
+    return recorded or (COURSE if session.course_pitch_deg is not None else None)
 
 
 def gyro_rates(session) -> RateCurve:
     """The session's rotation rates in the camera frame of the displayed video: its gyroscope's,
     or, without one, those of a recorded attitude (a DJI gimbal's, a camera's or a phone's own),
-    differentiated; raises when it has neither."""
+    differentiated, or those of the course attitude (a drone whose camera looks where it flies:
+    the offset found is then the lag of its GNSS track, or its yaw, behind the video); raises
+    when it has none, or when the course turns too little to time anything by."""
     mount = rotations.conjugate(session.camera_mount())
     name = rate_source(session)
     if name == "gyroscope":
         t, body = session.gyr.t, session.gyr.values
+    elif name is None:
+        raise GeofuseError(f"{session.path}: no gyroscope, no recorded attitude and no course: the offset cannot be found from rotation (set video.time_offset_s by hand)")
+    elif name == COURSE:
+        return course_rates(session)
     else:
-        if name is None:
-            raise GeofuseError(
-                f"{session.path}: no gyroscope and no recorded attitude: the offset cannot be found from rotation "
-                "(a GNSS course is too slow to time a video by; set video.time_offset_s by hand)"
-            )
         stream = session.recorded[name]
         curve = attitude_rates(stream.t, stream.q)
         t, body = curve.t, curve.omega
     return RateCurve(t, rotations.rotate(np.tile(mount, (len(t), 1)), body))
+
+
+def course_rates(session) -> RateCurve:
+    """How fast a drone's heading turns (rad/s about the world's up axis, seen in the camera frame
+    of the displayed video): from the aircraft's recorded yaw where the subtitle has one, else from
+    its direction of travel (velocities averaged over SYNC_COURSE_SMOOTH_S; NaN while slower than
+    COURSE_HOLD_SPEED_MPS); the turn is taken over SYNC_COURSE_SMOOTH_S too, centred, so that no
+    time moves. Refused when it turns too little."""
+    if session.aircraft_yaw is not None:
+        t, heading = (np.asarray(x, np.float64) for x in session.aircraft_yaw)
+        moving = np.ones(len(t), bool)
+    else:
+        pos = session.positions()
+        t = pos.t
+        vel = smoothed_velocity(t, pos.vel_enu, SYNC_COURSE_SMOOTH_S)
+        heading = np.degrees(np.arctan2(vel[:, 0], vel[:, 1]))
+        moving = np.hypot(vel[:, 0], vel[:, 1]) > COURSE_HOLD_SPEED_MPS
+    keep = np.concatenate([[True], np.diff(t) > 1e-6])
+    t, heading, moving = t[keep], np.unwrap(np.radians(heading[keep])), moving[keep]
+    # the turn over SYNC_COURSE_SMOOTH_S centred on each fix (a derivative from neighbouring
+    # fixes would amplify the positions' rounding); a heading turning clockwise (seen from
+    # above) is a negative turn about the up axis
+    half = SYNC_COURSE_SMOOTH_S / 2
+    rate = -(np.interp(t + half, t, heading) - np.interp(t - half, t, heading)) / (2 * half)
+    rate[~moving | (t - half < t[0]) | (t + half > t[-1])] = np.nan
+    _check_course_turns(t, rate, session)
+    pitch = float(session.course_pitch_deg)
+    q = rotations.camera_quat_from_hpr(0.0, pitch, 0.0)  # the heading does not change where "up" is seen
+    up = rotations.rotate(rotations.conjugate(q), np.array([0.0, 0.0, 1.0]))  # world up in the camera frame
+    up = rotations.rotate(rotations.conjugate(session.camera_mount()), up)
+    return RateCurve(t, rate[:, None], up / np.linalg.norm(up))
+
+
+def _check_course_turns(t: np.ndarray, rate: np.ndarray, session) -> None:
+    """Refuse a course that turns faster than MIN_COURSE_TURN_DEG_S for less than
+    MIN_COURSE_TURNING_S in all: a straight flight or a hover carries no time."""
+    deg = np.degrees(np.abs(np.nan_to_num(rate)))
+    dt = np.diff(t, append=t[-1])
+    turning = float(np.sum(dt[deg >= MIN_COURSE_TURN_DEG_S]))
+    if turning < MIN_COURSE_TURNING_S:
+        source = "yaw" if session.aircraft_yaw is not None else "course over the ground"
+        raise GeofuseError(
+            f"{session.path}: the aircraft's {source} turns faster than {MIN_COURSE_TURN_DEG_S:g} deg/s for only {turning:.1f} s "
+            f"(at most {float(np.max(deg, initial=0.0)):.1f} deg/s; {MIN_COURSE_TURNING_S:g} s needed): a straight flight or a hover "
+            "does not show when its GNSS track lags the video, so the offset cannot be estimated (set video.time_offset_s by hand)"
+        )
 
 
 def bearings_of(session) -> Callable[[np.ndarray], np.ndarray]:

@@ -171,9 +171,12 @@ class SyncJob:
             return {}
         start = float(self.session.frame_times[0] - self.session.video.pts_s[0])
         t = np.linspace(self.video.t[0], self.video.t[-1], points)
-        mag = lambda c, tt: np.linalg.norm(np.column_stack([np.interp(tt, c.t, c.omega[:, j]) for j in range(3)]), axis=1)  # noqa: E731
+        mag = lambda c, tt: np.linalg.norm(np.column_stack([np.interp(tt, c.t, np.nan_to_num(c.omega[:, j])) for j in range(c.omega.shape[1])]), axis=1)  # noqa: E731
+        from app.sync import rate_source
+
+        name = rate_source(self.session) or "reference"
         return {
-            "video": (t, mag(self.video, t)),
-            "gyroscope, before": (t, mag(self.gyro, t + start)),
-            "gyroscope, after": (t, mag(self.gyro, t + start + self.result.offset_s)),
+            "video": (t, mag(self.video.along(self.gyro), t)),
+            f"{name}, before": (t, mag(self.gyro, t + start)),
+            f"{name}, after": (t, mag(self.gyro, t + start + self.result.offset_s)),
         }

@@ -207,7 +207,7 @@ class Viewer:
         from app.sync import rate_source
 
         if rate_source(self.loaded.session) is None:
-            raise ValueError("this session has no gyroscope and no recorded attitude: the offset cannot be found from rotation")
+            raise ValueError("this session has no gyroscope, no recorded attitude and no course: the offset cannot be found from rotation")
         self.ui.sync_job, self.ui.sync_applied = SyncJob(self.loaded.session), False
 
     def set_tile_detail(self, max_sse_px: float) -> None:

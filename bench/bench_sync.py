@@ -1,0 +1,97 @@
+"""How well `geofuse sync` finds time offsets: the sample's video moved by known amounts (timed by
+its gyroscope), and a simulated drone clip whose subtitle's GNSS track lags the video by known
+amounts (timed by its course: no gyroscope, no gimbal angles).
+
+    python bench/bench_sync.py [--skip-sample] [--keep DIR]
+
+The drone clip is app.simulate.drone's (24 s over the sample site, weaving +-40 deg at 9 m/s),
+rendered once into a temporary folder (or --keep DIR) and opened as a DJI clip would be.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from bench.common import table  # noqa: E402
+
+SAMPLE_SHIFTS_S = (0.0, 0.25, -0.4, 0.1, -1 / 30, 0.017)
+DRONE_LAGS_S = (0.0, 0.3, -0.2, 0.6, 0.017, -0.5)
+
+
+def _ms(x: float) -> str:
+    return f"{1000 * x:+.1f} ms"
+
+
+def sample_rows() -> list[list[str]]:
+    from app.demo import SAMPLE_DIR
+    from app.session import open_session
+    from app.sync import bearings_of, estimate_offset, gyro_rates, video_rates
+
+    s = open_session(SAMPLE_DIR / "session.toml")
+    t0 = time.perf_counter()
+    rates = video_rates(s.video, bearings_of(s), s.rotation_cw)
+    flow_s = time.perf_counter() - t0
+    gyro = gyro_rates(s)
+    truth = float(np.mean(s.truth_frame_times - s.frame_times))
+    rows = []
+    for shift in SAMPLE_SHIFTS_S:
+        r = estimate_offset(rates, gyro, float(s.frame_times[0] - s.video.pts_s[0]) - shift)
+        want = truth + shift
+        rows.append(["sample walk, gyroscope", _ms(shift), _ms(r.offset_s), _ms(want), f"{1000 * abs(r.offset_s - want):.1f} ms", f"{r.confidence:.3f}", str(len(r.windows))])
+    print(f"sample: optical flow over {len(s.video.pts_s)} frames took {flow_s:.1f} s")
+    return rows
+
+
+def drone_rows(folder: Path) -> list[list[str]]:
+    from app.clips import open_clip
+    from app.simulate import drone
+    from app.sync import bearings_of, estimate_offset, gyro_rates, video_rates
+
+    video = folder / "DJI_0001.MP4"
+    if not video.is_file():
+        t0 = time.perf_counter()
+        drone.write_video(video)
+        print(f"drone: rendered {video} in {time.perf_counter() - t0:.1f} s")
+    rates = None
+    rows = []
+    for lag in DRONE_LAGS_S:
+        (folder / "DJI_0001.SRT").write_text(drone.srt_text(24.0, lag), encoding="utf-8")
+        s = open_clip(video)
+        if rates is None:
+            rates = video_rates(s.video, bearings_of(s), s.rotation_cw)
+        r = estimate_offset(rates, gyro_rates(s), float(s.frame_times[0] - s.video.pts_s[0]))
+        rows.append(["drone, GNSS course", _ms(lag), _ms(r.offset_s), _ms(lag), f"{1000 * abs(r.offset_s - lag):.1f} ms", f"{r.confidence:.3f}", str(len(r.windows))])
+    return rows
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--skip-sample", action="store_true")
+    parser.add_argument("--keep", type=Path, help="render the drone clip here (and reuse it)")
+    args = parser.parse_args(argv)
+    rows = [] if args.skip_sample else sample_rows()
+    if args.keep is not None:
+        args.keep.mkdir(parents=True, exist_ok=True)
+        rows += drone_rows(args.keep)
+    else:
+        with tempfile.TemporaryDirectory() as tmp:
+            rows += drone_rows(Path(tmp))
+    print("# time offsets found by geofuse sync\n")
+    print(table(["clip, timed by", "moved / lagged by", "found", "expected", "error", "confidence", "windows"], rows))
+    errors = [float(r[4].split()[0]) for r in rows]
+    print(f"\nlargest error {max(errors):.1f} ms")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -316,21 +316,12 @@ def cmd_export(args: argparse.Namespace) -> int:
     return 0
 
 
-SYNC_SOURCES = {
-    "gyroscope": "the gyroscope",
-    "telemetry": "the recorded gimbal attitude",
-    "camera": "the camera's recorded attitude",
-    "phone": "the phone's recorded attitude",
-    "course": "the aircraft's course (the GNSS track's lag behind the video)",
-}
-
-
 def cmd_sync(args: argparse.Namespace) -> int:
     """The video <-> gyroscope time offset of a session or clip (app/sync.py)."""
     from app.clips import open_any
     from app.outputs import write_atomically
     from app.progress import ProgressBar
-    from app.sync import rate_source, settings_path, settings_text, sync_session
+    from app.sync import settings_path, settings_text, sync_session, timed_by
 
     base = 0.0
     if Path(args.input).suffix.lower() == ".toml":  # the manifest's own timing, never an "auto" offset
@@ -344,7 +335,7 @@ def cmd_sync(args: argparse.Namespace) -> int:
     _print_warnings(session)
     result = sync_session(session, ProgressBar("optical flow", sys.stderr))
     ms = 1000 * result.offset_s
-    print(f"{args.input}: the video's times need {ms:+.1f} ms (confidence {result.confidence:.3f}; coarse {1000 * result.coarse_s:+.0f} ms), timed by {SYNC_SOURCES.get(rate_source(session), rate_source(session))}")
+    print(f"{args.input}: the video's times need {ms:+.1f} ms (confidence {result.confidence:.3f}; coarse {1000 * result.coarse_s:+.0f} ms), timed by {timed_by(session)}")
     if result.drift_ppm:
         print(f"clock drift: the video's clock runs {result.drift_ppm:+.0f} ppm against the sensors' ({result.drift_ppm * 1e-6 * 60 * 1000:+.1f} ms a minute); the offset holds at {result.reference_s - float(session.frame_times[0]):.1f} s")
     print(f"fitted on {len(result.windows)} windows of {result.windows[0][1] - result.windows[0][0]:.1f} s that say most about time (where the rates change fastest)" if result.windows else "no window with rotation")

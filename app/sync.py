@@ -277,6 +277,21 @@ def rate_source(session) -> str | None:
     return recorded or (COURSE if session.course_pitch_deg is not None else None)
 
 
+RATE_SOURCE_WORDS = {
+    "gyroscope": "the gyroscope",
+    "telemetry": "the recorded gimbal attitude",
+    "camera": "the camera's recorded attitude",
+    "phone": "the phone's recorded attitude",
+    COURSE: "the aircraft's course (the GNSS track's lag behind the video)",
+}
+
+
+def timed_by(session) -> str:
+    """What the session's video is timed against, in words, for messages."""
+    name = rate_source(session)
+    return RATE_SOURCE_WORDS.get(name, str(name))
+
+
 def gyro_rates(session) -> RateCurve:
     """The session's rotation rates in the camera frame of the displayed video: its gyroscope's,
     or, without one, those of a recorded attitude (a DJI gimbal's, a camera's or a phone's own),

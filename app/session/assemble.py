@@ -40,7 +40,7 @@ def open_session(path: str | Path) -> Session:
     session = assemble(cfg)
     if not cfg.video.auto_offset:
         return session
-    from app.sync import corrected_times, sync_session, synced_drift, synced_offset
+    from app.sync import corrected_times, sync_session, synced_drift, synced_offset, timed_by
 
     offset = synced_offset(cfg.path)
     if offset is not None:
@@ -49,7 +49,7 @@ def open_session(path: str | Path) -> Session:
     else:
         result = sync_session(session)
         offset, drift, pivot = result.offset_s, result.drift_ppm, result.reference_s
-        session.warnings.add(f"time offset {1000 * offset:+.1f} ms (drift {drift:+.0f} ppm) found from the video against the gyroscope (confidence {result.confidence:.2f}); geofuse sync --write keeps it")
+        session.warnings.add(f"time offset {1000 * offset:+.1f} ms (drift {drift:+.0f} ppm) found from the video against {timed_by(session)} (confidence {result.confidence:.2f}); geofuse sync --write keeps it")
     return replace(session, frame_times=corrected_times(session.frame_times, offset, drift, pivot))
 
 

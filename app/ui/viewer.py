@@ -253,7 +253,9 @@ class Viewer:
             self.ui.error(job.error)
         elif job.result is not None:
             self.set_time_offset(job.result.offset_s)
-            self.ui.notices.append(f"time offset {1000 * job.result.offset_s:+.1f} ms from the video against the gyroscope (confidence {job.result.confidence:.2f})")
+            from app.sync import timed_by
+
+            self.ui.notices.append(f"time offset {1000 * job.result.offset_s:+.1f} ms from the video against {timed_by(job.session)} (confidence {job.result.confidence:.2f})")
 
     def start_recording(self, out: Path) -> None:
         from app.outputs import check_output

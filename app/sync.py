@@ -32,8 +32,8 @@ from pathlib import Path
 import numpy as np
 
 from app import rotations
-from app.errors import GeofuseError
 from app.attitude.heading import COURSE_HOLD_SPEED_MPS, smoothed_velocity
+from app.errors import GeofuseError
 from app.session.model import COURSE
 
 FLOW_WIDTH_PX = 320  # the video is reduced to this width for the flow

@@ -207,7 +207,7 @@ def _dji_profile(path: Path, video: VideoInfo, fallback: str, warnings: Warnings
     if not cam.model:
         warnings.add(f"{path.name}: DJI camera code {cam.code} is not one geofuse knows: {fallback} is assumed (give --lens PROFILE.json)")
         return None
-    return _auto_profile("DJI", cam.model, f"DJI {cam.model} ({cam.source})", video, "", f"{path.name}: ", fallback, warnings)
+    return _auto_profile("DJI", cam.model, cam.described, video, "", f"{path.name}: ", fallback, warnings)
 
 
 def open_any(path: str | Path, srt: str | Path | None = None, hfov_deg: float | None = None, pitch_deg: float = DRONE_DEFAULT_PITCH_DEG, lens: str | Path | None = None, layers: tuple[Layer, ...] = ()) -> Session:

@@ -125,8 +125,7 @@ def _refuse_dji_video(path: Path) -> None:
     except OSError:
         return  # the GoPro reader names the file's fault
     if cam is not None:
-        named = f"DJI {cam.model} ({cam.source})" if cam.model else f"a DJI camera ({cam.source})"
-        raise DataFormatError(path, f"a video from {named}: DJI keeps the telemetry in the subtitle beside it: give the .SRT to geofuse telemetry")
+        raise DataFormatError(path, f"a video from {cam.described}: DJI keeps the telemetry in the subtitle beside it: give the .SRT to geofuse telemetry")
 
 
 def _gopro(path: Path) -> Telemetry:

@@ -19,6 +19,7 @@ from app.attitude.metrics import hpr_rms
 from app.camera import Camera, Intrinsics
 from app.camera_track import CameraTrack, camera_track, frame_clock
 from app.session import Session
+from app.solve import solve_track
 from app.constants import VIEW_FAR_M, VIEW_NEAR_M
 
 EDGE_FRACTION = 0.1  # the outer 10 % of columns on each side count as the image's edges
@@ -134,16 +135,17 @@ def evaluate(session: Session, sources: list[str], every: int = 10, grid: tuple[
     frames = np.arange(0, len(t_true), every)
     truth_track = replace(camera_track(session, "truth"), clock=true_clock)
     truth = poses_at(truth_track, frames)
+    # Every source is solved before the probe's GL context exists: registration makes its own.
+    entries: list[tuple[str, Callable[[np.ndarray], Poses], np.ndarray]] = []
+    for name in sources:
+        pose_track = solve_track(session, name).poses
+        entries.append((name, lambda tt, tr=pose_track: Poses(*tr.at(tt)[::2]), pipeline_clock.session_s[frames]))
+    if paper and session.mag is not None:
+        at, eq5 = paper_track(session)
+        entries.append(("paper pipeline", at, eq5[frames]))
     probe = ProjectionProbe(session, grid)
     reports = []
     try:
-        entries: list[tuple[str, Callable[[np.ndarray], Poses], np.ndarray]] = []
-        for name in sources:
-            pose_track = camera_track(session, name).poses
-            entries.append((name, lambda tt, tr=pose_track: Poses(*tr.at(tt)[::2]), pipeline_clock.session_s[frames]))
-        if paper and session.mag is not None:
-            at, eq5 = paper_track(session)
-            entries.append(("paper pipeline", at, eq5[frames]))
         for name, at, pipeline_times in entries:
             est = at(pipeline_times)  # what the pipeline shows for each frame
             est_true_time = at(t_true[frames])  # its attitude and position, at the right time

@@ -13,6 +13,7 @@ offset. World: local ENU metres; quaternions camera -> ENU, [w, x, y, z].
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 import numpy.typing as npt
@@ -22,6 +23,9 @@ from app.camera import Camera, Intrinsics
 from app.constants import DEFAULT_FAR_M, DEFAULT_NEAR_M
 from app.session.model import TRUTH, Session, device_attitude
 from app.trajectory import PoseTrack, PositionTrack
+
+if TYPE_CHECKING:
+    from app.register.solve import Registration
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -78,6 +82,7 @@ class CameraTrack:
     lens: object | None = None  # app.lens.Lens; intrinsics then enclose its image
     readout_s: float | None = None  # rolling shutter: first row to last, seconds (None: off)
     readout_axis: tuple[float, float, float] = (0.0, 1.0, 0.0)  # where the sensor's rows run in the displayed image (readout_axis())
+    registration: Registration | None = None  # the `registered` source: every keyframe's outcome
 
     @property
     def frame_count(self) -> int:

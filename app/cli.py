@@ -196,7 +196,6 @@ def _render_session(args: argparse.Namespace) -> int:
     import numpy as np
 
     from app.camera import Intrinsics
-    from app.camera_track import camera_track
     from app.config import OverlaySettings
     from app.imageio import write_rgb
     from app.io.video import read_frame
@@ -212,7 +211,7 @@ def _render_session(args: argparse.Namespace) -> int:
     _print_warnings(session)
     index = int(np.argmin(np.abs(pts - args.time)))
     try:
-        track = camera_track(session, source).with_clip(DEFAULT_NEAR_M, args.far)
+        track = _solved(session, source).with_clip(DEFAULT_NEAR_M, args.far)
     except ValueError as exc:
         raise GeofuseError(f"--source: {exc}") from exc
     projector = track.frame_camera(index)
@@ -222,6 +221,18 @@ def _render_session(args: argparse.Namespace) -> int:
     out = write_rgb(args.out, rgb)
     print(f"wrote {out}: frame {index} at {pts[index]:.3f} s, attitude from {source}")
     return 0
+
+
+def _solved(session, source: str):
+    """The session's camera track under `source` (a progress bar on stderr while registering),
+    printing the registration's summary line."""
+    from app.progress import ProgressBar
+    from app.solve import solve_track
+
+    track = solve_track(session, source, progress=ProgressBar(f"registering ({source})", sys.stderr if sys.stderr.isatty() else None))
+    if track.registration is not None:
+        print(track.registration.summary(), file=sys.stderr)
+    return track
 
 
 def _open_with_source(path: Path, args: argparse.Namespace, suffixes: tuple[str, ...]):
@@ -269,7 +280,6 @@ def cmd_export(args: argparse.Namespace) -> int:
     """footprints / fmv-csv / klv / video of a session or clip (app/export)."""
     import numpy as np
 
-    from app.camera_track import camera_track
     from app.export.gis import write_records
     from app.export.records import frame_records
     from app.outputs import write_atomically, write_via_path
@@ -281,7 +291,7 @@ def cmd_export(args: argparse.Namespace) -> int:
         check_output(args.preview, "--preview", IMAGE_SUFFIXES, [args.input, args.srt, args.out])
     session, source = _open_with_source(args.input, args, suffixes)
     _print_warnings(session)
-    track = camera_track(session, source)
+    track = _solved(session, source)
     bar = ProgressBar(f"export {args.what}", sys.stderr)
     out = Path(args.out)
     if args.what == "video":
@@ -387,7 +397,7 @@ def cmd_simulate_session(args: argparse.Namespace) -> int:
     scene = args.scene or SAMPLE_SCENE
     if not Path(scene).is_file():
         raise GeofuseError(f"{scene}: scene file does not exist (make one with `geofuse simulate scene`)")
-    manifest = write_sample_session(args.out, scene, SampleConfig(seed=args.seed, duration_s=args.duration))
+    manifest = write_sample_session(args.out, scene, SampleConfig(seed=args.seed, duration_s=args.duration, world=not args.model_world))
     total = sum(p.stat().st_size for p in Path(args.out).iterdir() if p.is_file())
     print(f"wrote {manifest} ({total / 1e6:.1f} MB in {args.out})")
     return 0
@@ -524,6 +534,7 @@ def build_parser() -> argparse.ArgumentParser:
     ss.add_argument("--scene", type=Path, default=None, help="the site GLB (default: the bundled sample)")
     ss.add_argument("--seed", type=int, default=2026)
     ss.add_argument("--duration", type=_number(1.0, 3600.0), default=80.0, help="seconds of video")
+    ss.add_argument("--model-world", action="store_true", help="render the video from the plain model itself (the old sample), not from a world that differs from it")
     ss.set_defaults(func=cmd_simulate_session)
     sp = ssub.add_parser("photo", help="the sample photo: the site seen from the sample pose, plus a banner, people, a car")
     sp.add_argument("--scene", required=True, type=Path)

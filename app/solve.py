@@ -6,20 +6,33 @@ import csv
 from pathlib import Path
 from typing import TextIO
 
-from app.camera_track import FramePoses, camera_track
+from collections.abc import Callable
+
+from app.camera_track import CameraTrack, FramePoses, camera_track
 from app.outputs import CSV_SUFFIXES, check_output, write_atomically
 from app.progress import ProgressBar
-from app.session.model import Session
+from app.register import registered_track
+from app.session.model import REGISTERED, Session
 
 COLUMNS = ("frame", "time_s", "latitude", "longitude", "height", "E", "N", "U", "heading", "pitch", "roll", "qw", "qx", "qy", "qz")
 PROGRESS_MIN_SAMPLES = 100_000
+
+
+def solve_track(session: Session, source: str, progress: Callable[[float], None] | None = None, **options: object) -> CameraTrack:
+    """One source of a session solved into its camera track: the one entry point for every
+    command and the viewer's solver. The `registered` source renders the scene (app.register);
+    the others are app.camera_track.camera_track (options: course_pitch_deg, true_timing,
+    time_offset_s). progress(fraction) is called where solving takes long (registration)."""
+    if source == REGISTERED:
+        return registered_track(session, progress=progress, **options)
+    return camera_track(session, source, **options)
 
 
 def solve_frames(session: Session, source: str) -> FramePoses:
     """The camera's pose at every video frame under one source (app.camera_track.FramePoses):
     time in session seconds; lat/lon deg, height m ellipsoidal; ENU m; heading/pitch/roll of the
     optical axis in degrees; camera -> ENU quaternion."""
-    return camera_track(session, source).frame_poses()
+    return solve_track(session, source).frame_poses()
 
 
 def csv_rows(poses: FramePoses):
@@ -36,10 +49,13 @@ def solve_to_csv(session: Session, source: str, out: str | Path, progress: TextI
     returns the row count."""
     out = check_output(out, "--out", CSV_SUFFIXES, list(session.inputs) + [session.path, session.video.path, session.gnss.source])
     long_input = session.gyr is not None and len(session.gyr.t) >= PROGRESS_MIN_SAMPLES
-    bar = ProgressBar(f"solving {source}", progress if long_input else None)
+    bar = ProgressBar(f"solving {source}", progress if long_input or source == REGISTERED else None)
     bar(0.0)
-    poses = solve_frames(session, source)
+    track = solve_track(session, source, progress=bar)
+    poses = track.frame_poses()
     bar(1.0)
+    if track.registration is not None and progress is not None:
+        print(track.registration.summary(), file=progress)
     def write(f) -> None:
         w = csv.writer(f)
         w.writerow(COLUMNS)

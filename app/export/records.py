@@ -17,10 +17,11 @@ import numpy as np
 
 from app import rotations
 from app.camera import Camera
-from app.camera_track import CameraTrack, camera_track
+from app.camera_track import CameraTrack
 from app.constants import VIEW_FAR_M, VIEW_NEAR_M
 from app.render.probe import SurfaceProbe, border_sampling
 from app.session.model import Session
+from app.solve import solve_track
 
 FOOTPRINT_MAX_RANGE_M = 2000.0  # border rays that meet nothing are clipped at this range
 FOOTPRINT_SAMPLES = (33, 19)  # rays across the image, and down it (the border's samples)
@@ -139,7 +140,7 @@ def frame_records(
     track: CameraTrack | None = None,
 ) -> Iterator[FrameRecord]:
     """A record for every `every`-th video frame under one source (see the module docstring)."""
-    track = track or camera_track(session, source)
+    track = track or solve_track(session, source)
     caster = FootprintCaster(session.scene(), session.frame, session.intrinsics, max_range_m, session.lens)
     frames = range(0, track.frame_count, max(1, every))
     try:

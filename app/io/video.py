@@ -3,6 +3,7 @@ creation time. Decodes only the first frame (for its rotation side data); the re
 
 from __future__ import annotations
 
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
@@ -152,3 +153,38 @@ def read_frame(path: str | Path, index: int, info: VideoInfo | None = None) -> n
         except av.FFmpegError as exc:
             raise VideoError(path, f"cannot decode frame {index} ({exc})") from exc
     raise VideoError(path, f"frame {index} not found")
+
+
+def frames_at(info: VideoInfo, indices: Sequence[int], long_side: int | None = None) -> Iterator[tuple[int, np.ndarray]]:
+    """Frames `indices` (display order, increasing) decoded in one pass as (index, (H, W, 3) uint8
+    RGB in display orientation), scaled so that the long side is at most `long_side` pixels.
+    Frames are matched to indices by presentation time; a damaged frame is skipped, a stream that
+    cannot be decoded at all raises VideoError."""
+    import av
+
+    wanted = sorted(set(int(i) for i in indices))
+    if not wanted:
+        return
+    path = Path(info.path)
+    scale = 1.0 if long_side is None else min(1.0, long_side / max(info.width, info.height))
+    size = (max(2, round(info.width * scale)), max(2, round(info.height * scale)))
+    half_frame = 0.5 / max(info.nominal_fps, 1.0)
+    j = 0
+    try:
+        with av.open(str(path)) as container:
+            stream = container.streams.video[0]
+            stream.thread_type = "AUTO"
+            for frame in container.decode(stream):
+                if frame.pts is None:
+                    continue
+                t = media_seconds(frame.pts, stream.time_base, info.origin_s)
+                while j < len(wanted) and info.pts_s[wanted[j]] < t - half_frame:
+                    j += 1  # that frame was not decoded (damaged): skip it
+                if j == len(wanted):
+                    return
+                if abs(info.pts_s[wanted[j]] - t) <= half_frame:
+                    rgb = frame.reformat(width=size[0], height=size[1], format="rgb24").to_ndarray()
+                    yield wanted[j], rotate_for_display(rgb, info.rotation_cw)
+                    j += 1
+    except av.FFmpegError as exc:
+        raise VideoError(path, f"cannot decode the video ({exc})") from exc

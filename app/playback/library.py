@@ -18,8 +18,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from app.attitude.metrics import hpr_rms
-from app.camera_track import CameraTrack, camera_track, frame_clock
+from app.camera_track import CameraTrack, frame_clock
 from app.session.model import COURSE, TRUTH, Session
+from app.solve import solve_track
 
 REFERENCE_ORDER = (TRUTH, "phone")  # what the others are compared with, first found
 
@@ -51,6 +52,7 @@ class SolverLibrary:
         self._tracks: dict[str, CameraTrack] = {}
         self._curves: dict[str, Curves] = {}
         self._errors: dict[str, str] = {}
+        self._partial: dict[str, float] = {}  # sources being solved that report progress (registration)
         self._truth_timed: CameraTrack | None = None
         self._offset_s = 0.0
         self._course_pitch = session.course_pitch_deg
@@ -70,7 +72,16 @@ class SolverLibrary:
     @property
     def progress(self) -> float:
         with self._lock:
-            return (len(self._tracks) + len(self._errors)) / max(1, len(self.order))
+            done = len(self._tracks) + len(self._errors)
+            partial = sum(f for n, f in self._partial.items() if n not in self._tracks and n not in self._errors)
+            return (done + partial) / max(1, len(self.order))
+
+    def source_progress(self, name: str) -> float | None:
+        """How far a long solve of `name` has got (0..1), while it runs; None otherwise."""
+        with self._lock:
+            if name in self._tracks or name in self._errors:
+                return None
+            return self._partial.get(name)
 
     @property
     def done(self) -> bool:
@@ -185,10 +196,14 @@ class SolverLibrary:
                     self._table = None
                     self._idle.notify_all()
 
+    def _partly(self, name: str, fraction: float) -> None:
+        with self._lock:
+            self._partial[name] = float(fraction)
+
     def _solve(self, name: str) -> None:
         with self._lock:
             pitch = self._course_pitch
-        track = camera_track(self.session, name, course_pitch_deg=pitch if name == COURSE else None)
+        track = solve_track(self.session, name, progress=lambda f: self._partly(name, f), course_pitch_deg=pitch if name == COURSE else None)
         curves = curves_of(track)
         truth = replace(track, clock=frame_clock(self.session, true_timing=True)) if name == TRUTH else None
         with self._lock:

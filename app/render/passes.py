@@ -104,9 +104,15 @@ class ScenePass:
         self.program["u_video_u"].value = 3
         self.program["u_video_v"].value = 4
         self.program["u_truth_positions"].value = 5
-        self.program["u_light_dir"].value = tuple(LIGHT_DIR)
+        self.set_light(LIGHT_DIR)
         # A 1x1 stand-in so that unused samplers are always complete.
         self._blank = ctx.texture((1, 1), 4, bytes([255, 255, 255, 255]))
+
+    def set_light(self, direction_enu: np.ndarray) -> None:
+        """The direction toward the light (ENU, normalised here) for the model's shading; a
+        simulated world may light the scene otherwise than the model's renderings."""
+        d = np.asarray(direction_enu, np.float64)
+        self.program["u_light_dir"].value = tuple(float(v) for v in d / np.linalg.norm(d))
 
     def render(
         self,

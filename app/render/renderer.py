@@ -91,6 +91,11 @@ class FusionRenderer:
         p = self._position_pass().render(small)[row, col]
         return p.astype(np.float64) if np.all(np.isfinite(p)) else None
 
+    def pick_map(self, camera: Camera) -> np.ndarray:
+        """(H, W, 3) ENU metres of the surface at each pixel centre of `camera` (row 0 = top),
+        NaN where it sees none: the position pass at the camera's full resolution."""
+        return self._position_pass().render(camera)
+
     def set_outlines(self, segments_enu: npt.ArrayLike | None) -> None:
         """Line segments (2N, 3) ENU metres, drawn in pairs over the scene (e.g. footprints)."""
         self.outlines = None if segments_enu is None else np.asarray(segments_enu, np.float64)

@@ -38,6 +38,7 @@ FILTERS = {
 }
 COURSE = "course"  # the derived source: heading along the track, pitch a setting
 TRUTH = "truth"
+REGISTERED = "registered"  # a prior source corrected by keyframes registered against the scene
 
 
 @dataclass(frozen=True)
@@ -131,8 +132,9 @@ class Session:
     @property
     def sources(self) -> list[str]:
         """The attitude sources this session offers: our filters (AHRS ones only with a
-        magnetometer; none without an IMU), the derived course, then the recorded attitudes,
-        truth last."""
+        magnetometer; none without an IMU), the derived course, the recorded attitudes, then
+        `registered` where there is a scene to register against and a source to correct, truth
+        last."""
         own: list[str] = []
         if self.gyr is not None and self.acc is not None:
             own = [k for k, (_, ahrs) in FILTERS.items() if self.mag is not None or not ahrs]
@@ -141,12 +143,15 @@ class Session:
         if self.course_pitch_deg is not None:
             own.append(COURSE)
         recorded = [r for r in self.recorded if r != TRUTH]
-        out = own + recorded + ([TRUTH] if TRUTH in self.recorded else [])
+        registered = [REGISTERED] if self.layers and (own or recorded) else []
+        out = own + recorded + registered + ([TRUTH] if TRUTH in self.recorded else [])
         prefer = self.heading.prefer
         return [prefer] + [s for s in out if s != prefer] if prefer in out else out
 
     def check_source(self, source: str) -> None:
         """ValueError naming what the session offers, for a source it does not."""
+        if source == REGISTERED and not self.layers:
+            raise ValueError("the scene is an assumed flat ground: there is nothing to register the video against (name a model, tileset or DEM)")
         if source not in self.sources:
             raise ValueError(f"unknown attitude source {source!r}; this session offers {', '.join(self.sources)}")
 
@@ -156,6 +161,8 @@ def device_attitude(session: Session, source: str, course_pitch_deg: float | Non
 
     course_pitch_deg: the `course` source's pitch (default: the session's)."""
     session.check_source(source)
+    if source == REGISTERED:
+        raise ValueError("the registered source is a whole pose track, not an attitude: solve it with app.solve.solve_track")
     pos = session.positions()
     if source == COURSE:
         pitch = session.course_pitch_deg if course_pitch_deg is None else course_pitch_deg

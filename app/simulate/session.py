@@ -5,8 +5,10 @@ Motion (80 s): along the service path 62 m south of the hall's centre, eastward 
 handheld sway and step bounce; a 5 s stop (t = 30-35 s); the camera follows the hall with a slow
 left-right pan, swings 70 deg right and back quickly (t = 40-46 s), points up at the roof edge
 (t = 55-63 s). The phone is held in landscape with its top to the right, so the video is stored
-turned (display rotation 180 deg), as phones do. The video shows cars, people and a banner that
-the model lacks. Sensors: app/simulate/sensors.py (error model with sources). The manifest's
+turned (display rotation 180 deg), as phones do. The video is rendered from a world that differs
+from the model the manifest names (app/simulate/world.py: textures retaken, trees, kiosks and
+parked cars, another light, the camera's blur and noise), and shows moving cars, people and a
+banner that the model lacks. Sensors: app/simulate/sensors.py (error model with sources). The manifest's
 video start time is 80 ms late, as a start time taken from a file timestamp would be; the truth
 says by how much (docs/ACCURACY.md measures what that costs).
 """
@@ -28,6 +30,7 @@ from app.scene.mesh import MeshData
 from app.simulate import sensors
 from app.simulate.phone import Motion, body_rates, specific_force
 from app.simulate.video import render_video
+from app.simulate.world import world_of
 from app.simulate.stadium import HALL_MAX, HALL_MIN, SITE_ORIGIN
 from app.trajectory import device_to_camera
 
@@ -184,6 +187,7 @@ class SampleConfig:
     errors: sensors.SensorErrors = sensors.SensorErrors()
     render_video: bool = True
     crf: int = 30
+    world: bool = True  # render from a world that differs from the model (False: the model itself)
 
 
 def write_sample_session(out: str | Path, scene_path: str | Path, config: SampleConfig = SampleConfig()) -> Path:
@@ -231,7 +235,7 @@ def write_sample_session(out: str | Path, scene_path: str | Path, config: Sample
     pts = np.arange(n) / FPS + np.concatenate([[0.0], rng.uniform(-0.003, 0.003, n - 1)])
     _csv(out / "truth_frames.csv", ["frame", "t"], [np.arange(n), t0 + pts], ["%d", TIME_FMT])
     if config.render_video:
-        render_frames(out / "clip.mp4", scene_path, pts, config.crf)
+        render_frames(out / "clip.mp4", scene_path, pts, config.crf, config.world)
     scene_rel = Path(scene_path).resolve()
     try:
         scene_rel = scene_rel.relative_to(out.resolve())
@@ -278,10 +282,12 @@ frame_times = "truth_frames.csv"
 """
 
 
-def render_frames(path: Path, scene_path: str | Path, pts: np.ndarray, crf: int) -> Path:
-    """Render the video from the true camera poses with the project's renderer, extras included."""
+def render_frames(path: Path, scene_path: str | Path, pts: np.ndarray, crf: int, world: bool = True) -> Path:
+    """Render the video from the true camera poses with the project's renderer, extras included;
+    with `world`, from the world that differs from the model (app.simulate.world)."""
     base = load_scene(scene_path, LocalFrame(*SITE_ORIGIN))
-    mesh = MeshData(base.primitives + extras())
+    seen = world_of(base) if world else None
+    mesh = MeshData((seen.mesh if seen else base).primitives + extras())
     first_mover = len(mesh.primitives) - len(MOVERS)
 
     def move(renderer, k: int) -> None:
@@ -289,7 +295,9 @@ def render_frames(path: Path, scene_path: str | Path, pts: np.ndarray, crf: int)
             renderer.scene.update_positions(first_mover + i, _mover_vertices(m, float(pts[k])).astype(np.float32))
 
     w, h = VIDEO_SIZE
-    return render_video(path, mesh, Intrinsics.from_fov(w, h, HFOV_DEG), walk_position(pts), camera_attitude(pts), pts, ROTATION_CW, crf, "2025-11-15T09:46:40Z", move)
+    intr = Intrinsics.from_fov(w, h, HFOV_DEG)
+    light, effects = (seen.light_dir, seen.camera) if seen else (None, None)
+    return render_video(path, mesh, intr, walk_position(pts), camera_attitude(pts), pts, ROTATION_CW, crf, "2025-11-15T09:46:40Z", move, light, effects)
 
 
 def quick_config(duration_s: float = 8.0) -> SampleConfig:

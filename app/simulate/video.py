@@ -27,11 +27,15 @@ def render_video(
     crf: int = 18,
     creation_time: str | None = None,
     before_frame: Callable[[object, int], None] | None = None,
+    light_dir: np.ndarray | None = None,
+    after_frame: Callable[[np.ndarray, int], np.ndarray] | None = None,
 ) -> Path:
     """An H.264 MP4 of `mesh` (ENU metres) seen through `intr` (the displayed image's pinhole)
     from positions (N, 3) ENU m and camera -> ENU quaternions (N, 4) at presentation times pts
     (N,) s; stored turned back by rotation_cw as a phone would. before_frame(renderer, k) may move
-    things in the scene before frame k is drawn."""
+    things in the scene before frame k is drawn; light_dir (ENU, toward the light) lights the scene
+otherwise than the viewer does; after_frame(rgb, k) -> rgb applies the camera's own effects
+(blur, noise) to the drawn frame."""
     from app.render.context import create_offscreen_context
     from app.render.offscreen import OffscreenTarget
     from app.render.renderer import FusionRenderer
@@ -40,13 +44,16 @@ def render_video(
     renderer = FusionRenderer(ctx, mesh)
     target = OffscreenTarget(ctx, intr.width, intr.height)
     off = ProjectionSettings(enabled=False)
+    if light_dir is not None:
+        renderer.scene_pass.set_light(light_dir)
 
     def frame_at(k: int) -> np.ndarray:
         if before_frame is not None:
             before_frame(renderer, k)
         cam = Camera.create(intr, positions[k], attitudes[k], near=VIEW_NEAR_M, far=DEFAULT_FAR_M)
         renderer.draw(cam, target.fbo, off)
-        return target.read()
+        rgb = target.read()
+        return rgb if after_frame is None else after_frame(rgb, k)
 
     stored = (intr.height, intr.width) if rotation_cw % 180 else (intr.width, intr.height)
     try:

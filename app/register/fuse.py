@@ -1,0 +1,145 @@
+"""Registered keyframes fused with the prior track (GNSS positions, filtered attitude), as pure
+numpy: registration does not replace the sensors, it measures their slowly varying errors.
+
+At each registered keyframe k the correction is the registered pose against the prior's at the
+same session time: a position offset dp_k (ENU m: the GNSS bias, correlated over tens of seconds)
+and a world-side rotation dr_k (rotation vector, rad: R_registered = exp(dr_k) R_prior; the
+filter's heading and tilt bias, and any boresight between device and camera seen from the
+world). A keyframe that disagrees with its neighbours' median by more than the settings allow is
+not used (named, with the figures). The used corrections are smoothed over time (Gaussian,
+sigma = smooth_s), interpolated linearly between keyframes (no jump at a keyframe), and held
+beyond the first and last, decaying toward the prior with time constant hold_s, so a stretch
+where nothing registers falls back toward the unregistered source.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+import numpy.typing as npt
+
+from app import rotations
+from app.trajectory import PoseTrack, PositionTrack
+
+FloatArray = npt.NDArray[np.float64]
+POSITION_RATE_HZ = 10.0  # the corrected position track's samples (Hermite-interpolated between)
+
+
+@dataclass(frozen=True)
+class Keyframe:
+    """One keyframe's registration. index: video frame; time_s: its session time under the
+    prior's clock; used: whether the fused track takes it; reason: why not (empty when used);
+    matches, inliers, error_px (RMS reprojection, frame pixels), iterations (renderings made);
+    prior_* and position/q: the prior's and the registered pose (ENU m, camera -> ENU)."""
+
+    index: int
+    time_s: float
+    used: bool
+    reason: str
+    matches: int
+    inliers: int
+    error_px: float
+    iterations: int
+    prior_position: FloatArray
+    prior_q: FloatArray
+    position: FloatArray | None = None
+    q: FloatArray | None = None
+
+    @property
+    def registered(self) -> bool:
+        """A pose was solved (used or not)."""
+        return self.position is not None
+
+    def correction(self) -> tuple[FloatArray, FloatArray]:
+        """(dp (3,) ENU m, dr (3,) world-side rotation vector, rad) from the prior to the registered pose."""
+        dp = np.asarray(self.position) - np.asarray(self.prior_position)
+        dq = rotations.multiply(np.asarray(self.q), rotations.conjugate(np.asarray(self.prior_q)))
+        return dp, rotations.to_scipy(dq).as_rotvec()
+
+
+@dataclass(frozen=True)
+class FuseSettings:
+    """window_s: neighbours within this many seconds judge a keyframe; max_disagree_m /
+    max_disagree_deg: a correction farther than this from their median is not used; smooth_s:
+    Gaussian sigma (s) over the used corrections; hold_s: beyond the first and last used
+    keyframe the correction decays as exp(-dt / hold_s) (the GNSS error's correlation time)."""
+
+    window_s: float = 4.0
+    max_disagree_m: float = 2.5
+    max_disagree_deg: float = 1.5
+    smooth_s: float = 1.0
+    hold_s: float = 30.0
+
+
+def gate(keyframes: list[Keyframe], settings: FuseSettings = FuseSettings()) -> list[Keyframe]:
+    """The keyframes, with those whose correction disagrees with their registered neighbours'
+    median (at least two within window_s) marked unused and the figures given."""
+    solved = [k for k in keyframes if k.used]
+    if len(solved) < 3:
+        return keyframes
+    t = np.array([k.time_s for k in solved])
+    corr = [k.correction() for k in solved]
+    dp = np.array([c[0] for c in corr])
+    dr = np.degrees(np.array([c[1] for c in corr]))
+    bad: dict[int, str] = {}
+    for i, k in enumerate(solved):
+        near = np.flatnonzero((np.abs(t - t[i]) <= settings.window_s) & (np.arange(len(t)) != i))
+        if len(near) < 2:
+            continue
+        off_m = float(np.linalg.norm(dp[i] - np.median(dp[near], axis=0)))
+        off_deg = float(np.linalg.norm(dr[i] - np.median(dr[near], axis=0)))
+        if off_m > settings.max_disagree_m or off_deg > settings.max_disagree_deg:
+            bad[k.index] = f"disagrees with its {len(near)} neighbours by {off_m:.2f} m, {off_deg:.2f} deg"
+    return [replace(k, used=False, reason=bad[k.index]) if k.index in bad else k for k in keyframes]
+
+
+@dataclass(frozen=True)
+class Correction:
+    """The smoothed corrections at the used keyframes' times t (K,) s: dp (K, 3) ENU m, dr (K, 3)
+    world-side rotation vectors (rad); evaluated anywhere by calling it."""
+
+    t: FloatArray
+    dp: FloatArray
+    dr: FloatArray
+    hold_s: float = 30.0
+
+    @classmethod
+    def from_keyframes(cls, keyframes: list[Keyframe], settings: FuseSettings = FuseSettings()) -> "Correction":
+        used = sorted((k for k in keyframes if k.used), key=lambda k: k.time_s)
+        if not used:
+            return cls(np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3)), settings.hold_s)
+        t = np.array([k.time_s for k in used])
+        corr = [k.correction() for k in used]
+        dp = np.array([c[0] for c in corr])
+        dr = np.array([c[1] for c in corr])
+        w = np.exp(-0.5 * ((t[:, None] - t[None, :]) / settings.smooth_s) ** 2)
+        w /= w.sum(axis=1, keepdims=True)
+        return cls(t, w @ dp, w @ dr, settings.hold_s)
+
+    def __call__(self, tq: npt.ArrayLike) -> tuple[FloatArray, FloatArray]:
+        """(dp (M, 3) m, dr (M, 3) rad) at session times tq (M,)."""
+        tq = np.atleast_1d(np.asarray(tq, np.float64))
+        if len(self.t) == 0:
+            return np.zeros((len(tq), 3)), np.zeros((len(tq), 3))
+        dp = np.column_stack([np.interp(tq, self.t, self.dp[:, i]) for i in range(3)])
+        dr = np.column_stack([np.interp(tq, self.t, self.dr[:, i]) for i in range(3)])
+        outside = np.where(tq < self.t[0], self.t[0] - tq, np.where(tq > self.t[-1], tq - self.t[-1], 0.0))
+        fade = np.exp(-outside / self.hold_s)[:, None]
+        return dp * fade, dr * fade
+
+
+def corrected_pose_track(prior: PoseTrack, correction: Correction) -> PoseTrack:
+    """The prior pose track with the correction applied: positions resampled at POSITION_RATE_HZ
+    (Hermite between samples, as any GNSS track), the device attitude turned world-side at its
+    own sample times; the device -> camera mount is kept."""
+    t0, t1 = prior.positions.t[0], prior.positions.t[-1]
+    ts = np.append(np.arange(t0, t1, 1.0 / POSITION_RATE_HZ), t1)
+    enu, _, _ = prior.at(ts)
+    dp, _ = correction(ts)
+    geo = prior.frame.enu_to_geodetic(enu + dp)
+    positions = PositionTrack.from_fixes(ts, geo[:, 0], geo[:, 1], geo[:, 2])
+    _, dr = correction(prior.t_att)
+    turn = rotations.from_rotvec(dr)
+    q_device = rotations.canonical(rotations.multiply(turn, prior.q_device))
+    return PoseTrack(prior.frame, positions, prior.t_att, q_device, prior.q_dev_to_cam)

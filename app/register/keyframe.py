@@ -1,0 +1,192 @@
+"""One keyframe's registration against the scene, as pure numpy and OpenCV: match the video frame
+with a rendering of the model from the current pose estimate, lift the rendering's matched
+pixels to 3D through its position map, and solve the camera's absolute pose robustly (RANSAC on
+SQPnP, then Levenberg-Marquardt on the inliers).
+
+Frames and units: world = ENU metres; a pose is the camera's position (ENU m) and its camera ->
+ENU quaternion in OpenGL's camera axes (x right, y up, looking down -z), as app.camera.Camera.
+OpenCV's camera axes (x right, y down, z forward) appear only inside this module. Pixels: u right,
+v down from the top-left corner, pixel centres at half-integers (app.camera).
+
+The matcher was chosen by measurement (docs/ACCURACY.md, "Registration"): SIFT with Lowe's ratio
+test and a mutual check; the rendering and the frame are compared in grey after a local contrast
+normalisation (CLAHE), which absorbs the exposure and white-balance differences between a model's
+textures and the day the video was taken.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+from app import rotations
+from app.camera import Camera
+
+FloatArray = npt.NDArray[np.float64]
+
+# OpenGL camera axes -> OpenCV camera axes (and back: the matrix is its own inverse).
+GL_TO_CV = np.diag([1.0, -1.0, -1.0])
+
+
+@dataclass(frozen=True)
+class MatchSettings:
+    """features: SIFT features per image; ratio: Lowe's ratio test; edge_m_per_m: a rendered
+    pixel is lifted to 3D only where its 3x3 neighbourhood's depths agree within this fraction
+    of its range (occlusion edges, where a match may belong to either surface, are dropped);
+    ransac_px: RANSAC's inlier threshold, pixels of the frame; min_inliers: fewer is a failure;
+    max_error_px: an RMS reprojection error over the inliers above this is a failure."""
+
+    features: int = 3000
+    ratio: float = 0.85
+    edge_m_per_m: float = 0.02
+    ransac_px: float = 3.0
+    min_inliers: int = 15
+    max_error_px: float = 2.5
+
+
+@dataclass(frozen=True)
+class PoseFix:
+    """The outcome of one render-and-compare step: ok with the solved pose, or not with the
+    reason. matches: putative matches lifted to 3D; inliers: RANSAC inliers; error_px: RMS
+    reprojection error of the inliers at the refined pose (frame pixels)."""
+
+    ok: bool
+    reason: str
+    matches: int
+    inliers: int
+    error_px: float
+    position: FloatArray | None = None
+    q: FloatArray | None = None
+
+
+_CLAHE = cv2.createCLAHE(clipLimit=2.0, tileGridSize=(8, 8))
+
+
+def grey(rgb: np.ndarray) -> np.ndarray:
+    """An RGB image (H, W, 3) uint8 as contrast-normalised grey (H, W) uint8."""
+    return _CLAHE.apply(cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY))
+
+
+class Matcher:
+    """SIFT features and mutual ratio-test matching between a video frame and a rendering."""
+
+    def __init__(self, settings: MatchSettings = MatchSettings()) -> None:
+        self.settings = settings
+        self.sift = cv2.SIFT_create(nfeatures=settings.features)
+        self.matcher = cv2.BFMatcher(cv2.NORM_L2)
+
+    def features(self, rgb: np.ndarray, mask: np.ndarray | None = None) -> tuple[FloatArray, np.ndarray | None]:
+        """(keypoints (N, 2) pixel coordinates u, v; descriptors (N, 128) float32 or None)."""
+        kps, desc = self.sift.detectAndCompute(grey(rgb), None if mask is None else mask.astype(np.uint8))
+        return np.array([k.pt for k in kps], np.float64).reshape(-1, 2), desc
+
+    def match(self, desc_a: np.ndarray | None, desc_b: np.ndarray | None) -> npt.NDArray[np.int64]:
+        """(M, 2) index pairs (into a, into b) passing the ratio test both ways."""
+        if desc_a is None or desc_b is None or len(desc_a) < 2 or len(desc_b) < 2:
+            return np.zeros((0, 2), np.int64)
+        ab = self.matcher.knnMatch(desc_a, desc_b, k=2)
+        ba = self.matcher.knnMatch(desc_b, desc_a, k=2)
+        r = self.settings.ratio
+        best_ba = {m[0].queryIdx: m[0].trainIdx for m in ba if len(m) == 2 and m[0].distance < r * m[1].distance}
+        pairs = [(m[0].queryIdx, m[0].trainIdx) for m in ab if len(m) == 2 and m[0].distance < r * m[1].distance and best_ba.get(m[0].trainIdx) == m[0].queryIdx]
+        return np.array(pairs, np.int64).reshape(-1, 2)
+
+
+def lift(uv: FloatArray, positions: FloatArray, eye: npt.ArrayLike, edge_m_per_m: float) -> tuple[FloatArray, npt.NDArray[np.bool_]]:
+    """Model points (N, 3) ENU m under rendered pixels uv (N, 2), from the position map (H, W, 3)
+    of a camera at `eye`; and which are usable: on a surface, with all 3x3 neighbours on it and
+    their ranges within edge_m_per_m of the pixel's own."""
+    h, w = positions.shape[:2]
+    col = np.clip(np.floor(uv[:, 0]).astype(int), 1, w - 2)
+    row = np.clip(np.floor(uv[:, 1]).astype(int), 1, h - 2)
+    rng = np.linalg.norm(positions - np.asarray(eye, np.float64), axis=2)
+    centre = rng[row, col]
+    spread = np.zeros(len(uv))
+    for dr in (-1, 0, 1):
+        for dc in (-1, 0, 1):
+            spread = np.fmax(spread, np.abs(rng[row + dr, col + dc] - centre))
+    with np.errstate(invalid="ignore"):
+        usable = np.isfinite(spread) & np.isfinite(centre) & (spread <= edge_m_per_m * centre)
+    return positions[row, col], usable
+
+
+def normalised(camera: Camera, uv: FloatArray) -> FloatArray:
+    """Image pixels (N, 2) of `camera` (through its lens, if any) -> OpenCV normalised image
+    coordinates (N, 2): x right, y down, at unit depth."""
+    if camera.lens is not None:
+        return np.asarray(camera.lens.undistort(uv), np.float64)
+    i = camera.intrinsics
+    return np.column_stack([(uv[:, 0] - i.cx) / i.fx, (uv[:, 1] - i.cy) / i.fy])
+
+
+def pose_to_cv(position: npt.ArrayLike, q: npt.ArrayLike) -> tuple[FloatArray, FloatArray]:
+    """A camera pose (ENU m, camera -> ENU quaternion in OpenGL axes) as OpenCV's (rvec, tvec)
+    of the world -> OpenCV-camera transform."""
+    r_wc = GL_TO_CV @ rotations.to_matrix(q).T
+    t = -r_wc @ np.asarray(position, np.float64)
+    return cv2.Rodrigues(r_wc)[0].ravel(), t
+
+
+def pose_from_cv(rvec: npt.ArrayLike, tvec: npt.ArrayLike) -> tuple[FloatArray, FloatArray]:
+    """OpenCV's world -> camera (rvec, tvec) as (position ENU m, camera -> ENU quaternion in
+    OpenGL axes)."""
+    r_wc = cv2.Rodrigues(np.asarray(rvec, np.float64).reshape(3, 1))[0]
+    position = -r_wc.T @ np.asarray(tvec, np.float64).ravel()
+    return position, rotations.from_matrix(r_wc.T @ GL_TO_CV)
+
+
+def reprojection_px(camera: Camera, points: FloatArray, uv: FloatArray) -> FloatArray:
+    """Distances (N,) in pixels between uv and where `camera` (lens included) projects points."""
+    proj, depth = camera.project(points)
+    d = np.linalg.norm(proj - uv, axis=1)
+    return np.where(depth > 0, d, np.inf)
+
+
+def solve_pose(camera: Camera, points: FloatArray, uv: FloatArray, settings: MatchSettings = MatchSettings()) -> PoseFix:
+    """The pose of `camera` (its intrinsics and lens; its pose is only the starting point) that
+    sees model points (N, 3) ENU m at frame pixels uv (N, 2): RANSAC over SQPnP minimal sets,
+    then Levenberg-Marquardt on the inliers."""
+    n = len(points)
+    if n < settings.min_inliers:
+        return PoseFix(False, f"{n} matches on the model (need {settings.min_inliers})", n, 0, float("nan"))
+    xy = normalised(camera, uv)
+    f = max(camera.intrinsics.fx, camera.intrinsics.fy)
+    # Coordinates relative to the current camera position keep the solver well conditioned.
+    origin = np.asarray(camera.position, np.float64)
+    obj = np.ascontiguousarray(points - origin)
+    ok, rvec, tvec, inl = cv2.solvePnPRansac(
+        obj, np.ascontiguousarray(xy), np.eye(3), None, iterationsCount=500, reprojectionError=settings.ransac_px / f,
+        confidence=0.999, flags=cv2.SOLVEPNP_SQPNP,
+    )  # fmt: skip
+    if not ok or inl is None or len(inl) < settings.min_inliers:
+        found = 0 if inl is None else len(inl)
+        return PoseFix(False, f"{found} of {n} matches agree on a pose (need {settings.min_inliers})", n, found, float("nan"))
+    inl = inl.ravel()
+    rvec, tvec = cv2.solvePnPRefineLM(obj[inl], np.ascontiguousarray(xy[inl]), np.eye(3), None, rvec, tvec)
+    position, q = pose_from_cv(rvec, tvec)
+    solved = Camera.create(camera.intrinsics, position + origin, q, camera.near, camera.far, camera.lens)
+    err = reprojection_px(solved, points[inl], uv[inl])
+    rms = float(np.sqrt(np.mean(err**2)))
+    if not np.isfinite(rms) or rms > settings.max_error_px:
+        return PoseFix(False, f"reprojection error {rms:.1f} px (at most {settings.max_error_px})", n, len(inl), rms)
+    return PoseFix(True, "", n, len(inl), rms, np.asarray(solved.position), np.asarray(solved.orientation))
+
+
+def compare(matcher: Matcher, frame_rgb: np.ndarray, frame_scale: float, camera: Camera, rendered_rgb: np.ndarray, positions: FloatArray, render_camera: Camera) -> PoseFix:
+    """One render-and-compare step: frame_rgb (the video frame scaled by frame_scale from
+    `camera`'s image) against the model rendered through `render_camera` (a pinhole at the same
+    pose: colour and position map), solved for `camera`'s pose."""
+    uv_f, desc_f = matcher.features(frame_rgb)
+    uv_f = (uv_f + 0.5) / frame_scale - 0.5 * (frame_scale != 1.0)  # pixel centres at full size
+    on_model = np.isfinite(positions[..., 0])
+    if on_model.mean() < 0.05:
+        return PoseFix(False, "the rendered view holds almost no model (sky)", 0, 0, float("nan"))
+    uv_r, desc_r = matcher.features(rendered_rgb, mask=on_model * 255)
+    pairs = matcher.match(desc_f, desc_r)
+    if len(pairs) == 0:
+        return PoseFix(False, f"no matches ({len(uv_f)} features in the frame, {len(uv_r)} in the rendering)", 0, 0, float("nan"))
+    points, usable = lift(uv_r[pairs[:, 1]], positions, render_camera.position, matcher.settings.edge_m_per_m)
+    return solve_pose(camera, points[usable], uv_f[pairs[usable, 0]], matcher.settings)

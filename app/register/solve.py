@@ -1,0 +1,200 @@
+"""The `registered` pose source: keyframes of the video registered against the scene by
+render-and-compare, fused with a prior source's track (app.register.fuse).
+
+For each keyframe (one every `every_s` seconds of video): start from the prior's pose, corrected
+by what the keyframes before it found; render the model there (colour and positions, off-screen,
+app.render.views) with the clip's lens's enclosing pinhole at about the video's resolution;
+match the frame against the rendering and solve the pose (app.register.keyframe); render again
+at the solved pose until it moves less than converge_m and converge_deg, at most max_iterations
+renderings. Times are session seconds, poses ENU metres and camera -> ENU quaternions.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from app import rotations
+from app.camera import Camera
+from app.camera_track import CameraTrack, camera_track
+from app.errors import GeofuseError
+from app.io.video import frames_at
+from app.register.fuse import Correction, FuseSettings, Keyframe, corrected_pose_track, gate
+from app.register.keyframe import Matcher, MatchSettings, PoseFix, compare
+from app.render.views import ModelViews
+from app.session.model import REGISTERED, Session
+
+
+@dataclass(frozen=True)
+class RegistrationSettings:
+    """every_s: seconds of video between keyframes; long_side: the frames and renderings are
+    matched at most this many pixels on their long side; max_iterations: renderings per keyframe;
+    converge_m / converge_deg: a step that moves the pose less than both ends the iterations."""
+
+    every_s: float = 0.5
+    long_side: int = 960
+    max_iterations: int = 3
+    converge_m: float = 0.1
+    converge_deg: float = 0.1
+    match: MatchSettings = field(default_factory=MatchSettings)
+    fuse: FuseSettings = field(default_factory=FuseSettings)
+
+
+@dataclass(frozen=True)
+class Registration:
+    """Every keyframe's outcome (app.register.fuse.Keyframe), the prior source it corrected, and
+    the time per stage (seconds: render, match (features, matching and pose), decode)."""
+
+    prior: str
+    keyframes: tuple[Keyframe, ...]
+    stage_s: dict[str, float]
+
+    @property
+    def used(self) -> int:
+        return sum(k.used for k in self.keyframes)
+
+    @property
+    def used_fraction(self) -> float:
+        return self.used / max(1, len(self.keyframes))
+
+    def summary(self) -> str:
+        """One line for people: how many keyframes were used, and the commonest reason not."""
+        n = len(self.keyframes)
+        line = f"registered {self.used} of {n} keyframes ({100 * self.used_fraction:.0f} %) against the scene, correcting {self.prior}"
+        reasons = [k.reason.split(" (")[0] for k in self.keyframes if not k.used]
+        if reasons:
+            common = max(set(reasons), key=reasons.count)
+            line += f"; {len(reasons)} not used (most often: {common})"
+        return line
+
+
+def keyframe_indices(media_s: np.ndarray, every_s: float) -> np.ndarray:
+    """Video frames (indices into media_s, increasing) nearest to every every_s seconds."""
+    if every_s <= 0:
+        raise ValueError(f"keyframe spacing must be positive, got {every_s} s")
+    targets = np.arange(media_s[0], media_s[-1] + 1e-9, every_s)
+    return np.unique(np.clip(np.searchsorted(media_s, targets), 0, len(media_s) - 1))
+
+
+def _moved(a: Camera, b: Camera) -> tuple[float, float]:
+    """(metres, degrees) between two camera poses."""
+    metres = float(np.linalg.norm(np.subtract(a.position, b.position)))
+    return metres, float(np.degrees(rotations.angle_between(a.orientation, b.orientation)))
+
+
+def _posed(camera: Camera, position: np.ndarray, q: np.ndarray) -> Camera:
+    return replace(camera, position=tuple(map(float, position)), orientation=tuple(map(float, rotations.canonical(q))))
+
+
+def _shifted(camera: Camera, correction: Correction, t: float) -> Camera:
+    """The camera moved by the correction at session time t."""
+    dp, dr = correction([t])
+    q = rotations.multiply(rotations.from_rotvec(dr[0]), np.asarray(camera.orientation))
+    return _posed(camera, np.asarray(camera.position) + dp[0], q)
+
+
+class Registrar:
+    """Registers keyframes of one session's video against its scene (owns an off-screen GL
+    context: use from one thread, then `release()`)."""
+
+    def __init__(self, session: Session, settings: RegistrationSettings = RegistrationSettings()) -> None:
+        if not session.layers:
+            raise GeofuseError(f"{session.path}: the scene is an assumed flat ground: there is nothing to register the video against (name a model, tileset or DEM)")
+        self.session = session
+        self.settings = settings
+        self.views = ModelViews(session.scene())
+        self.matcher = Matcher(settings.match)
+        self.stage_s = {"render": 0.0, "match": 0.0, "decode": 0.0}
+
+    def keyframe(self, frame_rgb: np.ndarray, start: Camera) -> tuple[PoseFix, Camera | None, int]:
+        """Render-and-compare from `start` (the frame's camera at full video size) until the pose
+        converges: (the last step's fix, the solved camera or None, renderings made)."""
+        s = self.settings
+        scale = frame_rgb.shape[1] / start.intrinsics.width if start.lens is None else frame_rgb.shape[1] / start.lens.width
+        cam, solved, fix = start, None, None
+        for it in range(1, s.max_iterations + 1):
+            i = cam.intrinsics
+            small = Camera.create(i.scaled(max(2, round(i.width * scale)), max(2, round(i.height * scale))), cam.position, cam.orientation, cam.near, cam.far)
+            with _lap(self.stage_s, "render"):
+                rgb, positions = self.views.render(small)
+            with _lap(self.stage_s, "match"):
+                step = compare(self.matcher, frame_rgb, scale, cam, rgb, positions, small)
+            if not step.ok:
+                return (fix or step), solved, it
+            fix = step
+            nxt = _posed(cam, step.position, step.q)
+            metres, degrees = _moved(cam, nxt)
+            cam = solved = nxt
+            if metres < s.converge_m and degrees < s.converge_deg:
+                break
+        return fix, solved, it
+
+    def run(self, prior: CameraTrack, progress: Callable[[float], None] | None = None) -> Registration:
+        """Every keyframe of the video registered, starting each from the prior's pose moved by
+        the corrections found so far; the keyframes gated against their neighbours."""
+        s = self.settings
+        video = self.session.video
+        idx = keyframe_indices(np.asarray(video.pts_s, np.float64), s.every_s)
+        keyframes: list[Keyframe] = []
+        frames = frames_at(video, idx, s.long_side)
+        while True:
+            with _lap(self.stage_s, "decode"):
+                k, rgb = next(frames, (None, None))
+            if k is None:
+                break
+            prior_cam = prior.frame_camera(k)
+            t = float(prior.clock.session_time([video.pts_s[k]])[0])
+            so_far = Correction.from_keyframes(keyframes[-5:], s.fuse)
+            fix, solved, renders = self.keyframe(rgb, _shifted(prior_cam, so_far, t))
+            if solved is None and len(so_far.t):
+                fix, solved, more = self.keyframe(rgb, prior_cam)  # from the plain prior once more
+                renders += more
+            keyframes.append(Keyframe(
+                int(k), t, solved is not None, "" if solved is not None else fix.reason, fix.matches, fix.inliers, fix.error_px, renders,
+                np.asarray(prior_cam.position), np.asarray(prior_cam.orientation),
+                None if solved is None else np.asarray(solved.position), None if solved is None else np.asarray(solved.orientation),
+            ))  # fmt: skip
+            if progress is not None:
+                progress(len(keyframes) / len(idx))
+        return Registration(prior.source, tuple(gate(keyframes, s.fuse)), dict(self.stage_s))
+
+    def release(self) -> None:
+        self.views.release()
+
+
+@contextmanager
+def _lap(totals: dict[str, float], key: str) -> Iterator[None]:
+    """Adds the seconds spent inside the block to totals[key] (benchmark figures only: nothing
+    decides by them)."""
+    start = time.perf_counter()
+    try:
+        yield
+    finally:
+        totals[key] += time.perf_counter() - start
+
+
+def default_prior(session: Session) -> str:
+    """The source registration corrects: the offline filter where the session has an IMU, else
+    its first source (a recorded or derived attitude)."""
+    own = [s for s in session.sources if s not in (REGISTERED, "truth")]
+    if not own:
+        raise GeofuseError(f"{session.path}: no attitude source to start registration from")
+    return "offline" if "offline" in own else own[0]
+
+
+def registered_track(session: Session, prior: str | None = None, settings: RegistrationSettings = RegistrationSettings(), progress: Callable[[float], None] | None = None, **track_options: object) -> CameraTrack:
+    """The camera track of the `registered` source: the prior source's track (default_prior)
+    corrected by the keyframes registered against the scene; `registration` holds every
+    keyframe's outcome. track_options go to app.camera_track.camera_track for the prior."""
+    prior_track = camera_track(session, prior or default_prior(session), **track_options)
+    registrar = Registrar(session, settings)
+    try:
+        reg = registrar.run(prior_track, progress)
+    finally:
+        registrar.release()
+    poses = corrected_pose_track(prior_track.poses, Correction.from_keyframes(list(reg.keyframes), settings.fuse))
+    return replace(prior_track, source=REGISTERED, poses=poses, registration=reg)

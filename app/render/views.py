@@ -1,0 +1,43 @@
+"""The model as a camera sees it, off-screen: its colours (the model's textures and shading, no
+video) and the surface position under each pixel, for registration's render-and-compare. Owns an
+EGL context and its GL objects; call from one thread; `release()` frees them."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from app.camera import Camera
+from app.config import ProjectionSettings
+from app.render.context import create_offscreen_context
+from app.render.offscreen import OffscreenTarget, render_to_array
+from app.render.renderer import FusionRenderer
+from app.scene.mesh import MeshData
+
+MODEL_ONLY = ProjectionSettings(enabled=False)
+
+
+class ModelViews:
+    """Colour and position renderings of one scene from any pinhole camera."""
+
+    def __init__(self, mesh: MeshData) -> None:
+        self.ctx = create_offscreen_context()
+        self.renderer = FusionRenderer(self.ctx, mesh)
+        self._targets: dict[tuple[int, int], OffscreenTarget] = {}
+
+    def render(self, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
+        """((H, W, 3) uint8 RGB, (H, W, 3) ENU metres of the surface at each pixel centre, NaN
+        where none) of `camera`'s pinhole intrinsics (with a lens: the pinhole enclosing its
+        image), row 0 = the top; streamed tiles loaded to full detail first."""
+        size = (camera.intrinsics.width, camera.intrinsics.height)
+        with self.ctx:  # current for these calls only: the caller may hold another context
+            if size not in self._targets:
+                self._targets[size] = OffscreenTarget(self.ctx, *size)
+            rgb = render_to_array(self.renderer, camera, MODEL_ONLY, target=self._targets[size])
+            return rgb, self.renderer.pick_map(camera)
+
+    def release(self) -> None:
+        with self.ctx:
+            for target in self._targets.values():
+                target.release()
+            self.renderer.release()
+        self.ctx.release()

@@ -356,6 +356,31 @@ def cmd_sync(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_register(args: argparse.Namespace) -> int:
+    """Control points by hand: the clip's boresight and position correction (app/register/points.py)."""
+    from app.clips import open_any
+    from app.register.points import control_path, read_points, solve_control, write_points
+    from app.register.solve import default_prior
+    from app.solve import solve_track
+
+    points = read_points(args.points)
+    session = open_any(args.input, lens=args.lens)
+    _print_warnings(session)
+    source = args.source or default_prior(session)
+    try:
+        session.check_source(source)
+    except ValueError as exc:
+        raise GeofuseError(f"--source: {exc}") from exc
+    solution = solve_control(solve_track(session, source), points)
+    print(f"{args.input}: {len(points)} control points against {source}")
+    print(solution.report())
+    if args.write:
+        out = check_output(control_path(Path(args.input)), "--write", (".csv",), list(session.inputs) + [args.points])
+        write_points(out, points)
+        print(f"wrote {out}: the registered source starts from this correction")
+    return 0
+
+
 def cmd_telemetry(args: argparse.Namespace) -> int:
     from app.telemetry import describe, inspect, write_csv
 
@@ -511,6 +536,14 @@ def build_parser() -> argparse.ArgumentParser:
     ex.add_argument("--fov", type=_number(0.0, 180.0, open_low=True), default=None, help="override the lens's horizontal field of view, degrees")
     ex.add_argument("--pitch", type=_number(-90.0, 90.0), default=DRONE_DEFAULT_PITCH_DEG, help="a drone clip without gimbal attitude: the camera's pitch, degrees")
     ex.set_defaults(func=cmd_export)
+
+    rg = sub.add_parser("register", help="control points by hand: solve the clip's boresight and a position correction from pixel <-> model point pairs")
+    rg.add_argument("input", type=Path, help="a session manifest, a GoPro MP4, or a DJI MP4 with its subtitle")
+    rg.add_argument("--points", type=Path, required=True, help="CSV of frame, x, y, latitude, longitude, height (ellipsoidal m): a video pixel and the model point it shows; 4 pairs or more")
+    rg.add_argument("--source", default=None, help="the pose source to correct (default: offline, else the first the session offers)")
+    rg.add_argument("--write", action="store_true", help="keep the points in NAME.control.csv beside the input (never in an input); the registered source then starts from their correction")
+    rg.add_argument("--lens", type=Path, default=None, help="a gyroflow lens profile (JSON) for a clip")
+    rg.set_defaults(func=cmd_register)
 
     sy = sub.add_parser("sync", help="the time offset between the video and the gyroscope (or a recorded attitude: a DJI gimbal, a camera, a phone; or a drone's course: the lag of its GNSS track), from the camera's rotation seen in the video")
     sy.add_argument("input", type=Path, help="a session manifest, a GoPro MP4, or a DJI MP4 with its subtitle")

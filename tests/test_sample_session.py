@@ -36,7 +36,7 @@ def test_committed_sample_is_small_and_opens(session):
     assert len(session.frame_times) == 2400 and session.video.display_size == (640, 360)
     assert session.rotation_cw == 180  # landscape, phone top to the right
     assert session.video.variable_rate  # +-3 ms presentation-time jitter, as phones record
-    assert session.sources == ["gd-ahrs", "gd-imu", "cf-ahrs", "cf-imu", "offline", "phone", "truth"]
+    assert session.sources == ["gd-ahrs", "gd-imu", "cf-ahrs", "cf-imu", "offline", "phone", "registered", "truth"]
     assert any("hard-iron offset" in w for w in session.warnings.items)
     # The manifest's start time is 80 ms late, as the generator documents.
     np.testing.assert_allclose(session.frame_times - true_frame_times(session), sample.SYNC_ERROR_S, atol=1e-4)

@@ -16,7 +16,7 @@ textures and the day the video was taken.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -37,7 +37,9 @@ class MatchSettings:
     pixel is lifted to 3D only where its 3x3 neighbourhood's depths agree within this fraction
     of its range (occlusion edges, where a match may belong to either surface, are dropped);
     ransac_px: RANSAC's inlier threshold, pixels of the frame; min_inliers: fewer is a failure;
-    max_error_px: an RMS reprojection error over the inliers above this is a failure."""
+    max_error_px: an RMS reprojection error over the inliers above this is a failure;
+    refine_corners / refine_px: corners tracked, and the inlier threshold (frame pixels), of the
+    fine step (`refine`)."""
 
     features: int = 3000
     ratio: float = 0.85
@@ -45,6 +47,8 @@ class MatchSettings:
     ransac_px: float = 3.0
     min_inliers: int = 15
     max_error_px: float = 2.5
+    refine_corners: int = 4000
+    refine_px: float = 1.5
 
 
 @dataclass(frozen=True)
@@ -96,21 +100,29 @@ class Matcher:
 
 
 def lift(uv: FloatArray, positions: FloatArray, eye: npt.ArrayLike, edge_m_per_m: float) -> tuple[FloatArray, npt.NDArray[np.bool_]]:
-    """Model points (N, 3) ENU m under rendered pixels uv (N, 2), from the position map (H, W, 3)
+    """Model points (N, 3) ENU m under rendered pixels uv (N, 2), interpolated bilinearly in the
+    position map (H, W, 3; its texel (r, c) holds the surface at pixel centre (c + 0.5, r + 0.5))
     of a camera at `eye`; and which are usable: on a surface, with all 3x3 neighbours on it and
-    their ranges within edge_m_per_m of the pixel's own."""
+    their ranges within edge_m_per_m of the pixel's own (no interpolation across an edge)."""
     h, w = positions.shape[:2]
-    col = np.clip(np.floor(uv[:, 0]).astype(int), 1, w - 2)
-    row = np.clip(np.floor(uv[:, 1]).astype(int), 1, h - 2)
+    x = np.clip(uv[:, 0] - 0.5, 0.0, w - 1.001)
+    y = np.clip(uv[:, 1] - 0.5, 0.0, h - 1.001)
+    col = np.clip(np.floor(x).astype(int), 1, w - 3)
+    row = np.clip(np.floor(y).astype(int), 1, h - 3)
+    fx = np.clip(x - col, 0.0, 1.0)[:, None]
+    fy = np.clip(y - row, 0.0, 1.0)[:, None]
     rng = np.linalg.norm(positions - np.asarray(eye, np.float64), axis=2)
     centre = rng[row, col]
     spread = np.zeros(len(uv))
-    for dr in (-1, 0, 1):
-        for dc in (-1, 0, 1):
+    for dr in (-1, 0, 1, 2):
+        for dc in (-1, 0, 1, 2):
             spread = np.fmax(spread, np.abs(rng[row + dr, col + dc] - centre))
     with np.errstate(invalid="ignore"):
         usable = np.isfinite(spread) & np.isfinite(centre) & (spread <= edge_m_per_m * centre)
-    return positions[row, col], usable
+    p = positions
+    top = p[row, col] * (1 - fx) + p[row, col + 1] * fx
+    bottom = p[row + 1, col] * (1 - fx) + p[row + 1, col + 1] * fx
+    return top * (1 - fy) + bottom * fy, usable
 
 
 def normalised(camera: Camera, uv: FloatArray) -> FloatArray:
@@ -173,6 +185,26 @@ def solve_pose(camera: Camera, points: FloatArray, uv: FloatArray, settings: Mat
     if not np.isfinite(rms) or rms > settings.max_error_px:
         return PoseFix(False, f"reprojection error {rms:.1f} px (at most {settings.max_error_px})", n, len(inl), rms)
     return PoseFix(True, "", n, len(inl), rms, np.asarray(solved.position), np.asarray(solved.orientation))
+
+
+def refine(settings: MatchSettings, frame_rgb: np.ndarray, frame_scale: float, camera: Camera, rendered_rgb: np.ndarray, positions: FloatArray, render_camera: Camera) -> PoseFix:
+    """A fine step once the pose is close (a few pixels): corners of the rendering tracked into
+    the frame by pyramidal Lucas-Kanade (sub-pixel, many more and better spread than the SIFT
+    matches, the ground included), kept where tracking back returns within half a pixel, lifted
+    and solved as in `compare`."""
+    g_r, g_f = grey(rendered_rgb), grey(frame_rgb)
+    on_model = np.isfinite(positions[..., 0]).astype(np.uint8) * 255
+    corners = cv2.goodFeaturesToTrack(g_r, settings.refine_corners, 0.002, 4, mask=on_model)
+    if corners is None or len(corners) < settings.min_inliers:
+        return PoseFix(False, "too few corners on the rendered model to refine", 0, 0, float("nan"))
+    lk = dict(winSize=(21, 21), maxLevel=3, criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01))
+    fwd, ok1, _ = cv2.calcOpticalFlowPyrLK(g_r, g_f, corners, None, **lk)
+    back, ok2, _ = cv2.calcOpticalFlowPyrLK(g_f, g_r, fwd, None, **lk)
+    good = (ok1.ravel() == 1) & (ok2.ravel() == 1) & (np.linalg.norm((back - corners)[:, 0], axis=1) < 0.5)
+    uv_r = corners[good, 0].astype(np.float64)
+    uv_f = (fwd[good, 0].astype(np.float64) + 0.5) / frame_scale - 0.5 * (frame_scale != 1.0)
+    points, usable = lift(uv_r, positions, render_camera.position, settings.edge_m_per_m)
+    return solve_pose(camera, points[usable], uv_f[usable], replace(settings, ransac_px=settings.refine_px))
 
 
 def compare(matcher: Matcher, frame_rgb: np.ndarray, frame_scale: float, camera: Camera, rendered_rgb: np.ndarray, positions: FloatArray, render_camera: Camera) -> PoseFix:

@@ -15,6 +15,7 @@ import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -24,22 +25,30 @@ from app.camera_track import CameraTrack, camera_track
 from app.errors import GeofuseError
 from app.io.video import frames_at
 from app.register.fuse import Correction, FuseSettings, Keyframe, corrected_pose_track, gate
-from app.register.keyframe import Matcher, MatchSettings, PoseFix, compare
+from app.register.keyframe import Matcher, MatchSettings, PoseFix, compare, refine
+from app.register.points import ControlSolution, control_path, corrected_track, read_points, solve_control
 from app.render.views import ModelViews
 from app.session.model import REGISTERED, Session
+
+if TYPE_CHECKING:
+    import moderngl
 
 
 @dataclass(frozen=True)
 class RegistrationSettings:
     """every_s: seconds of video between keyframes; long_side: the frames and renderings are
     matched at most this many pixels on their long side; max_iterations: renderings per keyframe;
-    converge_m / converge_deg: a step that moves the pose less than both ends the iterations."""
+    coarse steps (SIFT matches, app.register.keyframe.compare) run until one moves the pose less
+    than fine_within_m and fine_within_deg, then fine steps (corners tracked, `refine`) until one
+    moves it less than converge_m and converge_deg."""
 
     every_s: float = 0.5
     long_side: int = 960
-    max_iterations: int = 3
-    converge_m: float = 0.1
-    converge_deg: float = 0.1
+    max_iterations: int = 6
+    converge_m: float = 0.05
+    converge_deg: float = 0.05
+    fine_within_m: float = 1.0
+    fine_within_deg: float = 1.0
     match: MatchSettings = field(default_factory=MatchSettings)
     fuse: FuseSettings = field(default_factory=FuseSettings)
 
@@ -52,6 +61,7 @@ class Registration:
     prior: str
     keyframes: tuple[Keyframe, ...]
     stage_s: dict[str, float]
+    control: ControlSolution | None = None  # control points by hand, applied to the prior first
 
     @property
     def used(self) -> int:
@@ -69,6 +79,8 @@ class Registration:
         if reasons:
             common = max(set(reasons), key=reasons.count)
             line += f"; {len(reasons)} not used (most often: {common})"
+        if self.control is not None:
+            line += f"; control points by hand: boresight {self.control.boresight_deg:.2f} deg, median residual {np.median(self.control.residual_px):.1f} px"
         return line
 
 
@@ -101,12 +113,12 @@ class Registrar:
     """Registers keyframes of one session's video against its scene (owns an off-screen GL
     context: use from one thread, then `release()`)."""
 
-    def __init__(self, session: Session, settings: RegistrationSettings = RegistrationSettings()) -> None:
+    def __init__(self, session: Session, settings: RegistrationSettings = RegistrationSettings(), ctx: moderngl.Context | None = None) -> None:
         if not session.layers:
             raise GeofuseError(f"{session.path}: the scene is an assumed flat ground: there is nothing to register the video against (name a model, tileset or DEM)")
         self.session = session
         self.settings = settings
-        self.views = ModelViews(session.scene())
+        self.views = ModelViews(session.scene(), ctx)
         self.matcher = Matcher(settings.match)
         self.stage_s = {"render": 0.0, "match": 0.0, "decode": 0.0}
 
@@ -115,22 +127,28 @@ class Registrar:
         converges: (the last step's fix, the solved camera or None, renderings made)."""
         s = self.settings
         scale = frame_rgb.shape[1] / start.intrinsics.width if start.lens is None else frame_rgb.shape[1] / start.lens.width
-        cam, solved, fix = start, None, None
+        cam, solved, fix, fine = start, None, None, False
         for it in range(1, s.max_iterations + 1):
             i = cam.intrinsics
             small = Camera.create(i.scaled(max(2, round(i.width * scale)), max(2, round(i.height * scale))), cam.position, cam.orientation, cam.near, cam.far)
             with _lap(self.stage_s, "render"):
                 rgb, positions = self.views.render(small)
             with _lap(self.stage_s, "match"):
-                step = compare(self.matcher, frame_rgb, scale, cam, rgb, positions, small)
+                if fine:
+                    step = refine(s.match, frame_rgb, scale, cam, rgb, positions, small)
+                else:
+                    step = compare(self.matcher, frame_rgb, scale, cam, rgb, positions, small)
             if not step.ok:
+                if fine:  # the coarse pose stands
+                    break
                 return (fix or step), solved, it
             fix = step
             nxt = _posed(cam, step.position, step.q)
             metres, degrees = _moved(cam, nxt)
             cam = solved = nxt
-            if metres < s.converge_m and degrees < s.converge_deg:
+            if fine and metres < s.converge_m and degrees < s.converge_deg:
                 break
+            fine = fine or (metres < s.fine_within_m and degrees < s.fine_within_deg)
         return fix, solved, it
 
     def run(self, prior: CameraTrack, progress: Callable[[float], None] | None = None) -> Registration:
@@ -186,15 +204,28 @@ def default_prior(session: Session) -> str:
     return "offline" if "offline" in own else own[0]
 
 
-def registered_track(session: Session, prior: str | None = None, settings: RegistrationSettings = RegistrationSettings(), progress: Callable[[float], None] | None = None, **track_options: object) -> CameraTrack:
+def registered_track(
+    session: Session,
+    prior: str | None = None,
+    settings: RegistrationSettings = RegistrationSettings(),
+    progress: Callable[[float], None] | None = None,
+    ctx: moderngl.Context | None = None,
+    **track_options: object,
+) -> CameraTrack:
     """The camera track of the `registered` source: the prior source's track (default_prior)
     corrected by the keyframes registered against the scene; `registration` holds every
-    keyframe's outcome. track_options go to app.camera_track.camera_track for the prior."""
+    keyframe's outcome. Control points kept beside the input (`geofuse register --write`) correct
+the prior first. ctx: a GL context to render in (default: one of its own). track_options go to
+app.camera_track.camera_track for the prior."""
     prior_track = camera_track(session, prior or default_prior(session), **track_options)
-    registrar = Registrar(session, settings)
+    control = None
+    if control_path(session.path).is_file():  # points given by hand: the automatic keyframes start from them
+        control = solve_control(prior_track, read_points(control_path(session.path)))
+        prior_track = corrected_track(prior_track, control)
+    registrar = Registrar(session, settings, ctx)
     try:
         reg = registrar.run(prior_track, progress)
     finally:
         registrar.release()
     poses = corrected_pose_track(prior_track.poses, Correction.from_keyframes(list(reg.keyframes), settings.fuse))
-    return replace(prior_track, source=REGISTERED, poses=poses, registration=reg)
+    return replace(prior_track, source=REGISTERED, poses=poses, registration=replace(reg, control=control))

@@ -1,9 +1,12 @@
 """The model as a camera sees it, off-screen: its colours (the model's textures and shading, no
-video) and the surface position under each pixel, for registration's render-and-compare. Owns an
-EGL context and its GL objects; call from one thread; `release()` frees them."""
+video) and the surface position under each pixel, for registration's render-and-compare. Owns its
+GL objects, and an EGL context of its own unless given one; call from one thread; `release()`
+frees them. Making a context makes it current on the calling thread: make one before any other
+that thread uses without `with ctx:`, or give it the context already in use."""
 
 from __future__ import annotations
 
+import moderngl
 import numpy as np
 
 from app.camera import Camera
@@ -19,9 +22,11 @@ MODEL_ONLY = ProjectionSettings(enabled=False)
 class ModelViews:
     """Colour and position renderings of one scene from any pinhole camera."""
 
-    def __init__(self, mesh: MeshData) -> None:
-        self.ctx = create_offscreen_context()
-        self.renderer = FusionRenderer(self.ctx, mesh)
+    def __init__(self, mesh: MeshData, ctx: moderngl.Context | None = None) -> None:
+        self._own = ctx is None
+        self.ctx = create_offscreen_context() if ctx is None else ctx
+        with self.ctx:
+            self.renderer = FusionRenderer(self.ctx, mesh)
         self._targets: dict[tuple[int, int], OffscreenTarget] = {}
 
     def render(self, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
@@ -40,4 +45,5 @@ class ModelViews:
             for target in self._targets.values():
                 target.release()
             self.renderer.release()
-        self.ctx.release()
+        if self._own:
+            self.ctx.release()

@@ -1,0 +1,267 @@
+"""Registration against the scene (app/register): keyframes of the world-versus-model sample
+recovered from a perturbed pose, a featureless view refused, the fused track smooth and better
+than its prior, control points by hand, the CLI."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from app import rotations
+from app.camera import Camera, Intrinsics
+from app.camera_track import camera_track, frame_clock
+from app.demo import SAMPLE_DIR, SAMPLE_SCENE
+from app.errors import DataFormatError
+from app.io.video import frames_at
+from app.lens import Lens
+from app.register.fuse import Correction, FuseSettings, Keyframe, corrected_pose_track, gate
+from app.register.keyframe import pose_from_cv, pose_to_cv, solve_pose
+from app.register.points import ControlPoints, corrected_track, read_points, solve_control, write_points
+from app.register.solve import Registrar, RegistrationSettings, registered_track
+from app.session import open_session
+from app.simulate import session as sample
+from app.solve import solve_track
+
+ROOT = SAMPLE_DIR.parents[1]
+
+
+def _true_camera(session, k: int) -> Camera:
+    return replace(camera_track(session, "truth"), clock=frame_clock(session, true_timing=True)).frame_camera(k)
+
+
+def _perturbed(cam: Camera, metres: float, degrees: float, seed: int) -> Camera:
+    rng = np.random.default_rng(seed)
+    d = rng.normal(size=3)
+    d[2] *= 0.3  # mostly horizontal, as a GNSS error
+    axis = rng.normal(size=3)
+    turn = rotations.from_rotvec(np.radians(degrees) * axis / np.linalg.norm(axis))
+    q = rotations.multiply(turn, np.asarray(cam.orientation))
+    return Camera.create(cam.intrinsics, np.asarray(cam.position) + metres * d / np.linalg.norm(d), q, cam.near, cam.far, cam.lens)
+
+
+def _pose_error(cam: Camera, position, q) -> tuple[float, float]:
+    return float(np.linalg.norm(np.asarray(position) - cam.position)), float(np.degrees(rotations.angle_between(q, cam.orientation)))
+
+
+# --- pure: the pose solver on points worked out by hand -------------------------------------------
+
+
+def test_opencv_pose_conversion_round_trips_and_maps_the_optical_axis():
+    q = rotations.camera_quat_from_hpr(30.0, -10.0, 5.0)
+    c = np.array([10.0, -20.0, 3.0])
+    rvec, tvec = pose_to_cv(c, q)
+    # A point 50 m along the optical axis sits on OpenCV's +z axis at depth 50.
+    ahead = c + 50.0 * (rotations.to_matrix(q) @ np.array([0.0, 0.0, -1.0]))
+    import cv2
+
+    cam_pt = cv2.Rodrigues(rvec)[0] @ ahead + tvec
+    assert np.allclose(cam_pt, [0.0, 0.0, 50.0], atol=1e-9)
+    p2, q2 = pose_from_cv(rvec, tvec)
+    assert np.allclose(p2, c, atol=1e-9) and rotations.angle_between(q, q2) < 1e-9
+
+
+@pytest.mark.parametrize("lens", [None, "fisheye"])
+def test_solve_pose_recovers_a_camera_from_exact_correspondences(lens):
+    intr = Intrinsics.from_fov(640, 360, 70.0)
+    real_lens = Lens.create("fisheye", 640, 360, 300.0, 300.0, 321.0, 178.0, [0.05, -0.01, 0.002, 0.0]) if lens else None
+    truth = Camera.create(intr, [3.0, -40.0, 1.6], rotations.camera_quat_from_hpr(10.0, 5.0, -2.0), lens=real_lens)
+    rng = np.random.default_rng(1)
+    uv = np.column_stack([rng.uniform(20, 620, 60), rng.uniform(20, 340, 60)])
+    points = np.asarray(truth.position) + truth.pixel_rays(uv) * rng.uniform(20, 90, (60, 1))
+    start = _perturbed(truth, 3.0, 2.0, seed=2)
+    fix = solve_pose(start, points, uv)
+    assert fix.ok and fix.inliers == 60 and fix.error_px < 1e-3
+    metres, degrees = _pose_error(truth, fix.position, fix.q)
+    assert metres < 1e-4 and degrees < 1e-4
+
+
+# --- GL: keyframes of the world-versus-model sample ----------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def sample_session():
+    return open_session(SAMPLE_DIR / "session.toml")
+
+
+@pytest.mark.gl
+def test_keyframes_recover_a_pose_perturbed_by_3_m_and_2_degrees(sample_session, gl_ctx):
+    """The video is rendered from a world that differs from the model (app/simulate/world.py);
+    from the true pose moved 3 m and turned 2 deg, render-and-compare finds it again."""
+    frames = [91, 661, 1740, 2191]
+    registrar = Registrar(sample_session, RegistrationSettings(), gl_ctx)
+    try:
+        for k, rgb in frames_at(sample_session.video, frames, registrar.settings.long_side):
+            truth = _true_camera(sample_session, k)
+            start = _perturbed(truth, 3.0, 2.0, seed=k)
+            assert _pose_error(truth, start.position, start.orientation)[0] > 2.9
+            fix, solved, renders = registrar.keyframe(rgb, start)
+            assert solved is not None, f"frame {k}: {fix.reason}"
+            metres, degrees = _pose_error(truth, solved.position, solved.orientation)
+            assert metres < 0.3 and degrees < 0.3, f"frame {k}: {metres:.2f} m, {degrees:.2f} deg after {renders} renderings"
+            assert fix.inliers >= 15 and fix.error_px < 2.5
+    finally:
+        registrar.release()
+
+
+@pytest.mark.gl
+def test_a_featureless_view_is_refused_with_the_reason(sample_session, gl_ctx):
+    """A frame that shows nothing (a blank wall filling the lens, fog) does not register, and
+    says why."""
+    registrar = Registrar(sample_session, RegistrationSettings(), gl_ctx)
+    try:
+        start = _true_camera(sample_session, 661)
+        blank = np.full((360, 640, 3), 128, np.uint8)
+        fix, solved, _ = registrar.keyframe(blank, start)
+        assert solved is None and not fix.ok
+        assert "matches" in fix.reason
+    finally:
+        registrar.release()
+
+
+def test_an_assumed_flat_ground_has_nothing_to_register_against(sample_session):
+    flat = replace(sample_session, layers=())
+    assert "registered" not in flat.sources
+    with pytest.raises(ValueError, match="assumed flat ground"):
+        flat.check_source("registered")
+
+
+# --- pure: fusion ---------------------------------------------------------------------------------
+
+
+def _keyframe(i: int, t: float, dp, dr_deg, used: bool = True) -> Keyframe:
+    q0 = rotations.camera_quat_from_hpr(0.0, 0.0, 0.0)
+    q = rotations.multiply(rotations.from_rotvec(np.radians(dr_deg)), q0)
+    p0 = np.array([0.0, 0.0, 1.5])
+    return Keyframe(i, t, used, "", 50, 40, 0.8, 2, p0, q0, p0 + np.asarray(dp, float), q)
+
+
+def test_a_keyframe_that_disagrees_with_its_neighbours_is_not_used():
+    kfs = [_keyframe(i, float(i), [2.0, 0.0, 0.0], [0.0, 0.0, 1.0]) for i in range(8)]
+    kfs[4] = _keyframe(4, 4.0, [2.0, 0.0, 0.0], [0.0, 0.0, 6.0])  # 5 deg off the others
+    gated = gate(kfs, FuseSettings())
+    assert [k.used for k in gated] == [True] * 4 + [False] + [True] * 3
+    assert "disagrees with its" in gated[4].reason and "5.00 deg" in gated[4].reason
+
+
+def test_corrections_are_continuous_and_fall_back_to_the_prior_far_from_keyframes():
+    kfs = [_keyframe(i, 10.0 + i, [3.0, -1.0, 0.0], [0.0, 0.0, 2.0]) for i in range(5)]
+    c = Correction.from_keyframes(kfs, FuseSettings(hold_s=30.0))
+    dp, dr = c(np.array([12.0, 12.5, 14.0, 44.0, 214.0]))
+    assert np.allclose(dp[:3], [3.0, -1.0, 0.0], atol=1e-9)  # the same correction everywhere: smoothing keeps it
+    assert np.allclose(np.degrees(dr[:3, 2]), 2.0, atol=1e-9)
+    assert np.allclose(dp[3], np.array([3.0, -1.0, 0.0]) * np.exp(-1.0))  # 30 s past the last: e^-1 of it
+    assert np.linalg.norm(dp[4]) < 0.1
+    empty = Correction.from_keyframes([replace(k, used=False) for k in kfs])
+    assert np.all(empty(np.linspace(0, 20, 9))[0] == 0.0)
+
+
+# --- the whole source on a short world-versus-model session ---------------------------------------
+
+
+@pytest.fixture(scope="module")
+def short_session(tmp_path_factory):
+    out = tmp_path_factory.mktemp("registered")
+    return open_session(sample.write_sample_session(out, SAMPLE_SCENE, sample.quick_config(6.0)))
+
+
+@pytest.mark.gl
+def test_the_registered_track_is_smooth_and_beats_its_prior(short_session, gl_ctx):
+    fractions = []
+    track = registered_track(short_session, settings=RegistrationSettings(), progress=fractions.append, ctx=gl_ctx)
+    reg = track.registration
+    assert track.source == "registered" and reg.prior == "offline"
+    assert fractions[-1] == 1.0 and len(reg.keyframes) == 12
+    assert reg.used_fraction >= 0.75, reg.summary()
+    prior = camera_track(short_session, "offline")
+    truth = replace(camera_track(short_session, "truth"), clock=frame_clock(short_session, true_timing=True))
+    frames = np.arange(0, track.frame_count)
+    ours, before, true = track.poses_at(track.clock.media_s[frames]), prior.poses_at(prior.clock.media_s[frames]), truth.frame_poses()
+    err = np.linalg.norm(ours.enu - true.enu, axis=1)
+    assert np.median(err) < 0.5 < 2.0 < np.median(np.linalg.norm(before.enu - true.enu, axis=1))
+    # No jump: no frame-to-frame step longer than the prior's own (GNSS) or the true walk's, and
+    # no kink: the step changes from one frame to the next by no more than the walk's does + 5 mm.
+    step = np.linalg.norm(np.diff(ours.enu, axis=0), axis=1)
+    limit = max(np.linalg.norm(np.diff(true.enu, axis=0), axis=1).max(), np.linalg.norm(np.diff(before.enu, axis=0), axis=1).max())
+    assert step.max() <= limit
+    kink = np.linalg.norm(np.diff(ours.enu, 2, axis=0), axis=1)
+    assert kink.max() < np.linalg.norm(np.diff(true.enu, 2, axis=0), axis=1).max() + 0.005
+    turn = np.degrees(rotations.angle_between(ours.q[1:], ours.q[:-1]))
+    true_turn = np.degrees(rotations.angle_between(true.q[1:], true.q[:-1]))
+    assert turn.max() < true_turn.max() + 0.1
+
+
+# --- control points by hand -----------------------------------------------------------------------
+
+
+def _control_case(session, boresight_deg=(0.8, -1.1, 0.5), offset=(2.0, -1.5, 0.4), noise_px=0.3):
+    """Pairs seen by a camera whose mount is off by a known boresight and whose positions are off
+    by a known offset, against the session's true track."""
+    track = camera_track(session, "truth")
+    b = rotations.from_rotvec(np.radians(boresight_deg))
+    rng = np.random.default_rng(4)
+    frames, pixels, points = [], [], []
+    for k in (10, 60, 120, 170):
+        cam = track.frame_camera(k)
+        real = replace(cam, position=tuple(np.asarray(cam.position) + offset), orientation=tuple(rotations.multiply(np.asarray(cam.orientation), b)))
+        uv = np.column_stack([rng.uniform(40, 600, 3), rng.uniform(40, 320, 3)])
+        x = np.asarray(real.position) + real.pixel_rays(uv) * rng.uniform(25, 80, (3, 1))
+        frames += [k] * 3
+        pixels.append(uv + rng.normal(0, noise_px, uv.shape))
+        points.append(session.frame.enu_to_geodetic(x))
+    return track, b, ControlPoints(np.array(frames), np.concatenate(pixels), np.concatenate(points))
+
+
+def test_control_points_recover_a_known_boresight_within_0_2_degrees(short_session, tmp_path):
+    track, b, pts = _control_case(short_session)
+    path = write_points(tmp_path / "pairs.csv", pts)
+    sol = solve_control(track, read_points(path))
+    assert np.degrees(rotations.angle_between(sol.boresight, b)) < 0.2
+    assert np.allclose(sol.offset_m, [2.0, -1.5, 0.4], atol=0.3)
+    assert np.median(sol.residual_px) < 1.0 < np.median(sol.before_px)
+    fixed = corrected_track(track, sol).frame_camera(60)
+    want = track.frame_camera(60)
+    turned = rotations.multiply(np.asarray(want.orientation), b)
+    assert np.degrees(rotations.angle_between(fixed.orientation, turned)) < 0.2
+
+
+def test_bad_control_point_files_name_the_line_and_field(tmp_path):
+    p = tmp_path / "pairs.csv"
+    p.write_text("frame,x,y,latitude,longitude\n1,2,3,4,5\n")
+    with pytest.raises(DataFormatError, match="missing columns height"):
+        read_points(p)
+    p.write_text("frame,x,y,latitude,longitude,height\n" + "1,2,3,34.8,113.5,100\n" * 3 + "4,nan,3,34.8,113.5,100\n")
+    with pytest.raises(DataFormatError, match=r"pairs.csv:5 field 'x'.*not a finite number"):
+        read_points(p)
+    p.write_text("frame,x,y,latitude,longitude,height\n1,2,3,34.8,113.5,100\n")
+    with pytest.raises(DataFormatError, match="need at least 4 pairs"):
+        read_points(p)
+
+
+def test_register_cli_solves_and_keeps_the_points_beside_the_input(short_session, tmp_path):
+    _, b, pts = _control_case(short_session)
+    path = write_points(tmp_path / "pairs.csv", pts)
+    manifest = short_session.path
+    before = manifest.read_bytes()
+    run = subprocess.run([sys.executable, "-m", "app", "register", str(manifest), "--points", str(path), "--source", "truth", "--write"], capture_output=True, text=True, cwd=ROOT)
+    assert run.returncode == 0, run.stderr
+    assert "12 control points against truth" in run.stdout and "boresight" in run.stdout
+    kept = manifest.with_name(manifest.stem + ".control.csv")
+    assert kept.is_file() and np.allclose(read_points(kept).pixel, pts.pixel, atol=0.01)
+    assert manifest.read_bytes() == before
+    kept.unlink()
+
+
+@pytest.mark.gl
+def test_solve_offers_the_registered_source_and_says_how_much_registered(short_session, tmp_path):
+    out = tmp_path / "poses.csv"
+    run = subprocess.run([sys.executable, "-m", "app", "solve", str(short_session.path), "--source", "registered", "--out", str(out)], capture_output=True, text=True, cwd=ROOT)
+    assert run.returncode == 0, run.stderr
+    assert "registered" in run.stderr and "keyframes" in run.stderr and "against the scene" in run.stderr
+    rows = out.read_text().splitlines()
+    assert len(rows) == 1 + len(short_session.frame_times)
+    direct = solve_track(short_session, "offline").frame_poses()
+    assert direct.enu.shape[0] == len(rows) - 1

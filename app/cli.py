@@ -450,7 +450,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return code
 
 
-BENCHMARKS = {"render": "bench_render.py", "attitude": "bench_attitude.py", "accuracy": "bench_accuracy.py", "playback": "bench_playback.py", "lens": "bench_lens.py", "sync": "bench_sync.py"}
+BENCHMARKS = {"render": "bench_render.py", "attitude": "bench_attitude.py", "accuracy": "bench_accuracy.py", "playback": "bench_playback.py", "lens": "bench_lens.py", "sync": "bench_sync.py", "registration": "bench_registration.py"}
 
 
 def cmd_bench(args: argparse.Namespace) -> int:

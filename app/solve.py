@@ -18,13 +18,14 @@ COLUMNS = ("frame", "time_s", "latitude", "longitude", "height", "E", "N", "U", 
 PROGRESS_MIN_SAMPLES = 100_000
 
 
-def solve_track(session: Session, source: str, progress: Callable[[float], None] | None = None, **options: object) -> CameraTrack:
+def solve_track(session: Session, source: str, progress: Callable[[float], None] | None = None, stop: Callable[[], bool] | None = None, **options: object) -> CameraTrack:
     """One source of a session solved into its camera track: the one entry point for every
     command and the viewer's solver. The `registered` source renders the scene (app.register);
     the others are app.camera_track.camera_track (options: course_pitch_deg, true_timing,
-    time_offset_s). progress(fraction) is called where solving takes long (registration)."""
+    time_offset_s). progress(fraction) is called where solving takes long (registration), and
+    there stop() is asked between steps: True cancels (app.register.solve.Cancelled)."""
     if source == REGISTERED:
-        return registered_track(session, progress=progress, **options)
+        return registered_track(session, progress=progress, stop=stop, **options)
     return camera_track(session, source, **options)
 
 

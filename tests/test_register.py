@@ -4,6 +4,7 @@ than its prior, control points by hand, the CLI."""
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 from dataclasses import replace
@@ -15,16 +16,18 @@ from app import rotations
 from app.camera import Camera, Intrinsics
 from app.camera_track import camera_track, frame_clock
 from app.demo import SAMPLE_DIR, SAMPLE_SCENE
-from app.errors import DataFormatError
+from app.errors import DataFormatError, GeofuseError
 from app.io.video import frames_at
 from app.lens import Lens
 from app.register.fuse import Correction, FuseSettings, Keyframe, corrected_pose_track, gate
 from app.register.keyframe import pose_from_cv, pose_to_cv, solve_pose
 from app.register.points import ControlPoints, corrected_track, read_points, solve_control, write_points
 from app.register.solve import Registrar, RegistrationSettings, registered_track
+from app.scene.mesh import MeshData
 from app.session import open_session
 from app.simulate import session as sample
 from app.solve import solve_track
+from tests.conftest import run_viewer
 
 ROOT = SAMPLE_DIR.parents[1]
 
@@ -265,3 +268,49 @@ def test_solve_offers_the_registered_source_and_says_how_much_registered(short_s
     assert len(rows) == 1 + len(short_session.frame_times)
     direct = solve_track(short_session, "offline").frame_poses()
     assert direct.enu.shape[0] == len(rows) - 1
+
+
+@pytest.mark.gl
+def test_the_viewer_registers_in_the_background_and_shows_the_registered_source(short_session, display, tmp_path):
+
+    state, shot = tmp_path / "state.json", tmp_path / "shot.png"
+    script = tmp_path / "script.txt"
+    script.write_text(f"0 clock 0.05\n0 wait registered\n0 source registered\n0.2 screenshot {shot}\n0.2 state {state}\n0.3 quit\n")
+    result = run_viewer(display, str(short_session.path), "--script", str(script), "--size", "800x450")
+    assert result.returncode == 0, result.stderr[-3000:]
+
+    s = json.loads(state.read_text())
+    assert s["source"] == "registered" and "registered" in s["solved"] and s["errors"] == []
+    reg = s["registration"]
+    assert reg["prior"] == "offline" and reg["keyframes"] == 12 and reg["used"] >= 9
+    assert reg["summary"].startswith(f"registered {reg['used']} of 12 keyframes")
+    # The projector is the registered track's camera at the frame shown.
+    track = solve_track(short_session, "offline")
+    assert np.linalg.norm(np.subtract(s["projector"]["position"], track.frame_camera(s["frame"]).position)) > 0.5
+
+
+@pytest.mark.gl
+@pytest.mark.parametrize("kind", ["tiles", "terrain"])
+def test_keyframes_register_against_3d_tiles_and_a_dem_with_an_orthophoto(kind, tmp_path, gl_ctx):
+    """The same world-versus-model video against the stadium as a 3D Tiles tileset (with a
+    generated city beside it), and against a DEM with an orthophoto under the model."""
+    from tools import gis_sessions
+
+    session = open_session(getattr(gis_sessions, kind)(tmp_path))
+    registrar = Registrar(session, RegistrationSettings(), gl_ctx)
+    try:
+        for k, rgb in frames_at(session.video, [661, 2191], registrar.settings.long_side):
+            truth = _true_camera(session, k)
+            fix, solved, _ = registrar.keyframe(rgb, _perturbed(truth, 3.0, 2.0, seed=k))
+            assert solved is not None, f"{kind} frame {k}: {fix.reason}"
+            metres, degrees = _pose_error(truth, solved.position, solved.orientation)
+            assert metres < 0.3 and degrees < 0.3, f"{kind} frame {k}: {metres:.2f} m, {degrees:.2f} deg"
+    finally:
+        registrar.release()
+
+
+def test_a_scene_without_texture_is_refused_with_the_reason(sample_session):
+
+    grey = MeshData([replace(p, texture=None, uvs=None) for p in sample_session.scene().primitives])
+    with pytest.raises(GeofuseError, match="has no texture.*orthophoto"):
+        Registrar(replace(sample_session, mesh=grey))

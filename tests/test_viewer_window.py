@@ -59,7 +59,8 @@ def test_scripted_session_state(scripted):
     assert played["frame"] == played["due_frame"] == 60
     assert played["frames_shown"] + played["dropped"] == played["frame"] + 1
     assert played["frames_shown"] >= 30  # the sample is ~30 fps VFR; a 30 Hz clock shows most frames
-    assert sorted(played["solved"]) == sorted(["gd-ahrs", "gd-imu", "cf-ahrs", "cf-imu", "offline", "phone", "truth"])
+    # `wait solved` holds for every source but the registered one, solved last (it may be done).
+    assert sorted(set(played["solved"]) - {"registered"}) == sorted(["gd-ahrs", "gd-imu", "cf-ahrs", "cf-imu", "offline", "phone", "truth"])
     state = json.loads((d / "scene.json").read_text())
     assert state["source"] == "gd-ahrs"  # gd-imu, then the AHRS toggle back on
     assert state["alpha"] == 1.0

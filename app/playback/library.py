@@ -19,7 +19,7 @@ import numpy as np
 
 from app.attitude.metrics import hpr_rms
 from app.camera_track import CameraTrack, frame_clock
-from app.session.model import COURSE, TRUTH, Session
+from app.session.model import COURSE, REGISTERED, TRUTH, Session
 from app.solve import solve_track
 
 REFERENCE_ORDER = (TRUTH, "phone")  # what the others are compared with, first found
@@ -45,6 +45,9 @@ class SolverLibrary:
     def __init__(self, session: Session, first: str | None = None) -> None:
         self.session = session
         order = list(session.sources)
+        if REGISTERED in order:  # it takes about as long as the clip: solved after the others
+            order.remove(REGISTERED)
+            order.append(REGISTERED)
         if first in order:
             order.remove(first)
             order.insert(0, first)
@@ -62,6 +65,7 @@ class SolverLibrary:
         self._lock = threading.Lock()
         self._idle = threading.Condition(self._lock)
         self._jobs: queue.Queue[str | None] = queue.Queue()
+        self._closed = threading.Event()
         self._thread = threading.Thread(target=self._run, name="geofuse-solver", daemon=True)
         for name in self.order:
             self._submit(name)
@@ -105,10 +109,14 @@ class SolverLibrary:
         with self._lock:
             return self._course_pitch
 
-    def wait(self, timeout: float | None = None) -> bool:
-        """Block until the library is idle (every request done); False on timeout."""
+    def wait(self, timeout: float | None = None, but: tuple[str, ...] = ()) -> bool:
+        """Block until the library is idle (every request done), or with `but` until every
+        source but those is solved or failed; False on timeout."""
+        names = [n for n in self.order if n not in but]
         with self._idle:
-            return self._idle.wait_for(lambda: self._pending == 0, timeout)
+            if not but:
+                return self._idle.wait_for(lambda: self._pending == 0, timeout)
+            return self._idle.wait_for(lambda: all(n in self._tracks or n in self._errors for n in names), timeout)
 
     def track(self, name: str | None) -> CameraTrack | None:
         """The camera track of a solved source (with the live time offset), else None."""
@@ -172,8 +180,13 @@ class SolverLibrary:
             self._course_pitch = float(pitch_deg)
         self._submit(COURSE)
 
-    def close(self) -> None:
+    def close(self, wait_s: float = 10.0) -> None:
+        """Stop solving: a registration under way stops at its next keyframe; waits up to
+        wait_s seconds for the worker to end (it is a daemon thread either way)."""
+        self._closed.set()
         self._jobs.put(None)
+        if self._thread.is_alive() and threading.current_thread() is not self._thread:
+            self._thread.join(wait_s)
 
     # --- the worker ----------------------------------------------------------------------------
 
@@ -203,7 +216,7 @@ class SolverLibrary:
     def _solve(self, name: str) -> None:
         with self._lock:
             pitch = self._course_pitch
-        track = solve_track(self.session, name, progress=lambda f: self._partly(name, f), course_pitch_deg=pitch if name == COURSE else None)
+        track = solve_track(self.session, name, progress=lambda f: self._partly(name, f), stop=self._closed.is_set, course_pitch_deg=pitch if name == COURSE else None)
         curves = curves_of(track)
         truth = replace(track, clock=frame_clock(self.session, true_timing=True)) if name == TRUTH else None
         with self._lock:

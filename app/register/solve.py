@@ -34,6 +34,10 @@ if TYPE_CHECKING:
     import moderngl
 
 
+class Cancelled(GeofuseError):
+    """A registration stopped on request (the viewer closed the session)."""
+
+
 @dataclass(frozen=True)
 class RegistrationSettings:
     """every_s: seconds of video between keyframes; long_side: the frames and renderings are
@@ -84,6 +88,37 @@ class Registration:
         return line
 
 
+@dataclass(frozen=True)
+class KeyframePlot:
+    """What the error panel plots of a registration: (seconds from the first frame, inliers) of
+    the used and the unused keyframes, and the reprojection error (px) of the registered ones."""
+
+    keyframes: tuple[Keyframe, ...]
+    used: tuple[np.ndarray, np.ndarray]
+    unused: tuple[np.ndarray, np.ndarray]
+    error_t: np.ndarray
+    error_px: np.ndarray
+
+    def nearest(self, frame: int) -> Keyframe | None:
+        """The keyframe nearest to video frame `frame`."""
+        if not self.keyframes:
+            return None
+        return min(self.keyframes, key=lambda k: abs(k.index - frame))
+
+
+def keyframe_plot(reg: Registration, t0: float) -> KeyframePlot:
+    """The plot's arrays, times in seconds after session time t0 (the first frame's)."""
+    def pick(flag: bool) -> tuple[np.ndarray, np.ndarray]:
+        ks = [k for k in reg.keyframes if k.used == flag]
+        return np.array([k.time_s - t0 for k in ks], np.float64), np.array([k.inliers for k in ks], np.float64)
+
+    solved = [k for k in reg.keyframes if k.registered]
+    return KeyframePlot(
+        reg.keyframes, pick(True), pick(False),
+        np.array([k.time_s - t0 for k in solved], np.float64), np.array([k.error_px for k in solved], np.float64),
+    )  # fmt: skip
+
+
 def keyframe_indices(media_s: np.ndarray, every_s: float) -> np.ndarray:
     """Video frames (indices into media_s, increasing) nearest to every every_s seconds."""
     if every_s <= 0:
@@ -116,9 +151,16 @@ class Registrar:
     def __init__(self, session: Session, settings: RegistrationSettings = RegistrationSettings(), ctx: moderngl.Context | None = None) -> None:
         if not session.layers:
             raise GeofuseError(f"{session.path}: the scene is an assumed flat ground: there is nothing to register the video against (name a model, tileset or DEM)")
+        mesh = session.scene()
+        if not mesh.tilesets and not any(p.textured for p in mesh.primitives):
+            names = ", ".join(layer.name for layer in session.layers)
+            raise GeofuseError(
+                f"{session.path}: the scene ({names}) has no texture: registration matches the video against the model's "
+                "textures, and a grey model or a bare DEM has none (give the DEM an orthophoto, or use a textured model)"
+            )
         self.session = session
         self.settings = settings
-        self.views = ModelViews(session.scene(), ctx)
+        self.views = ModelViews(mesh, ctx)
         self.matcher = Matcher(settings.match)
         self.stage_s = {"render": 0.0, "match": 0.0, "decode": 0.0}
 
@@ -151,9 +193,10 @@ class Registrar:
             fine = fine or (metres < s.fine_within_m and degrees < s.fine_within_deg)
         return fix, solved, it
 
-    def run(self, prior: CameraTrack, progress: Callable[[float], None] | None = None) -> Registration:
+    def run(self, prior: CameraTrack, progress: Callable[[float], None] | None = None, stop: Callable[[], bool] | None = None) -> Registration:
         """Every keyframe of the video registered, starting each from the prior's pose moved by
-        the corrections found so far; the keyframes gated against their neighbours."""
+        the corrections found so far; the keyframes gated against their neighbours. stop() is
+        asked before each keyframe: True raises Cancelled."""
         s = self.settings
         video = self.session.video
         idx = keyframe_indices(np.asarray(video.pts_s, np.float64), s.every_s)
@@ -164,6 +207,8 @@ class Registrar:
                 k, rgb = next(frames, (None, None))
             if k is None:
                 break
+            if stop is not None and stop():
+                raise Cancelled(f"registration of {video.path} cancelled after {len(keyframes)} of {len(idx)} keyframes")
             prior_cam = prior.frame_camera(k)
             t = float(prior.clock.session_time([video.pts_s[k]])[0])
             so_far = Correction.from_keyframes(keyframes[-5:], s.fuse)
@@ -210,12 +255,14 @@ def registered_track(
     settings: RegistrationSettings = RegistrationSettings(),
     progress: Callable[[float], None] | None = None,
     ctx: moderngl.Context | None = None,
+    stop: Callable[[], bool] | None = None,
     **track_options: object,
 ) -> CameraTrack:
     """The camera track of the `registered` source: the prior source's track (default_prior)
     corrected by the keyframes registered against the scene; `registration` holds every
     keyframe's outcome. Control points kept beside the input (`geofuse register --write`) correct
-the prior first. ctx: a GL context to render in (default: one of its own). track_options go to
+the prior first. ctx: a GL context to render in (default: one of its own); stop: asked
+between keyframes, True cancels (Cancelled). track_options go to
 app.camera_track.camera_track for the prior."""
     prior_track = camera_track(session, prior or default_prior(session), **track_options)
     control = None
@@ -224,7 +271,7 @@ app.camera_track.camera_track for the prior."""
         prior_track = corrected_track(prior_track, control)
     registrar = Registrar(session, settings, ctx)
     try:
-        reg = registrar.run(prior_track, progress)
+        reg = registrar.run(prior_track, progress, stop)
     finally:
         registrar.release()
     poses = corrected_pose_track(prior_track.poses, Correction.from_keyframes(list(reg.keyframes), settings.fuse))

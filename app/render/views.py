@@ -6,6 +6,8 @@ that thread uses without `with ctx:`, or give it the context already in use."""
 
 from __future__ import annotations
 
+import contextlib
+
 import moderngl
 import numpy as np
 
@@ -25,23 +27,28 @@ class ModelViews:
     def __init__(self, mesh: MeshData, ctx: moderngl.Context | None = None) -> None:
         self._own = ctx is None
         self.ctx = create_offscreen_context() if ctx is None else ctx
-        with self.ctx:
+        with self._current():
             self.renderer = FusionRenderer(self.ctx, mesh)
         self._targets: dict[tuple[int, int], OffscreenTarget] = {}
+
+    def _current(self) -> contextlib.AbstractContextManager:
+        """Its own context made current for a block (the thread may use another between
+        blocks); a context it was given is the caller's, already current."""
+        return self.ctx if self._own else contextlib.nullcontext()
 
     def render(self, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
         """((H, W, 3) uint8 RGB, (H, W, 3) ENU metres of the surface at each pixel centre, NaN
         where none) of `camera`'s pinhole intrinsics (with a lens: the pinhole enclosing its
         image), row 0 = the top; streamed tiles loaded to full detail first."""
         size = (camera.intrinsics.width, camera.intrinsics.height)
-        with self.ctx:  # current for these calls only: the caller may hold another context
+        with self._current():
             if size not in self._targets:
                 self._targets[size] = OffscreenTarget(self.ctx, *size)
             rgb = render_to_array(self.renderer, camera, MODEL_ONLY, target=self._targets[size])
             return rgb, self.renderer.pick_map(camera)
 
     def release(self) -> None:
-        with self.ctx:
+        with self._current():
             for target in self._targets.values():
                 target.release()
             self.renderer.release()

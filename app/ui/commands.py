@@ -41,6 +41,8 @@ def _clock(v, arg, now) -> None:
 def _wait(v, arg, now) -> None:
     if arg == "solved":
         v.wait_until_solved()
+    elif arg == "registered":
+        v.wait_until_solved(registered=True)
     elif arg == "exported":
         v.wait_until_exported()
     elif arg == "synced":
@@ -48,7 +50,7 @@ def _wait(v, arg, now) -> None:
     elif arg == "tiles":
         v.wait_until_tiles_loaded()
     else:
-        raise ValueError(f"expected 'solved', 'exported', 'synced' or 'tiles', got {arg!r}")
+        raise ValueError(f"expected 'solved', 'registered', 'exported', 'synced' or 'tiles', got {arg!r}")
 
 
 def _export(v, arg, now) -> None:
@@ -103,7 +105,7 @@ COMMANDS: dict[str, Command] = {
     "panels": Command(_set_ui(show_panels=()), False, True, "show or hide the panels"),
     "lines": Command(_set_ui(overlays=("frustum", "trajectory")), False, True, "frustum and trajectory lines"),
     "clock": Command(_clock, False, True, "STEP: a fixed-step clock (seconds per frame), or wall"),
-    "wait": Command(_wait, False, True, "solved | exported | synced | tiles: hold the clock until every source is solved, the export or sync has finished, or the 3D Tiles this view needs are loaded"),
+    "wait": Command(_wait, False, True, "solved | registered | exported | synced | tiles: hold the clock until every source but the registered one is solved, the registered one too, the export or sync has finished, or the 3D Tiles this view needs are loaded"),
     "export": Command(_export, True, True, "WHAT PATH: export the session (footprints, fmv-csv, klv, video) in the background"),
     "record": Command(_record, True, True, "start [PATH] | stop: record what the window shows"),
     "lens": Command(lambda v, a, n: v.use_lens(None if a == "auto" else Path(a)), True, True, "PROFILE.json | auto: reopen the clip through this lens profile"),

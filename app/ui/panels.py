@@ -17,7 +17,8 @@ from pathlib import Path
 import numpy as np
 
 from app.playback.clock import SPEEDS
-from app.session.model import COURSE
+from app.register.solve import keyframe_plot
+from app.session.model import COURSE, REGISTERED
 
 log = logging.getLogger("geofuse.viewer")
 
@@ -337,11 +338,16 @@ def _attitude(v) -> None:
         if not lib.done:
             imgui.progress_bar(lib.progress, imgui.ImVec2(-1, 0), f"solving {len(solved)}/{len(lib.order)}")
         for name in L.session.sources:
-            label = name + ("" if name in solved else " (failed)" if name in errors else " (solving)")
+            partly = lib.source_progress(name)
+            solving = " (solving)" if partly is None else f" (registering {100 * partly:.0f} %)"
+            label = name + ("" if name in solved else " (failed)" if name in errors else solving)
             if imgui.radio_button(label, L.source == name) and name in solved:
                 _run(v, "source", name)
         for name, err in errors.items():
             imgui.text_colored(_vec4(RED), f"{name}: {err}")
+        registered = lib.track(REGISTERED)
+        if registered is not None and registered.registration is not None:
+            imgui.text_wrapped(registered.registration.summary())
         ahrs = L.source.endswith("-ahrs")
         if L.source[:3] in ("gd-", "cf-") and L.session.mag is not None:
             changed, ahrs = imgui.checkbox("AHRS (with magnetometer)", ahrs)
@@ -454,6 +460,7 @@ def _error_inspection(v) -> None:
                     implot.plot_line(ref, xs, np.ascontiguousarray(wrap(truth.hpr[::step, i])))
                     implot.plot_inf_lines("now", np.array([est.t[k]]))
                     implot.end_plot()
+        _keyframes(v, lib)
         table = lib.rms_table()
         if table and imgui.begin_table("rms", 5, imgui.TableFlags_.borders):
             for h in ("RMS vs " + str(ref), "heading", "pitch", "roll", "total"):
@@ -466,6 +473,30 @@ def _error_inspection(v) -> None:
                     imgui.text(cell if j == 0 else f"{cell:.2f}")
             imgui.end_table()
     imgui.end()
+
+
+def _keyframes(v, lib) -> None:
+    """The registered source's keyframes over time: inliers of those used and of those not, the
+    reprojection error, and why the nearest keyframe to this frame was not used."""
+    from imgui_bundle import imgui, implot
+
+    track = lib.track(REGISTERED)
+    if track is None or track.registration is None:
+        return
+    plot = keyframe_plot(track.registration, float(track.clock.session_s[0]))
+    imgui.text_wrapped(track.registration.summary())
+    if implot.begin_plot("keyframes: inliers##reg", imgui.ImVec2(-1, 110)):
+        implot.setup_axes("", "", 0, 0)
+        for label, (xs, ys) in (("used", plot.used), ("not used", plot.unused)):
+            if len(xs):
+                implot.plot_scatter(label, xs, ys)
+        if len(plot.error_t):
+            implot.plot_line("error (px x 100)", plot.error_t, plot.error_px * 100.0)
+        implot.plot_inf_lines("now", np.array([float(track.clock.session_s[max(v.current_index, 0)] - track.clock.session_s[0])]))
+        implot.end_plot()
+    near = plot.nearest(max(v.current_index, 0))
+    if near is not None and not near.used:
+        imgui.text_colored(_vec4(AMBER), f"keyframe {near.index}: {near.reason}")
 
 
 def _stats(v) -> None:

@@ -5,7 +5,8 @@ which a run does the same thing on a fast machine and on a loaded one.
 
     # comment
     0.0  clock 0.0333       # a fixed-step clock (or: clock wall)
-    0.0  wait solved        # hold the clock until every attitude source is solved
+    0.0  wait solved        # hold the clock until every pose source but `registered` is solved
+    0.0  wait registered    # ... and until the registered one is too (about the clip's length)
     1.0  export footprints out/fp.geojson   # footprints | fmv-csv | klv | video, in the background
     1.0  wait exported      # hold the clock until the export has finished
     1.5  record start out/rec.mp4           # record what the window shows (record stop)

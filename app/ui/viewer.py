@@ -26,6 +26,7 @@ from app.errors import GeofuseError
 from app.playback.clock import SPEEDS, PlaybackClock
 from app.playback.library import SolverLibrary
 from app.playback.player import Player
+from app.session.model import REGISTERED
 from app.ui.commands import run_command
 from app.ui.navigation import Navigator
 from app.ui.script import Action, parse_script
@@ -273,10 +274,12 @@ class Viewer:
             rec.stop()
             self.ui.notices.append(rec.error or f"recorded {rec.out}: {rec.frames} frames" + (f", {rec.dropped} dropped" if rec.dropped else ""))
 
-    def wait_until_solved(self) -> None:
-        """Hold everything until every attitude source is solved (a script's `wait solved`)."""
-        if self.loaded is not None and not self.loaded.library.wait(SOLVE_WAIT_S):
-            raise GeofuseError(f"the attitude sources were not solved within {SOLVE_WAIT_S:g} s")
+    def wait_until_solved(self, registered: bool = False) -> None:
+        """Hold everything until every source is solved: all but `registered` (a script's `wait
+        solved`: registration takes about as long as the clip), or it too (`wait registered`)."""
+        but = () if registered else (REGISTERED,)
+        if self.loaded is not None and not self.loaded.library.wait(SOLVE_WAIT_S, but):
+            raise GeofuseError(f"the pose sources were not solved within {SOLVE_WAIT_S:g} s")
 
     # --- sessions -------------------------------------------------------------------------------
 
@@ -460,6 +463,7 @@ class Viewer:
                 manifest=str(L.session.path), source=L.source, lens=None if L.session.lens is None else L.session.lens.name, layers=[f"{layer.kind}:{layer.name}" for layer in L.session.layers], frame=self.current_index, due_frame=L.player.due_index(now),
                 frames_shown=len(s.latencies), dropped=s.dropped, latency_ms=list(s.summary()), skipped_by_decoder=L.player.decoder.skipped,
                 solved=L.library.solved(), alpha=ui.settings.alpha, time_offset_s=L.library.time_offset_s,
+                registration=_registration_state(L.library.track(REGISTERED)),
                 sync=None if ui.sync_job is None or ui.sync_job.result is None else {"offset_s": ui.sync_job.result.offset_s, "confidence": ui.sync_job.result.confidence},
                 window_camera={"size": [i.width, i.height], "fx": i.fx, "fy": i.fy, "cx": i.cx, "cy": i.cy, "position": list(cam.position), "orientation": list(cam.orientation), "near": cam.near, "far": cam.far},
                 projector=None if proj is None else {"position": list(proj.position), "orientation": list(proj.orientation)},
@@ -547,3 +551,11 @@ class Viewer:
             gui.shutdown()
             self.window.close()
         return 0
+
+
+def _registration_state(track) -> dict | None:
+    """The registered source's outcome for a script's `state`: its summary and keyframe counts."""
+    if track is None or track.registration is None:
+        return None
+    reg = track.registration
+    return {"summary": reg.summary(), "keyframes": len(reg.keyframes), "used": reg.used, "prior": reg.prior}

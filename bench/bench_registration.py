@@ -1,0 +1,118 @@
+"""Registration against the scene: speed per stage and keyframes per second on the sample
+session, and the fallback on a copy of it whose view is fogged over (featureless) for 15 s.
+
+    python bench/bench_registration.py [--repeat 3] [--no-fog]
+
+Speed: the whole `registered` source solved `repeat` times (median wall time against the clip's
+length; time per stage: render, match (features, matching, pose), decode). Fallback: the sample's
+video from 20 to 35 s replaced by grey fog (what a lens fogged up, a featureless wall or the sky
+look like to a matcher); position error (m) of the registered and the prior track against the
+truth, inside and outside the fog, at every 10th frame.
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+import statistics
+import sys
+import tempfile
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from bench.common import table  # noqa: E402
+
+FOG_S = (20.0, 35.0)
+
+
+def fogged_copy(sample: Path, out: Path) -> Path:
+    """The sample session copied into `out` with its video fogged over FOG_S (grey, no texture)."""
+    import av
+
+    from app.simulate.phone import write_video
+
+    for f in sample.iterdir():
+        if f.is_file() and f.name != "clip.mp4":
+            shutil.copy(f, out / f.name)
+    text = (out / "session.toml").read_text().replace('path = "scene.glb"', f'path = "{(sample / "scene.glb").as_posix()}"')
+    (out / "session.toml").write_text(text)
+    from app.io.video import probe, rotate_for_display
+
+    info = probe(sample / "clip.mp4")
+    frames = []
+    with av.open(str(sample / "clip.mp4")) as c:
+        for fr in c.decode(video=0):
+            frames.append(rotate_for_display(fr.to_ndarray(format="rgb24"), info.rotation_cw))
+    pts = np.asarray(info.pts_s)
+
+    def frame(k: int) -> np.ndarray:
+        if FOG_S[0] <= pts[k] < FOG_S[1]:
+            return np.full_like(frames[k], 170)
+        return frames[k]
+
+    write_video(out / "clip.mp4", pts, (info.width, info.height), info.rotation_cw, creation_time="2025-11-15T09:46:40Z", frame=frame, crf=30)
+    return out / "session.toml"
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeat", type=int, default=3, help="solves of the sample for the speed figures (median)")
+    parser.add_argument("--no-fog", action="store_true", help="skip the fogged clip")
+    args = parser.parse_args(argv)
+
+    from app.camera_track import camera_track, frame_clock
+    from app.render.context import create_offscreen_context, describe
+    from app.session import open_session
+    from app.solve import solve_track
+
+    sample = ROOT / "assets" / "sample"
+    session = open_session(sample / "session.toml")
+    clip_s = float(session.video.pts_s[-1] - session.video.pts_s[0])
+    ctx = create_offscreen_context()
+    print(f"# registration: {sample / 'session.toml'} ({clip_s:.1f} s of video, {session.video.width}x{session.video.height}); {describe(ctx)}\n")
+    ctx.release()
+    walls, stages, reg = [], [], None
+    for _ in range(args.repeat):
+        t0 = time.perf_counter()
+        track = solve_track(session, "registered")
+        walls.append(time.perf_counter() - t0)
+        reg = track.registration
+        stages.append(reg.stage_s)
+    n = len(reg.keyframes)
+    wall = statistics.median(walls)
+    print(f"{reg.summary()}\n")
+    print(table(["what", "median of " + str(args.repeat)], [
+        ["wall time (s)", f"{wall:.1f}"],
+        ["wall time / clip length", f"{wall / clip_s:.2f}"],
+        ["keyframes per second", f"{n / wall:.2f}"],
+        *[[f"{k} (s, all keyframes)", f"{statistics.median(s[k] for s in stages):.1f}"] for k in ("render", "match", "decode")],
+        ["renderings per keyframe (mean)", f"{np.mean([k.iterations for k in reg.keyframes]):.2f}"],
+    ]))  # fmt: skip
+    if args.no_fog:
+        return 0
+    with tempfile.TemporaryDirectory() as tmp:
+        fog = open_session(fogged_copy(sample, Path(tmp)))
+        track = solve_track(fog, "registered")
+        prior = camera_track(fog, track.registration.prior)
+        truth = replace(camera_track(fog, "truth"), clock=frame_clock(fog, true_timing=True))
+        frames = np.arange(0, truth.frame_count, 10)
+        media = fog.video.pts_s[frames]
+        err = {name: np.linalg.norm(t.poses_at(media, frames).enu - truth.poses_at(media, frames).enu, axis=1) for name, t in (("registered", track), ("prior", prior))}
+        inside = (media >= FOG_S[0]) & (media < FOG_S[1])
+        print(f"\n## Fogged over {FOG_S[0]:.0f}-{FOG_S[1]:.0f} s\n\n{track.registration.summary()}\n")
+        worse = float(np.mean(err["registered"][inside] > err["prior"][inside] + 0.05))
+        rows = [[name, f"{np.median(e[~inside]):.2f}", f"{np.median(e[inside]):.2f}", f"{e[inside].max():.2f}"] for name, e in err.items()]
+        print(table(["track", "position error outside the fog, median m", "inside, median m", "inside, max m"], rows))
+        print(f"\nframes inside the fog where the registered track is more than 5 cm worse than its prior: {100 * worse:.0f} %")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

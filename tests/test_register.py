@@ -311,6 +311,41 @@ def test_keyframes_register_against_3d_tiles_and_a_dem_with_an_orthophoto(kind, 
 
 def test_a_scene_without_texture_is_refused_with_the_reason(sample_session):
 
-    grey = MeshData([replace(p, texture=None, uvs=None) for p in sample_session.scene().primitives])
+    grey = replace(sample_session, mesh=MeshData([replace(p, texture=None, uvs=None) for p in sample_session.scene().primitives]))
+    assert "registered" not in grey.sources and "registered" in sample_session.sources
+    with pytest.raises(ValueError, match="has no texture.*orthophoto"):
+        grey.check_source("registered")
     with pytest.raises(GeofuseError, match="has no texture.*orthophoto"):
-        Registrar(replace(sample_session, mesh=grey))
+        Registrar(grey)
+
+
+@pytest.mark.gl
+def test_control_points_picked_in_the_viewer_are_solved_and_kept_beside_the_input(short_session, display, tmp_path):
+    """Four pairs picked in the window (a video pick, then a model pick): each video pick is the
+    pixel the projector drapes at that place, the solve reports residuals, and the points go
+    into NAME.control.csv beside the manifest (never into it)."""
+    state = tmp_path / "state.json"
+    picks = ["0.30,0.50", "0.62,0.42", "0.48,0.62", "0.72,0.58"]
+    lines = ["0 clock 0.05", "0 wait solved", "0 source offline", "0 panels off", "0 seek 2", "0 view phone"]
+    for xy in picks:
+        lines += [f"0.1 control video {xy}", f"0.1 control model {xy}"]
+    lines += ["0.2 control solve", f"0.3 state {state}", "0.4 quit"]
+    script = tmp_path / "script.txt"
+    script.write_text("\n".join(lines) + "\n")
+    before = short_session.path.read_bytes()
+    result = run_viewer(display, str(short_session.path), "--script", str(script), "--size", "800x450")
+    assert result.returncode == 0, result.stderr[-3000:]
+    s = json.loads(state.read_text())
+    c = s["control"]
+    assert s["errors"] == [] and len(c["pairs"]) == 4 and not c["pending"]
+    # Each video pick is where the shown pose projects the model point under the cursor.
+    projector = solve_track(short_session, "offline").frame_camera(s["frame"])
+    for pair in c["pairs"]:
+        uv, _ = projector.project(np.array([pair["enu"]]))
+        assert np.allclose(uv[0], pair["pixel"], atol=0.05)
+    # Picked on the same pose, the pairs agree with it: nothing to correct.
+    assert max(c["residual_px"]) < 0.5 and c["boresight_deg"] < 0.05 and np.linalg.norm(c["offset_m"]) < 0.05
+    kept = short_session.path.with_name(short_session.path.stem + ".control.csv")
+    assert c["saved"] == str(kept) and len(read_points(kept)) == 4
+    assert short_session.path.read_bytes() == before
+    kept.unlink()

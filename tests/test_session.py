@@ -30,7 +30,7 @@ def session(session_dir):
 
 
 def test_session_reads_everything(session):
-    assert session.sources == ["gd-ahrs", "gd-imu", "cf-ahrs", "cf-imu", "offline", "registered", "truth"]
+    assert session.sources == ["gd-ahrs", "gd-imu", "cf-ahrs", "cf-imu", "offline", "truth"]
     assert len(session.frame_times) == 600
     assert session.video.rotation_cw == 90
     assert (session.intrinsics.width, session.intrinsics.height) == (36, 64)  # portrait display
@@ -74,7 +74,7 @@ def test_imu_only_session_offers_imu_filters(session_dir, tmp_path, capsys):
     text = (folder / "session.toml").read_text().replace('mag = "mag.csv"\n', "")
     (folder / "session.toml").write_text(text)
     s = open_session(folder / "session.toml")
-    assert s.sources == ["gd-imu", "cf-imu", "offline", "registered", "truth"]
+    assert s.sources == ["gd-imu", "cf-imu", "offline", "truth"]
     assert main(["solve", str(folder / "session.toml"), "--source", "gd-ahrs", "--out", str(tmp_path / "p.csv")]) == 2
     assert "this session offers gd-imu, cf-imu, offline, truth" in capsys.readouterr().err
 

@@ -180,6 +180,15 @@ class SolverLibrary:
             self._course_pitch = float(pitch_deg)
         self._submit(COURSE)
 
+    def resolve_registered(self) -> None:
+        """Register again (control points were kept beside the input); the old track stays
+        until the new one is in."""
+        if REGISTERED in self.order:
+            with self._lock:
+                self._errors.pop(REGISTERED, None)
+                self._partial[REGISTERED] = 0.0
+            self._submit(REGISTERED)
+
     def close(self, wait_s: float = 10.0) -> None:
         """Stop solving: a registration under way stops at its next keyframe; waits up to
         wait_s seconds for the worker to end (it is a daemon thread either way)."""

@@ -149,15 +149,10 @@ class Registrar:
     context: use from one thread, then `release()`)."""
 
     def __init__(self, session: Session, settings: RegistrationSettings = RegistrationSettings(), ctx: moderngl.Context | None = None) -> None:
-        if not session.layers:
-            raise GeofuseError(f"{session.path}: the scene is an assumed flat ground: there is nothing to register the video against (name a model, tileset or DEM)")
+        refusal = session.registration_refusal()
+        if refusal is not None:
+            raise GeofuseError(f"{session.path}: {refusal}")
         mesh = session.scene()
-        if not mesh.tilesets and not any(p.textured for p in mesh.primitives):
-            names = ", ".join(layer.name for layer in session.layers)
-            raise GeofuseError(
-                f"{session.path}: the scene ({names}) has no texture: registration matches the video against the model's "
-                "textures, and a grey model or a bare DEM has none (give the DEM an orthophoto, or use a textured model)"
-            )
         self.session = session
         self.settings = settings
         self.views = ModelViews(mesh, ctx)

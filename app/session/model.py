@@ -143,15 +143,30 @@ class Session:
         if self.course_pitch_deg is not None:
             own.append(COURSE)
         recorded = [r for r in self.recorded if r != TRUTH]
-        registered = [REGISTERED] if self.layers and (own or recorded) else []
+        registered = [REGISTERED] if (own or recorded) and self.registration_refusal() is None else []
         out = own + recorded + registered + ([TRUTH] if TRUTH in self.recorded else [])
         prefer = self.heading.prefer
         return [prefer] + [s for s in out if s != prefer] if prefer in out else out
 
+    def registration_refusal(self) -> str | None:
+        """Why the video cannot be registered against this scene (None: it can): an assumed flat
+        ground has nothing to register against; a scene without texture (a grey model, a bare
+        DEM) gives the matcher nothing to match. Streamed tilesets are taken as textured."""
+        if not self.layers:
+            return "the scene is an assumed flat ground: there is nothing to register the video against (name a model, tileset or DEM)"
+        mesh = self.scene()
+        if not mesh.tilesets and not any(p.textured for p in mesh.primitives):
+            names = ", ".join(layer.name for layer in self.layers)
+            return (
+                f"the scene ({names}) has no texture: registration matches the video against the model's textures, "
+                "and a grey model or a bare DEM has none (give the DEM an orthophoto, or use a textured model)"
+            )
+        return None
+
     def check_source(self, source: str) -> None:
         """ValueError naming what the session offers, for a source it does not."""
-        if source == REGISTERED and not self.layers:
-            raise ValueError("the scene is an assumed flat ground: there is nothing to register the video against (name a model, tileset or DEM)")
+        if source == REGISTERED and self.registration_refusal() is not None:
+            raise ValueError(self.registration_refusal())
         if source not in self.sources:
             raise ValueError(f"unknown attitude source {source!r}; this session offers {', '.join(self.sources)}")
 

@@ -9,6 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
+from app.ui import control_points
+
 
 @dataclass(frozen=True)
 class Command:
@@ -36,6 +38,25 @@ def _clock(v, arg, now) -> None:
         v.use_wall_clock()
     else:
         v.use_fixed_clock(_number(arg))
+
+
+def _control(v, arg, now) -> None:
+    """video [X,Y] | model [X,Y] | solve | clear: control points (app.ui.control_points); X,Y in
+    [0, 1] of the 3D view, default the mouse cursor."""
+    words = arg.split()
+    what = words[0] if words else ""
+    picks = v.ui.control
+    if what in ("video", "model"):
+        xy = tuple(float(t) for t in words[1].split(",")) if len(words) > 1 else v.cursor_in_view()
+        if xy is None or len(xy) != 2:
+            raise ValueError("expected X,Y in [0, 1] of the 3D view")
+        (control_points.pick_video if what == "video" else control_points.pick_model)(v, picks, xy)
+    elif what == "solve":
+        control_points.solve(v, picks)
+    elif what == "clear":
+        v.ui.control = control_points.ControlPicks()
+    else:
+        raise ValueError(f"expected video, model, solve or clear, got {arg!r}")
 
 
 def _wait(v, arg, now) -> None:
@@ -127,6 +148,7 @@ COMMANDS: dict[str, Command] = {
     "overlay": Command(lambda v, a, n: setattr(v.ui, "overlays", replace(v.ui.overlays, error_map=_on(a))), False, True, "projection-error colours"),
     "view": Command(_view, False, True, "free | orbit | phone | reset"),
     "look": Command(_look, False, True, "E,N,U E,N,U: the window camera at an eye looking at a target (ENU metres)"),
+    "control": Command(_control, True, True, "video [X,Y] | model [X,Y] | solve | clear: control points by hand (a feature in the draped video, then on the model; X,Y in [0, 1] of the 3D view, default the cursor)"),
     "help": Command(lambda v, a, n: setattr(v.ui, "show_help", not v.ui.show_help), False, False, "help and shortcuts"),
 }
 

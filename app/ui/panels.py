@@ -34,6 +34,7 @@ SHORTCUTS = (
     ("P", "through the phone: ride the video's camera"),
     ("R", "reset the view"),
     ("I", "AHRS / IMU toggle"),
+    ("V, then M", "control point: the feature under the cursor in the video, then on the model"),
     ("H or F1", "this help"),
     ("Ctrl+O, or drop a file", "open a manifest or clip"),
 )
@@ -51,7 +52,7 @@ KEY_COMMANDS = {  # key name in glfw -> (command, argument)
     "KEY_SPACE": ("toggle", None), "KEY_RIGHT": ("step", "1"), "KEY_LEFT": ("step", "-1"),
     "KEY_RIGHT_BRACKET": ("faster", None), "KEY_LEFT_BRACKET": ("slower", None), "KEY_I": ("ahrs", None),
     "KEY_O": ("view", "orbit"), "KEY_F": ("view", "free"), "KEY_P": ("view", "phone"), "KEY_R": ("view", "reset"),
-    "KEY_H": ("help", None), "KEY_F1": ("help", None),
+    "KEY_H": ("help", None), "KEY_F1": ("help", None), "KEY_V": ("control", "video"), "KEY_M": ("control", "model"),
 }  # fmt: skip
 
 
@@ -412,7 +413,31 @@ def _projection(v) -> None:
             if rate_source(v.loaded.session) is not None and (job is None or job.done) and imgui.button("Sync"):
                 _run(v, "sync", None)
             _sync_curves(ui.sync_job)
+            _control_points(v)
     imgui.end()
+
+
+def _control_points(v) -> None:
+    """Control points by hand: how to pick, the pairs with their residuals, Solve and Clear."""
+    from imgui_bundle import imgui
+
+    picks = v.ui.control
+    if not imgui.collapsing_header(f"Control points ({len(picks.pairs)})"):
+        return
+    imgui.text_wrapped("Hover a feature in the draped video and press V, then the same feature on the model and press M (lower the transparency to see the model). Four pairs or more.")
+    if picks.pending is not None:
+        imgui.text_colored(_vec4(AMBER), f"video pixel {picks.pending[1][0]:.0f}, {picks.pending[1][1]:.0f} of frame {picks.pending[0]}: now the model (M)")
+    sol = picks.solution
+    for i, (frame, uv, _) in enumerate(picks.pairs):
+        res = f": {sol.residual_px[i]:.1f} px, {sol.residual_m[i]:.2f} m" if sol is not None and i < len(sol.residual_px) else ""
+        imgui.text(f"{i + 1}. frame {frame}, pixel {uv[0]:.0f}, {uv[1]:.0f}{res}")
+    if len(picks.pairs) >= 4 and imgui.button("Solve"):
+        _run(v, "control", "solve")
+    imgui.same_line()
+    if picks.pairs and imgui.button("Clear"):
+        _run(v, "control", "clear")
+    if sol is not None:
+        imgui.text_wrapped(f"boresight {sol.boresight_deg:.2f} deg, position correction {np.linalg.norm(sol.offset_m):.2f} m; kept in {picks.saved}; registering again")
 
 
 def _sync_curves(job) -> None:

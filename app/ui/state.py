@@ -8,6 +8,7 @@ from pathlib import Path
 
 from app.attitude.heading import DRONE_DEFAULT_PITCH_DEG
 from app.config import OverlaySettings, ProjectionSettings
+from app.ui.control_points import ControlPicks
 
 VIEWER_ALPHA = 0.85  # the viewer's default video opacity: the model shows through a little
 
@@ -40,6 +41,7 @@ class UiState:
     max_sse_px: float = 16.0  # 3D Tiles: refine tiles whose screen-space error exceeds this
     tile_errors_said: int = 0  # tile load errors already shown as notices
     show_session_tab: int = 2  # frames until the Session tab is brought to the front (once, at start)
+    control: ControlPicks = field(default_factory=ControlPicks)  # control points picked by hand
     quit: bool = False
 
     def error(self, message: str) -> None:

@@ -369,6 +369,17 @@ class Viewer:
         self.ui.course_pitch_deg = pitch_deg
         self.loaded.library.set_course_pitch(pitch_deg)
 
+    def cursor_in_view(self) -> tuple[float, float] | None:
+        """The mouse cursor in [0, 1] of the 3D view (from its top-left corner), None outside."""
+        if self.view_rect is None:
+            return None
+        x, y = self.window.cursor()
+        sw, sh = self.window.size()
+        fw, fh = self.window.framebuffer_size()
+        vx, vy, vw, vh = self.view_rect
+        fx, fy = (x * fw / max(sw, 1) - vx) / max(vw, 1), (y * fh / max(sh, 1) - vy) / max(vh, 1)
+        return (fx, fy) if 0 <= fx <= 1 and 0 <= fy <= 1 else None
+
     def orbit_pick(self) -> None:
         """Orbit around the model point under the mouse cursor, or a point 50 m ahead when the
         cursor sees no model."""
@@ -464,6 +475,7 @@ class Viewer:
                 frames_shown=len(s.latencies), dropped=s.dropped, latency_ms=list(s.summary()), skipped_by_decoder=L.player.decoder.skipped,
                 solved=L.library.solved(), alpha=ui.settings.alpha, time_offset_s=L.library.time_offset_s,
                 registration=_registration_state(L.library.track(REGISTERED)),
+                control=_control_state(ui.control),
                 sync=None if ui.sync_job is None or ui.sync_job.result is None else {"offset_s": ui.sync_job.result.offset_s, "confidence": ui.sync_job.result.confidence},
                 window_camera={"size": [i.width, i.height], "fx": i.fx, "fy": i.fy, "cx": i.cx, "cy": i.cy, "position": list(cam.position), "orientation": list(cam.orientation), "near": cam.near, "far": cam.far},
                 projector=None if proj is None else {"position": list(proj.position), "orientation": list(proj.orientation)},
@@ -559,3 +571,15 @@ def _registration_state(track) -> dict | None:
         return None
     reg = track.registration
     return {"summary": reg.summary(), "keyframes": len(reg.keyframes), "used": reg.used, "prior": reg.prior}
+
+
+def _control_state(picks) -> dict:
+    """Control points picked by hand, for a script's `state`."""
+    sol = picks.solution
+    return {
+        "pairs": [{"frame": f, "pixel": list(uv), "enu": [float(c) for c in p]} for f, uv, p in picks.pairs],
+        "pending": picks.pending is not None, "saved": picks.saved,
+        "residual_px": None if sol is None else [float(r) for r in sol.residual_px],
+        "boresight_deg": None if sol is None else sol.boresight_deg,
+        "offset_m": None if sol is None else [float(c) for c in sol.offset_m],
+    }  # fmt: skip

@@ -179,6 +179,7 @@ def test_the_registered_track_is_smooth_and_beats_its_prior(short_session, gl_ct
     assert track.source == "registered" and reg.prior == "offline"
     assert fractions[-1] == 1.0 and len(reg.keyframes) == 12
     assert reg.used_fraction >= 0.75, reg.summary()
+    assert reg.delay_s == pytest.approx(sample.SYNC_ERROR_S, abs=0.02)  # the manifest's start is 80 ms late
     prior = camera_track(short_session, "offline")
     truth = replace(camera_track(short_session, "truth"), clock=frame_clock(short_session, true_timing=True))
     frames = np.arange(0, track.frame_count)
@@ -349,3 +350,36 @@ def test_control_points_picked_in_the_viewer_are_solved_and_kept_beside_the_inpu
     assert c["saved"] == str(kept) and len(read_points(kept)) == 4
     assert short_session.path.read_bytes() == before
     kept.unlink()
+
+
+def test_the_frame_times_offset_is_found_from_the_keyframes():
+    """Keyframes of a camera that sways (1.3 Hz) and pans, registered at the moments the frames
+    show, while the pipeline placed the frames 80 ms late, under a slowly drifting heading bias:
+    the offset comes back from the fast part of the corrections, and the corrected track then
+    shows each frame's true pose."""
+    from app.geo import LocalFrame
+    from app.register.fuse import corrected_pose_track, estimate_delay, retimed
+    from app.trajectory import PoseTrack, PositionTrack
+
+    frame = LocalFrame(34.8, 113.53, 110.0)
+    t = np.arange(0.0, 40.0, 0.01)
+
+    def attitude(tt):
+        heading = 20.0 * np.sin(2 * np.pi * tt / 17.0) + 3.0 * np.sin(2 * np.pi * 1.3 * tt)
+        return rotations.camera_quat_from_hpr(heading, 2.0 * np.sin(2 * np.pi * 0.9 * tt), 0.0 * tt)
+
+    geo = frame.enu_to_geodetic(np.column_stack([1.4 * t, 0 * t, 1.5 + 0 * t]))
+    prior = PoseTrack(frame, PositionTrack.from_fixes(t, geo[:, 0], geo[:, 1], geo[:, 2]), t, attitude(t), np.array([1.0, 0, 0, 0]))
+    late = 0.08
+    kfs = []
+    for i, tk in enumerate(np.arange(1.0, 39.0, 0.5)):
+        bias = rotations.from_rotvec([0.0, 0.0, np.radians(1.5 + 0.5 * np.sin(tk / 10.0))])
+        q_true = attitude(np.array([tk - late]))[0]
+        enu, _, q_prior = prior.at(np.array([tk]))
+        kfs.append(Keyframe(i, float(tk), True, "", 50, 40, 0.8, 2, enu[0], q_prior[0], enu[0] + [0.5, -2.0, 0.0], rotations.multiply(bias, q_true)))
+    delay = estimate_delay(kfs, prior)
+    assert delay == pytest.approx(late, abs=0.005)
+    fixed = corrected_pose_track(prior, Correction.from_keyframes(retimed(kfs, prior, delay)), delay)
+    _, _, q = fixed.at(np.array([20.0]))
+    want = rotations.multiply(rotations.from_rotvec([0.0, 0.0, np.radians(1.5 + 0.5 * np.sin(2.0))]), attitude(np.array([20.0 - late]))[0])
+    assert np.degrees(rotations.angle_between(q[0], want)) < 0.05

@@ -63,13 +63,19 @@ class FuseSettings:
     """window_s: neighbours within this many seconds judge a keyframe; max_disagree_m /
     max_disagree_deg: a correction farther than this from their median is not used; smooth_s:
     Gaussian sigma (s) over the used corrections; hold_s: beyond the first and last used
-    keyframe the correction decays as exp(-dt / hold_s) (the GNSS error's correlation time)."""
+    keyframe the correction decays as exp(-dt / hold_s) (the GNSS error's correlation time);
+    delay_*: the time-offset estimate (estimate_delay): high-pass sigma (s), the fewest used
+    keyframes, the least RMS of the high-passed rates (rad/s), the largest offset believed (s)."""
 
     window_s: float = 4.0
     max_disagree_m: float = 2.5
     max_disagree_deg: float = 1.5
     smooth_s: float = 1.0
     hold_s: float = 30.0
+    delay_sigma_s: float = 1.5
+    delay_min_keyframes: int = 10
+    delay_min_rate: float = 0.02
+    max_delay_s: float = 1.0
 
 
 def gate(keyframes: list[Keyframe], settings: FuseSettings = FuseSettings()) -> list[Keyframe]:
@@ -129,17 +135,66 @@ class Correction:
         return dp * fade, dr * fade
 
 
-def corrected_pose_track(prior: PoseTrack, correction: Correction) -> PoseTrack:
-    """The prior pose track with the correction applied: positions resampled at POSITION_RATE_HZ
-    (Hermite between samples, as any GNSS track), the device attitude turned world-side at its
-    own sample times; the device -> camera mount is kept."""
-    t0, t1 = prior.positions.t[0], prior.positions.t[-1]
+def world_rates(prior: PoseTrack, t: npt.ArrayLike, h: float = 0.02) -> FloatArray:
+    """(N, 3) the prior camera's angular velocity (rad/s) in the world frame at times t (s),
+    by a central difference over +-h seconds."""
+    t = np.asarray(t, np.float64)
+    _, _, qa = prior.at(t - h)
+    _, _, qb = prior.at(t + h)
+    return rotations.to_scipy(rotations.multiply(qb, rotations.conjugate(qa))).as_rotvec() / (2.0 * h)
+
+
+def _high_pass(t: FloatArray, x: FloatArray, sigma_s: float) -> FloatArray:
+    w = np.exp(-0.5 * ((t[:, None] - t[None, :]) / sigma_s) ** 2)
+    return x - (w / w.sum(axis=1, keepdims=True)) @ x
+
+
+def estimate_delay(keyframes: list[Keyframe], prior: PoseTrack, settings: FuseSettings = FuseSettings()) -> float | None:
+    """How late (s) the pipeline's frame times are against the moments the frames show, from the
+    used keyframes: a frame shown delay_s late sees the camera turned back by w * delay_s (w its
+    world-frame rate), so the fast part of the rotation corrections regresses on the fast part of
+    the prior's rates (both high-passed over delay_sigma_s, which removes the filter's slow bias),
+    the rates taken at the middle of the delay (the turn over it is their mean there).
+    None where there are too few keyframes or too little rotation to tell, or it exceeds
+    max_delay_s."""
+    used = [k for k in keyframes if k.used]
+    if len(used) < settings.delay_min_keyframes:
+        return None
+    t = np.array([k.time_s for k in used])
+    dr = _high_pass(t, np.array([k.correction()[1] for k in used]), settings.delay_sigma_s)
+    delay = 0.0
+    for _ in range(3):  # the turn over the delay is the mean rate over it: rates at its middle
+        w = _high_pass(t, world_rates(prior, t - delay / 2), settings.delay_sigma_s)
+        energy = float(np.sum(w * w))
+        if energy < settings.delay_min_rate**2 * len(t):
+            return None
+        delay = -float(np.sum(dr * w)) / energy
+        if abs(delay) > settings.max_delay_s:
+            return None
+    return delay
+
+
+def retimed(keyframes: list[Keyframe], prior: PoseTrack, delay_s: float) -> list[Keyframe]:
+    """The keyframes with their prior poses taken delay_s earlier (the moment the frame shows)."""
+    if not keyframes:
+        return keyframes
+    enu, _, q = prior.at(np.array([k.time_s for k in keyframes]) - delay_s)
+    return [replace(k, prior_position=enu[i], prior_q=q[i]) for i, k in enumerate(keyframes)]
+
+
+def corrected_pose_track(prior: PoseTrack, correction: Correction, delay_s: float = 0.0) -> PoseTrack:
+    """The prior pose track, delay_s later (a frame shown at t gets the prior's pose at
+    t - delay_s), with the correction applied: positions resampled at POSITION_RATE_HZ (Hermite
+    between samples, as any GNSS track), the device attitude turned world-side at its own
+    sample times; the device -> camera mount is kept."""
+    t0, t1 = prior.positions.t[0] + delay_s, prior.positions.t[-1] + delay_s
     ts = np.append(np.arange(t0, t1, 1.0 / POSITION_RATE_HZ), t1)
-    enu, _, _ = prior.at(ts)
+    enu, _, _ = prior.at(ts - delay_s)
     dp, _ = correction(ts)
     geo = prior.frame.enu_to_geodetic(enu + dp)
     positions = PositionTrack.from_fixes(ts, geo[:, 0], geo[:, 1], geo[:, 2])
-    _, dr = correction(prior.t_att)
+    t_att = prior.t_att + delay_s
+    _, dr = correction(t_att)
     turn = rotations.from_rotvec(dr)
     q_device = rotations.canonical(rotations.multiply(turn, prior.q_device))
-    return PoseTrack(prior.frame, positions, prior.t_att, q_device, prior.q_dev_to_cam)
+    return PoseTrack(prior.frame, positions, t_att, q_device, prior.q_dev_to_cam)

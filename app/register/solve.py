@@ -24,7 +24,7 @@ from app.camera import Camera
 from app.camera_track import CameraTrack, camera_track
 from app.errors import GeofuseError
 from app.io.video import frames_at
-from app.register.fuse import Correction, FuseSettings, Keyframe, corrected_pose_track, gate
+from app.register.fuse import Correction, FuseSettings, Keyframe, corrected_pose_track, estimate_delay, gate, retimed
 from app.register.keyframe import Matcher, MatchSettings, PoseFix, compare, refine
 from app.register.points import ControlSolution, control_path, corrected_track, read_points, solve_control
 from app.render.views import ModelViews
@@ -44,7 +44,8 @@ class RegistrationSettings:
     matched at most this many pixels on their long side; max_iterations: renderings per keyframe;
     coarse steps (SIFT matches, app.register.keyframe.compare) run until one moves the pose less
     than fine_within_m and fine_within_deg, then fine steps (corners tracked, `refine`) until one
-    moves it less than converge_m and converge_deg."""
+    moves it less than converge_m and converge_deg; estimate_delay: estimate and remove the frame
+    times' offset from the keyframes (app.register.fuse.estimate_delay)."""
 
     every_s: float = 0.5
     long_side: int = 960
@@ -55,6 +56,7 @@ class RegistrationSettings:
     fine_within_deg: float = 1.0
     match: MatchSettings = field(default_factory=MatchSettings)
     fuse: FuseSettings = field(default_factory=FuseSettings)
+    estimate_delay: bool = True
 
 
 @dataclass(frozen=True)
@@ -66,6 +68,7 @@ class Registration:
     keyframes: tuple[Keyframe, ...]
     stage_s: dict[str, float]
     control: ControlSolution | None = None  # control points by hand, applied to the prior first
+    delay_s: float | None = None  # how late the frame times were (s), estimated from the keyframes; None: not estimated
 
     @property
     def used(self) -> int:
@@ -83,6 +86,8 @@ class Registration:
         if reasons:
             common = max(set(reasons), key=reasons.count)
             line += f"; {len(reasons)} not used (most often: {common})"
+        if self.delay_s is not None:
+            line += f"; frame times {1000 * self.delay_s:+.1f} ms late, corrected"
         if self.control is not None:
             line += f"; control points by hand: boresight {self.control.boresight_deg:.2f} deg, median residual {np.median(self.control.residual_px):.1f} px"
         return line
@@ -269,5 +274,10 @@ app.camera_track.camera_track for the prior."""
         reg = registrar.run(prior_track, progress, stop)
     finally:
         registrar.release()
-    poses = corrected_pose_track(prior_track.poses, Correction.from_keyframes(list(reg.keyframes), settings.fuse))
-    return replace(prior_track, source=REGISTERED, poses=poses, registration=replace(reg, control=control))
+    keyframes = list(reg.keyframes)
+    delay = estimate_delay(keyframes, prior_track.poses, settings.fuse) if settings.estimate_delay else None
+    if delay is not None:
+        keyframes = gate(retimed([replace(k, used=k.registered, reason="" if k.registered else k.reason) for k in keyframes], prior_track.poses, delay), settings.fuse)
+    poses = corrected_pose_track(prior_track.poses, Correction.from_keyframes(keyframes, settings.fuse), delay or 0.0)
+    reg = replace(reg, keyframes=tuple(keyframes), control=control, delay_s=delay)
+    return replace(prior_track, source=REGISTERED, poses=poses, registration=reg)

@@ -136,23 +136,26 @@ def evaluate(session: Session, sources: list[str], every: int = 10, grid: tuple[
     truth_track = replace(camera_track(session, "truth"), clock=true_clock)
     truth = poses_at(truth_track, frames)
     # Every source is solved before the probe's GL context exists: registration makes its own.
-    entries: list[tuple[str, Callable[[np.ndarray], Poses], np.ndarray]] = []
+    # A source may correct the frame times itself (registered: its track is delay_s later), so
+    # its pose at a frame's true time is found delay_s later on its own time axis.
+    entries: list[tuple[str, Callable[[np.ndarray], Poses], np.ndarray, float]] = []
     for name in sources:
-        pose_track = solve_track(session, name).poses
-        entries.append((name, lambda tt, tr=pose_track: Poses(*tr.at(tt)[::2]), pipeline_clock.session_s[frames]))
+        track = solve_track(session, name)
+        delay = (track.registration.delay_s or 0.0) if track.registration is not None else 0.0
+        entries.append((name, lambda tt, tr=track.poses: Poses(*tr.at(tt)[::2]), pipeline_clock.session_s[frames], delay))
     if paper and session.mag is not None:
         at, eq5 = paper_track(session)
-        entries.append(("paper pipeline", at, eq5[frames]))
+        entries.append(("paper pipeline", at, eq5[frames], 0.0))
     probe = ProjectionProbe(session, grid)
     reports = []
     try:
-        for name, at, pipeline_times in entries:
+        for name, at, pipeline_times, delay in entries:
             est = at(pipeline_times)  # what the pipeline shows for each frame
-            est_true_time = at(t_true[frames])  # its attitude and position, at the right time
+            est_true_time = at(t_true[frames] + delay)  # its attitude and position, at the right time
             by_cause = {
                 "attitude": Poses(truth.enu, est_true_time.q),
                 "position": Poses(est_true_time.enu, truth.q),
-                "time": poses_at(replace(truth_track, clock=pipeline_clock), frames),
+                "time": poses_at(replace(truth_track, clock=replace(pipeline_clock, offset_s=-delay)), frames),
             }
             total = split_stats(*probe.errors(est, truth), grid[0])
             causes = {k: split_stats(*probe.errors(v, truth), grid[0]) for k, v in by_cause.items()}

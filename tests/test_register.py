@@ -9,6 +9,7 @@ import subprocess
 import sys
 from dataclasses import replace
 
+import cv2
 import numpy as np
 import pytest
 
@@ -17,23 +18,42 @@ from app.camera import Camera, Intrinsics
 from app.camera_track import camera_track, frame_clock
 from app.demo import SAMPLE_DIR, SAMPLE_SCENE
 from app.errors import DataFormatError, GeofuseError
+from app.geo import LocalFrame
 from app.io.video import frames_at
 from app.lens import Lens
-from app.register.fuse import Correction, FuseSettings, Keyframe, corrected_pose_track, gate
+from app.register.fuse import (
+    Correction,
+    FuseSettings,
+    Keyframe,
+    corrected_pose_track,
+    estimate_delay,
+    gate,
+    retimed,
+)
 from app.register.keyframe import pose_from_cv, pose_to_cv, solve_pose
-from app.register.points import ControlPoints, corrected_track, read_points, solve_control, write_points
+from app.register.points import (
+    ControlPoints,
+    corrected_track,
+    read_points,
+    solve_control,
+    write_points,
+)
 from app.register.solve import Registrar, RegistrationSettings, registered_track
 from app.scene.mesh import MeshData
 from app.session import open_session
 from app.simulate import session as sample
 from app.solve import solve_track
+from app.trajectory import PoseTrack, PositionTrack
 from tests.conftest import run_viewer
+from tools import gis_sessions
 
 ROOT = SAMPLE_DIR.parents[1]
 
 
 def _true_camera(session, k: int) -> Camera:
-    return replace(camera_track(session, "truth"), clock=frame_clock(session, true_timing=True)).frame_camera(k)
+    return replace(
+        camera_track(session, "truth"), clock=frame_clock(session, true_timing=True)
+    ).frame_camera(k)
 
 
 def _perturbed(cam: Camera, metres: float, degrees: float, seed: int) -> Camera:
@@ -43,11 +63,20 @@ def _perturbed(cam: Camera, metres: float, degrees: float, seed: int) -> Camera:
     axis = rng.normal(size=3)
     turn = rotations.from_rotvec(np.radians(degrees) * axis / np.linalg.norm(axis))
     q = rotations.multiply(turn, np.asarray(cam.orientation))
-    return Camera.create(cam.intrinsics, np.asarray(cam.position) + metres * d / np.linalg.norm(d), q, cam.near, cam.far, cam.lens)
+    return Camera.create(
+        cam.intrinsics,
+        np.asarray(cam.position) + metres * d / np.linalg.norm(d),
+        q,
+        cam.near,
+        cam.far,
+        cam.lens,
+    )
 
 
 def _pose_error(cam: Camera, position, q) -> tuple[float, float]:
-    return float(np.linalg.norm(np.asarray(position) - cam.position)), float(np.degrees(rotations.angle_between(q, cam.orientation)))
+    return float(np.linalg.norm(np.asarray(position) - cam.position)), float(
+        np.degrees(rotations.angle_between(q, cam.orientation))
+    )
 
 
 # --- pure: the pose solver on points worked out by hand -------------------------------------------
@@ -59,8 +88,6 @@ def test_opencv_pose_conversion_round_trips_and_maps_the_optical_axis():
     rvec, tvec = pose_to_cv(c, q)
     # A point 50 m along the optical axis sits on OpenCV's +z axis at depth 50.
     ahead = c + 50.0 * (rotations.to_matrix(q) @ np.array([0.0, 0.0, -1.0]))
-    import cv2
-
     cam_pt = cv2.Rodrigues(rvec)[0] @ ahead + tvec
     assert np.allclose(cam_pt, [0.0, 0.0, 50.0], atol=1e-9)
     p2, q2 = pose_from_cv(rvec, tvec)
@@ -70,8 +97,14 @@ def test_opencv_pose_conversion_round_trips_and_maps_the_optical_axis():
 @pytest.mark.parametrize("lens", [None, "fisheye"])
 def test_solve_pose_recovers_a_camera_from_exact_correspondences(lens):
     intr = Intrinsics.from_fov(640, 360, 70.0)
-    real_lens = Lens.create("fisheye", 640, 360, 300.0, 300.0, 321.0, 178.0, [0.05, -0.01, 0.002, 0.0]) if lens else None
-    truth = Camera.create(intr, [3.0, -40.0, 1.6], rotations.camera_quat_from_hpr(10.0, 5.0, -2.0), lens=real_lens)
+    real_lens = (
+        Lens.create("fisheye", 640, 360, 300.0, 300.0, 321.0, 178.0, [0.05, -0.01, 0.002, 0.0])
+        if lens
+        else None
+    )
+    truth = Camera.create(
+        intr, [3.0, -40.0, 1.6], rotations.camera_quat_from_hpr(10.0, 5.0, -2.0), lens=real_lens
+    )
     rng = np.random.default_rng(1)
     uv = np.column_stack([rng.uniform(20, 620, 60), rng.uniform(20, 340, 60)])
     points = np.asarray(truth.position) + truth.pixel_rays(uv) * rng.uniform(20, 90, (60, 1))
@@ -104,7 +137,9 @@ def test_keyframes_recover_a_pose_perturbed_by_3_m_and_2_degrees(sample_session,
             fix, solved, renders = registrar.keyframe(rgb, start)
             assert solved is not None, f"frame {k}: {fix.reason}"
             metres, degrees = _pose_error(truth, solved.position, solved.orientation)
-            assert metres < 0.3 and degrees < 0.3, f"frame {k}: {metres:.2f} m, {degrees:.2f} deg after {renders} renderings"
+            assert metres < 0.3 and degrees < 0.3, (
+                f"frame {k}: {metres:.2f} m, {degrees:.2f} deg after {renders} renderings"
+            )
             assert fix.inliers >= 15 and fix.error_px < 2.5
     finally:
         registrar.release()
@@ -154,9 +189,13 @@ def test_corrections_are_continuous_and_fall_back_to_the_prior_far_from_keyframe
     kfs = [_keyframe(i, 10.0 + i, [3.0, -1.0, 0.0], [0.0, 0.0, 2.0]) for i in range(5)]
     c = Correction.from_keyframes(kfs, FuseSettings(hold_s=30.0))
     dp, dr = c(np.array([12.0, 12.5, 14.0, 44.0, 214.0]))
-    assert np.allclose(dp[:3], [3.0, -1.0, 0.0], atol=1e-9)  # the same correction everywhere: smoothing keeps it
+    assert np.allclose(
+        dp[:3], [3.0, -1.0, 0.0], atol=1e-9
+    )  # the same correction everywhere: smoothing keeps it
     assert np.allclose(np.degrees(dr[:3, 2]), 2.0, atol=1e-9)
-    assert np.allclose(dp[3], np.array([3.0, -1.0, 0.0]) * np.exp(-1.0))  # 30 s past the last: e^-1 of it
+    assert np.allclose(
+        dp[3], np.array([3.0, -1.0, 0.0]) * np.exp(-1.0)
+    )  # 30 s past the last: e^-1 of it
     assert np.linalg.norm(dp[4]) < 0.1
     empty = Correction.from_keyframes([replace(k, used=False) for k in kfs])
     assert np.all(empty(np.linspace(0, 20, 9))[0] == 0.0)
@@ -174,22 +213,35 @@ def short_session(tmp_path_factory):
 @pytest.mark.gl
 def test_the_registered_track_is_smooth_and_beats_its_prior(short_session, gl_ctx):
     fractions = []
-    track = registered_track(short_session, settings=RegistrationSettings(), progress=fractions.append, ctx=gl_ctx)
+    track = registered_track(
+        short_session, settings=RegistrationSettings(), progress=fractions.append, ctx=gl_ctx
+    )
     reg = track.registration
     assert track.source == "registered" and reg.prior == "offline"
     assert fractions[-1] == 1.0 and len(reg.keyframes) == 12
     assert reg.used_fraction >= 0.75, reg.summary()
-    assert reg.delay_s == pytest.approx(sample.SYNC_ERROR_S, abs=0.02)  # the manifest's start is 80 ms late
+    assert reg.delay_s == pytest.approx(
+        sample.SYNC_ERROR_S, abs=0.02
+    )  # the manifest's start is 80 ms late
     prior = camera_track(short_session, "offline")
-    truth = replace(camera_track(short_session, "truth"), clock=frame_clock(short_session, true_timing=True))
+    truth = replace(
+        camera_track(short_session, "truth"), clock=frame_clock(short_session, true_timing=True)
+    )
     frames = np.arange(0, track.frame_count)
-    ours, before, true = track.poses_at(track.clock.media_s[frames]), prior.poses_at(prior.clock.media_s[frames]), truth.frame_poses()
+    ours, before, true = (
+        track.poses_at(track.clock.media_s[frames]),
+        prior.poses_at(prior.clock.media_s[frames]),
+        truth.frame_poses(),
+    )
     err = np.linalg.norm(ours.enu - true.enu, axis=1)
     assert np.median(err) < 0.5 < 2.0 < np.median(np.linalg.norm(before.enu - true.enu, axis=1))
     # No jump: no frame-to-frame step longer than the prior's own (GNSS) or the true walk's, and
     # no kink: the step changes from one frame to the next by no more than the walk's does + 5 mm.
     step = np.linalg.norm(np.diff(ours.enu, axis=0), axis=1)
-    limit = max(np.linalg.norm(np.diff(true.enu, axis=0), axis=1).max(), np.linalg.norm(np.diff(before.enu, axis=0), axis=1).max())
+    limit = max(
+        np.linalg.norm(np.diff(true.enu, axis=0), axis=1).max(),
+        np.linalg.norm(np.diff(before.enu, axis=0), axis=1).max(),
+    )
     assert step.max() <= limit
     kink = np.linalg.norm(np.diff(ours.enu, 2, axis=0), axis=1)
     assert kink.max() < np.linalg.norm(np.diff(true.enu, 2, axis=0), axis=1).max() + 0.005
@@ -210,7 +262,11 @@ def _control_case(session, boresight_deg=(0.8, -1.1, 0.5), offset=(2.0, -1.5, 0.
     frames, pixels, points = [], [], []
     for k in (10, 60, 120, 170):
         cam = track.frame_camera(k)
-        real = replace(cam, position=tuple(np.asarray(cam.position) + offset), orientation=tuple(rotations.multiply(np.asarray(cam.orientation), b)))
+        real = replace(
+            cam,
+            position=tuple(np.asarray(cam.position) + offset),
+            orientation=tuple(rotations.multiply(np.asarray(cam.orientation), b)),
+        )
         uv = np.column_stack([rng.uniform(40, 600, 3), rng.uniform(40, 320, 3)])
         x = np.asarray(real.position) + real.pixel_rays(uv) * rng.uniform(25, 80, (3, 1))
         frames += [k] * 3
@@ -237,7 +293,11 @@ def test_bad_control_point_files_name_the_line_and_field(tmp_path):
     p.write_text("frame,x,y,latitude,longitude\n1,2,3,4,5\n")
     with pytest.raises(DataFormatError, match="missing columns height"):
         read_points(p)
-    p.write_text("frame,x,y,latitude,longitude,height\n" + "1,2,3,34.8,113.5,100\n" * 3 + "4,nan,3,34.8,113.5,100\n")
+    p.write_text(
+        "frame,x,y,latitude,longitude,height\n"
+        + "1,2,3,34.8,113.5,100\n" * 3
+        + "4,nan,3,34.8,113.5,100\n"
+    )
     with pytest.raises(DataFormatError, match=r"pairs.csv:5 field 'x'.*not a finite number"):
         read_points(p)
     p.write_text("frame,x,y,latitude,longitude,height\n1,2,3,34.8,113.5,100\n")
@@ -250,7 +310,23 @@ def test_register_cli_solves_and_keeps_the_points_beside_the_input(short_session
     path = write_points(tmp_path / "pairs.csv", pts)
     manifest = short_session.path
     before = manifest.read_bytes()
-    run = subprocess.run([sys.executable, "-m", "app", "register", str(manifest), "--points", str(path), "--source", "truth", "--write"], capture_output=True, text=True, cwd=ROOT)
+    run = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "app",
+            "register",
+            str(manifest),
+            "--points",
+            str(path),
+            "--source",
+            "truth",
+            "--write",
+        ],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+    )
     assert run.returncode == 0, run.stderr
     assert "12 control points against truth" in run.stdout and "boresight" in run.stdout
     kept = manifest.with_name(manifest.stem + ".control.csv")
@@ -262,9 +338,28 @@ def test_register_cli_solves_and_keeps_the_points_beside_the_input(short_session
 @pytest.mark.gl
 def test_solve_offers_the_registered_source_and_says_how_much_registered(short_session, tmp_path):
     out = tmp_path / "poses.csv"
-    run = subprocess.run([sys.executable, "-m", "app", "solve", str(short_session.path), "--source", "registered", "--out", str(out)], capture_output=True, text=True, cwd=ROOT)
+    run = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "app",
+            "solve",
+            str(short_session.path),
+            "--source",
+            "registered",
+            "--out",
+            str(out),
+        ],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+    )
     assert run.returncode == 0, run.stderr
-    assert "registered" in run.stderr and "keyframes" in run.stderr and "against the scene" in run.stderr
+    assert (
+        "registered" in run.stderr
+        and "keyframes" in run.stderr
+        and "against the scene" in run.stderr
+    )
     rows = out.read_text().splitlines()
     assert len(rows) == 1 + len(short_session.frame_times)
     direct = solve_track(short_session, "offline").frame_poses()
@@ -272,12 +367,18 @@ def test_solve_offers_the_registered_source_and_says_how_much_registered(short_s
 
 
 @pytest.mark.gl
-def test_the_viewer_registers_in_the_background_and_shows_the_registered_source(short_session, display, tmp_path):
+def test_the_viewer_registers_in_the_background_and_shows_the_registered_source(
+    short_session, display, tmp_path
+):
 
     state, shot = tmp_path / "state.json", tmp_path / "shot.png"
     script = tmp_path / "script.txt"
-    script.write_text(f"0 clock 0.05\n0 wait registered\n0 source registered\n0.2 screenshot {shot}\n0.2 state {state}\n0.3 quit\n")
-    result = run_viewer(display, str(short_session.path), "--script", str(script), "--size", "800x450")
+    script.write_text(
+        f"0 clock 0.05\n0 wait registered\n0 source registered\n0.2 screenshot {shot}\n0.2 state {state}\n0.3 quit\n"
+    )
+    result = run_viewer(
+        display, str(short_session.path), "--script", str(script), "--size", "800x450"
+    )
     assert result.returncode == 0, result.stderr[-3000:]
 
     s = json.loads(state.read_text())
@@ -287,7 +388,12 @@ def test_the_viewer_registers_in_the_background_and_shows_the_registered_source(
     assert reg["summary"].startswith(f"registered {reg['used']} of 12 keyframes")
     # The projector is the registered track's camera at the frame shown.
     track = solve_track(short_session, "offline")
-    assert np.linalg.norm(np.subtract(s["projector"]["position"], track.frame_camera(s["frame"]).position)) > 0.5
+    assert (
+        np.linalg.norm(
+            np.subtract(s["projector"]["position"], track.frame_camera(s["frame"]).position)
+        )
+        > 0.5
+    )
 
 
 @pytest.mark.gl
@@ -295,8 +401,6 @@ def test_the_viewer_registers_in_the_background_and_shows_the_registered_source(
 def test_keyframes_register_against_3d_tiles_and_a_dem_with_an_orthophoto(kind, tmp_path, gl_ctx):
     """The same world-versus-model video against the stadium as a 3D Tiles tileset (with a
     generated city beside it), and against a DEM with an orthophoto under the model."""
-    from tools import gis_sessions
-
     session = open_session(getattr(gis_sessions, kind)(tmp_path))
     registrar = Registrar(session, RegistrationSettings(), gl_ctx)
     try:
@@ -305,14 +409,21 @@ def test_keyframes_register_against_3d_tiles_and_a_dem_with_an_orthophoto(kind, 
             fix, solved, _ = registrar.keyframe(rgb, _perturbed(truth, 3.0, 2.0, seed=k))
             assert solved is not None, f"{kind} frame {k}: {fix.reason}"
             metres, degrees = _pose_error(truth, solved.position, solved.orientation)
-            assert metres < 0.3 and degrees < 0.3, f"{kind} frame {k}: {metres:.2f} m, {degrees:.2f} deg"
+            assert metres < 0.3 and degrees < 0.3, (
+                f"{kind} frame {k}: {metres:.2f} m, {degrees:.2f} deg"
+            )
     finally:
         registrar.release()
 
 
 def test_a_scene_without_texture_is_refused_with_the_reason(sample_session):
 
-    grey = replace(sample_session, mesh=MeshData([replace(p, texture=None, uvs=None) for p in sample_session.scene().primitives]))
+    grey = replace(
+        sample_session,
+        mesh=MeshData(
+            [replace(p, texture=None, uvs=None) for p in sample_session.scene().primitives]
+        ),
+    )
     assert "registered" not in grey.sources and "registered" in sample_session.sources
     with pytest.raises(ValueError, match="has no texture.*orthophoto"):
         grey.check_source("registered")
@@ -321,20 +432,31 @@ def test_a_scene_without_texture_is_refused_with_the_reason(sample_session):
 
 
 @pytest.mark.gl
-def test_control_points_picked_in_the_viewer_are_solved_and_kept_beside_the_input(short_session, display, tmp_path):
+def test_control_points_picked_in_the_viewer_are_solved_and_kept_beside_the_input(
+    short_session, display, tmp_path
+):
     """Four pairs picked in the window (a video pick, then a model pick): each video pick is the
     pixel the projector drapes at that place, the solve reports residuals, and the points go
     into NAME.control.csv beside the manifest (never into it)."""
     state = tmp_path / "state.json"
     picks = ["0.30,0.50", "0.62,0.42", "0.48,0.62", "0.72,0.58"]
-    lines = ["0 clock 0.05", "0 wait solved", "0 source offline", "0 panels off", "0 seek 2", "0 view phone"]
+    lines = [
+        "0 clock 0.05",
+        "0 wait solved",
+        "0 source offline",
+        "0 panels off",
+        "0 seek 2",
+        "0 view phone",
+    ]
     for xy in picks:
         lines += [f"0.1 control video {xy}", f"0.1 control model {xy}"]
     lines += ["0.2 control solve", f"0.3 state {state}", "0.4 quit"]
     script = tmp_path / "script.txt"
     script.write_text("\n".join(lines) + "\n")
     before = short_session.path.read_bytes()
-    result = run_viewer(display, str(short_session.path), "--script", str(script), "--size", "800x450")
+    result = run_viewer(
+        display, str(short_session.path), "--script", str(script), "--size", "800x450"
+    )
     assert result.returncode == 0, result.stderr[-3000:]
     s = json.loads(state.read_text())
     c = s["control"]
@@ -345,7 +467,11 @@ def test_control_points_picked_in_the_viewer_are_solved_and_kept_beside_the_inpu
         uv, _ = projector.project(np.array([pair["enu"]]))
         assert np.allclose(uv[0], pair["pixel"], atol=0.05)
     # Picked on the same pose, the pairs agree with it: nothing to correct.
-    assert max(c["residual_px"]) < 0.5 and c["boresight_deg"] < 0.05 and np.linalg.norm(c["offset_m"]) < 0.05
+    assert (
+        max(c["residual_px"]) < 0.5
+        and c["boresight_deg"] < 0.05
+        and np.linalg.norm(c["offset_m"]) < 0.05
+    )
     kept = short_session.path.with_name(short_session.path.stem + ".control.csv")
     assert c["saved"] == str(kept) and len(read_points(kept)) == 4
     assert short_session.path.read_bytes() == before
@@ -357,10 +483,6 @@ def test_the_frame_times_offset_is_found_from_the_keyframes():
     show, while the pipeline placed the frames 80 ms late, under a slowly drifting heading bias:
     the offset comes back from the fast part of the corrections, and the corrected track then
     shows each frame's true pose."""
-    from app.geo import LocalFrame
-    from app.register.fuse import corrected_pose_track, estimate_delay, retimed
-    from app.trajectory import PoseTrack, PositionTrack
-
     frame = LocalFrame(34.8, 113.53, 110.0)
     t = np.arange(0.0, 40.0, 0.01)
 
@@ -369,17 +491,43 @@ def test_the_frame_times_offset_is_found_from_the_keyframes():
         return rotations.camera_quat_from_hpr(heading, 2.0 * np.sin(2 * np.pi * 0.9 * tt), 0.0 * tt)
 
     geo = frame.enu_to_geodetic(np.column_stack([1.4 * t, 0 * t, 1.5 + 0 * t]))
-    prior = PoseTrack(frame, PositionTrack.from_fixes(t, geo[:, 0], geo[:, 1], geo[:, 2]), t, attitude(t), np.array([1.0, 0, 0, 0]))
+    prior = PoseTrack(
+        frame,
+        PositionTrack.from_fixes(t, geo[:, 0], geo[:, 1], geo[:, 2]),
+        t,
+        attitude(t),
+        np.array([1.0, 0, 0, 0]),
+    )
     late = 0.08
     kfs = []
     for i, tk in enumerate(np.arange(1.0, 39.0, 0.5)):
         bias = rotations.from_rotvec([0.0, 0.0, np.radians(1.5 + 0.5 * np.sin(tk / 10.0))])
         q_true = attitude(np.array([tk - late]))[0]
         enu, _, q_prior = prior.at(np.array([tk]))
-        kfs.append(Keyframe(i, float(tk), True, "", 50, 40, 0.8, 2, enu[0], q_prior[0], enu[0] + [0.5, -2.0, 0.0], rotations.multiply(bias, q_true)))
+        kfs.append(
+            Keyframe(
+                i,
+                float(tk),
+                True,
+                "",
+                50,
+                40,
+                0.8,
+                2,
+                enu[0],
+                q_prior[0],
+                enu[0] + [0.5, -2.0, 0.0],
+                rotations.multiply(bias, q_true),
+            )
+        )
     delay = estimate_delay(kfs, prior)
     assert delay == pytest.approx(late, abs=0.005)
-    fixed = corrected_pose_track(prior, Correction.from_keyframes(retimed(kfs, prior, delay)), delay)
+    fixed = corrected_pose_track(
+        prior, Correction.from_keyframes(retimed(kfs, prior, delay)), delay
+    )
     _, _, q = fixed.at(np.array([20.0]))
-    want = rotations.multiply(rotations.from_rotvec([0.0, 0.0, np.radians(1.5 + 0.5 * np.sin(2.0))]), attitude(np.array([20.0 - late]))[0])
+    want = rotations.multiply(
+        rotations.from_rotvec([0.0, 0.0, np.radians(1.5 + 0.5 * np.sin(2.0))]),
+        attitude(np.array([20.0 - late]))[0],
+    )
     assert np.degrees(rotations.angle_between(q[0], want)) < 0.05

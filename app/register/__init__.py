@@ -3,7 +3,13 @@ keyframes, fused with the sensors). `registered_track` is the `registered` pose 
 
 from app.register.fuse import Correction, FuseSettings, Keyframe
 from app.register.keyframe import Matcher, MatchSettings, PoseFix
-from app.register.solve import Registrar, Registration, RegistrationSettings, default_prior, registered_track
+from app.register.solve import (
+    Registrar,
+    Registration,
+    RegistrationSettings,
+    default_prior,
+    registered_track,
+)
 
 __all__ = [
     "Correction",

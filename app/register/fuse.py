@@ -96,7 +96,9 @@ def gate(keyframes: list[Keyframe], settings: FuseSettings = FuseSettings()) -> 
         off_m = float(np.linalg.norm(dp[i] - np.median(dp[near], axis=0)))
         off_deg = float(np.linalg.norm(dr[i] - np.median(dr[near], axis=0)))
         if off_m > settings.max_disagree_m or off_deg > settings.max_disagree_deg:
-            bad[k.index] = f"disagrees with its {len(near)} neighbours by {off_m:.2f} m, {off_deg:.2f} deg"
+            bad[k.index] = (
+                f"disagrees with its {len(near)} neighbours by {off_m:.2f} m, {off_deg:.2f} deg"
+            )
     return [replace(k, used=False, reason=bad[k.index]) if k.index in bad else k for k in keyframes]
 
 
@@ -111,7 +113,9 @@ class Correction:
     hold_s: float = 30.0
 
     @classmethod
-    def from_keyframes(cls, keyframes: list[Keyframe], settings: FuseSettings = FuseSettings()) -> "Correction":
+    def from_keyframes(
+        cls, keyframes: list[Keyframe], settings: FuseSettings = FuseSettings()
+    ) -> "Correction":
         used = sorted((k for k in keyframes if k.used), key=lambda k: k.time_s)
         if not used:
             return cls(np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3)), settings.hold_s)
@@ -130,7 +134,9 @@ class Correction:
             return np.zeros((len(tq), 3)), np.zeros((len(tq), 3))
         dp = np.column_stack([np.interp(tq, self.t, self.dp[:, i]) for i in range(3)])
         dr = np.column_stack([np.interp(tq, self.t, self.dr[:, i]) for i in range(3)])
-        outside = np.where(tq < self.t[0], self.t[0] - tq, np.where(tq > self.t[-1], tq - self.t[-1], 0.0))
+        outside = np.where(
+            tq < self.t[0], self.t[0] - tq, np.where(tq > self.t[-1], tq - self.t[-1], 0.0)
+        )
         fade = np.exp(-outside / self.hold_s)[:, None]
         return dp * fade, dr * fade
 
@@ -141,7 +147,9 @@ def world_rates(prior: PoseTrack, t: npt.ArrayLike, h: float = 0.02) -> FloatArr
     t = np.asarray(t, np.float64)
     _, _, qa = prior.at(t - h)
     _, _, qb = prior.at(t + h)
-    return rotations.to_scipy(rotations.multiply(qb, rotations.conjugate(qa))).as_rotvec() / (2.0 * h)
+    return rotations.to_scipy(rotations.multiply(qb, rotations.conjugate(qa))).as_rotvec() / (
+        2.0 * h
+    )
 
 
 def _high_pass(t: FloatArray, x: FloatArray, sigma_s: float) -> FloatArray:
@@ -149,7 +157,9 @@ def _high_pass(t: FloatArray, x: FloatArray, sigma_s: float) -> FloatArray:
     return x - (w / w.sum(axis=1, keepdims=True)) @ x
 
 
-def estimate_delay(keyframes: list[Keyframe], prior: PoseTrack, settings: FuseSettings = FuseSettings()) -> float | None:
+def estimate_delay(
+    keyframes: list[Keyframe], prior: PoseTrack, settings: FuseSettings = FuseSettings()
+) -> float | None:
     """How late (s) the pipeline's frame times are against the moments the frames show, from the
     used keyframes: a frame shown delay_s late sees the camera turned back by w * delay_s (w its
     world-frame rate), so the fast part of the rotation corrections regresses on the fast part of
@@ -182,7 +192,9 @@ def retimed(keyframes: list[Keyframe], prior: PoseTrack, delay_s: float) -> list
     return [replace(k, prior_position=enu[i], prior_q=q[i]) for i, k in enumerate(keyframes)]
 
 
-def corrected_pose_track(prior: PoseTrack, correction: Correction, delay_s: float = 0.0) -> PoseTrack:
+def corrected_pose_track(
+    prior: PoseTrack, correction: Correction, delay_s: float = 0.0
+) -> PoseTrack:
     """The prior pose track, delay_s later (a frame shown at t gets the prior's pose at
     t - delay_s), with the correction applied: positions resampled at POSITION_RATE_HZ (Hermite
     between samples, as any GNSS track), the device attitude turned world-side at its own

@@ -33,7 +33,8 @@ GL_TO_CV = np.diag([1.0, -1.0, -1.0])
 
 @dataclass(frozen=True)
 class MatchSettings:
-    """features: SIFT features per image; ratio: Lowe's ratio test; edge_m_per_m: a rendered
+    """detector: "sift", "akaze" or "orb" (the coarse step's features; docs/ACCURACY.md compares
+    them); features: features per image (SIFT, ORB); ratio: Lowe's ratio test; edge_m_per_m: a rendered
     pixel is lifted to 3D only where its 3x3 neighbourhood's depths agree within this fraction
     of its range (occlusion edges, where a match may belong to either surface, are dropped);
     ransac_px: RANSAC's inlier threshold, pixels of the frame; min_inliers: fewer is a failure;
@@ -41,6 +42,7 @@ class MatchSettings:
     refine_corners / refine_px: corners tracked, and the inlier threshold (frame pixels), of the
     fine step (`refine`)."""
 
+    detector: str = "sift"
     features: int = 3000
     ratio: float = 0.85
     edge_m_per_m: float = 0.02
@@ -75,16 +77,29 @@ def grey(rgb: np.ndarray) -> np.ndarray:
 
 
 class Matcher:
-    """SIFT features and mutual ratio-test matching between a video frame and a rendering."""
+    """Features (SIFT by default) and mutual ratio-test matching between a video frame and a
+    rendering."""
 
     def __init__(self, settings: MatchSettings = MatchSettings()) -> None:
         self.settings = settings
-        self.sift = cv2.SIFT_create(nfeatures=settings.features)
-        self.matcher = cv2.BFMatcher(cv2.NORM_L2)
+        if settings.detector == "sift":
+            self.sift, norm = cv2.SIFT_create(nfeatures=settings.features), cv2.NORM_L2
+        elif settings.detector == "akaze":
+            self.sift, norm = cv2.AKAZE_create(threshold=0.0005), cv2.NORM_HAMMING
+        elif settings.detector == "orb":
+            self.sift, norm = cv2.ORB_create(nfeatures=settings.features), cv2.NORM_HAMMING
+        else:
+            raise ValueError(f"detector must be sift, akaze or orb, got {settings.detector!r}")
+        self.matcher = cv2.BFMatcher(norm)
 
-    def features(self, rgb: np.ndarray, mask: np.ndarray | None = None) -> tuple[FloatArray, np.ndarray | None]:
-        """(keypoints (N, 2) pixel coordinates u, v; descriptors (N, 128) float32 or None)."""
-        kps, desc = self.sift.detectAndCompute(grey(rgb), None if mask is None else mask.astype(np.uint8))
+    def features(
+        self, rgb: np.ndarray, mask: np.ndarray | None = None
+    ) -> tuple[FloatArray, np.ndarray | None]:
+        """(keypoints (N, 2) in OpenCV's pixel convention (from_opencv converts them);
+        descriptors (N, D) or None)."""
+        kps, desc = self.sift.detectAndCompute(
+            grey(rgb), None if mask is None else mask.astype(np.uint8)
+        )
         return np.array([k.pt for k in kps], np.float64).reshape(-1, 2), desc
 
     def match(self, desc_a: np.ndarray | None, desc_b: np.ndarray | None) -> npt.NDArray[np.int64]:
@@ -94,12 +109,31 @@ class Matcher:
         ab = self.matcher.knnMatch(desc_a, desc_b, k=2)
         ba = self.matcher.knnMatch(desc_b, desc_a, k=2)
         r = self.settings.ratio
-        best_ba = {m[0].queryIdx: m[0].trainIdx for m in ba if len(m) == 2 and m[0].distance < r * m[1].distance}
-        pairs = [(m[0].queryIdx, m[0].trainIdx) for m in ab if len(m) == 2 and m[0].distance < r * m[1].distance and best_ba.get(m[0].trainIdx) == m[0].queryIdx]
+        best_ba = {
+            m[0].queryIdx: m[0].trainIdx
+            for m in ba
+            if len(m) == 2 and m[0].distance < r * m[1].distance
+        }
+        pairs = [
+            (m[0].queryIdx, m[0].trainIdx)
+            for m in ab
+            if len(m) == 2
+            and m[0].distance < r * m[1].distance
+            and best_ba.get(m[0].trainIdx) == m[0].queryIdx
+        ]
         return np.array(pairs, np.int64).reshape(-1, 2)
 
 
-def lift(uv: FloatArray, positions: FloatArray, eye: npt.ArrayLike, edge_m_per_m: float) -> tuple[FloatArray, npt.NDArray[np.bool_]]:
+def from_opencv(pts: npt.ArrayLike, scale: float = 1.0) -> FloatArray:
+    """OpenCV image points (N, 2), whose pixel (c, r) has its centre at (c, r), as this project's
+    pixel coordinates (centres at half-integers) of the image `scale` times larger than theirs
+    (scale: the image they were found in over the full-size one)."""
+    return (np.asarray(pts, np.float64).reshape(-1, 2) + 0.5) / scale
+
+
+def lift(
+    uv: FloatArray, positions: FloatArray, eye: npt.ArrayLike, edge_m_per_m: float
+) -> tuple[FloatArray, npt.NDArray[np.bool_]]:
     """Model points (N, 3) ENU m under rendered pixels uv (N, 2), interpolated bilinearly in the
     position map (H, W, 3; its texel (r, c) holds the surface at pixel centre (c + 0.5, r + 0.5))
     of a camera at `eye`; and which are usable: on a surface, with all 3x3 neighbours on it and
@@ -123,6 +157,30 @@ def lift(uv: FloatArray, positions: FloatArray, eye: npt.ArrayLike, edge_m_per_m
     top = p[row, col] * (1 - fx) + p[row, col + 1] * fx
     bottom = p[row + 1, col] * (1 - fx) + p[row + 1, col + 1] * fx
     return top * (1 - fy) + bottom * fy, usable
+
+
+@dataclass(frozen=True)
+class Frame:
+    """A video frame to register: rgb (H, W, 3) uint8, `scale` times the size of `camera`'s
+    image (matching runs on smaller frames); camera: its intrinsics and lens, the pose to refine."""
+
+    rgb: np.ndarray
+    scale: float
+    camera: Camera
+
+
+@dataclass(frozen=True)
+class Rendering:
+    """The model seen by `camera` (a pinhole): colours (H, W, 3) uint8 and the surface positions
+    (H, W, 3) ENU m under each pixel (NaN: none)."""
+
+    rgb: np.ndarray
+    positions: FloatArray
+    camera: Camera
+
+    def lift(self, uv: FloatArray, edge_m_per_m: float) -> tuple[FloatArray, npt.NDArray[np.bool_]]:
+        """Model points under rendered pixels uv (N, 2), and which are usable (`lift`)."""
+        return lift(uv, self.positions, self.camera.position, edge_m_per_m)
 
 
 def normalised(camera: Camera, uv: FloatArray) -> FloatArray:
@@ -157,13 +215,17 @@ def reprojection_px(camera: Camera, points: FloatArray, uv: FloatArray) -> Float
     return np.where(depth > 0, d, np.inf)
 
 
-def solve_pose(camera: Camera, points: FloatArray, uv: FloatArray, settings: MatchSettings = MatchSettings()) -> PoseFix:
+def solve_pose(
+    camera: Camera, points: FloatArray, uv: FloatArray, settings: MatchSettings = MatchSettings()
+) -> PoseFix:
     """The pose of `camera` (its intrinsics and lens; its pose is only the starting point) that
     sees model points (N, 3) ENU m at frame pixels uv (N, 2): RANSAC over SQPnP minimal sets,
     then Levenberg-Marquardt on the inliers."""
     n = len(points)
     if n < settings.min_inliers:
-        return PoseFix(False, f"{n} matches on the model (need {settings.min_inliers})", n, 0, float("nan"))
+        return PoseFix(
+            False, f"{n} matches on the model (need {settings.min_inliers})", n, 0, float("nan")
+        )
     xy = normalised(camera, uv)
     f = max(camera.intrinsics.fx, camera.intrinsics.fy)
     # Coordinates relative to the current camera position keep the solver well conditioned.
@@ -175,50 +237,84 @@ def solve_pose(camera: Camera, points: FloatArray, uv: FloatArray, settings: Mat
     )  # fmt: skip
     if not ok or inl is None or len(inl) < settings.min_inliers:
         found = 0 if inl is None else len(inl)
-        return PoseFix(False, f"{found} of {n} matches agree on a pose (need {settings.min_inliers})", n, found, float("nan"))
+        return PoseFix(
+            False,
+            f"{found} of {n} matches agree on a pose (need {settings.min_inliers})",
+            n,
+            found,
+            float("nan"),
+        )
     inl = inl.ravel()
-    rvec, tvec = cv2.solvePnPRefineLM(obj[inl], np.ascontiguousarray(xy[inl]), np.eye(3), None, rvec, tvec)
+    rvec, tvec = cv2.solvePnPRefineLM(
+        obj[inl], np.ascontiguousarray(xy[inl]), np.eye(3), None, rvec, tvec
+    )
     position, q = pose_from_cv(rvec, tvec)
-    solved = Camera.create(camera.intrinsics, position + origin, q, camera.near, camera.far, camera.lens)
+    solved = Camera.create(
+        camera.intrinsics, position + origin, q, camera.near, camera.far, camera.lens
+    )
     err = reprojection_px(solved, points[inl], uv[inl])
     rms = float(np.sqrt(np.mean(err**2)))
     if not np.isfinite(rms) or rms > settings.max_error_px:
-        return PoseFix(False, f"reprojection error {rms:.1f} px (at most {settings.max_error_px})", n, len(inl), rms)
-    return PoseFix(True, "", n, len(inl), rms, np.asarray(solved.position), np.asarray(solved.orientation))
+        return PoseFix(
+            False,
+            f"reprojection error {rms:.1f} px (at most {settings.max_error_px})",
+            n,
+            len(inl),
+            rms,
+        )
+    return PoseFix(
+        True, "", n, len(inl), rms, np.asarray(solved.position), np.asarray(solved.orientation)
+    )
 
 
-def refine(settings: MatchSettings, frame_rgb: np.ndarray, frame_scale: float, camera: Camera, rendered_rgb: np.ndarray, positions: FloatArray, render_camera: Camera) -> PoseFix:
+def refine(settings: MatchSettings, frame: Frame, rendering: Rendering) -> PoseFix:
     """A fine step once the pose is close (a few pixels): corners of the rendering tracked into
     the frame by pyramidal Lucas-Kanade (sub-pixel, many more and better spread than the SIFT
     matches, the ground included), kept where tracking back returns within half a pixel, lifted
     and solved as in `compare`."""
-    g_r, g_f = grey(rendered_rgb), grey(frame_rgb)
-    on_model = np.isfinite(positions[..., 0]).astype(np.uint8) * 255
+    g_r, g_f = grey(rendering.rgb), grey(frame.rgb)
+    on_model = np.isfinite(rendering.positions[..., 0]).astype(np.uint8) * 255
     corners = cv2.goodFeaturesToTrack(g_r, settings.refine_corners, 0.002, 4, mask=on_model)
     if corners is None or len(corners) < settings.min_inliers:
         return PoseFix(False, "too few corners on the rendered model to refine", 0, 0, float("nan"))
-    lk = dict(winSize=(21, 21), maxLevel=3, criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01))
+    lk = dict(
+        winSize=(21, 21),
+        maxLevel=3,
+        criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01),
+    )
     fwd, ok1, _ = cv2.calcOpticalFlowPyrLK(g_r, g_f, corners, None, **lk)
     back, ok2, _ = cv2.calcOpticalFlowPyrLK(g_f, g_r, fwd, None, **lk)
-    good = (ok1.ravel() == 1) & (ok2.ravel() == 1) & (np.linalg.norm((back - corners)[:, 0], axis=1) < 0.5)
-    uv_r = corners[good, 0].astype(np.float64)
-    uv_f = (fwd[good, 0].astype(np.float64) + 0.5) / frame_scale - 0.5 * (frame_scale != 1.0)
-    points, usable = lift(uv_r, positions, render_camera.position, settings.edge_m_per_m)
-    return solve_pose(camera, points[usable], uv_f[usable], replace(settings, ransac_px=settings.refine_px))
+    good = (
+        (ok1.ravel() == 1)
+        & (ok2.ravel() == 1)
+        & (np.linalg.norm((back - corners)[:, 0], axis=1) < 0.5)
+    )
+    uv_r = from_opencv(corners[good, 0])
+    uv_f = from_opencv(fwd[good, 0], frame.scale)
+    points, usable = rendering.lift(uv_r, settings.edge_m_per_m)
+    return solve_pose(
+        frame.camera, points[usable], uv_f[usable], replace(settings, ransac_px=settings.refine_px)
+    )
 
 
-def compare(matcher: Matcher, frame_rgb: np.ndarray, frame_scale: float, camera: Camera, rendered_rgb: np.ndarray, positions: FloatArray, render_camera: Camera) -> PoseFix:
-    """One render-and-compare step: frame_rgb (the video frame scaled by frame_scale from
-    `camera`'s image) against the model rendered through `render_camera` (a pinhole at the same
-    pose: colour and position map), solved for `camera`'s pose."""
-    uv_f, desc_f = matcher.features(frame_rgb)
-    uv_f = (uv_f + 0.5) / frame_scale - 0.5 * (frame_scale != 1.0)  # pixel centres at full size
-    on_model = np.isfinite(positions[..., 0])
+def compare(matcher: Matcher, frame: Frame, rendering: Rendering) -> PoseFix:
+    """One render-and-compare step (the coarse one): features of the frame matched with those of
+    the rendering, lifted and solved for the frame's camera."""
+    uv_f, desc_f = matcher.features(frame.rgb)
+    uv_f = from_opencv(uv_f, frame.scale)
+    on_model = np.isfinite(rendering.positions[..., 0])
     if on_model.mean() < 0.05:
         return PoseFix(False, "the rendered view holds almost no model (sky)", 0, 0, float("nan"))
-    uv_r, desc_r = matcher.features(rendered_rgb, mask=on_model * 255)
+    uv_r, desc_r = matcher.features(rendering.rgb, mask=on_model * 255)
+    uv_r = from_opencv(uv_r)
     pairs = matcher.match(desc_f, desc_r)
     if len(pairs) == 0:
-        return PoseFix(False, f"no matches ({len(uv_f)} features in the frame, {len(uv_r)} in the rendering)", 0, 0, float("nan"))
-    points, usable = lift(uv_r[pairs[:, 1]], positions, render_camera.position, matcher.settings.edge_m_per_m)
-    return solve_pose(camera, points[usable], uv_f[pairs[usable, 0]], matcher.settings)
+        return PoseFix(
+            False,
+            f"no matches ({len(uv_f)} features in the frame, {len(uv_r)} in the rendering)",
+            0,
+            0,
+            float("nan"),
+        )
+    points, usable = rendering.lift(uv_r[pairs[:, 1]], matcher.settings.edge_m_per_m)
+    return solve_pose(frame.camera, points[usable], uv_f[pairs[usable, 0]], matcher.settings)

@@ -60,21 +60,38 @@ def read_points(path: str | Path) -> ControlPoints:
         reader = csv.DictReader(f)
         missing = [c for c in COLUMNS if c not in (reader.fieldnames or [])]
         if missing:
-            raise DataFormatError(path, f"missing columns {', '.join(missing)} (expected a header {','.join(COLUMNS)})", line=1)
+            raise DataFormatError(
+                path,
+                f"missing columns {', '.join(missing)} (expected a header {','.join(COLUMNS)})",
+                line=1,
+            )
         for line, row in enumerate(reader, start=2):
             values = []
             for c in COLUMNS:
                 try:
                     v = float(row[c])
                 except (TypeError, ValueError):
-                    raise DataFormatError(path, f"{row[c]!r} is not a number", line=line, field=c) from None
+                    raise DataFormatError(
+                        path, f"{row[c]!r} is not a number", line=line, field=c
+                    ) from None
                 if not np.isfinite(v):
-                    raise DataFormatError(path, f"{row[c]!r} is not a finite number", line=line, field=c)
+                    raise DataFormatError(
+                        path, f"{row[c]!r} is not a finite number", line=line, field=c
+                    )
                 values.append(v)
             if values[0] < 0 or values[0] != int(values[0]):
-                raise DataFormatError(path, f"{row['frame']!r} is not a frame index (a whole number from 0)", line=line, field="frame")
+                raise DataFormatError(
+                    path,
+                    f"{row['frame']!r} is not a frame index (a whole number from 0)",
+                    line=line,
+                    field="frame",
+                )
             if not -90 <= values[3] <= 90 or not -180 <= values[4] <= 180:
-                raise DataFormatError(path, "latitude must lie in [-90, 90] and longitude in [-180, 180] degrees", line=line)
+                raise DataFormatError(
+                    path,
+                    "latitude must lie in [-90, 90] and longitude in [-180, 180] degrees",
+                    line=line,
+                )
             rows.append(values)
     if len(rows) < MIN_PAIRS:
         raise DataFormatError(path, f"{len(rows)} control points; need at least {MIN_PAIRS} pairs")
@@ -107,7 +124,9 @@ class ControlSolution:
 
     @property
     def boresight_deg(self) -> float:
-        return float(np.degrees(rotations.angle_between(self.boresight, np.array([1.0, 0.0, 0.0, 0.0]))))
+        return float(
+            np.degrees(rotations.angle_between(self.boresight, np.array([1.0, 0.0, 0.0, 0.0])))
+        )
 
     def report(self) -> str:
         """Lines for people: the solution and each pair's residual."""
@@ -117,14 +136,19 @@ class ControlSolution:
             f"position correction E {self.offset_m[0]:+.2f} m, N {self.offset_m[1]:+.2f} m, U {self.offset_m[2]:+.2f} m",
             f"residuals: median {np.median(self.residual_px):.2f} px / {np.median(self.residual_m):.2f} m (before: median {np.median(self.before_px):.1f} px)",
         ]
-        lines += [f"  pair {i + 1}: {p:.2f} px, {m:.2f} m" for i, (p, m) in enumerate(zip(self.residual_px, self.residual_m))]
+        lines += [
+            f"  pair {i + 1}: {p:.2f} px, {m:.2f} m"
+            for i, (p, m) in enumerate(zip(self.residual_px, self.residual_m))
+        ]
         return "\n".join(lines)
 
 
 def _cameras(track: CameraTrack, frames: npt.NDArray[np.int64]):
     bad = frames[(frames < 0) | (frames >= track.frame_count)]
     if len(bad):
-        raise GeofuseError(f"control point frame {int(bad[0])} is outside the video (0..{track.frame_count - 1})")
+        raise GeofuseError(
+            f"control point frame {int(bad[0])} is outside the video (0..{track.frame_count - 1})"
+        )
     return [track.frame_camera(int(k)) for k in frames]
 
 
@@ -133,12 +157,18 @@ def solve_control(track: CameraTrack, points: ControlPoints) -> ControlSolution:
     if len(points) < MIN_PAIRS:
         raise GeofuseError(f"{len(points)} control points; need at least {MIN_PAIRS} pairs")
     cams = _cameras(track, points.frame)
-    x = track.poses.frame.geodetic_to_enu(points.geodetic[:, 0], points.geodetic[:, 1], points.geodetic[:, 2])
+    x = track.poses.frame.geodetic_to_enu(
+        points.geodetic[:, 0], points.geodetic[:, 1], points.geodetic[:, 2]
+    )
 
     def moved(params: FloatArray, i: int):
         b = rotations.from_rotvec(params[:3])
         c = cams[i]
-        return replace(c, position=tuple(np.asarray(c.position) + params[3:]), orientation=tuple(rotations.multiply(np.asarray(c.orientation), b)))
+        return replace(
+            c,
+            position=tuple(np.asarray(c.position) + params[3:]),
+            orientation=tuple(rotations.multiply(np.asarray(c.orientation), b)),
+        )
 
     def residuals(params: FloatArray) -> FloatArray:
         out = []
@@ -149,7 +179,13 @@ def solve_control(track: CameraTrack, points: ControlPoints) -> ControlSolution:
         return np.concatenate(out)
 
     before = np.linalg.norm(residuals(np.zeros(6)).reshape(-1, 2), axis=1)
-    fit = least_squares(residuals, np.zeros(6), loss="soft_l1", f_scale=2.0, x_scale=np.array([0.01] * 3 + [1.0] * 3))
+    fit = least_squares(
+        residuals,
+        np.zeros(6),
+        loss="soft_l1",
+        f_scale=2.0,
+        x_scale=np.array([0.01] * 3 + [1.0] * 3),
+    )
     res_px = np.linalg.norm(fit.fun.reshape(-1, 2), axis=1)
     res_m = np.empty(len(points))
     for i in range(len(points)):
@@ -157,14 +193,20 @@ def solve_control(track: CameraTrack, points: ControlPoints) -> ControlSolution:
         ray = cam.pixel_rays(points.pixel[i : i + 1])[0]
         v = x[i] - np.asarray(cam.position)
         res_m[i] = float(np.linalg.norm(v - ray * (v @ ray)))
-    return ControlSolution(rotations.from_rotvec(fit.x[:3]), fit.x[3:].copy(), res_px, res_m, before)
+    return ControlSolution(
+        rotations.from_rotvec(fit.x[:3]), fit.x[3:].copy(), res_px, res_m, before
+    )
 
 
 def corrected_track(track: CameraTrack, solution: ControlSolution) -> CameraTrack:
     """The track with the boresight turned into its camera mount and its positions moved."""
     p = track.poses
-    enu = p.frame.geodetic_to_enu(p.positions.lat, p.positions.lon, p.positions.h) + solution.offset_m
+    enu = (
+        p.frame.geodetic_to_enu(p.positions.lat, p.positions.lon, p.positions.h) + solution.offset_m
+    )
     geo = p.frame.enu_to_geodetic(enu)
-    positions = PositionTrack.from_fixes(p.positions.t, geo[:, 0], geo[:, 1], geo[:, 2], p.positions.vel_enu)
+    positions = PositionTrack.from_fixes(
+        p.positions.t, geo[:, 0], geo[:, 1], geo[:, 2], p.positions.vel_enu
+    )
     mount = rotations.canonical(rotations.multiply(p.q_dev_to_cam, solution.boresight))
     return replace(track, poses=replace(p, positions=positions, q_dev_to_cam=mount))

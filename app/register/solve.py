@@ -24,9 +24,23 @@ from app.camera import Camera
 from app.camera_track import CameraTrack, camera_track
 from app.errors import GeofuseError
 from app.io.video import frames_at
-from app.register.fuse import Correction, FuseSettings, Keyframe, corrected_pose_track, estimate_delay, gate, retimed
-from app.register.keyframe import Matcher, MatchSettings, PoseFix, compare, refine
-from app.register.points import ControlSolution, control_path, corrected_track, read_points, solve_control
+from app.register.fuse import (
+    Correction,
+    FuseSettings,
+    Keyframe,
+    corrected_pose_track,
+    estimate_delay,
+    gate,
+    retimed,
+)
+from app.register.keyframe import Frame, Matcher, MatchSettings, PoseFix, Rendering, compare, refine
+from app.register.points import (
+    ControlSolution,
+    control_path,
+    corrected_track,
+    read_points,
+    solve_control,
+)
 from app.render.views import ModelViews
 from app.session.model import REGISTERED, Session
 
@@ -44,7 +58,8 @@ class RegistrationSettings:
     matched at most this many pixels on their long side; max_iterations: renderings per keyframe;
     coarse steps (SIFT matches, app.register.keyframe.compare) run until one moves the pose less
     than fine_within_m and fine_within_deg, then fine steps (corners tracked, `refine`) until one
-    moves it less than converge_m and converge_deg; estimate_delay: estimate and remove the frame
+    moves it less than converge_m and converge_deg (fine=False: coarse steps only, until one moves
+    it less than converge_m and converge_deg); estimate_delay: estimate and remove the frame
     times' offset from the keyframes (app.register.fuse.estimate_delay)."""
 
     every_s: float = 0.5
@@ -57,6 +72,7 @@ class RegistrationSettings:
     match: MatchSettings = field(default_factory=MatchSettings)
     fuse: FuseSettings = field(default_factory=FuseSettings)
     estimate_delay: bool = True
+    fine: bool = True
 
 
 @dataclass(frozen=True)
@@ -68,7 +84,9 @@ class Registration:
     keyframes: tuple[Keyframe, ...]
     stage_s: dict[str, float]
     control: ControlSolution | None = None  # control points by hand, applied to the prior first
-    delay_s: float | None = None  # how late the frame times were (s), estimated from the keyframes; None: not estimated
+    delay_s: float | None = (
+        None  # how late the frame times were (s), estimated from the keyframes; None: not estimated
+    )
 
     @property
     def used(self) -> int:
@@ -113,9 +131,12 @@ class KeyframePlot:
 
 def keyframe_plot(reg: Registration, t0: float) -> KeyframePlot:
     """The plot's arrays, times in seconds after session time t0 (the first frame's)."""
+
     def pick(flag: bool) -> tuple[np.ndarray, np.ndarray]:
         ks = [k for k in reg.keyframes if k.used == flag]
-        return np.array([k.time_s - t0 for k in ks], np.float64), np.array([k.inliers for k in ks], np.float64)
+        return np.array([k.time_s - t0 for k in ks], np.float64), np.array(
+            [k.inliers for k in ks], np.float64
+        )
 
     solved = [k for k in reg.keyframes if k.registered]
     return KeyframePlot(
@@ -139,7 +160,11 @@ def _moved(a: Camera, b: Camera) -> tuple[float, float]:
 
 
 def _posed(camera: Camera, position: np.ndarray, q: np.ndarray) -> Camera:
-    return replace(camera, position=tuple(map(float, position)), orientation=tuple(map(float, rotations.canonical(q))))
+    return replace(
+        camera,
+        position=tuple(map(float, position)),
+        orientation=tuple(map(float, rotations.canonical(q))),
+    )
 
 
 def _shifted(camera: Camera, correction: Correction, t: float) -> Camera:
@@ -153,7 +178,12 @@ class Registrar:
     """Registers keyframes of one session's video against its scene (owns an off-screen GL
     context: use from one thread, then `release()`)."""
 
-    def __init__(self, session: Session, settings: RegistrationSettings = RegistrationSettings(), ctx: moderngl.Context | None = None) -> None:
+    def __init__(
+        self,
+        session: Session,
+        settings: RegistrationSettings = RegistrationSettings(),
+        ctx: moderngl.Context | None = None,
+    ) -> None:
         refusal = session.registration_refusal()
         if refusal is not None:
             raise GeofuseError(f"{session.path}: {refusal}")
@@ -168,18 +198,29 @@ class Registrar:
         """Render-and-compare from `start` (the frame's camera at full video size) until the pose
         converges: (the last step's fix, the solved camera or None, renderings made)."""
         s = self.settings
-        scale = frame_rgb.shape[1] / start.intrinsics.width if start.lens is None else frame_rgb.shape[1] / start.lens.width
+        scale = (
+            frame_rgb.shape[1] / start.intrinsics.width
+            if start.lens is None
+            else frame_rgb.shape[1] / start.lens.width
+        )
         cam, solved, fix, fine = start, None, None, False
         for it in range(1, s.max_iterations + 1):
             i = cam.intrinsics
-            small = Camera.create(i.scaled(max(2, round(i.width * scale)), max(2, round(i.height * scale))), cam.position, cam.orientation, cam.near, cam.far)
+            small = Camera.create(
+                i.scaled(max(2, round(i.width * scale)), max(2, round(i.height * scale))),
+                cam.position,
+                cam.orientation,
+                cam.near,
+                cam.far,
+            )
             with _lap(self.stage_s, "render"):
                 rgb, positions = self.views.render(small)
             with _lap(self.stage_s, "match"):
+                frame, rendering = Frame(frame_rgb, scale, cam), Rendering(rgb, positions, small)
                 if fine:
-                    step = refine(s.match, frame_rgb, scale, cam, rgb, positions, small)
+                    step = refine(s.match, frame, rendering)
                 else:
-                    step = compare(self.matcher, frame_rgb, scale, cam, rgb, positions, small)
+                    step = compare(self.matcher, frame, rendering)
             if not step.ok:
                 if fine:  # the coarse pose stands
                     break
@@ -188,12 +229,17 @@ class Registrar:
             nxt = _posed(cam, step.position, step.q)
             metres, degrees = _moved(cam, nxt)
             cam = solved = nxt
-            if fine and metres < s.converge_m and degrees < s.converge_deg:
+            if (fine or not s.fine) and metres < s.converge_m and degrees < s.converge_deg:
                 break
-            fine = fine or (metres < s.fine_within_m and degrees < s.fine_within_deg)
+            fine = fine or (s.fine and metres < s.fine_within_m and degrees < s.fine_within_deg)
         return fix, solved, it
 
-    def run(self, prior: CameraTrack, progress: Callable[[float], None] | None = None, stop: Callable[[], bool] | None = None) -> Registration:
+    def run(
+        self,
+        prior: CameraTrack,
+        progress: Callable[[float], None] | None = None,
+        stop: Callable[[], bool] | None = None,
+    ) -> Registration:
         """Every keyframe of the video registered, starting each from the prior's pose moved by
         the corrections found so far; the keyframes gated against their neighbours. stop() is
         asked before each keyframe: True raises Cancelled."""
@@ -208,7 +254,9 @@ class Registrar:
             if k is None:
                 break
             if stop is not None and stop():
-                raise Cancelled(f"registration of {video.path} cancelled after {len(keyframes)} of {len(idx)} keyframes")
+                raise Cancelled(
+                    f"registration of {video.path} cancelled after {len(keyframes)} of {len(idx)} keyframes"
+                )
             prior_cam = prior.frame_camera(k)
             t = float(prior.clock.session_time([video.pts_s[k]])[0])
             so_far = Correction.from_keyframes(keyframes[-5:], s.fuse)
@@ -259,14 +307,16 @@ def registered_track(
     **track_options: object,
 ) -> CameraTrack:
     """The camera track of the `registered` source: the prior source's track (default_prior)
-    corrected by the keyframes registered against the scene; `registration` holds every
-    keyframe's outcome. Control points kept beside the input (`geofuse register --write`) correct
-the prior first. ctx: a GL context to render in (default: one of its own); stop: asked
-between keyframes, True cancels (Cancelled). track_options go to
-app.camera_track.camera_track for the prior."""
+        corrected by the keyframes registered against the scene; `registration` holds every
+        keyframe's outcome. Control points kept beside the input (`geofuse register --write`) correct
+    the prior first. ctx: a GL context to render in (default: one of its own); stop: asked
+    between keyframes, True cancels (Cancelled). track_options go to
+    app.camera_track.camera_track for the prior."""
     prior_track = camera_track(session, prior or default_prior(session), **track_options)
     control = None
-    if control_path(session.path).is_file():  # points given by hand: the automatic keyframes start from them
+    if control_path(
+        session.path
+    ).is_file():  # points given by hand: the automatic keyframes start from them
         control = solve_control(prior_track, read_points(control_path(session.path)))
         prior_track = corrected_track(prior_track, control)
     registrar = Registrar(session, settings, ctx)
@@ -275,9 +325,25 @@ app.camera_track.camera_track for the prior."""
     finally:
         registrar.release()
     keyframes = list(reg.keyframes)
-    delay = estimate_delay(keyframes, prior_track.poses, settings.fuse) if settings.estimate_delay else None
+    delay = (
+        estimate_delay(keyframes, prior_track.poses, settings.fuse)
+        if settings.estimate_delay
+        else None
+    )
     if delay is not None:
-        keyframes = gate(retimed([replace(k, used=k.registered, reason="" if k.registered else k.reason) for k in keyframes], prior_track.poses, delay), settings.fuse)
-    poses = corrected_pose_track(prior_track.poses, Correction.from_keyframes(keyframes, settings.fuse), delay or 0.0)
+        keyframes = gate(
+            retimed(
+                [
+                    replace(k, used=k.registered, reason="" if k.registered else k.reason)
+                    for k in keyframes
+                ],
+                prior_track.poses,
+                delay,
+            ),
+            settings.fuse,
+        )
+    poses = corrected_pose_track(
+        prior_track.poses, Correction.from_keyframes(keyframes, settings.fuse), delay or 0.0
+    )
     reg = replace(reg, keyframes=tuple(keyframes), control=control, delay_s=delay)
     return replace(prior_track, source=REGISTERED, poses=poses, registration=reg)

@@ -49,8 +49,16 @@ class CameraEffects:
     seed: int = 11
 
     def __call__(self, rgb: np.ndarray, k: int) -> np.ndarray:
-        out = cv2.GaussianBlur(rgb, (0, 0), self.blur_px).astype(np.float32) if self.blur_px > 0 else rgb.astype(np.float32)
-        out += np.random.default_rng((self.seed, k)).normal(0.0, self.noise, out.shape).astype(np.float32)
+        out = (
+            cv2.GaussianBlur(rgb, (0, 0), self.blur_px).astype(np.float32)
+            if self.blur_px > 0
+            else rgb.astype(np.float32)
+        )
+        out += (
+            np.random.default_rng((self.seed, k))
+            .normal(0.0, self.noise, out.shape)
+            .astype(np.float32)
+        )
         return np.clip(out + 0.5, 0, 255).astype(np.uint8)
 
 
@@ -69,10 +77,15 @@ class World:
     camera: CameraEffects
 
 
-def retake_texture(texture: np.ndarray, rng: np.random.Generator, look: Look = Look()) -> np.ndarray:
+def retake_texture(
+    texture: np.ndarray, rng: np.random.Generator, look: Look = Look()
+) -> np.ndarray:
     """The texture (H, W, 4) uint8 as another camera on another day would have taken it."""
     rgb = texture[..., :3].astype(np.float32) / 255.0
-    rgb = np.power(np.clip(rgb * look.exposure * np.asarray(look.white_balance, np.float32), 0.0, 1.0), look.gamma)
+    rgb = np.power(
+        np.clip(rgb * look.exposure * np.asarray(look.white_balance, np.float32), 0.0, 1.0),
+        look.gamma,
+    )
     h, w = rgb.shape[:2]
     coarse = rng.uniform(-1.0, 1.0, (max(2, h // 64), max(2, w // 64))).astype(np.float32)
     stains = cv2.resize(coarse, (w, h), interpolation=cv2.INTER_CUBIC)
@@ -95,7 +108,9 @@ def _clear(x: float, y: float, r: float) -> bool:
     return not (-65.0 - r < y < -42.5 + r)
 
 
-def _tree(x: float, y: float, height: float, crown_m: float, rng: np.random.Generator) -> list[shapes.Shape]:
+def _tree(
+    x: float, y: float, height: float, crown_m: float, rng: np.random.Generator
+) -> list[shapes.Shape]:
     trunk = shapes.box([x - 0.2, y - 0.2, 0.0], [x + 0.2, y + 0.2, height * 0.45])
     c = crown_m / 2
     crown = shapes.box([x - c, y - c, height * 0.4], [x + c, y + c, height])
@@ -140,5 +155,8 @@ def clutter(rng: np.random.Generator) -> list[Primitive]:
 def world_of(model: MeshData, seed: int = 5, look: Look = Look()) -> World:
     """The world a model stands for: its textures retaken, clutter added, another light."""
     rng = np.random.default_rng(seed)
-    prims = [replace(p, texture=retake_texture(p.texture, rng, look)) if p.textured else p for p in model.primitives]
+    prims = [
+        replace(p, texture=retake_texture(p.texture, rng, look)) if p.textured else p
+        for p in model.primitives
+    ]
     return World(MeshData(prims + clutter(rng), list(model.tilesets)), WORLD_LIGHT, CameraEffects())

@@ -15,8 +15,15 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from app.errors import GeofuseError
-from app.register.points import MIN_PAIRS, ControlPoints, ControlSolution, control_path, solve_control, write_points
 from app.outputs import check_output
+from app.register.points import (
+    MIN_PAIRS,
+    ControlPoints,
+    ControlSolution,
+    control_path,
+    solve_control,
+    write_points,
+)
 
 
 @dataclass
@@ -81,7 +88,12 @@ def solve(v, picks: ControlPicks) -> None:
         raise GeofuseError(f"{L.source} is not solved yet")
     points = as_points(L.session, picks)
     picks.solution = solve_control(track, points)
-    out = check_output(control_path(L.session.path), "control points", (".csv",), list(L.session.inputs) + [L.session.path])
+    out = check_output(
+        control_path(L.session.path),
+        "control points",
+        (".csv",),
+        list(L.session.inputs) + [L.session.path],
+    )
     write_points(out, points)
     picks.saved = str(out)
     L.library.resolve_registered()

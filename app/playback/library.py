@@ -1,7 +1,8 @@
 """The solver library: every attitude source of a session solved in the background into a camera
 track (app.camera_track), so that the viewer can switch sources while the video plays without a
 stall; and the curves and RMS figures the error panel shows (heading, pitch, roll of the optical
-axis at every frame, against the reference).
+axis at every frame, against the reference: the truth at the moments the frames show, else the
+phone).
 
 The library owns its state. Readers get immutable snapshots (`track`, `curves`, `errors`);
 changing a setting that a solve depends on (the live time offset, a course pitch) is a request
@@ -226,8 +227,10 @@ class SolverLibrary:
         with self._lock:
             pitch = self._course_pitch
         track = solve_track(self.session, name, progress=lambda f: self._partly(name, f), stop=self._closed.is_set, course_pitch_deg=pitch if name == COURSE else None)
-        curves = curves_of(track)
         truth = replace(track, clock=frame_clock(self.session, true_timing=True)) if name == TRUTH else None
+        # The reference is the true pose of each frame at the moment it shows, so a source that
+        # corrects the frame times (registered) is compared with what the frames really show.
+        curves = curves_of(truth if truth is not None else track)
         with self._lock:
             self._tracks[name] = track.with_offset(self._offset_s)
             self._curves[name] = curves

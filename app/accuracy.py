@@ -18,9 +18,9 @@ from app.attitude import estimate, resample
 from app.attitude.metrics import hpr_rms
 from app.camera import Camera, Intrinsics
 from app.camera_track import CameraTrack, camera_track, frame_clock
+from app.constants import VIEW_FAR_M, VIEW_NEAR_M
 from app.session import Session
 from app.solve import solve_track
-from app.constants import VIEW_FAR_M, VIEW_NEAR_M
 
 EDGE_FRACTION = 0.1  # the outer 10 % of columns on each side count as the image's edges
 
@@ -70,7 +70,10 @@ def paper_track(session: Session) -> tuple[Callable[[np.ndarray], Poses], np.nda
     def at(times: np.ndarray) -> Poses:
         h, p, r = resample(times, t, hpr).T  # Euler angles, linearly: the paper's way
         geo = positions.geodetic_at(times)
-        return Poses(session.frame.geodetic_to_enu(geo[:, 0], geo[:, 1], geo[:, 2]), rotations.camera_quat_from_hpr(h, p, r))
+        return Poses(
+            session.frame.geodetic_to_enu(geo[:, 0], geo[:, 1], geo[:, 2]),
+            rotations.camera_quat_from_hpr(h, p, r),
+        )
 
     return at, eq5
 
@@ -103,7 +106,9 @@ class ProjectionProbe:
         self.surface = SurfaceProbe(session.scene())
 
     def points(self, enu: np.ndarray, q: np.ndarray) -> np.ndarray:
-        return self.surface.points(Camera.create(self.intrinsics, enu, q, near=VIEW_NEAR_M, far=VIEW_FAR_M))
+        return self.surface.points(
+            Camera.create(self.intrinsics, enu, q, near=VIEW_NEAR_M, far=VIEW_FAR_M)
+        )
 
     def errors(self, est: Poses, truth: Poses) -> tuple[np.ndarray, np.ndarray]:
         """(per-pixel distances (m), their column indices) over all frames."""
@@ -128,7 +133,13 @@ class SourceReport:
     by_cause: dict[str, Stats]
 
 
-def evaluate(session: Session, sources: list[str], every: int = 10, grid: tuple[int, int] = (64, 36), paper: bool = True) -> list[SourceReport]:
+def evaluate(
+    session: Session,
+    sources: list[str],
+    every: int = 10,
+    grid: tuple[int, int] = (64, 36),
+    paper: bool = True,
+) -> list[SourceReport]:
     """Attitude RMS and projection error for each source (and the paper's pipeline)."""
     t_true = true_frame_times(session)
     true_clock, pipeline_clock = frame_clock(session, true_timing=True), frame_clock(session)
@@ -142,7 +153,14 @@ def evaluate(session: Session, sources: list[str], every: int = 10, grid: tuple[
     for name in sources:
         track = solve_track(session, name)
         delay = (track.registration.delay_s or 0.0) if track.registration is not None else 0.0
-        entries.append((name, lambda tt, tr=track.poses: Poses(*tr.at(tt)[::2]), pipeline_clock.session_s[frames], delay))
+        entries.append(
+            (
+                name,
+                lambda tt, tr=track.poses: Poses(*tr.at(tt)[::2]),
+                pipeline_clock.session_s[frames],
+                delay,
+            )
+        )
     if paper and session.mag is not None:
         at, eq5 = paper_track(session)
         entries.append(("paper pipeline", at, eq5[frames], 0.0))
@@ -151,11 +169,15 @@ def evaluate(session: Session, sources: list[str], every: int = 10, grid: tuple[
     try:
         for name, at, pipeline_times, delay in entries:
             est = at(pipeline_times)  # what the pipeline shows for each frame
-            est_true_time = at(t_true[frames] + delay)  # its attitude and position, at the right time
+            est_true_time = at(
+                t_true[frames] + delay
+            )  # its attitude and position, at the right time
             by_cause = {
                 "attitude": Poses(truth.enu, est_true_time.q),
                 "position": Poses(est_true_time.enu, truth.q),
-                "time": poses_at(replace(truth_track, clock=replace(pipeline_clock, offset_s=-delay)), frames),
+                "time": poses_at(
+                    replace(truth_track, clock=replace(pipeline_clock, offset_s=-delay)), frames
+                ),
             }
             total = split_stats(*probe.errors(est, truth), grid[0])
             causes = {k: split_stats(*probe.errors(v, truth), grid[0]) for k, v in by_cause.items()}

@@ -36,7 +36,9 @@ class Intrinsics:
             raise ValueError(f"focal lengths must be positive, got fx={self.fx}, fy={self.fy}")
 
     @classmethod
-    def from_fov(cls, width: int, height: int, fov_deg: float, axis: str = "horizontal") -> "Intrinsics":
+    def from_fov(
+        cls, width: int, height: int, fov_deg: float, axis: str = "horizontal"
+    ) -> "Intrinsics":
         """Square pixels, principal point at the image centre, FOV (deg) across the given axis."""
         if not 0.0 < fov_deg < 180.0:
             raise ValueError(f"field of view must be in (0, 180) degrees, got {fov_deg}")
@@ -48,7 +50,12 @@ class Intrinsics:
 
     @classmethod
     def from_focal_length(
-        cls, width: int, height: int, focal_mm: float, sensor_width_mm: float, sensor_height_mm: float | None = None
+        cls,
+        width: int,
+        height: int,
+        focal_mm: float,
+        sensor_width_mm: float,
+        sensor_height_mm: float | None = None,
     ) -> "Intrinsics":
         """From a focal length and the sensor size (mm) that the full image covers."""
         fx = focal_mm / sensor_width_mm * width
@@ -75,7 +82,9 @@ class Intrinsics:
         return Intrinsics(width, height, self.fx * sx, self.fy * sy, self.cx * sx, self.cy * sy)
 
 
-def projection_matrix(intr: Intrinsics, near: float = DEFAULT_NEAR_M, far: float = DEFAULT_FAR_M) -> FloatArray:
+def projection_matrix(
+    intr: Intrinsics, near: float = DEFAULT_NEAR_M, far: float = DEFAULT_FAR_M
+) -> FloatArray:
     """OpenGL clip-from-camera 4x4 matrix (column vectors) for the pinhole intrinsics.
 
     A camera point (x, y, z), z < 0, lands at pixel u = fx x/(-z) + cx, v = cy - fy y/(-z);
@@ -105,7 +114,9 @@ def view_matrix(position_enu: npt.ArrayLike, q_cam_to_world: npt.ArrayLike) -> F
     return v
 
 
-def look_at_quat(eye: npt.ArrayLike, target: npt.ArrayLike, up: npt.ArrayLike = (0.0, 0.0, 1.0)) -> FloatArray:
+def look_at_quat(
+    eye: npt.ArrayLike, target: npt.ArrayLike, up: npt.ArrayLike = (0.0, 0.0, 1.0)
+) -> FloatArray:
     """Camera -> ENU quaternion for a camera at eye looking at target with the given world up."""
     eye, target, up = (np.asarray(a, np.float64) for a in (eye, target, up))
     f = target - eye
@@ -133,8 +144,14 @@ class Camera:
     near: float = DEFAULT_NEAR_M
     far: float = DEFAULT_FAR_M
     lens: object | None = None
-    rs_turn: tuple[float, float, float] | None = None  # rolling shutter: the camera's turn (rad, camera frame) from first to last row
-    rs_axis: tuple[float, float, float] = (0.0, 1.0, 0.0)  # the sensor row's read fraction = a u/W + b v/H + c of the displayed pixel
+    rs_turn: tuple[float, float, float] | None = (
+        None  # rolling shutter: the camera's turn (rad, camera frame) from first to last row
+    )
+    rs_axis: tuple[float, float, float] = (
+        0.0,
+        1.0,
+        0.0,
+    )  # the sensor row's read fraction = a u/W + b v/H + c of the displayed pixel
 
     @classmethod
     def create(
@@ -150,8 +167,21 @@ class Camera:
     ) -> "Camera":
         p = np.asarray(position, np.float64).reshape(3)
         q = rotations.canonical(np.asarray(orientation, np.float64).reshape(4))
-        turn = None if rs_turn is None else tuple(float(v) for v in np.asarray(rs_turn, np.float64).reshape(3))
-        return cls(intrinsics, tuple(map(float, p)), tuple(map(float, q)), near, far, lens, turn, tuple(map(float, rs_axis)))
+        turn = (
+            None
+            if rs_turn is None
+            else tuple(float(v) for v in np.asarray(rs_turn, np.float64).reshape(3))
+        )
+        return cls(
+            intrinsics,
+            tuple(map(float, p)),
+            tuple(map(float, q)),
+            near,
+            far,
+            lens,
+            turn,
+            tuple(map(float, rs_axis)),
+        )
 
     @property
     def view(self) -> FloatArray:
@@ -175,7 +205,9 @@ class Camera:
         depth = -cam[:, 2]
         if self.lens is not None:
             with np.errstate(divide="ignore", invalid="ignore"):
-                return self.lens.distort(np.column_stack([cam[:, 0] / depth, -cam[:, 1] / depth])), depth
+                return self.lens.distort(
+                    np.column_stack([cam[:, 0] / depth, -cam[:, 1] / depth])
+                ), depth
         with np.errstate(divide="ignore", invalid="ignore"):
             u = self.intrinsics.fx * cam[:, 0] / depth + self.intrinsics.cx
             v = self.intrinsics.cy - self.intrinsics.fy * cam[:, 1] / depth

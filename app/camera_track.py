@@ -81,7 +81,11 @@ class CameraTrack:
     far: float = DEFAULT_FAR_M
     lens: object | None = None  # app.lens.Lens; intrinsics then enclose its image
     readout_s: float | None = None  # rolling shutter: first row to last, seconds (None: off)
-    readout_axis: tuple[float, float, float] = (0.0, 1.0, 0.0)  # where the sensor's rows run in the displayed image (readout_axis())
+    readout_axis: tuple[float, float, float] = (
+        0.0,
+        1.0,
+        0.0,
+    )  # where the sensor's rows run in the displayed image (readout_axis())
     registration: Registration | None = None  # the `registered` source: every keyframe's outcome
 
     @property
@@ -102,8 +106,12 @@ class CameraTrack:
         turn = None
         if self.readout_s:
             _, _, qq = self.poses.at([t - self.readout_s / 2, t + self.readout_s / 2])
-            turn = rotations.to_scipy(rotations.multiply(rotations.conjugate(qq[0]), qq[1])).as_rotvec()
-        return Camera.create(self.intrinsics, enu[0], q[0], self.near, self.far, self.lens, turn, self.readout_axis)
+            turn = rotations.to_scipy(
+                rotations.multiply(rotations.conjugate(qq[0]), qq[1])
+            ).as_rotvec()
+        return Camera.create(
+            self.intrinsics, enu[0], q[0], self.near, self.far, self.lens, turn, self.readout_axis
+        )
 
     def frame_camera(self, index: int) -> Camera:
         """The posed camera of video frame `index`."""
@@ -125,7 +133,11 @@ class CameraTrack:
 def frame_clock(session: Session, true_timing: bool = False) -> FrameClock:
     """The session's media -> session time map: the pipeline's frame times, or (true_timing) the
     simulation's true ones where the session has them."""
-    times = session.truth_frame_times if true_timing and session.truth_frame_times is not None else session.frame_times
+    times = (
+        session.truth_frame_times
+        if true_timing and session.truth_frame_times is not None
+        else session.frame_times
+    )
     return FrameClock(np.asarray(session.video.pts_s, np.float64), np.asarray(times, np.float64))
 
 
@@ -140,7 +152,14 @@ def pose_track(session: Session, source: str, course_pitch_deg: float | None = N
     return PoseTrack(session.frame, positions, t_att, q, session.camera_mount())
 
 
-def camera_track(session: Session, source: str, *, course_pitch_deg: float | None = None, true_timing: bool = False, time_offset_s: float = 0.0) -> CameraTrack:
+def camera_track(
+    session: Session,
+    source: str,
+    *,
+    course_pitch_deg: float | None = None,
+    true_timing: bool = False,
+    time_offset_s: float = 0.0,
+) -> CameraTrack:
     """Solve one source of a session into its camera track. ValueError for a source the session
     does not offer (naming those it does)."""
     clock = replace(frame_clock(session, true_timing), offset_s=float(time_offset_s))
@@ -155,4 +174,6 @@ def readout_axis(rotation_cw: int) -> tuple[float, float, float]:
     W x H display was exposed is a u/W + b v/H + c. The sensor reads its stored rows top to
     bottom; the display turns the stored image by rotation_cw clockwise, which takes its top row
     to the right edge (90), the bottom (180) or the left edge (270)."""
-    return {0: (0.0, 1.0, 0.0), 90: (-1.0, 0.0, 1.0), 180: (0.0, -1.0, 1.0), 270: (1.0, 0.0, 0.0)}[int(rotation_cw) % 360]
+    return {0: (0.0, 1.0, 0.0), 90: (-1.0, 0.0, 1.0), 180: (0.0, -1.0, 1.0), 270: (1.0, 0.0, 0.0)}[
+        int(rotation_cw) % 360
+    ]

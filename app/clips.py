@@ -25,8 +25,8 @@ from app.geo import LocalFrame
 from app.geomag import declination
 from app.io.dji_mp4 import read_dji_camera
 from app.io.dji_srt import check_duration, read_srt, srt_fixes
-from app.io.streams import GnssTrack, OrientationStream, Warnings
 from app.io.gopro import global_settings
+from app.io.streams import GnssTrack, OrientationStream, Warnings
 from app.io.video import VideoInfo, probe
 from app.lens import LENS_MODES, Lens, choose_profile, video_camera
 from app.scene import Placement
@@ -39,7 +39,9 @@ from app.session.config import HANDHELD_MOUNT_M
 from app.session.model import Session
 
 DJI_DEFAULT_FOCAL_MM = 24.0  # 35 mm equivalent focal length of most DJI main cameras
-DRONE_GROUND_MARGIN_M = 500.0  # the assumed ground beyond a drone clip's track, plus 10x its height above the ground
+DRONE_GROUND_MARGIN_M = (
+    500.0  # the assumed ground beyond a drone clip's track, plus 10x its height above the ground
+)
 
 
 def find_srt(video: Path) -> Path | None:
@@ -50,7 +52,14 @@ def find_srt(video: Path) -> Path | None:
     return None
 
 
-def open_clip(path: str | Path, srt: str | Path | None = None, hfov_deg: float | None = None, drone_pitch_deg: float = DRONE_DEFAULT_PITCH_DEG, lens: str | Path | None = None, layers: tuple[Layer, ...] = ()) -> Session:
+def open_clip(
+    path: str | Path,
+    srt: str | Path | None = None,
+    hfov_deg: float | None = None,
+    drone_pitch_deg: float = DRONE_DEFAULT_PITCH_DEG,
+    lens: str | Path | None = None,
+    layers: tuple[Layer, ...] = (),
+) -> Session:
     """A session from a GoPro MP4, or from a video with a DJI subtitle (`srt`, or found beside it).
     lens: a gyroflow profile to use instead of the one chosen from the file (GoPro) or the pinhole
     field of view; hfov_deg: a pinhole field of view instead of any lens; layers: the scene
@@ -64,38 +73,80 @@ def open_clip(path: str | Path, srt: str | Path | None = None, hfov_deg: float |
     return _gopro_session(path, hfov_deg, lens, layers)
 
 
-def _frame_and_ground(gnss: GnssTrack, ground_h: float, margin_m: float, layers: tuple[Layer, ...], warnings: Warnings, above_takeoff: bool = False) -> tuple[LocalFrame, MeshData, GnssTrack]:
+def _frame_and_ground(
+    gnss: GnssTrack,
+    ground_h: float,
+    margin_m: float,
+    layers: tuple[Layer, ...],
+    warnings: Warnings,
+    above_takeoff: bool = False,
+) -> tuple[LocalFrame, MeshData, GnssTrack]:
     """(frame, scene, gnss with final heights): the layers around the track, else an assumed
     flat ground at ground_h (ellipsoidal m). Heights above take-off get the terrain's height
     under the first fix, where a layer has ground there."""
     frame = LocalFrame(float(gnss.lat[0]), float(gnss.lon[0]), float(ground_h))
     if not layers:
-        warnings.add("no scene given: the video is projected on an assumed flat ground with a 1 m grid")
+        warnings.add(
+            "no scene given: the video is projected on an assumed flat ground with a 1 m grid"
+        )
         return frame, ground_under_track(frame, gnss.lat, gnss.lon, ground_h, margin_m), gnss
     mesh = load_scene_layers(layers, frame, gnss, warnings)
     if above_takeoff:
         takeoff = ellipsoidal_ground(mesh, frame, float(gnss.lat[0]), float(gnss.lon[0]))
         if takeoff is not None:
             gnss = replace(gnss, h=gnss.h + takeoff - ground_h)
-            warnings.add(f"heights above take-off: take-off height {takeoff:.2f} m from the terrain under the first position")
+            warnings.add(
+                f"heights above take-off: take-off height {takeoff:.2f} m from the terrain under the first position"
+            )
         else:
-            warnings.add("heights above take-off: no terrain under the first position, so heights stay above an assumed take-off at 0 m")
+            warnings.add(
+                "heights above take-off: no terrain under the first position, so heights stay above an assumed take-off at 0 m"
+            )
     return frame, mesh, gnss
 
 
-def _camera_model(video: VideoInfo, hfov_deg: float, lens_path: str | Path | None, choice: tuple[Path, str] | None, warnings: Warnings) -> tuple[Intrinsics, Lens | None, tuple[Path, ...]]:
+def _camera_model(
+    video: VideoInfo,
+    hfov_deg: float,
+    lens_path: str | Path | None,
+    choice: tuple[Path, str] | None,
+    warnings: Warnings,
+) -> tuple[Intrinsics, Lens | None, tuple[Path, ...]]:
     """(intrinsics, lens, lens files read): a given profile, else the chosen one, else a pinhole
     of hfov_deg; says which."""
     path = Path(lens_path) if lens_path is not None else choice[0] if choice else None
     if path is None:
         return Intrinsics.from_fov(*video.display_size, hfov_deg), None, ()
     intr, lens = video_camera(path, *video.display_size, video.rotation_cw)
-    warnings.add(f"lens: {lens.kind} model from {'--lens ' + path.name if lens_path is not None else choice[1]}")
+    warnings.add(
+        f"lens: {lens.kind} model from {'--lens ' + path.name if lens_path is not None else choice[1]}"
+    )
     return intr, lens, (path.resolve(),) if lens_path is not None else ()
 
 
-def _clip_session(path: Path, inputs: tuple[Path, ...], frame: LocalFrame, mesh, video: VideoInfo, intr: Intrinsics, acc, gyr, mag, gnss: GnssTrack, recorded: dict[str, OrientationStream], decl: float, warnings: Warnings, pitch_deg: float = DRONE_DEFAULT_PITCH_DEG, aircraft_yaw: tuple | None = None, lens: Lens | None = None, readout_s: float | None = None, layers: tuple[Layer, ...] = ()) -> Session:
-    policy = heading_policy(gyr is not None, mag is not None, recorded, pitch_deg, aircraft_yaw is not None)
+def _clip_session(
+    path: Path,
+    inputs: tuple[Path, ...],
+    frame: LocalFrame,
+    mesh,
+    video: VideoInfo,
+    intr: Intrinsics,
+    acc,
+    gyr,
+    mag,
+    gnss: GnssTrack,
+    recorded: dict[str, OrientationStream],
+    decl: float,
+    warnings: Warnings,
+    pitch_deg: float = DRONE_DEFAULT_PITCH_DEG,
+    aircraft_yaw: tuple | None = None,
+    lens: Lens | None = None,
+    readout_s: float | None = None,
+    layers: tuple[Layer, ...] = (),
+) -> Session:
+    policy = heading_policy(
+        gyr is not None, mag is not None, recorded, pitch_deg, aircraft_yaw is not None
+    )
     if policy.note:
         warnings.add(f"{path.name}: {policy.note}")
     return Session(
@@ -105,15 +156,25 @@ def _clip_session(path: Path, inputs: tuple[Path, ...], frame: LocalFrame, mesh,
     )  # fmt: skip
 
 
-def _gopro_session(path: Path, hfov_deg: float | None, lens_path: str | Path | None = None, layers: tuple[Layer, ...] = ()) -> Session:
+def _gopro_session(
+    path: Path,
+    hfov_deg: float | None,
+    lens_path: str | Path | None = None,
+    layers: tuple[Layer, ...] = (),
+) -> Session:
     warnings = Warnings()
     rec = read_gopro(path, warnings)
     if rec.gnss is None:
-        raise DataFormatError(path, "the GoPro telemetry has no GPS fix: the camera cannot be placed (enable GPS, or use a manifest)")
+        raise DataFormatError(
+            path,
+            "the GoPro telemetry has no GPS fix: the camera cannot be placed (enable GPS, or use a manifest)",
+        )
     video = probe(path)
     video.note_damage(warnings)
     when = rec.gps_utc_at_zero or video.creation_time or 0.0
-    frame, mesh, gnss = _frame_and_ground(rec.gnss, float(rec.gnss.h[0]) - HANDHELD_MOUNT_M, ASSUMED_GROUND_MARGIN_M, layers, warnings)
+    frame, mesh, gnss = _frame_and_ground(
+        rec.gnss, float(rec.gnss.h[0]) - HANDHELD_MOUNT_M, ASSUMED_GROUND_MARGIN_M, layers, warnings
+    )
     decl = declination(frame.lat_deg, frame.lon_deg, frame.h_m, when)
     recorded = {"camera": rec.camera} if rec.camera is not None else {}
     settings = global_settings(path)
@@ -125,26 +186,71 @@ def _gopro_session(path: Path, hfov_deg: float | None, lens_path: str | Path | N
     choice = None
     if hfov_deg is None and lens_path is None:
         mode = LENS_MODES.get(str(settings.get("VFOV", "")).strip()[:1].upper(), "")
-        choice = _auto_profile("GoPro", rec.raw.model, rec.raw.model, video, mode, f"{path.name}: ", f"a pinhole of {rec.hfov_deg:.1f} deg", warnings)
-    intr, lens, lens_files = _camera_model(video, hfov_deg or rec.hfov_deg, lens_path, choice, warnings)
+        choice = _auto_profile(
+            "GoPro",
+            rec.raw.model,
+            rec.raw.model,
+            video,
+            mode,
+            f"{path.name}: ",
+            f"a pinhole of {rec.hfov_deg:.1f} deg",
+            warnings,
+        )
+    intr, lens, lens_files = _camera_model(
+        video, hfov_deg or rec.hfov_deg, lens_path, choice, warnings
+    )
     srot = settings.get("SROT")
-    srot_s = float(np.ravel(srot)[0]) / 1000.0 if isinstance(srot, np.ndarray) and np.ravel(srot).size else None
+    srot_s = (
+        float(np.ravel(srot)[0]) / 1000.0
+        if isinstance(srot, np.ndarray) and np.ravel(srot).size
+        else None
+    )
     readout = _readout(srot_s, lens, path, warnings)
-    return _clip_session(path, (path.resolve(), *lens_files), frame, mesh, video, intr, rec.acc, rec.gyr, rec.mag, gnss, recorded, decl, warnings, lens=lens, readout_s=readout, layers=layers)
+    return _clip_session(
+        path,
+        (path.resolve(), *lens_files),
+        frame,
+        mesh,
+        video,
+        intr,
+        rec.acc,
+        rec.gyr,
+        rec.mag,
+        gnss,
+        recorded,
+        decl,
+        warnings,
+        lens=lens,
+        readout_s=readout,
+        layers=layers,
+    )
 
 
-def _auto_profile(brand: str, model: str, named: str, video: VideoInfo, mode: str, where: str, fallback: str, warnings: Warnings) -> tuple[Path, str] | None:
+def _auto_profile(
+    brand: str,
+    model: str,
+    named: str,
+    video: VideoInfo,
+    mode: str,
+    where: str,
+    fallback: str,
+    warnings: Warnings,
+) -> tuple[Path, str] | None:
     """The bundled profile for a camera model at the video's stored size, the reason prefixed
     with how the camera was named; without one, a warning that `fallback` is assumed."""
     stored = (video.height, video.width) if video.rotation_cw % 180 else (video.width, video.height)
     choice = choose_profile(brand, model, *stored, mode)
     if choice is None:
-        warnings.add(f"{where}no lens profile for {named} at {stored[0]}x{stored[1]}: {fallback} is assumed (give --lens PROFILE.json)")
+        warnings.add(
+            f"{where}no lens profile for {named} at {stored[0]}x{stored[1]}: {fallback} is assumed (give --lens PROFILE.json)"
+        )
         return None
     return choice[0], f"{named}: {choice[1]}" if named != model else choice[1]
 
 
-def _readout(recorded_s: float | None, lens: Lens | None, path: Path, warnings: Warnings) -> float | None:
+def _readout(
+    recorded_s: float | None, lens: Lens | None, path: Path, warnings: Warnings
+) -> float | None:
     """The sensor's readout time (s): the clip's own (GoPro's SROT), else the lens profile's;
     says which, or that the rolling shutter is not corrected."""
     value = recorded_s
@@ -152,13 +258,22 @@ def _readout(recorded_s: float | None, lens: Lens | None, path: Path, warnings: 
     if not value and lens is not None and lens.readout_s:
         value, origin = lens.readout_s, "the lens profile"
     if value and 0.0 < value < 0.2:
-        warnings.add(f"{path.name}: rolling shutter: readout {1000 * value:.1f} ms from {origin}, corrected row by row")
+        warnings.add(
+            f"{path.name}: rolling shutter: readout {1000 * value:.1f} ms from {origin}, corrected row by row"
+        )
         return value
     warnings.add(f"{path.name}: rolling shutter: readout time unknown: not corrected")
     return None
 
 
-def _dji_session(path: Path, srt: Path, hfov_deg: float | None, pitch_deg: float, lens_path: str | Path | None = None, layers: tuple[Layer, ...] = ()) -> Session:
+def _dji_session(
+    path: Path,
+    srt: Path,
+    hfov_deg: float | None,
+    pitch_deg: float,
+    lens_path: str | Path | None = None,
+    layers: tuple[Layer, ...] = (),
+) -> Session:
     warnings = Warnings()
     track = read_srt(srt, warnings)
     video = probe(path)
@@ -168,55 +283,123 @@ def _dji_session(path: Path, srt: Path, hfov_deg: float | None, pitch_deg: float
     heights = gnss.h
     if track.height_relative:
         if not layers:
-            warnings.add(f"{srt.name}: heights are relative to take-off; the assumed ground is the take-off height (0 m)")
+            warnings.add(
+                f"{srt.name}: heights are relative to take-off; the assumed ground is the take-off height (0 m)"
+            )
         ground = 0.0
     else:
         ground = float(np.nanmin(heights))
         if not layers:
-            warnings.add(f"{srt.name}: absolute heights; the assumed ground is the lowest height of the flight ({ground:.1f} m)")
-    frame, mesh, gnss = _frame_and_ground(gnss, ground, DRONE_GROUND_MARGIN_M + 10.0 * float(np.max(heights - ground)), layers, warnings, track.height_relative)
-    when = float(np.nanmin(track.wall_clock)) if np.isfinite(track.wall_clock).any() else (video.creation_time or 0.0)
+            warnings.add(
+                f"{srt.name}: absolute heights; the assumed ground is the lowest height of the flight ({ground:.1f} m)"
+            )
+    frame, mesh, gnss = _frame_and_ground(
+        gnss,
+        ground,
+        DRONE_GROUND_MARGIN_M + 10.0 * float(np.max(heights - ground)),
+        layers,
+        warnings,
+        track.height_relative,
+    )
+    when = (
+        float(np.nanmin(track.wall_clock))
+        if np.isfinite(track.wall_clock).any()
+        else (video.creation_time or 0.0)
+    )
     decl = declination(frame.lat_deg, frame.lon_deg, frame.h_m, when)
     recorded: dict[str, OrientationStream] = {}
     yaw = None
     if track.has_gimbal:
-        recorded["telemetry"] = gimbal_attitude(track, srt)  # the gimbal is the camera: device = camera
+        recorded["telemetry"] = gimbal_attitude(
+            track, srt
+        )  # the gimbal is the camera: device = camera
     else:
         yaw = track.aircraft_yaw()
     focal = track.focal_len[np.isfinite(track.focal_len)]
     focal_mm = float(np.median(focal)) / 10.0 if len(focal) else DJI_DEFAULT_FOCAL_MM
     choice = None
     if hfov_deg is None:
-        hfov_deg = float(np.degrees(2 * np.arctan(18.0 / focal_mm)))  # 36 mm wide full frame equivalent
+        hfov_deg = float(
+            np.degrees(2 * np.arctan(18.0 / focal_mm))
+        )  # 36 mm wide full frame equivalent
         if lens_path is None:
-            choice = _dji_profile(path, video, f"a pinhole of {hfov_deg:.1f} deg (the subtitle's {focal_mm:g} mm equivalent focal length)", warnings)
+            choice = _dji_profile(
+                path,
+                video,
+                f"a pinhole of {hfov_deg:.1f} deg (the subtitle's {focal_mm:g} mm equivalent focal length)",
+                warnings,
+            )
     intr, lens, lens_files = _camera_model(video, hfov_deg, lens_path, choice, warnings)
     readout = _readout(None, lens, path, warnings)
-    return _clip_session(path, (path.resolve(), srt.resolve(), *lens_files), frame, mesh, video, intr, None, None, None, gnss, recorded, decl, warnings, pitch_deg, yaw, lens, readout, layers)
+    return _clip_session(
+        path,
+        (path.resolve(), srt.resolve(), *lens_files),
+        frame,
+        mesh,
+        video,
+        intr,
+        None,
+        None,
+        None,
+        gnss,
+        recorded,
+        decl,
+        warnings,
+        pitch_deg,
+        yaw,
+        lens,
+        readout,
+        layers,
+    )
 
 
-def _dji_profile(path: Path, video: VideoInfo, fallback: str, warnings: Warnings) -> tuple[Path, str] | None:
+def _dji_profile(
+    path: Path, video: VideoInfo, fallback: str, warnings: Warnings
+) -> tuple[Path, str] | None:
     """The bundled profile of the DJI camera the MP4's metadata names (DJI subtitles name none)."""
     try:
         cam = read_dji_camera(path)
     except OSError as exc:
         raise VideoError(path, f"cannot read the file's metadata ({exc})") from exc
     if cam is None:
-        warnings.add(f"{path.name}: the video's metadata names no DJI camera (no camera code, no DJI encoder): {fallback} is assumed (give --lens PROFILE.json)")
+        warnings.add(
+            f"{path.name}: the video's metadata names no DJI camera (no camera code, no DJI encoder): {fallback} is assumed (give --lens PROFILE.json)"
+        )
         return None
     if not cam.model:
-        warnings.add(f"{path.name}: DJI camera code {cam.code} is not one geofuse knows: {fallback} is assumed (give --lens PROFILE.json)")
+        warnings.add(
+            f"{path.name}: DJI camera code {cam.code} is not one geofuse knows: {fallback} is assumed (give --lens PROFILE.json)"
+        )
         return None
-    return _auto_profile("DJI", cam.model, cam.described, video, "", f"{path.name}: ", fallback, warnings)
+    return _auto_profile(
+        "DJI", cam.model, cam.described, video, "", f"{path.name}: ", fallback, warnings
+    )
 
 
-def open_any(path: str | Path, srt: str | Path | None = None, hfov_deg: float | None = None, pitch_deg: float = DRONE_DEFAULT_PITCH_DEG, lens: str | Path | None = None, layers: tuple[Layer, ...] = ()) -> Session:
+def open_any(
+    path: str | Path,
+    srt: str | Path | None = None,
+    hfov_deg: float | None = None,
+    pitch_deg: float = DRONE_DEFAULT_PITCH_DEG,
+    lens: str | Path | None = None,
+    layers: tuple[Layer, ...] = (),
+) -> Session:
     """A manifest (.toml) or a clip (pitch_deg: a drone clip's camera pitch when its subtitle has
     no gimbal attitude; layers: its scene, see open_clip)."""
     path = Path(path)
     if path.suffix.lower() == ".toml":
-        given = "--srt" if srt is not None else "--lens" if lens is not None else "--scene/--dem" if layers else None
+        given = (
+            "--srt"
+            if srt is not None
+            else "--lens"
+            if lens is not None
+            else "--scene/--dem"
+            if layers
+            else None
+        )
         if given:
-            raise GeofuseError(f"{given} goes with a clip, not with a manifest (a manifest names its subtitle in [gnss], its lens as camera.lens, its scene in [scene], [[layers]] and [dem])")
+            raise GeofuseError(
+                f"{given} goes with a clip, not with a manifest (a manifest names its subtitle in [gnss], its lens as camera.lens, its scene in [scene], [[layers]] and [dem])"
+            )
         return open_session(path)
     return open_clip(path, srt, hfov_deg, pitch_deg, lens, layers)

@@ -35,7 +35,9 @@ class ProjectionSettings:
         if self.bias_constant_m < 0 or self.bias_slope < 0:
             raise ValueError("depth bias terms must be >= 0")
         if not 16 <= self.depth_long_side <= 16384:
-            raise ValueError(f"depth map size must be in [16, 16384] texels, got {self.depth_long_side}")
+            raise ValueError(
+                f"depth map size must be in [16, 16384] texels, got {self.depth_long_side}"
+            )
 
 
 @dataclass(frozen=True)

@@ -13,4 +13,11 @@ SAMPLE_SCENE = SAMPLE_DIR / "scene.glb"
 SAMPLE_PHOTO = SAMPLE_DIR / "photo.jpg"
 SAMPLE_ORIGIN = SITE_ORIGIN
 # Standing on the track south-east of the hall, 1.6 m above the ground, looking at its south front.
-SAMPLE_PHOTO_POSE = PhotoPose(lat_deg=34.799345, lon_deg=113.530262, h_m=111.6, heading_deg=348.0, pitch_deg=7.0, roll_deg=-1.5)
+SAMPLE_PHOTO_POSE = PhotoPose(
+    lat_deg=34.799345,
+    lon_deg=113.530262,
+    h_m=111.6,
+    heading_deg=348.0,
+    pitch_deg=7.0,
+    roll_deg=-1.5,
+)

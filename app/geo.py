@@ -30,10 +30,14 @@ def _to_geodetic() -> Transformer:
     return Transformer.from_crs("EPSG:4978", "EPSG:4979", always_xy=True)
 
 
-def geodetic_to_ecef(lat_deg: npt.ArrayLike, lon_deg: npt.ArrayLike, h_m: npt.ArrayLike) -> FloatArray:
+def geodetic_to_ecef(
+    lat_deg: npt.ArrayLike, lon_deg: npt.ArrayLike, h_m: npt.ArrayLike
+) -> FloatArray:
     """WGS84 latitude, longitude (degrees) and ellipsoidal height (m) -> ECEF (..., 3) metres."""
     lat, lon, h = np.broadcast_arrays(
-        np.asarray(lat_deg, np.float64), np.asarray(lon_deg, np.float64), np.asarray(h_m, np.float64)
+        np.asarray(lat_deg, np.float64),
+        np.asarray(lon_deg, np.float64),
+        np.asarray(h_m, np.float64),
     )
     x, y, z = _to_ecef().transform(lon, lat, h)
     return np.stack([np.asarray(x), np.asarray(y), np.asarray(z)], axis=-1)
@@ -88,7 +92,9 @@ class LocalFrame:
     def __post_init__(self) -> None:
         if not (-90.0 <= self.lat_deg <= 90.0) or not (-180.0 <= self.lon_deg <= 360.0):
             raise ValueError(f"origin out of range: lat={self.lat_deg}, lon={self.lon_deg}")
-        object.__setattr__(self, "origin_ecef", geodetic_to_ecef(self.lat_deg, self.lon_deg, self.h_m))
+        object.__setattr__(
+            self, "origin_ecef", geodetic_to_ecef(self.lat_deg, self.lon_deg, self.h_m)
+        )
         object.__setattr__(self, "rotation", ecef_to_enu_rotation(self.lat_deg, self.lon_deg))
 
     def ecef_to_enu(self, xyz: npt.ArrayLike) -> FloatArray:
@@ -99,7 +105,9 @@ class LocalFrame:
         """ENU (..., 3) metres -> ECEF (..., 3) metres."""
         return np.asarray(enu, np.float64) @ self.rotation + self.origin_ecef
 
-    def geodetic_to_enu(self, lat_deg: npt.ArrayLike, lon_deg: npt.ArrayLike, h_m: npt.ArrayLike) -> FloatArray:
+    def geodetic_to_enu(
+        self, lat_deg: npt.ArrayLike, lon_deg: npt.ArrayLike, h_m: npt.ArrayLike
+    ) -> FloatArray:
         """Latitude, longitude (deg), ellipsoidal height (m) -> ENU (..., 3) metres."""
         return self.ecef_to_enu(geodetic_to_ecef(lat_deg, lon_deg, h_m))
 

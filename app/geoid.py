@@ -25,7 +25,12 @@ EPSG_VERTICAL = {5773: "egm96", 3855: "egm2008", 4979: "ellipsoid", 4326: "ellip
 def _grid() -> tuple[np.ndarray, float, float, float]:
     with resources.files("app").joinpath("data/egm2008_10min.npz").open("rb") as fh:
         z = np.load(fh)
-        return z["undulation_cm"].astype(np.float32) / 100.0, float(z["lat0_deg"]), float(z["lon0_deg"]), float(z["step_deg"])
+        return (
+            z["undulation_cm"].astype(np.float32) / 100.0,
+            float(z["lat0_deg"]),
+            float(z["lon0_deg"]),
+            float(z["step_deg"]),
+        )
 
 
 def undulation(lat_deg: npt.ArrayLike, lon_deg: npt.ArrayLike) -> np.ndarray:
@@ -45,11 +50,15 @@ def undulation(lat_deg: npt.ArrayLike, lon_deg: npt.ArrayLike) -> np.ndarray:
     ).astype(np.float64)
 
 
-def to_ellipsoidal(height_m: npt.ArrayLike, lat_deg: npt.ArrayLike, lon_deg: npt.ArrayLike, datum: str) -> np.ndarray:
+def to_ellipsoidal(
+    height_m: npt.ArrayLike, lat_deg: npt.ArrayLike, lon_deg: npt.ArrayLike, datum: str
+) -> np.ndarray:
     """Heights (m) above `datum` ('ellipsoid', 'egm2008' or 'egm96') -> above the WGS84 ellipsoid."""
     h = np.asarray(height_m, np.float64)
     if datum == "ellipsoid":
         return h
     if datum not in VERTICAL_DATUMS:
-        raise ValueError(f"unknown vertical datum {datum!r} (expected one of {', '.join(VERTICAL_DATUMS)})")
+        raise ValueError(
+            f"unknown vertical datum {datum!r} (expected one of {', '.join(VERTICAL_DATUMS)})"
+        )
     return h + undulation(lat_deg, lon_deg)

@@ -15,7 +15,9 @@ def _wmm(lat: float, lon: float, h_m: float, when_unix_s: float):
     year = decimal_year_from_date(datetime.fromtimestamp(when_unix_s, timezone.utc).date())
     epoch = max([e for e in WMM_EPOCHS if e <= year] or [WMM_EPOCHS[0]])
     gm = GeoMag(coefficients_file=f"wmm/WMM_{epoch}.COF")
-    return gm.calculate(glat=lat, glon=lon, alt=h_m / 1000.0, time=year, allow_date_outside_lifespan=True)
+    return gm.calculate(
+        glat=lat, glon=lon, alt=h_m / 1000.0, time=year, allow_date_outside_lifespan=True
+    )
 
 
 def declination(lat: float, lon: float, h_m: float, when_unix_s: float) -> float:

@@ -48,13 +48,31 @@ class Lens:
             raise ValueError(f"lens kind must be one of {KINDS}, got {self.kind!r}")
         wanted = 4 if self.kind == "fisheye" else 5
         if len(self.coeffs) != wanted or not all(np.isfinite(self.coeffs)):
-            raise ValueError(f"a {self.kind} lens needs {wanted} finite coefficients, got {self.coeffs}")
+            raise ValueError(
+                f"a {self.kind} lens needs {wanted} finite coefficients, got {self.coeffs}"
+            )
         if not self.stretch > 0:
             raise ValueError(f"the stretch must be positive, got {self.stretch}")
 
     @classmethod
-    def create(cls, kind: str, width: int, height: int, fx: float, fy: float, cx: float, cy: float, coeffs, **rest) -> "Lens":
-        return cls(kind, Intrinsics(int(width), int(height), float(fx), float(fy), float(cx), float(cy)), tuple(float(c) for c in coeffs), **rest)
+    def create(
+        cls,
+        kind: str,
+        width: int,
+        height: int,
+        fx: float,
+        fy: float,
+        cx: float,
+        cy: float,
+        coeffs,
+        **rest,
+    ) -> "Lens":
+        return cls(
+            kind,
+            Intrinsics(int(width), int(height), float(fx), float(fy), float(cx), float(cy)),
+            tuple(float(c) for c in coeffs),
+            **rest,
+        )
 
     width = property(lambda self: self.k.width)
     height = property(lambda self: self.k.height)
@@ -95,7 +113,9 @@ class Lens:
         k1, k2, p1, p2, k3 = self.coeffs
         r2 = a * a + b * b
         radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
-        return a * radial + 2 * p1 * a * b + p2 * (r2 + 2 * a * a), b * radial + p1 * (r2 + 2 * b * b) + 2 * p2 * a * b
+        return a * radial + 2 * p1 * a * b + p2 * (r2 + 2 * a * a), b * radial + p1 * (
+            r2 + 2 * b * b
+        ) + 2 * p2 * a * b
 
     def distort(self, ab: npt.ArrayLike) -> FloatArray:
         """Normalised coordinates (N, 2) -> video pixels (N, 2) (u right, v down)."""
@@ -109,7 +129,12 @@ class Lens:
         with a numerical Jacobian, from the pinhole guess."""
         uv = np.atleast_2d(np.asarray(uv, np.float64))
         target = uv.copy()
-        ab = np.column_stack([(self.cx + (uv[:, 0] - self.cx) / self.stretch - self.cx) / self.fx, (uv[:, 1] - self.cy) / self.fy])
+        ab = np.column_stack(
+            [
+                (self.cx + (uv[:, 0] - self.cx) / self.stretch - self.cx) / self.fx,
+                (uv[:, 1] - self.cy) / self.fy,
+            ]
+        )
         h = 1e-7
         for _ in range(NEWTON_STEPS):
             f = self.distort(ab) - target
@@ -143,7 +168,12 @@ class Lens:
         border = np.vstack([np.column_stack([t * w, np.zeros(samples)]), np.column_stack([t * w, np.full(samples, h)]),
                             np.column_stack([np.zeros(samples), t * h]), np.column_stack([np.full(samples, w), t * h])])  # fmt: skip
         ab = self.undistort(border)
-        return float(ab[:, 0].min()), float(ab[:, 0].max()), float(ab[:, 1].min()), float(ab[:, 1].max())
+        return (
+            float(ab[:, 0].min()),
+            float(ab[:, 0].max()),
+            float(ab[:, 1].min()),
+            float(ab[:, 1].max()),
+        )
 
 
 def enclosing_intrinsics(lens: Lens, margin: float = 1.02) -> Intrinsics:
@@ -180,11 +210,23 @@ def read_profile(path: str | Path) -> Lens:
             stretch=float(d.get("input_horizontal_stretch") or 1.0), readout_s=float(readout) / 1000.0 if readout else None, name=str(d.get("name", path.stem)),
         )  # fmt: skip
     except (KeyError, IndexError, TypeError, ValueError) as exc:
-        raise DataFormatError(path, f"not a usable lens profile ({type(exc).__name__}: {exc})", field="fisheye_params") from exc
+        raise DataFormatError(
+            path, f"not a usable lens profile ({type(exc).__name__}: {exc})", field="fisheye_params"
+        ) from exc
 
 
-PROFILE_DIR = Path(__file__).resolve().parent / "lens_profiles"  # GoPro and DJI profiles (CC0, gyroflow)
-LENS_MODES = {"W": "wide", "L": "linear", "S": "superview", "H": "hyperview", "N": "narrow", "M": "medium", "X": "max"}
+PROFILE_DIR = (
+    Path(__file__).resolve().parent / "lens_profiles"
+)  # GoPro and DJI profiles (CC0, gyroflow)
+LENS_MODES = {
+    "W": "wide",
+    "L": "linear",
+    "S": "superview",
+    "H": "hyperview",
+    "N": "narrow",
+    "M": "medium",
+    "X": "max",
+}
 
 
 ASPECT_TOLERANCE = 0.02  # a profile fits a video whose width/height is within 2 % of its own
@@ -223,7 +265,9 @@ def profile_names(brand: str, model: str) -> set[str]:
     return {key, *DJI_PROFILE_NAMES.get(key, ())} if brand == "DJI" else {key}
 
 
-def choose_profile(brand: str, model: str, width: int, height: int, mode: str = "") -> tuple[Path, str] | None:
+def choose_profile(
+    brand: str, model: str, width: int, height: int, mode: str = ""
+) -> tuple[Path, str] | None:
     """The bundled profile that best fits a camera: (path, why) or None. The camera model must
     match (GoPro's GPMF device name, e.g. 'HERO8 Black' or 'GoPro Max'; a DJI aircraft's name,
     e.g. 'Mavic Air 2', see profile_names); then the image's aspect ratio, the lens mode's name
@@ -252,10 +296,19 @@ def choose_profile(brand: str, model: str, width: int, height: int, mode: str = 
         score += 0.0 if not mode or mode in name.replace(" ", "") else 3.0
         score += 1.0 if "eis" in name and "no-eis" not in name else 0.0
         score += abs(cal["w"] - width) / max(width, 1)
-        score += 0.05 * min(float(d.get("fisheye_params", {}).get("RMS_error") or 5.0), 5.0)  # the better calibration
-        score += 0.0 if d.get("frame_readout_time") else 0.05  # one that can undo the rolling shutter
+        score += 0.05 * min(
+            float(d.get("fisheye_params", {}).get("RMS_error") or 5.0), 5.0
+        )  # the better calibration
+        score += (
+            0.0 if d.get("frame_readout_time") else 0.05
+        )  # one that can undo the rolling shutter
         if best is None or score < best[0]:
-            best = (score, path, f"{d.get('camera_model')} profile '{path.stem}' for {width}x{height}" + (f", {mode} lens mode" if mode else ""))
+            best = (
+                score,
+                path,
+                f"{d.get('camera_model')} profile '{path.stem}' for {width}x{height}"
+                + (f", {mode} lens mode" if mode else ""),
+            )
     return None if best is None else (best[1], best[2])
 
 
@@ -266,7 +319,9 @@ def lens_for_video(lens: Lens, width: int, height: int, rotation_cw: int) -> Len
     return lens.scaled(*stored).rotated(rotation_cw // 90)
 
 
-def video_camera(profile: str | Path, width: int, height: int, rotation_cw: int) -> tuple[Intrinsics, Lens]:
+def video_camera(
+    profile: str | Path, width: int, height: int, rotation_cw: int
+) -> tuple[Intrinsics, Lens]:
     """(the pinhole the depth pass renders, the lens) of a video shown width x height through a
     profile file."""
     lens = lens_for_video(read_profile(profile), width, height, rotation_cw)

@@ -22,7 +22,12 @@ class OutputError(GeofuseError):
     """An output path that cannot be written (the message names the option and the path)."""
 
 
-def check_output(path: str | Path, option: str, suffixes: tuple[str, ...], inputs: Iterable[str | Path | None] = ()) -> Path:
+def check_output(
+    path: str | Path,
+    option: str,
+    suffixes: tuple[str, ...],
+    inputs: Iterable[str | Path | None] = (),
+) -> Path:
     """Validate an output path before the command works; returns it as a Path."""
     out = Path(path)
     if out.is_dir():
@@ -32,7 +37,9 @@ def check_output(path: str | Path, option: str, suffixes: tuple[str, ...], input
     target = out.resolve()
     for p in inputs:
         if p and Path(p).exists() and Path(p).resolve() == target:
-            raise OutputError(f"{option} {out}: is an input file of this command: refusing to overwrite it (choose another name)")
+            raise OutputError(
+                f"{option} {out}: is an input file of this command: refusing to overwrite it (choose another name)"
+            )
     parent = target.parent
     existing = next((p for p in (parent, *parent.parents) if p.exists()), None)
     if existing is not None and not existing.is_dir():
@@ -42,12 +49,16 @@ def check_output(path: str | Path, option: str, suffixes: tuple[str, ...], input
     return out
 
 
-def write_atomically(path: Path, option: str, write: Callable[[IO], None], binary: bool = False) -> Path:
+def write_atomically(
+    path: Path, option: str, write: Callable[[IO], None], binary: bool = False
+) -> Path:
     """Create the parent folder, write through `write(file)` to a temporary file beside `path`,
     then rename it over `path`. OSError (full disk, permissions) -> OutputError."""
 
     def through_file(tmp: Path) -> None:
-        with tmp.open("wb" if binary else "w", **({} if binary else {"newline": "", "encoding": "utf-8"})) as f:
+        with tmp.open(
+            "wb" if binary else "w", **({} if binary else {"newline": "", "encoding": "utf-8"})
+        ) as f:
             write(f)
 
     return write_via_path(path, option, through_file)
@@ -66,7 +77,9 @@ def write_via_path(path: Path, option: str, write: Callable[[Path], None]) -> Pa
         write(Path(tmp))
         umask = os.umask(0)
         os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)  # mkstemp's 0600 is for the temporary file, not the user's output
+        os.chmod(
+            tmp, 0o666 & ~umask
+        )  # mkstemp's 0600 is for the temporary file, not the user's output
         os.replace(tmp, path)
     except OSError as exc:
         Path(tmp).unlink(missing_ok=True)

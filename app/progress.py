@@ -26,7 +26,9 @@ class ProgressBar:
         filled = int(BAR_WIDTH * fraction)
         elapsed = self.clock() - self.start
         left = f"  {elapsed * (1 - fraction) / fraction:5.0f} s left" if 0 < fraction < 1 else ""
-        self.out.write(f"\r{self.label:<28} [{'#' * filled}{'.' * (BAR_WIDTH - filled)}] {100 * fraction:5.1f}%{left}")
+        self.out.write(
+            f"\r{self.label:<28} [{'#' * filled}{'.' * (BAR_WIDTH - filled)}] {100 * fraction:5.1f}%{left}"
+        )
         if fraction >= 1.0:
             self.out.write("\n")
         self.out.flush()

@@ -97,16 +97,22 @@ def angle_between(a: npt.ArrayLike, b: npt.ArrayLike) -> FloatArray:
 def _rz(angle: FloatArray) -> FloatArray:
     c, s = np.cos(angle), np.sin(angle)
     z, o = np.zeros_like(angle), np.ones_like(angle)
-    return np.stack([np.stack([c, -s, z], -1), np.stack([s, c, z], -1), np.stack([z, z, o], -1)], -2)
+    return np.stack(
+        [np.stack([c, -s, z], -1), np.stack([s, c, z], -1), np.stack([z, z, o], -1)], -2
+    )
 
 
 def _rx(angle: FloatArray) -> FloatArray:
     c, s = np.cos(angle), np.sin(angle)
     z, o = np.zeros_like(angle), np.ones_like(angle)
-    return np.stack([np.stack([o, z, z], -1), np.stack([z, c, -s], -1), np.stack([z, s, c], -1)], -2)
+    return np.stack(
+        [np.stack([o, z, z], -1), np.stack([z, c, -s], -1), np.stack([z, s, c], -1)], -2
+    )
 
 
-def camera_matrix_from_hpr(heading_deg: npt.ArrayLike, pitch_deg: npt.ArrayLike, roll_deg: npt.ArrayLike) -> FloatArray:
+def camera_matrix_from_hpr(
+    heading_deg: npt.ArrayLike, pitch_deg: npt.ArrayLike, roll_deg: npt.ArrayLike
+) -> FloatArray:
     """Camera -> ENU rotation matrices (..., 3, 3) from optical-axis heading, pitch, roll (deg).
 
     R = Rz(-heading) @ LEVEL_NORTH @ Rx(pitch) @ Rz(-roll): heading turns clockwise seen from above,
@@ -119,7 +125,9 @@ def camera_matrix_from_hpr(heading_deg: npt.ArrayLike, pitch_deg: npt.ArrayLike,
     return _rz(-h) @ _LEVEL_NORTH @ _rx(p) @ _rz(-r)
 
 
-def camera_quat_from_hpr(heading_deg: npt.ArrayLike, pitch_deg: npt.ArrayLike, roll_deg: npt.ArrayLike) -> FloatArray:
+def camera_quat_from_hpr(
+    heading_deg: npt.ArrayLike, pitch_deg: npt.ArrayLike, roll_deg: npt.ArrayLike
+) -> FloatArray:
     """Camera -> ENU quaternions [w, x, y, z] from optical-axis heading, pitch, roll (deg)."""
     return from_matrix(camera_matrix_from_hpr(heading_deg, pitch_deg, roll_deg))
 
@@ -134,7 +142,9 @@ def hpr_from_camera_matrix(r: npt.ArrayLike) -> FloatArray:
     heading = np.degrees(np.arctan2(f[..., 0], f[..., 1])) % 360.0
     pitch = np.degrees(np.arcsin(np.clip(f[..., 2], -1.0, 1.0)))
     # Undo heading and pitch; what remains is Rz(-roll).
-    rest = np.swapaxes(_rx(np.radians(pitch)), -1, -2) @ _LEVEL_NORTH.T @ _rz(np.radians(heading)) @ r
+    rest = (
+        np.swapaxes(_rx(np.radians(pitch)), -1, -2) @ _LEVEL_NORTH.T @ _rz(np.radians(heading)) @ r
+    )
     roll = -np.degrees(np.arctan2(rest[..., 1, 0], rest[..., 0, 0]))
     return np.stack([heading, pitch, roll], axis=-1)
 
@@ -167,7 +177,9 @@ class Interpolator:
         self._slerp = Slerp(self.t, to_scipy(q_source))
 
     def __call__(self, t_query: npt.ArrayLike) -> FloatArray:
-        return from_scipy(self._slerp(np.clip(np.asarray(t_query, np.float64), self.t[0], self.t[-1])))
+        return from_scipy(
+            self._slerp(np.clip(np.asarray(t_query, np.float64), self.t[0], self.t[-1]))
+        )
 
 
 def slerp(t_source: npt.ArrayLike, q_source: npt.ArrayLike, t_query: npt.ArrayLike) -> FloatArray:

@@ -3,10 +3,9 @@
 from __future__ import annotations
 
 import csv
+from collections.abc import Callable
 from pathlib import Path
 from typing import TextIO
-
-from collections.abc import Callable
 
 from app.camera_track import CameraTrack, FramePoses, camera_track
 from app.outputs import CSV_SUFFIXES, check_output, write_atomically
@@ -14,11 +13,33 @@ from app.progress import ProgressBar
 from app.register import registered_track
 from app.session.model import REGISTERED, Session
 
-COLUMNS = ("frame", "time_s", "latitude", "longitude", "height", "E", "N", "U", "heading", "pitch", "roll", "qw", "qx", "qy", "qz")
+COLUMNS = (
+    "frame",
+    "time_s",
+    "latitude",
+    "longitude",
+    "height",
+    "E",
+    "N",
+    "U",
+    "heading",
+    "pitch",
+    "roll",
+    "qw",
+    "qx",
+    "qy",
+    "qz",
+)
 PROGRESS_MIN_SAMPLES = 100_000
 
 
-def solve_track(session: Session, source: str, progress: Callable[[float], None] | None = None, stop: Callable[[], bool] | None = None, **options: object) -> CameraTrack:
+def solve_track(
+    session: Session,
+    source: str,
+    progress: Callable[[float], None] | None = None,
+    stop: Callable[[], bool] | None = None,
+    **options: object,
+) -> CameraTrack:
     """One source of a session solved into its camera track: the one entry point for every
     command and the viewer's solver. The `registered` source renders the scene (app.register);
     the others are app.camera_track.camera_track (options: course_pitch_deg, true_timing,
@@ -45,10 +66,17 @@ def csv_rows(poses: FramePoses):
         ]  # fmt: skip
 
 
-def solve_to_csv(session: Session, source: str, out: str | Path, progress: TextIO | None = None) -> int:
+def solve_to_csv(
+    session: Session, source: str, out: str | Path, progress: TextIO | None = None
+) -> int:
     """Write the rows of `solve_frames` to `out` (never to an input file: checked before solving);
     returns the row count."""
-    out = check_output(out, "--out", CSV_SUFFIXES, list(session.inputs) + [session.path, session.video.path, session.gnss.source])
+    out = check_output(
+        out,
+        "--out",
+        CSV_SUFFIXES,
+        list(session.inputs) + [session.path, session.video.path, session.gnss.source],
+    )
     long_input = session.gyr is not None and len(session.gyr.t) >= PROGRESS_MIN_SAMPLES
     bar = ProgressBar(f"solving {source}", progress if long_input or source == REGISTERED else None)
     bar(0.0)
@@ -57,6 +85,7 @@ def solve_to_csv(session: Session, source: str, out: str | Path, progress: TextI
     bar(1.0)
     if track.registration is not None and progress is not None:
         print(track.registration.summary(), file=progress)
+
     def write(f) -> None:
         w = csv.writer(f)
         w.writerow(COLUMNS)

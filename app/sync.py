@@ -45,7 +45,9 @@ GRID_HZ = 500.0  # both rate curves are resampled on this grid
 WINDOW_S = 1.0
 DRIFT_MIN_SPAN_S = 40.0  # a clock drift is fitted only over clips whose strong windows span this
 DRIFT_LOCAL_S = 0.05  # each window's own offset is searched this far around the clip's
-DRIFT_MIN_EFFECT_S = 0.005  # a fitted drift that moves the clip's ends by less than this is noise: 0
+DRIFT_MIN_EFFECT_S = (
+    0.005  # a fitted drift that moves the clip's ends by less than this is noise: 0
+)
 TIMING_SMOOTH_S = 0.1  # the reference's rates are smoothed over this before their change is taken
 STRONG_FRACTION = 0.3  # the fine fit uses the 30 % of windows that say most about time
 
@@ -100,7 +102,12 @@ def frame_rotation(b1: np.ndarray, b2: np.ndarray) -> np.ndarray | None:
     return _kabsch(b1[keep], b2[keep]) if keep.sum() >= MIN_TRACKS else r
 
 
-def video_rates(video, bearings: Callable[[np.ndarray], np.ndarray], rotation_cw: int, progress: Callable[[float], None] | None = None) -> RateCurve:
+def video_rates(
+    video,
+    bearings: Callable[[np.ndarray], np.ndarray],
+    rotation_cw: int,
+    progress: Callable[[float], None] | None = None,
+) -> RateCurve:
     """The camera's rotation rate between consecutive frames (see the module docstring).
     bearings: display pixels (N, 2) -> unit vectors (N, 3) in OpenCV's camera frame."""
     import av
@@ -122,11 +129,17 @@ def video_rates(video, bearings: Callable[[np.ndarray], np.ndarray], rotation_cw
             if frame.pts is None:
                 continue
             t = media_seconds(frame.pts, stream.time_base, video.origin_s)
-            grey = np.ascontiguousarray(np.rot90(frame.reformat(width=size[0], height=size[1], format="gray").to_ndarray(), k=-k))
+            grey = np.ascontiguousarray(
+                np.rot90(
+                    frame.reformat(width=size[0], height=size[1], format="gray").to_ndarray(), k=-k
+                )
+            )
             if prev is not None and t > prev_t:
                 pts = cv2.goodFeaturesToTrack(prev, MAX_FEATURES, 0.01, 6)
                 if pts is not None and len(pts) >= MIN_TRACKS:
-                    nxt, ok, _ = cv2.calcOpticalFlowPyrLK(prev, grey, pts, None, winSize=(15, 15), maxLevel=3)
+                    nxt, ok, _ = cv2.calcOpticalFlowPyrLK(
+                        prev, grey, pts, None, winSize=(15, 15), maxLevel=3
+                    )
                     ok = ok.ravel() == 1
                     if ok.sum() >= MIN_TRACKS:
                         p1 = (pts[ok, 0, :] + 0.5) / scale  # display pixels of the full video
@@ -134,7 +147,9 @@ def video_rates(video, bearings: Callable[[np.ndarray], np.ndarray], rotation_cw
                         rot = frame_rotation(bearings(p1), bearings(p2))
                         if rot is not None:
                             # b2 = D^T b1 for a body turn D: the camera's rate is -rotvec(R) / dt.
-                            rv = -rotations.to_scipy(rotations.from_matrix(rot)).as_rotvec() / (t - prev_t)
+                            rv = -rotations.to_scipy(rotations.from_matrix(rot)).as_rotvec() / (
+                                t - prev_t
+                            )
                             t_out.append((t + prev_t) / 2)
                             w_out.append([rv[0], -rv[1], -rv[2]])  # OpenCV camera axes -> OpenGL's
             prev, prev_t = grey, t
@@ -143,15 +158,24 @@ def video_rates(video, bearings: Callable[[np.ndarray], np.ndarray], rotation_cw
     if progress is not None:
         progress(1.0)
     if len(t_out) < 10:
-        raise GeofuseError(f"{video.path}: too few frames with trackable features to see the camera turn ({len(t_out)})")
+        raise GeofuseError(
+            f"{video.path}: too few frames with trackable features to see the camera turn ({len(t_out)})"
+        )
     return RateCurve(np.asarray(t_out), np.asarray(w_out))
 
 
 def _on_grid(curve: RateCurve, t: np.ndarray) -> np.ndarray:
-    return np.column_stack([np.interp(t, curve.t, curve.omega[:, j], left=np.nan, right=np.nan) for j in range(curve.omega.shape[1])])
+    return np.column_stack(
+        [
+            np.interp(t, curve.t, curve.omega[:, j], left=np.nan, right=np.nan)
+            for j in range(curve.omega.shape[1])
+        ]
+    )
 
 
-def _score(video: RateCurve, gyro: RateCurve, lag: float, t: np.ndarray, mask: np.ndarray | None = None) -> float:
+def _score(
+    video: RateCurve, gyro: RateCurve, lag: float, t: np.ndarray, mask: np.ndarray | None = None
+) -> float:
     """Mean squared difference of the components, video at t against gyro at t + lag."""
     a, b = _on_grid(video, t), _on_grid(gyro, t + lag)
     ok = np.isfinite(a).all(axis=1) & np.isfinite(b).all(axis=1)
@@ -169,10 +193,17 @@ def estimate_offset(video: RateCurve, gyro: RateCurve, clip_start_s: float) -> S
     t = np.arange(v.t[0], v.t[-1], 1.0 / GRID_HZ)
     mag_v = np.nan_to_num(np.linalg.norm(_on_grid(v, t), axis=1))
     lags = np.arange(-MAX_LAG_S, MAX_LAG_S + 1e-9, 1.0 / GRID_HZ)
-    mag_g_full = np.linalg.norm(_on_grid(gyro, np.arange(t[0] - MAX_LAG_S, t[-1] + MAX_LAG_S + 1e-9, 1.0 / GRID_HZ)), axis=1)
+    mag_g_full = np.linalg.norm(
+        _on_grid(gyro, np.arange(t[0] - MAX_LAG_S, t[-1] + MAX_LAG_S + 1e-9, 1.0 / GRID_HZ)), axis=1
+    )
     mag_g_full = np.nan_to_num(mag_g_full)
     mv = mag_v - mag_v.mean()
-    corr = np.array([np.dot(mv, mag_g_full[i : i + len(mv)] - mag_g_full[i : i + len(mv)].mean()) for i in range(len(lags))])
+    corr = np.array(
+        [
+            np.dot(mv, mag_g_full[i : i + len(mv)] - mag_g_full[i : i + len(mv)].mean())
+            for i in range(len(lags))
+        ]
+    )
     coarse = float(lags[int(np.argmax(corr))])
     # The windows that say most about time (see _timing_energy).
     edges = np.arange(t[0], t[-1], WINDOW_S)
@@ -187,12 +218,25 @@ def estimate_offset(video: RateCurve, gyro: RateCurve, clip_start_s: float) -> S
     best = _parabolic_min(fine_lags, scores)
     a, b = _on_grid(v, t), _on_grid(gyro, t + best)
     ok = np.isfinite(a).all(axis=1) & np.isfinite(b).all(axis=1) & mask
-    confidence = float(np.mean([np.corrcoef(a[ok, j], b[ok, j])[0, 1] for j in range(a.shape[1])])) if ok.sum() > 10 else 0.0
+    confidence = (
+        float(np.mean([np.corrcoef(a[ok, j], b[ok, j])[0, 1] for j in range(a.shape[1])]))
+        if ok.sum() > 10
+        else 0.0
+    )
     drift, pivot = _drift(v, gyro, best, strong_edges, t)
-    return SyncResult(best, max(0.0, confidence), tuple((float(e), float(e + WINDOW_S)) for e in strong_edges), coarse, drift, pivot)
+    return SyncResult(
+        best,
+        max(0.0, confidence),
+        tuple((float(e), float(e + WINDOW_S)) for e in strong_edges),
+        coarse,
+        drift,
+        pivot,
+    )
 
 
-def _timing_energy(reference: RateCurve, t_ref: np.ndarray, edges: np.ndarray, t: np.ndarray) -> np.ndarray:
+def _timing_energy(
+    reference: RateCurve, t_ref: np.ndarray, edges: np.ndarray, t: np.ndarray
+) -> np.ndarray:
     """How much each window (start edges, WINDOW_S long, on grid t) says about time: the mean
     squared rate of change of the reference's rates (read at t_ref, smoothed over
     TIMING_SMOOTH_S), since a time error dt changes a rate w by dt * dw/dt. (Peaks of a smooth
@@ -204,11 +248,15 @@ def _timing_energy(reference: RateCurve, t_ref: np.ndarray, edges: np.ndarray, t
     n = max(1, int(round(TIMING_SMOOTH_S * GRID_HZ)))
     smooth = uniform_filter1d(np.where(valid[:, None], ref, 0.0), n, axis=0, mode="nearest")
     change = np.sum(np.gradient(smooth, axis=0) ** 2, axis=1) * GRID_HZ**2
-    change[uniform_filter1d(valid.astype(np.float64), n + 2, mode="constant") < 1.0 - 1e-9] = np.nan  # near a gap
+    change[uniform_filter1d(valid.astype(np.float64), n + 2, mode="constant") < 1.0 - 1e-9] = (
+        np.nan
+    )  # near a gap
     out = np.zeros(len(edges))
     for i, e in enumerate(edges):
         window = change[(t >= e) & (t < e + WINDOW_S)]
-        out[i] = np.mean(window) if len(window) and np.isfinite(window).all() else 0.0  # a window the reference does not cover says nothing
+        out[i] = (
+            np.mean(window) if len(window) and np.isfinite(window).all() else 0.0
+        )  # a window the reference does not cover says nothing
     return out
 
 
@@ -224,7 +272,9 @@ def _parabolic_min(lags: np.ndarray, scores: np.ndarray) -> float:
     return best
 
 
-def _drift(v: RateCurve, gyro: RateCurve, offset: float, edges: np.ndarray, t: np.ndarray) -> tuple[float, float]:
+def _drift(
+    v: RateCurve, gyro: RateCurve, offset: float, edges: np.ndarray, t: np.ndarray
+) -> tuple[float, float]:
     """(drift ppm, pivot time): each strong window's own best lag near the clip's, regressed on
     time; 0 when the windows span less than DRIFT_MIN_SPAN_S (too short a clip to see it)."""
     pivot = float(np.mean(edges + WINDOW_S / 2)) if len(edges) else float(t[0])
@@ -242,7 +292,11 @@ def _drift(v: RateCurve, gyro: RateCurve, offset: float, edges: np.ndarray, t: n
 
 
 ATTITUDE_SMOOTH_S = 0.15  # moving average of rates differentiated from recorded attitudes
-RECORDED_FOR_RATES = ("telemetry", "camera", "phone")  # recorded attitudes, best first, when no gyroscope
+RECORDED_FOR_RATES = (
+    "telemetry",
+    "camera",
+    "phone",
+)  # recorded attitudes, best first, when no gyroscope
 MIN_COURSE_TURN_DEG_S = 3.0  # a course turning slower than this carries no usable timing
 MIN_COURSE_TURNING_S = 4.0  # ... and it must turn that fast for this long over the clip
 SYNC_COURSE_SMOOTH_S = 1.0  # s: velocities are averaged, and the course's turn taken, over this
@@ -303,7 +357,9 @@ def gyro_rates(session) -> RateCurve:
     if name == "gyroscope":
         t, body = session.gyr.t, session.gyr.values
     elif name is None:
-        raise GeofuseError(f"{session.path}: no gyroscope, no recorded attitude and no course: the offset cannot be found from rotation (set video.time_offset_s by hand)")
+        raise GeofuseError(
+            f"{session.path}: no gyroscope, no recorded attitude and no course: the offset cannot be found from rotation (set video.time_offset_s by hand)"
+        )
     elif name == COURSE:
         return course_rates(session)
     else:
@@ -338,8 +394,12 @@ def course_rates(session) -> RateCurve:
     rate[~moving | (t - half < t[0]) | (t + half > t[-1])] = np.nan
     _check_course_turns(t, rate, session)
     pitch = float(session.course_pitch_deg)
-    q = rotations.camera_quat_from_hpr(0.0, pitch, 0.0)  # the heading does not change where "up" is seen
-    up = rotations.rotate(rotations.conjugate(q), np.array([0.0, 0.0, 1.0]))  # world up in the camera frame
+    q = rotations.camera_quat_from_hpr(
+        0.0, pitch, 0.0
+    )  # the heading does not change where "up" is seen
+    up = rotations.rotate(
+        rotations.conjugate(q), np.array([0.0, 0.0, 1.0])
+    )  # world up in the camera frame
     up = rotations.rotate(rotations.conjugate(session.camera_mount()), up)
     return RateCurve(t, rate[:, None], up / np.linalg.norm(up))
 
@@ -390,7 +450,9 @@ def read_settings(source: Path) -> dict:
     try:
         return tomllib.loads(path.read_text(encoding="utf-8"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise GeofuseError(f"{path}: not valid TOML ({exc}); delete it or run geofuse sync --write again") from exc
+        raise GeofuseError(
+            f"{path}: not valid TOML ({exc}); delete it or run geofuse sync --write again"
+        ) from exc
 
 
 def synced_offset(source: Path) -> float | None:
@@ -407,7 +469,9 @@ def synced_drift(source: Path) -> tuple[float, float]:
     return (float(drift), float(pivot)) if ok else (0.0, 0.0)
 
 
-def corrected_times(frame_times: np.ndarray, offset_s: float, drift_ppm: float, pivot_s: float) -> np.ndarray:
+def corrected_times(
+    frame_times: np.ndarray, offset_s: float, drift_ppm: float, pivot_s: float
+) -> np.ndarray:
     """Frame times (session s) with an offset, and a drift about a pivot time, applied."""
     return frame_times + offset_s + drift_ppm * 1e-6 * (frame_times - pivot_s)
 

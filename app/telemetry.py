@@ -15,8 +15,8 @@ import numpy as np
 from app.attitude.gopro import read_gopro
 from app.errors import DataFormatError
 from app.io import csvlog
-from app.io.dji_srt import read_srt, srt_fixes
 from app.io.dji_mp4 import read_dji_camera
+from app.io.dji_srt import read_srt, srt_fixes
 from app.io.gopro import global_settings
 from app.io.gpmf import Counts, chunks, parse
 from app.io.gpx import read_gpx
@@ -65,7 +65,10 @@ def inspect(path: str | Path) -> Telemetry:
         return _sensorlogger(path)
     if suffix == ".csv":
         return _csv(path)
-    raise DataFormatError(path, f"unknown telemetry format {suffix!r} (expected .MP4 from a GoPro, raw GPMF .bin/.gpmd/.raw, .SRT, .GPX, .CSV, or a Sensor Logger folder or zip)")
+    raise DataFormatError(
+        path,
+        f"unknown telemetry format {suffix!r} (expected .MP4 from a GoPro, raw GPMF .bin/.gpmd/.raw, .SRT, .GPX, .CSV, or a Sensor Logger folder or zip)",
+    )
 
 
 RAW_GPMF_SUFFIXES = (".bin", ".gpmd", ".raw", ".gpmf")  # GPMF extracted from an MP4 by other tools
@@ -88,7 +91,10 @@ def _gpmf_payload(path: Path) -> Telemetry:
     out.info.append(f"camera: {device or 'unnamed'}; streams: {', '.join(sorted(by_key))}")
     for key, parts in sorted(by_key.items()):
         n = sum(len(c.samples) for c in parts)
-        out.info.append(f"{key}: {n} samples in {len(parts)} chunk(s)" + (f", ORIN {parts[0].modifiers['ORIN']}" if "ORIN" in parts[0].modifiers else ""))
+        out.info.append(
+            f"{key}: {n} samples in {len(parts)} chunk(s)"
+            + (f", ORIN {parts[0].modifiers['ORIN']}" if "ORIN" in parts[0].modifiers else "")
+        )
     if counts.skipped:
         out.warnings.add(f"{path.name}: telemetry keys skipped (undecodable): {counts.skipped}")
     return out
@@ -101,9 +107,15 @@ def _srt(path: Path) -> Telemetry:
     fixes = srt_fixes(tr, out.warnings)
     ok = np.isin(tr.t, fixes.t)
     out.position = (fixes.t, fixes.lat, fixes.lon, fixes.h)
-    out.height_note = "above take-off" if tr.height_relative else "absolute (as the aircraft reports it)"
+    out.height_note = (
+        "above take-off" if tr.height_relative else "absolute (as the aircraft reports it)"
+    )
     if tr.has_gimbal:
-        out.attitude = {"gimbal_pitch": tr.gimbal_pry[ok, 0], "gimbal_roll": tr.gimbal_pry[ok, 1], "gimbal_yaw": tr.gimbal_pry[ok, 2]}
+        out.attitude = {
+            "gimbal_pitch": tr.gimbal_pry[ok, 0],
+            "gimbal_roll": tr.gimbal_pry[ok, 1],
+            "gimbal_yaw": tr.gimbal_pry[ok, 2],
+        }
     out.info.append(f"layouts: {', '.join(tr.layouts)}")
     return out
 
@@ -125,7 +137,10 @@ def _refuse_dji_video(path: Path) -> None:
     except OSError:
         return  # the GoPro reader names the file's fault
     if cam is not None:
-        raise DataFormatError(path, f"a video from {cam.described}: DJI keeps the telemetry in the subtitle beside it: give the .SRT to geofuse telemetry")
+        raise DataFormatError(
+            path,
+            f"a video from {cam.described}: DJI keeps the telemetry in the subtitle beside it: give the .SRT to geofuse telemetry",
+        )
 
 
 def _gopro(path: Path) -> Telemetry:
@@ -136,11 +151,26 @@ def _gopro(path: Path) -> Telemetry:
     out.info.append(f"camera: {r.raw.model}; lens mode {mode}, horizontal FOV {r.hfov_deg:.1f} deg")
     for s in (r.acc, r.gyr, r.mag):
         if s is not None:
-            out.streams.append(Stream({"acc": "ACCL accelerometer", "gyr": "GYRO gyroscope", "mag": "MAGN magnetometer"}[s.name], s.t, s.unit))
+            out.streams.append(
+                Stream(
+                    {
+                        "acc": "ACCL accelerometer",
+                        "gyr": "GYRO gyroscope",
+                        "mag": "MAGN magnetometer",
+                    }[s.name],
+                    s.t,
+                    s.unit,
+                )
+            )
     if r.camera is not None:
         out.streams.append(Stream("CORI camera orientation", r.camera.t))
     if r.gnss is not None:
-        out.streams.append(Stream(f"GPS (averaged to {1 / 0.5:g} Hz; {r.raw.dropped_no_fix} samples without fix dropped)", r.gnss.t))
+        out.streams.append(
+            Stream(
+                f"GPS (averaged to {1 / 0.5:g} Hz; {r.raw.dropped_no_fix} samples without fix dropped)",
+                r.gnss.t,
+            )
+        )
         out.position = (r.gnss.t, r.gnss.lat, r.gnss.lon, r.gnss.h)
         out.height_note = "GPS altitude (WGS84)"
     if r.raw.gps_precision is not None and len(r.raw.gps_precision):
@@ -148,7 +178,9 @@ def _gopro(path: Path) -> Telemetry:
     if r.gps_utc_at_zero:
         from datetime import datetime, timezone
 
-        out.info.append(f"clip start (GPSU): {datetime.fromtimestamp(r.gps_utc_at_zero, timezone.utc).isoformat()}")
+        out.info.append(
+            f"clip start (GPSU): {datetime.fromtimestamp(r.gps_utc_at_zero, timezone.utc).isoformat()}"
+        )
     return out
 
 
@@ -181,7 +213,9 @@ def _csv(path: Path) -> Telemetry:
         o = csvlog.read_orientation(path, out.warnings)
         out.streams.append(Stream("orientation", o.t))
     else:
-        kind = "gyr" if "gyr" in path.stem.lower() else "mag" if "mag" in path.stem.lower() else "acc"
+        kind = (
+            "gyr" if "gyr" in path.stem.lower() else "mag" if "mag" in path.stem.lower() else "acc"
+        )
         s = csvlog.read_vector(path, kind, out.warnings)
         out.streams.append(Stream(kind, s.t, s.unit))
     return out
@@ -197,12 +231,17 @@ def describe(tel: Telemetry) -> str:
             dt = np.diff(s.t)
             med = float(np.median(dt))
             gaps = int((dt > GAP_FACTOR * med).sum()) if med > 0 else 0
-            lines.append(f"  {s.name}: {n} samples, {1 / med if med > 0 else 0:.2f} Hz, {s.t[0]:.3f}..{s.t[-1]:.3f} s, {gaps} gaps" + (f" [{s.unit}]" if s.unit else ""))
+            lines.append(
+                f"  {s.name}: {n} samples, {1 / med if med > 0 else 0:.2f} Hz, {s.t[0]:.3f}..{s.t[-1]:.3f} s, {gaps} gaps"
+                + (f" [{s.unit}]" if s.unit else "")
+            )
         else:
             lines.append(f"  {s.name}: {n} sample(s)")
     if tel.position is not None:
         t, lat, lon, h = tel.position
-        lines.append(f"  positions: {len(t)} fixes, first ({lat[0]:.6f}, {lon[0]:.6f}, {h[0]:.1f} m), last ({lat[-1]:.6f}, {lon[-1]:.6f}, {h[-1]:.1f} m); heights {tel.height_note}")
+        lines.append(
+            f"  positions: {len(t)} fixes, first ({lat[0]:.6f}, {lon[0]:.6f}, {h[0]:.1f} m), last ({lat[-1]:.6f}, {lon[-1]:.6f}, {h[-1]:.1f} m); heights {tel.height_note}"
+        )
     for w in tel.warnings.items:
         lines.append(f"  warning: {w}")
     return "\n".join(lines)
@@ -221,7 +260,15 @@ def write_csv(tel: Telemetry, out: str | Path) -> int:
         w = csv.writer(f)
         w.writerow(["time_s", "latitude", "longitude", "height", *extra])
         for i in range(len(t)):
-            w.writerow([f"{t[i]:.3f}", f"{lat[i]:.9f}", f"{lon[i]:.9f}", f"{h[i]:.3f}", *(f"{tel.attitude[k][i]:.2f}" for k in extra)])
+            w.writerow(
+                [
+                    f"{t[i]:.3f}",
+                    f"{lat[i]:.9f}",
+                    f"{lon[i]:.9f}",
+                    f"{h[i]:.3f}",
+                    *(f"{tel.attitude[k][i]:.2f}" for k in extra),
+                ]
+            )
 
     write_atomically(out, "--csv", rows)
     return len(t)

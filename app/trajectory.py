@@ -37,7 +37,15 @@ def geodetic_rates(lat_deg: FloatArray, h_m: FloatArray, vel_enu: FloatArray) ->
     return np.column_stack([dphi, dlam, vel_enu[:, 2]])
 
 
-def hermite(t0: FloatArray, t1: FloatArray, p0: FloatArray, p1: FloatArray, v0: FloatArray, v1: FloatArray, t: FloatArray) -> FloatArray:
+def hermite(
+    t0: FloatArray,
+    t1: FloatArray,
+    p0: FloatArray,
+    p1: FloatArray,
+    v0: FloatArray,
+    v1: FloatArray,
+    t: FloatArray,
+) -> FloatArray:
     """Cubic phi(t) = a0 + a1 s + a2 s^2 + a3 s^3 through (t0, p0, v0) and (t1, p1, v1) (Eq. 3),
     written in Hermite basis on s = t - t0; broadcast over arrays."""
     h = t1 - t0
@@ -60,7 +68,14 @@ class PositionTrack:
     vel_enu: FloatArray
 
     @classmethod
-    def from_fixes(cls, t: npt.ArrayLike, lat: npt.ArrayLike, lon: npt.ArrayLike, h: npt.ArrayLike, vel_enu: npt.ArrayLike | None = None) -> "PositionTrack":
+    def from_fixes(
+        cls,
+        t: npt.ArrayLike,
+        lat: npt.ArrayLike,
+        lon: npt.ArrayLike,
+        h: npt.ArrayLike,
+        vel_enu: npt.ArrayLike | None = None,
+    ) -> "PositionTrack":
         t, lat, lon, h = (np.asarray(a, np.float64) for a in (t, lat, lon, h))
         if len(t) < 2 or np.any(np.diff(t) <= 0):
             raise ValueError("need at least 2 fixes with strictly increasing times")
@@ -82,7 +97,15 @@ class PositionTrack:
         tq = np.clip(np.atleast_1d(np.asarray(tq, np.float64)), self.t[0], self.t[-1])
         i = np.clip(np.searchsorted(self.t, tq, side="right") - 1, 0, len(self.t) - 2)
         p, rates = self._hermite_nodes
-        out = hermite(self.t[i, None], self.t[i + 1, None], p[i], p[i + 1], rates[i], rates[i + 1], tq[:, None])
+        out = hermite(
+            self.t[i, None],
+            self.t[i + 1, None],
+            p[i],
+            p[i + 1],
+            rates[i],
+            rates[i + 1],
+            tq[:, None],
+        )
         return np.column_stack([np.degrees(out[:, 0]), np.degrees(out[:, 1]), out[:, 2]])
 
 
@@ -102,7 +125,9 @@ def device_to_camera(display_rotation_deg: int) -> FloatArray:
     """
     r = int(display_rotation_deg) % 360
     if r not in _CAMERA_ROLL:
-        raise ValueError(f"display rotation must be a multiple of 90 degrees, got {display_rotation_deg}")
+        raise ValueError(
+            f"display rotation must be a multiple of 90 degrees, got {display_rotation_deg}"
+        )
     return rotations.about_z(_CAMERA_ROLL[r])
 
 

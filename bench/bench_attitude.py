@@ -14,8 +14,8 @@ from __future__ import annotations
 import argparse
 import os
 import subprocess
-import tempfile
 import sys
+import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -40,14 +40,23 @@ def ours(method: str) -> Estimator:
 def vqf_online(t, gyr, acc, mag, rate):
     from vqf import VQF
 
-    out = VQF(1.0 / rate).updateBatch(np.ascontiguousarray(gyr), np.ascontiguousarray(acc), None if mag is None else np.ascontiguousarray(mag))
+    out = VQF(1.0 / rate).updateBatch(
+        np.ascontiguousarray(gyr),
+        np.ascontiguousarray(acc),
+        None if mag is None else np.ascontiguousarray(mag),
+    )
     return out["quat6D"] if mag is None else out["quat9D"]
 
 
 def vqf_offline(t, gyr, acc, mag, rate):
     from vqf import offlineVQF
 
-    out = offlineVQF(np.ascontiguousarray(gyr), np.ascontiguousarray(acc), None if mag is None else np.ascontiguousarray(mag), 1.0 / rate)
+    out = offlineVQF(
+        np.ascontiguousarray(gyr),
+        np.ascontiguousarray(acc),
+        None if mag is None else np.ascontiguousarray(mag),
+        1.0 / rate,
+    )
     return out["quat6D"] if mag is None else out["quat9D"]
 
 
@@ -104,27 +113,54 @@ def accuracy(broad: Path) -> str:
             head = np.array([r.heading for r in res])
             incl = np.array([r.inclination for r in res])
             rows.append(
-                [f"{label} {mode}", f"{tot[undisturbed].mean():.2f}", f"{tot[disturbed].mean():.2f}",
-                 f"{head[undisturbed].mean():.2f}", f"{incl[undisturbed].mean():.2f}", " ".join(f"{x:.2f}" for x in tot)]
+                [
+                    f"{label} {mode}",
+                    f"{tot[undisturbed].mean():.2f}",
+                    f"{tot[disturbed].mean():.2f}",
+                    f"{head[undisturbed].mean():.2f}",
+                    f"{incl[undisturbed].mean():.2f}",
+                    " ".join(f"{x:.2f}" for x in tot),
+                ]
             )
-    header = ["filter", "total undisturbed", "total disturbed", "heading undisturbed", "inclination undisturbed", "total per trial (" + ", ".join(n[:2] for n in names) + ")"]
+    header = [
+        "filter",
+        "total undisturbed",
+        "total disturbed",
+        "heading undisturbed",
+        "inclination undisturbed",
+        "total per trial (" + ", ".join(n[:2] for n in names) + ")",
+    ]
     return table(header, rows)
 
 
 def _synthetic(n: int, rate: float = 100.0) -> tuple[np.ndarray, ...]:
     rng = np.random.default_rng(0)
     t = np.arange(n) / rate
-    gyr = 0.5 * np.column_stack([np.sin(0.3 * t), np.cos(0.2 * t), np.sin(0.1 * t)]) + 0.01 * rng.standard_normal((n, 3))
-    acc = np.column_stack([0.3 * np.sin(t), 0.2 * np.cos(t), np.full(n, 9.81)]) + 0.05 * rng.standard_normal((n, 3))
-    mag = np.column_stack([np.full(n, 20.0), np.zeros(n), np.full(n, -40.0)]) + 0.5 * rng.standard_normal((n, 3))
+    gyr = 0.5 * np.column_stack(
+        [np.sin(0.3 * t), np.cos(0.2 * t), np.sin(0.1 * t)]
+    ) + 0.01 * rng.standard_normal((n, 3))
+    acc = np.column_stack(
+        [0.3 * np.sin(t), 0.2 * np.cos(t), np.full(n, 9.81)]
+    ) + 0.05 * rng.standard_normal((n, 3))
+    mag = np.column_stack(
+        [np.full(n, 20.0), np.zeros(n), np.full(n, -40.0)]
+    ) + 0.5 * rng.standard_normal((n, 3))
     return t, gyr, acc, mag
 
 
 def timing() -> str:
     sizes = (6_624, 66_240, 662_400)
     rows = []
-    entries = [(f"geofuse {m.upper()} {'AHRS' if mag else 'IMU'}", ours(m), mag) for m in ("gd", "cf", "offline") for mag in (True, False)]
-    entries += [("vqf (batch C++) AHRS", vqf_online, True), ("vqf offline AHRS", vqf_offline, True), ("imufusion (Python loop) AHRS", imufusion_ahrs, True)]
+    entries = [
+        (f"geofuse {m.upper()} {'AHRS' if mag else 'IMU'}", ours(m), mag)
+        for m in ("gd", "cf", "offline")
+        for mag in (True, False)
+    ]
+    entries += [
+        ("vqf (batch C++) AHRS", vqf_online, True),
+        ("vqf offline AHRS", vqf_offline, True),
+        ("imufusion (Python loop) AHRS", imufusion_ahrs, True),
+    ]
     data = {n: _synthetic(n) for n in sizes}
     ours("gd")(*data[sizes[0]][:3], data[sizes[0]][3], 100.0)  # compile / load the cache first
     for label, fn, use_mag in entries:
@@ -145,11 +181,21 @@ def timing() -> str:
         "n = 6624; t = np.arange(n) / 100.0; g = np.zeros((n, 3)); a = np.tile([0, 0, 9.81], (n, 1)); "
         "m = np.tile([20.0, 0, -40], (n, 1)); estimate(t, g, a, m); print(time.perf_counter() - t0)"
     )
+
     def fresh(cache_dir: str | None) -> float:
         env = dict(os.environ)
         if cache_dir is not None:
             env["NUMBA_CACHE_DIR"] = cache_dir
-        return float(subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT, env=env).stdout)
+        return float(
+            subprocess.run(
+                [sys.executable, "-c", code],
+                capture_output=True,
+                text=True,
+                check=True,
+                cwd=ROOT,
+                env=env,
+            ).stdout
+        )
 
     warm = [fresh(None) for _ in range(3)]
     cold = []

@@ -24,8 +24,16 @@ CITY_ORIGIN = (47.0, 8.0, 400.0)
 def _cameras(w: int, h: int, eye, target, p_eye, p_target, photo_shape):
     from app.camera import Camera, Intrinsics, look_at_quat
 
-    view = Camera.create(Intrinsics.from_fov(w, h, 60.0), eye, look_at_quat(eye, target), 0.5, 5000.0)
-    projector = Camera.create(Intrinsics.from_fov(photo_shape[1], photo_shape[0], 66.0), p_eye, look_at_quat(p_eye, p_target), 0.5, 2000.0)
+    view = Camera.create(
+        Intrinsics.from_fov(w, h, 60.0), eye, look_at_quat(eye, target), 0.5, 5000.0
+    )
+    projector = Camera.create(
+        Intrinsics.from_fov(photo_shape[1], photo_shape[0], 66.0),
+        p_eye,
+        look_at_quat(p_eye, p_target),
+        0.5,
+        2000.0,
+    )
     return view, projector
 
 
@@ -39,8 +47,18 @@ def _steady(ctx, renderer, view, projector, target, frames: int):
 
     def draw(settings) -> None:
         k[0] += 1
-        turn = rotations.heading_turn(1e-3 * ((k[0] // 2) % 2))  # on and off alternate: every on-frame turns the projector
-        renderer.set_projector(type(projector).create(projector.intrinsics, projector.position, rotations.multiply(turn, np.asarray(projector.orientation)), projector.near, projector.far))
+        turn = rotations.heading_turn(
+            1e-3 * ((k[0] // 2) % 2)
+        )  # on and off alternate: every on-frame turns the projector
+        renderer.set_projector(
+            type(projector).create(
+                projector.intrinsics,
+                projector.position,
+                rotations.multiply(turn, np.asarray(projector.orientation)),
+                projector.near,
+                projector.far,
+            )
+        )
         renderer.draw(view, target.fbo, settings)
         ctx.finish()
 
@@ -48,7 +66,9 @@ def _steady(ctx, renderer, view, projector, target, frames: int):
     redraws = renderer.depth.renders
     t_on, t_off = interleaved(draw, on, off, frames, warmup=0)
     if renderer.depth.renders - redraws != frames:
-        raise RuntimeError(f"the depth map was redrawn {renderer.depth.renders - redraws} times in {frames} projection-on frames")
+        raise RuntimeError(
+            f"the depth map was redrawn {renderer.depth.renders - redraws} times in {frames} projection-on frames"
+        )
     return t_on, t_off
 
 
@@ -63,14 +83,19 @@ def _first_full_frame(ctx, renderer, view, target, start: float, limit_s: float 
         renderer.draw(view, target.fbo, ProjectionSettings())
         ctx.finish()
         times.append(time.perf_counter() - t0)
-        if all(layer.complete(view, None, "view") and not layer.stream.pending for layer in renderer.scene.tilesets):
+        if all(
+            layer.complete(view, None, "view") and not layer.stream.pending
+            for layer in renderer.scene.tilesets
+        ):
             break
     renderer.draw(view, target.fbo, ProjectionSettings())
     ctx.finish()
     return time.perf_counter() - start, times
 
 
-def city(ctx, photo, target, w: int, h: int, frames: int, sample_off_ms: float, leaf_detail: int = 24) -> None:
+def city(
+    ctx, photo, target, w: int, h: int, frames: int, sample_off_ms: float, leaf_detail: int = 24
+) -> None:
     from app.geo import LocalFrame
     from app.render.renderer import FusionRenderer
     from app.scene.mesh import MeshData
@@ -79,10 +104,25 @@ def city(ctx, photo, target, w: int, h: int, frames: int, sample_off_ms: float, 
 
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
-        stats = write_city(Path(tmp) / "city", CITY_ORIGIN, size_m=800.0, levels=4, blocks_per_leaf=16, leaf_detail=leaf_detail)
+        stats = write_city(
+            Path(tmp) / "city",
+            CITY_ORIGIN,
+            size_m=800.0,
+            levels=4,
+            blocks_per_leaf=16,
+            leaf_detail=leaf_detail,
+        )
         written = time.perf_counter() - t0
         frame = LocalFrame(*CITY_ORIGIN)
-        view, projector = _cameras(w, h, [-360.0, -380.0, 45.0], [0.0, 0.0, 0.0], [-300.0, -320.0, 30.0], [-150.0, -100.0, 0.0], photo.shape)
+        view, projector = _cameras(
+            w,
+            h,
+            [-360.0, -380.0, 45.0],
+            [0.0, 0.0, 0.0],
+            [-300.0, -320.0, 30.0],
+            [-150.0, -100.0, 0.0],
+            photo.shape,
+        )
         start = time.perf_counter()
         renderer = FusionRenderer(ctx, MeshData(tilesets=[Tileset(str(stats.path), frame)]))
         renderer.set_video_frame(photo)
@@ -90,8 +130,12 @@ def city(ctx, photo, target, w: int, h: int, frames: int, sample_off_ms: float, 
         first_s, loading = _first_full_frame(ctx, renderer, view, target, start)
         t_on, t_off = _steady(ctx, renderer, view, projector, target, frames)
         layer = renderer.scene.tilesets[0]
-        print(f"\n## A city as 3D Tiles: {stats.triangles:,} triangles in {stats.tiles} tiles, {stats.levels} levels ({stats.leaf_triangles:,} at full detail)\n")
-        print(f"Written in {written:.1f} s (b3dm, RTC_CENTER, region volumes, REPLACE). View at 45 m above a corner of the 800 m city, looking across it; the projector 30 m up.\n")
+        print(
+            f"\n## A city as 3D Tiles: {stats.triangles:,} triangles in {stats.tiles} tiles, {stats.levels} levels ({stats.leaf_triangles:,} at full detail)\n"
+        )
+        print(
+            f"Written in {written:.1f} s (b3dm, RTC_CENTER, region volumes, REPLACE). View at 45 m above a corner of the 800 m city, looking across it; the projector 30 m up.\n"
+        )
         print(table(["", "value"], [
             ["open -> first full-detail frame", f"{first_s:.2f} s ({len(loading)} frames drawn meanwhile, median {median_ms(loading):.1f} ms, max {1000 * max(loading):.0f} ms)"],
             ["triangles drawn from the view", f"{renderer.scene_pass.triangles:,}"],
@@ -100,11 +144,15 @@ def city(ctx, photo, target, w: int, h: int, frames: int, sample_off_ms: float, 
         ]))  # fmt: skip
         print()
         print(on_off_table(t_on, t_off, "on, depth redrawn every frame"))
-        print(f"\nratio on/off: **{median_ms(t_on) / median_ms(t_off):.3f}** (goal <= 1.35); city off / sample off: **{median_ms(t_off) / sample_off_ms:.2f}** (goal <= 1.5)")
+        print(
+            f"\nratio on/off: **{median_ms(t_on) / median_ms(t_off):.3f}** (goal <= 1.35); city off / sample off: **{median_ms(t_off) / sample_off_ms:.2f}** (goal <= 1.5)"
+        )
         renderer.release()
 
 
-def dem(ctx, photo, target, w: int, h: int, frames: int, sample_off_ms: float, samples: int = 4001) -> None:
+def dem(
+    ctx, photo, target, w: int, h: int, frames: int, sample_off_ms: float, samples: int = 4001
+) -> None:
     import pyproj
 
     from app.geo import LocalFrame
@@ -113,11 +161,21 @@ def dem(ctx, photo, target, w: int, h: int, frames: int, sample_off_ms: float, s
     from app.simulate.terrain import hills, write_geotiff
 
     lat0, lon0, _ = CITY_ORIGIN
-    e0, n0 = pyproj.Transformer.from_crs("EPSG:4326", "EPSG:32632", always_xy=True).transform(lon0, lat0)
+    e0, n0 = pyproj.Transformer.from_crs("EPSG:4326", "EPSG:32632", always_xy=True).transform(
+        lon0, lat0
+    )
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
         half = samples / 2.0
-        path = write_geotiff(Path(tmp) / "dem.tif", hills(samples, samples, 1.0), "EPSG:32632+5773", e0 - half, n0 + half, 1.0, 1.0)
+        path = write_geotiff(
+            Path(tmp) / "dem.tif",
+            hills(samples, samples, 1.0),
+            "EPSG:32632+5773",
+            e0 - half,
+            n0 + half,
+            1.0,
+            1.0,
+        )
         written = time.perf_counter() - t0
         frame = LocalFrame(*CITY_ORIGIN)
         start = time.perf_counter()
@@ -127,11 +185,21 @@ def dem(ctx, photo, target, w: int, h: int, frames: int, sample_off_ms: float, s
         ctx.finish()
         uploaded = time.perf_counter() - start
         zc = float(terrain.mesh.primitives[0].positions[:, 2].mean())
-        view, projector = _cameras(w, h, [-1500.0, -1600.0, zc + 250.0], [0.0, 0.0, zc], [-600.0, -600.0, zc + 120.0], [-200.0, -200.0, zc], photo.shape)
+        view, projector = _cameras(
+            w,
+            h,
+            [-1500.0, -1600.0, zc + 250.0],
+            [0.0, 0.0, zc],
+            [-600.0, -600.0, zc + 120.0],
+            [-200.0, -200.0, zc],
+            photo.shape,
+        )
         renderer.set_video_frame(photo)
         renderer.set_projector(projector)
         t_on, t_off = _steady(ctx, renderer, view, projector, target, frames)
-        print(f"\n## Terrain from a DEM of {samples} x {samples} samples (1 m, UTM + EGM96, {path.stat().st_size / 2**20:.0f} MiB GeoTIFF written in {written:.1f} s)\n")
+        print(
+            f"\n## Terrain from a DEM of {samples} x {samples} samples (1 m, UTM + EGM96, {path.stat().st_size / 2**20:.0f} MiB GeoTIFF written in {written:.1f} s)\n"
+        )
         print(table(["", "value"], [
             ["read + RTIN mesh + placement", f"{loaded:.2f} s"],
             ["open -> first frame (GPU upload included)", f"{uploaded:.2f} s"],
@@ -139,5 +207,7 @@ def dem(ctx, photo, target, w: int, h: int, frames: int, sample_off_ms: float, s
         ]))  # fmt: skip
         print()
         print(on_off_table(t_on, t_off, "on, depth redrawn every frame"))
-        print(f"\nratio on/off: **{median_ms(t_on) / median_ms(t_off):.3f}**; terrain off / sample off: **{median_ms(t_off) / sample_off_ms:.2f}**")
+        print(
+            f"\nratio on/off: **{median_ms(t_on) / median_ms(t_off):.3f}**; terrain off / sample off: **{median_ms(t_off) / sample_off_ms:.2f}**"
+        )
         renderer.release()

@@ -54,7 +54,12 @@ def main(argv: list[str] | None = None) -> int:
     g = exact.grid
     spots = {
         "centre": [exact.centre],
-        "edge midpoints": [(0, (g.width - 1) // 2), ((g.height - 1) // 2, g.width - 1), (g.height - 1, (g.width - 1) // 2), ((g.height - 1) // 2, 0)],
+        "edge midpoints": [
+            (0, (g.width - 1) // 2),
+            ((g.height - 1) // 2, g.width - 1),
+            (g.height - 1, (g.width - 1) // 2),
+            ((g.height - 1) // 2, 0),
+        ],
         "corners": exact.corners,
     }
     lens_err: dict[str, list[float]] = {k: [] for k in spots}
@@ -70,24 +75,49 @@ def main(argv: list[str] | None = None) -> int:
             for name, cells in spots.items():
                 for r, c in cells:
                     if hit[r, c] and hit_n[r, c]:
-                        lens_err[name].append(float(np.linalg.norm(p_exact[r, c, :2] - p_naive[r, c, :2])))
+                        lens_err[name].append(
+                            float(np.linalg.norm(p_exact[r, c, :2] - p_naive[r, c, :2]))
+                        )
             t = float(track.clock.session_time([track.clock.media_s[k]])[0])
             _, _, q = track.poses.at([t - half, t + half])
-            angle = float(np.linalg.norm(rotations.to_scipy(rotations.multiply(rotations.conjugate(q[0]), q[1])).as_rotvec())) / 2.0
+            angle = (
+                float(
+                    np.linalg.norm(
+                        rotations.to_scipy(
+                            rotations.multiply(rotations.conjugate(q[0]), q[1])
+                        ).as_rotvec()
+                    )
+                )
+                / 2.0
+            )
             for r, c in (spots["edge midpoints"][0], spots["edge midpoints"][2]):
                 if hit[r, c]:
-                    shutter.append(angle * float(np.linalg.norm(p_exact[r, c] - np.asarray(cam.position))))
+                    shutter.append(
+                        angle * float(np.linalg.norm(p_exact[r, c] - np.asarray(cam.position)))
+                    )
     finally:
         exact.release()
         naive.release()
 
     def row(name: str, values: list[float]) -> list[str]:
         v = np.asarray(values)
-        return [name, str(len(v)), f"{np.median(v):.2f}", f"{np.percentile(v, 95):.2f}", f"{v.max():.2f}"]
+        return [
+            name,
+            str(len(v)),
+            f"{np.median(v):.2f}",
+            f"{np.percentile(v, 95):.2f}",
+            f"{v.max():.2f}",
+        ]
 
     print(f"# lens and rolling shutter, ignored\n\nsample walk, true track, every {args.every}th frame; lens: {choice[1]} ({lens.kind}, "
           f"{lens.hfov_deg:.0f} x {lens.vfov_deg:.0f} deg); readout {args.readout_ms:g} ms\n")  # fmt: skip
-    print(table(["where in the image", "samples", "median m", "p95 m", "max m"], [row(f"lens ignored: {name}", v) for name, v in lens_err.items()] + [row("readout ignored: top and bottom rows", shutter)]))
+    print(
+        table(
+            ["where in the image", "samples", "median m", "p95 m", "max m"],
+            [row(f"lens ignored: {name}", v) for name, v in lens_err.items()]
+            + [row("readout ignored: top and bottom rows", shutter)],
+        )
+    )
     return 0
 
 

@@ -48,9 +48,20 @@ def sample_session_with(video: Path, out: Path) -> Path:
     from app.demo import SAMPLE_DIR
 
     text = (SAMPLE_DIR / "session.toml").read_text()
-    for name in ("scene.glb", "acc.csv", "gyr.csv", "mag.csv", "phone_orientation.csv", "gnss.csv", "truth_orientation.csv", "truth_position.csv"):
+    for name in (
+        "scene.glb",
+        "acc.csv",
+        "gyr.csv",
+        "mag.csv",
+        "phone_orientation.csv",
+        "gnss.csv",
+        "truth_orientation.csv",
+        "truth_position.csv",
+    ):
         text = text.replace(f'"{name}"', f'"{SAMPLE_DIR / name}"')
-    text = text.replace('path = "clip.mp4"', f'path = "{video}"').replace('frame_times = "truth_frames.csv"\n', "")
+    text = text.replace('path = "clip.mp4"', f'path = "{video}"').replace(
+        'frame_times = "truth_frames.csv"\n', ""
+    )
     out.write_text(text)
     return out
 
@@ -63,9 +74,15 @@ class Display:
         if os.environ.get("DISPLAY"):
             return os.environ["DISPLAY"]
         if shutil.which("Xvfb") is None:
-            raise SystemExit("no DISPLAY and no Xvfb (apt-get install xvfb): the viewer needs a window")
+            raise SystemExit(
+                "no DISPLAY and no Xvfb (apt-get install xvfb): the viewer needs a window"
+            )
         number = 150 + os.getpid() % 100
-        self.proc = subprocess.Popen(["Xvfb", f":{number}", "-screen", "0", "1920x1080x24", "-nolisten", "tcp"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        self.proc = subprocess.Popen(
+            ["Xvfb", f":{number}", "-screen", "0", "1920x1080x24", "-nolisten", "tcp"],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
         socket = Path(f"/tmp/.X11-unix/X{number}")
         for _ in range(200):
             if socket.exists():
@@ -79,15 +96,29 @@ class Display:
             self.proc.wait(timeout=5)
 
 
-def viewer_playback(display: str, manifest: Path, seconds: float, size: tuple[int, int], tmp: Path) -> dict:
+def viewer_playback(
+    display: str, manifest: Path, seconds: float, size: tuple[int, int], tmp: Path
+) -> dict:
     """Run the viewer on `manifest`: wait for every source to be solved, play `seconds` of wall
     time at 1x, write its state (latency, frames shown and dropped, frame times) and quit."""
     state = tmp / f"{manifest.stem}.json"
     script = tmp / f"{manifest.stem}.txt"
     script.write_text(f"0 wait solved\n0 play\n{seconds} state {state}\n{seconds} quit\n")
     env = dict(os.environ, DISPLAY=display, XDG_CONFIG_HOME=str(tmp / "config"))
-    cmd = [sys.executable, "-m", "app", "view", str(manifest), "--script", str(script), "--size", f"{size[0]}x{size[1]}"]
-    result = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=seconds + 600)
+    cmd = [
+        sys.executable,
+        "-m",
+        "app",
+        "view",
+        str(manifest),
+        "--script",
+        str(script),
+        "--size",
+        f"{size[0]}x{size[1]}",
+    ]
+    result = subprocess.run(
+        cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=seconds + 600
+    )
     if result.returncode != 0 or not state.is_file():
         raise SystemExit(f"the viewer failed on {manifest}:\n{result.stderr[-3000:]}")
     return json.loads(state.read_text())
@@ -147,20 +178,62 @@ def main(argv: list[str] | None = None) -> int:
     from app.demo import SAMPLE_DIR
     from app.io.video import probe
 
-    print(f"# playback benchmark\n\n{machine()}; the viewer's window {size[0]}x{size[1]} (default panels and depth map); {args.seconds:g} s of 1x playback each\n")
+    print(
+        f"# playback benchmark\n\n{machine()}; the viewer's window {size[0]}x{size[1]} (default panels and depth map); {args.seconds:g} s of 1x playback each\n"
+    )
     with tempfile.TemporaryDirectory() as tmp, Display() as display:
         tmp = Path(tmp)
         clip = make_1080p_clip(tmp / "1080p30.mp4", min(args.seconds, 70.0) + 1.0)
         rows, decode_rows = [], []
-        for label, manifest in (("sample 640x360 (VFR ~30 fps)", SAMPLE_DIR / "session.toml"), ("1080p30", sample_session_with(clip, tmp / "hd.toml"))):
+        for label, manifest in (
+            ("sample 640x360 (VFR ~30 fps)", SAMPLE_DIR / "session.toml"),
+            ("1080p30", sample_session_with(clip, tmp / "hd.toml")),
+        ):
             r = viewer_playback(display, manifest, args.seconds, size, tmp)
             _, mean, p95 = r["latency_ms"]
             due = r["frames_shown"] + r["dropped"]
-            rows.append([label, r["frames_shown"], r["dropped"], f"{100 * r['dropped'] / max(due, 1):.1f} %", r["skipped_by_decoder"], f"{mean:.1f}", f"{p95:.1f}", f"{r['frame_ms']:.1f}", f"{1000 / r['frame_ms']:.1f}"])
-            info = probe(manifest.parent / "clip.mp4") if manifest.name == "session.toml" else probe(clip)
+            rows.append(
+                [
+                    label,
+                    r["frames_shown"],
+                    r["dropped"],
+                    f"{100 * r['dropped'] / max(due, 1):.1f} %",
+                    r["skipped_by_decoder"],
+                    f"{mean:.1f}",
+                    f"{p95:.1f}",
+                    f"{r['frame_ms']:.1f}",
+                    f"{1000 / r['frame_ms']:.1f}",
+                ]
+            )
+            info = (
+                probe(manifest.parent / "clip.mp4")
+                if manifest.name == "session.toml"
+                else probe(clip)
+            )
             seeks = np.asarray(seek_times(Path(info.path), info)) * 1000
-            decode_rows.append([label, f"{decode_throughput(Path(info.path), info.nominal_fps):.1f}x", f"{np.median(seeks):.0f} / {np.percentile(seeks, 95):.0f}"])
-        print(table(["clip", "frames shown", "dropped", "dropped share", "skipped by the decoder", "latency mean ms", "latency p95 ms", "frame time median ms", "loop fps"], rows))
+            decode_rows.append(
+                [
+                    label,
+                    f"{decode_throughput(Path(info.path), info.nominal_fps):.1f}x",
+                    f"{np.median(seeks):.0f} / {np.percentile(seeks, 95):.0f}",
+                ]
+            )
+        print(
+            table(
+                [
+                    "clip",
+                    "frames shown",
+                    "dropped",
+                    "dropped share",
+                    "skipped by the decoder",
+                    "latency mean ms",
+                    "latency p95 ms",
+                    "frame time median ms",
+                    "loop fps",
+                ],
+                rows,
+            )
+        )
         print()
         print(table(["clip", "decode vs real time", "seek median / p95 ms"], decode_rows))
     return 0

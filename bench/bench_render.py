@@ -38,7 +38,12 @@ def _big_scene(path: Path, triangles: int) -> None:
     z = np.sin(x / 7.0) * np.cos(y / 5.0)
     verts = np.column_stack([x.ravel(), z.ravel(), -y.ravel()])
     idx = np.arange((n + 1) * (n + 1)).reshape(n + 1, n + 1)
-    a, b, c, d = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, 1:].ravel(), idx[1:, :-1].ravel()
+    a, b, c, d = (
+        idx[:-1, :-1].ravel(),
+        idx[:-1, 1:].ravel(),
+        idx[1:, 1:].ravel(),
+        idx[1:, :-1].ravel(),
+    )
     faces = np.concatenate([np.column_stack([a, b, c]), np.column_stack([a, c, d])])
     grid = trimesh.Trimesh(vertices=verts, faces=faces, process=False)
     grid.export(path)
@@ -49,7 +54,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--frames", type=int, default=120)
     parser.add_argument("--size", default="1280x720")
     parser.add_argument("--big-triangles", type=int, default=1_000_000)
-    parser.add_argument("--city-detail", type=int, default=24, help="wall quads per side of a full-detail block (24: 5.0 M triangles in all)")
+    parser.add_argument(
+        "--city-detail",
+        type=int,
+        default=24,
+        help="wall quads per side of a full-detail block (24: 5.0 M triangles in all)",
+    )
     parser.add_argument("--dem-samples", type=int, default=4001)
     parser.add_argument("--no-gis", action="store_true", help="skip the city tileset and the DEM")
     args = parser.parse_args(argv)
@@ -75,10 +85,14 @@ def main(argv: list[str] | None = None) -> int:
     renderer.set_video_frame(photo)
     projector = photo_camera(SAMPLE_PHOTO_POSE, frame)
     renderer.set_projector(projector)
-    view = window_camera(projector, Intrinsics.from_fov(w, h, 60.0), (35.0, -160.0, 40.0), (0.0, -20.0, 8.0), 2000.0)
+    view = window_camera(
+        projector, Intrinsics.from_fov(w, h, 60.0), (35.0, -160.0, 40.0), (0.0, -20.0, 8.0), 2000.0
+    )
     target = OffscreenTarget(ctx, w, h)
 
-    print(f"# render benchmark\n\n{machine()}; GL: {describe(ctx)}; view {w}x{h}; sample scene {mesh.triangle_count} triangles\n")
+    print(
+        f"# render benchmark\n\n{machine()}; GL: {describe(ctx)}; view {w}x{h}; sample scene {mesh.triangle_count} triangles\n"
+    )
 
     on, off = ProjectionSettings(), ProjectionSettings(enabled=False)
 
@@ -92,7 +106,9 @@ def main(argv: list[str] | None = None) -> int:
     print(on_off_table(t_on, t_off))
     print(f"\nratio on/off (medians, same run): **{ratio:.3f}** (goal <= 1.35)\n")
 
-    print("## Depth pass against depth-map size (redrawn every frame: the pose changes each frame)\n")
+    print(
+        "## Depth pass against depth-map size (redrawn every frame: the pose changes each frame)\n"
+    )
     rows = []
     for long_side in (1024, 2048, 4096):
         settings = ProjectionSettings(depth_long_side=long_side)
@@ -101,7 +117,15 @@ def main(argv: list[str] | None = None) -> int:
 
         def depth_only() -> None:
             k[0] += 1
-            cam = photo_camera(SAMPLE_PHOTO_POSE.__class__(**{**SAMPLE_PHOTO_POSE.__dict__, "heading_deg": SAMPLE_PHOTO_POSE.heading_deg + 1e-3 * (k[0] % 2)}), frame)
+            cam = photo_camera(
+                SAMPLE_PHOTO_POSE.__class__(
+                    **{
+                        **SAMPLE_PHOTO_POSE.__dict__,
+                        "heading_deg": SAMPLE_PHOTO_POSE.heading_deg + 1e-3 * (k[0] % 2),
+                    }
+                ),
+                frame,
+            )
             renderer.depth.update(cam, size)
             ctx.finish()
 
@@ -112,8 +136,19 @@ def main(argv: list[str] | None = None) -> int:
 
         d = time_calls(depth_only, max(20, args.frames // 3))
         f = time_calls(full_frame, max(20, args.frames // 3))
-        rows.append([f"{size[0]}x{size[1]}", f"{median_ms(d):.2f}", f"{median_ms(f):.2f}", f"{1000 / median_ms(f):.1f}"])
-    print(table(["depth map", "depth pass median ms", "frame with depth redraw median ms", "fps"], rows))
+        rows.append(
+            [
+                f"{size[0]}x{size[1]}",
+                f"{median_ms(d):.2f}",
+                f"{median_ms(f):.2f}",
+                f"{1000 / median_ms(f):.1f}",
+            ]
+        )
+    print(
+        table(
+            ["depth map", "depth pass median ms", "frame with depth redraw median ms", "fps"], rows
+        )
+    )
 
     print("\n## Scene load (trimesh -> ENU arrays) of a large mesh\n")
     with tempfile.TemporaryDirectory() as tmp:
@@ -125,7 +160,12 @@ def main(argv: list[str] | None = None) -> int:
         big_renderer = FusionRenderer(ctx, big)
         ctx.finish()
         upload = time.perf_counter() - t0
-        print(table(["triangles", "load median s", "GPU upload s"], [[big.triangle_count, f"{median_ms(loads) / 1000:.2f}", f"{upload:.2f}"]]))
+        print(
+            table(
+                ["triangles", "load median s", "GPU upload s"],
+                [[big.triangle_count, f"{median_ms(loads) / 1000:.2f}", f"{upload:.2f}"]],
+            )
+        )
         dense_scene(ctx, big_renderer, big, photo, target, w, h, args.frames)
         big_renderer.release()
     if not args.no_gis:
@@ -151,9 +191,15 @@ def dense_scene(ctx, renderer, mesh, photo, target, w: int, h: int, frames: int)
     centre = (lo + hi) / 2
     span = float(max(hi - lo))
     eye = centre + np.array([0.0, -0.9 * span, 0.6 * span])
-    view = Camera.create(Intrinsics.from_fov(w, h, 60.0), eye, look_at_quat(eye, centre), 0.5, 4.0 * span)
-    seen, _ = view.project(np.concatenate([p.positions for p in mesh.primitives]).astype(np.float64))
-    inside = float(np.mean((seen[:, 0] >= 0) & (seen[:, 0] <= w) & (seen[:, 1] >= 0) & (seen[:, 1] <= h)))
+    view = Camera.create(
+        Intrinsics.from_fov(w, h, 60.0), eye, look_at_quat(eye, centre), 0.5, 4.0 * span
+    )
+    seen, _ = view.project(
+        np.concatenate([p.positions for p in mesh.primitives]).astype(np.float64)
+    )
+    inside = float(
+        np.mean((seen[:, 0] >= 0) & (seen[:, 0] <= w) & (seen[:, 1] >= 0) & (seen[:, 1] <= h))
+    )
     p_eye = centre + np.array([0.0, -0.3 * span, 0.15 * span])
     q0 = look_at_quat(p_eye, centre)
     renderer.set_video_frame(photo)
@@ -161,8 +207,18 @@ def dense_scene(ctx, renderer, mesh, photo, target, w: int, h: int, frames: int)
 
     def draw(settings: ProjectionSettings) -> None:
         k[0] += 1
-        turn = rotations.heading_turn(1e-3 * ((k[0] // 2) % 2))  # on and off alternate: every on-frame turns the projector
-        renderer.set_projector(Camera.create(Intrinsics.from_fov(photo.shape[1], photo.shape[0], 66.0), p_eye, rotations.multiply(turn, q0), 0.5, 4.0 * span))
+        turn = rotations.heading_turn(
+            1e-3 * ((k[0] // 2) % 2)
+        )  # on and off alternate: every on-frame turns the projector
+        renderer.set_projector(
+            Camera.create(
+                Intrinsics.from_fov(photo.shape[1], photo.shape[0], 66.0),
+                p_eye,
+                rotations.multiply(turn, q0),
+                0.5,
+                4.0 * span,
+            )
+        )
         renderer.draw(view, target.fbo, settings)
         ctx.finish()
 
@@ -171,8 +227,12 @@ def dense_scene(ctx, renderer, mesh, photo, target, w: int, h: int, frames: int)
     redraws = renderer.depth.renders
     t_on, t_off = interleaved(draw, on, off, max(20, frames // 3), warmup=0)
     if renderer.depth.renders - redraws != len(t_on):  # the measurement means nothing otherwise
-        raise RuntimeError(f"the depth map was redrawn {renderer.depth.renders - redraws} times in {len(t_on)} projection-on frames")
-    print(f"\n## A dense scene drawn whole: {mesh.triangle_count} triangles, {100 * inside:.0f} % of its vertices inside the view\n")
+        raise RuntimeError(
+            f"the depth map was redrawn {renderer.depth.renders - redraws} times in {len(t_on)} projection-on frames"
+        )
+    print(
+        f"\n## A dense scene drawn whole: {mesh.triangle_count} triangles, {100 * inside:.0f} % of its vertices inside the view\n"
+    )
     print("Projection on: depth map (2048 texels) redrawn every frame; off: no depth pass.\n")
     print(on_off_table(t_on, t_off, "on, depth redrawn"))
     print(f"\nratio on/off (medians, same run): **{median_ms(t_on) / median_ms(t_off):.3f}**")

@@ -47,7 +47,17 @@ def sample_rows() -> list[list[str]]:
     for shift in SAMPLE_SHIFTS_S:
         r = estimate_offset(rates, gyro, float(s.frame_times[0] - s.video.pts_s[0]) - shift)
         want = truth + shift
-        rows.append(["sample walk, gyroscope", _ms(shift), _ms(r.offset_s), _ms(want), f"{1000 * abs(r.offset_s - want):.1f} ms", f"{r.confidence:.3f}", str(len(r.windows))])
+        rows.append(
+            [
+                "sample walk, gyroscope",
+                _ms(shift),
+                _ms(r.offset_s),
+                _ms(want),
+                f"{1000 * abs(r.offset_s - want):.1f} ms",
+                f"{r.confidence:.3f}",
+                str(len(r.windows)),
+            ]
+        )
     print(f"sample: optical flow over {len(s.video.pts_s)} frames took {flow_s:.1f} s")
     return rows
 
@@ -70,7 +80,17 @@ def drone_rows(folder: Path) -> list[list[str]]:
         if rates is None:
             rates = video_rates(s.video, bearings_of(s), s.rotation_cw)
         r = estimate_offset(rates, gyro_rates(s), float(s.frame_times[0] - s.video.pts_s[0]))
-        rows.append(["drone, GNSS course", _ms(lag), _ms(r.offset_s), _ms(lag), f"{1000 * abs(r.offset_s - lag):.1f} ms", f"{r.confidence:.3f}", str(len(r.windows))])
+        rows.append(
+            [
+                "drone, GNSS course",
+                _ms(lag),
+                _ms(r.offset_s),
+                _ms(lag),
+                f"{1000 * abs(r.offset_s - lag):.1f} ms",
+                f"{r.confidence:.3f}",
+                str(len(r.windows)),
+            ]
+        )
     return rows
 
 
@@ -87,7 +107,20 @@ def main(argv: list[str] | None = None) -> int:
         with tempfile.TemporaryDirectory() as tmp:
             rows += drone_rows(Path(tmp))
     print("# time offsets found by geofuse sync\n")
-    print(table(["clip, timed by", "moved / lagged by", "found", "expected", "error", "confidence", "windows"], rows))
+    print(
+        table(
+            [
+                "clip, timed by",
+                "moved / lagged by",
+                "found",
+                "expected",
+                "error",
+                "confidence",
+                "windows",
+            ],
+            rows,
+        )
+    )
     errors = [float(r[4].split()[0]) for r in rows]
     print(f"\nlargest error {max(errors):.1f} ms")
     return 0

@@ -40,7 +40,9 @@ def table(header: list[str], rows: list[list[object]]) -> str:
     return "\n".join(lines)
 
 
-def interleaved(draw: Callable[[object], None], on: object, off: object, frames: int, warmup: int = 3) -> tuple[list[float], list[float]]:
+def interleaved(
+    draw: Callable[[object], None], on: object, off: object, frames: int, warmup: int = 3
+) -> tuple[list[float], list[float]]:
     """(on, off) seconds per call of draw(on) and draw(off), alternated frame by frame so that
     machine noise hits both alike."""
     for _ in range(warmup):

@@ -54,7 +54,11 @@ def display():
             pytest.fail("Xvfb is not installed (CI installs xvfb)")
         pytest.skip("Xvfb is not installed (apt-get install xvfb)")
     number = 90 + os.getpid() % 100
-    proc = subprocess.Popen(["Xvfb", f":{number}", "-screen", "0", "1280x800x24", "-nolisten", "tcp"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    proc = subprocess.Popen(
+        ["Xvfb", f":{number}", "-screen", "0", "1280x800x24", "-nolisten", "tcp"],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     socket = Path(f"/tmp/.X11-unix/X{number}")
     for _ in range(100):
         if socket.exists():
@@ -65,7 +69,6 @@ def display():
     proc.wait(timeout=5)
 
 
-
 def run_viewer(display: str, *args: str, timeout: float = 300, config_home: Path | None = None):
     """`geofuse view ARGS` as a subprocess on the given X display, remembering its panel layout
     in `config_home` (default: a fresh folder, so that no earlier run's layout is used)."""
@@ -73,4 +76,11 @@ def run_viewer(display: str, *args: str, timeout: float = 300, config_home: Path
 
     home = config_home or Path(tempfile.mkdtemp(prefix="geofuse-config-"))
     env = dict(os.environ, DISPLAY=display, XDG_CONFIG_HOME=str(home))
-    return subprocess.run([sys.executable, "-m", "app", "view", *args], cwd=ROOT, env=env, capture_output=True, text=True, timeout=timeout)
+    return subprocess.run(
+        [sys.executable, "-m", "app", "view", *args],
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )

@@ -46,7 +46,9 @@ def test_constant_rotation_rates_are_integrated(method):
     q0 = rotations.camera_quat_from_hpr(10.0, 5.0, 0.0)
 
     def q_of_t(tt):
-        spin = rotations.from_scipy(rotations.to_scipy(q0).__class__.from_rotvec(np.outer(tt * 0.7, axis)))
+        spin = rotations.from_scipy(
+            rotations.to_scipy(q0).__class__.from_rotvec(np.outer(tt * 0.7, axis))
+        )
         return rotations.multiply(q0, spin)
 
     q_true, gyr, acc, mag = signals(q_of_t, t)
@@ -57,7 +59,9 @@ def test_constant_rotation_rates_are_integrated(method):
 def test_heading_sweep_through_180_degrees():
     """A level device turning 2 full turns about Up: heading passes +-180 twice without a jump."""
     t = np.arange(0, 40, 1 / RATE)
-    q_true, gyr, acc, mag = signals(lambda tt: rotations.camera_quat_from_hpr(18.0 * tt, 0.0, 0.0), t)
+    q_true, gyr, acc, mag = signals(
+        lambda tt: rotations.camera_quat_from_hpr(18.0 * tt, 0.0, 0.0), t
+    )
     for method in ("gd", "cf", "offline"):
         q = estimate(t, gyr, acc, mag, method=method)
         assert err_deg(q, q_true)[300:].max() < 0.5, method  # after the start-up gain ramp
@@ -68,7 +72,12 @@ def test_heading_sweep_through_180_degrees():
 
 def test_imu_form_keeps_tilt_and_drifts_heading_only():
     t = np.arange(0, 30, 1 / RATE)
-    q_true, gyr, acc, _ = signals(lambda tt: rotations.camera_quat_from_hpr(30 * np.sin(0.3 * tt), 10 * np.sin(0.5 * tt), 5.0), t)
+    q_true, gyr, acc, _ = signals(
+        lambda tt: rotations.camera_quat_from_hpr(
+            30 * np.sin(0.3 * tt), 10 * np.sin(0.5 * tt), 5.0
+        ),
+        t,
+    )
     q = estimate(t, gyr, acc, None, method="gd")
     r = broad_rms(q, q_true, remove_heading=True)
     assert r.inclination < 0.5 and r.total < 0.6
@@ -79,7 +88,9 @@ def test_gradient_step_reduces_the_error():
     for _ in range(20):
         q = rotations.from_scipy(rotations.to_scipy([1, 0, 0, 0]).random(random_state=rng))
         d = np.array([0.0, 0.6, -0.8])
-        s = rotations.rotate(rotations.conjugate(rotations.camera_quat_from_hpr(*rng.uniform(-60, 60, 3))), d)
+        s = rotations.rotate(
+            rotations.conjugate(rotations.camera_quat_from_hpr(*rng.uniform(-60, 60, 3))), d
+        )
         grad = np.array(kernels.field_gradient(*q, *d, *s))
 
         def cost(qq):
@@ -91,7 +102,9 @@ def test_gradient_step_reduces_the_error():
 
 def test_declination_turns_heading_east():
     t = np.arange(0, 5, 1 / RATE)
-    q_true, gyr, acc, mag = signals(lambda tt: np.tile(rotations.camera_quat_from_hpr(0, 0, 0), (len(tt), 1)), t)
+    q_true, gyr, acc, mag = signals(
+        lambda tt: np.tile(rotations.camera_quat_from_hpr(0, 0, 0), (len(tt), 1)), t
+    )
     q = estimate(t, gyr, acc, mag, declination_deg=7.5)
     assert rotations.hpr_from_camera_quat(q[-1])[0] == pytest.approx(7.5, abs=0.05)
 
@@ -111,7 +124,11 @@ def test_bad_arguments():
 
 # --- BROAD: real recordings with optical truth (../shared/data/broad) ------------------------
 
-BOUNDS_9D = {"gd": (2.5, 6.0), "cf": (4.5, 6.0), "offline": (2.0, 4.0)}  # undisturbed, disturbed mean deg
+BOUNDS_9D = {
+    "gd": (2.5, 6.0),
+    "cf": (4.5, 6.0),
+    "offline": (2.0, 4.0),
+}  # undisturbed, disturbed mean deg
 BOUNDS_6D = {"gd": (2.2, 4.0), "cf": (3.3, 4.5), "offline": (2.0, 3.8)}
 
 
@@ -124,7 +141,15 @@ def broad_scores(shared_data):
     scores = {}
     for method in ("gd", "cf", "offline"):
         for nine in (True, False):
-            res = [broad_rms(estimate(tr.t, tr.gyr, tr.acc, tr.mag if nine else None, method=method), tr.q_ref, tr.movement, remove_heading=not nine).total for tr in trials]
+            res = [
+                broad_rms(
+                    estimate(tr.t, tr.gyr, tr.acc, tr.mag if nine else None, method=method),
+                    tr.q_ref,
+                    tr.movement,
+                    remove_heading=not nine,
+                ).total
+                for tr in trials
+            ]
             und = [r for r, tr in zip(res, trials) if "undisturbed" in tr.name]
             dis = [r for r, tr in zip(res, trials) if "undisturbed" not in tr.name]
             scores[method, nine] = (float(np.mean(und)), float(np.mean(dis)))

@@ -43,7 +43,9 @@ def test_pixel_of_a_known_point_matches_the_matrices():
     # Camera 10 m up looking north; a point 20 m north, 5 m east, 2 m up lands at
     # u = cx + fx * 5/20, v = cy - fy * (-8)/20 (8 m below the optical axis).
     intr = Intrinsics(640, 480, 400.0, 400.0, 320.0, 240.0)
-    cam = Camera.create(intr, [0, 0, 10], rotations.camera_quat_from_hpr(0, 0, 0), near=1.0, far=100.0)
+    cam = Camera.create(
+        intr, [0, 0, 10], rotations.camera_quat_from_hpr(0, 0, 0), near=1.0, far=100.0
+    )
     uv, depth = cam.project([[5.0, 20.0, 2.0]])
     assert uv[0] == pytest.approx([320 + 100, 240 + 160])
     assert depth[0] == pytest.approx(20.0)
@@ -58,7 +60,13 @@ def test_pixel_of_a_known_point_matches_the_matrices():
 def test_look_at_and_frustum():
     q = look_at_quat([0, 0, 0], [10, 0, 0])
     np.testing.assert_allclose(rotations.rotate(q, [0, 0, -1]), [1, 0, 0], atol=1e-12)
-    cam = Camera.create(Intrinsics.from_fov(200, 100, 90), [0, 0, 0], rotations.camera_quat_from_hpr(0, 0, 0), near=1, far=10)
+    cam = Camera.create(
+        Intrinsics.from_fov(200, 100, 90),
+        [0, 0, 0],
+        rotations.camera_quat_from_hpr(0, 0, 0),
+        near=1,
+        far=10,
+    )
     corners = cam.frustum_corners()
     np.testing.assert_allclose(corners[0], [-1, 1, 0.5], atol=1e-12)  # near top-left
     np.testing.assert_allclose(corners[6], [10, 10, -5], atol=1e-12)  # far bottom-right

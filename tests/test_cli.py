@@ -68,7 +68,10 @@ def test_render_writes_a_png(tmp_path, gl_ctx):
         ({"--fov": "200"}, "argument --fov: expected a finite number in (0, 180]"),
         ({"--far": "0"}, "argument --far"),
         ({"--origin": "95,0,0"}, "argument --origin: latitude 95 is outside [-90, 90]"),
-        ({"--pose": "nan,113.53,110,0,0,0"}, "argument --pose: expected 6 comma-separated finite numbers"),
+        (
+            {"--pose": "nan,113.53,110,0,0,0"},
+            "argument --pose: expected 6 comma-separated finite numbers",
+        ),
         ({"--size": "20000x100"}, "argument --size: each side must be 1 to 8192 pixels"),
     ],
 )
@@ -93,7 +96,9 @@ def test_malformed_pose_is_an_argument_error(tmp_path, capsys):
 def test_negative_numbers_in_comma_separated_values(tmp_path, capsys):
     """`--view-from -150,-150,120` is a value, not an option (argparse takes it for one)."""
     args = base_args(tmp_path / "o.png", **{"--size": "160x90"})
-    assert main([*args, "--view-from", "-150,-150,120", "--look-at", "-1.5,0,0"]) == 0, capsys.readouterr().err
+    assert main([*args, "--view-from", "-150,-150,120", "--look-at", "-1.5,0,0"]) == 0, (
+        capsys.readouterr().err
+    )
 
 
 def test_outputs_are_checked_before_any_work(tmp_path, capsys):
@@ -102,7 +107,12 @@ def test_outputs_are_checked_before_any_work(tmp_path, capsys):
     (tmp_path / "file").write_text("x")
     image = tmp_path / "photo.png"
     image.write_bytes(SAMPLE_PHOTO.read_bytes())
-    cases = [(tmp_path, "is a folder"), (tmp_path / "file" / "o.png", "is a file, not a folder"), (tmp_path / "o.txt", "expected a file ending in .png"), (image, "is an input file")]
+    cases = [
+        (tmp_path, "is a folder"),
+        (tmp_path / "file" / "o.png", "is a file, not a folder"),
+        (tmp_path / "o.txt", "expected a file ending in .png"),
+        (image, "is an input file"),
+    ]
     for out, message in cases:
         args = base_args(out, **{"--image": str(image)})
         before = image.read_bytes()

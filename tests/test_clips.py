@@ -23,7 +23,12 @@ def dji_clip(shared_data, tmp_path_factory):
 
     folder = tmp_path_factory.mktemp("dji")
     video = write_video(folder / "DJI_0001.MP4", np.arange(300) / 30.0, (96, 54), 0)
-    entries = (shared_data / "real" / "dji" / "p4_rtk.SRT").read_text(encoding="utf-8").strip().split("\n\n")[:10]
+    entries = (
+        (shared_data / "real" / "dji" / "p4_rtk.SRT")
+        .read_text(encoding="utf-8")
+        .strip()
+        .split("\n\n")[:10]
+    )
     (folder / "dji_0001.srt").write_text("\n\n".join(entries) + "\n", encoding="utf-8")
     return video
 
@@ -47,7 +52,9 @@ def test_dji_clip_without_attitude_uses_the_course(shared_data, tmp_path, capsys
     from app.simulate.phone import write_video
 
     video = write_video(tmp_path / "clip.mp4", np.arange(150) / 30.0, (96, 54), 0)
-    (tmp_path / "clip.SRT").write_text((shared_data / "real" / "dji" / "p4p_sample.SRT").read_text())
+    (tmp_path / "clip.SRT").write_text(
+        (shared_data / "real" / "dji" / "p4p_sample.SRT").read_text()
+    )
     out = tmp_path / "p.csv"
     assert main(["solve", str(video), "--out", str(out)]) == 0
     err = capsys.readouterr().err
@@ -61,13 +68,22 @@ def _dji_clip_naming(folder, shared_data, items):
     from app.simulate.phone import write_video
 
     folder.mkdir(exist_ok=True)
-    video = add_user_data(write_video(folder / "DJI_0002.MP4", np.arange(60) / 30.0, (192, 108), 0), items)
-    entries = (shared_data / "real" / "dji" / "mavic_air2.srt").read_text(encoding="utf-8").strip().split("\n\n")[:120]
+    video = add_user_data(
+        write_video(folder / "DJI_0002.MP4", np.arange(60) / 30.0, (192, 108), 0), items
+    )
+    entries = (
+        (shared_data / "real" / "dji" / "mavic_air2.srt")
+        .read_text(encoding="utf-8")
+        .strip()
+        .split("\n\n")[:120]
+    )
     (folder / "DJI_0002.SRT").write_text("\n\n".join(entries) + "\n", encoding="utf-8")
     return video
 
 
-def test_a_dji_clip_gets_the_lens_profile_of_the_camera_its_mp4_names(shared_data, tmp_path, capsys):
+def test_a_dji_clip_gets_the_lens_profile_of_the_camera_its_mp4_names(
+    shared_data, tmp_path, capsys
+):
     """The subtitle names no aircraft; the MP4's camera code (FC3170: a Mavic Air 2) chooses the
     profile, which is said with its reason, scaled to the video, and brings its readout time;
     --lens overrides it; a file naming no camera, or an unknown one, is said to get a pinhole."""
@@ -75,14 +91,26 @@ def test_a_dji_clip_gets_the_lens_profile_of_the_camera_its_mp4_names(shared_dat
     from app.lens import read_profile
     from app.simulate.mp4meta import intl_text
 
-    video = _dji_clip_naming(tmp_path / "a", shared_data, {"\xa9mdl": b"FC3170", "\xa9too": intl_text("DJIMavicAir2")})
+    video = _dji_clip_naming(
+        tmp_path / "a", shared_data, {"\xa9mdl": b"FC3170", "\xa9too": intl_text("DJIMavicAir2")}
+    )
     s = open_clip(video)
     said = [w for w in s.warnings.items if w.startswith("lens: ")]
-    assert len(said) == 1 and "DJI Mavic Air 2 (camera code FC3170 in the MP4)" in said[0], s.warnings.items
-    profile = next(p for p in (shared_data / "lens_profiles" / "DJI").glob("*.json") if p.stem in said[0])
+    assert len(said) == 1 and "DJI Mavic Air 2 (camera code FC3170 in the MP4)" in said[0], (
+        s.warnings.items
+    )
+    profile = next(
+        p for p in (shared_data / "lens_profiles" / "DJI").glob("*.json") if p.stem in said[0]
+    )
     want = read_profile(profile).scaled(192, 108)
-    assert s.lens.kind == want.kind and s.lens.coeffs == want.coeffs and s.lens.fx == pytest.approx(want.fx)
-    said = "from the lens profile" if want.readout_s else "readout time unknown"  # most DJI profiles have none
+    assert (
+        s.lens.kind == want.kind
+        and s.lens.coeffs == want.coeffs
+        and s.lens.fx == pytest.approx(want.fx)
+    )
+    said = (
+        "from the lens profile" if want.readout_s else "readout time unknown"
+    )  # most DJI profiles have none
     assert s.readout_s == want.readout_s and any(said in w for w in s.warnings.items)
     assert s.intrinsics.hfov_deg > want.hfov_deg  # the depth pass encloses the undistorted image
 
@@ -91,13 +119,19 @@ def test_a_dji_clip_gets_the_lens_profile_of_the_camera_its_mp4_names(shared_dat
     assert open_clip(video, hfov_deg=80.0).lens is None
 
     anonymous = open_clip(_dji_clip_naming(tmp_path / "b", shared_data, {}))
-    assert anonymous.lens is None and any("names no DJI camera" in w and "pinhole of" in w for w in anonymous.warnings.items)
+    assert anonymous.lens is None and any(
+        "names no DJI camera" in w and "pinhole of" in w for w in anonymous.warnings.items
+    )
     unknown = open_clip(_dji_clip_naming(tmp_path / "c", shared_data, {"\xa9mdl": b"FC9999"}))
-    assert unknown.lens is None and any("FC9999 is not one geofuse knows" in w for w in unknown.warnings.items)
+    assert unknown.lens is None and any(
+        "FC9999 is not one geofuse knows" in w for w in unknown.warnings.items
+    )
 
     assert main(["solve", str(video), "--out", str(tmp_path / "p.csv")]) == 0
     assert "DJI Mavic Air 2 (camera code FC3170 in the MP4)" in capsys.readouterr().err
-    assert main(["telemetry", str(video)]) == 2  # its telemetry is in the subtitle: said, naming the camera
+    assert (
+        main(["telemetry", str(video)]) == 2
+    )  # its telemetry is in the subtitle: said, naming the camera
     assert "DJI Mavic Air 2" in capsys.readouterr().err
 
 
@@ -105,7 +139,9 @@ def test_srt_that_does_not_fit_the_video(shared_data, tmp_path, capsys):
     from app.simulate.phone import write_video
 
     video = write_video(tmp_path / "short.mp4", np.arange(30) / 30.0, (96, 54), 0)  # 1 s of video
-    (tmp_path / "short.srt").write_text((shared_data / "real" / "dji" / "mavic_pro.SRT").read_text())  # 468 s
+    (tmp_path / "short.srt").write_text(
+        (shared_data / "real" / "dji" / "mavic_pro.SRT").read_text()
+    )  # 468 s
     assert main(["solve", str(video), "--out", str(tmp_path / "p.csv")]) == 2
     assert "is it the subtitle of another clip" in capsys.readouterr().err
 
@@ -120,7 +156,9 @@ def test_view_a_dji_clip_screenshot(dji_clip, display, tmp_path):
 
     out, state = tmp_path / "dji.png", tmp_path / "dji.json"
     script = tmp_path / "s.txt"
-    script.write_text(f"0 clock 0.05\n0 wait solved\n0 play\n1.5 screenshot {out}\n1.5 state {state}\n1.6 quit\n")
+    script.write_text(
+        f"0 clock 0.05\n0 wait solved\n0 play\n1.5 screenshot {out}\n1.5 state {state}\n1.6 quit\n"
+    )
     result = run_viewer(display, str(dji_clip), "--script", str(script), "--size", "640x360")
     assert result.returncode == 0, result.stderr[-2000:]
     s = json.loads(state.read_text())
@@ -133,8 +171,22 @@ def test_view_a_dji_clip_screenshot(dji_clip, display, tmp_path):
     assert img.shape == (360, 640, 3) and img[y : y + h, x : x + w].std() > 15
 
 
-SRT_ROWS = {"air2s.srt": 17, "mavic_air2.srt": 25, "matrice_300.srt": 381, "mavic_pro.SRT": 468, "p4_rtk.SRT": 55, "p4p_sample.SRT": 5, "broken_incomplete.SRT": 19}
-GPX_ROWS = {"around-visnjan-with-car.gpx": 104, "cerknicko-jezero.gpx": 296, "gpx1.0_with_all_fields.gpx": 1, "track-with-empty-segment.gpx": 9, "track_with_speed.gpx": 3}
+SRT_ROWS = {
+    "air2s.srt": 17,
+    "mavic_air2.srt": 25,
+    "matrice_300.srt": 381,
+    "mavic_pro.SRT": 468,
+    "p4_rtk.SRT": 55,
+    "p4p_sample.SRT": 5,
+    "broken_incomplete.SRT": 19,
+}
+GPX_ROWS = {
+    "around-visnjan-with-car.gpx": 104,
+    "cerknicko-jezero.gpx": 296,
+    "gpx1.0_with_all_fields.gpx": 1,
+    "track-with-empty-segment.gpx": 9,
+    "track_with_speed.gpx": 3,
+}
 
 
 @pytest.mark.parametrize("name", sorted(SRT_ROWS) + sorted(GPX_ROWS))
@@ -149,7 +201,9 @@ def test_telemetry_csv_rows(shared_data, tmp_path, name):
     assert float(rows[0]["time_s"]) >= 0.0
     if name == "p4_rtk.SRT":
         assert "gimbal_yaw" in rows[0] and float(rows[-1]["gimbal_yaw"]) == pytest.approx(111.9)
-        assert (float(rows[-1]["latitude"]), float(rows[-1]["longitude"])) == pytest.approx((-34.232349, -58.849196))
+        assert (float(rows[-1]["latitude"]), float(rows[-1]["longitude"])) == pytest.approx(
+            (-34.232349, -58.849196)
+        )
 
 
 @pytest.mark.parametrize(
@@ -172,14 +226,20 @@ def test_manifest_naming_gopro_telemetry(shared_data, tmp_path):
 
     clip = shared_data / "real" / "gopro" / "max-heromode.mp4"
     scene = tmp_path / "ground.obj"
-    scene.write_text("v -500 -500 -2\nv 500 -500 -2\nv 500 500 -2\nv -500 500 -2\nf 1 2 3\nf 1 3 4\n")
+    scene.write_text(
+        "v -500 -500 -2\nv 500 -500 -2\nv 500 500 -2\nv -500 500 -2\nf 1 2 3\nf 1 3 4\n"
+    )
     manifest = tmp_path / "walk.toml"
     manifest.write_text(
         f'[origin]\nlat = 33.1268\nlon = -117.3273\nh = -21.0\n\n[scene]\npath = "{scene}"\norigin = [33.1268, -117.3273, -21.0]\n\n'
         f'[video]\npath = "{clip}"\nstart_time = 1000.0\n\n[camera]\nhfov_deg = 92.0\n\n[sensors]\nformat = "gopro"\n'
     )
     s = open_session(manifest)
-    assert s.heading_from_course and s.heading_note.startswith("heading from the GNSS course") and s.device_is_camera
+    assert (
+        s.heading_from_course
+        and s.heading_note.startswith("heading from the GNSS course")
+        and s.device_is_camera
+    )
     assert s.gyr.t[0] > 1000.0 and s.gnss.t[0] > 1000.0  # clip seconds moved onto the session clock
     assert "camera" in s.sources and "gd-imu" in s.sources
     assert np.all(np.isfinite(camera_track(s, "camera").frame_camera(0).position))
@@ -194,8 +254,12 @@ def test_manifest_naming_a_dji_subtitle_takes_off_from_the_scene(dji_clip, tmp_p
     lat, lon = -34.237922, -58.851745  # the first P4 RTK position
     frame = LocalFrame(lat, lon, 20.0)
     scene = tmp_path / "flat.obj"
-    corners = frame.enu_to_ecef(np.array([[-2000, -2000, 0], [2000, -2000, 0], [2000, 2000, 0], [-2000, 2000, 0]], float))
-    scene.write_text("".join(f"v {x:.4f} {y:.4f} {z:.4f}\n" for x, y, z in corners) + "f 1 2 3\nf 1 3 4\n")
+    corners = frame.enu_to_ecef(
+        np.array([[-2000, -2000, 0], [2000, -2000, 0], [2000, 2000, 0], [-2000, 2000, 0]], float)
+    )
+    scene.write_text(
+        "".join(f"v {x:.4f} {y:.4f} {z:.4f}\n" for x, y, z in corners) + "f 1 2 3\nf 1 3 4\n"
+    )
     manifest = tmp_path / "dji.toml"
     srt = dji_clip.parent / "dji_0001.srt"
     manifest.write_text(
@@ -205,7 +269,9 @@ def test_manifest_naming_a_dji_subtitle_takes_off_from_the_scene(dji_clip, tmp_p
     s = open_session(manifest)
     assert any("take-off height 20.00 m from the scene" in w for w in s.warnings.items)
     rows = solve_frames(s, "telemetry")
-    assert rows.geodetic[0, 2] == pytest.approx(20.0 + 85.8, abs=0.05)  # ellipsoidal height of the first pose
+    assert rows.geodetic[0, 2] == pytest.approx(
+        20.0 + 85.8, abs=0.05
+    )  # ellipsoidal height of the first pose
     assert rows.enu[0, 2] == pytest.approx(85.8, abs=0.05)  # Up above the scene's ground
 
 
@@ -236,9 +302,15 @@ def test_the_viewer_reopens_a_clip_through_another_lens(dji_clip, display, tmp_p
     profile = next((shared_data / "lens_profiles" / "DJI").glob("*.json"))
     state1, state2 = tmp_path / "a.json", tmp_path / "b.json"
     script = tmp_path / "s.txt"
-    script.write_text(f"0 clock 0.05\n0 wait solved\n0.1 state {state1}\n0.2 lens {profile}\n0.3 wait solved\n0.4 state {state2}\n0.5 quit\n")
+    script.write_text(
+        f"0 clock 0.05\n0 wait solved\n0.1 state {state1}\n0.2 lens {profile}\n0.3 wait solved\n0.4 state {state2}\n0.5 quit\n"
+    )
     result = run_viewer(display, str(dji_clip), "--script", str(script), "--size", "640x360")
     assert result.returncode == 0, result.stderr[-2000:]
     a, b = json.loads(state1.read_text()), json.loads(state2.read_text())
-    assert a["lens"] is None and b["lens"] == json.loads(profile.read_text())["name"] and b["errors"] == []
+    assert (
+        a["lens"] is None
+        and b["lens"] == json.loads(profile.read_text())["name"]
+        and b["errors"] == []
+    )
     assert any(n.startswith("lens: ") for n in b["notices"])

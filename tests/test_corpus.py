@@ -25,7 +25,11 @@ def clean_session(tmp_path_factory) -> Path:
 
 
 def _hashes(folder: Path) -> dict[Path, str]:
-    return {p: hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(folder.rglob("*")) if p.is_file()}
+    return {
+        p: hashlib.sha256(p.read_bytes()).hexdigest()
+        for p in sorted(folder.rglob("*"))
+        if p.is_file()
+    }
 
 
 def _outputs(case_dir: Path, before: dict[Path, str]) -> list[Path]:

@@ -36,9 +36,13 @@ def test_decodes_in_order_into_a_bounded_queue(clip):
         end = time.monotonic() + 10
         while dec.frames.qsize() < dec.frames.maxsize and time.monotonic() < end:
             time.sleep(0.01)
-        assert dec.frames.qsize() == dec.frames.maxsize  # the bound is reached (40 frames remain)...
+        assert (
+            dec.frames.qsize() == dec.frames.maxsize
+        )  # the bound is reached (40 frames remain)...
         rest = take(dec, 40)
-        assert [round(f.pts_s * 30) for f in rest] == list(range(20, 60))  # ...and nothing was lost at it
+        assert [round(f.pts_s * 30) for f in rest] == list(
+            range(20, 60)
+        )  # ...and nothing was lost at it
         assert dec.skipped == 0  # no media time was published: no frame counts as late
     finally:
         dec.close()
@@ -74,8 +78,12 @@ def test_corrupt_packets_are_skipped_and_counted(clip, tmp_path):
         frames = take(dec, 60, timeout=5)
         assert dec.error is None
         assert dec.corrupt_packets > 0  # the damage was met and counted...
-        assert len(frames) > 10 and max(round(f.pts_s * 30) for f in frames) >= 55  # ...and decoding went on past it
-        assert len(frames) + dec.corrupt_packets >= 40  # frames are missing only where packets failed
+        assert (
+            len(frames) > 10 and max(round(f.pts_s * 30) for f in frames) >= 55
+        )  # ...and decoding went on past it
+        assert (
+            len(frames) + dec.corrupt_packets >= 40
+        )  # frames are missing only where packets failed
     finally:
         dec.close()
 

@@ -39,7 +39,9 @@ def test_gimbal_attitude_and_wall_clock(shared_data):
     np.testing.assert_allclose(p4.aircraft_pry[-1], [8.4, -20.1, 109.2])
     air = read_srt(shared_data / "real" / "dji" / "air2s.srt")
     assert not air.has_gimbal
-    assert air.wall_clock[1] - air.wall_clock[0] == pytest.approx(0.033356, abs=1e-6)  # microseconds kept
+    assert air.wall_clock[1] - air.wall_clock[0] == pytest.approx(
+        0.033356, abs=1e-6
+    )  # microseconds kept
     assert air.t[1] == pytest.approx(0.033)  # one entry per frame
 
 

@@ -45,10 +45,25 @@ def test_a_nadir_frame_lands_where_the_hand_worked_corners_are():
     finally:
         caster.release()
     hw, hh = 50.0 * math.tan(math.radians(30.0)), 50.0 * 270.0 / intr.fy
-    expected = frame.enu_to_geodetic(np.array([[10 - hw, 20 + hh, 0], [10 + hw, 20 + hh, 0], [10 + hw, 20 - hh, 0], [10 - hw, 20 - hh, 0]]))
+    expected = frame.enu_to_geodetic(
+        np.array(
+            [
+                [10 - hw, 20 + hh, 0],
+                [10 + hw, 20 + hh, 0],
+                [10 + hw, 20 - hh, 0],
+                [10 - hw, 20 - hh, 0],
+            ]
+        )
+    )
     enu = frame.geodetic_to_enu(r.corners[:, 0], r.corners[:, 1], r.corners[:, 2])
-    np.testing.assert_allclose(enu[:, :2], frame.geodetic_to_enu(expected[:, 0], expected[:, 1], expected[:, 2])[:, :2], atol=0.05)
-    np.testing.assert_allclose(frame.geodetic_to_enu(*np.array(r.centre))[:2], [10.0, 20.0], atol=0.05)
+    np.testing.assert_allclose(
+        enu[:, :2],
+        frame.geodetic_to_enu(expected[:, 0], expected[:, 1], expected[:, 2])[:, :2],
+        atol=0.05,
+    )
+    np.testing.assert_allclose(
+        frame.geodetic_to_enu(*np.array(r.centre))[:2], [10.0, 20.0], atol=0.05
+    )
     assert r.slant_m == pytest.approx(50.0, abs=0.01) and not r.clipped
     assert r.hpr[1] == pytest.approx(-90.0, abs=1e-6)
 
@@ -64,16 +79,33 @@ def test_footprints_follow_the_truth(sample):
 
     every = 200
     est = list(frame_records(sample, "gd-ahrs", every))
-    truth = list(frame_records(sample, "truth", every, track=replace(camera_track(sample, "truth"), clock=frame_clock(sample, true_timing=True))))
+    truth = list(
+        frame_records(
+            sample,
+            "truth",
+            every,
+            track=replace(
+                camera_track(sample, "truth"), clock=frame_clock(sample, true_timing=True)
+            ),
+        )
+    )
     enu = lambda g: sample.frame.geodetic_to_enu(*np.asarray(g, float).T)  # noqa: E731
     checked = 0
     for a, b in zip(est, truth):
         if a.clipped or b.clipped:
             continue
-        angle = np.degrees(rotations.angle_between(rotations.camera_quat_from_hpr(*a.hpr), rotations.camera_quat_from_hpr(*b.hpr)))
+        angle = np.degrees(
+            rotations.angle_between(
+                rotations.camera_quat_from_hpr(*a.hpr), rotations.camera_quat_from_hpr(*b.hpr)
+            )
+        )
         miss = np.linalg.norm(enu(a.footprint) - enu(b.footprint), axis=1)
         reach = np.linalg.norm(enu(b.footprint) - enu(b.sensor), axis=1)
-        allowed = np.linalg.norm(enu(a.sensor) - enu(b.sensor)) + reach * np.tan(np.radians(angle + 0.5)) + 0.5
+        allowed = (
+            np.linalg.norm(enu(a.sensor) - enu(b.sensor))
+            + reach * np.tan(np.radians(angle + 0.5))
+            + 0.5
+        )
         assert np.median(miss - allowed) <= 0.0, (a.index, np.median(miss), np.median(allowed))
         checked += 1
     assert checked >= 5
@@ -88,8 +120,12 @@ def test_footprints_of_close_poses_overlap():
     intr = Intrinsics.from_fov(960, 540, 60.0)
     caster = FootprintCaster(ground_plane(np.zeros(2), 0.0, 2000.0), frame, intr)
     try:
-        a = caster.record(Camera.create(intr, [0.0, 0.0, 80.0], rotations.camera_quat_from_hpr(30.0, -40.0, 0.0)))
-        b = caster.record(Camera.create(intr, [0.0, 0.0, 80.0], rotations.camera_quat_from_hpr(30.3, -40.4, 0.2)))
+        a = caster.record(
+            Camera.create(intr, [0.0, 0.0, 80.0], rotations.camera_quat_from_hpr(30.0, -40.0, 0.0))
+        )
+        b = caster.record(
+            Camera.create(intr, [0.0, 0.0, 80.0], rotations.camera_quat_from_hpr(30.3, -40.4, 0.2))
+        )
     finally:
         caster.release()
     pa, pb = (Polygon(counter_clockwise_ring(r.footprint)[:, :2]) for r in (a, b))
@@ -113,14 +149,22 @@ def test_geojson_follows_rfc_7946(tmp_path, capsys):
         assert ring[0] == ring[-1] and len(ring) >= 4  # closed
         assert _signed_area(ring) > 0  # exterior ring counter-clockwise
         lon, lat = np.array(ring)[:, 0], np.array(ring)[:, 1]
-        assert np.all(np.abs(lon - 113.53) < 0.05) and np.all(np.abs(lat - 34.80) < 0.05)  # longitude first
+        assert np.all(np.abs(lon - 113.53) < 0.05) and np.all(
+            np.abs(lat - 34.80) < 0.05
+        )  # longitude first
         p = f["properties"]
-        assert p["utc"].endswith("Z") and p["utc"].startswith("2025-11-15T") and -180 <= p["heading_deg"] <= 360
+        assert (
+            p["utc"].endswith("Z")
+            and p["utc"].startswith("2025-11-15T")
+            and -180 <= p["heading_deg"] <= 360
+        )
     assert len(track["geometry"]["coordinates"]) == 12
 
 
 def test_counter_clockwise_ring_turns_a_clockwise_one():
-    cw = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 1.0], [1.0, 1.0, 1.0], [0.0, 1.0, 1.0]])  # lat, lon: clockwise in (lon, lat)
+    cw = np.array(
+        [[0.0, 0.0, 1.0], [1.0, 0.0, 1.0], [1.0, 1.0, 1.0], [0.0, 1.0, 1.0]]
+    )  # lat, lon: clockwise in (lon, lat)
     ring = counter_clockwise_ring(cw)
     assert _signed_area(ring.tolist()) > 0 and np.array_equal(ring[0], ring[-1])
 
@@ -130,7 +174,11 @@ def test_kml_kmz_and_fmv_csv(tmp_path):
     assert main(["export", "footprints", str(SAMPLE), "--out", str(kmz), "--every", "400"]) == 0
     with zipfile.ZipFile(kmz) as z:
         text = z.read("doc.kml").decode()
-    assert text.count("<Polygon>") == 6 and "<LineString>" in text and "<altitudeMode>absolute</altitudeMode>" in text
+    assert (
+        text.count("<Polygon>") == 6
+        and "<LineString>" in text
+        and "<altitudeMode>absolute</altitudeMode>" in text
+    )
     fmv = tmp_path / "fmv.csv"
     assert main(["export", "fmv-csv", str(SAMPLE), "--out", str(fmv), "--every", "400"]) == 0
     with fmv.open() as f:
@@ -155,16 +203,24 @@ def test_klv_round_trips_through_an_independent_decoder(sample, tmp_path):
     assert len(packets) == len(records)
     for raw, r in zip(packets, records.values()):
         words = raw[:-2] + (b"\x00" if len(raw[:-2]) % 2 else b"")
-        assert sum(int.from_bytes(words[i : i + 2], "big") for i in range(0, len(words), 2)) & 0xFFFF == int.from_bytes(raw[-2:], "big")
+        assert sum(
+            int.from_bytes(words[i : i + 2], "big") for i in range(0, len(words), 2)
+        ) & 0xFFFF == int.from_bytes(raw[-2:], "big")
         (ls,) = list(klvdata.StreamParser(raw))
         m = {k: float(v[3]) if k not in (2, 1) else v[3] for k, v in ls.MetadataList().items()}
-        assert m[13] == pytest.approx(r.sensor[0], abs=1e-7) and m[14] == pytest.approx(r.sensor[1], abs=1e-7)
+        assert m[13] == pytest.approx(r.sensor[0], abs=1e-7) and m[14] == pytest.approx(
+            r.sensor[1], abs=1e-7
+        )
         assert m[15] == pytest.approx(r.sensor[2], abs=0.31)  # 19900 m over 16 bits
         assert m[5] == pytest.approx(r.hpr[0] % 360, abs=0.006)
-        assert m[19] == pytest.approx(r.hpr[1], abs=1e-6) and m[16] == pytest.approx(r.hfov_deg, abs=0.003)
+        assert m[19] == pytest.approx(r.hpr[1], abs=1e-6) and m[16] == pytest.approx(
+            r.hfov_deg, abs=0.003
+        )
         if math.isfinite(r.slant_m):
             assert m[21] == pytest.approx(r.slant_m, abs=0.01)
-            assert m[23] == pytest.approx(r.centre[0], abs=1e-7) and m[24] == pytest.approx(r.centre[1], abs=1e-7)
+            assert m[23] == pytest.approx(r.centre[0], abs=1e-7) and m[24] == pytest.approx(
+                r.centre[1], abs=1e-7
+            )
             for k in range(4):
                 offset = r.corners[k, 0] - r.centre[0]
                 if abs(offset) <= 0.075:
@@ -183,7 +239,26 @@ def test_the_fused_video_has_every_frame_and_matches_an_offscreen_render(sample,
     from app.render.renderer import FusionRenderer
 
     out = tmp_path / "fused.mp4"
-    assert main(["export", "video", str(SAMPLE), "--out", str(out), "--from", "10", "--to", "11", "--size", "320x180", "--view", "ride"]) == 0
+    assert (
+        main(
+            [
+                "export",
+                "video",
+                str(SAMPLE),
+                "--out",
+                str(out),
+                "--from",
+                "10",
+                "--to",
+                "11",
+                "--size",
+                "320x180",
+                "--view",
+                "ride",
+            ]
+        )
+        == 0
+    )
     pts = sample.video.pts_s
     first, last = int(np.searchsorted(pts, 10 - 1e-6)), int(np.searchsorted(pts, 11 + 1e-6)) - 1
     with av.open(str(out)) as c:
@@ -200,7 +275,12 @@ def test_the_fused_video_has_every_frame_and_matches_an_offscreen_render(sample,
         renderer.set_video_frame(read_frame(sample.video.path, k, sample.video))
         projector = track.frame_camera(k)
         renderer.set_projector(projector)
-        expected = render_to_array(renderer, view_camera("ride", projector, (320, 180), sample.scene().bounds(), 0.0), ProjectionSettings(alpha=EXPORT_ALPHA), OverlaySettings(frustum=False, trajectory=False))
+        expected = render_to_array(
+            renderer,
+            view_camera("ride", projector, (320, 180), sample.scene().bounds(), 0.0),
+            ProjectionSettings(alpha=EXPORT_ALPHA),
+            OverlaySettings(frustum=False, trajectory=False),
+        )
     finally:
         renderer.release()
         ctx.release()

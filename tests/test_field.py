@@ -34,7 +34,12 @@ def test_fixes_that_are_not_positions_are_dropped_counted_and_said():
     kept = plausible_fixes(GnssTrack(t, lat, lon, h, None, None, "track.csv"), warnings)
     assert list(np.setdiff1d(t, kept.t)) == [0.0, 7.0, 12.0]
     (note,) = warnings.items
-    assert "1 at 0 N 0 E" in note and "1 jumps" in note and "1 with impossible heights" in note and "17 of 20 kept" in note
+    assert (
+        "1 at 0 N 0 E" in note
+        and "1 jumps" in note
+        and "1 with impossible heights" in note
+        and "17 of 20 kept" in note
+    )
 
 
 def test_a_bad_first_fix_does_not_condemn_the_rest():
@@ -49,7 +54,9 @@ def test_the_receivers_own_fix_type_and_dop_are_used():
     t = np.arange(6.0)
     g = _track(t, np.column_stack([t, t, np.zeros(6)]))
     warnings = Warnings()
-    kept = plausible_fixes(g, warnings, fix_type=[3, 3, 2, 3, 3, 3], dop=[1.0, 1.0, 1.0, 9.0, 1.0, 1.0])
+    kept = plausible_fixes(
+        g, warnings, fix_type=[3, 3, 2, 3, 3, 3], dop=[1.0, 1.0, 1.0, 9.0, 1.0, 1.0]
+    )
     assert list(kept.t) == [0, 1, 4, 5]
     assert "1 2D fixes" in warnings.items[0] and "1 with DOP above 5" in warnings.items[0]
 
@@ -66,18 +73,26 @@ def test_a_hovering_drone_keeps_its_heading():
     rng = np.random.default_rng(4)
     t = np.arange(60.0)
     east = np.concatenate([4.0 * t[:20], np.full(40, 76.0)])  # flies east for 20 s, then hovers
-    enu = np.column_stack([east, np.zeros(60), np.full(60, 80.0)]) + rng.normal(0, 0.7, (60, 3)) * [1, 1, 0]
+    enu = np.column_stack([east, np.zeros(60), np.full(60, 80.0)]) + rng.normal(0, 0.7, (60, 3)) * [
+        1,
+        1,
+        0,
+    ]
     v = estimate_velocity(t, enu)
-    assert np.hypot(v[25:, 0], v[25:, 1]).max() > COURSE_HOLD_SPEED_MPS  # raw fix-to-fix speeds exceed it
+    assert (
+        np.hypot(v[25:, 0], v[25:, 1]).max() > COURSE_HOLD_SPEED_MPS
+    )  # raw fix-to-fix speeds exceed it
     heading = course_headings(t, v)
-    assert np.all(np.abs(rotations.wrap_degrees(heading[2:] - 90.0)) < 20.0)  # east all along, no flips
+    assert np.all(
+        np.abs(rotations.wrap_degrees(heading[2:] - 90.0)) < 20.0
+    )  # east all along, no flips
 
 
 def test_a_drone_subtitle_with_its_own_yaw_gives_the_course_heading(tmp_path):
     """No gimbal angles, but the aircraft's yaw ([Drone: Yaw ...]): the course source takes it."""
     from app.clips import open_clip
-    from app.solve import solve_frames
     from app.simulate.phone import write_video
+    from app.solve import solve_frames
 
     lines = []
     for k in range(12):
@@ -109,14 +124,20 @@ def test_a_phone_without_magnetometer_takes_heading_from_the_course(phone_withou
     assert s.sources[0] == "gd-imu"
 
 
-def test_a_phone_without_magnetometer_shows_its_own_orientation_first(phone_without_magnetometer, tmp_path):
+def test_a_phone_without_magnetometer_shows_its_own_orientation_first(
+    phone_without_magnetometer, tmp_path
+):
     import shutil
 
     d = tmp_path / "s"
     shutil.copytree(phone_without_magnetometer.parent, d)
     shutil.copy(d / "truth.csv", d / "phone.csv")
     manifest = d / "session.toml"
-    manifest.write_text(manifest.read_text().replace('gyr = "gyr.csv"\n', 'gyr = "gyr.csv"\norientation = "phone.csv"\n'))
+    manifest.write_text(
+        manifest.read_text().replace(
+            'gyr = "gyr.csv"\n', 'gyr = "gyr.csv"\norientation = "phone.csv"\n'
+        )
+    )
     s = open_session(manifest)
     assert s.sources[0] == "phone" and "phone's own orientation is shown first" in s.heading_note
 
@@ -152,7 +173,9 @@ def test_a_gltf_with_y_up_ecef_lands_where_it_belongs(tmp_path):
     y_up = lambda p: np.column_stack([p[:, 0], p[:, 2], -p[:, 1]])  # noqa: E731  (Z-up -> Y-up)
     scene = trimesh.Scene()
     mesh = trimesh.Trimesh(vertices=y_up(ecef - centre), faces=[[0, 1, 2]], process=False)
-    scene.add_geometry(mesh, transform=trimesh.transformations.translation_matrix(y_up(centre[None])[0]))
+    scene.add_geometry(
+        mesh, transform=trimesh.transformations.translation_matrix(y_up(centre[None])[0])
+    )
     path = tmp_path / "tile.glb"
     scene.export(path)
     placed = load_scene(path, frame)

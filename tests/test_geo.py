@@ -12,16 +12,26 @@ def closed_form_ecef(lat, lon, h):
     phi, lam = np.radians(lat), np.radians(lon)
     n = WGS84_A / np.sqrt(1 - WGS84_E2 * np.sin(phi) ** 2)
     return np.array(
-        [(n + h) * np.cos(phi) * np.cos(lam), (n + h) * np.cos(phi) * np.sin(lam), (n * (1 - WGS84_E2) + h) * np.sin(phi)]
+        [
+            (n + h) * np.cos(phi) * np.cos(lam),
+            (n + h) * np.cos(phi) * np.sin(lam),
+            (n * (1 - WGS84_E2) + h) * np.sin(phi),
+        ]
     )
 
 
 def test_published_ecef_points():
     # The semi-major axis on the equator at the prime meridian, the semi-minor axis at the pole
     # (WGS84: a = 6378137 m, b = 6356752.314245 m).
-    np.testing.assert_allclose(geo.geodetic_to_ecef(0.0, 0.0, 0.0), [6378137.0, 0.0, 0.0], atol=1e-6)
-    np.testing.assert_allclose(geo.geodetic_to_ecef(90.0, 0.0, 0.0), [0.0, 0.0, 6356752.314245], atol=1e-6)
-    np.testing.assert_allclose(geo.geodetic_to_ecef(0.0, 90.0, 100.0), [0.0, 6378237.0, 0.0], atol=1e-6)
+    np.testing.assert_allclose(
+        geo.geodetic_to_ecef(0.0, 0.0, 0.0), [6378137.0, 0.0, 0.0], atol=1e-6
+    )
+    np.testing.assert_allclose(
+        geo.geodetic_to_ecef(90.0, 0.0, 0.0), [0.0, 0.0, 6356752.314245], atol=1e-6
+    )
+    np.testing.assert_allclose(
+        geo.geodetic_to_ecef(0.0, 90.0, 100.0), [0.0, 6378237.0, 0.0], atol=1e-6
+    )
     np.testing.assert_allclose(geo.geodetic_to_ecef(*ORIGIN), closed_form_ecef(*ORIGIN), atol=1e-6)
 
 
@@ -43,7 +53,9 @@ def test_round_trips_below_a_millimetre():
     assert np.abs(back - enu).max() < 1e-3
     llh = frame.enu_to_geodetic(enu)
     assert np.abs(frame.geodetic_to_enu(llh[:, 0], llh[:, 1], llh[:, 2]) - enu).max() < 1e-3
-    pts = np.column_stack([rng.uniform(-89, 89, 500), rng.uniform(-180, 180, 500), rng.uniform(-100, 9000, 500)])
+    pts = np.column_stack(
+        [rng.uniform(-89, 89, 500), rng.uniform(-180, 180, 500), rng.uniform(-100, 9000, 500)]
+    )
     ecef = geo.geodetic_to_ecef(pts[:, 0], pts[:, 1], pts[:, 2])
     assert np.abs(geo.geodetic_to_ecef(*geo.ecef_to_geodetic(ecef).T) - ecef).max() < 1e-3
 

@@ -7,9 +7,9 @@ import csv
 import numpy as np
 import pytest
 
+from app.attitude.gopro import read_gopro
 from app.cli import main
 from app.errors import DataFormatError
-from app.attitude.gopro import read_gopro
 from app.io.gopro import orin_map
 from app.io.gpmf import Counts, chunks, parse
 
@@ -21,17 +21,29 @@ def gopro(shared_data):
     return shared_data / "real" / "gopro"
 
 
-@pytest.mark.parametrize("name, device, accl, gyro, has_mag", [("hero5", "Camera", 199, 399, False), ("hero6", "Hero6 Black", 204, 204, False), ("Fusion", "Fusion", 197, 3300, True)])
+@pytest.mark.parametrize(
+    "name, device, accl, gyro, has_mag",
+    [
+        ("hero5", "Camera", 199, 399, False),
+        ("hero6", "Hero6 Black", 204, 204, False),
+        ("Fusion", "Fusion", 197, 3300, True),
+    ],
+)
 def test_raw_payloads(gopro, name, device, accl, gyro, has_mag):
     counts = Counts()
-    streams = {c.key: c for c in chunks(parse((gopro / f"{name}.raw").read_bytes(), name, counts), 0.0, 1.0)}
+    streams = {
+        c.key: c
+        for c in chunks(parse((gopro / f"{name}.raw").read_bytes(), name, counts), 0.0, 1.0)
+    }
     assert streams["ACCL"].device == device
     assert len(streams["ACCL"].samples) == accl and len(streams["GYRO"].samples) == gyro
     assert ("MAGN" in streams) == has_mag
     a = np.linalg.norm(streams["ACCL"].samples, axis=1)
     assert 8.5 < np.median(a) < 11.0  # scaled by SCAL into m/s^2
     gps = streams["GPS5"].samples
-    assert np.all(np.abs(gps[:, 0]) <= 90) and np.all(np.abs(gps[:, 1]) <= 180)  # lat, lon in degrees
+    assert np.all(np.abs(gps[:, 0]) <= 90) and np.all(
+        np.abs(gps[:, 1]) <= 180
+    )  # lat, lon in degrees
     assert counts.skipped == {}
 
 
@@ -87,7 +99,11 @@ def test_solve_every_source_one_row_per_frame(gopro, tmp_path, capsys):
 
     session = open_clip(clip)
     assert "magnetometer reads" in " ".join(session.warnings.items)  # 521 uT: rejected
-    assert session.mag is None and session.heading_from_course and session.heading_note.startswith("heading from the GNSS course")
+    assert (
+        session.mag is None
+        and session.heading_from_course
+        and session.heading_note.startswith("heading from the GNSS course")
+    )
     track = session.positions()
     for source in session.sources:
         out = tmp_path / f"{source}.csv"
@@ -97,9 +113,14 @@ def test_solve_every_source_one_row_per_frame(gopro, tmp_path, capsys):
         assert len(rows) == 315, source
         heading = np.array([float(r["heading"]) for r in rows])
         # Walking south-east (GPS course about 150 deg): the camera looks where it goes.
-        assert abs(((np.median(heading) - 150.0) + 180) % 360 - 180) < 20, (source, np.median(heading))
+        assert abs(((np.median(heading) - 150.0) + 180) % 360 - 180) < 20, (
+            source,
+            np.median(heading),
+        )
         lat = np.array([float(r["latitude"]) for r in rows])
-        assert track.lat.min() - 1e-5 <= lat.min() and lat.max() <= track.lat.max() + 1e-5  # on the GPS track
+        assert (
+            track.lat.min() - 1e-5 <= lat.min() and lat.max() <= track.lat.max() + 1e-5
+        )  # on the GPS track
 
 
 def test_mp4_without_telemetry_and_truncated_mp4(gopro, tmp_path, capsys):
@@ -122,14 +143,22 @@ def test_lens_field_of_view_from_the_metadata(gopro):
 
     settings = global_settings(gopro / "max-heromode.mp4")
     assert settings["VFOV"] == "W"  # the recorded lens mode: wide
-    assert float(settings["ZFOV"].ravel()[0]) == pytest.approx(137.39, abs=0.01)  # diagonal, degrees
+    assert float(settings["ZFOV"].ravel()[0]) == pytest.approx(
+        137.39, abs=0.01
+    )  # diagonal, degrees
     hfov = lens_hfov(settings, 848, 480)
     # tan(h/2) = tan(d/2) * 848 / hypot(848, 480)
-    assert hfov == pytest.approx(np.degrees(2 * np.arctan(np.tan(np.radians(137.39) / 2) * 848 / np.hypot(848, 480))), abs=0.01)
+    assert hfov == pytest.approx(
+        np.degrees(2 * np.arctan(np.tan(np.radians(137.39) / 2) * 848 / np.hypot(848, 480))),
+        abs=0.01,
+    )
     assert lens_hfov({}, 848, 480) is None
 
 
-@pytest.mark.parametrize("name, model, expected", [("hero5", "Camera", "ZXY"), ("hero6", "Hero6 Black", "ZXY"), ("Fusion", "Fusion", "yXZ")])
+@pytest.mark.parametrize(
+    "name, model, expected",
+    [("hero5", "Camera", "ZXY"), ("hero6", "Hero6 Black", "ZXY"), ("Fusion", "Fusion", "yXZ")],
+)
 def test_axis_order_without_orin_comes_from_gravity(shared_data, name, model, expected):
     """Raw payloads of cameras that write no ORIN (and no CORI): a HERO5 names itself 'Camera',
     so its documented order cannot be found by name; the order under which gravity points up
@@ -161,4 +190,6 @@ def test_a_time_lapse_is_recognised_by_its_gps_clock(shared_data):
     pairs = gpsu_times(by_key)
     assert real_time_ratio(pairs) == pytest.approx(1.0, abs=0.15)
     warped = [(v, pairs[0][1] + 10.0 * (v - pairs[0][0])) for v, _ in pairs]
-    assert real_time_ratio(warped) == pytest.approx(10.0) and real_time_ratio(warped) > TIMELAPSE_RATIO
+    assert (
+        real_time_ratio(warped) == pytest.approx(10.0) and real_time_ratio(warped) > TIMELAPSE_RATIO
+    )

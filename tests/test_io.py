@@ -23,7 +23,10 @@ def write(path, text):
 
 
 def test_vector_csv_units_and_repairs(tmp_path):
-    p = write(tmp_path / "gyr.csv", "time_ns,x[deg/s],y[deg/s],z[deg/s]\n1000000000,90,0,0\n1010000000,nan,0,0\n1020000000,0,oops,0\n995000000,0,0,0\n1030000000,0,0,180\n")
+    p = write(
+        tmp_path / "gyr.csv",
+        "time_ns,x[deg/s],y[deg/s],z[deg/s]\n1000000000,90,0,0\n1010000000,nan,0,0\n1020000000,0,oops,0\n995000000,0,0,0\n1030000000,0,0,180\n",
+    )
     w = Warnings()
     s = csvlog.read_vector(p, "gyr", w)
     np.testing.assert_allclose(s.t, [1.0, 1.03])
@@ -49,17 +52,25 @@ def test_missing_column_names_file_and_column(tmp_path):
     with pytest.raises(DataFormatError, match="no time column"):
         csvlog.read_vector(write(tmp_path / "a2.csv", "when,x,y,z\n0,1,2,3\n"), "acc")
     with pytest.raises(DataFormatError, match="unknown unit 'furlong'"):
-        csvlog.read_vector(write(tmp_path / "a3.csv", "t,x[furlong],y,z\n0,1,2,3\n1,1,2,3\n"), "acc")
+        csvlog.read_vector(
+            write(tmp_path / "a3.csv", "t,x[furlong],y,z\n0,1,2,3\n1,1,2,3\n"), "acc"
+        )
     with pytest.raises(DataFormatError, match="does not exist"):
         csvlog.read_vector(tmp_path / "nope.csv", "acc")
 
 
 def test_gnss_csv_with_speed_and_bearing(tmp_path):
-    p = write(tmp_path / "gnss.csv", "t,lat,lon,h,speed,bearing\n0,34.8,113.53,110,2,90\n1,34.8,113.53002,110,2,90\n")
+    p = write(
+        tmp_path / "gnss.csv",
+        "t,lat,lon,h,speed,bearing\n0,34.8,113.53,110,2,90\n1,34.8,113.53002,110,2,90\n",
+    )
     g = csvlog.read_gnss(p)
     np.testing.assert_allclose(g.vel_enu[0], [2, 0, 0], atol=1e-12)
     warnings = Warnings()
-    g = csvlog.read_gnss(write(tmp_path / "some.csv", "t,lat,lon,h\n0,134.8,113,0\n1,34,113,0\n2,34,113.00001,0\n"), warnings)
+    g = csvlog.read_gnss(
+        write(tmp_path / "some.csv", "t,lat,lon,h\n0,134.8,113,0\n1,34,113,0\n2,34,113.00001,0\n"),
+        warnings,
+    )
     assert list(g.t) == [1, 2] and any("1 out of range" in w for w in warnings.items)
     with pytest.raises(DataFormatError, match="no fix has a latitude in"):
         csvlog.read_gnss(write(tmp_path / "bad.csv", "t,lat,lon,h\n0,134.8,113,0\n1,95,113,0\n"))
@@ -74,7 +85,11 @@ def test_orientation_csv_must_hold_unit_quaternions(tmp_path):
 
 GPX_EXPECT = {
     # file: (points, first (lat, lon), last (lat, lon)), read from the files by eye
-    "around-visnjan-with-car.gpx": (104, (45.273518851, 13.7142099626), (45.2733349521, 13.7139970623)),
+    "around-visnjan-with-car.gpx": (
+        104,
+        (45.273518851, 13.7142099626),
+        (45.2733349521, 13.7139970623),
+    ),
     "track_with_speed.gpx": (3, (52.330848, 5.541371), (52.331014, 5.541333)),
     "track-with-empty-segment.gpx": (9, (50.7772126, 6.0819695), (50.7776715, 6.0827203)),
 }
@@ -86,7 +101,9 @@ def test_gpx_tracks(shared_data, name):
     n, first, last = GPX_EXPECT[name]
     g = read_gpx(shared_data / "real" / "gpx" / name)
     assert len(g.t) == n
-    assert (g.lat[0], g.lon[0]) == pytest.approx(first) and (g.lat[-1], g.lon[-1]) == pytest.approx(last)
+    assert (g.lat[0], g.lon[0]) == pytest.approx(first) and (g.lat[-1], g.lon[-1]) == pytest.approx(
+        last
+    )
     assert np.all(np.diff(g.t) > 0)
 
 
@@ -105,6 +122,7 @@ def test_gpx_traps(shared_data):
 
 # --- Sensor Logger exports, written as the app documents them -----------------------------------
 
+
 def _sensorlogger_folder(folder, platform, q_true, t):
     """A recording of a static phone at attitude q_true, iOS or Android conventions."""
     folder.mkdir()
@@ -119,17 +137,35 @@ def _sensorlogger_folder(folder, platform, q_true, t):
 
     zyx = "time,seconds_elapsed,z,y,x"
     put("Gyroscope.csv", zyx, [np.zeros_like(t)] * 3)
-    put("Magnetometer.csv", zyx, [np.full_like(t, m_dev[2]), np.full_like(t, m_dev[1]), np.full_like(t, m_dev[0])])
-    (folder / "Metadata.csv").write_text(f"version,device name,recording time,platform\n3,phone,2023-11-14,{platform}\n")
+    put(
+        "Magnetometer.csv",
+        zyx,
+        [np.full_like(t, m_dev[2]), np.full_like(t, m_dev[1]), np.full_like(t, m_dev[0])],
+    )
+    (folder / "Metadata.csv").write_text(
+        f"version,device name,recording time,platform\n3,phone,2023-11-14,{platform}\n"
+    )
     if platform == "android":
-        put("TotalAcceleration.csv", zyx, [np.full_like(t, g_dev[2]), np.full_like(t, g_dev[1]), np.full_like(t, g_dev[0])])
+        put(
+            "TotalAcceleration.csv",
+            zyx,
+            [np.full_like(t, g_dev[2]), np.full_like(t, g_dev[1]), np.full_like(t, g_dev[0])],
+        )
         q_logged = q_true  # Android rotation vector: device -> ENU
     else:  # iOS: user acceleration + gravity, both with the opposite sign; attitude in x-north
         put("Accelerometer.csv", zyx, [np.zeros_like(t)] * 3)
-        put("Gravity.csv", zyx, [np.full_like(t, -g_dev[2]), np.full_like(t, -g_dev[1]), np.full_like(t, -g_dev[0])])
+        put(
+            "Gravity.csv",
+            zyx,
+            [np.full_like(t, -g_dev[2]), np.full_like(t, -g_dev[1]), np.full_like(t, -g_dev[0])],
+        )
         q_logged = rotations.multiply(rotations.about_z(-90.0), q_true)  # ENU -> NWU reference
     q = np.tile(q_logged, (len(t), 1))
-    put("Orientation.csv", "time,seconds_elapsed,qz,qy,qx,qw,roll,pitch,yaw", [q[:, 3], q[:, 2], q[:, 1], q[:, 0], *[np.zeros_like(t)] * 3])
+    put(
+        "Orientation.csv",
+        "time,seconds_elapsed,qz,qy,qx,qw,roll,pitch,yaw",
+        [q[:, 3], q[:, 2], q[:, 1], q[:, 0], *[np.zeros_like(t)] * 3],
+    )
     (folder / "Location.csv").write_text(
         "time,seconds_elapsed,bearingAccuracy,speedAccuracy,verticalAccuracy,horizontalAccuracy,speed,bearing,altitude,longitude,latitude\n"
         f"{ns[0]:.0f},0,1,1,2,4,1.5,90,120.5,113.53,34.8\n{ns[-1]:.0f},{t[-1]},1,1,2,4,1.5,90,120.5,113.53002,34.8\n"
@@ -151,7 +187,9 @@ def test_sensorlogger_folder_and_zip(tmp_path, platform):
         rec = read_sensorlogger(src, warnings=w)
         assert rec.platform == platform
         up = rotations.rotate(q_true, rec.acc.values[0])
-        np.testing.assert_allclose(up / np.linalg.norm(up), [0, 0, 1], atol=1e-6)  # +up specific force
+        np.testing.assert_allclose(
+            up / np.linalg.norm(up), [0, 0, 1], atol=1e-6
+        )  # +up specific force
         assert np.degrees(rotations.angle_between(rec.orientation.q[0], q_true)) < 1e-3
         np.testing.assert_allclose(rec.gnss.vel_enu[0], [1.5, 0, 0], atol=1e-9)
         assert rec.gnss.h[0] == pytest.approx(120.5)
@@ -167,10 +205,13 @@ def test_sensorlogger_errors(tmp_path):
 
 # --- Video metadata --------------------------------------------------------------------------------
 
+
 def test_probe_reads_variable_frame_times_and_rotation(tmp_path):
     rng = np.random.default_rng(0)
     pts = np.cumsum(np.concatenate([[0.0], rng.uniform(0.025, 0.042, 29)]))
-    path = write_video(tmp_path / "vfr.mp4", pts, (64, 36), rotation_cw=90, creation_time="2023-11-14T22:13:20Z")
+    path = write_video(
+        tmp_path / "vfr.mp4", pts, (64, 36), rotation_cw=90, creation_time="2023-11-14T22:13:20Z"
+    )
     info = probe(path)
     np.testing.assert_allclose(info.pts_s, pts - pts[0], atol=1.5e-5)
     assert info.rotation_cw == 90 and info.display_size == (36, 64)

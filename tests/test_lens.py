@@ -14,8 +14,12 @@ from app.errors import DataFormatError
 from app.lens import Lens, enclosing_intrinsics, read_profile
 from app.scene.mesh import MeshData, Primitive
 
-FISHEYE = Lens.create("fisheye", 1920, 1080, 846.7, 846.3, 951.3, 547.6, (0.0734, -0.0208, 0.0452, -0.0252))
-BROWN = Lens.create("brown", 1280, 720, 1000.0, 1002.0, 645.0, 355.0, (-0.21, 0.08, 0.001, -0.0015, -0.01))
+FISHEYE = Lens.create(
+    "fisheye", 1920, 1080, 846.7, 846.3, 951.3, 547.6, (0.0734, -0.0208, 0.0452, -0.0252)
+)
+BROWN = Lens.create(
+    "brown", 1280, 720, 1000.0, 1002.0, 645.0, 355.0, (-0.21, 0.08, 0.001, -0.0015, -0.01)
+)
 
 
 @pytest.mark.parametrize("lens", [FISHEYE, BROWN], ids=["fisheye", "brown"])
@@ -26,7 +30,9 @@ def test_the_model_matches_opencv(lens):
     k = np.array([[lens.fx, 0, lens.cx], [0, lens.fy, lens.cy], [0, 0, 1]])
     pts = np.column_stack([ab, np.ones(len(ab))])[:, None, :]
     if lens.kind == "fisheye":
-        expected, _ = cv2.fisheye.projectPoints(pts, np.zeros(3), np.zeros(3), k, np.array(lens.coeffs))
+        expected, _ = cv2.fisheye.projectPoints(
+            pts, np.zeros(3), np.zeros(3), k, np.array(lens.coeffs)
+        )
     else:
         expected, _ = cv2.projectPoints(pts, np.zeros(3), np.zeros(3), k, np.array(lens.coeffs))
     np.testing.assert_allclose(lens.distort(ab), expected[:, 0, :], atol=1e-6)
@@ -34,7 +40,9 @@ def test_the_model_matches_opencv(lens):
 
 
 def test_a_stretch_and_a_new_resolution():
-    lens = Lens.create("fisheye", 1920, 1080, 846.7, 846.3, 951.3, 547.6, FISHEYE.coeffs, stretch=1.25)
+    lens = Lens.create(
+        "fisheye", 1920, 1080, 846.7, 846.3, 951.3, 547.6, FISHEYE.coeffs, stretch=1.25
+    )
     ab = np.array([[0.5, -0.2], [0.0, 0.0]])
     plain = FISHEYE.distort(ab)
     np.testing.assert_allclose(lens.distort(ab)[:, 0] - lens.cx, 1.25 * (plain[:, 0] - FISHEYE.cx))
@@ -46,7 +54,11 @@ def test_a_stretch_and_a_new_resolution():
 def test_profiles_in_the_gyroflow_format(shared_data, tmp_path):
     path = next((shared_data / "lens_profiles" / "GoPro").glob("GoPro_HERO (2014)*1920x1080*.json"))
     lens = read_profile(path)
-    assert lens.kind == "fisheye" and (lens.width, lens.height) == (1920, 1080) and lens.fx == pytest.approx(846.707, abs=1e-3)
+    assert (
+        lens.kind == "fisheye"
+        and (lens.width, lens.height) == (1920, 1080)
+        and lens.fx == pytest.approx(846.707, abs=1e-3)
+    )
     bad = tmp_path / "bad.json"
     bad.write_text(json.dumps({"calib_dimension": {"w": 10}}))
     with pytest.raises(DataFormatError, match="bad.json"):
@@ -56,12 +68,16 @@ def test_profiles_in_the_gyroflow_format(shared_data, tmp_path):
 def test_the_enclosing_pinhole_sees_the_whole_image():
     intr = enclosing_intrinsics(FISHEYE)
     a0, a1, b0, b1 = FISHEYE.border_extent()
-    assert intr.width / (2 * intr.fx) >= max(-a0, a1) and intr.height / (2 * intr.fy) >= max(-b0, b1)
+    assert intr.width / (2 * intr.fx) >= max(-a0, a1) and intr.height / (2 * intr.fy) >= max(
+        -b0, b1
+    )
 
 
 def _checker(ab: np.ndarray, cell: float = 0.08) -> np.ndarray:
     """Black and white cells of `cell` normalised units: a board on a wall facing the camera."""
-    on = (np.floor(ab[..., 0] / cell).astype(int) + np.floor(ab[..., 1] / cell).astype(int)) % 2 == 0
+    on = (
+        np.floor(ab[..., 0] / cell).astype(int) + np.floor(ab[..., 1] / cell).astype(int)
+    ) % 2 == 0
     return np.where(on[..., None], 235, 20).astype(np.uint8).repeat(3, axis=-1)
 
 
@@ -79,24 +95,47 @@ def _renders(renderer, view: Camera, shots: list[tuple[np.ndarray, Camera]]) -> 
     for image, projector in shots:
         renderer.set_video_frame(image)
         renderer.set_projector(projector)
-        out.append(render_to_array(renderer, view, ProjectionSettings(alpha=1.0), OverlaySettings(frustum=False, trajectory=False)))
+        out.append(
+            render_to_array(
+                renderer,
+                view,
+                ProjectionSettings(alpha=1.0),
+                OverlaySettings(frustum=False, trajectory=False),
+            )
+        )
     return out
 
 
 def _wall() -> MeshData:
     """A wall 80 m x 50 m, 10 m north of the origin."""
     wall = np.array([[-40, 10, -25], [40, 10, -25], [40, 10, 25], [-40, 10, 25]], np.float32)
-    return MeshData([Primitive(positions=wall, colors=np.full((4, 4), 0.5, np.float32), indices=np.array([[0, 1, 2], [0, 2, 3]], np.uint32))])
+    return MeshData(
+        [
+            Primitive(
+                positions=wall,
+                colors=np.full((4, 4), 0.5, np.float32),
+                indices=np.array([[0, 1, 2], [0, 2, 3]], np.uint32),
+            )
+        ]
+    )
 
 
 def _cells(img: np.ndarray) -> np.ndarray:
     from scipy import ndimage
 
-    dark = ndimage.binary_erosion(img.mean(axis=2) < 110, iterations=2)  # cells meet only at corners: part them
+    dark = ndimage.binary_erosion(
+        img.mean(axis=2) < 110, iterations=2
+    )  # cells meet only at corners: part them
     labels, n = ndimage.label(dark)
     h, w = dark.shape
-    whole = [k + 1 for k, (r, c) in enumerate(ndimage.find_objects(labels)) if r.start > 0 and c.start > 0 and r.stop < h and c.stop < w]
-    return np.array(ndimage.center_of_mass(dark, labels, whole))  # cells cut by the image's edge left out
+    whole = [
+        k + 1
+        for k, (r, c) in enumerate(ndimage.find_objects(labels))
+        if r.start > 0 and c.start > 0 and r.stop < h and c.stop < w
+    ]
+    return np.array(
+        ndimage.center_of_mass(dark, labels, whole)
+    )  # cells cut by the image's edge left out
 
 
 @pytest.mark.gl
@@ -110,7 +149,12 @@ def test_a_fisheye_checkerboard_lands_straight_on_a_wall(gl_ctx):
     lens = FISHEYE.scaled(640, 360)
     distorted = _checker(lens.undistort(_pixels(640, 360)).reshape(360, 640, 2))
     pin = Intrinsics(640, 360, 420.0, 420.0, 320.0, 180.0)
-    straight = _checker(np.stack(np.meshgrid((np.arange(640) + 0.5 - 320) / 420, (np.arange(360) + 0.5 - 180) / 420), axis=-1))
+    straight = _checker(
+        np.stack(
+            np.meshgrid((np.arange(640) + 0.5 - 320) / 420, (np.arange(360) + 0.5 - 180) / 420),
+            axis=-1,
+        )
+    )
     q = rotations.camera_quat_from_hpr(0.0, 0.0, 0.0)  # looking north, level
     view = Camera.create(pin, [0, 0, 0], q, 0.5, 100.0)
     renderer = FusionRenderer(gl_ctx, _wall())
@@ -138,14 +182,27 @@ def test_a_gopro_clip_gets_a_lens_profile_chosen_and_said(shared_data, tmp_path)
 
     clip = shared_data / "real" / "gopro" / "max-heromode.mp4"
     s = open_clip(clip)
-    assert s.lens is not None and s.lens.kind == "fisheye" and (s.lens.width, s.lens.height) == (848, 480)
+    assert (
+        s.lens is not None
+        and s.lens.kind == "fisheye"
+        and (s.lens.width, s.lens.height) == (848, 480)
+    )
     assert any(w.startswith("lens: fisheye model from Max profile") for w in s.warnings.items)
-    assert s.intrinsics.hfov_deg > 2 * np.degrees(np.arctan(848 / 2 / s.lens.fx)) - 1e-6  # the depth pass encloses the image
+    assert (
+        s.intrinsics.hfov_deg > 2 * np.degrees(np.arctan(848 / 2 / s.lens.fx)) - 1e-6
+    )  # the depth pass encloses the image
     own = tmp_path / "mine.json"
-    profile = json.loads(next((shared_data / "lens_profiles" / "GoPro").glob("GoPro_HERO (2014)*1920x1080*.json")).read_text())
+    profile = json.loads(
+        next(
+            (shared_data / "lens_profiles" / "GoPro").glob("GoPro_HERO (2014)*1920x1080*.json")
+        ).read_text()
+    )
     own.write_text(json.dumps(profile))
     mine = open_clip(clip, lens=own)
-    assert mine.lens.fx == pytest.approx(846.7074163244357 * 848 / 1920) and own.resolve() in mine.inputs
+    assert (
+        mine.lens.fx == pytest.approx(846.7074163244357 * 848 / 1920)
+        and own.resolve() in mine.inputs
+    )
     assert open_clip(clip, hfov_deg=90.0).lens is None  # --fov: a pinhole, as asked
 
 
@@ -163,14 +220,25 @@ def test_the_dji_camera_is_read_from_the_mp4(tmp_path):
     from app.io.dji_mp4 import read_dji_camera
     from app.simulate.mp4meta import box, intl_text
 
-    cam = read_dji_camera(_dji_mp4(tmp_path / "a.mp4", {"\xa9mdl": b"FC3411\0\0", "\xa9too": intl_text("DJIAir2S")}))
-    assert (cam.model, cam.code, cam.encoder) == ("Air 2S", "FC3411", "DJIAir2S") and "FC3411" in cam.source
+    cam = read_dji_camera(
+        _dji_mp4(tmp_path / "a.mp4", {"\xa9mdl": b"FC3411\0\0", "\xa9too": intl_text("DJIAir2S")})
+    )
+    assert (cam.model, cam.code, cam.encoder) == (
+        "Air 2S",
+        "FC3411",
+        "DJIAir2S",
+    ) and "FC3411" in cam.source
     cam = read_dji_camera(_dji_mp4(tmp_path / "b.mp4", {"\xa9too": intl_text("DJIMavic3Classic")}))
     assert (cam.model, cam.code) == ("Mavic3Classic", "") and "encoder" in cam.source
     ilst = box("ilst", box("\xa9too", box("data", b"\0\0\0\x01\0\0\0\0DJI Air3")))
     hdlr = box("hdlr", bytes(8) + b"mdirappl" + bytes(9))
-    assert read_dji_camera(_dji_mp4(tmp_path / "c.mp4", {"meta": bytes(4) + hdlr + ilst})).model == "Air3"
-    assert read_dji_camera(_dji_mp4(tmp_path / "d.mp4", {})) is None  # PyAV's own encoder string: Lavf...
+    assert (
+        read_dji_camera(_dji_mp4(tmp_path / "c.mp4", {"meta": bytes(4) + hdlr + ilst})).model
+        == "Air3"
+    )
+    assert (
+        read_dji_camera(_dji_mp4(tmp_path / "d.mp4", {})) is None
+    )  # PyAV's own encoder string: Lavf...
     cam = read_dji_camera(_dji_mp4(tmp_path / "e.mp4", {"\xa9mdl": b"fc9999"}))
     assert (cam.model, cam.code) == ("", "FC9999")
     truncated = tmp_path / "f.mp4"
@@ -187,9 +255,18 @@ def test_dji_profiles_are_found_under_their_many_spellings_and_shapes():
     for model in ("Mavic Air 2", "Air3", "Mini 3 Pro", "Mavic3Classic", "Phantom 4"):
         path, why = choose_profile("DJI", model, 3840, 2160)
         d = json.loads(path.read_text())
-        assert (d["calib_dimension"]["w"] / d["calib_dimension"]["h"]) == pytest.approx(16 / 9, rel=0.02), why
-        assert any(n in profile_names("DJI", model) for n in ("".join(c for c in d["camera_model"].lower() if c.isalnum()).removeprefix("dji"),))
-    assert "air2" in profile_names("DJI", "Mavic Air 2") and profile_names("GoPro", "GoPro Max") == {"max"}
+        assert (d["calib_dimension"]["w"] / d["calib_dimension"]["h"]) == pytest.approx(
+            16 / 9, rel=0.02
+        ), why
+        assert any(
+            n in profile_names("DJI", model)
+            for n in (
+                "".join(c for c in d["camera_model"].lower() if c.isalnum()).removeprefix("dji"),
+            )
+        )
+    assert "air2" in profile_names("DJI", "Mavic Air 2") and profile_names(
+        "GoPro", "GoPro Max"
+    ) == {"max"}
     assert choose_profile("DJI", "Mavic 3", 3840, 2160) is None  # its profiles are all 1.90:1
     assert choose_profile("DJI", "Mavic 3", 5120, 2700) is not None
     assert choose_profile("DJI", "Spark", 1920, 1080) is None  # no profile at all
@@ -215,18 +292,26 @@ def test_footprints_through_a_lens_use_its_own_border():
     rays = cam.pixel_rays([[0, 0], [960, 0], [960, 540], [0, 540]])
     expected = np.array([0.0, 0.0, 40.0]) + rays * (40.0 / -rays[:, 2:3])
     got = frame.geodetic_to_enu(r.corners[:, 0], r.corners[:, 1], r.corners[:, 2])
-    np.testing.assert_allclose(got[:, :2], expected[:, :2], atol=0.25)  # the 1024-texel position map
+    np.testing.assert_allclose(
+        got[:, :2], expected[:, :2], atol=0.25
+    )  # the 1024-texel position map
     naive = 40.0 * (lens.width - lens.cx) / lens.fx  # the same focal length taken as a pinhole
     assert abs(got[1, 0]) > naive + 20.0  # the fisheye sees far wider than that
 
 
 def test_fields_of_view_of_a_lens():
     pin = Lens.create("brown", 1000, 500, 500.0, 500.0, 500.0, 250.0, (0.0, 0.0, 0.0, 0.0, 0.0))
-    assert pin.hfov_deg == pytest.approx(90.0) and pin.vfov_deg == pytest.approx(2 * np.degrees(np.arctan(0.5)))
-    assert FISHEYE.hfov_deg > 2 * np.degrees(np.arctan(FISHEYE.cx / FISHEYE.fx))  # wider than its focal length says
+    assert pin.hfov_deg == pytest.approx(90.0) and pin.vfov_deg == pytest.approx(
+        2 * np.degrees(np.arctan(0.5))
+    )
+    assert FISHEYE.hfov_deg > 2 * np.degrees(
+        np.arctan(FISHEYE.cx / FISHEYE.fx)
+    )  # wider than its focal length says
 
 
-def _wall_image(intr: Intrinsics, q_mid: np.ndarray, turn: np.ndarray, axis=(0.0, 1.0, 0.0)) -> np.ndarray:
+def _wall_image(
+    intr: Intrinsics, q_mid: np.ndarray, turn: np.ndarray, axis=(0.0, 1.0, 0.0)
+) -> np.ndarray:
     """What a rolling-shutter camera at the origin sees of a checkerboard wall 10 m north: the
     displayed pixel (u, v) read at fraction a u/W + b v/H + c of the readout (axis), exposed at
     orientation q_mid * exp(f * turn), f that fraction less 0.5 (turn: rad, camera frame, first
@@ -234,15 +319,21 @@ def _wall_image(intr: Intrinsics, q_mid: np.ndarray, turn: np.ndarray, axis=(0.0
     w, h = intr.width, intr.height
     v, u = np.mgrid[0:h, 0:w] + 0.5
     f = (axis[0] * u / w + axis[1] * v / h + axis[2] - 0.5).ravel()
-    q_row = rotations.multiply(np.tile(q_mid, (len(f), 1)), rotations.from_rotvec(f[:, None] * turn))
-    d = np.column_stack([(u.ravel() - intr.cx) / intr.fx, -(v.ravel() - intr.cy) / intr.fy, -np.ones(len(f))])
+    q_row = rotations.multiply(
+        np.tile(q_mid, (len(f), 1)), rotations.from_rotvec(f[:, None] * turn)
+    )
+    d = np.column_stack(
+        [(u.ravel() - intr.cx) / intr.fx, -(v.ravel() - intr.cy) / intr.fy, -np.ones(len(f))]
+    )
     world = rotations.rotate(q_row, d)
     hit = world * (10.0 / world[:, 1:2])
     on = (np.floor(hit[:, 0] / 0.8).astype(int) + np.floor(hit[:, 2] / 0.8).astype(int)) % 2 == 0
     return np.where(on, 235, 20).astype(np.uint8).reshape(h, w, 1).repeat(3, axis=2)
 
 
-def _shutter_misses(gl_ctx, intr: Intrinsics, turn: np.ndarray, axis: tuple, undone: Camera, as_if: Camera) -> tuple[float, float]:
+def _shutter_misses(
+    gl_ctx, intr: Intrinsics, turn: np.ndarray, axis: tuple, undone: Camera, as_if: Camera
+) -> tuple[float, float]:
     """90th percentiles (px) of how far the checkerboard cells land from a global shutter's when
     a frame read along `axis` while turning by `turn` is projected through `undone`, and through
     `as_if`. 90 %: a few cells at the frame's edge are cut by the image border (the sheared frame
@@ -255,12 +346,21 @@ def _shutter_misses(gl_ctx, intr: Intrinsics, turn: np.ndarray, axis: tuple, und
     view = Camera.create(intr, [0, 0, 0], q_mid, 0.5, 100.0)
     renderer = FusionRenderer(gl_ctx, _wall())
     try:
-        reference, corrected, wrong = _renders(renderer, view, [(still, view), (sheared, undone), (sheared, as_if)])
+        reference, corrected, wrong = _renders(
+            renderer, view, [(still, view), (sheared, undone), (sheared, as_if)]
+        )
     finally:
         renderer.release()
     ref = _cells(reference)
     assert len(ref) > 30
-    return tuple(float(np.percentile(np.linalg.norm(ref[:, None, :] - _cells(img)[None, :, :], axis=2).min(axis=1), 90)) for img in (corrected, wrong))
+    return tuple(
+        float(
+            np.percentile(
+                np.linalg.norm(ref[:, None, :] - _cells(img)[None, :, :], axis=2).min(axis=1), 90
+            )
+        )
+        for img in (corrected, wrong)
+    )
 
 
 @pytest.mark.gl

@@ -8,14 +8,20 @@ from app.simulate.phone import walking_pan, write_session
 
 @pytest.fixture(scope="module")
 def session(tmp_path_factory):
-    return open_session(write_session(tmp_path_factory.mktemp("lib"), walking_pan(), duration_s=10.0))
+    return open_session(
+        write_session(tmp_path_factory.mktemp("lib"), walking_pan(), duration_s=10.0)
+    )
 
 
 def test_every_source_is_solved_in_the_background(session):
     lib = SolverLibrary(session, first="offline")
     assert lib.order[0] == "offline"
     assert lib.wait(timeout=60)
-    assert lib.solved() == list(lib.order) and set(lib.order) == set(session.sources) and not lib.errors()
+    assert (
+        lib.solved() == list(lib.order)
+        and set(lib.order) == set(session.sources)
+        and not lib.errors()
+    )
     table = {row[0]: row for row in lib.rms_table()}
     assert lib.reference() == "truth" and "truth" not in table
     assert table["gd-ahrs"][4] < 1.0  # total RMS, degrees
@@ -34,4 +40,6 @@ def test_a_time_offset_moves_every_camera_along_its_track(session):
     lib.set_time_offset(0.5)
     assert lib.version == version + 1 and lib.time_offset_s == 0.5
     np.testing.assert_allclose(lib.track("truth").frame_camera(k).position, late, atol=1e-9)
-    assert not np.allclose(track.frame_camera(k).position, late, atol=1e-3)  # the old snapshot is unchanged
+    assert not np.allclose(
+        track.frame_camera(k).position, late, atol=1e-3
+    )  # the old snapshot is unchanged

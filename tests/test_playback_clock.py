@@ -31,7 +31,9 @@ def test_clock_loops_and_bumps_serial():
 
 def test_due_frame_and_wall_time():
     sched = FrameSchedule(np.array([0.0, 0.033, 0.07, 0.1]))
-    assert sched.due(0.0) == 0 and sched.due(0.05) == 1 and sched.due(0.07) == 2 and sched.due(5) == 3
+    assert (
+        sched.due(0.0) == 0 and sched.due(0.05) == 1 and sched.due(0.07) == 2 and sched.due(5) == 3
+    )
     assert sched.step(0, -1) == 0 and sched.step(2, 5) == 3
     c = PlaybackClock(duration=1.0, speed=0.5)
     c.time(10.0)

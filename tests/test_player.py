@@ -41,7 +41,9 @@ def test_every_frame_shown_once_with_low_latency_when_render_is_fast(clip):
         assert shown == list(range(len(shown))) and len(shown) >= 58
         assert p.stats.dropped == 0
         lat = np.asarray(p.stats.latencies)
-        assert np.abs(lat).max() < 0.008  # look-ahead keeps the display within a tick of the due time
+        assert (
+            np.abs(lat).max() < 0.008
+        )  # look-ahead keeps the display within a tick of the due time
     finally:
         p.close()
 
@@ -112,7 +114,9 @@ def test_a_fixed_step_clock_shows_exactly_the_frame_due(clip, step_s):
         assert len(p.stats.latencies) + p.stats.dropped == due
         assert np.abs(p.stats.latencies).max() < 1e-9  # shown exactly when due
         if step_s > 0.1:
-            assert p.stats.dropped > 40  # 12 frames of every 12 drawn... most are skipped, and counted
+            assert (
+                p.stats.dropped > 40
+            )  # 12 frames of every 12 drawn... most are skipped, and counted
     finally:
         p.close()
 

@@ -41,11 +41,19 @@ def wall():
 
 
 def projector(heading=0.0, pitch=0.0, position=(0, 0, 10)):
-    return Camera.create(Intrinsics.from_fov(VIDEO_W, VIDEO_H, 60), position, rotations.camera_quat_from_hpr(heading, pitch, 0.0), near=1.0, far=200.0)
+    return Camera.create(
+        Intrinsics.from_fov(VIDEO_W, VIDEO_H, 60),
+        position,
+        rotations.camera_quat_from_hpr(heading, pitch, 0.0),
+        near=1.0,
+        far=200.0,
+    )
 
 
 def view_camera(eye, target, w=320, h=240):
-    return Camera.create(Intrinsics.from_fov(w, h, 60), eye, look_at_quat(eye, target), near=0.5, far=500.0)
+    return Camera.create(
+        Intrinsics.from_fov(w, h, 60), eye, look_at_quat(eye, target), near=0.5, far=500.0
+    )
 
 
 def pixel_centres(cam):
@@ -82,8 +90,14 @@ def test_checkerboard_texels_land_where_the_frustum_says(gl_ctx):
 
     world, _ = hit_plane(view, 1, WALL_Y)
     uv, depth = proj.project(world)
-    inside_block = np.abs((uv % BLOCK) - BLOCK / 2) <= BLOCK / 2 - 1.0  # >= 1 texel from block edges
-    ok = (depth > 0) & np.all(inside_block, axis=1) & np.all((uv >= 0) & (uv < [VIDEO_W, VIDEO_H]), axis=1)
+    inside_block = (
+        np.abs((uv % BLOCK) - BLOCK / 2) <= BLOCK / 2 - 1.0
+    )  # >= 1 texel from block edges
+    ok = (
+        (depth > 0)
+        & np.all(inside_block, axis=1)
+        & np.all((uv >= 0) & (uv < [VIDEO_W, VIDEO_H]), axis=1)
+    )
     assert ok.sum() > 5000
     texel = np.floor(uv[ok]).astype(int)
     expected = image[texel[:, 1], texel[:, 0]].astype(int)
@@ -94,7 +108,9 @@ def test_checkerboard_texels_land_where_the_frustum_says(gl_ctx):
 
 def test_box_shadow_keeps_model_colour_behind_occluder(gl_ctx):
     box_lo, box_hi = np.array([-3.0, 10.0, 5.0]), np.array([3.0, 12.0, 12.0])
-    r = make_renderer(gl_ctx, [wall(), shapes.box(box_lo, box_hi, bottom=True).primitive((0.8, 0.4, 0.2, 1))])
+    r = make_renderer(
+        gl_ctx, [wall(), shapes.box(box_lo, box_hi, bottom=True).primitive((0.8, 0.4, 0.2, 1))]
+    )
     r.set_video_frame(np.full((VIDEO_H, VIDEO_W, 3), (255, 0, 255), np.uint8))
     proj = projector()
     r.set_projector(proj)
@@ -118,7 +134,14 @@ def test_box_shadow_keeps_model_colour_behind_occluder(gl_ctx):
 
     # Shadow polygon: the box's corners projected into the depth map, in texels.
     scale = long_side / VIDEO_W
-    corners = np.array([[x, y, z] for x in (box_lo[0], box_hi[0]) for y in (box_lo[1], box_hi[1]) for z in (box_lo[2], box_hi[2])])
+    corners = np.array(
+        [
+            [x, y, z]
+            for x in (box_lo[0], box_hi[0])
+            for y in (box_lo[1], box_hi[1])
+            for z in (box_lo[2], box_hi[2])
+        ]
+    )
     hull = ConvexHull(proj.project(corners)[0] * scale)
     uv, _ = proj.project(world)
     p = uv * scale
@@ -130,7 +153,9 @@ def test_box_shadow_keeps_model_colour_behind_occluder(gl_ctx):
     deep_shadow = usable & in_frame & (signed < -1.0)
     lit = usable & in_frame & (signed > 2.0)
     assert deep_shadow.sum() > 300 and lit.sum() > 3000
-    assert not is_video[deep_shadow].any(), f"{is_video[deep_shadow].sum()} video pixels > 1 texel inside the shadow"
+    assert not is_video[deep_shadow].any(), (
+        f"{is_video[deep_shadow].sum()} video pixels > 1 texel inside the shadow"
+    )
     assert is_video[lit].mean() > 0.995
     r.release()
 
@@ -151,12 +176,22 @@ def test_outside_frustum_and_behind_are_bit_identical_to_projection_off(gl_ctx):
     wall_hit = (np.abs(on_wall[:, 0]) < 20) & (on_wall[:, 2] > 0) & (on_wall[:, 2] < 20)
     use_wall = wall_hit & ~(t_ground < t_wall)
     world = np.where(use_wall[:, None], on_wall, on_ground)
-    valid = (use_wall | np.all(np.abs(on_ground[:, :2]) < 79, axis=1)) & np.all(np.isfinite(world), axis=1)
+    valid = (use_wall | np.all(np.abs(on_ground[:, :2]) < 79, axis=1)) & np.all(
+        np.isfinite(world), axis=1
+    )
     uv, depth = proj.project(world)
     behind = valid & (depth <= 0)
     margin = 1.0
-    outside = valid & (depth > 0) & ~np.all((uv > -margin) & (uv < [VIDEO_W + margin, VIDEO_H + margin]), axis=1)
-    inside = use_wall & (depth > 1) & np.all((uv > margin) & (uv < [VIDEO_W - margin, VIDEO_H - margin]), axis=1)
+    outside = (
+        valid
+        & (depth > 0)
+        & ~np.all((uv > -margin) & (uv < [VIDEO_W + margin, VIDEO_H + margin]), axis=1)
+    )
+    inside = (
+        use_wall
+        & (depth > 1)
+        & np.all((uv > margin) & (uv < [VIDEO_W - margin, VIDEO_H - margin]), axis=1)
+    )
     # Behind-the-camera points whose perspective division lands inside the image in x and y:
     # the w <= 0 (and z) checks are what keep the video off them.
     clip = np.c_[world, np.ones(len(world))] @ proj.view_projection.T
@@ -174,7 +209,9 @@ def test_transparency_blends_model_and_video(gl_ctx):
     video_rgb = np.array([200, 40, 90])
     r.set_video_frame(np.tile(video_rgb.astype(np.uint8), (VIDEO_H, VIDEO_W, 1)))
     r.set_projector(projector())
-    view = view_camera([0, 5, 10], [0, WALL_Y, 10], 160, 120)  # wall fills the centre, all projected
+    view = view_camera(
+        [0, 5, 10], [0, WALL_Y, 10], 160, 120
+    )  # wall fills the centre, all projected
     model = render(r, view, enabled=False)[40:80, 60:100].reshape(-1, 3)
     a0 = render(r, view, alpha=0.0)[40:80, 60:100].reshape(-1, 3)
     a5 = render(r, view, alpha=0.5)[40:80, 60:100].reshape(-1, 3)
@@ -189,7 +226,9 @@ def test_transparency_blends_model_and_video(gl_ctx):
 def test_neighbourhood_rule_trims_the_occlusion_edge(gl_ctx):
     """With the nine-case rule off, video reaches closer to the shadow edge than with it on."""
     box_lo, box_hi = np.array([-3.0, 10.0, 5.0]), np.array([3.0, 12.0, 12.0])
-    r = make_renderer(gl_ctx, [wall(), shapes.box(box_lo, box_hi, bottom=True).primitive((0.8, 0.4, 0.2, 1))])
+    r = make_renderer(
+        gl_ctx, [wall(), shapes.box(box_lo, box_hi, bottom=True).primitive((0.8, 0.4, 0.2, 1))]
+    )
     r.set_video_frame(np.full((VIDEO_H, VIDEO_W, 3), (255, 0, 255), np.uint8))
     r.set_projector(projector())
     view = view_camera([14, -4, 9], [0, WALL_Y, 9])
@@ -232,29 +271,47 @@ def test_vertex_at_known_latitude_longitude_appears_where_geo_says(gl_ctx, tmp_p
     faces = [[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]]
     colors = np.array([[255, 0, 0, 255]] * 4 + [[60, 60, 60, 255]] * 4, np.uint8)
     path = tmp_path / "ecef.obj"
-    trimesh.Trimesh(vertices=verts, faces=faces, vertex_colors=colors, process=False).export(path, digits=6)
+    trimesh.Trimesh(vertices=verts, faces=faces, vertex_colors=colors, process=False).export(
+        path, digits=6
+    )
     mesh = load_scene(path, frame)
 
     r = make_renderer(gl_ctx, mesh.primitives)
-    cam = Camera.create(Intrinsics.from_fov(400, 400, 60), [0, 0, 400], rotations.camera_quat_from_hpr(0, -90, 0), near=1, far=1000)
+    cam = Camera.create(
+        Intrinsics.from_fov(400, 400, 60),
+        [0, 0, 400],
+        rotations.camera_quat_from_hpr(0, -90, 0),
+        near=1,
+        far=1000,
+    )
     out = render(r, cam, enabled=False)
     red = (out[:, :, 0] > 120) & (out[:, :, 1] < 40)
     assert red.sum() > 4
     v, u = np.nonzero(red)
     expected_uv, _ = cam.project(centre_enu)
     assert np.hypot(u.mean() + 0.5 - expected_uv[0, 0], v.mean() + 0.5 - expected_uv[0, 1]) < 1.0
-    assert centre_enu[0] == pytest.approx(101.6, abs=1) and centre_enu[1] == pytest.approx(99.8, abs=1)
+    assert centre_enu[0] == pytest.approx(101.6, abs=1) and centre_enu[1] == pytest.approx(
+        99.8, abs=1
+    )
     r.release()
 
 
 def test_border_texels_with_fewer_neighbours_still_take_the_video(gl_ctx):
     """Edge and corner texels have fewer than eight neighbours; those outside the image are not
     cases that can fail. A wall filling the frustum, seen through the projector, is all video."""
-    r = make_renderer(gl_ctx, [shapes.quad([-60, WALL_Y, -40], [120, 0, 0], [0, 0, 100]).primitive(WALL_COLOR)])
+    r = make_renderer(
+        gl_ctx, [shapes.quad([-60, WALL_Y, -40], [120, 0, 0], [0, 0, 100]).primitive(WALL_COLOR)]
+    )
     r.set_video_frame(np.full((VIDEO_H, VIDEO_W, 3), (255, 0, 255), np.uint8))
     proj = projector()
     r.set_projector(proj)
-    view = Camera.create(proj.intrinsics.scaled(4 * VIDEO_W, 4 * VIDEO_H), proj.position, proj.orientation, near=1.0, far=200.0)
+    view = Camera.create(
+        proj.intrinsics.scaled(4 * VIDEO_W, 4 * VIDEO_H),
+        proj.position,
+        proj.orientation,
+        near=1.0,
+        far=200.0,
+    )
     out = render(r, view, alpha=1.0, depth_long_side=VIDEO_W)
     assert (np.abs(out - [255, 0, 255]).max(axis=2) <= 1).all()
     r.release()
@@ -304,13 +361,30 @@ def test_error_overlay_colours_the_projection_error_in_metres(gl_ctx):
     from app.render.offscreen import render_to_array
 
     def colour(truth_offset):
-        r.set_truth(Camera.create(est.intrinsics, np.asarray(est.position) + truth_offset, est.orientation, est.near, est.far))
-        out = render_to_array(r, view, ProjectionSettings(alpha=1.0), OverlaySettings(frustum=False, trajectory=False, error_map=True, error_scale_m=4.0))
+        r.set_truth(
+            Camera.create(
+                est.intrinsics,
+                np.asarray(est.position) + truth_offset,
+                est.orientation,
+                est.near,
+                est.far,
+            )
+        )
+        out = render_to_array(
+            r,
+            view,
+            ProjectionSettings(alpha=1.0),
+            OverlaySettings(frustum=False, trajectory=False, error_map=True, error_scale_m=4.0),
+        )
         return out[50:70, 70:90].reshape(-1, 3).astype(int)
 
     same = colour([0.0, 0.0, 0.0])
     off = colour([2.0, 0.0, 0.0])
     # 70 % of the ramp colour over the video's grey 128: green at 0 m, yellow at 2 m of 4.
-    np.testing.assert_allclose(np.median(same, axis=0), 0.3 * 128 + 0.7 * np.array([0.10, 0.80, 0.25]) * 255, atol=3)
-    np.testing.assert_allclose(np.median(off, axis=0), 0.3 * 128 + 0.7 * np.array([1.00, 0.85, 0.10]) * 255, atol=3)
+    np.testing.assert_allclose(
+        np.median(same, axis=0), 0.3 * 128 + 0.7 * np.array([0.10, 0.80, 0.25]) * 255, atol=3
+    )
+    np.testing.assert_allclose(
+        np.median(off, axis=0), 0.3 * 128 + 0.7 * np.array([1.00, 0.85, 0.10]) * 255, atol=3
+    )
     r.release()

@@ -40,7 +40,9 @@ def test_positive_roll_lowers_the_image_right_side():
 
 def test_hpr_round_trip_and_wrap():
     rng = np.random.default_rng(3)
-    hpr = np.column_stack([rng.uniform(0, 360, 500), rng.uniform(-85, 85, 500), rng.uniform(-179, 179, 500)])
+    hpr = np.column_stack(
+        [rng.uniform(0, 360, 500), rng.uniform(-85, 85, 500), rng.uniform(-179, 179, 500)]
+    )
     back = rotations.hpr_from_camera_quat(rotations.camera_quat_from_hpr(*hpr.T))
     np.testing.assert_allclose(rotations.wrap_degrees(back - hpr), 0.0, atol=1e-8)
     assert rotations.wrap_degrees(181.0) == pytest.approx(-179.0)

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from app.accuracy import Poses, ProjectionProbe, evaluate, true_frame_times
-from app.demo import SAMPLE_DIR, SAMPLE_SCENE
 from app.camera_track import camera_track
+from app.demo import SAMPLE_DIR, SAMPLE_SCENE
 from app.session import open_session
 from app.simulate import session as sample
 
@@ -25,9 +25,22 @@ def test_generation_is_reproducible(tmp_path):
     digests = []
     for name in ("a", "b"):
         sample.write_sample_session(tmp_path / name, SAMPLE_SCENE, sample.quick_config(2.0))
-        digests.append({p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted((tmp_path / name).iterdir())})
+        digests.append(
+            {
+                p.name: hashlib.sha256(p.read_bytes()).hexdigest()
+                for p in sorted((tmp_path / name).iterdir())
+            }
+        )
     assert digests[0] == digests[1]
-    assert {"clip.mp4", "acc.csv", "gyr.csv", "mag.csv", "gnss.csv", "session.toml", "truth_frames.csv"} <= set(digests[0])
+    assert {
+        "clip.mp4",
+        "acc.csv",
+        "gyr.csv",
+        "mag.csv",
+        "gnss.csv",
+        "session.toml",
+        "truth_frames.csv",
+    } <= set(digests[0])
 
 
 def test_committed_sample_is_small_and_opens(session):
@@ -36,14 +49,27 @@ def test_committed_sample_is_small_and_opens(session):
     assert len(session.frame_times) == 2400 and session.video.display_size == (640, 360)
     assert session.rotation_cw == 180  # landscape, phone top to the right
     assert session.video.variable_rate  # +-3 ms presentation-time jitter, as phones record
-    assert session.sources == ["gd-ahrs", "gd-imu", "cf-ahrs", "cf-imu", "offline", "phone", "registered", "truth"]
+    assert session.sources == [
+        "gd-ahrs",
+        "gd-imu",
+        "cf-ahrs",
+        "cf-imu",
+        "offline",
+        "phone",
+        "registered",
+        "truth",
+    ]
     assert any("hard-iron offset" in w for w in session.warnings.items)
     # The manifest's start time is 80 ms late, as the generator documents.
-    np.testing.assert_allclose(session.frame_times - true_frame_times(session), sample.SYNC_ERROR_S, atol=1e-4)
+    np.testing.assert_allclose(
+        session.frame_times - true_frame_times(session), sample.SYNC_ERROR_S, atol=1e-4
+    )
 
 
 def test_sensor_error_model_is_what_it_says(tmp_path):
-    manifest = sample.write_sample_session(tmp_path, SAMPLE_SCENE, sample.SampleConfig(duration_s=20.0, render_video=False))
+    manifest = sample.write_sample_session(
+        tmp_path, SAMPLE_SCENE, sample.SampleConfig(duration_s=20.0, render_video=False)
+    )
     from app.io import csvlog
 
     g = csvlog.read_vector(tmp_path / "gyr.csv", "gyr")
@@ -57,7 +83,9 @@ def test_sensor_error_model_is_what_it_says(tmp_path):
     from app.geo import LocalFrame
 
     frame = LocalFrame(*sample.SITE_ORIGIN)
-    e = frame.geodetic_to_enu(gnss.lat, gnss.lon, gnss.h) - sample.walk_position(gnss.t - sample.START_UNIX_S)
+    e = frame.geodetic_to_enu(gnss.lat, gnss.lon, gnss.h) - sample.walk_position(
+        gnss.t - sample.START_UNIX_S
+    )
     assert 0.5 < np.sqrt(np.mean(e[:, :2] ** 2)) < 6.0  # metre-level, correlated
     assert manifest.exists()
 
@@ -81,7 +109,12 @@ def test_truth_pose_projects_within_centimetres(session):
 
 @pytest.fixture(scope="module")
 def reports(session):
-    return {r.name: r for r in evaluate(session, ["gd-ahrs", "gd-imu", "cf-ahrs", "offline"], every=60, grid=(32, 18))}
+    return {
+        r.name: r
+        for r in evaluate(
+            session, ["gd-ahrs", "gd-imu", "cf-ahrs", "offline"], every=60, grid=(32, 18)
+        )
+    }
 
 
 def test_filters_within_stated_bounds_on_the_sample(reports):

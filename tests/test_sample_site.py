@@ -20,7 +20,9 @@ def test_generation_is_reproducible_and_matches_the_committed_sample(site, tmp_p
     again = write_site(tmp_path / "again.glb")
     digest = hashlib.sha256(site.read_bytes()).hexdigest()
     assert hashlib.sha256(again.read_bytes()).hexdigest() == digest
-    assert hashlib.sha256(SAMPLE_SCENE.read_bytes()).hexdigest() == digest, "assets/sample/scene.glb is stale: regenerate it"
+    assert hashlib.sha256(SAMPLE_SCENE.read_bytes()).hexdigest() == digest, (
+        "assets/sample/scene.glb is stale: regenerate it"
+    )
     assert site.stat().st_size < 4e6
 
 
@@ -34,5 +36,9 @@ def test_hall_and_buildings_have_the_stated_size(site):
     assert 3 <= len(BUILDINGS) <= 6
     assert len({b.max_corner[2] for b in BUILDINGS}) == len(BUILDINGS)  # all different heights
     textured = {p.name for p in mesh.primitives if p.textured}
-    assert {"ground", "hall_walls", "hall_roof"} | {f"building_{b.name}" for b in BUILDINGS} <= textured
-    assert SITE_ORIGIN[0] == pytest.approx(34.80, abs=0.01) and SITE_ORIGIN[1] == pytest.approx(113.53, abs=0.01)
+    assert {"ground", "hall_walls", "hall_roof"} | {
+        f"building_{b.name}" for b in BUILDINGS
+    } <= textured
+    assert SITE_ORIGIN[0] == pytest.approx(34.80, abs=0.01) and SITE_ORIGIN[1] == pytest.approx(
+        113.53, abs=0.01
+    )

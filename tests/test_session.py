@@ -35,13 +35,22 @@ def test_session_reads_everything(session):
     assert session.video.rotation_cw == 90
     assert (session.intrinsics.width, session.intrinsics.height) == (36, 64)  # portrait display
     assert session.declination_deg == pytest.approx(-5.6, abs=0.5)  # WMM near Zhengzhou, 2023
-    assert [w for w in session.warnings.items if not w.startswith(("magnetometer calibrated", "rolling shutter"))] == []
-    assert "rolling shutter: readout time unknown (camera.readout_ms): not corrected" in session.warnings.items  # said, not silent
+    assert [
+        w
+        for w in session.warnings.items
+        if not w.startswith(("magnetometer calibrated", "rolling shutter"))
+    ] == []
+    assert (
+        "rolling shutter: readout time unknown (camera.readout_ms): not corrected"
+        in session.warnings.items
+    )  # said, not silent
     offset = session.warnings.items[0]
     assert "hard-iron offset" in offset  # the simulated phone has none: the fit must stay small
 
 
-@pytest.mark.parametrize("source, bound_deg", [("gd-ahrs", 1.0), ("cf-ahrs", 1.0), ("offline", 1.0)])
+@pytest.mark.parametrize(
+    "source, bound_deg", [("gd-ahrs", 1.0), ("cf-ahrs", 1.0), ("offline", 1.0)]
+)
 def test_solved_attitude_matches_the_truth(session, source, bound_deg):
     truth = solve_frames(session, "truth")
     rows = solve_frames(session, source)
@@ -61,7 +70,10 @@ def test_positions_follow_the_simulated_walk(session):
 
 def test_solve_cli_writes_one_row_per_frame(session_dir, tmp_path, capsys):
     out = tmp_path / "poses.csv"
-    assert main(["solve", str(session_dir / "session.toml"), "--source", "gd-ahrs", "--out", str(out)]) == 0
+    assert (
+        main(["solve", str(session_dir / "session.toml"), "--source", "gd-ahrs", "--out", str(out)])
+        == 0
+    )
     with out.open() as f:
         rows = list(csv.reader(f))
     assert tuple(rows[0]) == COLUMNS and len(rows) == 601
@@ -75,16 +87,37 @@ def test_imu_only_session_offers_imu_filters(session_dir, tmp_path, capsys):
     (folder / "session.toml").write_text(text)
     s = open_session(folder / "session.toml")
     assert s.sources == ["gd-imu", "cf-imu", "offline", "truth"]
-    assert main(["solve", str(folder / "session.toml"), "--source", "gd-ahrs", "--out", str(tmp_path / "p.csv")]) == 2
+    assert (
+        main(
+            [
+                "solve",
+                str(folder / "session.toml"),
+                "--source",
+                "gd-ahrs",
+                "--out",
+                str(tmp_path / "p.csv"),
+            ]
+        )
+        == 2
+    )
     assert "this session offers gd-imu, cf-imu, offline, truth" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize(
     "edit, message",
     [
-        (lambda t: t.replace('[video]\npath = "clip.mp4"', '[video]\npath = "missing.mp4"'), "field 'video.path': names 'missing.mp4', which does not exist"),
-        (lambda t: t.replace("[camera]\nhfov_deg = 60.0", "[camera]\nhfov_deg = \"wide\""), "field 'camera.hfov_deg': got 'wide', expected float"),
-        (lambda t: t.replace("start_time = 1700000000.0", "start_time = 1600000000.0"), "field 'video.start_time': no video frame lies within the sensor log"),
+        (
+            lambda t: t.replace('[video]\npath = "clip.mp4"', '[video]\npath = "missing.mp4"'),
+            "field 'video.path': names 'missing.mp4', which does not exist",
+        ),
+        (
+            lambda t: t.replace("[camera]\nhfov_deg = 60.0", '[camera]\nhfov_deg = "wide"'),
+            "field 'camera.hfov_deg': got 'wide', expected float",
+        ),
+        (
+            lambda t: t.replace("start_time = 1700000000.0", "start_time = 1600000000.0"),
+            "field 'video.start_time': no video frame lies within the sensor log",
+        ),
         (lambda t: t.replace("[gnss]\n", "[gnss_typo]\n"), "field 'gnss': missing section [gnss]"),
         (lambda t: t + "\n[[[", "not valid TOML"),
     ],
@@ -105,9 +138,13 @@ def test_eq5_timing_fallback(session_dir, tmp_path):
     folder = tmp_path / "eq5"
     shutil.copytree(session_dir, folder)
     manifest = folder / "session.toml"
-    manifest.write_text(manifest.read_text().replace('path = "clip.mp4"', 'path = "clip.mp4"\ntiming = "eq5"'))
+    manifest.write_text(
+        manifest.read_text().replace('path = "clip.mp4"', 'path = "clip.mp4"\ntiming = "eq5"')
+    )
     s = open_session(manifest)
-    np.testing.assert_allclose(np.diff(s.frame_times), 1 / 30, atol=1e-6)  # float64 Unix seconds: 0.24 us steps
+    np.testing.assert_allclose(
+        np.diff(s.frame_times), 1 / 30, atol=1e-6
+    )  # float64 Unix seconds: 0.24 us steps
 
 
 @pytest.mark.gl
@@ -132,7 +169,9 @@ def test_render_session_frame(session_dir, tmp_path, gl_ctx, capsys):
     assert main([*common, "--alpha", "0", "--out", str(tmp_path / "model.png")]) == 0
     video = np.asarray(Image.open(tmp_path / "video.png").convert("RGB"), int)
     model = np.asarray(Image.open(tmp_path / "model.png").convert("RGB"), int)
-    frame = np.asarray(Image.fromarray(read_frame(session.video.path, k, session.video)).resize((w, h)), int)
+    frame = np.asarray(
+        Image.fromarray(read_frame(session.video.path, k, session.video)).resize((w, h)), int
+    )
     assert video.shape == model.shape == frame.shape
     on_model = np.abs(model - np.array([158, 189, 219])).max(axis=2) > 3  # not the background
     assert on_model.mean() > 0.3

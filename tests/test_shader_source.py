@@ -6,7 +6,12 @@ from app.render.shader_source import SHADER_DIR, preprocess
 
 def test_include_is_inlined_with_line_directives():
     src = preprocess("scene.frag")
-    assert src.files == ["scene.frag", "include/projective.glsl", "include/lens.glsl", "include/video.glsl"]
+    assert src.files == [
+        "scene.frag",
+        "include/projective.glsl",
+        "include/lens.glsl",
+        "include/video.glsl",
+    ]
     lines = src.text.splitlines()
     assert lines[0].startswith("#version 400")
     assert lines[1] == "#line 2 0"

@@ -8,7 +8,14 @@ import pytest
 
 from app import rotations
 from app.demo import SAMPLE_DIR
-from app.sync import estimate_offset, frame_rotation, gyro_rates, synced_offset, video_rates, bearings_of
+from app.sync import (
+    bearings_of,
+    estimate_offset,
+    frame_rotation,
+    gyro_rates,
+    synced_offset,
+    video_rates,
+)
 
 
 @pytest.fixture(scope="module")
@@ -48,7 +55,18 @@ def test_sync_write_keeps_the_offset_for_an_auto_manifest(tmp_path, capsys):
     from app.session import open_session
 
     text = (SAMPLE_DIR / "session.toml").read_text()
-    for name in ("scene.glb", "clip.mp4", "acc.csv", "gyr.csv", "mag.csv", "phone_orientation.csv", "gnss.csv", "truth_orientation.csv", "truth_position.csv", "truth_frames.csv"):
+    for name in (
+        "scene.glb",
+        "clip.mp4",
+        "acc.csv",
+        "gyr.csv",
+        "mag.csv",
+        "phone_orientation.csv",
+        "gnss.csv",
+        "truth_orientation.csv",
+        "truth_position.csv",
+        "truth_frames.csv",
+    ):
         text = text.replace(f'"{name}"', f'"{SAMPLE_DIR / name}"')
     manifest = tmp_path / "walk.toml"
     manifest.write_text(text.replace("time_offset_s = 0.0", 'time_offset_s = "auto"'))
@@ -58,7 +76,9 @@ def test_sync_write_keeps_the_offset_for_an_auto_manifest(tmp_path, capsys):
     offset = synced_offset(manifest)
     s = open_session(manifest)
     truth = float(np.mean(s.truth_frame_times - s.frame_times))
-    assert abs(truth) < 0.010 and offset == pytest.approx(-0.080, abs=0.010)  # the offset was applied
+    assert abs(truth) < 0.010 and offset == pytest.approx(
+        -0.080, abs=0.010
+    )  # the offset was applied
     assert any("walk.geofuse.toml" in w for w in s.warnings.items)
 
 
@@ -72,9 +92,13 @@ def test_a_clock_drift_is_fitted_on_a_long_clip(sample_rates):
     clip_start = float(s.frame_times[0] - s.video.pts_s[0])
     plain = estimate_offset(rates, gyro, clip_start)
     assert plain.drift_ppm == 0.0  # below what moves the clip's ends by 5 ms: not a drift
-    fast = RateCurve(rates.t * (1 - 300e-6), rates.omega)  # video times read too short: its clock runs fast
+    fast = RateCurve(
+        rates.t * (1 - 300e-6), rates.omega
+    )  # video times read too short: its clock runs fast
     drifted = estimate_offset(fast, gyro, clip_start)
-    assert drifted.drift_ppm == pytest.approx(300, abs=100)  # the estimator's error on this walk: ~70 ppm (5 ms over 80 s)
+    assert drifted.drift_ppm == pytest.approx(
+        300, abs=100
+    )  # the estimator's error on this walk: ~70 ppm (5 ms over 80 s)
 
 
 def test_without_a_gyroscope_the_recorded_attitude_times_the_video(sample_rates):
@@ -122,7 +146,9 @@ def test_a_straight_flight_cannot_be_timed_by_its_course(drone_video, capsys):
     from app.cli import main
     from app.simulate import drone
 
-    drone_video.with_suffix(".SRT").write_text(drone.srt_text(24.0, 0.0, drone.straight), encoding="utf-8")
+    drone_video.with_suffix(".SRT").write_text(
+        drone.srt_text(24.0, 0.0, drone.straight), encoding="utf-8"
+    )
     assert main(["sync", str(drone_video)]) == 2
     err = capsys.readouterr().err
     assert "turns faster than 3 deg/s for only 0.0 s" in err and "cannot be estimated" in err

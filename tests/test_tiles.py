@@ -46,7 +46,12 @@ def ecef_b3dm(shape, rtc_enu=(0.0, WALL_Y, 10.0)) -> bytes:
 
 
 def region_tile(shape_bytes_name: str, error: float = 0.0, **extra) -> dict:
-    return {"boundingVolume": {"region": tw.region_of(FRAME, LO, HI)}, "geometricError": error, "content": {"uri": shape_bytes_name}, **extra}
+    return {
+        "boundingVolume": {"region": tw.region_of(FRAME, LO, HI)},
+        "geometricError": error,
+        "content": {"uri": shape_bytes_name},
+        **extra,
+    }
 
 
 def enu_box_tile(uri: str | None, error: float = 0.0, **extra) -> dict:
@@ -83,9 +88,19 @@ def external(d: Path) -> Path:
     shift = np.eye(4)
     shift[:3, 3] = (5.0, 0.0, 0.0)  # the external root moves its content 5 m east ...
     (d / "sub").mkdir()
-    (d / "sub" / "wall.glb").write_bytes(tw.glb(WALL.vertices - [5.0, 0.0, 0.0], WALL.faces))  # ... back to the wall
-    tw.write_json(d / "sub" / "tileset.json", tileset_doc(enu_box_tile("wall.glb", transform=tw.column_major(shift))))
-    root = enu_box_tile(None, 100.0, transform=tw.column_major(tw.enu_to_ecef_matrix(FRAME)), children=[enu_box_tile("sub/tileset.json", 50.0)])
+    (d / "sub" / "wall.glb").write_bytes(
+        tw.glb(WALL.vertices - [5.0, 0.0, 0.0], WALL.faces)
+    )  # ... back to the wall
+    tw.write_json(
+        d / "sub" / "tileset.json",
+        tileset_doc(enu_box_tile("wall.glb", transform=tw.column_major(shift))),
+    )
+    root = enu_box_tile(
+        None,
+        100.0,
+        transform=tw.column_major(tw.enu_to_ecef_matrix(FRAME)),
+        children=[enu_box_tile("sub/tileset.json", 50.0)],
+    )
     return tw.write_json(d / "tileset.json", tileset_doc(root))
 
 
@@ -104,7 +119,9 @@ def add(d: Path) -> Path:
 
 
 def composite(d: Path) -> Path:
-    (d / "both.cmpt").write_bytes(tw.cmpt([ecef_b3dm(LEFT), tw.other_tile(b"i3dm"), ecef_b3dm(RIGHT, (10.0, WALL_Y, 0.0))]))
+    (d / "both.cmpt").write_bytes(
+        tw.cmpt([ecef_b3dm(LEFT), tw.other_tile(b"i3dm"), ecef_b3dm(RIGHT, (10.0, WALL_Y, 0.0))])
+    )
     return tw.write_json(d / "tileset.json", tileset_doc(region_tile("both.cmpt")))
 
 
@@ -116,16 +133,25 @@ def implicit_quadtree(d: Path) -> Path:
     (d / "content" / "1_0_1.glb").write_bytes(tw.glb(LEFT.vertices, LEFT.faces))
     (d / "content" / "1_1_1.glb").write_bytes(tw.glb(RIGHT.vertices, RIGHT.faces))
     tiles = {(0, (0, 0))} | {(1, (x, y)) for x in (0, 1) for y in (0, 1)}
-    (d / "subtrees" / "0.0.0.subtree").write_bytes(tw.subtree(2, 2, tiles, {(1, (0, 1)), (1, (1, 1))}))
+    (d / "subtrees" / "0.0.0.subtree").write_bytes(
+        tw.subtree(2, 2, tiles, {(1, (0, 1)), (1, (1, 1))})
+    )
     root = {
         "boundingVolume": {"box": [0, 0, 10, 40, 0, 0, 0, 40, 0, 0, 0, 11]},
         "geometricError": 100.0,
         "refine": "REPLACE",
         "transform": tw.column_major(tw.enu_to_ecef_matrix(FRAME)),
         "content": {"uri": "content/{level}_{x}_{y}.glb"},
-        "implicitTiling": {"subdivisionScheme": "QUADTREE", "subtreeLevels": 2, "availableLevels": 2, "subtrees": {"uri": "subtrees/{level}.{x}.{y}.subtree"}},
+        "implicitTiling": {
+            "subdivisionScheme": "QUADTREE",
+            "subtreeLevels": 2,
+            "availableLevels": 2,
+            "subtrees": {"uri": "subtrees/{level}.{x}.{y}.subtree"},
+        },
     }
-    return tw.write_json(d / "tileset.json", {"asset": {"version": "1.1"}, "geometricError": 200.0, "root": root})
+    return tw.write_json(
+        d / "tileset.json", {"asset": {"version": "1.1"}, "geometricError": 200.0, "root": root}
+    )
 
 
 def glb_y_up_ecef_root(d: Path) -> Path:
@@ -134,11 +160,23 @@ def glb_y_up_ecef_root(d: Path) -> Path:
     centre = FRAME.enu_to_ecef(np.array([0.0, WALL_Y, 10.0]))
     node = np.eye(4)
     node[:3, 3] = tw.Z_UP_TO_Y_UP @ centre
-    (d / "wall.glb").write_bytes(tw.glb(FRAME.enu_to_ecef(WALL.vertices) - centre, WALL.faces, node_matrix=node))
+    (d / "wall.glb").write_bytes(
+        tw.glb(FRAME.enu_to_ecef(WALL.vertices) - centre, WALL.faces, node_matrix=node)
+    )
     return tw.write_json(d / "tileset.json", tileset_doc(region_tile("wall.glb")))
 
 
-TILESETS = [b3dm_rtc_region, glb_box_transform, glb_draco, external, replace, add, composite, implicit_quadtree, glb_y_up_ecef_root]
+TILESETS = [
+    b3dm_rtc_region,
+    glb_box_transform,
+    glb_draco,
+    external,
+    replace,
+    add,
+    composite,
+    implicit_quadtree,
+    glb_y_up_ecef_root,
+]
 
 
 def open_tileset(location: str) -> Tileset:
@@ -162,7 +200,12 @@ def assert_video_lands_on_wall(ctx, tileset: Tileset) -> None:
         uv, depth = proj.project(world)
         inside_block = np.abs((uv % BLOCK) - BLOCK / 2) <= BLOCK / 2 - 1.0
         on_wall = (np.abs(world[:, 0]) < 19.5) & (world[:, 2] > 0.5) & (world[:, 2] < 19.5)
-        ok = (depth > 0) & np.all(inside_block, axis=1) & np.all((uv >= 0) & (uv < [VIDEO_W, VIDEO_H]), axis=1) & on_wall
+        ok = (
+            (depth > 0)
+            & np.all(inside_block, axis=1)
+            & np.all((uv >= 0) & (uv < [VIDEO_W, VIDEO_H]), axis=1)
+            & on_wall
+        )
         assert ok.sum() > 4000
         texel = np.floor(uv[ok]).astype(int)
         expected = image[texel[:, 1], texel[:, 0]].astype(int)
@@ -186,7 +229,9 @@ class _Quiet(http.server.SimpleHTTPRequestHandler):
 @pytest.fixture
 def http_root(tmp_path):
     """A local HTTP server over tmp_path: (base URL, folder)."""
-    server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), functools.partial(_Quiet, directory=str(tmp_path)))
+    server = http.server.ThreadingHTTPServer(
+        ("127.0.0.1", 0), functools.partial(_Quiet, directory=str(tmp_path))
+    )
     thread = threading.Thread(target=server.serve_forever, daemon=True)
     thread.start()
     yield f"http://127.0.0.1:{server.server_address[1]}/", tmp_path
@@ -220,7 +265,14 @@ def settle(stream: TileStream, view: TileView, rounds: int = 2000):
 
 
 def test_screen_space_error_picks_the_level_of_detail_and_culls(tmp_path):
-    stats = tw.write_city(tmp_path / "city", (47.0, 8.0, 400.0), size_m=400.0, levels=3, blocks_per_leaf=4, leaf_detail=2)
+    stats = tw.write_city(
+        tmp_path / "city",
+        (47.0, 8.0, 400.0),
+        size_m=400.0,
+        levels=3,
+        blocks_per_leaf=4,
+        leaf_detail=2,
+    )
     ts = Tileset(str(stats.path), FRAME)
     stream = TileStream(ts)
     try:
@@ -228,11 +280,19 @@ def test_screen_space_error_picks_the_level_of_detail_and_culls(tmp_path):
         far_eye = np.array([0.0, -20000.0, 3000.0])
         far = Camera.create(intr, far_eye, look_at_quat(far_eye, [0, 0, 0]), near=1.0, far=1e5)
         sel = settle(stream, TileView.of(far))
-        assert [t.depth for t in sel.tiles] == [0]  # root error 25 m at 20 km: 25 * 1108 / 20000 < 16 px
+        assert [t.depth for t in sel.tiles] == [
+            0
+        ]  # root error 25 m at 20 km: 25 * 1108 / 20000 < 16 px
         root_sse = TileView.of(far).screen_error(ts.root)
-        assert root_sse == pytest.approx(ts.root.geometric_error * intr.fy / (np.linalg.norm(ts.root.center - far_eye) - ts.root.radius))
+        assert root_sse == pytest.approx(
+            ts.root.geometric_error
+            * intr.fy
+            / (np.linalg.norm(ts.root.center - far_eye) - ts.root.radius)
+        )
         near_eye = np.array([-150.0, -150.0, 30.0])
-        near = Camera.create(intr, near_eye, look_at_quat(near_eye, [-150, 0, 0]), near=1.0, far=1e5)
+        near = Camera.create(
+            intr, near_eye, look_at_quat(near_eye, [-150, 0, 0]), near=1.0, far=1e5
+        )
         sel = settle(stream, TileView.of(near))
         depths = sorted({t.depth for t in sel.tiles})
         assert depths == [2]  # full detail around the camera
@@ -281,14 +341,33 @@ def test_damaged_and_unsupported_content_is_counted_never_fatal(tmp_path):
     ktx = tw.glb(WALL.vertices, WALL.faces, extensions_required=("EXT_meshopt_compression",))
     (tmp_path / "meshopt.glb").write_bytes(ktx)
     uv = np.array([[0, 1], [1, 1], [1, 0], [0, 0]], np.float32)
-    (tmp_path / "ktx2.glb").write_bytes(tw.glb(FRAME.enu_to_ecef(WALL.vertices), WALL.faces, uvs=uv, texture_rgb=np.zeros((4, 4, 3), np.uint8), ktx2=True))
-    kids = [region_tile(n) for n in ("good.b3dm", "cut.b3dm", "points.pnts", "meshopt.glb", "missing.b3dm", "ktx2.glb")]
-    path = tw.write_json(tmp_path / "tileset.json", tileset_doc(enu_box_tile(None, 100.0, transform=tw.column_major(np.eye(4)), children=kids) | {"boundingVolume": {"region": tw.region_of(FRAME, LO, HI)}}))
+    (tmp_path / "ktx2.glb").write_bytes(
+        tw.glb(
+            FRAME.enu_to_ecef(WALL.vertices),
+            WALL.faces,
+            uvs=uv,
+            texture_rgb=np.zeros((4, 4, 3), np.uint8),
+            ktx2=True,
+        )
+    )
+    kids = [
+        region_tile(n)
+        for n in ("good.b3dm", "cut.b3dm", "points.pnts", "meshopt.glb", "missing.b3dm", "ktx2.glb")
+    ]
+    path = tw.write_json(
+        tmp_path / "tileset.json",
+        tileset_doc(
+            enu_box_tile(None, 100.0, transform=tw.column_major(np.eye(4)), children=kids)
+            | {"boundingVolume": {"region": tw.region_of(FRAME, LO, HI)}}
+        ),
+    )
     stream = TileStream(Tileset(str(path), FRAME))
     try:
         sel = settle(stream, TileView.of(view_camera([4, 2, 12], [0, WALL_Y, 10])))
         assert stream.failures == 2  # the truncated b3dm and the missing file
-        assert any("cut.b3dm" in e for e in stream.errors) and any("missing.b3dm" in e and "does not exist" in e for e in stream.errors)
+        assert any("cut.b3dm" in e for e in stream.errors) and any(
+            "missing.b3dm" in e and "does not exist" in e for e in stream.errors
+        )
         assert stream.skipped.counts["point clouds (pnts)"] == 1
         assert stream.skipped.counts["content needing EXT_meshopt_compression"] == 1
         assert stream.skipped.counts["KTX2/Basis textures (drawn untextured)"] == 1
@@ -302,9 +381,30 @@ def test_damaged_and_unsupported_content_is_counted_never_fatal(tmp_path):
     [
         ({"asset": {"version": "1.0"}}, "root"),
         ({"asset": {"version": "1.0"}, "root": {"geometricError": 1}}, "root.boundingVolume"),
-        ({"asset": {"version": "1.0"}, "root": {"boundingVolume": {"box": [0] * 12}, "refine": "SOMETIMES"}}, "root.refine"),
-        ({"asset": {"version": "1.0"}, "root": {"boundingVolume": {"box": [0] * 12}, "transform": [1, 2]}}, "root.transform"),
-        ({"asset": {"version": "1.0"}, "root": {"boundingVolume": {"box": [0] * 12}, "children": [{"boundingVolume": {"cone": 1}}]}}, "root.children[0].boundingVolume"),
+        (
+            {
+                "asset": {"version": "1.0"},
+                "root": {"boundingVolume": {"box": [0] * 12}, "refine": "SOMETIMES"},
+            },
+            "root.refine",
+        ),
+        (
+            {
+                "asset": {"version": "1.0"},
+                "root": {"boundingVolume": {"box": [0] * 12}, "transform": [1, 2]},
+            },
+            "root.transform",
+        ),
+        (
+            {
+                "asset": {"version": "1.0"},
+                "root": {
+                    "boundingVolume": {"box": [0] * 12},
+                    "children": [{"boundingVolume": {"cone": 1}}],
+                },
+            },
+            "root.children[0].boundingVolume",
+        ),
     ],
 )
 def test_a_broken_tileset_names_the_file_and_the_key(tmp_path, doc, field):
@@ -318,7 +418,14 @@ def test_a_broken_tileset_names_the_file_and_the_key(tmp_path, doc, field):
 def test_gpu_cache_stays_under_its_cap_evicting_least_recently_used(gl_ctx, tmp_path):
     from app.render.gpu_scene import GpuScene
 
-    stats = tw.write_city(tmp_path / "city", (47.0, 8.0, 400.0), size_m=400.0, levels=3, blocks_per_leaf=4, leaf_detail=4)
+    stats = tw.write_city(
+        tmp_path / "city",
+        (47.0, 8.0, 400.0),
+        size_m=400.0,
+        levels=3,
+        blocks_per_leaf=4,
+        leaf_detail=4,
+    )
     ts = Tileset(str(stats.path), FRAME)
     scene = GpuScene(gl_ctx, MeshData(tilesets=[ts]))
     try:
@@ -341,7 +448,9 @@ def test_gpu_cache_stays_under_its_cap_evicting_least_recently_used(gl_ctx, tmp_
             assert drawn and all(p in resident for p in drawn)  # what is drawn is never evicted
             assert layer.bytes_held <= max(layer.cache_bytes, sum(p.nbytes for p in drawn))
         assert layer.evictions > 0
-        assert not set(map(id, west)) & set(map(id, drawn))  # the west tiles were evicted and loaded again
+        assert not set(map(id, west)) & set(
+            map(id, drawn)
+        )  # the west tiles were evicted and loaded again
     finally:
         scene.release()
 
@@ -356,7 +465,9 @@ def test_ground_heights_under_a_track_come_from_a_tileset_as_from_its_model(tmp_
     tiled = open_session(tiles(tmp_path))
     model = open_session(SAMPLE_DIR / "session.toml")
     t = np.linspace(model.gnss.t[0], model.gnss.t[-1], 50)
-    np.testing.assert_allclose(tiled.positions().geodetic_at(t), model.positions().geodetic_at(t), atol=1e-6)
+    np.testing.assert_allclose(
+        tiled.positions().geodetic_at(t), model.positions().geodetic_at(t), atol=1e-6
+    )
     assert not any("off the model" in w for w in tiled.warnings.items)
 
 

@@ -21,7 +21,10 @@ def test_hermite_passes_through_the_fixes_with_their_velocities():
     # Velocity at each fix by a central difference of the interpolant, in ENU m/s.
     h = 1e-4
     inner = t[1:-1]
-    v = (frame.geodetic_to_enu(*track.geodetic_at(inner + h).T) - frame.geodetic_to_enu(*track.geodetic_at(inner - h).T)) / (2 * h)
+    v = (
+        frame.geodetic_to_enu(*track.geodetic_at(inner + h).T)
+        - frame.geodetic_to_enu(*track.geodetic_at(inner - h).T)
+    ) / (2 * h)
     np.testing.assert_allclose(v, vel[1:-1], atol=2e-3)
 
 
@@ -29,7 +32,9 @@ def test_eq4_rates_by_hand():
     lat, h = 34.8, 110.0
     rates = geodetic_rates(np.array([lat]), np.array([h]), np.array([[2.0, 3.0, 0.5]]))[0]
     assert rates[0] == pytest.approx(3.0 / (meridian_radius(lat) + h))
-    assert rates[1] == pytest.approx(2.0 / ((prime_vertical_radius(lat) + h) * np.cos(np.radians(lat))))
+    assert rates[1] == pytest.approx(
+        2.0 / ((prime_vertical_radius(lat) + h) * np.cos(np.radians(lat)))
+    )
     assert rates[2] == pytest.approx(0.5)
 
 
@@ -47,13 +52,20 @@ def test_velocity_estimated_when_the_log_has_none():
 def test_slerp_crosses_the_heading_wrap():
     q = rotations.camera_quat_from_hpr(np.array([179.0, -179.0]), 0.0, 0.0)
     mid = rotations.slerp([0.0, 1.0], q, [0.5])
-    assert rotations.wrap_degrees(rotations.hpr_from_camera_quat(mid)[0, 0]) == pytest.approx(-180.0, abs=1e-6)
+    assert rotations.wrap_degrees(rotations.hpr_from_camera_quat(mid)[0, 0]) == pytest.approx(
+        -180.0, abs=1e-6
+    )
 
 
-@pytest.mark.parametrize("rotation, right_in_device", [(90, [1, 0, 0]), (0, [0, -1, 0]), (180, [0, 1, 0]), (270, [-1, 0, 0])])
+@pytest.mark.parametrize(
+    "rotation, right_in_device",
+    [(90, [1, 0, 0]), (0, [0, -1, 0]), (180, [0, 1, 0]), (270, [-1, 0, 0])],
+)
 def test_device_to_camera_follows_the_display_rotation(rotation, right_in_device):
     q = device_to_camera(rotation)
     np.testing.assert_allclose(rotations.rotate(q, [1, 0, 0]), right_in_device, atol=1e-12)
-    np.testing.assert_allclose(rotations.rotate(q, [0, 0, -1]), [0, 0, -1], atol=1e-12)  # same optical axis
+    np.testing.assert_allclose(
+        rotations.rotate(q, [0, 0, -1]), [0, 0, -1], atol=1e-12
+    )  # same optical axis
     with pytest.raises(ValueError):
         device_to_camera(45)

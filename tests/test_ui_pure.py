@@ -31,7 +31,9 @@ def test_orbit_keeps_the_target_in_the_centre_and_wheel_zooms():
 
 def test_phone_mode_rides_the_video_camera_and_reset_returns_home():
     nav = Navigator()
-    phone = Camera.create(Intrinsics.from_fov(64, 36, 66), [1, 2, 3], rotations.camera_quat_from_hpr(30, 5, 0))
+    phone = Camera.create(
+        Intrinsics.from_fov(64, 36, 66), [1, 2, 3], rotations.camera_quat_from_hpr(30, 5, 0)
+    )
     nav.mode = "phone"
     cam = nav.camera(Intrinsics.from_fov(200, 100, 66), phone)
     assert cam.position == phone.position and cam.orientation == phone.orientation
@@ -46,7 +48,12 @@ def test_script_parsing(tmp_path):
     p = tmp_path / "s.txt"
     p.write_text("# a test\n0 play\n2.5 alpha 0.5  # half\n1 seek 10\n3 quit\n")
     actions = parse_script(p)
-    assert [(a.at_s, a.name, a.arg) for a in actions] == [(0.0, "play", None), (1.0, "seek", "10"), (2.5, "alpha", "0.5"), (3.0, "quit", None)]
+    assert [(a.at_s, a.name, a.arg) for a in actions] == [
+        (0.0, "play", None),
+        (1.0, "seek", "10"),
+        (2.5, "alpha", "0.5"),
+        (3.0, "quit", None),
+    ]
     p.write_text("0 play\nsoon quit\n")
     with pytest.raises(DataFormatError, match=r"s.txt:2"):
         parse_script(p)

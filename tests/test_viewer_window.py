@@ -17,13 +17,16 @@ from tests.conftest import ROOT, run_viewer
 pytestmark = pytest.mark.gl
 
 
-
-
 @pytest.fixture(scope="module")
 def scripted(display, tmp_path_factory):
     d = tmp_path_factory.mktemp("viewer")
     bad = d / "bad.toml"
-    bad.write_text((ROOT / "assets/sample/session.toml").read_text().replace('path = "clip.mp4"', 'path = "missing.mp4"').replace('path = "scene.glb"', f'path = "{ROOT / "assets/sample/scene.glb"}"'))
+    bad.write_text(
+        (ROOT / "assets/sample/session.toml")
+        .read_text()
+        .replace('path = "clip.mp4"', 'path = "missing.mp4"')
+        .replace('path = "scene.glb"', f'path = "{ROOT / "assets/sample/scene.glb"}"')
+    )
     script = d / "script.txt"
     script.write_text(
         f"""0.0 clock 0.0333333
@@ -58,9 +61,13 @@ def test_scripted_session_state(scripted):
     # the one due, and every frame due was either shown or counted as dropped.
     assert played["frame"] == played["due_frame"] == 60
     assert played["frames_shown"] + played["dropped"] == played["frame"] + 1
-    assert played["frames_shown"] >= 30  # the sample is ~30 fps VFR; a 30 Hz clock shows most frames
+    assert (
+        played["frames_shown"] >= 30
+    )  # the sample is ~30 fps VFR; a 30 Hz clock shows most frames
     # `wait solved` holds for every source but the registered one, solved last (it may be done).
-    assert sorted(set(played["solved"]) - {"registered"}) == sorted(["gd-ahrs", "gd-imu", "cf-ahrs", "cf-imu", "offline", "phone", "truth"])
+    assert sorted(set(played["solved"]) - {"registered"}) == sorted(
+        ["gd-ahrs", "gd-imu", "cf-ahrs", "cf-imu", "offline", "phone", "truth"]
+    )
     state = json.loads((d / "scene.json").read_text())
     assert state["source"] == "gd-ahrs"  # gd-imu, then the AHRS toggle back on
     assert state["alpha"] == 1.0
@@ -82,12 +89,12 @@ def test_the_docked_panels_leave_the_3d_view_most_of_the_window(scripted):
 
 def test_video_lands_where_an_offscreen_render_puts_it(scripted, gl_ctx):
     from app.camera import Camera, Intrinsics
+    from app.camera_track import camera_track
     from app.config import OverlaySettings, ProjectionSettings
     from app.io.video import read_frame
     from app.render.offscreen import render_to_array
     from app.render.renderer import FusionRenderer
     from app.scene import load_scene
-    from app.camera_track import camera_track
     from app.session import open_session
 
     d, _ = scripted
@@ -98,8 +105,16 @@ def test_video_lands_where_an_offscreen_render_puts_it(scripted, gl_ctx):
     projector = camera_track(session, state["source"]).frame_camera(k)
     np.testing.assert_allclose(projector.position, state["projector"]["position"], atol=1e-3)
     wc = state["window_camera"]
-    view = Camera.create(Intrinsics(*wc["size"], wc["fx"], wc["fy"], wc["cx"], wc["cy"]), wc["position"], wc["orientation"], wc["near"], wc["far"])
-    renderer = FusionRenderer(gl_ctx, load_scene(session.scene_path, session.frame, session.placement))
+    view = Camera.create(
+        Intrinsics(*wc["size"], wc["fx"], wc["fy"], wc["cx"], wc["cy"]),
+        wc["position"],
+        wc["orientation"],
+        wc["near"],
+        wc["far"],
+    )
+    renderer = FusionRenderer(
+        gl_ctx, load_scene(session.scene_path, session.frame, session.placement)
+    )
     try:
         renderer.set_video_frame(read_frame(session.video.path, k, session.video))
         renderer.set_projector(projector)
@@ -159,7 +174,9 @@ def test_the_panel_layout_is_remembered_between_runs(display, tmp_path):
     central = re.search(r"SizeRef=(\d+),(\d+) CentralNode=1", text)
     cw, ch = int(central[1]), int(central[2])
     left = int(re.search(r"SizeRef=(\d+),\d+ Split=Y", text)[1])  # the left column
-    text = text.replace(f"SizeRef={left},", f"SizeRef={left // 2},").replace(central[0], f"SizeRef={cw + left - left // 2},{ch} CentralNode=1")
+    text = text.replace(f"SizeRef={left},", f"SizeRef={left // 2},").replace(
+        central[0], f"SizeRef={cw + left - left // 2},{ch} CentralNode=1"
+    )
     ini.write_text(text)
     script.write_text(f"0.0 clock 0.05\n0.2 state {tmp_path / 'second.json'}\n0.3 quit\n")
     result = run_viewer(display, "--script", str(script), "--size", "800x450", config_home=tmp_path)
@@ -185,7 +202,9 @@ def test_export_and_record_from_the_viewer(display, tmp_path):
     s = json.loads(state.read_text())
     assert s["errors"] == [] and any(n.startswith(f"recorded {rec}") for n in s["notices"])
     doc = json.loads(fp.read_text())
-    assert doc["type"] == "FeatureCollection" and len(doc["features"]) == 2400 + 1  # every frame and the track
+    assert (
+        doc["type"] == "FeatureCollection" and len(doc["features"]) == 2400 + 1
+    )  # every frame and the track
     with av.open(str(rec)) as c:
         frames = [f for f in c.decode(c.streams.video[0])]
     assert (frames[0].width, frames[0].height) == (640, 360)
@@ -197,12 +216,16 @@ def test_sync_from_the_viewer_applies_the_offset(display, tmp_path):
     the session's time offset, and the panel shows it."""
     state, shot = tmp_path / "s.json", tmp_path / "sync.png"
     script = tmp_path / "s.txt"
-    script.write_text(f"0 clock 0.05\n0 wait solved\n0 sync\n0 wait synced\n0.2 screenshot {shot}\n0.2 state {state}\n0.3 quit\n")
+    script.write_text(
+        f"0 clock 0.05\n0 wait solved\n0 sync\n0 wait synced\n0.2 screenshot {shot}\n0.2 state {state}\n0.3 quit\n"
+    )
     result = run_viewer(display, "--script", str(script), "--size", "1280x720")
     assert result.returncode == 0, result.stderr[-2000:]
     s = json.loads(state.read_text())
     assert s["errors"] == [] and s["sync"]["confidence"] > 0.9
-    assert s["time_offset_s"] == pytest.approx(s["sync"]["offset_s"]) == pytest.approx(-0.08, abs=0.01)
+    assert (
+        s["time_offset_s"] == pytest.approx(s["sync"]["offset_s"]) == pytest.approx(-0.08, abs=0.01)
+    )
 
 
 def run_script(display, folder, target: str, text: str) -> None:
@@ -213,7 +236,9 @@ def run_script(display, folder, target: str, text: str) -> None:
     assert result.returncode == 0, result.stderr[-3000:]
 
 
-def test_a_tileset_session_in_the_window_matches_the_model_it_was_made_from(display, tmp_path, gl_ctx):
+def test_a_tileset_session_in_the_window_matches_the_model_it_was_made_from(
+    display, tmp_path, gl_ctx
+):
     """The sample's stadium as 3D Tiles (plus a generated city as a second layer) in the window:
     once its tiles are loaded, the screenshot shows what an off-screen render of the same state
     shows, and the tileset's stadium is the sample GLB drawn in place."""
@@ -228,7 +253,11 @@ def test_a_tileset_session_in_the_window_matches_the_model_it_was_made_from(disp
     from tools.gis_sessions import tiles
 
     manifest = tiles(tmp_path)
-    run_script(display, tmp_path, str(manifest), f"""0.0 clock 0.0333333
+    run_script(
+        display,
+        tmp_path,
+        str(manifest),
+        f"""0.0 clock 0.0333333
 0.0 wait solved
 0.0 seek 20
 0.0 pause
@@ -240,23 +269,35 @@ def test_a_tileset_session_in_the_window_matches_the_model_it_was_made_from(disp
 0.5 screenshot {tmp_path / "tiles.png"}
 0.5 state {tmp_path / "tiles.json"}
 0.6 quit
-""")
+""",
+    )
     state = json.loads((tmp_path / "tiles.json").read_text())
-    assert state["errors"] == [] and state["layers"] == ["tileset:stadium/tileset.json", "tileset:city/tileset.json"]
+    assert state["errors"] == [] and state["layers"] == [
+        "tileset:stadium/tileset.json",
+        "tileset:city/tileset.json",
+    ]
     shot = np.asarray(Image.open(tmp_path / "tiles.png").convert("RGB"), int)
     session = open_session(manifest)
     assert len(session.scene().tilesets) == 2
     k = state["frame"]
     projector = camera_track(session, state["source"]).frame_camera(k)
     wc = state["window_camera"]
-    view = Camera.create(Intrinsics(*wc["size"], wc["fx"], wc["fy"], wc["cx"], wc["cy"]), wc["position"], wc["orientation"], wc["near"], wc["far"])
+    view = Camera.create(
+        Intrinsics(*wc["size"], wc["fx"], wc["fy"], wc["cx"], wc["cy"]),
+        wc["position"],
+        wc["orientation"],
+        wc["near"],
+        wc["far"],
+    )
     none = OverlaySettings(frustum=False, trajectory=False)
     renderer = FusionRenderer(gl_ctx, session.scene())
     try:
         renderer.set_video_frame(read_frame(session.video.path, k, session.video))
         renderer.set_projector(projector)
         on = render_to_array(renderer, view, ProjectionSettings(alpha=1.0), none).astype(int)
-        tiles_off = render_to_array(renderer, view, ProjectionSettings(enabled=False), none).astype(int)
+        tiles_off = render_to_array(renderer, view, ProjectionSettings(enabled=False), none).astype(
+            int
+        )
     finally:
         renderer.release()
     model = FusionRenderer(gl_ctx, load_scene(ROOT / "assets/sample/scene.glb", session.frame))
@@ -278,17 +319,24 @@ def test_a_dem_dropped_on_an_open_clip_becomes_its_terrain(display, tmp_path, sh
 
     dem_under_gopro_clip(tmp_path, shared_data)
     clip = shared_data / "real/gopro/max-heromode.mp4"
-    run_script(display, tmp_path, str(clip), f"""0.0 clock 0.0333333
+    run_script(
+        display,
+        tmp_path,
+        str(clip),
+        f"""0.0 clock 0.0333333
 0.2 open {tmp_path / "dem.tif"}
 0.4 state {tmp_path / "with_dem.json"}
 0.5 open {ROOT / "assets/sample/session.toml"}
 0.7 open {tmp_path / "dem.tif"}
 0.9 state {tmp_path / "manifest.json"}
 1.0 quit
-""")
+""",
+    )
     with_dem = json.loads((tmp_path / "with_dem.json").read_text())
     assert with_dem["errors"] == [] and any("terrain of" in n for n in with_dem["notices"])
-    assert with_dem["manifest"].endswith("max-heromode.mp4") and with_dem["layers"] == ["dem:dem.tif"]
+    assert with_dem["manifest"].endswith("max-heromode.mp4") and with_dem["layers"] == [
+        "dem:dem.tif"
+    ]
     refused = json.loads((tmp_path / "manifest.json").read_text())
     assert any("a manifest names its scene" in e for e in refused["errors"])
     assert refused["manifest"].endswith("session.toml")

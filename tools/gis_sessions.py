@@ -29,7 +29,17 @@ from app.geo import LocalFrame  # noqa: E402
 from app.simulate import tileset as tw  # noqa: E402
 from app.simulate.terrain import write_geotiff  # noqa: E402
 
-SESSION_FILES = ("clip.mp4", "acc.csv", "gyr.csv", "mag.csv", "gnss.csv", "phone_orientation.csv", "truth_orientation.csv", "truth_position.csv", "truth_frames.csv")
+SESSION_FILES = (
+    "clip.mp4",
+    "acc.csv",
+    "gyr.csv",
+    "mag.csv",
+    "gnss.csv",
+    "phone_orientation.csv",
+    "truth_orientation.csv",
+    "truth_position.csv",
+    "truth_frames.csv",
+)
 
 
 def _copy_sample(dest: Path) -> str:
@@ -53,13 +63,21 @@ def tiles(out: Path) -> Path:
         "transform": tw.column_major(tw.enu_to_ecef_matrix(frame)),
         "content": {"uri": "scene.glb"},
     }
-    tw.write_json(d / "stadium" / "tileset.json", {"asset": {"version": "1.1"}, "geometricError": 50.0, "root": root})
-    city_origin = tuple(frame.enu_to_geodetic(np.array([0.0, 480.0, 0.0])))  # north of the site, edge to edge
-    tw.write_city(d / "city", city_origin, size_m=600.0, levels=4, blocks_per_leaf=16, leaf_detail=6)
+    tw.write_json(
+        d / "stadium" / "tileset.json",
+        {"asset": {"version": "1.1"}, "geometricError": 50.0, "root": root},
+    )
+    city_origin = tuple(
+        frame.enu_to_geodetic(np.array([0.0, 480.0, 0.0]))
+    )  # north of the site, edge to edge
+    tw.write_city(
+        d / "city", city_origin, size_m=600.0, levels=4, blocks_per_leaf=16, leaf_detail=6
+    )
     manifest = d / "session.toml"
     manifest.write_text(
         f"[origin]\nlat = {SAMPLE_ORIGIN[0]}\nlon = {SAMPLE_ORIGIN[1]}\nh = {SAMPLE_ORIGIN[2]}\n\n"
-        '[scene]\npath = "stadium/tileset.json"\n\n[[layers]]\npath = "city/tileset.json"\n\n' + rest
+        '[scene]\npath = "stadium/tileset.json"\n\n[[layers]]\npath = "city/tileset.json"\n\n'
+        + rest
     )
     return manifest
 
@@ -90,11 +108,22 @@ def terrain(out: Path) -> Path:
     y = (la - lat0) * 110_540
     field = ((np.floor(x / 90) * 7 + np.floor(y / 70) * 13) % 4).astype(int)
     tints = np.array([[112, 140, 72], [150, 160, 90], [120, 110, 70], [90, 125, 80]], np.uint8)
-    rgb = tints[field].astype(np.int16) + np.random.default_rng(1).integers(-8, 8, field.shape + (3,))
+    rgb = tints[field].astype(np.int16) + np.random.default_rng(1).integers(
+        -8, 8, field.shape + (3,)
+    )
     road = (np.abs((x + 45) % 360 - 180) < 4) | (np.abs((y + 35) % 280 - 140) < 4)
     rgb[road] = (175, 172, 165)
     rgb[np.hypot(x, y) < 260] = (128, 128, 120)  # the site's own paving
-    write_geotiff(d / "ortho.tif", np.moveaxis(np.clip(rgb, 0, 255).astype(np.uint8), -1, 0), "EPSG:4326", lon[0] - ostep / 2, lat[0] + ostep / 2, ostep, ostep, nodata=None)
+    write_geotiff(
+        d / "ortho.tif",
+        np.moveaxis(np.clip(rgb, 0, 255).astype(np.uint8), -1, 0),
+        "EPSG:4326",
+        lon[0] - ostep / 2,
+        lat[0] + ostep / 2,
+        ostep,
+        ostep,
+        nodata=None,
+    )
     manifest = d / "session.toml"
     manifest.write_text(
         '[scene]\npath = "scene.glb"\norigin = [34.8, 113.53, 110.0]\nup_axis = "Y"\n\n'

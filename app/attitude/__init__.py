@@ -58,7 +58,9 @@ DEFAULT_GAINS = {
 }
 
 
-def _check(t: npt.ArrayLike, gyr: npt.ArrayLike, acc: npt.ArrayLike, mag: npt.ArrayLike | None) -> tuple[FloatArray, ...]:
+def _check(
+    t: npt.ArrayLike, gyr: npt.ArrayLike, acc: npt.ArrayLike, mag: npt.ArrayLike | None
+) -> tuple[FloatArray, ...]:
     t = np.ascontiguousarray(t, np.float64)
     gyr = np.ascontiguousarray(gyr, np.float64)
     acc = np.ascontiguousarray(acc, np.float64)
@@ -98,14 +100,20 @@ def initial_orientation(acc: npt.ArrayLike, mag: npt.ArrayLike | None = None) ->
     return rotations.from_matrix(np.stack([east, north, up]))
 
 
-INIT_MAX_TURN_RAD = np.radians(0.5)  # averaging over a window in which the device turns more is biased
+INIT_MAX_TURN_RAD = np.radians(
+    0.5
+)  # averaging over a window in which the device turns more is biased
 
 
 def _init_samples(t: FloatArray, seconds: float, gyr: FloatArray | None = None) -> slice:
     """The first `seconds` of samples to average for the initial orientation, or only the first
     sample when the device turns by more than INIT_MAX_TURN_RAD within that window."""
     k = max(1, min(int(np.searchsorted(t, t[0] + seconds)) + 1, len(t)))
-    if gyr is not None and k > 1 and np.linalg.norm(gyr[:k], axis=1).max() * (t[k - 1] - t[0]) > INIT_MAX_TURN_RAD:
+    if (
+        gyr is not None
+        and k > 1
+        and np.linalg.norm(gyr[:k], axis=1).max() * (t[k - 1] - t[0]) > INIT_MAX_TURN_RAD
+    ):
         return slice(0, 1)
     return slice(0, k)
 
@@ -118,10 +126,23 @@ def _declination(q: FloatArray, declination_deg: float) -> FloatArray:
     return rotations.canonical(rotations.multiply(rotations.heading_turn(declination_deg), q))
 
 
-def _run(method: str, t: FloatArray, gyr: FloatArray, acc: FloatArray, mag: FloatArray, use_mag: bool, g: Gains, q0: FloatArray) -> FloatArray:
+def _run(
+    method: str,
+    t: FloatArray,
+    gyr: FloatArray,
+    acc: FloatArray,
+    mag: FloatArray,
+    use_mag: bool,
+    g: Gains,
+    q0: FloatArray,
+) -> FloatArray:
     if method == "gd":
-        return kernels.madgwick(t, gyr, acc, mag, use_mag, q0, g.beta, g.beta_start, g.ramp_s, g.acc_reject, g.bias_tau)
-    return kernels.complementary(t, gyr, acc, mag, use_mag, q0, g.tau_acc, g.tau_mag, g.acc_reject, g.bias_tau)
+        return kernels.madgwick(
+            t, gyr, acc, mag, use_mag, q0, g.beta, g.beta_start, g.ramp_s, g.acc_reject, g.bias_tau
+        )
+    return kernels.complementary(
+        t, gyr, acc, mag, use_mag, q0, g.tau_acc, g.tau_mag, g.acc_reject, g.bias_tau
+    )
 
 
 def estimate(
@@ -144,7 +165,9 @@ def estimate(
     t, gyr, acc, m = _check(t, gyr, acc, mag)
     unknown = set(gains) - set(Gains.__dataclass_fields__)
     if unknown:
-        raise ValueError(f"unknown gains {sorted(unknown)}; known: {sorted(Gains.__dataclass_fields__)}")
+        raise ValueError(
+            f"unknown gains {sorted(unknown)}; known: {sorted(Gains.__dataclass_fields__)}"
+        )
     g = replace(DEFAULT_GAINS[method], **gains)
     use_mag = mag is not None
     init = _init_samples(t, g.init_s, gyr)

@@ -36,7 +36,9 @@ from app.io.streams import (
 )
 
 CV_TO_DEVICE = np.diag([1.0, -1.0, -1.0])  # camera (X right, Y down, Z forward) -> device frame
-DEFAULT_IMU_TO_CV = np.array([[-1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, -1.0, 0.0]])  # fitted on the MAX sample
+DEFAULT_IMU_TO_CV = np.array(
+    [[-1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, -1.0, 0.0]]
+)  # fitted on the MAX sample
 FIT_MAX_RESIDUAL = 0.5  # median rate residual / median rate above which no axis order is accepted
 LEVEL_WINDOW_S = 1.0  # seconds of accelerometer averaged for CORI's levelling
 
@@ -64,7 +66,9 @@ class GoProRecording:
         return self.raw.gps_utc_at_zero
 
 
-def fit_imu_to_camera(t_gyr: np.ndarray, gyr: np.ndarray, t_cori: np.ndarray, cori: np.ndarray) -> tuple[np.ndarray, float]:
+def fit_imu_to_camera(
+    t_gyr: np.ndarray, gyr: np.ndarray, t_cori: np.ndarray, cori: np.ndarray
+) -> tuple[np.ndarray, float]:
     """The signed axis permutation M (proper rotation) with camera rate = M @ gyro rate that best
     matches the rates of conj(CORI); returns (M, median residual / median rate)."""
     q = rotations.conjugate(cori / np.linalg.norm(cori, axis=1, keepdims=True))
@@ -99,19 +103,34 @@ def level(camera: OrientationStream, acc: VectorStream) -> OrientationStream:
     if s < 1e-9:
         return camera
     turn = rotations.from_rotvec(axis / s * np.arctan2(s, up[2]))
-    return OrientationStream(camera.t, rotations.canonical(rotations.multiply(turn, camera.q)), camera.source, camera.note)
+    return OrientationStream(
+        camera.t,
+        rotations.canonical(rotations.multiply(turn, camera.q)),
+        camera.source,
+        camera.note,
+    )
 
 
-def _checked_magnetometer(mag: VectorStream, gnss: GnssTrack | None, utc0: float | None, path: Path, warnings: Warnings) -> VectorStream | None:
+def _checked_magnetometer(
+    mag: VectorStream, gnss: GnssTrack | None, utc0: float | None, path: Path, warnings: Warnings
+) -> VectorStream | None:
     """The magnetometer, if its field strength is plausible for the place (WMM), else None."""
     if gnss is None:
-        warnings.add(f"{path.name}: no GPS fix to check the magnetometer against the World Magnetic Model: not used")
+        warnings.add(
+            f"{path.name}: no GPS fix to check the magnetometer against the World Magnetic Model: not used"
+        )
         return None
-    expected = float(np.linalg.norm(field_enu(float(gnss.lat[0]), float(gnss.lon[0]), float(gnss.h[0]), utc0 or 0.0)))
+    expected = float(
+        np.linalg.norm(
+            field_enu(float(gnss.lat[0]), float(gnss.lon[0]), float(gnss.h[0]), utc0 or 0.0)
+        )
+    )
     ok, measured = magnetometer_plausible(mag.values, expected)
     if ok:
         return mag
-    warnings.add(f"{path.name}: magnetometer reads {measured:.0f} uT where the World Magnetic Model expects {expected:.0f} uT: not used; heading comes from the GNSS course")
+    warnings.add(
+        f"{path.name}: magnetometer reads {measured:.0f} uT where the World Magnetic Model expects {expected:.0f} uT: not used; heading comes from the GNSS course"
+    )
     return None
 
 
@@ -119,7 +138,9 @@ STILL_RATE_RAD_S = 0.1  # gyroscope rates below this count as still, for the gra
 LEVEL_TOLERANCE_DEG = 35.0  # gravity within this of the device's up: the camera was held level
 
 
-def gravity_up_angle(acc_imu: np.ndarray, gyr_imu: np.ndarray, imu_to_cv: np.ndarray = DEFAULT_IMU_TO_CV) -> float:
+def gravity_up_angle(
+    acc_imu: np.ndarray, gyr_imu: np.ndarray, imu_to_cv: np.ndarray = DEFAULT_IMU_TO_CV
+) -> float:
     """Angle (deg) between the device's +y (up on an upright camera) and the mean accelerometer
     direction over still samples, IMU-axis samples mapped to the device frame by imu_to_cv."""
     n = min(len(acc_imu), len(gyr_imu))
@@ -129,14 +150,18 @@ def gravity_up_angle(acc_imu: np.ndarray, gyr_imu: np.ndarray, imu_to_cv: np.nda
     return float(np.degrees(np.arccos(np.clip(up[1] / max(np.linalg.norm(up), 1e-9), -1.0, 1.0))))
 
 
-def choose_axis_order(acc_stored: np.ndarray, gyr_stored: np.ndarray, model: str) -> tuple[str, float]:
+def choose_axis_order(
+    acc_stored: np.ndarray, gyr_stored: np.ndarray, model: str
+) -> tuple[str, float]:
     """For a file without ORIN or CORI: the data order (among the documented ones, the model's
     first, and XYZ) under which gravity in still sections points up for a camera held level;
     returns (order, its angle from up in degrees). Orders within 5 deg of the best keep their
     rank (the model's documented one wins a tie)."""
     documented = [v for k, v in DEFAULT_ORIN.items() if k.lower() in model.lower()]
     candidates = list(dict.fromkeys(documented + list(DEFAULT_ORIN.values()) + ["XYZ"]))
-    angles = [gravity_up_angle(orin_map(o, acc_stored), orin_map(o, gyr_stored)) for o in candidates]
+    angles = [
+        gravity_up_angle(orin_map(o, acc_stored), orin_map(o, gyr_stored)) for o in candidates
+    ]
     best = min(angles)
     k = next(i for i, a in enumerate(angles) if a <= best + 5.0)
     return candidates[k], angles[k]
@@ -150,19 +175,27 @@ def to_device_frame(raw: GoProRaw, warnings: Warnings) -> GoProRecording:
         order, angle = choose_axis_order(raw.acc_stored, raw.gyr_stored, raw.model)
         a, g = orin_map(order, raw.acc_stored), orin_map(order, raw.gyr_stored)
         if angle <= LEVEL_TOLERANCE_DEG:
-            warnings.add(f"{path.name}: no ORIN or CORI: axis order {order} chosen, under which gravity points up ({angle:.0f} deg off) for a camera held level")
+            warnings.add(
+                f"{path.name}: no ORIN or CORI: axis order {order} chosen, under which gravity points up ({angle:.0f} deg off) for a camera held level"
+            )
         else:
-            warnings.add(f"{path.name}: no ORIN or CORI, and no axis order puts gravity up (best {order}, {angle:.0f} deg off): the camera's axes cannot be verified; attitude may be turned")
+            warnings.add(
+                f"{path.name}: no ORIN or CORI, and no axis order puts gravity up (best {order}, {angle:.0f} deg off): the camera's axes cannot be verified; attitude may be turned"
+            )
     camera = None
     imu_to_cv = DEFAULT_IMU_TO_CV
     cori = raw.cori
     if cori is not None:
         unit = np.abs(np.linalg.norm(cori[1], axis=1) - 1.0) < 0.1
         if unit.sum() < 2:
-            warnings.add(f"{path.name}: CORI holds no unit quaternions ({int((~unit).sum())} of {len(unit)} are not): not used")
+            warnings.add(
+                f"{path.name}: CORI holds no unit quaternions ({int((~unit).sum())} of {len(unit)} are not): not used"
+            )
             cori = None
         elif not unit.all():
-            warnings.add(f"{path.name}: {int((~unit).sum())} CORI samples that are not unit quaternions dropped")
+            warnings.add(
+                f"{path.name}: {int((~unit).sum())} CORI samples that are not unit quaternions dropped"
+            )
             cori = (cori[0][unit], cori[1][unit])
     if cori is not None:
         tc, cq = cori
@@ -170,12 +203,20 @@ def to_device_frame(raw: GoProRaw, warnings: Warnings) -> GoProRecording:
         if rel < FIT_MAX_RESIDUAL:
             imu_to_cv = m
         else:
-            warnings.add(f"{path.name}: the gyroscope does not match CORI under any axis order (residual {rel:.0%}); the MAX axis mapping is assumed")
+            warnings.add(
+                f"{path.name}: the gyroscope does not match CORI under any axis order (residual {rel:.0%}); the MAX axis mapping is assumed"
+            )
         q_cv = rotations.conjugate(cq / np.linalg.norm(cq, axis=1, keepdims=True))
-        q_dev = rotations.multiply(q_cv, np.array([0.0, 1.0, 0.0, 0.0]))  # device -> camera-cv is a half turn about x
-        camera = OrientationStream(tc, q_dev, str(path), "GoPro CORI: camera orientation since capture start")
+        q_dev = rotations.multiply(
+            q_cv, np.array([0.0, 1.0, 0.0, 0.0])
+        )  # device -> camera-cv is a half turn about x
+        camera = OrientationStream(
+            tc, q_dev, str(path), "GoPro CORI: camera orientation since capture start"
+        )
     else:
-        warnings.add(f"{path.name}: no CORI stream: the IMU axis mapping fitted on the GoPro MAX is assumed")
+        warnings.add(
+            f"{path.name}: no CORI stream: the IMU axis mapping fitted on the GoPro MAX is assumed"
+        )
     to_dev = CV_TO_DEVICE @ imu_to_cv
     acc = checked_vector(VectorStream("acc", ta, a @ to_dev.T, "m/s^2", str(path)), warnings)
     gyr = checked_vector(VectorStream("gyr", tg, g @ to_dev.T, "rad/s", str(path)), warnings)

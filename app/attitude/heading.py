@@ -47,7 +47,13 @@ class HeadingPolicy:
     note: str = ""
 
 
-def heading_policy(has_imu: bool, has_mag: bool, recorded: Collection[str], pitch_deg: float = DRONE_DEFAULT_PITCH_DEG, aircraft_yaw: bool = False) -> HeadingPolicy:
+def heading_policy(
+    has_imu: bool,
+    has_mag: bool,
+    recorded: Collection[str],
+    pitch_deg: float = DRONE_DEFAULT_PITCH_DEG,
+    aircraft_yaw: bool = False,
+) -> HeadingPolicy:
     """The one rule for every kind of session (phone, action camera, drone, manifest or clip):
     - no IMU and no recorded attitude (a drone subtitle without gimbal angles): the `course`
       source, heading from the aircraft's yaw where the subtitle has it, else from the track;
@@ -57,10 +63,20 @@ def heading_policy(has_imu: bool, has_mag: bool, recorded: Collection[str], pitc
     measured = set(recorded) - {"truth"}
     if not has_imu and not measured:
         origin = "the aircraft's yaw" if aircraft_yaw else "the track"
-        return HeadingPolicy(False, pitch_deg, "course", f"no camera attitude in the telemetry: heading from {origin}, pitch {pitch_deg:g} deg assumed")
+        return HeadingPolicy(
+            False,
+            pitch_deg,
+            "course",
+            f"no camera attitude in the telemetry: heading from {origin}, pitch {pitch_deg:g} deg assumed",
+        )
     if has_imu and not has_mag:
         if "phone" in measured:
-            return HeadingPolicy(True, None, "phone", "heading from the GNSS course for the IMU filters (no magnetometer); the phone's own orientation is shown first")
+            return HeadingPolicy(
+                True,
+                None,
+                "phone",
+                "heading from the GNSS course for the IMU filters (no magnetometer); the phone's own orientation is shown first",
+            )
         return HeadingPolicy(True, None, None, "heading from the GNSS course (no magnetometer)")
     return HeadingPolicy()
 
@@ -71,12 +87,16 @@ def anchor_heading(q: npt.ArrayLike, mag: npt.ArrayLike, declination_deg: float)
     (circular mean over the clip), then to true north (declination east positive). The track's
     dynamics stay those of the IMU filter; transient magnetic disturbances cannot steer it."""
     h = rotations.rotate(q, mag)
-    field_heading = rotations.circular_mean(np.arctan2(h[:, 0], h[:, 1]))  # the field's angle east of north
+    field_heading = rotations.circular_mean(
+        np.arctan2(h[:, 0], h[:, 1])
+    )  # the field's angle east of north
     turn = rotations.heading_turn(declination_deg - np.degrees(field_heading))
     return rotations.canonical(rotations.multiply(turn, q))
 
 
-def course_heading_turn(t_fix: FloatArray, vel_enu: FloatArray, t: FloatArray, q_camera: FloatArray) -> FloatArray | None:
+def course_heading_turn(
+    t_fix: FloatArray, vel_enu: FloatArray, t: FloatArray, q_camera: FloatArray
+) -> FloatArray | None:
     """The one constant turn about Up (a quaternion) that best aligns the camera's optical axis
     (q_camera: (N, 4) camera -> ENU at times t, s) with the direction of travel (velocities (M, 3)
     at fix times t_fix) while the camera moves faster than COURSE_MIN_SPEED_MPS; None when it
@@ -86,21 +106,35 @@ def course_heading_turn(t_fix: FloatArray, vel_enu: FloatArray, t: FloatArray, q
     if moving.sum() < 3:
         return None
     course = np.arctan2(vel_enu[moving, 0], vel_enu[moving, 1])
-    heading = np.radians(rotations.hpr_from_camera_quat(rotations.slerp(t, q_camera, t_fix[moving]))[:, 0])
+    heading = np.radians(
+        rotations.hpr_from_camera_quat(rotations.slerp(t, q_camera, t_fix[moving]))[:, 0]
+    )
     return rotations.heading_turn(np.degrees(rotations.circular_mean(course - heading)))
 
 
-def align_to_course(t_fix: FloatArray, vel_enu: FloatArray, t: FloatArray, q_device: FloatArray, mount: FloatArray, warnings: Warnings) -> FloatArray:
+def align_to_course(
+    t_fix: FloatArray,
+    vel_enu: FloatArray,
+    t: FloatArray,
+    q_device: FloatArray,
+    mount: FloatArray,
+    warnings: Warnings,
+) -> FloatArray:
     """q_device (N, 4) turned about Up so that the camera (device -> camera quaternion `mount`)
     looks along the course; unchanged, with one warning, when the camera never moves fast enough."""
     turn = course_heading_turn(t_fix, vel_enu, t, rotations.multiply(q_device, mount))
     if turn is None:
-        warnings.add_once("course-too-slow", f"the camera never moves faster than {COURSE_MIN_SPEED_MPS} m/s: heading cannot come from the course and stays arbitrary")
+        warnings.add_once(
+            "course-too-slow",
+            f"the camera never moves faster than {COURSE_MIN_SPEED_MPS} m/s: heading cannot come from the course and stays arbitrary",
+        )
         return q_device
     return rotations.canonical(rotations.multiply(turn, q_device))
 
 
-def smoothed_velocity(t: FloatArray, vel_enu: FloatArray, window_s: float = COURSE_SMOOTHING_S) -> FloatArray:
+def smoothed_velocity(
+    t: FloatArray, vel_enu: FloatArray, window_s: float = COURSE_SMOOTHING_S
+) -> FloatArray:
     """(N, 3) velocities averaged over the fixes within +-window_s/2 of each (GNSS noise on
     fix-to-fix velocities shrinks by the square root of the fixes averaged)."""
     t = np.asarray(t, np.float64)
@@ -125,7 +159,13 @@ def course_headings(t_fix: FloatArray, vel_enu: FloatArray) -> FloatArray:
     return heading[idx]
 
 
-def course_attitude(t_fix: FloatArray, vel_enu: FloatArray, pitch_deg: float, source: str = "", yaw: tuple[FloatArray, FloatArray] | None = None) -> OrientationStream:
+def course_attitude(
+    t_fix: FloatArray,
+    vel_enu: FloatArray,
+    pitch_deg: float,
+    source: str = "",
+    yaw: tuple[FloatArray, FloatArray] | None = None,
+) -> OrientationStream:
     """The `course` attitude source: camera -> ENU quaternions, the given pitch (deg above the
     horizon, a setting), no roll, and a heading from the aircraft's own yaw where the telemetry
     has it (yaw: (t s, deg clockwise from north)), else along the direction of travel (held
@@ -136,7 +176,9 @@ def course_attitude(t_fix: FloatArray, vel_enu: FloatArray, pitch_deg: float, so
     else:
         t, heading = np.asarray(t_fix, np.float64), course_headings(t_fix, vel_enu)
         note = f"heading from the direction of travel, pitch {pitch_deg:g} deg (a setting)"
-    q = rotations.camera_quat_from_hpr(heading, np.full(len(heading), pitch_deg), np.zeros(len(heading)))
+    q = rotations.camera_quat_from_hpr(
+        heading, np.full(len(heading), pitch_deg), np.zeros(len(heading))
+    )
     return OrientationStream(t, q, source, note)
 
 

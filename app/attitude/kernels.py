@@ -44,7 +44,9 @@ def _to_world(w: float, x: float, y: float, z: float, vx: float, vy: float, vz: 
 
 
 @njit(cache=True, inline="always")
-def _mul(aw: float, ax: float, ay: float, az: float, bw: float, bx: float, by: float, bz: float) -> tuple:
+def _mul(
+    aw: float, ax: float, ay: float, az: float, bw: float, bx: float, by: float, bz: float
+) -> tuple:
     return (
         aw * bw - ax * bx - ay * by - az * bz,
         aw * bx + ax * bw + ay * bz - az * by,
@@ -54,7 +56,18 @@ def _mul(aw: float, ax: float, ay: float, az: float, bw: float, bx: float, by: f
 
 
 @njit(cache=True, inline="always")
-def field_gradient(w: float, x: float, y: float, z: float, dx: float, dy: float, dz: float, sx: float, sy: float, sz: float) -> tuple:
+def field_gradient(
+    w: float,
+    x: float,
+    y: float,
+    z: float,
+    dx: float,
+    dy: float,
+    dz: float,
+    sx: float,
+    sy: float,
+    sz: float,
+) -> tuple:
     """J^T f for f(q) = conj(q) d q - s: unit world reference d, unit device measurement s.
 
     Madgwick (2010), report eq. 19-20 with a general reference direction (dx, dy, dz).
@@ -63,15 +76,31 @@ def field_gradient(w: float, x: float, y: float, z: float, dx: float, dy: float,
     f1 = 2 * dx * (x * y - w * z) + 2 * dy * (0.5 - x * x - z * z) + 2 * dz * (w * x + y * z) - sy
     f2 = 2 * dx * (w * y + x * z) + 2 * dy * (y * z - w * x) + 2 * dz * (0.5 - x * x - y * y) - sz
     return (
-        (2 * dy * z - 2 * dz * y) * f0 + (-2 * dx * z + 2 * dz * x) * f1 + (2 * dx * y - 2 * dy * x) * f2,
-        (2 * dy * y + 2 * dz * z) * f0 + (2 * dx * y - 4 * dy * x + 2 * dz * w) * f1 + (2 * dx * z - 2 * dy * w - 4 * dz * x) * f2,
-        (-4 * dx * y + 2 * dy * x - 2 * dz * w) * f0 + (2 * dx * x + 2 * dz * z) * f1 + (2 * dx * w + 2 * dy * z - 4 * dz * y) * f2,
-        (-4 * dx * z + 2 * dy * w + 2 * dz * x) * f0 + (-2 * dx * w - 4 * dy * z + 2 * dz * y) * f1 + (2 * dx * x + 2 * dy * y) * f2,
+        (2 * dy * z - 2 * dz * y) * f0
+        + (-2 * dx * z + 2 * dz * x) * f1
+        + (2 * dx * y - 2 * dy * x) * f2,
+        (2 * dy * y + 2 * dz * z) * f0
+        + (2 * dx * y - 4 * dy * x + 2 * dz * w) * f1
+        + (2 * dx * z - 2 * dy * w - 4 * dz * x) * f2,
+        (-4 * dx * y + 2 * dy * x - 2 * dz * w) * f0
+        + (2 * dx * x + 2 * dz * z) * f1
+        + (2 * dx * w + 2 * dy * z - 4 * dz * y) * f2,
+        (-4 * dx * z + 2 * dy * w + 2 * dz * x) * f0
+        + (-2 * dx * w - 4 * dy * z + 2 * dz * y) * f1
+        + (2 * dx * x + 2 * dy * y) * f2,
     )
 
 
 @njit(cache=True, inline="always")
-def _unbiased_rate(gyr: np.ndarray, acc: np.ndarray, i: int, dt: float, norm_ref: float, rest: np.ndarray, bias_tau: float) -> tuple:
+def _unbiased_rate(
+    gyr: np.ndarray,
+    acc: np.ndarray,
+    i: int,
+    dt: float,
+    norm_ref: float,
+    rest: np.ndarray,
+    bias_tau: float,
+) -> tuple:
     """The rate held over [t[i-1], t[i]] less the causal gyroscope-bias estimate made at rest.
 
     Rest: the raw rate under REST_RATE (rad/s), within REST_STEADY of its REST_SMOOTH_S low-pass,
@@ -91,7 +120,12 @@ def _unbiased_rate(gyr: np.ndarray, acc: np.ndarray, i: int, dt: float, norm_ref
     rest[6] += k * (gz - rest[6])
     rate = math.sqrt(gx * gx + gy * gy + gz * gz)
     wobble = math.sqrt((gx - rest[4]) ** 2 + (gy - rest[5]) ** 2 + (gz - rest[6]) ** 2)
-    if rate < REST_RATE and wobble < REST_STEADY and norm_ref > 0.0 and abs(acc_norm - norm_ref) < REST_ACC * norm_ref:
+    if (
+        rate < REST_RATE
+        and wobble < REST_STEADY
+        and norm_ref > 0.0
+        and abs(acc_norm - norm_ref) < REST_ACC * norm_ref
+    ):
         rest[0] += dt
     else:
         rest[0] = 0.0
@@ -127,8 +161,17 @@ def _start(q0: np.ndarray, gyr: np.ndarray, n: int) -> tuple:
 
 @njit(cache=True, nogil=True)
 def madgwick(
-    t: np.ndarray, gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray, use_mag: bool,
-    q0: np.ndarray, beta: float, beta_start: float, ramp_s: float, acc_reject: float, bias_tau: float,
+    t: np.ndarray,
+    gyr: np.ndarray,
+    acc: np.ndarray,
+    mag: np.ndarray,
+    use_mag: bool,
+    q0: np.ndarray,
+    beta: float,
+    beta_start: float,
+    ramp_s: float,
+    acc_reject: float,
+    bias_tau: float,
 ) -> np.ndarray:
     """Madgwick's gradient-descent filter (AHRS with `use_mag`, IMU without). Returns (N, 4).
 
@@ -156,19 +199,27 @@ def madgwick(
             if an > EPS and math.isfinite(an):
                 ok, norm_ref = _accept(an, norm_ref, acc_reject)
                 if ok:
-                    s0, s1, s2, s3 = field_gradient(w, x, y, z, 0.0, 0.0, 1.0, ax / an, ay / an, az / an)
+                    s0, s1, s2, s3 = field_gradient(
+                        w, x, y, z, 0.0, 0.0, 1.0, ax / an, ay / an, az / an
+                    )
                     if use_mag:
                         mx, my, mz = mag[i, 0], mag[i, 1], mag[i, 2]
                         mn = math.sqrt(mx * mx + my * my + mz * mz)
                         if mn > EPS and math.isfinite(mn):
                             mx, my, mz = mx / mn, my / mn, mz / mn
                             hx, hy, hz = _to_world(w, x, y, z, mx, my, mz)
-                            m0, m1, m2, m3 = field_gradient(w, x, y, z, 0.0, math.sqrt(hx * hx + hy * hy), hz, mx, my, mz)
+                            m0, m1, m2, m3 = field_gradient(
+                                w, x, y, z, 0.0, math.sqrt(hx * hx + hy * hy), hz, mx, my, mz
+                            )
                             s0, s1, s2, s3 = s0 + m0, s1 + m1, s2 + m2, s3 + m3
             sn = math.sqrt(s0 * s0 + s1 * s1 + s2 * s2 + s3 * s3)
             if sn > EPS:
                 elapsed = t[i] - t[0]
-                gain = beta if elapsed >= ramp_s else beta_start + (beta - beta_start) * elapsed / ramp_s
+                gain = (
+                    beta
+                    if elapsed >= ramp_s
+                    else beta_start + (beta - beta_start) * elapsed / ramp_s
+                )
                 k = gain / sn
                 dw -= k * s0
                 dx_ -= k * s1
@@ -187,8 +238,16 @@ def _rotation(ax: float, ay: float, az: float, angle: float) -> tuple:
 
 @njit(cache=True, nogil=True)
 def complementary(
-    t: np.ndarray, gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray, use_mag: bool,
-    q0: np.ndarray, tau_acc: float, tau_mag: float, acc_reject: float, bias_tau: float,
+    t: np.ndarray,
+    gyr: np.ndarray,
+    acc: np.ndarray,
+    mag: np.ndarray,
+    use_mag: bool,
+    q0: np.ndarray,
+    tau_acc: float,
+    tau_mag: float,
+    acc_reject: float,
+    bias_tau: float,
 ) -> np.ndarray:
     """Complementary filter: gyro integration, corrected toward the accelerometer's tilt and (AHRS)
     the tilt-compensated compass heading, each with a first-order time constant (seconds).
@@ -219,7 +278,9 @@ def complementary(
                     ux, uy, uz = _to_world(w, x, y, z, ax / an, ay / an, az / an)
                     s = math.sqrt(ux * ux + uy * uy)  # axis = up x (0,0,1) = (uy, -ux, 0)
                     if s > EPS:
-                        rw, rx, ry, rz = _rotation(uy / s, -ux / s, 0.0, math.atan2(s, uz) * dt / (tau_acc + dt))
+                        rw, rx, ry, rz = _rotation(
+                            uy / s, -ux / s, 0.0, math.atan2(s, uz) * dt / (tau_acc + dt)
+                        )
                         w, x, y, z = _mul(rw, rx, ry, rz, w, x, y, z)
             if use_mag:
                 mx, my, mz = mag[i, 0], mag[i, 1], mag[i, 2]

@@ -41,7 +41,12 @@ def remove_heading_offset(q_est: npt.ArrayLike, q_ref: npt.ArrayLike) -> FloatAr
     return rotations.multiply(rotations.heading_turn(np.degrees(offset)), q_est)
 
 
-def broad_rms(q_est: npt.ArrayLike, q_ref: npt.ArrayLike, mask: npt.ArrayLike | None = None, remove_heading: bool = False) -> ErrorRMS:
+def broad_rms(
+    q_est: npt.ArrayLike,
+    q_ref: npt.ArrayLike,
+    mask: npt.ArrayLike | None = None,
+    remove_heading: bool = False,
+) -> ErrorRMS:
     """BROAD RMSE (degrees) over the samples in `mask` where the reference is valid."""
     q_est = np.asarray(q_est, np.float64)
     q_ref = np.asarray(q_ref, np.float64)
@@ -65,7 +70,9 @@ def broad_rms(q_est: npt.ArrayLike, q_ref: npt.ArrayLike, mask: npt.ArrayLike | 
     return ErrorRMS(rms(total), rms(heading), rms(inclination))
 
 
-def hpr_rms(q_est_cam: npt.ArrayLike, q_ref_cam: npt.ArrayLike) -> tuple[float, float, float, float]:
+def hpr_rms(
+    q_est_cam: npt.ArrayLike, q_ref_cam: npt.ArrayLike
+) -> tuple[float, float, float, float]:
     """RMS (deg) of heading (wrapped to +-180), pitch and roll of the optical axis, and total angle,
     for camera -> ENU quaternions: the layout of the paper's Table 2."""
     a = rotations.hpr_from_camera_quat(q_est_cam)

@@ -49,7 +49,9 @@ def blend(qa: np.ndarray, qb: np.ndarray, wa: np.ndarray) -> np.ndarray:
     return q / np.linalg.norm(q, axis=1, keepdims=True)
 
 
-def forward_backward(t: np.ndarray, gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray, use_mag: bool, g) -> np.ndarray:
+def forward_backward(
+    t: np.ndarray, gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray, use_mag: bool, g
+) -> np.ndarray:
     """Bias-corrected forward and backward Madgwick passes, fused. Returns (N, 4)."""
     from app.attitude import _init_samples, initial_orientation
 
@@ -57,7 +59,9 @@ def forward_backward(t: np.ndarray, gyr: np.ndarray, acc: np.ndarray, mag: np.nd
         gyr = gyr - gyro_bias(t, gyr, acc)
     head = _init_samples(t, g.init_s, gyr)
     q0 = initial_orientation(acc[head], mag[head] if use_mag else None)
-    fwd = kernels.madgwick(t, gyr, acc, mag, use_mag, q0, g.beta, g.beta_start, g.ramp_s, g.acc_reject, g.bias_tau)
+    fwd = kernels.madgwick(
+        t, gyr, acc, mag, use_mag, q0, g.beta, g.beta_start, g.ramp_s, g.acc_reject, g.bias_tau
+    )
     # Backward: reversed time axis; a device rotating at w forward rotates at -w backward.
     tr = (t[-1] - t)[::-1].copy()
     tail = _init_samples(tr, g.init_s, gyr[::-1])
@@ -70,5 +74,17 @@ def forward_backward(t: np.ndarray, gyr: np.ndarray, acc: np.ndarray, mag: np.nd
     # The kernel holds gyr[i-1] over [t[i-1], t[i]]; reversed index j-1 must then carry the
     # forward rate of sample N-2-(j-1), hence the shift by one.
     gyr_r = -np.roll(gyr[::-1], -1, axis=0)
-    bwd = kernels.madgwick(tr, gyr_r.copy(), acc_r, mag_r, use_mag, qb0, g.beta, g.beta_start, g.ramp_s, g.acc_reject, g.bias_tau)[::-1]
+    bwd = kernels.madgwick(
+        tr,
+        gyr_r.copy(),
+        acc_r,
+        mag_r,
+        use_mag,
+        qb0,
+        g.beta,
+        g.beta_start,
+        g.ramp_s,
+        g.acc_reject,
+        g.bias_tau,
+    )[::-1]
     return rotations.canonical(blend(fwd, bwd, _weights(t, g.ramp_s)))

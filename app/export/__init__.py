@@ -2,4 +2,9 @@
 an FMV metadata CSV (gis.py), MISB ST 0601 KLV in an MPEG transport stream (klv.py), and the fused
 view as a video (video.py)."""
 
-EXPORT_SUFFIXES = {"footprints": (".geojson", ".json", ".kml", ".kmz"), "fmv-csv": (".csv",), "klv": (".ts",), "video": (".mp4",)}
+EXPORT_SUFFIXES = {
+    "footprints": (".geojson", ".json", ".kml", ".kmz"),
+    "fmv-csv": (".csv",),
+    "klv": (".ts",),
+    "video": (".mp4",),
+}

@@ -42,7 +42,11 @@ def iso_utc(unix_s: float | None) -> str | None:
     """ISO 8601 UTC with microseconds, or None."""
     if unix_s is None:
         return None
-    return datetime.fromtimestamp(unix_s, timezone.utc).isoformat(timespec="microseconds").replace("+00:00", "Z")
+    return (
+        datetime.fromtimestamp(unix_s, timezone.utc)
+        .isoformat(timespec="microseconds")
+        .replace("+00:00", "Z")
+    )
 
 
 def properties(r: FrameRecord) -> dict[str, object]:
@@ -75,7 +79,9 @@ def counter_clockwise_ring(lat_lon_h: np.ndarray) -> np.ndarray:
     ring = np.column_stack([lat_lon_h[:, 1], lat_lon_h[:, 0], lat_lon_h[:, 2]])
     x = ring[:, 0] * math.cos(math.radians(float(np.mean(ring[:, 1]))))
     y = ring[:, 1]
-    area2 = float(np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y))  # shoelace: > 0 counter-clockwise
+    area2 = float(
+        np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y)
+    )  # shoelace: > 0 counter-clockwise
     if area2 < 0:
         ring = ring[::-1]
     return np.vstack([ring, ring[:1]])
@@ -86,10 +92,22 @@ def geojson(records: Iterable[FrameRecord]) -> dict:
     features, track = [], []
     for r in records:
         ring = counter_clockwise_ring(r.footprint)
-        features.append({"type": "Feature", "geometry": {"type": "Polygon", "coordinates": [np.round(ring, 9).tolist()]}, "properties": properties(r)})
+        features.append(
+            {
+                "type": "Feature",
+                "geometry": {"type": "Polygon", "coordinates": [np.round(ring, 9).tolist()]},
+                "properties": properties(r),
+            }
+        )
         track.append([r.sensor[1], r.sensor[0], r.sensor[2]])
     if len(track) >= 2:
-        features.append({"type": "Feature", "geometry": {"type": "LineString", "coordinates": np.round(track, 9).tolist()}, "properties": {"name": "camera track"}})
+        features.append(
+            {
+                "type": "Feature",
+                "geometry": {"type": "LineString", "coordinates": np.round(track, 9).tolist()},
+                "properties": {"name": "camera track"},
+            }
+        )
     return {"type": "FeatureCollection", "features": features}
 
 
@@ -109,14 +127,19 @@ def kml(records: Iterable[FrameRecord], name: str) -> str:
     for r in records:
         ring = counter_clockwise_ring(r.footprint)
         coords = " ".join(f"{lon:.9f},{lat:.9f},{h:.3f}" for lon, lat, h in ring)
-        data = "".join(f'<Data name="{k}"><value>{"" if v is None else escape(str(v))}</value></Data>' for k, v in properties(r).items())
+        data = "".join(
+            f'<Data name="{k}"><value>{"" if v is None else escape(str(v))}</value></Data>'
+            for k, v in properties(r).items()
+        )
         out.append(
             f"<Placemark><name>frame {r.index}</name><styleUrl>#footprint</styleUrl><ExtendedData>{data}</ExtendedData>"
             f"<Polygon><altitudeMode>absolute</altitudeMode><outerBoundaryIs><LinearRing><coordinates>{coords}</coordinates></LinearRing></outerBoundaryIs></Polygon></Placemark>"
         )
         track.append(f"{r.sensor[1]:.9f},{r.sensor[0]:.9f},{r.sensor[2]:.3f}")
     if len(track) >= 2:
-        out.append(f"<Placemark><name>camera track</name><LineString><altitudeMode>absolute</altitudeMode><coordinates>{' '.join(track)}</coordinates></LineString></Placemark>")
+        out.append(
+            f"<Placemark><name>camera track</name><LineString><altitudeMode>absolute</altitudeMode><coordinates>{' '.join(track)}</coordinates></LineString></Placemark>"
+        )
     out.append("</Document></kml>")
     return "\n".join(out)
 
@@ -135,9 +158,27 @@ def fmv_row(r: FrameRecord) -> list[str]:
     t = r.utc_s if r.utc_s is not None else r.session_s
     h, p, roll = r.hpr
     c = r.corners
-    cells = [int(round(t * 1e6)), r.sensor[0], r.sensor[1], r.sensor[2], h % 360.0, 0.0, 0.0, 0.0, p, roll % 360.0, r.hfov_deg, r.vfov_deg, r.slant_m, *r.centre]
+    cells = [
+        int(round(t * 1e6)),
+        r.sensor[0],
+        r.sensor[1],
+        r.sensor[2],
+        h % 360.0,
+        0.0,
+        0.0,
+        0.0,
+        p,
+        roll % 360.0,
+        r.hfov_deg,
+        r.vfov_deg,
+        r.slant_m,
+        *r.centre,
+    ]
     cells += [v for k in range(4) for v in (c[k, 0], c[k, 1])]
-    return [str(cells[0])] + ["" if not math.isfinite(v) else f"{v:.9f}" if abs(v) <= 360 else f"{v:.3f}" for v in cells[1:]]
+    return [str(cells[0])] + [
+        "" if not math.isfinite(v) else f"{v:.9f}" if abs(v) <= 360 else f"{v:.3f}"
+        for v in cells[1:]
+    ]
 
 
 def write_fmv_csv(records: Iterable[FrameRecord], f) -> None:
@@ -159,4 +200,3 @@ def write_records(records: Iterable[FrameRecord], f, suffix: str, name: str) -> 
         write_fmv_csv(records, f)
     else:
         raise ValueError(f"unknown export suffix {suffix!r}")
-

@@ -80,8 +80,14 @@ def local_set(r: FrameRecord) -> bytes:
     ]
     if math.isfinite(r.slant_m):
         items.append((21, unsigned(r.slant_m, 0.0, 5_000_000.0, 4)))  # Slant Range
-        items += [(23, signed(r.centre[0], 90.0, 4)), (24, signed(r.centre[1], 180.0, 4)), (25, unsigned(r.centre[2], -900.0, 19000.0, 2))]
-        for k in range(4):  # Offset Corner Latitude/Longitude Point k+1, relative to the frame centre
+        items += [
+            (23, signed(r.centre[0], 90.0, 4)),
+            (24, signed(r.centre[1], 180.0, 4)),
+            (25, unsigned(r.centre[2], -900.0, 19000.0, 2)),
+        ]
+        for k in range(
+            4
+        ):  # Offset Corner Latitude/Longitude Point k+1, relative to the frame centre
             items.append((26 + 2 * k, signed(r.corners[k, 0] - r.centre[0], CORNER_OFFSET_DEG, 2)))
             items.append((27 + 2 * k, signed(r.corners[k, 1] - r.centre[1], CORNER_OFFSET_DEG, 2)))
     body = b"".join(bytes([tag]) + ber_length(len(v)) + v for tag, v in items) + b"\x01\x02"
@@ -89,7 +95,12 @@ def local_set(r: FrameRecord) -> bytes:
     return head + body + checksum(head + body).to_bytes(2, "big")
 
 
-def write_klv_ts(video: VideoInfo, records: Iterable[FrameRecord], out: Path, progress: Callable[[float], None] | None = None) -> int:
+def write_klv_ts(
+    video: VideoInfo,
+    records: Iterable[FrameRecord],
+    out: Path,
+    progress: Callable[[float], None] | None = None,
+) -> int:
     """An MPEG-TS at `out`: the video's packets copied, and a KLV data stream with one Local Set
     per record at its frame's presentation time; returns the number of Local Sets written."""
     import av

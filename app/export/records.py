@@ -62,7 +62,9 @@ def border_indices(columns: int, rows: int) -> np.ndarray:
     return np.array(top + right + bottom + left)
 
 
-def landing_points(camera: Camera, grid_points: np.ndarray, max_range_m: float) -> tuple[np.ndarray, np.ndarray]:
+def landing_points(
+    camera: Camera, grid_points: np.ndarray, max_range_m: float
+) -> tuple[np.ndarray, np.ndarray]:
     """(points (H, W, 3) ENU, hit mask): the probe's points, with rays that met nothing (or met
     it beyond max_range_m) replaced by the point at max_range_m along the pixel's ray."""
     h, w = grid_points.shape[:2]
@@ -78,9 +80,13 @@ class FootprintCaster:
     """Frame records from posed cameras: the border-sampling grid (FOOTPRINT_SAMPLES) rendered
     through the position pass of one scene."""
 
-    def __init__(self, mesh, frame, intrinsics, max_range_m: float = FOOTPRINT_MAX_RANGE_M, lens=None) -> None:
+    def __init__(
+        self, mesh, frame, intrinsics, max_range_m: float = FOOTPRINT_MAX_RANGE_M, lens=None
+    ) -> None:
         self.frame, self.intrinsics, self.max_range_m = frame, intrinsics, max_range_m
-        fov = lens if lens is not None else intrinsics  # a lens's own fields of view, not its enclosing pinhole's
+        fov = (
+            lens if lens is not None else intrinsics
+        )  # a lens's own fields of view, not its enclosing pinhole's
         self.hfov_deg, self.vfov_deg = fov.hfov_deg, fov.vfov_deg
         self.grid = border_sampling(intrinsics, *FOOTPRINT_SAMPLES)
         self.border = border_indices(*FOOTPRINT_SAMPLES)
@@ -99,9 +105,23 @@ class FootprintCaster:
         # fine position map of the pinhole that encloses the image.
         g = self.grid
         v, u = np.mgrid[0 : g.height, 0 : g.width]
-        uv = np.column_stack([u.ravel() * cam.lens.width / (g.width - 1), v.ravel() * cam.lens.height / (g.height - 1)])
+        uv = np.column_stack(
+            [
+                u.ravel() * cam.lens.width / (g.width - 1),
+                v.ravel() * cam.lens.height / (g.height - 1),
+            ]
+        )
         rays = cam.pixel_rays(uv)
-        fine = Camera.create(cam.intrinsics.scaled(LENS_PROBE_PX, max(2, round(LENS_PROBE_PX * cam.intrinsics.height / cam.intrinsics.width))), cam.position, cam.orientation, VIEW_NEAR_M, far)
+        fine = Camera.create(
+            cam.intrinsics.scaled(
+                LENS_PROBE_PX,
+                max(2, round(LENS_PROBE_PX * cam.intrinsics.height / cam.intrinsics.width)),
+            ),
+            cam.position,
+            cam.orientation,
+            VIEW_NEAR_M,
+            far,
+        )
         points = self.probe.points(fine)
         px, _ = fine.project(np.asarray(cam.position) + rays)
         col = np.clip(px[:, 0].astype(int), 0, fine.intrinsics.width - 1)
@@ -112,11 +132,22 @@ class FootprintCaster:
         out = np.where(hit[:, None], seen, np.asarray(cam.position) + rays * self.max_range_m)
         return out.reshape(g.height, g.width, 3), hit.reshape(g.height, g.width)
 
-    def record(self, cam: Camera, index: int = 0, media_s: float = 0.0, session_s: float = 0.0) -> FrameRecord:
+    def record(
+        self, cam: Camera, index: int = 0, media_s: float = 0.0, session_s: float = 0.0
+    ) -> FrameRecord:
         pts, hit = self.grid_points(cam)
         cr, cc = self.centre
         b = self.border
-        geo = self.frame.enu_to_geodetic(np.vstack([[cam.position], [pts[cr, cc]], [pts[r, c] for r, c in self.corners], pts[b[:, 0], b[:, 1]]]))
+        geo = self.frame.enu_to_geodetic(
+            np.vstack(
+                [
+                    [cam.position],
+                    [pts[cr, cc]],
+                    [pts[r, c] for r, c in self.corners],
+                    pts[b[:, 0], b[:, 1]],
+                ]
+            )
+        )
         centre_hit = bool(hit[cr, cc])
         return FrameRecord(
             index=index, media_s=media_s, session_s=session_s, utc_s=session_s if session_s > UNIX_TIME_FLOOR_S else None,
@@ -141,12 +172,16 @@ def frame_records(
 ) -> Iterator[FrameRecord]:
     """A record for every `every`-th video frame under one source (see the module docstring)."""
     track = track or solve_track(session, source)
-    caster = FootprintCaster(session.scene(), session.frame, session.intrinsics, max_range_m, session.lens)
+    caster = FootprintCaster(
+        session.scene(), session.frame, session.intrinsics, max_range_m, session.lens
+    )
     frames = range(0, track.frame_count, max(1, every))
     try:
         for n, k in enumerate(frames):
             media = float(track.clock.media_s[k])
-            yield caster.record(track.frame_camera(k), k, media, float(track.clock.session_time(media)))
+            yield caster.record(
+                track.frame_camera(k), k, media, float(track.clock.session_time(media))
+            )
             if progress is not None:
                 progress((n + 1) / len(frames))
     finally:

@@ -33,11 +33,19 @@ TOP_HEIGHT_M = 60.0  # the top view's height above the camera
 EXPORT_ALPHA = 0.9
 
 
-def view_camera(view: str, projector: Camera, size: tuple[int, int], scene_bounds: np.ndarray, phase: float) -> Camera:
+def view_camera(
+    view: str, projector: Camera, size: tuple[int, int], scene_bounds: np.ndarray, phase: float
+) -> Camera:
     """The window camera of one exported frame; phase in [0, 1) along the export (orbit)."""
     w, h = size
     if view == "ride":
-        return Camera.create(Intrinsics.from_fov(w, h, RIDE_HFOV_DEG), projector.position, projector.orientation, VIEW_NEAR_M, VIEW_FAR_M)
+        return Camera.create(
+            Intrinsics.from_fov(w, h, RIDE_HFOV_DEG),
+            projector.position,
+            projector.orientation,
+            VIEW_NEAR_M,
+            VIEW_FAR_M,
+        )
     intr = Intrinsics.from_fov(w, h, VIEW_HFOV_DEG)
     if view == "follow":
         eye, target = ThirdPerson().eye_and_target(projector)
@@ -99,10 +107,18 @@ def export_video(
                         break
                     continue
                 projector = track.frame_camera(k)
-                renderer.set_video_frame(rotate_for_display(frame.to_ndarray(format="rgb24"), rotation_cw))
+                renderer.set_video_frame(
+                    rotate_for_display(frame.to_ndarray(format="rgb24"), rotation_cw)
+                )
                 renderer.set_projector(projector)
                 phase = (k - first) / max(1, last - first + 1)
-                rgb = render_to_array(renderer, view_camera(view, projector, size, bounds, phase), settings, OverlaySettings(frustum=view != "ride", trajectory=False), target)
+                rgb = render_to_array(
+                    renderer,
+                    view_camera(view, projector, size, bounds, phase),
+                    settings,
+                    OverlaySettings(frustum=view != "ride", trajectory=False),
+                    target,
+                )
                 out_frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(rgb), format="rgb24")
                 out_frame.pts = int(round((video.pts_s[k] - video.pts_s[first]) * 90000))
                 out_frame.time_base = enc.time_base

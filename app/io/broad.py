@@ -40,7 +40,15 @@ def load_trial(path: str | Path) -> BroadTrial:
     except OSError as exc:
         raise DataFormatError(path, f"cannot read HDF5 ({exc})") from exc
     n = len(data["imu_gyr"])
-    return BroadTrial(path.stem, np.arange(n) / rate, data["imu_gyr"], data["imu_acc"], data["imu_mag"], data["opt_quat"], data["movement"].astype(bool))
+    return BroadTrial(
+        path.stem,
+        np.arange(n) / rate,
+        data["imu_gyr"],
+        data["imu_acc"],
+        data["imu_mag"],
+        data["opt_quat"],
+        data["movement"].astype(bool),
+    )
 
 
 def list_trials(folder: str | Path) -> list[Path]:

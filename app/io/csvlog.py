@@ -21,9 +21,26 @@ from pathlib import Path
 import numpy as np
 
 from app.errors import DataFormatError
-from app.io.streams import GnssTrack, OrientationStream, VectorStream, Warnings, checked_vector, clean_times, plausible_fixes, require_samples
+from app.io.streams import (
+    GnssTrack,
+    OrientationStream,
+    VectorStream,
+    Warnings,
+    checked_vector,
+    clean_times,
+    plausible_fixes,
+    require_samples,
+)
 
-TIME_SCALE = {"t": 1.0, "time": 1.0, "time_s": 1.0, "time_ms": 1e-3, "time_us": 1e-6, "time_ns": 1e-9, "timestamp_ns": 1e-9}
+TIME_SCALE = {
+    "t": 1.0,
+    "time": 1.0,
+    "time_s": 1.0,
+    "time_ms": 1e-3,
+    "time_us": 1e-6,
+    "time_ns": 1e-9,
+    "timestamp_ns": 1e-9,
+}
 UNIT_SCALE = {
     "acc": {"m/s^2": 1.0, "m/s2": 1.0, "g": 9.80665},
     "gyr": {"rad/s": 1.0, "deg/s": np.pi / 180.0, "dps": np.pi / 180.0},
@@ -50,7 +67,9 @@ def read_table(path: Path) -> tuple[dict[str, int], dict[str, str], list[list[st
     for i, cell in enumerate(rows[0]):
         m = _HEADER.match(cell)
         if not m:
-            raise DataFormatError(path, f"bad column name {cell!r} (expected NAME or NAME[unit])", line=1)
+            raise DataFormatError(
+                path, f"bad column name {cell!r} (expected NAME or NAME[unit])", line=1
+            )
         name = m.group(1).lower()
         columns[name] = i
         if m.group(2):
@@ -58,12 +77,24 @@ def read_table(path: Path) -> tuple[dict[str, int], dict[str, str], list[list[st
     return columns, units, rows[1:], 2
 
 
-def numeric(path: Path, rows: list[list[str]], columns: dict[str, int], wanted: list[str], first_line: int, warnings: Warnings) -> tuple[np.ndarray, np.ndarray]:
+def numeric(
+    path: Path,
+    rows: list[list[str]],
+    columns: dict[str, int],
+    wanted: list[str],
+    first_line: int,
+    warnings: Warnings,
+) -> tuple[np.ndarray, np.ndarray]:
     """(values (N, len(wanted)) float64 of the good rows, their line numbers). Rows with missing,
     unparsable or NaN cells are dropped and counted; missing columns are an error."""
     missing = [w for w in wanted if w not in columns]
     if missing:
-        raise DataFormatError(path, f"missing column(s) {missing}; the header has {sorted(columns)}", line=1, field=missing[0])
+        raise DataFormatError(
+            path,
+            f"missing column(s) {missing}; the header has {sorted(columns)}",
+            line=1,
+            field=missing[0],
+        )
     idx = [columns[w] for w in wanted]
     out = np.full((len(rows), len(wanted)), np.nan)
     bad = 0
@@ -77,10 +108,14 @@ def numeric(path: Path, rows: list[list[str]], columns: dict[str, int], wanted: 
     finite = np.all(np.isfinite(out), axis=1)
     nan_rows = int((~finite).sum()) - bad
     if bad:
-        warnings.add(f"{path.name}: {bad} rows with missing or unparsable numbers dropped (first at line {first_bad})")
+        warnings.add(
+            f"{path.name}: {bad} rows with missing or unparsable numbers dropped (first at line {first_bad})"
+        )
     if nan_rows:
         first_nan = first_line + int(np.flatnonzero(~finite & ~np.isnan(out[:, 0]) | ~finite)[0])
-        warnings.add(f"{path.name}: {nan_rows} rows with NaN values dropped (first at line {first_nan})")
+        warnings.add(
+            f"{path.name}: {nan_rows} rows with NaN values dropped (first at line {first_nan})"
+        )
     lines = np.arange(first_line, first_line + len(rows))
     return out[finite], lines[finite]
 
@@ -92,12 +127,19 @@ def _time(path: Path, columns: dict[str, int], units: dict[str, str]) -> tuple[s
             if unit:
                 scale = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}.get(unit.lower(), None)
                 if scale is None:
-                    raise DataFormatError(path, f"unknown time unit {unit!r} (expected s, ms, us or ns)", line=1, field=name)
+                    raise DataFormatError(
+                        path,
+                        f"unknown time unit {unit!r} (expected s, ms, us or ns)",
+                        line=1,
+                        field=name,
+                    )
             return name, scale
     raise DataFormatError(path, f"no time column (expected one of {list(TIME_SCALE)})", line=1)
 
 
-def _timed(path: Path, wanted: list[str], label: str, warnings: Warnings) -> tuple[np.ndarray, np.ndarray, dict[str, str]]:
+def _timed(
+    path: Path, wanted: list[str], label: str, warnings: Warnings
+) -> tuple[np.ndarray, np.ndarray, dict[str, str]]:
     columns, units, rows, first = read_table(path)
     tname, tscale = _time(path, columns, units)
     values, lines = numeric(path, rows, columns, [tname, *wanted], first, warnings)
@@ -107,7 +149,9 @@ def _timed(path: Path, wanted: list[str], label: str, warnings: Warnings) -> tup
     return t[keep], values[keep, 1:], units
 
 
-def read_vector(path: str | Path, kind: str, warnings: Warnings | None = None) -> VectorStream | None:
+def read_vector(
+    path: str | Path, kind: str, warnings: Warnings | None = None
+) -> VectorStream | None:
     """An accelerometer ("acc"), gyroscope ("gyr") or magnetometer ("mag") CSV in SI-ish units;
     None for a magnetometer that reads nothing (streams.checked_vector)."""
     path = Path(path)
@@ -118,12 +162,19 @@ def read_vector(path: str | Path, kind: str, warnings: Warnings | None = None) -
     unit = units.get("x", DEFAULT_UNIT[kind])
     scale = UNIT_SCALE[kind].get(unit.lower().replace("µ", "u").replace("²", "^2"))
     if scale is None:
-        raise DataFormatError(path, f"unknown unit {unit!r} for {kind} (expected one of {list(UNIT_SCALE[kind])})", line=1, field="x")
+        raise DataFormatError(
+            path,
+            f"unknown unit {unit!r} for {kind} (expected one of {list(UNIT_SCALE[kind])})",
+            line=1,
+            field="x",
+        )
     v = v * scale
     require_samples(len(t), 2, path, kind)
     if kind == "gyr" and "x" not in units and np.percentile(np.abs(v), 99) > GYRO_DEG_SUSPECT:
         v = np.radians(v)
-        warnings.add(f"{path.name}: gyroscope values up to {np.abs(v).max() * 180 / np.pi:.0f} look like deg/s (no unit in the header); converted to rad/s")
+        warnings.add(
+            f"{path.name}: gyroscope values up to {np.abs(v).max() * 180 / np.pi:.0f} look like deg/s (no unit in the header); converted to rad/s"
+        )
     return checked_vector(VectorStream(kind, t, v, DEFAULT_UNIT[kind], str(path)), warnings)
 
 
@@ -157,6 +208,10 @@ def read_orientation(path: str | Path, warnings: Warnings | None = None) -> Orie
     t, q, _ = _timed(path, ["qw", "qx", "qy", "qz"], "orientation", warnings)
     n = np.linalg.norm(q, axis=1)
     if np.any(np.abs(n - 1.0) > 0.05):
-        raise DataFormatError(path, f"quaternions are not unit length (norms {n.min():.3f}..{n.max():.3f})", field="qw")
+        raise DataFormatError(
+            path,
+            f"quaternions are not unit length (norms {n.min():.3f}..{n.max():.3f})",
+            field="qw",
+        )
     require_samples(len(t), 2, path, "orientation")
     return OrientationStream(t, q / n[:, None], str(path))

@@ -58,7 +58,9 @@ class DjiCamera:
     @property
     def described(self) -> str:
         """The camera for messages: 'DJI Mavic Air 2 (camera code FC3170 in the MP4)'."""
-        return f"DJI {self.model} ({self.source})" if self.model else f"a DJI camera ({self.source})"
+        return (
+            f"DJI {self.model} ({self.source})" if self.model else f"a DJI camera ({self.source})"
+        )
 
 
 def read_dji_camera(path: str | Path) -> DjiCamera | None:

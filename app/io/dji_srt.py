@@ -30,8 +30,12 @@ from app.io.streams import GnssTrack, Warnings, plausible_fixes
 
 _TIMING = re.compile(r"(\d+):(\d\d):(\d\d)[,.](\d{1,3})\s*-->\s*(\d+):(\d\d):(\d\d)[,.](\d{1,3})")
 _NUM = r"([-+]?\d+(?:\.\d+)?(?:[eE][-+]?\d+)?)"
-_GPS_PAREN = re.compile(r"GPS\s*\(\s*" + _NUM + r"\s*,\s*" + _NUM + r"\s*,\s*" + _NUM + r"(M?)\s*\)", re.I)
-_HOME = re.compile(r"HOME\s*\(\s*" + _NUM + r"\s*,\s*" + _NUM + r"(?:\s*,\s*" + _NUM + r"\s*m?)?\s*\)", re.I)
+_GPS_PAREN = re.compile(
+    r"GPS\s*\(\s*" + _NUM + r"\s*,\s*" + _NUM + r"\s*,\s*" + _NUM + r"(M?)\s*\)", re.I
+)
+_HOME = re.compile(
+    r"HOME\s*\(\s*" + _NUM + r"\s*,\s*" + _NUM + r"(?:\s*,\s*" + _NUM + r"\s*m?)?\s*\)", re.I
+)
 _LAT = re.compile(r"\[?\s*latitude\s*:\s*" + _NUM, re.I)
 _LON = re.compile(r"\[?\s*long?t?itude\s*:\s*" + _NUM, re.I)  # DJI also writes "longtitude"
 _ALT = re.compile(r"\[\s*altitude\s*:\s*" + _NUM, re.I)
@@ -44,10 +48,22 @@ _PRY = {
     "G": re.compile(r"G\.PRY\s*\(\s*" + _NUM + r"\S*\s*,\s*" + _NUM + r"\S*\s*,\s*" + _NUM, re.I),
 }
 _GB = {k: re.compile(rf"gb_{k}\s*:\s*" + _NUM, re.I) for k in ("yaw", "pitch", "roll")}
-_DRONE = {k: re.compile(rf"drone_{k}\s*:\s*" + _NUM, re.I) for k in ("yaw", "pitch", "roll")}  # newer Mini / Air
-_DRONE_BRACKET = re.compile(r"\[\s*Drone\s*:\s*Yaw\s*:\s*" + _NUM + r"\s*,\s*Pitch\s*:\s*" + _NUM + r"\s*,\s*Roll\s*:\s*" + _NUM, re.I)
+_DRONE = {
+    k: re.compile(rf"drone_{k}\s*:\s*" + _NUM, re.I) for k in ("yaw", "pitch", "roll")
+}  # newer Mini / Air
+_DRONE_BRACKET = re.compile(
+    r"\[\s*Drone\s*:\s*Yaw\s*:\s*"
+    + _NUM
+    + r"\s*,\s*Pitch\s*:\s*"
+    + _NUM
+    + r"\s*,\s*Roll\s*:\s*"
+    + _NUM,
+    re.I,
+)
 _FOCAL = re.compile(r"focal_len\s*:\s*" + _NUM, re.I)
-_DATE_DASH = re.compile(r"(\d{4})-(\d\d)-(\d\d)\s+(\d\d):(\d\d):(\d\d)(?:[,.](\d{1,3}))?(?:[,.](\d{1,3}))?")
+_DATE_DASH = re.compile(
+    r"(\d{4})-(\d\d)-(\d\d)\s+(\d\d):(\d\d):(\d\d)(?:[,.](\d{1,3}))?(?:[,.](\d{1,3}))?"
+)
 _DATE_DOT = re.compile(r"(\d{4})\.(\d\d)\.(\d\d)\s+(\d\d):(\d\d):(\d\d)")
 
 
@@ -109,7 +125,14 @@ def _entry_fields(text: str) -> tuple[dict[str, float], str]:
     if lat and lon:
         f["lat"], f["lon"] = float(lat.group(1)), float(lon.group(1))
         layout = "[latitude][longitude]"
-    for key, rx in (("rel", _REL_ALT), ("abs", _ABS_ALT), ("altitude", _ALT), ("baro", _BARO), ("H", _H), ("focal", _FOCAL)):
+    for key, rx in (
+        ("rel", _REL_ALT),
+        ("abs", _ABS_ALT),
+        ("altitude", _ALT),
+        ("baro", _BARO),
+        ("H", _H),
+        ("focal", _FOCAL),
+    ):
         m = rx.search(text)
         if m:
             f[key] = float(m.group(1))
@@ -118,9 +141,13 @@ def _entry_fields(text: str) -> tuple[dict[str, float], str]:
         if m:
             f[f"{k}p"], f[f"{k}r"], f[f"{k}y"] = (float(m.group(i)) for i in (1, 2, 3))
     if all(rx.search(text) for rx in _GB.values()):
-        f["Gp"], f["Gr"], f["Gy"] = (float(_GB[k].search(text).group(1)) for k in ("pitch", "roll", "yaw"))
+        f["Gp"], f["Gr"], f["Gy"] = (
+            float(_GB[k].search(text).group(1)) for k in ("pitch", "roll", "yaw")
+        )
     if all(rx.search(text) for rx in _DRONE.values()):
-        f["Fp"], f["Fr"], f["Fy"] = (float(_DRONE[k].search(text).group(1)) for k in ("pitch", "roll", "yaw"))
+        f["Fp"], f["Fr"], f["Fy"] = (
+            float(_DRONE[k].search(text).group(1)) for k in ("pitch", "roll", "yaw")
+        )
     m = _DRONE_BRACKET.search(text)
     if m:
         f["Fy"], f["Fp"], f["Fr"] = (float(m.group(i)) for i in (1, 2, 3))
@@ -128,7 +155,9 @@ def _entry_fields(text: str) -> tuple[dict[str, float], str]:
     if d:
         g = d.groups()
         base = datetime(*(int(x) for x in g[:6]), tzinfo=timezone.utc).timestamp()
-        f["wall"] = base + (int(g[6]) / 1000.0 if g[6] else 0.0) + (int(g[7]) / 1e6 if g[7] else 0.0)
+        f["wall"] = (
+            base + (int(g[6]) / 1000.0 if g[6] else 0.0) + (int(g[7]) / 1e6 if g[7] else 0.0)
+        )
     else:
         d = _DATE_DOT.search(text)
         if d:
@@ -158,9 +187,13 @@ def read_srt(path: str | Path, warnings: Warnings | None = None) -> SrtTrack:
             incomplete.append(n)  # the file stops inside its last entry
             continue
         timing = next((_TIMING.search(line) for line in lines[:3] if _TIMING.search(line)), None)
-        body = "\n".join(line for line in lines if not _TIMING.search(line) and not line.strip().isdigit())
+        body = "\n".join(
+            line for line in lines if not _TIMING.search(line) and not line.strip().isdigit()
+        )
         fields, layout = _entry_fields(re.sub(r"<[^>]+>", " ", body))
-        if timing is None and "wall" in fields:  # older layouts: a date-time line instead of the timing line
+        if (
+            timing is None and "wall" in fields
+        ):  # older layouts: a date-time line instead of the timing line
             rows.append((np.nan, np.nan, fields))
             layouts.add(layout + ", dated entries")
             undated += 1
@@ -176,9 +209,14 @@ def read_srt(path: str | Path, warnings: Warnings | None = None) -> SrtTrack:
     if incomplete:
         last = incomplete[-1] == len(blocks)
         where = "the last entry" if incomplete == [len(blocks)] else f"entries {incomplete[:5]}"
-        warnings.add(f"{path.name}: {where} {'is cut short' if last else 'are incomplete'}; the {len(rows)} complete entries are kept")
+        warnings.add(
+            f"{path.name}: {where} {'is cut short' if last else 'are incomplete'}; the {len(rows)} complete entries are kept"
+        )
     if not rows:
-        raise DataFormatError(path, f"no complete subtitle entry among {len(blocks)} blocks (expected 'index, start --> end, telemetry')")
+        raise DataFormatError(
+            path,
+            f"no complete subtitle entry among {len(blocks)} blocks (expected 'index, start --> end, telemetry')",
+        )
 
     def col(key: str) -> np.ndarray:
         return np.array([r[2].get(key, np.nan) for r in rows], np.float64)
@@ -186,13 +224,24 @@ def read_srt(path: str | Path, warnings: Warnings | None = None) -> SrtTrack:
     lat, lon = col("lat"), col("lon")
     missing = ~(np.isfinite(lat) & np.isfinite(lon))
     if missing.all():
-        raise DataFormatError(path, f"none of the {len(rows)} entries has a position (GPS, latitude/longitude)")
+        raise DataFormatError(
+            path, f"none of the {len(rows)} entries has a position (GPS, latitude/longitude)"
+        )
     if missing.any():
-        warnings.add(f"{path.name}: {int(missing.sum())} entries without a position (first: entry {int(np.flatnonzero(missing)[0]) + 1})")
+        warnings.add(
+            f"{path.name}: {int(missing.sum())} entries without a position (first: entry {int(np.flatnonzero(missing)[0]) + 1})"
+        )
     if len(layouts - {"unknown"}) > 1:
         warnings.add(f"{path.name}: mixes layouts {sorted(layouts - {'unknown'})}")
     # Heights: relative to take-off where the layout says so (H, rel_alt, BAROMETER), else absolute.
-    for key, relative in (("rel", True), ("H", True), ("baro", True), ("abs", False), ("altitude", False), ("alt", False)):
+    for key, relative in (
+        ("rel", True),
+        ("H", True),
+        ("baro", True),
+        ("abs", False),
+        ("altitude", False),
+        ("alt", False),
+    ):
         h = col(key)
         if np.isfinite(h).any():
             height, height_relative = h, relative
@@ -201,8 +250,17 @@ def read_srt(path: str | Path, warnings: Warnings | None = None) -> SrtTrack:
         height, height_relative = np.full(len(rows), np.nan), True
     t = np.array([r[0] for r in rows])
     return SrtTrack(
-        str(path), t, np.array([r[1] for r in rows]), lat, lon, height, height_relative, col("wall"),
-        np.column_stack([col("Gp"), col("Gr"), col("Gy")]), np.column_stack([col("Fp"), col("Fr"), col("Fy")]), col("focal"),
+        str(path),
+        t,
+        np.array([r[1] for r in rows]),
+        lat,
+        lon,
+        height,
+        height_relative,
+        col("wall"),
+        np.column_stack([col("Gp"), col("Gr"), col("Gy")]),
+        np.column_stack([col("Fp"), col("Fr"), col("Fy")]),
+        col("focal"),
         tuple(sorted(layouts)),
     )
 
@@ -215,21 +273,28 @@ def split_entries(text: str) -> list[list[str]]:
     entries: list[list[str]] = []
     for i, line in enumerate(lines):
         nxt = lines[i + 1] if i + 1 < len(lines) else ""
-        header = line.strip().isdigit() and bool(_TIMING.search(nxt) or _DATE_DASH.match(nxt.strip()) or _DATE_DOT.match(nxt.strip()))
+        header = line.strip().isdigit() and bool(
+            _TIMING.search(nxt) or _DATE_DASH.match(nxt.strip()) or _DATE_DOT.match(nxt.strip())
+        )
         if header or not entries:
             entries.append([])
         entries[-1].append(line)
     return entries
 
 
-def _times_from_dates(rows: list[tuple[float, float, dict[str, float]]]) -> list[tuple[float, float, dict[str, float]]]:
+def _times_from_dates(
+    rows: list[tuple[float, float, dict[str, float]]],
+) -> list[tuple[float, float, dict[str, float]]]:
     """Entries of a layout without timing lines: times from their date-time lines, counted from
     the first entry's; each lasts until the next (the last one the median step)."""
     wall = np.array([r[2].get("wall", np.nan) for r in rows])
     if not np.isfinite(wall).any():
         return [r for r in rows if np.isfinite(r[0])]
     w0 = float(np.nanmin(wall))
-    out = [(float(w - w0), np.nan, f) if not np.isfinite(t0) else (t0, t1, f) for (t0, t1, f), w in zip(rows, wall)]
+    out = [
+        (float(w - w0), np.nan, f) if not np.isfinite(t0) else (t0, t1, f)
+        for (t0, t1, f), w in zip(rows, wall)
+    ]
     starts = np.array([r[0] for r in out])
     step = float(np.median(np.diff(starts))) if len(starts) > 1 else 1.0
     ends = np.append(starts[1:], starts[-1] + step)
@@ -244,15 +309,26 @@ def srt_fixes(track: SrtTrack, warnings: Warnings, offset_s: float = 0.0) -> Gns
     h = track.height[ok]
     missing = ~np.isfinite(h)
     if missing.any() and not missing.all():
-        warnings.add(f"{Path(track.path).name}: {int(missing.sum())} entries without a height: interpolated")
+        warnings.add(
+            f"{Path(track.path).name}: {int(missing.sum())} entries without a height: interpolated"
+        )
         h = np.interp(track.t[ok], track.t[ok][~missing], h[~missing])
     elif missing.all():
         h = np.zeros(len(h))
-    return plausible_fixes(GnssTrack(offset_s + track.t[ok], track.lat[ok], track.lon[ok], h, None, None, track.path), warnings)
+    return plausible_fixes(
+        GnssTrack(offset_s + track.t[ok], track.lat[ok], track.lon[ok], h, None, None, track.path),
+        warnings,
+    )
 
 
 def check_duration(track: SrtTrack, video_duration_s: float, tolerance_s: float = 2.0) -> None:
     """An SRT whose entries run past the video (or stop far short of it) belongs to another clip."""
     end = float(track.t_end.max())
-    if end > video_duration_s + tolerance_s or end < video_duration_s - max(tolerance_s, 0.2 * video_duration_s):
-        raise DataFormatError(track.path, f"its entries span 0-{end:.1f} s but the video lasts {video_duration_s:.1f} s: is it the subtitle of another clip?", field="timing")
+    if end > video_duration_s + tolerance_s or end < video_duration_s - max(
+        tolerance_s, 0.2 * video_duration_s
+    ):
+        raise DataFormatError(
+            track.path,
+            f"its entries span 0-{end:.1f} s but the video lasts {video_duration_s:.1f} s: is it the subtitle of another clip?",
+            field="timing",
+        )

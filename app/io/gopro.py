@@ -26,9 +26,17 @@ from app.io.mp4box import user_data
 from app.io.streams import GnssTrack, Warnings, plausible_fixes
 from app.io.video import probe
 
-DEFAULT_ORIN = {"HERO5": "ZXY", "HERO6": "YxZ", "Fusion": "yXZ"}  # documented data orders where ORIN is absent
+DEFAULT_ORIN = {
+    "HERO5": "ZXY",
+    "HERO6": "YxZ",
+    "Fusion": "yXZ",
+}  # documented data orders where ORIN is absent
 GPS_BIN_S = 0.5  # 18 Hz GPS averaged into 2 Hz fixes: smoother velocities for the Hermite track
-HFOV_DEG = {"max": 92.0, "fusion": 100.0, "default": 94.4}  # horizontal FOV of the linear-ish default lens modes (assumption)
+HFOV_DEG = {
+    "max": 92.0,
+    "fusion": 100.0,
+    "default": 94.4,
+}  # horizontal FOV of the linear-ish default lens modes (assumption)
 
 
 Samples = tuple[np.ndarray, np.ndarray]  # (t (N,) clip seconds, values (N, K))
@@ -76,7 +84,10 @@ def read_payloads(path: Path) -> list[tuple[bytes, float, float]]:
     with container:
         stream = telemetry_stream(container)
         if stream is None:
-            raise DataFormatError(path, "no GoPro telemetry track (GPMF) in this file: open it with a session manifest, or give a DJI subtitle with --srt")
+            raise DataFormatError(
+                path,
+                "no GoPro telemetry track (GPMF) in this file: open it with a session manifest, or give a DJI subtitle with --srt",
+            )
         tb = float(stream.time_base)
         out = []
         try:
@@ -128,8 +139,15 @@ def lens_hfov(settings: dict[str, object], width: int, height: int) -> float | N
 def orin_map(orin: str, values: np.ndarray) -> np.ndarray:
     """Stored values -> IMU X, Y, Z per the ORIN string (lowercase = negated axis). ValueError
     unless ORIN names X, Y and Z once each."""
-    if len(orin) < 3 or sorted(orin[:3].upper()) != ["X", "Y", "Z"] or values.ndim != 2 or values.shape[1] < 3:
-        raise ValueError(f"ORIN {orin!r} on {values.shape} samples: expected a permutation of X, Y, Z (lower case negated) on 3-axis samples")
+    if (
+        len(orin) < 3
+        or sorted(orin[:3].upper()) != ["X", "Y", "Z"]
+        or values.ndim != 2
+        or values.shape[1] < 3
+    ):
+        raise ValueError(
+            f"ORIN {orin!r} on {values.shape} samples: expected a permutation of X, Y, Z (lower case negated) on 3-axis samples"
+        )
     out = np.zeros_like(values[:, :3])
     for i, ch in enumerate(orin[:3]):
         out[:, "XYZ".index(ch.upper())] = values[:, i] * (1.0 if ch.isupper() else -1.0)
@@ -138,7 +156,11 @@ def orin_map(orin: str, values: np.ndarray) -> np.ndarray:
 
 def _times(c: StreamChunk) -> np.ndarray:
     n = len(c.samples)
-    timo = float(np.ravel(c.modifiers["TIMO"])[0]) if isinstance(c.modifiers.get("TIMO"), np.ndarray) else 0.0
+    timo = (
+        float(np.ravel(c.modifiers["TIMO"])[0])
+        if isinstance(c.modifiers.get("TIMO"), np.ndarray)
+        else 0.0
+    )
     return c.t0 + timo + (np.arange(n) + 0.5) / max(n, 1) * (c.t1 - c.t0)
 
 
@@ -172,7 +194,11 @@ def read_gopro_raw(path: str | Path, warnings: Warnings | None = None) -> GoProR
         warnings.add(f"{path.name}: telemetry keys skipped (undecodable): {counts.skipped}")
     for need in ("ACCL", "GYRO"):
         if need not in by_key:
-            raise DataFormatError(path, f"the telemetry has no {need} stream (expected GoPro HERO5 or later)", field=need)
+            raise DataFormatError(
+                path,
+                f"the telemetry has no {need} stream (expected GoPro HERO5 or later)",
+                field=need,
+            )
     orin_default = next((v for k, v in DEFAULT_ORIN.items() if k.lower() in model.lower()), "XYZ")
     orin_a = str(by_key["ACCL"][0].modifiers.get("ORIN", orin_default))
     orin_g = str(by_key["GYRO"][0].modifiers.get("ORIN", orin_default))
@@ -207,8 +233,26 @@ def read_gopro_raw(path: str | Path, warnings: Warnings | None = None) -> GoProR
     if recorded is not None:
         lens = recorded
     else:
-        warnings.add(f"{path.name}: no lens field of view in the metadata: {lens:g} deg horizontal assumed for {model or 'this camera'}")
-    return GoProRaw(path, model or "GoPro", (ta, a), (tg, g), cori, magn, gnss, precision, utc0, lens, counts, dropped, orin_recorded, a_stored, g_stored)
+        warnings.add(
+            f"{path.name}: no lens field of view in the metadata: {lens:g} deg horizontal assumed for {model or 'this camera'}"
+        )
+    return GoProRaw(
+        path,
+        model or "GoPro",
+        (ta, a),
+        (tg, g),
+        cori,
+        magn,
+        gnss,
+        precision,
+        utc0,
+        lens,
+        counts,
+        dropped,
+        orin_recorded,
+        a_stored,
+        g_stored,
+    )
 
 
 TIMELAPSE_RATIO = 1.5  # real seconds per video second above which a clip is a time-lapse
@@ -217,7 +261,9 @@ TIMELAPSE_MIN_SPAN_S = 3.0  # of video, for the ratio to mean anything (GPSU has
 
 def _gpsu_seconds(text: str) -> float | None:
     try:
-        return datetime.strptime(text[:16], "%y%m%d%H%M%S.%f").replace(tzinfo=timezone.utc).timestamp()
+        return (
+            datetime.strptime(text[:16], "%y%m%d%H%M%S.%f").replace(tzinfo=timezone.utc).timestamp()
+        )
     except ValueError:
         return None
 
@@ -247,7 +293,9 @@ def real_time_ratio(pairs: list[tuple[float, float]]) -> float | None:
     return (u1 - u0) / (v1 - v0)
 
 
-def _gps(by_key: dict[str, list[StreamChunk]], path: Path, warnings: Warnings) -> tuple[GnssTrack | None, np.ndarray | None, float | None, int]:
+def _gps(
+    by_key: dict[str, list[StreamChunk]], path: Path, warnings: Warnings
+) -> tuple[GnssTrack | None, np.ndarray | None, float | None, int]:
     key = "GPS9" if "GPS9" in by_key else "GPS5" if "GPS5" in by_key else None
     if key is None:
         warnings.add(f"{path.name}: no GPS stream (GPS5/GPS9): the camera's position is unknown")
@@ -255,12 +303,21 @@ def _gps(by_key: dict[str, list[StreamChunk]], path: Path, warnings: Warnings) -
     ts, vals, fixes, dops, dop, utc0, dropped = [], [], [], [], [], None, 0
     for c in by_key[key]:
         t = _times(c)
-        fix = np.full(len(t), float(np.ravel(c.modifiers["GPSF"])[0]) if isinstance(c.modifiers.get("GPSF"), np.ndarray) else 3.0)
+        fix = np.full(
+            len(t),
+            float(np.ravel(c.modifiers["GPSF"])[0])
+            if isinstance(c.modifiers.get("GPSF"), np.ndarray)
+            else 3.0,
+        )
         if key == "GPS9" and c.samples.shape[1] >= 9:
             fix = c.samples[:, 8].astype(np.float64)
         ok = fix >= 2
         dropped += int((~ok).sum())
-        precision = float(np.ravel(c.modifiers["GPSP"])[0]) / 100.0 if isinstance(c.modifiers.get("GPSP"), np.ndarray) else np.nan
+        precision = (
+            float(np.ravel(c.modifiers["GPSP"])[0]) / 100.0
+            if isinstance(c.modifiers.get("GPSP"), np.ndarray)
+            else np.nan
+        )
         ts.append(t[ok])
         vals.append(c.samples[ok, :5])
         fixes.append(fix[ok])
@@ -281,7 +338,12 @@ def _gps(by_key: dict[str, list[StreamChunk]], path: Path, warnings: Warnings) -
         warnings.add(f"{path.name}: fewer than two GPS samples with a fix")
         return None, np.array(dop) if dop else None, utc0, dropped
     try:
-        raw = plausible_fixes(GnssTrack(t, v[:, 0], v[:, 1], v[:, 2], None, None, str(path)), warnings, np.concatenate(fixes), np.nan_to_num(np.concatenate(dops), nan=0.0))
+        raw = plausible_fixes(
+            GnssTrack(t, v[:, 0], v[:, 1], v[:, 2], None, None, str(path)),
+            warnings,
+            np.concatenate(fixes),
+            np.nan_to_num(np.concatenate(dops), nan=0.0),
+        )
     except DataFormatError as exc:
         warnings.add(f"{path.name}: GPS not used ({exc.detail})")
         return None, np.array(dop) if dop else None, utc0, dropped
@@ -292,4 +354,9 @@ def _gps(by_key: dict[str, list[StreamChunk]], path: Path, warnings: Warnings) -
     keep = np.unique(bins)
     mean = np.array([v[bins == b].mean(axis=0) for b in keep])
     tb = np.array([t[bins == b].mean() for b in keep])
-    return GnssTrack(tb, mean[:, 0], mean[:, 1], mean[:, 2], None, None, str(path)), np.array(dop) if dop else None, utc0, dropped
+    return (
+        GnssTrack(tb, mean[:, 0], mean[:, 1], mean[:, 2], None, None, str(path)),
+        np.array(dop) if dop else None,
+        utc0,
+        dropped,
+    )

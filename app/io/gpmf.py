@@ -23,14 +23,42 @@ from app.errors import DataFormatError
 
 # Type character -> numpy big-endian dtype (and a divisor for the fixed-point Q types).
 NUMERIC = {
-    "b": (">i1", 1.0), "B": (">u1", 1.0), "s": (">i2", 1.0), "S": (">u2", 1.0),
-    "l": (">i4", 1.0), "L": (">u4", 1.0), "j": (">i8", 1.0), "J": (">u8", 1.0),
-    "f": (">f4", 1.0), "d": (">f8", 1.0), "q": (">i4", 65536.0), "Q": (">i8", 4294967296.0),
+    "b": (">i1", 1.0),
+    "B": (">u1", 1.0),
+    "s": (">i2", 1.0),
+    "S": (">u2", 1.0),
+    "l": (">i4", 1.0),
+    "L": (">u4", 1.0),
+    "j": (">i8", 1.0),
+    "J": (">u8", 1.0),
+    "f": (">f4", 1.0),
+    "d": (">f8", 1.0),
+    "q": (">i4", 65536.0),
+    "Q": (">i8", 4294967296.0),
 }
 TEXT = {"c", "U", "F", "G"}
 NESTED = "\x00"
 COMPLEX = "?"
-MODIFIERS = {"SCAL", "TYPE", "UNIT", "SIUN", "ORIN", "ORIO", "MTRX", "TIMO", "TSMP", "STMP", "STNM", "RMRK", "EMPT", "TMPC", "GPSF", "GPSP", "GPSU", "GPSA"}
+MODIFIERS = {
+    "SCAL",
+    "TYPE",
+    "UNIT",
+    "SIUN",
+    "ORIN",
+    "ORIO",
+    "MTRX",
+    "TIMO",
+    "TSMP",
+    "STMP",
+    "STNM",
+    "RMRK",
+    "EMPT",
+    "TMPC",
+    "GPSF",
+    "GPSP",
+    "GPSU",
+    "GPSA",
+}
 
 
 @dataclass
@@ -102,7 +130,9 @@ def _decode_value(type_: str, size: int, repeat: int, data: bytes, type_spec: st
     raise ValueError(f"unknown type character {type_!r}")
 
 
-def parse(payload: bytes, source: str = "<payload>", counts: Counts | None = None, _base: int = 0) -> list[KLV]:
+def parse(
+    payload: bytes, source: str = "<payload>", counts: Counts | None = None, _base: int = 0
+) -> list[KLV]:
     """Decode one GPMF payload into nested KLVs. Truncated data is an error naming the byte offset;
     undecodable data keys are skipped and counted, never fatal."""
     counts = counts if counts is not None else Counts()
@@ -119,7 +149,11 @@ def parse(payload: bytes, source: str = "<payload>", counts: Counts | None = Non
         if key == "\x00\x00\x00\x00":
             break  # padding at the end of a payload
         if pos + 8 + length > len(payload):
-            raise DataFormatError(source, f"GPMF payload cut short: {key!r} at byte {_base + pos} needs {length} bytes, {len(payload) - pos - 8} remain", field=key)
+            raise DataFormatError(
+                source,
+                f"GPMF payload cut short: {key!r} at byte {_base + pos} needs {length} bytes, {len(payload) - pos - 8} remain",
+                field=key,
+            )
         data = payload[pos + 8 : pos + 8 + length]
         if type_ == NESTED:
             value: object = parse(data, source, counts, _base + pos + 8)
@@ -166,7 +200,9 @@ def chunks(payload: list[KLV], t0: float, t1: float) -> list[StreamChunk]:
     for devc in payload:
         if devc.key != "DEVC" or not isinstance(devc.value, list):
             continue
-        name = next((k.value for k in devc.value if k.key == "DVNM" and isinstance(k.value, str)), "")
+        name = next(
+            (k.value for k in devc.value if k.key == "DVNM" and isinstance(k.value, str)), ""
+        )
         for strm in devc.value:
             if strm.key != "STRM" or not isinstance(strm.value, list):
                 continue

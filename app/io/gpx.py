@@ -54,21 +54,31 @@ def read_gpx(path: str | Path, warnings: Warnings | None = None) -> GnssTrack:
             try:
                 lat, lon = float(p.attrib["lat"]), float(p.attrib["lon"])
             except (KeyError, ValueError) as exc:
-                raise DataFormatError(path, f"track point {point}: bad or missing lat/lon ({exc})", field="trkpt") from exc
+                raise DataFormatError(
+                    path, f"track point {point}: bad or missing lat/lon ({exc})", field="trkpt"
+                ) from exc
             fields = {_local(c.tag): (c.text or "") for c in p}
             if "time" not in fields:
-                raise DataFormatError(path, f"track point {point} has no <time>: the track cannot be placed on a timeline", field="time")
+                raise DataFormatError(
+                    path,
+                    f"track point {point} has no <time>: the track cannot be placed on a timeline",
+                    field="time",
+                )
             try:
                 t = _parse_time(fields["time"])
             except ValueError as exc:
-                raise DataFormatError(path, f"track point {point}: unparsable <time> {fields['time']!r}", field="time") from exc
+                raise DataFormatError(
+                    path, f"track point {point}: unparsable <time> {fields['time']!r}", field="time"
+                ) from exc
             ele = _optional_number(fields.get("ele", ""), unparsable, "ele")
             rows.append((t, lat, lon, ele))
             speeds.append(_optional_number(fields.get("speed", ""), unparsable, "speed"))
     if not rows:
         raise DataFormatError(path, "no track points (expected <trk><trkseg><trkpt>)")
     for name, count in unparsable.items():
-        warnings.add(f"{path.name}: {count} track points with an unparsable <{name}>: taken as missing")
+        warnings.add(
+            f"{path.name}: {count} track points with an unparsable <{name}>: taken as missing"
+        )
     arr = np.array(rows)
     early = arr[:, 0] < GPS_EPOCH_UNIX_S
     if early.any():
@@ -90,14 +100,20 @@ def read_gpx(path: str | Path, warnings: Warnings | None = None) -> GnssTrack:
         )
     repeat = dt == 0
     if repeat.any():
-        warnings.add(f"{path.name}: {int(repeat.sum())} track points repeat the previous time; dropped")
+        warnings.add(
+            f"{path.name}: {int(repeat.sum())} track points repeat the previous time; dropped"
+        )
         keep = np.concatenate([[True], ~repeat])
         arr, speeds = arr[keep], np.asarray(speeds)[keep]
     if np.isnan(arr[:, 3]).any():
-        warnings.add(f"{path.name}: {int(np.isnan(arr[:, 3]).sum())} track points without <ele>; heights interpolated")
+        warnings.add(
+            f"{path.name}: {int(np.isnan(arr[:, 3]).sum())} track points without <ele>; heights interpolated"
+        )
         ok = ~np.isnan(arr[:, 3])
         arr[:, 3] = np.interp(arr[:, 0], arr[ok, 0], arr[ok, 3]) if ok.any() else 0.0
-    return plausible_fixes(GnssTrack(arr[:, 0], arr[:, 1], arr[:, 2], arr[:, 3], None, None, str(path)), warnings)
+    return plausible_fixes(
+        GnssTrack(arr[:, 0], arr[:, 1], arr[:, 2], arr[:, 3], None, None, str(path)), warnings
+    )
 
 
 def _optional_number(text: str, unparsable: dict[str, int], name: str) -> float:

@@ -76,6 +76,12 @@ def udta_text(value: bytes) -> str:
     if len(value) >= 16 and value[4:8] == b"data":  # an ilst item
         n = int.from_bytes(value[:4], "big")
         value = value[16 : max(16, min(n, len(value)))]
-    elif len(value) >= 4 and value[0] < 0x20 and 0 < int.from_bytes(value[:2], "big") <= len(value) - 4:
-        value = value[4 : 4 + int.from_bytes(value[:2], "big")]  # international text (the first language)
+    elif (
+        len(value) >= 4
+        and value[0] < 0x20
+        and 0 < int.from_bytes(value[:2], "big") <= len(value) - 4
+    ):
+        value = value[
+            4 : 4 + int.from_bytes(value[:2], "big")
+        ]  # international text (the first language)
     return value.split(b"\0", 1)[0].decode("utf-8", "replace").strip()

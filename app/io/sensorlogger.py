@@ -27,7 +27,17 @@ import numpy as np
 
 from app import rotations
 from app.errors import DataFormatError
-from app.io.streams import GnssTrack, OrientationStream, VectorStream, Warnings, checked_vector, clean_times, plausible_fixes, require_samples, resample
+from app.io.streams import (
+    GnssTrack,
+    OrientationStream,
+    VectorStream,
+    Warnings,
+    checked_vector,
+    clean_times,
+    plausible_fixes,
+    require_samples,
+    resample,
+)
 
 
 @dataclass(frozen=True)
@@ -52,9 +62,13 @@ class _Source:
             self.zip = None
         elif zipfile.is_zipfile(path):
             self.zip = zipfile.ZipFile(path)
-            self.names = {Path(n).name.lower(): n for n in self.zip.namelist() if not n.endswith("/")}
+            self.names = {
+                Path(n).name.lower(): n for n in self.zip.namelist() if not n.endswith("/")
+            }
         else:
-            raise DataFormatError(path, "not a Sensor Logger recording (expected its folder or zip export)")
+            raise DataFormatError(
+                path, "not a Sensor Logger recording (expected its folder or zip export)"
+            )
 
     def has(self, name: str) -> bool:
         return name.lower() in self.names
@@ -64,14 +78,20 @@ class _Source:
 
     def rows(self, name: str) -> tuple[dict[str, int], list[list[str]]]:
         real = self.names[name.lower()]
-        data = self.zip.read(real).decode("utf-8-sig") if self.zip else (self.path / real).read_text(encoding="utf-8-sig")
+        data = (
+            self.zip.read(real).decode("utf-8-sig")
+            if self.zip
+            else (self.path / real).read_text(encoding="utf-8-sig")
+        )
         rows = list(csv.reader(io.StringIO(data)))
         if not rows:
             raise DataFormatError(self.where(name), "empty file (expected a header row)", line=1)
         return {c.strip().lower(): i for i, c in enumerate(rows[0])}, rows[1:]
 
 
-def _columns(src: _Source, name: str, wanted: list[str], label: str, warnings: Warnings) -> tuple[np.ndarray, np.ndarray]:
+def _columns(
+    src: _Source, name: str, wanted: list[str], label: str, warnings: Warnings
+) -> tuple[np.ndarray, np.ndarray]:
     from app.io.csvlog import numeric
 
     cols, rows = src.rows(name)
@@ -97,7 +117,9 @@ def _platform(src: _Source) -> str:
     return "unknown"
 
 
-def read_sensorlogger(path: str | Path, standardised: bool = False, warnings: Warnings | None = None) -> SensorLoggerRecording:
+def read_sensorlogger(
+    path: str | Path, standardised: bool = False, warnings: Warnings | None = None
+) -> SensorLoggerRecording:
     """Read a Sensor Logger recording. `standardised`: the app's "Standardise Units & Frames" was on."""
     path = Path(path)
     warnings = warnings if warnings is not None else Warnings()
@@ -106,7 +128,9 @@ def read_sensorlogger(path: str | Path, standardised: bool = False, warnings: Wa
     src = _Source(path)
     platform = _platform(src)
     if not src.has("gyroscope.csv"):
-        raise DataFormatError(path, "no Gyroscope.csv in the recording (enable the gyroscope in Sensor Logger)")
+        raise DataFormatError(
+            path, "no Gyroscope.csv in the recording (enable the gyroscope in Sensor Logger)"
+        )
     gyr = _vector(src, "Gyroscope.csv", "gyr", "rad/s", warnings)
     if src.has("totalacceleration.csv"):
         acc = _vector(src, "TotalAcceleration.csv", "acc", "m/s^2", warnings)
@@ -116,18 +140,29 @@ def read_sensorlogger(path: str | Path, standardised: bool = False, warnings: Wa
         total = user.values + resample(user.t, grav.t, grav.values)
         sign = -1.0 if platform == "ios" and not standardised else 1.0
         if platform == "unknown":
-            warnings.add(f"{path.name}: no platform in Metadata.csv; acceleration taken in Android's sign convention")
+            warnings.add(
+                f"{path.name}: no platform in Metadata.csv; acceleration taken in Android's sign convention"
+            )
         acc = VectorStream("acc", user.t, sign * total, "m/s^2", user.source)
     else:
-        raise DataFormatError(path, "no acceleration with gravity: expected TotalAcceleration.csv, or Accelerometer.csv and Gravity.csv")
+        raise DataFormatError(
+            path,
+            "no acceleration with gravity: expected TotalAcceleration.csv, or Accelerometer.csv and Gravity.csv",
+        )
     gyr, acc = checked_vector(gyr, warnings), checked_vector(acc, warnings)
-    mag = _vector(src, "Magnetometer.csv", "mag", "uT", warnings) if src.has("magnetometer.csv") else None
+    mag = (
+        _vector(src, "Magnetometer.csv", "mag", "uT", warnings)
+        if src.has("magnetometer.csv")
+        else None
+    )
     mag = None if mag is None else checked_vector(mag, warnings)
     if mag is None and not src.has("magnetometer.csv"):
         warnings.add(f"{path.name}: no Magnetometer.csv: only the IMU (6D) filters are available")
     gnss = None
     if src.has("location.csv"):
-        t, v = _columns(src, "Location.csv", ["latitude", "longitude", "altitude"], "GNSS", warnings)
+        t, v = _columns(
+            src, "Location.csv", ["latitude", "longitude", "altitude"], "GNSS", warnings
+        )
         cols, _ = src.rows("Location.csv")
         vel = None
         if "speed" in cols and "bearing" in cols:
@@ -135,18 +170,34 @@ def read_sensorlogger(path: str | Path, standardised: bool = False, warnings: Wa
             valid = (sb[:, 0] >= 0) & (sb[:, 1] >= 0)
             if valid.all():
                 b = np.radians(sb[:, 1])
-                vel = np.column_stack([sb[:, 0] * np.sin(b), sb[:, 0] * np.cos(b), np.zeros(len(b))])
+                vel = np.column_stack(
+                    [sb[:, 0] * np.sin(b), sb[:, 0] * np.cos(b), np.zeros(len(b))]
+                )
             else:
-                warnings.add(f"{path.name}: Location.csv has {int((~valid).sum())} fixes with invalid speed/bearing; velocity estimated from positions")
-        gnss = plausible_fixes(GnssTrack(t, v[:, 0], v[:, 1], v[:, 2], vel, None, str(src.where("Location.csv"))), warnings)
+                warnings.add(
+                    f"{path.name}: Location.csv has {int((~valid).sum())} fixes with invalid speed/bearing; velocity estimated from positions"
+                )
+        gnss = plausible_fixes(
+            GnssTrack(t, v[:, 0], v[:, 1], v[:, 2], vel, None, str(src.where("Location.csv"))),
+            warnings,
+        )
     orientation = None
     if src.has("orientation.csv"):
         t, q = _columns(src, "Orientation.csv", ["qw", "qx", "qy", "qz"], "orientation", warnings)
-        orientation = reference_orientation(OrientationStream(t, q / np.linalg.norm(q, axis=1, keepdims=True), str(src.where("Orientation.csv"))), acc, mag, platform)
+        orientation = reference_orientation(
+            OrientationStream(
+                t, q / np.linalg.norm(q, axis=1, keepdims=True), str(src.where("Orientation.csv"))
+            ),
+            acc,
+            mag,
+            platform,
+        )
     return SensorLoggerRecording(acc, gyr, mag, gnss, orientation, platform)
 
 
-def reference_orientation(raw: OrientationStream, acc: VectorStream, mag: VectorStream | None, platform: str) -> OrientationStream:
+def reference_orientation(
+    raw: OrientationStream, acc: VectorStream, mag: VectorStream | None, platform: str
+) -> OrientationStream:
     """The recording's own attitude in our convention (device -> ENU), choosing among q and its
     conjugate and among world frames turned 0/90/180/270 deg about Up the one under which the
     logged gravity points up and the logged field points north (magnetic)."""
@@ -157,7 +208,9 @@ def reference_orientation(raw: OrientationStream, acc: VectorStream, mag: Vector
     for name, q in (("as logged", raw.q), ("conjugated", rotations.conjugate(raw.q))):
         up_err = np.mean(np.linalg.norm(rotations.rotate(q, a) - [0, 0, 1], axis=1))
         for turn in (0.0, 90.0, 180.0, -90.0):
-            qq = rotations.multiply(rotations.heading_turn(-turn), q)  # counter-clockwise seen from above
+            qq = rotations.multiply(
+                rotations.heading_turn(-turn), q
+            )  # counter-clockwise seen from above
             score = up_err
             if m is not None:
                 h = rotations.rotate(qq, m)
@@ -166,4 +219,6 @@ def reference_orientation(raw: OrientationStream, acc: VectorStream, mag: Vector
                 score += 1.0  # without a magnetometer, keep the platform's documented frame
             if best is None or score < best[0]:
                 best = (score, qq, f"{name}, world turned {turn:+.0f} deg about Up")
-    return OrientationStream(raw.t, rotations.canonical(best[1]), raw.source, f"convention: {best[2]}")
+    return OrientationStream(
+        raw.t, rotations.canonical(best[1]), raw.source, f"convention: {best[2]}"
+    )

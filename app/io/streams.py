@@ -90,12 +90,16 @@ def resample(t_target: npt.ArrayLike, t_source: npt.ArrayLike, values: npt.Array
     return np.column_stack([np.interp(t_target, t_source, v[:, k]) for k in range(v.shape[1])])
 
 
-def clean_times(t: FloatArray, rows: npt.NDArray[np.int64], path: Path, label: str, warnings: Warnings) -> npt.NDArray[np.bool_]:
+def clean_times(
+    t: FloatArray, rows: npt.NDArray[np.int64], path: Path, label: str, warnings: Warnings
+) -> npt.NDArray[np.bool_]:
     """Mask of samples to keep so that time strictly increases: drops NaN times, repeats and
     samples that go backwards (counted, with the first offending line). Notes gaps."""
     keep = np.isfinite(t)
     if (~keep).any():
-        warnings.add(f"{path.name}: {int((~keep).sum())} {label} rows with no time dropped (first at line {int(rows[~keep][0])})")
+        warnings.add(
+            f"{path.name}: {int((~keep).sum())} {label} rows with no time dropped (first at line {int(rows[~keep][0])})"
+        )
     idx = np.flatnonzero(keep)
     good = np.zeros(len(t), bool)
     last = -np.inf
@@ -112,14 +116,18 @@ def clean_times(t: FloatArray, rows: npt.NDArray[np.int64], path: Path, label: s
                 back += 1
             first_bad = first_bad or int(rows[i])
     if back or repeat:
-        warnings.add(f"{path.name}: {label} time goes backwards {back} times and repeats {repeat} times; those rows dropped (first at line {first_bad})")
+        warnings.add(
+            f"{path.name}: {label} time goes backwards {back} times and repeats {repeat} times; those rows dropped (first at line {first_bad})"
+        )
     tt = t[good]
     if len(tt) > 2:
         dt = np.diff(tt)
         med = np.median(dt)
         gaps = dt > GAP_FACTOR * med
         if gaps.any():
-            warnings.add(f"{path.name}: {int(gaps.sum())} gaps in {label} longer than {GAP_FACTOR:g}x the median step ({med * 1000:.1f} ms), longest {dt.max():.3f} s")
+            warnings.add(
+                f"{path.name}: {int(gaps.sum())} gaps in {label} longer than {GAP_FACTOR:g}x the median step ({med * 1000:.1f} ms), longest {dt.max():.3f} s"
+            )
     return good
 
 
@@ -130,7 +138,10 @@ def require_samples(n: int, minimum: int, path: Path, label: str) -> None:
 
 # --- where numbers enter: one set of plausibility checks for every reader ---------------------------
 
-RATE_RANGE_HZ = (0.5, 20_000.0)  # an IMU sample rate outside this is a time-unit mistake or a broken log
+RATE_RANGE_HZ = (
+    0.5,
+    20_000.0,
+)  # an IMU sample rate outside this is a time-unit mistake or a broken log
 DEAD_SENSOR = {"acc": 0.5, "mag": 0.5}  # median norm (m/s^2, uT) below which a sensor reads nothing
 MAX_SPEED_MPS = 150.0  # horizontal: no phone, car, action camera or small drone moves faster
 MAX_CLIMB_MPS = 60.0  # vertical speed beyond which a height is a jump, not motion
@@ -145,24 +156,44 @@ def checked_vector(stream: VectorStream, warnings: Warnings) -> VectorStream | N
     path = Path(stream.source or stream.name)
     finite = np.isfinite(stream.values).all(axis=1) & np.isfinite(stream.t)
     if not finite.all():
-        warnings.add(f"{path.name}: {int((~finite).sum())} {stream.name} samples with non-finite values dropped")
-        stream = VectorStream(stream.name, stream.t[finite], stream.values[finite], stream.unit, stream.source)
+        warnings.add(
+            f"{path.name}: {int((~finite).sum())} {stream.name} samples with non-finite values dropped"
+        )
+        stream = VectorStream(
+            stream.name, stream.t[finite], stream.values[finite], stream.unit, stream.source
+        )
     require_samples(len(stream.t), 2, path, stream.name)
     rate = stream.rate_hz
     if not RATE_RANGE_HZ[0] <= rate <= RATE_RANGE_HZ[1]:
-        raise DataFormatError(path, f"{stream.name}: sample rate {rate:.3g} Hz, expected {RATE_RANGE_HZ[0]:g} to {RATE_RANGE_HZ[1]:g} Hz (are the times in the unit the file says?)", field="t")
+        raise DataFormatError(
+            path,
+            f"{stream.name}: sample rate {rate:.3g} Hz, expected {RATE_RANGE_HZ[0]:g} to {RATE_RANGE_HZ[1]:g} Hz (are the times in the unit the file says?)",
+            field="t",
+        )
     floor = DEAD_SENSOR.get(stream.name)
     if floor is not None:
         norm = float(np.median(np.linalg.norm(stream.values, axis=1)))
         if norm < floor:
             if stream.name == "acc":
-                raise DataFormatError(path, f"the accelerometer reads {norm:.3g} {stream.unit} (median norm): a dead or disconnected sensor, expected about 9.8 m/s^2 of gravity", field="acc")
-            warnings.add(f"{path.name}: the magnetometer reads {norm:.3g} {stream.unit} (median norm): a dead sensor, not used")
+                raise DataFormatError(
+                    path,
+                    f"the accelerometer reads {norm:.3g} {stream.unit} (median norm): a dead or disconnected sensor, expected about 9.8 m/s^2 of gravity",
+                    field="acc",
+                )
+            warnings.add(
+                f"{path.name}: the magnetometer reads {norm:.3g} {stream.unit} (median norm): a dead sensor, not used"
+            )
             return None
     return stream
 
 
-def plausible_fixes(track: GnssTrack, warnings: Warnings, fix_type: npt.ArrayLike | None = None, dop: npt.ArrayLike | None = None, minimum: int = 1) -> GnssTrack:
+def plausible_fixes(
+    track: GnssTrack,
+    warnings: Warnings,
+    fix_type: npt.ArrayLike | None = None,
+    dop: npt.ArrayLike | None = None,
+    minimum: int = 1,
+) -> GnssTrack:
     """The fixes of a track that are positions, as they enter: dropped and counted, by class, are
     fixes that are not positions (non-finite, out of range, 0 N 0 E before a lock, heights beyond
     HEIGHT_RANGE_M), fixes the receiver itself marks poor (2D fixes where 3D ones exist, DOP above
@@ -176,9 +207,18 @@ def plausible_fixes(track: GnssTrack, warnings: Warnings, fix_type: npt.ArrayLik
     bad_h = in_range & ~((h >= HEIGHT_RANGE_M[0]) & (h <= HEIGHT_RANGE_M[1]))
     keep = in_range & ~null_island & ~bad_h
     if not in_range[finite].any() and finite.any():
-        raise DataFormatError(path, f"no fix has a latitude in [-90, 90] and a longitude in [-180, 180] degrees (first: {lat[finite][0]:g}, {lon[finite][0]:g})", field="lat")
+        raise DataFormatError(
+            path,
+            f"no fix has a latitude in [-90, 90] and a longitude in [-180, 180] degrees (first: {lat[finite][0]:g}, {lon[finite][0]:g})",
+            field="lat",
+        )
     notes = []
-    for label, mask in (("non-finite", ~finite), ("out of range", finite & ~in_range), ("at 0 N 0 E (no lock yet)", null_island), ("with impossible heights", bad_h)):
+    for label, mask in (
+        ("non-finite", ~finite),
+        ("out of range", finite & ~in_range),
+        ("at 0 N 0 E (no lock yet)", null_island),
+        ("with impossible heights", bad_h),
+    ):
         if mask.any():
             notes.append(f"{int(mask.sum())} {label}")
     if fix_type is not None:
@@ -195,17 +235,28 @@ def plausible_fixes(track: GnssTrack, warnings: Warnings, fix_type: npt.ArrayLik
         keep &= ~poor
     jumps = _jumps(t, lat, lon, h, keep)
     if jumps.any():
-        notes.append(f"{int(jumps.sum())} jumps (faster than {MAX_SPEED_MPS:g} m/s or climbing faster than {MAX_CLIMB_MPS:g} m/s)")
+        notes.append(
+            f"{int(jumps.sum())} jumps (faster than {MAX_SPEED_MPS:g} m/s or climbing faster than {MAX_CLIMB_MPS:g} m/s)"
+        )
     keep &= ~jumps
     if notes:
-        warnings.add(f"{path.name}: fixes that are not usable positions dropped: {', '.join(notes)}; {int(keep.sum())} of {len(t)} kept")
+        warnings.add(
+            f"{path.name}: fixes that are not usable positions dropped: {', '.join(notes)}; {int(keep.sum())} of {len(t)} kept"
+        )
     if keep.sum() < max(minimum, 1):
-        raise DataFormatError(path, f"{int(keep.sum())} usable GNSS fixes of {len(t)}, expected at least {max(minimum, 1)}")
+        raise DataFormatError(
+            path,
+            f"{int(keep.sum())} usable GNSS fixes of {len(t)}, expected at least {max(minimum, 1)}",
+        )
     sub = lambda a: None if a is None else np.asarray(a)[keep]  # noqa: E731
-    return GnssTrack(t[keep], lat[keep], lon[keep], h[keep], sub(track.vel_enu), sub(track.h_acc), track.source)
+    return GnssTrack(
+        t[keep], lat[keep], lon[keep], h[keep], sub(track.vel_enu), sub(track.h_acc), track.source
+    )
 
 
-def _jumps(t: FloatArray, lat: FloatArray, lon: FloatArray, h: FloatArray, keep: npt.NDArray[np.bool_]) -> npt.NDArray[np.bool_]:
+def _jumps(
+    t: FloatArray, lat: FloatArray, lon: FloatArray, h: FloatArray, keep: npt.NDArray[np.bool_]
+) -> npt.NDArray[np.bool_]:
     """Fixes whose speed from the last accepted fix is impossible: one pass forward and one
     backward from the fix nearest the track's median position (so a bad first fix cannot condemn
     all the others), in local metres."""
@@ -214,7 +265,11 @@ def _jumps(t: FloatArray, lat: FloatArray, lon: FloatArray, h: FloatArray, keep:
     if len(idx) < 2:
         return out
     k_lat = np.cos(np.radians(np.median(lat[idx])))
-    anchor = int(np.argmin(np.hypot(lat[idx] - np.median(lat[idx]), (lon[idx] - np.median(lon[idx])) * k_lat)))
+    anchor = int(
+        np.argmin(
+            np.hypot(lat[idx] - np.median(lat[idx]), (lon[idx] - np.median(lon[idx])) * k_lat)
+        )
+    )
     for order in (idx[anchor:], idx[anchor::-1]):
         last = order[0]
         for i in order[1:]:

@@ -36,11 +36,17 @@ class VideoInfo:
         """A warning when fewer frames can be read than the index announces (a file cut short
         with its index at the front): only the frames present are used."""
         if self.declared_frames > len(self.pts_s) + 1:
-            warnings.add(f"{Path(self.path).name}: the video is cut short: {len(self.pts_s)} of the {self.declared_frames} frames its index announces can be read; only those are used")
+            warnings.add(
+                f"{Path(self.path).name}: the video is cut short: {len(self.pts_s)} of the {self.declared_frames} frames its index announces can be read; only those are used"
+            )
 
     @property
     def display_size(self) -> tuple[int, int]:
-        return (self.height, self.width) if self.rotation_cw in (90, 270) else (self.width, self.height)
+        return (
+            (self.height, self.width)
+            if self.rotation_cw in (90, 270)
+            else (self.width, self.height)
+        )
 
     @property
     def duration_s(self) -> float:
@@ -69,7 +75,11 @@ def media_seconds(pts: int, time_base, origin_s: float) -> float:
 
 def stream_origin_s(stream, first_pts_s: float) -> float:
     """Media time 0 on the stream's clock: its start_time, else its first presentation time."""
-    return float(stream.start_time * stream.time_base) if stream.start_time is not None else float(first_pts_s)
+    return (
+        float(stream.start_time * stream.time_base)
+        if stream.start_time is not None
+        else float(first_pts_s)
+    )
 
 
 def _creation_time(meta: dict[str, str]) -> float | None:
@@ -122,9 +132,17 @@ def probe(path: str | Path) -> VideoInfo:
         average = (len(pts_s) - 1) / span if span > 0 else nominal
         meta = {**container.metadata, **stream.metadata}
         return VideoInfo(
-            str(path), pts_s, stream.codec_context.width, stream.codec_context.height,
+            str(path),
+            pts_s,
+            stream.codec_context.width,
+            stream.codec_context.height,
             (-rotation) % 360,  # FFmpeg's display matrix turns counter-clockwise; the tag clockwise
-            nominal, float(average), _creation_time(meta), stream.codec_context.name, origin, int(stream.frames or 0),
+            nominal,
+            float(average),
+            _creation_time(meta),
+            stream.codec_context.name,
+            origin,
+            int(stream.frames or 0),
         )
 
 
@@ -145,17 +163,23 @@ def read_frame(path: str | Path, index: int, info: VideoInfo | None = None) -> n
     with av.open(str(path)) as container:
         stream = container.streams.video[0]
         tb = stream.time_base
-        container.seek(int((target + info.origin_s) / tb), stream=stream, backward=True, any_frame=False)
+        container.seek(
+            int((target + info.origin_s) / tb), stream=stream, backward=True, any_frame=False
+        )
         try:
             for frame in container.decode(stream):
-                if frame.pts is not None and media_seconds(frame.pts, tb, info.origin_s) >= target - 0.5 / max(info.nominal_fps, 1.0):
+                if frame.pts is not None and media_seconds(
+                    frame.pts, tb, info.origin_s
+                ) >= target - 0.5 / max(info.nominal_fps, 1.0):
                     return rotate_for_display(frame.to_ndarray(format="rgb24"), info.rotation_cw)
         except av.FFmpegError as exc:
             raise VideoError(path, f"cannot decode frame {index} ({exc})") from exc
     raise VideoError(path, f"frame {index} not found")
 
 
-def frames_at(info: VideoInfo, indices: Sequence[int], long_side: int | None = None) -> Iterator[tuple[int, np.ndarray]]:
+def frames_at(
+    info: VideoInfo, indices: Sequence[int], long_side: int | None = None
+) -> Iterator[tuple[int, np.ndarray]]:
     """Frames `indices` (display order, increasing) decoded in one pass as (index, (H, W, 3) uint8
     RGB in display orientation), scaled so that the long side is at most `long_side` pixels.
     Frames are matched to indices by presentation time; a damaged frame is skipped, a stream that

@@ -123,7 +123,12 @@ class Decoder:
             command = self._commands.get()
             while command is not None and not self._stop.is_set():
                 target, serial = command
-                container.seek(int((target + self.origin_s) / stream.time_base), stream=stream, backward=True, any_frame=False)
+                container.seek(
+                    int((target + self.origin_s) / stream.time_base),
+                    stream=stream,
+                    backward=True,
+                    any_frame=False,
+                )
                 self.at_end = False
                 command = self._decode_from(container, stream, target, serial, rate, bt709)
                 if command is None and not self._stop.is_set():
@@ -161,11 +166,20 @@ class Decoder:
                 if delivered and due is not None and pts < due - LATE_S:
                     self.skipped += 1
                     if pts < due - RESEEK_BEHIND_S:
-                        return (due, serial)  # too far behind: jump to the keyframe before the due time
+                        return (
+                            due,
+                            serial,
+                        )  # too far behind: jump to the keyframe before the due time
                     continue
                 delivered = True
                 space = getattr(frame, "colorspace", None)
-                item = DecodedFrame(serial, pts, *yuv_planes(frame), bt709 if space in (None, 2) else int(space) == 1, frame.format.name == "yuvj420p")
+                item = DecodedFrame(
+                    serial,
+                    pts,
+                    *yuv_planes(frame),
+                    bt709 if space in (None, 2) else int(space) == 1,
+                    frame.format.name == "yuvj420p",
+                )
                 if not self._put(item):
                     return self._latest_command()
         return None

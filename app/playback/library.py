@@ -56,7 +56,9 @@ class SolverLibrary:
         self._tracks: dict[str, CameraTrack] = {}
         self._curves: dict[str, Curves] = {}
         self._errors: dict[str, str] = {}
-        self._partial: dict[str, float] = {}  # sources being solved that report progress (registration)
+        self._partial: dict[
+            str, float
+        ] = {}  # sources being solved that report progress (registration)
         self._truth_timed: CameraTrack | None = None
         self._offset_s = 0.0
         self._course_pitch = session.course_pitch_deg
@@ -78,7 +80,11 @@ class SolverLibrary:
     def progress(self) -> float:
         with self._lock:
             done = len(self._tracks) + len(self._errors)
-            partial = sum(f for n, f in self._partial.items() if n not in self._tracks and n not in self._errors)
+            partial = sum(
+                f
+                for n, f in self._partial.items()
+                if n not in self._tracks and n not in self._errors
+            )
             return (done + partial) / max(1, len(self.order))
 
     def source_progress(self, name: str) -> float | None:
@@ -117,7 +123,9 @@ class SolverLibrary:
         with self._idle:
             if not but:
                 return self._idle.wait_for(lambda: self._pending == 0, timeout)
-            return self._idle.wait_for(lambda: all(n in self._tracks or n in self._errors for n in names), timeout)
+            return self._idle.wait_for(
+                lambda: all(n in self._tracks or n in self._errors for n in names), timeout
+            )
 
     def track(self, name: str | None) -> CameraTrack | None:
         """The camera track of a solved source (with the live time offset), else None."""
@@ -156,7 +164,9 @@ class SolverLibrary:
         table = []
         if ref in curves:
             r = curves[ref]
-            table = [(n, *hpr_rms(curves[n].q, r.q)) for n in self.order if n != ref and n in curves]
+            table = [
+                (n, *hpr_rms(curves[n].q, r.q)) for n in self.order if n != ref and n in curves
+            ]
         if done:
             with self._lock:
                 self._table = table
@@ -226,8 +236,18 @@ class SolverLibrary:
     def _solve(self, name: str) -> None:
         with self._lock:
             pitch = self._course_pitch
-        track = solve_track(self.session, name, progress=lambda f: self._partly(name, f), stop=self._closed.is_set, course_pitch_deg=pitch if name == COURSE else None)
-        truth = replace(track, clock=frame_clock(self.session, true_timing=True)) if name == TRUTH else None
+        track = solve_track(
+            self.session,
+            name,
+            progress=lambda f: self._partly(name, f),
+            stop=self._closed.is_set,
+            course_pitch_deg=pitch if name == COURSE else None,
+        )
+        truth = (
+            replace(track, clock=frame_clock(self.session, true_timing=True))
+            if name == TRUTH
+            else None
+        )
         # The reference is the true pose of each frame at the moment it shows, so a source that
         # corrects the frame times (registered) is compared with what the frames really show.
         curves = curves_of(truth if truth is not None else track)

@@ -83,7 +83,9 @@ class Player:
         return self.schedule.due(self._target(now))
 
     def _target(self, now: float) -> float:
-        return self.clock.time(now) + (0.0 if self.clock.paused else self.lookahead_s * self.clock.speed)
+        return self.clock.time(now) + (
+            0.0 if self.clock.paused else self.lookahead_s * self.clock.speed
+        )
 
     def tick(self, now: float, wait_s: float = 0.0) -> bool:
         """Advance to the frame due when this tick's image will appear; True if it changed.
@@ -98,9 +100,22 @@ class Player:
         while True:
             if self._pending is None:
                 try:
-                    behind = self.current is None or self.current.serial != self.clock.serial or self.schedule.due(self.current.pts_s) < due_index
-                    waiting = wait_s > 0 and behind and self.decoder.error is None and not (self.decoder.at_end and self.decoder.frames.empty())
-                    item = self.decoder.frames.get(timeout=wait_s) if waiting else self.decoder.frames.get_nowait()
+                    behind = (
+                        self.current is None
+                        or self.current.serial != self.clock.serial
+                        or self.schedule.due(self.current.pts_s) < due_index
+                    )
+                    waiting = (
+                        wait_s > 0
+                        and behind
+                        and self.decoder.error is None
+                        and not (self.decoder.at_end and self.decoder.frames.empty())
+                    )
+                    item = (
+                        self.decoder.frames.get(timeout=wait_s)
+                        if waiting
+                        else self.decoder.frames.get_nowait()
+                    )
                 except queue.Empty:
                     return changed
                 if item is None or item.serial != self.clock.serial:
@@ -113,7 +128,11 @@ class Player:
             index = self.schedule.due(self.current.pts_s)
             if index != self.index:
                 self.index = index
-                due = now if self.clock.paused else self.clock.wall_time_of(float(self.schedule.pts[index]), now)
+                due = (
+                    now
+                    if self.clock.paused
+                    else self.clock.wall_time_of(float(self.schedule.pts[index]), now)
+                )
                 self._fresh = (index, due)
                 changed = True
 

@@ -24,15 +24,21 @@ class GpuPrimitive:
     nbytes: int = 0  # GPU memory held: buffers and texture with its mipmaps
     vaos: dict = field(default_factory=dict)
 
-    def vao(self, ctx: moderngl.Context, program: moderngl.Program, attributes: tuple[str, ...]) -> moderngl.VertexArray:
+    def vao(
+        self, ctx: moderngl.Context, program: moderngl.Program, attributes: tuple[str, ...]
+    ) -> moderngl.VertexArray:
         """This primitive's vertex array for `program` (made once), binding only `attributes`."""
         key = (program.glo, attributes)
         if key not in self.vaos:
             fmt = VERTEX_FORMAT[0].split()
             names = VERTEX_FORMAT[1:]
-            layout = " ".join(f if name in attributes else f.replace("f", "x4") for f, name in zip(fmt, names))
+            layout = " ".join(
+                f if name in attributes else f.replace("f", "x4") for f, name in zip(fmt, names)
+            )
             used = [name for name in names if name in attributes]
-            self.vaos[key] = ctx.vertex_array(program, [(self.vbo, layout, *used)], index_buffer=self.ibo, index_element_size=4)
+            self.vaos[key] = ctx.vertex_array(
+                program, [(self.vbo, layout, *used)], index_buffer=self.ibo, index_element_size=4
+            )
         return self.vaos[key]
 
     def release(self) -> None:
@@ -72,13 +78,25 @@ def upload(ctx: moderngl.Context, prim: Primitive, anisotropy: float) -> GpuPrim
         texture.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
         texture.anisotropy = anisotropy
         nbytes += img.nbytes * 4 // 3
-    return GpuPrimitive(ctx.buffer(data.tobytes()), ctx.buffer(prim.indices.astype(np.uint32).tobytes()), texture, prim.indices.size, nbytes)
+    return GpuPrimitive(
+        ctx.buffer(data.tobytes()),
+        ctx.buffer(prim.indices.astype(np.uint32).tobytes()),
+        texture,
+        prim.indices.size,
+        nbytes,
+    )
 
 
 class GpuScene:
     """Static primitives uploaded once, plus one streamed layer per tileset of the MeshData."""
 
-    def __init__(self, ctx: moderngl.Context, mesh: MeshData, anisotropy: float | None = None, tile_cache_bytes: int | None = None) -> None:
+    def __init__(
+        self,
+        ctx: moderngl.Context,
+        mesh: MeshData,
+        anisotropy: float | None = None,
+        tile_cache_bytes: int | None = None,
+    ) -> None:
         from app.render.tiles import DEFAULT_CACHE_BYTES, GpuTileset
 
         self.ctx = ctx
@@ -100,7 +118,9 @@ class GpuScene:
             self.version += 1
         return changed
 
-    def drawables(self, camera: object | None = None, focal_px: float | None = None, key: str = "view") -> list[GpuPrimitive]:
+    def drawables(
+        self, camera: object | None = None, focal_px: float | None = None, key: str = "view"
+    ) -> list[GpuPrimitive]:
         """What to draw from `camera` (an app.camera.Camera): every static primitive, and each
         tileset's ready tiles chosen for it (focal_px: the focal length in pixels of the target
         drawn into, default the camera's). Without a camera: static primitives only."""
@@ -110,14 +130,18 @@ class GpuScene:
                 out += layer.drawables(camera, focal_px, key)
         return out
 
-    def settle(self, cameras: list[tuple[object, float | None, str]], timeout_s: float = 300.0) -> bool:
+    def settle(
+        self, cameras: list[tuple[object, float | None, str]], timeout_s: float = 300.0
+    ) -> bool:
         """Load and upload until every tileset's selection for each (camera, focal_px, key) is
         complete: full detail for off-screen renders. True when complete within timeout_s."""
         if not self.tilesets:
             return True
         end = time.monotonic() + timeout_s
         while True:
-            complete = all(layer.complete(cam, f, key) for layer in self.tilesets for cam, f, key in cameras)
+            complete = all(
+                layer.complete(cam, f, key) for layer in self.tilesets for cam, f, key in cameras
+            )
             busy = self.update(budget_s=1.0)
             if complete and not busy:
                 return True

@@ -36,7 +36,9 @@ class LineOverlay:
         self.vbo = ctx.buffer(reserve=4096, dynamic=True)
         self.vao = ctx.vertex_array(self.program, [(self.vbo, "3f", "in_position")])
 
-    def draw(self, view_proj: np.ndarray, points: npt.ArrayLike, color: tuple[float, ...], mode: int) -> None:
+    def draw(
+        self, view_proj: np.ndarray, points: npt.ArrayLike, color: tuple[float, ...], mode: int
+    ) -> None:
         pts = np.ascontiguousarray(np.asarray(points, np.float32).reshape(-1, 3))
         if len(pts) < 2:
             return

@@ -129,7 +129,13 @@ class ScenePass:
         p = self.program
         p["u_view_proj"].write(_mat(view.view_projection))
         p["u_eye"].value = view.position
-        on = settings.enabled and projector is not None and depth is not None and video is not None and video.ready
+        on = (
+            settings.enabled
+            and projector is not None
+            and depth is not None
+            and video is not None
+            and video.ready
+        )
         p["u_projection_on"].value = on
         if on:
             size = depth.size
@@ -138,7 +144,9 @@ class ScenePass:
             p["u_proj_near"].value = projector.near
             p["u_proj_far"].value = projector.far
             scale = size[0] / projector.intrinsics.width
-            p["u_proj_focal_texels"].value = max(projector.intrinsics.fx, projector.intrinsics.fy) * scale
+            p["u_proj_focal_texels"].value = (
+                max(projector.intrinsics.fx, projector.intrinsics.fy) * scale
+            )
             p["u_alpha"].value = settings.alpha
             p["u_bias_constant"].value = settings.bias_constant_m
             p["u_bias_slope"].value = settings.bias_slope

@@ -21,7 +21,14 @@ def border_sampling(intrinsics: Intrinsics, columns: int, rows: int) -> Intrinsi
         raise ValueError(f"need at least a 2 x 2 grid, got {columns} x {rows}")
     sx = (columns - 1) / intrinsics.width
     sy = (rows - 1) / intrinsics.height
-    return Intrinsics(columns, rows, intrinsics.fx * sx, intrinsics.fy * sy, intrinsics.cx * sx + 0.5, intrinsics.cy * sy + 0.5)
+    return Intrinsics(
+        columns,
+        rows,
+        intrinsics.fx * sx,
+        intrinsics.fy * sy,
+        intrinsics.cx * sx + 0.5,
+        intrinsics.cy * sy + 0.5,
+    )
 
 
 class SurfaceProbe:

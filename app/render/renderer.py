@@ -13,7 +13,14 @@ import numpy.typing as npt
 from app.camera import Camera, depth_map_size
 from app.config import OverlaySettings, ProjectionSettings
 from app.render.gpu_scene import GpuScene
-from app.render.overlays import FRUSTUM_COLOR, OUTLINE_COLOR, REFERENCE_COLOR, TRAJECTORY_COLOR, LineOverlay, frustum_segments
+from app.render.overlays import (
+    FRUSTUM_COLOR,
+    OUTLINE_COLOR,
+    REFERENCE_COLOR,
+    TRAJECTORY_COLOR,
+    LineOverlay,
+    frustum_segments,
+)
 from app.render.passes import DepthPass, ScenePass
 from app.render.video_texture import VideoTexture
 from app.scene.mesh import MeshData
@@ -45,7 +52,15 @@ class FusionRenderer:
         """Upload one display-oriented video frame (H, W, 3) uint8 RGB, row 0 = the top row."""
         self.video.set_rgb(rgb)
 
-    def set_video_yuv(self, y: np.ndarray, u: np.ndarray, v: np.ndarray, rotation_cw: int, bt709: bool, full_range: bool = False) -> None:
+    def set_video_yuv(
+        self,
+        y: np.ndarray,
+        u: np.ndarray,
+        v: np.ndarray,
+        rotation_cw: int,
+        bt709: bool,
+        full_range: bool = False,
+    ) -> None:
         """Upload one stored playback frame's planes; the shader turns it by rotation_cw."""
         self.video.set_yuv(y, u, v, rotation_cw, bt709, full_range)
 
@@ -66,7 +81,13 @@ class FusionRenderer:
             return None
         w, h = self.truth.intrinsics.width, self.truth.intrinsics.height
         s = overlays.error_map_texels / max(w, h)
-        cam = Camera.create(self.truth.intrinsics.scaled(max(1, round(w * s)), max(1, round(h * s))), self.truth.position, self.truth.orientation, self.truth.near, self.truth.far)
+        cam = Camera.create(
+            self.truth.intrinsics.scaled(max(1, round(w * s)), max(1, round(h * s))),
+            self.truth.position,
+            self.truth.orientation,
+            self.truth.near,
+            self.truth.far,
+        )
         if cam != self._truth_map_camera:  # redrawn only when the true pose changes
             self._truth_map = self._position_pass().render_texture(cam)
             self._truth_map_camera = cam
@@ -79,13 +100,17 @@ class FusionRenderer:
             self._positions = PositionPass(self.ctx, self.scene)
         return self._positions
 
-    def pick(self, view: Camera, x: float, y: float, downscale: int = PICK_DOWNSCALE) -> np.ndarray | None:
+    def pick(
+        self, view: Camera, x: float, y: float, downscale: int = PICK_DOWNSCALE
+    ) -> np.ndarray | None:
         """The model point (ENU m) seen at window position (x, y) in [0, 1] from the left/top,
         through the GPU position pass at 1/downscale of the view's resolution; None where the
         view sees no model."""
         w = max(1, view.intrinsics.width // downscale)
         h = max(1, view.intrinsics.height // downscale)
-        small = Camera.create(view.intrinsics.scaled(w, h), view.position, view.orientation, view.near, view.far)
+        small = Camera.create(
+            view.intrinsics.scaled(w, h), view.position, view.orientation, view.near, view.far
+        )
         col = int(np.clip(x * w, 0, w - 1))
         row = int(np.clip(y * h, 0, h - 1))
         p = self._position_pass().render(small)[row, col]
@@ -104,14 +129,27 @@ class FusionRenderer:
         """A polyline (N, 3) ENU metres drawn by the trajectory overlay."""
         self.trajectory = None if points_enu is None else np.asarray(points_enu, np.float64)
 
-    def settle(self, view: Camera, settings: ProjectionSettings = ProjectionSettings(), timeout_s: float = 300.0) -> bool:
+    def settle(
+        self,
+        view: Camera,
+        settings: ProjectionSettings = ProjectionSettings(),
+        timeout_s: float = 300.0,
+    ) -> bool:
         """Load every streamed tile that `view` and the projector's depth map need at full
         detail (off-screen renders and exports; the viewer never calls this). True when done
         within timeout_s."""
         cameras = [(view, None, "view")]
         if settings.enabled and self.projector is not None:
-            size = depth_map_size(self.projector.intrinsics.width, self.projector.intrinsics.height, settings.depth_long_side)
-            focal = max(self.projector.intrinsics.fx, self.projector.intrinsics.fy) * size[1] / self.projector.intrinsics.height
+            size = depth_map_size(
+                self.projector.intrinsics.width,
+                self.projector.intrinsics.height,
+                settings.depth_long_side,
+            )
+            focal = (
+                max(self.projector.intrinsics.fx, self.projector.intrinsics.fy)
+                * size[1]
+                / self.projector.intrinsics.height
+            )
             cameras.append((self.projector, focal, "projector"))
         return self.scene.settle(cameras, timeout_s)
 
@@ -131,12 +169,30 @@ class FusionRenderer:
         truth_map = self._truth_positions(overlays)
         fbo.use()
         fbo.clear(*BACKGROUND, 1.0, depth=1.0)
-        self.scene_pass.render(view, settings, self.projector, self.depth, self.video, truth_map, overlays.error_scale_m)
+        self.scene_pass.render(
+            view,
+            settings,
+            self.projector,
+            self.depth,
+            self.video,
+            truth_map,
+            overlays.error_scale_m,
+        )
         vp = view.view_projection
         if overlays.frustum and self.projector is not None:
-            self.lines.draw(vp, frustum_segments(self.projector, overlays.frustum_length_m), FRUSTUM_COLOR, moderngl.LINES)
+            self.lines.draw(
+                vp,
+                frustum_segments(self.projector, overlays.frustum_length_m),
+                FRUSTUM_COLOR,
+                moderngl.LINES,
+            )
         if overlays.frustum and self.reference is not None:
-            self.lines.draw(vp, frustum_segments(self.reference, overlays.frustum_length_m), REFERENCE_COLOR, moderngl.LINES)
+            self.lines.draw(
+                vp,
+                frustum_segments(self.reference, overlays.frustum_length_m),
+                REFERENCE_COLOR,
+                moderngl.LINES,
+            )
         if overlays.trajectory and self.trajectory is not None:
             self.lines.draw(vp, self.trajectory, TRAJECTORY_COLOR, moderngl.LINE_STRIP)
         if self.outlines is not None and len(self.outlines) >= 2:

@@ -49,7 +49,9 @@ def preprocess(name: str, root: Path = SHADER_DIR) -> ShaderSource:
             candidate = base / include
             if candidate.is_file():
                 return candidate
-        raise ShaderError(f"{parent.relative_to(root) if parent != root else '.'}: include {include!r} not found")
+        raise ShaderError(
+            f"{parent.relative_to(root) if parent != root else '.'}: include {include!r} not found"
+        )
 
     def emit(path: Path, stack: tuple[Path, ...]) -> None:
         if path in stack:
@@ -68,7 +70,9 @@ def preprocess(name: str, root: Path = SHADER_DIR) -> ShaderSource:
                 out.append(f"#line {number + 1} {sid}")
             elif _VERSION.match(line):
                 if stack or number != 1 and any(s.strip() for s in lines[: number - 1]):
-                    raise ShaderError(f"{path.relative_to(root)}:{number}: the version directive must be the first line of the main file")
+                    raise ShaderError(
+                        f"{path.relative_to(root)}:{number}: the version directive must be the first line of the main file"
+                    )
                 out.append(line)
                 out.append(f"#line {number + 1} {sid}")
             else:

@@ -12,11 +12,11 @@ import numpy.typing as npt
 
 from app.camera import Camera, look_at_quat
 from app.config import OverlaySettings, ProjectionSettings
+from app.constants import DEFAULT_NEAR_M
 from app.render.context import create_offscreen_context
 from app.render.offscreen import render_to_array
 from app.render.renderer import FusionRenderer
 from app.scene.mesh import MeshData
-from app.constants import DEFAULT_NEAR_M
 
 
 @dataclass(frozen=True)
@@ -38,7 +38,13 @@ class ThirdPerson:
         return pos - flat * self.back_m + [0.0, 0.0, self.up_m], pos + forward * self.ahead_m
 
 
-def window_camera(projector: Camera, intrinsics, eye: npt.ArrayLike | None, target: npt.ArrayLike | None, far: float) -> Camera:
+def window_camera(
+    projector: Camera,
+    intrinsics,
+    eye: npt.ArrayLike | None,
+    target: npt.ArrayLike | None,
+    far: float,
+) -> Camera:
     """The window camera at eye looking at target, or the third-person default."""
     if eye is None or target is None:
         default_eye, default_target = ThirdPerson().eye_and_target(projector)

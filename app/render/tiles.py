@@ -22,13 +22,21 @@ DEFAULT_CACHE_BYTES = 1 << 30  # 1 GiB of tile buffers and textures
 class GpuTileset:
     """One tileset's tiles on the GPU (see the module docstring)."""
 
-    def __init__(self, ctx: moderngl.Context, tileset: Tileset, anisotropy: float, cache_bytes: int = DEFAULT_CACHE_BYTES) -> None:
+    def __init__(
+        self,
+        ctx: moderngl.Context,
+        tileset: Tileset,
+        anisotropy: float,
+        cache_bytes: int = DEFAULT_CACHE_BYTES,
+    ) -> None:
         self.ctx = ctx
         self.tileset = tileset
         self.anisotropy = anisotropy
         self.cache_bytes = int(cache_bytes)
         self.stream = TileStream(tileset)
-        self.resident: OrderedDict[int, tuple[Tile, list[GpuPrimitive]]] = OrderedDict()  # LRU order, oldest first
+        self.resident: OrderedDict[int, tuple[Tile, list[GpuPrimitive]]] = (
+            OrderedDict()
+        )  # LRU order, oldest first
         self.bytes_held = 0
         self.frame = 0
         self._used_frame: dict[int, int] = {}
@@ -61,7 +69,9 @@ class GpuTileset:
                 for done in prims:
                     done.release()
                 self.stream.failures += 1
-                self.stream.errors.append(f"{item.tile.contents[0] if item.tile.contents else self.tileset.location}: cannot upload to the GPU: {exc}")
+                self.stream.errors.append(
+                    f"{item.tile.contents[0] if item.tile.contents else self.tileset.location}: cannot upload to the GPU: {exc}"
+                )
                 prims = []
             self._drop(item.tile.id)
             self.resident[item.tile.id] = (item.tile, prims)

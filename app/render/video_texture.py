@@ -16,7 +16,9 @@ _LIMITED_OFFSET = np.array([16.0, 128.0, 128.0]) / 255.0
 _FULL_OFFSET = np.array([0.0, 128.0, 128.0]) / 255.0
 
 
-def yuv_to_rgb(y: np.ndarray, u: np.ndarray, v: np.ndarray, bt709: bool = False, full_range: bool = False) -> np.ndarray:
+def yuv_to_rgb(
+    y: np.ndarray, u: np.ndarray, v: np.ndarray, bt709: bool = False, full_range: bool = False
+) -> np.ndarray:
     """CPU reference of the shader's conversion: planes (chroma upsampled by repetition) -> RGB uint8."""
     m = _FULL601 if full_range else (_BT709 if bt709 else _BT601)
     off = _FULL_OFFSET if full_range else _LIMITED_OFFSET
@@ -39,7 +41,9 @@ class VideoTexture:
         self.size = (0, 0)  # displayed size (w, h)
 
     def _textures(self, shapes: list[tuple[int, int, int]]) -> None:
-        if [(t.width, t.height, t.components) for t in self.planes] == [(w, h, c) for w, h, c in shapes]:
+        if [(t.width, t.height, t.components) for t in self.planes] == [
+            (w, h, c) for w, h, c in shapes
+        ]:
             return
         for t in self.planes:
             t.release()
@@ -59,13 +63,26 @@ class VideoTexture:
         self.planes[0].write(img.tobytes())
         self.yuv, self.rotation, self.size = False, 0, (img.shape[1], img.shape[0])
 
-    def set_yuv(self, y: np.ndarray, u: np.ndarray, v: np.ndarray, rotation_cw: int, bt709: bool, full_range: bool = False) -> None:
+    def set_yuv(
+        self,
+        y: np.ndarray,
+        u: np.ndarray,
+        v: np.ndarray,
+        rotation_cw: int,
+        bt709: bool,
+        full_range: bool = False,
+    ) -> None:
         """Stored planes: Y (H, W), U and V (H/2, W/2) uint8; rotation_cw turns them for display."""
         h, w = y.shape
         self._textures([(w, h, 1), (u.shape[1], u.shape[0], 1), (v.shape[1], v.shape[0], 1)])
         for tex, plane in zip(self.planes, (y, u, v)):
             tex.write(np.ascontiguousarray(plane).tobytes())
-        self.yuv, self.rotation, self.bt709, self.full_range = True, int(rotation_cw) % 360, bt709, full_range
+        self.yuv, self.rotation, self.bt709, self.full_range = (
+            True,
+            int(rotation_cw) % 360,
+            bt709,
+            full_range,
+        )
         self.size = (h, w) if self.rotation % 180 else (w, h)
 
     @property

@@ -22,7 +22,9 @@ class Window:
         import moderngl
 
         if not glfw.init():
-            raise GeofuseError("cannot initialise GLFW: no display? (set DISPLAY, or run under Xvfb)")
+            raise GeofuseError(
+                "cannot initialise GLFW: no display? (set DISPLAY, or run under Xvfb)"
+            )
         glfw.window_hint(glfw.CONTEXT_VERSION_MAJOR, GL_VERSION[0])
         glfw.window_hint(glfw.CONTEXT_VERSION_MINOR, GL_VERSION[1])
         glfw.window_hint(glfw.OPENGL_PROFILE, glfw.OPENGL_CORE_PROFILE)

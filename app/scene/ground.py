@@ -74,7 +74,11 @@ def ground_heights(mesh: MeshData, xy: npt.ArrayLike) -> np.ndarray:
                     v = (v0[:, 0] * v2[:, 1] - v2[:, 0] * v0[:, 1]) / den
                 inside = ok & (u >= -1e-9) & (v >= -1e-9) & (u + v <= 1 + 1e-9)
                 if inside.any():
-                    z = a[inside, 2] + u[inside] * (b[inside, 2] - a[inside, 2]) + v[inside] * (c[inside, 2] - a[inside, 2])
+                    z = (
+                        a[inside, 2]
+                        + u[inside] * (b[inside, 2] - a[inside, 2])
+                        + v[inside] * (c[inside, 2] - a[inside, 2])
+                    )
                     best[i] = min(best[i], float(z.min()))
     return np.where(np.isfinite(best), best, np.nan)
 

@@ -36,7 +36,9 @@ def ground_plane(centre_xy: np.ndarray, height_m: float, half_size_m: float) -> 
     return MeshData([quad.primitive((1.0, 1.0, 1.0, 1.0), grid_tile(), name="assumed ground")])
 
 
-def ground_under_track(frame, lat: np.ndarray, lon: np.ndarray, ground_h: float, margin_m: float) -> MeshData:
+def ground_under_track(
+    frame, lat: np.ndarray, lon: np.ndarray, ground_h: float, margin_m: float
+) -> MeshData:
     """The assumed ground for sessions without a model: a flat grid at ellipsoidal height
     ground_h (m) under every fix (deg, deg) of a track plus margin_m, in `frame` (a LocalFrame)."""
     enu = frame.geodetic_to_enu(lat, lon, np.full(len(lat), float(ground_h)))

@@ -33,7 +33,10 @@ def layer_kind(location: str | Path) -> str:
         return "dem"
     if suffix in SUPPORTED_SUFFIXES:
         return "mesh"
-    raise SceneError(text, f"unknown scene layer {suffix or 'without a suffix'!r} (expected a 3D Tiles tileset.json or URL, a DEM .tif, or {', '.join(SUPPORTED_SUFFIXES)})")
+    raise SceneError(
+        text,
+        f"unknown scene layer {suffix or 'without a suffix'!r} (expected a 3D Tiles tileset.json or URL, a DEM .tif, or {', '.join(SUPPORTED_SUFFIXES)})",
+    )
 
 
 @dataclass(frozen=True)
@@ -57,7 +60,11 @@ class Layer:
     def name(self) -> str:
         """The file's name; a tileset.json with its folder (most tilesets are called that)."""
         parts = self.location.replace("\\", "/").rstrip("/").split("/")
-        return "/".join(parts[-2:]) if parts[-1].lower() == "tileset.json" and len(parts) > 1 else parts[-1]
+        return (
+            "/".join(parts[-2:])
+            if parts[-1].lower() == "tileset.json" and len(parts) > 1
+            else parts[-1]
+        )
 
     @property
     def georeferenced(self) -> bool:
@@ -90,7 +97,11 @@ def _tileset(layer: Layer, frame: LocalFrame):
         raise SceneError(exc.location, exc.detail, field=exc.field) from exc
 
 
-def load_layers(layers: list[Layer] | tuple[Layer, ...], frame: LocalFrame, track_ll: npt.ArrayLike | None = None) -> LoadedLayers:
+def load_layers(
+    layers: list[Layer] | tuple[Layer, ...],
+    frame: LocalFrame,
+    track_ll: npt.ArrayLike | None = None,
+) -> LoadedLayers:
     """Every layer in `frame`, in one MeshData. track_ll: (N, 2) lat, lon (deg) of the clip's
     track: DEMs are read around it. Raises SceneError naming the file at fault."""
     out = LoadedLayers(MeshData())
@@ -103,7 +114,9 @@ def load_layers(layers: list[Layer] | tuple[Layer, ...], frame: LocalFrame, trac
             part = MeshData(tilesets=[ts])
             notes.append(f"{layer.name}: 3D Tiles {ts.version}, streamed by level of detail")
         else:
-            terrain = read_terrain(layer.location, frame, track_ll, layer.ortho, layer.vertical, layer.max_error_m)
+            terrain = read_terrain(
+                layer.location, frame, track_ll, layer.ortho, layer.vertical, layer.max_error_m
+            )
             part = terrain.mesh
             notes += terrain.notes
             notes.append(

@@ -51,7 +51,9 @@ def _up_axis(path: Path, placement: Placement) -> str:
     up = placement.up_axis or ("Y" if path.suffix.lower() in (".glb", ".gltf") else "Z")
     up = up.upper()
     if up not in ("Y", "Z"):
-        raise SceneError(path, f"up axis must be 'Y' or 'Z', got {placement.up_axis!r}", field="up_axis")
+        raise SceneError(
+            path, f"up axis must be 'Y' or 'Z', got {placement.up_axis!r}", field="up_axis"
+        )
     return up
 
 
@@ -60,7 +62,9 @@ def _y_up_to_z_up(p: np.ndarray) -> np.ndarray:
     return np.stack([p[:, 0], -p[:, 2], p[:, 1]], axis=1)
 
 
-def model_to_enu(points: np.ndarray, path: Path, placement: Placement, frame: LocalFrame) -> np.ndarray:
+def model_to_enu(
+    points: np.ndarray, path: Path, placement: Placement, frame: LocalFrame
+) -> np.ndarray:
     """Model coordinates (N, 3) -> session ENU (N, 3) float64 metres, per the module docstring."""
     p = np.asarray(points, np.float64)
     y_up = _up_axis(path, placement) == "Y"
@@ -75,7 +79,9 @@ def model_to_enu(points: np.ndarray, path: Path, placement: Placement, frame: Lo
     if placement.heading_deg:
         a = np.radians(placement.heading_deg)
         c, s = np.cos(a), np.sin(a)
-        p = p @ np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])  # x' = c x + s y, y' = -s x + c y
+        p = p @ np.array(
+            [[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]
+        )  # x' = c x + s y, y' = -s x + c y
     if placement.origin is not None:
         model_frame = LocalFrame(*placement.origin)
         if model_frame != frame:
@@ -98,7 +104,11 @@ def _material(visual: object) -> tuple[np.ndarray, np.ndarray | None]:
         color = DEFAULT_COLOR.astype(np.float64)
     else:
         raw = np.asarray(factor)
-        color = raw / 255.0 if np.issubdtype(raw.dtype, np.integer) or raw.max() > 1.0 else raw.astype(np.float64)
+        color = (
+            raw / 255.0
+            if np.issubdtype(raw.dtype, np.integer) or raw.max() > 1.0
+            else raw.astype(np.float64)
+        )
     if len(color) == 3:
         color = np.append(color, 1.0)
     tex = None
@@ -107,7 +117,9 @@ def _material(visual: object) -> tuple[np.ndarray, np.ndarray | None]:
     return color.astype(np.float32), tex
 
 
-def _primitive(mesh: trimesh.Trimesh, name: str, path: Path, placement: Placement, frame: LocalFrame) -> Primitive:
+def _primitive(
+    mesh: trimesh.Trimesh, name: str, path: Path, placement: Placement, frame: LocalFrame
+) -> Primitive:
     positions = model_to_enu(np.asarray(mesh.vertices), path, placement, frame).astype(np.float32)
     faces = np.asarray(mesh.faces, np.uint32)
     n = len(positions)
@@ -126,7 +138,14 @@ def _primitive(mesh: trimesh.Trimesh, name: str, path: Path, placement: Placemen
         vc = np.asarray(visual.vertex_colors, np.float32)
         if vc.shape == (n, 4):
             colors = vc / 255.0
-    return Primitive(positions=positions, colors=colors.astype(np.float32), indices=faces, uvs=uvs, texture=texture, name=name)
+    return Primitive(
+        positions=positions,
+        colors=colors.astype(np.float32),
+        indices=faces,
+        uvs=uvs,
+        texture=texture,
+        name=name,
+    )
 
 
 def load_scene(path: str | Path, frame: LocalFrame, placement: Placement | None = None) -> MeshData:
@@ -140,13 +159,21 @@ def load_scene(path: str | Path, frame: LocalFrame, placement: Placement | None 
     if not path.is_file():
         raise SceneError(path, "scene file does not exist")
     if path.suffix.lower() not in SUPPORTED_SUFFIXES:
-        raise SceneError(path, f"unknown scene format {path.suffix!r} (expected one of {', '.join(SUPPORTED_SUFFIXES)})")
+        raise SceneError(
+            path,
+            f"unknown scene format {path.suffix!r} (expected one of {', '.join(SUPPORTED_SUFFIXES)})",
+        )
     try:
         loaded = trimesh.load(str(path), force="scene", process=False)
     except Exception as exc:  # trimesh raises many kinds on a broken file
         raise SceneError(path, f"cannot read scene: {exc}") from exc
-    meshes = [g for g in loaded.dump(concatenate=False) if isinstance(g, trimesh.Trimesh) and len(g.faces)]
+    meshes = [
+        g for g in loaded.dump(concatenate=False) if isinstance(g, trimesh.Trimesh) and len(g.faces)
+    ]
     if not meshes:
         raise SceneError(path, "the scene holds no mesh with faces (expected triangles to draw)")
-    prims = [_primitive(m, str(m.metadata.get("name", i)), path, placement, frame) for i, m in enumerate(meshes)]
+    prims = [
+        _primitive(m, str(m.metadata.get("name", i)), path, placement, frame)
+        for i, m in enumerate(meshes)
+    ]
     return MeshData(merge_untextured(prims))

@@ -33,13 +33,21 @@ class Primitive:
     def __post_init__(self) -> None:
         n = len(self.positions)
         if self.colors.shape != (n, 4):
-            raise ValueError(f"primitive {self.name!r}: colors shape {self.colors.shape}, expected ({n}, 4)")
+            raise ValueError(
+                f"primitive {self.name!r}: colors shape {self.colors.shape}, expected ({n}, 4)"
+            )
         if self.uvs is not None and self.uvs.shape != (n, 2):
-            raise ValueError(f"primitive {self.name!r}: uvs shape {self.uvs.shape}, expected ({n}, 2)")
+            raise ValueError(
+                f"primitive {self.name!r}: uvs shape {self.uvs.shape}, expected ({n}, 2)"
+            )
         if self.indices.ndim != 2 or self.indices.shape[1] != 3:
-            raise ValueError(f"primitive {self.name!r}: indices shape {self.indices.shape}, expected (M, 3)")
+            raise ValueError(
+                f"primitive {self.name!r}: indices shape {self.indices.shape}, expected (M, 3)"
+            )
         if len(self.indices) and int(self.indices.max()) >= n:
-            raise ValueError(f"primitive {self.name!r}: index {int(self.indices.max())} >= {n} vertices")
+            raise ValueError(
+                f"primitive {self.name!r}: index {int(self.indices.max())} >= {n} vertices"
+            )
 
     @property
     def textured(self) -> bool:
@@ -69,14 +77,17 @@ class MeshData:
 
     def bounds(self) -> npt.NDArray[np.float64]:
         """(2, 3) min and max corner in ENU metres (a tileset's by its root volume)."""
-        boxes = [np.stack([p.positions.min(axis=0), p.positions.max(axis=0)]) for p in self.primitives if len(p.positions)]
+        boxes = [
+            np.stack([p.positions.min(axis=0), p.positions.max(axis=0)])
+            for p in self.primitives
+            if len(p.positions)
+        ]
         boxes += [np.asarray(t.bounds(), np.float64) for t in self.tilesets]
         if not boxes:
             return np.zeros((2, 3))
         lo = np.min([b[0] for b in boxes], axis=0)
         hi = np.max([b[1] for b in boxes], axis=0)
         return np.stack([lo, hi]).astype(np.float64)
-
 
     def horizontal_distance(self, points_enu: npt.ArrayLike) -> float:
         """The horizontal distance (m) from the nearest of the points (N, 3 or 2; ENU) to the

@@ -44,7 +44,12 @@ class Shape:
         )
 
 
-def quad(origin: npt.ArrayLike, u_edge: npt.ArrayLike, v_edge: npt.ArrayLike, uv_rect: tuple[float, float, float, float] = (0, 0, 1, 1)) -> Shape:
+def quad(
+    origin: npt.ArrayLike,
+    u_edge: npt.ArrayLike,
+    v_edge: npt.ArrayLike,
+    uv_rect: tuple[float, float, float, float] = (0, 0, 1, 1),
+) -> Shape:
     """Parallelogram origin + s*u_edge + t*v_edge, s, t in [0, 1]; front face is u_edge x v_edge.
 
     uv_rect = (u0, v0, u1, v1): texture coordinates of the origin corner and of the opposite one.
@@ -56,7 +61,9 @@ def quad(origin: npt.ArrayLike, u_edge: npt.ArrayLike, v_edge: npt.ArrayLike, uv
     return Shape(verts, np.array([[0, 1, 2], [0, 2, 3]]), uvs)
 
 
-def box(min_corner: npt.ArrayLike, max_corner: npt.ArrayLike, top: bool = True, bottom: bool = False) -> Shape:
+def box(
+    min_corner: npt.ArrayLike, max_corner: npt.ArrayLike, top: bool = True, bottom: bool = False
+) -> Shape:
     """Axis-aligned box as separate faces (sides, optional top and bottom), uv (0..1) per face."""
     lo, hi = np.asarray(min_corner, np.float64), np.asarray(max_corner, np.float64)
     dx, dy, dz = hi - lo
@@ -99,8 +106,15 @@ def prism_sides(min_corner: npt.ArrayLike, max_corner: npt.ArrayLike) -> Shape:
     return Shape.concat(out)
 
 
-def wall_spans(min_corner: npt.ArrayLike, max_corner: npt.ArrayLike) -> list[tuple[str, float, float]]:
+def wall_spans(
+    min_corner: npt.ArrayLike, max_corner: npt.ArrayLike
+) -> list[tuple[str, float, float]]:
     """(facing, start, end) of each wall along the prism_sides strip, in metres."""
     lo, hi = np.asarray(min_corner, np.float64), np.asarray(max_corner, np.float64)
     dx, dy = (hi - lo)[:2]
-    return [("S", 0.0, dx), ("E", dx, dx + dy), ("N", dx + dy, 2 * dx + dy), ("W", 2 * dx + dy, 2 * (dx + dy))]
+    return [
+        ("S", 0.0, dx),
+        ("E", dx, dx + dy),
+        ("N", dx + dy, 2 * dx + dy),
+        ("W", 2 * dx + dy, 2 * (dx + dy)),
+    ]

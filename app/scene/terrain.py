@@ -122,19 +122,54 @@ def _rtin_mesh(errors: np.ndarray, max_error: float) -> tuple[np.ndarray, np.nda
         stack = np.empty((4 * 32 + 8, 6), np.int32)
         for root in range(2):
             if root == 0:
-                stack[0, 0], stack[0, 1], stack[0, 2], stack[0, 3], stack[0, 4], stack[0, 5] = 0, 0, tile, tile, tile, 0
+                stack[0, 0], stack[0, 1], stack[0, 2], stack[0, 3], stack[0, 4], stack[0, 5] = (
+                    0,
+                    0,
+                    tile,
+                    tile,
+                    tile,
+                    0,
+                )
             else:
-                stack[0, 0], stack[0, 1], stack[0, 2], stack[0, 3], stack[0, 4], stack[0, 5] = tile, tile, 0, 0, 0, tile
+                stack[0, 0], stack[0, 1], stack[0, 2], stack[0, 3], stack[0, 4], stack[0, 5] = (
+                    tile,
+                    tile,
+                    0,
+                    0,
+                    0,
+                    tile,
+                )
             sp = 1
             while sp > 0:
                 sp -= 1
-                ax, ay, bx, by, cx, cy = stack[sp, 0], stack[sp, 1], stack[sp, 2], stack[sp, 3], stack[sp, 4], stack[sp, 5]
+                ax, ay, bx, by, cx, cy = (
+                    stack[sp, 0],
+                    stack[sp, 1],
+                    stack[sp, 2],
+                    stack[sp, 3],
+                    stack[sp, 4],
+                    stack[sp, 5],
+                )
                 mx = (ax + bx) >> 1
                 my = (ay + by) >> 1
                 if abs(ax - cx) + abs(ay - cy) > 1 and errors[my, mx] > max_error:
-                    stack[sp, 0], stack[sp, 1], stack[sp, 2], stack[sp, 3], stack[sp, 4], stack[sp, 5] = cx, cy, ax, ay, mx, my
+                    (
+                        stack[sp, 0],
+                        stack[sp, 1],
+                        stack[sp, 2],
+                        stack[sp, 3],
+                        stack[sp, 4],
+                        stack[sp, 5],
+                    ) = cx, cy, ax, ay, mx, my
                     sp += 1
-                    stack[sp, 0], stack[sp, 1], stack[sp, 2], stack[sp, 3], stack[sp, 4], stack[sp, 5] = bx, by, cx, cy, mx, my
+                    (
+                        stack[sp, 0],
+                        stack[sp, 1],
+                        stack[sp, 2],
+                        stack[sp, 3],
+                        stack[sp, 4],
+                        stack[sp, 5],
+                    ) = bx, by, cx, cy, mx, my
                     sp += 1
                     continue
                 if fill:
@@ -253,7 +288,13 @@ def _window_around(src, track_ll: np.ndarray | None, margin_m: float):
     ok = np.isfinite(x) & np.isfinite(y)
     if not ok.any():
         return None
-    win = from_bounds(float(np.min(x[ok])), float(np.min(y[ok])), float(np.max(x[ok])), float(np.max(y[ok])), src.transform)
+    win = from_bounds(
+        float(np.min(x[ok])),
+        float(np.min(y[ok])),
+        float(np.max(x[ok])),
+        float(np.max(y[ok])),
+        src.transform,
+    )
     try:
         win = win.round_offsets().round_lengths().intersection(full)
     except Exception:  # rasterio raises WindowError when they do not overlap
@@ -267,9 +308,25 @@ def _distance_to_raster(src, frame: LocalFrame, track_ll: np.ndarray) -> float:
 
     b = src.bounds
     t = np.linspace(0.0, 1.0, 21)
-    xs = np.concatenate([b.left + (b.right - b.left) * t, np.full(21, b.right), b.left + (b.right - b.left) * t, np.full(21, b.left)])
-    ys = np.concatenate([np.full(21, b.bottom), b.bottom + (b.top - b.bottom) * t, np.full(21, b.top), b.bottom + (b.top - b.bottom) * t])
-    lon, lat = pyproj.Transformer.from_crs(_horizontal(src.crs), "EPSG:4326", always_xy=True).transform(xs, ys)
+    xs = np.concatenate(
+        [
+            b.left + (b.right - b.left) * t,
+            np.full(21, b.right),
+            b.left + (b.right - b.left) * t,
+            np.full(21, b.left),
+        ]
+    )
+    ys = np.concatenate(
+        [
+            np.full(21, b.bottom),
+            b.bottom + (b.top - b.bottom) * t,
+            np.full(21, b.top),
+            b.bottom + (b.top - b.bottom) * t,
+        ]
+    )
+    lon, lat = pyproj.Transformer.from_crs(
+        _horizontal(src.crs), "EPSG:4326", always_xy=True
+    ).transform(xs, ys)
     edge = frame.geodetic_to_enu(np.asarray(lat), np.asarray(lon), np.zeros(len(xs)))[:, :2]
     pts = frame.geodetic_to_enu(track_ll[:, 0], track_ll[:, 1], np.zeros(len(track_ll)))[:, :2]
     lo, hi = edge.min(axis=0), edge.max(axis=0)
@@ -307,22 +364,33 @@ def read_terrain(
     if not path.is_file():
         raise SceneError(path, "DEM file does not exist")
     if vertical is not None and vertical not in geoid.VERTICAL_DATUMS:
-        raise SceneError(path, f"vertical datum {vertical!r} unknown (expected one of {', '.join(geoid.VERTICAL_DATUMS)})", field="vertical")
+        raise SceneError(
+            path,
+            f"vertical datum {vertical!r} unknown (expected one of {', '.join(geoid.VERTICAL_DATUMS)})",
+            field="vertical",
+        )
     try:
         src = rasterio.open(path)
     except Exception as exc:  # rasterio raises RasterioIOError and others
         raise SceneError(path, f"cannot read as a GeoTIFF: {exc}") from exc
     with src:
         if src.crs is None:
-            raise SceneError(path, "the raster has no coordinate reference system (expected a GeoTIFF with one)")
+            raise SceneError(
+                path, "the raster has no coordinate reference system (expected a GeoTIFF with one)"
+            )
         track = None if track_ll is None else np.atleast_2d(np.asarray(track_ll, np.float64))
         win = _window_around(src, track, margin_m)
         if win is None:
             far = _distance_to_raster(src, frame, track)
-            raise SceneError(path, f"the DEM does not cover the clip's track (nor {margin_m / 1000:.1f} km around it): it lies {far / 1000:.1f} km from the track")
+            raise SceneError(
+                path,
+                f"the DEM does not cover the clip's track (nor {margin_m / 1000:.1f} km around it): it lies {far / 1000:.1f} km from the track",
+            )
         size = _grid_size(int(win.height), int(win.width))
         try:
-            band = src.read(1, window=win, out_shape=(size, size), resampling=Resampling.bilinear, masked=True)
+            band = src.read(
+                1, window=win, out_shape=(size, size), resampling=Resampling.bilinear, masked=True
+            )
         except Exception as exc:
             raise SceneError(path, f"cannot read the DEM's samples: {exc}") from exc
         # resampled to size x size, grid node (r, c) is the centre of an output pixel: window pixel
@@ -331,9 +399,13 @@ def read_terrain(
         datum = vertical or _vertical_datum(src.crs)
         if datum is None:
             datum = "egm2008"
-            notes.append(f"{path.name}: heights taken as above the EGM2008 geoid (the file names no vertical datum; set the DEM's vertical datum to change it)")
+            notes.append(
+                f"{path.name}: heights taken as above the EGM2008 geoid (the file names no vertical datum; set the DEM's vertical datum to change it)"
+            )
         elif datum == "egm96" and vertical is None:
-            notes.append(f"{path.name}: EGM96 heights converted with EGM2008 undulations (the two differ by under a metre almost everywhere)")
+            notes.append(
+                f"{path.name}: EGM96 heights converted with EGM2008 undulations (the two differ by under a metre almost everywhere)"
+            )
         horizontal = _horizontal(src.crs)
         win_w, win_h = float(win.width), float(win.height)
     heights = np.ma.filled(band.astype(np.float64), np.nan)
@@ -346,7 +418,9 @@ def read_terrain(
 
         _, (ri, ci) = ndimage.distance_transform_edt(~valid, return_indices=True)
         heights = heights[ri, ci]
-        notes.append(f"{path.name}: {holes} of {valid.size} samples are nodata: left as holes in the terrain")
+        notes.append(
+            f"{path.name}: {holes} of {valid.size} samples are nodata: left as holes in the terrain"
+        )
     to_ll = pyproj.Transformer.from_crs(horizontal, "EPSG:4326", always_xy=True)
 
     def lat_lon(c: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -360,7 +434,9 @@ def read_terrain(
     lattice = np.linspace(0.0, size - 1.0, k)
     lc, lr = np.meshgrid(lattice, lattice)
     la, lo = lat_lon(lc.ravel(), lr.ravel())
-    offset = (frame.geodetic_to_enu(la, lo, geoid.to_ellipsoidal(np.zeros_like(la), la, lo, datum))[:, 2]).reshape(k, k)
+    offset = (
+        frame.geodetic_to_enu(la, lo, geoid.to_ellipsoidal(np.zeros_like(la), la, lo, datum))[:, 2]
+    ).reshape(k, k)
     from scipy.ndimage import map_coordinates
 
     rr, cc = np.mgrid[0:size, 0:size].astype(np.float32) * np.float32((k - 1) / (size - 1))
@@ -379,7 +455,14 @@ def read_terrain(
         uvs, texture = _orthophoto(Path(ortho), lat, lon)
         if texture is not None:
             colors[:] = 1.0
-    prim = Primitive(enu.astype(np.float32), colors, tris.astype(np.uint32), uvs, texture, name=f"terrain {path.name}")
+    prim = Primitive(
+        enu.astype(np.float32),
+        colors,
+        tris.astype(np.uint32),
+        uvs,
+        texture,
+        name=f"terrain {path.name}",
+    )
     cell = float(np.hypot(wt.a, wt.d))
     if horizontal.is_geographic:
         cell *= 111_000.0
@@ -407,22 +490,33 @@ def _orthophoto(path: Path, lat: np.ndarray, lon: np.ndarray) -> tuple[np.ndarra
             raise SceneError(path, f"the orthophoto has {src.count} band(s) (expected RGB or RGBA)")
         to_src = pyproj.Transformer.from_crs("EPSG:4326", _horizontal(src.crs), always_xy=True)
         x, y = (np.asarray(v, np.float64) for v in to_src.transform(lon, lat))
-        win = from_bounds(float(x.min()), float(y.min()), float(x.max()), float(y.max()), src.transform)
+        win = from_bounds(
+            float(x.min()), float(y.min()), float(x.max()), float(y.max()), src.transform
+        )
         try:
             from rasterio.windows import Window
 
-            win = win.round_offsets().round_lengths().intersection(Window(0, 0, src.width, src.height))
+            win = (
+                win.round_offsets()
+                .round_lengths()
+                .intersection(Window(0, 0, src.width, src.height))
+            )
         except Exception as exc:
             raise SceneError(path, "the orthophoto does not cover the terrain") from exc
         scale = min(1.0, MAX_TEXTURE / max(win.width, win.height))
         out_w, out_h = max(2, int(win.width * scale)), max(2, int(win.height * scale))
-        rgb = src.read([1, 2, 3], window=win, out_shape=(3, out_h, out_w), resampling=Resampling.bilinear)
+        rgb = src.read(
+            [1, 2, 3], window=win, out_shape=(3, out_h, out_w), resampling=Resampling.bilinear
+        )
         if rgb.dtype != np.uint8:  # 16-bit imagery: stretch its own range
             hi = float(np.percentile(rgb, 99.5)) or 1.0
             rgb = np.clip(rgb.astype(np.float64) / hi * 255.0, 0, 255)
         inv = ~src.window_transform(win)
         col, row = _affine(inv, x, y)
-    img = np.concatenate([np.moveaxis(rgb.astype(np.uint8), 0, -1), np.full((out_h, out_w, 1), 255, np.uint8)], axis=-1)
+    img = np.concatenate(
+        [np.moveaxis(rgb.astype(np.uint8), 0, -1), np.full((out_h, out_w, 1), 255, np.uint8)],
+        axis=-1,
+    )
     u = np.asarray(col, np.float64) / float(win.width)
     v = 1.0 - np.asarray(row, np.float64) / float(win.height)
     return np.stack([u, v], axis=1).astype(np.float32), np.ascontiguousarray(img[::-1])

@@ -25,10 +25,10 @@ from app.io.streams import GnssTrack, OrientationStream, VectorStream, Warnings
 from app.io.video import VideoInfo, probe
 from app.lens import Lens, video_camera
 from app.scene import Placement
-from app.scene.layers import load_layers
-from app.scene.mesh import MeshData
 from app.scene.ground import ellipsoidal_ground
 from app.scene.ground_plane import ASSUMED_GROUND_MARGIN_M, ground_under_track
+from app.scene.layers import load_layers
+from app.scene.mesh import MeshData
 from app.session.config import SessionConfig, read_config
 from app.session.model import Session
 
@@ -45,15 +45,21 @@ def open_session(path: str | Path) -> Session:
     offset = synced_offset(cfg.path)
     if offset is not None:
         drift, pivot = synced_drift(cfg.path)
-        session.warnings.add(f"time offset {1000 * offset:+.1f} ms (drift {drift:+.0f} ppm) from {cfg.path.stem}.geofuse.toml (geofuse sync --write)")
+        session.warnings.add(
+            f"time offset {1000 * offset:+.1f} ms (drift {drift:+.0f} ppm) from {cfg.path.stem}.geofuse.toml (geofuse sync --write)"
+        )
     else:
         result = sync_session(session)
         offset, drift, pivot = result.offset_s, result.drift_ppm, result.reference_s
-        session.warnings.add(f"time offset {1000 * offset:+.1f} ms (drift {drift:+.0f} ppm) found from the video against {timed_by(session)} (confidence {result.confidence:.2f}); geofuse sync --write keeps it")
+        session.warnings.add(
+            f"time offset {1000 * offset:+.1f} ms (drift {drift:+.0f} ppm) found from the video against {timed_by(session)} (confidence {result.confidence:.2f}); geofuse sync --write keeps it"
+        )
     return replace(session, frame_times=corrected_times(session.frame_times, offset, drift, pivot))
 
 
-def _intrinsics(cfg: SessionConfig, width: int, height: int, rotation_cw: int, warnings: Warnings) -> tuple[Intrinsics, Lens | None]:
+def _intrinsics(
+    cfg: SessionConfig, width: int, height: int, rotation_cw: int, warnings: Warnings
+) -> tuple[Intrinsics, Lens | None]:
     """(the pinhole the depth pass uses, the real lens or None), for the displayed video."""
     cam = cfg.camera
     if cam.lens is not None:
@@ -71,7 +77,9 @@ def _readout(cfg: SessionConfig, lens: Lens | None, warnings: Warnings) -> float
     if cfg.camera.readout_ms is not None:
         return cfg.camera.readout_ms / 1000.0 or None
     if lens is not None and lens.readout_s:
-        warnings.add(f"rolling shutter: readout {1000 * lens.readout_s:.1f} ms from the lens profile, corrected row by row")
+        warnings.add(
+            f"rolling shutter: readout {1000 * lens.readout_s:.1f} ms from the lens profile, corrected row by row"
+        )
         return lens.readout_s
     warnings.add("rolling shutter: readout time unknown (camera.readout_ms): not corrected")
     return None
@@ -100,7 +108,9 @@ def _sensors(cfg: SessionConfig, warnings: Warnings, clip_start: float):
     if s.format == "gopro":
         rec = read_gopro(cfg.video.path, warnings)
         # GPMF times count from the clip start; the session clock adds the video's start time.
-        acc, gyr, mag, gnss = (_shifted(x, clip_start) for x in (rec.acc, rec.gyr, rec.mag, rec.gnss))
+        acc, gyr, mag, gnss = (
+            _shifted(x, clip_start) for x in (rec.acc, rec.gyr, rec.mag, rec.gnss)
+        )
         if rec.camera is not None:
             recorded["camera"] = _shifted(rec.camera, clip_start)
     elif s.format == "sensorlogger":
@@ -119,21 +129,35 @@ def _sensors(cfg: SessionConfig, warnings: Warnings, clip_start: float):
     return acc, gyr, mag, recorded, gnss
 
 
-def _gnss(cfg: SessionConfig, logged: GnssTrack | None, warnings: Warnings, clip_start: float, recorded: dict[str, OrientationStream]) -> tuple[GnssTrack, bool, tuple | None]:
+def _gnss(
+    cfg: SessionConfig,
+    logged: GnssTrack | None,
+    warnings: Warnings,
+    clip_start: float,
+    recorded: dict[str, OrientationStream],
+) -> tuple[GnssTrack, bool, tuple | None]:
     """(the session's GNSS track, whether its heights are above take-off, a drone's own yaw
     (t session s, deg) when its subtitle has one and no gimbal attitude)."""
     path = cfg.gnss.path
     if path is None and logged is None:
-        raise ManifestError(cfg.path, "the sensors hold no GNSS track: give gnss.path", field="gnss.path")
+        raise ManifestError(
+            cfg.path, "the sensors hold no GNSS track: give gnss.path", field="gnss.path"
+        )
     if path is not None and path.suffix.lower() == ".srt":
         return _srt_gnss(path, warnings, clip_start, recorded)
     track = logged
     if path is not None:
-        track = read_gpx(path, warnings) if path.suffix.lower() == ".gpx" else csvlog.read_gnss(path, warnings)
+        track = (
+            read_gpx(path, warnings)
+            if path.suffix.lower() == ".gpx"
+            else csvlog.read_gnss(path, warnings)
+        )
     return replace(track, h=track.h + cfg.gnss.height_offset_m), False, None
 
 
-def _srt_gnss(path: Path, warnings: Warnings, clip_start: float, recorded: dict[str, OrientationStream]) -> tuple[GnssTrack, bool, tuple | None]:
+def _srt_gnss(
+    path: Path, warnings: Warnings, clip_start: float, recorded: dict[str, OrientationStream]
+) -> tuple[GnssTrack, bool, tuple | None]:
     """A DJI subtitle as the session's GNSS (its times are the clip's, shifted to the session
     clock) and, with gimbal angles, its `telemetry` attitude, else the aircraft's yaw."""
     tr = read_srt(path, warnings)
@@ -150,24 +174,41 @@ def gimbal_attitude(track, path: Path) -> OrientationStream:
     """A DJI subtitle's gimbal pitch, roll, yaw as camera -> ENU quaternions (clip seconds)."""
     g = np.isfinite(track.gimbal_pry).all(axis=1)
     p, r, y = track.gimbal_pry[g].T
-    return OrientationStream(track.t[g], rotations.camera_quat_from_hpr(y % 360.0, p, r), str(path), "DJI gimbal pitch, roll, yaw (G.PRY)")
+    return OrientationStream(
+        track.t[g],
+        rotations.camera_quat_from_hpr(y % 360.0, p, r),
+        str(path),
+        "DJI gimbal pitch, roll, yaw (G.PRY)",
+    )
 
 
-def _takeoff_height(cfg: SessionConfig, frame: LocalFrame, gnss: GnssTrack, mesh, warnings: Warnings) -> float:
+def _takeoff_height(
+    cfg: SessionConfig, frame: LocalFrame, gnss: GnssTrack, mesh, warnings: Warnings
+) -> float:
     """The take-off point's ellipsoidal height: the manifest's, else the scene's ground under the
     first position; says which."""
     value = cfg.gnss.takeoff_height_m
     if value is not None:
-        warnings.add(f"heights above take-off: take-off height {value:.2f} m from gnss.takeoff_height_m")
+        warnings.add(
+            f"heights above take-off: take-off height {value:.2f} m from gnss.takeoff_height_m"
+        )
         return value
     value = ellipsoidal_ground(mesh, frame, float(gnss.lat[0]), float(gnss.lon[0]))
     if value is None:
-        raise ManifestError(cfg.path, "heights are above take-off and the scene has no ground under the first position: give gnss.takeoff_height_m", field="gnss.takeoff_height_m")
-    warnings.add(f"heights above take-off: take-off height {value:.2f} m from the scene's ground under the first position")
+        raise ManifestError(
+            cfg.path,
+            "heights are above take-off and the scene has no ground under the first position: give gnss.takeoff_height_m",
+            field="gnss.takeoff_height_m",
+        )
+    warnings.add(
+        f"heights above take-off: take-off height {value:.2f} m from the scene's ground under the first position"
+    )
     return value
 
 
-SCENE_FAR_M = 500.0  # a scene farther than this from every fix of the track is misplaced, or the track is
+SCENE_FAR_M = (
+    500.0  # a scene farther than this from every fix of the track is misplaced, or the track is
+)
 
 
 def load_scene_layers(layers, frame: LocalFrame, gnss: GnssTrack, warnings: Warnings) -> MeshData:
@@ -183,7 +224,9 @@ def load_scene_layers(layers, frame: LocalFrame, gnss: GnssTrack, warnings: Warn
         far = part.horizontal_distance(track_enu)
         if far > SCENE_FAR_M:
             hint = "its georeferencing" if layer.georeferenced else "scene.origin, scene.up_axis"
-            warnings.add(f"{layer.name}: the scene lies {far / 1000:.1f} km from the camera's track: check {hint} and the GNSS positions")
+            warnings.add(
+                f"{layer.name}: the scene lies {far / 1000:.1f} km from the camera's track: check {hint} and the GNSS positions"
+            )
     return loaded.mesh
 
 
@@ -191,12 +234,20 @@ def _frame_times(cfg: SessionConfig, video: VideoInfo) -> tuple[float, np.ndarra
     """(the session time of media time 0, every frame's session time)."""
     start = cfg.video.start_time if cfg.video.start_time is not None else video.creation_time
     if start is None:
-        raise ManifestError(cfg.path, "the video has no creation time: give video.start_time (session-clock seconds)", field="video.start_time")
+        raise ManifestError(
+            cfg.path,
+            "the video has no creation time: give video.start_time (session-clock seconds)",
+            field="video.start_time",
+        )
     clip_start = float(start) + cfg.video.time_offset_s
-    return clip_start, clip_start + (video.pts_s if cfg.video.timing == "pts" else video.eq5_times())
+    return clip_start, clip_start + (
+        video.pts_s if cfg.video.timing == "pts" else video.eq5_times()
+    )
 
 
-def _check_coverage(cfg: SessionConfig, frame_times: np.ndarray, log_t: np.ndarray, warnings: Warnings) -> None:
+def _check_coverage(
+    cfg: SessionConfig, frame_times: np.ndarray, log_t: np.ndarray, warnings: Warnings
+) -> None:
     covered = (frame_times >= log_t[0]) & (frame_times <= log_t[-1])
     if not covered.any():
         raise ManifestError(
@@ -206,10 +257,18 @@ def _check_coverage(cfg: SessionConfig, frame_times: np.ndarray, log_t: np.ndarr
             field="video.start_time",
         )
     if not covered.all():
-        warnings.add(f"{int((~covered).sum())} video frames lie outside the sensor log; their attitude is held")
+        warnings.add(
+            f"{int((~covered).sum())} video frames lie outside the sensor log; their attitude is held"
+        )
 
 
-def _calibrate_magnetometer(mag: VectorStream | None, origin: tuple[float, float, float], when: float, mode: str, warnings: Warnings) -> VectorStream | None:
+def _calibrate_magnetometer(
+    mag: VectorStream | None,
+    origin: tuple[float, float, float],
+    when: float,
+    mode: str,
+    warnings: Warnings,
+) -> VectorStream | None:
     """The magnetometer calibrated on the clip (app.attitude.magcal), unless mode is "none"."""
     if mag is None or mode == "none":
         return mag
@@ -228,7 +287,11 @@ def _true_frame_times(cfg: SessionConfig, count: int, warnings: Warnings) -> np.
     columns, _, rows, first = csvlog.read_table(path)
     values, _ = csvlog.numeric(path, rows, columns, ["frame", "t"], first, warnings)
     if len(values) != count:
-        raise ManifestError(cfg.path, f"{len(values)} true frame times for {count} video frames", field="truth.frame_times")
+        raise ManifestError(
+            cfg.path,
+            f"{len(values)} true frame times for {count} video frames",
+            field="truth.frame_times",
+        )
     return values[np.argsort(values[:, 0]), 1]
 
 
@@ -241,11 +304,25 @@ def _place(cfg: SessionConfig, gnss: GnssTrack, above_takeoff: bool, warnings: W
         if above_takeoff:
             gnss = replace(gnss, h=gnss.h + takeoff)
         ground = takeoff if above_takeoff else float(gnss.h[0]) - cfg.gnss.mount_height_m
-        frame = LocalFrame(*cfg.origin) if cfg.origin is not None else LocalFrame(float(gnss.lat[0]), float(gnss.lon[0]), ground)
-        warnings.add("no scene given: the video is projected on an assumed flat ground with a 1 m grid")
-        return frame, ground_under_track(frame, gnss.lat, gnss.lon, ground, ASSUMED_GROUND_MARGIN_M), gnss
+        frame = (
+            LocalFrame(*cfg.origin)
+            if cfg.origin is not None
+            else LocalFrame(float(gnss.lat[0]), float(gnss.lon[0]), ground)
+        )
+        warnings.add(
+            "no scene given: the video is projected on an assumed flat ground with a 1 m grid"
+        )
+        return (
+            frame,
+            ground_under_track(frame, gnss.lat, gnss.lon, ground, ASSUMED_GROUND_MARGIN_M),
+            gnss,
+        )
     try:
-        origin = cfg.origin or (float(gnss.lat[0]), float(gnss.lon[0]), 0.0 if above_takeoff else float(gnss.h[0]))
+        origin = cfg.origin or (
+            float(gnss.lat[0]),
+            float(gnss.lon[0]),
+            0.0 if above_takeoff else float(gnss.h[0]),
+        )
         frame = LocalFrame(*origin)
     except ValueError as exc:
         raise ManifestError(cfg.path, str(exc), field="origin") from exc
@@ -270,9 +347,13 @@ def assemble(cfg: SessionConfig) -> Session:
     _check_coverage(cfg, frame_times, (gyr if gyr is not None else gnss).t, warnings)
     frame, mesh, gnss = _place(cfg, gnss, above_takeoff, warnings)
     origin = (frame.lat_deg, frame.lon_deg, frame.h_m)
-    mag = _calibrate_magnetometer(mag, origin, float(frame_times[0]), cfg.sensors.mag_calibration, warnings)
+    mag = _calibrate_magnetometer(
+        mag, origin, float(frame_times[0]), cfg.sensors.mag_calibration, warnings
+    )
     truth_position = csvlog.read_gnss(cfg.truth.position, warnings) if cfg.truth.position else None
-    policy = heading_policy(gyr is not None, mag is not None, recorded, cfg.gnss.pitch_deg, yaw is not None)
+    policy = heading_policy(
+        gyr is not None, mag is not None, recorded, cfg.gnss.pitch_deg, yaw is not None
+    )
     if policy.note:
         warnings.add(policy.note)
     return Session(

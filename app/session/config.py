@@ -108,57 +108,120 @@ class Manifest:
             raise ManifestError(self.path, f"[{name}] must be a table", field=name)
         return value
 
-    def get(self, section: str, key: str, kind: type | tuple[type, ...], default: Any = ..., required_section: bool = True) -> Any:
+    def get(
+        self,
+        section: str,
+        key: str,
+        kind: type | tuple[type, ...],
+        default: Any = ...,
+        required_section: bool = True,
+    ) -> Any:
         sec = self.section(section, required_section)
         if key not in sec:
             if default is ...:
-                raise ManifestError(self.path, f"missing key (expected {getattr(kind, '__name__', kind)})", field=f"{section}.{key}")
+                raise ManifestError(
+                    self.path,
+                    f"missing key (expected {getattr(kind, '__name__', kind)})",
+                    field=f"{section}.{key}",
+                )
             return default
         value = sec[key]
         kinds = kind if isinstance(kind, tuple) else (kind,)
         if float in kinds and isinstance(value, int) and not isinstance(value, bool):
             value = float(value)
         if not isinstance(value, kinds):
-            raise ManifestError(self.path, f"got {value!r}, expected {' or '.join(k.__name__ for k in kinds)}", field=f"{section}.{key}")
+            raise ManifestError(
+                self.path,
+                f"got {value!r}, expected {' or '.join(k.__name__ for k in kinds)}",
+                field=f"{section}.{key}",
+            )
         return value
 
-    def number(self, section: str, key: str, default: Any = ..., *, low: float = -math.inf, high: float = math.inf, open_low: bool = False, required_section: bool = True) -> float | None:
+    def number(
+        self,
+        section: str,
+        key: str,
+        default: Any = ...,
+        *,
+        low: float = -math.inf,
+        high: float = math.inf,
+        open_low: bool = False,
+        required_section: bool = True,
+    ) -> float | None:
         """A finite float in [low, high] (or (low, high] with open_low)."""
         value = self.get(section, key, float, default, required_section)
         if value is None:
             return None
         if not math.isfinite(value) or value < low or value > high or (open_low and value == low):
             bracket = "(" if open_low else "["
-            raise ManifestError(self.path, f"got {value!r}, expected a finite number in {bracket}{low:g}, {high:g}]", field=f"{section}.{key}")
+            raise ManifestError(
+                self.path,
+                f"got {value!r}, expected a finite number in {bracket}{low:g}, {high:g}]",
+                field=f"{section}.{key}",
+            )
         return value
 
-    def choice(self, section: str, key: str, options: tuple[str, ...], default: str, required_section: bool = True) -> str:
+    def choice(
+        self,
+        section: str,
+        key: str,
+        options: tuple[str, ...],
+        default: str,
+        required_section: bool = True,
+    ) -> str:
         value = self.get(section, key, str, default, required_section)
         if value not in options:
-            raise ManifestError(self.path, f"got {value!r}, expected {' or '.join(repr(o) for o in options)}", field=f"{section}.{key}")
+            raise ManifestError(
+                self.path,
+                f"got {value!r}, expected {' or '.join(repr(o) for o in options)}",
+                field=f"{section}.{key}",
+            )
         return value
 
-    def file(self, section: str, key: str, required: bool = True, required_section: bool = True) -> Path | None:
+    def file(
+        self, section: str, key: str, required: bool = True, required_section: bool = True
+    ) -> Path | None:
         value = self.get(section, key, str, ... if required else None, required_section)
         if value is None:
             return None
         p = (self.path.parent / value).resolve()
         if not p.exists():
-            raise ManifestError(self.path, f"names {value!r}, which does not exist ({p})", field=f"{section}.{key}")
+            raise ManifestError(
+                self.path, f"names {value!r}, which does not exist ({p})", field=f"{section}.{key}"
+            )
         return p
 
     def geodetic(self, section: str, key: str) -> tuple[float, float, float] | None:
         value = self.get(section, key, list, None)
         if value is None:
             return None
-        if len(value) != 3 or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
-            raise ManifestError(self.path, f"got {value!r}, expected [latitude, longitude, height]", field=f"{section}.{key}")
+        if len(value) != 3 or not all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) for v in value
+        ):
+            raise ManifestError(
+                self.path,
+                f"got {value!r}, expected [latitude, longitude, height]",
+                field=f"{section}.{key}",
+            )
         return _checked_geodetic(self.path, f"{section}.{key}", *(float(v) for v in value))
 
 
-def _checked_geodetic(path: Path, field: str, lat: float, lon: float, h: float) -> tuple[float, float, float]:
-    if not (math.isfinite(lat) and -90.0 <= lat <= 90.0 and math.isfinite(lon) and -180.0 <= lon <= 360.0 and math.isfinite(h) and -12_000.0 <= h <= 100_000.0):
-        raise ManifestError(path, f"got ({lat}, {lon}, {h}), expected latitude in [-90, 90], longitude in [-180, 360] deg, height in [-12000, 100000] m", field=field)
+def _checked_geodetic(
+    path: Path, field: str, lat: float, lon: float, h: float
+) -> tuple[float, float, float]:
+    if not (
+        math.isfinite(lat)
+        and -90.0 <= lat <= 90.0
+        and math.isfinite(lon)
+        and -180.0 <= lon <= 360.0
+        and math.isfinite(h)
+        and -12_000.0 <= h <= 100_000.0
+    ):
+        raise ManifestError(
+            path,
+            f"got ({lat}, {lon}, {h}), expected latitude in [-90, 90], longitude in [-180, 360] deg, height in [-12000, 100000] m",
+            field=field,
+        )
     return lat, lon, h
 
 
@@ -181,7 +244,9 @@ class SceneConfig:
 @dataclass(frozen=True)
 class VideoConfig:
     path: Path
-    start_time: float | None  # session-clock seconds of the first frame; None: the video's creation time
+    start_time: (
+        float | None
+    )  # session-clock seconds of the first frame; None: the video's creation time
     time_offset_s: float
     timing: str  # "pts" or "eq5"
     auto_offset: bool = False  # time_offset_s = "auto"
@@ -238,12 +303,28 @@ class SessionConfig:
     sensors: SensorsConfig
     gnss: GnssConfig
     truth: TruthConfig
-    layers: tuple[Layer, ...] = ()  # [scene], [[layers]] and [dem], in that order; () : an assumed ground
+    layers: tuple[
+        Layer, ...
+    ] = ()  # [scene], [[layers]] and [dem], in that order; () : an assumed ground
 
     def inputs(self) -> list[Path]:
         """Every file the session reads (never to be written)."""
         s, g, t = self.sensors, self.gnss, self.truth
-        files = [self.path, *(f for layer in self.layers for f in layer.files()), self.video.path, self.camera.lens, s.acc, s.gyr, s.mag, s.orientation, s.path, g.path, t.orientation, t.position, t.frame_times]
+        files = [
+            self.path,
+            *(f for layer in self.layers for f in layer.files()),
+            self.video.path,
+            self.camera.lens,
+            s.acc,
+            s.gyr,
+            s.mag,
+            s.orientation,
+            s.path,
+            g.path,
+            t.orientation,
+            t.position,
+            t.frame_times,
+        ]
         return [p for p in files if p is not None]
 
 
@@ -275,7 +356,12 @@ def _layer(m: Manifest, section: str) -> tuple[Layer, tuple[float, float, float]
     up = m.get(section, "up_axis", str, None)
     if up is not None and up not in ("Y", "Z"):
         raise ManifestError(m.path, f"got {up!r}, expected 'Y' or 'Z'", field=f"{section}.up_axis")
-    placement = Placement(origin, up, m.number(section, "heading_deg", 0.0, low=-360.0, high=360.0), m.number(section, "scale", 1.0, low=0.0, high=1e6, open_low=True))
+    placement = Placement(
+        origin,
+        up,
+        m.number(section, "heading_deg", 0.0, low=-360.0, high=360.0),
+        m.number(section, "scale", 1.0, low=0.0, high=1e6, open_low=True),
+    )
     return Layer(location, kind, placement), origin
 
 
@@ -291,11 +377,25 @@ def _layers(m: Manifest) -> list[Layer]:
     if m.section("dem", required=False):
         path = m.file("dem", "path")
         if layer_kind(path) != "dem":
-            raise ManifestError(m.path, f"got {path.name!r}, expected a GeoTIFF (.tif)", field="dem.path")
+            raise ManifestError(
+                m.path, f"got {path.name!r}, expected a GeoTIFF (.tif)", field="dem.path"
+            )
         vertical = m.get("dem", "vertical", str, None)
         if vertical is not None and vertical not in VERTICAL_DATUMS:
-            raise ManifestError(m.path, f"got {vertical!r}, expected {' or '.join(repr(v) for v in VERTICAL_DATUMS)}", field="dem.vertical")
-        out.append(Layer(str(path), "dem", ortho=m.file("dem", "ortho", required=False), vertical=vertical, max_error_m=m.number("dem", "max_error_m", 0.5, low=0.01, high=100.0)))
+            raise ManifestError(
+                m.path,
+                f"got {vertical!r}, expected {' or '.join(repr(v) for v in VERTICAL_DATUMS)}",
+                field="dem.vertical",
+            )
+        out.append(
+            Layer(
+                str(path),
+                "dem",
+                ortho=m.file("dem", "ortho", required=False),
+                vertical=vertical,
+                max_error_m=m.number("dem", "max_error_m", 0.5, low=0.01, high=100.0),
+            )
+        )
     return out
 
 
@@ -305,21 +405,35 @@ def read_config(path: str | Path) -> SessionConfig:
     scene = SceneConfig(*_layer(m, "scene")) if m.section("scene", required=False) else None
     layers = ([scene.layer] if scene else []) + _layers(m)
     if m.section("origin", required=False):
-        origin = _checked_geodetic(m.path, "origin", *(m.get("origin", k, float) for k in ("lat", "lon", "h")))
+        origin = _checked_geodetic(
+            m.path, "origin", *(m.get("origin", k, float) for k in ("lat", "lon", "h"))
+        )
     elif scene is not None and scene.origin is not None:
         origin = scene.origin
     elif all(layer.georeferenced for layer in layers):
         origin = None  # the first GNSS fix
     else:
-        raise ManifestError(m.path, "give [origin] or scene.origin: the session needs a geographic origin", field="origin")
+        raise ManifestError(
+            m.path,
+            "give [origin] or scene.origin: the session needs a geographic origin",
+            field="origin",
+        )
 
     auto = m.get("video", "time_offset_s", (float, str), 0.0) == "auto"
     offset = 0.0 if auto else m.number("video", "time_offset_s", 0.0, low=-86400.0, high=86400.0)
-    video = VideoConfig(m.file("video", "path"), m.number("video", "start_time", None), offset, m.choice("video", "timing", ("pts", "eq5"), "pts"), auto)
+    video = VideoConfig(
+        m.file("video", "path"),
+        m.number("video", "start_time", None),
+        offset,
+        m.choice("video", "timing", ("pts", "eq5"), "pts"),
+        auto,
+    )
     m.section("camera")
     rotation = m.get("camera", "rotation_cw", int, None)
     if rotation is not None and rotation % 90:
-        raise ManifestError(m.path, f"got {rotation}, expected 0, 90, 180 or 270", field="camera.rotation_cw")
+        raise ManifestError(
+            m.path, f"got {rotation}, expected 0, 90, 180 or 270", field="camera.rotation_cw"
+        )
     camera = CameraConfig(
         m.number("camera", "hfov_deg", None, low=0.0, high=180.0, open_low=True),
         m.number("camera", "focal_mm", None, low=0.0, high=10_000.0, open_low=True),
@@ -328,25 +442,66 @@ def read_config(path: str | Path) -> SessionConfig:
         m.file("camera", "lens", required=False),
         m.number("camera", "readout_ms", None, low=0.0, high=200.0),
     )
-    if camera.hfov_deg is None and camera.lens is None and (camera.focal_mm is None or camera.sensor_width_mm is None):
-        raise ManifestError(m.path, "expected hfov_deg, focal_mm and sensor_width_mm, or lens", field="camera")
+    if (
+        camera.hfov_deg is None
+        and camera.lens is None
+        and (camera.focal_mm is None or camera.sensor_width_mm is None)
+    ):
+        raise ManifestError(
+            m.path, "expected hfov_deg, focal_mm and sensor_width_mm, or lens", field="camera"
+        )
 
     fmt = m.choice("sensors", "format", SENSOR_FORMATS, "csv")
     calibration = m.choice("sensors", "mag_calibration", ("clip", "none"), "clip")
     if fmt == "csv":
-        sensors = SensorsConfig(fmt, m.file("sensors", "acc"), m.file("sensors", "gyr"), m.file("sensors", "mag", required=False), m.file("sensors", "orientation", required=False), mag_calibration=calibration)
+        sensors = SensorsConfig(
+            fmt,
+            m.file("sensors", "acc"),
+            m.file("sensors", "gyr"),
+            m.file("sensors", "mag", required=False),
+            m.file("sensors", "orientation", required=False),
+            mag_calibration=calibration,
+        )
     elif fmt == "sensorlogger":
-        sensors = SensorsConfig(fmt, path=m.file("sensors", "path"), standardised=bool(m.get("sensors", "standardised", bool, False)), mag_calibration=calibration)
+        sensors = SensorsConfig(
+            fmt,
+            path=m.file("sensors", "path"),
+            standardised=bool(m.get("sensors", "standardised", bool, False)),
+            mag_calibration=calibration,
+        )
     else:
         sensors = SensorsConfig(fmt, mag_calibration=calibration)
     own_positions = fmt in ("gopro", "sensorlogger")
     gnss = GnssConfig(
         m.file("gnss", "path", required=not own_positions, required_section=not own_positions),
-        m.number("gnss", "takeoff_height_m", None, low=-12_000.0, high=100_000.0, required_section=False),
-        m.number("gnss", "height_offset_m", 0.0, low=-1_000.0, high=1_000.0, required_section=False),
+        m.number(
+            "gnss", "takeoff_height_m", None, low=-12_000.0, high=100_000.0, required_section=False
+        ),
+        m.number(
+            "gnss", "height_offset_m", 0.0, low=-1_000.0, high=1_000.0, required_section=False
+        ),
         m.choice("gnss", "height", ("gnss", "ground"), "gnss", required_section=False),
-        m.number("gnss", "mount_height_m", HANDHELD_MOUNT_M, low=0.0, high=10_000.0, required_section=False),
-        m.number("gnss", "pitch_deg", DRONE_DEFAULT_PITCH_DEG, low=-90.0, high=90.0, required_section=False),
+        m.number(
+            "gnss",
+            "mount_height_m",
+            HANDHELD_MOUNT_M,
+            low=0.0,
+            high=10_000.0,
+            required_section=False,
+        ),
+        m.number(
+            "gnss",
+            "pitch_deg",
+            DRONE_DEFAULT_PITCH_DEG,
+            low=-90.0,
+            high=90.0,
+            required_section=False,
+        ),
     )
-    truth = TruthConfig(*(m.file("truth", k, required=False, required_section=False) for k in ("orientation", "position", "frame_times")))
+    truth = TruthConfig(
+        *(
+            m.file("truth", k, required=False, required_section=False)
+            for k in ("orientation", "position", "frame_times")
+        )
+    )
     return SessionConfig(m.path, origin, scene, video, camera, sensors, gnss, truth, tuple(layers))

@@ -77,7 +77,9 @@ class Session:
     device_is_camera: bool = False
     aircraft_yaw: tuple[np.ndarray, np.ndarray] | None = None  # (t session s, yaw deg) for `course`
     lens: object | None = None  # app.lens.Lens of the displayed video; intrinsics then enclose it
-    readout_s: float | None = None  # rolling shutter: the sensor's readout time, seconds (None: unknown, off)
+    readout_s: float | None = (
+        None  # rolling shutter: the sensor's readout time, seconds (None: unknown, off)
+    )
     mesh: MeshData | None = None
     layers: tuple = ()  # app.scene.layers.Layer: the scene's layers as named ((): an assumed ground)
 
@@ -98,7 +100,9 @@ class Session:
         camera turns with the display rotation (app.trajectory.device_to_camera); an action
         camera's or drone's device frame is its camera's, turned only when the video is."""
         if self.device_is_camera:
-            return rotations.about_z(-float(self.rotation_cw))  # a clockwise display turn of the image
+            return rotations.about_z(
+                -float(self.rotation_cw)
+            )  # a clockwise display turn of the image
         return device_to_camera(self.rotation_cw)
 
     def scene(self) -> MeshData:
@@ -107,7 +111,11 @@ class Session:
 
     @cached_property
     def _scene(self) -> MeshData:
-        return self.mesh if self.mesh is not None else load_scene(self.scene_path, self.frame, self.placement)
+        return (
+            self.mesh
+            if self.mesh is not None
+            else load_scene(self.scene_path, self.frame, self.placement)
+        )
 
     def positions(self) -> PositionTrack:
         """The GNSS position track, with heights from the model's ground when asked (cached)."""
@@ -121,7 +129,10 @@ class Session:
             enu = self.frame.geodetic_to_enu(g.lat, g.lon, g.h)
             ground = ground_heights(self.scene(), enu[:, :2])
             if np.isnan(ground).any():
-                self.warnings.add_once("fixes-off-model", f"{int(np.isnan(ground).sum())} GNSS fixes lie off the model: their GNSS height is kept")
+                self.warnings.add_once(
+                    "fixes-off-model",
+                    f"{int(np.isnan(ground).sum())} GNSS fixes lie off the model: their GNSS height is kept",
+                )
             enu[:, 2] = np.where(np.isnan(ground), enu[:, 2], ground + self.mount_height_m)
             h = self.frame.enu_to_geodetic(enu)[:, 2]
         try:
@@ -143,7 +154,9 @@ class Session:
         if self.course_pitch_deg is not None:
             own.append(COURSE)
         recorded = [r for r in self.recorded if r != TRUTH]
-        registered = [REGISTERED] if (own or recorded) and self.registration_refusal() is None else []
+        registered = (
+            [REGISTERED] if (own or recorded) and self.registration_refusal() is None else []
+        )
         out = own + recorded + registered + ([TRUTH] if TRUTH in self.recorded else [])
         prefer = self.heading.prefer
         return [prefer] + [s for s in out if s != prefer] if prefer in out else out
@@ -168,34 +181,55 @@ class Session:
         if source == REGISTERED and self.registration_refusal() is not None:
             raise ValueError(self.registration_refusal())
         if source not in self.sources:
-            raise ValueError(f"unknown attitude source {source!r}; this session offers {', '.join(self.sources)}")
+            raise ValueError(
+                f"unknown attitude source {source!r}; this session offers {', '.join(self.sources)}"
+            )
 
 
-def device_attitude(session: Session, source: str, course_pitch_deg: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+def device_attitude(
+    session: Session, source: str, course_pitch_deg: float | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """(t (N,) session s, device -> ENU quaternions (N, 4), true north) for one source.
 
     course_pitch_deg: the `course` source's pitch (default: the session's)."""
     session.check_source(source)
     if source == REGISTERED:
-        raise ValueError("the registered source is a whole pose track, not an attitude: solve it with app.solve.solve_track")
+        raise ValueError(
+            "the registered source is a whole pose track, not an attitude: solve it with app.solve.solve_track"
+        )
     pos = session.positions()
     if source == COURSE:
         pitch = session.course_pitch_deg if course_pitch_deg is None else course_pitch_deg
-        ref = heading.course_attitude(pos.t, pos.vel_enu, pitch, session.gnss.source, session.aircraft_yaw)
+        ref = heading.course_attitude(
+            pos.t, pos.vel_enu, pitch, session.gnss.source, session.aircraft_yaw
+        )
         return ref.t, ref.q  # the device is the camera (drones), unturned
     if source in session.recorded:
         ref = session.recorded[source]
         if source == "camera" and session.heading_from_course:
-            return ref.t, heading.align_to_course(pos.t, pos.vel_enu, ref.t, ref.q, session.camera_mount(), session.warnings)
+            return ref.t, heading.align_to_course(
+                pos.t, pos.vel_enu, ref.t, ref.q, session.camera_mount(), session.warnings
+            )
         return ref.t, ref.q
     method, ahrs = FILTERS[source]
     use_mag = ahrs and session.mag is not None
     t = session.gyr.t
     acc = resample(t, session.acc.t, session.acc.values)
     mag = resample(t, session.mag.t, session.mag.values) if use_mag else None
-    q = estimate(t, session.gyr.values, acc, mag, method=method, declination_deg=session.declination_deg if use_mag else 0.0)
+    q = estimate(
+        t,
+        session.gyr.values,
+        acc,
+        mag,
+        method=method,
+        declination_deg=session.declination_deg if use_mag else 0.0,
+    )
     if not use_mag and session.mag is not None:
-        q = heading.anchor_heading(q, resample(t, session.mag.t, session.mag.values), session.declination_deg)
+        q = heading.anchor_heading(
+            q, resample(t, session.mag.t, session.mag.values), session.declination_deg
+        )
     elif not use_mag and session.heading_from_course:
-        q = heading.align_to_course(pos.t, pos.vel_enu, t, q, session.camera_mount(), session.warnings)
+        q = heading.align_to_course(
+            pos.t, pos.vel_enu, t, q, session.camera_mount(), session.warnings
+        )
     return t, q

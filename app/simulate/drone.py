@@ -39,11 +39,19 @@ def flight(t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     t = np.asarray(t, np.float64)
     w = 2 * np.pi / WEAVE_PERIOD_S
     north_speed = SPEED_MPS * np.tan(np.radians(WEAVE_DEG)) * np.cos(w * t)
-    pos = np.column_stack([-110.0 + SPEED_MPS * t, -95.0 + SPEED_MPS * np.tan(np.radians(WEAVE_DEG)) * np.sin(w * t) / w, np.full(len(t), HEIGHT_M)])
+    pos = np.column_stack(
+        [
+            -110.0 + SPEED_MPS * t,
+            -95.0 + SPEED_MPS * np.tan(np.radians(WEAVE_DEG)) * np.sin(w * t) / w,
+            np.full(len(t), HEIGHT_M),
+        ]
+    )
     return pos, np.degrees(np.arctan2(SPEED_MPS, north_speed)) % 360.0
 
 
-def write_video(path: Path, duration_s: float = 24.0, size: tuple[int, int] = (320, 180), crf: int = 20) -> Path:
+def write_video(
+    path: Path, duration_s: float = 24.0, size: tuple[int, int] = (320, 180), crf: int = 20
+) -> Path:
     """The drone's video: the sample scene seen from the flight, at FPS, width x height pixels."""
     from app.demo import SAMPLE_DIR
 
@@ -71,7 +79,7 @@ def srt_text(duration_s: float, lag_s: float, path_of=flight) -> str:
     for k, tk in enumerate(t):
         when = START + timedelta(seconds=float(tk))
         out.append(
-            f"{k + 1}\n{stamp(tk)} --> {stamp(tk + 1.0 / FPS)}\n<font size=\"28\">SrtCnt : {k + 1}, DiffTime : 33ms\n"
+            f'{k + 1}\n{stamp(tk)} --> {stamp(tk + 1.0 / FPS)}\n<font size="28">SrtCnt : {k + 1}, DiffTime : 33ms\n'
             f"{when:%Y-%m-%d %H:%M:%S},{when.microsecond // 1000:03d},{when.microsecond % 1000:03d}\n"
             f"[iso : 100] [shutter : 1/1000.0] [fnum : 280] [ev : 0] [ct : 5500] [color_md : default] [focal_len : {FOCAL_35MM * 10:.0f}] "
             f"[latitude: {geo[k, 0]:.6f}] [longitude: {geo[k, 1]:.6f}] [rel_alt: {pos[k, 2]:.3f} abs_alt: {geo[k, 2]:.3f}] </font>\n"
@@ -82,4 +90,6 @@ def srt_text(duration_s: float, lag_s: float, path_of=flight) -> str:
 def straight(t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """A flight due east at SPEED_MPS without a turn (the course says nothing of time)."""
     t = np.asarray(t, np.float64)
-    return np.column_stack([-110.0 + SPEED_MPS * t, np.full(len(t), -95.0), np.full(len(t), HEIGHT_M)]), np.full(len(t), 90.0)
+    return np.column_stack(
+        [-110.0 + SPEED_MPS * t, np.full(len(t), -95.0), np.full(len(t), HEIGHT_M)]
+    ), np.full(len(t), 90.0)

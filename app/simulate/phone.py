@@ -35,15 +35,21 @@ def walking_pan(speed: float = 1.4, heading_amp: float = 25.0, pitch_amp: float 
     nodding; camera heading 0 +- heading_amp, pitch +- pitch_amp (deg)."""
 
     def position(t: np.ndarray) -> np.ndarray:
-        return np.column_stack([speed * t, 2.0 * np.sin(0.2 * t), 1.5 + 0.03 * np.sin(2 * np.pi * 1.8 * t)])
+        return np.column_stack(
+            [speed * t, 2.0 * np.sin(0.2 * t), 1.5 + 0.03 * np.sin(2 * np.pi * 1.8 * t)]
+        )
 
     def attitude(t: np.ndarray) -> np.ndarray:
-        return rotations.camera_quat_from_hpr(heading_amp * np.sin(0.35 * t), pitch_amp * np.sin(0.6 * t), 3.0 * np.sin(0.9 * t))
+        return rotations.camera_quat_from_hpr(
+            heading_amp * np.sin(0.35 * t), pitch_amp * np.sin(0.6 * t), 3.0 * np.sin(0.9 * t)
+        )
 
     return Motion(position, attitude)
 
 
-def jittered_clock(t0: float, t1: float, rate: float, jitter: float, rng: np.random.Generator) -> np.ndarray:
+def jittered_clock(
+    t0: float, t1: float, rate: float, jitter: float, rng: np.random.Generator
+) -> np.ndarray:
     """Sample times from t0 to t1 at `rate` Hz with uniform jitter of +-jitter/rate, increasing."""
     n = int((t1 - t0) * rate)
     t = t0 + np.arange(n) / rate + rng.uniform(-jitter, jitter, n) / rate
@@ -149,20 +155,37 @@ def write_session(
     write_csv(out / "acc.csv", ["t", "x", "y", "z"], [ta, specific_force(motion, rel(ta))])
     if with_mag:
         tm = jittered_clock(*span, 50.0, 0.2, rng)
-        write_csv(out / "mag.csv", ["t", "x", "y", "z"], [tm, rotations.rotate(rotations.conjugate(motion.attitude(rel(tm))), np.tile(field_enu, (len(tm), 1)))])
+        write_csv(
+            out / "mag.csv",
+            ["t", "x", "y", "z"],
+            [
+                tm,
+                rotations.rotate(
+                    rotations.conjugate(motion.attitude(rel(tm))), np.tile(field_enu, (len(tm), 1))
+                ),
+            ],
+        )
     tq = np.arange(span[0], span[1], 0.01)
     write_csv(out / "truth.csv", ["t", "qw", "qx", "qy", "qz"], [tq, motion.attitude(rel(tq))])
     tf = np.arange(np.ceil(span[0]), span[1], 1.0)
     p = motion.position(rel(tf))
     v = (motion.position(rel(tf) + 1e-3) - motion.position(rel(tf) - 1e-3)) / 2e-3
     llh = frame.enu_to_geodetic(p)
-    write_csv(out / "gnss.csv", ["t", "lat", "lon", "h", "vel_e", "vel_n", "vel_u"], [tf, llh[:, 0], llh[:, 1], llh[:, 2], v[:, 0], v[:, 1], v[:, 2]])
+    write_csv(
+        out / "gnss.csv",
+        ["t", "lat", "lon", "h", "vel_e", "vel_n", "vel_u"],
+        [tf, llh[:, 0], llh[:, 1], llh[:, 2], v[:, 0], v[:, 1], v[:, 2]],
+    )
     n_frames = int(duration_s * 30)
-    pts = np.arange(n_frames) / 30.0 + np.concatenate([[0.0], rng.uniform(-0.002, 0.002, n_frames - 1)])
+    pts = np.arange(n_frames) / 30.0 + np.concatenate(
+        [[0.0], rng.uniform(-0.002, 0.002, n_frames - 1)]
+    )
     write_video(out / "clip.mp4", pts, video_size, rotation_cw)
     scene_line = f'path = "{Path(scene).resolve()}"' if scene else 'path = "scene.obj"'
     if not scene:
-        (out / "scene.obj").write_text("v -100 -100 0\nv 100 -100 0\nv 100 100 0\nv -100 100 0\nf 1 2 3\nf 1 3 4\n")
+        (out / "scene.obj").write_text(
+            "v -100 -100 0\nv 100 -100 0\nv 100 100 0\nv -100 100 0\nf 1 2 3\nf 1 3 4\n"
+        )
     mag_line = 'mag = "mag.csv"\n' if with_mag else ""
     manifest = out / "session.toml"
     manifest.write_text(

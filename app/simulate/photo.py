@@ -11,10 +11,10 @@ from PIL import Image, ImageDraw, ImageFilter, ImageFont
 from app import rotations
 from app.camera import Camera, Intrinsics
 from app.config import ProjectionSettings
+from app.constants import DEFAULT_FAR_M, DEFAULT_NEAR_M
 from app.geo import LocalFrame
 from app.render.still import render_still
 from app.scene.mesh import MeshData
-from app.constants import DEFAULT_FAR_M, DEFAULT_NEAR_M
 
 
 @dataclass(frozen=True)
@@ -36,7 +36,13 @@ def photo_camera(pose: PhotoPose, frame: LocalFrame) -> Camera:
     """The projector camera of a pose in `frame`."""
     position = frame.geodetic_to_enu(pose.lat_deg, pose.lon_deg, pose.h_m)
     q = rotations.camera_quat_from_hpr(pose.heading_deg, pose.pitch_deg, pose.roll_deg)
-    return Camera.create(Intrinsics.from_fov(pose.width, pose.height, pose.hfov_deg), position, q, near=DEFAULT_NEAR_M, far=DEFAULT_FAR_M)
+    return Camera.create(
+        Intrinsics.from_fov(pose.width, pose.height, pose.hfov_deg),
+        position,
+        q,
+        near=DEFAULT_NEAR_M,
+        far=DEFAULT_FAR_M,
+    )
 
 
 def make_photo(mesh: MeshData, camera: Camera, seed: int = 11) -> np.ndarray:
@@ -49,16 +55,29 @@ def make_photo(mesh: MeshData, camera: Camera, seed: int = 11) -> np.ndarray:
     # A red banner hung across the lower part of the view.
     bx0, by0, bx1, by1 = int(w * 0.30), int(h * 0.50), int(w * 0.70), int(h * 0.58)
     draw.rectangle([bx0, by0, bx1, by1], fill=(200, 24, 36), outline=(255, 255, 255), width=2)
-    draw.text(((bx0 + bx1) / 2, (by0 + by1) / 2), "WELCOME", fill=(255, 255, 255), font=ImageFont.load_default(size=int(h * 0.06)), anchor="mm")
+    draw.text(
+        ((bx0 + bx1) / 2, (by0 + by1) / 2),
+        "WELCOME",
+        fill=(255, 255, 255),
+        font=ImageFont.load_default(size=int(h * 0.06)),
+        anchor="mm",
+    )
     # People: simple silhouettes standing on the lower third.
     for _ in range(5):
         x = rng.uniform(0.08, 0.92) * w
         base = rng.uniform(0.72, 0.95) * h
         size = base / h * 40
         colour = tuple(int(c) for c in rng.integers(20, 230, 3))
-        draw.ellipse([x - size * 0.12, base - size, x + size * 0.12, base - size * 0.76], fill=(230, 190, 160))
-        draw.rectangle([x - size * 0.18, base - size * 0.76, x + size * 0.18, base - size * 0.3], fill=colour)
-        draw.rectangle([x - size * 0.14, base - size * 0.3, x + size * 0.14, base], fill=(40, 40, 60))
+        draw.ellipse(
+            [x - size * 0.12, base - size, x + size * 0.12, base - size * 0.76],
+            fill=(230, 190, 160),
+        )
+        draw.rectangle(
+            [x - size * 0.18, base - size * 0.76, x + size * 0.18, base - size * 0.3], fill=colour
+        )
+        draw.rectangle(
+            [x - size * 0.14, base - size * 0.3, x + size * 0.14, base], fill=(40, 40, 60)
+        )
     # A car at the right.
     cx, cy = w * 0.82, h * 0.86
     draw.rounded_rectangle([cx - 60, cy - 28, cx + 60, cy + 10], radius=10, fill=(30, 90, 170))

@@ -57,7 +57,9 @@ class SensorErrors:
     drop: float = 0.005
 
 
-def callback_clock(t0: float, t1: float, rate_hz: float, e: SensorErrors, rng: np.random.Generator) -> np.ndarray:
+def callback_clock(
+    t0: float, t1: float, rate_hz: float, e: SensorErrors, rng: np.random.Generator
+) -> np.ndarray:
     """Increasing sample times at about rate_hz with jitter and dropped callbacks."""
     n = int((t1 - t0) * rate_hz)
     t = t0 + (np.arange(n) + rng.uniform(-e.jitter, e.jitter, n)) / rate_hz
@@ -65,7 +67,9 @@ def callback_clock(t0: float, t1: float, rate_hz: float, e: SensorErrors, rng: n
     return t[np.concatenate([[True], np.diff(t) > 1e-6])]
 
 
-def gauss_markov(t: np.ndarray, sigma: float, tau: float, rng: np.random.Generator, dims: int = 1) -> np.ndarray:
+def gauss_markov(
+    t: np.ndarray, sigma: float, tau: float, rng: np.random.Generator, dims: int = 1
+) -> np.ndarray:
     """First-order Gauss-Markov process (stationary std sigma, correlation time tau s) at times t."""
     out = np.empty((len(t), dims))
     out[0] = rng.normal(0.0, sigma, dims)
@@ -75,17 +79,29 @@ def gauss_markov(t: np.ndarray, sigma: float, tau: float, rng: np.random.Generat
     return out
 
 
-def gyroscope(t: np.ndarray, rates: np.ndarray, e: SensorErrors, rng: np.random.Generator) -> np.ndarray:
+def gyroscope(
+    t: np.ndarray, rates: np.ndarray, e: SensorErrors, rng: np.random.Generator
+) -> np.ndarray:
     """rad/s: body rate + constant bias + bias random walk + white noise (per-sample std from the
     noise density and the local sample interval)."""
     dt = np.diff(t, prepend=t[0] - np.median(np.diff(t)))
     bias = rng.normal(0.0, e.gyro_bias_dps * DEG, 3)
-    walk = np.cumsum(rng.normal(0.0, 1.0, (len(t), 3)) * (e.gyro_bias_walk_dps_rts * DEG) * np.sqrt(dt)[:, None], axis=0)
-    noise = rng.normal(0.0, 1.0, (len(t), 3)) * (e.gyro_noise_dps_rthz * DEG) / np.sqrt(dt)[:, None] * np.sqrt(0.5)
+    walk = np.cumsum(
+        rng.normal(0.0, 1.0, (len(t), 3)) * (e.gyro_bias_walk_dps_rts * DEG) * np.sqrt(dt)[:, None],
+        axis=0,
+    )
+    noise = (
+        rng.normal(0.0, 1.0, (len(t), 3))
+        * (e.gyro_noise_dps_rthz * DEG)
+        / np.sqrt(dt)[:, None]
+        * np.sqrt(0.5)
+    )
     return rates + bias + walk + noise
 
 
-def accelerometer(t: np.ndarray, force: np.ndarray, e: SensorErrors, rng: np.random.Generator) -> np.ndarray:
+def accelerometer(
+    t: np.ndarray, force: np.ndarray, e: SensorErrors, rng: np.random.Generator
+) -> np.ndarray:
     """m/s^2: specific force + constant bias + white noise."""
     dt = np.median(np.diff(t))
     bias = rng.normal(0.0, e.acc_bias_mg * 1e-3 * G, 3)
@@ -93,7 +109,13 @@ def accelerometer(t: np.ndarray, force: np.ndarray, e: SensorErrors, rng: np.ran
     return force + bias + noise
 
 
-def magnetometer(q_device: np.ndarray, field_enu: np.ndarray, disturbance_enu: np.ndarray, e: SensorErrors, rng: np.random.Generator) -> np.ndarray:
+def magnetometer(
+    q_device: np.ndarray,
+    field_enu: np.ndarray,
+    disturbance_enu: np.ndarray,
+    e: SensorErrors,
+    rng: np.random.Generator,
+) -> np.ndarray:
     """uT in the device frame: (WMM field + local disturbance) seen by the device, through soft-
     and hard-iron errors, plus noise. disturbance_enu: (N, 3) extra field at each sample."""
     body = rotations.rotate(rotations.conjugate(q_device), field_enu[None, :] + disturbance_enu)
@@ -102,9 +124,13 @@ def magnetometer(q_device: np.ndarray, field_enu: np.ndarray, disturbance_enu: n
     return body @ soft.T + hard + rng.normal(0.0, e.mag_noise_ut, body.shape)
 
 
-def phone_orientation(t: np.ndarray, q_true: np.ndarray, e: SensorErrors, rng: np.random.Generator) -> np.ndarray:
+def phone_orientation(
+    t: np.ndarray, q_true: np.ndarray, e: SensorErrors, rng: np.random.Generator
+) -> np.ndarray:
     """The phone's own fused attitude: truth with a wandering heading error and tilt noise."""
     heading = gauss_markov(t, e.phone_heading_sigma_deg, e.phone_heading_tau_s, rng)[:, 0]
     tilt = rng.normal(0.0, e.phone_tilt_sigma_deg, (len(t), 2))
-    err = rotations.from_scipy(rotations.to_scipy([1.0, 0, 0, 0]).from_rotvec(np.column_stack([tilt, heading]) * DEG))
+    err = rotations.from_scipy(
+        rotations.to_scipy([1.0, 0, 0, 0]).from_rotvec(np.column_stack([tilt, heading]) * DEG)
+    )
     return rotations.canonical(rotations.multiply(err, q_true))

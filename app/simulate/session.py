@@ -29,9 +29,9 @@ from app.scene import load_scene, shapes
 from app.scene.mesh import MeshData
 from app.simulate import sensors
 from app.simulate.phone import Motion, body_rates, specific_force
+from app.simulate.stadium import HALL_MAX, HALL_MIN, SITE_ORIGIN
 from app.simulate.video import render_video
 from app.simulate.world import world_of
-from app.simulate.stadium import HALL_MAX, HALL_MIN, SITE_ORIGIN
 from app.trajectory import device_to_camera
 
 START_UNIX_S = 1_763_200_000.0  # 2025-11-15T09:46:40Z
@@ -93,7 +93,11 @@ def camera_hpr(t: np.ndarray) -> np.ndarray:
     target = np.array([0.0, 0.0, 8.0])
     d = target - p
     heading = np.degrees(np.arctan2(d[:, 0], d[:, 1]))
-    heading = heading + 12.0 * np.sin(2 * np.pi * t / 20.0) + 70.0 * _window(t, QUICK_PAN[0], QUICK_PAN[1] - 2.0, 2.0)
+    heading = (
+        heading
+        + 12.0 * np.sin(2 * np.pi * t / 20.0)
+        + 70.0 * _window(t, QUICK_PAN[0], QUICK_PAN[1] - 2.0, 2.0)
+    )
     heading = heading + 1.0 * np.sin(2 * np.pi * 0.7 * t + 0.3) + 0.5 * np.sin(2 * np.pi * 1.3 * t)
     pitch = np.degrees(np.arctan2(d[:, 2], np.hypot(d[:, 0], d[:, 1]))) + 2.0
     pitch = pitch + 22.0 * _window(t, ROOF_LOOK[0], ROOF_LOOK[1] - 2.0, 2.0)
@@ -109,10 +113,14 @@ def camera_attitude(t: np.ndarray) -> np.ndarray:
 def device_motion() -> Motion:
     """The phone's motion: device -> ENU = camera -> ENU turned back by the camera's mounting."""
     q_dc_inv = rotations.conjugate(device_to_camera(ROTATION_CW))
-    return Motion(walk_position, lambda t: rotations.canonical(rotations.multiply(camera_attitude(t), q_dc_inv)))
+    return Motion(
+        walk_position,
+        lambda t: rotations.canonical(rotations.multiply(camera_attitude(t), q_dc_inv)),
+    )
 
 
 # --- content the model lacks ---------------------------------------------------------------------
+
 
 @dataclass(frozen=True)
 class Mover:
@@ -137,7 +145,13 @@ def _banner_texture() -> np.ndarray:
     img = Image.new("RGB", (512, 64), (190, 20, 30))
     d = ImageDraw.Draw(img)
     d.rectangle([2, 2, 509, 61], outline=(255, 255, 255), width=3)
-    d.text((256, 32), "OPEN DAY  15 NOV", fill=(255, 255, 255), font=ImageFont.load_default(size=40), anchor="mm")
+    d.text(
+        (256, 32),
+        "OPEN DAY  15 NOV",
+        fill=(255, 255, 255),
+        font=ImageFont.load_default(size=40),
+        anchor="mm",
+    )
     return np.asarray(img)
 
 
@@ -149,8 +163,13 @@ def _mover_vertices(m: Mover, t: float) -> np.ndarray:
 
 def extras() -> list:
     """Primitives of the banner (static) and the movers (their positions updated per frame)."""
-    banner = shapes.quad([-10.0, HALL_MIN[1] - 0.15, 5.0], [20.0, 0, 0], [0, 0, 2.5]).primitive((1, 1, 1, 1), _banner_texture(), "banner")
-    movers = [shapes.box(*np.split(np.zeros(6), 2)).primitive((*m.colour, 1.0), name=f"mover{i}") for i, m in enumerate(MOVERS)]
+    banner = shapes.quad([-10.0, HALL_MIN[1] - 0.15, 5.0], [20.0, 0, 0], [0, 0, 2.5]).primitive(
+        (1, 1, 1, 1), _banner_texture(), "banner"
+    )
+    movers = [
+        shapes.box(*np.split(np.zeros(6), 2)).primitive((*m.colour, 1.0), name=f"mover{i}")
+        for i, m in enumerate(MOVERS)
+    ]
     for m, prim in zip(MOVERS, movers):
         prim.positions = _mover_vertices(m, 0.0).astype(np.float32)
     return [banner, *movers]
@@ -163,7 +182,9 @@ VALUE_FMT = "%.7g"  # sensor values: 7 significant digits is below every noise l
 DEGREE_FMT = "%.9f"  # latitude/longitude: 1e-9 deg is 0.1 mm
 
 
-def _csv(path: Path, header: list[str], columns: list[np.ndarray], fmt: list[str] | None = None) -> None:
+def _csv(
+    path: Path, header: list[str], columns: list[np.ndarray], fmt: list[str] | None = None
+) -> None:
     """Write columns under a header; the first column is a time unless `fmt` says otherwise."""
     data = np.column_stack(columns)
     fmt = fmt or [TIME_FMT] + [VALUE_FMT] * (data.shape[1] - 1)
@@ -190,7 +211,9 @@ class SampleConfig:
     world: bool = True  # render from a world that differs from the model (False: the model itself)
 
 
-def write_sample_session(out: str | Path, scene_path: str | Path, config: SampleConfig = SampleConfig()) -> Path:
+def write_sample_session(
+    out: str | Path, scene_path: str | Path, config: SampleConfig = SampleConfig()
+) -> Path:
     """Write the sample session (manifest, video, logs, truth) into `out`; returns the manifest."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -205,31 +228,61 @@ def write_sample_session(out: str | Path, scene_path: str | Path, config: Sample
         return t - t0
 
     tg = sensors.callback_clock(*span, 100.0, e, rng)
-    _csv(out / "gyr.csv", ["t", "x", "y", "z"], [tg, sensors.gyroscope(tg, body_rates(motion, rel(tg)), e, rng)])
+    _csv(
+        out / "gyr.csv",
+        ["t", "x", "y", "z"],
+        [tg, sensors.gyroscope(tg, body_rates(motion, rel(tg)), e, rng)],
+    )
     ta = sensors.callback_clock(*span, 100.0, e, rng)
-    _csv(out / "acc.csv", ["t", "x", "y", "z"], [ta, sensors.accelerometer(ta, specific_force(motion, rel(ta)), e, rng)])
+    _csv(
+        out / "acc.csv",
+        ["t", "x", "y", "z"],
+        [ta, sensors.accelerometer(ta, specific_force(motion, rel(ta)), e, rng)],
+    )
     tm = sensors.callback_clock(*span, 50.0, e, rng)
     qm = motion.attitude(rel(tm))
     field = field_enu(*SITE_ORIGIN, t0)
-    _csv(out / "mag.csv", ["t", "x", "y", "z"], [tm, sensors.magnetometer(qm, field, _disturbance(motion.position(rel(tm)), e), e, rng)])
+    _csv(
+        out / "mag.csv",
+        ["t", "x", "y", "z"],
+        [tm, sensors.magnetometer(qm, field, _disturbance(motion.position(rel(tm)), e), e, rng)],
+    )
     to = sensors.callback_clock(*span, 50.0, e, rng)
     q_phone = sensors.phone_orientation(to, motion.attitude(rel(to)), e, rng)
     _csv(out / "phone_orientation.csv", ["t", "qw", "qx", "qy", "qz"], [to, q_phone])
 
     tf = np.arange(np.ceil(span[0]), span[1], 1.0)
     p_true = motion.position(rel(tf))
-    err = np.column_stack([sensors.gauss_markov(tf, e.gnss_sigma_h_m, e.gnss_tau_s, rng, 2), sensors.gauss_markov(tf, e.gnss_sigma_v_m, e.gnss_tau_s, rng)])
+    err = np.column_stack(
+        [
+            sensors.gauss_markov(tf, e.gnss_sigma_h_m, e.gnss_tau_s, rng, 2),
+            sensors.gauss_markov(tf, e.gnss_sigma_v_m, e.gnss_tau_s, rng),
+        ]
+    )
     llh = frame.enu_to_geodetic(p_true + err)
-    v = (motion.position(rel(tf) + 0.05) - motion.position(rel(tf) - 0.05)) / 0.1 + rng.normal(0, e.gnss_speed_sigma, (len(tf), 3))
+    v = (motion.position(rel(tf) + 0.05) - motion.position(rel(tf) - 0.05)) / 0.1 + rng.normal(
+        0, e.gnss_speed_sigma, (len(tf), 3)
+    )
     speed = np.hypot(v[:, 0], v[:, 1])
     bearing = np.degrees(np.arctan2(v[:, 0], v[:, 1])) % 360.0
-    _csv(out / "gnss.csv", ["t", "lat", "lon", "h", "speed", "bearing", "h_acc"], [tf, llh[:, 0], llh[:, 1], llh[:, 2], speed, bearing, np.full(len(tf), e.gnss_sigma_h_m)],
-         [TIME_FMT, DEGREE_FMT, DEGREE_FMT, "%.3f", "%.3f", "%.2f", "%.1f"])
+    _csv(
+        out / "gnss.csv",
+        ["t", "lat", "lon", "h", "speed", "bearing", "h_acc"],
+        [tf, llh[:, 0], llh[:, 1], llh[:, 2], speed, bearing, np.full(len(tf), e.gnss_sigma_h_m)],
+        [TIME_FMT, DEGREE_FMT, DEGREE_FMT, "%.3f", "%.3f", "%.2f", "%.1f"],
+    )
 
     tt = np.arange(span[0], span[1], 0.01)
-    _csv(out / "truth_orientation.csv", ["t", "qw", "qx", "qy", "qz"], [tt, motion.attitude(rel(tt))])
+    _csv(
+        out / "truth_orientation.csv", ["t", "qw", "qx", "qy", "qz"], [tt, motion.attitude(rel(tt))]
+    )
     llh_true = frame.enu_to_geodetic(motion.position(rel(tt)))
-    _csv(out / "truth_position.csv", ["t", "lat", "lon", "h"], [tt, llh_true[:, 0], llh_true[:, 1], llh_true[:, 2]], [TIME_FMT, DEGREE_FMT, DEGREE_FMT, "%.4f"])
+    _csv(
+        out / "truth_position.csv",
+        ["t", "lat", "lon", "h"],
+        [tt, llh_true[:, 0], llh_true[:, 1], llh_true[:, 2]],
+        [TIME_FMT, DEGREE_FMT, DEGREE_FMT, "%.4f"],
+    )
 
     n = int(config.duration_s * FPS)
     pts = np.arange(n) / FPS + np.concatenate([[0.0], rng.uniform(-0.003, 0.003, n - 1)])
@@ -242,7 +295,15 @@ def write_sample_session(out: str | Path, scene_path: str | Path, config: Sample
     except ValueError:
         pass
     manifest = out / "session.toml"
-    manifest.write_text(MANIFEST.format(scene=scene_rel.as_posix(), origin=SITE_ORIGIN, start=t0 + SYNC_ERROR_S, hfov=HFOV_DEG, sync=SYNC_ERROR_S * 1000))
+    manifest.write_text(
+        MANIFEST.format(
+            scene=scene_rel.as_posix(),
+            origin=SITE_ORIGIN,
+            start=t0 + SYNC_ERROR_S,
+            hfov=HFOV_DEG,
+            sync=SYNC_ERROR_S * 1000,
+        )
+    )
     return manifest
 
 
@@ -282,7 +343,9 @@ frame_times = "truth_frames.csv"
 """
 
 
-def render_frames(path: Path, scene_path: str | Path, pts: np.ndarray, crf: int, world: bool = True) -> Path:
+def render_frames(
+    path: Path, scene_path: str | Path, pts: np.ndarray, crf: int, world: bool = True
+) -> Path:
     """Render the video from the true camera poses with the project's renderer, extras included;
     with `world`, from the world that differs from the model (app.simulate.world)."""
     base = load_scene(scene_path, LocalFrame(*SITE_ORIGIN))
@@ -292,12 +355,27 @@ def render_frames(path: Path, scene_path: str | Path, pts: np.ndarray, crf: int,
 
     def move(renderer, k: int) -> None:
         for i, m in enumerate(MOVERS):
-            renderer.scene.update_positions(first_mover + i, _mover_vertices(m, float(pts[k])).astype(np.float32))
+            renderer.scene.update_positions(
+                first_mover + i, _mover_vertices(m, float(pts[k])).astype(np.float32)
+            )
 
     w, h = VIDEO_SIZE
     intr = Intrinsics.from_fov(w, h, HFOV_DEG)
     light, effects = (seen.light_dir, seen.camera) if seen else (None, None)
-    return render_video(path, mesh, intr, walk_position(pts), camera_attitude(pts), pts, ROTATION_CW, crf, "2025-11-15T09:46:40Z", move, light, effects)
+    return render_video(
+        path,
+        mesh,
+        intr,
+        walk_position(pts),
+        camera_attitude(pts),
+        pts,
+        ROTATION_CW,
+        crf,
+        "2025-11-15T09:46:40Z",
+        move,
+        light,
+        effects,
+    )
 
 
 def quick_config(duration_s: float = 8.0) -> SampleConfig:

@@ -73,7 +73,11 @@ def ground_texture(rng: np.random.Generator) -> Image.Image:
     n = GROUND_PX
     m_per_px = 2 * GROUND_HALF / n
     grass = np.array([86, 128, 62], np.float32)
-    base = grass + 18 * _noise(rng, (n, n), 32)[..., None] + 6 * rng.standard_normal((n, n, 1)).astype(np.float32)
+    base = (
+        grass
+        + 18 * _noise(rng, (n, n), 32)[..., None]
+        + 6 * rng.standard_normal((n, n, 1)).astype(np.float32)
+    )
     img = Image.fromarray(np.clip(base, 0, 255).astype(np.uint8))
     draw = ImageDraw.Draw(img)
 
@@ -86,7 +90,12 @@ def ground_texture(rng: np.random.Generator) -> Image.Image:
 
     # Plaza around the hall and paths to the edges.
     rect(-55, -50, 55, 50, fill=(168, 164, 156))
-    for e0, n0, e1, n1 in ((-3, 50, 3, 180), (-3, -180, 3, -50), (55, -3, 180, 3), (-180, -3, -55, 3)):
+    for e0, n0, e1, n1 in (
+        (-3, 50, 3, 180),
+        (-3, -180, 3, -50),
+        (55, -3, 180, 3),
+        (-180, -3, -55, 3),
+    ):
         rect(e0, n0, e1, n1, fill=(150, 146, 140))
     # Running track south of the hall: 8 lanes around a grass infield, white lane lines.
     cx, cy, straight, r_in = 0.0, -88.0, 60.0, 14.0
@@ -98,7 +107,9 @@ def ground_texture(rng: np.random.Generator) -> Image.Image:
         radius = r_in + lane * 1.22
         x0, y0 = px(cx - straight / 2 - radius, cy + radius)
         x1, y1 = px(cx + straight / 2 + radius, cy - radius)
-        draw.rounded_rectangle([x0, y0, x1, y1], radius=radius / m_per_px, outline=(240, 240, 235), width=1)
+        draw.rounded_rectangle(
+            [x0, y0, x1, y1], radius=radius / m_per_px, outline=(240, 240, 235), width=1
+        )
     # Finish line and lane numbers.
     x0, y0 = px(cx + 10, cy - r_in)
     x1, y1 = px(cx + 10.6, cy - r_in - 9.8)
@@ -121,7 +132,9 @@ def ground_texture(rng: np.random.Generator) -> Image.Image:
     return img
 
 
-def _facade(width_m: float, height_m: float, wall: tuple[int, int, int], rng: np.random.Generator) -> tuple[Image.Image, ImageDraw.ImageDraw, float]:
+def _facade(
+    width_m: float, height_m: float, wall: tuple[int, int, int], rng: np.random.Generator
+) -> tuple[Image.Image, ImageDraw.ImageDraw, float]:
     w = max(8, int(round(width_m / FACADE_M_PER_PX)))
     h = max(8, int(round(height_m / FACADE_M_PER_PX)))
     base = np.array(wall, np.float32) + 10 * _noise(rng, (h, w), 16)[..., None]
@@ -129,7 +142,18 @@ def _facade(width_m: float, height_m: float, wall: tuple[int, int, int], rng: np
     return img, ImageDraw.Draw(img), w / width_m
 
 
-def _windows(draw: ImageDraw.ImageDraw, ppm: float, height_m: float, x0_m: float, x1_m: float, floor_m: float, bay_m: float, first_floor: int = 1, frame: tuple[int, int, int] = (60, 60, 64), glass: tuple[int, int, int] = (70, 100, 130)) -> None:
+def _windows(
+    draw: ImageDraw.ImageDraw,
+    ppm: float,
+    height_m: float,
+    x0_m: float,
+    x1_m: float,
+    floor_m: float,
+    bay_m: float,
+    first_floor: int = 1,
+    frame: tuple[int, int, int] = (60, 60, 64),
+    glass: tuple[int, int, int] = (70, 100, 130),
+) -> None:
     """A grid of windows on the wall between x0_m and x1_m (metres along the strip)."""
     floors = int(height_m // floor_m)
     bays = int((x1_m - x0_m - 1.0) // bay_m)
@@ -140,12 +164,27 @@ def _windows(draw: ImageDraw.ImageDraw, ppm: float, height_m: float, x0_m: float
         for b in range(bays):
             left = x0_m + margin + b * bay_m + bay_m * 0.2
             right = x0_m + margin + (b + 1) * bay_m - bay_m * 0.2
-            draw.rectangle([left * ppm, top * ppm, right * ppm, bottom * ppm], fill=glass, outline=frame, width=max(1, int(0.15 * ppm)))
+            draw.rectangle(
+                [left * ppm, top * ppm, right * ppm, bottom * ppm],
+                fill=glass,
+                outline=frame,
+                width=max(1, int(0.15 * ppm)),
+            )
             mid = (left + right) / 2
-            draw.line([mid * ppm, top * ppm, mid * ppm, bottom * ppm], fill=frame, width=max(1, int(0.1 * ppm)))
+            draw.line(
+                [mid * ppm, top * ppm, mid * ppm, bottom * ppm],
+                fill=frame,
+                width=max(1, int(0.1 * ppm)),
+            )
 
 
-def _centred_text(draw: ImageDraw.ImageDraw, text: str, centre_px: tuple[float, float], size_px: int, fill: tuple[int, int, int]) -> None:
+def _centred_text(
+    draw: ImageDraw.ImageDraw,
+    text: str,
+    centre_px: tuple[float, float],
+    size_px: int,
+    fill: tuple[int, int, int],
+) -> None:
     draw.text(centre_px, text, fill=fill, font=_font(size_px), anchor="mm")
 
 
@@ -165,15 +204,33 @@ def hall_texture(rng: np.random.Generator) -> Image.Image:
         # Doors at ground level: three double doors per wall.
         for k in (0.25, 0.5, 0.75):
             centre = x0 + width * k
-            draw.rectangle([(centre - 2.0) * ppm, (height - 3.2) * ppm, (centre + 2.0) * ppm, (height - 0.05) * ppm], fill=(40, 44, 52), outline=(200, 200, 200), width=2)
-            draw.line([centre * ppm, (height - 3.2) * ppm, centre * ppm, height * ppm], fill=(200, 200, 200), width=2)
+            draw.rectangle(
+                [
+                    (centre - 2.0) * ppm,
+                    (height - 3.2) * ppm,
+                    (centre + 2.0) * ppm,
+                    (height - 0.05) * ppm,
+                ],
+                fill=(40, 44, 52),
+                outline=(200, 200, 200),
+                width=2,
+            )
+            draw.line(
+                [centre * ppm, (height - 3.2) * ppm, centre * ppm, height * ppm],
+                fill=(200, 200, 200),
+                width=2,
+            )
         # Big wall number near the west end of each wall, compass letter near the east end.
-        _centred_text(draw, numbers[facing], ((x0 + 6) * ppm, 8.5 * ppm), int(9 * ppm), (180, 30, 30))
+        _centred_text(
+            draw, numbers[facing], ((x0 + 6) * ppm, 8.5 * ppm), int(9 * ppm), (180, 30, 30)
+        )
         _centred_text(draw, facing, ((x1 - 6) * ppm, 8.5 * ppm), int(7 * ppm), (30, 60, 160))
     # The south front carries the name in 4 m letters.
     s0, s1 = spans[0][1], spans[0][2]
     draw.rectangle([(s0 + 15) * ppm, 3.6 * ppm, (s1 - 15) * ppm, 9.6 * ppm], fill=(250, 250, 245))
-    _centred_text(draw, "GEOFUSE ARENA", (((s0 + s1) / 2) * ppm, 6.6 * ppm), int(4.2 * ppm), (20, 40, 120))
+    _centred_text(
+        draw, "GEOFUSE ARENA", (((s0 + s1) / 2) * ppm, 6.6 * ppm), int(4.2 * ppm), (20, 40, 120)
+    )
     return img
 
 
@@ -189,7 +246,9 @@ def roof_texture(rng: np.random.Generator) -> Image.Image:
         for col in range(6):
             x = (8 + col * 13) * ppm
             y = (10 + row * 25) * ppm
-            draw.rectangle([x, y, x + 6 * ppm, y + 4 * ppm], fill=(150, 190, 220), outline=(70, 70, 70))
+            draw.rectangle(
+                [x, y, x + 6 * ppm, y + 4 * ppm], fill=(150, 190, 220), outline=(70, 70, 70)
+            )
     _centred_text(draw, "H", (img.width / 2, img.height / 2), int(18 * ppm), (240, 200, 40))
     return img
 
@@ -200,8 +259,22 @@ def building_texture(b: Building, rng: np.random.Generator) -> Image.Image:
     img, draw, ppm = _facade(spans[-1][2], height, b.wall_rgb, rng)
     for facing, x0, x1 in spans:
         _windows(draw, ppm, height, x0 + 1, x1 - 1, floor_m=b.floor_m, bay_m=3.2, first_floor=0)
-        draw.rectangle([((x0 + x1) / 2 - 1.5) * ppm, (height - 2.8) * ppm, ((x0 + x1) / 2 + 1.5) * ppm, height * ppm], fill=(50, 40, 36))
-        _centred_text(draw, f"B{b.name}", (((x0 + x1) / 2) * ppm, min(4.0, height * 0.25) * ppm), int(min(5.0, height * 0.3) * ppm), (240, 240, 240))
+        draw.rectangle(
+            [
+                ((x0 + x1) / 2 - 1.5) * ppm,
+                (height - 2.8) * ppm,
+                ((x0 + x1) / 2 + 1.5) * ppm,
+                height * ppm,
+            ],
+            fill=(50, 40, 36),
+        )
+        _centred_text(
+            draw,
+            f"B{b.name}",
+            (((x0 + x1) / 2) * ppm, min(4.0, height * 0.25) * ppm),
+            int(min(5.0, height * 0.3) * ppm),
+            (240, 240, 240),
+        )
     return img
 
 
@@ -212,7 +285,11 @@ def _enu_to_gltf(v: np.ndarray) -> np.ndarray:
 
 def _textured(shape: shapes.Shape, image: Image.Image, name: str) -> trimesh.Trimesh:
     material = trimesh.visual.material.PBRMaterial(
-        name=name, baseColorTexture=_jpeg(image), baseColorFactor=[255, 255, 255, 255], metallicFactor=0.0, roughnessFactor=1.0
+        name=name,
+        baseColorTexture=_jpeg(image),
+        baseColorFactor=[255, 255, 255, 255],
+        metallicFactor=0.0,
+        roughnessFactor=1.0,
     )
     return trimesh.Trimesh(
         vertices=_enu_to_gltf(shape.vertices),
@@ -229,15 +306,27 @@ def build_site(seed: int = 7) -> trimesh.Scene:
     g = GROUND_HALF
     ground = shapes.quad([-g, -g, 0.0], [2 * g, 0, 0], [0, 2 * g, 0])
     scene.add_geometry(_textured(ground, ground_texture(rng), "ground"), geom_name="ground")
-    scene.add_geometry(_textured(shapes.prism_sides(HALL_MIN, HALL_MAX), hall_texture(rng), "hall_walls"), geom_name="hall_walls")
-    roof = shapes.quad([HALL_MIN[0], HALL_MIN[1], HALL_MAX[2]], [HALL_MAX[0] - HALL_MIN[0], 0, 0], [0, HALL_MAX[1] - HALL_MIN[1], 0])
+    scene.add_geometry(
+        _textured(shapes.prism_sides(HALL_MIN, HALL_MAX), hall_texture(rng), "hall_walls"),
+        geom_name="hall_walls",
+    )
+    roof = shapes.quad(
+        [HALL_MIN[0], HALL_MIN[1], HALL_MAX[2]],
+        [HALL_MAX[0] - HALL_MIN[0], 0, 0],
+        [0, HALL_MAX[1] - HALL_MIN[1], 0],
+    )
     scene.add_geometry(_textured(roof, roof_texture(rng), "hall_roof"), geom_name="hall_roof")
     for b in BUILDINGS:
         walls = shapes.prism_sides(b.min_corner, b.max_corner)
         lo, hi = np.array(b.min_corner), np.array(b.max_corner)
         top = shapes.quad([lo[0], lo[1], hi[2]], [hi[0] - lo[0], 0, 0], [0, hi[1] - lo[1], 0])
-        scene.add_geometry(_textured(walls, building_texture(b, rng), f"building_{b.name}"), geom_name=f"building_{b.name}")
-        roof_mesh = trimesh.Trimesh(vertices=_enu_to_gltf(top.vertices), faces=top.faces, process=False)
+        scene.add_geometry(
+            _textured(walls, building_texture(b, rng), f"building_{b.name}"),
+            geom_name=f"building_{b.name}",
+        )
+        roof_mesh = trimesh.Trimesh(
+            vertices=_enu_to_gltf(top.vertices), faces=top.faces, process=False
+        )
         roof_mesh.visual.vertex_colors = np.tile([96, 98, 104, 255], (len(top.vertices), 1))
         scene.add_geometry(roof_mesh, geom_name=f"building_{b.name}_roof")
     return scene

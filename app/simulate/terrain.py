@@ -11,7 +11,16 @@ import numpy.typing as npt
 NODATA = -9999.0
 
 
-def write_geotiff(path: str | Path, data: npt.ArrayLike, crs: str, west: float, north: float, step_x: float, step_y: float, nodata: float | None = NODATA) -> Path:
+def write_geotiff(
+    path: str | Path,
+    data: npt.ArrayLike,
+    crs: str,
+    west: float,
+    north: float,
+    step_x: float,
+    step_y: float,
+    nodata: float | None = NODATA,
+) -> Path:
     """A north-up GeoTIFF: data (rows, cols) float heights or (bands, rows, cols) uint8 imagery,
     row 0 at the north; (west, north): the outer corner of pixel (0, 0) in `crs` units; steps in
     CRS units per pixel. NaN heights are written as nodata."""
@@ -37,5 +46,9 @@ def hills(rows: int, cols: int, step_m: float, seed: int = 3) -> np.ndarray:
     """(rows, cols) heights in metres: rolling hills (a few sines) plus fine roughness."""
     rng = np.random.default_rng(seed)
     y, x = np.mgrid[0:rows, 0:cols].astype(np.float64) * step_m
-    h = 40.0 * np.sin(x / 700.0) * np.cos(y / 900.0) + 15.0 * np.sin((x + y) / 230.0) + 6.0 * np.cos(x / 90.0 - y / 140.0)
+    h = (
+        40.0 * np.sin(x / 700.0) * np.cos(y / 900.0)
+        + 15.0 * np.sin((x + y) / 230.0)
+        + 6.0 * np.cos(x / 90.0 - y / 140.0)
+    )
     return 400.0 + h + rng.normal(0.0, 0.05, (rows, cols))

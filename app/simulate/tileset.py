@@ -61,14 +61,27 @@ def glb(
     if draco:
         import DracoPy
 
-        blob = DracoPy.encode(p.astype(np.float32), f, tex_coord=None if t is None else t.astype(np.float64), quantization_bits=16)
+        blob = DracoPy.encode(
+            p.astype(np.float32),
+            f,
+            tex_coord=None if t is None else t.astype(np.float64),
+            quantization_bits=16,
+        )
         mesh = DracoPy.decode(blob)
         ids = {a["attribute_type"]: a["unique_id"] for a in mesh.attributes}
         ext = {"bufferView": add_view(blob), "attributes": {"POSITION": ids[0]}}
         if t is not None:
             ext["attributes"]["TEXCOORD_0"] = ids[3]
         n = len(mesh.points)
-        accessors.append({"componentType": 5126, "count": n, "type": "VEC3", "min": p.min(0).tolist(), "max": p.max(0).tolist()})
+        accessors.append(
+            {
+                "componentType": 5126,
+                "count": n,
+                "type": "VEC3",
+                "min": p.min(0).tolist(),
+                "max": p.max(0).tolist(),
+            }
+        )
         prim["attributes"]["POSITION"] = 0
         if t is not None:
             accessors.append({"componentType": 5126, "count": n, "type": "VEC2"})
@@ -77,29 +90,69 @@ def glb(
         prim["indices"] = len(accessors) - 1
         prim["extensions"] = {"KHR_draco_mesh_compression": ext}
     else:
-        accessors.append({"bufferView": add_view(p.astype(np.float32).tobytes()), "componentType": 5126, "count": len(p), "type": "VEC3", "min": p.min(0).tolist(), "max": p.max(0).tolist()})
+        accessors.append(
+            {
+                "bufferView": add_view(p.astype(np.float32).tobytes()),
+                "componentType": 5126,
+                "count": len(p),
+                "type": "VEC3",
+                "min": p.min(0).tolist(),
+                "max": p.max(0).tolist(),
+            }
+        )
         prim["attributes"]["POSITION"] = 0
         if t is not None:
-            accessors.append({"bufferView": add_view(t.tobytes()), "componentType": 5126, "count": len(t), "type": "VEC2"})
+            accessors.append(
+                {
+                    "bufferView": add_view(t.tobytes()),
+                    "componentType": 5126,
+                    "count": len(t),
+                    "type": "VEC2",
+                }
+            )
             prim["attributes"]["TEXCOORD_0"] = 1
-        accessors.append({"bufferView": add_view(f.tobytes()), "componentType": 5125, "count": f.size, "type": "SCALAR"})
+        accessors.append(
+            {
+                "bufferView": add_view(f.tobytes()),
+                "componentType": 5125,
+                "count": f.size,
+                "type": "SCALAR",
+            }
+        )
         prim["indices"] = len(accessors) - 1
     material: dict = {"pbrMetallicRoughness": {"baseColorFactor": list(color)}}
-    doc: dict = {"asset": {"version": "2.0", "generator": "geofuse tests"}, "scene": 0, "scenes": [{"nodes": [0]}]}
+    doc: dict = {
+        "asset": {"version": "2.0", "generator": "geofuse tests"},
+        "scene": 0,
+        "scenes": [{"nodes": [0]}],
+    }
     if texture_rgb is not None:
         from PIL import Image
 
         png = io.BytesIO()
         Image.fromarray(np.asarray(texture_rgb, np.uint8)).save(png, "PNG")
-        doc["images"] = [{"bufferView": add_view(png.getvalue()), "mimeType": "image/ktx2" if ktx2 else "image/png"}]
-        doc["textures"] = [{"extensions": {"KHR_texture_basisu": {"source": 0}}} if ktx2 else {"source": 0}]
+        doc["images"] = [
+            {
+                "bufferView": add_view(png.getvalue()),
+                "mimeType": "image/ktx2" if ktx2 else "image/png",
+            }
+        ]
+        doc["textures"] = [
+            {"extensions": {"KHR_texture_basisu": {"source": 0}}} if ktx2 else {"source": 0}
+        ]
         if ktx2:
             extensions_required = (*extensions_required, "KHR_texture_basisu")
         material["pbrMetallicRoughness"]["baseColorTexture"] = {"index": 0}
     node: dict = {"mesh": 0}
     if node_matrix is not None:
         node["matrix"] = np.asarray(node_matrix, np.float64).T.ravel().tolist()
-    doc.update(nodes=[node], meshes=[{"primitives": [prim]}], materials=[material], accessors=accessors, bufferViews=views)
+    doc.update(
+        nodes=[node],
+        meshes=[{"primitives": [prim]}],
+        materials=[material],
+        accessors=accessors,
+        bufferViews=views,
+    )
     used = ["KHR_draco_mesh_compression"] if draco else []
     if used or extensions_required:
         doc["extensionsUsed"] = sorted(set(used) | set(extensions_required))
@@ -107,7 +160,12 @@ def glb(
     binary = b"".join(bin_parts)
     doc["buffers"] = [{"byteLength": len(binary)}]
     js = _pad(json.dumps(doc).encode(), b" ")
-    body = struct.pack("<II", len(js), 0x4E4F534A) + js + struct.pack("<II", len(binary), 0x004E4942) + binary
+    body = (
+        struct.pack("<II", len(js), 0x4E4F534A)
+        + js
+        + struct.pack("<II", len(binary), 0x004E4942)
+        + binary
+    )
     return b"glTF" + struct.pack("<II", 2, 12 + len(body)) + body
 
 
@@ -142,7 +200,13 @@ def other_tile(magic: bytes) -> bytes:
     return magic + struct.pack("<6I", 1, header + len(ft), len(ft), 0, 0, 0) + extra + ft
 
 
-def subtree(dims: int, levels: int, tiles: set[tuple[int, tuple[int, ...]]], contents: set[tuple[int, tuple[int, ...]]], children: set[tuple[int, ...]] | None = None) -> bytes:
+def subtree(
+    dims: int,
+    levels: int,
+    tiles: set[tuple[int, tuple[int, ...]]],
+    contents: set[tuple[int, tuple[int, ...]]],
+    children: set[tuple[int, ...]] | None = None,
+) -> bytes:
     """A binary subtree: available tiles and contents as (local level, local coords); child
     subtrees by their local coordinates at level `levels` (None: none)."""
 
@@ -198,11 +262,20 @@ def write_json(path: Path, doc: dict) -> Path:
 def region_of(frame: LocalFrame, lo_enu: npt.ArrayLike, hi_enu: npt.ArrayLike) -> list[float]:
     """A 3D Tiles region (rad, rad, rad, rad, m, m) enclosing an ENU box of `frame`."""
     lo, hi = np.asarray(lo_enu, np.float64), np.asarray(hi_enu, np.float64)
-    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    corners = np.array(
+        [[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])]
+    )
     geo = frame.enu_to_geodetic(corners)
     lat, lon, h = np.radians(geo[:, 0]), np.radians(geo[:, 1]), geo[:, 2]
     pad = 1e-7
-    return [float(lon.min() - pad), float(lat.min() - pad), float(lon.max() + pad), float(lat.max() + pad), float(h.min() - 1), float(h.max() + 1)]
+    return [
+        float(lon.min() - pad),
+        float(lat.min() - pad),
+        float(lon.max() + pad),
+        float(lat.max() + pad),
+        float(h.min() - 1),
+        float(h.max() + 1),
+    ]
 
 
 def box_of(lo_enu: npt.ArrayLike, hi_enu: npt.ArrayLike) -> list[float]:
@@ -235,7 +308,9 @@ def _block_shape(lo: np.ndarray, hi: np.ndarray, detail: int) -> shapes.Shape:
         (np.array([hi[0], hi[1], lo[2]]), -ex * d[0]),
         (np.array([lo[0], hi[1], lo[2]]), -ey * d[1]),
     ):
-        s, t = np.meshgrid(np.linspace(0, 1, detail + 1), np.linspace(0, 1, detail + 1), indexing="ij")
+        s, t = np.meshgrid(
+            np.linspace(0, 1, detail + 1), np.linspace(0, 1, detail + 1), indexing="ij"
+        )
         verts = origin + s.reshape(-1, 1) * edge + t.reshape(-1, 1) * ez * d[2]
         k = np.arange(detail)
         i, j = np.meshgrid(k, k, indexing="ij")
@@ -247,7 +322,14 @@ def _block_shape(lo: np.ndarray, hi: np.ndarray, detail: int) -> shapes.Shape:
     return shapes.Shape.concat(walls)
 
 
-def write_city(folder: Path, origin: tuple[float, float, float], size_m: float = 800.0, levels: int = 4, blocks_per_leaf: int = 16, leaf_detail: int = 24) -> CityStats:
+def write_city(
+    folder: Path,
+    origin: tuple[float, float, float],
+    size_m: float = 800.0,
+    levels: int = 4,
+    blocks_per_leaf: int = 16,
+    leaf_detail: int = 24,
+) -> CityStats:
     """A city tileset: a quadtree of `levels` levels over size_m x size_m, b3dm content with
     RTC_CENTER, REPLACE refinement. Leaf tiles hold blocks_per_leaf blocks with walls of
     leaf_detail^2 quads; each coarser level merges 2 x 2 blocks into one of their mean height and
@@ -311,7 +393,9 @@ def write_city(folder: Path, origin: tuple[float, float, float], size_m: float =
         if level == levels - 1:
             counts["leaf"] += len(shape.faces)
         else:
-            node["children"] = [tile(level + 1, 2 * x + a, 2 * y + b) for a in (0, 1) for b in (0, 1)]
+            node["children"] = [
+                tile(level + 1, 2 * x + a, 2 * y + b) for a in (0, 1) for b in (0, 1)
+            ]
         return node
 
     root = tile(0, 0, 0)

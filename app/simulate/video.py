@@ -31,11 +31,11 @@ def render_video(
     after_frame: Callable[[np.ndarray, int], np.ndarray] | None = None,
 ) -> Path:
     """An H.264 MP4 of `mesh` (ENU metres) seen through `intr` (the displayed image's pinhole)
-    from positions (N, 3) ENU m and camera -> ENU quaternions (N, 4) at presentation times pts
-    (N,) s; stored turned back by rotation_cw as a phone would. before_frame(renderer, k) may move
-    things in the scene before frame k is drawn; light_dir (ENU, toward the light) lights the scene
-otherwise than the viewer does; after_frame(rgb, k) -> rgb applies the camera's own effects
-(blur, noise) to the drawn frame."""
+        from positions (N, 3) ENU m and camera -> ENU quaternions (N, 4) at presentation times pts
+        (N,) s; stored turned back by rotation_cw as a phone would. before_frame(renderer, k) may move
+        things in the scene before frame k is drawn; light_dir (ENU, toward the light) lights the scene
+    otherwise than the viewer does; after_frame(rgb, k) -> rgb applies the camera's own effects
+    (blur, noise) to the drawn frame."""
     from app.render.context import create_offscreen_context
     from app.render.offscreen import OffscreenTarget
     from app.render.renderer import FusionRenderer
@@ -57,7 +57,9 @@ otherwise than the viewer does; after_frame(rgb, k) -> rgb applies the camera's 
 
     stored = (intr.height, intr.width) if rotation_cw % 180 else (intr.width, intr.height)
     try:
-        write_video(path, pts, stored, rotation_cw, creation_time=creation_time, frame=frame_at, crf=crf)
+        write_video(
+            path, pts, stored, rotation_cw, creation_time=creation_time, frame=frame_at, crf=crf
+        )
     finally:
         target.release()
         renderer.release()

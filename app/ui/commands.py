@@ -71,13 +71,17 @@ def _wait(v, arg, now) -> None:
     elif arg == "tiles":
         v.wait_until_tiles_loaded()
     else:
-        raise ValueError(f"expected 'solved', 'registered', 'exported', 'synced' or 'tiles', got {arg!r}")
+        raise ValueError(
+            f"expected 'solved', 'registered', 'exported', 'synced' or 'tiles', got {arg!r}"
+        )
 
 
 def _export(v, arg, now) -> None:
     what, _, path = (arg or "").partition(" ")
     if not path.strip():
-        raise ValueError("expected WHAT PATH (footprints, fmv-csv, klv or video, and the output file)")
+        raise ValueError(
+            "expected WHAT PATH (footprints, fmv-csv, klv or video, and the output file)"
+        )
     v.start_export(what, Path(path.strip()))
 
 
@@ -113,7 +117,9 @@ def _set_ui(**changes) -> Callable:
     def run(v, arg, now) -> None:
         on = _on(arg)
         for key, fields in changes.items():
-            setattr(v.ui, key, replace(getattr(v.ui, key), **{f: on for f in fields}) if fields else on)
+            setattr(
+                v.ui, key, replace(getattr(v.ui, key), **{f: on for f in fields}) if fields else on
+            )
 
     return run
 
@@ -121,35 +127,119 @@ def _set_ui(**changes) -> Callable:
 COMMANDS: dict[str, Command] = {
     "quit": Command(lambda v, a, n: setattr(v.ui, "quit", True), False, False, "close the viewer"),
     "open": Command(lambda v, a, n: v.open(Path(a)), False, True, "open a manifest or clip"),
-    "screenshot": Command(lambda v, a, n: setattr(v.ui, "screenshot_request", Path(a)), False, True, "save the window as PNG"),
-    "state": Command(lambda v, a, n: setattr(v.ui, "state_request", Path(a)), False, True, "write the viewer's state as JSON"),
+    "screenshot": Command(
+        lambda v, a, n: setattr(v.ui, "screenshot_request", Path(a)),
+        False,
+        True,
+        "save the window as PNG",
+    ),
+    "state": Command(
+        lambda v, a, n: setattr(v.ui, "state_request", Path(a)),
+        False,
+        True,
+        "write the viewer's state as JSON",
+    ),
     "panels": Command(_set_ui(show_panels=()), False, True, "show or hide the panels"),
-    "lines": Command(_set_ui(overlays=("frustum", "trajectory")), False, True, "frustum and trajectory lines"),
+    "lines": Command(
+        _set_ui(overlays=("frustum", "trajectory")), False, True, "frustum and trajectory lines"
+    ),
     "clock": Command(_clock, False, True, "STEP: a fixed-step clock (seconds per frame), or wall"),
-    "wait": Command(_wait, False, True, "solved | registered | exported | synced | tiles: hold the clock until every source but the registered one is solved, the registered one too, the export or sync has finished, or the 3D Tiles this view needs are loaded"),
-    "export": Command(_export, True, True, "WHAT PATH: export the session (footprints, fmv-csv, klv, video) in the background"),
+    "wait": Command(
+        _wait,
+        False,
+        True,
+        "solved | registered | exported | synced | tiles: hold the clock until every source but the registered one is solved, the registered one too, the export or sync has finished, or the 3D Tiles this view needs are loaded",
+    ),
+    "export": Command(
+        _export,
+        True,
+        True,
+        "WHAT PATH: export the session (footprints, fmv-csv, klv, video) in the background",
+    ),
     "record": Command(_record, True, True, "start [PATH] | stop: record what the window shows"),
-    "lens": Command(lambda v, a, n: v.use_lens(None if a == "auto" else Path(a)), True, True, "PROFILE.json | auto: reopen the clip through this lens profile"),
-    "sync": Command(lambda v, a, n: v.start_sync(), True, False, "find the video <-> gyroscope offset and apply it"),
+    "lens": Command(
+        lambda v, a, n: v.use_lens(None if a == "auto" else Path(a)),
+        True,
+        True,
+        "PROFILE.json | auto: reopen the clip through this lens profile",
+    ),
+    "sync": Command(
+        lambda v, a, n: v.start_sync(),
+        True,
+        False,
+        "find the video <-> gyroscope offset and apply it",
+    ),
     "play": Command(lambda v, a, n: v.loaded.clock.set_paused(False, n), True, False, "play"),
     "pause": Command(lambda v, a, n: v.loaded.clock.set_paused(True, n), True, False, "pause"),
-    "toggle": Command(lambda v, a, n: v.loaded.clock.set_paused(not v.loaded.clock.paused, n), True, False, "play / pause"),
-    "seek": Command(lambda v, a, n: v.loaded.player.seek(_number(a), n), True, True, "media seconds"),
-    "step": Command(lambda v, a, n: v.loaded.player.step(int(_number(a)), n), True, True, "frames, either way"),
-    "speed": Command(lambda v, a, n: v.loaded.clock.set_speed(_number(a), n), True, True, "playback speed"),
+    "toggle": Command(
+        lambda v, a, n: v.loaded.clock.set_paused(not v.loaded.clock.paused, n),
+        True,
+        False,
+        "play / pause",
+    ),
+    "seek": Command(
+        lambda v, a, n: v.loaded.player.seek(_number(a), n), True, True, "media seconds"
+    ),
+    "step": Command(
+        lambda v, a, n: v.loaded.player.step(int(_number(a)), n), True, True, "frames, either way"
+    ),
+    "speed": Command(
+        lambda v, a, n: v.loaded.clock.set_speed(_number(a), n), True, True, "playback speed"
+    ),
     "faster": Command(lambda v, a, n: v.change_speed(+1, n), True, False, "next playback speed"),
-    "slower": Command(lambda v, a, n: v.change_speed(-1, n), True, False, "previous playback speed"),
+    "slower": Command(
+        lambda v, a, n: v.change_speed(-1, n), True, False, "previous playback speed"
+    ),
     "source": Command(lambda v, a, n: v.set_source(a), True, True, "attitude source"),
-    "ahrs": Command(lambda v, a, n: v.toggle_ahrs(None if a is None else _on(a)), True, False, "AHRS / IMU"),
-    "alpha": Command(lambda v, a, n: setattr(v.ui, "settings", replace(v.ui.settings, alpha=_number(a))), False, True, "video opacity 0..1"),
-    "offset": Command(lambda v, a, n: v.set_time_offset(_number(a)), True, True, "time offset, seconds"),
-    "pitch": Command(lambda v, a, n: v.set_course_pitch(_number(a)), True, True, "assumed camera pitch of a drone clip"),
-    "detail": Command(lambda v, a, n: v.set_tile_detail(_number(a)), False, True, "3D Tiles: the screen-space error in pixels above which tiles refine (default 16)"),
-    "overlay": Command(lambda v, a, n: setattr(v.ui, "overlays", replace(v.ui.overlays, error_map=_on(a))), False, True, "projection-error colours"),
+    "ahrs": Command(
+        lambda v, a, n: v.toggle_ahrs(None if a is None else _on(a)), True, False, "AHRS / IMU"
+    ),
+    "alpha": Command(
+        lambda v, a, n: setattr(v.ui, "settings", replace(v.ui.settings, alpha=_number(a))),
+        False,
+        True,
+        "video opacity 0..1",
+    ),
+    "offset": Command(
+        lambda v, a, n: v.set_time_offset(_number(a)), True, True, "time offset, seconds"
+    ),
+    "pitch": Command(
+        lambda v, a, n: v.set_course_pitch(_number(a)),
+        True,
+        True,
+        "assumed camera pitch of a drone clip",
+    ),
+    "detail": Command(
+        lambda v, a, n: v.set_tile_detail(_number(a)),
+        False,
+        True,
+        "3D Tiles: the screen-space error in pixels above which tiles refine (default 16)",
+    ),
+    "overlay": Command(
+        lambda v, a, n: setattr(v.ui, "overlays", replace(v.ui.overlays, error_map=_on(a))),
+        False,
+        True,
+        "projection-error colours",
+    ),
     "view": Command(_view, False, True, "free | orbit | phone | reset"),
-    "look": Command(_look, False, True, "E,N,U E,N,U: the window camera at an eye looking at a target (ENU metres)"),
-    "control": Command(_control, True, True, "video [X,Y] | model [X,Y] | solve | clear: control points by hand (a feature in the draped video, then on the model; X,Y in [0, 1] of the 3D view, default the cursor)"),
-    "help": Command(lambda v, a, n: setattr(v.ui, "show_help", not v.ui.show_help), False, False, "help and shortcuts"),
+    "look": Command(
+        _look,
+        False,
+        True,
+        "E,N,U E,N,U: the window camera at an eye looking at a target (ENU metres)",
+    ),
+    "control": Command(
+        _control,
+        True,
+        True,
+        "video [X,Y] | model [X,Y] | solve | clear: control points by hand (a feature in the draped video, then on the model; X,Y in [0, 1] of the 3D view, default the cursor)",
+    ),
+    "help": Command(
+        lambda v, a, n: setattr(v.ui, "show_help", not v.ui.show_help),
+        False,
+        False,
+        "help and shortcuts",
+    ),
 }
 
 

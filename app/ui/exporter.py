@@ -27,9 +27,23 @@ RECORD_QUEUE = 8  # frames waiting for the encoder
 class ExportJob:
     """`geofuse export WHAT INPUT --out OUT --source SOURCE [extra...]` in a child process."""
 
-    def __init__(self, what: str, source_path: Path, out: Path, source: str, extra: list[str] | None = None) -> None:
+    def __init__(
+        self, what: str, source_path: Path, out: Path, source: str, extra: list[str] | None = None
+    ) -> None:
         self.what, self.out = what, Path(out)
-        cmd = [sys.executable, "-m", "app", "export", what, str(source_path), "--out", str(out), "--source", source, *(extra or [])]
+        cmd = [
+            sys.executable,
+            "-m",
+            "app",
+            "export",
+            what,
+            str(source_path),
+            "--out",
+            str(out),
+            "--source",
+            source,
+            *(extra or []),
+        ]
         self.progress = 0.0
         self.message = ""
         self.returncode: int | None = None
@@ -55,14 +69,25 @@ class ExportJob:
 
     def _read(self) -> None:
         err = b""
-        while chunk := self._proc.stderr.read1(4096) if hasattr(self._proc.stderr, "read1") else self._proc.stderr.read(4096):
+        while (
+            chunk := self._proc.stderr.read1(4096)
+            if hasattr(self._proc.stderr, "read1")
+            else self._proc.stderr.read(4096)
+        ):
             err += chunk
             found = _PERCENT.findall(err[-200:])
             if found:
                 self.progress = float(found[-1]) / 100.0
         out = self._proc.stdout.read()
         self.returncode = self._proc.wait()
-        lines = [line for line in (out + b"\n" + err).decode(errors="replace").replace("\r", "\n").splitlines() if line.strip() and "%" not in line]
+        lines = [
+            line
+            for line in (out + b"\n" + err)
+            .decode(errors="replace")
+            .replace("\r", "\n")
+            .splitlines()
+            if line.strip() and "%" not in line
+        ]
         final = [line for line in lines if line.startswith(("wrote ", "geofuse: error"))]
         self.message = (final or lines or [f"export ended with status {self.returncode}"])[-1]
         if self.ok:
@@ -80,7 +105,9 @@ class Recorder:
         self.dropped = 0
         self.error: str | None = None
         self._t0: float | None = None
-        self._queue: queue.Queue[tuple[np.ndarray, float] | None] = queue.Queue(maxsize=RECORD_QUEUE)
+        self._queue: queue.Queue[tuple[np.ndarray, float] | None] = queue.Queue(
+            maxsize=RECORD_QUEUE
+        )
         self._container = av.open(str(self.out), "w")
         w, h = (size[0] // 2) * 2, (size[1] // 2) * 2  # H.264 with 4:2:0 needs even sizes
         self._stream = self._container.add_stream("libx264", rate=30)
@@ -114,7 +141,10 @@ class Recorder:
                 pts = int(round(t * 90000))
                 if pts <= last_pts:
                     continue  # two frames at one clock time (a paused or fixed clock): keep the first
-                frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(rgb[: self._stream.height, : self._stream.width]), format="rgb24")
+                frame = av.VideoFrame.from_ndarray(
+                    np.ascontiguousarray(rgb[: self._stream.height, : self._stream.width]),
+                    format="rgb24",
+                )
                 frame.pts, frame.time_base = pts, self._stream.time_base
                 for packet in self._stream.encode(frame):
                     self._container.mux(packet)
@@ -157,8 +187,12 @@ class SyncJob:
         s = self.session
         try:
             self.gyro = gyro_rates(s)
-            self.video = video_rates(s.video, bearings_of(s), s.rotation_cw, lambda f: setattr(self, "progress", f))
-            self.result = estimate_offset(self.video, self.gyro, float(s.frame_times[0] - s.video.pts_s[0]))
+            self.video = video_rates(
+                s.video, bearings_of(s), s.rotation_cw, lambda f: setattr(self, "progress", f)
+            )
+            self.result = estimate_offset(
+                self.video, self.gyro, float(s.frame_times[0] - s.video.pts_s[0])
+            )
         except GeofuseError as exc:
             self.error = str(exc)
         except Exception as exc:  # shown in the viewer, which keeps running
@@ -171,7 +205,12 @@ class SyncJob:
             return {}
         start = float(self.session.frame_times[0] - self.session.video.pts_s[0])
         t = np.linspace(self.video.t[0], self.video.t[-1], points)
-        mag = lambda c, tt: np.linalg.norm(np.column_stack([np.interp(tt, c.t, np.nan_to_num(c.omega[:, j])) for j in range(c.omega.shape[1])]), axis=1)  # noqa: E731
+
+        def mag(c, tt: np.ndarray) -> np.ndarray:
+            omega = np.nan_to_num(c.omega)
+            rates = [np.interp(tt, c.t, omega[:, j]) for j in range(omega.shape[1])]
+            return np.linalg.norm(np.column_stack(rates), axis=1)
+
         from app.sync import rate_source
 
         name = rate_source(self.session) or "reference"

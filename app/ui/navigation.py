@@ -75,14 +75,22 @@ class Navigator:
         self.distance = float(max(2.0, np.linalg.norm(self.position - self.target)))
         d = self.target - self.position
         self.yaw = float(np.degrees(np.arctan2(d[0], d[1])))
-        self.pitch = float(np.degrees(np.arcsin(np.clip(d[2] / max(np.linalg.norm(d), 1e-9), -1, 1))))
+        self.pitch = float(
+            np.degrees(np.arcsin(np.clip(d[2] / max(np.linalg.norm(d), 1e-9), -1, 1)))
+        )
         self.mode = "orbit"
 
     def reset(self) -> None:
         self.position, self.yaw, self.pitch = self.home[0].copy(), self.home[1], self.home[2]
         self.mode = "free"
 
-    def camera(self, intrinsics: Intrinsics, phone: Camera | None, near: float = VIEW_NEAR_M, far: float = VIEW_FAR_M) -> Camera:
+    def camera(
+        self,
+        intrinsics: Intrinsics,
+        phone: Camera | None,
+        near: float = VIEW_NEAR_M,
+        far: float = VIEW_FAR_M,
+    ) -> Camera:
         """The window camera for the current mode."""
         if self.mode == "phone" and phone is not None:
             return Camera.create(intrinsics, phone.position, phone.orientation, near, far)

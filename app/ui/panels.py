@@ -45,7 +45,14 @@ LEFT_FRACTION = 0.26  # of the window's width: the left panel column
 BOTTOM_FRACTION = 0.13  # of the window's height: the timeline
 LEFT_LOWER_FRACTION = 0.45  # of the left column: Error inspection and Stats
 TOP_PANELS = ("Session", "Attitude", "Projection", "Export")
-EXPORTS = (("footprints", ".geojson"), ("footprints", ".kml"), ("footprints", ".kmz"), ("fmv-csv", ".csv"), ("klv", ".ts"), ("video", ".mp4"))
+EXPORTS = (
+    ("footprints", ".geojson"),
+    ("footprints", ".kml"),
+    ("footprints", ".kmz"),
+    ("fmv-csv", ".csv"),
+    ("klv", ".ts"),
+    ("video", ".mp4"),
+)
 LOWER_PANELS = ("Error inspection", "Stats")
 OPEN_FILTERS = ["Sessions and clips", "*.toml *.TOML *.mp4 *.MP4 *.mov *.MOV", "All files", "*"]
 KEY_COMMANDS = {  # key name in glfw -> (command, argument)
@@ -106,7 +113,9 @@ class Gui:
 
         internal = imgui.internal
         viewport = imgui.get_main_viewport()
-        self.dock_id = imgui.dock_space_over_viewport(0, viewport, imgui.DockNodeFlags_.passthru_central_node)
+        self.dock_id = imgui.dock_space_over_viewport(
+            0, viewport, imgui.DockNodeFlags_.passthru_central_node
+        )
         if not self._layout_checked:
             self._layout_checked = True
             node = internal.dock_builder_get_node(self.dock_id)
@@ -120,18 +129,30 @@ class Gui:
         if central is None:
             return 0, 0, fb_w, fb_h
         x0, y0 = (central.pos.x - viewport.pos.x) * sx, (central.pos.y - viewport.pos.y) * sy
-        return int(round(x0)), int(round(y0)), max(1, int(round(central.size.x * sx))), max(1, int(round(central.size.y * sy)))
+        return (
+            int(round(x0)),
+            int(round(y0)),
+            max(1, int(round(central.size.x * sx))),
+            max(1, int(round(central.size.y * sy))),
+        )
 
     def _build_default_layout(self, viewport) -> None:
         from imgui_bundle import imgui
 
         internal = imgui.internal
         internal.dock_builder_remove_node(self.dock_id)
-        internal.dock_builder_add_node(self.dock_id, internal.DockNodeFlagsPrivate_.dock_space | imgui.DockNodeFlags_.passthru_central_node)
+        internal.dock_builder_add_node(
+            self.dock_id,
+            internal.DockNodeFlagsPrivate_.dock_space | imgui.DockNodeFlags_.passthru_central_node,
+        )
         internal.dock_builder_set_node_size(self.dock_id, viewport.size)
-        _, bottom, rest = internal.dock_builder_split_node_py(self.dock_id, imgui.Dir.down, BOTTOM_FRACTION)
+        _, bottom, rest = internal.dock_builder_split_node_py(
+            self.dock_id, imgui.Dir.down, BOTTOM_FRACTION
+        )
         _, left, _ = internal.dock_builder_split_node_py(rest, imgui.Dir.left, LEFT_FRACTION)
-        _, lower, upper = internal.dock_builder_split_node_py(left, imgui.Dir.down, LEFT_LOWER_FRACTION)
+        _, lower, upper = internal.dock_builder_split_node_py(
+            left, imgui.Dir.down, LEFT_LOWER_FRACTION
+        )
         for name in TOP_PANELS:
             internal.dock_builder_dock_window(name, upper)
         for name in LOWER_PANELS:
@@ -162,6 +183,7 @@ class Gui:
 
 # --- input ---------------------------------------------------------------------------------------
 
+
 def handle_input(v, gui: Gui, dt: float, now: float) -> None:
     """Keys run commands (edge-triggered), WASD/QE and the right mouse button navigate."""
     import glfw
@@ -186,7 +208,12 @@ def handle_input(v, gui: Gui, dt: float, now: float) -> None:
             open_dialog(v)
         ui.keys_down[-1] = ctrl and o
         axis = lambda plus, minus: float(w.key_down(plus)) - float(w.key_down(minus))  # noqa: E731
-        v.nav.move(dt, axis(glfw.KEY_W, glfw.KEY_S), axis(glfw.KEY_D, glfw.KEY_A), axis(glfw.KEY_E, glfw.KEY_Q))
+        v.nav.move(
+            dt,
+            axis(glfw.KEY_W, glfw.KEY_S),
+            axis(glfw.KEY_D, glfw.KEY_A),
+            axis(glfw.KEY_E, glfw.KEY_Q),
+        )
     x, y = w.cursor()
     last, ui.cursor = ui.cursor, (x, y)
     if last is not None and not gui.wants_mouse() and w.mouse_down(glfw.MOUSE_BUTTON_RIGHT):
@@ -200,7 +227,9 @@ def open_dialog(v) -> None:
 
     if v.ui.file_dialog is None:
         try:
-            v.ui.file_dialog = pfd.open_file("Open a session manifest or a clip", str(Path.cwd()), OPEN_FILTERS)
+            v.ui.file_dialog = pfd.open_file(
+                "Open a session manifest or a clip", str(Path.cwd()), OPEN_FILTERS
+            )
         except Exception as exc:  # no dialog program on this desktop
             v.ui.error(f"no file dialog available ({exc}): type the path in the Session panel")
 
@@ -215,6 +244,7 @@ def _poll_dialog(v) -> None:
 
 
 # --- panels --------------------------------------------------------------------------------------
+
 
 def draw(v, gui: Gui, now: float) -> None:
     """The panels of this frame (after `Gui.begin_frame` and `Gui.layout`)."""
@@ -255,20 +285,32 @@ def _session(v) -> None:
     ui = v.ui
     if ui.show_session_tab > 0:
         ui.show_session_tab -= 1
-        if ui.show_session_tab == 0:  # once the docks exist: the first tab, whatever was docked last
+        if (
+            ui.show_session_tab == 0
+        ):  # once the docks exist: the first tab, whatever was docked last
             imgui.set_next_window_focus()
     if _window("Session"):
         if v.loaded is not None:
             s = v.loaded.session
             imgui.text(Path(s.path).name)
-            imgui.text(f"{len(s.frame_times)} frames, {s.video.display_size[0]}x{s.video.display_size[1]}, rotate {s.rotation_cw}")
+            imgui.text(
+                f"{len(s.frame_times)} frames, {s.video.display_size[0]}x{s.video.display_size[1]}, rotate {s.rotation_cw}"
+            )
             imgui.text(f"declination {s.declination_deg:+.2f} deg")
             if s.scene_path is None:
                 imgui.text_colored(_vec4(AMBER), "no scene: the ground is assumed (flat, 1 m grid)")
             for layer in s.layers:
-                imgui.text_wrapped(f"layer: {layer.name} ({layer.kind}" + (f", draped with {layer.ortho.name}" if layer.ortho is not None else "") + ")")
+                imgui.text_wrapped(
+                    f"layer: {layer.name} ({layer.kind}"
+                    + (f", draped with {layer.ortho.name}" if layer.ortho is not None else "")
+                    + ")"
+                )
             lens = s.lens
-            imgui.text_wrapped(f"lens: {lens.kind}, {lens.name or 'profile'}" if lens is not None else f"lens: pinhole, {s.intrinsics.hfov_deg:.1f} deg across")
+            imgui.text_wrapped(
+                f"lens: {lens.kind}, {lens.name or 'profile'}"
+                if lens is not None
+                else f"lens: pinhole, {s.intrinsics.hfov_deg:.1f} deg across"
+            )
             if Path(s.path).suffix.lower() != ".toml":
                 imgui.set_next_item_width(-100)
                 _, ui.lens_path = imgui.input_text("##lens", ui.lens_path)
@@ -337,7 +379,9 @@ def _attitude(v) -> None:
         lib = L.library
         solved, errors = lib.solved(), lib.errors()
         if not lib.done:
-            imgui.progress_bar(lib.progress, imgui.ImVec2(-1, 0), f"solving {len(solved)}/{len(lib.order)}")
+            imgui.progress_bar(
+                lib.progress, imgui.ImVec2(-1, 0), f"solving {len(solved)}/{len(lib.order)}"
+            )
         for name in L.session.sources:
             partly = lib.source_progress(name)
             solving = " (solving)" if partly is None else f" (registering {100 * partly:.0f} %)"
@@ -357,7 +401,9 @@ def _attitude(v) -> None:
         if L.session.heading_note:
             imgui.text_colored(_vec4(AMBER), L.session.heading_note)
         if COURSE in L.session.sources:
-            _, v.ui.course_pitch_deg = imgui.slider_float("camera pitch (deg)", v.ui.course_pitch_deg, -90.0, 30.0, "%.0f")
+            _, v.ui.course_pitch_deg = imgui.slider_float(
+                "camera pitch (deg)", v.ui.course_pitch_deg, -90.0, 30.0, "%.0f"
+            )
             if imgui.is_item_deactivated_after_edit():
                 _run(v, "pitch", str(v.ui.course_pitch_deg))
         elif L.session.mag is None:
@@ -383,8 +429,18 @@ def _projection(v) -> None:
         idx = DEPTH_SIZES.index(s.depth_long_side) if s.depth_long_side in DEPTH_SIZES else 1
         _, idx = imgui.combo("depth map", idx, [str(d) for d in DEPTH_SIZES])
         if v.loaded is not None and v.loaded.renderer.scene.tilesets:
-            _, ui.max_sse_px = imgui.slider_float("3D Tiles detail (px error)", ui.max_sse_px, 1.0, 64.0, "%.0f")
-        ui.settings = replace(s, enabled=enabled, alpha=alpha, bias_constant_m=bias, bias_slope=slope, neighbourhood=rule, depth_long_side=DEPTH_SIZES[idx])
+            _, ui.max_sse_px = imgui.slider_float(
+                "3D Tiles detail (px error)", ui.max_sse_px, 1.0, 64.0, "%.0f"
+            )
+        ui.settings = replace(
+            s,
+            enabled=enabled,
+            alpha=alpha,
+            bias_constant_m=bias,
+            bias_slope=slope,
+            neighbourhood=rule,
+            depth_long_side=DEPTH_SIZES[idx],
+        )
         o = ui.overlays
         _, fr = imgui.checkbox("frustum", o.frustum)
         imgui.same_line()
@@ -392,11 +448,19 @@ def _projection(v) -> None:
         ui.overlays = replace(o, frustum=fr, trajectory=tr)
         if v.loaded is not None and "truth" in v.loaded.session.sources:
             _, em = imgui.checkbox("projection error on the model (m)", ui.overlays.error_map)
-            _, scale = imgui.slider_float("error scale (m)", ui.overlays.error_scale_m, 0.5, 20.0, "%.1f")
+            _, scale = imgui.slider_float(
+                "error scale (m)", ui.overlays.error_scale_m, 0.5, 20.0, "%.1f"
+            )
             ui.overlays = replace(ui.overlays, error_map=em, error_scale_m=scale)
             if em:
-                for frac, colour in ((0.0, (0.10, 0.80, 0.25, 1.0)), (0.5, (1.00, 0.85, 0.10, 1.0)), (1.0, (0.90, 0.10, 0.10, 1.0))):
-                    imgui.color_button(f"##legend{frac}", imgui.ImVec4(*colour), 0, imgui.ImVec2(14, 14))
+                for frac, colour in (
+                    (0.0, (0.10, 0.80, 0.25, 1.0)),
+                    (0.5, (1.00, 0.85, 0.10, 1.0)),
+                    (1.0, (0.90, 0.10, 0.10, 1.0)),
+                ):
+                    imgui.color_button(
+                        f"##legend{frac}", imgui.ImVec4(*colour), 0, imgui.ImVec2(14, 14)
+                    )
                     imgui.same_line()
                     imgui.text(f"{frac * scale:.1f} m" + (" and more" if frac == 1.0 else ""))
                     if frac < 1.0:
@@ -405,12 +469,18 @@ def _projection(v) -> None:
             imgui.text_disabled("projection error: needs a session with ground truth")
         if v.loaded is not None:
             imgui.set_next_item_width(-110)
-            _, ui.time_offset_s = imgui.slider_float("##offset", ui.time_offset_s, -1.0, 1.0, "offset %+.3f s")
+            _, ui.time_offset_s = imgui.slider_float(
+                "##offset", ui.time_offset_s, -1.0, 1.0, "offset %+.3f s"
+            )
             if imgui.is_item_deactivated_after_edit():
                 _run(v, "offset", str(ui.time_offset_s))
             imgui.same_line()
             job = ui.sync_job
-            if rate_source(v.loaded.session) is not None and (job is None or job.done) and imgui.button("Sync"):
+            if (
+                rate_source(v.loaded.session) is not None
+                and (job is None or job.done)
+                and imgui.button("Sync")
+            ):
                 _run(v, "sync", None)
             _sync_curves(ui.sync_job)
             _control_points(v)
@@ -424,12 +494,21 @@ def _control_points(v) -> None:
     picks = v.ui.control
     if not imgui.collapsing_header(f"Control points ({len(picks.pairs)})"):
         return
-    imgui.text_wrapped("Hover a feature in the draped video and press V, then the same feature on the model and press M (lower the transparency to see the model). Four pairs or more.")
+    imgui.text_wrapped(
+        "Hover a feature in the draped video and press V, then the same feature on the model and press M (lower the transparency to see the model). Four pairs or more."
+    )
     if picks.pending is not None:
-        imgui.text_colored(_vec4(AMBER), f"video pixel {picks.pending[1][0]:.0f}, {picks.pending[1][1]:.0f} of frame {picks.pending[0]}: now the model (M)")
+        imgui.text_colored(
+            _vec4(AMBER),
+            f"video pixel {picks.pending[1][0]:.0f}, {picks.pending[1][1]:.0f} of frame {picks.pending[0]}: now the model (M)",
+        )
     sol = picks.solution
     for i, (frame, uv, _) in enumerate(picks.pairs):
-        res = f": {sol.residual_px[i]:.1f} px, {sol.residual_m[i]:.2f} m" if sol is not None and i < len(sol.residual_px) else ""
+        res = (
+            f": {sol.residual_px[i]:.1f} px, {sol.residual_m[i]:.2f} m"
+            if sol is not None and i < len(sol.residual_px)
+            else ""
+        )
         imgui.text(f"{i + 1}. frame {frame}, pixel {uv[0]:.0f}, {uv[1]:.0f}{res}")
     if len(picks.pairs) >= 4 and imgui.button("Solve"):
         _run(v, "control", "solve")
@@ -437,7 +516,9 @@ def _control_points(v) -> None:
     if picks.pairs and imgui.button("Clear"):
         _run(v, "control", "clear")
     if sol is not None:
-        imgui.text_wrapped(f"boresight {sol.boresight_deg:.2f} deg, position correction {np.linalg.norm(sol.offset_m):.2f} m; kept in {picks.saved}; registering again")
+        imgui.text_wrapped(
+            f"boresight {sol.boresight_deg:.2f} deg, position correction {np.linalg.norm(sol.offset_m):.2f} m; kept in {picks.saved}; registering again"
+        )
 
 
 def _sync_curves(job) -> None:
@@ -474,7 +555,9 @@ def _error_inspection(v) -> None:
         elif est is not None and truth is not None and L.source != ref:
             k = max(v.current_index, 0)
             d = ((est.hpr[k] - truth.hpr[k]) + 180.0) % 360.0 - 180.0
-            imgui.text_wrapped(f"{L.source} vs {ref}, this frame: heading {d[0]:+.2f}, pitch {d[1]:+.2f}, roll {d[2]:+.2f} deg")
+            imgui.text_wrapped(
+                f"{L.source} vs {ref}, this frame: heading {d[0]:+.2f}, pitch {d[1]:+.2f}, roll {d[2]:+.2f} deg"
+            )
             step = max(1, len(est.t) // 1500)
             for i, label in enumerate(("heading", "pitch", "roll")):
                 if implot.begin_plot(f"{label} (deg)##{i}", imgui.ImVec2(-1, 90)):
@@ -517,7 +600,12 @@ def _keyframes(v, lib) -> None:
                 implot.plot_scatter(label, xs, ys)
         if len(plot.error_t):
             implot.plot_line("error (px x 100)", plot.error_t, plot.error_px * 100.0)
-        implot.plot_inf_lines("now", np.array([float(track.clock.session_s[max(v.current_index, 0)] - track.clock.session_s[0])]))
+        implot.plot_inf_lines(
+            "now",
+            np.array(
+                [float(track.clock.session_s[max(v.current_index, 0)] - track.clock.session_s[0])]
+            ),
+        )
         implot.end_plot()
     near = plot.nearest(max(v.current_index, 0))
     if near is not None and not near.used:
@@ -533,17 +621,24 @@ def _stats(v) -> None:
         player = v.loaded.player
         current, mean, p95 = player.stats.summary()
         imgui.text(f"frame rate {fps:6.1f} fps   frame time {np.median(ft):5.1f} ms")
-        imgui.text(f"decode queue {player.decoder.frames.qsize()}/{player.decoder.frames.maxsize}   corrupt packets {player.decoder.corrupt_packets}")
+        imgui.text(
+            f"decode queue {player.decoder.frames.qsize()}/{player.decoder.frames.maxsize}   corrupt packets {player.decoder.corrupt_packets}"
+        )
         imgui.text(f"latency now {current:5.1f} ms  mean {mean:5.1f} ms  p95 {p95:5.1f} ms")
-        imgui.text(f"dropped frames {player.stats.dropped} (decoder skipped {player.decoder.skipped})   depth redraws {v.stats.depth_redraws}")
+        imgui.text(
+            f"dropped frames {player.stats.dropped} (decoder skipped {player.decoder.skipped})   depth redraws {v.stats.depth_redraws}"
+        )
         r = v.loaded.renderer
-        imgui.text(f"triangles drawn {r.scene_pass.triangles:,}   in the depth map {r.depth.triangles:,}")
+        imgui.text(
+            f"triangles drawn {r.scene_pass.triangles:,}   in the depth map {r.depth.triangles:,}"
+        )
         for layer in r.scene.tilesets:
             s = layer.stream
             skipped = ", ".join(f"{n} {k}" for k, n in s.skipped.snapshot().items())
             imgui.text_wrapped(
                 f"{Path(layer.tileset.location.rstrip('/')).name}: {len(layer.resident)} tiles on the GPU ({layer.bytes_held / 2**20:.0f} MB of {layer.cache_bytes / 2**20:.0f}), "
-                f"{s.pending} loading, {s.failures} failed" + (f"; skipped {skipped}" if skipped else "")
+                f"{s.pending} loading, {s.failures} failed"
+                + (f"; skipped {skipped}" if skipped else "")
             )
     imgui.end()
 
@@ -569,7 +664,9 @@ def _export(v, now: float) -> None:
         elif imgui.button("Cancel"):
             job.cancel()
         if job is not None:
-            imgui.progress_bar(job.progress, imgui.ImVec2(-1, 0), f"{job.what} {100 * job.progress:.0f} %")
+            imgui.progress_bar(
+                job.progress, imgui.ImVec2(-1, 0), f"{job.what} {100 * job.progress:.0f} %"
+            )
             if job.done:
                 imgui.text_colored(_vec4((0.5, 1.0, 0.5, 1.0) if job.ok else RED), job.message)
         imgui.separator()

@@ -39,7 +39,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from app.errors import DataFormatError
-
 from app.ui.commands import COMMANDS
 
 ACTIONS = {name: int(c.takes_arg) for name, c in COMMANDS.items()}
@@ -62,7 +61,9 @@ def parse_script(path: str | Path) -> list[Action]:
     try:
         text = path.read_text(encoding="utf-8")
     except UnicodeDecodeError as exc:
-        raise DataFormatError(path, f"not UTF-8 text (byte {exc.start}): expected lines of 'TIME ACTION [ARGUMENT]'") from exc
+        raise DataFormatError(
+            path, f"not UTF-8 text (byte {exc.start}): expected lines of 'TIME ACTION [ARGUMENT]'"
+        ) from exc
     for number, raw in enumerate(text.splitlines(), start=1):
         text = raw.split("#", 1)[0].strip()
         if not text:
@@ -71,9 +72,15 @@ def parse_script(path: str | Path) -> list[Action]:
         try:
             at = float(parts[0])
         except ValueError:
-            raise DataFormatError(path, f"expected a time in seconds, got {parts[0]!r}", line=number) from None
+            raise DataFormatError(
+                path, f"expected a time in seconds, got {parts[0]!r}", line=number
+            ) from None
         if len(parts) < 2 or parts[1] not in ACTIONS:
-            raise DataFormatError(path, f"unknown action {parts[1] if len(parts) > 1 else ''!r} (expected one of {sorted(ACTIONS)})", line=number)
+            raise DataFormatError(
+                path,
+                f"unknown action {parts[1] if len(parts) > 1 else ''!r} (expected one of {sorted(ACTIONS)})",
+                line=number,
+            )
         name = parts[1]
         arg = parts[2].strip() if len(parts) > 2 else None
         if ACTIONS[name] and arg is None:

@@ -15,14 +15,18 @@ VIEWER_ALPHA = 0.85  # the viewer's default video opacity: the model shows throu
 
 @dataclass
 class UiState:
-    settings: ProjectionSettings = field(default_factory=lambda: ProjectionSettings(alpha=VIEWER_ALPHA))
+    settings: ProjectionSettings = field(
+        default_factory=lambda: ProjectionSettings(alpha=VIEWER_ALPHA)
+    )
     overlays: OverlaySettings = field(default_factory=OverlaySettings)
     show_help: bool = False
     show_panels: bool = True
     open_path: str = ""  # the Session panel's text field
     errors: list[str] = field(default_factory=list)
     notices: list[str] = field(default_factory=list)
-    keys_down: dict[int, bool] = field(default_factory=dict)  # last frame's key states (edge detection)
+    keys_down: dict[int, bool] = field(
+        default_factory=dict
+    )  # last frame's key states (edge detection)
     cursor: tuple[float, float] | None = None  # last frame's cursor position, screen coordinates
     course_pitch_deg: float = DRONE_DEFAULT_PITCH_DEG  # the pitch slider (applied on release)
     time_offset_s: float = 0.0  # the time-offset slider (the library holds the applied value)
@@ -40,7 +44,9 @@ class UiState:
     lens_path: str = ""  # the Session panel's lens profile field (clips)
     max_sse_px: float = 16.0  # 3D Tiles: refine tiles whose screen-space error exceeds this
     tile_errors_said: int = 0  # tile load errors already shown as notices
-    show_session_tab: int = 2  # frames until the Session tab is brought to the front (once, at start)
+    show_session_tab: int = (
+        2  # frames until the Session tab is brought to the front (once, at start)
+    )
     control: ControlPicks = field(default_factory=ControlPicks)  # control points picked by hand
     quit: bool = False
 

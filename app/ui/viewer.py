@@ -95,17 +95,27 @@ def home_view(session, mesh) -> Navigator:
     """Where the window camera starts: for a model of a site, south of it looking across it; on an
     assumed ground, a tileset or terrain larger than a site, behind and above the camera's track
     so that its frustum and footprint show."""
-    if session.scene_path is None or mesh.tilesets or float(np.ptp(mesh.bounds()[:, :2], axis=0).max()) > 2000.0:
+    if (
+        session.scene_path is None
+        or mesh.tilesets
+        or float(np.ptp(mesh.bounds()[:, :2], axis=0).max()) > 2000.0
+    ):
         g = session.gnss
         enu = session.frame.geodetic_to_enu(g.lat, g.lon, g.h)
         centre = (enu.min(axis=0) + enu.max(axis=0)) / 2
         size = float(max(np.ptp(enu[:, 0]), np.ptp(enu[:, 1]), 10.0))
         eye = centre + np.array([-0.4 * size - 12.0, -0.8 * size - 25.0, 0.5 * size + 18.0])
         d = centre - eye
-        return Navigator(position=eye, yaw=float(np.degrees(np.arctan2(d[0], d[1]))), pitch=float(np.degrees(np.arctan2(d[2], np.hypot(d[0], d[1])))))
+        return Navigator(
+            position=eye,
+            yaw=float(np.degrees(np.arctan2(d[0], d[1]))),
+            pitch=float(np.degrees(np.arctan2(d[2], np.hypot(d[0], d[1])))),
+        )
     lo, hi = mesh.bounds()
     centre = (lo + hi) / 2
-    return Navigator(position=np.array([centre[0] + 35.0, lo[1] - 20.0, 40.0]), yaw=-15.0, pitch=-15.0)
+    return Navigator(
+        position=np.array([centre[0] + 35.0, lo[1] - 20.0, 40.0]), yaw=-15.0, pitch=-15.0
+    )
 
 
 def _is_layer(path: Path) -> bool:
@@ -113,7 +123,9 @@ def _is_layer(path: Path) -> bool:
     from app.scene.layers import layer_kind
 
     try:
-        return layer_kind(path) in ("tileset", "dem") or (layer_kind(path) == "mesh" and path.suffix.lower() != ".toml")
+        return layer_kind(path) in ("tileset", "dem") or (
+            layer_kind(path) == "mesh" and path.suffix.lower() != ".toml"
+        )
     except GeofuseError:
         return False
 
@@ -135,7 +147,9 @@ class Viewer:
         self.script: list[Action] = []
         self.window = None
         self.window_camera: Camera | None = None
-        self.view_rect: tuple[int, int, int, int] | None = None  # x, y (from the top), w, h in framebuffer pixels
+        self.view_rect: tuple[int, int, int, int] | None = (
+            None  # x, y (from the top), w, h in framebuffer pixels
+        )
 
     # --- clocks ---------------------------------------------------------------------------------
 
@@ -169,7 +183,10 @@ class Viewer:
         s = self.loaded.session
         check_output(out, "export", EXPORT_SUFFIXES[what], s.inputs)
         clip = s.path.suffix.lower() != ".toml"
-        extra = [*(["--srt", str(self.options.srt)] if clip and self.options.srt else []), *(["--lens", str(self.options.lens)] if clip and self.options.lens else [])]
+        extra = [
+            *(["--srt", str(self.options.srt)] if clip and self.options.srt else []),
+            *(["--lens", str(self.options.lens)] if clip and self.options.lens else []),
+        ]
         self.ui.export_job = ExportJob(what, s.path, out, self.loaded.source, extra)
 
     def use_lens(self, profile: Path | None) -> None:
@@ -190,7 +207,9 @@ class Viewer:
 
         s = self.loaded.session if self.loaded is not None else None
         if s is None or s.path.suffix.lower() == ".toml":
-            raise ValueError(f"{location}: a manifest names its scene ([scene], [[layers]], [dem]); edit it and reopen, or open a clip first")
+            raise ValueError(
+                f"{location}: a manifest names its scene ([scene], [[layers]], [dem]); edit it and reopen, or open a clip first"
+            )
         previous = self.options.layers
         self.options.layers = (*previous, Layer.of(location))
         self.options.manifest = s.path
@@ -208,7 +227,9 @@ class Viewer:
         from app.sync import rate_source
 
         if rate_source(self.loaded.session) is None:
-            raise ValueError("this session has no gyroscope, no recorded attitude and no course: the offset cannot be found from rotation")
+            raise ValueError(
+                "this session has no gyroscope, no recorded attitude and no course: the offset cannot be found from rotation"
+            )
         self.ui.sync_job, self.ui.sync_applied = SyncJob(self.loaded.session), False
 
     def set_tile_detail(self, max_sse_px: float) -> None:
@@ -256,7 +277,9 @@ class Viewer:
             self.set_time_offset(job.result.offset_s)
             from app.sync import timed_by
 
-            self.ui.notices.append(f"time offset {1000 * job.result.offset_s:+.1f} ms from the video against {timed_by(job.session)} (confidence {job.result.confidence:.2f})")
+            self.ui.notices.append(
+                f"time offset {1000 * job.result.offset_s:+.1f} ms from the video against {timed_by(job.session)} (confidence {job.result.confidence:.2f})"
+            )
 
     def start_recording(self, out: Path) -> None:
         from app.outputs import check_output
@@ -272,7 +295,11 @@ class Viewer:
         rec, self.ui.recorder = self.ui.recorder, None
         if rec is not None:
             rec.stop()
-            self.ui.notices.append(rec.error or f"recorded {rec.out}: {rec.frames} frames" + (f", {rec.dropped} dropped" if rec.dropped else ""))
+            self.ui.notices.append(
+                rec.error
+                or f"recorded {rec.out}: {rec.frames} frames"
+                + (f", {rec.dropped} dropped" if rec.dropped else "")
+            )
 
     def wait_until_solved(self, registered: bool = False) -> None:
         """Hold everything until every source is solved: all but `registered` (a script's `wait
@@ -299,7 +326,12 @@ class Viewer:
             return True
         try:
             own = path == self.options.manifest
-            session = open_any(path, self.options.srt if own else None, lens=self.options.lens if own else None, layers=self.options.layers if own else ())
+            session = open_any(
+                path,
+                self.options.srt if own else None,
+                lens=self.options.lens if own else None,
+                layers=self.options.layers if own else (),
+            )
             mesh = session.scene()
         except GeofuseError as exc:
             self.ui.error(str(exc))
@@ -311,14 +343,22 @@ class Viewer:
             return False
         self.close_session()
         first = session.sources[0]
-        self.loaded = Loaded(session, FusionRenderer(self.window.ctx, mesh), Player(session.video), SolverLibrary(session, first=first), first)
+        self.loaded = Loaded(
+            session,
+            FusionRenderer(self.window.ctx, mesh),
+            Player(session.video),
+            SolverLibrary(session, first=first),
+            first,
+        )
         self.ui.notices = list(session.warnings.items)
         self.ui.time_offset_s = 0.0
         if session.course_pitch_deg is not None:
             self.ui.course_pitch_deg = session.course_pitch_deg
         self.stats = Stats()
         self.nav = home_view(session, mesh)
-        log.info("opened %s: %d frames, sources %s", path, len(session.video.pts_s), session.sources)
+        log.info(
+            "opened %s: %d frames, sources %s", path, len(session.video.pts_s), session.sources
+        )
         return True
 
     def close_session(self) -> None:
@@ -417,7 +457,9 @@ class Viewer:
         reference = lib.reference()
         L.renderer.set_projector(track.frame_camera(k) if track is not None and k >= 0 else None)
         ref_track = lib.track(reference) if reference != L.source else None
-        L.renderer.set_reference(ref_track.frame_camera(k) if ref_track is not None and k >= 0 else None)
+        L.renderer.set_reference(
+            ref_track.frame_camera(k) if ref_track is not None and k >= 0 else None
+        )
         truth = lib.truth_track() if self.ui.overlays.error_map else None
         L.renderer.set_truth(truth.frame_camera(k) if truth is not None and k >= 0 else None)
         if track is not None and L.trajectory_version != (lib.version, L.source):
@@ -439,7 +481,9 @@ class Viewer:
         x, y, w, h = self.view_rect or (0, 0, fb_w, fb_h)
         ctx.screen.viewport = (x, fb_h - y - h, w, h)  # GL counts rows from the bottom
         L = self.loaded
-        self.window_camera = self.nav.camera(Intrinsics.from_fov(w, h, VIEW_HFOV_DEG), L.renderer.projector)
+        self.window_camera = self.nav.camera(
+            Intrinsics.from_fov(w, h, VIEW_HFOV_DEG), L.renderer.projector
+        )
         for layer in L.renderer.scene.tilesets:
             layer.max_sse_px = self.ui.max_sse_px
         before = L.renderer.depth.renders
@@ -463,7 +507,14 @@ class Viewer:
 
         ui = self.ui
         fb = self.window.framebuffer_size()
-        state: dict = {"errors": ui.errors, "notices": ui.notices, "frames_drawn": self.stats.frames, "window": list(fb), "view_rect": list(self.view_rect or (0, 0, *fb)), "clock": self.clock()}
+        state: dict = {
+            "errors": ui.errors,
+            "notices": ui.notices,
+            "frames_drawn": self.stats.frames,
+            "window": list(fb),
+            "view_rect": list(self.view_rect or (0, 0, *fb)),
+            "clock": self.clock(),
+        }
         L = self.loaded
         if L is not None:
             cam = self.window_camera
@@ -512,7 +563,9 @@ class Viewer:
         self.window = Window(self.options.size, self.options.visible)
         gui = panels.Gui(self.window, config_dir() / "imgui.ini")
         self.window.on_scroll(lambda dx, dy: None if gui.wants_mouse() else self.nav.wheel(dy))
-        self.window.on_drop(lambda paths: setattr(self.ui, "open_request", Path(paths[0])) if paths else None)
+        self.window.on_drop(
+            lambda paths: setattr(self.ui, "open_request", Path(paths[0])) if paths else None
+        )
         if self.options.script is not None:
             try:
                 self.script = parse_script(self.options.script)
@@ -527,7 +580,9 @@ class Viewer:
         last = start
         try:
             while not self.window.should_close and not self.ui.quit:
-                frame_start = time.perf_counter()  # for the Stats panel only; playback uses self.clock
+                frame_start = (
+                    time.perf_counter()
+                )  # for the Stats panel only; playback uses self.clock
                 now = self.clock()
                 dt, last = now - last, now
                 self.window.poll()
@@ -539,7 +594,11 @@ class Viewer:
                 self._draw()
                 panels.draw(self, gui, now)
                 gui.render()
-                if self.options.screenshot is not None and self.options.script is None and now - start >= self.options.play_seconds:
+                if (
+                    self.options.screenshot is not None
+                    and self.options.script is None
+                    and now - start >= self.options.play_seconds
+                ):
                     self.ui.screenshot_request, self.ui.quit = self.options.screenshot, True
                 self._end_of_frame(now)
                 if self.ui.recorder is not None:
@@ -558,7 +617,12 @@ class Viewer:
                 self.stop_recording()
             if self.loaded is not None:
                 _, mean, p95 = self.loaded.player.stats.summary()
-                log.info("latency mean %.1f ms, p95 %.1f ms, dropped %d", mean, p95, self.loaded.player.stats.dropped)
+                log.info(
+                    "latency mean %.1f ms, p95 %.1f ms, dropped %d",
+                    mean,
+                    p95,
+                    self.loaded.player.stats.dropped,
+                )
             self.close_session()
             gui.shutdown()
             self.window.close()
@@ -570,7 +634,12 @@ def _registration_state(track) -> dict | None:
     if track is None or track.registration is None:
         return None
     reg = track.registration
-    return {"summary": reg.summary(), "keyframes": len(reg.keyframes), "used": reg.used, "prior": reg.prior}
+    return {
+        "summary": reg.summary(),
+        "keyframes": len(reg.keyframes),
+        "used": reg.used,
+        "prior": reg.prior,
+    }
 
 
 def _control_state(picks) -> dict:

@@ -32,6 +32,7 @@ def copy_session(clean: Path, dest: Path) -> Path:
 
 # --- helpers -------------------------------------------------------------------------------------
 
+
 def rewrite_csv(path: Path, edit) -> None:
     """Apply edit(header, rows) -> (header, rows) to a CSV file (rows: lists of strings)."""
     lines = path.read_text().splitlines()
@@ -43,7 +44,9 @@ def rewrite_csv(path: Path, edit) -> None:
 def set_manifest(manifest: Path, section: str, key: str, value: str) -> None:
     """Set `key = value` (TOML text) in [section], adding the key if absent."""
     text = manifest.read_text()
-    pattern = re.compile(rf"(\[{re.escape(section)}\][^\[]*?)^{re.escape(key)}\s*=[^\n]*$", re.M | re.S)
+    pattern = re.compile(
+        rf"(\[{re.escape(section)}\][^\[]*?)^{re.escape(key)}\s*=[^\n]*$", re.M | re.S
+    )
     if pattern.search(text):
         text = pattern.sub(lambda m: f"{m.group(1)}{key} = {value}", text, count=1)
     else:
@@ -68,6 +71,7 @@ def zero_gpmf_key(data: bytearray, key: bytes) -> int:
 
 # --- the damage ----------------------------------------------------------------------------------
 
+
 def zero_accelerometer(d: Path) -> None:
     rewrite_csv(d / "session/acc.csv", lambda h, rows: (h, [[r[0], "0", "0", "0"] for r in rows]))
 
@@ -77,11 +81,20 @@ def zero_magnetometer(d: Path) -> None:
 
 
 def gyro_times_in_ns(d: Path) -> None:
-    rewrite_csv(d / "session/gyr.csv", lambda h, rows: (h, [[f"{float(r[0]) * 1e9:.0f}", *r[1:]] for r in rows]))
+    rewrite_csv(
+        d / "session/gyr.csv",
+        lambda h, rows: (h, [[f"{float(r[0]) * 1e9:.0f}", *r[1:]] for r in rows]),
+    )
 
 
 def acc_with_nan_rows(d: Path) -> None:
-    rewrite_csv(d / "session/acc.csv", lambda h, rows: (h, [r if i % 50 else [r[0], "nan", r[2], r[3]] for i, r in enumerate(rows)]))
+    rewrite_csv(
+        d / "session/acc.csv",
+        lambda h, rows: (
+            h,
+            [r if i % 50 else [r[0], "nan", r[2], r[3]] for i, r in enumerate(rows)],
+        ),
+    )
 
 
 def acc_without_z(d: Path) -> None:
@@ -105,15 +118,26 @@ def gnss_null_island_first(d: Path) -> None:
 
 
 def gnss_with_a_jump(d: Path) -> None:
-    rewrite_csv(d / "session/gnss.csv", lambda h, rows: (h, [r if i != 3 else [r[0], str(float(r[1]) + 0.05), *r[2:]] for i, r in enumerate(rows)]))
+    rewrite_csv(
+        d / "session/gnss.csv",
+        lambda h, rows: (
+            h,
+            [r if i != 3 else [r[0], str(float(r[1]) + 0.05), *r[2:]] for i, r in enumerate(rows)],
+        ),
+    )
 
 
 def gnss_out_of_range(d: Path) -> None:
-    rewrite_csv(d / "session/gnss.csv", lambda h, rows: (h, [[r[0], str(float(r[1]) + 100.0), *r[2:]] for r in rows]))
+    rewrite_csv(
+        d / "session/gnss.csv",
+        lambda h, rows: (h, [[r[0], str(float(r[1]) + 100.0), *r[2:]] for r in rows]),
+    )
 
 
 def gnss_missing_column(d: Path) -> None:
-    rewrite_csv(d / "session/gnss.csv", lambda h, rows: (h[:3] + h[4:], [r[:3] + r[4:] for r in rows]))
+    rewrite_csv(
+        d / "session/gnss.csv", lambda h, rows: (h[:3] + h[4:], [r[:3] + r[4:] for r in rows])
+    )
 
 
 def manifest_nan_mount_height(d: Path) -> None:
@@ -183,23 +207,37 @@ def video_cut_short_index_first(d: Path) -> None:
 def srt_heights_absurd(d: Path, shared: Path) -> None:
     text = (shared / "real/dji/p4_rtk.SRT").read_text(encoding="utf-8")
     count = iter(range(10_000))
-    text = re.sub(r"H (\d+\.\d+)m", lambda m: "H 1e38m" if next(count) % 4 == 0 else m.group(0), text)
+    text = re.sub(
+        r"H (\d+\.\d+)m", lambda m: "H 1e38m" if next(count) % 4 == 0 else m.group(0), text
+    )
     (d / "clip.srt").write_text(text, encoding="utf-8")
 
 
 def srt_dated_layout(d: Path, shared: Path) -> None:
     """The Mavic Pro layout with the timing lines replaced by date-time lines (older firmware)."""
-    entries = (shared / "real/dji/mavic_pro.SRT").read_text(encoding="utf-8").strip().split("\n\n")[:40]
+    entries = (
+        (shared / "real/dji/mavic_pro.SRT").read_text(encoding="utf-8").strip().split("\n\n")[:40]
+    )
     out = []
     for k, e in enumerate(entries):
         lines = e.split("\n")
-        out.append("\n".join([lines[0], f"2017.07.03 10:{15 + k // 60:02d}:{k % 60:02d}", *[line for line in lines[2:] if "-->" not in line]]))
+        out.append(
+            "\n".join(
+                [
+                    lines[0],
+                    f"2017.07.03 10:{15 + k // 60:02d}:{k % 60:02d}",
+                    *[line for line in lines[2:] if "-->" not in line],
+                ]
+            )
+        )
     (d / "clip.srt").write_text("\n\n".join(out) + "\n", encoding="utf-8")
 
 
 def srt_blank_line_inside(d: Path, shared: Path) -> None:
     """An enterprise layout: a blank line inside every entry (between its two telemetry lines)."""
-    entries = (shared / "real/dji/matrice_300.srt").read_text(encoding="utf-8").strip().split("\n\n")[:30]
+    entries = (
+        (shared / "real/dji/matrice_300.srt").read_text(encoding="utf-8").strip().split("\n\n")[:30]
+    )
     out = ["\n".join(e.split("\n")[:3]) + "\n\n" + "\n".join(e.split("\n")[3:]) for e in entries]
     (d / "clip.srt").write_text("\n\n".join(out) + "\n", encoding="utf-8")
 
@@ -212,7 +250,9 @@ def srt_without_gimbal_in_manifest(d: Path, shared: Path) -> None:
     (d / "drone").mkdir()
     (d / "drone/clip.srt").write_text(entries, encoding="utf-8")
     write_video(d / "drone/clip.mp4", np.arange(150) / 30.0, (96, 54), 0)
-    (d / "drone/ground.obj").write_text("v -3000 -3000 0\nv 3000 -3000 0\nv 3000 3000 0\nv -3000 3000 0\nf 1 2 3\nf 1 3 4\n")
+    (d / "drone/ground.obj").write_text(
+        "v -3000 -3000 0\nv 3000 -3000 0\nv 3000 3000 0\nv -3000 3000 0\nf 1 2 3\nf 1 3 4\n"
+    )
     lat, lon = _first_srt_position(entries)
     (d / "drone/session.toml").write_text(
         f'[scene]\npath = "ground.obj"\norigin = [{lat}, {lon}, 0.0]\n\n[video]\npath = "clip.mp4"\nstart_time = 0.0\n\n'
@@ -289,9 +329,23 @@ def _ground_tileset(folder: Path, north_m: float = 0.0) -> Path:
     frame = LocalFrame(*PHONE_ORIGIN)
     quad = shapes.quad([-200, north_m - 200, 0], [400, 0, 0], [0, 400, 0])
     rtc = frame.enu_to_ecef(np.array([0.0, north_m, 0.0]))
-    (folder / "ground.b3dm").write_bytes(tw.b3dm(tw.glb(frame.enu_to_ecef(quad.vertices) - rtc, quad.faces), rtc))
+    (folder / "ground.b3dm").write_bytes(
+        tw.b3dm(tw.glb(frame.enu_to_ecef(quad.vertices) - rtc, quad.faces), rtc)
+    )
     region = tw.region_of(frame, [-200, north_m - 200, -1], [200, north_m + 200, 1])
-    return tw.write_json(folder / "tileset.json", {"asset": {"version": "1.0"}, "geometricError": 10, "root": {"boundingVolume": {"region": region}, "geometricError": 0, "refine": "REPLACE", "content": {"uri": "ground.b3dm"}}})
+    return tw.write_json(
+        folder / "tileset.json",
+        {
+            "asset": {"version": "1.0"},
+            "geometricError": 10,
+            "root": {
+                "boundingVolume": {"region": region},
+                "geometricError": 0,
+                "refine": "REPLACE",
+                "content": {"uri": "ground.b3dm"},
+            },
+        },
+    )
 
 
 def tileset_scene(d: Path) -> None:
@@ -316,7 +370,9 @@ def _dem(d: Path, lat: float, lon: float, holes: bool = False) -> Path:
     h = np.full((240, 240), 110.0 - 20.0)
     if holes:
         h[100:140, 100:140] = np.nan
-    return write_geotiff(d / "session/dem.tif", h, "EPSG:4326", lon - 120 * step, lat + 120 * step, step, step)
+    return write_geotiff(
+        d / "session/dem.tif", h, "EPSG:4326", lon - 120 * step, lat + 120 * step, step, step
+    )
 
 
 def _with_dem(d: Path) -> None:
@@ -353,10 +409,20 @@ def dem_under_gopro_clip(d: Path, shared: Path) -> None:
     rec = read_gopro(shared / "real/gopro/max-heromode.mp4", Warnings())
     lat, lon = float(rec.gnss.lat[0]), float(rec.gnss.lon[0])
     step = 1.0 / 3600
-    write_geotiff(d / "dem.tif", np.full((144, 144), float(rec.gnss.h[0]) - 60.0), "EPSG:4326", lon - 72 * step, lat + 72 * step, step, step)
+    write_geotiff(
+        d / "dem.tif",
+        np.full((144, 144), float(rec.gnss.h[0]) - 60.0),
+        "EPSG:4326",
+        lon - 72 * step,
+        lat + 72 * step,
+        step,
+        step,
+    )
 
 
 def dem_vertical_unknown(d: Path) -> None:
     _dem(d, PHONE_ORIGIN[0], PHONE_ORIGIN[1])
     text = (d / "session/session.toml").read_text()
-    (d / "session/session.toml").write_text(text + '\n[dem]\npath = "dem.tif"\nvertical = "navd88"\n')
+    (d / "session/session.toml").write_text(
+        text + '\n[dem]\npath = "dem.tif"\nvertical = "navd88"\n'
+    )

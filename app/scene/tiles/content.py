@@ -34,13 +34,25 @@ def _feature_json(data: bytes, start: int, length: int) -> dict:
         raise ContentError(f"feature table JSON: {exc}") from exc
 
 
-def _b3dm(data: bytes, fetch: Callable[[str], bytes], skipped: Skipped, transform: np.ndarray) -> list[RawPrimitive]:
+def _b3dm(
+    data: bytes, fetch: Callable[[str], bytes], skipped: Skipped, transform: np.ndarray
+) -> list[RawPrimitive]:
     if len(data) < 20:
         raise ContentError("b3dm header truncated")
-    ft_json, ft_bin, bt_json, bt_bin = struct.unpack_from("<4I", data, 12) if len(data) >= 28 else (0, 0, 0, 0)
+    ft_json, ft_bin, bt_json, bt_bin = (
+        struct.unpack_from("<4I", data, 12) if len(data) >= 28 else (0, 0, 0, 0)
+    )
     if bt_json >= LEGACY_TEST:  # legacy: [batchLength, batchTableByteLength], 20-byte header
-        header, ft_json, ft_bin, bt_json, bt_bin = 20, 0, 0, struct.unpack_from("<I", data, 16)[0], 0
-    elif bt_bin >= LEGACY_TEST:  # legacy: [batchTableJsonByteLength, batchTableBinaryByteLength, batchLength], 24 bytes
+        header, ft_json, ft_bin, bt_json, bt_bin = (
+            20,
+            0,
+            0,
+            struct.unpack_from("<I", data, 16)[0],
+            0,
+        )
+    elif (
+        bt_bin >= LEGACY_TEST
+    ):  # legacy: [batchTableJsonByteLength, batchTableBinaryByteLength, batchLength], 24 bytes
         header, ft_json, ft_bin = 24, 0, 0
         bt_json, bt_bin = struct.unpack_from("<2I", data, 12)
     else:
@@ -59,7 +71,9 @@ def _b3dm(data: bytes, fetch: Callable[[str], bytes], skipped: Skipped, transfor
     return read_gltf(glb, fetch, skipped, transform @ rtc)
 
 
-def _cmpt(data: bytes, fetch: Callable[[str], bytes], skipped: Skipped, transform: np.ndarray, depth: int) -> list[RawPrimitive]:
+def _cmpt(
+    data: bytes, fetch: Callable[[str], bytes], skipped: Skipped, transform: np.ndarray, depth: int
+) -> list[RawPrimitive]:
     if len(data) < 16:
         raise ContentError("cmpt header truncated")
     count = struct.unpack_from("<I", data, 12)[0]
@@ -75,7 +89,13 @@ def _cmpt(data: bytes, fetch: Callable[[str], bytes], skipped: Skipped, transfor
     return out
 
 
-def read_content(data: bytes, fetch: Callable[[str], bytes], skipped: Skipped, transform: np.ndarray, depth: int = 0) -> list[RawPrimitive]:
+def read_content(
+    data: bytes,
+    fetch: Callable[[str], bytes],
+    skipped: Skipped,
+    transform: np.ndarray,
+    depth: int = 0,
+) -> list[RawPrimitive]:
     """Triangles (ECEF when `transform` is the tile's world transform) of one tile's content.
 
     fetch(uri) reads files the content refers to (relative to the content). Raises ContentError
@@ -92,7 +112,9 @@ def read_content(data: bytes, fetch: Callable[[str], bytes], skipped: Skipped, t
             return read_gltf(data, fetch, skipped, transform)
     except struct.error as exc:
         raise ContentError(f"truncated {magic!r} content: {exc}") from exc
-    kind = {b"i3dm": "instanced models (i3dm)", b"pnts": "point clouds (pnts)"}.get(magic, "contents of unknown format")
+    kind = {b"i3dm": "instanced models (i3dm)", b"pnts": "point clouds (pnts)"}.get(
+        magic, "contents of unknown format"
+    )
     skipped.add(kind)
     return []
 

@@ -34,7 +34,9 @@ def resolve(base: str, uri: str) -> str:
         return uri
     if is_url(base):
         return urllib.parse.urljoin(base, uri)
-    path = urllib.parse.unquote(urllib.parse.urlsplit(uri).path) if "%" in uri or "?" in uri else uri
+    path = (
+        urllib.parse.unquote(urllib.parse.urlsplit(uri).path) if "%" in uri or "?" in uri else uri
+    )
     return os.path.normpath(os.path.join(os.path.dirname(base), path))
 
 
@@ -42,7 +44,9 @@ def read(location: str) -> bytes:
     """The bytes at `location` (inflated when gzip). Raises FetchError naming it."""
     try:
         if is_url(location):
-            req = urllib.request.Request(location, headers={"Accept-Encoding": "gzip", "User-Agent": "geofuse"})
+            req = urllib.request.Request(
+                location, headers={"Accept-Encoding": "gzip", "User-Agent": "geofuse"}
+            )
             with urllib.request.urlopen(req, timeout=HTTP_TIMEOUT_S) as resp:
                 data = resp.read()
         else:

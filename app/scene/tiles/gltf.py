@@ -28,12 +28,29 @@ import numpy as np
 GLB_MAGIC = b"glTF"
 CHUNK_JSON = 0x4E4F534A
 CHUNK_BIN = 0x004E4942
-COMPONENT = {5120: np.int8, 5121: np.uint8, 5122: np.int16, 5123: np.uint16, 5125: np.uint32, 5126: np.float32}
+COMPONENT = {
+    5120: np.int8,
+    5121: np.uint8,
+    5122: np.int16,
+    5123: np.uint16,
+    5125: np.uint32,
+    5126: np.float32,
+}
 NORMALIZER = {5120: 127.0, 5121: 255.0, 5122: 32767.0, 5123: 65535.0, 5125: 4294967295.0}
 WIDTH = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
-Y_UP_TO_Z_UP = np.array([[1.0, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0, 1]])  # (x, y, z) -> (x, -z, y)
+Y_UP_TO_Z_UP = np.array(
+    [[1.0, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0, 1]]
+)  # (x, y, z) -> (x, -z, y)
 # required extensions we can honour (KTX2/Basis textures: the mesh is drawn untextured and counted)
-SUPPORTED_REQUIRED = {"KHR_texture_basisu", "KHR_draco_mesh_compression", "KHR_mesh_quantization", "KHR_materials_unlit", "CESIUM_RTC", "KHR_texture_transform", "EXT_texture_webp"}
+SUPPORTED_REQUIRED = {
+    "KHR_texture_basisu",
+    "KHR_draco_mesh_compression",
+    "KHR_mesh_quantization",
+    "KHR_materials_unlit",
+    "CESIUM_RTC",
+    "KHR_texture_transform",
+    "EXT_texture_webp",
+}
 WHITE = (1.0, 1.0, 1.0, 1.0)
 
 
@@ -117,7 +134,9 @@ def _node_matrix(node: dict) -> np.ndarray:
 class _Document:
     """One glTF document with its buffers resolved."""
 
-    def __init__(self, doc: dict, binary: bytes, fetch: Callable[[str], bytes], skipped: Skipped) -> None:
+    def __init__(
+        self, doc: dict, binary: bytes, fetch: Callable[[str], bytes], skipped: Skipped
+    ) -> None:
         self.doc = doc
         self.skipped = skipped
         self.buffers: list[bytes] = []
@@ -130,7 +149,9 @@ class _Document:
             else:
                 self.buffers.append(fetch(uri))
             if len(self.buffers[-1]) < buf.get("byteLength", 0):
-                raise GltfError(f"buffer {i} holds {len(self.buffers[-1])} bytes, byteLength says {buf['byteLength']}")
+                raise GltfError(
+                    f"buffer {i} holds {len(self.buffers[-1])} bytes, byteLength says {buf['byteLength']}"
+                )
         self.fetch = fetch
         self._images: dict[int, np.ndarray | None] = {}
 
@@ -158,8 +179,12 @@ class _Document:
             stride = view.get("byteStride") or item
             need = start + stride * (count - 1) + item if count else start
             if need > len(buf):
-                raise GltfError(f"accessor {index} reads past its buffer ({need} > {len(buf)} bytes)")
-            out = np.ndarray((count, width), dtype, buffer=buf, offset=start, strides=(stride, dtype.itemsize)).copy()
+                raise GltfError(
+                    f"accessor {index} reads past its buffer ({need} > {len(buf)} bytes)"
+                )
+            out = np.ndarray(
+                (count, width), dtype, buffer=buf, offset=start, strides=(stride, dtype.itemsize)
+            ).copy()
         if acc.get("normalized") and acc["componentType"] in NORMALIZER:
             return np.maximum(out.astype(np.float64) / NORMALIZER[acc["componentType"]], -1.0)
         return out
@@ -177,7 +202,11 @@ class _Document:
             source = ext["EXT_texture_webp"].get("source", source)
         result = None
         if source is None:
-            self.skipped.add("KTX2/Basis textures (drawn untextured)" if "KHR_texture_basisu" in ext else "textures without a source")
+            self.skipped.add(
+                "KTX2/Basis textures (drawn untextured)"
+                if "KHR_texture_basisu" in ext
+                else "textures without a source"
+            )
         else:
             img = self.doc["images"][source]
             try:
@@ -187,7 +216,9 @@ class _Document:
                     raw = base64.b64decode(img["uri"].split(",", 1)[1])
                 else:
                     raw = self.fetch(img["uri"])
-                result = np.asarray(Image.open(io.BytesIO(raw)).convert("RGBA"), np.uint8)[::-1].copy()
+                result = np.asarray(Image.open(io.BytesIO(raw)).convert("RGBA"), np.uint8)[
+                    ::-1
+                ].copy()
             except Exception:  # an image PIL cannot decode (KTX2 named as a plain image, damage)
                 self.skipped.add("undecodable textures (drawn untextured)")
         self._images[texture_index] = result
@@ -204,7 +235,11 @@ def _draco(doc: _Document, ext: dict) -> tuple[np.ndarray, np.ndarray, dict[str,
         if attr is not None:
             attributes[name] = np.asarray(attr["data"]).reshape(len(mesh.points), -1)
     positions = attributes.get("POSITION", np.asarray(mesh.points))
-    return np.asarray(positions, np.float64), np.asarray(mesh.faces, np.uint32).reshape(-1, 3), attributes
+    return (
+        np.asarray(positions, np.float64),
+        np.asarray(mesh.faces, np.uint32).reshape(-1, 3),
+        attributes,
+    )
 
 
 def _triangles(indices: np.ndarray, mode: int) -> np.ndarray:
@@ -215,7 +250,9 @@ def _triangles(indices: np.ndarray, mode: int) -> np.ndarray:
         n = max(len(i) - 2, 0)
         k = np.arange(n)
         even = k % 2 == 0
-        tri = np.stack([i[k], np.where(even, i[k + 1], i[k + 2]), np.where(even, i[k + 2], i[k + 1])], axis=1)
+        tri = np.stack(
+            [i[k], np.where(even, i[k + 1], i[k + 2]), np.where(even, i[k + 2], i[k + 1])], axis=1
+        )
         return tri
     n = max(len(i) - 2, 0)  # fan
     k = np.arange(n)
@@ -238,13 +275,19 @@ def _primitive(doc: _Document, prim: dict, matrix: np.ndarray) -> RawPrimitive |
             doc.skipped.add("primitives without positions")
             return None
         positions = doc.accessor(attrs_idx["POSITION"]).astype(np.float64)[:, :3]
-        ids = doc.accessor(prim["indices"]) if "indices" in prim else np.arange(len(positions), dtype=np.uint32)
+        ids = (
+            doc.accessor(prim["indices"])
+            if "indices" in prim
+            else np.arange(len(positions), dtype=np.uint32)
+        )
         tri = _triangles(ids, mode)
         uv_source = doc.accessor(attrs_idx["TEXCOORD_0"]) if "TEXCOORD_0" in attrs_idx else None
         color_source = doc.accessor(attrs_idx["COLOR_0"]) if "COLOR_0" in attrs_idx else None
     n = len(positions)
     if len(tri) and int(tri.max()) >= n:
-        raise GltfError(f"an index ({int(tri.max())}) points past the {n} vertices of its primitive")
+        raise GltfError(
+            f"an index ({int(tri.max())}) points past the {n} vertices of its primitive"
+        )
     material = doc.doc.get("materials", [])[prim["material"]] if "material" in prim else {}
     pbr = material.get("pbrMetallicRoughness", {})
     colors = np.tile(np.asarray(pbr.get("baseColorFactor", WHITE), np.float32), (n, 1))
@@ -257,14 +300,26 @@ def _primitive(doc: _Document, prim: dict, matrix: np.ndarray) -> RawPrimitive |
     if "baseColorTexture" in pbr and uv_source is not None and len(uv_source) == n:
         texture = doc.image(pbr["baseColorTexture"]["index"])
         if texture is not None:
-            uvs = np.stack([uv_source[:, 0], 1.0 - uv_source[:, 1]], axis=1).astype(np.float32)  # glTF v runs down
-    if texture is None and "baseColorTexture" not in pbr and "baseColorFactor" not in pbr and color_source is None:
+            uvs = np.stack([uv_source[:, 0], 1.0 - uv_source[:, 1]], axis=1).astype(
+                np.float32
+            )  # glTF v runs down
+    if (
+        texture is None
+        and "baseColorTexture" not in pbr
+        and "baseColorFactor" not in pbr
+        and color_source is None
+    ):
         colors[:] = (0.75, 0.75, 0.72, 1.0)  # no material: the scene's default grey
     placed = positions @ matrix[:3, :3].T + matrix[:3, 3]
     return RawPrimitive(placed, tri.astype(np.uint32), colors, uvs, texture)
 
 
-def read_gltf(data: bytes, fetch: Callable[[str], bytes], skipped: Skipped, transform: np.ndarray | None = None) -> list[RawPrimitive]:
+def read_gltf(
+    data: bytes,
+    fetch: Callable[[str], bytes],
+    skipped: Skipped,
+    transform: np.ndarray | None = None,
+) -> list[RawPrimitive]:
     """Triangles of a GLB or JSON glTF, in the tile's Z-up frame times `transform` (4x4, default
     identity), per the module docstring. fetch(uri) returns the bytes of an external buffer or
     image (relative to the content). Raises GltfError on a malformed document."""

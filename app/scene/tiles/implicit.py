@@ -84,7 +84,9 @@ def read_subtree(data: bytes, fetch: Callable[[str], bytes]) -> Subtree:
             view = doc["bufferViews"][index]
             buf = buffers[view.get("buffer", 0)]
         except (KeyError, IndexError, TypeError) as exc:
-            raise SubtreeError(f"{name}: bitstream {index!r} not in the subtree's buffer views") from exc
+            raise SubtreeError(
+                f"{name}: bitstream {index!r} not in the subtree's buffer views"
+            ) from exc
         start = view.get("byteOffset", 0)
         bits = buf[start : start + view["byteLength"]]
         if len(bits) < view["byteLength"]:

@@ -50,9 +50,13 @@ class TileView:
     def of(cls, camera: object, focal_px: float | None = None) -> TileView:
         """From an app.camera.Camera; focal_px defaults to its intrinsics' fy."""
         m = np.asarray(camera.view_projection, np.float64)  # row-major, clip = m @ [x, y, z, 1]
-        planes = np.stack([m[3] + m[0], m[3] - m[0], m[3] + m[1], m[3] - m[1], m[3] + m[2], m[3] - m[2]])
+        planes = np.stack(
+            [m[3] + m[0], m[3] - m[0], m[3] + m[1], m[3] - m[1], m[3] + m[2], m[3] - m[2]]
+        )
         planes /= np.linalg.norm(planes[:, :3], axis=1, keepdims=True)
-        return cls(np.asarray(camera.position, np.float64), planes, float(focal_px or camera.intrinsics.fy))
+        return cls(
+            np.asarray(camera.position, np.float64), planes, float(focal_px or camera.intrinsics.fy)
+        )
 
     def visible(self, tile: Tile) -> bool:
         return bool(np.all(self.planes[:, :3] @ tile.center + self.planes[:, 3] >= -tile.radius))
@@ -77,13 +81,29 @@ def decode_tile(tileset: Tileset, tile: Tile, skipped: Skipped) -> MeshData:
     for location in tile.contents:
         data = fetch.read(location)
         try:
-            raws = read_content(data, lambda u, base=location: fetch.read(fetch.resolve(base, u)), skipped, tile.transform)
+            raws = read_content(
+                data,
+                lambda u, base=location: fetch.read(fetch.resolve(base, u)),
+                skipped,
+                tile.transform,
+            )
         except (ContentError, GltfError) as exc:
             raise ContentError(f"{location}: {exc}") from exc
         for raw in raws:
             enu = frame.ecef_to_enu(raw.positions).astype(np.float32)
-            prims.append(Primitive(enu, raw.colors.astype(np.float32), raw.indices, raw.uvs, raw.texture, name=f"tile {tile.id}"))
-    return MeshData(merge_untextured(prims, f"tile {tile.id}"))  # one draw call for the untextured ones
+            prims.append(
+                Primitive(
+                    enu,
+                    raw.colors.astype(np.float32),
+                    raw.indices,
+                    raw.uvs,
+                    raw.texture,
+                    name=f"tile {tile.id}",
+                )
+            )
+    return MeshData(
+        merge_untextured(prims, f"tile {tile.id}")
+    )  # one draw call for the untextured ones
 
 
 @dataclass
@@ -103,7 +123,13 @@ class TileStream:
     the workers finished (then `mark_ready` once uploaded), and `release_content(tile)` when it
     evicts a tile. `close()` stops the workers."""
 
-    def __init__(self, tileset: Tileset, max_sse_px: float = DEFAULT_MAX_SSE_PX, workers: int = DEFAULT_WORKERS, decode: Callable[[Tileset, Tile, Skipped], MeshData] = decode_tile) -> None:
+    def __init__(
+        self,
+        tileset: Tileset,
+        max_sse_px: float = DEFAULT_MAX_SSE_PX,
+        workers: int = DEFAULT_WORKERS,
+        decode: Callable[[Tileset, Tile, Skipped], MeshData] = decode_tile,
+    ) -> None:
         self.tileset = tileset
         self.max_sse_px = float(max_sse_px)
         self.decode = decode
@@ -116,7 +142,10 @@ class TileStream:
         self._busy: set[int] = set()  # in a worker, or finished and not yet taken
         self._done: list[Loaded] = []
         self._closed = False
-        self._threads = [threading.Thread(target=self._work, name=f"tiles-{i}", daemon=True) for i in range(max(1, workers))]
+        self._threads = [
+            threading.Thread(target=self._work, name=f"tiles-{i}", daemon=True)
+            for i in range(max(1, workers))
+        ]
         for t in self._threads:
             t.start()
 
@@ -139,7 +168,9 @@ class TileStream:
             nonlocal lacking
             lacking = True
             if tile.id not in self._busy:
-                wants.append(((tile.depth, float(np.linalg.norm(tile.center - view.position))), tile))
+                wants.append(
+                    ((tile.depth, float(np.linalg.norm(tile.center - view.position))), tile)
+                )
 
         def visit(tile: Tile) -> tuple[list[Tile], bool]:
             """(tiles to draw, whether they cover the tile fully)."""
@@ -227,7 +258,11 @@ class TileStream:
                 else:
                     self.tileset.expand(tile)
             except Exception as exc:  # a thread boundary: any failure of one tile is that tile's
-                message = str(exc) if isinstance(exc, LOAD_ERRORS) else f"{tile.contents[0] if tile.contents else tile.source}: {type(exc).__name__}: {exc}"
+                message = (
+                    str(exc)
+                    if isinstance(exc, LOAD_ERRORS)
+                    else f"{tile.contents[0] if tile.contents else tile.source}: {type(exc).__name__}: {exc}"
+                )
                 with self._cond:
                     self.failures += 1
                     if len(self.errors) < MAX_ERRORS_KEPT:

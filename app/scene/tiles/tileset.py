@@ -89,7 +89,9 @@ def _matrix(values: object, where: str, source: str) -> np.ndarray:
     return m
 
 
-def volume_points(volume: dict, transform: np.ndarray, source: str, where: str) -> tuple[np.ndarray, float | None]:
+def volume_points(
+    volume: dict, transform: np.ndarray, source: str, where: str
+) -> tuple[np.ndarray, float | None]:
     """ECEF sample points of a bounding volume (corners; a grid for regions), and a sphere's own
     radius (scaled) when the volume is a sphere."""
     try:
@@ -150,30 +152,60 @@ class Tileset:
             self.tile_count += 1
             return next(self._ids)
 
-    def _place(self, volume: dict, transform: np.ndarray, source: str, where: str) -> tuple[np.ndarray, float, np.ndarray]:
+    def _place(
+        self, volume: dict, transform: np.ndarray, source: str, where: str
+    ) -> tuple[np.ndarray, float, np.ndarray]:
         pts_ecef, own_radius = volume_points(volume, transform, source, where)
         enu = self.frame.ecef_to_enu(pts_ecef)
         box = np.stack([enu.min(axis=0), enu.max(axis=0)])
         center = box.mean(axis=0)
-        radius = own_radius if own_radius is not None else float(np.linalg.norm(enu - center, axis=1).max())
+        radius = (
+            own_radius
+            if own_radius is not None
+            else float(np.linalg.norm(enu - center, axis=1).max())
+        )
         return center, radius, box
 
-    def _tile(self, node: dict, parent_transform: np.ndarray, parent: Tile | None, source: str, depth: int, where: str) -> Tile:
+    def _tile(
+        self,
+        node: dict,
+        parent_transform: np.ndarray,
+        parent: Tile | None,
+        source: str,
+        depth: int,
+        where: str,
+    ) -> Tile:
         if not isinstance(node, dict):
             raise TilesetError(source, "a tile must be a JSON object", where)
-        transform = parent_transform @ _matrix(node["transform"], f"{where}.transform", source) if "transform" in node else parent_transform
+        transform = (
+            parent_transform @ _matrix(node["transform"], f"{where}.transform", source)
+            if "transform" in node
+            else parent_transform
+        )
         if "boundingVolume" not in node:
             raise TilesetError(source, "tile without boundingVolume", f"{where}.boundingVolume")
-        center, radius, box = self._place(node["boundingVolume"], transform, source, f"{where}.boundingVolume")
+        center, radius, box = self._place(
+            node["boundingVolume"], transform, source, f"{where}.boundingVolume"
+        )
         refine = str(node.get("refine", parent.refine if parent else "REPLACE")).upper()
         if refine not in REFINES:
-            raise TilesetError(source, f"refine must be ADD or REPLACE, got {node.get('refine')!r}", f"{where}.refine")
+            raise TilesetError(
+                source,
+                f"refine must be ADD or REPLACE, got {node.get('refine')!r}",
+                f"{where}.refine",
+            )
         try:
             error = float(node.get("geometricError", parent.geometric_error / 2 if parent else 0.0))
         except (TypeError, ValueError) as exc:
-            raise TilesetError(source, "geometricError must be a number", f"{where}.geometricError") from exc
+            raise TilesetError(
+                source, "geometricError must be a number", f"{where}.geometricError"
+            ) from exc
         if not np.isfinite(error) or error < 0:
-            raise TilesetError(source, f"geometricError must be finite and >= 0, got {error}", f"{where}.geometricError")
+            raise TilesetError(
+                source,
+                f"geometricError must be finite and >= 0, got {error}",
+                f"{where}.geometricError",
+            )
         raw = node.get("contents") or ([node["content"]] if "content" in node else [])
         uris = []
         for c in raw:
@@ -181,7 +213,9 @@ class Tileset:
             if not isinstance(uri, str):
                 raise TilesetError(source, "content without uri", f"{where}.content")
             uris.append(uri)
-        tile = Tile(self._new_id(), depth, transform, center, radius, box, error, refine, (), source)
+        tile = Tile(
+            self._new_id(), depth, transform, center, radius, box, error, refine, (), source
+        )
         if "implicitTiling" in node:
             tile.implicit = self._implicit_root(node, uris, source, where)
             tile.children = None
@@ -190,12 +224,19 @@ class Tileset:
         json_ = [u for u in locations if u.split("?")[0].lower().endswith(".json")]
         if json_:
             if len(locations) > 1:
-                raise TilesetError(source, "an external tileset must be the tile's only content", f"{where}.content")
+                raise TilesetError(
+                    source,
+                    "an external tileset must be the tile's only content",
+                    f"{where}.content",
+                )
             tile.external, tile.children = json_[0], None
             return tile
         tile.contents = tuple(locations)
         kids = node.get("children", [])
-        tile.children = [self._tile(k, transform, tile, source, depth + 1, f"{where}.children[{i}]") for i, k in enumerate(kids)]
+        tile.children = [
+            self._tile(k, transform, tile, source, depth + 1, f"{where}.children[{i}]")
+            for i, k in enumerate(kids)
+        ]
         return tile
 
     # -- implicit tiling -------------------------------------------------------------------
@@ -203,16 +244,26 @@ class Tileset:
         spec = node["implicitTiling"]
         scheme = str(spec.get("subdivisionScheme", "")).upper()
         if scheme not in ("QUADTREE", "OCTREE"):
-            raise TilesetError(source, f"subdivisionScheme must be QUADTREE or OCTREE, got {scheme!r}", f"{where}.implicitTiling")
+            raise TilesetError(
+                source,
+                f"subdivisionScheme must be QUADTREE or OCTREE, got {scheme!r}",
+                f"{where}.implicitTiling",
+            )
         volume = node["boundingVolume"]
         if "sphere" in volume:
-            raise TilesetError(source, "implicit tiling needs a box or region volume", f"{where}.boundingVolume")
+            raise TilesetError(
+                source, "implicit tiling needs a box or region volume", f"{where}.boundingVolume"
+            )
         try:
             levels = int(spec["subtreeLevels"])
             available = int(spec.get("availableLevels", spec.get("maximumLevel", 0) + 1))
             subtrees = spec["subtrees"]["uri"]
         except (KeyError, TypeError, ValueError) as exc:
-            raise TilesetError(source, f"implicitTiling needs subtreeLevels, availableLevels and subtrees.uri ({exc})", f"{where}.implicitTiling") from exc
+            raise TilesetError(
+                source,
+                f"implicitTiling needs subtreeLevels, availableLevels and subtrees.uri ({exc})",
+                f"{where}.implicitTiling",
+            ) from exc
         dims = 2 if scheme == "QUADTREE" else 3
         return Implicit(
             dims, levels, available, fetch.resolve(source, subtrees), tuple(fetch.resolve(source, u) for u in uris),
@@ -237,12 +288,49 @@ class Tileset:
             lo, hi = lo + coords[2] * dz, lo + (coords[2] + 1) * dz
         return {"region": [w + x * dx, s + y * dy, w + (x + 1) * dx, s + (y + 1) * dy, lo, hi]}
 
-    def _implicit_tile(self, parent: Tile, level: int, coords: tuple[int, ...], subtree: Subtree | None, subtree_root: tuple[int, tuple[int, ...]]) -> Tile:
+    def _implicit_tile(
+        self,
+        parent: Tile,
+        level: int,
+        coords: tuple[int, ...],
+        subtree: Subtree | None,
+        subtree_root: tuple[int, tuple[int, ...]],
+    ) -> Tile:
         imp = parent.implicit
         volume = self._implicit_volume(imp, level, coords)
-        center, radius, box = self._place(volume, parent.transform, parent.source, f"implicit tile {level}/{'/'.join(map(str, coords))}")
-        child_imp = Implicit(imp.scheme_dims, imp.subtree_levels, imp.available_levels, imp.subtree_template, imp.content_templates, imp.root_volume, imp.root_error, level, coords, subtree, subtree_root)
-        tile = Tile(self._new_id(), parent.depth + 1, parent.transform, center, radius, box, imp.root_error / (1 << level), parent.refine, (), parent.source, None, implicit=child_imp)
+        center, radius, box = self._place(
+            volume,
+            parent.transform,
+            parent.source,
+            f"implicit tile {level}/{'/'.join(map(str, coords))}",
+        )
+        child_imp = Implicit(
+            imp.scheme_dims,
+            imp.subtree_levels,
+            imp.available_levels,
+            imp.subtree_template,
+            imp.content_templates,
+            imp.root_volume,
+            imp.root_error,
+            level,
+            coords,
+            subtree,
+            subtree_root,
+        )
+        tile = Tile(
+            self._new_id(),
+            parent.depth + 1,
+            parent.transform,
+            center,
+            radius,
+            box,
+            imp.root_error / (1 << level),
+            parent.refine,
+            (),
+            parent.source,
+            None,
+            implicit=child_imp,
+        )
         if subtree is not None:
             self._implicit_contents(tile)
         return tile
@@ -282,9 +370,15 @@ class Tileset:
             if local_level + 1 < imp.subtree_levels:
                 index = level_offset(local_level + 1, imp.scheme_dims) + morton(child_local)
                 if imp.subtree.tiles(index):
-                    kids.append(self._implicit_tile(tile, imp.level + 1, coords, imp.subtree, imp.subtree_root))
+                    kids.append(
+                        self._implicit_tile(
+                            tile, imp.level + 1, coords, imp.subtree, imp.subtree_root
+                        )
+                    )
             elif imp.subtree.children(morton(child_local)):
-                kids.append(self._implicit_tile(tile, imp.level + 1, coords, None, (imp.level + 1, coords)))
+                kids.append(
+                    self._implicit_tile(tile, imp.level + 1, coords, None, (imp.level + 1, coords))
+                )
         return kids
 
     def expand(self, tile: Tile) -> None:
@@ -300,7 +394,9 @@ class Tileset:
                 doc = self._read_json(location)
                 if "root" not in doc:
                     raise TilesetError(location, "no root tile", "root")
-                kids = [self._tile(doc["root"], tile.transform, tile, location, tile.depth + 1, "root")]
+                kids = [
+                    self._tile(doc["root"], tile.transform, tile, location, tile.depth + 1, "root")
+                ]
             tile.children = kids
 
     def bounds(self) -> np.ndarray:

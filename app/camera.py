@@ -13,7 +13,7 @@ import numpy as np
 import numpy.typing as npt
 
 from app import rotations
-from app.constants import DEFAULT_FAR_M, DEFAULT_NEAR_M, EPS_DEGENERATE
+from app.constants import DEFAULT_FAR_M, DEFAULT_NEAR_M, EPS_DEGENERATE, FOV_RANGE_DEG
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -40,8 +40,9 @@ class Intrinsics:
         cls, width: int, height: int, fov_deg: float, axis: str = "horizontal"
     ) -> "Intrinsics":
         """Square pixels, principal point at the image centre, FOV (deg) across the given axis."""
-        if not 0.0 < fov_deg < 180.0:
-            raise ValueError(f"field of view must be in (0, 180) degrees, got {fov_deg}")
+        lo, hi = FOV_RANGE_DEG
+        if not lo <= fov_deg <= hi:
+            raise ValueError(f"field of view must be in [{lo:g}, {hi:g}] degrees, got {fov_deg}")
         span = width if axis == "horizontal" else height
         if axis not in ("horizontal", "vertical"):
             raise ValueError(f"axis must be 'horizontal' or 'vertical', got {axis!r}")

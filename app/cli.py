@@ -19,6 +19,8 @@ from app.constants import (
     DEFAULT_DEPTH_SLOPE_BIAS,
     DEFAULT_FAR_M,
     DEFAULT_NEAR_M,
+    FOV_RANGE_DEG,
+    SYNC_MIN_CONFIDENCE,
 )
 from app.errors import GeofuseError
 from app.export import EXPORT_SUFFIXES
@@ -537,6 +539,13 @@ def cmd_sync(args: argparse.Namespace) -> int:
         if result.windows
         else "no window with rotation"
     )
+    if args.write and result.confidence < SYNC_MIN_CONFIDENCE and not args.force:
+        print(
+            f"not written: confidence {result.confidence:.3f} is below {SYNC_MIN_CONFIDENCE} (the video's rotation hardly "
+            "follows the reference: stabilised video, too little turning, or the wrong clip); --force keeps it anyway",
+            file=sys.stderr,
+        )
+        return 1
     if args.write:
         out = check_output(
             settings_path(Path(args.input)), "--write", (".toml",), list(session.inputs)
@@ -751,7 +760,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     r.add_argument(
         "--fov",
-        type=_number(0.0, 180.0, open_low=True),
+        type=_number(*FOV_RANGE_DEG),
         help="the image's horizontal field of view, degrees",
     )
     r.add_argument(
@@ -776,7 +785,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     r.add_argument(
         "--view-fov",
-        type=_number(0.0, 180.0, open_low=True),
+        type=_number(*FOV_RANGE_DEG),
         default=60.0,
         help="window camera horizontal field of view, degrees",
     )
@@ -858,7 +867,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_layer_options(so)
     so.add_argument(
         "--fov",
-        type=_number(0.0, 180.0, open_low=True),
+        type=_number(*FOV_RANGE_DEG),
         default=None,
         help="override the lens's horizontal field of view, degrees",
     )
@@ -929,7 +938,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_layer_options(ex)
     ex.add_argument(
         "--fov",
-        type=_number(0.0, 180.0, open_low=True),
+        type=_number(*FOV_RANGE_DEG),
         default=None,
         help="override the lens's horizontal field of view, degrees",
     )
@@ -980,6 +989,11 @@ def build_parser() -> argparse.ArgumentParser:
         "--write",
         action="store_true",
         help="keep it in NAME.geofuse.toml beside the input (never in an input)",
+    )
+    sy.add_argument(
+        "--force",
+        action="store_true",
+        help=f"with --write: keep an offset found with a confidence below {SYNC_MIN_CONFIDENCE} too",
     )
     sy.add_argument(
         "--lens", type=Path, default=None, help="a gyroflow lens profile (JSON) for a clip"

@@ -13,6 +13,15 @@ ECEF_MIN_RADIUS_M = 6.0e6
 # Geometry checks
 EPS_DEGENERATE = 1e-12  # below this a vector or quaternion norm is treated as zero
 
+# Fields of view cameras have (degrees): a long telephoto to a wide fisheye; manifests, the CLI
+# and Intrinsics refuse others.
+FOV_RANGE_DEG = (0.5, 179.0)
+
+# `geofuse sync --write` keeps an offset only above this confidence (the mean correlation of the
+# rate components on the fitted windows): the sample walk finds 0.99, a drone's course 0.84-0.91,
+# a stabilised GoPro clip 0.00.
+SYNC_MIN_CONFIDENCE = 0.5
+
 # Rendering defaults
 DEFAULT_NEAR_M = 0.5  # the video's camera (projector): near and far clipping planes, metres
 DEFAULT_FAR_M = 2000.0

@@ -15,8 +15,13 @@ from __future__ import annotations
 
 import sys
 
-import h5py
-import numpy as np
+try:
+    import h5py
+    import numpy as np
+except ModuleNotFoundError as exc:  # the system Python, not the project's
+    raise SystemExit(
+        f"{exc.name} is not installed here: run `make setup`, then `.venv/bin/python {__file__} ...`"
+    ) from None
 
 STEP = 4  # 2.5' -> 10'
 

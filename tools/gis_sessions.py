@@ -16,8 +16,13 @@ import shutil
 import sys
 from pathlib import Path
 
-import numpy as np
-import pyproj
+try:
+    import numpy as np
+    import pyproj
+except ModuleNotFoundError as exc:  # the system Python, not the project's
+    raise SystemExit(
+        f"{exc.name} is not installed here: run `make setup`, then `.venv/bin/python {__file__} OUT`"
+    ) from None
 
 ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:

@@ -143,6 +143,9 @@ RATE_RANGE_HZ = (
     20_000.0,
 )  # an IMU sample rate outside this is a time-unit mistake or a broken log
 DEAD_SENSOR = {"acc": 0.5, "mag": 0.5}  # median norm (m/s^2, uT) below which a sensor reads nothing
+# Norms no sensor of a phone, action camera or drone reports (rad/s, m/s^2, uT): twice a 2000 deg/s
+# gyroscope's range, 50 g, a hundred times the Earth's field; samples beyond are not measurements.
+SENSOR_LIMIT = {"gyr": 70.0, "acc": 500.0, "mag": 5000.0}
 MAX_SPEED_MPS = 150.0  # horizontal: no phone, car, action camera or small drone moves faster
 MAX_CLIMB_MPS = 60.0  # vertical speed beyond which a height is a jump, not motion
 MAX_DOP = 5.0  # fixes with a worse dilution of precision are not positions to use
@@ -151,14 +154,27 @@ HEIGHT_RANGE_M = (-1_000.0, 20_000.0)  # ellipsoidal heights a fix can have
 
 def checked_vector(stream: VectorStream, warnings: Warnings) -> VectorStream | None:
     """A sensor stream as it enters: rows with non-finite values dropped and counted; a sample
-    rate in RATE_RANGE_HZ (else DataFormatError: the time unit is wrong); a dead accelerometer
+    rate in RATE_RANGE_HZ (else DataFormatError: the time unit is wrong); samples whose norm
+    exceeds SENSOR_LIMIT dropped and counted like them; a dead accelerometer
     (reads ~0 throughout) is an error, a dead magnetometer is dropped (None) with a warning."""
     path = Path(stream.source or stream.name)
     finite = np.isfinite(stream.values).all(axis=1) & np.isfinite(stream.t)
+    limit = SENSOR_LIMIT.get(stream.name)
+    with np.errstate(over="ignore", invalid="ignore"):
+        beyond = finite & (
+            np.linalg.norm(np.where(finite[:, None], stream.values, 0.0), axis=1)
+            > (limit or np.inf)
+        )
     if not finite.all():
         warnings.add(
             f"{path.name}: {int((~finite).sum())} {stream.name} samples with non-finite values dropped"
         )
+    if beyond.any():
+        warnings.add(
+            f"{path.name}: {int(beyond.sum())} {stream.name} samples beyond {limit:g} {stream.unit} (no sensor reads that) dropped"
+        )
+    if not finite.all() or beyond.any():
+        finite = finite & ~beyond
         stream = VectorStream(
             stream.name, stream.t[finite], stream.values[finite], stream.unit, stream.source
         )

@@ -338,6 +338,11 @@ def assemble(cfg: SessionConfig) -> Session:
     video = probe(cfg.video.path)
     video.note_damage(warnings)
     clip_start, frame_times = _frame_times(cfg, video)
+    if cfg.video.start_time is None:
+        warnings.add(
+            f"video.start_time not given: the video's creation time {video.creation_time:.3f} s is the first frame's session time "
+            "(a file timestamp can be off by a second; `geofuse sync` finds the offset)"
+        )
     rotation = video.rotation_cw if cfg.camera.rotation_cw is None else cfg.camera.rotation_cw
     w, h = (video.height, video.width) if rotation % 180 else (video.width, video.height)
     intr, lens = _intrinsics(cfg, w, h, rotation, warnings)

@@ -74,6 +74,7 @@ checked for finiteness and range here, where it enters.
 
 from __future__ import annotations
 
+import difflib
 import math
 import tomllib
 from dataclasses import dataclass
@@ -81,6 +82,7 @@ from pathlib import Path
 from typing import Any
 
 from app.attitude.heading import DRONE_DEFAULT_PITCH_DEG
+from app.constants import FOV_RANGE_DEG
 from app.errors import ManifestError, SceneError
 from app.geoid import VERTICAL_DATUMS
 from app.scene import Placement
@@ -88,6 +90,67 @@ from app.scene.layers import Layer, layer_kind
 from app.scene.tiles import fetch
 
 HANDHELD_MOUNT_M = 1.5  # a hand-held or body camera's height above the ground, metres
+_PLACED = {"path", "origin", "up_axis", "heading_deg", "scale"}
+KNOWN_KEYS: dict[str, set[str]] = {  # every table and key of the schema above
+    "origin": {"lat", "lon", "h"},
+    "scene": _PLACED,
+    "layers": _PLACED,
+    "dem": {"path", "ortho", "vertical", "max_error_m"},
+    "video": {"path", "start_time", "time_offset_s", "timing"},
+    "camera": {"hfov_deg", "focal_mm", "sensor_width_mm", "lens", "readout_ms", "rotation_cw"},
+    "sensors": {
+        "format",
+        "mag_calibration",
+        "acc",
+        "gyr",
+        "mag",
+        "orientation",
+        "path",
+        "standardised",
+    },
+    "gnss": {
+        "path",
+        "takeoff_height_m",
+        "height_offset_m",
+        "height",
+        "mount_height_m",
+        "pitch_deg",
+    },
+    "truth": {"orientation", "position", "frame_times"},
+}
+
+
+def _suggestion(word: str, known: set[str]) -> str:
+    close = difflib.get_close_matches(word, sorted(known), n=1, cutoff=0.5)
+    prefix = [k for k in sorted(known) if k.startswith(word) or word.startswith(k)]
+    best = close or prefix
+    return (
+        f"; did you mean {best[0]!r}?" if best else f"; expected one of {', '.join(sorted(known))}"
+    )
+
+
+def check_keys(path: Path, data: dict[str, Any]) -> None:
+    """ManifestError naming the first unknown table or key, with the nearest known one."""
+    for section, table in data.items():
+        if section not in KNOWN_KEYS:
+            raise ManifestError(
+                path,
+                f"unknown table [{section}]{_suggestion(section, set(KNOWN_KEYS))}",
+                field=section,
+            )
+        tables = table if isinstance(table, list) else [table]
+        for t in tables:
+            if not isinstance(t, dict):
+                continue  # the table's own reader says what it expected
+            for key in t:
+                if key not in KNOWN_KEYS[section]:
+                    raise ManifestError(
+                        path,
+                        f"unknown key{_suggestion(key, KNOWN_KEYS[section])}",
+                        field=f"{section}.{key}",
+                    )
+
+
 SENSOR_FORMATS = ("csv", "sensorlogger", "gopro", "none")
 
 
@@ -402,6 +465,7 @@ def _layers(m: Manifest) -> list[Layer]:
 def read_config(path: str | Path) -> SessionConfig:
     """Read and validate a manifest (files named must exist; values typed and in range)."""
     m = load_manifest(path)
+    check_keys(m.path, m.data)
     scene = SceneConfig(*_layer(m, "scene")) if m.section("scene", required=False) else None
     layers = ([scene.layer] if scene else []) + _layers(m)
     if m.section("origin", required=False):
@@ -435,7 +499,7 @@ def read_config(path: str | Path) -> SessionConfig:
             m.path, f"got {rotation}, expected 0, 90, 180 or 270", field="camera.rotation_cw"
         )
     camera = CameraConfig(
-        m.number("camera", "hfov_deg", None, low=0.0, high=180.0, open_low=True),
+        m.number("camera", "hfov_deg", None, low=FOV_RANGE_DEG[0], high=FOV_RANGE_DEG[1]),
         m.number("camera", "focal_mm", None, low=0.0, high=10_000.0, open_low=True),
         m.number("camera", "sensor_width_mm", None, low=0.0, high=1_000.0, open_low=True),
         None if rotation is None else rotation % 360,

@@ -571,7 +571,7 @@ class Viewer:
                 self.script = parse_script(self.options.script)
             except GeofuseError as exc:
                 self.ui.error(str(exc))
-        self.open(self.options.manifest)
+        opened = self.open(self.options.manifest)
         start = self.clock()
         self._run_script(0.0, start)  # clock and wait directives at 0 apply before the first frame
         start = self.clock()
@@ -626,6 +626,9 @@ class Viewer:
             self.close_session()
             gui.shutdown()
             self.window.close()
+        if not opened and self.options.screenshot is not None and self.options.script is None:
+            log.error("the session did not open: the screenshot shows the error, not a session")
+            return 1
         return 0
 
 

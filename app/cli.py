@@ -295,12 +295,11 @@ def cmd_render(args: argparse.Namespace) -> int:
 
 
 def _render_session(args: argparse.Namespace) -> int:
-    import numpy as np
 
     from app.camera import Intrinsics
     from app.config import OverlaySettings
     from app.imageio import write_rgb
-    from app.io.video import read_frame
+    from app.io.video import frame_at, read_frame
     from app.render.still import render_still, window_camera
 
     if args.time is None:
@@ -313,7 +312,7 @@ def _render_session(args: argparse.Namespace) -> int:
             f"--time {args.time:g}: the video runs from {pts[0]:.3f} to {pts[-1]:.3f} s"
         )
     _print_warnings(session)
-    index = int(np.argmin(np.abs(pts - args.time)))
+    index = frame_at(pts, args.time)
     try:
         track = _solved(session, source).with_clip(DEFAULT_NEAR_M, args.far)
     except ValueError as exc:
@@ -420,10 +419,10 @@ def cmd_view(args: argparse.Namespace) -> int:
 
 def cmd_export(args: argparse.Namespace) -> int:
     """footprints / fmv-csv / klv / video of a session or clip (app/export)."""
-    import numpy as np
 
     from app.export.gis import write_records
     from app.export.records import frame_records
+    from app.io.video import frame_at
     from app.outputs import write_atomically, write_via_path
     from app.progress import ProgressBar
 
@@ -440,10 +439,8 @@ def cmd_export(args: argparse.Namespace) -> int:
         from app.export.video import export_video
 
         pts = session.video.pts_s
-        first = int(np.searchsorted(pts, args.start - 1e-6)) if args.start is not None else 0
-        last = (
-            int(np.searchsorted(pts, args.end + 1e-6)) - 1 if args.end is not None else len(pts) - 1
-        )
+        first = frame_at(pts, args.start) if args.start is not None else 0
+        last = frame_at(pts, args.end) if args.end is not None else len(pts) - 1
         if not 0 <= first <= last < len(pts):
             raise GeofuseError(
                 f"--from/--to: no frame between {args.start} and {args.end} s (the video runs 0 to {pts[-1]:.3f} s)"

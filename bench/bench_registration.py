@@ -8,7 +8,7 @@ length; time per stage: render, match (features, matching, pose), decode). Fallb
 video from 20 to 35 s replaced by grey fog (what a lens fogged up, a featureless wall or the sky
 look like to a matcher); position error (m) of the registered and the prior track against the
 truth, inside and outside the fog, at every 10th frame. Matchers: every 4th second's frame
-registered from its true pose moved 3 m and turned 2 deg, by each detector (SIFT, AKAZE, ORB)
+registered from its true pose moved 3 m and turned 2 deg, by each detector (SIFT, ORB)
 with and without the fine step (corners tracked by Lucas-Kanade): how many land within 0.3 m and
 0.3 deg, the median errors, and the time per keyframe.
 """
@@ -109,7 +109,7 @@ def matchers(session) -> list[list[str]]:
     idx = keyframe_indices(np.asarray(session.video.pts_s), 4.0)
     frames = dict(frames_at(session.video, idx, RegistrationSettings().long_side))
     rows = []
-    for detector in ("sift", "akaze", "orb"):
+    for detector in ("sift", "orb"):
         for fine in (True, False):
             settings = RegistrationSettings(match=MatchSettings(detector=detector), fine=fine)
             registrar = Registrar(session, settings)

@@ -233,7 +233,7 @@ def test_the_fused_video_has_every_frame_and_matches_an_offscreen_render(sample,
     from app.camera_track import camera_track
     from app.config import OverlaySettings, ProjectionSettings
     from app.export.video import EXPORT_ALPHA, view_camera
-    from app.io.video import read_frame
+    from app.io.video import frame_at, read_frame
     from app.render.context import create_offscreen_context
     from app.render.offscreen import render_to_array
     from app.render.renderer import FusionRenderer
@@ -260,7 +260,9 @@ def test_the_fused_video_has_every_frame_and_matches_an_offscreen_render(sample,
         == 0
     )
     pts = sample.video.pts_s
-    first, last = int(np.searchsorted(pts, 10 - 1e-6)), int(np.searchsorted(pts, 11 + 1e-6)) - 1
+    # The frames on screen from 10 s to 11 s, as the viewer shows them (app.io.video.frame_at).
+    first, last = frame_at(pts, 10.0), frame_at(pts, 11.0)
+    assert pts[first] <= 10.0 < pts[first + 1] and pts[last] <= 11.0 < pts[last + 1]
     with av.open(str(out)) as c:
         s = c.streams.video[0]
         frames = [f.to_ndarray(format="rgb24") for f in c.decode(s)]

@@ -20,7 +20,7 @@ from fractions import Fraction
 from pathlib import Path
 
 from app.export.records import FrameRecord
-from app.io.video import VideoInfo, media_seconds
+from app.io.video import VideoInfo, frame_of, media_seconds
 
 UAS_LOCAL_SET_KEY = bytes.fromhex("060E2B34020B01010E01030101000000")
 ST0601_VERSION = 17
@@ -105,7 +105,7 @@ def write_klv_ts(
     per record at its frame's presentation time; returns the number of Local Sets written."""
     import av
 
-    by_pts = {round(r.media_s, 4): r for r in records}
+    by_frame = {k: r for r in records if (k := frame_of(video.pts_s, r.media_s)) is not None}
     written = 0
     with av.open(str(video.path)) as src, av.open(str(out), "w", format="mpegts") as dst:
         vin = src.streams.video[0]
@@ -121,7 +121,7 @@ def write_klv_ts(
             if packet.pts is None:
                 continue
             media = media_seconds(packet.pts, vin.time_base, origin)
-            r = by_pts.get(round(media, 4))
+            r = by_frame.get(frame_of(video.pts_s, media))
             if r is not None:
                 k = av.Packet(local_set(r))
                 k.stream = data
@@ -130,5 +130,5 @@ def write_klv_ts(
                 dst.mux(k)
                 written += 1
                 if progress is not None:
-                    progress(written / max(len(by_pts), 1))
+                    progress(written / max(len(by_frame), 1))
     return written

@@ -19,7 +19,7 @@ from app.camera import Camera, Intrinsics, look_at_quat
 from app.camera_track import CameraTrack
 from app.config import OverlaySettings, ProjectionSettings
 from app.constants import VIEW_FAR_M, VIEW_NEAR_M
-from app.io.video import VideoInfo, media_seconds, rotate_for_display
+from app.io.video import VideoInfo, frame_of, media_seconds, rotate_for_display
 from app.render.context import create_offscreen_context
 from app.render.offscreen import OffscreenTarget, render_to_array
 from app.render.renderer import FusionRenderer
@@ -97,11 +97,10 @@ def export_video(
             enc.time_base = Fraction(1, 90000)
             enc.codec_context.time_base = enc.time_base
             enc.codec_context.options = {"preset": "veryfast", "crf": "20", "bf": "0"}
-            index = {round(t, 4): k for k, t in enumerate(video.pts_s)}
             for frame in src.decode(vin):
                 if frame.pts is None:
                     continue
-                k = index.get(round(media_seconds(frame.pts, vin.time_base, video.origin_s), 4))
+                k = frame_of(video.pts_s, media_seconds(frame.pts, vin.time_base, video.origin_s))
                 if k is None or k not in wanted:
                     if k is not None and k > last:
                         break

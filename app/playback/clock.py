@@ -11,6 +11,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from app.io.video import frame_at
+
 SPEEDS = (0.25, 0.5, 1.0, 1.5, 2.0, 4.0)
 
 
@@ -72,7 +74,7 @@ class FrameSchedule:
 
     def due(self, media_time: float) -> int:
         """Index of the last frame whose time is <= media_time (0 before the first)."""
-        return max(0, int(np.searchsorted(self.pts, media_time + 1e-9, side="right")) - 1)
+        return frame_at(self.pts, media_time)
 
     def step(self, index: int, frames: int) -> int:
         return int(np.clip(index + frames, 0, len(self.pts) - 1))

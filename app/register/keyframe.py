@@ -33,8 +33,8 @@ GL_TO_CV = np.diag([1.0, -1.0, -1.0])
 
 @dataclass(frozen=True)
 class MatchSettings:
-    """detector: "sift", "akaze" or "orb" (the coarse step's features; docs/ACCURACY.md compares
-    them); features: features per image (SIFT, ORB); ratio: Lowe's ratio test; edge_m_per_m: a rendered
+    """detector: "sift" or "orb" (the coarse step's features; docs/ACCURACY.md compares them;
+    OpenCV 5's main modules have no AKAZE); features: features per image (SIFT, ORB); ratio: Lowe's ratio test; edge_m_per_m: a rendered
     pixel is lifted to 3D only where its 3x3 neighbourhood's depths agree within this fraction
     of its range (occlusion edges, where a match may belong to either surface, are dropped);
     ransac_px: RANSAC's inlier threshold, pixels of the frame; min_inliers: fewer is a failure;
@@ -84,12 +84,10 @@ class Matcher:
         self.settings = settings
         if settings.detector == "sift":
             self.sift, norm = cv2.SIFT_create(nfeatures=settings.features), cv2.NORM_L2
-        elif settings.detector == "akaze":
-            self.sift, norm = cv2.AKAZE_create(threshold=0.0005), cv2.NORM_HAMMING
         elif settings.detector == "orb":
             self.sift, norm = cv2.ORB_create(nfeatures=settings.features), cv2.NORM_HAMMING
         else:
-            raise ValueError(f"detector must be sift, akaze or orb, got {settings.detector!r}")
+            raise ValueError(f"detector must be sift or orb, got {settings.detector!r}")
         self.matcher = cv2.BFMatcher(norm)
 
     def features(

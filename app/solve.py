@@ -38,15 +38,19 @@ def solve_track(
     source: str,
     progress: Callable[[float], None] | None = None,
     stop: Callable[[], bool] | None = None,
+    background: bool = False,
     **options: object,
 ) -> CameraTrack:
     """One source of a session solved into its camera track: the one entry point for every
     command and the viewer's solver. The `registered` source renders the scene (app.register);
     the others are app.camera_track.camera_track (options: course_pitch_deg, true_timing,
     time_offset_s). progress(fraction) is called where solving takes long (registration), and
-    there stop() is asked between steps: True cancels (app.register.solve.Cancelled)."""
+    there stop() is asked between steps: True cancels (app.register.solve.Cancelled);
+    background: solved beside a playing viewer, at a lower priority."""
     if source == REGISTERED:
-        return registered_track(session, progress=progress, stop=stop, **options)
+        return registered_track(
+            session, progress=progress, stop=stop, background=background, **options
+        )
     return camera_track(session, source, **options)
 
 

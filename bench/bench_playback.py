@@ -97,13 +97,21 @@ class Display:
 
 
 def viewer_playback(
-    display: str, manifest: Path, seconds: float, size: tuple[int, int], tmp: Path
+    display: str,
+    manifest: Path,
+    seconds: float,
+    size: tuple[int, int],
+    tmp: Path,
+    while_registering: bool = False,
 ) -> dict:
-    """Run the viewer on `manifest`: wait for every source to be solved, play `seconds` of wall
-    time at 1x, write its state (latency, frames shown and dropped, frame times) and quit."""
+    """Run the viewer on `manifest`: wait for every source to be solved (with while_registering,
+    every one but `registered`, which then registers in the background during the playback),
+    play `seconds` of wall time at 1x, write its state (latency, frames shown and dropped, frame
+    times) and quit."""
     state = tmp / f"{manifest.stem}.json"
     script = tmp / f"{manifest.stem}.txt"
-    script.write_text(f"0 wait solved\n0 play\n{seconds} state {state}\n{seconds} quit\n")
+    wait = "solved" if while_registering else "registered"
+    script.write_text(f"0 wait {wait}\n0 play\n{seconds} state {state}\n{seconds} quit\n")
     env = dict(os.environ, DISPLAY=display, XDG_CONFIG_HOME=str(tmp / "config"))
     cmd = [
         sys.executable,
@@ -172,6 +180,11 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=60.0)
     parser.add_argument("--size", default="1280x720")
+    parser.add_argument(
+        "--while-registering",
+        action="store_true",
+        help="play while the registered source is solved in the background (default: after it)",
+    )
     args = parser.parse_args(argv)
     size = tuple(int(v) for v in args.size.split("x"))
 
@@ -179,7 +192,7 @@ def main(argv: list[str] | None = None) -> int:
     from app.io.video import probe
 
     print(
-        f"# playback benchmark\n\n{machine()}; the viewer's window {size[0]}x{size[1]} (default panels and depth map); {args.seconds:g} s of 1x playback each\n"
+        f"# playback benchmark\n\n{machine()}; the viewer's window {size[0]}x{size[1]} (default panels and depth map); {args.seconds:g} s of 1x playback each{', while the registered source is solved in the background' if args.while_registering else ', every source solved first'}\n"
     )
     with tempfile.TemporaryDirectory() as tmp, Display() as display:
         tmp = Path(tmp)
@@ -189,7 +202,7 @@ def main(argv: list[str] | None = None) -> int:
             ("sample 640x360 (VFR ~30 fps)", SAMPLE_DIR / "session.toml"),
             ("1080p30", sample_session_with(clip, tmp / "hd.toml")),
         ):
-            r = viewer_playback(display, manifest, args.seconds, size, tmp)
+            r = viewer_playback(display, manifest, args.seconds, size, tmp, args.while_registering)
             _, mean, p95 = r["latency_ms"]
             due = r["frames_shown"] + r["dropped"]
             rows.append(

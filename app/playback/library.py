@@ -241,6 +241,7 @@ class SolverLibrary:
             name,
             progress=lambda f: self._partly(name, f),
             stop=self._closed.is_set,
+            background=True,
             course_pitch_deg=pitch if name == COURSE else None,
         )
         truth = (

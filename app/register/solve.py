@@ -11,6 +11,8 @@ renderings. Times are session seconds, poses ENU metres and camera -> ENU quater
 
 from __future__ import annotations
 
+import os
+import threading
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -46,6 +48,9 @@ from app.session.model import REGISTERED, Session
 
 if TYPE_CHECKING:
     import moderngl
+
+
+BACKGROUND_NICE = 10  # a background registration's thread priority (Linux nice value)
 
 
 class Cancelled(GeofuseError):
@@ -183,10 +188,13 @@ class Registrar:
         session: Session,
         settings: RegistrationSettings = RegistrationSettings(),
         ctx: moderngl.Context | None = None,
+        background: bool = False,
     ) -> None:
         refusal = session.registration_refusal()
         if refusal is not None:
             raise GeofuseError(f"{session.path}: {refusal}")
+        if background:
+            _lower_priority()
         mesh = session.scene()
         self.session = session
         self.settings = settings
@@ -277,6 +285,17 @@ class Registrar:
         self.views.release()
 
 
+def _lower_priority() -> None:
+    """Run this thread (and the rasteriser threads its GL context starts) at a lower priority, so
+    that a viewer playing on the same cores keeps its frame rate (Linux: a thread's own nice
+    value); elsewhere nothing."""
+    if hasattr(os, "setpriority") and hasattr(threading, "get_native_id"):
+        try:
+            os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), BACKGROUND_NICE)
+        except OSError:
+            pass
+
+
 @contextmanager
 def _lap(totals: dict[str, float], key: str) -> Iterator[None]:
     """Adds the seconds spent inside the block to totals[key] (benchmark figures only: nothing
@@ -304,14 +323,15 @@ def registered_track(
     progress: Callable[[float], None] | None = None,
     ctx: moderngl.Context | None = None,
     stop: Callable[[], bool] | None = None,
+    background: bool = False,
     **track_options: object,
 ) -> CameraTrack:
     """The camera track of the `registered` source: the prior source's track (default_prior)
-        corrected by the keyframes registered against the scene; `registration` holds every
-        keyframe's outcome. Control points kept beside the input (`geofuse register --write`) correct
-    the prior first. ctx: a GL context to render in (default: one of its own); stop: asked
-    between keyframes, True cancels (Cancelled). track_options go to
-    app.camera_track.camera_track for the prior."""
+    corrected by the keyframes registered against the scene; `registration` holds every
+    keyframe's outcome. Control points kept beside the input (`geofuse register --write`)
+    correct the prior first. ctx: a GL context to render in (default: one of its own); stop:
+    asked between keyframes, True cancels (Cancelled); background: run at a lower priority (the
+    viewer's solver thread). track_options go to app.camera_track.camera_track for the prior."""
     prior_track = camera_track(session, prior or default_prior(session), **track_options)
     control = None
     if control_path(
@@ -319,7 +339,7 @@ def registered_track(
     ).is_file():  # points given by hand: the automatic keyframes start from them
         control = solve_control(prior_track, read_points(control_path(session.path)))
         prior_track = corrected_track(prior_track, control)
-    registrar = Registrar(session, settings, ctx)
+    registrar = Registrar(session, settings, ctx, background)
     try:
         reg = registrar.run(prior_track, progress, stop)
     finally:

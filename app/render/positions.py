@@ -6,6 +6,7 @@ import moderngl
 import numpy as np
 
 from app.camera import Camera
+from app.render.context import wait_for_gpu
 from app.render.gpu_scene import GpuScene
 from app.render.passes import _mat
 from app.render.programs import load_program
@@ -57,6 +58,7 @@ class PositionPass:
         w, h = camera.intrinsics.width, camera.intrinsics.height
         fbo = self._target((w, h))
         self._draw(fbo, camera)
+        wait_for_gpu(self.ctx)  # the GIL released while the rasteriser works (other threads run)
         data = np.frombuffer(fbo.read(components=4, dtype="f4"), np.float32).reshape(h, w, 4)[::-1]
         out = data[:, :, :3].astype(np.float64)
         out[data[:, :, 3] < 0.5] = np.nan

@@ -13,8 +13,8 @@ import numpy as np
 
 from app.camera import Camera
 from app.config import ProjectionSettings
-from app.render.context import create_offscreen_context
-from app.render.offscreen import OffscreenTarget, render_to_array
+from app.render.context import create_offscreen_context, wait_for_gpu
+from app.render.offscreen import OffscreenTarget
 from app.render.renderer import FusionRenderer
 from app.scene.mesh import MeshData
 
@@ -44,8 +44,11 @@ class ModelViews:
         with self._current():
             if size not in self._targets:
                 self._targets[size] = OffscreenTarget(self.ctx, *size)
-            rgb = render_to_array(self.renderer, camera, MODEL_ONLY, target=self._targets[size])
-            return rgb, self.renderer.pick_map(camera)
+            target = self._targets[size]
+            self.renderer.settle(camera, MODEL_ONLY)
+            self.renderer.draw(camera, target.fbo, MODEL_ONLY)
+            wait_for_gpu(self.ctx)  # the GIL released while the rasteriser works
+            return target.read(), self.renderer.pick_map(camera)
 
     def release(self) -> None:
         with self._current():

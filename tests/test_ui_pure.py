@@ -5,7 +5,8 @@ from app import rotations
 from app.camera import Camera, Intrinsics
 from app.errors import DataFormatError
 from app.ui.navigation import Navigator
-from app.ui.script import parse_script
+from app.ui.script import Action, parse_script
+from app.ui.viewer import Options, Viewer
 
 
 def test_free_roam_moves_along_the_view():
@@ -60,3 +61,22 @@ def test_script_parsing(tmp_path):
     p.write_text("0 dance\n")
     with pytest.raises(DataFormatError, match="unknown action 'dance'"):
         parse_script(p)
+
+
+def test_actions_after_a_wait_see_the_time_it_took():
+    """A script's `wait registered` on the wall clock can take a minute: the `play` after it must
+    start the playback clock then, not when the wait began (else a minute of frames is due at
+    once and dropped)."""
+    now = [100.0]
+    v = Viewer(Options(None), clock=lambda: now[0])
+    seen = []
+
+    def apply(name, arg, t):
+        seen.append((name, t))
+        if name == "wait":
+            now[0] += 60.0  # the wait took a minute of wall time
+
+    v.apply = apply
+    v.script = [Action(0.0, "wait", "registered", 1), Action(0.0, "play", None, 2)]
+    v._run_script(0.0, now[0])
+    assert seen == [("wait", 100.0), ("play", 160.0)]

@@ -541,6 +541,8 @@ class Viewer:
                 self.apply(a.name, a.arg, now)
             except (ValueError, GeofuseError) as exc:
                 self.ui.error(f"script line {a.line}: {a.name}: {exc}")
+            if a.name == "wait":  # on the wall clock the wait took time: later actions see it
+                now = self.clock()
 
     def _end_of_frame(self, now: float) -> None:
         ui = self.ui

@@ -118,7 +118,11 @@ def test_imu_only_session_offers_imu_filters(session_dir, tmp_path, capsys):
             lambda t: t.replace("start_time = 1700000000.0", "start_time = 1600000000.0"),
             "field 'video.start_time': no video frame lies within the sensor log",
         ),
-        (lambda t: t.replace("[gnss]\n", "[gnss_typo]\n"), "field 'gnss': missing section [gnss]"),
+        (
+            lambda t: t.replace("[gnss]\n", "[gnss_typo]\n"),
+            "field 'gnss_typo': unknown table [gnss_typo]; did you mean 'gnss'?",
+        ),
+        (lambda t: t[: t.index("[gnss]")], "field 'gnss': missing section [gnss]"),
         (lambda t: t + "\n[[[", "not valid TOML"),
     ],
 )
@@ -155,10 +159,10 @@ def test_render_session_frame(session_dir, tmp_path, gl_ctx, capsys):
     from PIL import Image
 
     from app.camera_track import camera_track
-    from app.io.video import read_frame
+    from app.io.video import frame_at, read_frame
 
     session = open_session(session_dir / "session.toml")
-    k = int(np.argmin(np.abs(session.video.pts_s - 5.0)))
+    k = frame_at(session.video.pts_s, 5.0)  # the frame on screen at 5 s, as the viewer shows it
     cam = camera_track(session, "gd-ahrs").frame_camera(k)
     ahead = np.asarray(cam.position) + 10.0 * rotations.rotate(cam.orientation, [0.0, 0.0, -1.0])
     w, h = session.intrinsics.width * 4, session.intrinsics.height * 4

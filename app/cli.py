@@ -349,9 +349,7 @@ def _solved(session, source: str):
     track = solve_track(
         session,
         source,
-        progress=ProgressBar(
-            f"registering ({source})", sys.stderr if sys.stderr.isatty() else None
-        ),
+        progress=ProgressBar(f"registering ({source})", sys.stderr),
     )
     if track.registration is not None:
         print(track.registration.summary(), file=sys.stderr)

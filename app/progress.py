@@ -8,11 +8,22 @@ from typing import TextIO
 BAR_WIDTH = 30
 
 
+def is_terminal(out: TextIO | None) -> bool:
+    """Whether `out` is a terminal a person watches (a redirected log or a pipe is not)."""
+    isatty = getattr(out, "isatty", None)
+    try:
+        return bool(isatty and isatty())
+    except ValueError:  # a closed stream
+        return False
+
+
 class ProgressBar:
-    """Call with the fraction done (0..1); prints nothing when `out` is None."""
+    """Call with the fraction done (0..1); prints nothing when `out` is None or not a terminal
+    (a redirected log gets no bar redrawn a hundred times)."""
 
     def __init__(self, label: str, out: TextIO | None, clock=time.monotonic) -> None:
-        self.label, self.out, self.clock = label, out, clock
+        self.label, self.clock = label, clock
+        self.out = out if is_terminal(out) else None
         self.start = clock()
         self._shown = -1.0
 

@@ -4,6 +4,7 @@ session that did not open."""
 
 from __future__ import annotations
 
+import io
 import re
 import shutil
 
@@ -12,7 +13,10 @@ import pytest
 
 from app.cli import main
 from app.demo import SAMPLE_SCENE
-from app.errors import ManifestError
+from app.errors import ManifestError, SceneError
+from app.geo import LocalFrame
+from app.progress import ProgressBar
+from app.scene import load_scene
 from app.session import open_session, read_config
 from app.simulate import session as sample
 from app.simulate.phone import walking_pan, write_session
@@ -124,3 +128,45 @@ def test_a_screenshot_of_a_session_that_did_not_open_exits_non_zero(session_dir,
     result = run_viewer(display, str(manifest), "--screenshot", str(shot), "--play", "0.2")
     assert result.returncode == 1
     assert "did not open" in result.stderr and shot.is_file()
+
+
+@pytest.mark.parametrize(
+    ("vertices", "message"),
+    [
+        ("v 0 0 0\nv nan 0 0\nv 0 1 0\n", "1 vertices are not finite"),
+        ("v 0 0 0\nv 1e30 0 0\nv 0 1 0\n", "lie 1e\\+30 units from the origin"),
+        ("v 0 0 0\nv 1 0 0\nv 2 0 0\n", "every face of the scene is degenerate"),
+    ],
+)
+def test_a_model_with_broken_geometry_is_refused_with_the_reason(tmp_path, vertices, message):
+    obj = tmp_path / "broken.obj"
+    obj.write_text(vertices + "f 1 2 3\n")
+    with pytest.raises(SceneError, match=f"broken.obj: .*{message}"):
+        load_scene(obj, LocalFrame(34.8, 113.53, 110.0))
+
+
+def test_degenerate_faces_are_dropped_and_the_rest_drawn(tmp_path):
+    obj = tmp_path / "mixed.obj"
+    obj.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 2 0 0\nf 1 2 3\nf 1 2 4\n")
+    mesh = load_scene(obj, LocalFrame(34.8, 113.53, 110.0))
+    assert mesh.triangle_count == 1
+
+
+class _Stream(io.StringIO):
+    def __init__(self, tty: bool) -> None:
+        super().__init__()
+        self.tty = tty
+
+    def isatty(self) -> bool:
+        return self.tty
+
+
+def test_progress_bars_are_drawn_on_a_terminal_only():
+    """A redirected log gets no bar redrawn at every percent; a terminal does."""
+    for tty in (True, False):
+        out = _Stream(tty)
+        bar = ProgressBar("solving", out, clock=iter(range(100)).__next__)
+        for f in np.linspace(0.0, 1.0, 11):
+            bar(f)
+        assert ("100.0%" in out.getvalue()) is tty
+        assert (out.getvalue() == "") is not tty

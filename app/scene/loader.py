@@ -148,6 +148,35 @@ def _primitive(
     )
 
 
+MAX_COORDINATE = 1e8  # model units: beyond any ECEF (6.4e6 m) or projected coordinate in use
+
+
+def _drawable(mesh: trimesh.Trimesh, path: Path) -> trimesh.Trimesh | None:
+    """The mesh with its zero-area faces dropped (None when none is left); SceneError for
+    coordinates that are not finite or lie beyond MAX_COORDINATE (a broken export, not a model)."""
+    v = np.asarray(mesh.vertices, np.float64)
+    bad = ~np.isfinite(v).all(axis=1)
+    if bad.any():
+        raise SceneError(
+            path, f"{int(bad.sum())} vertices are not finite numbers (NaN or infinite)"
+        )
+    far = np.abs(v).max(axis=1) > MAX_COORDINATE
+    if far.any():
+        raise SceneError(
+            path,
+            f"{int(far.sum())} vertices lie {float(np.abs(v).max()):.3g} units from the origin "
+            f"(expected at most {MAX_COORDINATE:g}: a model's or ECEF coordinates)",
+        )
+    f = np.asarray(mesh.faces, np.int64)
+    area2 = np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1)
+    keep = area2 > 1e-12 * max(1.0, float(np.abs(v).max())) ** 2
+    if keep.all():
+        return mesh
+    if not keep.any():
+        return None
+    return mesh.submesh([np.flatnonzero(keep)], append=True)
+
+
 def load_scene(path: str | Path, frame: LocalFrame, placement: Placement | None = None) -> MeshData:
     """Load a scene file and place it in `frame` (see the module docstring for the placement).
 
@@ -172,6 +201,9 @@ def load_scene(path: str | Path, frame: LocalFrame, placement: Placement | None 
     ]
     if not meshes:
         raise SceneError(path, "the scene holds no mesh with faces (expected triangles to draw)")
+    meshes = [m for m in (_drawable(m, path) for m in meshes) if m is not None]
+    if not meshes:
+        raise SceneError(path, "every face of the scene is degenerate (zero area): nothing to draw")
     prims = [
         _primitive(m, str(m.metadata.get("name", i)), path, placement, frame)
         for i, m in enumerate(meshes)

@@ -170,3 +170,11 @@ def test_progress_bars_are_drawn_on_a_terminal_only():
             bar(f)
         assert ("100.0%" in out.getvalue()) is tty
         assert (out.getvalue() == "") is not tty
+
+
+@pytest.mark.gl
+def test_the_no_display_demo_drapes_a_frame_of_the_walk_video(tmp_path, capsys):
+    out = tmp_path / "demo.png"
+    assert main(["demo", "--out", str(out)]) == 0
+    said = capsys.readouterr().out
+    assert "frame 600 at 19.997 s" in said and out.is_file()

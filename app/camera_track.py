@@ -21,6 +21,7 @@ import numpy.typing as npt
 from app import rotations
 from app.camera import Camera, Intrinsics
 from app.constants import DEFAULT_FAR_M, DEFAULT_NEAR_M
+from app.frame_time import corrected_times
 from app.session.model import TRUTH, Session, device_attitude
 from app.trajectory import PoseTrack, PositionTrack
 
@@ -33,12 +34,15 @@ FloatArray = npt.NDArray[np.float64]
 @dataclass(frozen=True)
 class FrameClock:
     """Media time -> session time. media_s: (F,) each frame's presentation time (s from the first
-    frame); session_s: (F,) the session time the pipeline gives that frame; offset_s: a live time
-    offset added on top (sync correction, seconds)."""
+    frame); session_s: (F,) the session time the pipeline gives that frame; offset_s, drift_ppm,
+    pivot_s: a live correction on top (a sync's offset in seconds and clock drift in parts per
+    million about session time pivot_s; app.frame_time.corrected_times)."""
 
     media_s: FloatArray
     session_s: FloatArray
     offset_s: float = 0.0
+    drift_ppm: float = 0.0
+    pivot_s: float = 0.0
 
     def session_time(self, t_media: npt.ArrayLike) -> FloatArray:
         """Session seconds at media times (any shape): interpolated between frames, extended at
@@ -48,7 +52,8 @@ class FrameClock:
         inside = np.interp(t, m, s)
         before = s[0] + (t - m[0])
         after = s[-1] + (t - m[-1])
-        return np.where(t < m[0], before, np.where(t > m[-1], after, inside)) + self.offset_s
+        base = np.where(t < m[0], before, np.where(t > m[-1], after, inside))
+        return corrected_times(base, self.offset_s, self.drift_ppm, self.pivot_s)
 
 
 @dataclass(frozen=True)
@@ -92,9 +97,15 @@ class CameraTrack:
     def frame_count(self) -> int:
         return len(self.clock.media_s)
 
-    def with_offset(self, offset_s: float) -> "CameraTrack":
-        """The same track with another live time offset (seconds)."""
-        return replace(self, clock=replace(self.clock, offset_s=float(offset_s)))
+    def with_offset(
+        self, offset_s: float, drift_ppm: float = 0.0, pivot_s: float = 0.0
+    ) -> "CameraTrack":
+        """The same track with another live time correction: offset (s), clock drift (ppm)
+        about session time pivot_s."""
+        clock = replace(
+            self.clock, offset_s=float(offset_s), drift_ppm=float(drift_ppm), pivot_s=float(pivot_s)
+        )
+        return replace(self, clock=clock)
 
     def with_clip(self, near: float, far: float) -> "CameraTrack":
         return replace(self, near=near, far=far)

@@ -298,8 +298,9 @@ def _render_session(args: argparse.Namespace) -> int:
 
     from app.camera import Intrinsics
     from app.config import OverlaySettings
+    from app.frame_time import frame_at
     from app.imageio import write_rgb
-    from app.io.video import frame_at, read_frame
+    from app.io.video import read_frame
     from app.render.still import render_still, window_camera
 
     if args.time is None:
@@ -420,7 +421,7 @@ def cmd_export(args: argparse.Namespace) -> int:
 
     from app.export.gis import write_records
     from app.export.records import frame_records
-    from app.io.video import frame_at
+    from app.frame_time import frame_at
     from app.outputs import write_atomically, write_via_path
     from app.progress import ProgressBar
 

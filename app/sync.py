@@ -469,13 +469,6 @@ def synced_drift(source: Path) -> tuple[float, float]:
     return (float(drift), float(pivot)) if ok else (0.0, 0.0)
 
 
-def corrected_times(
-    frame_times: np.ndarray, offset_s: float, drift_ppm: float, pivot_s: float
-) -> np.ndarray:
-    """Frame times (session s) with an offset, and a drift about a pivot time, applied."""
-    return frame_times + offset_s + drift_ppm * 1e-6 * (frame_times - pivot_s)
-
-
 def settings_text(result: SyncResult, total_offset_s: float) -> str:
     return (
         "# written by `geofuse sync --write`: the session's own settings (its inputs are never written)\n"

@@ -233,7 +233,8 @@ def test_the_fused_video_has_every_frame_and_matches_an_offscreen_render(sample,
     from app.camera_track import camera_track
     from app.config import OverlaySettings, ProjectionSettings
     from app.export.video import EXPORT_ALPHA, view_camera
-    from app.io.video import frame_at, read_frame
+    from app.frame_time import frame_at
+    from app.io.video import read_frame
     from app.render.context import create_offscreen_context
     from app.render.offscreen import render_to_array
     from app.render.renderer import FusionRenderer

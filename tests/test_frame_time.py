@@ -11,7 +11,7 @@ import pytest
 
 from app.cli import main
 from app.demo import SAMPLE_DIR
-from app.io.video import frame_at, frame_of
+from app.frame_time import frame_at, frame_of
 from app.playback.clock import FrameSchedule
 from app.session import open_session
 

@@ -1,6 +1,7 @@
 import numpy as np
 import pytest
 
+from app.frame_time import corrected_times
 from app.playback.library import SolverLibrary
 from app.session import open_session
 from app.simulate.phone import walking_pan, write_session
@@ -43,3 +44,18 @@ def test_a_time_offset_moves_every_camera_along_its_track(session):
     assert not np.allclose(
         track.frame_camera(k).position, late, atol=1e-3
     )  # the old snapshot is unchanged
+
+
+def test_a_sync_with_clock_drift_reaches_every_track(session):
+    """The viewer's Sync applies the drift it found, not only the offset, through the one
+    conversion the manifest's "auto" offset uses (app.frame_time.corrected_times)."""
+    lib = SolverLibrary(session)
+    assert lib.wait(timeout=60)
+    base = lib.track("gd-ahrs").clock.session_time([5.0, 15.0])
+    pivot = float(base[0])
+    lib.set_time_offset(0.1, 200.0, pivot)
+    for name in ("gd-ahrs", "truth"):
+        got = lib.track(name).clock.session_time([5.0, 15.0])
+        np.testing.assert_allclose(got, corrected_times(base, 0.1, 200.0, pivot), atol=1e-9)
+    # 200 ppm stretches the 10 s between the two frames by 2 ms (Unix-time floats: to 1 us).
+    assert got[1] - got[0] == pytest.approx((base[1] - base[0]) * (1 + 200e-6), abs=1e-6)

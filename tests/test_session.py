@@ -159,7 +159,8 @@ def test_render_session_frame(session_dir, tmp_path, gl_ctx, capsys):
     from PIL import Image
 
     from app.camera_track import camera_track
-    from app.io.video import frame_at, read_frame
+    from app.frame_time import frame_at
+    from app.io.video import read_frame
 
     session = open_session(session_dir / "session.toml")
     k = frame_at(session.video.pts_s, 5.0)  # the frame on screen at 5 s, as the viewer shows it

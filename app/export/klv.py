@@ -20,7 +20,8 @@ from fractions import Fraction
 from pathlib import Path
 
 from app.export.records import FrameRecord
-from app.io.video import VideoInfo, frame_of, media_seconds
+from app.frame_time import frame_of
+from app.io.video import VideoInfo, media_seconds
 
 UAS_LOCAL_SET_KEY = bytes.fromhex("060E2B34020B01010E01030101000000")
 ST0601_VERSION = 17

@@ -19,7 +19,8 @@ from app.camera import Camera, Intrinsics, look_at_quat
 from app.camera_track import CameraTrack
 from app.config import OverlaySettings, ProjectionSettings
 from app.constants import VIEW_FAR_M, VIEW_NEAR_M
-from app.io.video import VideoInfo, frame_of, media_seconds, rotate_for_display
+from app.frame_time import frame_of
+from app.io.video import VideoInfo, media_seconds, rotate_for_display
 from app.render.context import create_offscreen_context
 from app.render.offscreen import OffscreenTarget, render_to_array
 from app.render.renderer import FusionRenderer

@@ -146,30 +146,6 @@ def probe(path: str | Path) -> VideoInfo:
         )
 
 
-FRAME_TIME_TOLERANCE_S = 1e-6  # a media time this close to a frame's is that frame's
-
-
-def frame_at(pts_s: np.ndarray, t_media: float) -> int:
-    """The frame shown at media time t (s from the first frame), as a player shows it: the last
-    frame whose presentation time is at or before t (FRAME_TIME_TOLERANCE_S absorbs rounding),
-    the first before it. The one answer to "which frame at t" for the viewer, `render --session`,
-    `export --from/--to` and the exports."""
-    k = int(np.searchsorted(pts_s, float(t_media) + FRAME_TIME_TOLERANCE_S, side="right")) - 1
-    return min(max(0, k), len(pts_s) - 1)
-
-
-def frame_of(pts_s: np.ndarray, t_media: float) -> int | None:
-    """The frame whose own presentation time is t (a decoded frame's or a packet's, or a record's
-    written from it), whatever either clock's rounding: the nearest frame, when within half its
-    interval to the next; None otherwise."""
-    k = frame_at(pts_s, t_media)
-    if k + 1 < len(pts_s) and pts_s[k + 1] - t_media < t_media - pts_s[k]:
-        k += 1
-    gaps = np.diff(pts_s)
-    half = 0.5 * float(np.min(gaps[max(0, k - 1) : k + 1])) if len(gaps) else np.inf
-    return k if abs(pts_s[k] - t_media) <= half else None
-
-
 def rotate_for_display(rgb: np.ndarray, rotation_cw: int) -> np.ndarray:
     """A stored frame (H, W, 3) turned clockwise by rotation_cw degrees, as a player shows it."""
     return np.ascontiguousarray(np.rot90(rgb, k=-(rotation_cw // 90) % 4))

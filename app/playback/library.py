@@ -61,6 +61,7 @@ class SolverLibrary:
         ] = {}  # sources being solved that report progress (registration)
         self._truth_timed: CameraTrack | None = None
         self._offset_s = 0.0
+        self._correction = (0.0, 0.0, 0.0)  # offset s, drift ppm, pivot session s
         self._course_pitch = session.course_pitch_deg
         self._version = 0
         self._pending = 0
@@ -174,13 +175,18 @@ class SolverLibrary:
 
     # --- requests ------------------------------------------------------------------------------
 
-    def set_time_offset(self, offset_s: float) -> None:
-        """Shift every track's frame clock by offset_s seconds (applied at once: no solve needed)."""
+    def set_time_offset(
+        self, offset_s: float, drift_ppm: float = 0.0, pivot_s: float = 0.0
+    ) -> None:
+        """Correct every track's frame clock by offset_s seconds and a clock drift of drift_ppm
+        about session time pivot_s (a sync's result; applied at once: no solve needed)."""
+        correction = (float(offset_s), float(drift_ppm), float(pivot_s))
         with self._lock:
-            if offset_s == self._offset_s:
+            if correction == self._correction:
                 return
-            self._offset_s = float(offset_s)
-            self._tracks = {n: t.with_offset(self._offset_s) for n, t in self._tracks.items()}
+            self._correction = correction
+            self._offset_s = correction[0]
+            self._tracks = {n: t.with_offset(*correction) for n, t in self._tracks.items()}
             self._version += 1
 
     def set_course_pitch(self, pitch_deg: float) -> None:
@@ -253,7 +259,7 @@ class SolverLibrary:
         # corrects the frame times (registered) is compared with what the frames really show.
         curves = curves_of(truth if truth is not None else track)
         with self._lock:
-            self._tracks[name] = track.with_offset(self._offset_s)
+            self._tracks[name] = track.with_offset(*self._correction)
             self._curves[name] = curves
             self._errors.pop(name, None)
             if truth is not None:

@@ -15,6 +15,7 @@ from app.attitude.gopro import read_gopro
 from app.attitude.heading import heading_policy
 from app.camera import Intrinsics
 from app.errors import ManifestError
+from app.frame_time import corrected_times
 from app.geo import LocalFrame
 from app.geomag import declination, field_enu
 from app.io import csvlog
@@ -40,7 +41,7 @@ def open_session(path: str | Path) -> Session:
     session = assemble(cfg)
     if not cfg.video.auto_offset:
         return session
-    from app.sync import corrected_times, sync_session, synced_drift, synced_offset, timed_by
+    from app.sync import sync_session, synced_drift, synced_offset, timed_by
 
     offset = synced_offset(cfg.path)
     if offset is not None:

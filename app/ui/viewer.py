@@ -274,7 +274,10 @@ class Viewer:
         if job.error:
             self.ui.error(job.error)
         elif job.result is not None:
-            self.set_time_offset(job.result.offset_s)
+            r = job.result
+            self.set_time_offset(
+                r.offset_s, r.drift_ppm, r.reference_s
+            )  # the drift too, as "auto" does
             from app.sync import timed_by
 
             self.ui.notices.append(
@@ -397,10 +400,13 @@ class Viewer:
         i = min(range(len(SPEEDS)), key=lambda k: abs(SPEEDS[k] - clock.speed))
         clock.set_speed(SPEEDS[int(np.clip(i + direction, 0, len(SPEEDS) - 1))], now)
 
-    def set_time_offset(self, offset_s: float) -> None:
-        """The session's time offset (s), applied by the solver library to every track."""
+    def set_time_offset(
+        self, offset_s: float, drift_ppm: float = 0.0, pivot_s: float = 0.0
+    ) -> None:
+        """The session's time offset (s) and clock drift (ppm about session time pivot_s),
+        applied by the solver library to every track."""
         self.ui.time_offset_s = offset_s
-        self.loaded.library.set_time_offset(offset_s)
+        self.loaded.library.set_time_offset(offset_s, drift_ppm, pivot_s)
 
     def set_course_pitch(self, pitch_deg: float) -> None:
         """A drone clip without gimbal attitude: ask the library to re-solve at this pitch."""

@@ -1,0 +1,45 @@
+"""Frame times on one page: which video frame is shown at a media time (`frame_at`), which frame
+a decoded frame's or a record's own time is (`frame_of`), and the one correction from the
+pipeline's frame times to the session clock (`corrected_times`: a time offset and a clock drift,
+as `geofuse sync` finds them). Media time: seconds from the video's first frame (its
+presentation times, app.io.video.media_seconds); session time: the session clock's seconds.
+Pure numpy, so every layer may use it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+
+FRAME_TIME_TOLERANCE_S = 1e-6  # a media time this close to a frame's is that frame's
+
+
+def frame_at(pts_s: np.ndarray, t_media: float) -> int:
+    """The frame shown at media time t (s from the first frame), as a player shows it: the last
+    frame whose presentation time is at or before t (FRAME_TIME_TOLERANCE_S absorbs rounding),
+    the first before it. The one answer to "which frame at t" for the viewer, `render --session`,
+    `export --from/--to` and the exports."""
+    k = int(np.searchsorted(pts_s, float(t_media) + FRAME_TIME_TOLERANCE_S, side="right")) - 1
+    return min(max(0, k), len(pts_s) - 1)
+
+
+def frame_of(pts_s: np.ndarray, t_media: float) -> int | None:
+    """The frame whose own presentation time is t (a decoded frame's or a packet's, or a record's
+    written from it), whatever either clock's rounding: the nearest frame, when within half its
+    interval to the next; None otherwise."""
+    k = frame_at(pts_s, t_media)
+    if k + 1 < len(pts_s) and pts_s[k + 1] - t_media < t_media - pts_s[k]:
+        k += 1
+    gaps = np.diff(pts_s)
+    half = 0.5 * float(np.min(gaps[max(0, k - 1) : k + 1])) if len(gaps) else np.inf
+    return k if abs(pts_s[k] - t_media) <= half else None
+
+
+def corrected_times(
+    session_s: npt.ArrayLike, offset_s: float, drift_ppm: float = 0.0, pivot_s: float = 0.0
+) -> np.ndarray:
+    """Session times (s) with a time offset (s) and a clock drift (parts per million, about the
+    session time pivot_s) applied: t + offset_s + drift_ppm 1e-6 (t - pivot_s). The manifest's
+    "auto" offset, the viewer's Sync button and its offset slider all go through here."""
+    t = np.asarray(session_s, np.float64)
+    return t + offset_s + drift_ppm * 1e-6 * (t - pivot_s)

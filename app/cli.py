@@ -256,8 +256,8 @@ def cmd_render(args: argparse.Namespace) -> int:
     lat, lon, h, heading, pitch, roll = args.pose
     frame = LocalFrame(*(args.origin or (lat, lon, h)))
     loaded = load_layers(layers, frame, [[lat, lon]])
-    for note in loaded.notes:
-        print(f"note: {note}", file=sys.stderr)
+    for message in loaded.notes.since(0):
+        print(message, file=sys.stderr)
     mesh = loaded.mesh
     image = read_rgb(args.image)
     lens = None
@@ -312,7 +312,7 @@ def _render_session(args: argparse.Namespace) -> int:
         raise GeofuseError(
             f"--time {args.time:g}: the video runs from {pts[0]:.3f} to {pts[-1]:.3f} s"
         )
-    _print_warnings(session)
+    _print_messages(session)
     index = frame_at(pts, args.time)
     try:
         track = _solved(session, source).with_clip(DEFAULT_NEAR_M, args.far)
@@ -354,6 +354,7 @@ def _solved(session, source: str):
     )
     if track.registration is not None:
         print(track.registration.summary(), file=sys.stderr)
+    _print_messages(session)
     return track
 
 
@@ -377,9 +378,18 @@ def _open_with_source(path: Path, args: argparse.Namespace, suffixes: tuple[str,
     return session, source
 
 
-def _print_warnings(session) -> None:
-    for w in session.warnings.items:
-        print(f"warning: {w}", file=sys.stderr)
+_PRINTED: dict[int, int] = {}  # id of a session's messages -> how many this command has printed
+
+
+def _print_messages(session) -> None:
+    """The session's messages this command has not printed yet, each with its level ("note:" for
+    information, "warning:", "error:"): called when a session opens and again after work that
+    may add some (solving, registering, exporting)."""
+    key = id(session.messages)
+    new = session.messages.since(_PRINTED.get(key, 0))
+    for message in new:
+        print(message, file=sys.stderr)
+    _PRINTED[key] = _PRINTED.get(key, 0) + len(new)
 
 
 def cmd_solve(args: argparse.Namespace) -> int:
@@ -387,8 +397,9 @@ def cmd_solve(args: argparse.Namespace) -> int:
 
     check_output(args.out, "--out", CSV_SUFFIXES, [args.manifest, args.srt])
     session, source = _open_with_source(args.manifest, args, CSV_SUFFIXES)
-    _print_warnings(session)
+    _print_messages(session)
     rows = solve_to_csv(session, source, args.out, progress=sys.stderr)
+    _print_messages(session)
     print(f"wrote {args.out}: {rows} frames, attitude from {source}")
     return 0
 
@@ -430,7 +441,7 @@ def cmd_export(args: argparse.Namespace) -> int:
     if args.preview is not None:
         check_output(args.preview, "--preview", IMAGE_SUFFIXES, [args.input, args.srt, args.out])
     session, source = _open_with_source(args.input, args, suffixes)
-    _print_warnings(session)
+    _print_messages(session)
     track = _solved(session, source)
     bar = ProgressBar(f"export {args.what}", sys.stderr)
     out = Path(args.out)
@@ -520,7 +531,7 @@ def cmd_sync(args: argparse.Namespace) -> int:
         session = assemble(cfg)
     else:
         session = open_any(args.input, lens=args.lens)
-    _print_warnings(session)
+    _print_messages(session)
     result = sync_session(session, ProgressBar("optical flow", sys.stderr))
     ms = 1000 * result.offset_s
     print(
@@ -562,7 +573,7 @@ def cmd_register(args: argparse.Namespace) -> int:
 
     points = read_points(args.points)
     session = open_any(args.input, lens=args.lens)
-    _print_warnings(session)
+    _print_messages(session)
     source = args.source or default_prior(session)
     try:
         session.check_source(source)
@@ -998,7 +1009,7 @@ def build_parser() -> argparse.ArgumentParser:
     sy.set_defaults(func=cmd_sync)
 
     te = sub.add_parser(
-        "telemetry", help="what a telemetry file holds: streams, rates, gaps, fixes, warnings"
+        "telemetry", help="what a telemetry file holds: streams, rates, gaps, fixes, messages"
     )
     te.add_argument(
         "file",

@@ -26,9 +26,10 @@ from app.geomag import declination
 from app.io.dji_mp4 import read_dji_camera
 from app.io.dji_srt import check_duration, read_srt, srt_fixes
 from app.io.gopro import global_settings
-from app.io.streams import GnssTrack, OrientationStream, Warnings
+from app.io.streams import GnssTrack, OrientationStream
 from app.io.video import VideoInfo, probe
 from app.lens import LENS_MODES, Lens, choose_profile, video_camera
+from app.messages import Messages
 from app.scene import Placement
 from app.scene.ground import ellipsoidal_ground
 from app.scene.ground_plane import ASSUMED_GROUND_MARGIN_M, ground_under_track
@@ -78,7 +79,7 @@ def _frame_and_ground(
     ground_h: float,
     margin_m: float,
     layers: tuple[Layer, ...],
-    warnings: Warnings,
+    messages: Messages,
     above_takeoff: bool = False,
 ) -> tuple[LocalFrame, MeshData, GnssTrack]:
     """(frame, scene, gnss with final heights): the layers around the track, else an assumed
@@ -86,20 +87,20 @@ def _frame_and_ground(
     under the first fix, where a layer has ground there."""
     frame = LocalFrame(float(gnss.lat[0]), float(gnss.lon[0]), float(ground_h))
     if not layers:
-        warnings.add(
+        messages.add(
             "no scene given: the video is projected on an assumed flat ground with a 1 m grid"
         )
         return frame, ground_under_track(frame, gnss.lat, gnss.lon, ground_h, margin_m), gnss
-    mesh = load_scene_layers(layers, frame, gnss, warnings)
+    mesh = load_scene_layers(layers, frame, gnss, messages)
     if above_takeoff:
         takeoff = ellipsoidal_ground(mesh, frame, float(gnss.lat[0]), float(gnss.lon[0]))
         if takeoff is not None:
             gnss = replace(gnss, h=gnss.h + takeoff - ground_h)
-            warnings.add(
+            messages.info(
                 f"heights above take-off: take-off height {takeoff:.2f} m from the terrain under the first position"
             )
         else:
-            warnings.add(
+            messages.add(
                 "heights above take-off: no terrain under the first position, so heights stay above an assumed take-off at 0 m"
             )
     return frame, mesh, gnss
@@ -110,7 +111,7 @@ def _camera_model(
     hfov_deg: float,
     lens_path: str | Path | None,
     choice: tuple[Path, str] | None,
-    warnings: Warnings,
+    messages: Messages,
 ) -> tuple[Intrinsics, Lens | None, tuple[Path, ...]]:
     """(intrinsics, lens, lens files read): a given profile, else the chosen one, else a pinhole
     of hfov_deg; says which."""
@@ -118,7 +119,7 @@ def _camera_model(
     if path is None:
         return Intrinsics.from_fov(*video.display_size, hfov_deg), None, ()
     intr, lens = video_camera(path, *video.display_size, video.rotation_cw)
-    warnings.add(
+    messages.info(
         f"lens: {lens.kind} model from {'--lens ' + path.name if lens_path is not None else choice[1]}"
     )
     return intr, lens, (path.resolve(),) if lens_path is not None else ()
@@ -137,7 +138,7 @@ def _clip_session(
     gnss: GnssTrack,
     recorded: dict[str, OrientationStream],
     decl: float,
-    warnings: Warnings,
+    messages: Messages,
     pitch_deg: float = DRONE_DEFAULT_PITCH_DEG,
     aircraft_yaw: tuple | None = None,
     lens: Lens | None = None,
@@ -148,10 +149,10 @@ def _clip_session(
         gyr is not None, mag is not None, recorded, pitch_deg, aircraft_yaw is not None
     )
     if policy.note:
-        warnings.add(f"{path.name}: {policy.note}")
+        messages.info(f"{path.name}: {policy.note}")
     return Session(
         path.resolve(), frame, Path(layers[0].location) if layers else None, Placement(), video, video.pts_s.copy(), intr, video.rotation_cw,
-        acc, gyr, mag, gnss, recorded, decl, warnings, inputs=(*inputs, *(f.resolve() for layer in layers for f in layer.files())), heading=policy, device_is_camera=True,
+        acc, gyr, mag, gnss, recorded, decl, messages, inputs=(*inputs, *(f.resolve() for layer in layers for f in layer.files())), heading=policy, device_is_camera=True,
         aircraft_yaw=aircraft_yaw, mesh=mesh, lens=lens, readout_s=readout_s, layers=tuple(layers),
     )  # fmt: skip
 
@@ -162,24 +163,24 @@ def _gopro_session(
     lens_path: str | Path | None = None,
     layers: tuple[Layer, ...] = (),
 ) -> Session:
-    warnings = Warnings()
-    rec = read_gopro(path, warnings)
+    messages = Messages()
+    rec = read_gopro(path, messages)
     if rec.gnss is None:
         raise DataFormatError(
             path,
             "the GoPro telemetry has no GPS fix: the camera cannot be placed (enable GPS, or use a manifest)",
         )
     video = probe(path)
-    video.note_damage(warnings)
+    video.note_damage(messages)
     when = rec.gps_utc_at_zero or video.creation_time or 0.0
     frame, mesh, gnss = _frame_and_ground(
-        rec.gnss, float(rec.gnss.h[0]) - HANDHELD_MOUNT_M, ASSUMED_GROUND_MARGIN_M, layers, warnings
+        rec.gnss, float(rec.gnss.h[0]) - HANDHELD_MOUNT_M, ASSUMED_GROUND_MARGIN_M, layers, messages
     )
     decl = declination(frame.lat_deg, frame.lon_deg, frame.h_m, when)
     recorded = {"camera": rec.camera} if rec.camera is not None else {}
     settings = global_settings(path)
     if str(settings.get("EISE", "")).strip().upper() == "Y":
-        warnings.add(
+        messages.add(
             f"{path.name}: in-camera stabilisation was on ({str(settings.get('EISA', '')).strip() or 'EIS'}): the video no longer has the "
             "sensor's geometry, so its projection is approximate and `geofuse sync` cannot see the camera turn"
         )
@@ -194,10 +195,10 @@ def _gopro_session(
             mode,
             f"{path.name}: ",
             f"a pinhole of {rec.hfov_deg:.1f} deg",
-            warnings,
+            messages,
         )
     intr, lens, lens_files = _camera_model(
-        video, hfov_deg or rec.hfov_deg, lens_path, choice, warnings
+        video, hfov_deg or rec.hfov_deg, lens_path, choice, messages
     )
     srot = settings.get("SROT")
     srot_s = (
@@ -205,7 +206,7 @@ def _gopro_session(
         if isinstance(srot, np.ndarray) and np.ravel(srot).size
         else None
     )
-    readout = _readout(srot_s, lens, path, warnings)
+    readout = _readout(srot_s, lens, path, messages)
     return _clip_session(
         path,
         (path.resolve(), *lens_files),
@@ -219,7 +220,7 @@ def _gopro_session(
         gnss,
         recorded,
         decl,
-        warnings,
+        messages,
         lens=lens,
         readout_s=readout,
         layers=layers,
@@ -234,14 +235,14 @@ def _auto_profile(
     mode: str,
     where: str,
     fallback: str,
-    warnings: Warnings,
+    messages: Messages,
 ) -> tuple[Path, str] | None:
     """The bundled profile for a camera model at the video's stored size, the reason prefixed
     with how the camera was named; without one, a warning that `fallback` is assumed."""
     stored = (video.height, video.width) if video.rotation_cw % 180 else (video.width, video.height)
     choice = choose_profile(brand, model, *stored, mode)
     if choice is None:
-        warnings.add(
+        messages.add(
             f"{where}no lens profile for {named} at {stored[0]}x{stored[1]}: {fallback} is assumed (give --lens PROFILE.json)"
         )
         return None
@@ -249,7 +250,7 @@ def _auto_profile(
 
 
 def _readout(
-    recorded_s: float | None, lens: Lens | None, path: Path, warnings: Warnings
+    recorded_s: float | None, lens: Lens | None, path: Path, messages: Messages
 ) -> float | None:
     """The sensor's readout time (s): the clip's own (GoPro's SROT), else the lens profile's;
     says which, or that the rolling shutter is not corrected."""
@@ -258,11 +259,11 @@ def _readout(
     if not value and lens is not None and lens.readout_s:
         value, origin = lens.readout_s, "the lens profile"
     if value and 0.0 < value < 0.2:
-        warnings.add(
+        messages.info(
             f"{path.name}: rolling shutter: readout {1000 * value:.1f} ms from {origin}, corrected row by row"
         )
         return value
-    warnings.add(f"{path.name}: rolling shutter: readout time unknown: not corrected")
+    messages.add(f"{path.name}: rolling shutter: readout time unknown: not corrected")
     return None
 
 
@@ -274,23 +275,23 @@ def _dji_session(
     lens_path: str | Path | None = None,
     layers: tuple[Layer, ...] = (),
 ) -> Session:
-    warnings = Warnings()
-    track = read_srt(srt, warnings)
+    messages = Messages()
+    track = read_srt(srt, messages)
     video = probe(path)
-    video.note_damage(warnings)
+    video.note_damage(messages)
     check_duration(track, video.duration_s + 1.0 / max(video.nominal_fps, 1.0))
-    gnss = srt_fixes(track, warnings)
+    gnss = srt_fixes(track, messages)
     heights = gnss.h
     if track.height_relative:
         if not layers:
-            warnings.add(
+            messages.info(
                 f"{srt.name}: heights are relative to take-off; the assumed ground is the take-off height (0 m)"
             )
         ground = 0.0
     else:
         ground = float(np.nanmin(heights))
         if not layers:
-            warnings.add(
+            messages.info(
                 f"{srt.name}: absolute heights; the assumed ground is the lowest height of the flight ({ground:.1f} m)"
             )
     frame, mesh, gnss = _frame_and_ground(
@@ -298,7 +299,7 @@ def _dji_session(
         ground,
         DRONE_GROUND_MARGIN_M + 10.0 * float(np.max(heights - ground)),
         layers,
-        warnings,
+        messages,
         track.height_relative,
     )
     when = (
@@ -327,10 +328,10 @@ def _dji_session(
                 path,
                 video,
                 f"a pinhole of {hfov_deg:.1f} deg (the subtitle's {focal_mm:g} mm equivalent focal length)",
-                warnings,
+                messages,
             )
-    intr, lens, lens_files = _camera_model(video, hfov_deg, lens_path, choice, warnings)
-    readout = _readout(None, lens, path, warnings)
+    intr, lens, lens_files = _camera_model(video, hfov_deg, lens_path, choice, messages)
+    readout = _readout(None, lens, path, messages)
     return _clip_session(
         path,
         (path.resolve(), srt.resolve(), *lens_files),
@@ -344,7 +345,7 @@ def _dji_session(
         gnss,
         recorded,
         decl,
-        warnings,
+        messages,
         pitch_deg,
         yaw,
         lens,
@@ -354,7 +355,7 @@ def _dji_session(
 
 
 def _dji_profile(
-    path: Path, video: VideoInfo, fallback: str, warnings: Warnings
+    path: Path, video: VideoInfo, fallback: str, messages: Messages
 ) -> tuple[Path, str] | None:
     """The bundled profile of the DJI camera the MP4's metadata names (DJI subtitles name none)."""
     try:
@@ -362,17 +363,17 @@ def _dji_profile(
     except OSError as exc:
         raise VideoError(path, f"cannot read the file's metadata ({exc})") from exc
     if cam is None:
-        warnings.add(
+        messages.add(
             f"{path.name}: the video's metadata names no DJI camera (no camera code, no DJI encoder): {fallback} is assumed (give --lens PROFILE.json)"
         )
         return None
     if not cam.model:
-        warnings.add(
+        messages.add(
             f"{path.name}: DJI camera code {cam.code} is not one geofuse knows: {fallback} is assumed (give --lens PROFILE.json)"
         )
         return None
     return _auto_profile(
-        "DJI", cam.model, cam.described, video, "", f"{path.name}: ", fallback, warnings
+        "DJI", cam.model, cam.described, video, "", f"{path.name}: ", fallback, messages
     )
 
 

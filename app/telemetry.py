@@ -21,7 +21,8 @@ from app.io.gopro import global_settings
 from app.io.gpmf import Counts, chunks, parse
 from app.io.gpx import read_gpx
 from app.io.sensorlogger import read_sensorlogger
-from app.io.streams import GAP_FACTOR, Warnings
+from app.io.streams import GAP_FACTOR
+from app.messages import Messages
 from app.outputs import CSV_SUFFIXES, check_output, write_atomically
 
 
@@ -42,7 +43,7 @@ class Telemetry:
     position: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
     height_note: str = ""
     attitude: dict[str, np.ndarray] = field(default_factory=dict)
-    warnings: Warnings = field(default_factory=Warnings)
+    messages: Messages = field(default_factory=Messages)
     info: list[str] = field(default_factory=list)
 
 
@@ -96,15 +97,15 @@ def _gpmf_payload(path: Path) -> Telemetry:
             + (f", ORIN {parts[0].modifiers['ORIN']}" if "ORIN" in parts[0].modifiers else "")
         )
     if counts.skipped:
-        out.warnings.add(f"{path.name}: telemetry keys skipped (undecodable): {counts.skipped}")
+        out.messages.add(f"{path.name}: telemetry keys skipped (undecodable): {counts.skipped}")
     return out
 
 
 def _srt(path: Path) -> Telemetry:
     out = Telemetry(path, "DJI subtitle telemetry")
-    tr = read_srt(path, out.warnings)
+    tr = read_srt(path, out.messages)
     out.streams.append(Stream("entries", tr.t))
-    fixes = srt_fixes(tr, out.warnings)
+    fixes = srt_fixes(tr, out.messages)
     ok = np.isin(tr.t, fixes.t)
     out.position = (fixes.t, fixes.lat, fixes.lon, fixes.h)
     out.height_note = (
@@ -122,7 +123,7 @@ def _srt(path: Path) -> Telemetry:
 
 def _gpx(path: Path) -> Telemetry:
     out = Telemetry(path, "GPX track")
-    g = read_gpx(path, out.warnings)
+    g = read_gpx(path, out.messages)
     t = g.t - g.t[0]
     out.streams.append(Stream("track points", g.t))
     out.position = (t, g.lat, g.lon, g.h)
@@ -145,7 +146,7 @@ def _refuse_dji_video(path: Path) -> None:
 
 def _gopro(path: Path) -> Telemetry:
     out = Telemetry(path, "GoPro MP4 (GPMF telemetry)")
-    r = read_gopro(path, out.warnings)
+    r = read_gopro(path, out.messages)
     settings = global_settings(path)
     mode = settings.get("VFOV", "?")
     out.info.append(f"camera: {r.raw.model}; lens mode {mode}, horizontal FOV {r.hfov_deg:.1f} deg")
@@ -186,7 +187,7 @@ def _gopro(path: Path) -> Telemetry:
 
 def _sensorlogger(path: Path) -> Telemetry:
     out = Telemetry(path, "Sensor Logger recording")
-    rec = read_sensorlogger(path, warnings=out.warnings)
+    rec = read_sensorlogger(path, messages=out.messages)
     t0 = min(s.t[0] for s in (rec.acc, rec.gyr) if s is not None)
     for s in (rec.acc, rec.gyr, rec.mag):
         if s is not None:
@@ -205,18 +206,18 @@ def _csv(path: Path) -> Telemetry:
     out = Telemetry(path, "geofuse CSV log")
     columns, _, _, _ = csvlog.read_table(path)
     if {"lat", "lon", "h"} <= set(columns):
-        g = csvlog.read_gnss(path, out.warnings)
+        g = csvlog.read_gnss(path, out.messages)
         out.streams.append(Stream("GNSS", g.t))
         out.position = (g.t - g.t[0], g.lat, g.lon, g.h)
         out.height_note = "ellipsoidal"
     elif {"qw", "qx", "qy", "qz"} <= set(columns):
-        o = csvlog.read_orientation(path, out.warnings)
+        o = csvlog.read_orientation(path, out.messages)
         out.streams.append(Stream("orientation", o.t))
     else:
         kind = (
             "gyr" if "gyr" in path.stem.lower() else "mag" if "mag" in path.stem.lower() else "acc"
         )
-        s = csvlog.read_vector(path, kind, out.warnings)
+        s = csvlog.read_vector(path, kind, out.messages)
         out.streams.append(Stream(kind, s.t, s.unit))
     return out
 
@@ -242,7 +243,7 @@ def describe(tel: Telemetry) -> str:
         lines.append(
             f"  positions: {len(t)} fixes, first ({lat[0]:.6f}, {lon[0]:.6f}, {h[0]:.1f} m), last ({lat[-1]:.6f}, {lon[-1]:.6f}, {h[-1]:.1f} m); heights {tel.height_note}"
         )
-    for w in tel.warnings.items:
+    for w in tel.messages.items:
         lines.append(f"  warning: {w}")
     return "\n".join(lines)
 

@@ -95,9 +95,9 @@ def test_a_dji_clip_gets_the_lens_profile_of_the_camera_its_mp4_names(
         tmp_path / "a", shared_data, {"\xa9mdl": b"FC3170", "\xa9too": intl_text("DJIMavicAir2")}
     )
     s = open_clip(video)
-    said = [w for w in s.warnings.items if w.startswith("lens: ")]
+    said = [w for w in s.messages.items if w.startswith("lens: ")]
     assert len(said) == 1 and "DJI Mavic Air 2 (camera code FC3170 in the MP4)" in said[0], (
-        s.warnings.items
+        s.messages.items
     )
     profile = next(
         p for p in (shared_data / "lens_profiles" / "DJI").glob("*.json") if p.stem in said[0]
@@ -111,7 +111,7 @@ def test_a_dji_clip_gets_the_lens_profile_of_the_camera_its_mp4_names(
     said = (
         "from the lens profile" if want.readout_s else "readout time unknown"
     )  # most DJI profiles have none
-    assert s.readout_s == want.readout_s and any(said in w for w in s.warnings.items)
+    assert s.readout_s == want.readout_s and any(said in w for w in s.messages.items)
     assert s.intrinsics.hfov_deg > want.hfov_deg  # the depth pass encloses the undistorted image
 
     other = next((shared_data / "lens_profiles" / "GoPro").glob("*1920x1080*.json"))
@@ -120,11 +120,11 @@ def test_a_dji_clip_gets_the_lens_profile_of_the_camera_its_mp4_names(
 
     anonymous = open_clip(_dji_clip_naming(tmp_path / "b", shared_data, {}))
     assert anonymous.lens is None and any(
-        "names no DJI camera" in w and "pinhole of" in w for w in anonymous.warnings.items
+        "names no DJI camera" in w and "pinhole of" in w for w in anonymous.messages.items
     )
     unknown = open_clip(_dji_clip_naming(tmp_path / "c", shared_data, {"\xa9mdl": b"FC9999"}))
     assert unknown.lens is None and any(
-        "FC9999 is not one geofuse knows" in w for w in unknown.warnings.items
+        "FC9999 is not one geofuse knows" in w for w in unknown.messages.items
     )
 
     assert main(["solve", str(video), "--out", str(tmp_path / "p.csv")]) == 0
@@ -267,7 +267,7 @@ def test_manifest_naming_a_dji_subtitle_takes_off_from_the_scene(dji_clip, tmp_p
         f'[camera]\nhfov_deg = 73.7\n\n[sensors]\nformat = "none"\n\n[gnss]\npath = "{srt}"\n'
     )
     s = open_session(manifest)
-    assert any("take-off height 20.00 m from the scene" in w for w in s.warnings.items)
+    assert any("take-off height 20.00 m from the scene" in w for w in s.messages.items)
     rows = solve_frames(s, "telemetry")
     assert rows.geodetic[0, 2] == pytest.approx(
         20.0 + 85.8, abs=0.05

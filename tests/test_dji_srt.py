@@ -5,7 +5,7 @@ import pytest
 
 from app.errors import DataFormatError
 from app.io.dji_srt import check_duration, read_srt
-from app.io.streams import Warnings
+from app.messages import Messages
 
 pytestmark = pytest.mark.shared_data
 
@@ -49,7 +49,7 @@ def test_broken_files(shared_data):
     folder = shared_data / "real" / "dji"
     with pytest.raises(DataFormatError, match="broken_empty.SRT: empty subtitle file"):
         read_srt(folder / "broken_empty.SRT")
-    w = Warnings()
+    w = Messages()
     t = read_srt(folder / "broken_incomplete.SRT", w)
     assert len(t.t) == 19 and "the last entry is cut short" in w.items[0]
 
@@ -61,7 +61,7 @@ def test_synthetic_traps(tmp_path):
         "2\r\n00:00:01,000 --> 00:00:02,000\r\nGPS(20.30,10.51,5) BAROMETER:3.5\r\n\r\n"
         "3\r\n00:00:02,000 --> 00:00:03,000\r\nISO:100\r\n\r\n".encode("utf-8")
     )
-    w = Warnings()
+    w = Messages()
     t = read_srt(p, w)
     np.testing.assert_allclose(t.lat[:2], [10.5, 10.51])
     np.testing.assert_allclose(t.lon[:2], [20.25, 20.30])

@@ -11,7 +11,8 @@ from app import rotations
 from app.attitude.heading import COURSE_HOLD_SPEED_MPS, course_headings
 from app.errors import DataFormatError
 from app.geo import LocalFrame
-from app.io.streams import GnssTrack, Warnings, plausible_fixes
+from app.io.streams import GnssTrack, plausible_fixes
+from app.messages import Messages
 from app.session import open_session
 from app.simulate.phone import walking_pan, write_session
 from app.trajectory import estimate_velocity
@@ -30,10 +31,10 @@ def test_fixes_that_are_not_positions_are_dropped_counted_and_said():
     lat[0], lon[0] = 0.0, 0.0  # before the receiver had a lock
     lat[7] += 0.01  # 1.1 km off for one second: a jump
     h[12] = 1e38
-    warnings = Warnings()
-    kept = plausible_fixes(GnssTrack(t, lat, lon, h, None, None, "track.csv"), warnings)
+    messages = Messages()
+    kept = plausible_fixes(GnssTrack(t, lat, lon, h, None, None, "track.csv"), messages)
     assert list(np.setdiff1d(t, kept.t)) == [0.0, 7.0, 12.0]
-    (note,) = warnings.items
+    (note,) = messages.items
     assert (
         "1 at 0 N 0 E" in note
         and "1 jumps" in note
@@ -46,25 +47,25 @@ def test_a_bad_first_fix_does_not_condemn_the_rest():
     t = np.arange(10.0)
     enu = np.column_stack([np.zeros(10), 1.0 * t, np.zeros(10)])
     enu[0] = [5000.0, 0.0, 0.0]  # a stale fix far away, then good ones
-    kept = plausible_fixes(_track(t, enu), Warnings())
+    kept = plausible_fixes(_track(t, enu), Messages())
     assert list(kept.t) == list(t[1:])
 
 
 def test_the_receivers_own_fix_type_and_dop_are_used():
     t = np.arange(6.0)
     g = _track(t, np.column_stack([t, t, np.zeros(6)]))
-    warnings = Warnings()
+    messages = Messages()
     kept = plausible_fixes(
-        g, warnings, fix_type=[3, 3, 2, 3, 3, 3], dop=[1.0, 1.0, 1.0, 9.0, 1.0, 1.0]
+        g, messages, fix_type=[3, 3, 2, 3, 3, 3], dop=[1.0, 1.0, 1.0, 9.0, 1.0, 1.0]
     )
     assert list(kept.t) == [0, 1, 4, 5]
-    assert "1 2D fixes" in warnings.items[0] and "1 with DOP above 5" in warnings.items[0]
+    assert "1 2D fixes" in messages.items[0] and "1 with DOP above 5" in messages.items[0]
 
 
 def test_no_fix_in_range_is_an_error_naming_the_file():
     g = GnssTrack(np.arange(3.0), np.full(3, 95.0), np.zeros(3), np.zeros(3), None, None, "bad.csv")
     with pytest.raises(DataFormatError, match="bad.csv field 'lat': no fix has a latitude"):
-        plausible_fixes(g, Warnings())
+        plausible_fixes(g, Messages())
 
 
 def test_a_hovering_drone_keeps_its_heading():
@@ -120,7 +121,7 @@ def phone_without_magnetometer(tmp_path_factory):
 def test_a_phone_without_magnetometer_takes_heading_from_the_course(phone_without_magnetometer):
     s = open_session(phone_without_magnetometer)
     assert s.heading_from_course and s.heading_note.startswith("heading from the GNSS course")
-    assert any("no magnetometer" in w for w in s.warnings.items)
+    assert any("no magnetometer" in w for w in s.messages.items)
     assert s.sources[0] == "gd-imu"
 
 
@@ -150,7 +151,7 @@ def test_a_session_without_a_scene_projects_on_the_assumed_ground(tmp_path):
     start, end = text.index("[scene]"), text.index("[video]")
     manifest.write_text(text[:start] + text[end:])
     s = open_session(manifest)
-    assert s.scene_path is None and any("assumed flat ground" in w for w in s.warnings.items)
+    assert s.scene_path is None and any("assumed flat ground" in w for w in s.messages.items)
     lo, hi = s.scene().bounds()
     track = s.frame.geodetic_to_enu(s.gnss.lat, s.gnss.lon, s.gnss.h)
     assert np.all(track[:, :2] > lo[:2]) and np.all(track[:, :2] < hi[:2])

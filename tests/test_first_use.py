@@ -71,7 +71,7 @@ def test_a_field_of_view_no_camera_has_is_refused(session_dir, tmp_path, capsys)
 def test_a_start_time_filled_in_from_the_file_says_so(walk_dir, tmp_path):
     manifest = _copy(walk_dir, tmp_path, lambda t: re.sub(r"start_time = [0-9.]+ .*\n", "", t))
     s = open_session(manifest)
-    assert any("video.start_time not given" in w and "creation time" in w for w in s.warnings.items)
+    assert any("video.start_time not given" in w and "creation time" in w for w in s.messages.items)
 
 
 def test_gyroscope_rates_no_sensor_reads_are_dropped_and_counted(session_dir, tmp_path):
@@ -84,7 +84,7 @@ def test_gyroscope_rates_no_sensor_reads_are_dropped_and_counted(session_dir, tm
     lines[51] = f"{lines[51].split(',')[0]},-1e300,1e300,0"
     gyr.write_text("\n".join(lines) + "\n")
     s = open_session(folder / "session.toml")
-    assert any("2 gyr samples beyond 70 rad/s" in w for w in s.warnings.items)
+    assert any("2 gyr samples beyond 70 rad/s" in w for w in s.messages.items)
     assert np.all(np.linalg.norm(s.gyr.values, axis=1) < 70.0)
     assert (
         main(

@@ -98,7 +98,7 @@ def test_solve_every_source_one_row_per_frame(gopro, tmp_path, capsys):
     from app.clips import open_clip
 
     session = open_clip(clip)
-    assert "magnetometer reads" in " ".join(session.warnings.items)  # 521 uT: rejected
+    assert "magnetometer reads" in " ".join(session.messages.items)  # 521 uT: rejected
     assert (
         session.mag is None
         and session.heading_from_course

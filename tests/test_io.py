@@ -12,8 +12,8 @@ from app.errors import DataFormatError, VideoError
 from app.io import csvlog
 from app.io.gpx import read_gpx
 from app.io.sensorlogger import read_sensorlogger
-from app.io.streams import Warnings
 from app.io.video import probe, read_frame
+from app.messages import Messages
 from app.simulate.phone import write_video
 
 
@@ -27,7 +27,7 @@ def test_vector_csv_units_and_repairs(tmp_path):
         tmp_path / "gyr.csv",
         "time_ns,x[deg/s],y[deg/s],z[deg/s]\n1000000000,90,0,0\n1010000000,nan,0,0\n1020000000,0,oops,0\n995000000,0,0,0\n1030000000,0,0,180\n",
     )
-    w = Warnings()
+    w = Messages()
     s = csvlog.read_vector(p, "gyr", w)
     np.testing.assert_allclose(s.t, [1.0, 1.03])
     np.testing.assert_allclose(s.values, [[np.pi / 2, 0, 0], [0, 0, np.pi]])
@@ -39,7 +39,7 @@ def test_vector_csv_units_and_repairs(tmp_path):
 
 def test_gyroscope_in_degrees_without_units_is_detected(tmp_path):
     rows = "\n".join(f"{i / 100},{30 * np.sin(i / 10):.3f},0,0" for i in range(200))
-    w = Warnings()
+    w = Messages()
     s = csvlog.read_vector(write(tmp_path / "g.csv", "t,x,y,z\n" + rows), "gyr", w)
     assert np.abs(s.values).max() < 0.6
     assert any("look like deg/s" in m for m in w.items)
@@ -66,12 +66,12 @@ def test_gnss_csv_with_speed_and_bearing(tmp_path):
     )
     g = csvlog.read_gnss(p)
     np.testing.assert_allclose(g.vel_enu[0], [2, 0, 0], atol=1e-12)
-    warnings = Warnings()
+    messages = Messages()
     g = csvlog.read_gnss(
         write(tmp_path / "some.csv", "t,lat,lon,h\n0,134.8,113,0\n1,34,113,0\n2,34,113.00001,0\n"),
-        warnings,
+        messages,
     )
-    assert list(g.t) == [1, 2] and any("1 out of range" in w for w in warnings.items)
+    assert list(g.t) == [1, 2] and any("1 out of range" in w for w in messages.items)
     with pytest.raises(DataFormatError, match="no fix has a latitude in"):
         csvlog.read_gnss(write(tmp_path / "bad.csv", "t,lat,lon,h\n0,134.8,113,0\n1,95,113,0\n"))
 
@@ -110,7 +110,7 @@ def test_gpx_tracks(shared_data, name):
 @pytest.mark.shared_data
 def test_gpx_traps(shared_data):
     folder = shared_data / "real" / "gpx"
-    w = Warnings()
+    w = Messages()
     read_gpx(folder / "track-with-empty-segment.gpx", w)
     assert any("segment 2 is empty" in m for m in w.items)
     with pytest.raises(DataFormatError, match="track point 1 has no <time>") as err:
@@ -183,8 +183,8 @@ def test_sensorlogger_folder_and_zip(tmp_path, platform):
         for f in folder.iterdir():
             z.write(f, f"Recording/{f.name}")
     for src in (folder, archive):
-        w = Warnings()
-        rec = read_sensorlogger(src, warnings=w)
+        w = Messages()
+        rec = read_sensorlogger(src, messages=w)
         assert rec.platform == platform
         up = rotations.rotate(q_true, rec.acc.values[0])
         np.testing.assert_allclose(

@@ -187,7 +187,7 @@ def test_a_gopro_clip_gets_a_lens_profile_chosen_and_said(shared_data, tmp_path)
         and s.lens.kind == "fisheye"
         and (s.lens.width, s.lens.height) == (848, 480)
     )
-    assert any(w.startswith("lens: fisheye model from Max profile") for w in s.warnings.items)
+    assert any(w.startswith("lens: fisheye model from Max profile") for w in s.messages.items)
     assert (
         s.intrinsics.hfov_deg > 2 * np.degrees(np.arctan(848 / 2 / s.lens.fx)) - 1e-6
     )  # the depth pass encloses the image

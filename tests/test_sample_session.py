@@ -59,7 +59,7 @@ def test_committed_sample_is_small_and_opens(session):
         "registered",
         "truth",
     ]
-    assert any("hard-iron offset" in w for w in session.warnings.items)
+    assert any("hard-iron offset" in w for w in session.messages.items)
     # The manifest's start time is 80 ms late, as the generator documents.
     np.testing.assert_allclose(
         session.frame_times - true_frame_times(session), sample.SYNC_ERROR_S, atol=1e-4

@@ -37,14 +37,14 @@ def test_session_reads_everything(session):
     assert session.declination_deg == pytest.approx(-5.6, abs=0.5)  # WMM near Zhengzhou, 2023
     assert [
         w
-        for w in session.warnings.items
+        for w in session.messages.items
         if not w.startswith(("magnetometer calibrated", "rolling shutter"))
     ] == []
     assert (
         "rolling shutter: readout time unknown (camera.readout_ms): not corrected"
-        in session.warnings.items
+        in session.messages.items
     )  # said, not silent
-    offset = session.warnings.items[0]
+    offset = session.messages.items[0]
     assert "hard-iron offset" in offset  # the simulated phone has none: the fit must stay small
 
 

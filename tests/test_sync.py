@@ -79,7 +79,7 @@ def test_sync_write_keeps_the_offset_for_an_auto_manifest(tmp_path, capsys):
     assert abs(truth) < 0.010 and offset == pytest.approx(
         -0.080, abs=0.010
     )  # the offset was applied
-    assert any("walk.geofuse.toml" in w for w in s.warnings.items)
+    assert any("walk.geofuse.toml" in w for w in s.messages.items)
 
 
 def test_a_clock_drift_is_fitted_on_a_long_clip(sample_rates):

@@ -88,7 +88,7 @@ def test_utm_dem_with_geoid_heights_lands_on_ellipsoidal_heights(tmp_path):
     # the window: 300 m around one point of a 1 km DEM, not the whole file
     span = np.ptp(prim.positions[:, :2], axis=0)
     assert 550 < span.min() and span.max() < 700
-    assert any("nodata" in note for note in t.notes)
+    assert any("nodata" in note for note in t.notes.items)
     # no triangle reaches into the hole (rows 90-99, columns 120-129 of the file)
     centres = FRAME.enu_to_geodetic(prim.positions[prim.indices].mean(axis=1).astype(np.float64))
     ce, cn = UTM.transform(centres[:, 1], centres[:, 0])
@@ -111,7 +111,7 @@ def test_geographic_dem_without_a_vertical_datum_is_taken_as_egm2008_and_said(tm
         step,
     )
     t = read_terrain(path, FRAME, [[LAT0, LON0]], margin_m=200.0)
-    assert t.datum == "egm2008" and any("EGM2008" in note for note in t.notes)
+    assert t.datum == "egm2008" and any("EGM2008" in note for note in t.notes.items)
     geo = FRAME.enu_to_geodetic(t.mesh.primitives[0].positions.astype(np.float64))
     assert np.abs(geo[:, 2] - (250.0 + geoid.undulation(geo[:, 0], geo[:, 1]))).max() < 0.05
     assert read_terrain(path, FRAME, [[LAT0, LON0]], vertical="ellipsoid").datum == "ellipsoid"
@@ -232,7 +232,8 @@ def test_drone_heights_above_take_off_start_from_the_terrain_under_the_first_fix
     """A clip's subtitle gives heights above take-off: with a DEM layer, the take-off height is
     the terrain's (250 m above EGM2008 here) under the first fix, and every height is shifted by it."""
     from app.clips import _frame_and_ground
-    from app.io.streams import GnssTrack, Warnings
+    from app.io.streams import GnssTrack
+    from app.messages import Messages
     from app.scene.layers import Layer
 
     step = 1.0 / 3600
@@ -249,10 +250,10 @@ def test_drone_heights_above_take_off_start_from_the_terrain_under_the_first_fix
     lon = np.full(3, LON0)
     relative = np.array([0.0, 30.0, 60.0])
     gnss = GnssTrack(np.arange(3.0), lat, lon, relative.copy())
-    warnings = Warnings()
+    messages = Messages()
     frame, mesh, placed = _frame_and_ground(
-        gnss, 0.0, 500.0, (Layer.of(dem),), warnings, above_takeoff=True
+        gnss, 0.0, 500.0, (Layer.of(dem),), messages, above_takeoff=True
     )
     takeoff = 250.0 + float(geoid.undulation(LAT0, LON0))
     np.testing.assert_allclose(placed.h, relative + takeoff, atol=0.05)
-    assert any("take-off height" in w and "terrain" in w for w in warnings.items)
+    assert any("take-off height" in w and "terrain" in w for w in messages.items)

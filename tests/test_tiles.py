@@ -468,7 +468,7 @@ def test_ground_heights_under_a_track_come_from_a_tileset_as_from_its_model(tmp_
     np.testing.assert_allclose(
         tiled.positions().geodetic_at(t), model.positions().geodetic_at(t), atol=1e-6
     )
-    assert not any("off the model" in w for w in tiled.warnings.items)
+    assert not any("off the model" in w for w in tiled.messages.items)
 
 
 def test_a_worker_survives_any_failure_of_one_tile(tmp_path):

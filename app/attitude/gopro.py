@@ -28,9 +28,9 @@ from app.geomag import field_enu
 from app.io.gopro import DEFAULT_ORIN, GoProRaw, orin_map, read_gopro_raw
 from app.io.streams import (
     GnssTrack,
+    Messages,
     OrientationStream,
     VectorStream,
-    Warnings,
     checked_vector,
     resample,
 )
@@ -112,11 +112,11 @@ def level(camera: OrientationStream, acc: VectorStream) -> OrientationStream:
 
 
 def _checked_magnetometer(
-    mag: VectorStream, gnss: GnssTrack | None, utc0: float | None, path: Path, warnings: Warnings
+    mag: VectorStream, gnss: GnssTrack | None, utc0: float | None, path: Path, messages: Messages
 ) -> VectorStream | None:
     """The magnetometer, if its field strength is plausible for the place (WMM), else None."""
     if gnss is None:
-        warnings.add(
+        messages.add(
             f"{path.name}: no GPS fix to check the magnetometer against the World Magnetic Model: not used"
         )
         return None
@@ -128,7 +128,7 @@ def _checked_magnetometer(
     ok, measured = magnetometer_plausible(mag.values, expected)
     if ok:
         return mag
-    warnings.add(
+    messages.add(
         f"{path.name}: magnetometer reads {measured:.0f} uT where the World Magnetic Model expects {expected:.0f} uT: not used; heading comes from the GNSS course"
     )
     return None
@@ -167,7 +167,7 @@ def choose_axis_order(
     return candidates[k], angles[k]
 
 
-def to_device_frame(raw: GoProRaw, warnings: Warnings) -> GoProRecording:
+def to_device_frame(raw: GoProRaw, messages: Messages) -> GoProRecording:
     """Turn a clip's raw telemetry into device-frame streams (see the module docstring)."""
     path = raw.path
     (ta, a), (tg, g) = raw.acc, raw.gyr
@@ -175,11 +175,11 @@ def to_device_frame(raw: GoProRaw, warnings: Warnings) -> GoProRecording:
         order, angle = choose_axis_order(raw.acc_stored, raw.gyr_stored, raw.model)
         a, g = orin_map(order, raw.acc_stored), orin_map(order, raw.gyr_stored)
         if angle <= LEVEL_TOLERANCE_DEG:
-            warnings.add(
+            messages.info(
                 f"{path.name}: no ORIN or CORI: axis order {order} chosen, under which gravity points up ({angle:.0f} deg off) for a camera held level"
             )
         else:
-            warnings.add(
+            messages.add(
                 f"{path.name}: no ORIN or CORI, and no axis order puts gravity up (best {order}, {angle:.0f} deg off): the camera's axes cannot be verified; attitude may be turned"
             )
     camera = None
@@ -188,12 +188,12 @@ def to_device_frame(raw: GoProRaw, warnings: Warnings) -> GoProRecording:
     if cori is not None:
         unit = np.abs(np.linalg.norm(cori[1], axis=1) - 1.0) < 0.1
         if unit.sum() < 2:
-            warnings.add(
+            messages.add(
                 f"{path.name}: CORI holds no unit quaternions ({int((~unit).sum())} of {len(unit)} are not): not used"
             )
             cori = None
         elif not unit.all():
-            warnings.add(
+            messages.add(
                 f"{path.name}: {int((~unit).sum())} CORI samples that are not unit quaternions dropped"
             )
             cori = (cori[0][unit], cori[1][unit])
@@ -203,7 +203,7 @@ def to_device_frame(raw: GoProRaw, warnings: Warnings) -> GoProRecording:
         if rel < FIT_MAX_RESIDUAL:
             imu_to_cv = m
         else:
-            warnings.add(
+            messages.add(
                 f"{path.name}: the gyroscope does not match CORI under any axis order (residual {rel:.0%}); the MAX axis mapping is assumed"
             )
         q_cv = rotations.conjugate(cq / np.linalg.norm(cq, axis=1, keepdims=True))
@@ -214,24 +214,24 @@ def to_device_frame(raw: GoProRaw, warnings: Warnings) -> GoProRecording:
             tc, q_dev, str(path), "GoPro CORI: camera orientation since capture start"
         )
     else:
-        warnings.add(
+        messages.add(
             f"{path.name}: no CORI stream: the IMU axis mapping fitted on the GoPro MAX is assumed"
         )
     to_dev = CV_TO_DEVICE @ imu_to_cv
-    acc = checked_vector(VectorStream("acc", ta, a @ to_dev.T, "m/s^2", str(path)), warnings)
-    gyr = checked_vector(VectorStream("gyr", tg, g @ to_dev.T, "rad/s", str(path)), warnings)
+    acc = checked_vector(VectorStream("acc", ta, a @ to_dev.T, "m/s^2", str(path)), messages)
+    gyr = checked_vector(VectorStream("gyr", tg, g @ to_dev.T, "rad/s", str(path)), messages)
     if camera is not None:
         camera = level(camera, acc)
     mag = None
     if raw.magn is not None:
         tm, mv = raw.magn
-        mag = checked_vector(VectorStream("mag", tm, mv @ to_dev.T, "uT", str(path)), warnings)
+        mag = checked_vector(VectorStream("mag", tm, mv @ to_dev.T, "uT", str(path)), messages)
         if mag is not None:
-            mag = _checked_magnetometer(mag, raw.gnss, raw.gps_utc_at_zero, path, warnings)
+            mag = _checked_magnetometer(mag, raw.gnss, raw.gps_utc_at_zero, path, messages)
     return GoProRecording(raw, acc, gyr, mag, camera)
 
 
-def read_gopro(path: str | Path, warnings: Warnings | None = None) -> GoProRecording:
+def read_gopro(path: str | Path, messages: Messages | None = None) -> GoProRecording:
     """A GoPro MP4's telemetry in the device frame (app.io.gopro reads it; this turns it)."""
-    warnings = warnings if warnings is not None else Warnings()
-    return to_device_frame(read_gopro_raw(path, warnings), warnings)
+    messages = messages if messages is not None else Messages()
+    return to_device_frame(read_gopro_raw(path, messages), messages)

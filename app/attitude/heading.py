@@ -22,7 +22,8 @@ import numpy as np
 import numpy.typing as npt
 
 from app import rotations
-from app.io.streams import OrientationStream, Warnings
+from app.io.streams import OrientationStream
+from app.messages import Messages
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -118,13 +119,13 @@ def align_to_course(
     t: FloatArray,
     q_device: FloatArray,
     mount: FloatArray,
-    warnings: Warnings,
+    messages: Messages,
 ) -> FloatArray:
     """q_device (N, 4) turned about Up so that the camera (device -> camera quaternion `mount`)
     looks along the course; unchanged, with one warning, when the camera never moves fast enough."""
     turn = course_heading_turn(t_fix, vel_enu, t, rotations.multiply(q_device, mount))
     if turn is None:
-        warnings.add_once(
+        messages.add_once(
             "course-too-slow",
             f"the camera never moves faster than {COURSE_MIN_SPEED_MPS} m/s: heading cannot come from the course and stays arbitrary",
         )

@@ -1,2 +1,2 @@
 """Readers: files -> frozen records of numpy arrays. Each reader names the file, line and field
-in its errors and counts what it repaired in `warnings`. No reader writes to its input."""
+in its errors and counts what it repaired in `messages`. No reader writes to its input."""

@@ -23,9 +23,9 @@ import numpy as np
 from app.errors import DataFormatError
 from app.io.streams import (
     GnssTrack,
+    Messages,
     OrientationStream,
     VectorStream,
-    Warnings,
     checked_vector,
     clean_times,
     plausible_fixes,
@@ -83,7 +83,7 @@ def numeric(
     columns: dict[str, int],
     wanted: list[str],
     first_line: int,
-    warnings: Warnings,
+    messages: Messages,
 ) -> tuple[np.ndarray, np.ndarray]:
     """(values (N, len(wanted)) float64 of the good rows, their line numbers). Rows with missing,
     unparsable or NaN cells are dropped and counted; missing columns are an error."""
@@ -108,12 +108,12 @@ def numeric(
     finite = np.all(np.isfinite(out), axis=1)
     nan_rows = int((~finite).sum()) - bad
     if bad:
-        warnings.add(
+        messages.add(
             f"{path.name}: {bad} rows with missing or unparsable numbers dropped (first at line {first_bad})"
         )
     if nan_rows:
         first_nan = first_line + int(np.flatnonzero(~finite & ~np.isnan(out[:, 0]) | ~finite)[0])
-        warnings.add(
+        messages.add(
             f"{path.name}: {nan_rows} rows with NaN values dropped (first at line {first_nan})"
         )
     lines = np.arange(first_line, first_line + len(rows))
@@ -138,27 +138,27 @@ def _time(path: Path, columns: dict[str, int], units: dict[str, str]) -> tuple[s
 
 
 def _timed(
-    path: Path, wanted: list[str], label: str, warnings: Warnings
+    path: Path, wanted: list[str], label: str, messages: Messages
 ) -> tuple[np.ndarray, np.ndarray, dict[str, str]]:
     columns, units, rows, first = read_table(path)
     tname, tscale = _time(path, columns, units)
-    values, lines = numeric(path, rows, columns, [tname, *wanted], first, warnings)
+    values, lines = numeric(path, rows, columns, [tname, *wanted], first, messages)
     # Large integer nanosecond stamps lose precision in float64 seconds only below ~0.1 us.
     t = values[:, 0] * tscale
-    keep = clean_times(t, lines, path, label, warnings)
+    keep = clean_times(t, lines, path, label, messages)
     return t[keep], values[keep, 1:], units
 
 
 def read_vector(
-    path: str | Path, kind: str, warnings: Warnings | None = None
+    path: str | Path, kind: str, messages: Messages | None = None
 ) -> VectorStream | None:
     """An accelerometer ("acc"), gyroscope ("gyr") or magnetometer ("mag") CSV in SI-ish units;
     None for a magnetometer that reads nothing (streams.checked_vector)."""
     path = Path(path)
-    warnings = warnings if warnings is not None else Warnings()
+    messages = messages if messages is not None else Messages()
     if kind not in UNIT_SCALE:
         raise ValueError(f"kind must be one of {list(UNIT_SCALE)}")
-    t, v, units = _timed(path, ["x", "y", "z"], kind, warnings)
+    t, v, units = _timed(path, ["x", "y", "z"], kind, messages)
     unit = units.get("x", DEFAULT_UNIT[kind])
     scale = UNIT_SCALE[kind].get(unit.lower().replace("µ", "u").replace("²", "^2"))
     if scale is None:
@@ -172,16 +172,16 @@ def read_vector(
     require_samples(len(t), 2, path, kind)
     if kind == "gyr" and "x" not in units and np.percentile(np.abs(v), 99) > GYRO_DEG_SUSPECT:
         v = np.radians(v)
-        warnings.add(
+        messages.add(
             f"{path.name}: gyroscope values up to {np.abs(v).max() * 180 / np.pi:.0f} look like deg/s (no unit in the header); converted to rad/s"
         )
-    return checked_vector(VectorStream(kind, t, v, DEFAULT_UNIT[kind], str(path)), warnings)
+    return checked_vector(VectorStream(kind, t, v, DEFAULT_UNIT[kind], str(path)), messages)
 
 
-def read_gnss(path: str | Path, warnings: Warnings | None = None) -> GnssTrack:
+def read_gnss(path: str | Path, messages: Messages | None = None) -> GnssTrack:
     """A GNSS CSV: lat, lon, h and optional speed/bearing or vel_e/vel_n/vel_u, h_acc."""
     path = Path(path)
-    warnings = warnings if warnings is not None else Warnings()
+    messages = messages if messages is not None else Messages()
     columns, _, _, _ = read_table(path)
     extra = []
     if {"vel_e", "vel_n"} <= set(columns):
@@ -189,7 +189,7 @@ def read_gnss(path: str | Path, warnings: Warnings | None = None) -> GnssTrack:
     elif {"speed", "bearing"} <= set(columns):
         extra = ["speed", "bearing"]
     acc_col = ["h_acc"] if "h_acc" in columns else []
-    t, v, _ = _timed(path, ["lat", "lon", "h", *extra, *acc_col], "GNSS", warnings)
+    t, v, _ = _timed(path, ["lat", "lon", "h", *extra, *acc_col], "GNSS", messages)
     require_samples(len(t), 2, path, "GNSS")
     vel = None
     if extra[:2] == ["vel_e", "vel_n"]:
@@ -198,14 +198,14 @@ def read_gnss(path: str | Path, warnings: Warnings | None = None) -> GnssTrack:
         speed, bearing = v[:, 3], np.radians(v[:, 4])
         vel = np.column_stack([speed * np.sin(bearing), speed * np.cos(bearing), np.zeros(len(t))])
     h_acc = v[:, -1] if acc_col else None
-    return plausible_fixes(GnssTrack(t, v[:, 0], v[:, 1], v[:, 2], vel, h_acc, str(path)), warnings)
+    return plausible_fixes(GnssTrack(t, v[:, 0], v[:, 1], v[:, 2], vel, h_acc, str(path)), messages)
 
 
-def read_orientation(path: str | Path, warnings: Warnings | None = None) -> OrientationStream:
+def read_orientation(path: str | Path, messages: Messages | None = None) -> OrientationStream:
     """A reference-attitude CSV: qw, qx, qy, qz (device -> ENU)."""
     path = Path(path)
-    warnings = warnings if warnings is not None else Warnings()
-    t, q, _ = _timed(path, ["qw", "qx", "qy", "qz"], "orientation", warnings)
+    messages = messages if messages is not None else Messages()
+    t, q, _ = _timed(path, ["qw", "qx", "qy", "qz"], "orientation", messages)
     n = np.linalg.norm(q, axis=1)
     if np.any(np.abs(n - 1.0) > 0.05):
         raise DataFormatError(

@@ -26,7 +26,8 @@ from pathlib import Path
 import numpy as np
 
 from app.errors import DataFormatError
-from app.io.streams import GnssTrack, Warnings, plausible_fixes
+from app.io.streams import GnssTrack, plausible_fixes
+from app.messages import Messages
 
 _TIMING = re.compile(r"(\d+):(\d\d):(\d\d)[,.](\d{1,3})\s*-->\s*(\d+):(\d\d):(\d\d)[,.](\d{1,3})")
 _NUM = r"([-+]?\d+(?:\.\d+)?(?:[eE][-+]?\d+)?)"
@@ -165,11 +166,11 @@ def _entry_fields(text: str) -> tuple[dict[str, float], str]:
     return f, layout
 
 
-def read_srt(path: str | Path, warnings: Warnings | None = None) -> SrtTrack:
+def read_srt(path: str | Path, messages: Messages | None = None) -> SrtTrack:
     """Every entry of a DJI .SRT. Raises DataFormatError naming the file and entry for an empty
     file, a file without a single complete entry, or one without any position."""
     path = Path(path)
-    warnings = warnings if warnings is not None else Warnings()
+    messages = messages if messages is not None else Messages()
     if not path.is_file():
         raise DataFormatError(path, "subtitle file does not exist")
     raw = path.read_bytes()
@@ -209,7 +210,7 @@ def read_srt(path: str | Path, warnings: Warnings | None = None) -> SrtTrack:
     if incomplete:
         last = incomplete[-1] == len(blocks)
         where = "the last entry" if incomplete == [len(blocks)] else f"entries {incomplete[:5]}"
-        warnings.add(
+        messages.add(
             f"{path.name}: {where} {'is cut short' if last else 'are incomplete'}; the {len(rows)} complete entries are kept"
         )
     if not rows:
@@ -228,11 +229,11 @@ def read_srt(path: str | Path, warnings: Warnings | None = None) -> SrtTrack:
             path, f"none of the {len(rows)} entries has a position (GPS, latitude/longitude)"
         )
     if missing.any():
-        warnings.add(
+        messages.add(
             f"{path.name}: {int(missing.sum())} entries without a position (first: entry {int(np.flatnonzero(missing)[0]) + 1})"
         )
     if len(layouts - {"unknown"}) > 1:
-        warnings.add(f"{path.name}: mixes layouts {sorted(layouts - {'unknown'})}")
+        messages.add(f"{path.name}: mixes layouts {sorted(layouts - {'unknown'})}")
     # Heights: relative to take-off where the layout says so (H, rel_alt, BAROMETER), else absolute.
     for key, relative in (
         ("rel", True),
@@ -301,7 +302,7 @@ def _times_from_dates(
     return [(t0, t1 if np.isfinite(t1) else float(e), f) for (t0, t1, f), e in zip(out, ends)]
 
 
-def srt_fixes(track: SrtTrack, warnings: Warnings, offset_s: float = 0.0) -> GnssTrack:
+def srt_fixes(track: SrtTrack, messages: Messages, offset_s: float = 0.0) -> GnssTrack:
     """The subtitle's positions as a GNSS track (times + offset_s), through the same plausibility
     gate as every reader (streams.plausible_fixes); heights as the subtitle gives them (missing
     ones 0: above take-off, or the lowest flight height for absolute layouts)."""
@@ -309,7 +310,7 @@ def srt_fixes(track: SrtTrack, warnings: Warnings, offset_s: float = 0.0) -> Gns
     h = track.height[ok]
     missing = ~np.isfinite(h)
     if missing.any() and not missing.all():
-        warnings.add(
+        messages.add(
             f"{Path(track.path).name}: {int(missing.sum())} entries without a height: interpolated"
         )
         h = np.interp(track.t[ok], track.t[ok][~missing], h[~missing])
@@ -317,7 +318,7 @@ def srt_fixes(track: SrtTrack, warnings: Warnings, offset_s: float = 0.0) -> Gns
         h = np.zeros(len(h))
     return plausible_fixes(
         GnssTrack(offset_s + track.t[ok], track.lat[ok], track.lon[ok], h, None, None, track.path),
-        warnings,
+        messages,
     )
 
 

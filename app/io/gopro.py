@@ -23,8 +23,9 @@ import numpy as np
 from app.errors import DataFormatError
 from app.io.gpmf import Counts, StreamChunk, chunks, parse
 from app.io.mp4box import user_data
-from app.io.streams import GnssTrack, Warnings, plausible_fixes
+from app.io.streams import GnssTrack, plausible_fixes
 from app.io.video import probe
+from app.messages import Messages
 
 DEFAULT_ORIN = {
     "HERO5": "ZXY",
@@ -170,12 +171,12 @@ def _gather(parts: list[StreamChunk]) -> tuple[np.ndarray, np.ndarray]:
     return t, v
 
 
-def read_gopro_raw(path: str | Path, warnings: Warnings | None = None) -> GoProRaw:
+def read_gopro_raw(path: str | Path, messages: Messages | None = None) -> GoProRaw:
     """The telemetry of a GoPro MP4 as stored: IMU samples in the IMU's axes (ORIN applied), CORI,
     MAGN, GPS, the lens's field of view. Turning them into the device frame is
     app.attitude.gopro's job."""
     path = Path(path)
-    warnings = warnings if warnings is not None else Warnings()
+    messages = messages if messages is not None else Messages()
     if not path.is_file():
         raise DataFormatError(path, "video file does not exist")
     counts = Counts()
@@ -185,13 +186,13 @@ def read_gopro_raw(path: str | Path, warnings: Warnings | None = None) -> GoProR
         try:
             tree = parse(payload, f"{path} payload {i}", counts)
         except DataFormatError as exc:
-            warnings.add(f"{path.name}: telemetry payload {i} skipped ({exc.detail})")
+            messages.add(f"{path.name}: telemetry payload {i} skipped ({exc.detail})")
             continue
         for c in chunks(tree, t0, t1):
             model = model or c.device
             by_key.setdefault(c.key, []).append(c)
     if counts.skipped:
-        warnings.add(f"{path.name}: telemetry keys skipped (undecodable): {counts.skipped}")
+        messages.add(f"{path.name}: telemetry keys skipped (undecodable): {counts.skipped}")
     for need in ("ACCL", "GYRO"):
         if need not in by_key:
             raise DataFormatError(
@@ -217,7 +218,7 @@ def read_gopro_raw(path: str | Path, warnings: Warnings | None = None) -> GoProR
         try:
             magn = (tm, orin_map(str(by_key["MAGN"][0].modifiers.get("ORIN", orin_a)), mv))
         except ValueError as exc:
-            warnings.add(f"{path.name}: MAGN not used ({exc})")
+            messages.add(f"{path.name}: MAGN not used ({exc})")
     ratio = real_time_ratio(gpsu_times(by_key))
     if ratio is not None and ratio > TIMELAPSE_RATIO:
         raise DataFormatError(
@@ -226,14 +227,14 @@ def read_gopro_raw(path: str | Path, warnings: Warnings | None = None) -> GoProR
             "geofuse places only real-time video (record in normal video mode)",
             field="GPSU",
         )
-    gnss, precision, utc0, dropped = _gps(by_key, path, warnings)
+    gnss, precision, utc0, dropped = _gps(by_key, path, messages)
     lens = next((v for k, v in HFOV_DEG.items() if k in model.lower()), HFOV_DEG["default"])
     w, h = probe(path).display_size
     recorded = lens_hfov(global_settings(path), w, h)
     if recorded is not None:
         lens = recorded
     else:
-        warnings.add(
+        messages.add(
             f"{path.name}: no lens field of view in the metadata: {lens:g} deg horizontal assumed for {model or 'this camera'}"
         )
     return GoProRaw(
@@ -294,11 +295,11 @@ def real_time_ratio(pairs: list[tuple[float, float]]) -> float | None:
 
 
 def _gps(
-    by_key: dict[str, list[StreamChunk]], path: Path, warnings: Warnings
+    by_key: dict[str, list[StreamChunk]], path: Path, messages: Messages
 ) -> tuple[GnssTrack | None, np.ndarray | None, float | None, int]:
     key = "GPS9" if "GPS9" in by_key else "GPS5" if "GPS5" in by_key else None
     if key is None:
-        warnings.add(f"{path.name}: no GPS stream (GPS5/GPS9): the camera's position is unknown")
+        messages.add(f"{path.name}: no GPS stream (GPS5/GPS9): the camera's position is unknown")
         return None, None, None, 0
     ts, vals, fixes, dops, dop, utc0, dropped = [], [], [], [], [], None, 0
     for c in by_key[key]:
@@ -327,25 +328,25 @@ def _gps(
         if utc0 is None and isinstance(c.modifiers.get("GPSU"), str):
             when = _gpsu_seconds(c.modifiers["GPSU"])
             if when is None:
-                warnings.add(f"{path.name}: unparsable GPSU {c.modifiers['GPSU']!r}")
+                messages.add(f"{path.name}: unparsable GPSU {c.modifiers['GPSU']!r}")
             else:
                 utc0 = when - c.t0
     if dropped:
-        warnings.add(f"{path.name}: {dropped} GPS samples without a fix dropped")
+        messages.add(f"{path.name}: {dropped} GPS samples without a fix dropped")
     t = np.concatenate(ts) if ts else np.zeros(0)
     v = np.concatenate(vals) if vals else np.zeros((0, 5))
     if len(t) < 2:
-        warnings.add(f"{path.name}: fewer than two GPS samples with a fix")
+        messages.add(f"{path.name}: fewer than two GPS samples with a fix")
         return None, np.array(dop) if dop else None, utc0, dropped
     try:
         raw = plausible_fixes(
             GnssTrack(t, v[:, 0], v[:, 1], v[:, 2], None, None, str(path)),
-            warnings,
+            messages,
             np.concatenate(fixes),
             np.nan_to_num(np.concatenate(dops), nan=0.0),
         )
     except DataFormatError as exc:
-        warnings.add(f"{path.name}: GPS not used ({exc.detail})")
+        messages.add(f"{path.name}: GPS not used ({exc.detail})")
         return None, np.array(dop) if dop else None, utc0, dropped
     t = raw.t
     v = np.column_stack([raw.lat, raw.lon, raw.h, np.zeros((len(t), 2))])

@@ -15,7 +15,8 @@ from pathlib import Path
 import numpy as np
 
 from app.errors import DataFormatError
-from app.io.streams import GnssTrack, Warnings, plausible_fixes
+from app.io.streams import GnssTrack, plausible_fixes
+from app.messages import Messages
 
 GPS_EPOCH_UNIX_S = 315964800.0  # 1980-01-06: no GNSS receiver time can be earlier
 
@@ -28,10 +29,10 @@ def _parse_time(text: str) -> float:
     return datetime.fromisoformat(text.strip().replace("Z", "+00:00")).timestamp()
 
 
-def read_gpx(path: str | Path, warnings: Warnings | None = None) -> GnssTrack:
+def read_gpx(path: str | Path, messages: Messages | None = None) -> GnssTrack:
     """All track points of all tracks, in file order. Times are Unix seconds (UTC)."""
     path = Path(path)
-    warnings = warnings if warnings is not None else Warnings()
+    messages = messages if messages is not None else Messages()
     if not path.is_file():
         raise DataFormatError(path, "file does not exist")
     try:
@@ -47,7 +48,7 @@ def read_gpx(path: str | Path, warnings: Warnings | None = None) -> GnssTrack:
     for seg_index, seg in enumerate(e for e in root.iter() if _local(e.tag) == "trkseg"):
         pts = [e for e in seg if _local(e.tag) == "trkpt"]
         if not pts:
-            warnings.add(f"{path.name}: track segment {seg_index + 1} is empty; skipped")
+            messages.add(f"{path.name}: track segment {seg_index + 1} is empty; skipped")
             continue
         for p in pts:
             point += 1
@@ -76,7 +77,7 @@ def read_gpx(path: str | Path, warnings: Warnings | None = None) -> GnssTrack:
     if not rows:
         raise DataFormatError(path, "no track points (expected <trk><trkseg><trkpt>)")
     for name, count in unparsable.items():
-        warnings.add(
+        messages.add(
             f"{path.name}: {count} track points with an unparsable <{name}>: taken as missing"
         )
     arr = np.array(rows)
@@ -100,19 +101,19 @@ def read_gpx(path: str | Path, warnings: Warnings | None = None) -> GnssTrack:
         )
     repeat = dt == 0
     if repeat.any():
-        warnings.add(
+        messages.add(
             f"{path.name}: {int(repeat.sum())} track points repeat the previous time; dropped"
         )
         keep = np.concatenate([[True], ~repeat])
         arr, speeds = arr[keep], np.asarray(speeds)[keep]
     if np.isnan(arr[:, 3]).any():
-        warnings.add(
+        messages.add(
             f"{path.name}: {int(np.isnan(arr[:, 3]).sum())} track points without <ele>; heights interpolated"
         )
         ok = ~np.isnan(arr[:, 3])
         arr[:, 3] = np.interp(arr[:, 0], arr[ok, 0], arr[ok, 3]) if ok.any() else 0.0
     return plausible_fixes(
-        GnssTrack(arr[:, 0], arr[:, 1], arr[:, 2], arr[:, 3], None, None, str(path)), warnings
+        GnssTrack(arr[:, 0], arr[:, 1], arr[:, 2], arr[:, 3], None, None, str(path)), messages
     )
 
 

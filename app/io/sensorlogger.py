@@ -29,9 +29,9 @@ from app import rotations
 from app.errors import DataFormatError
 from app.io.streams import (
     GnssTrack,
+    Messages,
     OrientationStream,
     VectorStream,
-    Warnings,
     checked_vector,
     clean_times,
     plausible_fixes,
@@ -90,21 +90,21 @@ class _Source:
 
 
 def _columns(
-    src: _Source, name: str, wanted: list[str], label: str, warnings: Warnings
+    src: _Source, name: str, wanted: list[str], label: str, messages: Messages
 ) -> tuple[np.ndarray, np.ndarray]:
     from app.io.csvlog import numeric
 
     cols, rows = src.rows(name)
     path = src.where(name)
-    values, lines = numeric(path, rows, cols, ["time", *wanted], 2, warnings)
+    values, lines = numeric(path, rows, cols, ["time", *wanted], 2, messages)
     t = values[:, 0] * 1e-9
-    keep = clean_times(t, lines, path, label, warnings)
+    keep = clean_times(t, lines, path, label, messages)
     require_samples(int(keep.sum()), 2, path, label)
     return t[keep], values[keep, 1:]
 
 
-def _vector(src: _Source, name: str, kind: str, unit: str, warnings: Warnings) -> VectorStream:
-    t, v = _columns(src, name, ["x", "y", "z"], kind, warnings)
+def _vector(src: _Source, name: str, kind: str, unit: str, messages: Messages) -> VectorStream:
+    t, v = _columns(src, name, ["x", "y", "z"], kind, messages)
     return VectorStream(kind, t, v, unit, str(src.where(name)))
 
 
@@ -118,11 +118,11 @@ def _platform(src: _Source) -> str:
 
 
 def read_sensorlogger(
-    path: str | Path, standardised: bool = False, warnings: Warnings | None = None
+    path: str | Path, standardised: bool = False, messages: Messages | None = None
 ) -> SensorLoggerRecording:
     """Read a Sensor Logger recording. `standardised`: the app's "Standardise Units & Frames" was on."""
     path = Path(path)
-    warnings = warnings if warnings is not None else Warnings()
+    messages = messages if messages is not None else Messages()
     if not path.exists():
         raise DataFormatError(path, "recording does not exist")
     src = _Source(path)
@@ -131,16 +131,16 @@ def read_sensorlogger(
         raise DataFormatError(
             path, "no Gyroscope.csv in the recording (enable the gyroscope in Sensor Logger)"
         )
-    gyr = _vector(src, "Gyroscope.csv", "gyr", "rad/s", warnings)
+    gyr = _vector(src, "Gyroscope.csv", "gyr", "rad/s", messages)
     if src.has("totalacceleration.csv"):
-        acc = _vector(src, "TotalAcceleration.csv", "acc", "m/s^2", warnings)
+        acc = _vector(src, "TotalAcceleration.csv", "acc", "m/s^2", messages)
     elif src.has("accelerometer.csv") and src.has("gravity.csv"):
-        user = _vector(src, "Accelerometer.csv", "acc", "m/s^2", warnings)
-        grav = _vector(src, "Gravity.csv", "acc", "m/s^2", warnings)
+        user = _vector(src, "Accelerometer.csv", "acc", "m/s^2", messages)
+        grav = _vector(src, "Gravity.csv", "acc", "m/s^2", messages)
         total = user.values + resample(user.t, grav.t, grav.values)
         sign = -1.0 if platform == "ios" and not standardised else 1.0
         if platform == "unknown":
-            warnings.add(
+            messages.add(
                 f"{path.name}: no platform in Metadata.csv; acceleration taken in Android's sign convention"
             )
         acc = VectorStream("acc", user.t, sign * total, "m/s^2", user.source)
@@ -149,24 +149,24 @@ def read_sensorlogger(
             path,
             "no acceleration with gravity: expected TotalAcceleration.csv, or Accelerometer.csv and Gravity.csv",
         )
-    gyr, acc = checked_vector(gyr, warnings), checked_vector(acc, warnings)
+    gyr, acc = checked_vector(gyr, messages), checked_vector(acc, messages)
     mag = (
-        _vector(src, "Magnetometer.csv", "mag", "uT", warnings)
+        _vector(src, "Magnetometer.csv", "mag", "uT", messages)
         if src.has("magnetometer.csv")
         else None
     )
-    mag = None if mag is None else checked_vector(mag, warnings)
+    mag = None if mag is None else checked_vector(mag, messages)
     if mag is None and not src.has("magnetometer.csv"):
-        warnings.add(f"{path.name}: no Magnetometer.csv: only the IMU (6D) filters are available")
+        messages.add(f"{path.name}: no Magnetometer.csv: only the IMU (6D) filters are available")
     gnss = None
     if src.has("location.csv"):
         t, v = _columns(
-            src, "Location.csv", ["latitude", "longitude", "altitude"], "GNSS", warnings
+            src, "Location.csv", ["latitude", "longitude", "altitude"], "GNSS", messages
         )
         cols, _ = src.rows("Location.csv")
         vel = None
         if "speed" in cols and "bearing" in cols:
-            _, sb = _columns(src, "Location.csv", ["speed", "bearing"], "GNSS", Warnings())
+            _, sb = _columns(src, "Location.csv", ["speed", "bearing"], "GNSS", Messages())
             valid = (sb[:, 0] >= 0) & (sb[:, 1] >= 0)
             if valid.all():
                 b = np.radians(sb[:, 1])
@@ -174,16 +174,16 @@ def read_sensorlogger(
                     [sb[:, 0] * np.sin(b), sb[:, 0] * np.cos(b), np.zeros(len(b))]
                 )
             else:
-                warnings.add(
+                messages.add(
                     f"{path.name}: Location.csv has {int((~valid).sum())} fixes with invalid speed/bearing; velocity estimated from positions"
                 )
         gnss = plausible_fixes(
             GnssTrack(t, v[:, 0], v[:, 1], v[:, 2], vel, None, str(src.where("Location.csv"))),
-            warnings,
+            messages,
         )
     orientation = None
     if src.has("orientation.csv"):
-        t, q = _columns(src, "Orientation.csv", ["qw", "qx", "qy", "qz"], "orientation", warnings)
+        t, q = _columns(src, "Orientation.csv", ["qw", "qx", "qy", "qz"], "orientation", messages)
         orientation = reference_orientation(
             OrientationStream(
                 t, q / np.linalg.norm(q, axis=1, keepdims=True), str(src.where("Orientation.csv"))

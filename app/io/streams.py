@@ -7,40 +7,17 @@ gyroscope rad/s, magnetometer uT.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import numpy.typing as npt
 
 from app.errors import DataFormatError
+from app.messages import Messages
 
 FloatArray = npt.NDArray[np.float64]
 GAP_FACTOR = 5.0  # a step longer than this many median steps counts as a gap
-
-
-@dataclass
-class Warnings:
-    """Counted, human-readable notes about repaired input (dropped rows, gaps, unit guesses)."""
-
-    items: list[str] = field(default_factory=list)
-    keys: set[str] = field(default_factory=set)
-
-    def add(self, message: str) -> None:
-        self.items.append(message)
-
-    def add_once(self, key: str, message: str) -> None:
-        """Add `message` unless a note with the same key was added before (solving the same
-        source twice must not repeat its notes)."""
-        if key not in self.keys:
-            self.keys.add(key)
-            self.items.append(message)
-
-    def extend(self, other: "Warnings") -> None:
-        self.items.extend(other.items)
-
-    def __len__(self) -> int:
-        return len(self.items)
 
 
 @dataclass(frozen=True)
@@ -91,13 +68,13 @@ def resample(t_target: npt.ArrayLike, t_source: npt.ArrayLike, values: npt.Array
 
 
 def clean_times(
-    t: FloatArray, rows: npt.NDArray[np.int64], path: Path, label: str, warnings: Warnings
+    t: FloatArray, rows: npt.NDArray[np.int64], path: Path, label: str, messages: Messages
 ) -> npt.NDArray[np.bool_]:
     """Mask of samples to keep so that time strictly increases: drops NaN times, repeats and
     samples that go backwards (counted, with the first offending line). Notes gaps."""
     keep = np.isfinite(t)
     if (~keep).any():
-        warnings.add(
+        messages.add(
             f"{path.name}: {int((~keep).sum())} {label} rows with no time dropped (first at line {int(rows[~keep][0])})"
         )
     idx = np.flatnonzero(keep)
@@ -116,7 +93,7 @@ def clean_times(
                 back += 1
             first_bad = first_bad or int(rows[i])
     if back or repeat:
-        warnings.add(
+        messages.add(
             f"{path.name}: {label} time goes backwards {back} times and repeats {repeat} times; those rows dropped (first at line {first_bad})"
         )
     tt = t[good]
@@ -125,7 +102,7 @@ def clean_times(
         med = np.median(dt)
         gaps = dt > GAP_FACTOR * med
         if gaps.any():
-            warnings.add(
+            messages.add(
                 f"{path.name}: {int(gaps.sum())} gaps in {label} longer than {GAP_FACTOR:g}x the median step ({med * 1000:.1f} ms), longest {dt.max():.3f} s"
             )
     return good
@@ -152,7 +129,7 @@ MAX_DOP = 5.0  # fixes with a worse dilution of precision are not positions to u
 HEIGHT_RANGE_M = (-1_000.0, 20_000.0)  # ellipsoidal heights a fix can have
 
 
-def checked_vector(stream: VectorStream, warnings: Warnings) -> VectorStream | None:
+def checked_vector(stream: VectorStream, messages: Messages) -> VectorStream | None:
     """A sensor stream as it enters: rows with non-finite values dropped and counted; a sample
     rate in RATE_RANGE_HZ (else DataFormatError: the time unit is wrong); samples whose norm
     exceeds SENSOR_LIMIT dropped and counted like them; a dead accelerometer
@@ -166,11 +143,11 @@ def checked_vector(stream: VectorStream, warnings: Warnings) -> VectorStream | N
             > (limit or np.inf)
         )
     if not finite.all():
-        warnings.add(
+        messages.add(
             f"{path.name}: {int((~finite).sum())} {stream.name} samples with non-finite values dropped"
         )
     if beyond.any():
-        warnings.add(
+        messages.add(
             f"{path.name}: {int(beyond.sum())} {stream.name} samples beyond {limit:g} {stream.unit} (no sensor reads that) dropped"
         )
     if not finite.all() or beyond.any():
@@ -196,7 +173,7 @@ def checked_vector(stream: VectorStream, warnings: Warnings) -> VectorStream | N
                     f"the accelerometer reads {norm:.3g} {stream.unit} (median norm): a dead or disconnected sensor, expected about 9.8 m/s^2 of gravity",
                     field="acc",
                 )
-            warnings.add(
+            messages.add(
                 f"{path.name}: the magnetometer reads {norm:.3g} {stream.unit} (median norm): a dead sensor, not used"
             )
             return None
@@ -205,7 +182,7 @@ def checked_vector(stream: VectorStream, warnings: Warnings) -> VectorStream | N
 
 def plausible_fixes(
     track: GnssTrack,
-    warnings: Warnings,
+    messages: Messages,
     fix_type: npt.ArrayLike | None = None,
     dop: npt.ArrayLike | None = None,
     minimum: int = 1,
@@ -256,7 +233,7 @@ def plausible_fixes(
         )
     keep &= ~jumps
     if notes:
-        warnings.add(
+        messages.add(
             f"{path.name}: fixes that are not usable positions dropped: {', '.join(notes)}; {int(keep.sum())} of {len(t)} kept"
         )
     if keep.sum() < max(minimum, 1):

@@ -32,11 +32,11 @@ class VideoInfo:
     origin_s: float = 0.0  # the stream-clock seconds that are media time 0 (see media_seconds)
     declared_frames: int = 0  # frames the container's index announces (0: it does not say)
 
-    def note_damage(self, warnings) -> None:
+    def note_damage(self, messages) -> None:
         """A warning when fewer frames can be read than the index announces (a file cut short
         with its index at the front): only the frames present are used."""
         if self.declared_frames > len(self.pts_s) + 1:
-            warnings.add(
+            messages.add(
                 f"{Path(self.path).name}: the video is cut short: {len(self.pts_s)} of the {self.declared_frames} frames its index announces can be read; only those are used"
             )
 

@@ -15,6 +15,7 @@ import numpy.typing as npt
 
 from app.errors import SceneError
 from app.geo import LocalFrame
+from app.messages import Messages
 from app.scene.loader import SUPPORTED_SUFFIXES, Placement, load_scene
 from app.scene.mesh import MeshData
 from app.scene.terrain import DEFAULT_MAX_ERROR_M, DEM_SUFFIXES, read_terrain
@@ -83,7 +84,7 @@ class LoadedLayers:
 
     mesh: MeshData
     parts: list[tuple[Layer, MeshData]] = field(default_factory=list)
-    notes: list[str] = field(default_factory=list)
+    notes: Messages = field(default_factory=Messages)
 
 
 def _tileset(layer: Layer, frame: LocalFrame):
@@ -112,14 +113,14 @@ def load_layers(
         elif layer.kind == "tileset":
             ts = _tileset(layer, frame)
             part = MeshData(tilesets=[ts])
-            notes.append(f"{layer.name}: 3D Tiles {ts.version}, streamed by level of detail")
+            notes.info(f"{layer.name}: 3D Tiles {ts.version}, streamed by level of detail")
         else:
             terrain = read_terrain(
                 layer.location, frame, track_ll, layer.ortho, layer.vertical, layer.max_error_m
             )
             part = terrain.mesh
-            notes += terrain.notes
-            notes.append(
+            notes.extend(terrain.notes)
+            notes.info(
                 f"{layer.name}: terrain of {terrain.mesh.triangle_count} triangles from {terrain.grid_shape[0]}x{terrain.grid_shape[1]} samples "
                 f"(~{terrain.cell_m:.1f} m apart), within {terrain.error_m:.2f} m of them, heights from {terrain.datum}"
                 + (f", draped with {layer.ortho.name}" if layer.ortho is not None else "")

@@ -27,6 +27,7 @@ from numba import njit
 from app import geoid
 from app.errors import SceneError
 from app.geo import LocalFrame
+from app.messages import Messages
 from app.scene.mesh import MeshData, Primitive
 
 MAX_GRID = 4097  # samples a side at most (2^12 + 1)
@@ -43,7 +44,7 @@ class Terrain:
 
     mesh: MeshData
     datum: str  # 'ellipsoid', 'egm2008' or 'egm96'
-    notes: list[str]
+    notes: Messages
     grid_shape: tuple[int, int]  # samples read (rows, columns)
     error_m: float  # measured: the mesh's largest vertical distance from a sample read
     cell_m: float  # sample spacing on the ground, m (approx.)
@@ -360,7 +361,7 @@ def read_terrain(
     from rasterio.windows import transform as window_transform
 
     path = Path(path)
-    notes: list[str] = []
+    notes = Messages()
     if not path.is_file():
         raise SceneError(path, "DEM file does not exist")
     if vertical is not None and vertical not in geoid.VERTICAL_DATUMS:
@@ -399,11 +400,11 @@ def read_terrain(
         datum = vertical or _vertical_datum(src.crs)
         if datum is None:
             datum = "egm2008"
-            notes.append(
+            notes.add(
                 f"{path.name}: heights taken as above the EGM2008 geoid (the file names no vertical datum; set the DEM's vertical datum to change it)"
             )
         elif datum == "egm96" and vertical is None:
-            notes.append(
+            notes.info(
                 f"{path.name}: EGM96 heights converted with EGM2008 undulations (the two differ by under a metre almost everywhere)"
             )
         horizontal = _horizontal(src.crs)
@@ -418,7 +419,7 @@ def read_terrain(
 
         _, (ri, ci) = ndimage.distance_transform_edt(~valid, return_indices=True)
         heights = heights[ri, ci]
-        notes.append(
+        notes.add(
             f"{path.name}: {holes} of {valid.size} samples are nodata: left as holes in the terrain"
         )
     to_ll = pyproj.Transformer.from_crs(horizontal, "EPSG:4326", always_xy=True)

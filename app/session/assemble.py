@@ -22,9 +22,10 @@ from app.io import csvlog
 from app.io.dji_srt import read_srt, srt_fixes
 from app.io.gpx import read_gpx
 from app.io.sensorlogger import read_sensorlogger
-from app.io.streams import GnssTrack, OrientationStream, VectorStream, Warnings
+from app.io.streams import GnssTrack, OrientationStream, VectorStream
 from app.io.video import VideoInfo, probe
 from app.lens import Lens, video_camera
+from app.messages import Messages
 from app.scene import Placement
 from app.scene.ground import ellipsoidal_ground
 from app.scene.ground_plane import ASSUMED_GROUND_MARGIN_M, ground_under_track
@@ -46,20 +47,20 @@ def open_session(path: str | Path) -> Session:
     offset = synced_offset(cfg.path)
     if offset is not None:
         drift, pivot = synced_drift(cfg.path)
-        session.warnings.add(
+        session.messages.info(
             f"time offset {1000 * offset:+.1f} ms (drift {drift:+.0f} ppm) from {cfg.path.stem}.geofuse.toml (geofuse sync --write)"
         )
     else:
         result = sync_session(session)
         offset, drift, pivot = result.offset_s, result.drift_ppm, result.reference_s
-        session.warnings.add(
+        session.messages.info(
             f"time offset {1000 * offset:+.1f} ms (drift {drift:+.0f} ppm) found from the video against {timed_by(session)} (confidence {result.confidence:.2f}); geofuse sync --write keeps it"
         )
     return replace(session, frame_times=corrected_times(session.frame_times, offset, drift, pivot))
 
 
 def _intrinsics(
-    cfg: SessionConfig, width: int, height: int, rotation_cw: int, warnings: Warnings
+    cfg: SessionConfig, width: int, height: int, rotation_cw: int, messages: Messages
 ) -> tuple[Intrinsics, Lens | None]:
     """(the pinhole the depth pass uses, the real lens or None), for the displayed video."""
     cam = cfg.camera
@@ -68,21 +69,21 @@ def _intrinsics(
             intr, lens = video_camera(cam.lens, width, height, rotation_cw)
         except ValueError as exc:
             raise ManifestError(cfg.path, str(exc), field="camera.lens") from exc
-        warnings.add(f"lens: {lens.kind} model from {cam.lens.name}")
+        messages.info(f"lens: {lens.kind} model from {cam.lens.name}")
         return intr, lens
     return _pinhole(cfg, width, height), None
 
 
-def _readout(cfg: SessionConfig, lens: Lens | None, warnings: Warnings) -> float | None:
+def _readout(cfg: SessionConfig, lens: Lens | None, messages: Messages) -> float | None:
     """The rolling shutter's readout time (s): the manifest's, else the lens profile's; says so."""
     if cfg.camera.readout_ms is not None:
         return cfg.camera.readout_ms / 1000.0 or None
     if lens is not None and lens.readout_s:
-        warnings.add(
+        messages.info(
             f"rolling shutter: readout {1000 * lens.readout_s:.1f} ms from the lens profile, corrected row by row"
         )
         return lens.readout_s
-    warnings.add("rolling shutter: readout time unknown (camera.readout_ms): not corrected")
+    messages.add("rolling shutter: readout time unknown (camera.readout_ms): not corrected")
     return None
 
 
@@ -101,13 +102,13 @@ def _shifted(stream, dt: float):
     return None if stream is None else replace(stream, t=stream.t + dt)
 
 
-def _sensors(cfg: SessionConfig, warnings: Warnings, clip_start: float):
+def _sensors(cfg: SessionConfig, messages: Messages, clip_start: float):
     """(acc, gyr, mag, recorded attitudes, GNSS from the sensors or None)."""
     s = cfg.sensors
     recorded: dict[str, OrientationStream] = {}
     acc = gyr = mag = gnss = None
     if s.format == "gopro":
-        rec = read_gopro(cfg.video.path, warnings)
+        rec = read_gopro(cfg.video.path, messages)
         # GPMF times count from the clip start; the session clock adds the video's start time.
         acc, gyr, mag, gnss = (
             _shifted(x, clip_start) for x in (rec.acc, rec.gyr, rec.mag, rec.gnss)
@@ -115,25 +116,25 @@ def _sensors(cfg: SessionConfig, warnings: Warnings, clip_start: float):
         if rec.camera is not None:
             recorded["camera"] = _shifted(rec.camera, clip_start)
     elif s.format == "sensorlogger":
-        rec = read_sensorlogger(s.path, s.standardised, warnings)
+        rec = read_sensorlogger(s.path, s.standardised, messages)
         acc, gyr, mag, gnss = rec.acc, rec.gyr, rec.mag, rec.gnss
         if rec.orientation is not None:
             recorded["phone"] = rec.orientation
     elif s.format == "csv":
-        acc = csvlog.read_vector(s.acc, "acc", warnings)
-        gyr = csvlog.read_vector(s.gyr, "gyr", warnings)
-        mag = csvlog.read_vector(s.mag, "mag", warnings) if s.mag else None
+        acc = csvlog.read_vector(s.acc, "acc", messages)
+        gyr = csvlog.read_vector(s.gyr, "gyr", messages)
+        mag = csvlog.read_vector(s.mag, "mag", messages) if s.mag else None
         if s.orientation:
-            recorded["phone"] = csvlog.read_orientation(s.orientation, warnings)
+            recorded["phone"] = csvlog.read_orientation(s.orientation, messages)
     if cfg.truth.orientation:
-        recorded["truth"] = csvlog.read_orientation(cfg.truth.orientation, warnings)
+        recorded["truth"] = csvlog.read_orientation(cfg.truth.orientation, messages)
     return acc, gyr, mag, recorded, gnss
 
 
 def _gnss(
     cfg: SessionConfig,
     logged: GnssTrack | None,
-    warnings: Warnings,
+    messages: Messages,
     clip_start: float,
     recorded: dict[str, OrientationStream],
 ) -> tuple[GnssTrack, bool, tuple | None]:
@@ -145,30 +146,30 @@ def _gnss(
             cfg.path, "the sensors hold no GNSS track: give gnss.path", field="gnss.path"
         )
     if path is not None and path.suffix.lower() == ".srt":
-        return _srt_gnss(path, warnings, clip_start, recorded)
+        return _srt_gnss(path, messages, clip_start, recorded)
     track = logged
     if path is not None:
         track = (
-            read_gpx(path, warnings)
+            read_gpx(path, messages)
             if path.suffix.lower() == ".gpx"
-            else csvlog.read_gnss(path, warnings)
+            else csvlog.read_gnss(path, messages)
         )
     return replace(track, h=track.h + cfg.gnss.height_offset_m), False, None
 
 
 def _srt_gnss(
-    path: Path, warnings: Warnings, clip_start: float, recorded: dict[str, OrientationStream]
+    path: Path, messages: Messages, clip_start: float, recorded: dict[str, OrientationStream]
 ) -> tuple[GnssTrack, bool, tuple | None]:
     """A DJI subtitle as the session's GNSS (its times are the clip's, shifted to the session
     clock) and, with gimbal angles, its `telemetry` attitude, else the aircraft's yaw."""
-    tr = read_srt(path, warnings)
+    tr = read_srt(path, messages)
     yaw = None
     if tr.has_gimbal:
         recorded["telemetry"] = _shifted(gimbal_attitude(tr, path), clip_start)
     elif tr.aircraft_yaw() is not None:
         t, deg = tr.aircraft_yaw()
         yaw = (t + clip_start, deg)
-    return srt_fixes(tr, warnings, clip_start), bool(tr.height_relative), yaw
+    return srt_fixes(tr, messages, clip_start), bool(tr.height_relative), yaw
 
 
 def gimbal_attitude(track, path: Path) -> OrientationStream:
@@ -184,13 +185,13 @@ def gimbal_attitude(track, path: Path) -> OrientationStream:
 
 
 def _takeoff_height(
-    cfg: SessionConfig, frame: LocalFrame, gnss: GnssTrack, mesh, warnings: Warnings
+    cfg: SessionConfig, frame: LocalFrame, gnss: GnssTrack, mesh, messages: Messages
 ) -> float:
     """The take-off point's ellipsoidal height: the manifest's, else the scene's ground under the
     first position; says which."""
     value = cfg.gnss.takeoff_height_m
     if value is not None:
-        warnings.add(
+        messages.info(
             f"heights above take-off: take-off height {value:.2f} m from gnss.takeoff_height_m"
         )
         return value
@@ -201,7 +202,7 @@ def _takeoff_height(
             "heights are above take-off and the scene has no ground under the first position: give gnss.takeoff_height_m",
             field="gnss.takeoff_height_m",
         )
-    warnings.add(
+    messages.info(
         f"heights above take-off: take-off height {value:.2f} m from the scene's ground under the first position"
     )
     return value
@@ -212,20 +213,19 @@ SCENE_FAR_M = (
 )
 
 
-def load_scene_layers(layers, frame: LocalFrame, gnss: GnssTrack, warnings: Warnings) -> MeshData:
+def load_scene_layers(layers, frame: LocalFrame, gnss: GnssTrack, messages: Messages) -> MeshData:
     """Every layer in `frame`, read around the track (app.scene.layers.load_layers), with what
     reading them found said, and a warning with the distance for each layer that lies away from
     the camera's track (a wrong origin, up axis or ECEF reading places a model thousands of
     kilometres off)."""
     loaded = load_layers(layers, frame, np.column_stack([gnss.lat, gnss.lon]))
-    for note in loaded.notes:
-        warnings.add(note)
+    messages.extend(loaded.notes)
     track_enu = frame.geodetic_to_enu(gnss.lat, gnss.lon, gnss.h)
     for layer, part in loaded.parts:
         far = part.horizontal_distance(track_enu)
         if far > SCENE_FAR_M:
             hint = "its georeferencing" if layer.georeferenced else "scene.origin, scene.up_axis"
-            warnings.add(
+            messages.add(
                 f"{layer.name}: the scene lies {far / 1000:.1f} km from the camera's track: check {hint} and the GNSS positions"
             )
     return loaded.mesh
@@ -247,7 +247,7 @@ def _frame_times(cfg: SessionConfig, video: VideoInfo) -> tuple[float, np.ndarra
 
 
 def _check_coverage(
-    cfg: SessionConfig, frame_times: np.ndarray, log_t: np.ndarray, warnings: Warnings
+    cfg: SessionConfig, frame_times: np.ndarray, log_t: np.ndarray, messages: Messages
 ) -> None:
     covered = (frame_times >= log_t[0]) & (frame_times <= log_t[-1])
     if not covered.any():
@@ -258,7 +258,7 @@ def _check_coverage(
             field="video.start_time",
         )
     if not covered.all():
-        warnings.add(
+        messages.add(
             f"{int((~covered).sum())} video frames lie outside the sensor log; their attitude is held"
         )
 
@@ -268,25 +268,25 @@ def _calibrate_magnetometer(
     origin: tuple[float, float, float],
     when: float,
     mode: str,
-    warnings: Warnings,
+    messages: Messages,
 ) -> VectorStream | None:
     """The magnetometer calibrated on the clip (app.attitude.magcal), unless mode is "none"."""
     if mag is None or mode == "none":
         return mag
     cal = magcal.fit(mag.values, float(np.linalg.norm(field_enu(*origin, when))))
     if isinstance(cal, str):
-        warnings.add(f"magnetometer not calibrated: {cal}")
+        messages.add(f"magnetometer not calibrated: {cal}")
         return mag
-    warnings.add(f"magnetometer calibrated on the clip: {cal.describe()}")
+    messages.info(f"magnetometer calibrated on the clip: {cal.describe()}")
     return replace(mag, values=cal.apply(mag.values))
 
 
-def _true_frame_times(cfg: SessionConfig, count: int, warnings: Warnings) -> np.ndarray | None:
+def _true_frame_times(cfg: SessionConfig, count: int, messages: Messages) -> np.ndarray | None:
     path = cfg.truth.frame_times
     if path is None:
         return None
     columns, _, rows, first = csvlog.read_table(path)
-    values, _ = csvlog.numeric(path, rows, columns, ["frame", "t"], first, warnings)
+    values, _ = csvlog.numeric(path, rows, columns, ["frame", "t"], first, messages)
     if len(values) != count:
         raise ManifestError(
             cfg.path,
@@ -296,7 +296,7 @@ def _true_frame_times(cfg: SessionConfig, count: int, warnings: Warnings) -> np.
     return values[np.argsort(values[:, 0]), 1]
 
 
-def _place(cfg: SessionConfig, gnss: GnssTrack, above_takeoff: bool, warnings: Warnings):
+def _place(cfg: SessionConfig, gnss: GnssTrack, above_takeoff: bool, messages: Messages):
     """(frame, mesh, gnss with final heights): the session's ENU frame and scene. Without any
     layer, an assumed flat ground under the track (the first fix's height less the mount height,
     or the take-off height for heights above take-off), as for clips opened directly."""
@@ -310,7 +310,7 @@ def _place(cfg: SessionConfig, gnss: GnssTrack, above_takeoff: bool, warnings: W
             if cfg.origin is not None
             else LocalFrame(float(gnss.lat[0]), float(gnss.lon[0]), ground)
         )
-        warnings.add(
+        messages.add(
             "no scene given: the video is projected on an assumed flat ground with a 1 m grid"
         )
         return (
@@ -327,47 +327,47 @@ def _place(cfg: SessionConfig, gnss: GnssTrack, above_takeoff: bool, warnings: W
         frame = LocalFrame(*origin)
     except ValueError as exc:
         raise ManifestError(cfg.path, str(exc), field="origin") from exc
-    mesh = load_scene_layers(cfg.layers, frame, gnss, warnings)
+    mesh = load_scene_layers(cfg.layers, frame, gnss, messages)
     if above_takeoff:
-        gnss = replace(gnss, h=gnss.h + _takeoff_height(cfg, frame, gnss, mesh, warnings))
+        gnss = replace(gnss, h=gnss.h + _takeoff_height(cfg, frame, gnss, mesh, messages))
     return frame, mesh, gnss
 
 
 def assemble(cfg: SessionConfig) -> Session:
     """Every reader the config names, on one clock, into one frozen Session."""
-    warnings = Warnings()
+    messages = Messages()
     video = probe(cfg.video.path)
-    video.note_damage(warnings)
+    video.note_damage(messages)
     clip_start, frame_times = _frame_times(cfg, video)
     if cfg.video.start_time is None:
-        warnings.add(
+        messages.add(
             f"video.start_time not given: the video's creation time {video.creation_time:.3f} s is the first frame's session time "
             "(a file timestamp can be off by a second; `geofuse sync` finds the offset)"
         )
     rotation = video.rotation_cw if cfg.camera.rotation_cw is None else cfg.camera.rotation_cw
     w, h = (video.height, video.width) if rotation % 180 else (video.width, video.height)
-    intr, lens = _intrinsics(cfg, w, h, rotation, warnings)
+    intr, lens = _intrinsics(cfg, w, h, rotation, messages)
 
-    acc, gyr, mag, recorded, logged_gnss = _sensors(cfg, warnings, clip_start)
-    gnss, above_takeoff, yaw = _gnss(cfg, logged_gnss, warnings, clip_start, recorded)
-    _check_coverage(cfg, frame_times, (gyr if gyr is not None else gnss).t, warnings)
-    frame, mesh, gnss = _place(cfg, gnss, above_takeoff, warnings)
+    acc, gyr, mag, recorded, logged_gnss = _sensors(cfg, messages, clip_start)
+    gnss, above_takeoff, yaw = _gnss(cfg, logged_gnss, messages, clip_start, recorded)
+    _check_coverage(cfg, frame_times, (gyr if gyr is not None else gnss).t, messages)
+    frame, mesh, gnss = _place(cfg, gnss, above_takeoff, messages)
     origin = (frame.lat_deg, frame.lon_deg, frame.h_m)
     mag = _calibrate_magnetometer(
-        mag, origin, float(frame_times[0]), cfg.sensors.mag_calibration, warnings
+        mag, origin, float(frame_times[0]), cfg.sensors.mag_calibration, messages
     )
-    truth_position = csvlog.read_gnss(cfg.truth.position, warnings) if cfg.truth.position else None
+    truth_position = csvlog.read_gnss(cfg.truth.position, messages) if cfg.truth.position else None
     policy = heading_policy(
         gyr is not None, mag is not None, recorded, cfg.gnss.pitch_deg, yaw is not None
     )
     if policy.note:
-        warnings.add(policy.note)
+        messages.info(policy.note)
     return Session(
         cfg.path, frame, Path(cfg.layers[0].location) if cfg.layers else None, cfg.scene.placement if cfg.scene else Placement(), video, frame_times, intr, rotation,
-        acc, gyr, mag, gnss, recorded, declination(*origin, float(frame_times[0])), warnings,
+        acc, gyr, mag, gnss, recorded, declination(*origin, float(frame_times[0])), messages,
         inputs=tuple(cfg.inputs()), truth_position=truth_position,
-        truth_frame_times=_true_frame_times(cfg, len(frame_times), warnings),
+        truth_frame_times=_true_frame_times(cfg, len(frame_times), messages),
         height_mode=cfg.gnss.height if cfg.layers else "gnss", mount_height_m=cfg.gnss.mount_height_m, heading=policy,
         device_is_camera=cfg.sensors.format in ("gopro", "none"),  # action cameras and drones
-        aircraft_yaw=yaw, mesh=mesh, lens=lens, readout_s=_readout(cfg, lens, warnings), layers=cfg.layers,
+        aircraft_yaw=yaw, mesh=mesh, lens=lens, readout_s=_readout(cfg, lens, messages), layers=cfg.layers,
     )  # fmt: skip

@@ -22,8 +22,9 @@ from app.attitude.heading import HeadingPolicy
 from app.camera import Intrinsics
 from app.errors import DataFormatError
 from app.geo import LocalFrame
-from app.io.streams import GnssTrack, OrientationStream, VectorStream, Warnings
+from app.io.streams import GnssTrack, OrientationStream, VectorStream
 from app.io.video import VideoInfo
+from app.messages import Messages
 from app.scene import Placement, load_scene
 from app.scene.ground import ground_heights
 from app.scene.mesh import MeshData
@@ -67,7 +68,7 @@ class Session:
     gnss: GnssTrack
     recorded: dict[str, OrientationStream]
     declination_deg: float
-    warnings: Warnings = field(default_factory=Warnings)
+    messages: Messages = field(default_factory=Messages)
     inputs: tuple[Path, ...] = ()
     truth_position: GnssTrack | None = None
     truth_frame_times: np.ndarray | None = None
@@ -129,7 +130,7 @@ class Session:
             enu = self.frame.geodetic_to_enu(g.lat, g.lon, g.h)
             ground = ground_heights(self.scene(), enu[:, :2])
             if np.isnan(ground).any():
-                self.warnings.add_once(
+                self.messages.add_once(
                     "fixes-off-model",
                     f"{int(np.isnan(ground).sum())} GNSS fixes lie off the model: their GNSS height is kept",
                 )
@@ -208,7 +209,7 @@ def device_attitude(
         ref = session.recorded[source]
         if source == "camera" and session.heading_from_course:
             return ref.t, heading.align_to_course(
-                pos.t, pos.vel_enu, ref.t, ref.q, session.camera_mount(), session.warnings
+                pos.t, pos.vel_enu, ref.t, ref.q, session.camera_mount(), session.messages
             )
         return ref.t, ref.q
     method, ahrs = FILTERS[source]
@@ -230,6 +231,6 @@ def device_attitude(
         )
     elif not use_mag and session.heading_from_course:
         q = heading.align_to_course(
-            pos.t, pos.vel_enu, t, q, session.camera_mount(), session.warnings
+            pos.t, pos.vel_enu, t, q, session.camera_mount(), session.messages
         )
     return t, q

@@ -325,8 +325,14 @@ def _session(v) -> None:
         imgui.same_line()
         if imgui.button("Open") and ui.open_path.strip():
             ui.open_request = Path(ui.open_path.strip())
+        for warning in ui.warnings[-6:]:
+            imgui.text_colored(_vec4(AMBER), "warning:")
+            imgui.same_line()
+            imgui.text_wrapped(warning)
         for note in ui.notices[-4:]:
-            imgui.text_wrapped(f"note: {note}")
+            imgui.text_disabled("note:")
+            imgui.same_line()
+            imgui.text_wrapped(note)
         if ui.errors:
             imgui.separator()
             imgui.text_colored(_vec4(RED), f"{len(ui.errors)} error(s):")

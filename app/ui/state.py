@@ -23,7 +23,8 @@ class UiState:
     show_panels: bool = True
     open_path: str = ""  # the Session panel's text field
     errors: list[str] = field(default_factory=list)
-    notices: list[str] = field(default_factory=list)
+    notices: list[str] = field(default_factory=list)  # information: what was merely reported
+    warnings: list[str] = field(default_factory=list)  # what lowers the result (app.messages)
     keys_down: dict[int, bool] = field(
         default_factory=dict
     )  # last frame's key states (edge detection)

@@ -23,6 +23,7 @@ import numpy as np
 
 from app.camera import Camera, Intrinsics
 from app.errors import GeofuseError
+from app.messages import ERROR, WARNING
 from app.playback.clock import SPEEDS, PlaybackClock
 from app.playback.library import SolverLibrary
 from app.playback.player import Player
@@ -147,6 +148,7 @@ class Viewer:
         self.script: list[Action] = []
         self.window = None
         self.window_camera: Camera | None = None
+        self._messages_seen = 0  # of the open session's messages, shown so far
         self.view_rect: tuple[int, int, int, int] | None = (
             None  # x, y (from the top), w, h in framebuffer pixels
         )
@@ -353,7 +355,8 @@ class Viewer:
             SolverLibrary(session, first=first),
             first,
         )
-        self.ui.notices = list(session.warnings.items)
+        self.ui.notices, self.ui.warnings, self._messages_seen = [], [], 0
+        self._show_messages()
         self.ui.time_offset_s = 0.0
         if session.course_pitch_deg is not None:
             self.ui.course_pitch_deg = session.course_pitch_deg
@@ -446,10 +449,25 @@ class Viewer:
 
     # --- one frame ------------------------------------------------------------------------------
 
+    def _show_messages(self) -> None:
+        """The session's messages not shown yet, by level: information among the notices,
+        warnings apart (the Session panel shows them first), errors as errors. What the solver
+        thread finds arrives here too."""
+        new = self.loaded.session.messages.since(self._messages_seen)
+        self._messages_seen += len(new)
+        for m in new:
+            if m.level == ERROR:
+                self.ui.error(m.text)
+            elif m.level == WARNING:
+                self.ui.warnings.append(m.text)
+            else:
+                self.ui.notices.append(m.text)
+
     def _update(self, now: float) -> None:
         L = self.loaded
         if L is None:
             return
+        self._show_messages()
         if L.player.decoder.error:
             self.ui.error(L.player.decoder.error)
         self._apply_sync()
@@ -516,6 +534,7 @@ class Viewer:
         state: dict = {
             "errors": ui.errors,
             "notices": ui.notices,
+            "warnings": ui.warnings,
             "frames_drawn": self.stats.frames,
             "window": list(fb),
             "view_rect": list(self.view_rect or (0, 0, *fb)),

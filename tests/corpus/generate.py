@@ -403,10 +403,10 @@ def tileset_and_photo(d: Path) -> None:
 def dem_under_gopro_clip(d: Path, shared: Path) -> None:
     """A DEM (flat, 1 arc-second, 0.04 deg square) around the first GPS fix of a real GoPro clip."""
     from app.attitude.gopro import read_gopro
-    from app.io.streams import Warnings
+    from app.messages import Messages
     from app.simulate.terrain import write_geotiff
 
-    rec = read_gopro(shared / "real/gopro/max-heromode.mp4", Warnings())
+    rec = read_gopro(shared / "real/gopro/max-heromode.mp4", Messages())
     lat, lon = float(rec.gnss.lat[0]), float(rec.gnss.lon[0])
     step = 1.0 / 3600
     write_geotiff(

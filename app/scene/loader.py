@@ -169,7 +169,10 @@ def _drawable(mesh: trimesh.Trimesh, path: Path) -> trimesh.Trimesh | None:
         )
     f = np.asarray(mesh.faces, np.int64)
     area2 = np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1)
-    keep = area2 > 1e-12 * max(1.0, float(np.abs(v).max())) ** 2
+    extent = max(
+        1.0, float(np.ptp(v, axis=0).max())
+    )  # the mesh's size, not its distance from 0 (ECEF)
+    keep = area2 > 1e-12 * extent**2
     if keep.all():
         return mesh
     if not keep.any():

@@ -178,3 +178,18 @@ def test_the_no_display_demo_drapes_a_frame_of_the_walk_video(tmp_path, capsys):
     assert main(["demo", "--out", str(out)]) == 0
     said = capsys.readouterr().out
     assert "frame 600 at 19.997 s" in said and out.is_file()
+
+
+def test_a_video_ffmpeg_cannot_read_names_the_manifest_and_the_key(session_dir, tmp_path, capsys):
+    manifest = _copy(session_dir, tmp_path, lambda t: t)
+    (manifest.parent / "clip.mp4").write_bytes(b"not a video at all")
+    with pytest.raises(ManifestError) as err:
+        open_session(manifest)
+    text = str(err.value)
+    assert (
+        "session.toml field 'video.path': clip.mp4: not a video FFmpeg can read (Invalid data found"
+        in text
+    )
+    assert "Errno" not in text
+    assert main(["solve", str(manifest), "--out", str(tmp_path / "p.csv")]) == 2
+    assert "field 'video.path'" in capsys.readouterr().err

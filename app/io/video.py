@@ -92,6 +92,13 @@ def _creation_time(meta: dict[str, str]) -> float | None:
         return None
 
 
+def ffmpeg_reason(exc: BaseException) -> str:
+    """An FFmpeg or OS error as words for people: its message without the error number and the
+    path that the caller names anyway."""
+    reason = getattr(exc, "strerror", None) or str(exc)
+    return str(reason).split(": '")[0].strip() or type(exc).__name__
+
+
 def probe(path: str | Path) -> VideoInfo:
     """Read a video's timing and orientation. Raises VideoError naming the file."""
     import av
@@ -102,7 +109,7 @@ def probe(path: str | Path) -> VideoInfo:
     try:
         container = av.open(str(path))
     except (av.FFmpegError, OSError) as exc:
-        raise VideoError(path, f"cannot open video ({exc})") from exc
+        raise VideoError(path, f"not a video FFmpeg can read ({ffmpeg_reason(exc)})") from exc
     with container:
         if not container.streams.video:
             raise VideoError(path, "no video stream")
@@ -113,7 +120,7 @@ def probe(path: str | Path) -> VideoInfo:
             first = next(container.decode(stream))
             rotation = int(round(getattr(first, "rotation", 0) or 0))
         except (StopIteration, av.FFmpegError) as exc:
-            raise VideoError(path, f"no decodable frame ({exc})") from exc
+            raise VideoError(path, f"no decodable frame ({ffmpeg_reason(exc)})") from exc
         container.seek(0)
         pts = []
         try:

@@ -14,7 +14,7 @@ from app.attitude import magcal
 from app.attitude.gopro import read_gopro
 from app.attitude.heading import heading_policy
 from app.camera import Intrinsics
-from app.errors import ManifestError
+from app.errors import ManifestError, VideoError
 from app.frame_time import corrected_times
 from app.geo import LocalFrame
 from app.geomag import declination, field_enu
@@ -336,7 +336,12 @@ def _place(cfg: SessionConfig, gnss: GnssTrack, above_takeoff: bool, messages: M
 def assemble(cfg: SessionConfig) -> Session:
     """Every reader the config names, on one clock, into one frozen Session."""
     messages = Messages()
-    video = probe(cfg.video.path)
+    try:
+        video = probe(cfg.video.path)
+    except VideoError as exc:  # name the manifest's key, as every manifest error does
+        raise ManifestError(
+            cfg.path, f"{cfg.video.path.name}: {exc.detail}", field="video.path"
+        ) from exc
     video.note_damage(messages)
     clip_start, frame_times = _frame_times(cfg, video)
     if cfg.video.start_time is None:

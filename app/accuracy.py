@@ -14,7 +14,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from app import rotations
-from app.attitude import estimate, resample
+from app.attitude.filters import estimate, resample
 from app.attitude.metrics import hpr_rms
 from app.camera import Camera, Intrinsics
 from app.camera_track import CameraTrack, camera_track, frame_clock

@@ -12,13 +12,13 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from app.attitude.heading import DRONE_DEFAULT_PITCH_DEG
 from app.constants import (
     DEFAULT_DEPTH_BIAS_M,
     DEFAULT_DEPTH_LONG_SIDE_PX,
     DEFAULT_DEPTH_SLOPE_BIAS,
     DEFAULT_FAR_M,
     DEFAULT_NEAR_M,
+    DRONE_DEFAULT_PITCH_DEG,
     FOV_RANGE_DEG,
     SYNC_MIN_CONFIDENCE,
 )

@@ -18,8 +18,9 @@ from pathlib import Path
 import numpy as np
 
 from app.attitude.gopro import read_gopro
-from app.attitude.heading import DRONE_DEFAULT_PITCH_DEG, heading_policy
+from app.attitude.heading import heading_policy
 from app.camera import Intrinsics
+from app.constants import DRONE_DEFAULT_PITCH_DEG
 from app.errors import DataFormatError, GeofuseError, VideoError
 from app.geo import LocalFrame
 from app.geomag import declination

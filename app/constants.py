@@ -22,6 +22,14 @@ FOV_RANGE_DEG = (0.5, 179.0)
 # a stabilised GoPro clip 0.00.
 SYNC_MIN_CONFIDENCE = 0.5
 
+# A drone clip without gimbal attitude: the camera pitch assumed (degrees above the horizon)
+DRONE_DEFAULT_PITCH_DEG = -30.0
+
+# Names of the pose sources that are not filters (app.session.model says what each is)
+COURSE = "course"  # the derived source: heading along the track, pitch a setting
+TRUTH = "truth"
+REGISTERED = "registered"  # a prior source corrected by keyframes registered against the scene
+
 # Rendering defaults
 DEFAULT_NEAR_M = 0.5  # the video's camera (projector): near and far clipping planes, metres
 DEFAULT_FAR_M = 2000.0

@@ -33,8 +33,8 @@ import numpy as np
 
 from app import rotations
 from app.attitude.heading import COURSE_HOLD_SPEED_MPS, smoothed_velocity
+from app.constants import COURSE
 from app.errors import GeofuseError
-from app.session.model import COURSE
 
 FLOW_WIDTH_PX = 320  # the video is reduced to this width for the flow
 MAX_FEATURES = 200

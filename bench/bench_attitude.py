@@ -32,7 +32,7 @@ Estimator = Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, flo
 
 
 def ours(method: str) -> Estimator:
-    from app.attitude import estimate
+    from app.attitude.filters import estimate
 
     return lambda t, gyr, acc, mag, rate: estimate(t, gyr, acc, mag, method=method)
 
@@ -177,7 +177,7 @@ def timing() -> str:
     header = ["filter", *[f"{n:,} samples" for n in sizes]]
     out = table(header, rows)
     code = (
-        "import time; t0 = time.perf_counter(); import numpy as np; from app.attitude import estimate; "
+        "import time; t0 = time.perf_counter(); import numpy as np; from app.attitude.filters import estimate; "
         "n = 6624; t = np.arange(n) / 100.0; g = np.zeros((n, 3)); a = np.tile([0, 0, 9.81], (n, 1)); "
         "m = np.tile([20.0, 0, -40], (n, 1)); estimate(t, g, a, m); print(time.perf_counter() - t0)"
     )

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from app import rotations
-from app.attitude import estimate, initial_orientation, kernels
+from app.attitude import kernels
+from app.attitude.filters import estimate, initial_orientation
 from app.attitude.metrics import broad_rms
 
 FIELD = np.array([0.0, 20.0, -40.0])  # uT, ENU: north and down

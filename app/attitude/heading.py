@@ -22,6 +22,7 @@ import numpy as np
 import numpy.typing as npt
 
 from app import rotations
+from app.constants import DRONE_DEFAULT_PITCH_DEG
 from app.io.streams import OrientationStream
 from app.messages import Messages
 
@@ -31,7 +32,6 @@ COURSE_MIN_SPEED_MPS = 0.7  # slower, the direction of travel is too noisy to gi
 COURSE_SMOOTHING_S = 5.0  # velocities are averaged over this window before they give a course
 COURSE_HOLD_SPEED_MPS = 1.5  # a course attitude holds its last heading below this speed: GNSS noise
 # on a hovering drone or a standing walker makes apparent speeds of ~1 m/s in random directions
-DRONE_DEFAULT_PITCH_DEG = -30.0  # camera pitch assumed for a drone clip without gimbal attitude
 MAG_PLAUSIBLE = (0.5, 1.5)  # magnetometer strength / World Magnetic Model strength accepted
 
 

@@ -15,6 +15,7 @@ import numpy as np
 
 from app import rotations
 from app.attitude import kernels
+from app.attitude.initial import init_samples, initial_orientation
 
 # "Still" is the causal filters' "at rest" (app.attitude.kernels), one set of thresholds.
 STILL_RATE = kernels.REST_RATE  # rad/s
@@ -53,18 +54,16 @@ def forward_backward(
     t: np.ndarray, gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray, use_mag: bool, g
 ) -> np.ndarray:
     """Bias-corrected forward and backward Madgwick passes, fused. Returns (N, 4)."""
-    from app.attitude import _init_samples, initial_orientation
-
     if not g.bias_tau:
         gyr = gyr - gyro_bias(t, gyr, acc)
-    head = _init_samples(t, g.init_s, gyr)
+    head = init_samples(t, g.init_s, gyr)
     q0 = initial_orientation(acc[head], mag[head] if use_mag else None)
     fwd = kernels.madgwick(
         t, gyr, acc, mag, use_mag, q0, g.beta, g.beta_start, g.ramp_s, g.acc_reject, g.bias_tau
     )
     # Backward: reversed time axis; a device rotating at w forward rotates at -w backward.
     tr = (t[-1] - t)[::-1].copy()
-    tail = _init_samples(tr, g.init_s, gyr[::-1])
+    tail = init_samples(tr, g.init_s, gyr[::-1])
     acc_r, mag_r = acc[::-1].copy(), mag[::-1].copy()
     qb0 = initial_orientation(acc_r[tail], mag_r[tail] if use_mag else None)
     if not use_mag:

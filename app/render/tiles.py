@@ -12,7 +12,7 @@ from collections import OrderedDict
 
 import moderngl
 
-from app.render.gpu_scene import GpuPrimitive, upload
+from app.render.primitives import GpuPrimitive, upload
 from app.scene.tiles.stream import TileStream, TileView
 from app.scene.tiles.tileset import Tile, Tileset
 

@@ -33,6 +33,7 @@ from app.scene.layers import load_layers
 from app.scene.mesh import MeshData
 from app.session.config import SessionConfig, read_config
 from app.session.model import Session
+from app.sync import sync_session, synced_drift, synced_offset, timed_by
 
 
 def open_session(path: str | Path) -> Session:
@@ -42,7 +43,6 @@ def open_session(path: str | Path) -> Session:
     session = assemble(cfg)
     if not cfg.video.auto_offset:
         return session
-    from app.sync import sync_session, synced_drift, synced_offset, timed_by
 
     offset = synced_offset(cfg.path)
     if offset is not None:

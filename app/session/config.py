@@ -81,8 +81,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from app.attitude.heading import DRONE_DEFAULT_PITCH_DEG
-from app.constants import FOV_RANGE_DEG
+from app.constants import DRONE_DEFAULT_PITCH_DEG, FOV_RANGE_DEG
 from app.errors import ManifestError, SceneError
 from app.geoid import VERTICAL_DATUMS
 from app.scene import Placement

@@ -17,9 +17,11 @@ from pathlib import Path
 import numpy as np
 
 from app import rotations
-from app.attitude import estimate, heading, resample
+from app.attitude import heading
+from app.attitude.filters import estimate, resample
 from app.attitude.heading import HeadingPolicy
 from app.camera import Intrinsics
+from app.constants import COURSE, REGISTERED, TRUTH
 from app.errors import DataFormatError
 from app.geo import LocalFrame
 from app.io.streams import GnssTrack, OrientationStream, VectorStream
@@ -37,9 +39,7 @@ FILTERS = {
     "cf-imu": ("cf", False),
     "offline": ("offline", True),
 }
-COURSE = "course"  # the derived source: heading along the track, pitch a setting
-TRUTH = "truth"
-REGISTERED = "registered"  # a prior source corrected by keyframes registered against the scene
+__all__ = ["COURSE", "FILTERS", "REGISTERED", "TRUTH", "Session", "device_attitude"]
 
 
 @dataclass(frozen=True)

@@ -6,8 +6,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from app.attitude.heading import DRONE_DEFAULT_PITCH_DEG
 from app.config import OverlaySettings, ProjectionSettings
+from app.constants import DRONE_DEFAULT_PITCH_DEG
 from app.ui.control_points import ControlPicks
 
 VIEWER_ALPHA = 0.85  # the viewer's default video opacity: the model shows through a little

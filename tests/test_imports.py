@@ -1,0 +1,103 @@
+"""What depends on what: no import cycle among the app's modules, counting imports inside
+functions (where cycles hide) and the package __init__ every import of a submodule runs; and the
+commands that need no filter or GL start without loading numba or OpenGL."""
+
+from __future__ import annotations
+
+import ast
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from tests.conftest import ROOT, SHARED_DATA
+
+APP = ROOT / "app"
+
+
+def _modules() -> dict[str, Path]:
+    mods = {}
+    for p in APP.rglob("*.py"):
+        name = ".".join(p.relative_to(ROOT).with_suffix("").parts)
+        mods[name.removesuffix(".__init__")] = p
+    return mods
+
+
+def _imports(name: str, path: Path, mods: dict[str, Path]) -> set[str]:
+    """Modules `name` imports at run time (TYPE_CHECKING blocks left out), with the packages
+    whose __init__ each import runs (not `name`'s own, already running)."""
+    tree = ast.parse(path.read_text())
+    typing_only = {
+        id(sub)
+        for node in ast.walk(tree)
+        if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test)
+        for sub in ast.walk(node)
+    }
+    own = {".".join(name.split(".")[:i]) for i in range(1, name.count(".") + 2)}
+    out: set[str] = set()
+    for node in ast.walk(tree):
+        if id(node) in typing_only or not isinstance(node, (ast.Import, ast.ImportFrom)):
+            continue
+        if isinstance(node, ast.Import):
+            targets = [a.name for a in node.names]
+        else:
+            base = node.module or ""
+            targets = [
+                f"{base}.{a.name}" if f"{base}.{a.name}" in mods else base for a in node.names
+            ]
+        for target in targets:
+            parts = target.split(".")
+            for i in range(2, len(parts) + 1):
+                t = ".".join(parts[:i])
+                if t in mods and t not in own:
+                    out.add(t)
+    return out
+
+
+def test_no_import_cycles():
+    mods = _modules()
+    graph = {m: _imports(m, p, mods) for m, p in mods.items()}
+    state: dict[str, int] = {}  # 1: on the path, 2: done
+    cycles = []
+
+    def visit(m: str, path: list[str]) -> None:
+        state[m] = 1
+        for n in sorted(graph[m]):
+            if state.get(n) == 1:
+                cycles.append(" -> ".join(path[path.index(n) :] + [n]))
+            elif n not in state:
+                visit(n, path + [n])
+        state[m] = 2
+
+    for m in sorted(graph):
+        if m not in state:
+            visit(m, [m])
+    assert cycles == []
+
+
+def _loaded(*argv: str) -> set[str]:
+    code = (
+        "import sys\nfrom app.cli import main\ntry:\n    main(sys.argv[1:])\nexcept SystemExit:\n    pass\n"
+        "print('LOADED:', ' '.join(sorted({m.split('.')[0] for m in sys.modules})))"
+    )
+    run = subprocess.run(
+        [sys.executable, "-c", code, *argv], capture_output=True, text=True, cwd=ROOT
+    )
+    line = next(x for x in run.stdout.splitlines() if x.startswith("LOADED:"))
+    return set(line.split()[1:])
+
+
+HEAVY = {"numba", "moderngl", "OpenGL", "glfw", "imgui_bundle", "cv2"}
+
+
+def test_help_starts_without_numba_or_opengl():
+    assert _loaded("--help") & HEAVY == set()
+
+
+@pytest.mark.shared_data
+def test_telemetry_starts_without_numba_or_opengl(shared_data):
+    clip = shared_data / "real" / "gopro" / "max-heromode.mp4"
+    if not clip.is_file():
+        pytest.skip(f"{clip} is absent")
+    assert SHARED_DATA.is_dir() and _loaded("telemetry", str(clip)) & HEAVY == set()

@@ -4,4 +4,6 @@ Data flows one way: ``io -> attitude -> trajectory -> playback -> render -> ui``
 ``scene`` serve them. Nothing outside ``app.render`` and ``app.ui`` imports moderngl or glfw.
 """
 
+__all__ = ["__version__"]
+
 __version__ = "0.1.0"

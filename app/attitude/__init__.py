@@ -9,3 +9,5 @@
 The package itself imports none of them, so that commands that need no filter (`geofuse --help`,
 `geofuse telemetry`) start without compiling numba kernels.
 """
+
+__all__: list[str] = []  # the package exports nothing itself: import its modules

@@ -84,3 +84,14 @@ def run_viewer(display: str, *args: str, timeout: float = 300, config_home: Path
         text=True,
         timeout=timeout,
     )
+
+
+@pytest.fixture(scope="session")
+def session_dir(tmp_path_factory):
+    """A simulated 20 s phone session with truth (app.simulate.phone), written once; tests copy
+    it before changing anything in it."""
+    from app.simulate.phone import walking_pan, write_session
+
+    folder = tmp_path_factory.mktemp("phone")
+    write_session(folder, walking_pan(), duration_s=20.0)
+    return folder

@@ -19,15 +19,7 @@ from app.progress import ProgressBar
 from app.scene import load_scene
 from app.session import open_session, read_config
 from app.simulate import session as sample
-from app.simulate.phone import walking_pan, write_session
 from tests.conftest import run_viewer
-
-
-@pytest.fixture(scope="module")
-def session_dir(tmp_path_factory):
-    folder = tmp_path_factory.mktemp("phone")
-    write_session(folder, walking_pan(), duration_s=8.0)
-    return folder
 
 
 @pytest.fixture(scope="module")

@@ -13,15 +13,8 @@ from app.attitude.metrics import hpr_rms
 from app.cli import main
 from app.errors import ManifestError
 from app.session import open_session
-from app.simulate.phone import walking_pan, write_session
+from app.simulate.phone import walking_pan
 from app.solve import COLUMNS, solve_frames
-
-
-@pytest.fixture(scope="module")
-def session_dir(tmp_path_factory):
-    folder = tmp_path_factory.mktemp("phone")
-    write_session(folder, walking_pan(), duration_s=20.0)
-    return folder
 
 
 @pytest.fixture(scope="module")

@@ -1,7 +1,5 @@
 """The render-side playback loop, driven by a simulated clock against a real decoder thread."""
 
-import time
-
 import numpy as np
 import pytest
 
@@ -15,10 +13,12 @@ def clip(tmp_path_factory):
     return write_video(tmp_path_factory.mktemp("p") / "c.mp4", np.arange(90) / 30.0, (64, 32), 0)
 
 
-def wait_for_frames(player, n=4, timeout=2.0):
-    end = time.monotonic() + timeout
-    while player.decoder.frames.qsize() < n and time.monotonic() < end:
-        time.sleep(0.005)
+def wait_for_frames(player, n=4, timeout=60.0):
+    """Until the decoder has queued n frames (each put notifies the queue's condition); the
+    timeout only stops a broken decoder from hanging the test."""
+    q = player.decoder.frames
+    with q.not_empty:
+        q.not_empty.wait_for(lambda: q._qsize() >= min(n, q.maxsize), timeout)
 
 
 def run(player, seconds, tick_s, render_s, start=100.0):
@@ -59,12 +59,15 @@ def test_slow_render_drops_frames_and_counts_them(clip):
 
 def settle(player, now, timeout=3.0):
     """Tick (at a frozen `now`) until the frame of the last seek has arrived."""
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
+    q = player.decoder.frames
+    for _ in range(1000):
+        seen = q.unfinished_tasks  # counts every put (the player never calls task_done)
         player.tick(now)
         if player.current is not None and player.current.serial == player.clock.serial:
             return player.index
-        time.sleep(0.005)
+        with q.not_empty:  # the decoder's next frame, not a sleep
+            if not q.not_empty.wait_for(lambda s=seen: q.unfinished_tasks > s, timeout):
+                break
     raise AssertionError("no frame after the seek")
 
 

@@ -7,7 +7,6 @@ from __future__ import annotations
 import functools
 import http.server
 import threading
-import time
 from pathlib import Path
 
 import numpy as np
@@ -260,7 +259,7 @@ def settle(stream: TileStream, view: TileView, rounds: int = 2000):
                 stream.mark_ready(item.tile)
         if sel.complete:
             return sel
-        time.sleep(0.002)
+        stream.wait_loaded(timeout_s=1.0)  # a worker's result, or the next round
     raise AssertionError("selection never completed")
 
 

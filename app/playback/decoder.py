@@ -76,6 +76,12 @@ class Decoder:
         self.at_end = False
         self._commands.put((media_time_s, serial))
 
+    def join(self, timeout: float | None = None) -> bool:
+        """Wait until the decoder thread has ended (a video it could not open, or after close);
+        True when it has."""
+        self._thread.join(timeout)
+        return not self._thread.is_alive()
+
     def close(self) -> None:
         self._stop.set()
         self._commands.put(None)

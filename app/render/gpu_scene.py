@@ -13,6 +13,8 @@ from app.render.primitives import GpuPrimitive, default_anisotropy, interleave, 
 from app.render.tiles import DEFAULT_CACHE_BYTES, GpuTileset
 from app.scene.mesh import MeshData
 
+SETTLE_POLL_S = 0.05  # settle() waits at most this long on one tileset before looking at all again
+
 
 class GpuScene:
     """Static primitives uploaded once, plus one streamed layer per tileset of the MeshData."""
@@ -73,8 +75,10 @@ class GpuScene:
                 return True
             if time.monotonic() > end:
                 return False
-            if not busy:
-                time.sleep(0.005)
+            if not busy:  # nothing to upload: wait for a worker to finish a tile
+                self.tilesets[0].stream.wait_loaded(
+                    min(SETTLE_POLL_S, max(0.0, end - time.monotonic()))
+                )
 
     def forget(self, program: moderngl.Program) -> None:
         """Release every vertex array made for `program` (call before releasing the program, so a

@@ -217,6 +217,12 @@ class TileStream:
                 self.ready.add(item.tile.id)
         return done
 
+    def wait_loaded(self, timeout_s: float) -> bool:
+        """Block until a worker has finished a tile not taken yet (or the stream closed), at most
+        timeout_s seconds; True when one is there. Callers wait on this, never on a sleep."""
+        with self._cond:
+            return self._cond.wait_for(lambda: bool(self._done) or self._closed, timeout_s)
+
     def mark_ready(self, tile: Tile) -> None:
         self.ready.add(tile.id)
 
@@ -276,6 +282,7 @@ class TileStream:
                     tile.children = []
             with self._cond:
                 self._done.append(item)
+                self._cond.notify_all()
 
     def close(self, wait_s: float = 1.0) -> None:
         """Stop the workers: idle ones at once; one still reading a slow URL finishes that read on

@@ -54,9 +54,19 @@ def test_render_through_the_phone_reproduces_the_photo(tmp_path, gl_ctx):
 
 @pytest.mark.gl
 def test_render_writes_a_png(tmp_path, gl_ctx):
-    out = tmp_path / "o.png"
+    """From the default view (behind and above the photo's camera) the photo lands on the model:
+    the render differs from the model alone (--alpha 0) over a part of the view, away from its
+    edges, not over none of it and not over all of it."""
+    out, model = tmp_path / "o.png", tmp_path / "m.png"
     assert main(base_args(out)) == 0
-    assert Image.open(out).size == (320, 180)
+    assert main(base_args(model, **{"--alpha": "0"})) == 0
+    with_photo = np.asarray(Image.open(out).convert("RGB"), int)
+    bare = np.asarray(Image.open(model).convert("RGB"), int)
+    assert with_photo.shape == (180, 320, 3)
+    changed = np.abs(with_photo - bare).max(axis=2) > 30
+    assert 0.02 < changed.mean() < 0.9  # the photo covers part of the view, not none, not all
+    rows, cols = np.nonzero(changed)
+    assert 20 < cols.mean() < 300 and 10 < rows.mean() < 170  # inside the view, not at an edge
 
 
 @pytest.mark.parametrize(

@@ -7,6 +7,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+import re
 import zipfile
 
 import numpy as np
@@ -20,6 +21,7 @@ from app.export.gis import FMV_FIELDS, counter_clockwise_ring
 from app.export.records import FootprintCaster, frame_records
 from app.geo import LocalFrame
 from app.scene.ground_plane import ground_plane
+from app.solve import solve_frames
 
 pytestmark = pytest.mark.gl
 SAMPLE = SAMPLE_DIR / "session.toml"
@@ -169,7 +171,7 @@ def test_counter_clockwise_ring_turns_a_clockwise_one():
     assert _signed_area(ring.tolist()) > 0 and np.array_equal(ring[0], ring[-1])
 
 
-def test_kml_kmz_and_fmv_csv(tmp_path):
+def test_kml_kmz_and_fmv_csv(sample, tmp_path):
     kmz = tmp_path / "fp.kmz"
     assert main(["export", "footprints", str(SAMPLE), "--out", str(kmz), "--every", "400"]) == 0
     with zipfile.ZipFile(kmz) as z:
@@ -186,6 +188,22 @@ def test_kml_kmz_and_fmv_csv(tmp_path):
     assert tuple(rows[0]) == FMV_FIELDS and len(rows) == 7
     t = [int(r[0]) for r in rows[1:]]
     assert t[0] > 1.7e15 and np.all(np.diff(t) > 0)  # microseconds since the Unix epoch
+    # The coordinates themselves: each row's sensor position is the solved camera's at its
+    # frame (every 400th), and each KML ring lies around the site, longitude first.
+    poses = solve_frames(sample, sample.sources[0])
+    lat = [float(r[FMV_FIELDS.index("Sensor Latitude")]) for r in rows[1:]]
+    lon = [float(r[FMV_FIELDS.index("Sensor Longitude")]) for r in rows[1:]]
+    np.testing.assert_allclose(lat, poses.geodetic[::400, 0], atol=1e-7)
+    np.testing.assert_allclose(lon, poses.geodetic[::400, 1], atol=1e-7)
+    rings = re.findall(r"<Polygon>.*?<coordinates>(.*?)</coordinates>", text, re.S)
+    assert len(rings) == 6
+    for ring in rings:
+        pts = np.array([[float(v) for v in p.split(",")] for p in ring.split()])
+        # within the 2 km the footprints reach (0.03 deg: 2.7 km of longitude, 3.3 km of latitude)
+        assert np.all(np.abs(pts[:, 0] - 113.53) < 0.03) and np.all(
+            np.abs(pts[:, 1] - 34.80) < 0.03
+        )
+        assert np.array_equal(pts[0], pts[-1])  # closed
 
 
 def test_klv_round_trips_through_an_independent_decoder(sample, tmp_path):
@@ -198,8 +216,14 @@ def test_klv_round_trips_through_an_independent_decoder(sample, tmp_path):
     with av.open(str(out)) as c:
         video = c.streams.video[0]
         data = next(s for s in c.streams if s.type == "data")
-        assert video.codec_context.name == "h264" and video.frames in (0, len(sample.video.pts_s))
-        packets = [bytes(p) for p in c.demux(data) if p.size]
+        assert video.codec_context.name == "h264"
+        packets, frames = [], 0
+        for p in c.demux(video, data):  # every video packet copied, and the KLV ones
+            if p.size and p.stream.type == "data":
+                packets.append(bytes(p))
+            elif p.size:
+                frames += 1
+    assert frames == len(sample.video.pts_s)
     assert len(packets) == len(records)
     for raw, r in zip(packets, records.values()):
         words = raw[:-2] + (b"\x00" if len(raw[:-2]) % 2 else b"")

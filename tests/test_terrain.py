@@ -11,6 +11,9 @@ import pytest
 from app import geoid
 from app.errors import SceneError
 from app.geo import LocalFrame
+from app.scene import shapes
+from app.scene.layers import MODEL_GROUND_CLEARANCE_M, under_models
+from app.scene.mesh import MeshData
 from app.scene.terrain import mesh_error, read_terrain, rtin
 from app.simulate.terrain import write_geotiff
 
@@ -257,3 +260,23 @@ def test_drone_heights_above_take_off_start_from_the_terrain_under_the_first_fix
     takeoff = 250.0 + float(geoid.undulation(LAT0, LON0))
     np.testing.assert_allclose(placed.h, relative + takeoff, atol=0.05)
     assert any("take-off height" in w and "terrain" in w for w in messages.items)
+
+
+def test_terrain_under_a_model_stays_below_the_models_ground():
+    """Where a DEM and a site model's own ground nearly coincide, the model's ground must win the
+    depth test everywhere (no striping): terrain inside the model's extent is kept 0.3 m below its
+    lowest point; terrain outside, or already lower, is left."""
+    xs, ys = np.meshgrid(np.arange(-10.0, 11.0), np.arange(-10.0, 11.0))
+    zs = np.where(xs < -5, -2.0, 0.1)  # a dip the model's ground is above
+    verts = np.column_stack([xs.ravel(), ys.ravel(), zs.ravel()])
+    terrain = MeshData(
+        [shapes.Shape(verts, np.array([[0, 1, 22]]), np.zeros((len(verts), 2))).primitive()]
+    )
+    ground = MeshData([shapes.quad([-8.0, -8.0, 0.0], [16.0, 0, 0], [0, 16.0, 0]).primitive()])
+    out, moved = under_models(terrain, [ground])
+    z = out.primitives[0].positions[:, 2]
+    inside = (np.abs(xs.ravel()) <= 8) & (np.abs(ys.ravel()) <= 8)
+    assert np.allclose(z[inside & (xs.ravel() >= -5)], -MODEL_GROUND_CLEARANCE_M)
+    assert np.allclose(z[inside & (xs.ravel() < -5)], -2.0)  # already below: left
+    assert np.allclose(z[~inside], zs.ravel()[~inside])  # outside the model: left
+    assert moved == int((inside & (xs.ravel() >= -5)).sum())

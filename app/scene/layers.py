@@ -8,9 +8,10 @@ models by their placement (app.scene.loader).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
+import numpy as np
 import numpy.typing as npt
 
 from app.errors import SceneError
@@ -126,5 +127,42 @@ def load_layers(
                 + (f", draped with {layer.ortho.name}" if layer.ortho is not None else "")
             )
         out.parts.append((layer, part))
+    models = [part for layer, part in out.parts if layer.kind == "mesh"]
+    for i, (layer, part) in enumerate(out.parts):
+        if layer.kind == "dem" and models:
+            part, lowered = under_models(part, models)
+            out.parts[i] = (layer, part)
+            if lowered:
+                notes.info(
+                    f"{layer.name}: {lowered} terrain vertices under the models lowered below their ground, which is drawn there"
+                )
+    for _, part in out.parts:
         out.mesh = out.mesh.merged(part)
     return out
+
+
+MODEL_GROUND_CLEARANCE_M = (
+    0.3  # terrain under a model is kept this far below the model's lowest point
+)
+
+
+def under_models(terrain: MeshData, models: list[MeshData]) -> tuple[MeshData, int]:
+    """The terrain with its vertices inside each model's horizontal extent kept
+    MODEL_GROUND_CLEARANCE_M below that model's lowest point (ENU m), so that a model's own
+    ground wins the depth test where both are drawn (no striping where a DEM and a site model's
+    ground nearly coincide); terrain already lower is left. Returns (terrain, vertices moved)."""
+    moved = 0
+    prims = []
+    for prim in terrain.primitives:
+        p = prim.positions.astype(np.float64)
+        for model in models:
+            if not model.primitives:
+                continue
+            (x0, y0, z0), (x1, y1, _) = model.bounds()
+            inside = (p[:, 0] >= x0) & (p[:, 0] <= x1) & (p[:, 1] >= y0) & (p[:, 1] <= y1)
+            floor = z0 - MODEL_GROUND_CLEARANCE_M
+            lower = inside & (p[:, 2] > floor)
+            p[lower, 2] = floor
+            moved += int(lower.sum())
+        prims.append(replace(prim, positions=p.astype(np.float32)))
+    return MeshData(prims, list(terrain.tilesets)), moved

@@ -388,3 +388,41 @@ def test_error_overlay_colours_the_projection_error_in_metres(gl_ctx):
         np.median(off, axis=0), 0.3 * 128 + 0.7 * np.array([1.00, 0.85, 0.10]) * 255, atol=3
     )
     r.release()
+
+
+@pytest.mark.gl
+def test_ground_at_grazing_angles_takes_the_video_without_striping(gl_ctx):
+    """A camera 1.5 m above flat ground looking 2 deg down (a hand-held clip on the assumed
+    ground): the ground it sees runs out to tens of metres at incidences of 1-3 deg, where one
+    depth texel spans metres of ground. Every ground fragment inside its frustum, out to 80 m,
+    must take the video: no bands of model colour (the nine-case rule's neighbours lie metres
+    nearer there; the slope-scaled bias must follow the incidence that far)."""
+    ground = shapes.quad([-200, -200, 0], [400, 0, 0], [0, 400, 0]).primitive((0.1, 0.1, 0.8, 1.0))
+    r = make_renderer(gl_ctx, [ground])
+    try:
+        cam = Camera.create(
+            Intrinsics.from_fov(VIDEO_W, VIDEO_H, 60),
+            [0, 0, 1.5],
+            rotations.camera_quat_from_hpr(0.0, -2.0, 0.0),
+            near=0.5,
+            far=2000.0,
+        )
+        r.set_video_frame(np.full((VIDEO_H, VIDEO_W, 3), 255, np.uint8))  # white video
+        r.set_projector(cam)
+        view = view_camera([0, -20, 40], [0, 40, 0], 400, 300)
+        out = render(r, view, alpha=1.0)
+        hit, _ = hit_plane(view, 2, 0.0)  # where each view pixel meets the ground, ENU m
+        uv, depth = cam.project(hit)
+        inside = (
+            (depth > 0.6)
+            & (uv[:, 0] > 2)
+            & (uv[:, 0] < VIDEO_W - 2)
+            & (uv[:, 1] > 2)
+            & (uv[:, 1] < VIDEO_H - 2)
+        )
+        near = inside & (np.linalg.norm(hit[:, :2], axis=1) < 80.0)
+        pixels = out.reshape(-1, 3)[near]
+        assert near.sum() > 2000
+        assert np.mean(pixels.min(axis=1) > 200) > 0.99  # white (the video), not the model's blue
+    finally:
+        r.release()

@@ -26,9 +26,11 @@ float window_depth(float eye_depth, float near, float far) {
 
 // Depth bias in metres: a constant plus a slope-scaled part. `texel_m` is the size of one
 // depth-map texel at the fragment's distance; `cos_incidence` the cosine between the surface
-// normal and the direction to the depth camera.
+// normal and the direction to the depth camera. The incidence is followed down to 0.6 deg
+// (cos 0.01): a hand-held camera's own ground, metres below it, is seen at 1-3 deg out to tens
+// of metres, where a clamp at 3 deg left bands of model colour (tests/test_render_projection.py).
 float projector_bias(float constant_m, float slope_texels, float texel_m, float cos_incidence) {
-    float c = clamp(cos_incidence, 0.05, 1.0);
+    float c = clamp(cos_incidence, 0.01, 1.0);
     float tan_incidence = sqrt(1.0 - c * c) / c;
     return constant_m + slope_texels * texel_m * tan_incidence;
 }

@@ -8,12 +8,16 @@ The window camera and the projector ("depth camera") both use this module.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import numpy.typing as npt
 
 from app import rotations
 from app.constants import DEFAULT_FAR_M, DEFAULT_NEAR_M, EPS_DEGENERATE, FOV_RANGE_DEG
+
+if TYPE_CHECKING:
+    from app.lens import Lens
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -144,7 +148,7 @@ class Camera:
     orientation: tuple[float, float, float, float]
     near: float = DEFAULT_NEAR_M
     far: float = DEFAULT_FAR_M
-    lens: object | None = None
+    lens: Lens | None = None
     rs_turn: tuple[float, float, float] | None = (
         None  # rolling shutter: the camera's turn (rad, camera frame) from first to last row
     )
@@ -162,7 +166,7 @@ class Camera:
         orientation: npt.ArrayLike,
         near: float = DEFAULT_NEAR_M,
         far: float = DEFAULT_FAR_M,
-        lens: object | None = None,
+        lens: Lens | None = None,
         rs_turn: npt.ArrayLike | None = None,
         rs_axis: tuple[float, float, float] = (0.0, 1.0, 0.0),
     ) -> "Camera":

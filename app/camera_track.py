@@ -26,6 +26,7 @@ from app.session.model import TRUTH, Session, device_attitude
 from app.trajectory import PoseTrack, PositionTrack
 
 if TYPE_CHECKING:
+    from app.lens import Lens
     from app.register.solve import Registration
 
 FloatArray = npt.NDArray[np.float64]
@@ -84,7 +85,7 @@ class CameraTrack:
     intrinsics: Intrinsics
     near: float = DEFAULT_NEAR_M
     far: float = DEFAULT_FAR_M
-    lens: object | None = None  # app.lens.Lens; intrinsics then enclose its image
+    lens: Lens | None = None  # intrinsics then enclose its image
     readout_s: float | None = None  # rolling shutter: first row to last, seconds (None: off)
     readout_axis: tuple[float, float, float] = (
         0.0,

@@ -9,12 +9,16 @@ from __future__ import annotations
 
 import time
 from collections import OrderedDict
+from typing import TYPE_CHECKING
 
 import moderngl
 
 from app.render.primitives import GpuPrimitive, upload
 from app.scene.tiles.stream import TileStream, TileView
 from app.scene.tiles.tileset import Tile, Tileset
+
+if TYPE_CHECKING:
+    from app.camera import Camera
 
 DEFAULT_CACHE_BYTES = 1 << 30  # 1 GiB of tile buffers and textures
 
@@ -100,10 +104,10 @@ class GpuTileset:
             changed = True
         return changed
 
-    def _selection(self, camera: object, focal_px: float | None, key: str):
+    def _selection(self, camera: Camera, focal_px: float | None, key: str):
         return self.stream.select(TileView.of(camera, focal_px), key)
 
-    def drawables(self, camera: object, focal_px: float | None, key: str) -> list[GpuPrimitive]:
+    def drawables(self, camera: Camera, focal_px: float | None, key: str) -> list[GpuPrimitive]:
         """The ready primitives chosen for `camera` (marks them most recently used)."""
         out: list[GpuPrimitive] = []
         for tile in self._selection(camera, focal_px, key).tiles:
@@ -115,7 +119,7 @@ class GpuTileset:
             out += entry[1]
         return out
 
-    def complete(self, camera: object, focal_px: float | None, key: str) -> bool:
+    def complete(self, camera: Camera, focal_px: float | None, key: str) -> bool:
         """Whether the selection for `camera` lacks nothing (queues what it lacks)."""
         return self._selection(camera, focal_px, key).complete
 

@@ -13,6 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -31,6 +32,9 @@ from app.scene import Placement, load_scene
 from app.scene.ground import ground_heights
 from app.scene.mesh import MeshData
 from app.trajectory import PositionTrack, device_to_camera
+
+if TYPE_CHECKING:
+    from app.lens import Lens
 
 FILTERS = {
     "gd-ahrs": ("gd", True),
@@ -77,7 +81,7 @@ class Session:
     heading: HeadingPolicy = HeadingPolicy()
     device_is_camera: bool = False
     aircraft_yaw: tuple[np.ndarray, np.ndarray] | None = None  # (t session s, yaw deg) for `course`
-    lens: object | None = None  # app.lens.Lens of the displayed video; intrinsics then enclose it
+    lens: Lens | None = None  # of the displayed video; intrinsics then enclose it
     readout_s: float | None = (
         None  # rolling shutter: the sensor's readout time, seconds (None: unknown, off)
     )

@@ -5,10 +5,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from app.config import OverlaySettings, ProjectionSettings
 from app.constants import DRONE_DEFAULT_PITCH_DEG
 from app.ui.control_points import ControlPicks
+
+if TYPE_CHECKING:
+    from app.ui.exporter import ExportJob, Recorder, SyncJob
 
 VIEWER_ALPHA = 0.85  # the viewer's default video opacity: the model shows through a little
 
@@ -37,10 +41,10 @@ class UiState:
     open_request: Path | None = None  # a file dropped on the window or chosen in the dialog
     export_what: int = 0  # the Export panel's choice (app.ui.panels.EXPORTS)
     export_path: str = ""  # the Export panel's output path ("" = a name from the session's)
-    export_job: object | None = None  # the running or last app.ui.exporter.ExportJob
-    recorder: object | None = None  # an app.ui.exporter.Recorder while recording
+    export_job: ExportJob | None = None  # the running or last export
+    recorder: Recorder | None = None  # while recording
     record_path: str = "out/recording.mp4"
-    sync_job: object | None = None  # the running or last app.ui.exporter.SyncJob
+    sync_job: SyncJob | None = None  # the running or last sync
     sync_applied: bool = False
     lens_path: str = ""  # the Session panel's lens profile field (clips)
     max_sse_px: float = 16.0  # 3D Tiles: refine tiles whose screen-space error exceeds this

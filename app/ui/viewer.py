@@ -18,6 +18,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -32,6 +33,10 @@ from app.ui.commands import run_command
 from app.ui.navigation import Navigator
 from app.ui.script import Action, parse_script
 from app.ui.state import UiState
+
+if TYPE_CHECKING:
+    from app.render.renderer import FusionRenderer
+    from app.session.model import Session
 
 log = logging.getLogger("geofuse.viewer")
 TRAJECTORY_STEP = 5  # frames between trajectory polyline vertices
@@ -58,8 +63,8 @@ class Options:
 class Loaded:
     """One open session and everything made for it."""
 
-    session: object
-    renderer: object
+    session: Session
+    renderer: FusionRenderer
     player: Player
     library: SolverLibrary
     source: str

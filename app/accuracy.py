@@ -139,8 +139,18 @@ def evaluate(
     every: int = 10,
     grid: tuple[int, int] = (64, 36),
     paper: bool = True,
+    progress: Callable[[float], None] | None = None,
 ) -> list[SourceReport]:
-    """Attitude RMS and projection error for each source (and the paper's pipeline)."""
+    """Attitude RMS and projection error for each source (and the paper's pipeline);
+    progress(fraction) after each source solved and each measured (a long run on a terminal)."""
+    steps = 2 * len(sources) + (1 if paper and session.mag is not None else 0)
+    done = [0]
+
+    def step() -> None:
+        done[0] += 1
+        if progress is not None:
+            progress(done[0] / steps)
+
     t_true = true_frame_times(session)
     true_clock, pipeline_clock = frame_clock(session, true_timing=True), frame_clock(session)
     frames = np.arange(0, len(t_true), every)
@@ -153,6 +163,7 @@ def evaluate(
     for name in sources:
         track = solve_track(session, name)
         delay = (track.registration.delay_s or 0.0) if track.registration is not None else 0.0
+        step()
         entries.append(
             (
                 name,
@@ -182,6 +193,7 @@ def evaluate(
             total = split_stats(*probe.errors(est, truth), grid[0])
             causes = {k: split_stats(*probe.errors(v, truth), grid[0]) for k, v in by_cause.items()}
             reports.append(SourceReport(name, attitude_rms(est_true_time, truth), total, causes))
+            step()
     finally:
         probe.release()
     return reports

@@ -32,12 +32,15 @@ def main(argv: list[str] | None = None) -> int:
     grid = tuple(int(v) for v in args.grid.split("x"))
 
     from app.accuracy import evaluate
+    from app.progress import ProgressBar
     from app.session import open_session
 
     t0 = time.perf_counter()
     session = open_session(args.manifest)
     sources = [s for s in session.sources if s != "truth"]
-    reports = evaluate(session, sources, args.every, grid)
+    reports = evaluate(
+        session, sources, args.every, grid, progress=ProgressBar("accuracy", sys.stderr)
+    )
     n = (len(session.frame_times) + args.every - 1) // args.every
     print(
         f"# accuracy: {args.manifest}\n\n{n} frames (every {args.every}th), a {grid[0]}x{grid[1]} pixel grid each; "

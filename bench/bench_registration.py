@@ -39,6 +39,7 @@ from app.io.video import (  # noqa: E402
     probe,
     rotate_for_display,
 )
+from app.progress import ProgressBar  # noqa: E402
 from app.register import MatchSettings, Registrar, RegistrationSettings  # noqa: E402
 from app.register.solve import keyframe_indices  # noqa: E402
 from app.render.context import create_offscreen_context, describe  # noqa: E402
@@ -158,9 +159,13 @@ def main(argv: list[str] | None = None) -> int:
     )
     ctx.release()
     walls, stages, reg = [], [], None
-    for _ in range(args.repeat):
+    for i in range(args.repeat):
         t0 = time.perf_counter()
-        track = solve_track(session, "registered")
+        track = solve_track(
+            session,
+            "registered",
+            progress=ProgressBar(f"registering {i + 1}/{args.repeat}", sys.stderr),
+        )
         walls.append(time.perf_counter() - t0)
         reg = track.registration
         stages.append(reg.stage_s)

@@ -514,7 +514,7 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 
 def cmd_sync(args: argparse.Namespace) -> int:
-    """The video <-> gyroscope time offset of a session or clip (app/sync.py)."""
+    """The video <-> gyroscope time offset of a session or clip (app/sync/)."""
     from app.clips import open_any
     from app.outputs import write_atomically
     from app.progress import ProgressBar

@@ -1,11 +1,6 @@
-"""ImGui panels, their docked layout, and keyboard/mouse handling of the viewer. Every control
-runs the same commands as the script (app.ui.commands) or the same Viewer methods.
-
-Layout: the panels dock around the 3D view (imgui-bundle's docking): Session, Attitude and
-Projection as tabs at the top left, Error inspection and Stats below them, the Timeline along the
-bottom. The 3D view is the dock space's central node and keeps about two thirds of the window; the
-user may move, collapse and re-dock panels, and the layout is remembered between runs in
-$XDG_CONFIG_HOME/geofuse/imgui.ini (never in the user's working folder).
+"""The viewer's ImGui panels (Session, Timeline, Attitude, Projection, Error inspection, Stats,
+Export, Help). Every control runs the same commands as the script (app.ui.commands) or the same
+Viewer methods; the docked layout is app.ui.gui's, keys and mouse app.ui.inputs'.
 """
 
 from __future__ import annotations
@@ -19,6 +14,8 @@ import numpy as np
 from app.playback.clock import SPEEDS
 from app.register.solve import keyframe_plot
 from app.session.model import COURSE, REGISTERED
+from app.ui.gui import Gui
+from app.ui.inputs import open_dialog, poll_dialog
 
 log = logging.getLogger("geofuse.viewer")
 
@@ -41,10 +38,6 @@ SHORTCUTS = (
 DEPTH_SIZES = (1024, 2048, 4096)
 RED = (1.0, 0.35, 0.3, 1.0)
 AMBER = (1.0, 0.8, 0.3, 1.0)
-LEFT_FRACTION = 0.26  # of the window's width: the left panel column
-BOTTOM_FRACTION = 0.13  # of the window's height: the timeline
-LEFT_LOWER_FRACTION = 0.45  # of the left column: Error inspection and Stats
-TOP_PANELS = ("Session", "Attitude", "Projection", "Export")
 EXPORTS = (
     ("footprints", ".geojson"),
     ("footprints", ".kml"),
@@ -53,14 +46,6 @@ EXPORTS = (
     ("klv", ".ts"),
     ("video", ".mp4"),
 )
-LOWER_PANELS = ("Error inspection", "Stats")
-OPEN_FILTERS = ["Sessions and clips", "*.toml *.TOML *.mp4 *.MP4 *.mov *.MOV", "All files", "*"]
-KEY_COMMANDS = {  # key name in glfw -> (command, argument)
-    "KEY_SPACE": ("toggle", None), "KEY_RIGHT": ("step", "1"), "KEY_LEFT": ("step", "-1"),
-    "KEY_RIGHT_BRACKET": ("faster", None), "KEY_LEFT_BRACKET": ("slower", None), "KEY_I": ("ahrs", None),
-    "KEY_O": ("view", "orbit"), "KEY_F": ("view", "free"), "KEY_P": ("view", "phone"), "KEY_R": ("view", "reset"),
-    "KEY_H": ("help", None), "KEY_F1": ("help", None), "KEY_V": ("control", "video"), "KEY_M": ("control", "model"),
-}  # fmt: skip
 
 
 def _vec4(c):
@@ -69,186 +54,12 @@ def _vec4(c):
     return imgui.ImVec4(*c)
 
 
-class Gui:
-    """ImGui and ImPlot on a window: docking on, the layout remembered in `ini_path`."""
-
-    def __init__(self, window, ini_path: Path) -> None:
-        from imgui_bundle import imgui, implot
-        from imgui_bundle.python_backends.glfw_backend import GlfwRenderer
-
-        imgui.create_context()
-        implot.create_context()
-        io = imgui.get_io()
-        io.config_flags |= imgui.ConfigFlags_.docking_enable
-        try:
-            ini_path.parent.mkdir(parents=True, exist_ok=True)
-            io.set_ini_filename(str(ini_path))
-        except OSError:  # a read-only home: run with the default layout, remember nothing
-            io.set_ini_filename("")
-        self.window = window
-        self.renderer = GlfwRenderer(window.handle)
-        self.dock_id = 0
-        self._layout_checked = False
-
-    def begin_frame(self) -> None:
-        from imgui_bundle import imgui
-
-        self.renderer.process_inputs()
-        imgui.new_frame()
-
-    def wants_mouse(self) -> bool:
-        from imgui_bundle import imgui
-
-        return bool(imgui.get_io().want_capture_mouse)
-
-    def wants_keyboard(self) -> bool:
-        from imgui_bundle import imgui
-
-        return bool(imgui.get_io().want_capture_keyboard)
-
-    def layout(self, viewer) -> tuple[int, int, int, int]:
-        """Lay the dock space over the window (building the default layout when none was saved);
-        returns the 3D view's rectangle (x, y from the top, w, h) in framebuffer pixels."""
-        from imgui_bundle import imgui
-
-        internal = imgui.internal
-        viewport = imgui.get_main_viewport()
-        self.dock_id = imgui.dock_space_over_viewport(
-            0, viewport, imgui.DockNodeFlags_.passthru_central_node
-        )
-        if not self._layout_checked:
-            self._layout_checked = True
-            node = internal.dock_builder_get_node(self.dock_id)
-            if node is None or node.is_leaf_node():
-                self._build_default_layout(viewport)
-        central = internal.dock_builder_get_central_node(self.dock_id)
-        fb_w, fb_h = self.window.framebuffer_size()
-        io = imgui.get_io()
-        sx = fb_w / max(io.display_size.x, 1.0)
-        sy = fb_h / max(io.display_size.y, 1.0)
-        if central is None:
-            return 0, 0, fb_w, fb_h
-        x0, y0 = (central.pos.x - viewport.pos.x) * sx, (central.pos.y - viewport.pos.y) * sy
-        return (
-            int(round(x0)),
-            int(round(y0)),
-            max(1, int(round(central.size.x * sx))),
-            max(1, int(round(central.size.y * sy))),
-        )
-
-    def _build_default_layout(self, viewport) -> None:
-        from imgui_bundle import imgui
-
-        internal = imgui.internal
-        internal.dock_builder_remove_node(self.dock_id)
-        internal.dock_builder_add_node(
-            self.dock_id,
-            internal.DockNodeFlagsPrivate_.dock_space | imgui.DockNodeFlags_.passthru_central_node,
-        )
-        internal.dock_builder_set_node_size(self.dock_id, viewport.size)
-        _, bottom, rest = internal.dock_builder_split_node_py(
-            self.dock_id, imgui.Dir.down, BOTTOM_FRACTION
-        )
-        _, left, _ = internal.dock_builder_split_node_py(rest, imgui.Dir.left, LEFT_FRACTION)
-        _, lower, upper = internal.dock_builder_split_node_py(
-            left, imgui.Dir.down, LEFT_LOWER_FRACTION
-        )
-        for name in TOP_PANELS:
-            internal.dock_builder_dock_window(name, upper)
-        for name in LOWER_PANELS:
-            internal.dock_builder_dock_window(name, lower)
-        internal.dock_builder_dock_window("Timeline", bottom)
-        internal.dock_builder_finish(self.dock_id)
-
-    def render(self) -> None:
-        from imgui_bundle import imgui
-
-        imgui.render()
-        self.renderer.render(imgui.get_draw_data())
-
-    def shutdown(self) -> None:
-        from imgui_bundle import imgui
-
-        ini = imgui.get_io().get_ini_filename()
-        if ini:
-            try:
-                imgui.save_ini_settings_to_disk(ini)
-            except OSError as exc:
-                log.warning("could not save the panel layout to %s (%s)", ini, exc)
-        try:
-            self.renderer.shutdown()
-        except Exception:  # PyOpenGL may already have lost the context at exit: nothing to free
-            log.debug("imgui renderer shutdown failed", exc_info=True)
-
-
-# --- input ---------------------------------------------------------------------------------------
-
-
-def handle_input(v, gui: Gui, dt: float, now: float) -> None:
-    """Keys run commands (edge-triggered), WASD/QE and the right mouse button navigate."""
-    import glfw
-
-    from app.errors import GeofuseError
-
-    w, ui = v.window, v.ui
-    if not gui.wants_keyboard():
-        for key_name, (command, arg) in KEY_COMMANDS.items():
-            key = getattr(glfw, key_name)
-            down = w.key_down(key)
-            pressed = down and not ui.keys_down.get(key, False)
-            ui.keys_down[key] = down
-            if pressed and (command in ("view", "help") or v.loaded is not None):
-                try:
-                    v.apply(command, arg, now)
-                except (ValueError, GeofuseError) as exc:
-                    ui.error(f"{command}: {exc}")
-        ctrl = w.key_down(glfw.KEY_LEFT_CONTROL) or w.key_down(glfw.KEY_RIGHT_CONTROL)
-        o = w.key_down(glfw.KEY_O)
-        if ctrl and o and not ui.keys_down.get(-1, False):
-            open_dialog(v)
-        ui.keys_down[-1] = ctrl and o
-        axis = lambda plus, minus: float(w.key_down(plus)) - float(w.key_down(minus))  # noqa: E731
-        v.nav.move(
-            dt,
-            axis(glfw.KEY_W, glfw.KEY_S),
-            axis(glfw.KEY_D, glfw.KEY_A),
-            axis(glfw.KEY_E, glfw.KEY_Q),
-        )
-    x, y = w.cursor()
-    last, ui.cursor = ui.cursor, (x, y)
-    if last is not None and not gui.wants_mouse() and w.mouse_down(glfw.MOUSE_BUTTON_RIGHT):
-        v.nav.look(x - last[0], y - last[1])
-
-
-def open_dialog(v) -> None:
-    """The system's file dialog (portable-file-dialogs: zenity or kdialog on Linux), polled each
-    frame; where no dialog program exists the Session panel's path field still works."""
-    from imgui_bundle import portable_file_dialogs as pfd
-
-    if v.ui.file_dialog is None:
-        try:
-            v.ui.file_dialog = pfd.open_file(
-                "Open a session manifest or a clip", str(Path.cwd()), OPEN_FILTERS
-            )
-        except Exception as exc:  # no dialog program on this desktop
-            v.ui.error(f"no file dialog available ({exc}): type the path in the Session panel")
-
-
-def _poll_dialog(v) -> None:
-    d = v.ui.file_dialog
-    if d is not None and d.ready():
-        v.ui.file_dialog = None
-        chosen = d.result()
-        if chosen:
-            v.ui.open_request = Path(chosen[0])
-
-
 # --- panels --------------------------------------------------------------------------------------
 
 
 def draw(v, gui: Gui, now: float) -> None:
     """The panels of this frame (after `Gui.begin_frame` and `Gui.layout`)."""
-    _poll_dialog(v)
+    poll_dialog(v)
     if not v.ui.show_panels:
         return
     _session(v)

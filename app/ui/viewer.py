@@ -28,8 +28,12 @@ from app.messages import ERROR, WARNING
 from app.playback.clock import SPEEDS, PlaybackClock
 from app.playback.library import SolverLibrary
 from app.playback.player import Player
+from app.render.window import Window
 from app.session.model import REGISTERED
+from app.ui import panels
 from app.ui.commands import run_command
+from app.ui.gui import Gui
+from app.ui.inputs import handle_input
 from app.ui.navigation import Navigator
 from app.ui.script import Action, parse_script
 from app.ui.state import UiState
@@ -589,11 +593,8 @@ class Viewer:
     # --- the loop -------------------------------------------------------------------------------
 
     def run(self) -> int:
-        from app.render.window import Window
-        from app.ui import panels
-
         self.window = Window(self.options.size, self.options.visible)
-        gui = panels.Gui(self.window, config_dir() / "imgui.ini")
+        gui = Gui(self.window, config_dir() / "imgui.ini")
         self.window.on_scroll(lambda dx, dy: None if gui.wants_mouse() else self.nav.wheel(dy))
         self.window.on_drop(
             lambda paths: setattr(self.ui, "open_request", Path(paths[0])) if paths else None
@@ -619,7 +620,7 @@ class Viewer:
                 dt, last = now - last, now
                 self.window.poll()
                 gui.begin_frame()
-                panels.handle_input(self, gui, dt, now)
+                handle_input(self, gui, dt, now)
                 self._run_script(now - start, now)
                 self._update(now)
                 self.view_rect = gui.layout(self) if self.ui.show_panels else None

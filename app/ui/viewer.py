@@ -34,6 +34,7 @@ from app.ui import panels
 from app.ui.commands import run_command
 from app.ui.gui import Gui
 from app.ui.inputs import handle_input
+from app.ui.jobs import ViewerJobs
 from app.ui.navigation import Navigator
 from app.ui.script import Action, parse_script
 from app.ui.state import UiState
@@ -146,7 +147,7 @@ def config_dir() -> Path:
     return Path(base) / "geofuse"
 
 
-class Viewer:
+class Viewer(ViewerJobs):
     def __init__(self, options: Options, clock: Callable[[], float] = time.perf_counter) -> None:
         self.options = options
         self.clock = clock
@@ -175,31 +176,6 @@ class Viewer:
     def fixed_clock(self) -> bool:
         return isinstance(self.clock, FixedStepClock)
 
-    def wait_until_exported(self) -> None:
-        """Hold everything until the running export has finished (a script's `wait exported`)."""
-        job = self.ui.export_job
-        if job is not None and not job.wait(SOLVE_WAIT_S):
-            raise GeofuseError(f"the export did not finish within {SOLVE_WAIT_S:g} s")
-
-    def start_export(self, what: str, out: Path) -> None:
-        """Export the open session under the current source, in a child process (app.ui.exporter)."""
-        from app.export import EXPORT_SUFFIXES
-        from app.outputs import check_output
-        from app.ui.exporter import ExportJob
-
-        if what not in EXPORT_SUFFIXES:
-            raise ValueError(f"expected one of {sorted(EXPORT_SUFFIXES)}, got {what!r}")
-        if self.ui.export_job is not None and not self.ui.export_job.done:
-            raise ValueError("an export is running; wait for it or cancel it")
-        s = self.loaded.session
-        check_output(out, "export", EXPORT_SUFFIXES[what], s.inputs)
-        clip = s.path.suffix.lower() != ".toml"
-        extra = [
-            *(["--srt", str(self.options.srt)] if clip and self.options.srt else []),
-            *(["--lens", str(self.options.lens)] if clip and self.options.lens else []),
-        ]
-        self.ui.export_job = ExportJob(what, s.path, out, self.loaded.source, extra)
-
     def use_lens(self, profile: Path | None) -> None:
         """Reopen the clip through another lens profile (None: the one chosen from the file)."""
         s = self.loaded.session
@@ -226,22 +202,6 @@ class Viewer:
         self.options.manifest = s.path
         if not self.open(s.path):
             self.options.layers = previous
-
-    def start_sync(self) -> None:
-        """Find the video <-> gyroscope offset in the background (app.ui.exporter.SyncJob); it
-        becomes the session's time offset when found."""
-        from app.ui.exporter import SyncJob
-
-        job = self.ui.sync_job
-        if job is not None and not job.done:
-            raise ValueError("a sync is running")
-        from app.sync import rate_source
-
-        if rate_source(self.loaded.session) is None:
-            raise ValueError(
-                "this session has no gyroscope, no recorded attitude and no course: the offset cannot be found from rotation"
-            )
-        self.ui.sync_job, self.ui.sync_applied = SyncJob(self.loaded.session), False
 
     def set_tile_detail(self, max_sse_px: float) -> None:
         """3D Tiles refine where their screen-space error exceeds max_sse_px (1..256 px)."""
@@ -270,50 +230,6 @@ class Viewer:
                 note = f"3D Tiles: skipped {kind} (the Stats panel counts them)"
                 if note not in self.ui.notices:
                     self.ui.notices.append(note)
-
-    def wait_until_synced(self) -> None:
-        job = self.ui.sync_job
-        if job is not None and not job.wait(SOLVE_WAIT_S):
-            raise GeofuseError(f"the sync did not finish within {SOLVE_WAIT_S:g} s")
-        self._apply_sync()
-
-    def _apply_sync(self) -> None:
-        job = self.ui.sync_job
-        if job is None or not job.done or self.ui.sync_applied:
-            return
-        self.ui.sync_applied = True
-        if job.error:
-            self.ui.error(job.error)
-        elif job.result is not None:
-            r = job.result
-            self.set_time_offset(
-                r.offset_s, r.drift_ppm, r.reference_s
-            )  # the drift too, as "auto" does
-            from app.sync import timed_by
-
-            self.ui.notices.append(
-                f"time offset {1000 * job.result.offset_s:+.1f} ms from the video against {timed_by(job.session)} (confidence {job.result.confidence:.2f})"
-            )
-
-    def start_recording(self, out: Path) -> None:
-        from app.outputs import check_output
-        from app.ui.exporter import Recorder
-
-        if self.ui.recorder is not None:
-            raise ValueError("already recording")
-        check_output(out, "record", (".mp4",), self.loaded.session.inputs)
-        out.parent.mkdir(parents=True, exist_ok=True)
-        self.ui.recorder = Recorder(out, self.window.framebuffer_size())
-
-    def stop_recording(self) -> None:
-        rec, self.ui.recorder = self.ui.recorder, None
-        if rec is not None:
-            rec.stop()
-            self.ui.notices.append(
-                rec.error
-                or f"recorded {rec.out}: {rec.frames} frames"
-                + (f", {rec.dropped} dropped" if rec.dropped else "")
-            )
 
     def wait_until_solved(self, registered: bool = False) -> None:
         """Hold everything until every source is solved: all but `registered` (a script's `wait

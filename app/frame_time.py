@@ -30,8 +30,9 @@ def frame_of(pts_s: np.ndarray, t_media: float) -> int | None:
     k = frame_at(pts_s, t_media)
     if k + 1 < len(pts_s) and pts_s[k + 1] - t_media < t_media - pts_s[k]:
         k += 1
-    gaps = np.diff(pts_s)
-    half = 0.5 * float(np.min(gaps[max(0, k - 1) : k + 1])) if len(gaps) else np.inf
+    # Half the shorter of its intervals to its neighbours (only those two: this runs per frame).
+    gaps = [pts_s[j + 1] - pts_s[j] for j in (k - 1, k) if 0 <= j and j + 1 < len(pts_s)]
+    half = 0.5 * min(gaps) if gaps else np.inf
     return k if abs(pts_s[k] - t_media) <= half else None
 
 

@@ -60,7 +60,6 @@ class SolverLibrary:
             str, float
         ] = {}  # sources being solved that report progress (registration)
         self._truth_timed: CameraTrack | None = None
-        self._offset_s = 0.0
         self._correction = (0.0, 0.0, 0.0)  # offset s, drift ppm, pivot session s
         self._course_pitch = session.course_pitch_deg
         self._version = 0
@@ -110,7 +109,7 @@ class SolverLibrary:
     @property
     def time_offset_s(self) -> float:
         with self._lock:
-            return self._offset_s
+            return self._correction[0]
 
     @property
     def course_pitch_deg(self) -> float | None:
@@ -185,7 +184,6 @@ class SolverLibrary:
             if correction == self._correction:
                 return
             self._correction = correction
-            self._offset_s = correction[0]
             self._tracks = {n: t.with_offset(*correction) for n, t in self._tracks.items()}
             self._version += 1
 

@@ -83,9 +83,9 @@ class Matcher:
     def __init__(self, settings: MatchSettings = MatchSettings()) -> None:
         self.settings = settings
         if settings.detector == "sift":
-            self.sift, norm = cv2.SIFT_create(nfeatures=settings.features), cv2.NORM_L2
+            self.detector, norm = cv2.SIFT_create(nfeatures=settings.features), cv2.NORM_L2
         elif settings.detector == "orb":
-            self.sift, norm = cv2.ORB_create(nfeatures=settings.features), cv2.NORM_HAMMING
+            self.detector, norm = cv2.ORB_create(nfeatures=settings.features), cv2.NORM_HAMMING
         else:
             raise ValueError(f"detector must be sift or orb, got {settings.detector!r}")
         self.matcher = cv2.BFMatcher(norm)
@@ -95,7 +95,7 @@ class Matcher:
     ) -> tuple[FloatArray, np.ndarray | None]:
         """(keypoints (N, 2) in OpenCV's pixel convention (from_opencv converts them);
         descriptors (N, D) or None)."""
-        kps, desc = self.sift.detectAndCompute(
+        kps, desc = self.detector.detectAndCompute(
             grey(rgb), None if mask is None else mask.astype(np.uint8)
         )
         return np.array([k.pt for k in kps], np.float64).reshape(-1, 2), desc

@@ -108,9 +108,7 @@ def _clear(x: float, y: float, r: float) -> bool:
     return not (-65.0 - r < y < -42.5 + r)
 
 
-def _tree(
-    x: float, y: float, height: float, crown_m: float, rng: np.random.Generator
-) -> list[shapes.Shape]:
+def _tree(x: float, y: float, height: float, crown_m: float) -> list[shapes.Shape]:
     trunk = shapes.box([x - 0.2, y - 0.2, 0.0], [x + 0.2, y + 0.2, height * 0.45])
     c = crown_m / 2
     crown = shapes.box([x - c, y - c, height * 0.4], [x + c, y + c, height])
@@ -124,14 +122,14 @@ def clutter(rng: np.random.Generator) -> list[Primitive]:
     for x in np.arange(-70.0, 75.0, 13.0) + rng.uniform(-2.0, 2.0, 12):  # along the hall's front
         y = -41.5 - rng.uniform(0.0, 0.8)
         h = rng.uniform(5.0, 8.0)
-        t, c = _tree(float(x), y, h, rng.uniform(2.5, 3.6), rng)
+        t, c = _tree(float(x), y, h, rng.uniform(2.5, 3.6))
         trunks.append(t)
         crowns.append(c)
     placed = 0
     while placed < 30:  # trees elsewhere on the site
         x, y = rng.uniform(-170, 170, 2)
         if _clear(x, y, 3.0):
-            t, c = _tree(float(x), float(y), rng.uniform(6.0, 11.0), rng.uniform(3.0, 5.0), rng)
+            t, c = _tree(float(x), float(y), rng.uniform(6.0, 11.0), rng.uniform(3.0, 5.0))
             trunks.append(t)
             crowns.append(c)
             placed += 1

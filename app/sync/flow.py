@@ -13,6 +13,7 @@ import numpy as np
 
 from app import rotations
 from app.errors import GeofuseError
+from app.io.video import media_seconds
 from app.sync.rates import RateCurve
 
 FLOW_WIDTH_PX = 320  # the video is reduced to this width for the flow
@@ -48,8 +49,6 @@ def video_rates(
     bearings: display pixels (N, 2) -> unit vectors (N, 3) in OpenCV's camera frame."""
     import av
     import cv2
-
-    from app.io.video import media_seconds
 
     w, h = video.width, video.height
     scale = FLOW_WIDTH_PX / w

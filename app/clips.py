@@ -36,8 +36,8 @@ from app.scene.ground import ellipsoidal_ground
 from app.scene.ground_plane import ASSUMED_GROUND_MARGIN_M, ground_under_track
 from app.scene.layers import Layer
 from app.scene.mesh import MeshData
-from app.session.assemble import gimbal_attitude, load_scene_layers, open_session
-from app.session.config import HANDHELD_MOUNT_M
+from app.session.assemble import assemble, gimbal_attitude, load_scene_layers, open_session
+from app.session.config import HANDHELD_MOUNT_M, read_config
 from app.session.model import Session
 
 DJI_DEFAULT_FOCAL_MM = 24.0  # 35 mm equivalent focal length of most DJI main cameras
@@ -405,3 +405,14 @@ def open_any(
             )
         return open_session(path)
     return open_clip(path, srt, hfov_deg, pitch_deg, lens, layers)
+
+
+def open_for_sync(path: str | Path, lens: str | Path | None = None) -> tuple[Session, float]:
+    """(the session as its own clock times it, the offset already in that timing, s) for
+    `geofuse sync`: a manifest's own video.time_offset_s, never an "auto" offset read from an
+    earlier sync (the new offset is added to this one); a clip's is 0."""
+    path = Path(path)
+    if path.suffix.lower() == ".toml":
+        cfg = read_config(path)
+        return assemble(cfg), cfg.video.time_offset_s
+    return open_any(path, lens=lens), 0.0

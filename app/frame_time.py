@@ -36,6 +36,20 @@ def frame_of(pts_s: np.ndarray, t_media: float) -> int | None:
     return k if abs(pts_s[k] - t_media) <= half else None
 
 
+def frame_span(
+    pts_s: np.ndarray, start_s: float | None = None, end_s: float | None = None
+) -> tuple[int, int]:
+    """(first, last) frame shown from media time start_s to end_s (s; None: the clip's ends), by
+    frame_at. Raises ValueError when no frame lies between them."""
+    first = frame_at(pts_s, start_s) if start_s is not None else 0
+    last = frame_at(pts_s, end_s) if end_s is not None else len(pts_s) - 1
+    if (start_s is not None and end_s is not None and end_s < start_s) or first > last:
+        raise ValueError(
+            f"no frame between {start_s} and {end_s} s (the video runs 0 to {pts_s[-1]:.3f} s)"
+        )
+    return first, last
+
+
 def corrected_times(
     session_s: npt.ArrayLike, offset_s: float, drift_ppm: float = 0.0, pivot_s: float = 0.0
 ) -> np.ndarray:

@@ -22,7 +22,9 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
-from app.camera import Intrinsics
+from app import rotations
+from app.camera import Camera, Intrinsics
+from app.constants import DEFAULT_FAR_M, DEFAULT_NEAR_M
 from app.errors import DataFormatError
 
 FloatArray = npt.NDArray[np.float64]
@@ -326,3 +328,35 @@ def video_camera(
     profile file."""
     lens = lens_for_video(read_profile(profile), width, height, rotation_cw)
     return enclosing_intrinsics(lens), lens
+
+
+def still_camera(
+    image_size: tuple[int, int],
+    position_enu: npt.ArrayLike,
+    hpr_deg: tuple[float, float, float],
+    fov_deg: float | None = None,
+    profile: str | Path | None = None,
+    near: float = DEFAULT_NEAR_M,
+    far: float = DEFAULT_FAR_M,
+) -> Camera:
+    """The camera of a still image (width, height px) taken at `position_enu` (m, the local
+    frame) with heading, pitch, roll (deg, app.rotations): through the lens profile when given
+    (the depth pass renders its enclosing pinhole), else a pinhole of horizontal `fov_deg`.
+    Raises ValueError for a field of view out of range; DataFormatError for a bad profile."""
+    width, height = image_size
+    lens = None
+    if profile is not None:
+        lens = read_profile(profile).scaled(width, height)
+        intr = enclosing_intrinsics(lens)
+    elif fov_deg is not None:
+        intr = Intrinsics.from_fov(width, height, fov_deg)
+    else:
+        raise ValueError("a still needs a field of view or a lens profile")
+    return Camera.create(
+        intr,
+        position_enu,
+        rotations.camera_quat_from_hpr(*hpr_deg),
+        near=near,
+        far=far,
+        lens=lens,
+    )

@@ -4,13 +4,16 @@ commands that need no filter or GL start without loading numba or OpenGL."""
 
 from __future__ import annotations
 
+import argparse
 import ast
+import importlib
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 
+from app.cli import build_parser
 from tests.conftest import ROOT, SHARED_DATA
 
 APP = ROOT / "app"
@@ -101,3 +104,39 @@ def test_telemetry_starts_without_numba_or_opengl(shared_data):
     if not clip.is_file():
         pytest.skip(f"{clip} is absent")
     assert SHARED_DATA.is_dir() and _loaded("telemetry", str(clip)) & HEAVY == set()
+
+
+def test_imports_at_the_top_of_modules():
+    """Every import of the app is at its module's top: an import inside a function hides what
+    depends on what (and the cycles above). The command line's one lazy step, importing the
+    chosen command's module after parsing, goes through importlib in app/cli/__init__.py."""
+    inside = []
+    for path in sorted(APP.rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                inside += [
+                    f"{path.relative_to(ROOT)}:{sub.lineno}"
+                    for sub in ast.walk(node)
+                    if isinstance(sub, (ast.Import, ast.ImportFrom))
+                ]
+    assert inside == []
+
+
+def test_every_command_has_its_module():
+    """Each command's job names a module of app.cli and a function in it."""
+    parser = build_parser()
+    jobs = set()
+
+    def walk(p) -> None:
+        for action in p._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                for sub in action.choices.values():
+                    walk(sub)
+        if p.get_default("job"):
+            jobs.add(p.get_default("job"))
+
+    walk(parser)
+    assert len(jobs) >= 10
+    for job in jobs:
+        module, _, function = job.partition(":")
+        assert callable(getattr(importlib.import_module(f"app.cli.{module}"), function or "run"))

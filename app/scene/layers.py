@@ -21,6 +21,7 @@ from app.scene.loader import SUPPORTED_SUFFIXES, Placement, load_scene
 from app.scene.mesh import MeshData
 from app.scene.terrain import DEFAULT_MAX_ERROR_M, DEM_SUFFIXES, read_terrain
 from app.scene.tiles import fetch
+from app.scene.tiles.tileset import Tileset, TilesetError
 
 KINDS = ("mesh", "tileset", "dem")
 
@@ -79,6 +80,37 @@ class Layer:
         return out + ([self.ortho] if self.ortho is not None else [])
 
 
+def named_layers(
+    names: list[str],
+    ortho: Path | None = None,
+    vertical: str | None = None,
+    max_error_m: float = DEFAULT_MAX_ERROR_M,
+    placement: Placement | None = None,
+) -> tuple[Layer, ...]:
+    """The layers a user named (files or URLs), checked before anything loads: local files
+    exist, kinds are known; a DEM takes the orthophoto, vertical datum and largest error (m)
+    given, a model the placement. Raises SceneError naming the file at fault."""
+    out = []
+    for name in names:
+        if not fetch.is_url(name) and not Path(name).exists():
+            raise SceneError(name, "scene file does not exist")
+        layer = Layer.of(name)
+        if layer.kind == "dem":
+            layer = Layer.of(name, ortho=ortho, vertical=vertical, max_error_m=max_error_m)
+        elif layer.kind == "mesh" and placement is not None:
+            layer = Layer.of(name, placement=placement)
+        out.append(layer)
+    if ortho is not None:
+        if not any(layer.kind == "dem" for layer in out):
+            raise SceneError(
+                str(ortho),
+                "an orthophoto drapes a DEM: give --dem DEM.tif (or --scene DEM.tif) too",
+            )
+        if not ortho.is_file():
+            raise SceneError(str(ortho), "orthophoto file does not exist")
+    return tuple(out)
+
+
 @dataclass
 class LoadedLayers:
     """Every layer in one MeshData, each layer's own (for per-layer checks), and what was said."""
@@ -88,9 +120,7 @@ class LoadedLayers:
     notes: Messages = field(default_factory=Messages)
 
 
-def _tileset(layer: Layer, frame: LocalFrame):
-    from app.scene.tiles.tileset import Tileset, TilesetError
-
+def _tileset(layer: Layer, frame: LocalFrame) -> Tileset:
     try:
         return Tileset(layer.location, frame)
     except fetch.FetchError as exc:

@@ -40,6 +40,21 @@ class SyncResult:
     drift_ppm: float = 0.0  # the video clock's rate error against the sensors' (parts per million)
     reference_s: float = 0.0  # session time at which offset_s holds exactly (the drift's pivot)
 
+    def report(self, first_frame_s: float) -> list[str]:
+        """What `geofuse sync` prints after the offset line: the drift (when fitted; the pivot
+        in seconds from the first frame at `first_frame_s`, session s) and the windows fitted."""
+        lines = []
+        if self.drift_ppm:
+            lines.append(
+                f"clock drift: the video's clock runs {self.drift_ppm:+.0f} ppm against the sensors' ({self.drift_ppm * 1e-6 * 60 * 1000:+.1f} ms a minute); the offset holds at {self.reference_s - first_frame_s:.1f} s"
+            )
+        lines.append(
+            f"fitted on {len(self.windows)} windows of {self.windows[0][1] - self.windows[0][0]:.1f} s that say most about time (where the rates change fastest)"
+            if self.windows
+            else "no window with rotation"
+        )
+        return lines
+
 
 def _on_grid(curve: RateCurve, t: np.ndarray) -> np.ndarray:
     return np.column_stack(

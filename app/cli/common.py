@@ -1,0 +1,89 @@
+"""What several commands share: the scene layers and projection settings their options name,
+the session opened with its attitude source, solving it, and printing its messages."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from app.camera_track import CameraTrack
+from app.clips import open_any
+from app.config import ProjectionSettings
+from app.constants import DRONE_DEFAULT_PITCH_DEG
+from app.errors import GeofuseError
+from app.outputs import check_output
+from app.progress import ProgressBar
+from app.scene import Placement
+from app.scene.layers import Layer, named_layers
+from app.session.model import Session
+from app.solve import solve_track
+
+
+def layers(args: argparse.Namespace, placement: Placement | None = None) -> tuple[Layer, ...]:
+    """The layers --scene/--dem/--ortho name, checked: files exist, kinds known."""
+    names = list(getattr(args, "scene", None) or [])
+    if getattr(args, "dem", None) is not None:
+        names.append(str(args.dem))
+    return named_layers(names, args.ortho, args.dem_vertical, args.dem_error, placement)
+
+
+def projection_settings(args: argparse.Namespace) -> ProjectionSettings:
+    """--alpha, --bias, --slope-bias, --no-neighbourhood, --depth-size (range-checked by
+    ProjectionSettings)."""
+    try:
+        return ProjectionSettings(
+            alpha=args.alpha,
+            bias_constant_m=args.bias,
+            bias_slope=args.slope_bias,
+            neighbourhood=not args.no_neighbourhood,
+            depth_long_side=args.depth_size,
+        )
+    except ValueError as exc:
+        raise GeofuseError(f"projection settings: {exc}") from exc
+
+
+def solved(session: Session, source: str) -> CameraTrack:
+    """The session's camera track under `source` (a progress bar on stderr while registering),
+    printing the registration's summary line and the messages solving raised."""
+    track = solve_track(
+        session, source, progress=ProgressBar(f"registering ({source})", sys.stderr)
+    )
+    if track.registration is not None:
+        print(track.registration.summary(), file=sys.stderr)
+    print_messages(session)
+    return track
+
+
+def open_with_source(
+    path: Path, args: argparse.Namespace, suffixes: tuple[str, ...]
+) -> tuple[Session, str]:
+    """(session, source) for a command that writes --out: the session or clip opened, --out
+    checked against every file it reads, --source checked against what it offers."""
+    session = open_any(
+        path,
+        getattr(args, "srt", None),
+        getattr(args, "fov", None),
+        getattr(args, "pitch", DRONE_DEFAULT_PITCH_DEG),
+        args.lens,
+        layers(args),
+    )
+    check_output(args.out, "--out", suffixes, list(session.inputs))
+    source = args.source or session.sources[0]
+    if source not in session.sources:
+        raise GeofuseError(f"--source {source}: this session offers {', '.join(session.sources)}")
+    return session, source
+
+
+_PRINTED: dict[int, int] = {}  # id of a session's messages -> how many this command has printed
+
+
+def print_messages(session: Session) -> None:
+    """The session's messages this command has not printed yet, each with its level ("note:" for
+    information, "warning:", "error:"): called when a session opens and again after work that
+    may add some (solving, registering, exporting)."""
+    key = id(session.messages)
+    new = session.messages.since(_PRINTED.get(key, 0))
+    for message in new:
+        print(message, file=sys.stderr)
+    _PRINTED[key] = _PRINTED.get(key, 0) + len(new)

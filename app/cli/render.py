@@ -1,0 +1,116 @@
+"""`geofuse render`: one image projected onto a scene (--image, --pose, --fov/--lens), or a
+session's frame at --time with its solved pose (--session), to a PNG."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from app.camera import Intrinsics
+from app.cli.common import layers, open_with_source, print_messages, projection_settings, solved
+from app.config import OverlaySettings
+from app.constants import DEFAULT_NEAR_M
+from app.errors import GeofuseError
+from app.frame_time import frame_at
+from app.geo import LocalFrame
+from app.imageio import read_rgb, write_rgb
+from app.io.video import read_frame
+from app.lens import still_camera
+from app.outputs import IMAGE_SUFFIXES, check_output
+from app.render.still import render_still, window_camera
+from app.scene import Placement
+from app.scene.layers import load_layers
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.session is not None:
+        return _session(args)
+    named = layers(
+        args, Placement(up_axis=args.up, heading_deg=args.scene_heading, scale=args.scene_scale)
+    )
+    missing = [f"--{k.replace('_', '-')}" for k in ("image", "pose") if getattr(args, k) is None]
+    if not named:
+        missing.insert(0, "--scene (or --dem)")
+    if args.origin is None and any(not layer.georeferenced for layer in named):
+        missing.append("--origin (a model's origin)")
+    if args.fov is None and args.lens is None:
+        missing.append("--fov (or --lens)")
+    if missing:
+        raise GeofuseError(
+            f"render: give --session MANIFEST --time T, or all of {', '.join(missing)}"
+        )
+    check_output(
+        args.out,
+        "--out",
+        IMAGE_SUFFIXES,
+        [*(f for layer in named for f in layer.files()), args.image, args.lens],
+    )
+    lat, lon, h, heading, pitch, roll = args.pose
+    frame = LocalFrame(*(args.origin or (lat, lon, h)))
+    loaded = load_layers(named, frame, [[lat, lon]])
+    for message in loaded.notes.since(0):
+        print(message, file=sys.stderr)
+    image = read_rgb(args.image)
+    try:
+        projector = still_camera(
+            (image.shape[1], image.shape[0]),
+            frame.geodetic_to_enu(lat, lon, h),
+            (heading, pitch, roll),
+            args.fov,
+            args.lens,
+            far=args.far,
+        )
+        view_intr = Intrinsics.from_fov(args.size[0], args.size[1], args.view_fov)
+    except ValueError as exc:
+        raise GeofuseError(f"--fov: {exc}") from exc
+    view = window_camera(projector, view_intr, args.view_from, args.look_at, args.far)
+    rgb = render_still(
+        loaded.mesh,
+        image,
+        projector,
+        view,
+        projection_settings(args),
+        OverlaySettings(frustum=not args.no_frustum, trajectory=False),
+    )
+    out = write_rgb(args.out, rgb)
+    print(f"wrote {out} ({rgb.shape[1]}x{rgb.shape[0]})")
+    return 0
+
+
+def _session(args: argparse.Namespace) -> int:
+    """The frame shown at --time (app.frame_time.frame_at, as the viewer shows it) with its pose."""
+    if args.time is None:
+        raise GeofuseError("render --session needs --time T (seconds from the video's first frame)")
+    check_output(args.out, "--out", IMAGE_SUFFIXES, [args.session, args.lens])
+    session, source = open_with_source(args.session, args, IMAGE_SUFFIXES)
+    pts = session.video.pts_s
+    if not pts[0] - 0.5 <= args.time <= pts[-1] + 0.5:
+        raise GeofuseError(
+            f"--time {args.time:g}: the video runs from {pts[0]:.3f} to {pts[-1]:.3f} s"
+        )
+    print_messages(session)
+    index = frame_at(pts, args.time)
+    try:
+        track = solved(session, source).with_clip(DEFAULT_NEAR_M, args.far)
+    except ValueError as exc:
+        raise GeofuseError(f"--source: {exc}") from exc
+    projector = track.frame_camera(index)
+    view = window_camera(
+        projector,
+        Intrinsics.from_fov(args.size[0], args.size[1], args.view_fov),
+        args.view_from,
+        args.look_at,
+        args.far,
+    )
+    rgb = render_still(
+        session.scene(),
+        read_frame(session.video.path, index, session.video),
+        projector,
+        view,
+        projection_settings(args),
+        OverlaySettings(frustum=not args.no_frustum),
+        trajectory=track.frame_poses().enu,
+    )
+    out = write_rgb(args.out, rgb)
+    print(f"wrote {out}: frame {index} at {pts[index]:.3f} s, attitude from {source}")
+    return 0

@@ -1,0 +1,45 @@
+"""`geofuse simulate scene|session|photo`: the sample data (app.simulate)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from app.demo import SAMPLE_ORIGIN, SAMPLE_PHOTO_POSE, SAMPLE_SCENE
+from app.errors import GeofuseError
+from app.geo import LocalFrame
+from app.imageio import write_rgb
+from app.scene import load_scene
+from app.simulate.photo import make_photo, photo_camera
+from app.simulate.session import SampleConfig, write_sample_session
+from app.simulate.stadium import write_site
+
+
+def scene(args: argparse.Namespace) -> int:
+    out = write_site(args.out, seed=args.seed)
+    print(f"wrote {out} ({out.stat().st_size / 1e6:.2f} MB)")
+    return 0
+
+
+def photo(args: argparse.Namespace) -> int:
+    frame = LocalFrame(*SAMPLE_ORIGIN)
+    mesh = load_scene(args.scene, frame)
+    out = write_rgb(args.out, make_photo(mesh, photo_camera(SAMPLE_PHOTO_POSE, frame)))
+    print(f"wrote {out}")
+    return 0
+
+
+def session(args: argparse.Namespace) -> int:
+    site = args.scene or SAMPLE_SCENE
+    if not Path(site).is_file():
+        raise GeofuseError(
+            f"{site}: scene file does not exist (make one with `geofuse simulate scene`)"
+        )
+    manifest = write_sample_session(
+        args.out,
+        site,
+        SampleConfig(seed=args.seed, duration_s=args.duration, world=not args.model_world),
+    )
+    total = sum(p.stat().st_size for p in Path(args.out).iterdir() if p.is_file())
+    print(f"wrote {manifest} ({total / 1e6:.1f} MB in {args.out})")
+    return 0

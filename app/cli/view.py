@@ -1,0 +1,28 @@
+"""`geofuse view`: the interactive viewer (app.ui.viewer)."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+
+from app.cli.common import layers
+from app.ui.script import parse_script
+from app.ui.viewer import Options, Viewer
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.script is not None:
+        parse_script(args.script)  # a bad script is refused before a window opens
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
+    return Viewer(
+        Options(
+            args.manifest,
+            args.size,
+            args.script,
+            args.screenshot,
+            args.play,
+            srt=args.srt,
+            lens=args.lens,
+            layers=layers(args),
+        )
+    ).run()

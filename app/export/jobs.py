@@ -1,0 +1,100 @@
+"""One export of a solved session to a file, as `geofuse export` runs it: the frames chosen, the
+file written atomically (app.outputs), and the line that says what was written."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+from app.camera_track import CameraTrack
+from app.errors import GeofuseError
+from app.export.gis import write_records
+from app.export.klv import write_klv_ts
+from app.export.preview import footprint_preview
+from app.export.records import frame_records
+from app.export.video import export_video
+from app.frame_time import frame_span
+from app.imageio import write_rgb
+from app.outputs import write_atomically, write_via_path
+from app.session.model import Session
+
+__all__ = ["ExportOptions", "export_session"]
+
+
+@dataclass(frozen=True)
+class ExportOptions:
+    """every: one record per `every` frames (footprints, fmv-csv, klv); size: (w, h) px of the
+    video or the preview; view: the video's window camera; start_s, end_s: the video's span
+    (media s, None: the clip's ends); preview: a PNG of the footprints over the scene, or None;
+    name: the KML document's name."""
+
+    every: int = 1
+    size: tuple[int, int] = (1280, 720)
+    view: str = "follow"
+    start_s: float | None = None
+    end_s: float | None = None
+    preview: Path | None = None
+    name: str = "geofuse"
+
+
+def export_session(
+    what: str,
+    session: Session,
+    source: str,
+    track: CameraTrack,
+    out: Path,
+    options: ExportOptions,
+    progress: Callable[[float], None] | None = None,
+) -> str:
+    """Write `what` (footprints, fmv-csv, klv or video; app.export.EXPORT_SUFFIXES) of the
+    session under attitude `source` (its solved `track`) to `out`; returns what was written, in
+    a line. Raises GeofuseError for a span without frames."""
+    out = Path(out)
+    if what == "video":
+        try:
+            first, last = frame_span(session.video.pts_s, options.start_s, options.end_s)
+        except ValueError as exc:
+            raise GeofuseError(f"--from/--to: {exc}") from exc
+        n = [0]
+
+        def write_video(tmp: Path) -> None:
+            n[0] = export_video(
+                session.video,
+                session.rotation_cw,
+                track,
+                session.scene(),
+                tmp,
+                options.size,
+                options.view,
+                first,
+                last,
+                progress,
+            )
+
+        write_via_path(out, "--out", write_video)
+        w, h = options.size
+        return f"wrote {out}: {n[0]} frames, {w}x{h}, view {options.view}, attitude from {source}"
+    records = list(frame_records(session, source, options.every, progress=progress, track=track))
+    if what == "klv":
+        n = [0]
+        write_via_path(
+            out, "--out", lambda tmp: n.__setitem__(0, write_klv_ts(session.video, records, tmp))
+        )
+        return f"wrote {out}: the video with {n[0]} MISB ST 0601 local sets, attitude from {source}"
+    write_atomically(
+        out,
+        "--out",
+        lambda f: write_records(records, f, out.suffix.lower(), options.name),
+        binary=out.suffix.lower() == ".kmz",
+    )
+    if options.preview is not None:
+        write_rgb(
+            options.preview,
+            footprint_preview(session.scene(), session.frame, records, options.size),
+            "--preview",
+        )
+    clipped = sum(r.clipped for r in records)
+    return f"wrote {out}: {len(records)} frames, attitude from {source}" + (
+        f"; {clipped} footprints clipped at the range limit" if clipped else ""
+    )

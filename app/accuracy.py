@@ -19,6 +19,7 @@ from app.attitude.metrics import hpr_rms
 from app.camera import Camera, Intrinsics
 from app.camera_track import CameraTrack, camera_track, frame_clock
 from app.constants import VIEW_FAR_M, VIEW_NEAR_M
+from app.render.probe import SurfaceProbe
 from app.session import Session
 from app.solve import solve_track
 
@@ -100,7 +101,6 @@ class ProjectionProbe:
     """Model points seen at a grid of image pixels (app.render.probe.SurfaceProbe)."""
 
     def __init__(self, session: Session, grid: tuple[int, int]) -> None:
-        from app.render.probe import SurfaceProbe
 
         self.intrinsics: Intrinsics = session.intrinsics.scaled(*grid)
         self.surface = SurfaceProbe(session.scene())

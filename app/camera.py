@@ -2,7 +2,7 @@
 
 Image pixels: u to the right from the left edge, v down from the top edge, pixel centres at
 half-integers. Camera frame: OpenGL's (x right, y up, looking down -z). World: local ENU metres.
-The window camera and the projector ("depth camera") both use this module.
+The window camera and the projector (the video's camera) both use this module.
 """
 
 from __future__ import annotations

@@ -42,7 +42,7 @@ class ProjectionSettings:
 
 @dataclass(frozen=True)
 class OverlaySettings:
-    """What is drawn over the scene: the depth camera's frustum (lines out to `frustum_length_m`),
+    """What is drawn over the scene: the projector's frustum (lines out to `frustum_length_m`),
     the trajectory polyline, and the projection error in metres as colours on the model."""
 
     frustum: bool = True

@@ -5,12 +5,12 @@ from __future__ import annotations
 from datetime import datetime, timezone
 
 import numpy as np
+from pygeomag import GeoMag, decimal_year_from_date
 
 WMM_EPOCHS = (2010, 2015, 2020, 2025)  # coefficient files pygeomag ships (wmm/WMM_YYYY.COF)
 
 
 def _wmm(lat: float, lon: float, h_m: float, when_unix_s: float):
-    from pygeomag import GeoMag, decimal_year_from_date
 
     year = decimal_year_from_date(datetime.fromtimestamp(when_unix_s, timezone.utc).date())
     epoch = max([e for e in WMM_EPOCHS if e <= year] or [WMM_EPOCHS[0]])

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 import numpy.typing as npt
-from scipy.spatial.transform import Rotation
+from scipy.spatial.transform import Rotation, Slerp
 
 from app.constants import EPS_DEGENERATE
 
@@ -171,7 +171,6 @@ class Interpolator:
     interpolates Euler angles, so the +-180 deg heading wrap is harmless."""
 
     def __init__(self, t_source: npt.ArrayLike, q_source: npt.ArrayLike) -> None:
-        from scipy.spatial.transform import Slerp
 
         self.t = np.asarray(t_source, np.float64)
         self._slerp = Slerp(self.t, to_scipy(q_source))

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import csv
 from dataclasses import dataclass, field
+from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
@@ -177,8 +178,6 @@ def _gopro(path: Path) -> Telemetry:
     if r.raw.gps_precision is not None and len(r.raw.gps_precision):
         out.info.append(f"GPS precision (DOP): median {np.median(r.raw.gps_precision[:, 1]):.2f}")
     if r.gps_utc_at_zero:
-        from datetime import datetime, timezone
-
         out.info.append(
             f"clip start (GPSU): {datetime.fromtimestamp(r.gps_utc_at_zero, timezone.utc).isoformat()}"
         )

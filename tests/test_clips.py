@@ -313,4 +313,4 @@ def test_the_viewer_reopens_a_clip_through_another_lens(dji_clip, display, tmp_p
         and b["lens"] == json.loads(profile.read_text())["name"]
         and b["errors"] == []
     )
-    assert any(n.startswith("lens: ") for n in b["notices"])
+    assert any(n.startswith("lens: ") for n in b["info"])

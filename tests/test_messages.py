@@ -70,7 +70,7 @@ def test_what_a_background_solve_says_reaches_the_viewer_after_open():
     added.join()
     v._show_messages()
     v._show_messages()  # nothing new: nothing repeated
-    assert v.ui.notices == ["lens: pinhole"]
+    assert v.ui.info == ["lens: pinhole"]
     assert v.ui.warnings == ["3 GNSS fixes lie off the model"]
     assert v.ui.errors == ["registered: failed"]
 

@@ -200,7 +200,7 @@ def test_export_and_record_from_the_viewer(display, tmp_path):
     result = run_viewer(display, "--script", str(script), "--size", "640x360")
     assert result.returncode == 0, result.stderr[-2000:]
     s = json.loads(state.read_text())
-    assert s["errors"] == [] and any(n.startswith(f"recorded {rec}") for n in s["notices"])
+    assert s["errors"] == [] and any(n.startswith(f"recorded {rec}") for n in s["info"])
     doc = json.loads(fp.read_text())
     assert (
         doc["type"] == "FeatureCollection" and len(doc["features"]) == 2400 + 1
@@ -333,7 +333,7 @@ def test_a_dem_dropped_on_an_open_clip_becomes_its_terrain(display, tmp_path, sh
 """,
     )
     with_dem = json.loads((tmp_path / "with_dem.json").read_text())
-    assert with_dem["errors"] == [] and any("terrain of" in n for n in with_dem["notices"])
+    assert with_dem["errors"] == [] and any("terrain of" in n for n in with_dem["info"])
     assert with_dem["manifest"].endswith("max-heromode.mp4") and with_dem["layers"] == [
         "dem:dem.tif"
     ]

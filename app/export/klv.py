@@ -19,6 +19,8 @@ from collections.abc import Callable, Iterable
 from fractions import Fraction
 from pathlib import Path
 
+import av
+
 from app.export.records import FrameRecord
 from app.frame_time import frame_of
 from app.io.video import VideoInfo, media_seconds
@@ -104,7 +106,6 @@ def write_klv_ts(
 ) -> int:
     """An MPEG-TS at `out`: the video's packets copied, and a KLV data stream with one Local Set
     per record at its frame's presentation time; returns the number of Local Sets written."""
-    import av
 
     by_frame = {k: r for r in records if (k := frame_of(video.pts_s, r.media_s)) is not None}
     written = 0

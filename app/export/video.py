@@ -13,6 +13,7 @@ from collections.abc import Callable
 from fractions import Fraction
 from pathlib import Path
 
+import av
 import numpy as np
 
 from app.camera import Camera, Intrinsics, look_at_quat
@@ -78,7 +79,6 @@ def export_video(
 ) -> int:
     """Render frames first..last (inclusive) of `video` into `out` (H.264 MP4 at the clip's
     presentation times); returns the number of frames written."""
-    import av
 
     last = len(video.pts_s) - 1 if last is None else last
     wanted = set(range(first, last + 1))

@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+import h5py
 import numpy as np
 
 from app.errors import DataFormatError
@@ -27,7 +28,6 @@ class BroadTrial:
 
 
 def load_trial(path: str | Path) -> BroadTrial:
-    import h5py
 
     path = Path(path)
     try:

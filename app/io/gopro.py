@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
 
+import av
 import numpy as np
 
 from app.errors import DataFormatError
@@ -76,7 +77,6 @@ def telemetry_stream(container):
 
 def read_payloads(path: Path) -> list[tuple[bytes, float, float]]:
     """(payload, t0, t1) of every telemetry sample, with its MP4 time span in seconds."""
-    import av
 
     try:
         container = av.open(str(path))

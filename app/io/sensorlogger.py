@@ -27,6 +27,7 @@ import numpy as np
 
 from app import rotations
 from app.errors import DataFormatError
+from app.io.csvlog import numeric
 from app.io.streams import (
     GnssTrack,
     Messages,
@@ -92,7 +93,6 @@ class _Source:
 def _columns(
     src: _Source, name: str, wanted: list[str], label: str, messages: Messages
 ) -> tuple[np.ndarray, np.ndarray]:
-    from app.io.csvlog import numeric
 
     cols, rows = src.rows(name)
     path = src.where(name)

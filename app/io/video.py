@@ -8,6 +8,7 @@ from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
 
+import av
 import numpy as np
 
 from app.errors import VideoError
@@ -101,7 +102,6 @@ def ffmpeg_reason(exc: BaseException) -> str:
 
 def probe(path: str | Path) -> VideoInfo:
     """Read a video's timing and orientation. Raises VideoError naming the file."""
-    import av
 
     path = Path(path)
     if not path.is_file():
@@ -160,7 +160,6 @@ def rotate_for_display(rgb: np.ndarray, rotation_cw: int) -> np.ndarray:
 
 def read_frame(path: str | Path, index: int, info: VideoInfo | None = None) -> np.ndarray:
     """Frame `index` (display order) as (H, W, 3) uint8 RGB in display orientation."""
-    import av
 
     path = Path(path)
     info = info or probe(path)
@@ -191,7 +190,6 @@ def frames_at(
     RGB in display orientation), scaled so that the long side is at most `long_side` pixels.
     Frames are matched to indices by presentation time; a damaged frame is skipped, a stream that
     cannot be decoded at all raises VideoError."""
-    import av
 
     wanted = sorted(set(int(i) for i in indices))
     if not wanted:

@@ -18,6 +18,7 @@ import threading
 from dataclasses import dataclass
 from pathlib import Path
 
+import av
 import numpy as np
 
 from app.io.video import media_seconds
@@ -111,7 +112,6 @@ class Decoder:
             self.error = f"{self.path}: decoding stopped ({type(exc).__name__}: {exc})"
 
     def _decode_all(self) -> None:
-        import av
 
         try:
             container = av.open(self.path)
@@ -143,7 +143,6 @@ class Decoder:
 
     def _decode_from(self, container, stream, target: float, serial: int, rate: float, bt709: bool):
         """Decode forward from the last seek; returns the next command, or None at end of stream."""
-        import av
 
         packets = container.demux(stream)
         delivered = False  # the first frame after a seek is always delivered

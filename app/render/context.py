@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import ctypes
+import ctypes.util
+
 import moderngl
 
 from app.errors import GeofuseError
@@ -30,8 +33,6 @@ def describe(ctx: moderngl.Context) -> str:
 
 
 def _libgl_finish():
-    import ctypes
-    import ctypes.util
 
     for name in ("libGL.so.1", ctypes.util.find_library("GL") or ""):
         try:

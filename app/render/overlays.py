@@ -1,4 +1,4 @@
-"""Line overlays in world coordinates: the depth camera's frustum and a trajectory polyline."""
+"""Line overlays in world coordinates: the projector's frustum and a trajectory polyline."""
 
 from __future__ import annotations
 
@@ -7,6 +7,7 @@ import numpy as np
 import numpy.typing as npt
 
 from app.camera import Camera
+from app.render.programs import load_program
 
 FRUSTUM_COLOR = (1.0, 0.85, 0.1, 1.0)
 TRAJECTORY_COLOR = (0.1, 0.9, 1.0, 1.0)
@@ -29,7 +30,6 @@ class LineOverlay:
     """Draws line segments or a line strip with one colour, depth-tested against the scene."""
 
     def __init__(self, ctx: moderngl.Context) -> None:
-        from app.render.programs import load_program
 
         self.ctx = ctx
         self.program = load_program(ctx, "lines.vert", "lines.frag")

@@ -21,7 +21,7 @@ def _mat(m: np.ndarray) -> bytes:
 
 
 class DepthPass:
-    """Renders the scene's depth from the depth camera into a depth texture of a given size."""
+    """Renders the scene's depth from the projector into a depth texture of a given size."""
 
     def __init__(self, ctx: moderngl.Context, scene: GpuScene) -> None:
         self.ctx = ctx

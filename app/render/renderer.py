@@ -1,4 +1,4 @@
-"""FusionRenderer: the scene, a video frame and a depth camera, drawn into any framebuffer.
+"""FusionRenderer: the scene, a video frame and a projector (the video's camera), drawn into any framebuffer.
 
 The same object draws into the viewer's window, an EGL off-screen framebuffer in tests, and the
 CLI's still export. All GL calls happen on the thread that owns the context.
@@ -22,6 +22,7 @@ from app.render.overlays import (
     frustum_segments,
 )
 from app.render.passes import DepthPass, ScenePass
+from app.render.positions import PositionPass
 from app.render.video_texture import VideoTexture
 from app.scene.mesh import MeshData
 
@@ -65,7 +66,7 @@ class FusionRenderer:
         self.video.set_yuv(y, u, v, rotation_cw, bt709, full_range)
 
     def set_projector(self, camera: Camera | None) -> None:
-        """The depth camera (the video's camera) for the next draws."""
+        """The projector (the video's camera) for the next draws."""
         self.projector = camera
 
     def set_reference(self, camera: Camera | None) -> None:
@@ -94,7 +95,6 @@ class FusionRenderer:
         return self._truth_map
 
     def _position_pass(self):
-        from app.render.positions import PositionPass
 
         if self._positions is None:
             self._positions = PositionPass(self.ctx, self.scene)

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from app import rotations
 from app.camera import Camera, look_at_quat
 from app.config import OverlaySettings, ProjectionSettings
 from app.constants import DEFAULT_NEAR_M
@@ -29,7 +30,6 @@ class ThirdPerson:
     ahead_m: float = 35.0
 
     def eye_and_target(self, projector: Camera) -> tuple[np.ndarray, np.ndarray]:
-        from app import rotations
 
         forward = rotations.rotate(projector.orientation, [0.0, 0.0, -1.0])
         flat = np.array([forward[0], forward[1], 0.0])

@@ -4,9 +4,13 @@ moderngl the same way. Only app.ui uses this module."""
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 
+import glfw
+import moderngl
 import numpy as np
+import OpenGL.GL as gl
 
 from app.errors import GeofuseError
 from app.render.context import GL_REQUIRE
@@ -18,8 +22,6 @@ class Window:
     """A GLFW window and its moderngl context (`ctx`); the GL calls stay on this thread."""
 
     def __init__(self, size: tuple[int, int], visible: bool = True, title: str = "geofuse") -> None:
-        import glfw
-        import moderngl
 
         if not glfw.init():
             raise GeofuseError(
@@ -80,9 +82,29 @@ class Window:
         """callback(paths) when files are dropped on the window."""
         self._glfw.set_drop_callback(self.handle, lambda win, paths: callback(list(paths)))
 
+    def clear(self, rgb: tuple[float, float, float]) -> tuple[int, int]:
+        """Clear the whole framebuffer to rgb (0..1); returns its size (w, h) px."""
+        w, h = self.framebuffer_size()
+        self.ctx.screen.use()
+        self.ctx.viewport = (0, 0, max(w, 0), max(h, 0))
+        if w > 0 and h > 0:
+            self.ctx.clear(*rgb)
+        return w, h
+
+    @contextmanager
+    def region(self, rect: tuple[int, int, int, int]) -> Iterator[moderngl.Framebuffer]:
+        """The screen framebuffer drawing into rect (x, y from the top, w, h; framebuffer px)
+        only, for the `with` block; the whole framebuffer again after it."""
+        x, y, w, h = rect
+        fb_w, fb_h = self.framebuffer_size()
+        self.ctx.screen.viewport = (x, fb_h - y - h, w, h)  # GL counts rows from the bottom
+        try:
+            yield self.ctx.screen
+        finally:
+            self.ctx.screen.viewport = (0, 0, fb_w, fb_h)
+
     def read_back_buffer(self) -> np.ndarray:
         """The back buffer (what the next swap shows) as (H, W, 3) uint8 RGB, row 0 at the top."""
-        import OpenGL.GL as gl
 
         w, h = self.framebuffer_size()
         # moderngl's read of the default framebuffer selects GL_COLOR_ATTACHMENT0, which is invalid

@@ -10,6 +10,8 @@ import numpy as np
 import numpy.typing as npt
 
 from app.scene.mesh import MeshData
+from app.scene.tiles.gltf import Skipped
+from app.scene.tiles.stream import LOAD_ERRORS, decode_tile
 
 CHUNK = 200_000  # triangles per vectorised batch
 
@@ -18,8 +20,6 @@ def tileset_surface(tileset, xy: np.ndarray) -> list:
     """The primitives (ENU) of every tile at full detail whose box lies over any of the points
     (N, 2) ENU m: read and decoded here, on the CPU, once (a tileset's ground under a track).
     Tiles that cannot be read are left out."""
-    from app.scene.tiles.gltf import Skipped
-    from app.scene.tiles.stream import LOAD_ERRORS, decode_tile
 
     found, stack, skipped = [], [tileset.root], Skipped()
     while stack:

@@ -22,7 +22,14 @@ from pathlib import Path
 
 import numpy as np
 import numpy.typing as npt
+import pyproj
+import rasterio
 from numba import njit
+from rasterio.enums import Resampling
+from rasterio.windows import Window, from_bounds
+from rasterio.windows import transform as window_transform
+from scipy import ndimage
+from scipy.ndimage import map_coordinates
 
 from app import geoid
 from app.errors import SceneError
@@ -241,7 +248,6 @@ def _affine(t: object, col: npt.ArrayLike, row: npt.ArrayLike) -> tuple[np.ndarr
 
 def _vertical_datum(crs: object) -> str | None:
     """'egm96', 'egm2008' or 'ellipsoid' from a rasterio CRS with a vertical part; None if silent."""
-    import pyproj
 
     try:
         pcrs = pyproj.CRS.from_wkt(crs.to_wkt())
@@ -264,7 +270,6 @@ def _vertical_datum(crs: object) -> str | None:
 
 
 def _horizontal(crs: object):
-    import pyproj
 
     pcrs = pyproj.CRS.from_wkt(crs.to_wkt())
     return pcrs.sub_crs_list[0] if pcrs.is_compound else pcrs
@@ -272,8 +277,6 @@ def _horizontal(crs: object):
 
 def _window_around(src, track_ll: np.ndarray | None, margin_m: float):
     """The raster window (rasterio Window) covering the track's bounding box plus margin_m."""
-    import pyproj
-    from rasterio.windows import Window, from_bounds
 
     full = Window(0, 0, src.width, src.height)
     if track_ll is None or not len(track_ll):
@@ -305,7 +308,6 @@ def _window_around(src, track_ll: np.ndarray | None, margin_m: float):
 
 def _distance_to_raster(src, frame: LocalFrame, track_ll: np.ndarray) -> float:
     """Horizontal distance (m) from the track's nearest fix to the raster's extent (ENU box)."""
-    import pyproj
 
     b = src.bounds
     t = np.linspace(0.0, 1.0, 21)
@@ -355,10 +357,6 @@ def read_terrain(
     track_ll: (N, 2) latitude, longitude (deg) of the clip's track; None reads the whole DEM.
     vertical: the heights' datum when the caller knows it ('ellipsoid', 'egm2008', 'egm96');
     None: the file's, else EGM2008 (said in `notes`). Raises SceneError naming the file."""
-    import pyproj
-    import rasterio
-    from rasterio.enums import Resampling
-    from rasterio.windows import transform as window_transform
 
     path = Path(path)
     notes = Messages()
@@ -415,8 +413,6 @@ def read_terrain(
         raise SceneError(path, "every DEM sample in the clip's area is nodata")
     holes = int((~valid).sum())
     if holes:
-        from scipy import ndimage
-
         _, (ri, ci) = ndimage.distance_transform_edt(~valid, return_indices=True)
         heights = heights[ri, ci]
         notes.add(
@@ -438,7 +434,6 @@ def read_terrain(
     offset = (
         frame.geodetic_to_enu(la, lo, geoid.to_ellipsoidal(np.zeros_like(la), la, lo, datum))[:, 2]
     ).reshape(k, k)
-    from scipy.ndimage import map_coordinates
 
     rr, cc = np.mgrid[0:size, 0:size].astype(np.float32) * np.float32((k - 1) / (size - 1))
     enu_heights = heights + map_coordinates(offset, [rr, cc], order=1, mode="nearest")
@@ -473,10 +468,6 @@ def read_terrain(
 
 def _orthophoto(path: Path, lat: np.ndarray, lon: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(uvs (N, 2), texture (H, W, 4) uint8 bottom row first) of an orthophoto over the vertices."""
-    import pyproj
-    import rasterio
-    from rasterio.enums import Resampling
-    from rasterio.windows import from_bounds
 
     if not path.is_file():
         raise SceneError(path, "orthophoto file does not exist")
@@ -495,8 +486,6 @@ def _orthophoto(path: Path, lat: np.ndarray, lon: np.ndarray) -> tuple[np.ndarra
             float(x.min()), float(y.min()), float(x.max()), float(y.max()), src.transform
         )
         try:
-            from rasterio.windows import Window
-
             win = (
                 win.round_offsets()
                 .round_lengths()

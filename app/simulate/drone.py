@@ -18,6 +18,7 @@ import numpy as np
 
 from app import rotations
 from app.camera import Intrinsics
+from app.demo import SAMPLE_DIR
 from app.geo import LocalFrame
 from app.scene import load_scene
 from app.simulate.stadium import SITE_ORIGIN
@@ -53,7 +54,6 @@ def write_video(
     path: Path, duration_s: float = 24.0, size: tuple[int, int] = (320, 180), crf: int = 20
 ) -> Path:
     """The drone's video: the sample scene seen from the flight, at FPS, width x height pixels."""
-    from app.demo import SAMPLE_DIR
 
     t = np.arange(0.0, duration_s, 1.0 / FPS)
     pos, heading = flight(t)

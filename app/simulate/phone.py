@@ -12,6 +12,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+import av
 import numpy as np
 
 from app import rotations
@@ -98,7 +99,6 @@ def write_video(
     size: the stored (coded) width and height; frame(k) returns frame k as a player displays it
     (turned by rotation_cw); by default `bar_frame`. Frames are stored turned back by rotation_cw.
     """
-    import av
 
     w, h = size
     display = (h, w) if rotation_cw % 180 else (w, h)

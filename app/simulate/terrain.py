@@ -7,6 +7,9 @@ from pathlib import Path
 
 import numpy as np
 import numpy.typing as npt
+import rasterio
+from rasterio.crs import CRS
+from rasterio.transform import from_origin
 
 NODATA = -9999.0
 
@@ -24,9 +27,6 @@ def write_geotiff(
     """A north-up GeoTIFF: data (rows, cols) float heights or (bands, rows, cols) uint8 imagery,
     row 0 at the north; (west, north): the outer corner of pixel (0, 0) in `crs` units; steps in
     CRS units per pixel. NaN heights are written as nodata."""
-    import rasterio
-    from rasterio.crs import CRS
-    from rasterio.transform import from_origin
 
     arr = np.asarray(data)
     bands = arr[None] if arr.ndim == 2 else arr

@@ -14,8 +14,10 @@ import struct
 from dataclasses import dataclass
 from pathlib import Path
 
+import DracoPy
 import numpy as np
 import numpy.typing as npt
+from PIL import Image
 
 from app.geo import LocalFrame, geodetic_to_ecef
 from app.scene import shapes
@@ -59,8 +61,6 @@ def glb(
 
     prim: dict = {"attributes": {}, "material": 0}
     if draco:
-        import DracoPy
-
         blob = DracoPy.encode(
             p.astype(np.float32),
             f,
@@ -127,8 +127,6 @@ def glb(
         "scenes": [{"nodes": [0]}],
     }
     if texture_rgb is not None:
-        from PIL import Image
-
         png = io.BytesIO()
         Image.fromarray(np.asarray(texture_rgb, np.uint8)).save(png, "PNG")
         doc["images"] = [

@@ -12,6 +12,9 @@ import numpy as np
 from app.camera import Camera, Intrinsics
 from app.config import ProjectionSettings
 from app.constants import DEFAULT_FAR_M, VIEW_NEAR_M
+from app.render.context import create_offscreen_context
+from app.render.offscreen import OffscreenTarget
+from app.render.renderer import FusionRenderer
 from app.scene.mesh import MeshData
 from app.simulate.phone import write_video
 
@@ -36,9 +39,6 @@ def render_video(
         things in the scene before frame k is drawn; light_dir (ENU, toward the light) lights the scene
     otherwise than the viewer does; after_frame(rgb, k) -> rgb applies the camera's own effects
     (blur, noise) to the drawn frame."""
-    from app.render.context import create_offscreen_context
-    from app.render.offscreen import OffscreenTarget
-    from app.render.renderer import FusionRenderer
 
     ctx = create_offscreen_context()
     renderer = FusionRenderer(ctx, mesh)

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+import av
+import cv2
 import numpy as np
 
 from app import rotations
@@ -47,8 +49,6 @@ def video_rates(
 ) -> RateCurve:
     """The camera's rotation rate between consecutive frames (see the module docstring).
     bearings: display pixels (N, 2) -> unit vectors (N, 3) in OpenCV's camera frame."""
-    import av
-    import cv2
 
     w, h = video.width, video.height
     scale = FLOW_WIDTH_PX / w

@@ -18,7 +18,11 @@ import threading
 from fractions import Fraction
 from pathlib import Path
 
+import av
 import numpy as np
+
+from app.errors import GeofuseError
+from app.sync import bearings_of, estimate_offset, gyro_rates, rate_source, video_rates
 
 _PERCENT = re.compile(rb"(\d+(?:\.\d)?)%")
 RECORD_QUEUE = 8  # frames waiting for the encoder
@@ -98,7 +102,6 @@ class Recorder:
     """Encodes window frames (H, W, 3) uint8 RGB at their clock times into an MP4 (H.264)."""
 
     def __init__(self, out: Path, size: tuple[int, int]) -> None:
-        import av
 
         self.out, self.size = Path(out), size
         self.frames = 0
@@ -132,7 +135,6 @@ class Recorder:
         self._thread.join()
 
     def _run(self) -> None:
-        import av
 
         last_pts = -1
         try:
@@ -181,8 +183,6 @@ class SyncJob:
         return self.done
 
     def _run(self) -> None:
-        from app.errors import GeofuseError
-        from app.sync import bearings_of, estimate_offset, gyro_rates, video_rates
 
         s = self.session
         try:
@@ -210,8 +210,6 @@ class SyncJob:
             omega = np.nan_to_num(c.omega)
             rates = [np.interp(tt, c.t, omega[:, j]) for j in range(omega.shape[1])]
             return np.linalg.norm(np.column_stack(rates), axis=1)
-
-        from app.sync import rate_source
 
         name = rate_source(self.session) or "reference"
         return {

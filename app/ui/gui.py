@@ -11,6 +11,9 @@ from __future__ import annotations
 import logging
 from pathlib import Path
 
+from imgui_bundle import imgui, implot
+from imgui_bundle.python_backends.glfw_backend import GlfwRenderer
+
 log = logging.getLogger("geofuse.viewer")
 
 LEFT_FRACTION = 0.26  # of the window's width: the left panel column
@@ -24,8 +27,6 @@ class Gui:
     """ImGui and ImPlot on a window: docking on, the layout remembered in `ini_path`."""
 
     def __init__(self, window, ini_path: Path) -> None:
-        from imgui_bundle import imgui, implot
-        from imgui_bundle.python_backends.glfw_backend import GlfwRenderer
 
         imgui.create_context()
         implot.create_context()
@@ -42,25 +43,21 @@ class Gui:
         self._layout_checked = False
 
     def begin_frame(self) -> None:
-        from imgui_bundle import imgui
 
         self.renderer.process_inputs()
         imgui.new_frame()
 
     def wants_mouse(self) -> bool:
-        from imgui_bundle import imgui
 
         return bool(imgui.get_io().want_capture_mouse)
 
     def wants_keyboard(self) -> bool:
-        from imgui_bundle import imgui
 
         return bool(imgui.get_io().want_capture_keyboard)
 
     def layout(self, viewer) -> tuple[int, int, int, int]:
         """Lay the dock space over the window (building the default layout when none was saved);
         returns the 3D view's rectangle (x, y from the top, w, h) in framebuffer pixels."""
-        from imgui_bundle import imgui
 
         internal = imgui.internal
         viewport = imgui.get_main_viewport()
@@ -88,7 +85,6 @@ class Gui:
         )
 
     def _build_default_layout(self, viewport) -> None:
-        from imgui_bundle import imgui
 
         internal = imgui.internal
         internal.dock_builder_remove_node(self.dock_id)
@@ -112,13 +108,11 @@ class Gui:
         internal.dock_builder_finish(self.dock_id)
 
     def render(self) -> None:
-        from imgui_bundle import imgui
 
         imgui.render()
         self.renderer.render(imgui.get_draw_data())
 
     def shutdown(self) -> None:
-        from imgui_bundle import imgui
 
         ini = imgui.get_io().get_ini_filename()
         if ini:

@@ -6,6 +6,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import glfw
+from imgui_bundle import portable_file_dialogs as pfd
+
+from app.errors import GeofuseError
 from app.ui.gui import Gui
 
 OPEN_FILTERS = ["Sessions and clips", "*.toml *.TOML *.mp4 *.MP4 *.mov *.MOV", "All files", "*"]
@@ -19,9 +23,6 @@ KEY_COMMANDS = {  # key name in glfw -> (command, argument)
 
 def handle_input(v, gui: Gui, dt: float, now: float) -> None:
     """Keys run commands (edge-triggered), WASD/QE and the right mouse button navigate."""
-    import glfw
-
-    from app.errors import GeofuseError
 
     w, ui = v.window, v.ui
     if not gui.wants_keyboard():
@@ -56,7 +57,6 @@ def handle_input(v, gui: Gui, dt: float, now: float) -> None:
 def open_dialog(v) -> None:
     """The system's file dialog (portable-file-dialogs: zenity or kdialog on Linux), polled each
     frame; where no dialog program exists the Session panel's path field still works."""
-    from imgui_bundle import portable_file_dialogs as pfd
 
     if v.ui.file_dialog is None:
         try:

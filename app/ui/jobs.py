@@ -73,7 +73,7 @@ class ViewerJobs:
             self.set_time_offset(
                 r.offset_s, r.drift_ppm, r.reference_s
             )  # the drift too, as "auto" does
-            self.ui.notices.append(
+            self.ui.info.append(
                 f"time offset {1000 * job.result.offset_s:+.1f} ms from the video against {timed_by(job.session)} (confidence {job.result.confidence:.2f})"
             )
 
@@ -88,7 +88,7 @@ class ViewerJobs:
         rec, self.ui.recorder = self.ui.recorder, None
         if rec is not None:
             rec.stop()
-            self.ui.notices.append(
+            self.ui.info.append(
                 rec.error
                 or f"recorded {rec.out}: {rec.frames} frames"
                 + (f", {rec.dropped} dropped" if rec.dropped else "")

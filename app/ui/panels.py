@@ -10,10 +10,13 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+from imgui_bundle import imgui, implot
 
+from app.errors import GeofuseError
 from app.playback.clock import SPEEDS
 from app.register.solve import keyframe_plot
 from app.session.model import COURSE, REGISTERED
+from app.sync import rate_source
 from app.ui.gui import Gui
 from app.ui.inputs import open_dialog, poll_dialog
 
@@ -49,7 +52,6 @@ EXPORTS = (
 
 
 def _vec4(c):
-    from imgui_bundle import imgui
 
     return imgui.ImVec4(*c)
 
@@ -75,14 +77,12 @@ def draw(v, gui: Gui, now: float) -> None:
 
 
 def _window(title: str) -> bool:
-    from imgui_bundle import imgui
 
     expanded, _ = imgui.begin(title)
     return expanded
 
 
 def _run(v, name: str, arg: str | None, now: float = 0.0) -> None:
-    from app.errors import GeofuseError
 
     try:
         v.apply(name, arg, now)
@@ -91,7 +91,6 @@ def _run(v, name: str, arg: str | None, now: float = 0.0) -> None:
 
 
 def _session(v) -> None:
-    from imgui_bundle import imgui
 
     ui = v.ui
     if ui.show_session_tab > 0:
@@ -140,7 +139,7 @@ def _session(v) -> None:
             imgui.text_colored(_vec4(AMBER), "warning:")
             imgui.same_line()
             imgui.text_wrapped(warning)
-        for note in ui.notices[-4:]:
+        for note in ui.info[-4:]:
             imgui.text_disabled("note:")
             imgui.same_line()
             imgui.text_wrapped(note)
@@ -158,7 +157,6 @@ def _session(v) -> None:
 
 
 def _playback(v, now: float) -> None:
-    from imgui_bundle import imgui
 
     if _window("Timeline"):
         clock = v.loaded.clock
@@ -189,7 +187,6 @@ def _playback(v, now: float) -> None:
 
 
 def _attitude(v) -> None:
-    from imgui_bundle import imgui
 
     L = v.loaded
     if _window("Attitude"):
@@ -231,9 +228,6 @@ def _attitude(v) -> None:
 
 
 def _projection(v) -> None:
-    from imgui_bundle import imgui
-
-    from app.sync import rate_source
 
     ui = v.ui
     if _window("Projection"):
@@ -306,7 +300,6 @@ def _projection(v) -> None:
 
 def _control_points(v) -> None:
     """Control points by hand: how to pick, the pairs with their residuals, Solve and Clear."""
-    from imgui_bundle import imgui
 
     picks = v.ui.control
     if not imgui.collapsing_header(f"Control points ({len(picks.pairs)})"):
@@ -340,7 +333,6 @@ def _control_points(v) -> None:
 
 def _sync_curves(job) -> None:
     """The sync's progress, then the two rate curves before and after the offset."""
-    from imgui_bundle import imgui, implot
 
     if job is None:
         return
@@ -360,7 +352,6 @@ def _sync_curves(job) -> None:
 
 
 def _error_inspection(v) -> None:
-    from imgui_bundle import imgui, implot
 
     L = v.loaded
     lib = L.library
@@ -403,7 +394,6 @@ def _error_inspection(v) -> None:
 def _keyframes(v, lib) -> None:
     """The registered source's keyframes over time: inliers of those used and of those not, the
     reprojection error, and why the nearest keyframe to this frame was not used."""
-    from imgui_bundle import imgui, implot
 
     track = lib.track(REGISTERED)
     if track is None or track.registration is None:
@@ -430,7 +420,6 @@ def _keyframes(v, lib) -> None:
 
 
 def _stats(v) -> None:
-    from imgui_bundle import imgui
 
     if _window("Stats"):
         ft = np.asarray(v.stats.frame_times[-120:] or [0.0]) * 1000.0
@@ -461,7 +450,6 @@ def _stats(v) -> None:
 
 
 def _export(v, now: float) -> None:
-    from imgui_bundle import imgui
 
     ui = v.ui
     if _window("Export"):
@@ -503,7 +491,6 @@ def _export(v, now: float) -> None:
 
 
 def _help(v) -> None:
-    from imgui_bundle import imgui
 
     imgui.set_next_window_pos(imgui.ImVec2(360, 120), imgui.Cond_.first_use_ever)
     if _window("Help"):

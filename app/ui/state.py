@@ -27,7 +27,7 @@ class UiState:
     show_panels: bool = True
     open_path: str = ""  # the Session panel's text field
     errors: list[str] = field(default_factory=list)
-    notices: list[str] = field(default_factory=list)  # information: what was merely reported
+    info: list[str] = field(default_factory=list)  # information: what was merely reported
     warnings: list[str] = field(default_factory=list)  # what lowers the result (app.messages)
     keys_down: dict[int, bool] = field(
         default_factory=dict
@@ -48,7 +48,7 @@ class UiState:
     sync_applied: bool = False
     lens_path: str = ""  # the Session panel's lens profile field (clips)
     max_sse_px: float = 16.0  # 3D Tiles: refine tiles whose screen-space error exceeds this
-    tile_errors_said: int = 0  # tile load errors already shown as notices
+    tile_errors_said: int = 0  # tile load errors already shown as information
     show_session_tab: int = (
         2  # frames until the Session tab is brought to the front (once, at start)
     )

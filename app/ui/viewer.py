@@ -12,22 +12,23 @@ due. A bad file never crashes it: the error panel says what is wrong and the vie
 
 from __future__ import annotations
 
+import json
 import logging
 import os
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 
+from app import rotations
 from app.camera import Camera, Intrinsics
 from app.errors import GeofuseError
-from app.messages import ERROR, WARNING
-from app.playback.clock import SPEEDS, PlaybackClock
-from app.playback.library import SolverLibrary
-from app.playback.player import Player
+from app.imageio import write_rgb
+from app.playback.clock import SPEEDS
+from app.render.renderer import BACKGROUND
 from app.render.window import Window
 from app.session.model import REGISTERED
 from app.ui import panels
@@ -37,17 +38,16 @@ from app.ui.inputs import handle_input
 from app.ui.jobs import ViewerJobs
 from app.ui.navigation import Navigator
 from app.ui.script import Action, parse_script
+from app.ui.sessions import Loaded, Stats, ViewerSessions
 from app.ui.state import UiState
 
 if TYPE_CHECKING:
-    from app.render.renderer import FusionRenderer
-    from app.session.model import Session
+    pass
 
 log = logging.getLogger("geofuse.viewer")
 TRAJECTORY_STEP = 5  # frames between trajectory polyline vertices
 VIEW_HFOV_DEG = 60.0  # the window camera's horizontal field of view
 FIXED_CLOCK_WAIT_S = 30.0  # on a fixed-step clock, wait this long at most for a decoded frame
-SOLVE_WAIT_S = 600.0  # `wait solved` gives up after this long (real seconds)
 FRAME_HISTORY = 600  # frame times kept for the Stats panel
 
 
@@ -62,29 +62,6 @@ class Options:
     srt: Path | None = None
     lens: Path | None = None  # a lens profile for a clip opened from the command line
     layers: tuple = ()  # app.scene.layers.Layer: the scene of a clip opened from the command line
-
-
-@dataclass
-class Loaded:
-    """One open session and everything made for it."""
-
-    session: Session
-    renderer: FusionRenderer
-    player: Player
-    library: SolverLibrary
-    source: str
-    trajectory_version: tuple[int, str] | None = None  # (library version, source) drawn
-
-    @property
-    def clock(self) -> PlaybackClock:
-        return self.player.clock
-
-
-@dataclass
-class Stats:
-    frames: int = 0  # frames drawn since the session opened
-    frame_times: list[float] = field(default_factory=list)  # the last FRAME_HISTORY, seconds
-    depth_redraws: int = 0
 
 
 class FixedStepClock:
@@ -102,52 +79,13 @@ class FixedStepClock:
         self.t += self.step
 
 
-def home_view(session, mesh) -> Navigator:
-    """Where the window camera starts: for a model of a site, south of it looking across it; on an
-    assumed ground, a tileset or terrain larger than a site, behind and above the camera's track
-    so that its frustum and footprint show."""
-    if (
-        session.scene_path is None
-        or mesh.tilesets
-        or float(np.ptp(mesh.bounds()[:, :2], axis=0).max()) > 2000.0
-    ):
-        g = session.gnss
-        enu = session.frame.geodetic_to_enu(g.lat, g.lon, g.h)
-        centre = (enu.min(axis=0) + enu.max(axis=0)) / 2
-        size = float(max(np.ptp(enu[:, 0]), np.ptp(enu[:, 1]), 10.0))
-        eye = centre + np.array([-0.4 * size - 12.0, -0.8 * size - 25.0, 0.5 * size + 18.0])
-        d = centre - eye
-        return Navigator(
-            position=eye,
-            yaw=float(np.degrees(np.arctan2(d[0], d[1]))),
-            pitch=float(np.degrees(np.arctan2(d[2], np.hypot(d[0], d[1])))),
-        )
-    lo, hi = mesh.bounds()
-    centre = (lo + hi) / 2
-    return Navigator(
-        position=np.array([centre[0] + 35.0, lo[1] - 20.0, 40.0]), yaw=-15.0, pitch=-15.0
-    )
-
-
-def _is_layer(path: Path) -> bool:
-    """A tileset, a DEM or a model: added to the open clip's scene rather than opened."""
-    from app.scene.layers import layer_kind
-
-    try:
-        return layer_kind(path) in ("tileset", "dem") or (
-            layer_kind(path) == "mesh" and path.suffix.lower() != ".toml"
-        )
-    except GeofuseError:
-        return False
-
-
 def config_dir() -> Path:
     """Where the viewer remembers its panel layout: $XDG_CONFIG_HOME/geofuse (~/.config/geofuse)."""
     base = os.environ.get("XDG_CONFIG_HOME") or str(Path.home() / ".config")
     return Path(base) / "geofuse"
 
 
-class Viewer(ViewerJobs):
+class Viewer(ViewerJobs, ViewerSessions):
     def __init__(self, options: Options, clock: Callable[[], float] = time.perf_counter) -> None:
         self.options = options
         self.clock = clock
@@ -176,128 +114,11 @@ class Viewer(ViewerJobs):
     def fixed_clock(self) -> bool:
         return isinstance(self.clock, FixedStepClock)
 
-    def use_lens(self, profile: Path | None) -> None:
-        """Reopen the clip through another lens profile (None: the one chosen from the file)."""
-        s = self.loaded.session
-        if s.path.suffix.lower() == ".toml":
-            raise ValueError("a manifest names its lens as camera.lens; edit it and reopen")
-        previous = self.options.lens
-        self.options.lens = profile
-        self.options.manifest = s.path
-        if not self.open(s.path):
-            self.options.lens = previous
-
-    def add_layer(self, location: str) -> None:
-        """Reopen the clip with one more scene layer (a tileset, a DEM, a model in ECEF), as a
-        dropped or opened tileset.json or .tif does."""
-        from app.scene.layers import Layer
-
-        s = self.loaded.session if self.loaded is not None else None
-        if s is None or s.path.suffix.lower() == ".toml":
-            raise ValueError(
-                f"{location}: a manifest names its scene ([scene], [[layers]], [dem]); edit it and reopen, or open a clip first"
-            )
-        previous = self.options.layers
-        self.options.layers = (*previous, Layer.of(location))
-        self.options.manifest = s.path
-        if not self.open(s.path):
-            self.options.layers = previous
-
     def set_tile_detail(self, max_sse_px: float) -> None:
         """3D Tiles refine where their screen-space error exceeds max_sse_px (1..256 px)."""
         if not 1.0 <= max_sse_px <= 256.0:
             raise ValueError(f"expected 1..256 pixels, got {max_sse_px:g}")
         self.ui.max_sse_px = float(max_sse_px)
-
-    def wait_until_tiles_loaded(self) -> None:
-        """Load the tiles the current view and the projector need (scripts, screenshots)."""
-        L = self.loaded
-        if L is None or not L.renderer.scene.tilesets or self.window_camera is None:
-            return
-        for layer in L.renderer.scene.tilesets:
-            layer.max_sse_px = self.ui.max_sse_px
-        if not L.renderer.settle(self.window_camera, self.ui.settings, SOLVE_WAIT_S):
-            raise GeofuseError(f"the 3D Tiles did not load within {SOLVE_WAIT_S:g} s")
-
-    def _tile_notices(self) -> None:
-        """Tile load failures and skipped content, said once each as notices."""
-        errors = [e for layer in self.loaded.renderer.scene.tilesets for e in layer.stream.errors]
-        for e in errors[self.ui.tile_errors_said :]:
-            self.ui.notices.append(f"3D Tiles: {e}")
-        self.ui.tile_errors_said = len(errors)
-        for layer in self.loaded.renderer.scene.tilesets:
-            for kind in layer.stream.skipped.snapshot():
-                note = f"3D Tiles: skipped {kind} (the Stats panel counts them)"
-                if note not in self.ui.notices:
-                    self.ui.notices.append(note)
-
-    def wait_until_solved(self, registered: bool = False) -> None:
-        """Hold everything until every source is solved: all but `registered` (a script's `wait
-        solved`: registration takes about as long as the clip), or it too (`wait registered`)."""
-        but = () if registered else (REGISTERED,)
-        if self.loaded is not None and not self.loaded.library.wait(SOLVE_WAIT_S, but):
-            raise GeofuseError(f"the pose sources were not solved within {SOLVE_WAIT_S:g} s")
-
-    # --- sessions -------------------------------------------------------------------------------
-
-    def open(self, manifest: Path | None) -> bool:
-        """Open a session or clip (the bundled sample when None); on failure keep the current one."""
-        from app.clips import open_any
-        from app.demo import SAMPLE_DIR
-        from app.render.renderer import FusionRenderer
-
-        path = Path(manifest) if manifest is not None else SAMPLE_DIR / "session.toml"
-        if manifest is not None and _is_layer(path):
-            try:
-                self.add_layer(str(path))
-            except (ValueError, GeofuseError) as exc:
-                self.ui.error(str(exc))
-                return False
-            return True
-        try:
-            own = path == self.options.manifest
-            session = open_any(
-                path,
-                self.options.srt if own else None,
-                lens=self.options.lens if own else None,
-                layers=self.options.layers if own else (),
-            )
-            mesh = session.scene()
-        except GeofuseError as exc:
-            self.ui.error(str(exc))
-            log.error("%s", exc)
-            return False
-        except Exception as exc:  # an unexpected reader failure is still only an error panel entry
-            self.ui.error(f"{path}: {type(exc).__name__}: {exc}")
-            log.exception("opening %s", path)
-            return False
-        self.close_session()
-        first = session.sources[0]
-        self.loaded = Loaded(
-            session,
-            FusionRenderer(self.window.ctx, mesh),
-            Player(session.video),
-            SolverLibrary(session, first=first),
-            first,
-        )
-        self.ui.notices, self.ui.warnings, self._messages_seen = [], [], 0
-        self._show_messages()
-        self.ui.time_offset_s = 0.0
-        if session.course_pitch_deg is not None:
-            self.ui.course_pitch_deg = session.course_pitch_deg
-        self.stats = Stats()
-        self.nav = home_view(session, mesh)
-        log.info(
-            "opened %s: %d frames, sources %s", path, len(session.video.pts_s), session.sources
-        )
-        return True
-
-    def close_session(self) -> None:
-        if self.loaded is not None:
-            self.loaded.player.close()
-            self.loaded.library.close()
-            self.loaded.renderer.release()
-            self.loaded = None
 
     # --- actions (app.ui.commands calls these) -------------------------------------------------
 
@@ -357,7 +178,6 @@ class Viewer(ViewerJobs):
     def orbit_pick(self) -> None:
         """Orbit around the model point under the mouse cursor, or a point 50 m ahead when the
         cursor sees no model."""
-        from app import rotations
 
         cam = self.window_camera
         if self.loaded is None or cam is None or self.view_rect is None:
@@ -373,20 +193,6 @@ class Viewer(ViewerJobs):
         self.nav.orbit_around(p)
 
     # --- one frame ------------------------------------------------------------------------------
-
-    def _show_messages(self) -> None:
-        """The session's messages not shown yet, by level: information among the notices,
-        warnings apart (the Session panel shows them first), errors as errors. What the solver
-        thread finds arrives here too."""
-        new = self.loaded.session.messages.since(self._messages_seen)
-        self._messages_seen += len(new)
-        for m in new:
-            if m.level == ERROR:
-                self.ui.error(m.text)
-            elif m.level == WARNING:
-                self.ui.warnings.append(m.text)
-            else:
-                self.ui.notices.append(m.text)
 
     def _update(self, now: float) -> None:
         L = self.loaded
@@ -416,35 +222,25 @@ class Viewer(ViewerJobs):
             L.trajectory_version = (lib.version, L.source)
 
     def _draw(self) -> None:
-        from app.render.renderer import BACKGROUND
-
-        ctx = self.window.ctx
-        fb_w, fb_h = self.window.framebuffer_size()
-        if fb_w <= 0 or fb_h <= 0:
+        fb_w, fb_h = self.window.clear(BACKGROUND)
+        if self.loaded is None or fb_w <= 0 or fb_h <= 0:
             return
-        ctx.screen.use()
-        ctx.viewport = (0, 0, fb_w, fb_h)
-        ctx.clear(*BACKGROUND)
-        if self.loaded is None:
-            return
-        x, y, w, h = self.view_rect or (0, 0, fb_w, fb_h)
-        ctx.screen.viewport = (x, fb_h - y - h, w, h)  # GL counts rows from the bottom
+        rect = self.view_rect or (0, 0, fb_w, fb_h)
         L = self.loaded
         self.window_camera = self.nav.camera(
-            Intrinsics.from_fov(w, h, VIEW_HFOV_DEG), L.renderer.projector
+            Intrinsics.from_fov(rect[2], rect[3], VIEW_HFOV_DEG), L.renderer.projector
         )
         for layer in L.renderer.scene.tilesets:
             layer.max_sse_px = self.ui.max_sse_px
         before = L.renderer.depth.renders
-        L.renderer.draw(self.window_camera, ctx.screen, self.ui.settings, self.ui.overlays)
+        with self.window.region(rect) as screen:
+            L.renderer.draw(self.window_camera, screen, self.ui.settings, self.ui.overlays)
         self.stats.depth_redraws += L.renderer.depth.renders - before
         if L.renderer.scene.tilesets:
-            self._tile_notices()
-        ctx.screen.viewport = (0, 0, fb_w, fb_h)
+            self._tile_messages()
 
     def screenshot(self, path: Path) -> Path:
         """The window's current back buffer (scene and panels) as PNG."""
-        from app.imageio import write_rgb
 
         out = write_rgb(path, self.window.read_back_buffer())
         log.info("screenshot %s", out)
@@ -452,13 +248,12 @@ class Viewer(ViewerJobs):
 
     def write_state(self, path: Path, now: float) -> None:
         """The state a test needs to reproduce this frame off-screen, as JSON."""
-        import json
 
         ui = self.ui
         fb = self.window.framebuffer_size()
         state: dict = {
             "errors": ui.errors,
-            "notices": ui.notices,
+            "info": ui.info,
             "warnings": ui.warnings,
             "frames_drawn": self.stats.frames,
             "window": list(fb),

@@ -23,7 +23,9 @@ from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
+import DracoPy
 import numpy as np
+from PIL import Image
 
 GLB_MAGIC = b"glTF"
 CHUNK_JSON = 0x4E4F534A
@@ -193,7 +195,6 @@ class _Document:
         """The base colour texture as uint8 RGBA, bottom row first; None when it cannot be decoded."""
         if texture_index in self._images:
             return self._images[texture_index]
-        from PIL import Image
 
         tex = self.doc["textures"][texture_index]
         ext = tex.get("extensions", {})
@@ -226,7 +227,6 @@ class _Document:
 
 
 def _draco(doc: _Document, ext: dict) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
-    import DracoPy
 
     mesh = DracoPy.decode(doc.view_bytes(ext["bufferView"]))
     attributes = {}

@@ -1,0 +1,218 @@
+"""The viewer's sessions: opening a manifest or clip (or adding a scene layer to the open clip),
+closing it, reopening it through another lens, the tiles and sources it waits for, and its
+messages shown as they come. A mixin of app.ui.viewer.Viewer (uses its ui, options, window,
+stats and nav); the commands (app.ui.commands) call these methods on the viewer."""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from app.clips import open_any
+from app.demo import SAMPLE_DIR
+from app.errors import GeofuseError
+from app.messages import ERROR, WARNING
+from app.playback.clock import PlaybackClock
+from app.playback.library import SolverLibrary
+from app.playback.player import Player
+from app.render.renderer import FusionRenderer
+from app.scene.layers import Layer, layer_kind
+from app.scene.mesh import MeshData
+from app.session.model import REGISTERED, Session
+from app.ui.navigation import Navigator
+
+log = logging.getLogger("geofuse.viewer")
+SOLVE_WAIT_S = 600.0  # `wait solved` gives up after this long (real seconds)
+
+
+@dataclass
+class Stats:
+    frames: int = 0  # frames drawn since the session opened
+    frame_times: list[float] = field(default_factory=list)  # the last FRAME_HISTORY, seconds
+    depth_redraws: int = 0
+
+
+@dataclass
+class Loaded:
+    """One open session and everything made for it."""
+
+    session: Session
+    renderer: FusionRenderer
+    player: Player
+    library: SolverLibrary
+    source: str
+    trajectory_version: tuple[int, str] | None = None  # (library version, source) drawn
+
+    @property
+    def clock(self) -> PlaybackClock:
+        return self.player.clock
+
+
+def home_view(session: Session, mesh: MeshData) -> Navigator:
+    """Where the window camera starts: for a model of a site, south of it looking across it; on an
+    assumed ground, a tileset or terrain larger than a site, behind and above the camera's track
+    so that its frustum and footprint show."""
+    if (
+        session.scene_path is None
+        or mesh.tilesets
+        or float(np.ptp(mesh.bounds()[:, :2], axis=0).max()) > 2000.0
+    ):
+        g = session.gnss
+        enu = session.frame.geodetic_to_enu(g.lat, g.lon, g.h)
+        centre = (enu.min(axis=0) + enu.max(axis=0)) / 2
+        size = float(max(np.ptp(enu[:, 0]), np.ptp(enu[:, 1]), 10.0))
+        eye = centre + np.array([-0.4 * size - 12.0, -0.8 * size - 25.0, 0.5 * size + 18.0])
+        d = centre - eye
+        return Navigator(
+            position=eye,
+            yaw=float(np.degrees(np.arctan2(d[0], d[1]))),
+            pitch=float(np.degrees(np.arctan2(d[2], np.hypot(d[0], d[1])))),
+        )
+    lo, hi = mesh.bounds()
+    centre = (lo + hi) / 2
+    return Navigator(
+        position=np.array([centre[0] + 35.0, lo[1] - 20.0, 40.0]), yaw=-15.0, pitch=-15.0
+    )
+
+
+def _is_layer(path: Path) -> bool:
+    """A tileset, a DEM or a model: added to the open clip's scene rather than opened."""
+
+    try:
+        return layer_kind(path) in ("tileset", "dem") or (
+            layer_kind(path) == "mesh" and path.suffix.lower() != ".toml"
+        )
+    except GeofuseError:
+        return False
+
+
+class ViewerSessions:
+    """Sessions for a Viewer."""
+
+    def use_lens(self, profile: Path | None) -> None:
+        """Reopen the clip through another lens profile (None: the one chosen from the file)."""
+        s = self.loaded.session
+        if s.path.suffix.lower() == ".toml":
+            raise ValueError("a manifest names its lens as camera.lens; edit it and reopen")
+        previous = self.options.lens
+        self.options.lens = profile
+        self.options.manifest = s.path
+        if not self.open(s.path):
+            self.options.lens = previous
+
+    def add_layer(self, location: str) -> None:
+        """Reopen the clip with one more scene layer (a tileset, a DEM, a model in ECEF), as a
+        dropped or opened tileset.json or .tif does."""
+
+        s = self.loaded.session if self.loaded is not None else None
+        if s is None or s.path.suffix.lower() == ".toml":
+            raise ValueError(
+                f"{location}: a manifest names its scene ([scene], [[layers]], [dem]); edit it and reopen, or open a clip first"
+            )
+        previous = self.options.layers
+        self.options.layers = (*previous, Layer.of(location))
+        self.options.manifest = s.path
+        if not self.open(s.path):
+            self.options.layers = previous
+
+    def wait_until_tiles_loaded(self) -> None:
+        """Load the tiles the current view and the projector need (scripts, screenshots)."""
+        L = self.loaded
+        if L is None or not L.renderer.scene.tilesets or self.window_camera is None:
+            return
+        for layer in L.renderer.scene.tilesets:
+            layer.max_sse_px = self.ui.max_sse_px
+        if not L.renderer.settle(self.window_camera, self.ui.settings, SOLVE_WAIT_S):
+            raise GeofuseError(f"the 3D Tiles did not load within {SOLVE_WAIT_S:g} s")
+
+    def _tile_messages(self) -> None:
+        """Tile load failures and skipped content, said once each as information."""
+        errors = [e for layer in self.loaded.renderer.scene.tilesets for e in layer.stream.errors]
+        for e in errors[self.ui.tile_errors_said :]:
+            self.ui.info.append(f"3D Tiles: {e}")
+        self.ui.tile_errors_said = len(errors)
+        for layer in self.loaded.renderer.scene.tilesets:
+            for kind in layer.stream.skipped.snapshot():
+                note = f"3D Tiles: skipped {kind} (the Stats panel counts them)"
+                if note not in self.ui.info:
+                    self.ui.info.append(note)
+
+    def wait_until_solved(self, registered: bool = False) -> None:
+        """Hold everything until every source is solved: all but `registered` (a script's `wait
+        solved`: registration takes about as long as the clip), or it too (`wait registered`)."""
+        but = () if registered else (REGISTERED,)
+        if self.loaded is not None and not self.loaded.library.wait(SOLVE_WAIT_S, but):
+            raise GeofuseError(f"the pose sources were not solved within {SOLVE_WAIT_S:g} s")
+
+    def open(self, manifest: Path | None) -> bool:
+        """Open a session or clip (the bundled sample when None); on failure keep the current one."""
+
+        path = Path(manifest) if manifest is not None else SAMPLE_DIR / "session.toml"
+        if manifest is not None and _is_layer(path):
+            try:
+                self.add_layer(str(path))
+            except (ValueError, GeofuseError) as exc:
+                self.ui.error(str(exc))
+                return False
+            return True
+        try:
+            own = path == self.options.manifest
+            session = open_any(
+                path,
+                self.options.srt if own else None,
+                lens=self.options.lens if own else None,
+                layers=self.options.layers if own else (),
+            )
+            mesh = session.scene()
+        except GeofuseError as exc:
+            self.ui.error(str(exc))
+            log.error("%s", exc)
+            return False
+        except Exception as exc:  # an unexpected reader failure is still only an error panel entry
+            self.ui.error(f"{path}: {type(exc).__name__}: {exc}")
+            log.exception("opening %s", path)
+            return False
+        self.close_session()
+        first = session.sources[0]
+        self.loaded = Loaded(
+            session,
+            FusionRenderer(self.window.ctx, mesh),
+            Player(session.video),
+            SolverLibrary(session, first=first),
+            first,
+        )
+        self.ui.info, self.ui.warnings, self._messages_seen = [], [], 0
+        self._show_messages()
+        self.ui.time_offset_s = 0.0
+        if session.course_pitch_deg is not None:
+            self.ui.course_pitch_deg = session.course_pitch_deg
+        self.stats = Stats()
+        self.nav = home_view(session, mesh)
+        log.info(
+            "opened %s: %d frames, sources %s", path, len(session.video.pts_s), session.sources
+        )
+        return True
+
+    def close_session(self) -> None:
+        if self.loaded is not None:
+            self.loaded.player.close()
+            self.loaded.library.close()
+            self.loaded.renderer.release()
+            self.loaded = None
+
+    def _show_messages(self) -> None:
+        """The session's messages not shown yet, by level: information among the notes,
+        warnings apart (the Session panel shows them first), errors as errors. What the solver
+        thread finds arrives here too."""
+        new = self.loaded.session.messages.since(self._messages_seen)
+        self._messages_seen += len(new)
+        for m in new:
+            if m.level == ERROR:
+                self.ui.error(m.text)
+            elif m.level == WARNING:
+                self.ui.warnings.append(m.text)
+            else:
+                self.ui.info.append(m.text)

@@ -1,5 +1,5 @@
 #version 400 core
-// Depth pass: the scene seen from the depth camera; only depth is written.
+// Depth pass: the scene seen from the projector; only depth is written.
 uniform mat4 u_view_proj;
 in vec3 in_position;
 

@@ -10,8 +10,8 @@ uniform vec3 u_eye;            // window camera position, ENU metres
 uniform vec3 u_light_dir;      // unit vector toward the light, ENU
 
 uniform bool u_projection_on;
-uniform mat4 u_proj_view_proj; // depth camera clip-from-world
-uniform vec3 u_proj_position;  // depth camera position, ENU metres
+uniform mat4 u_proj_view_proj; // projector clip-from-world
+uniform vec3 u_proj_position;  // projector position, ENU metres
 uniform float u_proj_near;
 uniform float u_proj_far;
 uniform float u_proj_focal_texels; // depth-map focal length, texels
@@ -23,7 +23,7 @@ uniform bool u_neighbourhood;  // the paper's nine-case rule
 
 // The video camera's lens (lens.glsl): with one, u_proj_view_proj is the pinhole enclosing its
 // image (the depth map's), and the video texel comes from the lens model.
-uniform mat4 u_proj_view;      // depth camera camera-from-world (OpenGL camera frame)
+uniform mat4 u_proj_view;      // projector camera-from-world (OpenGL camera frame)
 uniform int u_lens_kind;       // LENS_PINHOLE, LENS_FISHEYE or LENS_BROWN
 uniform vec4 u_lens_k;         // fisheye k1..k4; Brown k1, k2 (z, w unused)
 uniform vec2 u_lens_p;         // Brown p1, p2

@@ -1,4 +1,4 @@
-// Projective texture mapping from a "depth camera" (the video's camera), shared by the scene
+// Projective texture mapping from the projector (the video's camera; the paper's "depth camera"), shared by the scene
 // shader of the viewer, the off-screen renderer and the tests.
 //
 // Conventions: the depth map holds window depth in [0, 1] of a perspective projection with
@@ -26,7 +26,7 @@ float window_depth(float eye_depth, float near, float far) {
 
 // Depth bias in metres: a constant plus a slope-scaled part. `texel_m` is the size of one
 // depth-map texel at the fragment's distance; `cos_incidence` the cosine between the surface
-// normal and the direction to the depth camera. The incidence is followed down to 0.6 deg
+// normal and the direction to the projector. The incidence is followed down to 0.6 deg
 // (cos 0.01): a hand-held camera's own ground, metres below it, is seen at 1-3 deg out to tens
 // of metres, where a clamp at 3 deg left bands of model colour (tests/test_render_projection.py).
 float projector_bias(float constant_m, float slope_texels, float texel_m, float cos_incidence) {
@@ -48,7 +48,7 @@ float neighbourhood_min_depth(sampler2D depth_map, ivec2 texel) {
     return min(min(m.x, m.y), min(m.z, m.w));
 }
 
-// The depth test: the fragment, pulled toward the depth camera by the bias, must not lie behind
+// The depth test: the fragment, pulled toward the projector by the bias, must not lie behind
 // the depth map at its texel (or, with `neighbourhood`, at any of the nine-case texels).
 bool projector_visible(sampler2D depth_map, ivec2 texel, float eye_depth, float bias_m,
                        float near, float far, bool neighbourhood) {

@@ -79,7 +79,7 @@ def solve_to_csv(
         out,
         "--out",
         CSV_SUFFIXES,
-        list(session.inputs) + [session.path, session.video.path, session.gnss.source],
+        list(session.inputs) + [session.path, session.video.path, session.gnss.path],
     )
     long_input = session.gyr is not None and len(session.gyr.t) >= PROGRESS_MIN_SAMPLES
     bar = ProgressBar(f"solving {source}", progress if long_input or source == REGISTERED else None)

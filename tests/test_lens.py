@@ -227,9 +227,9 @@ def test_the_dji_camera_is_read_from_the_mp4(tmp_path):
         "Air 2S",
         "FC3411",
         "DJIAir2S",
-    ) and "FC3411" in cam.source
+    ) and "FC3411" in cam.found_in
     cam = read_dji_camera(_dji_mp4(tmp_path / "b.mp4", {"\xa9too": intl_text("DJIMavic3Classic")}))
-    assert (cam.model, cam.code) == ("Mavic3Classic", "") and "encoder" in cam.source
+    assert (cam.model, cam.code) == ("Mavic3Classic", "") and "encoder" in cam.found_in
     ilst = box("ilst", box("\xa9too", box("data", b"\0\0\0\x01\0\0\0\0DJI Air3")))
     hdlr = box("hdlr", bytes(8) + b"mdirappl" + bytes(9))
     assert (

@@ -106,7 +106,7 @@ def level(camera: OrientationStream, acc: VectorStream) -> OrientationStream:
     return OrientationStream(
         camera.t,
         rotations.canonical(rotations.multiply(turn, camera.q)),
-        camera.source,
+        camera.path,
         camera.note,
     )
 

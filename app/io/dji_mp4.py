@@ -48,18 +48,20 @@ DJI_CAMERA_CODES = {
 class DjiCamera:
     """What a DJI MP4 says of its camera. model: the aircraft or camera's name ('' when unknown);
     code: the camera code ('FC3170', '' when absent); encoder: the encoder string as written;
-    source: where the model came from, for messages."""
+    found_in: where the model came from, for messages."""
 
     model: str
     code: str
     encoder: str
-    source: str
+    found_in: str
 
     @property
     def described(self) -> str:
         """The camera for messages: 'DJI Mavic Air 2 (camera code FC3170 in the MP4)'."""
         return (
-            f"DJI {self.model} ({self.source})" if self.model else f"a DJI camera ({self.source})"
+            f"DJI {self.model} ({self.found_in})"
+            if self.model
+            else f"a DJI camera ({self.found_in})"
         )
 
 

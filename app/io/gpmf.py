@@ -131,7 +131,7 @@ def _decode_value(type_: str, size: int, repeat: int, data: bytes, type_spec: st
 
 
 def parse(
-    payload: bytes, source: str = "<payload>", counts: Counts | None = None, _base: int = 0
+    payload: bytes, path: str = "<payload>", counts: Counts | None = None, _base: int = 0
 ) -> list[KLV]:
     """Decode one GPMF payload into nested KLVs. Truncated data is an error naming the byte offset;
     undecodable data keys are skipped and counted, never fatal."""
@@ -150,13 +150,13 @@ def parse(
             break  # padding at the end of a payload
         if pos + 8 + length > len(payload):
             raise DataFormatError(
-                source,
+                path,
                 f"GPMF payload cut short: {key!r} at byte {_base + pos} needs {length} bytes, {len(payload) - pos - 8} remain",
                 field=key,
             )
         data = payload[pos + 8 : pos + 8 + length]
         if type_ == NESTED:
-            value: object = parse(data, source, counts, _base + pos + 8)
+            value: object = parse(data, path, counts, _base + pos + 8)
         else:
             try:
                 value = _decode_value(type_, size, repeat, data, type_spec)

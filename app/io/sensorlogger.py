@@ -143,7 +143,7 @@ def read_sensorlogger(
             messages.add(
                 f"{path.name}: no platform in Metadata.csv; acceleration taken in Android's sign convention"
             )
-        acc = VectorStream("acc", user.t, sign * total, "m/s^2", user.source)
+        acc = VectorStream("acc", user.t, sign * total, "m/s^2", user.path)
     else:
         raise DataFormatError(
             path,
@@ -220,5 +220,5 @@ def reference_orientation(
             if best is None or score < best[0]:
                 best = (score, qq, f"{name}, world turned {turn:+.0f} deg about Up")
     return OrientationStream(
-        raw.t, rotations.canonical(best[1]), raw.source, f"convention: {best[2]}"
+        raw.t, rotations.canonical(best[1]), raw.path, f"convention: {best[2]}"
     )

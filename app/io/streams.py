@@ -28,7 +28,7 @@ class VectorStream:
     t: FloatArray
     values: FloatArray
     unit: str
-    source: str = ""
+    path: str = ""  # the file it was read from (for messages)
 
     @property
     def rate_hz(self) -> float:
@@ -41,7 +41,7 @@ class OrientationStream:
 
     t: FloatArray
     q: FloatArray
-    source: str = ""
+    path: str = ""  # the file it was read from (for messages)
     note: str = ""
 
 
@@ -56,7 +56,7 @@ class GnssTrack:
     h: FloatArray
     vel_enu: FloatArray | None = None
     h_acc: FloatArray | None = None
-    source: str = ""
+    path: str = ""  # the file it was read from (for messages)
 
 
 def resample(t_target: npt.ArrayLike, t_source: npt.ArrayLike, values: npt.ArrayLike) -> FloatArray:
@@ -134,7 +134,7 @@ def checked_vector(stream: VectorStream, messages: Messages) -> VectorStream | N
     rate in RATE_RANGE_HZ (else DataFormatError: the time unit is wrong); samples whose norm
     exceeds SENSOR_LIMIT dropped and counted like them; a dead accelerometer
     (reads ~0 throughout) is an error, a dead magnetometer is dropped (None) with a warning."""
-    path = Path(stream.source or stream.name)
+    path = Path(stream.path or stream.name)
     finite = np.isfinite(stream.values).all(axis=1) & np.isfinite(stream.t)
     limit = SENSOR_LIMIT.get(stream.name)
     with np.errstate(over="ignore", invalid="ignore"):
@@ -153,7 +153,7 @@ def checked_vector(stream: VectorStream, messages: Messages) -> VectorStream | N
     if not finite.all() or beyond.any():
         finite = finite & ~beyond
         stream = VectorStream(
-            stream.name, stream.t[finite], stream.values[finite], stream.unit, stream.source
+            stream.name, stream.t[finite], stream.values[finite], stream.unit, stream.path
         )
     require_samples(len(stream.t), 2, path, stream.name)
     rate = stream.rate_hz
@@ -192,7 +192,7 @@ def plausible_fixes(
     HEIGHT_RANGE_M), fixes the receiver itself marks poor (2D fixes where 3D ones exist, DOP above
     MAX_DOP), and jumps (a speed above MAX_SPEED_MPS or a climb above MAX_CLIMB_MPS from the last
     kept fix). DataFormatError when fewer than `minimum` fixes remain, or none is in range."""
-    path = Path(track.source or "GNSS")
+    path = Path(track.path or "GNSS")
     t, lat, lon, h = track.t, track.lat, track.lon, track.h
     finite = np.isfinite(t) & np.isfinite(lat) & np.isfinite(lon)
     in_range = finite & (np.abs(np.nan_to_num(lat)) <= 90.0) & (np.abs(np.nan_to_num(lon)) <= 180.0)
@@ -243,7 +243,7 @@ def plausible_fixes(
         )
     sub = lambda a: None if a is None else np.asarray(a)[keep]  # noqa: E731
     return GnssTrack(
-        t[keep], lat[keep], lon[keep], h[keep], sub(track.vel_enu), sub(track.h_acc), track.source
+        t[keep], lat[keep], lon[keep], h[keep], sub(track.vel_enu), sub(track.h_acc), track.path
     )
 
 

@@ -143,7 +143,7 @@ class Session:
         try:
             return PositionTrack.from_fixes(g.t, g.lat, g.lon, h, g.vel_enu)
         except ValueError as exc:
-            raise DataFormatError(g.source, f"GNSS: {exc}") from exc
+            raise DataFormatError(g.path, f"GNSS: {exc}") from exc
 
     @property
     def sources(self) -> list[str]:
@@ -206,7 +206,7 @@ def device_attitude(
     if source == COURSE:
         pitch = session.course_pitch_deg if course_pitch_deg is None else course_pitch_deg
         ref = heading.course_attitude(
-            pos.t, pos.vel_enu, pitch, session.gnss.source, session.aircraft_yaw
+            pos.t, pos.vel_enu, pitch, session.gnss.path, session.aircraft_yaw
         )
         return ref.t, ref.q  # the device is the camera (drones), unturned
     if source in session.recorded:

@@ -35,7 +35,7 @@ from app.sync.rates import (
     bearings_of,
     course_rates,
     gyro_rates,
-    rate_source,
+    rate_reference,
     timed_by,
 )
 from app.sync.settings import (
@@ -55,7 +55,7 @@ __all__ = [
     "estimate_offset",
     "frame_rotation",
     "gyro_rates",
-    "rate_source",
+    "rate_reference",
     "read_settings",
     "settings_path",
     "settings_text",

@@ -66,7 +66,7 @@ def attitude_rates(t: np.ndarray, q: np.ndarray) -> RateCurve:
     return RateCurve(mid, rates)
 
 
-def rate_source(session) -> str | None:
+def rate_reference(session) -> str | None:
     """What times the video: 'gyroscope', a recorded attitude's name, 'course' (a drone without
     gimbal angles: the heading it flies, from its yaw or its GNSS track), or None."""
     if session.gyr is not None:
@@ -86,7 +86,7 @@ RATE_SOURCE_WORDS = {
 
 def timed_by(session) -> str:
     """What the session's video is timed against, in words, for messages."""
-    name = rate_source(session)
+    name = rate_reference(session)
     return RATE_SOURCE_WORDS.get(name, str(name))
 
 
@@ -97,7 +97,7 @@ def gyro_rates(session) -> RateCurve:
     the offset found is then the lag of its GNSS track, or its yaw, behind the video); raises
     when it has none, or when the course turns too little to time anything by."""
     mount = rotations.conjugate(session.camera_mount())
-    name = rate_source(session)
+    name = rate_reference(session)
     if name == "gyroscope":
         t, body = session.gyr.t, session.gyr.values
     elif name is None:

@@ -22,7 +22,7 @@ import av
 import numpy as np
 
 from app.errors import GeofuseError
-from app.sync import bearings_of, estimate_offset, gyro_rates, rate_source, video_rates
+from app.sync import bearings_of, estimate_offset, gyro_rates, rate_reference, video_rates
 
 _PERCENT = re.compile(rb"(\d+(?:\.\d)?)%")
 RECORD_QUEUE = 8  # frames waiting for the encoder
@@ -211,7 +211,7 @@ class SyncJob:
             rates = [np.interp(tt, c.t, omega[:, j]) for j in range(omega.shape[1])]
             return np.linalg.norm(np.column_stack(rates), axis=1)
 
-        name = rate_source(self.session) or "reference"
+        name = rate_reference(self.session) or "reference"
         return {
             "video": (t, mag(self.video.along(self.gyro), t)),
             f"{name}, before": (t, mag(self.gyro, t + start)),

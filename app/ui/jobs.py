@@ -9,7 +9,7 @@ from pathlib import Path
 from app.errors import GeofuseError
 from app.export import EXPORT_SUFFIXES
 from app.outputs import check_output
-from app.sync import rate_source, timed_by
+from app.sync import rate_reference, timed_by
 from app.ui.exporter import ExportJob, Recorder, SyncJob
 
 JOB_WAIT_S = (
@@ -49,7 +49,7 @@ class ViewerJobs:
         job = self.ui.sync_job
         if job is not None and not job.done:
             raise ValueError("a sync is running")
-        if rate_source(self.loaded.session) is None:
+        if rate_reference(self.loaded.session) is None:
             raise ValueError(
                 "this session has no gyroscope, no recorded attitude and no course: the offset cannot be found from rotation"
             )

@@ -16,7 +16,7 @@ from app.errors import GeofuseError
 from app.playback.clock import SPEEDS
 from app.register.solve import keyframe_plot
 from app.session.model import COURSE, REGISTERED
-from app.sync import rate_source
+from app.sync import rate_reference
 from app.ui.gui import Gui
 from app.ui.inputs import open_dialog, poll_dialog
 
@@ -288,7 +288,7 @@ def _projection(v) -> None:
             imgui.same_line()
             job = ui.sync_job
             if (
-                rate_source(v.loaded.session) is not None
+                rate_reference(v.loaded.session) is not None
                 and (job is None or job.done)
                 and imgui.button("Sync")
             ):

@@ -271,7 +271,7 @@ class TileStream:
                 message = (
                     str(exc)
                     if isinstance(exc, LOAD_ERRORS)
-                    else f"{tile.contents[0] if tile.contents else tile.source}: {type(exc).__name__}: {exc}"
+                    else f"{tile.contents[0] if tile.contents else tile.document}: {type(exc).__name__}: {exc}"
                 )
                 with self._cond:
                     self.failures += 1

@@ -73,24 +73,24 @@ class Tile:
     geometric_error: float
     refine: str
     contents: tuple[str, ...]  # absolute locations
-    source: str  # the tileset JSON that holds the tile
+    document: str  # the tileset JSON that holds the tile
     children: list[Tile] | None = field(default_factory=list)
     external: str | None = None  # the external tileset JSON its content names (read by expand())
     implicit: Implicit | None = None
 
 
-def _matrix(values: object, where: str, source: str) -> np.ndarray:
+def _matrix(values: object, where: str, document: str) -> np.ndarray:
     try:
         m = np.asarray(values, np.float64).reshape(4, 4).T  # column-major
     except (ValueError, TypeError) as exc:
-        raise TilesetError(source, "transform must hold 16 numbers", where) from exc
+        raise TilesetError(document, "transform must hold 16 numbers", where) from exc
     if not np.all(np.isfinite(m)):
-        raise TilesetError(source, "transform holds a non-finite number", where)
+        raise TilesetError(document, "transform holds a non-finite number", where)
     return m
 
 
 def volume_points(
-    volume: dict, transform: np.ndarray, source: str, where: str
+    volume: dict, transform: np.ndarray, document: str, where: str
 ) -> tuple[np.ndarray, float | None]:
     """ECEF sample points of a bounding volume (corners; a grid for regions), and a sphere's own
     radius (scaled) when the volume is a sphere."""
@@ -113,8 +113,8 @@ def volume_points(
             r = s4[3] * float(np.max(np.linalg.norm(transform[:3, :3], axis=0)))
             return c + np.vstack([np.eye(3), -np.eye(3)]) * r, r
     except (ValueError, TypeError) as exc:
-        raise TilesetError(source, f"bounding volume malformed: {exc}", where) from exc
-    raise TilesetError(source, "bounding volume needs box, region or sphere", where)
+        raise TilesetError(document, f"bounding volume malformed: {exc}", where) from exc
+    raise TilesetError(document, "bounding volume needs box, region or sphere", where)
 
 
 class Tileset:
@@ -153,9 +153,9 @@ class Tileset:
             return next(self._ids)
 
     def _place(
-        self, volume: dict, transform: np.ndarray, source: str, where: str
+        self, volume: dict, transform: np.ndarray, document: str, where: str
     ) -> tuple[np.ndarray, float, np.ndarray]:
-        pts_ecef, own_radius = volume_points(volume, transform, source, where)
+        pts_ecef, own_radius = volume_points(volume, transform, document, where)
         enu = self.frame.ecef_to_enu(pts_ecef)
         box = np.stack([enu.min(axis=0), enu.max(axis=0)])
         center = box.mean(axis=0)
@@ -171,26 +171,26 @@ class Tileset:
         node: dict,
         parent_transform: np.ndarray,
         parent: Tile | None,
-        source: str,
+        document: str,
         depth: int,
         where: str,
     ) -> Tile:
         if not isinstance(node, dict):
-            raise TilesetError(source, "a tile must be a JSON object", where)
+            raise TilesetError(document, "a tile must be a JSON object", where)
         transform = (
-            parent_transform @ _matrix(node["transform"], f"{where}.transform", source)
+            parent_transform @ _matrix(node["transform"], f"{where}.transform", document)
             if "transform" in node
             else parent_transform
         )
         if "boundingVolume" not in node:
-            raise TilesetError(source, "tile without boundingVolume", f"{where}.boundingVolume")
+            raise TilesetError(document, "tile without boundingVolume", f"{where}.boundingVolume")
         center, radius, box = self._place(
-            node["boundingVolume"], transform, source, f"{where}.boundingVolume"
+            node["boundingVolume"], transform, document, f"{where}.boundingVolume"
         )
         refine = str(node.get("refine", parent.refine if parent else "REPLACE")).upper()
         if refine not in REFINES:
             raise TilesetError(
-                source,
+                document,
                 f"refine must be ADD or REPLACE, got {node.get('refine')!r}",
                 f"{where}.refine",
             )
@@ -198,11 +198,11 @@ class Tileset:
             error = float(node.get("geometricError", parent.geometric_error / 2 if parent else 0.0))
         except (TypeError, ValueError) as exc:
             raise TilesetError(
-                source, "geometricError must be a number", f"{where}.geometricError"
+                document, "geometricError must be a number", f"{where}.geometricError"
             ) from exc
         if not np.isfinite(error) or error < 0:
             raise TilesetError(
-                source,
+                document,
                 f"geometricError must be finite and >= 0, got {error}",
                 f"{where}.geometricError",
             )
@@ -211,21 +211,21 @@ class Tileset:
         for c in raw:
             uri = c.get("uri", c.get("url")) if isinstance(c, dict) else None
             if not isinstance(uri, str):
-                raise TilesetError(source, "content without uri", f"{where}.content")
+                raise TilesetError(document, "content without uri", f"{where}.content")
             uris.append(uri)
         tile = Tile(
-            self._new_id(), depth, transform, center, radius, box, error, refine, (), source
+            self._new_id(), depth, transform, center, radius, box, error, refine, (), document
         )
         if "implicitTiling" in node:
-            tile.implicit = self._implicit_root(node, uris, source, where)
+            tile.implicit = self._implicit_root(node, uris, document, where)
             tile.children = None
             return tile
-        locations = [fetch.resolve(source, u) for u in uris]
+        locations = [fetch.resolve(document, u) for u in uris]
         json_ = [u for u in locations if u.split("?")[0].lower().endswith(".json")]
         if json_:
             if len(locations) > 1:
                 raise TilesetError(
-                    source,
+                    document,
                     "an external tileset must be the tile's only content",
                     f"{where}.content",
                 )
@@ -234,25 +234,25 @@ class Tileset:
         tile.contents = tuple(locations)
         kids = node.get("children", [])
         tile.children = [
-            self._tile(k, transform, tile, source, depth + 1, f"{where}.children[{i}]")
+            self._tile(k, transform, tile, document, depth + 1, f"{where}.children[{i}]")
             for i, k in enumerate(kids)
         ]
         return tile
 
     # -- implicit tiling -------------------------------------------------------------------
-    def _implicit_root(self, node: dict, uris: list[str], source: str, where: str) -> Implicit:
+    def _implicit_root(self, node: dict, uris: list[str], document: str, where: str) -> Implicit:
         spec = node["implicitTiling"]
         scheme = str(spec.get("subdivisionScheme", "")).upper()
         if scheme not in ("QUADTREE", "OCTREE"):
             raise TilesetError(
-                source,
+                document,
                 f"subdivisionScheme must be QUADTREE or OCTREE, got {scheme!r}",
                 f"{where}.implicitTiling",
             )
         volume = node["boundingVolume"]
         if "sphere" in volume:
             raise TilesetError(
-                source, "implicit tiling needs a box or region volume", f"{where}.boundingVolume"
+                document, "implicit tiling needs a box or region volume", f"{where}.boundingVolume"
             )
         try:
             levels = int(spec["subtreeLevels"])
@@ -260,13 +260,13 @@ class Tileset:
             subtrees = spec["subtrees"]["uri"]
         except (KeyError, TypeError, ValueError) as exc:
             raise TilesetError(
-                source,
+                document,
                 f"implicitTiling needs subtreeLevels, availableLevels and subtrees.uri ({exc})",
                 f"{where}.implicitTiling",
             ) from exc
         dims = 2 if scheme == "QUADTREE" else 3
         return Implicit(
-            dims, levels, available, fetch.resolve(source, subtrees), tuple(fetch.resolve(source, u) for u in uris),
+            dims, levels, available, fetch.resolve(document, subtrees), tuple(fetch.resolve(document, u) for u in uris),
             volume, float(node.get("geometricError", 0.0)), 0, (0,) * dims,
         )  # fmt: skip
 
@@ -301,7 +301,7 @@ class Tileset:
         center, radius, box = self._place(
             volume,
             parent.transform,
-            parent.source,
+            parent.document,
             f"implicit tile {level}/{'/'.join(map(str, coords))}",
         )
         child_imp = Implicit(
@@ -327,7 +327,7 @@ class Tileset:
             imp.root_error / (1 << level),
             parent.refine,
             (),
-            parent.source,
+            parent.document,
             None,
             implicit=child_imp,
         )

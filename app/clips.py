@@ -25,7 +25,7 @@ from app.errors import DataFormatError, GeofuseError, VideoError
 from app.geo import LocalFrame
 from app.geomag import declination
 from app.io.dji_mp4 import read_dji_camera
-from app.io.dji_srt import check_duration, read_srt, srt_fixes
+from app.io.dji_srt import SrtTrack, check_duration, read_srt, srt_fixes
 from app.io.gopro import global_settings
 from app.io.streams import GnssTrack, OrientationStream
 from app.io.video import VideoInfo, probe
@@ -41,6 +41,7 @@ from app.session.config import HANDHELD_MOUNT_M, read_config
 from app.session.model import Session
 
 DJI_DEFAULT_FOCAL_MM = 24.0  # 35 mm equivalent focal length of most DJI main cameras
+DJI_FOCAL_RANGE_MM = (8.0, 1200.0)  # 35 mm equivalent: a 132 deg to a 1.7 deg horizontal view
 DRONE_GROUND_MARGIN_M = (
     500.0  # the assumed ground beyond a drone clip's track, plus 10x its height above the ground
 )
@@ -145,6 +146,7 @@ def _clip_session(
     lens: Lens | None = None,
     readout_s: float | None = None,
     layers: tuple[Layer, ...] = (),
+    utc_at_zero_s: float | None = None,
 ) -> Session:
     policy = heading_policy(
         gyr is not None, mag is not None, recorded, pitch_deg, aircraft_yaw is not None
@@ -155,6 +157,7 @@ def _clip_session(
         path.resolve(), frame, Path(layers[0].location) if layers else None, Placement(), video, video.pts_s.copy(), intr, video.rotation_cw,
         acc, gyr, mag, gnss, recorded, decl, messages, inputs=(*inputs, *(f.resolve() for layer in layers for f in layer.files())), heading=policy, device_is_camera=True,
         aircraft_yaw=aircraft_yaw, mesh=mesh, lens=lens, readout_s=readout_s, layers=tuple(layers),
+        utc_at_zero_s=utc_at_zero_s,
     )  # fmt: skip
 
 
@@ -225,6 +228,7 @@ def _gopro_session(
         lens=lens,
         readout_s=readout,
         layers=layers,
+        utc_at_zero_s=rec.gps_utc_at_zero,
     )
 
 
@@ -318,7 +322,13 @@ def _dji_session(
     else:
         yaw = track.aircraft_yaw()
     focal = track.focal_len[np.isfinite(track.focal_len)]
-    focal_mm = float(np.median(focal)) / 10.0 if len(focal) else DJI_DEFAULT_FOCAL_MM
+    focal_mm = float(np.median(focal)) if len(focal) else DJI_DEFAULT_FOCAL_MM
+    if not DJI_FOCAL_RANGE_MM[0] <= focal_mm <= DJI_FOCAL_RANGE_MM[1]:
+        raise DataFormatError(
+            srt,
+            f"a 35 mm equivalent focal length of {focal_mm:g} mm is outside what a camera has ({DJI_FOCAL_RANGE_MM[0]:g} to {DJI_FOCAL_RANGE_MM[1]:g} mm); give --fov or --lens",
+            field="focal_len",
+        )
     choice = None
     if hfov_deg is None:
         hfov_deg = float(
@@ -352,7 +362,21 @@ def _dji_session(
         lens,
         readout,
         layers,
+        _subtitle_clock(track, srt, messages),
     )
+
+
+def _subtitle_clock(track: SrtTrack, srt: Path, messages: Messages) -> float | None:
+    """Unix time at the clip's time 0 from a DJI subtitle's dated entries (the median of date
+    minus entry time), or None where it has no dates. DJI writes the aircraft's local time with
+    no zone: taken as UTC, and said so."""
+    ok = np.isfinite(track.wall_clock)
+    if not ok.any():
+        return None
+    messages.warning(
+        f"{srt.name}: the subtitle's dates carry no time zone (DJI writes the aircraft's local time); the exports' UTC times take them as UTC"
+    )
+    return float(np.median(track.wall_clock[ok] - track.t[ok]))
 
 
 def _dji_profile(

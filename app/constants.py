@@ -39,3 +39,5 @@ DEFAULT_DEPTH_LONG_SIDE_PX = 2048
 DEFAULT_DEPTH_BIAS_M = 0.05  # constant part of the projection depth bias, metres
 DEFAULT_DEPTH_SLOPE_BIAS = 2.0  # slope-scaled part, in depth-map texels of surface slope
 DEFAULT_ALPHA = 1.0  # video opacity over the model: 0 = model only, 1 = video only
+
+UNIX_TIME_FLOOR_S = 946_684_800.0  # 2000-01-01: session clocks past this are Unix time (UTC)

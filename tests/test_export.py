@@ -20,6 +20,7 @@ from app.demo import SAMPLE_DIR
 from app.export.gis import FMV_FIELDS, counter_clockwise_ring
 from app.export.records import FootprintCaster, frame_records
 from app.geo import LocalFrame
+from app.geoid import undulation
 from app.scene.ground_plane import ground_plane
 from app.solve import solve_frames
 
@@ -136,31 +137,50 @@ def test_footprints_of_close_poses_overlap():
 
 
 def _signed_area(ring: list[list[float]]) -> float:
-    return sum(x0 * y1 - x1 * y0 for (x0, y0, *_), (x1, y1, *_) in zip(ring, ring[1:]))
+    """Twice the shoelace area, about the first point (no cancellation at 113 degrees)."""
+    x0, y0 = ring[0][0], ring[0][1]
+    pts = [(x - x0, y - y0) for x, y, *_ in ring]
+    return sum(xa * yb - xb * ya for (xa, ya), (xb, yb) in zip(pts, pts[1:]))
 
 
 def test_geojson_follows_rfc_7946(tmp_path, capsys):
+    """The footprints file holds polygons only, each valid (GEOS) with counter-clockwise
+    exteriors, longitude first; the borders and the track are in their own files."""
+    from shapely.geometry import shape
+
     out = tmp_path / "fp.geojson"
     assert main(["export", "footprints", str(SAMPLE), "--out", str(out), "--every", "200"]) == 0
     doc = json.loads(out.read_text())
-    polygons = [f for f in doc["features"] if f["geometry"]["type"] == "Polygon"]
-    (track,) = [f for f in doc["features"] if f["geometry"]["type"] == "LineString"]
-    assert doc["type"] == "FeatureCollection" and len(polygons) == 12
-    for f in polygons:
-        (ring,) = f["geometry"]["coordinates"]
-        assert ring[0] == ring[-1] and len(ring) >= 4  # closed
-        assert _signed_area(ring) > 0  # exterior ring counter-clockwise
-        lon, lat = np.array(ring)[:, 0], np.array(ring)[:, 1]
-        assert np.all(np.abs(lon - 113.53) < 0.05) and np.all(
-            np.abs(lat - 34.80) < 0.05
-        )  # longitude first
+    assert doc["type"] == "FeatureCollection" and len(doc["features"]) == 12
+    for f in doc["features"]:
+        assert f["geometry"]["type"] in ("Polygon", "MultiPolygon")
+        geometry = shape(f["geometry"])
+        assert geometry.is_valid and geometry.area > 0
+        polygons = f["geometry"]["coordinates"]
+        for polygon in polygons if f["geometry"]["type"] == "MultiPolygon" else [polygons]:
+            ring = polygon[0]
+            assert ring[0] == ring[-1] and len(ring) >= 4  # closed
+            assert _signed_area(ring) > 0  # exterior ring counter-clockwise
+            lon, lat = np.array(ring)[:, 0], np.array(ring)[:, 1]
+            assert np.all(np.abs(lon - 113.53) < 0.05) and np.all(
+                np.abs(lat - 34.80) < 0.05
+            )  # longitude first
         p = f["properties"]
         assert (
             p["utc"].endswith("Z")
             and p["utc"].startswith("2025-11-15T")
             and -180 <= p["heading_deg"] <= 360
         )
+    (track,) = json.loads((tmp_path / "fp_track.geojson").read_text())["features"]
+    assert track["geometry"]["type"] == "LineString"
     assert len(track["geometry"]["coordinates"]) == 12
+    borders = json.loads((tmp_path / "fp_borders.geojson").read_text())["features"]
+    assert [b["properties"]["frame"] for b in borders] == [
+        f["properties"]["frame"] for f in doc["features"]
+    ]
+    for b in borders:
+        line = b["geometry"]["coordinates"]
+        assert b["geometry"]["type"] == "LineString" and line[0] == line[-1] and len(line[0]) == 3
 
 
 def test_counter_clockwise_ring_turns_a_clockwise_one():
@@ -176,8 +196,10 @@ def test_kml_kmz_and_fmv_csv(sample, tmp_path):
     assert main(["export", "footprints", str(SAMPLE), "--out", str(kmz), "--every", "400"]) == 0
     with zipfile.ZipFile(kmz) as z:
         text = z.read("doc.kml").decode()
+    footprints = text.split("<name>footprints</name>")[1].split("</Folder>")[0]
     assert (
-        text.count("<Polygon>") == 6
+        footprints.count("<Placemark>") == 6
+        and "<altitudeMode>clampToGround</altitudeMode>" in footprints
         and "<LineString>" in text
         and "<altitudeMode>absolute</altitudeMode>" in text
     )
@@ -195,8 +217,8 @@ def test_kml_kmz_and_fmv_csv(sample, tmp_path):
     lon = [float(r[FMV_FIELDS.index("Sensor Longitude")]) for r in rows[1:]]
     np.testing.assert_allclose(lat, poses.geodetic[::400, 0], atol=1e-7)
     np.testing.assert_allclose(lon, poses.geodetic[::400, 1], atol=1e-7)
-    rings = re.findall(r"<Polygon>.*?<coordinates>(.*?)</coordinates>", text, re.S)
-    assert len(rings) == 6
+    rings = re.findall(r"<outerBoundaryIs>.*?<coordinates>(.*?)</coordinates>", footprints, re.S)
+    assert len(rings) >= 6
     for ring in rings:
         pts = np.array([[float(v) for v in p.split(",")] for p in ring.split()])
         # within the 2 km the footprints reach (0.03 deg: 2.7 km of longitude, 3.3 km of latitude)
@@ -235,13 +257,21 @@ def test_klv_round_trips_through_an_independent_decoder(sample, tmp_path):
         assert m[13] == pytest.approx(r.sensor[0], abs=1e-7) and m[14] == pytest.approx(
             r.sensor[1], abs=1e-7
         )
-        assert m[15] == pytest.approx(r.sensor[2], abs=0.31)  # 19900 m over 16 bits
+        # Heights: above mean sea level in tags 15 and 25, above the ellipsoid in 75 and 78
+        # (19900 m over 16 bits); the sample's geoid lies 19.5 m below the ellipsoid (EGM2008).
+        n = float(undulation(r.sensor[0], r.sensor[1]))
+        assert -20.0 < n < -19.0
+        assert m[15] == pytest.approx(r.sensor[2] - n, abs=0.31)
+        assert m[75] == pytest.approx(r.sensor[2], abs=0.31)
         assert m[5] == pytest.approx(r.hpr[0] % 360, abs=0.006)
         assert m[19] == pytest.approx(r.hpr[1], abs=1e-6) and m[16] == pytest.approx(
             r.hfov_deg, abs=0.003
         )
         if math.isfinite(r.slant_m):
             assert m[21] == pytest.approx(r.slant_m, abs=0.01)
+            nc = float(undulation(r.centre[0], r.centre[1]))
+            assert m[25] == pytest.approx(r.centre[2] - nc, abs=0.31)
+            assert m[78] == pytest.approx(r.centre[2], abs=0.31)
             assert m[23] == pytest.approx(r.centre[0], abs=1e-7) and m[24] == pytest.approx(
                 r.centre[1], abs=1e-7
             )

@@ -202,9 +202,9 @@ def test_export_and_record_from_the_viewer(display, tmp_path):
     s = json.loads(state.read_text())
     assert s["errors"] == [] and any(n.startswith(f"recorded {rec}") for n in s["info"])
     doc = json.loads(fp.read_text())
-    assert (
-        doc["type"] == "FeatureCollection" and len(doc["features"]) == 2400 + 1
-    )  # every frame and the track
+    assert doc["type"] == "FeatureCollection" and len(doc["features"]) == 2400  # every frame
+    track = json.loads(fp.with_name(f"{fp.stem}_track.geojson").read_text())["features"]
+    assert len(track[0]["geometry"]["coordinates"]) == 2400
     with av.open(str(rec)) as c:
         frames = [f for f in c.decode(c.streams.video[0])]
     assert (frames[0].width, frames[0].height) == (640, 360)

@@ -76,6 +76,23 @@ def _number(low: float, high: float, open_low: bool = False):
     return parse
 
 
+def _count(low: int, high: int):
+    """An argparse type: a whole number in [low, high]."""
+
+    def parse(text: str) -> int:
+        try:
+            v = int(text)
+        except ValueError:
+            v = low - 1
+        if not low <= v <= high:
+            raise argparse.ArgumentTypeError(
+                f"expected a whole number in [{low}, {high}], got {text!r}"
+            )
+        return v
+
+    return parse
+
+
 def _size(text: str) -> tuple[int, int]:
     try:
         w, h = (int(v) for v in text.lower().split("x"))
@@ -130,7 +147,7 @@ def _add_projection_options(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--depth-size",
-        type=int,
+        type=_count(16, MAX_IMAGE_SIDE),
         default=DEFAULT_DEPTH_LONG_SIDE_PX,
         help="depth-map texels on the video's long side",
     )
@@ -389,7 +406,12 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="attitude source (default: the first the session offers)",
     )
-    ex.add_argument("--every", type=int, default=1, help="footprints, CSV, KLV: every Nth frame")
+    ex.add_argument(
+        "--every",
+        type=_count(1, 1_000_000),
+        default=1,
+        help="footprints, CSV, KLV: every Nth frame (1: every frame)",
+    )
     ex.add_argument(
         "--from",
         dest="start",

@@ -2,10 +2,18 @@
 Earth), and the metadata CSV of ArcGIS Pro's Video Multiplexer (Full Motion Video). Pure text;
 files are written through app.outputs (checked, atomic, never over an input).
 
-GeoJSON: one Polygon feature per frame (the footprint, exterior ring counter-clockwise and closed,
-positions [longitude, latitude, ellipsoidal height]) with the frame's fields as properties, then
-one LineString feature for the camera track. Fields without a value (the frame centre above the
-horizon) are null. KML carries the same fields as ExtendedData, heights `absolute`.
+Heights: GeoJSON keeps heights above the WGS84 ellipsoid (RFC 7946); KML's `absolute` and MISB's
+Sensor True Altitude and Frame Center Elevation are above mean sea level (EGM2008, app.geoid);
+the ellipsoidal heights sit beside them (`*_ellipsoid_height_m`, Sensor Ellipsoid Height, Frame
+Center Height Above Ellipsoid). Times: `utc` from the session's clock (Session.utc_of), null where
+none is known.
+
+GeoJSON: the footprints file holds polygons only (one Polygon or MultiPolygon per frame, in plan
+view and valid by construction: app.export.footprint), so that it converts to a Shapefile or a
+PostGIS table as one layer; beside it `NAME_borders.geojson` (the image border on the scene, a
+closed 3D LineString per frame) and `NAME_track.geojson` (the camera track, a LineString). KML:
+three folders in one document (footprints clamped to the ground, the 3D borders and the camera
+track at `absolute` heights).
 """
 
 from __future__ import annotations
@@ -17,21 +25,26 @@ import math
 import zipfile
 from collections.abc import Iterable
 from datetime import datetime, timezone
+from pathlib import Path
 from xml.sax.saxutils import escape
 
 import numpy as np
+from shapely.geometry import mapping
+from shapely.geometry.base import BaseGeometry
 
+from app.export.footprint import plan_footprint
 from app.export.records import FOOTPRINT_MAX_RANGE_M, FrameRecord
 
 FMV_FIELDS = (  # MISB ST 0601 names, as the Video Multiplexer's field mapping template lists them
-    "UNIX Time Stamp", "Sensor Latitude", "Sensor Longitude", "Sensor Ellipsoid Height",
+    "UNIX Time Stamp", "Sensor Latitude", "Sensor Longitude", "Sensor True Altitude", "Sensor Ellipsoid Height",
     "Platform Heading Angle", "Platform Pitch Angle", "Platform Roll Angle",
     "Sensor Relative Azimuth Angle", "Sensor Relative Elevation Angle", "Sensor Relative Roll Angle",
     "Sensor Horizontal Field of View", "Sensor Vertical Field of View", "Slant Range",
-    "Frame Center Latitude", "Frame Center Longitude", "Frame Center Elevation",
-    "Corner Latitude Point 1", "Corner Longitude Point 1", "Corner Latitude Point 2", "Corner Longitude Point 2",
-    "Corner Latitude Point 3", "Corner Longitude Point 3", "Corner Latitude Point 4", "Corner Longitude Point 4",
+    "Frame Center Latitude", "Frame Center Longitude", "Frame Center Elevation", "Frame Center Height Above Ellipsoid",
+    "Offset Corner Latitude Point 1", "Offset Corner Longitude Point 1", "Offset Corner Latitude Point 2", "Offset Corner Longitude Point 2",
+    "Offset Corner Latitude Point 3", "Offset Corner Longitude Point 3", "Offset Corner Latitude Point 4", "Offset Corner Longitude Point 4",
 )  # fmt: skip
+COMPANIONS = ("_borders", "_track")  # files written beside a GeoJSON footprints file
 
 
 def _value(x: float) -> float | None:
@@ -50,7 +63,7 @@ def iso_utc(unix_s: float | None) -> str | None:
 
 
 def properties(r: FrameRecord) -> dict[str, object]:
-    """The fields of one frame, named with their units."""
+    """The fields of one frame, named with their units and datums."""
     return {
         "frame": r.index,
         "time_s": round(r.session_s, 6),
@@ -58,7 +71,8 @@ def properties(r: FrameRecord) -> dict[str, object]:
         "utc": iso_utc(r.utc_s),
         "sensor_latitude": r.sensor[0],
         "sensor_longitude": r.sensor[1],
-        "sensor_height_m": r.sensor[2],
+        "sensor_ellipsoid_height_m": r.sensor[2],
+        "sensor_msl_height_m": r.sensor_msl_m,
         "heading_deg": r.hpr[0],
         "pitch_deg": r.hpr[1],
         "roll_deg": r.hpr[2],
@@ -66,7 +80,8 @@ def properties(r: FrameRecord) -> dict[str, object]:
         "vfov_deg": r.vfov_deg,
         "centre_latitude": _value(r.centre[0]),
         "centre_longitude": _value(r.centre[1]),
-        "centre_height_m": _value(r.centre[2]),
+        "centre_ellipsoid_height_m": _value(r.centre[2]),
+        "centre_msl_height_m": _value(r.centre_msl_m),
         "slant_range_m": _value(r.slant_m),
         "clipped": r.clipped,
         "clip_range_m": FOOTPRINT_MAX_RANGE_M if r.clipped else None,
@@ -87,60 +102,125 @@ def counter_clockwise_ring(lat_lon_h: np.ndarray) -> np.ndarray:
     return np.vstack([ring, ring[:1]])
 
 
-def geojson(records: Iterable[FrameRecord]) -> dict:
-    """A FeatureCollection: footprints, then the camera track."""
-    features, track = [], []
-    for r in records:
-        ring = counter_clockwise_ring(r.footprint)
-        features.append(
+def _geometry(geometry: BaseGeometry | None) -> dict | None:
+    """A footprint (already on app.export.footprint's 1e-9 degree grid) as GeoJSON, or None."""
+    return None if geometry is None else mapping(geometry)
+
+
+def footprints_geojson(records: Iterable[FrameRecord]) -> dict:
+    """A FeatureCollection of polygons only: each frame's plan-view footprint (valid by
+    construction; null where the frame sees no ground), its fields as properties."""
+    return {
+        "type": "FeatureCollection",
+        "features": [
             {
                 "type": "Feature",
-                "geometry": {"type": "Polygon", "coordinates": [np.round(ring, 9).tolist()]},
+                "geometry": _geometry(plan_footprint(r.ground)),
                 "properties": properties(r),
             }
-        )
-        track.append([r.sensor[1], r.sensor[0], r.sensor[2]])
-    if len(track) >= 2:
+            for r in records
+        ],
+    }
+
+
+def borders_geojson(records: Iterable[FrameRecord]) -> dict:
+    """The image border on the scene per frame: a closed LineString of [lon, lat, ellipsoidal h]."""
+    return {
+        "type": "FeatureCollection",
+        "features": [
+            {
+                "type": "Feature",
+                "geometry": {
+                    "type": "LineString",
+                    "coordinates": np.round(counter_clockwise_ring(r.footprint), 9).tolist(),
+                },
+                "properties": {
+                    "frame": r.index,
+                    "time_s": round(r.session_s, 6),
+                    "utc": iso_utc(r.utc_s),
+                },
+            }
+            for r in records
+        ],
+    }
+
+
+def track_geojson(records: Iterable[FrameRecord]) -> dict:
+    """The camera track: one LineString of [lon, lat, ellipsoidal h] (empty below two frames)."""
+    points = [[r.sensor[1], r.sensor[0], r.sensor[2]] for r in records]
+    features = []
+    if len(points) >= 2:
         features.append(
             {
                 "type": "Feature",
-                "geometry": {"type": "LineString", "coordinates": np.round(track, 9).tolist()},
-                "properties": {"name": "camera track"},
+                "geometry": {"type": "LineString", "coordinates": np.round(points, 9).tolist()},
+                "properties": {"name": "camera track", "frames": len(points)},
             }
         )
     return {"type": "FeatureCollection", "features": features}
 
 
-def write_geojson(records: Iterable[FrameRecord], f) -> None:
-    json.dump(geojson(records), f, allow_nan=False)
+def companion(out: Path, which: str) -> Path:
+    """The file written beside a GeoJSON footprints file: NAME_borders.geojson, NAME_track.geojson."""
+    return out.with_name(f"{out.stem}{which}{out.suffix}")
+
+
+def _coords(points: np.ndarray) -> str:
+    return " ".join(f"{lon:.9f},{lat:.9f},{h:.3f}" for lon, lat, h in points)
+
+
+def _kml_polygon(polygon) -> str:
+    def ring(r) -> str:
+        return (
+            "<LinearRing><coordinates>"
+            + " ".join(f"{x:.9f},{y:.9f}" for x, y in np.asarray(r.coords)[:, :2])
+            + "</coordinates></LinearRing>"
+        )
+
+    inner = "".join(f"<innerBoundaryIs>{ring(r)}</innerBoundaryIs>" for r in polygon.interiors)
+    return f"<Polygon><tessellate>1</tessellate><altitudeMode>clampToGround</altitudeMode><outerBoundaryIs>{ring(polygon.exterior)}</outerBoundaryIs>{inner}</Polygon>"
 
 
 def kml(records: Iterable[FrameRecord], name: str) -> str:
-    """A KML document: one Placemark per footprint (with ExtendedData), then the camera track."""
+    """A KML document in three folders: the plan-view footprints (clamped to the ground, the
+    frame's fields as ExtendedData), the image borders on the scene and the camera track (both
+    `absolute`: heights above mean sea level, EGM2008)."""
+    records = list(records)
     out = [
         '<?xml version="1.0" encoding="UTF-8"?>',
         '<kml xmlns="http://www.opengis.net/kml/2.2"><Document>',
         f"<name>{escape(name)}</name>",
         '<Style id="footprint"><LineStyle><color>ff00a5ff</color><width>2</width></LineStyle><PolyStyle><color>4000a5ff</color></PolyStyle></Style>',
+        "<Folder><name>footprints</name>",
     ]
-    track = []
     for r in records:
-        ring = counter_clockwise_ring(r.footprint)
-        coords = " ".join(f"{lon:.9f},{lat:.9f},{h:.3f}" for lon, lat, h in ring)
+        shape = plan_footprint(r.ground)
+        if shape is None:
+            continue
+        parts = [shape] if shape.geom_type == "Polygon" else list(shape.geoms)
+        geometry = "".join(_kml_polygon(p) for p in parts)
+        if len(parts) > 1:
+            geometry = f"<MultiGeometry>{geometry}</MultiGeometry>"
         data = "".join(
             f'<Data name="{k}"><value>{"" if v is None else escape(str(v))}</value></Data>'
             for k, v in properties(r).items()
         )
         out.append(
-            f"<Placemark><name>frame {r.index}</name><styleUrl>#footprint</styleUrl><ExtendedData>{data}</ExtendedData>"
-            f"<Polygon><altitudeMode>absolute</altitudeMode><outerBoundaryIs><LinearRing><coordinates>{coords}</coordinates></LinearRing></outerBoundaryIs></Polygon></Placemark>"
+            f"<Placemark><name>frame {r.index}</name><styleUrl>#footprint</styleUrl><ExtendedData>{data}</ExtendedData>{geometry}</Placemark>"
         )
-        track.append(f"{r.sensor[1]:.9f},{r.sensor[0]:.9f},{r.sensor[2]:.3f}")
-    if len(track) >= 2:
+    out.append("</Folder><Folder><name>footprint borders (3D)</name>")
+    for r in records:
+        ring = counter_clockwise_ring(r.footprint_msl)
         out.append(
-            f"<Placemark><name>camera track</name><LineString><altitudeMode>absolute</altitudeMode><coordinates>{' '.join(track)}</coordinates></LineString></Placemark>"
+            f"<Placemark><name>frame {r.index}</name><styleUrl>#footprint</styleUrl><LineString><altitudeMode>absolute</altitudeMode><coordinates>{_coords(ring)}</coordinates></LineString></Placemark>"
         )
-    out.append("</Document></kml>")
+    out.append("</Folder><Folder><name>camera track</name>")
+    if len(records) >= 2:
+        track = np.array([[r.sensor[1], r.sensor[0], r.sensor_msl_m] for r in records])
+        out.append(
+            f"<Placemark><name>camera track</name><LineString><altitudeMode>absolute</altitudeMode><coordinates>{_coords(track)}</coordinates></LineString></Placemark>"
+        )
+    out.append("</Folder></Document></kml>")
     return "\n".join(out)
 
 
@@ -152,9 +232,11 @@ def write_kmz(records: Iterable[FrameRecord], f, name: str) -> None:
 
 
 def fmv_row(r: FrameRecord) -> list[str]:
-    """One row of the Video Multiplexer CSV: time in integer microseconds since the Unix epoch;
-    the camera is the platform (heading only: the sensor's elevation and roll carry the pitch and
-    roll, as a gimbal's would); corners as absolute latitude and longitude."""
+    """One row of the Video Multiplexer CSV: time in integer microseconds since the Unix epoch
+    (UTC; the session clock where none is known); the camera is the platform (heading only: the
+    sensor's elevation and roll carry the pitch and roll, as a gimbal's would); altitudes above
+    mean sea level with the ellipsoid heights beside them; corners as offsets from the frame
+    centre in degrees (empty where the centre or the corner meets nothing)."""
     t = r.utc_s if r.utc_s is not None else r.session_s
     h, p, roll = r.hpr
     c = r.corners
@@ -162,6 +244,7 @@ def fmv_row(r: FrameRecord) -> list[str]:
         int(round(t * 1e6)),
         r.sensor[0],
         r.sensor[1],
+        r.sensor_msl_m,
         r.sensor[2],
         h % 360.0,
         0.0,
@@ -172,9 +255,12 @@ def fmv_row(r: FrameRecord) -> list[str]:
         r.hfov_deg,
         r.vfov_deg,
         r.slant_m,
-        *r.centre,
+        r.centre[0],
+        r.centre[1],
+        r.centre_msl_m,
+        r.centre[2],
     ]
-    cells += [v for k in range(4) for v in (c[k, 0], c[k, 1])]
+    cells += [v for k in range(4) for v in (c[k, 0] - r.centre[0], c[k, 1] - r.centre[1])]
     return [str(cells[0])] + [
         "" if not math.isfinite(v) else f"{v:.9f}" if abs(v) <= 360 else f"{v:.3f}"
         for v in cells[1:]
@@ -189,14 +275,14 @@ def write_fmv_csv(records: Iterable[FrameRecord], f) -> None:
 
 
 def write_records(records: Iterable[FrameRecord], f, suffix: str, name: str) -> None:
-    """Write records in the format the output's suffix names: .geojson/.json, .kml, .kmz, .csv."""
+    """Write records in the format the output's suffix names: .geojson/.json (the footprints;
+    the borders and track go to their own files: footprints_geojson's companions), .kml, .kmz,
+    .csv."""
     if suffix in (".geojson", ".json"):
-        write_geojson(records, f)
+        json.dump(footprints_geojson(records), f, allow_nan=False)
     elif suffix == ".kml":
         f.write(kml(records, name))
     elif suffix == ".kmz":
         write_kmz(records, f, name)
     elif suffix == ".csv":
         write_fmv_csv(records, f)
-    else:
-        raise ValueError(f"unknown export suffix {suffix!r}")

@@ -3,20 +3,21 @@ file written atomically (app.outputs), and the line that says what was written."
 
 from __future__ import annotations
 
+import json
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
 from app.camera_track import CameraTrack
 from app.errors import GeofuseError
-from app.export.gis import write_records
+from app.export.gis import COMPANIONS, borders_geojson, companion, track_geojson, write_records
 from app.export.klv import write_klv_ts
 from app.export.preview import footprint_preview
 from app.export.records import frame_records
 from app.export.video import export_video
 from app.frame_time import frame_span
 from app.imageio import write_rgb
-from app.outputs import write_atomically, write_via_path
+from app.outputs import check_output, write_atomically, write_via_path
 from app.session.model import Session
 
 __all__ = ["ExportOptions", "export_session"]
@@ -51,6 +52,11 @@ def export_session(
     session under attitude `source` (its solved `track`) to `out`; returns what was written, in
     a line. Raises GeofuseError for a span without frames."""
     out = Path(out)
+    if what != "video" and session.utc_of(float(session.frame_times[0])) is None:
+        session.messages.warning(
+            f"{session.path.name}: no UTC clock is known for this clip (no GPS time, dated subtitle or Unix-time log): "
+            "the footprints' utc is empty, and the KLV and CSV time stamps count from 1970-01-01 at the session's time 0"
+        )
     if what == "video":
         try:
             first, last = frame_span(session.video.pts_s, options.start_s, options.end_s)
@@ -88,6 +94,12 @@ def export_session(
         lambda f: write_records(records, f, out.suffix.lower(), options.name),
         binary=out.suffix.lower() == ".kmz",
     )
+    beside = []
+    if out.suffix.lower() in (".geojson", ".json"):
+        for which, layer in zip(COMPANIONS, (borders_geojson, track_geojson)):
+            path = check_output(companion(out, which), "--out", (out.suffix,), session.inputs)
+            write_atomically(path, "--out", lambda f, layer=layer: json.dump(layer(records), f))
+            beside.append(path.name)
     if options.preview is not None:
         write_rgb(
             options.preview,
@@ -95,6 +107,8 @@ def export_session(
             "--preview",
         )
     clipped = sum(r.clipped for r in records)
-    return f"wrote {out}: {len(records)} frames, attitude from {source}" + (
-        f"; {clipped} footprints clipped at the range limit" if clipped else ""
+    return (
+        f"wrote {out}: {len(records)} frames, attitude from {source}"
+        + (f"; {clipped} footprints clipped at the range limit" if clipped else "")
+        + (f"; beside it {' and '.join(beside)}" if beside else "")
     )

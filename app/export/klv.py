@@ -74,7 +74,8 @@ def local_set(r: FrameRecord) -> bytes:
         (7, signed(0.0, 50.0, 2)),  # Platform Roll Angle
         (13, signed(r.sensor[0], 90.0, 4)),  # Sensor Latitude
         (14, signed(r.sensor[1], 180.0, 4)),  # Sensor Longitude
-        (15, unsigned(r.sensor[2], -900.0, 19000.0, 2)),  # Sensor True Altitude (ellipsoidal here)
+        (15, unsigned(r.sensor_msl_m, -900.0, 19000.0, 2)),  # Sensor True Altitude (MSL)
+        (75, unsigned(r.sensor[2], -900.0, 19000.0, 2)),  # Sensor Ellipsoid Height
         (16, unsigned(r.hfov_deg, 0.0, 180.0, 2)),  # Sensor Horizontal Field of View
         (17, unsigned(r.vfov_deg, 0.0, 180.0, 2)),  # Sensor Vertical Field of View
         (18, unsigned(0.0, 0.0, 360.0, 4)),  # Sensor Relative Azimuth Angle
@@ -86,7 +87,8 @@ def local_set(r: FrameRecord) -> bytes:
         items += [
             (23, signed(r.centre[0], 90.0, 4)),
             (24, signed(r.centre[1], 180.0, 4)),
-            (25, unsigned(r.centre[2], -900.0, 19000.0, 2)),
+            (25, unsigned(r.centre_msl_m, -900.0, 19000.0, 2)),  # Frame Center Elevation (MSL)
+            (78, unsigned(r.centre[2], -900.0, 19000.0, 2)),  # Frame Center Height Above Ellipsoid
         ]
         for k in range(
             4

@@ -19,6 +19,7 @@ from app import rotations
 from app.camera import Camera
 from app.camera_track import CameraTrack
 from app.constants import VIEW_FAR_M, VIEW_NEAR_M
+from app.geoid import undulation
 from app.render.probe import SurfaceProbe, border_sampling
 from app.session.model import Session
 from app.solve import solve_track
@@ -26,17 +27,21 @@ from app.solve import solve_track
 FOOTPRINT_MAX_RANGE_M = 2000.0  # border rays that meet nothing are clipped at this range
 FOOTPRINT_SAMPLES = (33, 19)  # rays across the image, and down it (the border's samples)
 LENS_PROBE_PX = 1024  # width of the position map looked up for cameras with a real lens
-UNIX_TIME_FLOOR_S = 946_684_800.0  # 2000-01-01: session clocks past this are Unix time (UTC)
 
 
 @dataclass(frozen=True)
 class FrameRecord:
-    """One exported frame. utc_s: Unix seconds when the session clock is absolute, else None;
-    sensor: (lat, lon, h); hpr: heading, pitch, roll (deg); centre: (lat, lon, h) where the
-    optical axis meets the scene, slant_m its distance (NaN when the axis meets nothing);
-    corners: (4, 3) top-left, top-right, bottom-right, bottom-left image corners on the scene;
-    footprint: (N, 3) the image border on the scene, clockwise in the image from the top-left
-    corner (not closed); clipped: some border ray met no surface."""
+    """One exported frame. utc_s: Unix seconds (UTC) when the session has a clock
+    (Session.utc_of), else None; sensor: (lat, lon, h) degrees and metres above the WGS84
+    ellipsoid; hpr: heading, pitch, roll (deg); centre: (lat, lon, h) where the optical axis
+    meets the scene, slant_m its distance (NaN when the axis meets nothing); corners: (4, 3)
+    top-left, top-right, bottom-right, bottom-left image corners on the scene; footprint: (N, 3)
+    the image border on the scene, clockwise in the image from the top-left corner (not closed);
+    clipped: some border ray met no surface. undulation: (N + 2,) EGM2008 geoid heights above the
+    ellipsoid (m) at the sensor, the centre and the footprint's points, for heights above mean
+    sea level (the `*_msl` properties). ground: (rows, cols, 2) lat, lon of every ray of the
+    sampling grid where it lands (or is clipped), from which the plan-view footprint is built
+    (app.export.footprint)."""
 
     index: int
     media_s: float
@@ -51,6 +56,23 @@ class FrameRecord:
     corners: np.ndarray
     footprint: np.ndarray
     clipped: bool
+    undulation: np.ndarray
+    ground: np.ndarray
+
+    @property
+    def sensor_msl_m(self) -> float:
+        """The sensor's height above mean sea level (EGM2008), m."""
+        return self.sensor[2] - float(self.undulation[0])
+
+    @property
+    def centre_msl_m(self) -> float:
+        """The frame centre's height above mean sea level (EGM2008), m; NaN where none."""
+        return self.centre[2] - float(self.undulation[1])
+
+    @property
+    def footprint_msl(self) -> np.ndarray:
+        """The footprint (N, 3) with heights above mean sea level (EGM2008)."""
+        return np.column_stack([self.footprint[:, :2], self.footprint[:, 2] - self.undulation[2:]])
 
 
 def border_indices(columns: int, rows: int) -> np.ndarray:
@@ -133,29 +155,34 @@ class FootprintCaster:
         return out.reshape(g.height, g.width, 3), hit.reshape(g.height, g.width)
 
     def record(
-        self, cam: Camera, index: int = 0, media_s: float = 0.0, session_s: float = 0.0
+        self,
+        cam: Camera,
+        index: int = 0,
+        media_s: float = 0.0,
+        session_s: float = 0.0,
+        utc_s: float | None = None,
     ) -> FrameRecord:
         pts, hit = self.grid_points(cam)
         cr, cc = self.centre
         b = self.border
-        geo = self.frame.enu_to_geodetic(
-            np.vstack(
-                [
-                    [cam.position],
-                    [pts[cr, cc]],
-                    [pts[r, c] for r, c in self.corners],
-                    pts[b[:, 0], b[:, 1]],
-                ]
-            )
+        gh, gw = pts.shape[:2]
+        geo = self.frame.enu_to_geodetic(np.vstack([[cam.position], pts.reshape(-1, 3)]))
+        grid = geo[1:].reshape(gh, gw, 3)
+        corners = np.array([grid[r, c] for r, c in self.corners])
+        border = grid[b[:, 0], b[:, 1]]
+        n = undulation(
+            np.concatenate([geo[:1, 0], grid[cr, cc, :1], border[:, 0]]),
+            np.concatenate([geo[:1, 1], grid[cr, cc, 1:2], border[:, 1]]),
         )
         centre_hit = bool(hit[cr, cc])
         return FrameRecord(
-            index=index, media_s=media_s, session_s=session_s, utc_s=session_s if session_s > UNIX_TIME_FLOOR_S else None,
+            index=index, media_s=media_s, session_s=session_s, utc_s=utc_s,
             sensor=tuple(map(float, geo[0])), hpr=tuple(map(float, rotations.hpr_from_camera_quat(cam.orientation))),
             hfov_deg=self.hfov_deg, vfov_deg=self.vfov_deg,
-            centre=tuple(map(float, geo[1])) if centre_hit else (np.nan, np.nan, np.nan),
+            centre=tuple(map(float, grid[cr, cc])) if centre_hit else (np.nan, np.nan, np.nan),
             slant_m=float(np.linalg.norm(pts[cr, cc] - np.asarray(cam.position))) if centre_hit else np.nan,
-            corners=geo[2:6], footprint=geo[6:], clipped=not bool(hit[b[:, 0], b[:, 1]].all()),
+            corners=corners, footprint=border, clipped=not bool(hit[b[:, 0], b[:, 1]].all()),
+            undulation=n, ground=grid[..., :2].copy(),
         )  # fmt: skip
 
     def release(self) -> None:
@@ -179,9 +206,8 @@ def frame_records(
     try:
         for n, k in enumerate(frames):
             media = float(track.clock.media_s[k])
-            yield caster.record(
-                track.frame_camera(k), k, media, float(track.clock.session_time(media))
-            )
+            t = float(track.clock.session_time(media))
+            yield caster.record(track.frame_camera(k), k, media, t, session.utc_of(t))
             if progress is not None:
                 progress((n + 1) / len(frames))
     finally:

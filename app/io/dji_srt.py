@@ -73,7 +73,7 @@ class SrtTrack:
     """Per entry: t (N,) seconds from the clip start (the entry's start time); lat, lon (deg; NaN
     where the entry has none); height (m) and whether it is relative to take-off; wall-clock time
     (Unix s, local time of the aircraft taken as UTC: DJI writes no zone) or NaN; gimbal and
-    aircraft pitch, roll, yaw (deg) or NaN; focal length (mm-equivalent x10 as DJI writes) or NaN."""
+    aircraft pitch, roll, yaw (deg) or NaN; 35 mm equivalent focal length (mm; read in each layout's unit) or NaN."""
 
     path: str
     t: np.ndarray
@@ -132,11 +132,15 @@ def _entry_fields(text: str) -> tuple[dict[str, float], str]:
         ("altitude", _ALT),
         ("baro", _BARO),
         ("H", _H),
-        ("focal", _FOCAL),
     ):
         m = rx.search(text)
         if m:
             f[key] = float(m.group(1))
+    m = _FOCAL.search(text)
+    if (
+        m
+    ):  # `[focal_len: 24.00]` (Mavic 3, Air 2S): mm; the older `[focal_len : 240]`: tenths of a mm
+        f["focal"] = float(m.group(1)) / (1.0 if "." in m.group(1) else 10.0)
     for k, rx in _PRY.items():
         m = rx.search(text)
         if m:
@@ -283,6 +287,24 @@ def split_entries(text: str) -> list[list[str]]:
     return entries
 
 
+def _cadence_within_seconds(wall: np.ndarray) -> np.ndarray:
+    """Date-times truncated to the second (1 Hz logging layouts: several entries share one
+    second) are timestamp resolution, not a position jump: each entry's time from the entries'
+    cadence, fitted to where each new second begins (seconds per entry by least squares), so
+    that every entry keeps its own time. Times with sub-second digits are returned as they are."""
+    ok = np.isfinite(wall)
+    w = wall[ok]
+    if len(w) < 3 or np.any(w != np.round(w)) or len(np.unique(w)) == len(w):
+        return wall
+    index = np.flatnonzero(ok)
+    starts = np.flatnonzero(np.diff(w, prepend=w[0] - 1.0) > 0)  # first entry of each second
+    if len(starts) < 2:
+        step = 1.0 / len(w)
+        return np.where(ok, w[0] + step * (np.arange(len(wall)) - index[0]), np.nan)
+    slope, intercept = np.polyfit(index[starts], w[starts] - w[0], 1)
+    return np.where(ok, w[0] + intercept + slope * np.arange(len(wall)), np.nan)
+
+
 def _times_from_dates(
     rows: list[tuple[float, float, dict[str, float]]],
 ) -> list[tuple[float, float, dict[str, float]]]:
@@ -292,6 +314,7 @@ def _times_from_dates(
     if not np.isfinite(wall).any():
         return [r for r in rows if np.isfinite(r[0])]
     w0 = float(np.nanmin(wall))
+    wall = _cadence_within_seconds(wall)
     out = [
         (float(w - w0), np.nan, f) if not np.isfinite(t0) else (t0, t1, f)
         for (t0, t1, f), w in zip(rows, wall)

@@ -22,7 +22,7 @@ from app.attitude import heading
 from app.attitude.filters import estimate, resample
 from app.attitude.heading import HeadingPolicy
 from app.camera import Intrinsics
-from app.constants import COURSE, REGISTERED, TRUTH
+from app.constants import COURSE, REGISTERED, TRUTH, UNIX_TIME_FLOOR_S
 from app.errors import DataFormatError
 from app.geo import LocalFrame
 from app.io.streams import GnssTrack, OrientationStream, VectorStream
@@ -87,6 +87,7 @@ class Session:
     )
     mesh: MeshData | None = None
     layers: tuple = ()  # app.scene.layers.Layer: the scene's layers as named ((): an assumed ground)
+    utc_at_zero_s: float | None = None  # Unix time (UTC) of session time 0, when the camera says
 
     @property
     def heading_note(self) -> str:
@@ -180,6 +181,15 @@ class Session:
                 "and a grey model or a bare DEM has none (give the DEM an orthophoto, or use a textured model)"
             )
         return None
+
+    def utc_of(self, session_s: float) -> float | None:
+        """Unix seconds (UTC) at session time session_s: from the camera's own clock
+        (`utc_at_zero_s`: a GoPro's GPS time, a DJI subtitle's dates), or the session clock itself
+        where it already is Unix time (a GPX or Sensor Logger session); None where no clock is
+        known."""
+        if self.utc_at_zero_s is not None:
+            return self.utc_at_zero_s + float(session_s)
+        return float(session_s) if session_s > UNIX_TIME_FLOOR_S else None
 
     def check_source(self, source: str) -> None:
         """ValueError naming what the session offers, for a source it does not."""

@@ -373,7 +373,7 @@ def _subtitle_clock(track: SrtTrack, srt: Path, messages: Messages) -> float | N
     ok = np.isfinite(track.wall_clock)
     if not ok.any():
         return None
-    messages.warning(
+    messages.add(
         f"{srt.name}: the subtitle's dates carry no time zone (DJI writes the aircraft's local time); the exports' UTC times take them as UTC"
     )
     return float(np.median(track.wall_clock[ok] - track.t[ok]))

@@ -53,7 +53,7 @@ def export_session(
     a line. Raises GeofuseError for a span without frames."""
     out = Path(out)
     if what != "video" and session.utc_of(float(session.frame_times[0])) is None:
-        session.messages.warning(
+        session.messages.add(
             f"{session.path.name}: no UTC clock is known for this clip (no GPS time, dated subtitle or Unix-time log): "
             "the footprints' utc is empty, and the KLV and CSV time stamps count from 1970-01-01 at the session's time 0"
         )

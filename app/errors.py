@@ -27,7 +27,8 @@ class DataFormatError(GeofuseError):
         self.line = line
         self.field = field
         self.detail = message
-        where = str(self.path)
+        text = str(path)
+        where = text if "://" in text else str(self.path)  # a URL keeps its "//" (Path folds it)
         if line is not None:
             where += f":{line}"
         if field is not None:

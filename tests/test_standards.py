@@ -15,16 +15,22 @@ import av
 import klvdata
 import numpy as np
 import pytest
+from PIL import Image
 from shapely.geometry import shape
 
 from app.cli import main
 from app.clips import open_clip
 from app.demo import SAMPLE_DIR
+from app.errors import DataFormatError
 from app.export.gis import FMV_FIELDS
+from app.geo import LocalFrame
 from app.geoid import undulation
 from app.io.dji_srt import read_srt, srt_fixes
 from app.messages import Messages
+from app.scene.tiles import fetch
+from app.scene.tiles.tileset import Tileset
 from app.simulate import drone
+from app.simulate import tileset as tw
 from app.simulate.phone import write_video
 
 SAMPLE = SAMPLE_DIR / "session.toml"
@@ -270,3 +276,129 @@ def test_out_of_range_values_are_refused(tmp_path, capsys):
         == 2
     )
     assert "--every" in capsys.readouterr().err
+
+
+# --- 3D Tiles as the world publishes them ---------------------------------------------------------
+
+ORIGIN = (46.05, 14.5, 300.0)
+WALL_V = np.array([[-10.0, 20.0, 0.0], [10.0, 20.0, 0.0], [10.0, 20.0, 20.0], [-10.0, 20.0, 20.0]])
+WALL_F = np.array([[0, 1, 2], [0, 2, 3]])
+
+
+def _local_tileset(folder: Path, children: list[dict] | None = None) -> Path:
+    """A tileset in its own coordinates (as the official 3D Tiles 1.1 samples are): a wall 20 m
+    north of (0, 0, 0), 20 m wide and high; no georeference."""
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "wall.glb").write_bytes(tw.glb(WALL_V, WALL_F))
+    root = {
+        "boundingVolume": {"box": tw.box_of([-12, -12, -1], [12, 22, 21])},
+        "geometricError": 0.0,
+        "refine": "ADD",
+        "content": {"uri": "wall.glb"},
+    }
+    if children:
+        root["children"] = children
+    return tw.write_json(
+        folder / "tileset.json",
+        {"asset": {"version": "1.1"}, "geometricError": 10.0, "root": root},
+    )
+
+
+def _render(tileset: Path, tmp_path: Path, heading: float, *extra: str) -> tuple[int, np.ndarray]:
+    image = tmp_path / "white.png"
+    Image.fromarray(np.full((48, 64, 3), 255, np.uint8)).save(image)
+    out = tmp_path / f"r{heading:g}.png"
+    lat, lon, h = ORIGIN
+    code = main(
+        [
+            "render", "--scene", str(tileset), "--image", str(image),
+            "--pose", f"{lat},{lon},{h + 10},{heading},0,0", "--fov", "60",
+            "--view-from", "0,0,10", "--look-at", f"{20 * np.sin(np.radians(heading)):.3f},{20 * np.cos(np.radians(heading)):.3f},10",
+            "--size", "64x48", "--out", str(out), *extra,
+        ]
+    )  # fmt: skip
+    return code, (np.asarray(Image.open(out).convert("RGB")) if out.exists() else None)
+
+
+def test_a_tileset_without_georeference_is_placed_at_the_origin(tmp_path, capsys):
+    """The wall, 20 m north in the tileset's coordinates, turned 90 deg clockwise by
+    --scene-heading, stands 20 m east of --origin: a camera there looking east sees it (the
+    white image on it), one looking north sees nothing, and says so."""
+    ts = _local_tileset(tmp_path / "local")
+    lat, lon, h = ORIGIN
+    origin = ["--origin", f"{lat},{lon},{h}", "--scene-heading", "90"]
+    code, east = _render(ts, tmp_path, 90.0, *origin)
+    assert code == 0, capsys.readouterr().err
+    assert east[24, 32].min() > 240  # the white image draped on the wall, at the view's centre
+    code, north = _render(ts, tmp_path, 0.0, *origin)
+    assert code == 1 and "nothing of the scene was drawn" in capsys.readouterr().err
+    assert np.abs(north[24, 32] - np.array([0.62, 0.74, 0.86]) * 255).max() < 3  # background
+    code, _ = _render(ts, tmp_path, 90.0)  # no origin: not placed, and told how
+    err = capsys.readouterr().err
+    assert code == 2 and "not georeferenced" in err and "--origin" in err
+
+
+def test_what_cannot_be_drawn_is_said_by_render(tmp_path, capsys):
+    """An i3dm and a pnts tile (skipped kinds) and a missing b3dm (dragon_high.b3dm): one summary
+    line with the counts and the missing tile named."""
+    folder = tmp_path / "mixed"
+    folder.mkdir()
+    (folder / "trees.i3dm").write_bytes(tw.other_tile(b"i3dm"))
+    (folder / "cloud.pnts").write_bytes(tw.other_tile(b"pnts"))
+    box = {"box": tw.box_of([-12, -12, -1], [12, 22, 21])}
+    children = [
+        {"boundingVolume": box, "geometricError": 0.0, "content": {"uri": name}}
+        for name in ("trees.i3dm", "cloud.pnts", "dragon_high.b3dm")
+    ]
+    ts = _local_tileset(folder, children)
+    lat, lon, h = ORIGIN
+    code, _ = _render(ts, tmp_path, 90.0, "--origin", f"{lat},{lon},{h}", "--scene-heading", "90")
+    err = capsys.readouterr().err
+    (line,) = [x for x in err.splitlines() if x.startswith("warning: 3D Tiles")]
+    assert "1 instanced models (i3dm)" in line and "1 point clouds (pnts)" in line
+    assert "1 tile missing or damaged" in line
+    assert "dragon_high.b3dm" in line and code == 0  # the wall itself was drawn
+
+
+def test_geometric_error_scales_with_the_transform_and_request_volumes_hold(tmp_path):
+    """A tile whose transform scales by 10 has ten times its geometric error (CesiumJS); a tile
+    with a viewerRequestVolume is selected only from inside it."""
+    folder = tmp_path / "scaled"
+    folder.mkdir()
+    (folder / "wall.glb").write_bytes(tw.glb(WALL_V, WALL_F))
+    scale = np.diag([10.0, 10.0, 10.0, 1.0])
+    child = {
+        "boundingVolume": {"box": tw.box_of([-1.2, -1.2, -0.1], [1.2, 2.2, 2.1])},
+        "transform": tw.column_major(scale),
+        "geometricError": 0.5,
+        "content": {"uri": "wall.glb"},
+        "viewerRequestVolume": {"box": tw.box_of([-5, -5, 0], [5, 5, 50])},
+    }
+    ts_path = _local_tileset(folder, [child])
+    ts = Tileset(str(ts_path), LocalFrame(*ORIGIN), ORIGIN, 0.0, 1.0)
+    (tile,) = ts.root.children
+    assert tile.geometric_error == pytest.approx(5.0)
+    assert tile.requested_from(np.array([0.0, 0.0, 10.0]))
+    assert not tile.requested_from(np.array([0.0, -80.0, 10.0]))  # the volume scales too: 50 m
+
+
+def test_urls_keep_their_double_slash_in_messages():
+    err = DataFormatError("https://example.com/city/tileset.json", "not found")
+    assert str(err).startswith("https://example.com/city/tileset.json: ")
+    assert fetch.display_name("https://example.com/city/tileset.json").startswith("https://")
+
+
+def test_a_far_scene_is_said_on_a_still(tmp_path, capsys):
+    """render --scene with the camera 5 km from the placed tileset warns, as sessions do."""
+    ts = _local_tileset(tmp_path / "far")
+    lat, lon, h = ORIGIN
+    image = tmp_path / "w.png"
+    Image.fromarray(np.full((48, 64, 3), 255, np.uint8)).save(image)
+    main(
+        [
+            "render", "--scene", str(ts), "--origin", f"{lat},{lon},{h}", "--image", str(image),
+            "--pose", f"{lat + 0.045},{lon},{h + 10},0,0,0", "--fov", "60",
+            "--size", "64x48", "--out", str(tmp_path / "far.png"),
+        ]
+    )  # fmt: skip
+    assert "the scene lies 5.0 km from the camera" in capsys.readouterr().err

@@ -16,6 +16,7 @@ from app.outputs import check_output
 from app.progress import ProgressBar
 from app.scene import Placement
 from app.scene.layers import Layer, named_layers
+from app.scene.mesh import MeshData
 from app.session.model import Session
 from app.solve import solve_track
 
@@ -87,3 +88,25 @@ def print_messages(session: Session) -> None:
     for message in new:
         print(message, file=sys.stderr)
     _PRINTED[key] = _PRINTED.get(key, 0) + len(new)
+
+
+def print_scene_report(mesh: MeshData) -> None:
+    """What of the scene's 3D Tiles could not be drawn, a line per tileset (the kinds skipped
+    with their counts, the tiles missing or damaged with the first named), as warnings."""
+    for tileset in mesh.tilesets:
+        line = tileset.report()
+        if line:
+            print(f"warning: 3D Tiles {line}", file=sys.stderr)
+
+
+def nothing_drawn(samples: int, mesh: MeshData) -> bool:
+    """Say so when a still shows none of the scene (all of it out of view, or no tile loaded):
+    samples, the scene's fragments drawn; True then."""
+    if samples > 0:
+        return False
+    what = "no tile could be drawn" if mesh.tilesets else "the scene is out of view"
+    print(
+        f"warning: nothing of the scene was drawn ({what}): check the camera's pose and the scene's placement",
+        file=sys.stderr,
+    )
+    return True

@@ -7,7 +7,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from app.cli.common import open_with_source, print_messages, solved
+from app.cli.common import open_with_source, print_messages, print_scene_report, solved
 from app.export import EXPORT_SUFFIXES
 from app.export.jobs import ExportOptions, export_session
 from app.outputs import IMAGE_SUFFIXES, check_output
@@ -41,5 +41,6 @@ def run(args: argparse.Namespace) -> int:
         ProgressBar(f"export {args.what}", sys.stderr),
     )
     print_messages(session)
+    print_scene_report(session.scene())
     print(line)
     return 0

@@ -7,7 +7,15 @@ import argparse
 import sys
 
 from app.camera import Intrinsics
-from app.cli.common import layers, open_with_source, print_messages, projection_settings, solved
+from app.cli.common import (
+    layers,
+    nothing_drawn,
+    open_with_source,
+    print_messages,
+    print_scene_report,
+    projection_settings,
+    solved,
+)
 from app.config import OverlaySettings
 from app.constants import DEFAULT_NEAR_M
 from app.errors import GeofuseError
@@ -17,7 +25,7 @@ from app.imageio import read_rgb, write_rgb
 from app.io.video import read_frame
 from app.lens import still_camera
 from app.outputs import IMAGE_SUFFIXES, check_output
-from app.render.still import render_still, window_camera
+from app.render.still import render_still_counted, window_camera
 from app.scene import Placement
 from app.scene.layers import load_layers
 
@@ -26,7 +34,13 @@ def run(args: argparse.Namespace) -> int:
     if args.session is not None:
         return _session(args)
     named = layers(
-        args, Placement(up_axis=args.up, heading_deg=args.scene_heading, scale=args.scene_scale)
+        args,
+        Placement(
+            origin=args.origin,
+            up_axis=args.up,
+            heading_deg=args.scene_heading,
+            scale=args.scene_scale,
+        ),
     )
     missing = [f"--{k.replace('_', '-')}" for k in ("image", "pose") if getattr(args, k) is None]
     if not named:
@@ -48,6 +62,7 @@ def run(args: argparse.Namespace) -> int:
     lat, lon, h, heading, pitch, roll = args.pose
     frame = LocalFrame(*(args.origin or (lat, lon, h)))
     loaded = load_layers(named, frame, [[lat, lon]])
+    loaded.warn_far([frame.geodetic_to_enu(lat, lon, h)], "the camera")
     for message in loaded.notes.since(0):
         print(message, file=sys.stderr)
     image = read_rgb(args.image)
@@ -64,7 +79,7 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as exc:
         raise GeofuseError(f"--fov: {exc}") from exc
     view = window_camera(projector, view_intr, args.view_from, args.look_at, args.far)
-    rgb = render_still(
+    still = render_still_counted(
         loaded.mesh,
         image,
         projector,
@@ -72,9 +87,10 @@ def run(args: argparse.Namespace) -> int:
         projection_settings(args),
         OverlaySettings(frustum=not args.no_frustum, trajectory=False),
     )
-    out = write_rgb(args.out, rgb)
-    print(f"wrote {out} ({rgb.shape[1]}x{rgb.shape[0]})")
-    return 0
+    out = write_rgb(args.out, still.rgb)
+    print(f"wrote {out} ({still.rgb.shape[1]}x{still.rgb.shape[0]})")
+    print_scene_report(loaded.mesh)
+    return 1 if nothing_drawn(still.samples, loaded.mesh) else 0
 
 
 def _session(args: argparse.Namespace) -> int:
@@ -102,7 +118,7 @@ def _session(args: argparse.Namespace) -> int:
         args.look_at,
         args.far,
     )
-    rgb = render_still(
+    still = render_still_counted(
         session.scene(),
         read_frame(session.video.path, index, session.video),
         projector,
@@ -111,6 +127,7 @@ def _session(args: argparse.Namespace) -> int:
         OverlaySettings(frustum=not args.no_frustum),
         trajectory=track.frame_poses().enu,
     )
-    out = write_rgb(args.out, rgb)
+    out = write_rgb(args.out, still.rgb)
     print(f"wrote {out}: frame {index} at {pts[index]:.3f} s, attitude from {source}")
-    return 0
+    print_scene_report(session.scene())
+    return 1 if nothing_drawn(still.samples, session.scene()) else 0

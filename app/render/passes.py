@@ -3,6 +3,8 @@ mapping), then the scene seen from the window camera with the video projected (p
 
 from __future__ import annotations
 
+import contextlib
+
 import moderngl
 import numpy as np
 
@@ -98,6 +100,8 @@ class ScenePass:
         self.scene = scene
         self.program = load_program(ctx, "scene.vert", "scene.frag")
         self.triangles = 0  # drawn in the last frame
+        self.count_samples = False  # count the scene's fragments that pass (an occlusion query)
+        self.samples: int | None = None  # of the last frame, when counted
         self.program["u_base_texture"].value = 0
         self.program["u_depth_map"].value = 1
         self.program["u_video"].value = 2
@@ -163,11 +167,16 @@ class ScenePass:
         self.ctx.enable(moderngl.DEPTH_TEST)
         self.ctx.disable(moderngl.CULL_FACE)
         prims = self.scene.drawables(view, None, "view")
-        for prim in prims:
-            p["u_has_texture"].value = prim.texture is not None
-            (prim.texture or self._blank).use(0)
-            prim.vao(self.ctx, p, ("in_position", "in_uv", "in_color")).render(moderngl.TRIANGLES)
+        query = self.ctx.query(samples=True) if self.count_samples else None
+        with query or contextlib.nullcontext():
+            for prim in prims:
+                p["u_has_texture"].value = prim.texture is not None
+                (prim.texture or self._blank).use(0)
+                prim.vao(self.ctx, p, ("in_position", "in_uv", "in_color")).render(
+                    moderngl.TRIANGLES
+                )
         self.triangles = sum(q.count for q in prims) // 3
+        self.samples = query.samples if query is not None else None
 
     def release(self) -> None:
         self.scene.forget(self.program)

@@ -53,6 +53,41 @@ def window_camera(
     return Camera.create(intrinsics, eye, look_at_quat(eye, target), near=DEFAULT_NEAR_M, far=far)
 
 
+@dataclass(frozen=True)
+class Still:
+    """A rendered still: rgb (H, W, 3) uint8; samples: how many of the scene's fragments were
+    drawn (an occlusion query; 0: nothing of the scene is in the picture)."""
+
+    rgb: np.ndarray
+    samples: int
+
+
+def render_still_counted(
+    mesh: MeshData,
+    image: npt.NDArray[np.uint8] | None,
+    projector: Camera,
+    view: Camera,
+    settings: ProjectionSettings = ProjectionSettings(),
+    overlays: OverlaySettings = OverlaySettings(),
+    trajectory: npt.ArrayLike | None = None,
+) -> Still:
+    """Render `mesh` from `view` with `image` projected from `projector`, and say how much of
+    the scene was drawn."""
+    ctx = create_offscreen_context()
+    renderer = FusionRenderer(ctx, mesh)
+    try:
+        if image is not None:
+            renderer.set_video_frame(image)
+        renderer.set_projector(projector)
+        renderer.set_trajectory(trajectory)
+        renderer.scene_pass.count_samples = True
+        rgb = render_to_array(renderer, view, settings, overlays)
+        return Still(rgb, int(renderer.scene_pass.samples or 0))
+    finally:
+        renderer.release()
+        ctx.release()
+
+
 def render_still(
     mesh: MeshData,
     image: npt.NDArray[np.uint8] | None,
@@ -63,14 +98,4 @@ def render_still(
     trajectory: npt.ArrayLike | None = None,
 ) -> np.ndarray:
     """Render `mesh` from `view` with `image` projected from `projector`: (H, W, 3) uint8 RGB."""
-    ctx = create_offscreen_context()
-    renderer = FusionRenderer(ctx, mesh)
-    try:
-        if image is not None:
-            renderer.set_video_frame(image)
-        renderer.set_projector(projector)
-        renderer.set_trajectory(trajectory)
-        return render_to_array(renderer, view, settings, overlays)
-    finally:
-        renderer.release()
-        ctx.release()
+    return render_still_counted(mesh, image, projector, view, settings, overlays, trajectory).rgb

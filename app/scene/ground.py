@@ -10,7 +10,6 @@ import numpy as np
 import numpy.typing as npt
 
 from app.scene.mesh import MeshData
-from app.scene.tiles.gltf import Skipped
 from app.scene.tiles.stream import LOAD_ERRORS, decode_tile
 
 CHUNK = 200_000  # triangles per vectorised batch
@@ -21,7 +20,7 @@ def tileset_surface(tileset, xy: np.ndarray) -> list:
     (N, 2) ENU m: read and decoded here, on the CPU, once (a tileset's ground under a track).
     Tiles that cannot be read are left out."""
 
-    found, stack, skipped = [], [tileset.root], Skipped()
+    found, stack = [], [tileset.root]
     while stack:
         tile = stack.pop()
         lo, hi = tile.box[0, :2] - 1.0, tile.box[1, :2] + 1.0
@@ -29,7 +28,8 @@ def tileset_surface(tileset, xy: np.ndarray) -> list:
             continue
         try:
             tileset.expand(tile)
-        except LOAD_ERRORS:
+        except LOAD_ERRORS as exc:
+            tileset.add_failure(str(exc))
             tile.children = tile.children or []
         if tile.contents and (not tile.children or tile.refine == "ADD"):
             found.append(tile)
@@ -37,9 +37,9 @@ def tileset_surface(tileset, xy: np.ndarray) -> list:
     prims = []
     for tile in found:
         try:
-            prims += decode_tile(tileset, tile, skipped).primitives
-        except LOAD_ERRORS:
-            continue
+            prims += decode_tile(tileset, tile, tileset.skipped).primitives
+        except LOAD_ERRORS as exc:
+            tileset.add_failure(str(exc))
     return prims
 
 

@@ -24,6 +24,7 @@ from app.scene.tiles import fetch
 from app.scene.tiles.tileset import Tileset, TilesetError
 
 KINDS = ("mesh", "tileset", "dem")
+SCENE_FAR_M = 500.0  # a scene farther than this from the camera is misplaced, or the camera is
 
 
 def layer_kind(location: str | Path) -> str:
@@ -61,13 +62,9 @@ class Layer:
 
     @property
     def name(self) -> str:
-        """The file's name; a tileset.json with its folder (most tilesets are called that)."""
-        parts = self.location.replace("\\", "/").rstrip("/").split("/")
-        return (
-            "/".join(parts[-2:])
-            if parts[-1].lower() == "tileset.json" and len(parts) > 1
-            else parts[-1]
-        )
+        """The file's name; a tileset.json with its folder (most tilesets are called that); a
+        URL whole."""
+        return fetch.display_name(self.location)
 
     @property
     def georeferenced(self) -> bool:
@@ -97,7 +94,7 @@ def named_layers(
         layer = Layer.of(name)
         if layer.kind == "dem":
             layer = Layer.of(name, ortho=ortho, vertical=vertical, max_error_m=max_error_m)
-        elif layer.kind == "mesh" and placement is not None:
+        elif layer.kind in ("mesh", "tileset") and placement is not None:
             layer = Layer.of(name, placement=placement)
         out.append(layer)
     if ortho is not None:
@@ -119,10 +116,26 @@ class LoadedLayers:
     parts: list[tuple[Layer, MeshData]] = field(default_factory=list)
     notes: Messages = field(default_factory=Messages)
 
+    def warn_far(self, points_enu: npt.ArrayLike, what: str) -> None:
+        """A warning in `notes` for each layer farther than SCENE_FAR_M (horizontally) from every
+        one of the points (N, 3) ENU m (`what` names them: the camera's track, the camera)."""
+        for layer, part in self.parts:
+            far = part.horizontal_distance(points_enu)
+            if far > SCENE_FAR_M:
+                hint = (
+                    "its georeferencing (or --origin for one that has none)"
+                    if layer.georeferenced
+                    else "the model's origin and up axis"
+                )
+                self.notes.add(
+                    f"{layer.name}: the scene lies {far / 1000:.1f} km from {what}: check {hint} and the camera's position"
+                )
+
 
 def _tileset(layer: Layer, frame: LocalFrame) -> Tileset:
     try:
-        return Tileset(layer.location, frame)
+        p = layer.placement
+        return Tileset(layer.location, frame, p.origin, p.heading_deg, p.scale)
     except fetch.FetchError as exc:
         raise SceneError(exc.location, str(exc).split(": ", 1)[-1]) from exc
     except TilesetError as exc:

@@ -208,26 +208,14 @@ def _takeoff_height(
     return value
 
 
-SCENE_FAR_M = (
-    500.0  # a scene farther than this from every fix of the track is misplaced, or the track is
-)
-
-
 def load_scene_layers(layers, frame: LocalFrame, gnss: GnssTrack, messages: Messages) -> MeshData:
     """Every layer in `frame`, read around the track (app.scene.layers.load_layers), with what
     reading them found said, and a warning with the distance for each layer that lies away from
     the camera's track (a wrong origin, up axis or ECEF reading places a model thousands of
-    kilometres off)."""
+    kilometres off: LoadedLayers.warn_far)."""
     loaded = load_layers(layers, frame, np.column_stack([gnss.lat, gnss.lon]))
+    loaded.warn_far(frame.geodetic_to_enu(gnss.lat, gnss.lon, gnss.h), "the camera's track")
     messages.extend(loaded.notes)
-    track_enu = frame.geodetic_to_enu(gnss.lat, gnss.lon, gnss.h)
-    for layer, part in loaded.parts:
-        far = part.horizontal_distance(track_enu)
-        if far > SCENE_FAR_M:
-            hint = "its georeferencing" if layer.georeferenced else "scene.origin, scene.up_axis"
-            messages.add(
-                f"{layer.name}: the scene lies {far / 1000:.1f} km from the camera's track: check {hint} and the GNSS positions"
-            )
     return loaded.mesh
 
 

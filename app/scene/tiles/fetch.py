@@ -28,6 +28,19 @@ def is_url(location: str) -> bool:
     return location.lower().startswith(("http://", "https://"))
 
 
+def display_name(location: str) -> str:
+    """A location as messages name it: a URL whole; a file by its name, a tileset.json with its
+    folder (most tilesets are called that)."""
+    if is_url(location):
+        return location
+    parts = location.replace("\\", "/").rstrip("/").split("/")
+    return (
+        "/".join(parts[-2:])
+        if parts[-1].lower() == "tileset.json" and len(parts) > 1
+        else parts[-1]
+    )
+
+
 def resolve(base: str, uri: str) -> str:
     """`uri` as written inside the file at `base`, made absolute."""
     if is_url(uri):

@@ -36,7 +36,6 @@ if TYPE_CHECKING:
 
 DEFAULT_MAX_SSE_PX = 16.0  # CesiumJS's maximumScreenSpaceError
 DEFAULT_WORKERS = 4
-MAX_ERRORS_KEPT = 8
 EMPTY_SUBTREE = Subtree(Availability(0), (), Availability(0))
 LOAD_ERRORS = (fetch.FetchError, ContentError, GltfError, SubtreeError, TilesetError, ValueError)
 
@@ -137,9 +136,7 @@ class TileStream:
         self.tileset = tileset
         self.max_sse_px = float(max_sse_px)
         self.decode = decode
-        self.skipped = Skipped()
-        self.failures = 0
-        self.errors: list[str] = []
+        self.skipped = tileset.skipped  # one record per tileset, whichever stream reads it
         self.ready: set[int] = set()  # content on the GPU (or empty, or failed): drawable
         self._cond = threading.Condition()
         self._wants: dict[str, list[tuple[tuple, Tile]]] = {}
@@ -178,7 +175,7 @@ class TileStream:
 
         def visit(tile: Tile) -> tuple[list[Tile], bool]:
             """(tiles to draw, whether they cover the tile fully)."""
-            if not view.visible(tile):
+            if not view.visible(tile) or not tile.requested_from(view.position):
                 return [], True
             if self._unread(tile) or self._content_missing(tile):
                 want(tile)
@@ -273,10 +270,7 @@ class TileStream:
                     if isinstance(exc, LOAD_ERRORS)
                     else f"{tile.contents[0] if tile.contents else tile.document}: {type(exc).__name__}: {exc}"
                 )
-                with self._cond:
-                    self.failures += 1
-                    if len(self.errors) < MAX_ERRORS_KEPT:
-                        self.errors.append(message)
+                self.tileset.add_failure(message)
                 if content_job:
                     item.failed = True
                 else:  # nothing below this tile can be read: stop refining it
@@ -287,6 +281,16 @@ class TileStream:
             with self._cond:
                 self._done.append(item)
                 self._cond.notify_all()
+
+    @property
+    def failures(self) -> int:
+        """Tiles of the tileset that could not be read (by any stream)."""
+        return self.tileset.failures
+
+    @property
+    def errors(self) -> list[str]:
+        """The first of them, named."""
+        return list(self.tileset.errors)
 
     def close(self, wait_s: float = 1.0) -> None:
         """Stop the workers: idle ones at once; one still reading a slow URL finishes that read on

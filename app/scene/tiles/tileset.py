@@ -21,8 +21,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from app.geo import LocalFrame, geodetic_to_ecef
+from app.constants import ECEF_MIN_RADIUS_M
+from app.geo import LocalFrame, ecef_to_enu_rotation, geodetic_to_ecef
 from app.scene.tiles import fetch
+from app.scene.tiles.gltf import Skipped
 from app.scene.tiles.implicit import (
     Subtree,
     expand_template,
@@ -32,6 +34,9 @@ from app.scene.tiles.implicit import (
 )
 
 REFINES = ("ADD", "REPLACE")
+
+
+MAX_ERRORS_KEPT = 8  # failures named per tileset (all are counted)
 
 
 class TilesetError(ValueError):
@@ -77,6 +82,13 @@ class Tile:
     children: list[Tile] | None = field(default_factory=list)
     external: str | None = None  # the external tileset JSON its content names (read by expand())
     implicit: Implicit | None = None
+    request_box: np.ndarray | None = None  # (2, 3) ENU AABB of its viewerRequestVolume, if any
+
+    def requested_from(self, position: np.ndarray) -> bool:
+        """Whether a viewer at `position` (ENU m) may see the tile: inside its
+        viewerRequestVolume (bounded by its box here), or it has none."""
+        b = self.request_box
+        return b is None or bool(np.all((position >= b[0]) & (position <= b[1])))
 
 
 def _matrix(values: object, where: str, document: str) -> np.ndarray:
@@ -117,23 +129,109 @@ def volume_points(
     raise TilesetError(document, "bounding volume needs box, region or sphere", where)
 
 
+def _georeferenced(root: object, document: str) -> bool:
+    """Whether a root tile's bounding volume (after its own transform) lies in ECEF, beyond
+    ECEF_MIN_RADIUS_M from the Earth's centre (a region always does)."""
+    if not isinstance(root, dict) or not isinstance(root.get("boundingVolume"), dict):
+        return True  # the tile reader says what is wrong with it
+    if "region" in root["boundingVolume"]:
+        return True
+    transform = (
+        _matrix(root["transform"], "root.transform", document) if "transform" in root else np.eye(4)
+    )
+    points, _ = volume_points(root["boundingVolume"], transform, document, "root.boundingVolume")
+    return float(np.linalg.norm(points.mean(axis=0))) > ECEF_MIN_RADIUS_M
+
+
+def model_matrix(
+    origin: tuple[float, float, float], heading_deg: float = 0.0, scale: float = 1.0
+) -> np.ndarray:
+    """(4, 4) a model's Z-up coordinates -> ECEF: scaled, turned clockwise by heading_deg about
+    Up, with x, y, z along east, north, up at origin (lat, lon deg, ellipsoidal h m)."""
+    a = np.radians(heading_deg)
+    c, s = np.cos(a), np.sin(a)
+    turn = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])  # as app.scene.loader's
+    m = np.eye(4)
+    m[:3, :3] = ecef_to_enu_rotation(origin[0], origin[1]).T @ turn * float(scale)
+    m[:3, 3] = geodetic_to_ecef(*origin)
+    return m
+
+
 class Tileset:
     """The tile tree of one tileset in `frame`. Thread safety: `expand()` runs on worker threads
     (of one or several streams: the viewer and an off-screen probe may share a tileset), expands a
     tile once, and assigns its `children` at its end; readers treat None as "not yet"."""
 
-    def __init__(self, location: str, frame: LocalFrame) -> None:
+    def __init__(
+        self,
+        location: str,
+        frame: LocalFrame,
+        origin: tuple[float, float, float] | None = None,
+        heading_deg: float = 0.0,
+        scale: float = 1.0,
+    ) -> None:
+        """origin (lat, lon deg, ellipsoidal h m), heading_deg (clockwise about Up) and scale
+        place a tileset that is not georeferenced (its root near the Earth's centre: a model in
+        its own Z-up coordinates, as the official 3D Tiles samples are) with a model matrix, as
+        viewers do: its x, y, z become east, north, up at the origin. A georeferenced tileset
+        ignores them. Raises TilesetError for one without georeference and without an origin."""
         self.location = location
         self.frame = frame
         self._ids = itertools.count()
         self._lock = threading.Lock()
         self._expanding = [threading.Lock() for _ in range(16)]  # striped by tile id
         self.tile_count = 0
+        self.skipped = Skipped()  # what the readers left out, by kind, whoever read the tiles
+        self.failures = 0  # tiles (or subtrees, external tilesets) missing or damaged
+        self.errors: list[str] = []  # the first MAX_ERRORS_KEPT of them, named
+        self._failed: set[str] = set()
         doc = self._read_json(location)
         self.version = str(doc.get("asset", {}).get("version", "?"))
         if "root" not in doc:
             raise TilesetError(location, "no root tile", "root")
-        self.root = self._tile(doc["root"], np.eye(4), None, location, 0, "root")
+        self.placed = not _georeferenced(doc["root"], location)
+        model = np.eye(4)
+        if self.placed:
+            if origin is None:
+                self._tile(doc["root"], model, None, location, 0, "root")  # its own errors first
+                raise TilesetError(
+                    location,
+                    "this tileset is not georeferenced (its root lies near the Earth's centre, in its own "
+                    "coordinates): place it with --origin LAT,LON,H (and --scene-heading, --scene-scale), "
+                    "or scene.origin in a manifest",
+                    "root",
+                )
+            model = model_matrix(origin, heading_deg, scale)
+        self.root = self._tile(doc["root"], model, None, location, 0, "root")
+
+    def add_failure(self, message: str) -> None:
+        """One tile (or subtree, or external tileset) that could not be read; thread-safe. The
+        same failure met again (by another stream or reader) is counted once."""
+        with self._lock:
+            if message in self._failed:
+                return
+            self._failed.add(message)
+            self.failures += 1
+            if len(self.errors) < MAX_ERRORS_KEPT:
+                self.errors.append(message)
+
+    def report(self) -> str | None:
+        """What could not be drawn, in a line: the kinds skipped with their counts, the tiles
+        missing or damaged with the first few named; None when nothing was left out."""
+        parts = []
+        skipped = self.skipped.snapshot()
+        if skipped:
+            parts.append("skipped " + ", ".join(f"{n} {k}" for k, n in sorted(skipped.items())))
+        with self._lock:
+            failures, errors = self.failures, list(self.errors[:3])
+        if failures:
+            parts.append(
+                f"{failures} tile{'s' if failures > 1 else ''} missing or damaged ("
+                + "; ".join(errors)
+                + (", ..." if failures > len(errors) else "")
+                + ")"
+            )
+        return f"{fetch.display_name(self.location)}: {'; '.join(parts)}" if parts else None
 
     def _read_json(self, location: str) -> dict:
         try:
@@ -206,6 +304,10 @@ class Tileset:
                 f"geometricError must be finite and >= 0, got {error}",
                 f"{where}.geometricError",
             )
+        if (
+            "geometricError" in node
+        ):  # in the tile's units: scaled as its transform scales (CesiumJS)
+            error *= float(np.max(np.linalg.norm(transform[:3, :3], axis=0)))
         raw = node.get("contents") or ([node["content"]] if "content" in node else [])
         uris = []
         for c in raw:
@@ -216,6 +318,10 @@ class Tileset:
         tile = Tile(
             self._new_id(), depth, transform, center, radius, box, error, refine, (), document
         )
+        if "viewerRequestVolume" in node:
+            _, _, tile.request_box = self._place(
+                node["viewerRequestVolume"], transform, document, f"{where}.viewerRequestVolume"
+            )
         if "implicitTiling" in node:
             tile.implicit = self._implicit_root(node, uris, document, where)
             tile.children = None

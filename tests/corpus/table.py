@@ -2,7 +2,8 @@
 
 Columns: the case's name; the generator in generate.py that damages it; the command line
 ({d} = the case's folder, {s} = its phone session's manifest, {shared} = ../shared/data); the
-outcome ("ok": exit 0, "error": exit 2 with one line); and `says`: for an error, what the one line
+outcome ("ok": exit 0, "error": exit 2 with one line, "nothing drawn": a still written that shows
+none of the scene, said, exit 1); and `says`: for an error, what the one line
 must name (the file, key or option at fault); for "ok", a warning that must be printed because
 data were dropped or repaired ("" when nothing was dropped). Every case also asserts: no traceback,
 no input file changed, no NaN in any output.
@@ -80,7 +81,7 @@ CASES = (
         "render --session, scene far",
         "scene_far_away",
         RENDER_SESSION,
-        "ok",
+        "nothing drawn",
         "km from the camera's track",
     ),
     Case("scene a 3D Tiles tileset", "tileset_scene", RENDER_SESSION, "ok", "3D Tiles 1.0"),

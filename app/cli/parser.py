@@ -36,6 +36,7 @@ BENCHMARKS = {
     "lens": "bench_lens.py",
     "sync": "bench_sync.py",
     "registration": "bench_registration.py",
+    "footprints": "bench_footprints.py",
 }
 ATTITUDE = ((-360.0, 360.0, "heading"), (-90.0, 90.0, "pitch"), (-180.0, 180.0, "roll"))
 

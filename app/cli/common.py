@@ -5,17 +5,24 @@ from __future__ import annotations
 
 import argparse
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
+from app.camera import Camera
 from app.camera_track import CameraTrack
 from app.clips import open_any
 from app.config import ProjectionSettings
 from app.constants import DRONE_DEFAULT_PITCH_DEG
 from app.errors import GeofuseError
+from app.geo import LocalFrame
+from app.imageio import read_rgb
+from app.lens import still_camera
 from app.outputs import check_output
 from app.progress import ProgressBar
 from app.scene import Placement
-from app.scene.layers import Layer, named_layers
+from app.scene.layers import Layer, LoadedLayers, load_layers, named_layers
 from app.scene.mesh import MeshData
 from app.session.model import Session
 from app.solve import solve_track
@@ -59,8 +66,8 @@ def solved(session: Session, source: str) -> CameraTrack:
 def open_with_source(
     path: Path, args: argparse.Namespace, suffixes: tuple[str, ...]
 ) -> tuple[Session, str]:
-    """(session, source) for a command that writes --out: the session or clip opened, --out
-    checked against every file it reads, --source checked against what it offers."""
+    """(session, source) for a command: the session or clip opened, --out (when the command
+    writes one) checked against every file it reads, --source checked against what it offers."""
     session = open_any(
         path,
         getattr(args, "srt", None),
@@ -69,7 +76,8 @@ def open_with_source(
         args.lens,
         layers(args),
     )
-    check_output(args.out, "--out", suffixes, list(session.inputs))
+    if getattr(args, "out", None) is not None:
+        check_output(args.out, "--out", suffixes, list(session.inputs))
     source = args.source or session.sources[0]
     if source not in session.sources:
         raise GeofuseError(f"--source {source}: this session offers {', '.join(session.sources)}")
@@ -110,3 +118,59 @@ def nothing_drawn(samples: int, mesh: MeshData) -> bool:
         file=sys.stderr,
     )
     return True
+
+
+@dataclass(frozen=True)
+class StillScene:
+    """A still's scene and camera as --scene/--dem, --origin, --image, --pose and --fov/--lens
+    name them: the layers loaded in `frame` (the origin's, else the camera's), the image, and its
+    camera; inputs: every file read (never to be written)."""
+
+    loaded: LoadedLayers
+    frame: LocalFrame
+    image: np.ndarray
+    camera: Camera
+    inputs: list[Path]
+
+
+def still_scene(args: argparse.Namespace, what: str, far: float) -> StillScene:
+    """Load a still's scene and build its camera (far: its far plane, m), after checking that
+    every option it needs is given (`what` begins the error that lists those missing)."""
+    named = layers(
+        args,
+        Placement(
+            origin=args.origin,
+            up_axis=args.up,
+            heading_deg=args.scene_heading,
+            scale=args.scene_scale,
+        ),
+    )
+    missing = [f"--{k.replace('_', '-')}" for k in ("image", "pose") if getattr(args, k) is None]
+    if not named:
+        missing.insert(0, "--scene (or --dem)")
+    if args.origin is None and any(not layer.georeferenced for layer in named):
+        missing.append("--origin (a model's origin)")
+    if args.fov is None and args.lens is None:
+        missing.append("--fov (or --lens)")
+    if missing:
+        raise GeofuseError(f"{what} {', '.join(missing)}")
+    lat, lon, h, heading, pitch, roll = args.pose
+    frame = LocalFrame(*(args.origin or (lat, lon, h)))
+    loaded = load_layers(named, frame, [[lat, lon]])
+    loaded.warn_far([frame.geodetic_to_enu(lat, lon, h)], "the camera")
+    for message in loaded.notes.since(0):
+        print(message, file=sys.stderr)
+    image = read_rgb(args.image)
+    try:
+        camera = still_camera(
+            (image.shape[1], image.shape[0]),
+            frame.geodetic_to_enu(lat, lon, h),
+            (heading, pitch, roll),
+            args.fov,
+            args.lens,
+            far=far,
+        )
+    except ValueError as exc:
+        raise GeofuseError(f"--fov: {exc}") from exc
+    inputs = [*(f for layer in named for f in layer.files()), args.image, args.lens]
+    return StillScene(loaded, frame, image, camera, [Path(p) for p in inputs if p is not None])

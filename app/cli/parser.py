@@ -209,6 +209,54 @@ class _Parser(argparse.ArgumentParser):
         )
 
 
+def _add_still_options(p: argparse.ArgumentParser) -> None:
+    """A still's scene and camera: --scene/--dem (placed by --origin, --up, --scene-heading,
+    --scene-scale), --image, --pose, --fov or --lens (render, locate)."""
+    _add_layer_options(p, placed_models=True)
+    p.add_argument(
+        "--origin",
+        type=lambda s: _floats(s, 3, GEODETIC),
+        metavar="LAT,LON,H",
+        help="the scene's origin: degrees, degrees, ellipsoidal metres",
+    )
+    p.add_argument(
+        "--up",
+        choices=["Y", "Z"],
+        default=None,
+        help="the scene's up axis (default: Y for glTF, Z otherwise)",
+    )
+    p.add_argument(
+        "--scene-heading",
+        type=_number(-360.0, 360.0),
+        default=0.0,
+        help="rotate the scene clockwise about Up, degrees",
+    )
+    p.add_argument(
+        "--scene-scale",
+        type=_number(0.0, 1e6, open_low=True),
+        default=1.0,
+        help="scene units -> metres",
+    )
+    p.add_argument("--image", type=Path, help="the image (video frame) to project: PNG or JPEG")
+    p.add_argument(
+        "--pose",
+        type=lambda s: _floats(s, 6, GEODETIC + ATTITUDE),
+        metavar="LAT,LON,H,HEADING,PITCH,ROLL",
+        help="the image's camera: position (deg, deg, ellipsoidal m) and optical-axis heading (deg from true north, clockwise), pitch (deg above horizon), roll (deg)",
+    )
+    p.add_argument(
+        "--fov",
+        type=_number(*FOV_RANGE_DEG),
+        help="the image's horizontal field of view, degrees",
+    )
+    p.add_argument(
+        "--lens",
+        type=Path,
+        default=None,
+        help="a gyroflow lens profile (JSON) of the image's camera, instead of --fov; with --session, of a clip",
+    )
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(
         prog="geofuse", description="Drape mobile video onto a georeferenced 3D model."
@@ -235,49 +283,7 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="with --session: attitude source (default: the first the session offers)",
     )
-    _add_layer_options(r, placed_models=True)
-    r.add_argument(
-        "--origin",
-        type=lambda s: _floats(s, 3, GEODETIC),
-        metavar="LAT,LON,H",
-        help="the scene's origin: degrees, degrees, ellipsoidal metres",
-    )
-    r.add_argument(
-        "--up",
-        choices=["Y", "Z"],
-        default=None,
-        help="the scene's up axis (default: Y for glTF, Z otherwise)",
-    )
-    r.add_argument(
-        "--scene-heading",
-        type=_number(-360.0, 360.0),
-        default=0.0,
-        help="rotate the scene clockwise about Up, degrees",
-    )
-    r.add_argument(
-        "--scene-scale",
-        type=_number(0.0, 1e6, open_low=True),
-        default=1.0,
-        help="scene units -> metres",
-    )
-    r.add_argument("--image", type=Path, help="the image (video frame) to project: PNG or JPEG")
-    r.add_argument(
-        "--pose",
-        type=lambda s: _floats(s, 6, GEODETIC + ATTITUDE),
-        metavar="LAT,LON,H,HEADING,PITCH,ROLL",
-        help="the image's camera: position (deg, deg, ellipsoidal m) and optical-axis heading (deg from true north, clockwise), pitch (deg above horizon), roll (deg)",
-    )
-    r.add_argument(
-        "--fov",
-        type=_number(*FOV_RANGE_DEG),
-        help="the image's horizontal field of view, degrees",
-    )
-    r.add_argument(
-        "--lens",
-        type=Path,
-        default=None,
-        help="a gyroflow lens profile (JSON) of the image's camera, instead of --fov; with --session, of a clip",
-    )
+    _add_still_options(r)
     r.add_argument(
         "--view-from",
         type=lambda s: _floats(s, 3),
@@ -310,6 +316,51 @@ def build_parser() -> argparse.ArgumentParser:
     _add_projection_options(r)
     r.add_argument("--out", required=True, type=Path, help="output PNG")
     r.set_defaults(job="render")
+
+    lo = sub.add_parser(
+        "locate",
+        help="where a pixel of a video frame (or of a still) lies on the scene: latitude, longitude, heights, range",
+    )
+    lo.add_argument(
+        "input",
+        nargs="?",
+        type=Path,
+        default=None,
+        help="a session manifest or a clip (GoPro MP4, DJI MP4); or give a still's --scene, --image, --pose",
+    )
+    lo.add_argument(
+        "--time",
+        type=_number(-1e6, 1e6),
+        default=None,
+        help="with a session or clip: seconds from the video's first frame",
+    )
+    lo.add_argument(
+        "--pixel",
+        type=lambda s: _floats(s, 2),
+        action="append",
+        metavar="X,Y",
+        default=None,
+        help="image pixel coordinates (x right, y down, 0,0 the top-left corner), repeatable",
+    )
+    lo.add_argument(
+        "--pixels",
+        type=Path,
+        default=None,
+        help="a CSV of X,Y pixel coordinates (a header optional)",
+    )
+    lo.add_argument(
+        "--source",
+        "--filter",
+        dest="source",
+        default=None,
+        help="attitude source (default: the first the session offers)",
+    )
+    lo.add_argument(
+        "--srt", type=Path, default=None, help="a DJI clip's subtitle, when not beside it"
+    )
+    _add_still_options(lo)
+    lo.add_argument("--json", action="store_true", help="print a JSON array for scripts")
+    lo.set_defaults(job="locate")
 
     v = sub.add_parser(
         "view", help="the interactive viewer (the bundled sample when no manifest is given)"

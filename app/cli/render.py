@@ -4,80 +4,37 @@ session's frame at --time with its solved pose (--session), to a PNG."""
 from __future__ import annotations
 
 import argparse
-import sys
 
 from app.camera import Intrinsics
 from app.cli.common import (
-    layers,
     nothing_drawn,
     open_with_source,
     print_messages,
     print_scene_report,
     projection_settings,
     solved,
+    still_scene,
 )
 from app.config import OverlaySettings
 from app.constants import DEFAULT_NEAR_M
 from app.errors import GeofuseError
 from app.frame_time import frame_at
-from app.geo import LocalFrame
-from app.imageio import read_rgb, write_rgb
+from app.imageio import write_rgb
 from app.io.video import read_frame
-from app.lens import still_camera
 from app.outputs import IMAGE_SUFFIXES, check_output
 from app.render.still import render_still_counted, window_camera
-from app.scene import Placement
-from app.scene.layers import load_layers
 
 
 def run(args: argparse.Namespace) -> int:
     if args.session is not None:
         return _session(args)
-    named = layers(
-        args,
-        Placement(
-            origin=args.origin,
-            up_axis=args.up,
-            heading_deg=args.scene_heading,
-            scale=args.scene_scale,
-        ),
-    )
-    missing = [f"--{k.replace('_', '-')}" for k in ("image", "pose") if getattr(args, k) is None]
-    if not named:
-        missing.insert(0, "--scene (or --dem)")
-    if args.origin is None and any(not layer.georeferenced for layer in named):
-        missing.append("--origin (a model's origin)")
-    if args.fov is None and args.lens is None:
-        missing.append("--fov (or --lens)")
-    if missing:
-        raise GeofuseError(
-            f"render: give --session MANIFEST --time T, or all of {', '.join(missing)}"
-        )
-    check_output(
-        args.out,
-        "--out",
-        IMAGE_SUFFIXES,
-        [*(f for layer in named for f in layer.files()), args.image, args.lens],
-    )
-    lat, lon, h, heading, pitch, roll = args.pose
-    frame = LocalFrame(*(args.origin or (lat, lon, h)))
-    loaded = load_layers(named, frame, [[lat, lon]])
-    loaded.warn_far([frame.geodetic_to_enu(lat, lon, h)], "the camera")
-    for message in loaded.notes.since(0):
-        print(message, file=sys.stderr)
-    image = read_rgb(args.image)
+    scene = still_scene(args, "render: give --session MANIFEST --time T, or all of", args.far)
+    check_output(args.out, "--out", IMAGE_SUFFIXES, scene.inputs)
     try:
-        projector = still_camera(
-            (image.shape[1], image.shape[0]),
-            frame.geodetic_to_enu(lat, lon, h),
-            (heading, pitch, roll),
-            args.fov,
-            args.lens,
-            far=args.far,
-        )
         view_intr = Intrinsics.from_fov(args.size[0], args.size[1], args.view_fov)
     except ValueError as exc:
-        raise GeofuseError(f"--fov: {exc}") from exc
+        raise GeofuseError(f"--view-fov: {exc}") from exc
+    projector, image, loaded = scene.camera, scene.image, scene.loaded
     view = window_camera(projector, view_intr, args.view_from, args.look_at, args.far)
     still = render_still_counted(
         loaded.mesh,

@@ -218,9 +218,7 @@ def pose_sigmas(session: Session, track: CameraTrack) -> PoseSigmas:
         errors = [k.error_px for k in track.registration.keyframes if k.used]
         fx = track.intrinsics.fx
         deg = math.degrees(float(np.median(errors)) / fx) if errors else FILTER_SIGMA_DEG
-        return PoseSigmas(
-            REGISTERED_SIGMA_M, deg, "registered: the keyframes' reprojection error"
-        )
+        return PoseSigmas(REGISTERED_SIGMA_M, deg, "registered: the keyframes' reprojection error")
     acc = session.gnss.h_acc
     if acc is not None and np.isfinite(acc).any():
         pos, why = float(np.nanmedian(acc)), "the GNSS fixes' own accuracy"
@@ -249,7 +247,9 @@ def locate(
         raise GeofuseError(f"--source: {exc}") from exc
     pts = session.video.pts_s
     if not pts[0] - 0.5 <= time_s <= pts[-1] + 0.5:
-        raise GeofuseError(f"--time {time_s:g}: the video runs from {pts[0]:.3f} to {pts[-1]:.3f} s")
+        raise GeofuseError(
+            f"--time {time_s:g}: the video runs from {pts[0]:.3f} to {pts[-1]:.3f} s"
+        )
     track = solve_track(session, name, progress=progress).with_clip(DEFAULT_NEAR_M, LOCATE_FAR_M)
     camera = track.frame_camera(frame_at(pts, time_s))
     locator = Locator(session.scene(), session.frame)

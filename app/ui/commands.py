@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from app.ui import control_points
+from app.ui import control_points, measure
 
 
 @dataclass(frozen=True)
@@ -57,6 +57,40 @@ def _control(v, arg, now) -> None:
         v.ui.control = control_points.ControlPicks()
     else:
         raise ValueError(f"expected video, model, solve or clear, got {arg!r}")
+
+
+def _measure(v, arg, now) -> None:
+    """point | line | polygon | pick [X,Y] | mark [LABEL] | undo | clear | goto N | delete N |
+    export PATH: point, measure and mark (app.ui.measure); X,Y in [0, 1] of the 3D view, default
+    the mouse cursor."""
+    what, _, rest = (arg or "").strip().partition(" ")
+    rest = rest.strip()
+    if what in ("point", "line", "polygon"):
+        measure.set_kind(v, what)
+    elif what == "pick":
+        xy = tuple(float(t) for t in rest.split(",")) if rest else v.cursor_in_view()
+        if xy is None or len(xy) != 2:
+            raise ValueError("expected X,Y in [0, 1] of the 3D view")
+        measure.pick(v, xy)
+    elif what == "mark":
+        measure.keep(v, rest or v.ui.measure.label)
+    elif what == "undo":
+        v.ui.measure.picks = v.ui.measure.picks[:-1]
+        measure.refresh(v)
+    elif what == "clear":
+        v.ui.measure.picks = []
+        measure.refresh(v)
+    elif what in ("goto", "delete"):
+        n = int(_number(rest))
+        measure.goto(v, n, now) if what == "goto" else measure.remove(v, n)
+    elif what == "export":
+        if not rest:
+            raise ValueError("expected a path ending in .geojson or .kml")
+        v.ui.info.append(f"marks exported to {measure.export(v, Path(rest))}")
+    else:
+        raise ValueError(
+            f"expected point, line, polygon, pick, mark, undo, clear, goto, delete or export, got {arg!r}"
+        )
 
 
 def _wait(v, arg, now) -> None:
@@ -233,6 +267,12 @@ COMMANDS: dict[str, Command] = {
         True,
         True,
         "video [X,Y] | model [X,Y] | solve | clear: control points by hand (a feature in the draped video, then on the model; X,Y in [0, 1] of the 3D view, default the cursor)",
+    ),
+    "measure": Command(
+        _measure,
+        True,
+        True,
+        "point | line | polygon | pick [X,Y] | mark [LABEL] | undo | clear | goto N | delete N | export PATH: where the video's points lie, distances, heights and areas, and marks kept beside the input",
     ),
     "help": Command(
         lambda v, a, n: setattr(v.ui, "show_help", not v.ui.show_help),

@@ -17,6 +17,7 @@ from app.playback.clock import SPEEDS
 from app.register.solve import keyframe_plot
 from app.session.model import COURSE, REGISTERED
 from app.sync import rate_reference
+from app.ui import measure
 from app.ui.gui import Gui
 from app.ui.inputs import open_dialog, poll_dialog
 
@@ -35,6 +36,7 @@ SHORTCUTS = (
     ("R", "reset the view"),
     ("I", "AHRS / IMU toggle"),
     ("V, then M", "control point: the feature under the cursor in the video, then on the model"),
+    ("L", "locate: where the point under the cursor lies (Measure panel: distances, areas, marks)"),
     ("H or F1", "this help"),
     ("Ctrl+O, or drop a file", "open a manifest or clip"),
 )
@@ -72,6 +74,7 @@ def draw(v, gui: Gui, now: float) -> None:
         _error_inspection(v)
         _stats(v)
         _export(v, now)
+        _measure(v, now)
     if v.ui.show_help:
         _help(v)
 
@@ -487,6 +490,56 @@ def _export(v, now: float) -> None:
             imgui.same_line()
             if imgui.button("Stop"):
                 _run(v, "record", "stop", now)
+    imgui.end()
+
+
+def _measure(v, now: float) -> None:
+    """Point, measure and mark: the last pick's coordinates, the measurement, the marks."""
+
+    state = v.ui.measure
+    if state.focus:
+        imgui.set_next_window_focus()
+        state.focus = False
+    if _window("Measure"):
+        imgui.text_wrapped(
+            "L over the draped video or the model picks a point; picks make a line or a polygon."
+        )
+        for kind in ("point", "line", "polygon"):
+            if imgui.radio_button(kind, state.kind == kind):
+                _run(v, "measure", kind)
+            imgui.same_line()
+        imgui.new_line()
+        if state.picks:
+            last = state.picks[-1]
+            lat, lon, h, msl = measure.geodetic(v, last)
+            imgui.text(f"{lat:.7f}, {lon:.7f}")
+            imgui.text(f"{h:.2f} m ellipsoidal, {msl:.2f} m above sea level")
+            loc = last.location
+            if loc is not None:
+                unc = "" if loc.uncertainty_m is None else f", +-{loc.uncertainty_m:.2f} m"
+                imgui.text(f"range {loc.range_m:.2f} m from the camera{unc}")
+            else:
+                imgui.text_colored(_vec4(AMBER), "on the model, not in the video")
+            imgui.text_wrapped(measure.summary(v))
+            if imgui.button("Undo"):
+                _run(v, "measure", "undo")
+            imgui.same_line()
+            if imgui.button("Clear"):
+                _run(v, "measure", "clear")
+            _, state.label = imgui.input_text("label", state.label)
+            imgui.same_line()
+            if imgui.button("Mark"):
+                _run(v, "measure", f"mark {state.label}")
+        for i, m in enumerate(state.marks, start=1):
+            if imgui.small_button(f"Go##{i}"):
+                _run(v, "measure", f"goto {i}", now)
+            imgui.same_line()
+            if imgui.small_button(f"x##{i}"):
+                _run(v, "measure", f"delete {i}")
+            imgui.same_line()
+            imgui.text(f"{i}. {m.label} ({m.kind}, frame {m.frame}, {m.media_s:.2f} s)")
+        if state.saved:
+            imgui.text_wrapped(f"kept in {state.saved}")
     imgui.end()
 
 

@@ -22,6 +22,7 @@ from app.render.renderer import FusionRenderer
 from app.scene.layers import Layer, layer_kind
 from app.scene.mesh import MeshData
 from app.session.model import REGISTERED, Session
+from app.ui import measure
 from app.ui.navigation import Navigator
 
 log = logging.getLogger("geofuse.viewer")
@@ -191,6 +192,7 @@ class ViewerSessions:
             self.ui.course_pitch_deg = session.course_pitch_deg
         self.stats = Stats()
         self.nav = home_view(session, mesh)
+        measure.load(self)
         log.info(
             "opened %s: %d frames, sources %s", path, len(session.video.pts_s), session.sources
         )

@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 from app.config import OverlaySettings, ProjectionSettings
 from app.constants import DRONE_DEFAULT_PITCH_DEG
 from app.ui.control_points import ControlPicks
+from app.ui.measure import MeasureState
 
 if TYPE_CHECKING:
     from app.ui.exporter import ExportJob, Recorder, SyncJob
@@ -53,6 +54,7 @@ class UiState:
         2  # frames until the Session tab is brought to the front (once, at start)
     )
     control: ControlPicks = field(default_factory=ControlPicks)  # control points picked by hand
+    measure: MeasureState = field(default_factory=MeasureState)  # point, measure and mark
     quit: bool = False
 
     def error(self, message: str) -> None:

@@ -27,6 +27,7 @@ from app import rotations
 from app.camera import Camera, Intrinsics
 from app.errors import GeofuseError
 from app.imageio import write_rgb
+from app.marks import measure as measure_points
 from app.playback.clock import SPEEDS
 from app.render.renderer import BACKGROUND
 from app.render.window import Window
@@ -271,7 +272,7 @@ class Viewer(ViewerJobs, ViewerSessions):
                 frames_shown=len(s.latencies), dropped=s.dropped, latency_ms=list(s.summary()), skipped_by_decoder=L.player.decoder.skipped,
                 solved=L.library.solved(), alpha=ui.settings.alpha, time_offset_s=L.library.time_offset_s,
                 registration=_registration_state(L.library.track(REGISTERED)),
-                control=_control_state(ui.control),
+                control=_control_state(ui.control), measure=_measure_state(ui.measure),
                 sync=None if ui.sync_job is None or ui.sync_job.result is None else {"offset_s": ui.sync_job.result.offset_s, "confidence": ui.sync_job.result.confidence},
                 window_camera={"size": [i.width, i.height], "fx": i.fx, "fy": i.fy, "cx": i.cx, "cy": i.cy, "position": list(cam.position), "orientation": list(cam.orientation), "near": cam.near, "far": cam.far},
                 projector=None if proj is None else {"position": list(proj.position), "orientation": list(proj.orientation)},
@@ -398,4 +399,20 @@ def _control_state(picks) -> dict:
         "residual_px": None if sol is None else [float(r) for r in sol.residual_px],
         "boresight_deg": None if sol is None else sol.boresight_deg,
         "offset_m": None if sol is None else [float(c) for c in sol.offset_m],
+    }  # fmt: skip
+
+
+def _measure_state(state) -> dict:
+    """Point, measure and mark for a script's `state`: the picks (ENU m, and as the video sees
+    them), the summary's figures, the marks and where they are kept."""
+    m = measure_points(state.points())
+    return {
+        "kind": state.kind,
+        "picks": [
+            {"enu": list(map(float, p.enu)), "frame": p.frame, "location": None if p.location is None else p.location.as_dict()}
+            for p in state.picks
+        ],
+        "straight_m": m.straight_m, "ground_m": m.ground_m, "height_m": m.height_m, "area_m2": m.area_m2,
+        "marks": [{"label": k.label, "kind": k.kind, "frame": k.frame, "media_s": k.media_s, "points": np.asarray(k.points).tolist()} for k in state.marks],
+        "saved": state.saved,
     }  # fmt: skip

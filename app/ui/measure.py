@@ -1,0 +1,221 @@
+"""Point, measure and mark in the viewer (app.marks): a pick (L, or `measure pick` in a script)
+takes the model point under the cursor in the 3D view; where the video is draped there, the
+point is located as the video's pixel sees it (app.locate: the ray through that pixel, with the
+uncertainty the pose's error explains), else as the model point itself. The picks make the
+current measurement (point, line or polygon); Mark keeps it with a label, the clip and the frame
+shown; marks are written beside the input after each change (never into it) and read back when
+the session opens again."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from app.camera import Camera
+from app.errors import DataFormatError, GeofuseError
+from app.geoid import undulation
+from app.locate import Location, PoseSigmas, image_size, location_of, pose_sigmas, ray_camera
+from app.marks import KINDS, MIN_POINTS, Mark, marks_path, measure, read_marks, write_marks
+from app.outputs import check_output, write_atomically
+
+MARK_SUFFIXES = (".geojson", ".json", ".kml")
+
+
+@dataclass
+class Pick:
+    """A picked point: enu (3,) m; location: as the video sees it (None: not in the video);
+    frame and media_s: the frame shown."""
+
+    enu: np.ndarray
+    location: Location | None
+    frame: int
+    media_s: float
+
+
+@dataclass
+class MeasureState:
+    """kind: what the picks make (KINDS); picks: the current measurement's; marks: kept;
+    label: the Mark field; saved: where the marks are kept ('' before any)."""
+
+    kind: str = "line"
+    picks: list[Pick] = field(default_factory=list)
+    marks: list[Mark] = field(default_factory=list)
+    label: str = ""
+    saved: str = ""
+    focus: bool = False  # bring the Measure panel to the front (after a pick)
+
+    def points(self) -> np.ndarray:
+        return np.array([p.enu for p in self.picks], np.float64).reshape(-1, 3)
+
+
+def _sigmas(v) -> PoseSigmas | None:
+    L = v.loaded
+    track = L.library.track(L.source)
+    return None if track is None else pose_sigmas(L.session, track)
+
+
+def _video_pixel(projector: Camera, point: np.ndarray) -> tuple[float, float] | None:
+    uv, depth = projector.project(point[None])
+    w, h = image_size(projector)
+    u, vv = float(uv[0, 0]), float(uv[0, 1])
+    return (u, vv) if depth[0] > 0 and 0 <= u < w and 0 <= vv < h else None
+
+
+def locate_at(v, xy: tuple[float, float]) -> Pick:
+    """The point under view point xy (in [0, 1] of the 3D view) on the frame shown."""
+    L, cam = v.loaded, v.window_camera
+    p = None if cam is None else L.renderer.pick(cam, *xy)
+    if p is None:
+        raise GeofuseError("no model under that point of the view")
+    location = None
+    projector = L.renderer.projector
+    pixel = None if projector is None else _video_pixel(projector, p)
+    if pixel is not None:
+        ray = ray_camera(projector, pixel)
+        found = location_of(L.renderer.pick_map(ray), ray, pixel, L.session.frame, _sigmas(v))
+        # the video's own ray meets this very point (not an occluder in front of it)
+        if found is not None and np.linalg.norm(np.asarray(found.enu) - p) < 0.05 * max(
+            1.0, found.range_m
+        ):
+            location = found
+    index = max(v.current_index, 0)
+    return Pick(p, location, index, float(L.session.video.pts_s[index]) if index >= 0 else 0.0)
+
+
+def pick(v, xy: tuple[float, float]) -> None:
+    """Add the point under xy to the current measurement (a point mark keeps only the last)."""
+    state = v.ui.measure
+    found = locate_at(v, xy)
+    state.picks = [found] if state.kind == "point" else state.picks + [found]
+    state.focus = True
+    refresh(v)
+
+
+def set_kind(v, kind: str) -> None:
+    if kind not in KINDS:
+        raise ValueError(f"expected one of {', '.join(KINDS)}, got {kind!r}")
+    v.ui.measure.kind = kind
+    v.ui.measure.picks = v.ui.measure.picks[-1:] if kind == "point" else v.ui.measure.picks
+
+
+def keep(v, label: str) -> None:
+    """Keep the current measurement as a mark with this label, and save the marks."""
+    state, L = v.ui.measure, v.loaded
+    if len(state.picks) < MIN_POINTS[state.kind]:
+        raise GeofuseError(
+            f"a {state.kind} needs {MIN_POINTS[state.kind]} picks or more (L over the model), got {len(state.picks)}"
+        )
+    first = state.picks[0]
+    state.marks.append(
+        Mark(
+            state.kind,
+            label.strip() or f"{state.kind} {len(state.marks) + 1}",
+            Path(L.session.video.path).name,
+            first.frame,
+            first.media_s,
+            state.points(),
+        )
+    )
+    state.picks, state.label = [], ""
+    save(v)
+    refresh(v)
+
+
+def save(v) -> Path:
+    """The marks beside the input: NAME.marks.geojson (never the input itself)."""
+    L = v.loaded
+    out = export(v, marks_path(L.session.path))
+    v.ui.measure.saved = str(out)
+    return out
+
+
+def export(v, path: Path) -> Path:
+    """The marks as GeoJSON or KML at `path` (checked: never one of the inputs)."""
+    L, state = v.loaded, v.ui.measure
+    out = check_output(path, "marks", MARK_SUFFIXES, [*L.session.inputs, L.session.path])
+    write_atomically(
+        out,
+        "marks",
+        lambda f: write_marks(state.marks, L.session.frame, f, out.suffix.lower(), out.stem),
+    )
+    return out
+
+
+def load(v) -> None:
+    """The marks kept beside the session's input, if any (a bad file is an error panel entry)."""
+    L = v.loaded
+    path = marks_path(L.session.path)
+    v.ui.measure = MeasureState()
+    if path.is_file():
+        try:
+            v.ui.measure.marks = read_marks(path, L.session.frame)
+            v.ui.measure.saved = str(path)
+        except DataFormatError as exc:
+            v.ui.error(str(exc))
+    refresh(v)
+
+
+def goto(v, index: int, now: float) -> None:
+    """Seek to the frame mark `index` (from 1) was taken from, paused there."""
+    marks = v.ui.measure.marks
+    if not 1 <= index <= len(marks):
+        raise ValueError(f"there are {len(marks)} marks; got {index}")
+    L = v.loaded
+    L.clock.set_paused(True, now)
+    L.player.seek(marks[index - 1].media_s, now)
+
+
+def remove(v, index: int) -> None:
+    marks = v.ui.measure.marks
+    if not 1 <= index <= len(marks):
+        raise ValueError(f"there are {len(marks)} marks; got {index}")
+    del marks[index - 1]
+    save(v)
+    refresh(v)
+
+
+def readout(p: Pick) -> str:
+    """The picked point for people: as the video sees it, or the model point."""
+    if p.location is not None:
+        return p.location.line().split(": ", 1)[1]
+    return "on the model, not in the video: " + ", ".join(f"{c:.2f}" for c in p.enu) + " m ENU"
+
+
+def geodetic(v, p: Pick) -> tuple[float, float, float, float]:
+    """(lat, lon, ellipsoidal h, sea-level h) of a pick."""
+    lat, lon, h = v.loaded.session.frame.enu_to_geodetic(p.enu[None])[0]
+    return float(lat), float(lon), float(h), float(h - undulation(lat, lon))
+
+
+def summary(v) -> str:
+    """The current measurement in a line, with the frame time."""
+    state = v.ui.measure
+    if not state.picks:
+        return ""
+    m = measure(state.points())
+    t = state.picks[-1].media_s
+    if state.kind == "point" or len(state.picks) == 1:
+        return f"{readout(state.picks[-1])} (at {t:.2f} s)"
+    return f"{m.line() if state.kind == 'polygon' else m.line().split(', area')[0]} (at {t:.2f} s)"
+
+
+def refresh(v) -> None:
+    """The current measurement and the marks as lines over the scene."""
+    state = v.ui.measure
+    segments = []
+
+    def path(points: np.ndarray, closed: bool) -> None:
+        pts = np.vstack([points, points[:1]]) if closed and len(points) > 2 else points
+        if len(pts) == 1:  # a point: a small vertical tick
+            pts = np.vstack([pts, pts + [0.0, 0.0, 2.0]])
+        for a, b in zip(pts[:-1], pts[1:]):
+            segments.extend((a, b))
+
+    for m in state.marks:
+        path(np.asarray(m.points), m.kind == "polygon")
+    if state.picks:
+        path(state.points(), state.kind == "polygon")
+    lift = np.array([0.0, 0.0, 0.15])  # just above the surface they lie on
+    v.loaded.renderer.set_outlines(np.array(segments) + lift if segments else None)

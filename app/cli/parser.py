@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 import math
 from collections.abc import Sequence
+from datetime import datetime, timezone
 from pathlib import Path
 
 from app.constants import (
@@ -92,6 +93,15 @@ def _count(low: int, high: int):
         return v
 
     return parse
+
+
+def _utc(text: str) -> datetime:
+    """An argparse type: an ISO 8601 time, UTC where it names no zone."""
+    try:
+        t = datetime.fromisoformat(text.replace("Z", "+00:00"))
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(f"expected an ISO 8601 time, got {text!r}") from exc
+    return t if t.tzinfo is not None else t.replace(tzinfo=timezone.utc)
 
 
 def _size(text: str) -> tuple[int, int]:
@@ -361,6 +371,73 @@ def build_parser() -> argparse.ArgumentParser:
     _add_still_options(lo)
     lo.add_argument("--json", action="store_true", help="print a JSON array for scripts")
     lo.set_defaults(job="locate")
+
+    ix = sub.add_parser(
+        "index",
+        help="index folders of clips into one GeoParquet archive of footprints, on Dask distributed",
+    )
+    ix.add_argument("folders", nargs="+", type=Path, help="folders (walked) or files of clips")
+    ix.add_argument("--out", required=True, type=Path, help="the archive: ARCHIVE.parquet")
+    ix.add_argument(
+        "--every-s",
+        type=_number(0.01, 3600.0),
+        default=1.0,
+        help="seconds between footprints (default 1)",
+    )
+    ix.add_argument(
+        "--scene",
+        action="append",
+        default=None,
+        metavar="PATH|URL",
+        help="a scene layer for every clip without its own (a tileset, a DEM, a model in ECEF), repeatable; default: the manifest's, else the assumed ground",
+    )
+    ix.add_argument(
+        "--source",
+        default=None,
+        help="pose source for every clip (default: the first each offers)",
+    )
+    where = ix.add_mutually_exclusive_group()
+    where.add_argument(
+        "--workers",
+        type=_count(1, 1024),
+        default=None,
+        help="worker processes of a local Dask cluster (default: one per core)",
+    )
+    where.add_argument(
+        "--scheduler",
+        default=None,
+        metavar="tcp://HOST:PORT",
+        help="an existing Dask scheduler (`dask scheduler`, with `dask worker` on each machine)",
+    )
+    ix.set_defaults(job="archive:index")
+
+    fi = sub.add_parser(
+        "find", help="the clips of an archive that saw a place, and when (most head-on first)"
+    )
+    fi.add_argument("archive", type=Path, help="ARCHIVE.parquet written by `geofuse index`")
+    place = fi.add_mutually_exclusive_group(required=True)
+    place.add_argument(
+        "--point",
+        type=lambda s: _floats(s, 2, GEODETIC[:2]),
+        metavar="LAT,LON",
+        help="a place: latitude, longitude (degrees)",
+    )
+    place.add_argument(
+        "--polygon", type=Path, help="an area: a GeoJSON file of a Polygon (or a Feature of one)"
+    )
+    fi.add_argument(
+        "--radius",
+        type=_number(0.0, 100_000.0),
+        default=0.0,
+        help="with --point: metres around it (default 0)",
+    )
+    fi.add_argument("--from", dest="start", type=_utc, default=None, help="ISO 8601 time (UTC)")
+    fi.add_argument("--to", dest="end", type=_utc, default=None, help="ISO 8601 time (UTC)")
+    fi.add_argument("--json", action="store_true", help="print the hits as a JSON array")
+    fi.add_argument(
+        "--open", action="store_true", help="open the viewer on the best clip at that time"
+    )
+    fi.set_defaults(job="archive:find_")
 
     v = sub.add_parser(
         "view", help="the interactive viewer (the bundled sample when no manifest is given)"

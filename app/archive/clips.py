@@ -11,6 +11,7 @@ modification time (what an incremental re-run compares), and a fingerprint of it
 from __future__ import annotations
 
 import hashlib
+import resource
 import time
 import tomllib
 from dataclasses import dataclass, field
@@ -97,6 +98,7 @@ class ClipResult:
     facts: dict = field(default_factory=dict)
     rows: list[dict] = field(default_factory=list)
     seconds: float = 0.0  # the work it took (the worker's wall clock)
+    worker_peak_mb: float = 0.0  # the worker process's peak resident memory after it, MiB
 
 
 def _optical_axis(hpr: tuple[float, float, float]) -> np.ndarray:
@@ -175,4 +177,5 @@ def index_clip(
         result.status, result.rows = "failed", []
         result.error = f"{path}: {type(exc).__name__}: {exc}"
     result.seconds = time.perf_counter() - started
+    result.worker_peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     return result

@@ -22,6 +22,7 @@ from app.archive.clips import ClipResult
 __all__ = ["clips_path", "read_clips", "read_footprints", "write_archive"]
 
 CRS = "EPSG:4326"
+ROW_GROUP_ROWS = 50_000  # a query reads only the row groups whose bounding boxes meet its place
 FOOTPRINT_COLUMNS = (
     "clip", "frame", "clip_s", "utc", "sensor_lat", "sensor_lon", "sensor_h", "heading_deg",
     "pitch_deg", "roll_deg", "axis_e", "axis_n", "axis_u", "hfov_deg", "centre_h",
@@ -29,6 +30,7 @@ FOOTPRINT_COLUMNS = (
 CLIP_COLUMNS = (
     "path", "status", "error", "size", "mtime_ns", "fingerprint", "camera", "lens", "source",
     "duration_s", "utc_start", "track_length_m", "footprints", "messages", "seconds",
+    "worker_peak_mb",
 )  # fmt: skip
 
 
@@ -66,6 +68,7 @@ def _clips(results: list[ClipResult]) -> pd.DataFrame:
             mtime_ns=r.mtime_ns,
             fingerprint=r.fingerprint,
             seconds=r.seconds,
+            worker_peak_mb=r.worker_peak_mb,
         )
         rows.append(facts)
     out = pd.DataFrame(rows, columns=list(CLIP_COLUMNS))
@@ -89,7 +92,13 @@ def write_archive(
     footprints = gpd.GeoDataFrame(footprints, geometry="geometry", crs=CRS)
     tmp = archive.with_name(f".{archive.name}.tmp")
     tmp_clips = archive.with_name(f".{clips_path(archive).name}.tmp")
-    footprints.to_parquet(tmp, index=False, schema_version="1.1.0", write_covering_bbox=True)
+    footprints.to_parquet(
+        tmp,
+        index=False,
+        schema_version="1.1.0",
+        write_covering_bbox=True,
+        row_group_size=ROW_GROUP_ROWS,
+    )
     clips.to_parquet(tmp_clips, index=False)
     tmp.replace(archive)
     tmp_clips.replace(clips_path(archive))

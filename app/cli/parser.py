@@ -38,6 +38,7 @@ BENCHMARKS = {
     "sync": "bench_sync.py",
     "registration": "bench_registration.py",
     "footprints": "bench_footprints.py",
+    "index": "bench_index.py",
 }
 ATTITUDE = ((-360.0, 360.0, "heading"), (-90.0, 90.0, "pitch"), (-180.0, 180.0, "roll"))
 

@@ -14,14 +14,17 @@ import pyarrow.parquet as pq
 import pytest
 import shapely
 
-from app.archive import find, place_of, read_clips
+from app.archive import find, index_clip, place_of, read_clips
+from app.archive.store import write_archive
 from app.cli import main
 from app.demo import SAMPLE_DIR
 from app.export.footprint import plan_footprint
 from app.export.records import frame_records
+from app.frame_time import frame_at
 from app.session import open_session
 from app.simulate import drone
 from app.simulate.phone import write_video
+from tests.conftest import run_viewer
 
 pytestmark = pytest.mark.shared_data
 
@@ -110,3 +113,28 @@ def test_an_incremental_run_indexes_nothing_new(archive, capsys):
     line = capsys.readouterr().out
     assert "0 indexed, 0 failed, 0 duplicates, 5 unchanged" in line
     assert len(gpd.read_parquet(out)) == len(before)
+
+
+def test_the_viewer_opens_an_archive_and_the_clip_that_saw_a_point(display, tmp_path):
+    """`geofuse view ARCHIVE.parquet` opens its clip and draws its footprints; G over the scene
+    (`archive open X,Y`) seeks to the moment the archive says saw that point most head-on."""
+    folder = tmp_path / "walk"
+    shutil.copytree(SAMPLE_DIR, folder)
+    manifest = folder / "session.toml"
+    out = tmp_path / "walk.parquet"
+    write_archive(out, [index_clip(str(manifest.resolve()), 1.0)])
+    state, script = tmp_path / "s.json", tmp_path / "s.txt"
+    script.write_text(
+        f"0 clock 0.05\n0 wait solved\n0 pause\n0 view phone\n0.2 archive open 0.5,0.6\n"
+        f"0.3 state {state}\n0.35 quit\n"
+    )
+    result = run_viewer(display, str(out), "--script", str(script), "--size", "960x540")
+    assert result.returncode == 0, result.stderr[-2000:]
+    s = json.loads(state.read_text())
+    assert s["errors"] == [], s["errors"]
+    a = s["archive"]
+    assert a["footprints"] == 80 and a["clips"] == 1 and a["opened"] == str(manifest.resolve())
+    best = find(out, place_of(tuple(a["picked"]), 1.0))
+    assert best and a["opened_s"] == pytest.approx(best[0].frame_s, abs=0.05)
+    pts = open_session(manifest).video.pts_s
+    assert s["frame"] == frame_at(pts, a["opened_s"])

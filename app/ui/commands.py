@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from app.ui import control_points, measure
+from app.ui import archive, control_points, measure
 
 
 @dataclass(frozen=True)
@@ -91,6 +91,22 @@ def _measure(v, arg, now) -> None:
         raise ValueError(
             f"expected point, line, polygon, pick, mark, undo, clear, goto, delete or export, got {arg!r}"
         )
+
+
+def _archive(v, arg, now) -> None:
+    """load PATH | open [X,Y]: an archive's footprints on the scene; open the clip that saw the
+    point under X,Y (in [0, 1] of the 3D view, default the cursor) at that moment."""
+    what, _, rest = (arg or "").strip().partition(" ")
+    rest = rest.strip()
+    if what == "load" and rest:
+        archive.load(v, Path(rest))
+    elif what == "open":
+        xy = tuple(float(t) for t in rest.split(",")) if rest else v.cursor_in_view()
+        if xy is None or len(xy) != 2:
+            raise ValueError("expected X,Y in [0, 1] of the 3D view")
+        archive.open_at(v, xy, now)
+    else:
+        raise ValueError(f"expected 'load PATH' or 'open [X,Y]', got {arg!r}")
 
 
 def _wait(v, arg, now) -> None:
@@ -267,6 +283,12 @@ COMMANDS: dict[str, Command] = {
         True,
         True,
         "video [X,Y] | model [X,Y] | solve | clear: control points by hand (a feature in the draped video, then on the model; X,Y in [0, 1] of the 3D view, default the cursor)",
+    ),
+    "archive": Command(
+        _archive,
+        True,
+        True,
+        "load PATH | open [X,Y]: an archive's footprints on the scene (geofuse index); open the clip that saw the point under X,Y most head-on, at that moment (G: under the cursor)",
     ),
     "measure": Command(
         _measure,

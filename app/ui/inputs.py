@@ -18,7 +18,7 @@ KEY_COMMANDS = {  # key name in glfw -> (command, argument)
     "KEY_RIGHT_BRACKET": ("faster", None), "KEY_LEFT_BRACKET": ("slower", None), "KEY_I": ("ahrs", None),
     "KEY_O": ("view", "orbit"), "KEY_F": ("view", "free"), "KEY_P": ("view", "phone"), "KEY_R": ("view", "reset"),
     "KEY_H": ("help", None), "KEY_F1": ("help", None), "KEY_V": ("control", "video"), "KEY_M": ("control", "model"),
-    "KEY_L": ("measure", "pick"),
+    "KEY_L": ("measure", "pick"), "KEY_G": ("archive", "open"),
 }  # fmt: skip
 
 

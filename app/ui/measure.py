@@ -202,7 +202,8 @@ def summary(v) -> str:
 
 
 def refresh(v) -> None:
-    """The current measurement and the marks as lines over the scene."""
+    """The current measurement, the marks (and an archive's footprints: app.ui.archive) as lines
+    over the scene."""
     state = v.ui.measure
     segments = []
 
@@ -218,4 +219,8 @@ def refresh(v) -> None:
     if state.picks:
         path(state.points(), state.kind == "polygon")
     lift = np.array([0.0, 0.0, 0.15])  # just above the surface they lie on
-    v.loaded.renderer.set_outlines(np.array(segments) + lift if segments else None)
+    lines = np.array(segments).reshape(-1, 3) + lift
+    archive = getattr(v.ui, "archive", None)
+    if archive is not None and len(archive.segments):
+        lines = np.concatenate([archive.segments, lines])
+    v.loaded.renderer.set_outlines(lines if len(lines) else None)

@@ -37,6 +37,7 @@ SHORTCUTS = (
     ("I", "AHRS / IMU toggle"),
     ("V, then M", "control point: the feature under the cursor in the video, then on the model"),
     ("L", "locate: where the point under the cursor lies (Measure panel: distances, areas, marks)"),
+    ("G", "with an archive open: the clip that saw the point under the cursor, at that moment"),
     ("H or F1", "this help"),
     ("Ctrl+O, or drop a file", "open a manifest or clip"),
 )

@@ -22,7 +22,7 @@ from app.render.renderer import FusionRenderer
 from app.scene.layers import Layer, layer_kind
 from app.scene.mesh import MeshData
 from app.session.model import REGISTERED, Session
-from app.ui import measure
+from app.ui import archive, measure
 from app.ui.navigation import Navigator
 
 log = logging.getLogger("geofuse.viewer")
@@ -152,6 +152,13 @@ class ViewerSessions:
         """Open a session or clip (the bundled sample when None); on failure keep the current one."""
 
         path = Path(manifest) if manifest is not None else SAMPLE_DIR / "session.toml"
+        if path.suffix.lower() == ".parquet":  # an archive of clips (geofuse index)
+            try:
+                archive.load(self, path)
+            except GeofuseError as exc:
+                self.ui.error(str(exc))
+                return False
+            return True
         if manifest is not None and _is_layer(path):
             try:
                 self.add_layer(str(path))
@@ -193,6 +200,11 @@ class ViewerSessions:
         self.stats = Stats()
         self.nav = home_view(session, mesh)
         measure.load(self)
+        if self.ui.archive is not None:  # the archive's footprints near this session
+            try:
+                archive.load(self, self.ui.archive.path)
+            except GeofuseError as exc:
+                self.ui.error(str(exc))
         log.info(
             "opened %s: %d frames, sources %s", path, len(session.video.pts_s), session.sources
         )

@@ -13,6 +13,7 @@ from app.ui.control_points import ControlPicks
 from app.ui.measure import MeasureState
 
 if TYPE_CHECKING:
+    from app.ui.archive import ArchiveOverlay
     from app.ui.exporter import ExportJob, Recorder, SyncJob
 
 VIEWER_ALPHA = 0.85  # the viewer's default video opacity: the model shows through a little
@@ -55,6 +56,7 @@ class UiState:
     )
     control: ControlPicks = field(default_factory=ControlPicks)  # control points picked by hand
     measure: MeasureState = field(default_factory=MeasureState)  # point, measure and mark
+    archive: ArchiveOverlay | None = None  # an archive's footprints drawn (app.ui.archive)
     quit: bool = False
 
     def error(self, message: str) -> None:

@@ -273,6 +273,7 @@ class Viewer(ViewerJobs, ViewerSessions):
                 solved=L.library.solved(), alpha=ui.settings.alpha, time_offset_s=L.library.time_offset_s,
                 registration=_registration_state(L.library.track(REGISTERED)),
                 control=_control_state(ui.control), measure=_measure_state(ui.measure),
+                archive=None if ui.archive is None else {"path": str(ui.archive.path), "footprints": ui.archive.footprints, "clips": ui.archive.clips, "picked": ui.archive.picked, "opened": ui.archive.opened, "opened_s": ui.archive.opened_s},
                 sync=None if ui.sync_job is None or ui.sync_job.result is None else {"offset_s": ui.sync_job.result.offset_s, "confidence": ui.sync_job.result.confidence},
                 window_camera={"size": [i.width, i.height], "fx": i.fx, "fy": i.fy, "cx": i.cx, "cy": i.cy, "position": list(cam.position), "orientation": list(cam.orientation), "near": cam.near, "far": cam.far},
                 projector=None if proj is None else {"position": list(proj.position), "orientation": list(proj.orientation)},

@@ -22,7 +22,7 @@ from app.frame_time import frame_at
 from app.imageio import write_rgb
 from app.io.video import read_frame
 from app.outputs import IMAGE_SUFFIXES, check_output
-from app.render.still import render_still_counted, window_camera
+from app.render.still import render_still, window_camera
 
 
 def run(args: argparse.Namespace) -> int:
@@ -36,7 +36,7 @@ def run(args: argparse.Namespace) -> int:
         raise GeofuseError(f"--view-fov: {exc}") from exc
     projector, image, loaded = scene.camera, scene.image, scene.loaded
     view = window_camera(projector, view_intr, args.view_from, args.look_at, args.far)
-    still = render_still_counted(
+    still = render_still(
         loaded.mesh,
         image,
         projector,
@@ -75,7 +75,7 @@ def _session(args: argparse.Namespace) -> int:
         args.look_at,
         args.far,
     )
-    still = render_still_counted(
+    still = render_still(
         session.scene(),
         read_frame(session.video.path, index, session.video),
         projector,

@@ -62,7 +62,7 @@ class Still:
     samples: int
 
 
-def render_still_counted(
+def render_still(
     mesh: MeshData,
     image: npt.NDArray[np.uint8] | None,
     projector: Camera,
@@ -86,16 +86,3 @@ def render_still_counted(
     finally:
         renderer.release()
         ctx.release()
-
-
-def render_still(
-    mesh: MeshData,
-    image: npt.NDArray[np.uint8] | None,
-    projector: Camera,
-    view: Camera,
-    settings: ProjectionSettings = ProjectionSettings(),
-    overlays: OverlaySettings = OverlaySettings(),
-    trajectory: npt.ArrayLike | None = None,
-) -> np.ndarray:
-    """Render `mesh` from `view` with `image` projected from `projector`: (H, W, 3) uint8 RGB."""
-    return render_still_counted(mesh, image, projector, view, settings, overlays, trajectory).rgb

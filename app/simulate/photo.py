@@ -47,7 +47,7 @@ def photo_camera(pose: PhotoPose, frame: LocalFrame) -> Camera:
 
 def make_photo(mesh: MeshData, camera: Camera, seed: int = 11) -> np.ndarray:
     """Render the model through `camera` and paint extra content on it: (H, W, 3) uint8."""
-    rgb = render_still(mesh, None, camera, camera, ProjectionSettings(enabled=False))
+    rgb = render_still(mesh, None, camera, camera, ProjectionSettings(enabled=False)).rgb
     img = Image.fromarray(rgb).filter(ImageFilter.GaussianBlur(0.6))
     draw = ImageDraw.Draw(img)
     w, h = img.size

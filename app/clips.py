@@ -147,6 +147,7 @@ def _clip_session(
     readout_s: float | None = None,
     layers: tuple[Layer, ...] = (),
     utc_at_zero_s: float | None = None,
+    camera: str = "",
 ) -> Session:
     policy = heading_policy(
         gyr is not None, mag is not None, recorded, pitch_deg, aircraft_yaw is not None
@@ -157,7 +158,7 @@ def _clip_session(
         path.resolve(), frame, Path(layers[0].location) if layers else None, Placement(), video, video.pts_s.copy(), intr, video.rotation_cw,
         acc, gyr, mag, gnss, recorded, decl, messages, inputs=(*inputs, *(f.resolve() for layer in layers for f in layer.files())), heading=policy, device_is_camera=True,
         aircraft_yaw=aircraft_yaw, mesh=mesh, lens=lens, readout_s=readout_s, layers=tuple(layers),
-        utc_at_zero_s=utc_at_zero_s,
+        utc_at_zero_s=utc_at_zero_s, camera=camera,
     )  # fmt: skip
 
 
@@ -229,6 +230,7 @@ def _gopro_session(
         readout_s=readout,
         layers=layers,
         utc_at_zero_s=rec.gps_utc_at_zero,
+        camera=rec.raw.model or "GoPro",
     )
 
 
@@ -363,7 +365,18 @@ def _dji_session(
         readout,
         layers,
         _subtitle_clock(track, srt, messages),
+        _dji_name(path),
     )
+
+
+def _dji_name(path: Path) -> str:
+    """The DJI camera the MP4 names ('DJI Mavic Air 2 (camera code FC3170 in the MP4)'), or
+    'DJI drone' where it names none."""
+    try:
+        cam = read_dji_camera(path)
+    except OSError:
+        cam = None
+    return cam.described if cam is not None and cam.model else "DJI drone"
 
 
 def _subtitle_clock(track: SrtTrack, srt: Path, messages: Messages) -> float | None:

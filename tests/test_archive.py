@@ -8,6 +8,7 @@ from __future__ import annotations
 import json
 import shutil
 
+import duckdb
 import geopandas as gpd
 import numpy as np
 import pyarrow.parquet as pq
@@ -64,6 +65,7 @@ def test_the_archive_holds_every_clip_and_says_what_failed(archive, capsys):
     assert len(status) == 5  # the manifest's clip.mp4 is indexed through the manifest only
     walk = table.loc[str((clips / "walk" / "session.toml").resolve())]
     assert walk["utc_start"].year == 2025 and walk["footprints"] == 80
+    assert table.loc[str((clips / "GOPRO.MP4").resolve()), "camera"] == "GoPro Max"
 
 
 def test_geoparquet_reads_back_with_its_crs(archive):
@@ -138,3 +140,18 @@ def test_the_viewer_opens_an_archive_and_the_clip_that_saw_a_point(display, tmp_
     assert best and a["opened_s"] == pytest.approx(best[0].frame_s, abs=0.05)
     pts = open_session(manifest).video.pts_s
     assert s["frame"] == frame_at(pts, a["opened_s"])
+
+
+def test_duckdb_reads_the_archive(archive):
+    """An independent Parquet reader (DuckDB): the footprints' WKB and covering bounding boxes
+    as the GeoParquet metadata says, the same rows geopandas reads."""
+    _, out, _ = archive
+    con = duckdb.connect()
+    rows = con.execute(
+        f"select bbox.xmin, bbox.ymin, bbox.xmax, bbox.ymax, geometry from read_parquet('{out}')"
+    ).fetchall()
+    assert len(rows) == len(gpd.read_parquet(out))
+    for xmin, ymin, xmax, ymax, blob in rows[::7]:
+        shape_ = shapely.from_wkb(bytes(blob))
+        assert shape_.is_valid
+        np.testing.assert_allclose(shape_.bounds, (xmin, ymin, xmax, ymax), atol=1e-5)

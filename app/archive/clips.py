@@ -162,7 +162,7 @@ def index_clip(
         enu = session.frame.geodetic_to_enu(g.lat, g.lon, g.h)
         utc0 = session.utc_of(float(session.frame_times[0]))
         result.facts = {
-            "camera": session.video.codec,
+            "camera": session.camera or "unknown",
             "lens": None if session.lens is None else session.lens.name,
             "source": name,
             "duration_s": float(pts[-1] - pts[0]),

@@ -88,6 +88,7 @@ class Session:
     mesh: MeshData | None = None
     layers: tuple = ()  # app.scene.layers.Layer: the scene's layers as named ((): an assumed ground)
     utc_at_zero_s: float | None = None  # Unix time (UTC) of session time 0, when the camera says
+    camera: str = ""  # the camera as its files name it (a GoPro's model, a DJI camera); "" unknown
 
     @property
     def heading_note(self) -> str:

@@ -110,3 +110,28 @@ def test_a_polygon_marked_on_the_draped_video_lies_on_the_model(display, tmp_pat
             assert np.linalg.norm(hit - p) < 0.05 + 0.002 * np.linalg.norm(p - eye)
     finally:
         probe.release()
+
+
+def test_the_hover_readout_follows_the_cursor_at_most_five_times_a_second(monkeypatch):
+    """The point under a moving cursor is read when the cursor has moved and 0.2 s have passed
+    on the viewer's clock; never over the panels."""
+    from types import SimpleNamespace
+
+    from app.ui import measure as ui_measure
+
+    reads = []
+    monkeypatch.setattr(ui_measure, "locate_at", lambda v, xy: reads.append(xy) or xy)
+    v = SimpleNamespace(ui=SimpleNamespace(measure=ui_measure.MeasureState()), loaded=object())
+    cursor = [(0.5, 0.5)]
+    v.cursor_in_view = lambda: cursor[0]
+    ui_measure.hover(v, 0.0, False)
+    ui_measure.hover(v, 1.0, False)  # not moved: not read again
+    cursor[0] = (0.6, 0.5)
+    ui_measure.hover(v, 1.05, False)  # moved: read
+    cursor[0] = (0.7, 0.5)
+    ui_measure.hover(v, 1.15, False)  # moved again 0.1 s later: not yet
+    assert reads == [(0.5, 0.5), (0.6, 0.5)]
+    ui_measure.hover(v, 1.3, False)
+    assert reads[-1] == (0.7, 0.5) and v.ui.measure.hover == (0.7, 0.5)
+    ui_measure.hover(v, 2.0, True)  # over a panel
+    assert v.ui.measure.hover is None

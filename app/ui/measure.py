@@ -45,6 +45,10 @@ class MeasureState:
     label: str = ""
     saved: str = ""
     focus: bool = False  # bring the Measure panel to the front (after a pick)
+    hover_on: bool = True  # read the point under the cursor as it moves (the panel's checkbox)
+    hover: Pick | None = None  # the point under the cursor, as last read
+    hover_xy: tuple[float, float] | None = None
+    hover_at: float = -1e9  # clock time of that reading, s
 
     def points(self) -> np.ndarray:
         return np.array([p.enu for p in self.picks], np.float64).reshape(-1, 3)
@@ -82,6 +86,25 @@ def locate_at(v, xy: tuple[float, float]) -> Pick:
             location = found
     index = max(v.current_index, 0)
     return Pick(p, location, index, float(L.session.video.pts_s[index]) if index >= 0 else 0.0)
+
+
+HOVER_EVERY_S = 0.2  # the point under a moving cursor is read at most this often (a position pass)
+
+
+def hover(v, now: float, over_panels: bool) -> None:
+    """Read the point under the cursor when it has moved (at most every HOVER_EVERY_S)."""
+    state = v.ui.measure
+    xy = None if over_panels or v.loaded is None else v.cursor_in_view()
+    if not state.hover_on or xy is None:
+        state.hover, state.hover_xy = None, None
+        return
+    if xy == state.hover_xy or now - state.hover_at < HOVER_EVERY_S:
+        return
+    try:
+        state.hover = locate_at(v, xy)
+    except GeofuseError:
+        state.hover = None
+    state.hover_xy, state.hover_at = xy, now
 
 
 def pick(v, xy: tuple[float, float]) -> None:

@@ -505,6 +505,9 @@ def _measure(v, now: float) -> None:
         imgui.text_wrapped(
             "L over the draped video or the model picks a point; picks make a line or a polygon."
         )
+        _, state.hover_on = imgui.checkbox("read the point under the cursor", state.hover_on)
+        if state.hover is not None:
+            imgui.text_colored(_vec4(AMBER), f"under the cursor: {measure.readout(state.hover)}")
         for kind in ("point", "line", "polygon"):
             if imgui.radio_button(kind, state.kind == kind):
                 _run(v, "measure", kind)

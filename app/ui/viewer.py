@@ -32,7 +32,7 @@ from app.playback.clock import SPEEDS
 from app.render.renderer import BACKGROUND
 from app.render.window import Window
 from app.session.model import REGISTERED
-from app.ui import panels
+from app.ui import measure, panels
 from app.ui.commands import run_command
 from app.ui.gui import Gui
 from app.ui.inputs import handle_input
@@ -338,6 +338,7 @@ class Viewer(ViewerJobs, ViewerSessions):
                 self._update(now)
                 self.view_rect = gui.layout(self) if self.ui.show_panels else None
                 self._draw()
+                measure.hover(self, now, gui.wants_mouse())
                 panels.draw(self, gui, now)
                 gui.render()
                 if (

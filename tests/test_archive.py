@@ -155,3 +155,15 @@ def test_duckdb_reads_the_archive(archive):
         shape_ = shapely.from_wkb(bytes(blob))
         assert shape_.is_valid
         np.testing.assert_allclose(shape_.bounds, (xmin, ymin, xmax, ymax), atol=1e-5)
+
+
+def test_bad_archives_and_options_are_one_line_errors(tmp_path, capsys):
+    other = tmp_path / "other.parquet"
+    gpd.GeoDataFrame({"a": [1]}, geometry=[shapely.Point(0, 0)], crs=4326).to_parquet(other)
+    assert main(["find", str(other), "--point", "1,1"]) == 2
+    assert "not an archive written by `geofuse index`" in capsys.readouterr().err
+    assert main(["find", str(tmp_path / "none.parquet"), "--point", "1,1"]) == 2
+    assert "archive does not exist" in capsys.readouterr().err
+    assert main(["index", str(tmp_path), "--out", str(tmp_path / "a.csv")]) == 2
+    assert "expected a file ending in .parquet" in capsys.readouterr().err
+    assert main(["find", str(other), "--point", "91,1"]) == 2  # latitude out of range

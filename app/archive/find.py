@@ -21,10 +21,24 @@ import pandas as pd
 import shapely
 from shapely.geometry.base import BaseGeometry
 
+from app.errors import GeofuseError
 from app.geo import geodetic_to_ecef
 
 __all__ = ["Hit", "find", "place_of"]
 
+NEEDED = (
+    "clip",
+    "frame",
+    "clip_s",
+    "utc",
+    "sensor_lat",
+    "sensor_lon",
+    "sensor_h",
+    "axis_e",
+    "axis_n",
+    "axis_u",
+    "centre_h",
+)
 SPAN_GAP = 2.5  # footprint spacings between two rows of one span, at most
 M_PER_DEG = 111_195.0
 
@@ -128,7 +142,11 @@ def find(
     height_m: the place's ellipsoidal height for the ranking (default: the median height at
     which these footprints' optical axes meet the scene, else the cameras' less 2 m)."""
     minx, miny, maxx, maxy = place.bounds
-    rows = gpd.read_parquet(archive, bbox=(minx, miny, maxx, maxy))
+    try:
+        rows = gpd.read_parquet(archive, bbox=(minx, miny, maxx, maxy))
+        rows[list(NEEDED)]  # noqa: B018 - the columns the query reads
+    except (OSError, ValueError, KeyError) as exc:
+        raise GeofuseError(f"{archive}: not an archive written by `geofuse index` ({exc})") from exc
     if len(rows):
         rows = rows.iloc[rows.sindex.query(place, predicate="intersects")]
     if start is not None:

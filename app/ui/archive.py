@@ -63,30 +63,27 @@ def load(v, path: Path) -> None:
     path = Path(path)
     if not path.is_file():
         raise GeofuseError(f"{path}: archive does not exist")
-    if v.loaded is None:
-        clips = read_clips(path)
-        indexed = clips[clips["status"] == "indexed"]["path"]
-        if not len(indexed) or not v.open(Path(indexed.iloc[0])):
-            raise GeofuseError(f"{path}: no clip of the archive could be opened")
-    g = v.loaded.session.gnss
-    m = AREA_MARGIN_DEG
-    bbox = (
-        float(g.lon.min()) - m,
-        float(g.lat.min()) - m,
-        float(g.lon.max()) + m,
-        float(g.lat.max()) + m,
-    )
     try:
+        if v.loaded is None:
+            clips = read_clips(path)
+            indexed = clips[clips["status"] == "indexed"]["path"]
+            if not len(indexed) or not v.open(Path(indexed.iloc[0])):
+                raise GeofuseError(f"{path}: no clip of the archive could be opened")
+        g = v.loaded.session.gnss
+        m = AREA_MARGIN_DEG
+        bbox = (
+            float(g.lon.min()) - m,
+            float(g.lat.min()) - m,
+            float(g.lon.max()) + m,
+            float(g.lat.max()) + m,
+        )
         rows = gpd.read_parquet(path, bbox=bbox)
-    except (OSError, ValueError) as exc:
-        raise GeofuseError(f"{path}: not an archive ({exc})") from exc
-    v.ui.archive = ArchiveOverlay(
-        path, _outline_segments(v, rows.geometry), len(rows), rows["clip"].nunique()
-    )
+        clips_seen = rows["clip"].nunique()
+    except (OSError, ValueError, KeyError, AttributeError) as exc:
+        raise GeofuseError(f"{path}: not an archive written by `geofuse index` ({exc})") from exc
+    v.ui.archive = ArchiveOverlay(path, _outline_segments(v, rows.geometry), len(rows), clips_seen)
     refresh(v)
-    v.ui.info.append(
-        f"{path.name}: {len(rows)} footprints of {rows['clip'].nunique()} clips near this session"
-    )
+    v.ui.info.append(f"{path.name}: {len(rows)} footprints of {clips_seen} clips near this session")
 
 
 def open_at(v, xy: tuple[float, float], now: float) -> None:

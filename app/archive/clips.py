@@ -112,17 +112,19 @@ def index_clip(
     every_s: float = 1.0,
     scene: tuple[str, ...] = (),
     source: str | None = None,
+    digest: str | None = None,
 ) -> ClipResult:
-    """Index one clip (runs on a Dask worker: its own EGL context for the footprints). A clip
-    that cannot be read is a 'failed' result with the reason, never an exception."""
+    """Index one clip (runs on a Dask worker: its own EGL context for the footprints); digest:
+    its fingerprint when already taken. A clip that cannot be read is a 'failed' result with the
+    reason, never an exception."""
     started = time.perf_counter()
     p = Path(path)
     try:
         size, mtime = clip_key(p)
-        print_ = fingerprint(p)
+        digest = digest or fingerprint(p)
     except OSError as exc:
         return ClipResult(path, 0, 0, "", "failed", f"{path}: {exc.strerror or exc}")
-    result = ClipResult(path, size, mtime, print_, "indexed")
+    result = ClipResult(path, size, mtime, digest, "indexed")
     try:
         layers = tuple(Layer.of(s) for s in scene)
         session = open_any(p, layers=layers)

@@ -89,12 +89,13 @@ def index_archive(
             )
             continue
         prints.setdefault(fp, str(c))
-        todo.append(str(c))
+        todo.append((str(c), fp))
     if todo:
         client, cluster = _client(workers, scheduler)
         try:
             futures = [
-                client.submit(index_clip, c, every_s, scene, source, pure=False) for c in todo
+                client.submit(index_clip, c, every_s, scene, source, fp, pure=False)
+                for c, fp in todo
             ]
             done = failed = 0
             for future in as_completed(futures):

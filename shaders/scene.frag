@@ -52,6 +52,50 @@ vec2 video_pixel(vec3 c) {
     return uv;
 }
 
+// Further projectors: the other clips shown at once, each with its own pose, lens (no rolling
+// shutter), depth map and video (RGB, display-oriented). Where several see a fragment, the
+// views are blended by a soft maximum of their scores (view_score): the most head-on and nearest
+// wins, with a soft seam u_seam wide; a clip's priority (10 score units a level) overrides.
+const int MAX_EXTRA = 7;
+const float RANGE_SCORE_M = 2000.0;  // a view 100 m nearer counts as 0.05 of cos(incidence)
+uniform int u_extra_count;
+uniform mat4 u_extra_view_proj[MAX_EXTRA];
+uniform mat4 u_extra_view[MAX_EXTRA];
+uniform vec3 u_extra_position[MAX_EXTRA];
+uniform float u_extra_near[MAX_EXTRA];
+uniform float u_extra_far[MAX_EXTRA];
+uniform float u_extra_focal_texels[MAX_EXTRA];
+uniform float u_extra_priority[MAX_EXTRA];
+uniform int u_extra_lens_kind[MAX_EXTRA];
+uniform vec4 u_extra_lens_k[MAX_EXTRA];
+uniform vec2 u_extra_lens_p[MAX_EXTRA];
+uniform float u_extra_lens_k3[MAX_EXTRA];
+uniform vec2 u_extra_lens_f[MAX_EXTRA];
+uniform vec2 u_extra_lens_c[MAX_EXTRA];
+uniform vec2 u_extra_lens_size[MAX_EXTRA];
+uniform float u_extra_lens_stretch[MAX_EXTRA];
+uniform sampler2D u_extra_depth[MAX_EXTRA];
+uniform sampler2D u_extra_video[MAX_EXTRA];
+uniform float u_proj_priority;  // the first projector's
+uniform float u_seam;           // score difference over which two views blend
+
+float view_score(float priority, float cos_incidence, float range_m) {
+    return 10.0 * priority + cos_incidence - range_m / RANGE_SCORE_M;
+}
+
+// Running soft maximum: the views' colours weighted by exp((score - best) / u_seam).
+void add_view(inout vec3 sum, inout float weight, inout float best, float score, vec3 colour) {
+    if (score > best) {
+        float k = exp((best - score) / u_seam);
+        sum *= k;
+        weight *= k;
+        best = score;
+    }
+    float w = exp((score - best) / u_seam);
+    sum += w * colour;
+    weight += w;
+}
+
 // Error overlay (sessions with ground truth): the true camera's position map. The video texel
 // that lands on this fragment truly shows the model point stored at the same texel.
 uniform bool u_error_overlay;
@@ -88,16 +132,21 @@ void main() {
         normal = -normal;
     }
     vec3 colour = model_colour(normal);
+    vec3 sum = vec3(0.0);
+    float weight = 0.0;
+    float best = -1e30;
 
     vec3 ndc;
     float eye_depth;
+    vec2 truth_st = vec2(-1.0);
     if (u_projection_on && projector_ndc(v_world, u_proj_view_proj, ndc, eye_depth)) {
         vec2 st = ndc.xy * 0.5 + 0.5;  // bottom-left origin
         ivec2 size = textureSize(u_depth_map, 0);
         ivec2 texel = clamp(ivec2(st * vec2(size)), ivec2(0), size - 1);
         vec3 to_projector = normalize(u_proj_position - v_world);
         float texel_m = eye_depth / u_proj_focal_texels;
-        float bias = projector_bias(u_bias_constant, u_bias_slope, texel_m, abs(dot(normal, to_projector)));
+        float cos_incidence = abs(dot(normal, to_projector));
+        float bias = projector_bias(u_bias_constant, u_bias_slope, texel_m, cos_incidence);
         vec2 video_st = vec2(st.x, 1.0 - st.y);  // top-left origin
         bool in_image = true;
         if (u_exact_video) {
@@ -106,13 +155,42 @@ void main() {
             in_image = all(greaterThanEqual(video_st, vec2(0.0))) && all(lessThanEqual(video_st, vec2(1.0)));
         }
         if (in_image && projector_visible(u_depth_map, texel, eye_depth, bias, u_proj_near, u_proj_far, u_neighbourhood)) {
-            vec3 video = video_colour(video_st);
-            colour = mix(colour, video, u_alpha);
-            if (u_error_overlay) {
-                vec4 truth = texture(u_truth_positions, st);
-                if (truth.w > 0.5) {
-                    colour = mix(colour, error_colour(distance(v_world, truth.xyz)), 0.7);
-                }
+            float score = view_score(u_proj_priority, cos_incidence, distance(u_proj_position, v_world));
+            add_view(sum, weight, best, score, video_colour(video_st));
+            truth_st = st;
+        }
+    }
+    for (int i = 0; i < u_extra_count; ++i) {
+        if (!projector_ndc(v_world, u_extra_view_proj[i], ndc, eye_depth)) {
+            continue;
+        }
+        vec2 st = ndc.xy * 0.5 + 0.5;
+        ivec2 size = textureSize(u_extra_depth[i], 0);
+        ivec2 texel = clamp(ivec2(st * vec2(size)), ivec2(0), size - 1);
+        vec3 to_projector = normalize(u_extra_position[i] - v_world);
+        float cos_incidence = abs(dot(normal, to_projector));
+        float bias = projector_bias(u_bias_constant, u_bias_slope, eye_depth / u_extra_focal_texels[i], cos_incidence);
+        vec2 video_st = vec2(st.x, 1.0 - st.y);
+        if (u_extra_lens_kind[i] != LENS_PINHOLE) {
+            vec3 c = (u_extra_view[i] * vec4(v_world, 1.0)).xyz;
+            vec2 uv = lens_distort(vec2(c.x, -c.y) / -c.z, u_extra_lens_kind[i], u_extra_lens_k[i], u_extra_lens_p[i],
+                                   u_extra_lens_k3[i], u_extra_lens_f[i], u_extra_lens_c[i], u_extra_lens_stretch[i]);
+            video_st = uv / u_extra_lens_size[i];
+            if (any(lessThan(video_st, vec2(0.0))) || any(greaterThan(video_st, vec2(1.0)))) {
+                continue;
+            }
+        }
+        if (projector_visible(u_extra_depth[i], texel, eye_depth, bias, u_extra_near[i], u_extra_far[i], u_neighbourhood)) {
+            float score = view_score(u_extra_priority[i], cos_incidence, distance(u_extra_position[i], v_world));
+            add_view(sum, weight, best, score, texture(u_extra_video[i], video_st).rgb);
+        }
+    }
+    if (weight > 0.0) {
+        colour = mix(colour, sum / weight, u_alpha);
+        if (u_error_overlay && truth_st.x >= 0.0) {
+            vec4 truth = texture(u_truth_positions, truth_st);
+            if (truth.w > 0.5) {
+                colour = mix(colour, error_colour(distance(v_world, truth.xyz)), 0.7);
             }
         }
     }

@@ -4,6 +4,7 @@ mapping), then the scene seen from the window camera with the video projected (p
 from __future__ import annotations
 
 import contextlib
+from dataclasses import dataclass
 
 import moderngl
 import numpy as np
@@ -25,9 +26,10 @@ def _mat(m: np.ndarray) -> bytes:
 class DepthPass:
     """Renders the scene's depth from the projector into a depth texture of a given size."""
 
-    def __init__(self, ctx: moderngl.Context, scene: GpuScene) -> None:
+    def __init__(self, ctx: moderngl.Context, scene: GpuScene, key: str = "projector") -> None:
         self.ctx = ctx
         self.scene = scene
+        self.key = key  # its tile selection's name (one per projector)
         self.program = load_program(ctx, "depth.vert", "depth.frag")
         self.texture: moderngl.Texture | None = None
         self.fbo: moderngl.Framebuffer | None = None
@@ -63,7 +65,7 @@ class DepthPass:
         """
         self._ensure_size(size)
         focal = max(camera.intrinsics.fx, camera.intrinsics.fy) * size[1] / camera.intrinsics.height
-        prims = self.scene.drawables(camera, focal, "projector")
+        prims = self.scene.drawables(camera, focal, self.key)
         drawn = tuple(id(p) for p in prims)
         if camera == self.camera and drawn == self._drawn and not force:
             return False
@@ -127,9 +129,12 @@ class ScenePass:
         video: VideoTexture | None,
         truth_positions: moderngl.Texture | None = None,
         error_scale_m: float = 4.0,
+        extras: tuple[ExtraProjector, ...] = (),
+        priority: float = 0.0,
     ) -> None:
         """Draw into the bound framebuffer. Projection needs projector, depth and video; the error
-        overlay a position map from the true camera."""
+        overlay a position map from the true camera; extras: further projectors (other clips),
+        at most MAX_EXTRA; priority: the first projector's (see ExtraProjector)."""
         p = self.program
         p["u_view_proj"].write(_mat(view.view_projection))
         p["u_eye"].value = view.position
@@ -161,6 +166,9 @@ class ScenePass:
         else:
             for unit in (1, 2, 3, 4):
                 self._blank.use(unit)
+        p["u_proj_priority"].value = float(priority)
+        p["u_seam"].value = SEAM
+        _set_extras(p, extras if settings.enabled else ())
         p["u_error_overlay"].value = on and truth_positions is not None
         p["u_error_scale_m"].value = error_scale_m
         (truth_positions or self._blank).use(5)
@@ -182,6 +190,89 @@ class ScenePass:
         self.scene.forget(self.program)
         self._blank.release()
         self.program.release()
+
+
+MAX_EXTRA = 7  # further projectors beside the first (shaders/scene.frag)
+SEAM = 0.02  # score difference over which two views blend (shaders/scene.frag, view_score)
+EXTRA_DEPTH_UNIT, EXTRA_VIDEO_UNIT = 6, 6 + MAX_EXTRA  # texture units of their maps and videos
+
+
+@dataclass(frozen=True)
+class ExtraProjector:
+    """A further projector for one draw: its camera, depth pass (drawn), RGB video texture
+    (display-oriented) and priority (higher wins where several see a surface)."""
+
+    camera: Camera
+    depth: DepthPass
+    video: moderngl.Texture
+    priority: float = 0.0
+
+
+def _set_extras(p: moderngl.Program, extras: tuple[ExtraProjector, ...]) -> None:
+    """The further projectors' uniforms and texture units."""
+    if len(extras) > MAX_EXTRA:
+        raise ValueError(f"at most {MAX_EXTRA + 1} projectors at once, got {len(extras) + 1}")
+    p["u_extra_count"].value = len(extras)
+    if not extras:
+        return
+    n = MAX_EXTRA
+
+    def arr(values: list, fill) -> list:
+        return list(values) + [fill] * (n - len(values))
+
+    cams = [e.camera for e in extras]
+    eye = np.eye(4, dtype=np.float32)
+    p["u_extra_view_proj"].write(
+        np.stack(arr([np.asarray(c.view_projection, np.float32).T for c in cams], eye)).tobytes()
+    )
+    p["u_extra_view"].write(
+        np.stack(arr([np.asarray(c.view, np.float32).T for c in cams], eye)).tobytes()
+    )
+    p["u_extra_position"].value = arr([tuple(c.position) for c in cams], (0.0, 0.0, 0.0))
+    p["u_extra_near"].value = arr([c.near for c in cams], 0.1)
+    p["u_extra_far"].value = arr([c.far for c in cams], 1.0)
+    p["u_extra_focal_texels"].value = arr(
+        [
+            max(c.intrinsics.fx, c.intrinsics.fy) * e.depth.size[0] / c.intrinsics.width
+            for c, e in zip(cams, extras)
+        ],
+        1.0,
+    )
+    p["u_extra_priority"].value = arr([float(e.priority) for e in extras], 0.0)
+    lenses = [c.lens for c in cams]
+    p["u_extra_lens_kind"].value = arr(
+        [LENS_KIND[None if L is None else L.kind] for L in lenses], 0
+    )
+    coeffs = [
+        (0.0,) * 5 if L is None else tuple(L.coeffs) + (0.0,) * (5 - len(L.coeffs)) for L in lenses
+    ]
+    fisheye = [L is not None and L.kind == "fisheye" for L in lenses]
+    p["u_extra_lens_k"].value = arr(
+        [tuple(k[:4]) if f else (k[0], k[1], 0.0, 0.0) for k, f in zip(coeffs, fisheye)],
+        (0.0, 0.0, 0.0, 0.0),
+    )
+    p["u_extra_lens_p"].value = arr(
+        [(0.0, 0.0) if f else (k[2], k[3]) for k, f in zip(coeffs, fisheye)], (0.0, 0.0)
+    )
+    p["u_extra_lens_k3"].value = arr([0.0 if f else k[4] for k, f in zip(coeffs, fisheye)], 0.0)
+    p["u_extra_lens_f"].value = arr(
+        [(1.0, 1.0) if L is None else (L.fx, L.fy) for L in lenses], (1.0, 1.0)
+    )
+    p["u_extra_lens_c"].value = arr(
+        [(0.0, 0.0) if L is None else (L.cx, L.cy) for L in lenses], (0.0, 0.0)
+    )
+    p["u_extra_lens_size"].value = arr(
+        [(1.0, 1.0) if L is None else (float(L.width), float(L.height)) for L in lenses],
+        (1.0, 1.0),
+    )
+    p["u_extra_lens_stretch"].value = arr([1.0 if L is None else L.stretch for L in lenses], 1.0)
+    units_depth = [EXTRA_DEPTH_UNIT + i for i in range(n)]
+    units_video = [EXTRA_VIDEO_UNIT + i for i in range(n)]
+    p["u_extra_depth"].value = units_depth
+    p["u_extra_video"].value = units_video
+    for i, e in enumerate(extras):
+        e.depth.texture.use(units_depth[i])
+        e.video.use(units_video[i])
 
 
 LENS_KIND = {None: 0, "fisheye": 1, "brown": 2}  # shaders/include/lens.glsl's constants

@@ -21,7 +21,7 @@ from app.render.overlays import (
     LineOverlay,
     frustum_segments,
 )
-from app.render.passes import DepthPass, ScenePass
+from app.render.passes import MAX_EXTRA, DepthPass, ExtraProjector, ScenePass
 from app.render.positions import PositionPass
 from app.render.video_texture import VideoTexture
 from app.scene.mesh import MeshData
@@ -41,6 +41,7 @@ class FusionRenderer:
         self.lines = LineOverlay(ctx)
         self.video = VideoTexture(ctx)
         self.projector: Camera | None = None
+        self.projector_priority = 0.0
         self.reference: Camera | None = None
         self.truth: Camera | None = None
         self._positions = None  # PositionPass, made on first use of the error overlay
@@ -48,6 +49,7 @@ class FusionRenderer:
         self._truth_map_camera: Camera | None = None
         self.trajectory: np.ndarray | None = None
         self.outlines: np.ndarray | None = None
+        self.extras: list[_Extra] = []  # further projectors (other clips), drawn with the first
 
     def set_video_frame(self, rgb: npt.NDArray[np.uint8]) -> None:
         """Upload one display-oriented video frame (H, W, 3) uint8 RGB, row 0 = the top row."""
@@ -65,9 +67,25 @@ class FusionRenderer:
         """Upload one stored playback frame's planes; the shader turns it by rotation_cw."""
         self.video.set_yuv(y, u, v, rotation_cw, bt709, full_range)
 
-    def set_projector(self, camera: Camera | None) -> None:
-        """The projector (the video's camera) for the next draws."""
+    def set_projector(self, camera: Camera | None, priority: float = 0.0) -> None:
+        """The projector (the video's camera) for the next draws; priority: where further
+        projectors see the same surface, the higher priority wins (set_extra_projectors)."""
         self.projector = camera
+        self.projector_priority = float(priority)
+
+    def set_extra_projectors(self, views: list[tuple[Camera, np.ndarray, float]]) -> None:
+        """Further projectors drawn with the first (several clips at once): each (camera,
+        display-oriented RGB frame (H, W, 3) uint8, priority). One depth map each, redrawn only
+        when its own pose changes; at most MAX_EXTRA."""
+        if len(views) > MAX_EXTRA:
+            raise ValueError(f"at most {MAX_EXTRA + 1} projectors at once, got {len(views) + 1}")
+        while len(self.extras) > len(views):
+            self.extras.pop().release()
+        while len(self.extras) < len(views):
+            key = f"projector{len(self.extras)}"
+            self.extras.append(_Extra(DepthPass(self.ctx, self.scene, key), None))
+        for extra, (camera, rgb, priority) in zip(self.extras, views):
+            extra.set(self.ctx, camera, rgb, priority)
 
     def set_reference(self, camera: Camera | None) -> None:
         """A second camera drawn as a frustum beside the projector's (e.g. the true pose)."""
@@ -151,6 +169,11 @@ class FusionRenderer:
                 / self.projector.intrinsics.height
             )
             cameras.append((self.projector, focal, "projector"))
+        if settings.enabled:
+            for k, e in enumerate(self.extras):
+                i = e.camera.intrinsics
+                size = depth_map_size(i.width, i.height, settings.depth_long_side)
+                cameras.append((e.camera, max(i.fx, i.fy) * size[1] / i.height, f"projector{k}"))
         return self.scene.settle(cameras, timeout_s)
 
     def draw(
@@ -166,6 +189,14 @@ class FusionRenderer:
         if settings.enabled and self.projector is not None and self.video.ready:
             w, h = self.projector.intrinsics.width, self.projector.intrinsics.height
             self.depth.update(self.projector, depth_map_size(w, h, settings.depth_long_side))
+        extras = []
+        if settings.enabled:
+            for e in self.extras:
+                i = e.camera.intrinsics
+                e.depth.update(
+                    e.camera, depth_map_size(i.width, i.height, settings.depth_long_side)
+                )
+                extras.append(ExtraProjector(e.camera, e.depth, e.video, e.priority))
         truth_map = self._truth_positions(overlays)
         fbo.use()
         fbo.clear(*BACKGROUND, 1.0, depth=1.0)
@@ -177,6 +208,8 @@ class FusionRenderer:
             self.video,
             truth_map,
             overlays.error_scale_m,
+            tuple(extras),
+            self.projector_priority,
         )
         vp = view.view_projection
         if overlays.frustum and self.projector is not None:
@@ -186,6 +219,14 @@ class FusionRenderer:
                 FRUSTUM_COLOR,
                 moderngl.LINES,
             )
+        if overlays.frustum:
+            for e in self.extras:
+                self.lines.draw(
+                    vp,
+                    frustum_segments(e.camera, overlays.frustum_length_m),
+                    FRUSTUM_COLOR,
+                    moderngl.LINES,
+                )
         if overlays.frustum and self.reference is not None:
             self.lines.draw(
                 vp,
@@ -202,7 +243,37 @@ class FusionRenderer:
         if self._positions is not None:
             self._positions.release()
         self.lines.release()
+        for e in self.extras:
+            e.release()
+        self.extras = []
         self.scene_pass.release()
         self.depth.release()
         self.scene.release()
         self.video.release()
+
+
+class _Extra:
+    """A further projector's GL objects: its depth pass and its video as an RGB texture."""
+
+    def __init__(self, depth: DepthPass, video: moderngl.Texture | None) -> None:
+        self.depth, self.video = depth, video
+        self.camera: Camera | None = None
+        self.priority = 0.0
+
+    def set(self, ctx: moderngl.Context, camera: Camera, rgb: np.ndarray, priority: float) -> None:
+        img = np.ascontiguousarray(rgb, dtype=np.uint8)
+        if img.ndim != 3 or img.shape[2] != 3:
+            raise ValueError(f"a video frame must be (H, W, 3) uint8, got {img.shape}")
+        if self.video is None or self.video.size != (img.shape[1], img.shape[0]):
+            if self.video is not None:
+                self.video.release()
+            self.video = ctx.texture((img.shape[1], img.shape[0]), 3)
+            self.video.filter = (moderngl.LINEAR, moderngl.LINEAR)
+            self.video.repeat_x = self.video.repeat_y = False
+        self.video.write(img.tobytes())
+        self.camera, self.priority = camera, float(priority)
+
+    def release(self) -> None:
+        self.depth.release()
+        if self.video is not None:
+            self.video.release()

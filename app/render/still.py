@@ -70,16 +70,20 @@ def render_still(
     settings: ProjectionSettings = ProjectionSettings(),
     overlays: OverlaySettings = OverlaySettings(),
     trajectory: npt.ArrayLike | None = None,
+    extras: list[tuple[np.ndarray, Camera, float]] | None = None,
+    priority: float = 0.0,
 ) -> Still:
     """Render `mesh` from `view` with `image` projected from `projector`, and say how much of
-    the scene was drawn."""
+    the scene was drawn. extras: further (image, camera, priority) projected at once; priority:
+    the first projector's (where several see a surface: app.render.passes.ExtraProjector)."""
     ctx = create_offscreen_context()
     renderer = FusionRenderer(ctx, mesh)
     try:
         if image is not None:
             renderer.set_video_frame(image)
-        renderer.set_projector(projector)
+        renderer.set_projector(projector, priority)
         renderer.set_trajectory(trajectory)
+        renderer.set_extra_projectors([(cam, img, prio) for img, cam, prio in extras or []])
         renderer.scene_pass.count_samples = True
         rgb = render_to_array(renderer, view, settings, overlays)
         return Still(rgb, int(renderer.scene_pass.samples or 0))

@@ -1,0 +1,154 @@
+"""Several projectors at once (issue 22's renderer): each its own depth test, the overlap rule
+at a seam checked by pixels worked out by hand, an occluder's shadow filled by the other clip,
+and eight projectors drawn together."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from app.camera import Camera, Intrinsics, look_at_quat
+from app.config import OverlaySettings, ProjectionSettings
+from app.render.passes import SEAM
+from app.render.still import render_still
+from app.scene import shapes
+from app.scene.ground_plane import ground_plane
+from app.scene.mesh import MeshData
+
+pytestmark = pytest.mark.gl
+
+RED = np.array([255, 0, 0])
+BLUE = np.array([0, 0, 255])
+SIZE = 200  # the top view's pixels a side
+TOP = Camera.create(
+    Intrinsics.from_fov(SIZE, SIZE, 60.0),
+    [0.0, 0.0, 50.0],
+    look_at_quat([0.0, 0.0, 50.0], [0.0, 0.0, 0.0], (0.0, 1.0, 0.0)),
+    0.5,
+    500.0,
+)
+SETTINGS = ProjectionSettings(alpha=1.0, bias_constant_m=0.05)
+NO_LINES = OverlaySettings(frustum=False, trajectory=False)
+
+
+def _projector(eye, target, fov: float = 70.0) -> Camera:
+    return Camera.create(
+        Intrinsics.from_fov(160, 120, fov), eye, look_at_quat(eye, target), 0.5, 500.0
+    )
+
+
+def _solid(colour) -> np.ndarray:
+    return np.broadcast_to(np.asarray(colour, np.uint8), (120, 160, 3)).copy()
+
+
+def _pixel_of(point) -> tuple[int, int]:
+    uv, _ = TOP.project(np.asarray(point, np.float64)[None])
+    return int(uv[0, 1]), int(uv[0, 0])  # row, column
+
+
+def _ground_x(row: int, col: int) -> float:
+    """The ground point (x) the top view's pixel centre sees."""
+    ray = TOP.pixel_rays([[col + 0.5, row + 0.5]])[0]
+    return float(TOP.position[0] + ray[0] * TOP.position[2] / -ray[2])
+
+
+def _score(eye, x: float, priority: float = 0.0) -> float:
+    """shaders/scene.frag's view_score for a level ground point (x, 0, 0)."""
+    d = math.dist(eye, (x, 0.0, 0.0))
+    return 10.0 * priority + eye[2] / d - d / 2000.0
+
+
+def test_the_overlap_rule_at_a_seam():
+    """Two projectors 20 m either side of the origin, 10 m up, both looking at it: east of the
+    origin the east one is nearer and more head-on, so its blue wins; west, the red; across the
+    seam the two blend as exp((score - best) / SEAM) says, pixel by pixel."""
+    west, east = (-20.0, 0.0, 10.0), (20.0, 0.0, 10.0)
+    mesh = ground_plane(np.zeros(2), 0.0, 200.0)
+    rgb = render_still(
+        mesh,
+        _solid(RED),
+        _projector(west, (0.0, 0.0, 0.0)),
+        TOP,
+        SETTINGS,
+        NO_LINES,
+        extras=[(_solid(BLUE), _projector(east, (0.0, 0.0, 0.0)), 0.0)],
+    ).rgb.astype(float)
+    row = SIZE // 2
+    checked = 0
+    for col in range(SIZE // 2 - 30, SIZE // 2 + 30, 3):
+        x = _ground_x(row, col)
+        sw, se = _score(west, x), _score(east, x)
+        w_east = 1.0 / (1.0 + math.exp((sw - se) / SEAM))
+        expected = (1.0 - w_east) * RED + w_east * BLUE
+        assert np.abs(rgb[row, col] - expected).max() <= 6.0, (col, x, rgb[row, col], expected)
+        checked += 1
+    assert checked == 20
+    assert rgb[row, SIZE // 2 - 40, 0] > 250 and rgb[row, SIZE // 2 + 40, 2] > 250
+
+
+def test_each_projector_keeps_its_own_shadow_and_the_other_fills_it():
+    """A 4 m box 10 m west of the origin stands in front of the west (red, priority 1: it wins
+    wherever it sees) projector: on the ground in its shadow (x from -9 to -1.7 m along y = 0)
+    the east (blue) projector's video shows; outside the shadow the red one's."""
+    west, east = (-20.0, 0.0, 10.0), (20.0, 0.0, 10.0)
+    box = shapes.box([-11.0, -1.0, 0.0], [-9.0, 1.0, 4.0]).primitive((0.5, 0.5, 0.5, 1.0))
+    mesh = MeshData([*ground_plane(np.zeros(2), 0.0, 200.0).primitives, box])
+    rgb = render_still(
+        mesh,
+        _solid(RED),
+        _projector(west, (0.0, 0.0, 0.0), 90.0),
+        TOP,
+        SETTINGS,
+        NO_LINES,
+        extras=[(_solid(BLUE), _projector(east, (-5.0, 0.0, 0.0), 90.0), 0.0)],
+        priority=1.0,
+    ).rgb
+    shadow = rgb[_pixel_of((-4.0, 0.0, 0.0))]
+    beside = rgb[_pixel_of((-4.0, 4.0, 0.0))]  # outside the shadow (it is 1.7 m wide there)
+    east_of_it = rgb[_pixel_of((1.0, 0.0, 0.0))]
+    assert shadow[2] > 240 and shadow[0] < 15, shadow  # blue: the red one is occluded
+    assert beside[0] > 240 and beside[2] < 15, beside
+    assert east_of_it[0] > 240 and east_of_it[2] < 15, east_of_it
+    # with the east one removed, the shadow shows no video at all (the model's own grey ground)
+    alone = render_still(
+        mesh, _solid(RED), _projector(west, (0.0, 0.0, 0.0), 90.0), TOP, SETTINGS, NO_LINES
+    ).rgb
+    grey = alone[_pixel_of((-4.0, 0.0, 0.0))]
+    assert grey[0] < 240 and abs(int(grey[0]) - int(grey[2])) < 30
+
+
+def test_eight_projectors_drawn_together():
+    """Eight projectors on a ring, each straight down on its own patch of ground with its own
+    colour: each patch shows its colour."""
+    colours = [
+        (255, 0, 0), (0, 255, 0), (0, 0, 255), (255, 255, 0),
+        (255, 0, 255), (0, 255, 255), (255, 128, 0), (128, 0, 255),
+    ]  # fmt: skip
+    mesh = ground_plane(np.zeros(2), 0.0, 200.0)
+    views = []
+    for k, colour in enumerate(colours):
+        a = 2 * math.pi * k / 8
+        centre = (12.0 * math.cos(a), 12.0 * math.sin(a), 0.0)
+        eye = (centre[0], centre[1], 8.0)
+        cam = Camera.create(
+            Intrinsics.from_fov(160, 120, 30.0),
+            eye,
+            look_at_quat(eye, centre, (0.0, 1.0, 0.0)),
+            0.5,
+            500.0,
+        )
+        views.append((_solid(colour), cam, 0.0, centre))
+    first, *rest = views
+    rgb = render_still(
+        mesh,
+        first[0],
+        first[1],
+        TOP,
+        SETTINGS,
+        NO_LINES,
+        extras=[(img, cam, prio) for img, cam, prio, _ in rest],
+    ).rgb
+    for img, _, _, centre in views:
+        assert np.abs(rgb[_pixel_of(centre)].astype(int) - img[0, 0]).max() <= 3, centre

@@ -152,3 +152,38 @@ def test_eight_projectors_drawn_together():
     ).rgb
     for img, _, _, centre in views:
         assert np.abs(rgb[_pixel_of(centre)].astype(int) - img[0, 0]).max() <= 3, centre
+
+
+def test_render_pairs_images_and_poses_by_order(tmp_path, capsys):
+    """`geofuse render` with two --image and two --pose (one --fov for both): the red image
+    lands west of the seam and the blue east, as in the seam test; a third --pose is refused."""
+    from PIL import Image
+
+    from app.cli import main
+    from app.geo import LocalFrame
+
+    ground = tmp_path / "ground.obj"
+    ground.write_text("v -200 -200 0\nv 200 -200 0\nv 200 200 0\nv -200 200 0\nf 1 2 3\nf 1 3 4\n")
+    origin = (46.05, 14.5, 300.0)
+    frame = LocalFrame(*origin)
+    images, poses = [], []
+    for name, colour, eye in (("red", RED, (-20.0, 0.0, 10.0)), ("blue", BLUE, (20.0, 0.0, 10.0))):
+        path = tmp_path / f"{name}.png"
+        Image.fromarray(_solid(colour)).save(path)
+        lat, lon, h = frame.enu_to_geodetic(np.array([eye]))[0]
+        heading = 90.0 if eye[0] < 0 else 270.0
+        pitch = -math.degrees(math.atan2(eye[2], abs(eye[0])))
+        images += ["--image", str(path)]
+        poses += ["--pose", f"{lat},{lon},{h},{heading},{pitch},0"]
+    out = tmp_path / "two.png"
+    base = ["render", "--scene", str(ground), "--origin", ",".join(map(str, origin))]
+    view = ["--view-from", "0,0,50", "--look-at", "0,0.001,0", "--size", "200x200", "--alpha", "1"]
+    args = base + images + poses + ["--fov", "70"] + view + ["--out", str(out)]
+    assert main(args) == 0, capsys.readouterr().err
+    assert "2 images projected" in capsys.readouterr().out
+    rgb = np.asarray(Image.open(out).convert("RGB")).astype(int)
+    assert rgb[100, 60, 0] > 240 and rgb[100, 60, 2] < 15  # west: red
+    assert rgb[100, 140, 2] > 240 and rgb[100, 140, 0] < 15  # east: blue
+    extra = poses[-2:]
+    assert main(base + images + poses + extra + ["--fov", "70", "--out", str(out)]) == 2
+    assert "--pose: give one for each --image (2), got 3" in capsys.readouterr().err

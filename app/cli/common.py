@@ -71,9 +71,9 @@ def open_with_source(
     session = open_any(
         path,
         getattr(args, "srt", None),
-        getattr(args, "fov", None),
+        single(getattr(args, "fov", None)),
         getattr(args, "pitch", DRONE_DEFAULT_PITCH_DEG),
-        args.lens,
+        single(args.lens),
         layers(args),
     )
     if getattr(args, "out", None) is not None:
@@ -122,20 +122,40 @@ def nothing_drawn(samples: int, mesh: MeshData) -> bool:
 
 @dataclass(frozen=True)
 class StillScene:
-    """A still's scene and camera as --scene/--dem, --origin, --image, --pose and --fov/--lens
-    name them: the layers loaded in `frame` (the origin's, else the camera's), the image, and its
-    camera; inputs: every file read (never to be written)."""
+    """A still's scene and cameras as --scene/--dem, --origin, --image, --pose and --fov/--lens
+    name them: the layers loaded in `frame` (the origin's, else the first camera's), the first
+    image and its camera, further (image, camera) pairs projected with it (repeated --image and
+    --pose, paired by order); inputs: every file read (never to be written)."""
 
     loaded: LoadedLayers
     frame: LocalFrame
     image: np.ndarray
     camera: Camera
     inputs: list[Path]
+    extras: tuple[tuple[np.ndarray, Camera], ...] = ()
+
+
+def single(value: object) -> object:
+    """An option given once where the still options allow it repeated (--lens with a clip)."""
+    return value[-1] if isinstance(value, list) else value
+
+
+def _per_image(values: list | None, n: int, option: str) -> list:
+    """One value per image: given once (for all) or once each."""
+    if not values:
+        return [None] * n
+    if len(values) == 1:
+        return values * n
+    if len(values) != n:
+        raise GeofuseError(
+            f"{option}: give it once (for every image) or {n} times, got {len(values)}"
+        )
+    return values
 
 
 def still_scene(args: argparse.Namespace, what: str, far: float) -> StillScene:
-    """Load a still's scene and build its camera (far: its far plane, m), after checking that
-    every option it needs is given (`what` begins the error that lists those missing)."""
+    """Load a still's scene and build its cameras (far: their far plane, m), after checking that
+    every option they need is given (`what` begins the error that lists those missing)."""
     named = layers(
         args,
         Placement(
@@ -145,32 +165,42 @@ def still_scene(args: argparse.Namespace, what: str, far: float) -> StillScene:
             scale=args.scene_scale,
         ),
     )
-    missing = [f"--{k.replace('_', '-')}" for k in ("image", "pose") if getattr(args, k) is None]
+    missing = [f"--{k.replace('_', '-')}" for k in ("image", "pose") if not getattr(args, k)]
     if not named:
         missing.insert(0, "--scene (or --dem)")
     if args.origin is None and any(not layer.georeferenced for layer in named):
         missing.append("--origin (a model's origin)")
-    if args.fov is None and args.lens is None:
+    if not args.fov and not args.lens:
         missing.append("--fov (or --lens)")
     if missing:
         raise GeofuseError(f"{what} {', '.join(missing)}")
-    lat, lon, h, heading, pitch, roll = args.pose
+    n = len(args.image)
+    if len(args.pose) != n:
+        raise GeofuseError(f"--pose: give one for each --image ({n}), got {len(args.pose)}")
+    fovs, lenses = _per_image(args.fov, n, "--fov"), _per_image(args.lens, n, "--lens")
+    lat, lon, h = args.pose[0][:3]
     frame = LocalFrame(*(args.origin or (lat, lon, h)))
-    loaded = load_layers(named, frame, [[lat, lon]])
-    loaded.warn_far([frame.geodetic_to_enu(lat, lon, h)], "the camera")
+    loaded = load_layers(named, frame, [[p[0], p[1]] for p in args.pose])
+    loaded.warn_far([frame.geodetic_to_enu(*p[:3]) for p in args.pose], "the camera")
     for message in loaded.notes.since(0):
         print(message, file=sys.stderr)
-    image = read_rgb(args.image)
-    try:
-        camera = still_camera(
-            (image.shape[1], image.shape[0]),
-            frame.geodetic_to_enu(lat, lon, h),
-            (heading, pitch, roll),
-            args.fov,
-            args.lens,
-            far=far,
-        )
-    except ValueError as exc:
-        raise GeofuseError(f"--fov: {exc}") from exc
-    inputs = [*(f for layer in named for f in layer.files()), args.image, args.lens]
-    return StillScene(loaded, frame, image, camera, [Path(p) for p in inputs if p is not None])
+    stills = []
+    for path, pose, fov, lens in zip(args.image, args.pose, fovs, lenses):
+        image = read_rgb(path)
+        try:
+            camera = still_camera(
+                (image.shape[1], image.shape[0]),
+                frame.geodetic_to_enu(*pose[:3]),
+                tuple(pose[3:]),
+                fov,
+                lens,
+                far=far,
+            )
+        except ValueError as exc:
+            raise GeofuseError(f"--fov: {exc}") from exc
+        stills.append((image, camera))
+    inputs = [*(f for layer in named for f in layer.files()), *args.image, *(args.lens or [])]
+    (image, camera), *extras = stills
+    return StillScene(
+        loaded, frame, image, camera, [Path(p) for p in inputs if p is not None], tuple(extras)
+    )

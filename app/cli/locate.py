@@ -73,7 +73,7 @@ def run(args: argparse.Namespace) -> int:
     else:
         scene = still_scene(args, "locate: give SESSION|CLIP --time T, or all of", LOCATE_FAR_M)
         camera, mesh, frame, sigmas = scene.camera, scene.loaded.mesh, scene.frame, None
-        where = f"the still {args.image}"
+        where = f"the still {args.image[0]}"
     locator = Locator(mesh, frame)
     try:
         found: list[Location | None | str] = []

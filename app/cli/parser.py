@@ -248,23 +248,34 @@ def _add_still_options(p: argparse.ArgumentParser) -> None:
         default=1.0,
         help="scene units -> metres",
     )
-    p.add_argument("--image", type=Path, help="the image (video frame) to project: PNG or JPEG")
+    p.add_argument(
+        "--image",
+        type=Path,
+        action="append",
+        default=None,
+        help="the image (video frame) to project: PNG or JPEG; repeatable (several projected at once, each with its own --pose)",
+    )
     p.add_argument(
         "--pose",
         type=lambda s: _floats(s, 6, GEODETIC + ATTITUDE),
+        action="append",
+        default=None,
         metavar="LAT,LON,H,HEADING,PITCH,ROLL",
-        help="the image's camera: position (deg, deg, ellipsoidal m) and optical-axis heading (deg from true north, clockwise), pitch (deg above horizon), roll (deg)",
+        help="the image's camera: position (deg, deg, ellipsoidal m) and optical-axis heading (deg from true north, clockwise), pitch (deg above horizon), roll (deg); repeatable, paired with --image by order",
     )
     p.add_argument(
         "--fov",
         type=_number(*FOV_RANGE_DEG),
-        help="the image's horizontal field of view, degrees",
+        action="append",
+        default=None,
+        help="the image's horizontal field of view, degrees; one for all images, or one each",
     )
     p.add_argument(
         "--lens",
         type=Path,
+        action="append",
         default=None,
-        help="a gyroflow lens profile (JSON) of the image's camera, instead of --fov; with --session, of a clip",
+        help="a gyroflow lens profile (JSON) of the image's camera, instead of --fov (one for all, or one each); with --session, of a clip",
     )
 
 

@@ -43,9 +43,11 @@ def run(args: argparse.Namespace) -> int:
         view,
         projection_settings(args),
         OverlaySettings(frustum=not args.no_frustum, trajectory=False),
+        extras=[(img, cam, 0.0) for img, cam in scene.extras],
     )
     out = write_rgb(args.out, still.rgb)
-    print(f"wrote {out} ({still.rgb.shape[1]}x{still.rgb.shape[0]})")
+    shown = f", {1 + len(scene.extras)} images projected" if scene.extras else ""
+    print(f"wrote {out} ({still.rgb.shape[1]}x{still.rgb.shape[0]}{shown})")
     print_scene_report(loaded.mesh)
     return 1 if nothing_drawn(still.samples, loaded.mesh) else 0
 
@@ -54,7 +56,7 @@ def _session(args: argparse.Namespace) -> int:
     """The frame shown at --time (app.frame_time.frame_at, as the viewer shows it) with its pose."""
     if args.time is None:
         raise GeofuseError("render --session needs --time T (seconds from the video's first frame)")
-    check_output(args.out, "--out", IMAGE_SUFFIXES, [args.session, args.lens])
+    check_output(args.out, "--out", IMAGE_SUFFIXES, [args.session, *(args.lens or [])])
     session, source = open_with_source(args.session, args, IMAGE_SUFFIXES)
     pts = session.video.pts_s
     if not pts[0] - 0.5 <= args.time <= pts[-1] + 0.5:

@@ -62,6 +62,11 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--dem-samples", type=int, default=4001)
     parser.add_argument("--no-gis", action="store_true", help="skip the city tileset and the DEM")
+    parser.add_argument(
+        "--projectors-only",
+        action="store_true",
+        help="only the several-projectors table (1, 2, 4 and 8 at once)",
+    )
     args = parser.parse_args(argv)
     w, h = (int(v) for v in args.size.split("x"))
 
@@ -95,6 +100,11 @@ def main(argv: list[str] | None = None) -> int:
     )
 
     on, off = ProjectionSettings(), ProjectionSettings(enabled=False)
+    if args.projectors_only:
+        projectors(ctx, renderer, view, target, photo, frame, args.frames)
+        renderer.release()
+        target.release()
+        return 0
 
     def draw(settings: ProjectionSettings) -> None:
         renderer.draw(view, target.fbo, settings)
@@ -168,6 +178,7 @@ def main(argv: list[str] | None = None) -> int:
         )
         dense_scene(ctx, big_renderer, big, photo, target, w, h, args.frames)
         big_renderer.release()
+    projectors(ctx, renderer, view, target, photo, frame, max(20, args.frames // 3))
     if not args.no_gis:
         from bench import bench_gis
 
@@ -236,6 +247,62 @@ def dense_scene(ctx, renderer, mesh, photo, target, w: int, h: int, frames: int)
     print("Projection on: depth map (2048 texels) redrawn every frame; off: no depth pass.\n")
     print(on_off_table(t_on, t_off, "on, depth redrawn"))
     print(f"\nratio on/off (medians, same run): **{median_ms(t_on) / median_ms(t_off):.3f}**")
+
+
+def projectors(ctx, renderer, view, target, photo, frame, frames: int) -> None:
+    """The sample drawn with 1, 2, 4 and 8 projectors at once (several clips), every depth map
+    redrawn every frame (each projector turns by a millidegree a frame): the frame time against
+    one projector's, the counts interleaved frame by frame in the same run."""
+    from app.config import ProjectionSettings
+    from app.demo import SAMPLE_PHOTO_POSE
+    from app.simulate.photo import photo_camera
+
+    settings = ProjectionSettings()
+    counts = (1, 2, 4, 8)
+
+    def camera(k: int, tick: int):
+        pose = SAMPLE_PHOTO_POSE.__dict__
+        return photo_camera(
+            SAMPLE_PHOTO_POSE.__class__(
+                **{
+                    **pose,
+                    "heading_deg": pose["heading_deg"] + 6.0 * (k - 3.5) + 1e-3 * (tick % 2),
+                }
+            ),
+            frame,
+        )
+
+    renderer.set_extra_projectors([(camera(k, 0), photo, 0.0) for k in range(1, max(counts))])
+    extras = list(renderer.extras)
+    tick = [0]
+
+    def draw(n: int) -> None:
+        tick[0] += 1
+        renderer.extras = extras[: n - 1]
+        renderer.set_projector(camera(0, tick[0]))
+        for k, e in enumerate(renderer.extras, start=1):
+            e.camera = camera(k, tick[0])
+        renderer.draw(view, target.fbo, settings)
+        ctx.finish()
+
+    times = {n: [] for n in counts}
+    for _ in range(3):
+        for n in counts:
+            draw(n)
+    for _ in range(frames):
+        for n in counts:
+            t0 = time.perf_counter()
+            draw(n)
+            times[n].append(time.perf_counter() - t0)
+    renderer.extras = extras
+    base = median_ms(times[1])
+    goal = {1: "", 2: "", 4: "1.5x", 8: "2x"}
+    rows = [
+        [n, f"{median_ms(times[n]):.1f}", f"{median_ms(times[n]) / base:.2f}x", goal[n]]
+        for n in counts
+    ]
+    print("\n## Several projectors at once (every depth map redrawn every frame)\n")
+    print(table(["projectors", "frame median ms", "against one (same run)", "goal"], rows))
 
 
 if __name__ == "__main__":

@@ -1,0 +1,57 @@
+"""Several clips on one timeline (app.timeline): clips with absolute clocks at their true
+times, frame by frame; clips without one start together; outside its span a clip shows nothing."""
+
+from __future__ import annotations
+
+from datetime import timedelta
+
+import numpy as np
+import pytest
+
+from app.clips import open_clip
+from app.simulate import drone
+from app.simulate.phone import write_video
+from app.timeline import Timeline
+
+
+def _dji(folder, name: str, seconds: float, start, monkeypatch, dated: bool = True):
+    """A DJI clip whose subtitle dates start at `start` (a datetime, UTC)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    video = write_video(folder / f"{name}.MP4", np.arange(int(seconds * 30)) / 30.0, (96, 54), 0)
+    monkeypatch.setattr(drone, "START", start)
+    text = drone.srt_text(seconds, 0.0)
+    if not dated:
+        text = "\n".join(
+            line for line in text.split("\n") if not line[:4].isdigit() or "-" not in line[:8]
+        )
+    (folder / f"{name}.SRT").write_text(text, encoding="utf-8")
+    return open_clip(video)
+
+
+def test_clips_with_clocks_play_at_their_true_times(tmp_path, monkeypatch):
+    """Clip B began 5.5 s after clip A: on the timeline each of B's frames falls 5.5 s after
+    A's frame of the same UTC time; at timeline 7 s, A shows its frame at 7 s, B its at 1.5 s."""
+    t0 = drone.START
+    a = _dji(tmp_path / "a", "A", 10.0, t0, monkeypatch)
+    b = _dji(tmp_path / "b", "B", 6.0, t0 + timedelta(seconds=5.5), monkeypatch)
+    line = Timeline.of([b, a])  # in any order
+    tb, ta = line.clips
+    assert ta.absolute and tb.absolute and line.utc0 == pytest.approx(t0.timestamp(), abs=1e-3)
+    assert ta.start_s == pytest.approx(0.0, abs=1e-3) and tb.start_s == pytest.approx(5.5, abs=1e-3)
+    # every frame of B at its true time: its own media time plus 5.5 s
+    np.testing.assert_allclose(tb.times, 5.5 + b.video.pts_s, atol=1e-3)
+    fb, fa = line.frames_at(7.0)
+    assert fa == 210 and fb == 45  # 7.0 s and 1.5 s at 30 fps
+    assert line.frames_at(2.0)[0] is None  # B has not begun
+    assert line.frames_at(11.6) == [None, None]  # both over
+
+
+def test_clips_without_a_clock_start_together_and_move_by_their_offset(tmp_path, monkeypatch):
+    a = _dji(tmp_path / "a", "A", 4.0, drone.START, monkeypatch, dated=False)
+    b = _dji(tmp_path / "b", "B", 4.0, drone.START, monkeypatch, dated=False)
+    line = Timeline.of([a, b], [0.0, 1.0])
+    assert line.utc0 is None and not any(c.absolute for c in line.clips)
+    assert line.clips[0].start_s == pytest.approx(0.0) and line.clips[1].start_s == pytest.approx(
+        1.0
+    )
+    assert line.frames_at(0.5) == [15, None]

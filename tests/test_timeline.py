@@ -55,3 +55,29 @@ def test_clips_without_a_clock_start_together_and_move_by_their_offset(tmp_path,
         1.0
     )
     assert line.frames_at(0.5) == [15, None]
+
+
+def test_footprints_of_several_clips_carry_their_clip(tmp_path, monkeypatch, capsys):
+    """`geofuse export footprints A.MP4 B.MP4`: every clip's footprints, each with its clip
+    field, and a camera track per clip beside them; other exports take one input."""
+    import json
+
+    from shapely.geometry import shape
+
+    from app.cli import main
+
+    _dji(tmp_path / "a", "A", 3.0, drone.START, monkeypatch)
+    _dji(tmp_path / "b", "B", 2.0, drone.START + timedelta(seconds=1), monkeypatch)
+    out = tmp_path / "both.geojson"
+    args = ["export", "footprints", str(tmp_path / "a" / "A.MP4"), str(tmp_path / "b" / "B.MP4")]
+    assert main(args + ["--out", str(out), "--every", "15"]) == 0, capsys.readouterr().err
+    assert "of 2 clips" in capsys.readouterr().out
+    features = json.loads(out.read_text())["features"]
+    clips = [f["properties"]["clip"] for f in features]
+    assert clips.count("A.MP4") == 6 and clips.count("B.MP4") == 4
+    assert all(shape(f["geometry"]).is_valid for f in features)
+    tracks = json.loads((tmp_path / "both_track.geojson").read_text())["features"]
+    assert sorted(t["properties"]["clip"] for t in tracks) == ["A.MP4", "B.MP4"]
+    csv = tmp_path / "both.csv"
+    assert main(["export", "fmv-csv", *args[2:], "--out", str(csv)]) == 2
+    assert "one input at a time" in capsys.readouterr().err

@@ -8,20 +8,24 @@ import sys
 from pathlib import Path
 
 from app.cli.common import open_with_source, print_messages, print_scene_report, solved
+from app.errors import GeofuseError
 from app.export import EXPORT_SUFFIXES
-from app.export.jobs import ExportOptions, export_session
+from app.export.jobs import ExportOptions, export_session, write_footprints
+from app.export.records import frame_records
 from app.outputs import IMAGE_SUFFIXES, check_output
 from app.progress import ProgressBar
 
 
 def run(args: argparse.Namespace) -> int:
+    inputs = list(args.input)
+    if len(inputs) > 1 and args.what != "footprints":
+        raise GeofuseError(
+            f"export {args.what}: one input at a time (several inputs: footprints, each with its clip)"
+        )
     suffixes = EXPORT_SUFFIXES[args.what]
-    check_output(args.out, "--out", suffixes, [args.input, args.srt])
+    check_output(args.out, "--out", suffixes, [*inputs, args.srt])
     if args.preview is not None:
-        check_output(args.preview, "--preview", IMAGE_SUFFIXES, [args.input, args.srt, args.out])
-    session, source = open_with_source(args.input, args, suffixes)
-    print_messages(session)
-    track = solved(session, source)
+        check_output(args.preview, "--preview", IMAGE_SUFFIXES, [*inputs, args.srt, args.out])
     options = ExportOptions(
         every=args.every,
         size=args.size,
@@ -29,18 +33,28 @@ def run(args: argparse.Namespace) -> int:
         start_s=args.start,
         end_s=args.end,
         preview=args.preview,
-        name=Path(args.input).stem,
+        name=Path(inputs[0]).stem,
     )
-    line = export_session(
-        args.what,
-        session,
-        source,
-        track,
-        Path(args.out),
-        options,
-        ProgressBar(f"export {args.what}", sys.stderr),
-    )
-    print_messages(session)
-    print_scene_report(session.scene())
-    print(line)
+    bar = ProgressBar(f"export {args.what}", sys.stderr)
+    if len(inputs) == 1:
+        session, source = open_with_source(inputs[0], args, suffixes)
+        print_messages(session)
+        line = export_session(
+            args.what, session, source, solved(session, source), Path(args.out), options, bar
+        )
+        print_messages(session)
+        print_scene_report(session.scene())
+        print(line)
+        return 0
+    records, read, first = [], [], None
+    for path in inputs:  # several clips: each its own session, source and scene
+        session, source = open_with_source(path, args, suffixes)
+        print_messages(session)
+        track = solved(session, source)
+        records += list(frame_records(session, source, args.every, progress=bar, track=track))
+        print_messages(session)
+        print_scene_report(session.scene())
+        read += list(session.inputs)
+        first = first or session
+    print(write_footprints(records, Path(args.out), options, read, first))
     return 0

@@ -538,7 +538,12 @@ def build_parser() -> argparse.ArgumentParser:
         choices=sorted(EXPORT_SUFFIXES),
         help="footprints: .geojson/.kml/.kmz; fmv-csv: .csv; klv: .ts; video: .mp4",
     )
-    ex.add_argument("input", type=Path, help="a session manifest, a GoPro MP4 or a DJI clip")
+    ex.add_argument(
+        "input",
+        type=Path,
+        nargs="+",
+        help="a session manifest, a GoPro MP4 or a DJI clip; footprints: several, each footprint with its clip",
+    )
     ex.add_argument("--out", type=Path, required=True)
     ex.add_argument(
         "--source",

@@ -65,6 +65,7 @@ def iso_utc(unix_s: float | None) -> str | None:
 def properties(r: FrameRecord) -> dict[str, object]:
     """The fields of one frame, named with their units and datums."""
     return {
+        "clip": r.clip,
         "frame": r.index,
         "time_s": round(r.session_s, 6),
         "media_time_s": round(r.media_s, 6),
@@ -145,18 +146,28 @@ def borders_geojson(records: Iterable[FrameRecord]) -> dict:
     }
 
 
+def _tracks(records: Iterable[FrameRecord]) -> list[tuple[str, list[FrameRecord]]]:
+    """The records by clip, in the order the clips come."""
+    out: dict[str, list[FrameRecord]] = {}
+    for r in records:
+        out.setdefault(r.clip, []).append(r)
+    return list(out.items())
+
+
 def track_geojson(records: Iterable[FrameRecord]) -> dict:
-    """The camera track: one LineString of [lon, lat, ellipsoidal h] (empty below two frames)."""
-    points = [[r.sensor[1], r.sensor[0], r.sensor[2]] for r in records]
+    """The camera tracks: a LineString of [lon, lat, ellipsoidal h] per clip (of two frames or
+    more)."""
     features = []
-    if len(points) >= 2:
-        features.append(
-            {
-                "type": "Feature",
-                "geometry": {"type": "LineString", "coordinates": np.round(points, 9).tolist()},
-                "properties": {"name": "camera track", "frames": len(points)},
-            }
-        )
+    for clip, rs in _tracks(records):
+        if len(rs) >= 2:
+            points = [[r.sensor[1], r.sensor[0], r.sensor[2]] for r in rs]
+            features.append(
+                {
+                    "type": "Feature",
+                    "geometry": {"type": "LineString", "coordinates": np.round(points, 9).tolist()},
+                    "properties": {"name": "camera track", "clip": clip, "frames": len(rs)},
+                }
+            )
     return {"type": "FeatureCollection", "features": features}
 
 
@@ -215,11 +226,12 @@ def kml(records: Iterable[FrameRecord], name: str) -> str:
             f"<Placemark><name>frame {r.index}</name><styleUrl>#footprint</styleUrl><LineString><altitudeMode>absolute</altitudeMode><coordinates>{_coords(ring)}</coordinates></LineString></Placemark>"
         )
     out.append("</Folder><Folder><name>camera track</name>")
-    if len(records) >= 2:
-        track = np.array([[r.sensor[1], r.sensor[0], r.sensor_msl_m] for r in records])
-        out.append(
-            f"<Placemark><name>camera track</name><LineString><altitudeMode>absolute</altitudeMode><coordinates>{_coords(track)}</coordinates></LineString></Placemark>"
-        )
+    for clip, rs in _tracks(records):
+        if len(rs) >= 2:
+            track = np.array([[r.sensor[1], r.sensor[0], r.sensor_msl_m] for r in rs])
+            out.append(
+                f"<Placemark><name>{escape(clip or 'camera track')}</name><LineString><altitudeMode>absolute</altitudeMode><coordinates>{_coords(track)}</coordinates></LineString></Placemark>"
+            )
     out.append("</Folder></Document></kml>")
     return "\n".join(out)
 

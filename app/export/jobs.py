@@ -13,14 +13,14 @@ from app.errors import GeofuseError
 from app.export.gis import COMPANIONS, borders_geojson, companion, track_geojson, write_records
 from app.export.klv import write_klv_ts
 from app.export.preview import footprint_preview
-from app.export.records import frame_records
+from app.export.records import FrameRecord, frame_records
 from app.export.video import export_video
 from app.frame_time import frame_span
 from app.imageio import write_rgb
 from app.outputs import check_output, write_atomically, write_via_path
 from app.session.model import Session
 
-__all__ = ["ExportOptions", "export_session"]
+__all__ = ["ExportOptions", "export_session", "write_footprints"]
 
 
 @dataclass(frozen=True)
@@ -88,6 +88,20 @@ def export_session(
             out, "--out", lambda tmp: n.__setitem__(0, write_klv_ts(session.video, records, tmp))
         )
         return f"wrote {out}: the video with {n[0]} MISB ST 0601 local sets, attitude from {source}"
+    return write_footprints(records, out, options, list(session.inputs), session, source)
+
+
+def write_footprints(
+    records: list[FrameRecord],
+    out: Path,
+    options: ExportOptions,
+    inputs: list[Path],
+    preview_session: Session | None = None,
+    source: str = "",
+) -> str:
+    """Footprints (GeoJSON with its borders and tracks beside it, KML, KMZ) or the FMV CSV of
+    the records (one clip's, or several clips' with their clip field) to `out`, never over one
+    of `inputs`; the preview drawn over `preview_session`'s scene. Returns the line to print."""
     write_atomically(
         out,
         "--out",
@@ -97,18 +111,23 @@ def export_session(
     beside = []
     if out.suffix.lower() in (".geojson", ".json"):
         for which, layer in zip(COMPANIONS, (borders_geojson, track_geojson)):
-            path = check_output(companion(out, which), "--out", (out.suffix,), session.inputs)
+            path = check_output(companion(out, which), "--out", (out.suffix,), inputs)
             write_atomically(path, "--out", lambda f, layer=layer: json.dump(layer(records), f))
             beside.append(path.name)
-    if options.preview is not None:
+    if options.preview is not None and preview_session is not None:
         write_rgb(
             options.preview,
-            footprint_preview(session.scene(), session.frame, records, options.size),
+            footprint_preview(
+                preview_session.scene(), preview_session.frame, records, options.size
+            ),
             "--preview",
         )
     clipped = sum(r.clipped for r in records)
+    clips = len({r.clip for r in records})
     return (
-        f"wrote {out}: {len(records)} frames, attitude from {source}"
+        f"wrote {out}: {len(records)} frames"
+        + (f" of {clips} clips" if clips > 1 else "")
+        + (f", attitude from {source}" if source else "")
         + (f"; {clipped} footprints clipped at the range limit" if clipped else "")
         + (f"; beside it {' and '.join(beside)}" if beside else "")
     )

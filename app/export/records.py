@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -58,6 +59,7 @@ class FrameRecord:
     clipped: bool
     undulation: np.ndarray
     ground: np.ndarray
+    clip: str = ""  # the video file the frame is from (several clips in one export)
 
     @property
     def sensor_msl_m(self) -> float:
@@ -161,6 +163,7 @@ class FootprintCaster:
         media_s: float = 0.0,
         session_s: float = 0.0,
         utc_s: float | None = None,
+        clip: str = "",
     ) -> FrameRecord:
         pts, hit = self.grid_points(cam)
         cr, cc = self.centre
@@ -182,7 +185,7 @@ class FootprintCaster:
             centre=tuple(map(float, grid[cr, cc])) if centre_hit else (np.nan, np.nan, np.nan),
             slant_m=float(np.linalg.norm(pts[cr, cc] - np.asarray(cam.position))) if centre_hit else np.nan,
             corners=corners, footprint=border, clipped=not bool(hit[b[:, 0], b[:, 1]].all()),
-            undulation=n, ground=grid[..., :2].copy(),
+            undulation=n, ground=grid[..., :2].copy(), clip=clip,
         )  # fmt: skip
 
     def release(self) -> None:
@@ -203,11 +206,12 @@ def frame_records(
         session.scene(), session.frame, session.intrinsics, max_range_m, session.lens
     )
     frames = range(0, track.frame_count, max(1, every))
+    clip = Path(session.video.path).name
     try:
         for n, k in enumerate(frames):
             media = float(track.clock.media_s[k])
             t = float(track.clock.session_time(media))
-            yield caster.record(track.frame_camera(k), k, media, t, session.utc_of(t))
+            yield caster.record(track.frame_camera(k), k, media, t, session.utc_of(t), clip)
             if progress is not None:
                 progress((n + 1) / len(frames))
     finally:

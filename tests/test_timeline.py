@@ -81,3 +81,44 @@ def test_footprints_of_several_clips_carry_their_clip(tmp_path, monkeypatch, cap
     csv = tmp_path / "both.csv"
     assert main(["export", "fmv-csv", *args[2:], "--out", str(csv)]) == 2
     assert "one input at a time" in capsys.readouterr().err
+
+
+@pytest.mark.gl
+def test_the_viewer_plays_two_clips_on_one_timeline(display, tmp_path, monkeypatch):
+    """`geofuse view walk.toml DJI_0001.MP4`: both clocks are absolute (the walk from 09:46:40.08,
+    the drone's subtitle from 09:46:40.00 UTC), so at the walk's frame 150 the drone shows the
+    frame the timeline says; moved by an offset, another; hidden, its decoder is released and no
+    further projector is drawn."""
+    import json
+    import shutil
+
+    from app.demo import SAMPLE_DIR
+    from app.session import open_session
+    from tests.conftest import run_viewer
+
+    shutil.copytree(SAMPLE_DIR, tmp_path / "walk")
+    drone_clip = _dji(tmp_path / "drone", "DJI_0001", 20.0, drone.START, monkeypatch)
+    walk = open_session(tmp_path / "walk" / "session.toml")
+    line = Timeline.of([walk, drone_clip])
+    s1, s2, s3 = (tmp_path / f"s{k}.json" for k in (1, 2, 3))
+    script = tmp_path / "s.txt"
+    script.write_text(
+        f"0 clock 0.05\n0 wait solved\n0 seek 5\n0 pause\n0.2 state {s1}\n"
+        f"0.25 clip 1 offset 2\n0.3 state {s2}\n0.35 clip 1 off\n0.4 state {s3}\n0.45 quit\n"
+    )
+    result = run_viewer(
+        display,
+        str(tmp_path / "walk" / "session.toml"),
+        str(tmp_path / "drone" / "DJI_0001.MP4"),
+        "--script",
+        str(script),
+        "--size",
+        "640x360",
+    )
+    assert result.returncode == 0, result.stderr[-2000:]
+    first, moved, hidden = (json.loads(p.read_text()) for p in (s1, s2, s3))
+    assert first["errors"] == [] and first["frame"] == 150
+    expected = line.clips[1].frame_at(float(line.clips[0].times[150]))
+    assert first["clips"][0]["frame"] == expected == 152 and first["extra_projectors"] == 1
+    assert moved["clips"][0]["frame"] == expected - 60  # 2 s later on the timeline at 30 fps
+    assert hidden["clips"][0]["decoder"] is False and hidden["extra_projectors"] == 0

@@ -456,10 +456,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     v.add_argument(
         "manifest",
-        nargs="?",
+        nargs="*",
         type=Path,
         default=None,
-        help="a session manifest, a GoPro MP4 or a DJI clip (default: the bundled sample)",
+        help="a session manifest, a GoPro MP4 or a DJI clip (default: the bundled sample); several play together on one timeline, on the first one's scene",
     )
     v.add_argument(
         "--srt", type=Path, default=None, help="the DJI subtitle of the clip, when not beside it"

@@ -14,9 +14,10 @@ def run(args: argparse.Namespace) -> int:
     if args.script is not None:
         parse_script(args.script)  # a bad script is refused before a window opens
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
+    inputs = list(args.manifest or [])
     return Viewer(
         Options(
-            args.manifest,
+            inputs[0] if inputs else None,
             args.size,
             args.script,
             args.screenshot,
@@ -24,5 +25,6 @@ def run(args: argparse.Namespace) -> int:
             srt=args.srt,
             lens=args.lens,
             layers=layers(args),
+            more=tuple(inputs[1:]),
         )
     ).run()

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from app.ui import archive, control_points, measure
+from app.ui import archive, clips, control_points, measure
 
 
 @dataclass(frozen=True)
@@ -107,6 +107,28 @@ def _archive(v, arg, now) -> None:
         archive.open_at(v, xy, now)
     else:
         raise ValueError(f"expected 'load PATH' or 'open [X,Y]', got {arg!r}")
+
+
+def _clip(v, arg, now) -> None:
+    """add PATH | N on|off | N offset S | N priority P: further clips on the timeline
+    (app.ui.clips); N counts the further clips from 1."""
+    words = (arg or "").split(maxsplit=2)
+    if len(words) == 2 and words[0] == "add":
+        clips.add(v, Path(words[1]))
+        return
+    if len(words) < 2 or not words[0].isdigit():
+        raise ValueError(
+            f"expected 'add PATH', 'N on|off', 'N offset S' or 'N priority P', got {arg!r}"
+        )
+    n = int(words[0])
+    if words[1] in ("on", "off"):
+        clips.set_visible(v, n, words[1] == "on")
+    elif words[1] == "offset" and len(words) == 3:
+        clips.set_offset(v, n, _number(words[2]))
+    elif words[1] == "priority" and len(words) == 3:
+        v.loaded.others[n - 1].priority = _number(words[2])
+    else:
+        raise ValueError(f"expected 'N on|off', 'N offset S' or 'N priority P', got {arg!r}")
 
 
 def _wait(v, arg, now) -> None:
@@ -283,6 +305,12 @@ COMMANDS: dict[str, Command] = {
         True,
         True,
         "video [X,Y] | model [X,Y] | solve | clear: control points by hand (a feature in the draped video, then on the model; X,Y in [0, 1] of the 3D view, default the cursor)",
+    ),
+    "clip": Command(
+        _clip,
+        True,
+        True,
+        "add PATH | N on|off | N offset S | N priority P: further clips played with this one on one timeline (hidden: decoder released)",
     ),
     "archive": Command(
         _archive,

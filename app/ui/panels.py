@@ -131,6 +131,8 @@ def _session(v) -> None:
                 imgui.same_line()
                 if imgui.button("Use lens") and ui.lens_path.strip():
                     _run(v, "lens", ui.lens_path.strip())
+        if v.loaded is not None:
+            _clips(v)
         if imgui.button("Open..."):
             open_dialog(v)
         imgui.same_line()
@@ -158,6 +160,27 @@ def _session(v) -> None:
                 ui.errors.clear()
         imgui.text_disabled("H: help and shortcuts; drop a file here to open it")
     imgui.end()
+
+
+def _clips(v) -> None:
+    """Further clips on the timeline: each shown or hidden, with its offset and its span."""
+    L = v.loaded
+    if not L.others:
+        return
+    imgui.separator()
+    imgui.text(f"{1 + len(L.others)} clips on one timeline ({L.timeline.duration_s:.1f} s)")
+    for i, (clip, span) in enumerate(zip(L.others, L.timeline.clips[1:]), start=1):
+        changed, on = imgui.checkbox(f"{Path(clip.session.video.path).name}##clip{i}", clip.visible)
+        if changed:
+            _run(v, "clip", f"{i} {'on' if on else 'off'}")
+        imgui.same_line()
+        imgui.text_disabled(
+            f"{span.start_s:.1f}-{span.end_s:.1f} s" + (" (UTC)" if span.absolute else "")
+        )
+        imgui.set_next_item_width(120)
+        changed, offset = imgui.input_float(f"offset s##clip{i}", clip.offset_s, 0.1, 1.0, "%.2f")
+        if changed:
+            _run(v, "clip", f"{i} offset {offset}")
 
 
 def _playback(v, now: float) -> None:

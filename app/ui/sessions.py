@@ -22,7 +22,8 @@ from app.render.renderer import FusionRenderer
 from app.scene.layers import Layer, layer_kind
 from app.scene.mesh import MeshData
 from app.session.model import REGISTERED, Session
-from app.ui import archive, measure
+from app.timeline import Timeline
+from app.ui import archive, clips, measure
 from app.ui.navigation import Navigator
 
 log = logging.getLogger("geofuse.viewer")
@@ -46,6 +47,9 @@ class Loaded:
     library: SolverLibrary
     source: str
     trajectory_version: tuple[int, str] | None = None  # (library version, source) drawn
+    others: list = field(default_factory=list)  # further clips (app.ui.clips.OtherClip)
+    timeline: Timeline | None = None  # this clip and the others on one clock
+    extras_shown: tuple = ()  # what the further projectors were last given
 
     @property
     def clock(self) -> PlaybackClock:
@@ -145,7 +149,9 @@ class ViewerSessions:
         """Hold everything until every source is solved: all but `registered` (a script's `wait
         solved`: registration takes about as long as the clip), or it too (`wait registered`)."""
         but = () if registered else (REGISTERED,)
-        if self.loaded is not None and not self.loaded.library.wait(SOLVE_WAIT_S, but):
+        libraries = [] if self.loaded is None else [self.loaded.library]
+        libraries += [c.library for c in self.loaded.others] if self.loaded is not None else []
+        if not all(lib.wait(SOLVE_WAIT_S, but) for lib in libraries):
             raise GeofuseError(f"the pose sources were not solved within {SOLVE_WAIT_S:g} s")
 
     def open(self, manifest: Path | None) -> bool:
@@ -199,6 +205,7 @@ class ViewerSessions:
             self.ui.course_pitch_deg = session.course_pitch_deg
         self.stats = Stats()
         self.nav = home_view(session, mesh)
+        clips.retime(self)
         measure.load(self)
         if self.ui.archive is not None:  # the archive's footprints near this session
             try:
@@ -212,6 +219,7 @@ class ViewerSessions:
 
     def close_session(self) -> None:
         if self.loaded is not None:
+            clips.close_all(self.loaded)
             self.loaded.player.close()
             self.loaded.library.close()
             self.loaded.renderer.release()

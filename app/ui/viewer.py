@@ -32,7 +32,7 @@ from app.playback.clock import SPEEDS
 from app.render.renderer import BACKGROUND
 from app.render.window import Window
 from app.session.model import REGISTERED
-from app.ui import measure, panels
+from app.ui import clips, measure, panels
 from app.ui.commands import run_command
 from app.ui.gui import Gui
 from app.ui.inputs import handle_input
@@ -63,6 +63,7 @@ class Options:
     srt: Path | None = None
     lens: Path | None = None  # a lens profile for a clip opened from the command line
     layers: tuple = ()  # app.scene.layers.Layer: the scene of a clip opened from the command line
+    more: tuple = ()  # further clips (paths) played with the first on one timeline
 
 
 class FixedStepClock:
@@ -212,6 +213,7 @@ class Viewer(ViewerJobs, ViewerSessions):
         track = lib.track(L.source)
         reference = lib.reference()
         L.renderer.set_projector(track.frame_camera(k) if track is not None and k >= 0 else None)
+        clips.update(self, now, wait)
         ref_track = lib.track(reference) if reference != L.source else None
         L.renderer.set_reference(
             ref_track.frame_camera(k) if ref_track is not None and k >= 0 else None
@@ -273,6 +275,8 @@ class Viewer(ViewerJobs, ViewerSessions):
                 solved=L.library.solved(), alpha=ui.settings.alpha, time_offset_s=L.library.time_offset_s,
                 registration=_registration_state(L.library.track(REGISTERED)),
                 control=_control_state(ui.control), measure=_measure_state(ui.measure),
+                clips=[{"name": Path(c.session.video.path).name, "visible": c.visible, "frame": c.frame, "decoder": c.player is not None, "offset_s": c.offset_s, "start_s": s.start_s} for c, s in zip(L.others, L.timeline.clips[1:])],
+                extra_projectors=len(L.renderer.extras), timeline_s=None if self.current_index < 0 else float(L.timeline.clips[0].times[self.current_index]),
                 archive=None if ui.archive is None else {"path": str(ui.archive.path), "footprints": ui.archive.footprints, "clips": ui.archive.clips, "picked": ui.archive.picked, "opened": ui.archive.opened, "opened_s": ui.archive.opened_s},
                 sync=None if ui.sync_job is None or ui.sync_job.result is None else {"offset_s": ui.sync_job.result.offset_s, "confidence": ui.sync_job.result.confidence},
                 window_camera={"size": [i.width, i.height], "fx": i.fx, "fy": i.fy, "cx": i.cx, "cy": i.cy, "position": list(cam.position), "orientation": list(cam.orientation), "near": cam.near, "far": cam.far},
@@ -318,6 +322,11 @@ class Viewer(ViewerJobs, ViewerSessions):
             except GeofuseError as exc:
                 self.ui.error(str(exc))
         opened = self.open(self.options.manifest)
+        for path in self.options.more if opened else ():
+            try:
+                clips.add(self, Path(path))
+            except GeofuseError as exc:
+                self.ui.error(str(exc))
         start = self.clock()
         self._run_script(0.0, start)  # clock and wait directives at 0 apply before the first frame
         start = self.clock()

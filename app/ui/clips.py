@@ -1,0 +1,154 @@
+"""Further clips in the viewer, played with the open session on one timeline (app.timeline):
+each with its own session, pose solver, decoder (its own worker thread) and attitude source,
+drawn as a further projector (FusionRenderer.set_extra_projectors) on the open session's scene.
+
+Each frame, the timeline time of the frame the first clip shows says which frame every other
+clip shows (none outside its span); a clip's player follows the first's clock (seeked when it
+strays by more than STRAY_S, paused and sped with it). A hidden clip's decoder and textures are
+released; showing it again starts a new one.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from app import rotations
+from app.camera import Camera
+from app.clips import open_any
+from app.errors import GeofuseError
+from app.playback.library import SolverLibrary
+from app.playback.player import Player
+from app.render.passes import MAX_EXTRA
+from app.render.video_texture import yuv_to_rgb
+from app.session.model import Session
+from app.timeline import Timeline
+
+__all__ = ["OtherClip", "add", "close_all", "set_offset", "set_visible", "update"]
+
+STRAY_S = 0.25  # a further clip's player is seeked when its clock strays this far
+
+
+@dataclass
+class OtherClip:
+    """A further clip: its session, solver library, player (None while hidden), attitude
+    source, whether shown, its offset on the timeline (s), priority, and what it shows."""
+
+    session: Session
+    library: SolverLibrary
+    player: Player | None
+    source: str
+    visible: bool = True
+    offset_s: float = 0.0
+    priority: float = 0.0
+    frame: int | None = None
+    shown: tuple = field(default=(), repr=False)  # (frame, camera) uploaded last
+
+
+def _in_frame(camera: Camera, session: Session, target: Session) -> Camera:
+    """The camera moved from its session's local frame into the target session's."""
+    src, dst = session.frame, target.frame
+    position = dst.ecef_to_enu(src.enu_to_ecef(np.asarray(camera.position)))
+    turn = rotations.from_matrix(src.rotation_to(dst))
+    orientation = rotations.multiply(turn, camera.orientation)
+    return Camera.create(
+        camera.intrinsics, position, orientation, camera.near, camera.far, camera.lens
+    )
+
+
+def retime(v) -> None:
+    """The timeline of the open session and its further clips (their offsets applied)."""
+    L = v.loaded
+    L.timeline = Timeline.of(
+        [L.session, *(c.session for c in L.others)], [0.0, *(c.offset_s for c in L.others)]
+    )
+
+
+def add(v, path: Path) -> None:
+    """Open a further clip (a manifest or a camera file) beside the open session."""
+    L = v.loaded
+    if L is None:
+        raise GeofuseError("open a session first; further clips play beside it")
+    if len(L.others) >= MAX_EXTRA:
+        raise GeofuseError(f"at most {MAX_EXTRA + 1} clips at once")
+    session = open_any(path)
+    L.others.append(
+        OtherClip(
+            session,
+            SolverLibrary(session, first=session.sources[0]),
+            Player(session.video),
+            session.sources[0],
+        )
+    )
+    retime(v)
+
+
+def set_visible(v, index: int, on: bool) -> None:
+    """Show or hide further clip `index` (from 1); hiding releases its decoder."""
+    clip = _clip(v, index)
+    clip.visible = on
+    if not on and clip.player is not None:
+        clip.player.close()
+        clip.player, clip.frame, clip.shown = None, None, ()
+    elif on and clip.player is None:
+        clip.player = Player(clip.session.video)
+
+
+def set_offset(v, index: int, offset_s: float) -> None:
+    """Move further clip `index` (from 1) on the timeline by offset_s seconds."""
+    _clip(v, index).offset_s = float(offset_s)
+    retime(v)
+
+
+def _clip(v, index: int) -> OtherClip:
+    others = v.loaded.others
+    if not 1 <= index <= len(others):
+        raise ValueError(f"there are {len(others)} further clips; got {index}")
+    return others[index - 1]
+
+
+def _rgb(clip: OtherClip) -> np.ndarray:
+    f = clip.player.current
+    rgb = yuv_to_rgb(f.y, f.u, f.v, f.bt709, f.full_range)
+    return np.ascontiguousarray(np.rot90(rgb, k=-(clip.session.rotation_cw // 90)))
+
+
+def update(v, now: float, wait_s: float = 0.0) -> None:
+    """Every further clip's frame at the first clip's timeline time, drawn as a projector
+    (wait_s: how long to wait for a frame to be decoded, as the first clip's player does)."""
+    L = v.loaded
+    if L is None or not L.others:
+        return
+    k0 = v.current_index
+    t = float(L.timeline.clips[0].times[k0]) if k0 >= 0 else None
+    views, key = [], []
+    for clip, span in zip(L.others, L.timeline.clips[1:]):
+        clip.frame = None if t is None or not clip.visible else span.frame_at(t)
+        p = clip.player
+        if clip.frame is None or p is None:
+            continue
+        target = float(clip.session.video.pts_s[clip.frame])
+        if p.clock.paused != L.clock.paused or abs(p.clock.time(now) - target) > STRAY_S:
+            p.clock.set_speed(L.clock.speed, now)
+            p.seek(target, now)
+            p.clock.set_paused(L.clock.paused, now)
+        p.tick(now, wait_s=wait_s)
+        track = clip.library.track(clip.source)
+        if p.current is None or track is None or p.index < 0:
+            continue
+        camera = _in_frame(track.frame_camera(p.index), clip.session, L.session)
+        views.append((camera, clip, clip.priority))
+        key.append((id(clip), p.index, camera.position, camera.orientation))
+    if tuple(key) != getattr(L, "extras_shown", ()):
+        L.renderer.set_extra_projectors([(cam, _rgb(c), prio) for cam, c, prio in views])
+        L.extras_shown = tuple(key)
+
+
+def close_all(loaded) -> None:
+    for clip in loaded.others:
+        if clip.player is not None:
+            clip.player.close()
+        clip.library.close()
+    loaded.others = []

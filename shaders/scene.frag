@@ -66,6 +66,7 @@ uniform float u_extra_near[MAX_EXTRA];
 uniform float u_extra_far[MAX_EXTRA];
 uniform float u_extra_focal_texels[MAX_EXTRA];
 uniform float u_extra_priority[MAX_EXTRA];
+uniform float u_extra_alpha[MAX_EXTRA];  // each further clip's opacity (the first's: u_alpha)
 uniform int u_extra_lens_kind[MAX_EXTRA];
 uniform vec4 u_extra_lens_k[MAX_EXTRA];
 uniform vec2 u_extra_lens_p[MAX_EXTRA];
@@ -83,8 +84,8 @@ float view_score(float priority, float cos_incidence, float range_m) {
     return 10.0 * priority + cos_incidence - range_m / RANGE_SCORE_M;
 }
 
-// Running soft maximum: the views' colours weighted by exp((score - best) / u_seam).
-void add_view(inout vec3 sum, inout float weight, inout float best, float score, vec3 colour) {
+// Running soft maximum: the views' colours and opacities weighted by exp((score - best) / u_seam).
+void add_view(inout vec4 sum, inout float weight, inout float best, float score, vec3 colour, float alpha) {
     if (score > best) {
         float k = exp((best - score) / u_seam);
         sum *= k;
@@ -92,7 +93,7 @@ void add_view(inout vec3 sum, inout float weight, inout float best, float score,
         best = score;
     }
     float w = exp((score - best) / u_seam);
-    sum += w * colour;
+    sum += w * vec4(colour, alpha);
     weight += w;
 }
 
@@ -132,7 +133,7 @@ void main() {
         normal = -normal;
     }
     vec3 colour = model_colour(normal);
-    vec3 sum = vec3(0.0);
+    vec4 sum = vec4(0.0);  // colour and opacity of the views, weighted
     float weight = 0.0;
     float best = -1e30;
 
@@ -156,7 +157,7 @@ void main() {
         }
         if (in_image && projector_visible(u_depth_map, texel, eye_depth, bias, u_proj_near, u_proj_far, u_neighbourhood)) {
             float score = view_score(u_proj_priority, cos_incidence, distance(u_proj_position, v_world));
-            add_view(sum, weight, best, score, video_colour(video_st));
+            add_view(sum, weight, best, score, video_colour(video_st), u_alpha);
             truth_st = st;
         }
     }
@@ -182,11 +183,11 @@ void main() {
         }
         if (projector_visible(u_extra_depth[i], texel, eye_depth, bias, u_extra_near[i], u_extra_far[i], u_neighbourhood)) {
             float score = view_score(u_extra_priority[i], cos_incidence, distance(u_extra_position[i], v_world));
-            add_view(sum, weight, best, score, texture(u_extra_video[i], video_st).rgb);
+            add_view(sum, weight, best, score, texture(u_extra_video[i], video_st).rgb, u_extra_alpha[i]);
         }
     }
     if (weight > 0.0) {
-        colour = mix(colour, sum / weight, u_alpha);
+        colour = mix(colour, sum.rgb / weight, sum.a / weight);
         if (u_error_overlay && truth_st.x >= 0.0) {
             vec4 truth = texture(u_truth_positions, truth_st);
             if (truth.w > 0.5) {

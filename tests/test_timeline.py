@@ -104,7 +104,7 @@ def test_the_viewer_plays_two_clips_on_one_timeline(display, tmp_path, monkeypat
     script = tmp_path / "s.txt"
     script.write_text(
         f"0 clock 0.05\n0 wait solved\n0 seek 5\n0 pause\n0.2 state {s1}\n"
-        f"0.25 clip 1 offset 2\n0.3 state {s2}\n0.35 clip 1 off\n0.4 state {s3}\n0.45 quit\n"
+        f"0.25 clip 1 offset 2\n0.25 clip 1 alpha 0.5\n0.25 clip 1 source course\n0.3 state {s2}\n0.35 clip 1 off\n0.4 state {s3}\n0.45 quit\n"
     )
     result = run_viewer(
         display,
@@ -121,4 +121,5 @@ def test_the_viewer_plays_two_clips_on_one_timeline(display, tmp_path, monkeypat
     expected = line.clips[1].frame_at(float(line.clips[0].times[150]))
     assert first["clips"][0]["frame"] == expected == 152 and first["extra_projectors"] == 1
     assert moved["clips"][0]["frame"] == expected - 60  # 2 s later on the timeline at 30 fps
+    assert moved["clips"][0]["alpha"] == 0.5 and moved["clips"][0]["source"] == "course"
     assert hidden["clips"][0]["decoder"] is False and hidden["extra_projectors"] == 0

@@ -206,6 +206,7 @@ class ExtraProjector:
     depth: DepthPass
     video: moderngl.Texture
     priority: float = 0.0
+    alpha: float = 1.0  # its opacity over the model (the first projector's: the settings' alpha)
 
 
 def _set_extras(p: moderngl.Program, extras: tuple[ExtraProjector, ...]) -> None:
@@ -239,6 +240,7 @@ def _set_extras(p: moderngl.Program, extras: tuple[ExtraProjector, ...]) -> None
         1.0,
     )
     p["u_extra_priority"].value = arr([float(e.priority) for e in extras], 0.0)
+    p["u_extra_alpha"].value = arr([float(e.alpha) for e in extras], 1.0)
     lenses = [c.lens for c in cams]
     p["u_extra_lens_kind"].value = arr(
         [LENS_KIND[None if L is None else L.kind] for L in lenses], 0

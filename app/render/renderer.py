@@ -73,10 +73,16 @@ class FusionRenderer:
         self.projector = camera
         self.projector_priority = float(priority)
 
-    def set_extra_projectors(self, views: list[tuple[Camera, np.ndarray, float]]) -> None:
+    def set_extra_projectors(
+        self,
+        views: list[tuple[Camera, np.ndarray, float]],
+        alphas: list[float] | None = None,
+        colours: list[tuple[float, float, float, float]] | None = None,
+    ) -> None:
         """Further projectors drawn with the first (several clips at once): each (camera,
-        display-oriented RGB frame (H, W, 3) uint8, priority). One depth map each, redrawn only
-        when its own pose changes; at most MAX_EXTRA."""
+        display-oriented RGB frame (H, W, 3) uint8, priority), with its opacity (default the
+        settings' alpha) and frustum colour. One depth map each, redrawn only when its own pose
+        changes; at most MAX_EXTRA."""
         if len(views) > MAX_EXTRA:
             raise ValueError(f"at most {MAX_EXTRA + 1} projectors at once, got {len(views) + 1}")
         while len(self.extras) > len(views):
@@ -84,8 +90,10 @@ class FusionRenderer:
         while len(self.extras) < len(views):
             key = f"projector{len(self.extras)}"
             self.extras.append(_Extra(DepthPass(self.ctx, self.scene, key), None))
-        for extra, (camera, rgb, priority) in zip(self.extras, views):
+        for k, (extra, (camera, rgb, priority)) in enumerate(zip(self.extras, views)):
             extra.set(self.ctx, camera, rgb, priority)
+            extra.alpha = None if alphas is None else float(alphas[k])
+            extra.colour = FRUSTUM_COLOR if colours is None else colours[k]
 
     def set_reference(self, camera: Camera | None) -> None:
         """A second camera drawn as a frustum beside the projector's (e.g. the true pose)."""
@@ -196,7 +204,8 @@ class FusionRenderer:
                 e.depth.update(
                     e.camera, depth_map_size(i.width, i.height, settings.depth_long_side)
                 )
-                extras.append(ExtraProjector(e.camera, e.depth, e.video, e.priority))
+                alpha = settings.alpha if e.alpha is None else e.alpha
+                extras.append(ExtraProjector(e.camera, e.depth, e.video, e.priority, alpha))
         truth_map = self._truth_positions(overlays)
         fbo.use()
         fbo.clear(*BACKGROUND, 1.0, depth=1.0)
@@ -224,7 +233,7 @@ class FusionRenderer:
                 self.lines.draw(
                     vp,
                     frustum_segments(e.camera, overlays.frustum_length_m),
-                    FRUSTUM_COLOR,
+                    e.colour,
                     moderngl.LINES,
                 )
         if overlays.frustum and self.reference is not None:
@@ -259,6 +268,8 @@ class _Extra:
         self.depth, self.video = depth, video
         self.camera: Camera | None = None
         self.priority = 0.0
+        self.alpha: float | None = None  # None: the settings' alpha
+        self.colour = FRUSTUM_COLOR
 
     def set(self, ctx: moderngl.Context, camera: Camera, rgb: np.ndarray, priority: float) -> None:
         img = np.ascontiguousarray(rgb, dtype=np.uint8)

@@ -26,9 +26,22 @@ from app.render.video_texture import yuv_to_rgb
 from app.session.model import Session
 from app.timeline import Timeline
 
-__all__ = ["OtherClip", "add", "close_all", "set_offset", "set_visible", "update"]
+__all__ = [
+    "OtherClip",
+    "add",
+    "close_all",
+    "set_alpha",
+    "set_offset",
+    "set_source",
+    "set_visible",
+    "update",
+]
 
 STRAY_S = 0.25  # a further clip's player is seeked when its clock strays this far
+CLIP_COLOURS = (  # frustum colours of the further clips, in turn
+    (0.2, 0.8, 1.0, 1.0), (1.0, 0.4, 0.8, 1.0), (0.6, 1.0, 0.3, 1.0), (1.0, 0.55, 0.2, 1.0),
+    (0.7, 0.5, 1.0, 1.0), (0.3, 1.0, 0.9, 1.0), (1.0, 1.0, 1.0, 1.0),
+)  # fmt: skip
 
 
 @dataclass
@@ -43,6 +56,8 @@ class OtherClip:
     visible: bool = True
     offset_s: float = 0.0
     priority: float = 0.0
+    alpha: float | None = None  # its opacity over the model (None: the Projection panel's)
+    colour: tuple[float, float, float, float] = CLIP_COLOURS[0]
     frame: int | None = None
     shown: tuple = field(default=(), repr=False)  # (frame, camera) uploaded last
 
@@ -80,6 +95,7 @@ def add(v, path: Path) -> None:
             SolverLibrary(session, first=session.sources[0]),
             Player(session.video),
             session.sources[0],
+            colour=CLIP_COLOURS[len(L.others) % len(CLIP_COLOURS)],
         )
     )
     retime(v)
@@ -100,6 +116,20 @@ def set_offset(v, index: int, offset_s: float) -> None:
     """Move further clip `index` (from 1) on the timeline by offset_s seconds."""
     _clip(v, index).offset_s = float(offset_s)
     retime(v)
+
+
+def set_source(v, index: int, name: str) -> None:
+    """Further clip `index` (from 1) under another pose source."""
+    clip = _clip(v, index)
+    clip.session.check_source(name)
+    clip.source = name
+
+
+def set_alpha(v, index: int, alpha: float) -> None:
+    """Further clip `index`'s opacity over the model, 0..1."""
+    if not 0.0 <= alpha <= 1.0:
+        raise ValueError(f"expected an opacity in [0, 1], got {alpha:g}")
+    _clip(v, index).alpha = float(alpha)
 
 
 def _clip(v, index: int) -> OtherClip:
@@ -140,9 +170,13 @@ def update(v, now: float, wait_s: float = 0.0) -> None:
             continue
         camera = _in_frame(track.frame_camera(p.index), clip.session, L.session)
         views.append((camera, clip, clip.priority))
-        key.append((id(clip), p.index, camera.position, camera.orientation))
-    if tuple(key) != getattr(L, "extras_shown", ()):
-        L.renderer.set_extra_projectors([(cam, _rgb(c), prio) for cam, c, prio in views])
+        key.append((id(clip), p.index, camera.position, camera.orientation, clip.alpha))
+    if tuple(key) != L.extras_shown:
+        L.renderer.set_extra_projectors(
+            [(cam, _rgb(c), prio) for cam, c, prio in views],
+            [v.ui.settings.alpha if c.alpha is None else c.alpha for _, c, _ in views],
+            [c.colour for _, c, _ in views],
+        )
         L.extras_shown = tuple(key)
 
 

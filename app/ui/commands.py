@@ -127,8 +127,14 @@ def _clip(v, arg, now) -> None:
         clips.set_offset(v, n, _number(words[2]))
     elif words[1] == "priority" and len(words) == 3:
         v.loaded.others[n - 1].priority = _number(words[2])
+    elif words[1] == "alpha" and len(words) == 3:
+        clips.set_alpha(v, n, _number(words[2]))
+    elif words[1] == "source" and len(words) == 3:
+        clips.set_source(v, n, words[2])
     else:
-        raise ValueError(f"expected 'N on|off', 'N offset S' or 'N priority P', got {arg!r}")
+        raise ValueError(
+            f"expected 'N on|off', 'N offset S', 'N priority P', 'N alpha A' or 'N source NAME', got {arg!r}"
+        )
 
 
 def _wait(v, arg, now) -> None:
@@ -310,7 +316,7 @@ COMMANDS: dict[str, Command] = {
         _clip,
         True,
         True,
-        "add PATH | N on|off | N offset S | N priority P: further clips played with this one on one timeline (hidden: decoder released)",
+        "add PATH | N on|off | N offset S | N priority P | N alpha A | N source NAME: further clips played with this one on one timeline (hidden: decoder released)",
     ),
     "archive": Command(
         _archive,

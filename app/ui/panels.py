@@ -177,10 +177,22 @@ def _clips(v) -> None:
         imgui.text_disabled(
             f"{span.start_s:.1f}-{span.end_s:.1f} s" + (" (UTC)" if span.absolute else "")
         )
+        imgui.color_button(f"##colour{i}", _vec4(clip.colour))
+        imgui.same_line()
         imgui.set_next_item_width(120)
         changed, offset = imgui.input_float(f"offset s##clip{i}", clip.offset_s, 0.1, 1.0, "%.2f")
         if changed:
             _run(v, "clip", f"{i} offset {offset}")
+        imgui.set_next_item_width(120)
+        alpha = v.ui.settings.alpha if clip.alpha is None else clip.alpha
+        changed, alpha = imgui.slider_float(f"opacity##clip{i}", alpha, 0.0, 1.0)
+        if changed:
+            _run(v, "clip", f"{i} alpha {alpha}")
+        sources = clip.session.sources
+        imgui.set_next_item_width(120)
+        changed, k = imgui.combo(f"source##clip{i}", sources.index(clip.source), sources)
+        if changed:
+            _run(v, "clip", f"{i} source {sources[k]}")
 
 
 def _playback(v, now: float) -> None:

@@ -15,6 +15,7 @@ import numpy.typing as npt
 
 from app import rotations
 from app.constants import DEFAULT_FAR_M, DEFAULT_NEAR_M, EPS_DEGENERATE, FOV_RANGE_DEG
+from app.geo import LocalFrame
 
 if TYPE_CHECKING:
     from app.lens import Lens
@@ -256,3 +257,19 @@ def depth_map_size(video_width: int, video_height: int, long_side: int) -> tuple
     if video_width >= video_height:
         return long_side, max(1, round(long_side * video_height / video_width))
     return max(1, round(long_side * video_width / video_height)), long_side
+
+
+def camera_in_frame(
+    camera: Camera, src: LocalFrame, dst: LocalFrame, lift_m: float = 0.0
+) -> Camera:
+    """The camera moved from local frame `src` into `dst` (another clip's session): its
+    position through ECEF (then raised by lift_m, app.clips.ground_lift), its orientation
+    turned by the tangent planes' difference."""
+    position = dst.ecef_to_enu(src.enu_to_ecef(np.asarray(camera.position, np.float64)))
+    position = position + [0.0, 0.0, lift_m]
+    orientation = rotations.multiply(
+        rotations.from_matrix(src.rotation_to(dst)), camera.orientation
+    )
+    return Camera.create(
+        camera.intrinsics, position, orientation, camera.near, camera.far, camera.lens
+    )

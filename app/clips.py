@@ -32,7 +32,7 @@ from app.io.video import VideoInfo, probe
 from app.lens import LENS_MODES, Lens, choose_profile, video_camera
 from app.messages import Messages
 from app.scene import Placement
-from app.scene.ground import ellipsoidal_ground
+from app.scene.ground import ellipsoidal_ground, ground_heights
 from app.scene.ground_plane import ASSUMED_GROUND_MARGIN_M, ground_under_track
 from app.scene.layers import Layer
 from app.scene.mesh import MeshData
@@ -453,3 +453,18 @@ def open_for_sync(path: str | Path, lens: str | Path | None = None) -> tuple[Ses
         cfg = read_config(path)
         return assemble(cfg), cfg.video.time_offset_s
     return open_any(path, lens=lens), 0.0
+
+
+def ground_lift(clip: Session, scene_of: Session) -> float:
+    """Metres to raise `clip`'s cameras by, once moved into `scene_of`'s local frame, so that
+    they stand over that session's scene as over their own: a clip without a scene of its own
+    (heights above take-off, an assumed ground) is seated on `scene_of`'s ground under its
+    first position; a clip with a georeferenced scene needs none (0)."""
+    if clip.layers or clip.scene_path is not None:
+        return 0.0
+    g = clip.gnss
+    start = clip.frame.geodetic_to_enu(g.lat[:1], g.lon[:1], g.h[:1])[0]
+    own = float(clip.scene().bounds()[0, 2])  # the assumed ground plane's height
+    here = scene_of.frame.ecef_to_enu(clip.frame.enu_to_ecef([start[0], start[1], own]))
+    under = ground_heights(scene_of.scene(), [here[:2]])[0]
+    return float(under - here[2]) if np.isfinite(under) else 0.0

@@ -123,3 +123,38 @@ def test_the_viewer_plays_two_clips_on_one_timeline(display, tmp_path, monkeypat
     assert moved["clips"][0]["frame"] == expected - 60  # 2 s later on the timeline at 30 fps
     assert moved["clips"][0]["alpha"] == 0.5 and moved["clips"][0]["source"] == "course"
     assert hidden["clips"][0]["decoder"] is False and hidden["extra_projectors"] == 0
+
+
+def test_render_sessions_together_at_one_moment(tmp_path, monkeypatch, capsys):
+    """`render --session walk.toml --session DJI.MP4 --time 5`: the drone's frame at the same
+    UTC moment (151 of it, at the walk's frame 149) drawn with the walk's on its scene; the drone
+    (heights above take-off) is seated on the walk's ground, so its frame lands on the scene."""
+    import shutil
+
+    from PIL import Image
+
+    from app.cli import main
+    from app.demo import SAMPLE_DIR
+
+    shutil.copytree(SAMPLE_DIR, tmp_path / "walk")
+    _dji(tmp_path / "drone", "DJI_0001", 20.0, drone.START, monkeypatch)
+    out, alone = tmp_path / "both.png", tmp_path / "alone.png"
+    view = [
+        "--time",
+        "5",
+        "--size",
+        "320x180",
+        "--view-from",
+        "-40,-100,250",
+        "--look-at",
+        "-40,-99,0",
+    ]
+    walk = ["--session", str(tmp_path / "walk" / "session.toml")]
+    both = walk + ["--session", str(tmp_path / "drone" / "DJI_0001.MP4")]
+    assert main(["render", *both, *view, "--no-frustum", "--out", str(out)]) == 0
+    assert "with DJI_0001.MP4 frame 151" in capsys.readouterr().out
+    assert main(["render", *walk, *view, "--no-frustum", "--out", str(alone)]) == 0
+    a = np.asarray(Image.open(out).convert("RGB")).astype(int)
+    b = np.asarray(Image.open(alone).convert("RGB")).astype(int)
+    changed = np.abs(a - b).max(axis=2) > 40
+    assert changed.mean() > 0.05  # the drone's frame covers a good part of the ground seen

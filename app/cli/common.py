@@ -64,10 +64,11 @@ def solved(session: Session, source: str) -> CameraTrack:
 
 
 def open_with_source(
-    path: Path, args: argparse.Namespace, suffixes: tuple[str, ...]
+    path: Path, args: argparse.Namespace, suffixes: tuple[str, ...], any_source: bool = False
 ) -> tuple[Session, str]:
     """(session, source) for a command: the session or clip opened, --out (when the command
-    writes one) checked against every file it reads, --source checked against what it offers."""
+    writes one) checked against every file it reads, --source checked against what it offers
+    (any_source: a further clip that does not offer it takes its own first)."""
     session = open_any(
         path,
         getattr(args, "srt", None),
@@ -79,6 +80,8 @@ def open_with_source(
     if getattr(args, "out", None) is not None:
         check_output(args.out, "--out", suffixes, list(session.inputs))
     source = args.source or session.sources[0]
+    if any_source and source not in session.sources:  # a further clip: its own first source
+        source = session.sources[0]
     if source not in session.sources:
         raise GeofuseError(f"--source {source}: this session offers {', '.join(session.sources)}")
     return session, source

@@ -289,8 +289,9 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument(
         "--session",
         type=Path,
+        action="append",
         default=None,
-        help="a session manifest: the frame at --time with its solved pose",
+        help="a session manifest or clip: the frame at --time with its solved pose; repeatable (the others' frames at the same moment on one timeline, drawn on the first one's scene)",
     )
     r.add_argument(
         "--time",

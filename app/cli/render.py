@@ -4,8 +4,9 @@ session's frame at --time with its solved pose (--session), to a PNG."""
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
-from app.camera import Intrinsics
+from app.camera import Intrinsics, camera_in_frame
 from app.cli.common import (
     nothing_drawn,
     open_with_source,
@@ -15,6 +16,7 @@ from app.cli.common import (
     solved,
     still_scene,
 )
+from app.clips import ground_lift
 from app.config import OverlaySettings
 from app.constants import DEFAULT_NEAR_M
 from app.errors import GeofuseError
@@ -23,6 +25,8 @@ from app.imageio import write_rgb
 from app.io.video import read_frame
 from app.outputs import IMAGE_SUFFIXES, check_output
 from app.render.still import render_still, window_camera
+from app.session.model import Session
+from app.timeline import Timeline
 
 
 def run(args: argparse.Namespace) -> int:
@@ -56,8 +60,8 @@ def _session(args: argparse.Namespace) -> int:
     """The frame shown at --time (app.frame_time.frame_at, as the viewer shows it) with its pose."""
     if args.time is None:
         raise GeofuseError("render --session needs --time T (seconds from the video's first frame)")
-    check_output(args.out, "--out", IMAGE_SUFFIXES, [args.session, *(args.lens or [])])
-    session, source = open_with_source(args.session, args, IMAGE_SUFFIXES)
+    check_output(args.out, "--out", IMAGE_SUFFIXES, [*args.session, *(args.lens or [])])
+    session, source = open_with_source(args.session[0], args, IMAGE_SUFFIXES)
     pts = session.video.pts_s
     if not pts[0] - 0.5 <= args.time <= pts[-1] + 0.5:
         raise GeofuseError(
@@ -77,6 +81,7 @@ def _session(args: argparse.Namespace) -> int:
         args.look_at,
         args.far,
     )
+    extras, said = _others(args, session, index)
     still = render_still(
         session.scene(),
         read_frame(session.video.path, index, session.video),
@@ -85,8 +90,34 @@ def _session(args: argparse.Namespace) -> int:
         projection_settings(args),
         OverlaySettings(frustum=not args.no_frustum),
         trajectory=track.frame_poses().enu,
+        extras=extras,
     )
     out = write_rgb(args.out, still.rgb)
-    print(f"wrote {out}: frame {index} at {pts[index]:.3f} s, attitude from {source}")
+    print(f"wrote {out}: frame {index} at {pts[index]:.3f} s, attitude from {source}{said}")
     print_scene_report(session.scene())
     return 1 if nothing_drawn(still.samples, session.scene()) else 0
+
+
+def _others(args: argparse.Namespace, first: Session, index: int) -> tuple[list, str]:
+    """The further --session clips' frames at the first's frame `index` on one timeline
+    (app.timeline), their cameras moved into the first's local frame; and what to say of them."""
+    if len(args.session) < 2:
+        return [], ""
+    sessions = [
+        open_with_source(path, args, IMAGE_SUFFIXES, any_source=True) for path in args.session[1:]
+    ]
+    line = Timeline.of([first, *(s for s, _ in sessions)])
+    t = float(line.clips[0].times[index])
+    extras, parts = [], []
+    for (s, source), span in zip(sessions, line.clips[1:]):
+        print_messages(s)
+        k = span.frame_at(t)
+        name = Path(s.video.path).name
+        if k is None:
+            parts.append(f"{name} has no frame then")
+            continue
+        cam = solved(s, source).with_clip(DEFAULT_NEAR_M, args.far).frame_camera(k)
+        moved = camera_in_frame(cam, s.frame, first.frame, ground_lift(s, first))
+        extras.append((read_frame(s.video.path, k, s.video), moved, 0.0))
+        parts.append(f"{name} frame {k}")
+    return extras, "; with " + ", ".join(parts)

@@ -15,9 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from app import rotations
-from app.camera import Camera
-from app.clips import open_any
+from app.camera import camera_in_frame
+from app.clips import ground_lift, open_any
 from app.errors import GeofuseError
 from app.playback.library import SolverLibrary
 from app.playback.player import Player
@@ -59,18 +58,8 @@ class OtherClip:
     alpha: float | None = None  # its opacity over the model (None: the Projection panel's)
     colour: tuple[float, float, float, float] = CLIP_COLOURS[0]
     frame: int | None = None
+    lift_m: float = 0.0  # raises its cameras onto the first clip's scene (app.clips.ground_lift)
     shown: tuple = field(default=(), repr=False)  # (frame, camera) uploaded last
-
-
-def _in_frame(camera: Camera, session: Session, target: Session) -> Camera:
-    """The camera moved from its session's local frame into the target session's."""
-    src, dst = session.frame, target.frame
-    position = dst.ecef_to_enu(src.enu_to_ecef(np.asarray(camera.position)))
-    turn = rotations.from_matrix(src.rotation_to(dst))
-    orientation = rotations.multiply(turn, camera.orientation)
-    return Camera.create(
-        camera.intrinsics, position, orientation, camera.near, camera.far, camera.lens
-    )
 
 
 def retime(v) -> None:
@@ -96,6 +85,7 @@ def add(v, path: Path) -> None:
             Player(session.video),
             session.sources[0],
             colour=CLIP_COLOURS[len(L.others) % len(CLIP_COLOURS)],
+            lift_m=ground_lift(session, L.session),
         )
     )
     retime(v)
@@ -168,7 +158,9 @@ def update(v, now: float, wait_s: float = 0.0) -> None:
         track = clip.library.track(clip.source)
         if p.current is None or track is None or p.index < 0:
             continue
-        camera = _in_frame(track.frame_camera(p.index), clip.session, L.session)
+        camera = camera_in_frame(
+            track.frame_camera(p.index), clip.session.frame, L.session.frame, clip.lift_m
+        )
         views.append((camera, clip, clip.priority))
         key.append((id(clip), p.index, camera.position, camera.orientation, clip.alpha))
     if tuple(key) != L.extras_shown:

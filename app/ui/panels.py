@@ -222,7 +222,34 @@ def _playback(v, now: float) -> None:
         changed, t = imgui.slider_float("##scrub", media, 0.0, clock.duration, "%.2f s")
         if changed or imgui.is_item_deactivated_after_edit():
             _run(v, "seek", str(t), now)  # dragging scrubs; release shows the exact frame
+        _spans(v)
     imgui.end()
+
+
+def _spans(v) -> None:
+    """Each further clip's span under the slider, on the first clip's media time: a bar over the
+    part of the timeline where it shows a frame, and what it shows now."""
+    L = v.loaded
+    if not L.others:
+        return
+    first = L.timeline.clips[0]
+    shift = first.start_s - float(L.session.video.pts_s[0])  # timeline - media time of the first
+    width = imgui.get_content_region_avail().x
+    for clip, span in zip(L.others, L.timeline.clips[1:]):
+        lo = max(0.0, (span.start_s - shift) / max(L.clock.duration, 1e-9))
+        hi = min(1.0, (span.end_s - shift) / max(L.clock.duration, 1e-9))
+        imgui.dummy(imgui.ImVec2(max(0.0, lo) * width, 4))
+        imgui.same_line(0.0, 0.0)
+        imgui.push_style_color(imgui.Col_.plot_histogram, _vec4(clip.colour))
+        imgui.progress_bar(1.0, imgui.ImVec2(max(1.0, (hi - lo) * width), 6), "")
+        imgui.pop_style_color()
+        imgui.same_line()
+        shown = (
+            "hidden"
+            if not clip.visible
+            else ("no frame" if clip.frame is None else f"frame {clip.frame}")
+        )
+        imgui.text_disabled(f"{Path(clip.session.video.path).name}: {shown}")
 
 
 def _attitude(v) -> None:

@@ -158,3 +158,42 @@ def test_render_sessions_together_at_one_moment(tmp_path, monkeypatch, capsys):
     b = np.asarray(Image.open(alone).convert("RGB")).astype(int)
     changed = np.abs(a - b).max(axis=2) > 40
     assert changed.mean() > 0.05  # the drone's frame covers a good part of the ground seen
+
+
+def test_a_manifest_lists_further_clips(tmp_path, monkeypatch, capsys):
+    """[[clips]] tables: a further clip's file and its offset, read by render --session (and
+    the viewer); an unknown key names itself; a missing file names the table."""
+    import shutil
+
+    from app.cli import main
+    from app.demo import SAMPLE_DIR
+
+    shutil.copytree(SAMPLE_DIR, tmp_path / "walk")
+    _dji(tmp_path / "drone", "DJI_0001", 20.0, drone.START, monkeypatch)
+    base = (tmp_path / "walk" / "session.toml").read_text()
+    manifest = tmp_path / "walk" / "site.toml"
+    manifest.write_text(base + '\n[[clips]]\npath = "../drone/DJI_0001.MP4"\noffset_s = 1.0\n')
+    out = tmp_path / "r.png"
+    assert (
+        main(
+            [
+                "render",
+                "--session",
+                str(manifest),
+                "--time",
+                "5",
+                "--size",
+                "160x90",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
+    assert "with DJI_0001.MP4 frame 121" in capsys.readouterr().out  # 151 less 1 s at 30 fps
+    manifest.write_text(base + '\n[[clips]]\npth = "x"\n')
+    assert main(["render", "--session", str(manifest), "--time", "5", "--out", str(out)]) == 2
+    assert "field 'clips.pth': unknown key; did you mean 'path'?" in capsys.readouterr().err
+    manifest.write_text(base + '\n[[clips]]\npath = "gone.mp4"\n')
+    assert main(["render", "--session", str(manifest), "--time", "5", "--out", str(out)]) == 2
+    assert "clips[0].path" in capsys.readouterr().err

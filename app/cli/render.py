@@ -99,17 +99,20 @@ def _session(args: argparse.Namespace) -> int:
 
 
 def _others(args: argparse.Namespace, first: Session, index: int) -> tuple[list, str]:
-    """The further --session clips' frames at the first's frame `index` on one timeline
-    (app.timeline), their cameras moved into the first's local frame; and what to say of them."""
-    if len(args.session) < 2:
+    """The further clips' frames (further --session and the first manifest's [[clips]]) at the
+    first's frame `index` on one timeline (app.timeline), their cameras moved into the first's
+    local frame; and what to say of them."""
+    refs = [(path, 0.0, 0.0) for path in args.session[1:]]
+    refs += [(ref.path, ref.offset_s, ref.priority) for ref in first.further]
+    if not refs:
         return [], ""
     sessions = [
-        open_with_source(path, args, IMAGE_SUFFIXES, any_source=True) for path in args.session[1:]
+        open_with_source(path, args, IMAGE_SUFFIXES, any_source=True) for path, _, _ in refs
     ]
-    line = Timeline.of([first, *(s for s, _ in sessions)])
+    line = Timeline.of([first, *(s for s, _ in sessions)], [0.0, *(off for _, off, _ in refs)])
     t = float(line.clips[0].times[index])
     extras, parts = [], []
-    for (s, source), span in zip(sessions, line.clips[1:]):
+    for (s, source), span, (_, _, priority) in zip(sessions, line.clips[1:], refs):
         print_messages(s)
         k = span.frame_at(t)
         name = Path(s.video.path).name
@@ -118,6 +121,6 @@ def _others(args: argparse.Namespace, first: Session, index: int) -> tuple[list,
             continue
         cam = solved(s, source).with_clip(DEFAULT_NEAR_M, args.far).frame_camera(k)
         moved = camera_in_frame(cam, s.frame, first.frame, ground_lift(s, first))
-        extras.append((read_frame(s.video.path, k, s.video), moved, 0.0))
+        extras.append((read_frame(s.video.path, k, s.video), moved, priority))
         parts.append(f"{name} frame {k}")
     return extras, "; with " + ", ".join(parts)

@@ -363,4 +363,5 @@ def assemble(cfg: SessionConfig) -> Session:
         height_mode=cfg.gnss.height if cfg.layers else "gnss", mount_height_m=cfg.gnss.mount_height_m, heading=policy,
         device_is_camera=cfg.sensors.format in ("gopro", "none"),  # action cameras and drones
         aircraft_yaw=yaw, mesh=mesh, lens=lens, readout_s=_readout(cfg, lens, messages), layers=cfg.layers,
+        further=cfg.clips,
     )  # fmt: skip

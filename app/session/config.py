@@ -95,6 +95,7 @@ KNOWN_KEYS: dict[str, set[str]] = {  # every table and key of the schema above
     "scene": _PLACED,
     "layers": _PLACED,
     "dem": {"path", "ortho", "vertical", "max_error_m"},
+    "clips": {"path", "offset_s", "priority", "alpha", "source"},
     "video": {"path", "start_time", "time_offset_s", "timing"},
     "camera": {"hfov_deg", "focal_mm", "sensor_width_mm", "lens", "readout_ms", "rotation_cw"},
     "sensors": {
@@ -288,6 +289,19 @@ def _checked_geodetic(
 
 
 @dataclass(frozen=True)
+class ClipRef:
+    """A further clip a manifest names ([[clips]]): its manifest or camera file (its own settings
+    live there), its offset on the timeline (s), priority, opacity (None: the viewer's) and pose
+    source (None: the first it offers)."""
+
+    path: Path
+    offset_s: float = 0.0
+    priority: float = 0.0
+    alpha: float | None = None
+    source: str | None = None
+
+
+@dataclass(frozen=True)
 class SceneConfig:
     """The [scene] table: its layer and, for a model, the geographic origin it gives."""
 
@@ -368,6 +382,7 @@ class SessionConfig:
     layers: tuple[
         Layer, ...
     ] = ()  # [scene], [[layers]] and [dem], in that order; () : an assumed ground
+    clips: tuple[ClipRef, ...] = ()  # [[clips]]: further clips played with this one
 
     def inputs(self) -> list[Path]:
         """Every file the session reads (never to be written)."""
@@ -375,6 +390,7 @@ class SessionConfig:
         files = [
             self.path,
             *(f for layer in self.layers for f in layer.files()),
+            *(c.path for c in self.clips),
             self.video.path,
             self.camera.lens,
             s.acc,
@@ -459,6 +475,30 @@ def _layers(m: Manifest) -> list[Layer]:
             )
         )
     return out
+
+
+def _clips(m: Manifest) -> tuple[ClipRef, ...]:
+    """[[clips]] tables: a further clip each (a manifest or a camera file that exists)."""
+    tables = m.data.get("clips", [])
+    if not isinstance(tables, list) or not all(isinstance(t, dict) for t in tables):
+        raise ManifestError(m.path, "expected [[clips]] tables, each with a path", field="clips")
+    out = []
+    for i, table in enumerate(tables):
+        name = f"clips[{i}]"
+        one = Manifest(m.path, {name: table})
+        alpha = one.get(name, "alpha", float, None)
+        if alpha is not None and not 0.0 <= alpha <= 1.0:
+            raise ManifestError(m.path, f"got {alpha}, expected 0 to 1", field=f"{name}.alpha")
+        out.append(
+            ClipRef(
+                one.file(name, "path"),
+                one.number(name, "offset_s", 0.0, low=-1e6, high=1e6),
+                one.number(name, "priority", 0.0, low=-10.0, high=10.0),
+                alpha,
+                one.get(name, "source", str, None),
+            )
+        )
+    return tuple(out)
 
 
 def read_config(path: str | Path) -> SessionConfig:
@@ -567,4 +607,6 @@ def read_config(path: str | Path) -> SessionConfig:
             for k in ("orientation", "position", "frame_times")
         )
     )
-    return SessionConfig(m.path, origin, scene, video, camera, sensors, gnss, truth, tuple(layers))
+    return SessionConfig(
+        m.path, origin, scene, video, camera, sensors, gnss, truth, tuple(layers), _clips(m)
+    )

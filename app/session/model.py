@@ -89,6 +89,7 @@ class Session:
     layers: tuple = ()  # app.scene.layers.Layer: the scene's layers as named ((): an assumed ground)
     utc_at_zero_s: float | None = None  # Unix time (UTC) of session time 0, when the camera says
     camera: str = ""  # the camera as its files name it (a GoPro's model, a DJI camera); "" unknown
+    further: tuple = ()  # app.session.config.ClipRef: further clips its manifest names ([[clips]])
 
     @property
     def heading_note(self) -> str:

@@ -22,6 +22,7 @@ from app.playback.library import SolverLibrary
 from app.playback.player import Player
 from app.render.passes import MAX_EXTRA
 from app.render.video_texture import yuv_to_rgb
+from app.session.config import ClipRef
 from app.session.model import Session
 from app.timeline import Timeline
 
@@ -70,8 +71,9 @@ def retime(v) -> None:
     )
 
 
-def add(v, path: Path) -> None:
-    """Open a further clip (a manifest or a camera file) beside the open session."""
+def add(v, path: Path, ref: ClipRef | None = None) -> None:
+    """Open a further clip (a manifest or a camera file) beside the open session; ref: its
+    [[clips]] table's settings (offset, priority, opacity, source)."""
     L = v.loaded
     if L is None:
         raise GeofuseError("open a session first; further clips play beside it")
@@ -88,6 +90,12 @@ def add(v, path: Path) -> None:
             lift_m=ground_lift(session, L.session),
         )
     )
+    if ref is not None:
+        clip = L.others[-1]
+        clip.offset_s, clip.priority, clip.alpha = ref.offset_s, ref.priority, ref.alpha
+        if ref.source is not None:
+            session.check_source(ref.source)
+            clip.source = ref.source
     retime(v)
 
 

@@ -206,6 +206,11 @@ class ViewerSessions:
         self.stats = Stats()
         self.nav = home_view(session, mesh)
         clips.retime(self)
+        for ref in session.further:  # [[clips]] of the manifest
+            try:
+                clips.add(self, ref.path, ref)
+            except (GeofuseError, ValueError) as exc:
+                self.ui.error(f"{ref.path}: {exc}")
         measure.load(self)
         if self.ui.archive is not None:  # the archive's footprints near this session
             try:

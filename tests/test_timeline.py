@@ -197,3 +197,45 @@ def test_a_manifest_lists_further_clips(tmp_path, monkeypatch, capsys):
     manifest.write_text(base + '\n[[clips]]\npath = "gone.mp4"\n')
     assert main(["render", "--session", str(manifest), "--time", "5", "--out", str(out)]) == 2
     assert "clips[0].path" in capsys.readouterr().err
+
+
+def test_export_video_draws_every_clip(tmp_path, monkeypatch, capsys):
+    """`export video walk.toml DJI.MP4`: the drone's frames of the same moments are drawn too
+    (the top view differs from the walk's alone where the drone's video lies)."""
+    import shutil
+
+    import av
+
+    from app.cli import main
+    from app.demo import SAMPLE_DIR
+
+    shutil.copytree(SAMPLE_DIR, tmp_path / "walk")
+    _dji(tmp_path / "drone", "DJI_0001", 20.0, drone.START, monkeypatch)
+    walk = str(tmp_path / "walk" / "session.toml")
+    opts = ["--from", "4", "--to", "4.3", "--size", "320x180", "--view", "top"]
+    both, alone = tmp_path / "both.mp4", tmp_path / "alone.mp4"
+    assert (
+        main(
+            [
+                "export",
+                "video",
+                walk,
+                str(tmp_path / "drone" / "DJI_0001.MP4"),
+                *opts,
+                "--out",
+                str(both),
+            ]
+        )
+        == 0
+    )
+    assert "with 1 further clips" in capsys.readouterr().out
+    assert main(["export", "video", walk, *opts, "--out", str(alone)]) == 0
+
+    def frames(path):
+        with av.open(str(path)) as c:
+            return [f.to_ndarray(format="rgb24").astype(int) for f in c.decode(c.streams.video[0])]
+
+    a, b = frames(both), frames(alone)
+    assert len(a) == len(b) >= 9
+    changed = [(np.abs(x - y).max(axis=2) > 40).mean() for x, y in zip(a, b)]
+    assert min(changed) > 0.02

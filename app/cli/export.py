@@ -18,9 +18,9 @@ from app.progress import ProgressBar
 
 def run(args: argparse.Namespace) -> int:
     inputs = list(args.input)
-    if len(inputs) > 1 and args.what != "footprints":
+    if len(inputs) > 1 and args.what not in ("footprints", "video"):
         raise GeofuseError(
-            f"export {args.what}: one input at a time (several inputs: footprints, each with its clip)"
+            f"export {args.what}: one input at a time (several inputs: footprints, each with its clip, or video, all drawn)"
         )
     suffixes = EXPORT_SUFFIXES[args.what]
     check_output(args.out, "--out", suffixes, [*inputs, args.srt])
@@ -36,11 +36,29 @@ def run(args: argparse.Namespace) -> int:
         name=Path(inputs[0]).stem,
     )
     bar = ProgressBar(f"export {args.what}", sys.stderr)
-    if len(inputs) == 1:
+    if len(inputs) == 1 or args.what == "video":
         session, source = open_with_source(inputs[0], args, suffixes)
         print_messages(session)
+        further = []
+        refs = [(p, 0.0, 0.0) for p in inputs[1:]] if args.what == "video" else []
+        refs += (
+            [(r.path, r.offset_s, r.priority) for r in session.further]
+            if args.what == "video"
+            else []
+        )
+        for path, offset, priority in refs:  # further clips drawn in the video
+            s, src = open_with_source(path, args, suffixes, any_source=True)
+            print_messages(s)
+            further.append((s, solved(s, src), offset, priority))
         line = export_session(
-            args.what, session, source, solved(session, source), Path(args.out), options, bar
+            args.what,
+            session,
+            source,
+            solved(session, source),
+            Path(args.out),
+            options,
+            bar,
+            tuple(further),
         )
         print_messages(session)
         print_scene_report(session.scene())

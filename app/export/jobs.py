@@ -8,17 +8,20 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+from app.camera import camera_in_frame
 from app.camera_track import CameraTrack
+from app.clips import ground_lift
 from app.errors import GeofuseError
 from app.export.gis import COMPANIONS, borders_geojson, companion, track_geojson, write_records
 from app.export.klv import write_klv_ts
 from app.export.preview import footprint_preview
 from app.export.records import FrameRecord, frame_records
-from app.export.video import export_video
+from app.export.video import FurtherClip, export_video
 from app.frame_time import frame_span
 from app.imageio import write_rgb
 from app.outputs import check_output, write_atomically, write_via_path
 from app.session.model import Session
+from app.timeline import Timeline
 
 __all__ = ["ExportOptions", "export_session", "write_footprints"]
 
@@ -47,10 +50,12 @@ def export_session(
     out: Path,
     options: ExportOptions,
     progress: Callable[[float], None] | None = None,
+    further: tuple[tuple[Session, CameraTrack, float, float], ...] = (),
 ) -> str:
     """Write `what` (footprints, fmv-csv, klv or video; app.export.EXPORT_SUFFIXES) of the
     session under attitude `source` (its solved `track`) to `out`; returns what was written, in
-    a line. Raises GeofuseError for a span without frames."""
+    a line. further: (session, solved track, offset s, priority) of clips drawn in the video
+    with this one, on one timeline. Raises GeofuseError for a span without frames."""
     out = Path(out)
     if what != "video" and session.utc_of(float(session.frame_times[0])) is None:
         session.messages.add(
@@ -64,6 +69,8 @@ def export_session(
             raise GeofuseError(f"--from/--to: {exc}") from exc
         n = [0]
 
+        clips = _further_clips(session, further)
+
         def write_video(tmp: Path) -> None:
             n[0] = export_video(
                 session.video,
@@ -76,11 +83,13 @@ def export_session(
                 first,
                 last,
                 progress,
+                clips,
             )
 
         write_via_path(out, "--out", write_video)
         w, h = options.size
-        return f"wrote {out}: {n[0]} frames, {w}x{h}, view {options.view}, attitude from {source}"
+        more = f", with {len(clips)} further clips" if clips else ""
+        return f"wrote {out}: {n[0]} frames, {w}x{h}, view {options.view}, attitude from {source}{more}"
     records = list(frame_records(session, source, options.every, progress=progress, track=track))
     if what == "klv":
         n = [0]
@@ -131,3 +140,30 @@ def write_footprints(
         + (f"; {clipped} footprints clipped at the range limit" if clipped else "")
         + (f"; beside it {' and '.join(beside)}" if beside else "")
     )
+
+
+def _further_clips(
+    session: Session, further: tuple[tuple[Session, CameraTrack, float, float], ...]
+) -> tuple[FurtherClip, ...]:
+    """The further clips as the video export draws them: their frame at each of the session's
+    frames on one timeline, their cameras moved into its frame (app.clips.ground_lift)."""
+    if not further:
+        return ()
+    line = Timeline.of(
+        [session, *(s for s, _, _, _ in further)], [0.0, *(o for _, _, o, _ in further)]
+    )
+    times = line.clips[0].times
+    out = []
+    for (s, track, _, priority), span in zip(further, line.clips[1:]):
+        lift = ground_lift(s, session)
+        out.append(
+            FurtherClip(
+                s.video,
+                s.rotation_cw,
+                track,
+                [span.frame_at(float(t)) for t in times],
+                lambda cam, s=s, lift=lift: camera_in_frame(cam, s.frame, session.frame, lift),
+                priority,
+            )
+        )
+    return tuple(out)

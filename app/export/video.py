@@ -10,6 +10,7 @@ once over the export; `top` straight down over the camera.
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 from fractions import Fraction
 from pathlib import Path
 
@@ -65,6 +66,59 @@ def view_camera(
     return Camera.create(intr, eye, look_at_quat(eye, target), VIEW_NEAR_M, VIEW_FAR_M)
 
 
+@dataclass
+class FurtherClip:
+    """A further clip drawn in an exported video: its video, display rotation, camera track
+    (cameras already in its own frame), its frame at each of the first clip's frames (None:
+    nothing then), and the move of its cameras into the first clip's frame."""
+
+    video: VideoInfo
+    rotation_cw: int
+    track: CameraTrack
+    frames: list[int | None]
+    move: Callable[[Camera], Camera]
+    priority: float = 0.0
+
+
+class _Frames:
+    """A further clip's frames decoded forward, each once (restarting when asked for an earlier
+    one): `get(k)` is frame k as display-oriented RGB."""
+
+    def __init__(self, clip: FurtherClip) -> None:
+        self.clip = clip
+        self._open()
+
+    def _open(self) -> None:
+        self.container = av.open(str(self.clip.video.path))
+        self.stream = self.container.streams.video[0]
+        self.frames = self.container.decode(self.stream)
+        self.k, self.rgb = -1, None
+
+    def get(self, k: int) -> np.ndarray | None:
+        if k < self.k:
+            self.close()
+            self._open()
+        for frame in self.frames if self.k < k else ():
+            if frame.pts is None:
+                continue
+            j = frame_of(
+                self.clip.video.pts_s,
+                media_seconds(frame.pts, self.stream.time_base, self.clip.video.origin_s),
+            )
+            if j is None:
+                continue
+            self.k = j
+            if j >= k:
+                self.rgb = rotate_for_display(
+                    frame.to_ndarray(format="rgb24"), self.clip.rotation_cw
+                )
+                break
+        return self.rgb if self.k == k else None
+
+    def close(self) -> None:
+        self.container.close()
+
+
 def export_video(
     video: VideoInfo,
     rotation_cw: int,
@@ -76,9 +130,11 @@ def export_video(
     first: int = 0,
     last: int | None = None,
     progress: Callable[[float], None] | None = None,
+    further: tuple[FurtherClip, ...] = (),
 ) -> int:
     """Render frames first..last (inclusive) of `video` into `out` (H.264 MP4 at the clip's
-    presentation times); returns the number of frames written."""
+    presentation times), with the further clips' frames of the same moments projected too;
+    returns the number of frames written."""
 
     last = len(video.pts_s) - 1 if last is None else last
     wanted = set(range(first, last + 1))
@@ -89,6 +145,7 @@ def export_video(
     bounds = mesh.bounds()
     written = 0
     fps = Fraction(video.nominal_fps or video.average_fps or 30).limit_denominator(1001)
+    readers = [_Frames(c) for c in further]
     try:
         with av.open(str(video.path)) as src, av.open(str(out), "w") as dst:
             vin = src.streams.video[0]
@@ -111,6 +168,13 @@ def export_video(
                     rotate_for_display(frame.to_ndarray(format="rgb24"), rotation_cw)
                 )
                 renderer.set_projector(projector)
+                views = []
+                for clip, reader in zip(further, readers):
+                    j = clip.frames[k]
+                    rgb_j = None if j is None else reader.get(j)
+                    if rgb_j is not None:
+                        views.append((clip.move(clip.track.frame_camera(j)), rgb_j, clip.priority))
+                renderer.set_extra_projectors(views)
                 phase = (k - first) / max(1, last - first + 1)
                 rgb = render_to_array(
                     renderer,
@@ -130,6 +194,8 @@ def export_video(
             for packet in enc.encode(None):
                 dst.mux(packet)
     finally:
+        for reader in readers:
+            reader.close()
         target.release()
         renderer.release()
         ctx.release()

@@ -50,18 +50,22 @@ def ecef_to_geodetic(xyz: npt.ArrayLike) -> FloatArray:
     return np.stack([np.asarray(lat), np.asarray(lon), np.asarray(h)], axis=-1)
 
 
-def ecef_to_enu_rotation(lat_deg: float, lon_deg: float) -> FloatArray:
-    """3x3 rotation R with v_enu = R @ v_ecef at the given latitude and longitude (degrees)."""
-    lat, lon = np.radians(lat_deg), np.radians(lon_deg)
+def ecef_to_enu_rotation(lat_deg: npt.ArrayLike, lon_deg: npt.ArrayLike) -> FloatArray:
+    """Rotation R with v_enu = R @ v_ecef at the given latitude and longitude (degrees): 3x3,
+    or (..., 3, 3) for arrays of positions (its rows: east, north, up in ECEF)."""
+    lat, lon = (
+        np.radians(np.asarray(lat_deg, np.float64)),
+        np.radians(np.asarray(lon_deg, np.float64)),
+    )
     sl, cl = np.sin(lat), np.cos(lat)
     so, co = np.sin(lon), np.cos(lon)
-    return np.array(
-        [
-            [-so, co, 0.0],
-            [-sl * co, -sl * so, cl],
-            [cl * co, cl * so, sl],
-        ]
-    )
+    rows = ([-so, co, np.zeros_like(lat)], [-sl * co, -sl * so, cl], [cl * co, cl * so, sl])
+    return np.stack([np.stack(row, axis=-1) for row in rows], axis=-2)
+
+
+METRES_PER_DEGREE = (
+    111_195.0  # of latitude, on a sphere of the Earth's mean radius (planar sketches)
+)
 
 
 def meridian_radius(lat_deg: npt.ArrayLike) -> FloatArray:

@@ -34,6 +34,7 @@ import geopandas as gpd  # noqa: E402
 import shapely  # noqa: E402
 
 from app.archive import find, index_archive, place_of, read_clips  # noqa: E402
+from app.geo import METRES_PER_DEGREE  # noqa: E402
 from app.simulate import drone  # noqa: E402
 from app.simulate.phone import write_video  # noqa: E402
 from bench.common import machine, table  # noqa: E402
@@ -55,7 +56,7 @@ def _query(folder: Path, n: int) -> tuple[float, int]:
     y = rng.uniform(0, 100_000, n)
     order = np.lexsort((np.floor(x / 5000), np.floor(y / 5000)))  # 5 km cells, row by row
     x, y = x[order], y[order]
-    k = np.array([111_195.0 * np.cos(np.radians(lat0)), 111_195.0])
+    k = np.array([METRES_PER_DEGREE * np.cos(np.radians(lat0)), METRES_PER_DEGREE])
     lon, lat = lon0 + x / k[0], lat0 + y / k[1]
     half = 25.0 / k
     boxes = shapely.box(lon - half[0], lat - half[1], lon + half[0], lat + half[1])

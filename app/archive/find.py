@@ -22,7 +22,7 @@ import shapely
 from shapely.geometry.base import BaseGeometry
 
 from app.errors import GeofuseError
-from app.geo import geodetic_to_ecef
+from app.geo import METRES_PER_DEGREE, ecef_to_enu_rotation, geodetic_to_ecef
 
 __all__ = ["Hit", "find", "place_of"]
 
@@ -40,7 +40,6 @@ NEEDED = (
     "centre_h",
 )
 SPAN_GAP = 2.5  # footprint spacings between two rows of one span, at most
-M_PER_DEG = 111_195.0
 
 
 @dataclass(frozen=True)
@@ -102,7 +101,7 @@ def place_of(
     if radius_m <= 0:
         return p
     circle = shapely.Point(0.0, 0.0).buffer(radius_m, 32)
-    k = np.array([M_PER_DEG * math.cos(math.radians(lat)), M_PER_DEG])
+    k = np.array([METRES_PER_DEGREE * math.cos(math.radians(lat)), METRES_PER_DEGREE])
     return shapely.transform(circle, lambda xy: xy / k + [lon, lat])
 
 
@@ -116,16 +115,10 @@ def _off_axis(
     target = np.asarray(geodetic_to_ecef(lat, lon, h))
     d_ecef = target - np.atleast_2d(cam)
     distance = np.linalg.norm(d_ecef, axis=1)
-    # the axis in ENU at each camera -> ECEF
-    phi, lam = np.radians(rows["sensor_lat"].to_numpy()), np.radians(rows["sensor_lon"].to_numpy())
-    e = np.stack([-np.sin(lam), np.cos(lam), np.zeros_like(lam)], 1)
-    n = np.stack([-np.sin(phi) * np.cos(lam), -np.sin(phi) * np.sin(lam), np.cos(phi)], 1)
-    u = np.stack([np.cos(phi) * np.cos(lam), np.cos(phi) * np.sin(lam), np.sin(phi)], 1)
-    axis = (
-        rows["axis_e"].to_numpy()[:, None] * e
-        + rows["axis_n"].to_numpy()[:, None] * n
-        + rows["axis_u"].to_numpy()[:, None] * u
-    )
+    # the axis in ENU at each camera -> ECEF (the transposed rotation)
+    to_enu = ecef_to_enu_rotation(rows["sensor_lat"].to_numpy(), rows["sensor_lon"].to_numpy())
+    axis_enu = rows[["axis_e", "axis_n", "axis_u"]].to_numpy()
+    axis = np.einsum("nji,nj->ni", to_enu, axis_enu)
     cos = np.einsum("ij,ij->i", axis, d_ecef) / np.maximum(distance, 1e-9)
     return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))), distance
 

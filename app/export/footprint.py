@@ -16,10 +16,11 @@ import numpy as np
 import shapely
 from shapely.geometry.base import BaseGeometry
 
+from app.geo import METRES_PER_DEGREE
+
 __all__ = ["cell_rings", "plan_footprint"]
 
 POLYGONAL = ("Polygon", "MultiPolygon")
-M_PER_DEG = 111_195.0  # metres per degree of latitude (a sphere of the mean radius: the plane is only for the union)
 MIN_PIECE_M2 = 0.01  # cells smaller than this in plan view (rays up a wall) stay out of the union
 MIN_PART_DEG2 = 1e-12  # pieces smaller than this (about 0.01 m2) are slivers of the union: dropped
 GRID_DEG = 1e-9  # coordinates are snapped to this grid (0.1 mm), keeping the polygon valid
@@ -117,7 +118,7 @@ def plan_footprint(ground_lat_lon: np.ndarray) -> BaseGeometry | None:
     if len(finite) < 3:
         return None
     o = finite[len(finite) // 2]
-    scale = np.array([np.cos(np.radians(o[1])) * M_PER_DEG, M_PER_DEG])
+    scale = np.array([np.cos(np.radians(o[1])) * METRES_PER_DEGREE, METRES_PER_DEGREE])
     metres = (lon_lat - o) * scale
     polygons = np.array(_pieces(metres, _cell_signs(metres)), dtype=object)
     polygons = polygons[shapely.area(polygons) > MIN_PIECE_M2] if len(polygons) else polygons

@@ -12,6 +12,7 @@ Heading without a trustworthy magnetometer comes from the GNSS course (app.attit
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 
@@ -19,7 +20,7 @@ import numpy as np
 
 from app.attitude.gopro import read_gopro
 from app.attitude.heading import heading_policy
-from app.camera import Intrinsics
+from app.camera import Camera, Intrinsics, camera_in_frame
 from app.constants import DRONE_DEFAULT_PITCH_DEG
 from app.errors import DataFormatError, GeofuseError, VideoError
 from app.geo import LocalFrame
@@ -468,3 +469,10 @@ def ground_lift(clip: Session, scene_of: Session) -> float:
     here = scene_of.frame.ecef_to_enu(clip.frame.enu_to_ecef([start[0], start[1], own]))
     under = ground_heights(scene_of.scene(), [here[:2]])[0]
     return float(under - here[2]) if np.isfinite(under) else 0.0
+
+
+def onto(clip: Session, scene_of: Session) -> Callable[[Camera], Camera]:
+    """How `clip`'s cameras are drawn on `scene_of`'s scene: moved into its local frame and
+    raised by ground_lift (computed once)."""
+    lift = ground_lift(clip, scene_of)
+    return lambda camera: camera_in_frame(camera, clip.frame, scene_of.frame, lift)

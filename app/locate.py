@@ -49,6 +49,7 @@ __all__ = [
     "locate",
     "pose_sigmas",
     "ray_camera",
+    "video_pixel",
 ]
 
 RAY_GRID = 3  # pixels a side of the camera along a ray: the centre, and neighbours for the normal
@@ -117,6 +118,15 @@ def image_size(camera: Camera) -> tuple[int, int]:
     if camera.lens is not None:
         return camera.lens.width, camera.lens.height
     return camera.intrinsics.width, camera.intrinsics.height
+
+
+def video_pixel(camera: Camera, point_enu: npt.ArrayLike) -> tuple[float, float] | None:
+    """The image pixel (x, y) at which `camera` (through its lens) sees the point (ENU m), or
+    None when the point is behind it or outside its image."""
+    uv, depth = camera.project(np.asarray(point_enu, np.float64).reshape(1, 3))
+    w, h = image_size(camera)
+    u, v = float(uv[0, 0]), float(uv[0, 1])
+    return (u, v) if depth[0] > 0 and 0 <= u < w and 0 <= v < h else None
 
 
 def ray_camera(camera: Camera, pixel: tuple[float, float], far: float = LOCATE_FAR_M) -> Camera:

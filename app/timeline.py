@@ -10,6 +10,7 @@ manifest's). Outside its span a clip shows nothing.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -41,12 +42,14 @@ class ClipSpan:
     def frame_at(self, t: float) -> int | None:
         """The frame shown at timeline time t (the last at or before it), None outside the
         span (before its first frame, or more than one frame interval after its last)."""
-        if t < self.times[0] - 1e-6:
-            return None
-        step = float(np.median(np.diff(self.times))) if len(self.times) > 1 else 0.0
-        if t > self.times[-1] + step:
+        if t < self.times[0] - 1e-6 or t > self.times[-1] + self.step_s:
             return None
         return frame_at(self.times, t)
+
+    @cached_property
+    def step_s(self) -> float:
+        """The clip's usual frame interval (s): how long its last frame stays shown."""
+        return float(np.median(np.diff(self.times))) if len(self.times) > 1 else 0.0
 
 
 @dataclass(frozen=True)

@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from app.camera import Intrinsics, camera_in_frame
+from app.camera import Intrinsics
 from app.cli.common import (
     nothing_drawn,
     open_with_source,
@@ -16,7 +16,7 @@ from app.cli.common import (
     solved,
     still_scene,
 )
-from app.clips import ground_lift
+from app.clips import onto
 from app.config import OverlaySettings
 from app.constants import DEFAULT_NEAR_M
 from app.errors import GeofuseError
@@ -120,7 +120,6 @@ def _others(args: argparse.Namespace, first: Session, index: int) -> tuple[list,
             parts.append(f"{name} has no frame then")
             continue
         cam = solved(s, source).with_clip(DEFAULT_NEAR_M, args.far).frame_camera(k)
-        moved = camera_in_frame(cam, s.frame, first.frame, ground_lift(s, first))
-        extras.append((read_frame(s.video.path, k, s.video), moved, priority))
+        extras.append((read_frame(s.video.path, k, s.video), onto(s, first)(cam), priority))
         parts.append(f"{name} frame {k}")
     return extras, "; with " + ", ".join(parts)

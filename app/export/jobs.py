@@ -8,9 +8,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from app.camera import camera_in_frame
 from app.camera_track import CameraTrack
-from app.clips import ground_lift
+from app.clips import onto
 from app.errors import GeofuseError
 from app.export.gis import COMPANIONS, borders_geojson, companion, track_geojson, write_records
 from app.export.klv import write_klv_ts
@@ -146,7 +145,7 @@ def _further_clips(
     session: Session, further: tuple[tuple[Session, CameraTrack, float, float], ...]
 ) -> tuple[FurtherClip, ...]:
     """The further clips as the video export draws them: their frame at each of the session's
-    frames on one timeline, their cameras moved into its frame (app.clips.ground_lift)."""
+    frames on one timeline, their cameras moved onto its scene (app.clips.onto)."""
     if not further:
         return ()
     line = Timeline.of(
@@ -155,14 +154,13 @@ def _further_clips(
     times = line.clips[0].times
     out = []
     for (s, track, _, priority), span in zip(further, line.clips[1:]):
-        lift = ground_lift(s, session)
         out.append(
             FurtherClip(
                 s.video,
                 s.rotation_cw,
                 track,
                 [span.frame_at(float(t)) for t in times],
-                lambda cam, s=s, lift=lift: camera_in_frame(cam, s.frame, session.frame, lift),
+                onto(s, session),
                 priority,
             )
         )

@@ -17,6 +17,7 @@ from app.archive import find, place_of, read_clips
 from app.errors import GeofuseError
 from app.scene.ground import ground_heights
 from app.ui.measure import refresh
+from app.ui.picking import model_point
 
 __all__ = ["ArchiveOverlay", "load", "open_at"]
 
@@ -91,10 +92,7 @@ def open_at(v, xy: tuple[float, float], now: float) -> None:
     overlay = v.ui.archive
     if overlay is None:
         raise GeofuseError("open an archive first (a .parquet written by `geofuse index`)")
-    cam = v.window_camera
-    p = None if cam is None else v.loaded.renderer.pick(cam, *xy)
-    if p is None:
-        raise GeofuseError("no scene under that point of the view")
+    p = model_point(v, xy)
     lat, lon, h = v.loaded.session.frame.enu_to_geodetic(p[None])[0]
     hits = find(overlay.path, place_of((float(lat), float(lon)), PICK_RADIUS_M), height_m=float(h))
     if not hits:

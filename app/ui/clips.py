@@ -10,13 +10,14 @@ released; showing it again starts a new one.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from app.camera import camera_in_frame
-from app.clips import ground_lift, open_any
+from app.camera import Camera
+from app.clips import onto, open_any
 from app.errors import GeofuseError
 from app.playback.library import SolverLibrary
 from app.playback.player import Player
@@ -59,7 +60,7 @@ class OtherClip:
     alpha: float | None = None  # its opacity over the model (None: the Projection panel's)
     colour: tuple[float, float, float, float] = CLIP_COLOURS[0]
     frame: int | None = None
-    lift_m: float = 0.0  # raises its cameras onto the first clip's scene (app.clips.ground_lift)
+    move: Callable[[Camera], Camera] | None = None  # its cameras onto the first clip's scene
     shown: tuple = field(default=(), repr=False)  # (frame, camera) uploaded last
 
 
@@ -87,7 +88,7 @@ def add(v, path: Path, ref: ClipRef | None = None) -> None:
             Player(session.video),
             session.sources[0],
             colour=CLIP_COLOURS[len(L.others) % len(CLIP_COLOURS)],
-            lift_m=ground_lift(session, L.session),
+            move=onto(session, L.session),
         )
     )
     if ref is not None:
@@ -166,9 +167,7 @@ def update(v, now: float, wait_s: float = 0.0) -> None:
         track = clip.library.track(clip.source)
         if p.current is None or track is None or p.index < 0:
             continue
-        camera = camera_in_frame(
-            track.frame_camera(p.index), clip.session.frame, L.session.frame, clip.lift_m
-        )
+        camera = clip.move(track.frame_camera(p.index))
         views.append((camera, clip, clip.priority))
         key.append((id(clip), p.index, camera.position, camera.orientation, clip.alpha))
     if tuple(key) != L.extras_shown:

@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from app.errors import GeofuseError
+from app.locate import video_pixel
 from app.outputs import check_output
 from app.register.points import (
     MIN_PAIRS,
@@ -24,6 +25,7 @@ from app.register.points import (
     solve_control,
     write_points,
 )
+from app.ui.picking import model_point
 
 
 @dataclass
@@ -37,27 +39,15 @@ class ControlPicks:
     saved: str = ""
 
 
-def _model_point(v, xy: tuple[float, float]) -> np.ndarray:
-    cam = v.window_camera
-    p = None if cam is None else v.loaded.renderer.pick(cam, *xy)
-    if p is None:
-        raise GeofuseError("no model under that point of the view")
-    return p
-
-
 def pick_video(v, picks: ControlPicks, xy: tuple[float, float]) -> None:
     """The video pixel draped at view point xy, on the frame shown."""
     projector = v.loaded.renderer.projector
     if projector is None:
         raise GeofuseError("no video frame is shown yet")
-    uv, depth = projector.project(_model_point(v, xy))
-    w, h = projector.intrinsics.width, projector.intrinsics.height
-    if projector.lens is not None:
-        w, h = projector.lens.width, projector.lens.height
-    u, vv = float(uv[0, 0]), float(uv[0, 1])
-    if not (depth[0] > 0 and 0 <= u < w and 0 <= vv < h):
+    pixel = video_pixel(projector, model_point(v, xy))
+    if pixel is None:
         raise GeofuseError("the video does not cover that point of the model")
-    picks.pending = (max(v.current_index, 0), (u, vv))
+    picks.pending = (max(v.current_index, 0), pixel)
 
 
 def pick_model(v, picks: ControlPicks, xy: tuple[float, float]) -> None:
@@ -65,7 +55,7 @@ def pick_model(v, picks: ControlPicks, xy: tuple[float, float]) -> None:
     if picks.pending is None:
         raise GeofuseError("pick the feature in the video first (V), then on the model (M)")
     frame, uv = picks.pending
-    picks.pairs.append((frame, uv, _model_point(v, xy)))
+    picks.pairs.append((frame, uv, model_point(v, xy)))
     picks.pending = None
 
 

@@ -13,12 +13,12 @@ from pathlib import Path
 
 import numpy as np
 
-from app.camera import Camera
 from app.errors import DataFormatError, GeofuseError
 from app.geoid import undulation
-from app.locate import Location, PoseSigmas, image_size, location_of, pose_sigmas, ray_camera
+from app.locate import Location, PoseSigmas, location_of, pose_sigmas, ray_camera, video_pixel
 from app.marks import KINDS, MIN_POINTS, Mark, marks_path, measure, read_marks, write_marks
 from app.outputs import check_output, write_atomically
+from app.ui.picking import model_point
 
 MARK_SUFFIXES = (".geojson", ".json", ".kml")
 
@@ -60,22 +60,13 @@ def _sigmas(v) -> PoseSigmas | None:
     return None if track is None else pose_sigmas(L.session, track)
 
 
-def _video_pixel(projector: Camera, point: np.ndarray) -> tuple[float, float] | None:
-    uv, depth = projector.project(point[None])
-    w, h = image_size(projector)
-    u, vv = float(uv[0, 0]), float(uv[0, 1])
-    return (u, vv) if depth[0] > 0 and 0 <= u < w and 0 <= vv < h else None
-
-
 def locate_at(v, xy: tuple[float, float]) -> Pick:
     """The point under view point xy (in [0, 1] of the 3D view) on the frame shown."""
-    L, cam = v.loaded, v.window_camera
-    p = None if cam is None else L.renderer.pick(cam, *xy)
-    if p is None:
-        raise GeofuseError("no model under that point of the view")
+    L = v.loaded
+    p = model_point(v, xy)
     location = None
     projector = L.renderer.projector
-    pixel = None if projector is None else _video_pixel(projector, p)
+    pixel = None if projector is None else video_pixel(projector, p)
     if pixel is not None:
         ray = ray_camera(projector, pixel)
         found = location_of(L.renderer.pick_map(ray), ray, pixel, L.session.frame, _sigmas(v))

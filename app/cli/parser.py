@@ -422,7 +422,7 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="tcp://HOST:PORT",
         help="an existing Dask scheduler (`dask scheduler`, with `dask worker` on each machine)",
     )
-    ix.set_defaults(job="archive:index")
+    ix.set_defaults(job="index")
 
     fi = sub.add_parser(
         "find", help="the clips of an archive that saw a place, and when (most head-on first)"
@@ -450,7 +450,7 @@ def build_parser() -> argparse.ArgumentParser:
     fi.add_argument(
         "--open", action="store_true", help="open the viewer on the best clip at that time"
     )
-    fi.set_defaults(job="archive:find_")
+    fi.set_defaults(job="find")
 
     v = sub.add_parser(
         "view", help="the interactive viewer (the bundled sample when no manifest is given)"

@@ -11,7 +11,7 @@ released; showing it again starts a new one.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -61,7 +61,6 @@ class OtherClip:
     colour: tuple[float, float, float, float] = CLIP_COLOURS[0]
     frame: int | None = None
     move: Callable[[Camera], Camera] | None = None  # its cameras onto the first clip's scene
-    shown: tuple = field(default=(), repr=False)  # (frame, camera) uploaded last
 
 
 def retime(v) -> None:
@@ -106,7 +105,7 @@ def set_visible(v, index: int, on: bool) -> None:
     clip.visible = on
     if not on and clip.player is not None:
         clip.player.close()
-        clip.player, clip.frame, clip.shown = None, None, ()
+        clip.player, clip.frame = None, None
     elif on and clip.player is None:
         clip.player = Player(clip.session.video)
 

@@ -234,7 +234,7 @@ def refresh(v) -> None:
         path(state.points(), state.kind == "polygon")
     lift = np.array([0.0, 0.0, 0.15])  # just above the surface they lie on
     lines = np.array(segments).reshape(-1, 3) + lift
-    archive = getattr(v.ui, "archive", None)
+    archive = v.ui.archive
     if archive is not None and len(archive.segments):
         lines = np.concatenate([archive.segments, lines])
     v.loaded.renderer.set_outlines(lines if len(lines) else None)

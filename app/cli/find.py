@@ -1,4 +1,5 @@
-"""`geofuse index` and `geofuse find`: a video archive on a map (app.archive)."""
+"""`geofuse find`: the clips of an archive that saw a place, and when (app.archive); --open
+starts the viewer on the best of them."""
 
 from __future__ import annotations
 
@@ -11,40 +12,9 @@ from pathlib import Path
 import shapely
 from shapely.geometry import shape
 
-from app.archive import find, index_archive, place_of
+from app.archive import find, place_of
 from app.errors import DataFormatError, GeofuseError
-from app.outputs import check_output
 from app.ui.viewer import Options, Viewer
-
-
-def index(args: argparse.Namespace) -> int:
-    out = check_output(args.out, "--out", (".parquet",))
-    for folder in args.folders:
-        if not folder.exists():
-            raise GeofuseError(f"{folder}: no such folder or file")
-
-    def progress(done: int, failed: int, total: int, left_s: float) -> None:
-        if sys.stderr.isatty():
-            print(
-                f"\rindex: {done}/{total} clips, {failed} failed, about {left_s:.0f} s left",
-                end="",
-                file=sys.stderr,
-            )
-
-    report = index_archive(
-        list(args.folders),
-        out,
-        args.every_s,
-        tuple(args.scene or ()),
-        args.source,
-        args.workers,
-        args.scheduler,
-        progress,
-    )
-    if sys.stderr.isatty():
-        print(file=sys.stderr)
-    print(f"wrote {out}: {report.line()}")
-    return 0
 
 
 def _polygon(path: Path) -> shapely.Geometry:
@@ -59,7 +29,7 @@ def _polygon(path: Path) -> shapely.Geometry:
     return polygon
 
 
-def find_(args: argparse.Namespace) -> int:
+def run(args: argparse.Namespace) -> int:
     if not args.archive.is_file():
         raise GeofuseError(
             f"{args.archive}: archive does not exist (make one with `geofuse index`)"

@@ -1,0 +1,40 @@
+"""`geofuse index`: folders of clips indexed into a GeoParquet archive (app.archive)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from app.archive import index_archive
+from app.errors import GeofuseError
+from app.outputs import check_output
+
+
+def run(args: argparse.Namespace) -> int:
+    out = check_output(args.out, "--out", (".parquet",))
+    for folder in args.folders:
+        if not folder.exists():
+            raise GeofuseError(f"{folder}: no such folder or file")
+
+    def progress(done: int, failed: int, total: int, left_s: float) -> None:
+        if sys.stderr.isatty():
+            print(
+                f"\rindex: {done}/{total} clips, {failed} failed, about {left_s:.0f} s left",
+                end="",
+                file=sys.stderr,
+            )
+
+    report = index_archive(
+        list(args.folders),
+        out,
+        args.every_s,
+        tuple(args.scene or ()),
+        args.source,
+        args.workers,
+        args.scheduler,
+        progress,
+    )
+    if sys.stderr.isatty():
+        print(file=sys.stderr)
+    print(f"wrote {out}: {report.line()}")
+    return 0

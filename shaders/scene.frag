@@ -1,5 +1,28 @@
 #version 400 core
 // Scene pass with projective video texturing (paper 2.2.2).
+//
+// Compiled in variants (app/render/passes.py, ScenePass): what a frame switches on or off is a
+// preprocessor symbol, not a uniform, so that a variant holds only the code it runs. A software
+// rasteriser (Mesa's llvmpipe) runs both sides of every branch on its SIMD lanes, so a path
+// switched off by a uniform costs as much as one switched on (docs/PERFORMANCE.md).
+#ifndef PROJECTION
+#define PROJECTION 1      // the first projector (the session's video) is drawn
+#endif
+#ifndef EXACT_VIDEO
+#define EXACT_VIDEO 0     // its video looked up through its lens and rolling-shutter model
+#endif
+#ifndef NEIGHBOURHOOD
+#define NEIGHBOURHOOD 1   // the paper's nine-case depth test (else the texel's own depth)
+#endif
+#ifndef ERROR_OVERLAY
+#define ERROR_OVERLAY 0   // the error colours of sessions with ground truth
+#endif
+#ifndef EXTRA_COUNT
+#define EXTRA_COUNT 0     // further projectors (other clips), 0 to MAX_EXTRA
+#endif
+#ifndef EXTRA_LENSES
+#define EXTRA_LENSES 0    // bit i set: further projector i has a lens model
+#endif
 #include "projective.glsl"
 #include "lens.glsl"
 #include "video.glsl"
@@ -9,7 +32,6 @@ uniform bool u_has_texture;
 uniform vec3 u_eye;            // window camera position, ENU metres
 uniform vec3 u_light_dir;      // unit vector toward the light, ENU
 
-uniform bool u_projection_on;
 uniform mat4 u_proj_view_proj; // projector clip-from-world
 uniform vec3 u_proj_position;  // projector position, ENU metres
 uniform float u_proj_near;
@@ -19,7 +41,6 @@ uniform sampler2D u_depth_map;
 uniform float u_alpha;         // video opacity: 0 = model, 1 = video
 uniform float u_bias_constant; // metres
 uniform float u_bias_slope;    // depth-map texels of surface slope
-uniform bool u_neighbourhood;  // the paper's nine-case rule
 
 // The video camera's lens (lens.glsl): with one, u_proj_view_proj is the pinhole enclosing its
 // image (the depth map's), and the video texel comes from the lens model.
@@ -32,7 +53,6 @@ uniform vec2 u_lens_f;         // focal lengths, video pixels
 uniform vec2 u_lens_c;         // principal point, video pixels
 uniform vec2 u_lens_size;      // video size, pixels
 uniform float u_lens_stretch;  // horizontal stretch of digital lens modes
-uniform bool u_exact_video;    // look the video up through the lens and rolling-shutter model
 uniform vec3 u_rs_turn;        // rolling shutter: the camera's turn from the first row to the last
                                // (radians, camera frame); the frame's pose is its middle row's
 uniform vec3 u_rs_axis;        // the readout fraction of a displayed pixel: dot(axis, (u/W, v/H, 1));
@@ -58,7 +78,6 @@ vec2 video_pixel(vec3 c) {
 // wins, with a soft seam u_seam wide; a clip's priority (10 score units a level) overrides.
 const int MAX_EXTRA = 7;
 const float RANGE_SCORE_M = 2000.0;  // a view 100 m nearer counts as 0.05 of cos(incidence)
-uniform int u_extra_count;
 uniform mat4 u_extra_view_proj[MAX_EXTRA];
 uniform mat4 u_extra_view[MAX_EXTRA];
 uniform vec3 u_extra_position[MAX_EXTRA];
@@ -67,7 +86,7 @@ uniform float u_extra_far[MAX_EXTRA];
 uniform float u_extra_focal_texels[MAX_EXTRA];
 uniform float u_extra_priority[MAX_EXTRA];
 uniform float u_extra_alpha[MAX_EXTRA];  // each further clip's opacity (the first's: u_alpha)
-uniform int u_extra_lens_kind[MAX_EXTRA];
+uniform int u_extra_lens_kind[MAX_EXTRA];  // LENS_FISHEYE or LENS_BROWN where EXTRA_LENSES says
 uniform vec4 u_extra_lens_k[MAX_EXTRA];
 uniform vec2 u_extra_lens_p[MAX_EXTRA];
 uniform float u_extra_lens_k3[MAX_EXTRA];
@@ -99,7 +118,6 @@ void add_view(inout vec4 sum, inout float weight, inout float best, float score,
 
 // Error overlay (sessions with ground truth): the true camera's position map. The video texel
 // that lands on this fragment truly shows the model point stored at the same texel.
-uniform bool u_error_overlay;
 uniform sampler2D u_truth_positions;
 uniform float u_error_scale_m;  // the colour ramp's top, metres
 
@@ -127,6 +145,39 @@ vec3 model_colour(vec3 normal) {
     return base.rgb * light;
 }
 
+// Further projector i (its depth map and video passed as samplers, its lens known when the
+// variant is compiled) added to the running blend where it sees the fragment.
+void add_extra(int i, sampler2D depth_map, sampler2D video, bool has_lens, vec3 normal,
+               inout vec4 sum, inout float weight, inout float best) {
+    vec3 ndc;
+    float eye_depth;
+    if (!projector_ndc(v_world, u_extra_view_proj[i], ndc, eye_depth)) {
+        return;
+    }
+    vec2 st = ndc.xy * 0.5 + 0.5;
+    ivec2 size = textureSize(depth_map, 0);
+    ivec2 texel = clamp(ivec2(st * vec2(size)), ivec2(0), size - 1);
+    vec3 to_projector = normalize(u_extra_position[i] - v_world);
+    float cos_incidence = abs(dot(normal, to_projector));
+    float bias = projector_bias(u_bias_constant, u_bias_slope, eye_depth / u_extra_focal_texels[i], cos_incidence);
+    vec2 video_st = vec2(st.x, 1.0 - st.y);
+    if (has_lens) {
+        vec3 c = (u_extra_view[i] * vec4(v_world, 1.0)).xyz;
+        vec2 uv = lens_distort(vec2(c.x, -c.y) / -c.z, u_extra_lens_kind[i], u_extra_lens_k[i], u_extra_lens_p[i],
+                               u_extra_lens_k3[i], u_extra_lens_f[i], u_extra_lens_c[i], u_extra_lens_stretch[i]);
+        video_st = uv / u_extra_lens_size[i];
+        if (any(lessThan(video_st, vec2(0.0))) || any(greaterThan(video_st, vec2(1.0)))) {
+            return;
+        }
+    }
+    if (projector_visible(depth_map, texel, eye_depth, bias, u_extra_near[i], u_extra_far[i], NEIGHBOURHOOD != 0)) {
+        float score = view_score(u_extra_priority[i], cos_incidence, distance(u_extra_position[i], v_world));
+        add_view(sum, weight, best, score, texture(video, video_st).rgb, u_extra_alpha[i]);
+    }
+}
+
+#define ADD_EXTRA(i) add_extra(i, u_extra_depth[i], u_extra_video[i], ((EXTRA_LENSES >> i) & 1) != 0, normal, sum, weight, best)
+
 void main() {
     vec3 normal = normalize(cross(dFdx(v_world), dFdy(v_world)));
     if (dot(normal, u_eye - v_world) < 0.0) {
@@ -137,10 +188,11 @@ void main() {
     float weight = 0.0;
     float best = -1e30;
 
+#if PROJECTION
     vec3 ndc;
     float eye_depth;
     vec2 truth_st = vec2(-1.0);
-    if (u_projection_on && projector_ndc(v_world, u_proj_view_proj, ndc, eye_depth)) {
+    if (projector_ndc(v_world, u_proj_view_proj, ndc, eye_depth)) {
         vec2 st = ndc.xy * 0.5 + 0.5;  // bottom-left origin
         ivec2 size = textureSize(u_depth_map, 0);
         ivec2 texel = clamp(ivec2(st * vec2(size)), ivec2(0), size - 1);
@@ -150,50 +202,49 @@ void main() {
         float bias = projector_bias(u_bias_constant, u_bias_slope, texel_m, cos_incidence);
         vec2 video_st = vec2(st.x, 1.0 - st.y);  // top-left origin
         bool in_image = true;
-        if (u_exact_video) {
-            vec2 uv = video_pixel((u_proj_view * vec4(v_world, 1.0)).xyz);
-            video_st = uv / u_lens_size;
-            in_image = all(greaterThanEqual(video_st, vec2(0.0))) && all(lessThanEqual(video_st, vec2(1.0)));
-        }
-        if (in_image && projector_visible(u_depth_map, texel, eye_depth, bias, u_proj_near, u_proj_far, u_neighbourhood)) {
+#if EXACT_VIDEO
+        vec2 uv = video_pixel((u_proj_view * vec4(v_world, 1.0)).xyz);
+        video_st = uv / u_lens_size;
+        in_image = all(greaterThanEqual(video_st, vec2(0.0))) && all(lessThanEqual(video_st, vec2(1.0)));
+#endif
+        if (in_image && projector_visible(u_depth_map, texel, eye_depth, bias, u_proj_near, u_proj_far, NEIGHBOURHOOD != 0)) {
             float score = view_score(u_proj_priority, cos_incidence, distance(u_proj_position, v_world));
             add_view(sum, weight, best, score, video_colour(video_st), u_alpha);
             truth_st = st;
         }
     }
-    for (int i = 0; i < u_extra_count; ++i) {
-        if (!projector_ndc(v_world, u_extra_view_proj[i], ndc, eye_depth)) {
-            continue;
-        }
-        vec2 st = ndc.xy * 0.5 + 0.5;
-        ivec2 size = textureSize(u_extra_depth[i], 0);
-        ivec2 texel = clamp(ivec2(st * vec2(size)), ivec2(0), size - 1);
-        vec3 to_projector = normalize(u_extra_position[i] - v_world);
-        float cos_incidence = abs(dot(normal, to_projector));
-        float bias = projector_bias(u_bias_constant, u_bias_slope, eye_depth / u_extra_focal_texels[i], cos_incidence);
-        vec2 video_st = vec2(st.x, 1.0 - st.y);
-        if (u_extra_lens_kind[i] != LENS_PINHOLE) {
-            vec3 c = (u_extra_view[i] * vec4(v_world, 1.0)).xyz;
-            vec2 uv = lens_distort(vec2(c.x, -c.y) / -c.z, u_extra_lens_kind[i], u_extra_lens_k[i], u_extra_lens_p[i],
-                                   u_extra_lens_k3[i], u_extra_lens_f[i], u_extra_lens_c[i], u_extra_lens_stretch[i]);
-            video_st = uv / u_extra_lens_size[i];
-            if (any(lessThan(video_st, vec2(0.0))) || any(greaterThan(video_st, vec2(1.0)))) {
-                continue;
-            }
-        }
-        if (projector_visible(u_extra_depth[i], texel, eye_depth, bias, u_extra_near[i], u_extra_far[i], u_neighbourhood)) {
-            float score = view_score(u_extra_priority[i], cos_incidence, distance(u_extra_position[i], v_world));
-            add_view(sum, weight, best, score, texture(u_extra_video[i], video_st).rgb, u_extra_alpha[i]);
-        }
-    }
+#endif
+#if EXTRA_COUNT > 0
+    ADD_EXTRA(0);
+#endif
+#if EXTRA_COUNT > 1
+    ADD_EXTRA(1);
+#endif
+#if EXTRA_COUNT > 2
+    ADD_EXTRA(2);
+#endif
+#if EXTRA_COUNT > 3
+    ADD_EXTRA(3);
+#endif
+#if EXTRA_COUNT > 4
+    ADD_EXTRA(4);
+#endif
+#if EXTRA_COUNT > 5
+    ADD_EXTRA(5);
+#endif
+#if EXTRA_COUNT > 6
+    ADD_EXTRA(6);
+#endif
     if (weight > 0.0) {
         colour = mix(colour, sum.rgb / weight, sum.a / weight);
-        if (u_error_overlay && truth_st.x >= 0.0) {
+#if PROJECTION && ERROR_OVERLAY
+        if (truth_st.x >= 0.0) {
             vec4 truth = texture(u_truth_positions, truth_st);
             if (truth.w > 0.5) {
                 colour = mix(colour, error_colour(distance(v_world, truth.xyz)), 0.7);
             }
         }
+#endif
     }
     f_color = vec4(colour, 1.0);
 }

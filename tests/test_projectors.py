@@ -11,6 +11,7 @@ import pytest
 
 from app.camera import Camera, Intrinsics, look_at_quat
 from app.config import OverlaySettings, ProjectionSettings
+from app.lens import Lens, enclosing_intrinsics
 from app.render.passes import SEAM
 from app.render.still import render_still
 from app.scene import shapes
@@ -152,6 +153,64 @@ def test_eight_projectors_drawn_together():
     ).rgb
     for img, _, _, centre in views:
         assert np.abs(rgb[_pixel_of(centre)].astype(int) - img[0, 0]).max() <= 3, centre
+
+
+FISHEYE = Lens.create(
+    "fisheye", 1920, 1080, 846.7, 846.3, 951.3, 547.6, (0.0734, -0.0208, 0.0452, -0.0252)
+).scaled(320, 180)
+
+
+@pytest.mark.parametrize("fisheye_at", [0, 1])
+def test_further_projectors_each_through_their_own_lens(fisheye_at):
+    """Two further projectors beside the first, one pinhole and one through a fisheye lens (the
+    shader variant knows which, by their order): the fisheye's video is a gradient whose red
+    counts its columns and green its rows, and ground points seen from the top show the colour
+    of the pixel the lens model (app.lens) puts them at, where the pinhole's would be tens of
+    levels off."""
+    eye = (0.0, 0.0, 10.0)
+    fish = Camera.create(
+        enclosing_intrinsics(FISHEYE),
+        eye,
+        look_at_quat(eye, (0.0, 0.0, 0.0), (0.0, 1.0, 0.0)),
+        0.5,
+        500.0,
+        FISHEYE,
+    )
+    u, v = np.meshgrid(np.arange(320) + 0.5, np.arange(180) + 0.5)
+    gradient = np.stack([u / 320 * 255, v / 180 * 255, np.full_like(u, 128)], -1)
+    gradient = np.round(gradient).astype(np.uint8)
+    far = (100.0, 0.0, 0.0)  # the first and the pinhole projector look at ground out of view
+    pinhole = (_solid((255, 0, 0)), _projector((100.0, 0.0, 10.0), far), 0.0)
+    extras = [pinhole, pinhole]
+    extras[fisheye_at] = (gradient, fish, 0.0)
+    rgb = render_still(
+        ground_plane(np.zeros(2), 0.0, 300.0),
+        _solid((0, 0, 255)),
+        _projector((100.0, 5.0, 10.0), far),
+        TOP,
+        SETTINGS,
+        NO_LINES,
+        extras=extras,
+    ).rgb.astype(int)
+    as_pinhole = Camera.create(
+        Intrinsics(320, 180, FISHEYE.fx, FISHEYE.fy, FISHEYE.cx, FISHEYE.cy),
+        fish.position,
+        fish.orientation,
+        0.5,
+        500.0,
+    )
+    off_by = []
+    for x, y in [(2.0, 1.0), (-6.0, 3.0), (9.0, -4.0), (-12.0, -5.0), (14.0, 6.0)]:
+        row, col = _pixel_of((x, y, 0.0))
+        ray = TOP.pixel_rays([[col + 0.5, row + 0.5]])[0]
+        seen = TOP.position + ray * (TOP.position[2] / -ray[2])  # the pixel centre's ground point
+        uv, _ = fish.project(seen[None])
+        assert 5 < uv[0, 0] < 315 and 5 < uv[0, 1] < 175, (x, y, uv)
+        expected = np.array([uv[0, 0] / 320 * 255, uv[0, 1] / 180 * 255, 128])
+        assert np.abs(rgb[row, col] - expected).max() <= 4, (x, y, rgb[row, col], expected)
+        pin_uv, _ = as_pinhole.project(seen[None])
+        off_by.append(np.abs(pin_uv[0] / [320, 180] * 255 - expected[:2]).max())
+    assert max(off_by) > 20, off_by
 
 
 def test_render_pairs_images_and_poses_by_order(tmp_path, capsys):

@@ -204,6 +204,29 @@ def test_outside_frustum_and_behind_are_bit_identical_to_projection_off(gl_ctx):
     r.release()
 
 
+def test_each_frame_draws_a_variant_holding_only_its_switches(gl_ctx):
+    """The scene shader is compiled per combination of what a frame draws: with projection off
+    the variant drawn has no projector uniforms at all (its code compiled out: what makes it
+    cheap on a software rasteriser, which runs every branch a shader holds); switched back on,
+    the variant made first is drawn again, pixel for pixel the same."""
+    r = make_renderer(gl_ctx, [wall()])
+    r.set_video_frame(checkerboard())
+    r.set_projector(projector())
+    view = view_camera([0, -10, 10], [0, WALL_Y, 10])
+    on = render(r, view, alpha=1.0)
+    variant = r.scene_pass.variant
+    assert variant["PROJECTION"] == 1 and variant["EXACT_VIDEO"] == 0 and variant["VIDEO_YUV"] == 0
+    assert r.scene_pass.program.get("u_proj_view_proj", None) is not None
+    off = render(r, view, enabled=False)
+    for name in ("u_proj_view_proj", "u_depth_map", "u_video", "u_alpha"):
+        assert r.scene_pass.program.get(name, None) is None, name
+    again = render(r, view, alpha=1.0)
+    np.testing.assert_array_equal(on, again)
+    assert len(r.scene_pass.programs) == 3  # the file's defaults (made at start), on, off
+    assert (np.abs(on - off).max(axis=-1) > 0).mean() > 0.3  # the video covers the view
+    r.release()
+
+
 def test_transparency_blends_model_and_video(gl_ctx):
     r = make_renderer(gl_ctx, [wall()])
     video_rgb = np.array([200, 40, 90])

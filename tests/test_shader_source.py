@@ -23,6 +23,18 @@ def test_include_is_inlined_with_line_directives():
     assert f"#line {inc + 1} 0" in lines
 
 
+def test_defines_follow_the_version_and_keep_line_numbers():
+    """A specialised variant: its defines come right after the version directive, and the file's
+    own numbering resumes after them, so compiler messages still name the right lines."""
+    plain = preprocess("scene.frag")
+    src = preprocess("scene.frag", defines={"PROJECTION": 0, "EXTRA_COUNT": 3})
+    lines = src.text.splitlines()
+    assert lines[0].startswith("#version 400")
+    assert lines[1:4] == ["#define EXTRA_COUNT 3", "#define PROJECTION 0", "#line 2 0"]
+    assert src.text.replace("#define EXTRA_COUNT 3\n#define PROJECTION 0\n", "") == plain.text
+    assert src.locate("0:12(5): error: x") == "scene.frag:12: error: x"
+
+
 def test_compiler_messages_point_at_files():
     src = preprocess("scene.frag")
     assert src.locate("0:12(5): error: x") == "scene.frag:12: error: x"

@@ -12,7 +12,7 @@ import numpy as np
 from app.camera import Camera
 from app.config import ProjectionSettings
 from app.render.gpu_scene import GpuScene
-from app.render.programs import load_program
+from app.render.programs import Uniforms, load_program
 from app.render.video_texture import VideoTexture
 
 LIGHT_DIR = np.array([0.35, -0.45, 0.82]) / np.linalg.norm([0.35, -0.45, 0.82])
@@ -95,30 +95,47 @@ class DepthPass:
 
 
 class ScenePass:
-    """Draws the scene from the window camera, projecting the video where the depth test allows."""
+    """Draws the scene from the window camera, projecting the video where the depth test allows.
+
+    The scene shader is compiled in variants, one for each combination of what a frame draws
+    (projection on, lens model, YUV planes, nine-case test, error overlay, the further
+    projectors and which of them have lenses), each made when first needed and kept: a software
+    rasteriser runs every branch a shader holds, so a switch left to a uniform costs as much
+    switched off as on (docs/PERFORMANCE.md, "Shader variants")."""
 
     def __init__(self, ctx: moderngl.Context, scene: GpuScene) -> None:
         self.ctx = ctx
         self.scene = scene
-        self.program = load_program(ctx, "scene.vert", "scene.frag")
+        self.programs: dict[tuple[tuple[str, int], ...], moderngl.Program] = {}
         self.triangles = 0  # drawn in the last frame
         self.count_samples = False  # count the scene's fragments that pass (an occlusion query)
         self.samples: int | None = None  # of the last frame, when counted
-        self.program["u_base_texture"].value = 0
-        self.program["u_depth_map"].value = 1
-        self.program["u_video"].value = 2
-        self.program["u_video_u"].value = 3
-        self.program["u_video_v"].value = 4
-        self.program["u_truth_positions"].value = 5
-        self.set_light(LIGHT_DIR)
+        self.light = LIGHT_DIR
         # A 1x1 stand-in so that unused samplers are always complete.
         self._blank = ctx.texture((1, 1), 4, bytes([255, 255, 255, 255]))
+        self.variant: dict[str, int] = {}  # the defines of the variant drawn last
+        self.program = self._program({})  # the file's defaults, compiled now: errors show early
+
+    def _program(self, defines: dict[str, int]) -> moderngl.Program:
+        """The variant compiled with `defines` (made once)."""
+        key = tuple(sorted(defines.items()))
+        program = self.programs.get(key)
+        if program is None:
+            program = load_program(self.ctx, "scene.vert", "scene.frag", defines)
+            u = Uniforms(program)
+            for name, unit in SAMPLER_UNITS.items():
+                u[name] = unit
+            u["u_extra_depth"] = [EXTRA_DEPTH_UNIT + i for i in range(MAX_EXTRA)]
+            u["u_extra_video"] = [EXTRA_VIDEO_UNIT + i for i in range(MAX_EXTRA)]
+            self.programs[key] = program
+        self.variant = dict(defines)
+        return program
 
     def set_light(self, direction_enu: np.ndarray) -> None:
         """The direction toward the light (ENU, normalised here) for the model's shading; a
         simulated world may light the scene otherwise than the model's renderings."""
         d = np.asarray(direction_enu, np.float64)
-        self.program["u_light_dir"].value = tuple(float(v) for v in d / np.linalg.norm(d))
+        self.light = d / np.linalg.norm(d)
 
     def render(
         self,
@@ -135,9 +152,8 @@ class ScenePass:
         """Draw into the bound framebuffer. Projection needs projector, depth and video; the error
         overlay a position map from the true camera; extras: further projectors (other clips),
         at most MAX_EXTRA; priority: the first projector's (see ExtraProjector)."""
-        p = self.program
-        p["u_view_proj"].write(_mat(view.view_projection))
-        p["u_eye"].value = view.position
+        if len(extras) > MAX_EXTRA:
+            raise ValueError(f"at most {MAX_EXTRA + 1} projectors at once, got {len(extras) + 1}")
         on = (
             settings.enabled
             and projector is not None
@@ -145,32 +161,46 @@ class ScenePass:
             and video is not None
             and video.ready
         )
-        p["u_projection_on"].value = on
+        extras = extras if settings.enabled else ()
+        defines = {"PROJECTION": int(on), "EXTRA_COUNT": len(extras)}
+        if on or extras:
+            defines["NEIGHBOURHOOD"] = int(settings.neighbourhood)
+        if on:
+            defines["EXACT_VIDEO"] = int(
+                projector.lens is not None or projector.rs_turn is not None
+            )
+            defines["VIDEO_YUV"] = int(video.yuv)
+            defines["ERROR_OVERLAY"] = int(truth_positions is not None)
+        if extras:
+            defines["EXTRA_LENSES"] = sum(
+                1 << i for i, e in enumerate(extras) if e.camera.lens is not None
+            )
+        self.program = self._program(defines)
+        p = Uniforms(self.program)
+        p.matrices("u_view_proj", [view.view_projection])
+        p["u_eye"] = tuple(view.position)
+        p["u_light_dir"] = tuple(float(v) for v in self.light)
         if on:
             size = depth.size
-            p["u_proj_view_proj"].write(_mat(projector.view_projection))
-            p["u_proj_position"].value = projector.position
-            p["u_proj_near"].value = projector.near
-            p["u_proj_far"].value = projector.far
+            p.matrices("u_proj_view_proj", [projector.view_projection])
+            p["u_proj_position"] = tuple(projector.position)
+            p["u_proj_near"] = projector.near
+            p["u_proj_far"] = projector.far
             scale = size[0] / projector.intrinsics.width
-            p["u_proj_focal_texels"].value = (
-                max(projector.intrinsics.fx, projector.intrinsics.fy) * scale
-            )
-            p["u_alpha"].value = settings.alpha
-            p["u_bias_constant"].value = settings.bias_constant_m
-            p["u_bias_slope"].value = settings.bias_slope
-            p["u_neighbourhood"].value = settings.neighbourhood
+            p["u_proj_focal_texels"] = max(projector.intrinsics.fx, projector.intrinsics.fy) * scale
+            p["u_alpha"] = settings.alpha
             _set_lens(p, projector)
             depth.texture.use(1)
             video.bind(p)
         else:
             for unit in (1, 2, 3, 4):
                 self._blank.use(unit)
-        p["u_proj_priority"].value = float(priority)
-        p["u_seam"].value = SEAM
-        _set_extras(p, extras if settings.enabled else ())
-        p["u_error_overlay"].value = on and truth_positions is not None
-        p["u_error_scale_m"].value = error_scale_m
+        p["u_bias_constant"] = settings.bias_constant_m
+        p["u_bias_slope"] = settings.bias_slope
+        p["u_proj_priority"] = float(priority)
+        p["u_seam"] = SEAM
+        _set_extras(p, extras)
+        p["u_error_scale_m"] = error_scale_m
         (truth_positions or self._blank).use(5)
         self.ctx.enable(moderngl.DEPTH_TEST)
         self.ctx.disable(moderngl.CULL_FACE)
@@ -178,23 +208,33 @@ class ScenePass:
         query = self.ctx.query(samples=True) if self.count_samples else None
         with query or contextlib.nullcontext():
             for prim in prims:
-                p["u_has_texture"].value = prim.texture is not None
+                p["u_has_texture"] = prim.texture is not None
                 (prim.texture or self._blank).use(0)
-                prim.vao(self.ctx, p, ("in_position", "in_uv", "in_color")).render(
+                prim.vao(self.ctx, self.program, ("in_position", "in_uv", "in_color")).render(
                     moderngl.TRIANGLES
                 )
         self.triangles = sum(q.count for q in prims) // 3
         self.samples = query.samples if query is not None else None
 
     def release(self) -> None:
-        self.scene.forget(self.program)
+        for program in self.programs.values():
+            self.scene.forget(program)
+            program.release()
+        self.programs.clear()
         self._blank.release()
-        self.program.release()
 
 
 MAX_EXTRA = 7  # further projectors beside the first (shaders/scene.frag)
 SEAM = 0.02  # score difference over which two views blend (shaders/scene.frag, view_score)
 EXTRA_DEPTH_UNIT, EXTRA_VIDEO_UNIT = 6, 6 + MAX_EXTRA  # texture units of their maps and videos
+SAMPLER_UNITS = {  # the scene shader's other samplers and their texture units
+    "u_base_texture": 0,
+    "u_depth_map": 1,
+    "u_video": 2,
+    "u_video_u": 3,
+    "u_video_v": 4,
+    "u_truth_positions": 5,
+}
 
 
 @dataclass(frozen=True)
@@ -209,99 +249,69 @@ class ExtraProjector:
     alpha: float = 1.0  # its opacity over the model (the first projector's: the settings' alpha)
 
 
-def _set_extras(p: moderngl.Program, extras: tuple[ExtraProjector, ...]) -> None:
-    """The further projectors' uniforms and texture units."""
-    if len(extras) > MAX_EXTRA:
-        raise ValueError(f"at most {MAX_EXTRA + 1} projectors at once, got {len(extras) + 1}")
-    p["u_extra_count"].value = len(extras)
+def _set_extras(p: Uniforms, extras: tuple[ExtraProjector, ...]) -> None:
+    """The further projectors' uniforms and texture units (the variant has EXTRA_COUNT of them;
+    the lens uniforms only where EXTRA_LENSES says)."""
     if not extras:
         return
-    n = MAX_EXTRA
-
-    def arr(values: list, fill) -> list:
-        return list(values) + [fill] * (n - len(values))
-
     cams = [e.camera for e in extras]
-    eye = np.eye(4, dtype=np.float32)
-    p["u_extra_view_proj"].write(
-        np.stack(arr([np.asarray(c.view_projection, np.float32).T for c in cams], eye)).tobytes()
-    )
-    p["u_extra_view"].write(
-        np.stack(arr([np.asarray(c.view, np.float32).T for c in cams], eye)).tobytes()
-    )
-    p["u_extra_position"].value = arr([tuple(c.position) for c in cams], (0.0, 0.0, 0.0))
-    p["u_extra_near"].value = arr([c.near for c in cams], 0.1)
-    p["u_extra_far"].value = arr([c.far for c in cams], 1.0)
-    p["u_extra_focal_texels"].value = arr(
-        [
-            max(c.intrinsics.fx, c.intrinsics.fy) * e.depth.size[0] / c.intrinsics.width
-            for c, e in zip(cams, extras)
-        ],
-        1.0,
-    )
-    p["u_extra_priority"].value = arr([float(e.priority) for e in extras], 0.0)
-    p["u_extra_alpha"].value = arr([float(e.alpha) for e in extras], 1.0)
-    lenses = [c.lens for c in cams]
-    p["u_extra_lens_kind"].value = arr(
-        [LENS_KIND[None if L is None else L.kind] for L in lenses], 0
-    )
-    coeffs = [
-        (0.0,) * 5 if L is None else tuple(L.coeffs) + (0.0,) * (5 - len(L.coeffs)) for L in lenses
+    p.matrices("u_extra_view_proj", [c.view_projection for c in cams])
+    p.matrices("u_extra_view", [c.view for c in cams])
+    p["u_extra_position"] = [tuple(c.position) for c in cams]
+    p["u_extra_near"] = [c.near for c in cams]
+    p["u_extra_far"] = [c.far for c in cams]
+    p["u_extra_focal_texels"] = [
+        max(c.intrinsics.fx, c.intrinsics.fy) * e.depth.size[0] / c.intrinsics.width
+        for c, e in zip(cams, extras)
     ]
-    fisheye = [L is not None and L.kind == "fisheye" for L in lenses]
-    p["u_extra_lens_k"].value = arr(
-        [tuple(k[:4]) if f else (k[0], k[1], 0.0, 0.0) for k, f in zip(coeffs, fisheye)],
-        (0.0, 0.0, 0.0, 0.0),
-    )
-    p["u_extra_lens_p"].value = arr(
-        [(0.0, 0.0) if f else (k[2], k[3]) for k, f in zip(coeffs, fisheye)], (0.0, 0.0)
-    )
-    p["u_extra_lens_k3"].value = arr([0.0 if f else k[4] for k, f in zip(coeffs, fisheye)], 0.0)
-    p["u_extra_lens_f"].value = arr(
-        [(1.0, 1.0) if L is None else (L.fx, L.fy) for L in lenses], (1.0, 1.0)
-    )
-    p["u_extra_lens_c"].value = arr(
-        [(0.0, 0.0) if L is None else (L.cx, L.cy) for L in lenses], (0.0, 0.0)
-    )
-    p["u_extra_lens_size"].value = arr(
-        [(1.0, 1.0) if L is None else (float(L.width), float(L.height)) for L in lenses],
-        (1.0, 1.0),
-    )
-    p["u_extra_lens_stretch"].value = arr([1.0 if L is None else L.stretch for L in lenses], 1.0)
-    units_depth = [EXTRA_DEPTH_UNIT + i for i in range(n)]
-    units_video = [EXTRA_VIDEO_UNIT + i for i in range(n)]
-    p["u_extra_depth"].value = units_depth
-    p["u_extra_video"].value = units_video
+    p["u_extra_priority"] = [float(e.priority) for e in extras]
+    p["u_extra_alpha"] = [float(e.alpha) for e in extras]
+    # Pinhole extras (no lens uniforms read) stand in with a pinhole's values.
+    lenses = [_lens_uniforms(c) for c in cams]
+    for name in ("kind", "k", "p", "k3", "f", "c", "size", "stretch"):
+        p[f"u_extra_lens_{name}"] = [lens[name] for lens in lenses]
     for i, e in enumerate(extras):
-        e.depth.texture.use(units_depth[i])
-        e.video.use(units_video[i])
+        e.depth.texture.use(EXTRA_DEPTH_UNIT + i)
+        e.video.use(EXTRA_VIDEO_UNIT + i)
 
 
 LENS_KIND = {None: 0, "fisheye": 1, "brown": 2}  # shaders/include/lens.glsl's constants
 
 
-def _set_lens(p: moderngl.Program, projector: Camera) -> None:
-    """The projector's lens and rolling-shutter uniforms: the exact path when it has either,
-    else the pinhole's texture coordinates from its projection matrix."""
-    lens = projector.lens
-    exact = lens is not None or projector.rs_turn is not None
-    p["u_exact_video"].value = exact
-    if not exact:
-        return
-    p["u_proj_view"].write(_mat(projector.view))
-    p["u_rs_turn"].value = projector.rs_turn or (0.0, 0.0, 0.0)
-    p["u_rs_axis"].value = projector.rs_axis
-    p["u_lens_kind"].value = LENS_KIND[None if lens is None else lens.kind]
+def _lens_uniforms(camera: Camera) -> dict[str, object]:
+    """The lens uniforms' values (lens.glsl's lens_distort arguments) of a camera; without a lens
+    model, its pinhole intrinsics."""
+    lens = camera.lens
     if lens is None:
-        i = projector.intrinsics
-        p["u_lens_f"].value, p["u_lens_c"].value = (i.fx, i.fy), (i.cx, i.cy)
-        p["u_lens_size"].value, p["u_lens_stretch"].value = (float(i.width), float(i.height)), 1.0
-        return
-    k = lens.coeffs
-    p["u_lens_k"].value = tuple(k) if lens.kind == "fisheye" else (k[0], k[1], 0.0, 0.0)
-    p["u_lens_p"].value = (0.0, 0.0) if lens.kind == "fisheye" else (k[2], k[3])
-    p["u_lens_k3"].value = 0.0 if lens.kind == "fisheye" else k[4]
-    p["u_lens_f"].value = (lens.fx, lens.fy)
-    p["u_lens_c"].value = (lens.cx, lens.cy)
-    p["u_lens_size"].value = (float(lens.width), float(lens.height))
-    p["u_lens_stretch"].value = lens.stretch
+        i = camera.intrinsics
+        return {
+            "kind": LENS_KIND[None],
+            "k": (0.0, 0.0, 0.0, 0.0),
+            "p": (0.0, 0.0),
+            "k3": 0.0,
+            "f": (i.fx, i.fy),
+            "c": (i.cx, i.cy),
+            "size": (float(i.width), float(i.height)),
+            "stretch": 1.0,
+        }
+    k = tuple(lens.coeffs)
+    fisheye = lens.kind == "fisheye"
+    return {
+        "kind": LENS_KIND[lens.kind],
+        "k": k[:4] if fisheye else (k[0], k[1], 0.0, 0.0),
+        "p": (0.0, 0.0) if fisheye else (k[2], k[3]),
+        "k3": 0.0 if fisheye else k[4],
+        "f": (lens.fx, lens.fy),
+        "c": (lens.cx, lens.cy),
+        "size": (float(lens.width), float(lens.height)),
+        "stretch": lens.stretch,
+    }
+
+
+def _set_lens(p: Uniforms, projector: Camera) -> None:
+    """The projector's lens and rolling-shutter uniforms (read by the EXACT_VIDEO variant)."""
+    p.matrices("u_proj_view", [projector.view])
+    p["u_rs_turn"] = projector.rs_turn or (0.0, 0.0, 0.0)
+    p["u_rs_axis"] = projector.rs_axis
+    for name, value in _lens_uniforms(projector).items():
+        p[f"u_lens_{name}"] = value

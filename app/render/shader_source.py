@@ -39,8 +39,13 @@ class ShaderSource:
         return _MESSAGE.sub(sub, message)
 
 
-def preprocess(name: str, root: Path = SHADER_DIR) -> ShaderSource:
-    """Read shaders/NAME and inline its includes (looked up in shaders/include/, then shaders/)."""
+def preprocess(
+    name: str, root: Path = SHADER_DIR, defines: dict[str, int] | None = None
+) -> ShaderSource:
+    """Read shaders/NAME and inline its includes (looked up in shaders/include/, then shaders/).
+
+    defines: `#define NAME VALUE` lines put after the version directive (a specialised variant
+    of the shader; the file's own `#ifndef` defaults stand for the rest)."""
     files: list[str] = []
     out: list[str] = []
 
@@ -74,6 +79,8 @@ def preprocess(name: str, root: Path = SHADER_DIR) -> ShaderSource:
                         f"{path.relative_to(root)}:{number}: the version directive must be the first line of the main file"
                     )
                 out.append(line)
+                if not stack:
+                    out.extend(f"#define {k} {int(v)}" for k, v in sorted((defines or {}).items()))
                 out.append(f"#line {number + 1} {sid}")
             else:
                 out.append(line)

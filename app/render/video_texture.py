@@ -6,6 +6,8 @@ from __future__ import annotations
 import moderngl
 import numpy as np
 
+from app.render.programs import Uniforms
+
 # Studio-swing (limited range) Y'CbCr -> R'G'B', per ITU-R BT.601 and BT.709, as column-major
 # mat3 rows: R = 1.164 (Y-16) + ... (values from the standards' inverse matrices, scaled by 255/219
 # for luma and 255/224 for chroma).
@@ -89,12 +91,13 @@ class VideoTexture:
     def ready(self) -> bool:
         return bool(self.planes)
 
-    def bind(self, program: moderngl.Program) -> None:
-        program["u_video_yuv"].value = self.yuv
-        program["u_video_rotation"].value = self.rotation
+    def bind(self, uniforms: Uniforms) -> None:
+        """Its planes on texture units 2-4 and video.glsl's uniforms (a shader compiled with
+        VIDEO_YUV = self.yuv)."""
+        uniforms["u_video_rotation"] = self.rotation
         m = _FULL601 if self.full_range else (_BT709 if self.bt709 else _BT601)
-        program["u_yuv_matrix"].write(np.asarray(m, np.float32).T.tobytes())
-        program["u_yuv_offset"].value = tuple(_FULL_OFFSET if self.full_range else _LIMITED_OFFSET)
+        uniforms.matrices("u_yuv_matrix", [m])
+        uniforms["u_yuv_offset"] = tuple(_FULL_OFFSET if self.full_range else _LIMITED_OFFSET)
         for unit, tex in zip((2, 3, 4), self.planes + [self.planes[0]] * (3 - len(self.planes))):
             tex.use(unit)
 

@@ -2,9 +2,12 @@
 //
 // Stills arrive as RGB already turned for display (u_video_rotation = 0). Playback frames arrive
 // as stored Y, U, V planes (row 0 = the top of the stored image) and are turned here: the display
-// is the stored image turned clockwise by u_video_rotation degrees.
+// is the stored image turned clockwise by u_video_rotation degrees. Which of the two a shader
+// reads is fixed when it is compiled (VIDEO_YUV, 1 for planes).
 
-uniform bool u_video_yuv;
+#ifndef VIDEO_YUV
+#define VIDEO_YUV 0
+#endif
 uniform int u_video_rotation;   // 0, 90, 180, 270 (clockwise, a phone's rotate tag)
 uniform sampler2D u_video;      // RGB still, or the Y plane
 uniform sampler2D u_video_u;
@@ -26,9 +29,10 @@ vec2 stored_coords(vec2 display) {
 
 vec3 video_colour(vec2 display) {
     vec2 st = stored_coords(display);
-    if (!u_video_yuv) {
-        return texture(u_video, st).rgb;
-    }
+#if VIDEO_YUV
     vec3 yuv = vec3(texture(u_video, st).r, texture(u_video_u, st).r, texture(u_video_v, st).r);
     return clamp(u_yuv_matrix * (yuv - u_yuv_offset), 0.0, 1.0);
+#else
+    return texture(u_video, st).rgb;
+#endif
 }

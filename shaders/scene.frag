@@ -1,28 +1,8 @@
 #version 400 core
 // Scene pass with projective video texturing (paper 2.2.2).
 //
-// Compiled in variants (app/render/passes.py, ScenePass): what a frame switches on or off is a
-// preprocessor symbol, not a uniform, so that a variant holds only the code it runs. A software
-// rasteriser (Mesa's llvmpipe) runs both sides of every branch on its SIMD lanes, so a path
-// switched off by a uniform costs as much as one switched on (docs/PERFORMANCE.md).
-#ifndef PROJECTION
-#define PROJECTION 1      // the first projector (the session's video) is drawn
-#endif
-#ifndef EXACT_VIDEO
-#define EXACT_VIDEO 0     // its video looked up through its lens and rolling-shutter model
-#endif
-#ifndef NEIGHBOURHOOD
-#define NEIGHBOURHOOD 1   // the paper's nine-case depth test (else the texel's own depth)
-#endif
-#ifndef ERROR_OVERLAY
-#define ERROR_OVERLAY 0   // the error colours of sessions with ground truth
-#endif
-#ifndef EXTRA_COUNT
-#define EXTRA_COUNT 0     // further projectors (other clips), 0 to MAX_EXTRA
-#endif
-#ifndef EXTRA_LENSES
-#define EXTRA_LENSES 0    // bit i set: further projector i has a lens model
-#endif
+// Compiled in variants: include/variant.glsl.
+#include "variant.glsl"
 #include "projective.glsl"
 #include "lens.glsl"
 #include "video.glsl"
@@ -32,7 +12,6 @@ uniform bool u_has_texture;
 uniform vec3 u_eye;            // window camera position, ENU metres
 uniform vec3 u_light_dir;      // unit vector toward the light, ENU
 
-uniform mat4 u_proj_view_proj; // projector clip-from-world
 uniform vec3 u_proj_position;  // projector position, ENU metres
 uniform float u_proj_near;
 uniform float u_proj_far;
@@ -76,9 +55,7 @@ vec2 video_pixel(vec3 c) {
 // shutter), depth map and video (RGB, display-oriented). Where several see a fragment, the
 // views are blended by a soft maximum of their scores (view_score): the most head-on and nearest
 // wins, with a soft seam u_seam wide; a clip's priority (10 score units a level) overrides.
-const int MAX_EXTRA = 7;
 const float RANGE_SCORE_M = 2000.0;  // a view 100 m nearer counts as 0.05 of cos(incidence)
-uniform mat4 u_extra_view_proj[MAX_EXTRA];
 uniform mat4 u_extra_view[MAX_EXTRA];
 uniform vec3 u_extra_position[MAX_EXTRA];
 uniform float u_extra_near[MAX_EXTRA];
@@ -104,16 +81,16 @@ float view_score(float priority, float cos_incidence, float range_m) {
 }
 
 // Running soft maximum: the views' colours and opacities weighted by exp((score - best) / u_seam).
+// A new best rescales what was summed by exp((best - score) / u_seam) and weighs 1; otherwise
+// the new view weighs exp((score - best) / u_seam): one exponential either way, no branch.
 void add_view(inout vec4 sum, inout float weight, inout float best, float score, vec3 colour, float alpha) {
-    if (score > best) {
-        float k = exp((best - score) / u_seam);
-        sum *= k;
-        weight *= k;
-        best = score;
-    }
-    float w = exp((score - best) / u_seam);
-    sum += w * vec4(colour, alpha);
-    weight += w;
+    float e = exp(-abs(score - best) / u_seam);
+    bool higher = score > best;
+    float k = higher ? e : 1.0;
+    float w = higher ? 1.0 : e;
+    sum = sum * k + w * vec4(colour, alpha);
+    weight = weight * k + w;
+    best = max(best, score);
 }
 
 // Error overlay (sessions with ground truth): the true camera's position map. The video texel
@@ -122,6 +99,12 @@ uniform sampler2D u_truth_positions;
 uniform float u_error_scale_m;  // the colour ramp's top, metres
 
 in vec3 v_world;
+#if PROJECTION
+in vec4 v_proj_clip;       // the first projector's clip coordinates (scene.vert)
+#endif
+#if EXTRA_COUNT > 0
+in vec4 v_extra_clip[EXTRA_COUNT];  // the further projectors'
+#endif
 in vec2 v_uv;
 in vec4 v_color;
 
@@ -145,19 +128,22 @@ vec3 model_colour(vec3 normal) {
     return base.rgb * light;
 }
 
+#if EXTRA_COUNT > 0
 // Further projector i (its depth map and video passed as samplers, its lens known when the
 // variant is compiled) added to the running blend where it sees the fragment.
 void add_extra(int i, sampler2D depth_map, sampler2D video, bool has_lens, vec3 normal,
                inout vec4 sum, inout float weight, inout float best) {
     vec3 ndc;
     float eye_depth;
-    if (!projector_ndc(v_world, u_extra_view_proj[i], ndc, eye_depth)) {
+    if (!projector_ndc(v_extra_clip[i], ndc, eye_depth)) {
         return;
     }
     vec2 st = ndc.xy * 0.5 + 0.5;
     ivec2 size = textureSize(depth_map, 0);
     ivec2 texel = clamp(ivec2(st * vec2(size)), ivec2(0), size - 1);
-    vec3 to_projector = normalize(u_extra_position[i] - v_world);
+    vec3 to_projector = u_extra_position[i] - v_world;
+    float range_m = length(to_projector);
+    to_projector /= range_m;
     float cos_incidence = abs(dot(normal, to_projector));
     float bias = projector_bias(u_bias_constant, u_bias_slope, eye_depth / u_extra_focal_texels[i], cos_incidence);
     vec2 video_st = vec2(st.x, 1.0 - st.y);
@@ -171,12 +157,13 @@ void add_extra(int i, sampler2D depth_map, sampler2D video, bool has_lens, vec3 
         }
     }
     if (projector_visible(depth_map, texel, eye_depth, bias, u_extra_near[i], u_extra_far[i], NEIGHBOURHOOD != 0)) {
-        float score = view_score(u_extra_priority[i], cos_incidence, distance(u_extra_position[i], v_world));
+        float score = view_score(u_extra_priority[i], cos_incidence, range_m);
         add_view(sum, weight, best, score, texture(video, video_st).rgb, u_extra_alpha[i]);
     }
 }
 
 #define ADD_EXTRA(i) add_extra(i, u_extra_depth[i], u_extra_video[i], ((EXTRA_LENSES >> i) & 1) != 0, normal, sum, weight, best)
+#endif
 
 void main() {
     vec3 normal = normalize(cross(dFdx(v_world), dFdy(v_world)));
@@ -192,11 +179,13 @@ void main() {
     vec3 ndc;
     float eye_depth;
     vec2 truth_st = vec2(-1.0);
-    if (projector_ndc(v_world, u_proj_view_proj, ndc, eye_depth)) {
+    if (projector_ndc(v_proj_clip, ndc, eye_depth)) {
         vec2 st = ndc.xy * 0.5 + 0.5;  // bottom-left origin
         ivec2 size = textureSize(u_depth_map, 0);
         ivec2 texel = clamp(ivec2(st * vec2(size)), ivec2(0), size - 1);
-        vec3 to_projector = normalize(u_proj_position - v_world);
+        vec3 to_projector = u_proj_position - v_world;
+        float range_m = length(to_projector);
+        to_projector /= range_m;
         float texel_m = eye_depth / u_proj_focal_texels;
         float cos_incidence = abs(dot(normal, to_projector));
         float bias = projector_bias(u_bias_constant, u_bias_slope, texel_m, cos_incidence);
@@ -208,8 +197,13 @@ void main() {
         in_image = all(greaterThanEqual(video_st, vec2(0.0))) && all(lessThanEqual(video_st, vec2(1.0)));
 #endif
         if (in_image && projector_visible(u_depth_map, texel, eye_depth, bias, u_proj_near, u_proj_far, NEIGHBOURHOOD != 0)) {
-            float score = view_score(u_proj_priority, cos_incidence, distance(u_proj_position, v_world));
+            float score = view_score(u_proj_priority, cos_incidence, range_m);
+#if EXTRA_COUNT == 0
+            sum = vec4(video_colour(video_st), u_alpha);  // add_view of a single view
+            weight = 1.0;
+#else
             add_view(sum, weight, best, score, video_colour(video_st), u_alpha);
+#endif
             truth_st = st;
         }
     }

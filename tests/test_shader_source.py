@@ -8,6 +8,7 @@ def test_include_is_inlined_with_line_directives():
     src = preprocess("scene.frag")
     assert src.files == [
         "scene.frag",
+        "include/variant.glsl",
         "include/projective.glsl",
         "include/lens.glsl",
         "include/video.glsl",
@@ -38,7 +39,7 @@ def test_defines_follow_the_version_and_keep_line_numbers():
 def test_compiler_messages_point_at_files():
     src = preprocess("scene.frag")
     assert src.locate("0:12(5): error: x") == "scene.frag:12: error: x"
-    assert src.locate("1:40(2): error: y") == "include/projective.glsl:40: error: y"
+    assert src.locate("2:40(2): error: y") == "include/projective.glsl:40: error: y"
 
 
 def test_errors(tmp_path):

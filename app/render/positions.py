@@ -18,7 +18,7 @@ class PositionPass:
     def __init__(self, ctx: moderngl.Context, scene: GpuScene) -> None:
         self.ctx = ctx
         self.scene = scene
-        self.program = load_program(ctx, "scene.vert", "position.frag")
+        self.program = load_program(ctx, "scene.vert", "position.frag", {"PROJECTION": 0})
         self._targets: dict[tuple, tuple] = {}
 
     def render_texture(self, camera: Camera) -> moderngl.Texture:

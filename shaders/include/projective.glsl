@@ -4,10 +4,10 @@
 // Conventions: the depth map holds window depth in [0, 1] of a perspective projection with
 // planes u_proj_near / u_proj_far (metres); the video texture's row 0 is the image's top row.
 
-// World position -> depth-camera clip coordinates. Returns false when the point lies behind the
-// camera or outside the frustum in x, y or z (the paper's "scissor test").
-bool projector_ndc(vec3 world, mat4 proj_view_proj, out vec3 ndc, out float eye_depth) {
-    vec4 clip = proj_view_proj * vec4(world, 1.0);
+// A point's clip coordinates in the projector's frustum -> its normalised device coordinates
+// and distance along the optical axis. Returns false when the point lies behind the camera or
+// outside the frustum in x, y or z (the paper's "scissor test").
+bool projector_ndc(vec4 clip, out vec3 ndc, out float eye_depth) {
     eye_depth = clip.w;  // distance along the optical axis, metres
     if (clip.w <= 0.0) {
         ndc = vec3(2.0);

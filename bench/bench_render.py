@@ -252,7 +252,10 @@ def dense_scene(ctx, renderer, mesh, photo, target, w: int, h: int, frames: int)
 def projectors(ctx, renderer, view, target, photo, frame, frames: int) -> None:
     """The sample drawn with 1, 2, 4 and 8 projectors at once (several clips), every depth map
     redrawn every frame (each projector turns by a millidegree a frame): the frame time against
-    one projector's, the counts interleaved frame by frame in the same run."""
+    one projector's, the counts interleaved frame by frame in the same run. Beside it, in the same
+    run, what a frame is made of: the scene pass alone (the poses kept, so no depth map is
+    redrawn) and one depth pass at the settings' size."""
+    from app.camera import depth_map_size
     from app.config import ProjectionSettings
     from app.demo import SAMPLE_PHOTO_POSE
     from app.simulate.photo import photo_camera
@@ -276,8 +279,8 @@ def projectors(ctx, renderer, view, target, photo, frame, frames: int) -> None:
     extras = list(renderer.extras)
     tick = [0]
 
-    def draw(n: int) -> None:
-        tick[0] += 1
+    def draw(n: int, move: bool) -> None:
+        tick[0] += move
         renderer.extras = extras[: n - 1]
         renderer.set_projector(camera(0, tick[0]))
         for k, e in enumerate(renderer.extras, start=1):
@@ -285,24 +288,63 @@ def projectors(ctx, renderer, view, target, photo, frame, frames: int) -> None:
         renderer.draw(view, target.fbo, settings)
         ctx.finish()
 
-    times = {n: [] for n in counts}
+    size = depth_map_size(photo.shape[1], photo.shape[0], settings.depth_long_side)
+
+    def depth_pass() -> None:
+        tick[0] += 1
+        renderer.depth.update(camera(0, tick[0]), size)
+        ctx.finish()
+
+    times = {(n, move): [] for n in counts for move in (True, False)}
+    depth = []
     for _ in range(3):
         for n in counts:
-            draw(n)
+            draw(n, True)
+            draw(n, False)
     for _ in range(frames):
         for n in counts:
-            t0 = time.perf_counter()
-            draw(n)
-            times[n].append(time.perf_counter() - t0)
+            for move in (True, False):
+                t0 = time.perf_counter()
+                draw(n, move)
+                times[n, move].append(time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        depth_pass()
+        depth.append(time.perf_counter() - t0)
     renderer.extras = extras
-    base = median_ms(times[1])
+    base = median_ms(times[1, True])
+    scene_base = median_ms(times[1, False])
     goal = {1: "", 2: "", 4: "1.5x", 8: "2x"}
     rows = [
-        [n, f"{median_ms(times[n]):.1f}", f"{median_ms(times[n]) / base:.2f}x", goal[n]]
+        [
+            n,
+            f"{median_ms(times[n, True]):.1f}",
+            f"{median_ms(times[n, True]) / base:.2f}x",
+            goal[n],
+            f"{median_ms(times[n, False]):.1f}",
+            f"{(median_ms(times[n, False]) - scene_base) / max(n - 1, 1):.1f}" if n > 1 else "",
+        ]
         for n in counts
     ]
     print("\n## Several projectors at once (every depth map redrawn every frame)\n")
-    print(table(["projectors", "frame median ms", "against one (same run)", "goal"], rows))
+    print(
+        table(
+            [
+                "projectors",
+                "frame median ms",
+                "against one (same run)",
+                "goal",
+                "scene pass alone ms (no depth redraw)",
+                "scene pass ms per further projector",
+            ],
+            rows,
+        )
+    )
+    d = median_ms(depth)
+    print(
+        f"\nOne depth pass ({size[0]}x{size[1]}): {d:.1f} ms median. The further projectors' depth"
+        f" passes alone: 3 x {d:.1f} = {3 * d:.1f} ms ({3 * d / base:.2f}x one projector's frame),"
+        f" 7 x {d:.1f} = {7 * d:.1f} ms ({7 * d / base:.2f}x)."
+    )
 
 
 if __name__ == "__main__":

@@ -102,6 +102,7 @@ def main(argv: list[str] | None = None) -> int:
     on, off = ProjectionSettings(), ProjectionSettings(enabled=False)
     if args.projectors_only:
         projectors(ctx, renderer, view, target, photo, frame, args.frames)
+        further_frames(ctx, renderer, view, target, max(5, args.frames // 6))
         renderer.release()
         target.release()
         return 0
@@ -179,6 +180,7 @@ def main(argv: list[str] | None = None) -> int:
         dense_scene(ctx, big_renderer, big, photo, target, w, h, args.frames)
         big_renderer.release()
     projectors(ctx, renderer, view, target, photo, frame, max(20, args.frames // 3))
+    further_frames(ctx, renderer, view, target, max(5, args.frames // 12))
     if not args.no_gis:
         from bench import bench_gis
 
@@ -344,6 +346,74 @@ def projectors(ctx, renderer, view, target, photo, frame, frames: int) -> None:
         f"\nOne depth pass ({size[0]}x{size[1]}): {d:.1f} ms median. The further projectors' depth"
         f" passes alone: 3 x {d:.1f} = {3 * d:.1f} ms ({3 * d / base:.2f}x one projector's frame),"
         f" 7 x {d:.1f} = {7 * d:.1f} ms ({7 * d / base:.2f}x)."
+    )
+
+
+def further_frames(ctx, renderer, view, target, frames: int) -> None:
+    """A further clip's playback frame: made ready to draw, converted to RGB and turned on the
+    CPU (numpy, the reference conversion the viewer used before) against its planes uploaded as
+    they are (what the viewer does: the scene shader turns and converts them), alternated in the
+    same run, per frame size; and what the planes cost the scene pass (one further projector,
+    its depth map kept), RGB and planes alternated."""
+    from app.config import ProjectionSettings
+    from app.render.video_texture import ExtraVideo, YuvPlanes, yuv_to_rgb
+
+    shown = ExtraVideo(ctx)
+    rng = np.random.default_rng(0)
+    rows = []
+    planes = {}
+    for w, h in ((640, 360), (1920, 1080), (3840, 2160)):
+        y = rng.integers(16, 235, (h, w), dtype=np.uint8)
+        u = rng.integers(16, 240, (h // 2, w // 2), dtype=np.uint8)
+        v = rng.integers(16, 240, (h // 2, w // 2), dtype=np.uint8)
+        planes[w] = YuvPlanes(y, u, v, 90)
+
+        def ready(on_cpu: bool) -> None:
+            if on_cpu:
+                shown.set(np.ascontiguousarray(np.rot90(yuv_to_rgb(y, u, v), k=-1)))
+            else:
+                shown.set(planes[w])
+            ctx.finish()
+
+        n = max(3, frames // (4 if w > 1000 else 1))
+        t_cpu, t_gpu = interleaved(ready, True, False, n, warmup=1)
+        rows.append(
+            [
+                f"{w}x{h}",
+                f"{median_ms(t_cpu):.1f}",
+                f"{median_ms(t_gpu):.1f}",
+                f"{median_ms(t_cpu) / median_ms(t_gpu):.1f}x",
+            ]
+        )
+    shown.release()
+    print("\n## A further clip's playback frame made ready to draw (turned 90 degrees)\n")
+    print(
+        table(
+            [
+                "frame",
+                "RGB on the CPU (numpy) + upload, median ms",
+                "planes uploaded, median ms",
+                "CPU / planes",
+            ],
+            rows,
+        )
+    )
+    settings = ProjectionSettings()
+    first = renderer.projector
+    frame_yuv = planes[1920]
+    frame_rgb = np.ascontiguousarray(
+        np.rot90(yuv_to_rgb(frame_yuv.y, frame_yuv.u, frame_yuv.v), k=-1)
+    )
+
+    def draw(frame) -> None:
+        renderer.set_extra_projectors([(first, frame, 0.0)])
+        renderer.draw(view, target.fbo, settings)
+        ctx.finish()
+
+    t_rgb, t_yuv = interleaved(draw, frame_rgb, frame_yuv, max(10, frames), warmup=2)
+    print(
+        f"\nOne further projector (1920x1080, uploaded each frame) in the sample's frame: RGB"
+        f" {median_ms(t_rgb):.1f} ms, planes {median_ms(t_yuv):.1f} ms median (same run)."
     )
 
 

@@ -72,7 +72,12 @@ uniform vec2 u_extra_lens_c[MAX_EXTRA];
 uniform vec2 u_extra_lens_size[MAX_EXTRA];
 uniform float u_extra_lens_stretch[MAX_EXTRA];
 uniform sampler2D u_extra_depth[MAX_EXTRA];
-uniform sampler2D u_extra_video[MAX_EXTRA];
+uniform sampler2D u_extra_video[MAX_EXTRA];   // an RGB still (display-oriented), or the Y plane
+// Playback frames (EXTRA_YUV), as video.glsl reads the first projector's:
+uniform sampler2D u_extra_chroma[MAX_EXTRA];  // U and V in one two-channel texture
+uniform int u_extra_rotation[MAX_EXTRA];      // the display: stored turned clockwise, degrees
+uniform mat3 u_extra_yuv_matrix[MAX_EXTRA];
+uniform vec3 u_extra_yuv_offset[MAX_EXTRA];
 uniform float u_proj_priority;  // the first projector's
 uniform float u_seam;           // score difference over which two views blend
 
@@ -129,10 +134,21 @@ vec3 model_colour(vec3 normal) {
 }
 
 #if EXTRA_COUNT > 0
-// Further projector i (its depth map and video passed as samplers, its lens known when the
-// variant is compiled) added to the running blend where it sees the fragment.
-void add_extra(int i, sampler2D depth_map, sampler2D video, bool has_lens, vec3 normal,
-               inout vec4 sum, inout float weight, inout float best) {
+// Further projector i's video at a point of its displayed image.
+vec3 extra_colour(int i, sampler2D video, sampler2D chroma, bool yuv, vec2 display) {
+    if (yuv) {
+        vec2 st = turned_coords(display, u_extra_rotation[i]);
+        vec3 c = vec3(texture(video, st).r, texture(chroma, st).rg);
+        return yuv_colour(c, u_extra_yuv_matrix[i], u_extra_yuv_offset[i]);
+    }
+    return texture(video, display).rgb;
+}
+
+// Further projector i (its depth map and video passed as samplers; its lens and whether its
+// video is planes known when the variant is compiled) added to the running blend where it sees
+// the fragment.
+void add_extra(int i, sampler2D depth_map, sampler2D video, sampler2D chroma, bool has_lens, bool yuv,
+               vec3 normal, inout vec4 sum, inout float weight, inout float best) {
     vec3 ndc;
     float eye_depth;
     if (!projector_ndc(v_extra_clip[i], ndc, eye_depth)) {
@@ -158,11 +174,11 @@ void add_extra(int i, sampler2D depth_map, sampler2D video, bool has_lens, vec3 
     }
     if (projector_visible(depth_map, texel, eye_depth, bias, u_extra_near[i], u_extra_far[i], NEIGHBOURHOOD != 0)) {
         float score = view_score(u_extra_priority[i], cos_incidence, range_m);
-        add_view(sum, weight, best, score, texture(video, video_st).rgb, u_extra_alpha[i]);
+        add_view(sum, weight, best, score, extra_colour(i, video, chroma, yuv, video_st), u_extra_alpha[i]);
     }
 }
 
-#define ADD_EXTRA(i) add_extra(i, u_extra_depth[i], u_extra_video[i], ((EXTRA_LENSES >> i) & 1) != 0, normal, sum, weight, best)
+#define ADD_EXTRA(i) add_extra(i, u_extra_depth[i], u_extra_video[i], u_extra_chroma[i], ((EXTRA_LENSES >> i) & 1) != 0, ((EXTRA_YUV >> i) & 1) != 0, normal, sum, weight, best)
 #endif
 
 void main() {

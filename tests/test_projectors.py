@@ -11,9 +11,11 @@ import pytest
 
 from app.camera import Camera, Intrinsics, look_at_quat
 from app.config import OverlaySettings, ProjectionSettings
+from app.io.video import rotate_for_display
 from app.lens import Lens, enclosing_intrinsics
 from app.render.passes import SEAM
 from app.render.still import render_still
+from app.render.video_texture import YuvPlanes, yuv_to_rgb
 from app.scene import shapes
 from app.scene.ground_plane import ground_plane
 from app.scene.mesh import MeshData
@@ -211,6 +213,56 @@ def test_further_projectors_each_through_their_own_lens(fisheye_at):
         pin_uv, _ = as_pinhole.project(seen[None])
         off_by.append(np.abs(pin_uv[0] / [320, 180] * 255 - expected[:2]).max())
     assert max(off_by) > 20, off_by
+
+
+@pytest.mark.parametrize("rotation", [0, 90, 270])
+def test_a_further_clips_playback_frame_matches_its_rgb_still(rotation):
+    """A further projector given a playback frame as stored (Y, U, V planes, turned and converted
+    to RGB on the GPU, as the viewer hands them) shows what the same frame converted and turned
+    on the CPU (the reference conversion) shows as an RGB still, to the conversion's rounding."""
+    rng = np.random.default_rng(rotation)
+    h, w = (48, 64) if rotation % 180 == 0 else (64, 48)  # stored so that the display is 64x48
+    y = np.kron(rng.integers(40, 220, (h // 8, w // 8)), np.ones((8, 8))).astype(np.uint8)
+    u = np.kron(rng.integers(60, 200, (h // 8, w // 8)), np.ones((4, 4))).astype(np.uint8)
+    v = np.kron(rng.integers(60, 200, (h // 8, w // 8)), np.ones((4, 4))).astype(np.uint8)
+    eye = (0.0, 0.0, 40.0)  # its image covers most of the top view
+    cam = Camera.create(
+        Intrinsics.from_fov(64, 48, 60.0),
+        eye,
+        look_at_quat(eye, (0.0, 0.0, 0.0), (0.0, 1.0, 0.0)),
+        0.5,
+        500.0,
+    )
+    far = (100.0, 0.0, 0.0)  # the first projector looks at ground out of view
+
+    def draw(frame) -> np.ndarray:
+        return render_still(
+            ground_plane(np.zeros(2), 0.0, 300.0),
+            _solid((255, 0, 0)),
+            _projector((100.0, 5.0, 10.0), far),
+            TOP,
+            SETTINGS,
+            NO_LINES,
+            # an RGB still first, out of view: the planes are the second further projector's
+            extras=[
+                (_solid((0, 255, 0)), _projector((100.0, -5.0, 10.0), far), 0.0),
+                (frame, cam, 0.0),
+            ],
+        ).rgb.astype(int)
+
+    from_planes = draw(YuvPlanes(y, u, v, rotation, bt709=False))
+    from_rgb = draw(rotate_for_display(yuv_to_rgb(y, u, v), rotation))
+    rows, cols = np.mgrid[0:SIZE, 0:SIZE]
+    rays = TOP.pixel_rays(np.column_stack([cols.ravel() + 0.5, rows.ravel() + 0.5]))
+    ground = TOP.position + rays * (TOP.position[2] / -rays[:, 2:3])
+    uv, depth = cam.project(ground)
+    inner = np.minimum(uv % 8, 8 - uv % 8).min(axis=1) >= 2.5  # away from the blocks' edges
+    inside = (depth > 0) & np.all((uv > 0) & (uv < [64, 48]), axis=1) & inner
+    assert inside.sum() > 2000
+    diff = np.abs(from_planes - from_rgb).reshape(-1, 3).max(axis=1)[inside]
+    assert np.median(diff) <= 1 and np.percentile(diff, 99) <= 3
+    # and the frame is there: the blocks' colours differ across the image
+    assert from_planes.reshape(-1, 3)[inside].std(axis=0).min() > 10
 
 
 def test_render_pairs_images_and_poses_by_order(tmp_path, capsys):

@@ -13,7 +13,7 @@ from app.camera import Camera
 from app.config import ProjectionSettings
 from app.render.gpu_scene import GpuScene
 from app.render.programs import Uniforms, load_program
-from app.render.video_texture import VideoTexture
+from app.render.video_texture import ExtraVideo, VideoTexture, yuv_matrix
 
 LIGHT_DIR = np.array([0.35, -0.45, 0.82]) / np.linalg.norm([0.35, -0.45, 0.82])
 
@@ -127,6 +127,7 @@ class ScenePass:
                 u[name] = unit
             u["u_extra_depth"] = [EXTRA_DEPTH_UNIT + i for i in range(MAX_EXTRA)]
             u["u_extra_video"] = [EXTRA_VIDEO_UNIT + i for i in range(MAX_EXTRA)]
+            u["u_extra_chroma"] = [EXTRA_CHROMA_UNIT + i for i in range(MAX_EXTRA)]
             self.programs[key] = program
         self.variant = dict(defines)
         return program
@@ -174,6 +175,9 @@ class ScenePass:
         if extras:
             defines["EXTRA_LENSES"] = sum(
                 1 << i for i, e in enumerate(extras) if e.camera.lens is not None
+            )
+            defines["EXTRA_YUV"] = sum(
+                1 << i for i, e in enumerate(extras) if e.video.chroma is not None
             )
         self.program = self._program(defines)
         p = Uniforms(self.program)
@@ -226,7 +230,8 @@ class ScenePass:
 
 MAX_EXTRA = 7  # further projectors beside the first (shaders/scene.frag)
 SEAM = 0.02  # score difference over which two views blend (shaders/scene.frag, view_score)
-EXTRA_DEPTH_UNIT, EXTRA_VIDEO_UNIT = 6, 6 + MAX_EXTRA  # texture units of their maps and videos
+# Texture units of the further projectors' depth maps, videos (RGB or Y) and chroma (U, V)
+EXTRA_DEPTH_UNIT, EXTRA_VIDEO_UNIT, EXTRA_CHROMA_UNIT = 6, 6 + MAX_EXTRA, 6 + 2 * MAX_EXTRA
 SAMPLER_UNITS = {  # the scene shader's other samplers and their texture units
     "u_base_texture": 0,
     "u_depth_map": 1,
@@ -239,12 +244,12 @@ SAMPLER_UNITS = {  # the scene shader's other samplers and their texture units
 
 @dataclass(frozen=True)
 class ExtraProjector:
-    """A further projector for one draw: its camera, depth pass (drawn), RGB video texture
-    (display-oriented) and priority (higher wins where several see a surface)."""
+    """A further projector for one draw: its camera, depth pass (drawn), video (an RGB still or a
+    playback frame's planes) and priority (higher wins where several see a surface)."""
 
     camera: Camera
     depth: DepthPass
-    video: moderngl.Texture
+    video: ExtraVideo
     priority: float = 0.0
     alpha: float = 1.0  # its opacity over the model (the first projector's: the settings' alpha)
 
@@ -270,9 +275,15 @@ def _set_extras(p: Uniforms, extras: tuple[ExtraProjector, ...]) -> None:
     lenses = [_lens_uniforms(c) for c in cams]
     for name in ("kind", "k", "p", "k3", "f", "c", "size", "stretch"):
         p[f"u_extra_lens_{name}"] = [lens[name] for lens in lenses]
+    # Playback frames (EXTRA_YUV): stored planes turned and converted as video.glsl does.
+    p["u_extra_rotation"] = [e.video.rotation for e in extras]
+    colour = [yuv_matrix(e.video.bt709, e.video.full_range) for e in extras]
+    p.matrices("u_extra_yuv_matrix", [m for m, _ in colour])
+    p["u_extra_yuv_offset"] = [tuple(offset) for _, offset in colour]
     for i, e in enumerate(extras):
         e.depth.texture.use(EXTRA_DEPTH_UNIT + i)
-        e.video.use(EXTRA_VIDEO_UNIT + i)
+        e.video.texture.use(EXTRA_VIDEO_UNIT + i)
+        (e.video.chroma or e.video.texture).use(EXTRA_CHROMA_UNIT + i)
 
 
 LENS_KIND = {None: 0, "fisheye": 1, "brown": 2}  # shaders/include/lens.glsl's constants

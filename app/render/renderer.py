@@ -23,7 +23,7 @@ from app.render.overlays import (
 )
 from app.render.passes import MAX_EXTRA, DepthPass, ExtraProjector, ScenePass
 from app.render.positions import PositionPass
-from app.render.video_texture import VideoTexture
+from app.render.video_texture import ExtraVideo, VideoTexture, YuvPlanes
 from app.scene.mesh import MeshData
 
 BACKGROUND = (0.62, 0.74, 0.86)
@@ -75,23 +75,25 @@ class FusionRenderer:
 
     def set_extra_projectors(
         self,
-        views: list[tuple[Camera, np.ndarray, float]],
+        views: list[tuple[Camera, np.ndarray | YuvPlanes, float]],
         alphas: list[float] | None = None,
         colours: list[tuple[float, float, float, float]] | None = None,
     ) -> None:
-        """Further projectors drawn with the first (several clips at once): each (camera,
-        display-oriented RGB frame (H, W, 3) uint8, priority), with its opacity (default the
-        settings' alpha) and frustum colour. One depth map each, redrawn only when its own pose
-        changes; at most MAX_EXTRA."""
+        """Further projectors drawn with the first (several clips at once): each (camera, frame,
+        priority), the frame a display-oriented RGB image (H, W, 3) uint8 or a playback frame's
+        stored planes (turned and converted to RGB in the shader), with its opacity (default the
+        settings' alpha) and frustum colour. One depth map each, redrawn only when its own pose changes;
+        at most MAX_EXTRA."""
         if len(views) > MAX_EXTRA:
             raise ValueError(f"at most {MAX_EXTRA + 1} projectors at once, got {len(views) + 1}")
         while len(self.extras) > len(views):
             self.extras.pop().release()
         while len(self.extras) < len(views):
             key = f"projector{len(self.extras)}"
-            self.extras.append(_Extra(DepthPass(self.ctx, self.scene, key), None))
-        for k, (extra, (camera, rgb, priority)) in enumerate(zip(self.extras, views)):
-            extra.set(self.ctx, camera, rgb, priority)
+            depth = DepthPass(self.ctx, self.scene, key)
+            self.extras.append(_Extra(depth, ExtraVideo(self.ctx)))
+        for k, (extra, (camera, frame, priority)) in enumerate(zip(self.extras, views)):
+            extra.set(camera, frame, priority)
             extra.alpha = None if alphas is None else float(alphas[k])
             extra.colour = FRUSTUM_COLOR if colours is None else colours[k]
 
@@ -262,29 +264,19 @@ class FusionRenderer:
 
 
 class _Extra:
-    """A further projector's GL objects: its depth pass and its video as an RGB texture."""
+    """A further projector's GL objects: its depth pass and its video."""
 
-    def __init__(self, depth: DepthPass, video: moderngl.Texture | None) -> None:
+    def __init__(self, depth: DepthPass, video: ExtraVideo) -> None:
         self.depth, self.video = depth, video
         self.camera: Camera | None = None
         self.priority = 0.0
         self.alpha: float | None = None  # None: the settings' alpha
         self.colour = FRUSTUM_COLOR
 
-    def set(self, ctx: moderngl.Context, camera: Camera, rgb: np.ndarray, priority: float) -> None:
-        img = np.ascontiguousarray(rgb, dtype=np.uint8)
-        if img.ndim != 3 or img.shape[2] != 3:
-            raise ValueError(f"a video frame must be (H, W, 3) uint8, got {img.shape}")
-        if self.video is None or self.video.size != (img.shape[1], img.shape[0]):
-            if self.video is not None:
-                self.video.release()
-            self.video = ctx.texture((img.shape[1], img.shape[0]), 3)
-            self.video.filter = (moderngl.LINEAR, moderngl.LINEAR)
-            self.video.repeat_x = self.video.repeat_y = False
-        self.video.write(img.tobytes())
+    def set(self, camera: Camera, frame: np.ndarray | YuvPlanes, priority: float) -> None:
+        self.video.set(frame)
         self.camera, self.priority = camera, float(priority)
 
     def release(self) -> None:
         self.depth.release()
-        if self.video is not None:
-            self.video.release()
+        self.video.release()

@@ -3,6 +3,8 @@ in the shader, shaders/include/video.glsl), with the display rotation applied th
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import moderngl
 import numpy as np
 
@@ -18,12 +20,17 @@ _LIMITED_OFFSET = np.array([16.0, 128.0, 128.0]) / 255.0
 _FULL_OFFSET = np.array([0.0, 128.0, 128.0]) / 255.0
 
 
+def yuv_matrix(bt709: bool, full_range: bool) -> tuple[np.ndarray, np.ndarray]:
+    """The (matrix, offset) that take (Y, Cb, Cr) in [0, 1] to R'G'B': RGB = M (YUV - offset)."""
+    m = _FULL601 if full_range else (_BT709 if bt709 else _BT601)
+    return m, (_FULL_OFFSET if full_range else _LIMITED_OFFSET)
+
+
 def yuv_to_rgb(
     y: np.ndarray, u: np.ndarray, v: np.ndarray, bt709: bool = False, full_range: bool = False
 ) -> np.ndarray:
     """CPU reference of the shader's conversion: planes (chroma upsampled by repetition) -> RGB uint8."""
-    m = _FULL601 if full_range else (_BT709 if bt709 else _BT601)
-    off = _FULL_OFFSET if full_range else _LIMITED_OFFSET
+    m, off = yuv_matrix(bt709, full_range)
     uu = np.repeat(np.repeat(u, 2, axis=0), 2, axis=1)[: y.shape[0], : y.shape[1]]
     vv = np.repeat(np.repeat(v, 2, axis=0), 2, axis=1)[: y.shape[0], : y.shape[1]]
     yuv = np.stack([y, uu, vv], -1) / 255.0 - off
@@ -95,9 +102,9 @@ class VideoTexture:
         """Its planes on texture units 2-4 and video.glsl's uniforms (a shader compiled with
         VIDEO_YUV = self.yuv)."""
         uniforms["u_video_rotation"] = self.rotation
-        m = _FULL601 if self.full_range else (_BT709 if self.bt709 else _BT601)
+        m, offset = yuv_matrix(self.bt709, self.full_range)
         uniforms.matrices("u_yuv_matrix", [m])
-        uniforms["u_yuv_offset"] = tuple(_FULL_OFFSET if self.full_range else _LIMITED_OFFSET)
+        uniforms["u_yuv_offset"] = tuple(offset)
         for unit, tex in zip((2, 3, 4), self.planes + [self.planes[0]] * (3 - len(self.planes))):
             tex.use(unit)
 
@@ -105,3 +112,75 @@ class VideoTexture:
         for t in self.planes:
             t.release()
         self.planes = []
+
+
+@dataclass(frozen=True)
+class YuvPlanes:
+    """A stored playback frame as the decoder gives it: Y (H, W), U and V (H/2, W/2) uint8, shown
+    turned clockwise by rotation_cw degrees; bt709 and full_range: its colour matrix and range."""
+
+    y: np.ndarray
+    u: np.ndarray
+    v: np.ndarray
+    rotation_cw: int = 0
+    bt709: bool = False
+    full_range: bool = False
+
+
+class ExtraVideo:
+    """A further projector's video as the scene pass samples it: an RGB still (display-oriented)
+    as one texture, or a playback frame as stored: Y in `texture` (R8) and U, V in `chroma` (one
+    RG8 texture at half size), turned for display and converted to RGB in the shader like the
+    first projector's frames (no conversion on the CPU, where numpy took 130 ms a 1080p frame:
+    docs/PERFORMANCE.md)."""
+
+    def __init__(self, ctx: moderngl.Context) -> None:
+        self.ctx = ctx
+        self.texture: moderngl.Texture | None = None
+        self.chroma: moderngl.Texture | None = None  # None: `texture` is an RGB still
+        self.rotation = 0  # clockwise degrees from stored to displayed (planes only)
+        self.bt709 = False
+        self.full_range = False
+
+    def _texture(self, old: moderngl.Texture | None, size: tuple[int, int], components: int):
+        if old is not None and old.size == size and old.components == components:
+            return old
+        if old is not None:
+            old.release()
+        t = self.ctx.texture(size, components)
+        t.filter = (moderngl.LINEAR, moderngl.LINEAR)
+        t.repeat_x = t.repeat_y = False
+        return t
+
+    def set(self, frame: np.ndarray | YuvPlanes) -> None:
+        """An RGB frame (H, W, 3) uint8, row 0 the displayed top, or a stored frame's planes."""
+        if isinstance(frame, YuvPlanes):
+            h, w = frame.y.shape
+            ch, cw = frame.u.shape
+            if frame.v.shape != (ch, cw) or not (0 < ch <= h and 0 < cw <= w):
+                raise ValueError(
+                    f"YUV planes must be Y (H, W), U and V alike and no larger, got {frame.y.shape}, "
+                    f"{frame.u.shape}, {frame.v.shape}"
+                )
+            self.texture = self._texture(self.texture, (w, h), 1)
+            self.chroma = self._texture(self.chroma, (cw, ch), 2)
+            self.texture.write(np.ascontiguousarray(frame.y, np.uint8).tobytes())
+            self.chroma.write(np.stack([frame.u, frame.v], -1).astype(np.uint8).tobytes())
+            self.rotation = int(frame.rotation_cw) % 360
+            self.bt709, self.full_range = bool(frame.bt709), bool(frame.full_range)
+            return
+        img = np.ascontiguousarray(frame, dtype=np.uint8)
+        if img.ndim != 3 or img.shape[2] != 3:
+            raise ValueError(f"a video frame must be (H, W, 3) uint8, got {img.shape}")
+        self.texture = self._texture(self.texture, (img.shape[1], img.shape[0]), 3)
+        self.texture.write(img.tobytes())
+        if self.chroma is not None:
+            self.chroma.release()
+            self.chroma = None
+        self.rotation = 0
+
+    def release(self) -> None:
+        for t in (self.texture, self.chroma):
+            if t is not None:
+                t.release()
+        self.texture = self.chroma = None

@@ -14,15 +14,13 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
-
 from app.camera import Camera
 from app.clips import onto, open_any
 from app.errors import GeofuseError
 from app.playback.library import SolverLibrary
 from app.playback.player import Player
 from app.render.passes import MAX_EXTRA
-from app.render.video_texture import yuv_to_rgb
+from app.render.video_texture import YuvPlanes
 from app.session.config import ClipRef
 from app.session.model import Session
 from app.timeline import Timeline
@@ -137,10 +135,10 @@ def _clip(v, index: int) -> OtherClip:
     return others[index - 1]
 
 
-def _rgb(clip: OtherClip) -> np.ndarray:
+def _planes(clip: OtherClip) -> YuvPlanes:
+    """The clip's current frame as stored, turned and converted to RGB by the renderer (GPU)."""
     f = clip.player.current
-    rgb = yuv_to_rgb(f.y, f.u, f.v, f.bt709, f.full_range)
-    return np.ascontiguousarray(np.rot90(rgb, k=-(clip.session.rotation_cw // 90)))
+    return YuvPlanes(f.y, f.u, f.v, clip.session.rotation_cw, f.bt709, f.full_range)
 
 
 def update(v, now: float, wait_s: float = 0.0) -> None:
@@ -171,7 +169,7 @@ def update(v, now: float, wait_s: float = 0.0) -> None:
         key.append((id(clip), p.index, camera.position, camera.orientation, clip.alpha))
     if tuple(key) != L.extras_shown:
         L.renderer.set_extra_projectors(
-            [(cam, _rgb(c), prio) for cam, c, prio in views],
+            [(cam, _planes(c), prio) for cam, c, prio in views],
             [v.ui.settings.alpha if c.alpha is None else c.alpha for _, c, _ in views],
             [c.colour for _, c, _ in views],
         )

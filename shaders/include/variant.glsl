@@ -22,4 +22,7 @@
 #ifndef EXTRA_LENSES
 #define EXTRA_LENSES 0    // bit i set: further projector i has a lens model
 #endif
+#ifndef EXTRA_YUV
+#define EXTRA_YUV 0       // bit i set: further projector i's video is a playback frame's planes
+#endif
 const int MAX_EXTRA = 7;  // app/render/passes.py MAX_EXTRA

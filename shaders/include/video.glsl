@@ -15,23 +15,33 @@ uniform sampler2D u_video_v;
 uniform mat3 u_yuv_matrix;      // (Y, Cb, Cr) minus offsets -> RGB, BT.601 or BT.709
 uniform vec3 u_yuv_offset;      // limited range: (16, 128, 128) / 255
 
-// display: (u, v) in [0, 1] with v down from the displayed image's top -> stored image coords.
-vec2 stored_coords(vec2 display) {
-    if (u_video_rotation == 90) {
+// display: (u, v) in [0, 1] with v down from the displayed image's top -> the coordinates in the
+// stored image, which the display shows turned clockwise by `rotation` degrees.
+vec2 turned_coords(vec2 display, int rotation) {
+    if (rotation == 90) {
         return vec2(display.y, 1.0 - display.x);
-    } else if (u_video_rotation == 180) {
+    } else if (rotation == 180) {
         return vec2(1.0 - display.x, 1.0 - display.y);
-    } else if (u_video_rotation == 270) {
+    } else if (rotation == 270) {
         return vec2(1.0 - display.y, display.x);
     }
     return display;
+}
+
+vec2 stored_coords(vec2 display) {
+    return turned_coords(display, u_video_rotation);
+}
+
+// (Y, Cb, Cr) in [0, 1] -> RGB by the stream's matrix and range.
+vec3 yuv_colour(vec3 yuv, mat3 matrix, vec3 offset) {
+    return clamp(matrix * (yuv - offset), 0.0, 1.0);
 }
 
 vec3 video_colour(vec2 display) {
     vec2 st = stored_coords(display);
 #if VIDEO_YUV
     vec3 yuv = vec3(texture(u_video, st).r, texture(u_video_u, st).r, texture(u_video_v, st).r);
-    return clamp(u_yuv_matrix * (yuv - u_yuv_offset), 0.0, 1.0);
+    return yuv_colour(yuv, u_yuv_matrix, u_yuv_offset);
 #else
     return texture(u_video, st).rgb;
 #endif

@@ -43,14 +43,14 @@ def make_1080p_clip(path: Path, seconds: float) -> Path:
     return write_video(path, np.arange(n) / 30.0, (1920, 1080), 0, frame=frame, crf=23)
 
 
-def make_drone_clip(folder: Path, seconds: float) -> Path:
-    """A 640x360 30 fps clip with the subtitle a DJI Air 2S writes, dated like the sample walk
-    (app.simulate.drone), so that the two play together on one timeline."""
+def make_drone_clip(folder: Path, seconds: float, size: tuple[int, int] = (640, 360)) -> Path:
+    """A 30 fps clip of `size` (w, h) with the subtitle a DJI Air 2S writes, dated like the sample
+    walk (app.simulate.drone), so that the two play together on one timeline."""
     from app.simulate import drone
     from app.simulate.phone import write_video
 
     folder.mkdir(parents=True, exist_ok=True)
-    video = write_video(folder / "DJI_0001.MP4", np.arange(int(seconds * 30)) / 30.0, (640, 360), 0)
+    video = write_video(folder / "DJI_0001.MP4", np.arange(int(seconds * 30)) / 30.0, size, 0)
     (folder / "DJI_0001.SRT").write_text(drone.srt_text(seconds, 0.0), encoding="utf-8")
     return video
 
@@ -202,6 +202,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--two-clips-only", action="store_true", help="only the two-clips-at-once table"
     )
+    parser.add_argument(
+        "--drone-size", default="640x360", help="the further (drone) clip's frame size, WxH"
+    )
     args = parser.parse_args(argv)
     size = tuple(int(v) for v in args.size.split("x"))
 
@@ -269,8 +272,12 @@ def main(argv: list[str] | None = None) -> int:
             )
             print()
             print(table(["clip", "decode vs real time", "seek median / p95 ms"], decode_rows))
-        print("\n## Two clips at once: the sample walk and a drone clip filmed at the same time\n")
-        drone_clip = make_drone_clip(tmp / "drone", min(args.seconds, 70.0) + 1.0)
+        drone_size = tuple(int(v) for v in args.drone_size.split("x"))
+        print(
+            "\n## Two clips at once: the sample walk and a drone clip filmed at the same time"
+            f" ({drone_size[0]}x{drone_size[1]})\n"
+        )
+        drone_clip = make_drone_clip(tmp / "drone", min(args.seconds, 70.0) + 1.0, drone_size)
         r = viewer_playback(
             display, SAMPLE_DIR / "session.toml", args.seconds, size, tmp, more=(drone_clip,)
         )

@@ -157,6 +157,23 @@ def test_eight_projectors_drawn_together():
         assert np.abs(rgb[_pixel_of(centre)].astype(int) - img[0, 0]).max() <= 3, centre
 
 
+FAR = (100.0, 0.0, 0.0)  # ground the top view does not see
+
+
+def _top_with(extras: list) -> np.ndarray:
+    """The top view of a wide ground (int RGB) with `extras` (frame, camera, priority) as further
+    projectors; the first looks at ground out of view, so that only the further ones show."""
+    return render_still(
+        ground_plane(np.zeros(2), 0.0, 300.0),
+        _solid((0, 0, 255)),
+        _projector((100.0, 5.0, 10.0), FAR),
+        TOP,
+        SETTINGS,
+        NO_LINES,
+        extras=extras,
+    ).rgb.astype(int)
+
+
 FISHEYE = Lens.create(
     "fisheye", 1920, 1080, 846.7, 846.3, 951.3, 547.6, (0.0734, -0.0208, 0.0452, -0.0252)
 ).scaled(320, 180)
@@ -181,19 +198,10 @@ def test_further_projectors_each_through_their_own_lens(fisheye_at):
     u, v = np.meshgrid(np.arange(320) + 0.5, np.arange(180) + 0.5)
     gradient = np.stack([u / 320 * 255, v / 180 * 255, np.full_like(u, 128)], -1)
     gradient = np.round(gradient).astype(np.uint8)
-    far = (100.0, 0.0, 0.0)  # the first and the pinhole projector look at ground out of view
-    pinhole = (_solid((255, 0, 0)), _projector((100.0, 0.0, 10.0), far), 0.0)
+    pinhole = (_solid((255, 0, 0)), _projector((100.0, 0.0, 10.0), FAR), 0.0)  # out of view
     extras = [pinhole, pinhole]
     extras[fisheye_at] = (gradient, fish, 0.0)
-    rgb = render_still(
-        ground_plane(np.zeros(2), 0.0, 300.0),
-        _solid((0, 0, 255)),
-        _projector((100.0, 5.0, 10.0), far),
-        TOP,
-        SETTINGS,
-        NO_LINES,
-        extras=extras,
-    ).rgb.astype(int)
+    rgb = _top_with(extras)
     as_pinhole = Camera.create(
         Intrinsics(320, 180, FISHEYE.fx, FISHEYE.fy, FISHEYE.cx, FISHEYE.cy),
         fish.position,
@@ -233,25 +241,10 @@ def test_a_further_clips_playback_frame_matches_its_rgb_still(rotation):
         0.5,
         500.0,
     )
-    far = (100.0, 0.0, 0.0)  # the first projector looks at ground out of view
-
-    def draw(frame) -> np.ndarray:
-        return render_still(
-            ground_plane(np.zeros(2), 0.0, 300.0),
-            _solid((255, 0, 0)),
-            _projector((100.0, 5.0, 10.0), far),
-            TOP,
-            SETTINGS,
-            NO_LINES,
-            # an RGB still first, out of view: the planes are the second further projector's
-            extras=[
-                (_solid((0, 255, 0)), _projector((100.0, -5.0, 10.0), far), 0.0),
-                (frame, cam, 0.0),
-            ],
-        ).rgb.astype(int)
-
-    from_planes = draw(YuvPlanes(y, u, v, rotation, bt709=False))
-    from_rgb = draw(rotate_for_display(yuv_to_rgb(y, u, v), rotation))
+    # an RGB still first, out of view: the planes are the second further projector's
+    still = (_solid((0, 255, 0)), _projector((100.0, -5.0, 10.0), FAR), 0.0)
+    from_planes = _top_with([still, (YuvPlanes(y, u, v, rotation, bt709=False), cam, 0.0)])
+    from_rgb = _top_with([still, (rotate_for_display(yuv_to_rgb(y, u, v), rotation), cam, 0.0)])
     rows, cols = np.mgrid[0:SIZE, 0:SIZE]
     rays = TOP.pixel_rays(np.column_stack([cols.ravel() + 0.5, rows.ravel() + 0.5]))
     ground = TOP.position + rays * (TOP.position[2] / -rays[:, 2:3])

@@ -52,16 +52,20 @@ vec2 video_pixel(vec3 c) {
 }
 
 // Further projectors: the other clips shown at once, each with its own pose, lens (no rolling
-// shutter), depth map and video (RGB, display-oriented). Where several see a fragment, the
-// views are blended by a soft maximum of their scores (view_score): the most head-on and nearest
-// wins, with a soft seam u_seam wide; a clip's priority (10 score units a level) overrides.
+// shutter), depth map and video (an RGB still or a playback frame's planes). Where several see a
+// fragment, the views are blended by a soft maximum of their scores (view_score): the most
+// head-on and nearest wins, with a soft seam u_seam wide; where those tie, the most recent frame
+// (the age term, one seam for a 30 fps frame interval); a clip's priority (10 score units a
+// level) overrides. app/render/passes.py keeps the same constants.
 const float RANGE_SCORE_M = 2000.0;  // a view 100 m nearer counts as 0.05 of cos(incidence)
+const float AGE_SCORE_PER_S = 0.6;   // a frame 1/30 s older counts as 0.02 (one seam) less
 uniform mat4 u_extra_view[MAX_EXTRA];
 uniform vec3 u_extra_position[MAX_EXTRA];
 uniform float u_extra_near[MAX_EXTRA];
 uniform float u_extra_far[MAX_EXTRA];
 uniform float u_extra_focal_texels[MAX_EXTRA];
 uniform float u_extra_priority[MAX_EXTRA];
+uniform float u_extra_age[MAX_EXTRA];    // how long before the drawn moment its frame was taken, s
 uniform float u_extra_alpha[MAX_EXTRA];  // each further clip's opacity (the first's: u_alpha)
 uniform int u_extra_lens_kind[MAX_EXTRA];  // LENS_FISHEYE or LENS_BROWN where EXTRA_LENSES says
 uniform vec4 u_extra_lens_k[MAX_EXTRA];
@@ -79,10 +83,11 @@ uniform int u_extra_rotation[MAX_EXTRA];      // the display: stored turned cloc
 uniform mat3 u_extra_yuv_matrix[MAX_EXTRA];
 uniform vec3 u_extra_yuv_offset[MAX_EXTRA];
 uniform float u_proj_priority;  // the first projector's
+uniform float u_proj_age;       // the first projector's frame's age, s
 uniform float u_seam;           // score difference over which two views blend
 
-float view_score(float priority, float cos_incidence, float range_m) {
-    return 10.0 * priority + cos_incidence - range_m / RANGE_SCORE_M;
+float view_score(float priority, float cos_incidence, float range_m, float age_s) {
+    return 10.0 * priority + cos_incidence - range_m / RANGE_SCORE_M - age_s * AGE_SCORE_PER_S;
 }
 
 // Running soft maximum: the views' colours and opacities weighted by exp((score - best) / u_seam).
@@ -173,7 +178,7 @@ void add_extra(int i, sampler2D depth_map, sampler2D video, sampler2D chroma, bo
         }
     }
     if (projector_visible(depth_map, texel, eye_depth, bias, u_extra_near[i], u_extra_far[i], NEIGHBOURHOOD != 0)) {
-        float score = view_score(u_extra_priority[i], cos_incidence, range_m);
+        float score = view_score(u_extra_priority[i], cos_incidence, range_m, u_extra_age[i]);
         add_view(sum, weight, best, score, extra_colour(i, video, chroma, yuv, video_st), u_extra_alpha[i]);
     }
 }
@@ -213,7 +218,7 @@ void main() {
         in_image = all(greaterThanEqual(video_st, vec2(0.0))) && all(lessThanEqual(video_st, vec2(1.0)));
 #endif
         if (in_image && projector_visible(u_depth_map, texel, eye_depth, bias, u_proj_near, u_proj_far, NEIGHBOURHOOD != 0)) {
-            float score = view_score(u_proj_priority, cos_incidence, range_m);
+            float score = view_score(u_proj_priority, cos_incidence, range_m, u_proj_age);
 #if EXTRA_COUNT == 0
             sum = vec4(video_colour(video_st), u_alpha);  // add_view of a single view
             weight = 1.0;

@@ -13,7 +13,7 @@ from app.camera import Camera, Intrinsics, look_at_quat
 from app.config import OverlaySettings, ProjectionSettings
 from app.io.video import rotate_for_display
 from app.lens import Lens, enclosing_intrinsics
-from app.render.passes import SEAM
+from app.render.passes import AGE_SCORE_PER_S, SEAM
 from app.render.still import render_still
 from app.render.video_texture import YuvPlanes, yuv_to_rgb
 from app.scene import shapes
@@ -88,6 +88,45 @@ def test_the_overlap_rule_at_a_seam():
         assert np.abs(rgb[row, col] - expected).max() <= 6.0, (col, x, rgb[row, col], expected)
         checked += 1
     assert checked == 20
+    assert rgb[row, SIZE // 2 - 40, 0] > 250 and rgb[row, SIZE // 2 + 40, 2] > 250
+
+
+@pytest.mark.parametrize(
+    "ages", [(0.0, 1 / 30), (1 / 30, 0.0)], ids=["west younger", "east younger"]
+)
+def test_where_views_tie_the_most_recent_frame_wins(ages):
+    """The seam's two projectors are mirror images about x = 0, where their views tie (as head-on,
+    as near). With one frame a 30 fps interval older than the other (AGE_SCORE_PER_S / 30 = one
+    SEAM of score), the younger takes e / (1 + e) of the colour there and the seam moves toward
+    the older; pixel by pixel as the scores with their age terms say, and away from the seam
+    geometry still decides."""
+    west, east = (-20.0, 0.0, 10.0), (20.0, 0.0, 10.0)
+    rgb = render_still(
+        ground_plane(np.zeros(2), 0.0, 200.0),
+        _solid(RED),
+        _projector(west, (0.0, 0.0, 0.0)),
+        TOP,
+        SETTINGS,
+        NO_LINES,
+        extras=[(_solid(BLUE), _projector(east, (0.0, 0.0, 0.0)), 0.0)],
+        ages_s=list(ages),
+    ).rgb.astype(float)
+    assert AGE_SCORE_PER_S / 30 == pytest.approx(SEAM)
+    row = SIZE // 2
+    for col in range(SIZE // 2 - 30, SIZE // 2 + 30, 3):
+        x = _ground_x(row, col)
+        sw = _score(west, x) - ages[0] * AGE_SCORE_PER_S
+        se = _score(east, x) - ages[1] * AGE_SCORE_PER_S
+        w_east = 1.0 / (1.0 + math.exp((sw - se) / SEAM))
+        expected = (1.0 - w_east) * RED + w_east * BLUE
+        assert np.abs(rgb[row, col] - expected).max() <= 6.0, (col, x, rgb[row, col], expected)
+    # On the tie itself (the column whose ground point is nearest x = 0, within 0.2 m: geometry
+    # alone would give each close to half) the younger holds about e / (1 + e) = 0.73.
+    col = min(range(SIZE), key=lambda c: abs(_ground_x(row, c)))
+    assert abs(_ground_x(row, col)) < 0.2
+    young = 0 if ages[0] < ages[1] else 2  # its channel: red west, blue east
+    share = rgb[row, col, young] / 255.0
+    assert 0.65 < share < 0.82, share
     assert rgb[row, SIZE // 2 - 40, 0] > 250 and rgb[row, SIZE // 2 + 40, 2] > 250
 
 

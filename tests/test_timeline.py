@@ -120,6 +120,13 @@ def test_the_viewer_plays_two_clips_on_one_timeline(display, tmp_path, monkeypat
     assert first["errors"] == [] and first["frame"] == 150
     expected = line.clips[1].frame_at(float(line.clips[0].times[150]))
     assert first["clips"][0]["frame"] == expected == 152 and first["extra_projectors"] == 1
+    # Each frame's age at the moment drawn (where views tie, the younger wins): the first's is
+    # its clock past its frame's time, the drone's the moment past the drone frame's time.
+    walk_age, drone_age = first["frame_ages_s"]
+    assert 0.0 <= walk_age < 0.034
+    moment = first["timeline_s"] + walk_age
+    assert drone_age == pytest.approx(moment - float(line.clips[1].times[152]), abs=1e-9)
+    assert 0.0 <= drone_age < 0.034 + walk_age
     assert moved["clips"][0]["frame"] == expected - 60  # 2 s later on the timeline at 30 fps
     assert moved["clips"][0]["alpha"] == 0.5 and moved["clips"][0]["source"] == "course"
     assert hidden["clips"][0]["decoder"] is False and hidden["extra_projectors"] == 0

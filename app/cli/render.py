@@ -81,7 +81,7 @@ def _session(args: argparse.Namespace) -> int:
         args.look_at,
         args.far,
     )
-    extras, said = _others(args, session, index)
+    extras, ages, said = _others(args, session, index)
     still = render_still(
         session.scene(),
         read_frame(session.video.path, index, session.video),
@@ -91,6 +91,7 @@ def _session(args: argparse.Namespace) -> int:
         OverlaySettings(frustum=not args.no_frustum),
         trajectory=track.frame_poses().enu,
         extras=extras,
+        ages_s=[0.0, *ages],
     )
     out = write_rgb(args.out, still.rgb)
     print(f"wrote {out}: frame {index} at {pts[index]:.3f} s, attitude from {source}{said}")
@@ -98,20 +99,21 @@ def _session(args: argparse.Namespace) -> int:
     return 1 if nothing_drawn(still.samples, session.scene()) else 0
 
 
-def _others(args: argparse.Namespace, first: Session, index: int) -> tuple[list, str]:
+def _others(args: argparse.Namespace, first: Session, index: int) -> tuple[list, list[float], str]:
     """The further clips' frames (further --session and the first manifest's [[clips]]) at the
     first's frame `index` on one timeline (app.timeline), their cameras moved into the first's
-    local frame; and what to say of them."""
+    local frame; how long before that moment each frame was taken (s); and what to say of
+    them."""
     refs = [(path, 0.0, 0.0) for path in args.session[1:]]
     refs += [(ref.path, ref.offset_s, ref.priority) for ref in first.further]
     if not refs:
-        return [], ""
+        return [], [], ""
     sessions = [
         open_with_source(path, args, IMAGE_SUFFIXES, any_source=True) for path, _, _ in refs
     ]
     line = Timeline.of([first, *(s for s, _ in sessions)], [0.0, *(off for _, off, _ in refs)])
     t = float(line.clips[0].times[index])
-    extras, parts = [], []
+    extras, ages, parts = [], [], []
     for (s, source), span, (_, _, priority) in zip(sessions, line.clips[1:], refs):
         print_messages(s)
         k = span.frame_at(t)
@@ -121,5 +123,6 @@ def _others(args: argparse.Namespace, first: Session, index: int) -> tuple[list,
             continue
         cam = solved(s, source).with_clip(DEFAULT_NEAR_M, args.far).frame_camera(k)
         extras.append((read_frame(s.video.path, k, s.video), onto(s, first)(cam), priority))
+        ages.append(t - float(span.times[k]))
         parts.append(f"{name} frame {k}")
-    return extras, "; with " + ", ".join(parts)
+    return extras, ages, "; with " + ", ".join(parts)

@@ -154,12 +154,14 @@ def _further_clips(
     times = line.clips[0].times
     out = []
     for (s, track, _, priority), span in zip(further, line.clips[1:]):
+        frames = [span.frame_at(float(t)) for t in times]
         out.append(
             FurtherClip(
                 s.video,
                 s.rotation_cw,
                 track,
-                [span.frame_at(float(t)) for t in times],
+                frames,
+                [0.0 if j is None else float(t - span.times[j]) for t, j in zip(times, frames)],
                 onto(s, session),
                 priority,
             )

@@ -70,12 +70,14 @@ def view_camera(
 class FurtherClip:
     """A further clip drawn in an exported video: its video, display rotation, camera track
     (cameras already in its own frame), its frame at each of the first clip's frames (None:
-    nothing then), and the move of its cameras into the first clip's frame."""
+    nothing then) and how long before that moment it was taken (s), and the move of its cameras
+    into the first clip's frame."""
 
     video: VideoInfo
     rotation_cw: int
     track: CameraTrack
     frames: list[int | None]
+    ages_s: list[float]
     move: Callable[[Camera], Camera]
     priority: float = 0.0
 
@@ -168,13 +170,14 @@ def export_video(
                     rotate_for_display(frame.to_ndarray(format="rgb24"), rotation_cw)
                 )
                 renderer.set_projector(projector)
-                views = []
+                views, ages = [], []
                 for clip, reader in zip(further, readers):
                     j = clip.frames[k]
                     rgb_j = None if j is None else reader.get(j)
                     if rgb_j is not None:
                         views.append((clip.move(clip.track.frame_camera(j)), rgb_j, clip.priority))
-                renderer.set_extra_projectors(views)
+                        ages.append(clip.ages_s[k])
+                renderer.set_extra_projectors(views, ages_s=ages)
                 phase = (k - first) / max(1, last - first + 1)
                 rgb = render_to_array(
                     renderer,

@@ -149,10 +149,11 @@ class ScenePass:
         error_scale_m: float = 4.0,
         extras: tuple[ExtraProjector, ...] = (),
         priority: float = 0.0,
+        age_s: float = 0.0,
     ) -> None:
         """Draw into the bound framebuffer. Projection needs projector, depth and video; the error
         overlay a position map from the true camera; extras: further projectors (other clips),
-        at most MAX_EXTRA; priority: the first projector's (see ExtraProjector)."""
+        at most MAX_EXTRA; priority and age_s: the first projector's (see ExtraProjector)."""
         if len(extras) > MAX_EXTRA:
             raise ValueError(f"at most {MAX_EXTRA + 1} projectors at once, got {len(extras) + 1}")
         on = (
@@ -202,6 +203,7 @@ class ScenePass:
         p["u_bias_constant"] = settings.bias_constant_m
         p["u_bias_slope"] = settings.bias_slope
         p["u_proj_priority"] = float(priority)
+        p["u_proj_age"] = float(age_s)
         p["u_seam"] = SEAM
         _set_extras(p, extras)
         p["u_error_scale_m"] = error_scale_m
@@ -230,6 +232,7 @@ class ScenePass:
 
 MAX_EXTRA = 7  # further projectors beside the first (shaders/scene.frag)
 SEAM = 0.02  # score difference over which two views blend (shaders/scene.frag, view_score)
+AGE_SCORE_PER_S = 0.6  # score lost per second of a frame's age: ties go to the most recent frame
 # Texture units of the further projectors' depth maps, videos (RGB or Y) and chroma (U, V)
 EXTRA_DEPTH_UNIT, EXTRA_VIDEO_UNIT, EXTRA_CHROMA_UNIT = 6, 6 + MAX_EXTRA, 6 + 2 * MAX_EXTRA
 SAMPLER_UNITS = {  # the scene shader's other samplers and their texture units
@@ -252,6 +255,7 @@ class ExtraProjector:
     video: ExtraVideo
     priority: float = 0.0
     alpha: float = 1.0  # its opacity over the model (the first projector's: the settings' alpha)
+    age_s: float = 0.0  # how long before the drawn moment its frame was taken (ties: the younger)
 
 
 def _set_extras(p: Uniforms, extras: tuple[ExtraProjector, ...]) -> None:
@@ -270,6 +274,7 @@ def _set_extras(p: Uniforms, extras: tuple[ExtraProjector, ...]) -> None:
         for c, e in zip(cams, extras)
     ]
     p["u_extra_priority"] = [float(e.priority) for e in extras]
+    p["u_extra_age"] = [float(e.age_s) for e in extras]
     p["u_extra_alpha"] = [float(e.alpha) for e in extras]
     # Pinhole extras (no lens uniforms read) stand in with a pinhole's values.
     lenses = [_lens_uniforms(c) for c in cams]

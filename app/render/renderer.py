@@ -42,6 +42,7 @@ class FusionRenderer:
         self.video = VideoTexture(ctx)
         self.projector: Camera | None = None
         self.projector_priority = 0.0
+        self.projector_age = 0.0
         self.reference: Camera | None = None
         self.truth: Camera | None = None
         self._positions = None  # PositionPass, made on first use of the error overlay
@@ -67,22 +68,28 @@ class FusionRenderer:
         """Upload one stored playback frame's planes; the shader turns it by rotation_cw."""
         self.video.set_yuv(y, u, v, rotation_cw, bt709, full_range)
 
-    def set_projector(self, camera: Camera | None, priority: float = 0.0) -> None:
+    def set_projector(
+        self, camera: Camera | None, priority: float = 0.0, age_s: float = 0.0
+    ) -> None:
         """The projector (the video's camera) for the next draws; priority: where further
-        projectors see the same surface, the higher priority wins (set_extra_projectors)."""
+        projectors see the same surface, the higher priority wins (set_extra_projectors); age_s:
+        how long before the drawn moment its frame was taken (where views tie, the younger
+        wins)."""
         self.projector = camera
         self.projector_priority = float(priority)
+        self.projector_age = float(age_s)
 
     def set_extra_projectors(
         self,
         views: list[tuple[Camera, np.ndarray | YuvPlanes, float]],
         alphas: list[float] | None = None,
         colours: list[tuple[float, float, float, float]] | None = None,
+        ages_s: list[float] | None = None,
     ) -> None:
         """Further projectors drawn with the first (several clips at once): each (camera, frame,
         priority), the frame a display-oriented RGB image (H, W, 3) uint8 or a playback frame's
         stored planes (turned and converted to RGB in the shader), with its opacity (default the
-        settings' alpha) and frustum colour. One depth map each, redrawn only when its own pose changes;
+        settings' alpha), frustum colour and frame age (s before the drawn moment; default 0). One depth map each, redrawn only when its own pose changes;
         at most MAX_EXTRA."""
         if len(views) > MAX_EXTRA:
             raise ValueError(f"at most {MAX_EXTRA + 1} projectors at once, got {len(views) + 1}")
@@ -95,7 +102,16 @@ class FusionRenderer:
         for k, (extra, (camera, frame, priority)) in enumerate(zip(self.extras, views)):
             extra.set(camera, frame, priority)
             extra.alpha = None if alphas is None else float(alphas[k])
+            extra.age_s = 0.0 if ages_s is None else float(ages_s[k])
             extra.colour = FRUSTUM_COLOR if colours is None else colours[k]
+
+    def set_ages(self, first_s: float, extras_s: list[float]) -> None:
+        """How long before the drawn moment each projector's frame was taken (s): the first's and
+        each further one's (as set_extra_projectors ordered them). Where views tie, the younger
+        wins; set every frame by a player, without uploading the frames again."""
+        self.projector_age = float(first_s)
+        for extra, age in zip(self.extras, extras_s):
+            extra.age_s = float(age)
 
     def set_reference(self, camera: Camera | None) -> None:
         """A second camera drawn as a frustum beside the projector's (e.g. the true pose)."""
@@ -207,7 +223,9 @@ class FusionRenderer:
                     e.camera, depth_map_size(i.width, i.height, settings.depth_long_side)
                 )
                 alpha = settings.alpha if e.alpha is None else e.alpha
-                extras.append(ExtraProjector(e.camera, e.depth, e.video, e.priority, alpha))
+                extras.append(
+                    ExtraProjector(e.camera, e.depth, e.video, e.priority, alpha, e.age_s)
+                )
         truth_map = self._truth_positions(overlays)
         fbo.use()
         fbo.clear(*BACKGROUND, 1.0, depth=1.0)
@@ -221,6 +239,7 @@ class FusionRenderer:
             overlays.error_scale_m,
             tuple(extras),
             self.projector_priority,
+            self.projector_age,
         )
         vp = view.view_projection
         if overlays.frustum and self.projector is not None:
@@ -272,6 +291,7 @@ class _Extra:
         self.priority = 0.0
         self.alpha: float | None = None  # None: the settings' alpha
         self.colour = FRUSTUM_COLOR
+        self.age_s = 0.0
 
     def set(self, camera: Camera, frame: np.ndarray | YuvPlanes, priority: float) -> None:
         self.video.set(frame)

@@ -72,18 +72,24 @@ def render_still(
     trajectory: npt.ArrayLike | None = None,
     extras: list[tuple[np.ndarray, Camera, float]] | None = None,
     priority: float = 0.0,
+    ages_s: list[float] | None = None,
 ) -> Still:
     """Render `mesh` from `view` with `image` projected from `projector`, and say how much of
     the scene was drawn. extras: further (image, camera, priority) projected at once; priority:
-    the first projector's (where several see a surface: app.render.passes.ExtraProjector)."""
+    the first projector's (where several see a surface: app.render.passes.ExtraProjector);
+    ages_s: the first's and each further frame's age (s before the moment drawn; ties go to the
+    younger), default all 0."""
     ctx = create_offscreen_context()
     renderer = FusionRenderer(ctx, mesh)
     try:
         if image is not None:
             renderer.set_video_frame(image)
-        renderer.set_projector(projector, priority)
+        ages = list(ages_s) if ages_s is not None else [0.0] * (1 + len(extras or []))
+        renderer.set_projector(projector, priority, ages[0])
         renderer.set_trajectory(trajectory)
-        renderer.set_extra_projectors([(cam, img, prio) for img, cam, prio in extras or []])
+        renderer.set_extra_projectors(
+            [(cam, img, prio) for img, cam, prio in extras or []], ages_s=ages[1:]
+        )
         renderer.scene_pass.count_samples = True
         rgb = render_to_array(renderer, view, settings, overlays)
         return Still(rgb, int(renderer.scene_pass.samples or 0))

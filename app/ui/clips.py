@@ -149,7 +149,9 @@ def update(v, now: float, wait_s: float = 0.0) -> None:
         return
     k0 = v.current_index
     t = float(L.timeline.clips[0].times[k0]) if k0 >= 0 else None
-    views, key = [], []
+    # The moment drawn: the first clip's clock, a little after its frame's time.
+    first_age = max(0.0, L.clock.time(now) - float(L.session.video.pts_s[k0])) if k0 >= 0 else 0.0
+    views, key, ages = [], [], []
     for clip, span in zip(L.others, L.timeline.clips[1:]):
         clip.frame = None if t is None or not clip.visible else span.frame_at(t)
         p = clip.player
@@ -167,6 +169,7 @@ def update(v, now: float, wait_s: float = 0.0) -> None:
         camera = clip.move(track.frame_camera(p.index))
         views.append((camera, clip, clip.priority))
         key.append((id(clip), p.index, camera.position, camera.orientation, clip.alpha))
+        ages.append(max(0.0, t + first_age - float(span.times[p.index])))
     if tuple(key) != L.extras_shown:
         L.renderer.set_extra_projectors(
             [(cam, _planes(c), prio) for cam, c, prio in views],
@@ -174,6 +177,7 @@ def update(v, now: float, wait_s: float = 0.0) -> None:
             [c.colour for _, c, _ in views],
         )
         L.extras_shown = tuple(key)
+    L.renderer.set_ages(first_age, ages)
 
 
 def close_all(loaded) -> None:

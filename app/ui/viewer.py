@@ -276,7 +276,7 @@ class Viewer(ViewerJobs, ViewerSessions):
                 registration=_registration_state(L.library.track(REGISTERED)),
                 control=_control_state(ui.control), measure=_measure_state(ui.measure),
                 clips=[{"name": Path(c.session.video.path).name, "visible": c.visible, "frame": c.frame, "decoder": c.player is not None, "offset_s": c.offset_s, "start_s": s.start_s, "source": c.source, "alpha": c.alpha, "frames_shown": 0 if c.player is None else len(c.player.stats.latencies), "dropped": 0 if c.player is None else c.player.stats.dropped, "latency_ms": None if c.player is None else list(c.player.stats.summary())} for c, s in zip(L.others, L.timeline.clips[1:])],
-                extra_projectors=len(L.renderer.extras), timeline_s=None if self.current_index < 0 else float(L.timeline.clips[0].times[self.current_index]),
+                extra_projectors=len(L.renderer.extras), frame_ages_s=[L.renderer.projector_age, *(e.age_s for e in L.renderer.extras)], timeline_s=None if self.current_index < 0 else float(L.timeline.clips[0].times[self.current_index]),
                 archive=None if ui.archive is None else {"path": str(ui.archive.path), "footprints": ui.archive.footprints, "clips": ui.archive.clips, "picked": ui.archive.picked, "opened": ui.archive.opened, "opened_s": ui.archive.opened_s},
                 sync=None if ui.sync_job is None or ui.sync_job.result is None else {"offset_s": ui.sync_job.result.offset_s, "confidence": ui.sync_job.result.confidence},
                 window_camera={"size": [i.width, i.height], "fx": i.fx, "fy": i.fy, "cx": i.cx, "cy": i.cy, "position": list(cam.position), "orientation": list(cam.orientation), "near": cam.near, "far": cam.far},

@@ -276,6 +276,50 @@ def test_a_further_clips_playback_frame_matches_its_rgb_still(rotation):
     assert from_planes.reshape(-1, 3)[inside].std(axis=0).min() > 10
 
 
+def test_further_projectors_beyond_the_drivers_samplers_are_left_out_and_said(gl_ctx):
+    """A driver that lets a shader sample fewer textures than the projectors need (GL guarantees
+    16; llvmpipe has 32): the further projectors that fit are drawn, first ones first, and the
+    rest are left out and said, instead of a shader that fails to link."""
+    from app.render.offscreen import render_to_array
+    from app.render.renderer import FusionRenderer
+
+    colours = [(255, 0, 0), (0, 255, 0), (0, 0, 255), (255, 255, 0)]
+    views = []
+    for k, colour in enumerate(colours):
+        a = 2 * math.pi * k / len(colours)
+        centre = (12.0 * math.cos(a), 12.0 * math.sin(a), 0.0)
+        eye = (centre[0], centre[1], 8.0)
+        cam = Camera.create(
+            Intrinsics.from_fov(160, 120, 30.0),
+            eye,
+            look_at_quat(eye, centre, (0.0, 1.0, 0.0)),
+            0.5,
+            500.0,
+        )
+        views.append((cam, _solid(colour), centre))
+    r = FusionRenderer(gl_ctx, ground_plane(np.zeros(2), 0.0, 200.0))
+    try:
+        r.set_video_frame(views[0][1])
+        r.set_projector(views[0][0])
+        r.set_extra_projectors([(cam, img, 0.0) for cam, img, _ in views[1:]])
+        r.scene_pass.max_samplers = 6 + 2 * 2 + 1  # the first's six, and two further stills
+        rgb = render_to_array(r, TOP, SETTINGS, NO_LINES).astype(int)
+        assert r.scene_pass.left_out == 1 and r.scene_pass.variant["EXTRA_COUNT"] == 2
+        assert r.scene_pass.left_out_message == (
+            "1 further clip(s) not drawn: this OpenGL driver lets a shader sample 11 textures at most"
+        )
+        for cam, img, centre in views[:3]:
+            assert np.abs(rgb[_pixel_of(centre)] - img[0, 0]).max() <= 3, centre
+        last = rgb[_pixel_of(views[3][2])]
+        assert np.abs(last - views[3][1][0, 0]).max() > 100  # the model's colour there
+        r.scene_pass.max_samplers = 32
+        rgb = render_to_array(r, TOP, SETTINGS, NO_LINES).astype(int)
+        assert r.scene_pass.left_out == 0 and r.scene_pass.left_out_message is None
+        assert np.abs(rgb[_pixel_of(views[3][2])] - views[3][1][0, 0]).max() <= 3
+    finally:
+        r.release()
+
+
 def test_render_pairs_images_and_poses_by_order(tmp_path, capsys):
     """`geofuse render` with two --image and two --pose (one --fov for both): the red image
     lands west of the seam and the blue east, as in the seam test; a third --pose is refused."""

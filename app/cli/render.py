@@ -4,6 +4,7 @@ session's frame at --time with its solved pose (--session), to a PNG."""
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from app.camera import Intrinsics
@@ -50,6 +51,8 @@ def run(args: argparse.Namespace) -> int:
         extras=[(img, cam, 0.0) for img, cam in scene.extras],
     )
     out = write_rgb(args.out, still.rgb)
+    if still.left_out:
+        print(f"warning: {still.left_out}", file=sys.stderr)
     shown = f", {1 + len(scene.extras)} images projected" if scene.extras else ""
     print(f"wrote {out} ({still.rgb.shape[1]}x{still.rgb.shape[0]}{shown})")
     print_scene_report(loaded.mesh)
@@ -94,6 +97,8 @@ def _session(args: argparse.Namespace) -> int:
         ages_s=[0.0, *ages],
     )
     out = write_rgb(args.out, still.rgb)
+    if still.left_out:
+        print(f"warning: {still.left_out}", file=sys.stderr)
     print(f"wrote {out}: frame {index} at {pts[index]:.3f} s, attitude from {source}{said}")
     print_scene_report(session.scene())
     return 1 if nothing_drawn(still.samples, session.scene()) else 0

@@ -21,6 +21,7 @@ from app.camera import Camera, Intrinsics, look_at_quat
 from app.camera_track import CameraTrack
 from app.config import OverlaySettings, ProjectionSettings
 from app.constants import VIEW_FAR_M, VIEW_NEAR_M
+from app.errors import GeofuseError
 from app.frame_time import frame_of
 from app.io.video import VideoInfo, media_seconds, rotate_for_display
 from app.render.context import create_offscreen_context
@@ -186,6 +187,8 @@ def export_video(
                     OverlaySettings(frustum=view != "ride", trajectory=False),
                     target,
                 )
+                if renderer.scene_pass.left_out_message:
+                    raise GeofuseError(f"{out}: {renderer.scene_pass.left_out_message}")
                 out_frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(rgb), format="rgb24")
                 out_frame.pts = int(round((video.pts_s[k] - video.pts_s[first]) * 90000))
                 out_frame.time_base = enc.time_base

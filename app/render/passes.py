@@ -114,7 +114,23 @@ class ScenePass:
         # A 1x1 stand-in so that unused samplers are always complete.
         self._blank = ctx.texture((1, 1), 4, bytes([255, 255, 255, 255]))
         self.variant: dict[str, int] = {}  # the defines of the variant drawn last
+        # How many textures the driver lets one fragment shader sample (32 on llvmpipe and
+        # desktop GPUs; GL guarantees 16), and how many further projectors the last frame left
+        # out for want of them.
+        self.max_samplers = int(ctx.info["GL_MAX_TEXTURE_IMAGE_UNITS"])
+        self.left_out = 0
         self.program = self._program({})  # the file's defaults, compiled now: errors show early
+
+    @property
+    def left_out_message(self) -> str | None:
+        """What the last frame left out for want of texture units, in a sentence; None if
+        nothing."""
+        if not self.left_out:
+            return None
+        return (
+            f"{self.left_out} further clip(s) not drawn: this OpenGL driver lets a shader sample"
+            f" {self.max_samplers} textures at most"
+        )
 
     def _program(self, defines: dict[str, int]) -> moderngl.Program:
         """The variant compiled with `defines` (made once)."""
@@ -164,6 +180,9 @@ class ScenePass:
             and video.ready
         )
         extras = extras if settings.enabled else ()
+        fitting = _fitting(extras, self.max_samplers)
+        self.left_out = len(extras) - len(fitting)
+        extras = fitting
         defines = {"PROJECTION": int(on), "EXTRA_COUNT": len(extras)}
         if on or extras:
             defines["NEIGHBOURHOOD"] = int(settings.neighbourhood)
@@ -256,6 +275,19 @@ class ExtraProjector:
     priority: float = 0.0
     alpha: float = 1.0  # its opacity over the model (the first projector's: the settings' alpha)
     age_s: float = 0.0  # how long before the drawn moment its frame was taken (ties: the younger)
+
+
+def _fitting(extras: tuple[ExtraProjector, ...], max_samplers: int) -> tuple[ExtraProjector, ...]:
+    """The further projectors, first ones first, whose textures fit beside the first projector's
+    in a fragment shader that may sample `max_samplers` (the driver's limit): a depth map and an
+    RGB still each, or a depth map and a playback frame's two planes."""
+    used, out = len(SAMPLER_UNITS), []
+    for e in extras:
+        used += 3 if e.video.chroma is not None else 2
+        if used > max_samplers:
+            break
+        out.append(e)
+    return tuple(out)
 
 
 def _set_extras(p: Uniforms, extras: tuple[ExtraProjector, ...]) -> None:

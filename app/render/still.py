@@ -56,10 +56,12 @@ def window_camera(
 @dataclass(frozen=True)
 class Still:
     """A rendered still: rgb (H, W, 3) uint8; samples: how many of the scene's fragments were
-    drawn (an occlusion query; 0: nothing of the scene is in the picture)."""
+    drawn (an occlusion query; 0: nothing of the scene is in the picture); left_out: what could
+    not be drawn for want of texture units, in a sentence (None: everything was)."""
 
     rgb: np.ndarray
     samples: int
+    left_out: str | None = None
 
 
 def render_still(
@@ -92,7 +94,8 @@ def render_still(
         )
         renderer.scene_pass.count_samples = True
         rgb = render_to_array(renderer, view, settings, overlays)
-        return Still(rgb, int(renderer.scene_pass.samples or 0))
+        sp = renderer.scene_pass
+        return Still(rgb, int(sp.samples or 0), sp.left_out_message)
     finally:
         renderer.release()
         ctx.release()

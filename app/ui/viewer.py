@@ -238,6 +238,8 @@ class Viewer(ViewerJobs, ViewerSessions):
         before = L.renderer.depth.renders
         with self.window.region(rect) as screen:
             L.renderer.draw(self.window_camera, screen, self.ui.settings, self.ui.overlays)
+        if L.renderer.scene_pass.left_out_message:
+            self.ui.error(L.renderer.scene_pass.left_out_message + " (hide a clip to choose which)")
         self.stats.depth_redraws += L.renderer.depth.renders - before
         if L.renderer.scene.tilesets:
             self._tile_messages()

@@ -140,17 +140,12 @@ def test_each_projector_keeps_its_own_shadow_and_the_other_fills_it():
     assert grey[0] < 240 and abs(int(grey[0]) - int(grey[2])) < 30
 
 
-def test_eight_projectors_drawn_together():
-    """Eight projectors on a ring, each straight down on its own patch of ground with its own
-    colour: each patch shows its colour."""
-    colours = [
-        (255, 0, 0), (0, 255, 0), (0, 0, 255), (255, 255, 0),
-        (255, 0, 255), (0, 255, 255), (255, 128, 0), (128, 0, 255),
-    ]  # fmt: skip
-    mesh = ground_plane(np.zeros(2), 0.0, 200.0)
+def _ring(colours: list) -> list[tuple[np.ndarray, Camera, tuple]]:
+    """Projectors on a ring of 12 m, each 8 m straight above its own patch of ground with a
+    solid image of its colour: (image, camera, the patch's centre) each."""
     views = []
     for k, colour in enumerate(colours):
-        a = 2 * math.pi * k / 8
+        a = 2 * math.pi * k / len(colours)
         centre = (12.0 * math.cos(a), 12.0 * math.sin(a), 0.0)
         eye = (centre[0], centre[1], 8.0)
         cam = Camera.create(
@@ -160,18 +155,29 @@ def test_eight_projectors_drawn_together():
             0.5,
             500.0,
         )
-        views.append((_solid(colour), cam, 0.0, centre))
-    first, *rest = views
+        views.append((_solid(colour), cam, centre))
+    return views
+
+
+def test_eight_projectors_drawn_together():
+    """Eight projectors on a ring, each straight down on its own patch of ground with its own
+    colour: each patch shows its colour."""
+    colours = [
+        (255, 0, 0), (0, 255, 0), (0, 0, 255), (255, 255, 0),
+        (255, 0, 255), (0, 255, 255), (255, 128, 0), (128, 0, 255),
+    ]  # fmt: skip
+    views = _ring(colours)
+    (first_img, first_cam, _), *rest = views
     rgb = render_still(
-        mesh,
-        first[0],
-        first[1],
+        ground_plane(np.zeros(2), 0.0, 200.0),
+        first_img,
+        first_cam,
         TOP,
         SETTINGS,
         NO_LINES,
-        extras=[(img, cam, prio) for img, cam, prio, _ in rest],
+        extras=[(img, cam, 0.0) for img, cam, _ in rest],
     ).rgb
-    for img, _, _, centre in views:
+    for img, _, centre in views:
         assert np.abs(rgb[_pixel_of(centre)].astype(int) - img[0, 0]).max() <= 3, centre
 
 
@@ -283,39 +289,26 @@ def test_further_projectors_beyond_the_drivers_samplers_are_left_out_and_said(gl
     from app.render.offscreen import render_to_array
     from app.render.renderer import FusionRenderer
 
-    colours = [(255, 0, 0), (0, 255, 0), (0, 0, 255), (255, 255, 0)]
-    views = []
-    for k, colour in enumerate(colours):
-        a = 2 * math.pi * k / len(colours)
-        centre = (12.0 * math.cos(a), 12.0 * math.sin(a), 0.0)
-        eye = (centre[0], centre[1], 8.0)
-        cam = Camera.create(
-            Intrinsics.from_fov(160, 120, 30.0),
-            eye,
-            look_at_quat(eye, centre, (0.0, 1.0, 0.0)),
-            0.5,
-            500.0,
-        )
-        views.append((cam, _solid(colour), centre))
+    views = _ring([(255, 0, 0), (0, 255, 0), (0, 0, 255), (255, 255, 0)])
     r = FusionRenderer(gl_ctx, ground_plane(np.zeros(2), 0.0, 200.0))
     try:
-        r.set_video_frame(views[0][1])
-        r.set_projector(views[0][0])
-        r.set_extra_projectors([(cam, img, 0.0) for cam, img, _ in views[1:]])
+        r.set_video_frame(views[0][0])
+        r.set_projector(views[0][1])
+        r.set_extra_projectors([(cam, img, 0.0) for img, cam, _ in views[1:]])
         r.scene_pass.max_samplers = 6 + 2 * 2 + 1  # the first's six, and two further stills
         rgb = render_to_array(r, TOP, SETTINGS, NO_LINES).astype(int)
         assert r.scene_pass.left_out == 1 and r.scene_pass.variant["EXTRA_COUNT"] == 2
         assert r.scene_pass.left_out_message == (
             "1 further clip(s) not drawn: this OpenGL driver lets a shader sample 11 textures at most"
         )
-        for cam, img, centre in views[:3]:
+        for img, _, centre in views[:3]:
             assert np.abs(rgb[_pixel_of(centre)] - img[0, 0]).max() <= 3, centre
         last = rgb[_pixel_of(views[3][2])]
-        assert np.abs(last - views[3][1][0, 0]).max() > 100  # the model's colour there
+        assert np.abs(last - views[3][0][0, 0]).max() > 100  # the model's colour there
         r.scene_pass.max_samplers = 32
         rgb = render_to_array(r, TOP, SETTINGS, NO_LINES).astype(int)
         assert r.scene_pass.left_out == 0 and r.scene_pass.left_out_message is None
-        assert np.abs(rgb[_pixel_of(views[3][2])] - views[3][1][0, 0]).max() <= 3
+        assert np.abs(rgb[_pixel_of(views[3][2])] - views[3][0][0, 0]).max() <= 3
     finally:
         r.release()
 

@@ -18,11 +18,6 @@ from app.render.video_texture import ExtraVideo, VideoTexture, yuv_matrix
 LIGHT_DIR = np.array([0.35, -0.45, 0.82]) / np.linalg.norm([0.35, -0.45, 0.82])
 
 
-def _mat(m: np.ndarray) -> bytes:
-    """A 4x4 row-major numpy matrix as the column-major float32 bytes GLSL expects."""
-    return np.asarray(m, np.float32).T.tobytes()
-
-
 class DepthPass:
     """Renders the scene's depth from the projector into a depth texture of a given size."""
 
@@ -73,7 +68,7 @@ class DepthPass:
         self.fbo.clear(depth=1.0)
         self.ctx.enable(moderngl.DEPTH_TEST)
         self.ctx.disable(moderngl.CULL_FACE)
-        self.program["u_view_proj"].write(_mat(camera.view_projection))
+        Uniforms(self.program).matrices("u_view_proj", [camera.view_projection])
         for prim in prims:
             prim.vao(self.ctx, self.program, ("in_position",)).render(moderngl.TRIANGLES)
         self.camera, self._drawn = camera, drawn

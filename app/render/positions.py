@@ -8,8 +8,7 @@ import numpy as np
 from app.camera import Camera
 from app.render.context import wait_for_gpu
 from app.render.gpu_scene import GpuScene
-from app.render.passes import _mat
-from app.render.programs import load_program
+from app.render.programs import Uniforms, load_program
 
 
 class PositionPass:
@@ -41,7 +40,7 @@ class PositionPass:
         fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
         self.ctx.enable(moderngl.DEPTH_TEST)
         self.ctx.disable(moderngl.CULL_FACE)
-        self.program["u_view_proj"].write(_mat(camera.view_projection))
+        Uniforms(self.program).matrices("u_view_proj", [camera.view_projection])
         for prim in self.scene.drawables(camera, None, "positions"):
             prim.vao(self.ctx, self.program, ("in_position",)).render(moderngl.TRIANGLES)
 

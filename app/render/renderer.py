@@ -89,8 +89,8 @@ class FusionRenderer:
         """Further projectors drawn with the first (several clips at once): each (camera, frame,
         priority), the frame a display-oriented RGB image (H, W, 3) uint8 or a playback frame's
         stored planes (turned and converted to RGB in the shader), with its opacity (default the
-        settings' alpha), frustum colour and frame age (s before the drawn moment; default 0). One depth map each, redrawn only when its own pose changes;
-        at most MAX_EXTRA."""
+        settings' alpha), frustum colour and frame age (s before the drawn moment; default 0).
+        One depth map each, redrawn only when its own pose changes; at most MAX_EXTRA."""
         if len(views) > MAX_EXTRA:
             raise ValueError(f"at most {MAX_EXTRA + 1} projectors at once, got {len(views) + 1}")
         while len(self.extras) > len(views):

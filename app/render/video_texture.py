@@ -37,6 +37,24 @@ def yuv_to_rgb(
     return np.clip(np.rint(yuv @ m.T * 255.0), 0, 255).astype(np.uint8)
 
 
+def _textures(
+    ctx: moderngl.Context, old: list[moderngl.Texture], shapes: list[tuple[int, int, int]]
+) -> list[moderngl.Texture]:
+    """Video textures of `shapes` (width, height, components), filtered linearly and clamped at
+    the edges: `old` itself where it has those shapes already, else released and made anew."""
+    if [(t.width, t.height, t.components) for t in old] == list(shapes):
+        return old
+    for t in old:
+        t.release()
+    made = []
+    for w, h, c in shapes:
+        t = ctx.texture((w, h), c)
+        t.filter = (moderngl.LINEAR, moderngl.LINEAR)
+        t.repeat_x = t.repeat_y = False
+        made.append(t)
+    return made
+
+
 class VideoTexture:
     """Owns the video textures; `bind(program)` sets the sampler units 2, 3, 4 and the uniforms."""
 
@@ -49,26 +67,12 @@ class VideoTexture:
         self.full_range = False
         self.size = (0, 0)  # displayed size (w, h)
 
-    def _textures(self, shapes: list[tuple[int, int, int]]) -> None:
-        if [(t.width, t.height, t.components) for t in self.planes] == [
-            (w, h, c) for w, h, c in shapes
-        ]:
-            return
-        for t in self.planes:
-            t.release()
-        self.planes = []
-        for w, h, c in shapes:
-            t = self.ctx.texture((w, h), c)
-            t.filter = (moderngl.LINEAR, moderngl.LINEAR)
-            t.repeat_x = t.repeat_y = False
-            self.planes.append(t)
-
     def set_rgb(self, rgb: np.ndarray) -> None:
         """A display-oriented (H, W, 3|4) uint8 frame, row 0 = top."""
         img = np.ascontiguousarray(rgb, dtype=np.uint8)
         if img.ndim != 3 or img.shape[2] not in (3, 4):
             raise ValueError(f"video frame must be (H, W, 3|4) uint8, got {img.shape}")
-        self._textures([(img.shape[1], img.shape[0], img.shape[2])])
+        self.planes = _textures(self.ctx, self.planes, [(img.shape[1], img.shape[0], img.shape[2])])
         self.planes[0].write(img.tobytes())
         self.yuv, self.rotation, self.size = False, 0, (img.shape[1], img.shape[0])
 
@@ -83,7 +87,8 @@ class VideoTexture:
     ) -> None:
         """Stored planes: Y (H, W), U and V (H/2, W/2) uint8; rotation_cw turns them for display."""
         h, w = y.shape
-        self._textures([(w, h, 1), (u.shape[1], u.shape[0], 1), (v.shape[1], v.shape[0], 1)])
+        shapes = [(w, h, 1), (u.shape[1], u.shape[0], 1), (v.shape[1], v.shape[0], 1)]
+        self.planes = _textures(self.ctx, self.planes, shapes)
         for tex, plane in zip(self.planes, (y, u, v)):
             tex.write(np.ascontiguousarray(plane).tobytes())
         self.yuv, self.rotation, self.bt709, self.full_range = (
@@ -131,26 +136,25 @@ class ExtraVideo:
     """A further projector's video as the scene pass samples it: an RGB still (display-oriented)
     as one texture, or a playback frame as stored: Y in `texture` (R8) and U, V in `chroma` (one
     RG8 texture at half size), turned for display and converted to RGB in the shader like the
-    first projector's frames (no conversion on the CPU, where numpy took 130 ms a 1080p frame:
+    first projector's frames (no conversion on the CPU, where numpy took 82 ms a 1080p frame:
     docs/PERFORMANCE.md)."""
 
     def __init__(self, ctx: moderngl.Context) -> None:
         self.ctx = ctx
-        self.texture: moderngl.Texture | None = None
-        self.chroma: moderngl.Texture | None = None  # None: `texture` is an RGB still
+        self.planes: list[moderngl.Texture] = []  # [RGB] or [Y, UV]
         self.rotation = 0  # clockwise degrees from stored to displayed (planes only)
         self.bt709 = False
         self.full_range = False
 
-    def _texture(self, old: moderngl.Texture | None, size: tuple[int, int], components: int):
-        if old is not None and old.size == size and old.components == components:
-            return old
-        if old is not None:
-            old.release()
-        t = self.ctx.texture(size, components)
-        t.filter = (moderngl.LINEAR, moderngl.LINEAR)
-        t.repeat_x = t.repeat_y = False
-        return t
+    @property
+    def texture(self) -> moderngl.Texture | None:
+        """The RGB still, or the Y plane."""
+        return self.planes[0] if self.planes else None
+
+    @property
+    def chroma(self) -> moderngl.Texture | None:
+        """U and V in one texture; None for an RGB still."""
+        return self.planes[1] if len(self.planes) == 2 else None
 
     def set(self, frame: np.ndarray | YuvPlanes) -> None:
         """An RGB frame (H, W, 3) uint8, row 0 the displayed top, or a stored frame's planes."""
@@ -162,25 +166,20 @@ class ExtraVideo:
                     f"YUV planes must be Y (H, W), U and V alike and no larger, got {frame.y.shape}, "
                     f"{frame.u.shape}, {frame.v.shape}"
                 )
-            self.texture = self._texture(self.texture, (w, h), 1)
-            self.chroma = self._texture(self.chroma, (cw, ch), 2)
-            self.texture.write(np.ascontiguousarray(frame.y, np.uint8).tobytes())
-            self.chroma.write(np.stack([frame.u, frame.v], -1).astype(np.uint8).tobytes())
+            self.planes = _textures(self.ctx, self.planes, [(w, h, 1), (cw, ch, 2)])
+            self.planes[0].write(np.ascontiguousarray(frame.y, np.uint8).tobytes())
+            self.planes[1].write(np.stack([frame.u, frame.v], -1).astype(np.uint8).tobytes())
             self.rotation = int(frame.rotation_cw) % 360
             self.bt709, self.full_range = bool(frame.bt709), bool(frame.full_range)
             return
         img = np.ascontiguousarray(frame, dtype=np.uint8)
         if img.ndim != 3 or img.shape[2] != 3:
             raise ValueError(f"a video frame must be (H, W, 3) uint8, got {img.shape}")
-        self.texture = self._texture(self.texture, (img.shape[1], img.shape[0]), 3)
-        self.texture.write(img.tobytes())
-        if self.chroma is not None:
-            self.chroma.release()
-            self.chroma = None
+        self.planes = _textures(self.ctx, self.planes, [(img.shape[1], img.shape[0], 3)])
+        self.planes[0].write(img.tobytes())
         self.rotation = 0
 
     def release(self) -> None:
-        for t in (self.texture, self.chroma):
-            if t is not None:
-                t.release()
-        self.texture = self.chroma = None
+        for t in self.planes:
+            t.release()
+        self.planes = []

@@ -31,9 +31,9 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     grid = tuple(int(v) for v in args.grid.split("x"))
 
-    from app.accuracy import evaluate
-    from app.progress import ProgressBar
+    from app.core.progress import ProgressBar
     from app.session import open_session
+    from app.solve.accuracy import evaluate
 
     t0 = time.perf_counter()
     session = open_session(args.manifest)

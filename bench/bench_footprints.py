@@ -24,10 +24,10 @@ if str(ROOT) not in sys.path:
 
 import shapely  # noqa: E402
 
-from app.demo import SAMPLE_DIR  # noqa: E402
 from app.export.footprint import cell_rings, plan_footprint  # noqa: E402
 from app.export.records import frame_records  # noqa: E402
 from app.session import open_session  # noqa: E402
+from app.simulate.sample import SAMPLE_DIR  # noqa: E402
 from bench.common import table  # noqa: E402
 
 

@@ -22,7 +22,8 @@ CITY_ORIGIN = (47.0, 8.0, 400.0)
 
 
 def _cameras(w: int, h: int, eye, target, p_eye, p_target, photo_shape):
-    from app.camera import Camera, Intrinsics, look_at_quat
+    from app.camera.intrinsics import Intrinsics
+    from app.camera.pinhole import Camera, look_at_quat
 
     view = Camera.create(
         Intrinsics.from_fov(w, h, 60.0), eye, look_at_quat(eye, target), 0.5, 5000.0
@@ -39,8 +40,8 @@ def _cameras(w: int, h: int, eye, target, p_eye, p_target, photo_shape):
 
 def _steady(ctx, renderer, view, projector, target, frames: int):
     """Interleaved on/off frame times (s); the projector turns by a millidegree every frame."""
-    from app import rotations
-    from app.config import ProjectionSettings
+    from app.core.settings import ProjectionSettings
+    from app.geodesy import rotations
 
     on, off = ProjectionSettings(), ProjectionSettings(enabled=False)
     k = [0]
@@ -75,7 +76,7 @@ def _steady(ctx, renderer, view, projector, target, frames: int):
 def _first_full_frame(ctx, renderer, view, target, start: float, limit_s: float = 600.0):
     """Draw frames as the viewer does until the view's tiles are complete: (seconds since
     `start`, frame times while loading)."""
-    from app.config import ProjectionSettings
+    from app.core.settings import ProjectionSettings
 
     times = []
     while time.perf_counter() - start < limit_s:
@@ -96,7 +97,7 @@ def _first_full_frame(ctx, renderer, view, target, start: float, limit_s: float 
 def city(
     ctx, photo, target, w: int, h: int, frames: int, sample_off_ms: float, leaf_detail: int = 24
 ) -> None:
-    from app.geo import LocalFrame
+    from app.geodesy.enu import LocalFrame
     from app.render.renderer import FusionRenderer
     from app.scene.mesh import MeshData
     from app.scene.tiles.tileset import Tileset
@@ -155,7 +156,7 @@ def dem(
 ) -> None:
     import pyproj
 
-    from app.geo import LocalFrame
+    from app.geodesy.enu import LocalFrame
     from app.render.renderer import FusionRenderer
     from app.scene.terrain import read_terrain
     from app.simulate.terrain import hills, write_geotiff

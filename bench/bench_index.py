@@ -34,7 +34,7 @@ import geopandas as gpd  # noqa: E402
 import shapely  # noqa: E402
 
 from app.archive import find, index_archive, place_of, read_clips  # noqa: E402
-from app.geo import METRES_PER_DEGREE  # noqa: E402
+from app.geodesy.enu import METRES_PER_DEGREE  # noqa: E402
 from app.simulate import drone  # noqa: E402
 from app.simulate.phone import write_video  # noqa: E402
 from bench.common import machine, table  # noqa: E402

@@ -33,13 +33,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--readout-ms", type=float, default=30.0)
     args = parser.parse_args(argv)
 
-    from app import rotations
-    from app.camera import Camera, Intrinsics
-    from app.camera_track import camera_track
-    from app.demo import SAMPLE_DIR
+    from app.camera.intrinsics import Intrinsics
+    from app.camera.pinhole import Camera
+    from app.camera.profiles import choose_profile, video_camera
     from app.export.records import FootprintCaster
-    from app.lens import choose_profile, video_camera
+    from app.geodesy import rotations
     from app.session import open_session
+    from app.session.camera_track import camera_track
+    from app.simulate.sample import SAMPLE_DIR
 
     session = open_session(SAMPLE_DIR / "session.toml")
     track = camera_track(session, "truth", true_timing=True)

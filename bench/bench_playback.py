@@ -57,7 +57,7 @@ def make_drone_clip(folder: Path, seconds: float, size: tuple[int, int] = (640, 
 
 def sample_session_with(video: Path, out: Path) -> Path:
     """The sample session's manifest with another video (same start time, model and sensors)."""
-    from app.demo import SAMPLE_DIR
+    from app.simulate.sample import SAMPLE_DIR
 
     text = (SAMPLE_DIR / "session.toml").read_text()
     for name in (
@@ -208,8 +208,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     size = tuple(int(v) for v in args.size.split("x"))
 
-    from app.demo import SAMPLE_DIR
     from app.io.video import probe
+    from app.simulate.sample import SAMPLE_DIR
 
     print(
         f"# playback benchmark\n\n{machine()}; the viewer's window {size[0]}x{size[1]} (default panels and depth map); {args.seconds:g} s of 1x playback each{', while the registered source is solved in the background' if args.while_registering else ', every source solved first'}\n"

@@ -31,21 +31,21 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from app import rotations  # noqa: E402
-from app.camera import Camera  # noqa: E402
-from app.camera_track import camera_track, frame_clock  # noqa: E402
+from app.camera.pinhole import Camera  # noqa: E402
+from app.core.progress import ProgressBar  # noqa: E402
+from app.geodesy import rotations  # noqa: E402
 from app.io.video import (  # noqa: E402
     frames_at,  # noqa: E402
     probe,
     rotate_for_display,
 )
-from app.progress import ProgressBar  # noqa: E402
 from app.register import MatchSettings, Registrar, RegistrationSettings  # noqa: E402
 from app.register.solve import keyframe_indices  # noqa: E402
 from app.render.context import create_offscreen_context, describe  # noqa: E402
 from app.session import open_session  # noqa: E402
+from app.session.camera_track import camera_track, frame_clock  # noqa: E402
 from app.simulate.phone import write_video  # noqa: E402
-from app.solve import solve_track  # noqa: E402
+from app.solve.track import solve_track  # noqa: E402
 from bench.common import table  # noqa: E402
 
 FOG_S = (20.0, 35.0)

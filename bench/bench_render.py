@@ -70,17 +70,18 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     w, h = (int(v) for v in args.size.split("x"))
 
-    from app.camera import Intrinsics, depth_map_size
-    from app.config import ProjectionSettings
-    from app.demo import SAMPLE_ORIGIN, SAMPLE_PHOTO, SAMPLE_PHOTO_POSE, SAMPLE_SCENE
-    from app.geo import LocalFrame
-    from app.imageio import read_rgb
+    from app.camera.intrinsics import Intrinsics
+    from app.camera.pinhole import depth_map_size
+    from app.core.imageio import read_rgb
+    from app.core.settings import ProjectionSettings
+    from app.geodesy.enu import LocalFrame
     from app.render.context import create_offscreen_context, describe
     from app.render.offscreen import OffscreenTarget
     from app.render.renderer import FusionRenderer
     from app.render.still import window_camera
     from app.scene import load_scene
     from app.simulate.photo import photo_camera
+    from app.simulate.sample import SAMPLE_ORIGIN, SAMPLE_PHOTO, SAMPLE_PHOTO_POSE, SAMPLE_SCENE
 
     frame = LocalFrame(*SAMPLE_ORIGIN)
     mesh = load_scene(SAMPLE_SCENE, frame)
@@ -196,9 +197,10 @@ def dense_scene(ctx, renderer, mesh, photo, target, w: int, h: int, frames: int)
     """The large mesh drawn whole: the window camera sees all of it, the projector a part; the
     depth map is redrawn every frame (the projector turns by a millidegree each frame, as a
     moving video's does), projection on and off interleaved in the same run."""
-    from app import rotations
-    from app.camera import Camera, Intrinsics, look_at_quat
-    from app.config import ProjectionSettings
+    from app.camera.intrinsics import Intrinsics
+    from app.camera.pinhole import Camera, look_at_quat
+    from app.core.settings import ProjectionSettings
+    from app.geodesy import rotations
 
     lo, hi = mesh.bounds()
     centre = (lo + hi) / 2
@@ -257,10 +259,10 @@ def projectors(ctx, renderer, view, target, photo, frame, frames: int) -> None:
     one projector's, the counts interleaved frame by frame in the same run. Beside it, in the same
     run, what a frame is made of: the scene pass alone (the poses kept, so no depth map is
     redrawn) and one depth pass at the settings' size."""
-    from app.camera import depth_map_size
-    from app.config import ProjectionSettings
-    from app.demo import SAMPLE_PHOTO_POSE
+    from app.camera.pinhole import depth_map_size
+    from app.core.settings import ProjectionSettings
     from app.simulate.photo import photo_camera
+    from app.simulate.sample import SAMPLE_PHOTO_POSE
 
     settings = ProjectionSettings()
     counts = (1, 2, 4, 8)
@@ -355,7 +357,7 @@ def further_frames(ctx, renderer, view, target, frames: int) -> None:
     they are (what the viewer does: the scene shader turns and converts them), alternated in the
     same run, per frame size; and what the planes cost the scene pass (one further projector,
     its depth map kept), RGB and planes alternated."""
-    from app.config import ProjectionSettings
+    from app.core.settings import ProjectionSettings
     from app.render.video_texture import ExtraVideo, YuvPlanes, yuv_to_rgb
 
     shown = ExtraVideo(ctx)

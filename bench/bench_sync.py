@@ -33,8 +33,8 @@ def _ms(x: float) -> str:
 
 
 def sample_rows() -> list[list[str]]:
-    from app.demo import SAMPLE_DIR
     from app.session import open_session
+    from app.simulate.sample import SAMPLE_DIR
     from app.sync import bearings_of, estimate_offset, gyro_rates, video_rates
 
     s = open_session(SAMPLE_DIR / "session.toml")
@@ -63,7 +63,7 @@ def sample_rows() -> list[list[str]]:
 
 
 def drone_rows(folder: Path) -> list[list[str]]:
-    from app.clips import open_clip
+    from app.footage.clips import open_clip
     from app.simulate import drone
     from app.sync import bearings_of, estimate_offset, gyro_rates, video_rates
 

@@ -17,14 +17,14 @@ import shapely
 
 from app.archive import find, index_clip, place_of, read_clips
 from app.archive.store import write_archive
+from app.camera.frame_time import frame_at
 from app.cli import main
-from app.demo import SAMPLE_DIR
 from app.export.footprint import plan_footprint
 from app.export.records import frame_records
-from app.frame_time import frame_at
 from app.session import open_session
 from app.simulate import drone
 from app.simulate.phone import write_video
+from app.simulate.sample import SAMPLE_DIR
 from tests.conftest import run_viewer
 
 pytestmark = pytest.mark.shared_data

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from app import rotations
 from app.attitude import kernels
 from app.attitude.filters import estimate, initial_orientation
 from app.attitude.metrics import broad_rms
+from app.geodesy import rotations
 
 FIELD = np.array([0.0, 20.0, -40.0])  # uT, ENU: north and down
 RATE = 100.0

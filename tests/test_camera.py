@@ -1,8 +1,9 @@
 import numpy as np
 import pytest
 
-from app import rotations
-from app.camera import Camera, Intrinsics, depth_map_size, look_at_quat, projection_matrix
+from app.camera.intrinsics import Intrinsics, projection_matrix
+from app.camera.pinhole import Camera, depth_map_size, look_at_quat
+from app.geodesy import rotations
 
 
 def test_projection_matrix_by_hand():

@@ -3,7 +3,7 @@ import pytest
 from PIL import Image
 
 from app.cli import main
-from app.demo import SAMPLE_ORIGIN, SAMPLE_PHOTO, SAMPLE_PHOTO_POSE, SAMPLE_SCENE
+from app.simulate.sample import SAMPLE_ORIGIN, SAMPLE_PHOTO, SAMPLE_PHOTO_POSE, SAMPLE_SCENE
 
 ORIGIN = ",".join(map(str, SAMPLE_ORIGIN))
 P = SAMPLE_PHOTO_POSE
@@ -27,8 +27,8 @@ def base_args(out, **over):
 @pytest.mark.gl
 def test_render_through_the_phone_reproduces_the_photo(tmp_path, gl_ctx):
     """Seen from the photo's own pose with its own field of view, the projected video is the photo."""
-    from app import rotations
-    from app.geo import LocalFrame
+    from app.geodesy import rotations
+    from app.geodesy.enu import LocalFrame
     from app.simulate.photo import photo_camera
 
     cam = photo_camera(SAMPLE_PHOTO_POSE, LocalFrame(*SAMPLE_ORIGIN))

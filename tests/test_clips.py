@@ -87,8 +87,8 @@ def test_a_dji_clip_gets_the_lens_profile_of_the_camera_its_mp4_names(
     """The subtitle names no aircraft; the MP4's camera code (FC3170: a Mavic Air 2) chooses the
     profile, which is said with its reason, scaled to the video, and brings its readout time;
     --lens overrides it; a file naming no camera, or an unknown one, is said to get a pinhole."""
-    from app.clips import open_clip
-    from app.lens import read_profile
+    from app.camera.lens import read_profile
+    from app.footage.clips import open_clip
     from app.simulate.mp4meta import intl_text
 
     video = _dji_clip_naming(
@@ -151,8 +151,8 @@ def test_view_a_dji_clip_screenshot(dji_clip, display, tmp_path):
     above the assumed ground (the subtitle's height above take-off), at the frame due."""
     import json
 
-    from app.camera_track import camera_track
-    from app.clips import open_clip
+    from app.footage.clips import open_clip
+    from app.session.camera_track import camera_track
 
     out, state = tmp_path / "dji.png", tmp_path / "dji.json"
     script = tmp_path / "s.txt"
@@ -221,8 +221,8 @@ def test_telemetry_bad_files_exit_2(shared_data, capsys, folder, name, message):
 
 
 def test_manifest_naming_gopro_telemetry(shared_data, tmp_path):
-    from app.camera_track import camera_track
     from app.session import open_session
+    from app.session.camera_track import camera_track
 
     clip = shared_data / "real" / "gopro" / "max-heromode.mp4"
     scene = tmp_path / "ground.obj"
@@ -247,9 +247,9 @@ def test_manifest_naming_gopro_telemetry(shared_data, tmp_path):
 
 def test_manifest_naming_a_dji_subtitle_takes_off_from_the_scene(dji_clip, tmp_path):
     """Heights above take-off + the scene's ground under the first position (20 m here)."""
-    from app.geo import LocalFrame
+    from app.geodesy.enu import LocalFrame
     from app.session import open_session
-    from app.solve import solve_frames
+    from app.solve.track import solve_frames
 
     lat, lon = -34.237922, -58.851745  # the first P4 RTK position
     frame = LocalFrame(lat, lon, 20.0)
@@ -278,7 +278,7 @@ def test_manifest_naming_a_dji_subtitle_takes_off_from_the_scene(dji_clip, tmp_p
 def test_course_pitch_setting_resolves_the_track(shared_data, tmp_path):
     """The viewer asks the solver library for another pitch; the library re-solves the course
     source under its own lock and bumps its version; the session itself never changes."""
-    from app.clips import open_clip
+    from app.footage.clips import open_clip
     from app.playback.library import SolverLibrary
     from app.simulate.phone import write_video
 

@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from app.errors import DataFormatError
+from app.core.errors import DataFormatError
+from app.core.messages import Messages
 from app.io.dji_srt import check_duration, read_srt
-from app.messages import Messages
 
 pytestmark = pytest.mark.shared_data
 

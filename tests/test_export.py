@@ -13,16 +13,17 @@ import zipfile
 import numpy as np
 import pytest
 
-from app import rotations
-from app.camera import Camera, Intrinsics
+from app.camera.intrinsics import Intrinsics
+from app.camera.pinhole import Camera
 from app.cli import main
-from app.demo import SAMPLE_DIR
 from app.export.gis import FMV_FIELDS, counter_clockwise_ring
 from app.export.records import FootprintCaster, frame_records
-from app.geo import LocalFrame
-from app.geoid import undulation
+from app.geodesy import rotations
+from app.geodesy.enu import LocalFrame
+from app.geodesy.geoid import undulation
 from app.scene.ground_plane import ground_plane
-from app.solve import solve_frames
+from app.simulate.sample import SAMPLE_DIR
+from app.solve.track import solve_frames
 
 pytestmark = pytest.mark.gl
 SAMPLE = SAMPLE_DIR / "session.toml"
@@ -78,7 +79,7 @@ def test_footprints_follow_the_truth(sample):
     degree), median over the border, on every frame whose border stays on the model."""
     from dataclasses import replace
 
-    from app.camera_track import camera_track, frame_clock
+    from app.session.camera_track import camera_track, frame_clock
 
     every = 200
     est = list(frame_records(sample, "gd-ahrs", every))
@@ -284,14 +285,14 @@ def test_klv_round_trips_through_an_independent_decoder(sample, tmp_path):
 def test_the_fused_video_has_every_frame_and_matches_an_offscreen_render(sample, tmp_path):
     import av
 
-    from app.camera_track import camera_track
-    from app.config import OverlaySettings, ProjectionSettings
+    from app.camera.frame_time import frame_at
+    from app.core.settings import OverlaySettings, ProjectionSettings
     from app.export.video import EXPORT_ALPHA, view_camera
-    from app.frame_time import frame_at
     from app.io.video import read_frame
     from app.render.context import create_offscreen_context
     from app.render.offscreen import render_to_array
     from app.render.renderer import FusionRenderer
+    from app.session.camera_track import camera_track
 
     out = tmp_path / "fused.mp4"
     assert (

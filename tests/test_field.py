@@ -7,15 +7,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from app import rotations
 from app.attitude.heading import COURSE_HOLD_SPEED_MPS, course_headings
-from app.errors import DataFormatError
-from app.geo import LocalFrame
+from app.camera.trajectory import estimate_velocity
+from app.core.errors import DataFormatError
+from app.core.messages import Messages
+from app.geodesy import rotations
+from app.geodesy.enu import LocalFrame
 from app.io.streams import GnssTrack, plausible_fixes
-from app.messages import Messages
 from app.session import open_session
 from app.simulate.phone import walking_pan, write_session
-from app.trajectory import estimate_velocity
 
 
 def _track(t, enu, frame=LocalFrame(46.0, 14.0, 300.0)):
@@ -91,9 +91,9 @@ def test_a_hovering_drone_keeps_its_heading():
 
 def test_a_drone_subtitle_with_its_own_yaw_gives_the_course_heading(tmp_path):
     """No gimbal angles, but the aircraft's yaw ([Drone: Yaw ...]): the course source takes it."""
-    from app.clips import open_clip
+    from app.footage.clips import open_clip
     from app.simulate.phone import write_video
-    from app.solve import solve_frames
+    from app.solve.track import solve_frames
 
     lines = []
     for k in range(12):
@@ -144,7 +144,7 @@ def test_a_phone_without_magnetometer_shows_its_own_orientation_first(
 
 
 def test_a_session_without_a_scene_projects_on_the_assumed_ground(tmp_path):
-    from app.solve import solve_frames
+    from app.solve.track import solve_frames
 
     manifest = write_session(tmp_path, walking_pan(), duration_s=6.0)
     text = manifest.read_text()

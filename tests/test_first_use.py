@@ -12,13 +12,13 @@ import numpy as np
 import pytest
 
 from app.cli import main
-from app.demo import SAMPLE_SCENE
-from app.errors import ManifestError, SceneError
-from app.geo import LocalFrame
-from app.progress import ProgressBar
+from app.core.errors import ManifestError, SceneError
+from app.core.progress import ProgressBar
+from app.geodesy.enu import LocalFrame
 from app.scene import load_scene
 from app.session import open_session, read_config
 from app.simulate import session as sample
+from app.simulate.sample import SAMPLE_SCENE
 from tests.conftest import run_viewer
 
 

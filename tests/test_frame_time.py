@@ -9,11 +9,11 @@ import re
 import numpy as np
 import pytest
 
+from app.camera.frame_time import frame_at, frame_of
 from app.cli import main
-from app.demo import SAMPLE_DIR
-from app.frame_time import frame_at, frame_of
 from app.playback.clock import FrameSchedule
 from app.session import open_session
+from app.simulate.sample import SAMPLE_DIR
 
 
 def test_the_frame_shown_is_the_last_at_or_before_t():

@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
 
-from app import geo
-from app.constants import WGS84_A, WGS84_E2
+from app.core.constants import WGS84_A, WGS84_E2
+from app.geodesy import enu as geo
 
 ORIGIN = (34.80, 113.53, 110.0)
 

@@ -9,7 +9,7 @@ import pytest
 
 from app.attitude.gopro import read_gopro
 from app.cli import main
-from app.errors import DataFormatError
+from app.core.errors import DataFormatError
 from app.io.gopro import orin_map
 from app.io.gpmf import Counts, chunks, parse
 
@@ -74,7 +74,7 @@ def test_gravity_on_an_upright_camera(max_recording):
 
 def test_gyroscope_agrees_with_the_cameras_own_orientation(max_recording):
     """The fitted axis mapping makes the gyro integrate to the camera's own orientation (CORI)."""
-    from app import rotations
+    from app.geodesy import rotations
 
     cam = max_recording.camera
     g = max_recording.gyr
@@ -95,7 +95,7 @@ def test_timing_spreads_samples_over_payload_spans(max_recording):
 
 def test_solve_every_source_one_row_per_frame(gopro, tmp_path, capsys):
     clip = gopro / "max-heromode.mp4"
-    from app.clips import open_clip
+    from app.footage.clips import open_clip
 
     session = open_clip(clip)
     assert "magnetometer reads" in " ".join(session.messages.items)  # 521 uT: rejected

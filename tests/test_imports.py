@@ -1,6 +1,7 @@
 """What depends on what: no import cycle among the app's modules, counting imports inside
-functions (where cycles hide) and the package __init__ every import of a submodule runs; and the
-commands that need no filter or GL start without loading numba or OpenGL."""
+functions and those made for type checking only (where cycles hide), and the package __init__
+every import of a submodule runs; the packages of app/ form layers (no cycle among them either);
+and the commands that need no filter or GL start without loading numba or OpenGL."""
 
 from __future__ import annotations
 
@@ -28,19 +29,13 @@ def _modules() -> dict[str, Path]:
 
 
 def _imports(name: str, path: Path, mods: dict[str, Path]) -> set[str]:
-    """Modules `name` imports at run time (TYPE_CHECKING blocks left out), with the packages
-    whose __init__ each import runs (not `name`'s own, already running)."""
+    """Modules `name` imports (at run time or for type checking alike), with the packages whose
+    __init__ each import runs (not `name`'s own, already running)."""
     tree = ast.parse(path.read_text())
-    typing_only = {
-        id(sub)
-        for node in ast.walk(tree)
-        if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test)
-        for sub in ast.walk(node)
-    }
     own = {".".join(name.split(".")[:i]) for i in range(1, name.count(".") + 2)}
     out: set[str] = set()
     for node in ast.walk(tree):
-        if id(node) in typing_only or not isinstance(node, (ast.Import, ast.ImportFrom)):
+        if not isinstance(node, (ast.Import, ast.ImportFrom)):
             continue
         if isinstance(node, ast.Import):
             targets = [a.name for a in node.names]
@@ -58,9 +53,7 @@ def _imports(name: str, path: Path, mods: dict[str, Path]) -> set[str]:
     return out
 
 
-def test_no_import_cycles():
-    mods = _modules()
-    graph = {m: _imports(m, p, mods) for m, p in mods.items()}
+def _cycles(graph: dict[str, set[str]]) -> list[str]:
     state: dict[str, int] = {}  # 1: on the path, 2: done
     cycles = []
 
@@ -76,7 +69,36 @@ def test_no_import_cycles():
     for m in sorted(graph):
         if m not in state:
             visit(m, [m])
-    assert cycles == []
+    return cycles
+
+
+def _graph() -> dict[str, set[str]]:
+    mods = _modules()
+    return {m: _imports(m, p, mods) for m, p in mods.items()}
+
+
+def test_no_import_cycles():
+    assert _cycles(_graph()) == []
+
+
+def test_packages_form_layers():
+    """`ls app/` reads as the architecture: every module sits in a package (no loose module but
+    __init__ and __main__), and the packages import one another in one direction only, so each
+    can be read knowing only those below it (docs/ARCHITECTURE.md lists them in this order)."""
+    loose = sorted(p.name for p in APP.glob("*.py"))
+    assert loose == ["__init__.py", "__main__.py"]
+    layers: dict[str, set[str]] = {}
+    for m, targets in _graph().items():
+        parts = m.split(".")
+        if len(parts) < 2 or parts[1] == "__main__":
+            continue
+        layers.setdefault(parts[1], set()).update(
+            t.split(".")[1] for t in targets if t.split(".")[1] != parts[1]
+        )
+    assert _cycles(layers) == []
+    assert layers["core"] == set()  # the ground floor imports nothing of the app
+    assert layers["geodesy"] <= {"core"}
+    assert {"render", "ui"} & (layers["camera"] | layers["session"] | layers["io"]) == set()
 
 
 def _loaded(*argv: str) -> set[str]:

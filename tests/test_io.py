@@ -7,13 +7,13 @@ import zipfile
 import numpy as np
 import pytest
 
-from app import rotations
-from app.errors import DataFormatError, VideoError
+from app.core.errors import DataFormatError, VideoError
+from app.core.messages import Messages
+from app.geodesy import rotations
 from app.io import csvlog
 from app.io.gpx import read_gpx
 from app.io.sensorlogger import read_sensorlogger
 from app.io.video import probe, read_frame
-from app.messages import Messages
 from app.simulate.phone import write_video
 
 

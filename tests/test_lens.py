@@ -8,10 +8,11 @@ import json
 import numpy as np
 import pytest
 
-from app import rotations
-from app.camera import Camera, Intrinsics
-from app.errors import DataFormatError
-from app.lens import Lens, enclosing_intrinsics, read_profile
+from app.camera.intrinsics import Intrinsics
+from app.camera.lens import Lens, enclosing_intrinsics, read_profile
+from app.camera.pinhole import Camera
+from app.core.errors import DataFormatError
+from app.geodesy import rotations
 from app.scene.mesh import MeshData, Primitive
 
 FISHEYE = Lens.create(
@@ -88,7 +89,7 @@ def _pixels(w: int, h: int) -> np.ndarray:
 
 def _renders(renderer, view: Camera, shots: list[tuple[np.ndarray, Camera]]) -> list[np.ndarray]:
     """One off-screen render of `view` per (video frame, projector), the video opaque."""
-    from app.config import OverlaySettings, ProjectionSettings
+    from app.core.settings import OverlaySettings, ProjectionSettings
     from app.render.offscreen import render_to_array
 
     out = []
@@ -178,7 +179,7 @@ def test_a_fisheye_checkerboard_lands_straight_on_a_wall(gl_ctx):
 
 
 def test_a_gopro_clip_gets_a_lens_profile_chosen_and_said(shared_data, tmp_path):
-    from app.clips import open_clip
+    from app.footage.clips import open_clip
 
     clip = shared_data / "real" / "gopro" / "max-heromode.mp4"
     s = open_clip(clip)
@@ -250,7 +251,7 @@ def test_the_dji_camera_is_read_from_the_mp4(tmp_path):
 def test_dji_profiles_are_found_under_their_many_spellings_and_shapes():
     """The database's users spell one drone several ways ('Mavic Air 2', 'AIR2', 'Air 2'); a
     profile of another frame shape is never stretched onto the video."""
-    from app.lens import choose_profile, profile_names
+    from app.camera.profiles import choose_profile, profile_names
 
     for model in ("Mavic Air 2", "Air3", "Mini 3 Pro", "Mavic3Classic", "Phantom 4"):
         path, why = choose_profile("DJI", model, 3840, 2160)
@@ -277,7 +278,7 @@ def test_footprints_through_a_lens_use_its_own_border():
     """A fisheye camera 40 m over flat ground looking straight down: each exported corner lies
     where the lens's own (undistorted) corner ray meets the ground, not the enclosing pinhole's."""
     from app.export.records import FootprintCaster
-    from app.geo import LocalFrame
+    from app.geodesy.enu import LocalFrame
     from app.scene.ground_plane import ground_plane
 
     lens = FISHEYE.scaled(960, 540)
@@ -385,7 +386,7 @@ def test_rolling_shutter_of_a_portrait_display_runs_across_its_columns(gl_ctx):
     are read from the display's right edge to its left. A 60 deg/s tilt with a 30 ms readout,
     corrected along that axis, lands the cells where a global shutter's would (within 2 px);
     corrected along the display's rows, as for a landscape video, it does not."""
-    from app.camera_track import readout_axis
+    from app.session.camera_track import readout_axis
 
     intr = Intrinsics(360, 640, 420.0, 420.0, 180.0, 320.0)
     q_mid = rotations.camera_quat_from_hpr(0.0, 0.0, 0.0)
@@ -403,8 +404,8 @@ def test_a_session_track_carries_the_rolling_shutter_turn(tmp_path):
     """camera.readout_ms in a manifest: every camera of the track carries the turn between its
     first and last rows, the track's own rotation over the readout (here a phone on a walk:
     checked against the pose track at the row times)."""
-    from app.camera_track import camera_track
     from app.session import open_session
+    from app.session.camera_track import camera_track
     from app.simulate.phone import walking_pan, write_session
 
     manifest = write_session(tmp_path, walking_pan(), duration_s=6.0, rotation_cw=0)

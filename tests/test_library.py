@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from app.frame_time import corrected_times
+from app.camera.frame_time import corrected_times
 from app.playback.library import SolverLibrary
 from app.session import open_session
 from app.simulate.phone import walking_pan, write_session
@@ -48,7 +48,7 @@ def test_a_time_offset_moves_every_camera_along_its_track(session):
 
 def test_a_sync_with_clock_drift_reaches_every_track(session):
     """The viewer's Sync applies the drift it found, not only the offset, through the one
-    conversion the manifest's "auto" offset uses (app.frame_time.corrected_times)."""
+    conversion the manifest's "auto" offset uses (app.camera.frame_time.corrected_times)."""
     lib = SolverLibrary(session)
     assert lib.wait(timeout=60)
     base = lib.track("gd-ahrs").clock.session_time([5.0, 15.0])

@@ -1,4 +1,4 @@
-"""`geofuse locate` and app.locate: the point of the scene a pixel sees, occlusion included,
+"""`geofuse locate` and app.locate.location: the point of the scene a pixel sees, occlusion included,
 checked against numbers worked out by hand, a lens profile's own projection, the sky, and the
 sample's footprints."""
 
@@ -12,14 +12,15 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from app.camera.lens import read_profile
+from app.camera.profiles import still_camera
 from app.cli import main
-from app.demo import SAMPLE_DIR
 from app.export.records import frame_records
-from app.geo import LocalFrame
-from app.lens import read_profile, still_camera
-from app.locate import Locator, locate
+from app.geodesy.enu import LocalFrame
+from app.locate.location import Locator, locate
 from app.scene import load_scene
 from app.session import open_session
+from app.simulate.sample import SAMPLE_DIR
 from tests.conftest import ROOT
 
 ORIGIN = (46.05, 14.5, 300.0)

@@ -1,4 +1,4 @@
-"""Measure and mark (app.marks, app.ui.measure): figures worked out by hand, marks as valid
+"""Measure and mark (app.locate.marks, app.ui.measure): figures worked out by hand, marks as valid
 GeoJSON and KML read by independent parsers, kept beside the input and read back; and in the
 viewer under Xvfb, a polygon marked on the draped video that lies on the model."""
 
@@ -12,13 +12,14 @@ import numpy as np
 import pytest
 from shapely.geometry import shape
 
-from app.camera import Camera, Intrinsics, look_at_quat
-from app.demo import SAMPLE_DIR
-from app.geo import LocalFrame
-from app.geoid import undulation
-from app.marks import Mark, marks_geojson, marks_kml, marks_path, measure, read_marks
+from app.camera.intrinsics import Intrinsics
+from app.camera.pinhole import Camera, look_at_quat
+from app.geodesy.enu import LocalFrame
+from app.geodesy.geoid import undulation
+from app.locate.marks import Mark, marks_geojson, marks_kml, marks_path, measure, read_marks
 from app.render.probe import SurfaceProbe
 from app.session import open_session
+from app.simulate.sample import SAMPLE_DIR
 from tests.conftest import run_viewer
 
 FRAME = LocalFrame(46.05, 14.5, 300.0)

@@ -1,4 +1,4 @@
-"""The message channel (app/messages.py): levels, one at a time from many threads, and what a
+"""The message channel (app/core/messages.py): levels, one at a time from many threads, and what a
 background solve adds reaching the viewer and the CLI after the session opened."""
 
 from __future__ import annotations
@@ -9,8 +9,8 @@ from types import SimpleNamespace
 import pytest
 
 from app.cli import main
-from app.demo import SAMPLE_DIR
-from app.messages import ERROR, INFO, WARNING, Messages
+from app.core.messages import ERROR, INFO, WARNING, Messages
+from app.simulate.sample import SAMPLE_DIR
 from app.ui.viewer import Options, Viewer
 
 

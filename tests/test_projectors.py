@@ -9,10 +9,11 @@ import math
 import numpy as np
 import pytest
 
-from app.camera import Camera, Intrinsics, look_at_quat
-from app.config import OverlaySettings, ProjectionSettings
+from app.camera.intrinsics import Intrinsics
+from app.camera.lens import Lens, enclosing_intrinsics
+from app.camera.pinhole import Camera, look_at_quat
+from app.core.settings import OverlaySettings, ProjectionSettings
 from app.io.video import rotate_for_display
-from app.lens import Lens, enclosing_intrinsics
 from app.render.passes import AGE_SCORE_PER_S, SEAM
 from app.render.still import render_still
 from app.render.video_texture import YuvPlanes, yuv_to_rgb
@@ -208,7 +209,7 @@ def test_further_projectors_each_through_their_own_lens(fisheye_at):
     """Two further projectors beside the first, one pinhole and one through a fisheye lens (the
     shader variant knows which, by their order): the fisheye's video is a gradient whose red
     counts its columns and green its rows, and ground points seen from the top show the colour
-    of the pixel the lens model (app.lens) puts them at, where the pinhole's would be tens of
+    of the pixel the lens model (app.camera.lens) puts them at, where the pinhole's would be tens of
     levels off."""
     eye = (0.0, 0.0, 10.0)
     fish = Camera.create(
@@ -319,7 +320,7 @@ def test_render_pairs_images_and_poses_by_order(tmp_path, capsys):
     from PIL import Image
 
     from app.cli import main
-    from app.geo import LocalFrame
+    from app.geodesy.enu import LocalFrame
 
     ground = tmp_path / "ground.obj"
     ground.write_text("v -200 -200 0\nv 200 -200 0\nv 200 200 0\nv -200 200 0\nf 1 2 3\nf 1 3 4\n")

@@ -13,14 +13,14 @@ import cv2
 import numpy as np
 import pytest
 
-from app import rotations
-from app.camera import Camera, Intrinsics
-from app.camera_track import camera_track, frame_clock
-from app.demo import SAMPLE_DIR, SAMPLE_SCENE
-from app.errors import DataFormatError, GeofuseError
-from app.geo import LocalFrame
+from app.camera.intrinsics import Intrinsics
+from app.camera.lens import Lens
+from app.camera.pinhole import Camera
+from app.camera.trajectory import PoseTrack, PositionTrack
+from app.core.errors import DataFormatError, GeofuseError
+from app.geodesy import rotations
+from app.geodesy.enu import LocalFrame
 from app.io.video import frames_at
-from app.lens import Lens
 from app.register.fuse import (
     Correction,
     FuseSettings,
@@ -41,9 +41,10 @@ from app.register.points import (
 from app.register.solve import Registrar, RegistrationSettings, registered_track
 from app.scene.mesh import MeshData
 from app.session import open_session
+from app.session.camera_track import camera_track, frame_clock
 from app.simulate import session as sample
-from app.solve import solve_track
-from app.trajectory import PoseTrack, PositionTrack
+from app.simulate.sample import SAMPLE_DIR, SAMPLE_SCENE
+from app.solve.track import solve_track
 from tests.conftest import run_viewer
 from tools import gis_sessions
 

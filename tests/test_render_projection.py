@@ -10,9 +10,10 @@ import numpy as np
 import pytest
 from scipy.spatial import ConvexHull
 
-from app import rotations
-from app.camera import Camera, Intrinsics, look_at_quat
-from app.config import ProjectionSettings
+from app.camera.intrinsics import Intrinsics
+from app.camera.pinhole import Camera, look_at_quat
+from app.core.settings import ProjectionSettings
+from app.geodesy import rotations
 from app.scene import shapes
 from app.scene.mesh import MeshData
 
@@ -281,7 +282,7 @@ def test_depth_map_redrawn_only_when_the_pose_changes(gl_ctx):
 def test_vertex_at_known_latitude_longitude_appears_where_geo_says(gl_ctx, tmp_path):
     import trimesh
 
-    from app.geo import LocalFrame
+    from app.geodesy.enu import LocalFrame
     from app.scene import load_scene
 
     frame = LocalFrame(34.80, 113.53, 110.0)
@@ -374,7 +375,7 @@ def test_yuv_playback_frame_matches_the_rgb_still(gl_ctx, rotation):
 def test_error_overlay_colours_the_projection_error_in_metres(gl_ctx):
     """The true camera 2 m east of the estimated one, both facing the wall: every covered wall
     point is off by exactly 2 m, half of a 4 m scale: yellow."""
-    from app.config import OverlaySettings
+    from app.core.settings import OverlaySettings
 
     r = make_renderer(gl_ctx, [wall()])
     r.set_video_frame(np.full((VIDEO_H, VIDEO_W, 3), 128, np.uint8))

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from app import rotations
+from app.geodesy import rotations
 
 
 def optical_axis(q):

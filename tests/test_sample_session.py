@@ -7,11 +7,11 @@ import hashlib
 import numpy as np
 import pytest
 
-from app.accuracy import Poses, ProjectionProbe, evaluate, true_frame_times
-from app.camera_track import camera_track
-from app.demo import SAMPLE_DIR, SAMPLE_SCENE
 from app.session import open_session
+from app.session.camera_track import camera_track
 from app.simulate import session as sample
+from app.simulate.sample import SAMPLE_DIR, SAMPLE_SCENE
+from app.solve.accuracy import Poses, ProjectionProbe, evaluate, true_frame_times
 
 pytestmark = pytest.mark.gl
 
@@ -80,7 +80,7 @@ def test_sensor_error_model_is_what_it_says(tmp_path):
     dt = np.diff(g.t)
     assert 0.006 < dt.min() and dt.max() < 0.05 and np.std(dt) > 0.001  # jittered 100 Hz, drops
     gnss = csvlog.read_gnss(tmp_path / "gnss.csv")
-    from app.geo import LocalFrame
+    from app.geodesy.enu import LocalFrame
 
     frame = LocalFrame(*sample.SITE_ORIGIN)
     e = frame.geodetic_to_enu(gnss.lat, gnss.lon, gnss.h) - sample.walk_position(

@@ -3,9 +3,9 @@ import hashlib
 import numpy as np
 import pytest
 
-from app.demo import SAMPLE_SCENE
-from app.geo import LocalFrame
+from app.geodesy.enu import LocalFrame
 from app.scene import load_scene
+from app.simulate.sample import SAMPLE_SCENE
 from app.simulate.stadium import BUILDINGS, HALL_MAX, HALL_MIN, SITE_ORIGIN, write_site
 
 

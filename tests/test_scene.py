@@ -3,8 +3,8 @@ import pytest
 import trimesh
 from PIL import Image
 
-from app.errors import SceneError
-from app.geo import LocalFrame
+from app.core.errors import SceneError
+from app.geodesy.enu import LocalFrame
 from app.scene import Placement, load_scene
 
 ORIGIN = (34.80, 113.53, 110.0)

@@ -8,13 +8,13 @@ import shutil
 import numpy as np
 import pytest
 
-from app import rotations
 from app.attitude.metrics import hpr_rms
 from app.cli import main
-from app.errors import ManifestError
+from app.core.errors import ManifestError
+from app.geodesy import rotations
 from app.session import open_session
 from app.simulate.phone import walking_pan
-from app.solve import COLUMNS, solve_frames
+from app.solve.track import COLUMNS, solve_frames
 
 
 @pytest.fixture(scope="module")
@@ -151,9 +151,9 @@ def test_render_session_frame(session_dir, tmp_path, gl_ctx, capsys):
     behind it, so with the video opaque it differs from the model-only render over most of it."""
     from PIL import Image
 
-    from app.camera_track import camera_track
-    from app.frame_time import frame_at
+    from app.camera.frame_time import frame_at
     from app.io.video import read_frame
+    from app.session.camera_track import camera_track
 
     session = open_session(session_dir / "session.toml")
     k = frame_at(session.video.pts_s, 5.0)  # the frame on screen at 5 s, as the viewer shows it

@@ -1,6 +1,6 @@
 import pytest
 
-from app.errors import ShaderError
+from app.core.errors import ShaderError
 from app.render.shader_source import SHADER_DIR, preprocess
 
 

@@ -19,19 +19,19 @@ from PIL import Image
 from shapely.geometry import shape
 
 from app.cli import main
-from app.clips import open_clip
-from app.demo import SAMPLE_DIR
-from app.errors import DataFormatError
+from app.core.errors import DataFormatError
+from app.core.messages import Messages
 from app.export.gis import FMV_FIELDS
-from app.geo import LocalFrame
-from app.geoid import undulation
+from app.footage.clips import open_clip
+from app.geodesy.enu import LocalFrame
+from app.geodesy.geoid import undulation
 from app.io.dji_srt import read_srt, srt_fixes
-from app.messages import Messages
 from app.scene.tiles import fetch
 from app.scene.tiles.tileset import Tileset
 from app.simulate import drone
 from app.simulate import tileset as tw
 from app.simulate.phone import write_video
+from app.simulate.sample import SAMPLE_DIR
 
 SAMPLE = SAMPLE_DIR / "session.toml"
 KML = {"k": "http://www.opengis.net/kml/2.2"}

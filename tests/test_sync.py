@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from app import rotations
-from app.demo import SAMPLE_DIR
+from app.geodesy import rotations
+from app.simulate.sample import SAMPLE_DIR
 from app.sync import (
     bearings_of,
     estimate_offset,

@@ -8,9 +8,9 @@ import numpy as np
 import pyproj
 import pytest
 
-from app import geoid
-from app.errors import SceneError
-from app.geo import LocalFrame
+from app.core.errors import SceneError
+from app.geodesy import geoid
+from app.geodesy.enu import LocalFrame
 from app.scene import shapes
 from app.scene.layers import MODEL_GROUND_CLEARANCE_M, under_models
 from app.scene.mesh import MeshData
@@ -146,9 +146,10 @@ def test_projected_pixel_lands_on_the_terrain_height_with_the_orthophoto(gl_ctx,
     """A flat DEM 250 m above EGM2008 and an orthophoto in UTM, red west of E0 and blue east of
     it. From 120 m above, looking straight down: the principal point's pixel must see the ground at
     250 m + N (ellipsoidal), and texels of a checkerboard video land where the frustum says."""
-    from app import rotations
-    from app.camera import Camera, Intrinsics
-    from app.config import ProjectionSettings
+    from app.camera.intrinsics import Intrinsics
+    from app.camera.pinhole import Camera
+    from app.core.settings import ProjectionSettings
+    from app.geodesy import rotations
     from app.render.offscreen import render_to_array
     from app.render.probe import SurfaceProbe
     from app.render.renderer import FusionRenderer
@@ -234,9 +235,9 @@ def test_projected_pixel_lands_on_the_terrain_height_with_the_orthophoto(gl_ctx,
 def test_drone_heights_above_take_off_start_from_the_terrain_under_the_first_fix(tmp_path):
     """A clip's subtitle gives heights above take-off: with a DEM layer, the take-off height is
     the terrain's (250 m above EGM2008 here) under the first fix, and every height is shifted by it."""
-    from app.clips import _frame_and_ground
+    from app.core.messages import Messages
+    from app.footage.clips import _frame_and_ground
     from app.io.streams import GnssTrack
-    from app.messages import Messages
     from app.scene.layers import Layer
 
     step = 1.0 / 3600

@@ -12,8 +12,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from app.camera import Camera, Intrinsics, look_at_quat
-from app.geo import LocalFrame
+from app.camera.intrinsics import Intrinsics
+from app.camera.pinhole import Camera, look_at_quat
+from app.geodesy.enu import LocalFrame
 from app.scene import shapes
 from app.scene.mesh import MeshData
 from app.scene.tiles.stream import TileStream, TileView
@@ -183,7 +184,7 @@ def open_tileset(location: str) -> Tileset:
 
 
 def assert_video_lands_on_wall(ctx, tileset: Tileset) -> None:
-    from app.config import ProjectionSettings
+    from app.core.settings import ProjectionSettings
     from app.render.offscreen import render_to_array
     from app.render.renderer import FusionRenderer
 
@@ -487,8 +488,8 @@ def test_gpu_cache_stays_under_its_cap_evicting_least_recently_used(gl_ctx, tmp_
 def test_ground_heights_under_a_track_come_from_a_tileset_as_from_its_model(tmp_path):
     """height = "ground" on the sample stadium as 3D Tiles gives the camera the same heights as
     on the GLB it was made from (the tiles under the track are read on the CPU)."""
-    from app.demo import SAMPLE_DIR
     from app.session import open_session
+    from app.simulate.sample import SAMPLE_DIR
     from tools.gis_sessions import tiles
 
     tiled = open_session(tiles(tmp_path))

@@ -1,4 +1,4 @@
-"""Several clips on one timeline (app.timeline): clips with absolute clocks at their true
+"""Several clips on one timeline (app.session.timeline): clips with absolute clocks at their true
 times, frame by frame; clips without one start together; outside its span a clip shows nothing."""
 
 from __future__ import annotations
@@ -8,10 +8,10 @@ from datetime import timedelta
 import numpy as np
 import pytest
 
-from app.clips import open_clip
+from app.footage.clips import open_clip
+from app.session.timeline import Timeline
 from app.simulate import drone
 from app.simulate.phone import write_video
-from app.timeline import Timeline
 
 
 def _dji(folder, name: str, seconds: float, start, monkeypatch, dated: bool = True):
@@ -92,8 +92,8 @@ def test_the_viewer_plays_two_clips_on_one_timeline(display, tmp_path, monkeypat
     import json
     import shutil
 
-    from app.demo import SAMPLE_DIR
     from app.session import open_session
+    from app.simulate.sample import SAMPLE_DIR
     from tests.conftest import run_viewer
 
     shutil.copytree(SAMPLE_DIR, tmp_path / "walk")
@@ -141,7 +141,7 @@ def test_render_sessions_together_at_one_moment(tmp_path, monkeypatch, capsys):
     from PIL import Image
 
     from app.cli import main
-    from app.demo import SAMPLE_DIR
+    from app.simulate.sample import SAMPLE_DIR
 
     shutil.copytree(SAMPLE_DIR, tmp_path / "walk")
     _dji(tmp_path / "drone", "DJI_0001", 20.0, drone.START, monkeypatch)
@@ -173,7 +173,7 @@ def test_a_manifest_lists_further_clips(tmp_path, monkeypatch, capsys):
     import shutil
 
     from app.cli import main
-    from app.demo import SAMPLE_DIR
+    from app.simulate.sample import SAMPLE_DIR
 
     shutil.copytree(SAMPLE_DIR, tmp_path / "walk")
     _dji(tmp_path / "drone", "DJI_0001", 20.0, drone.START, monkeypatch)
@@ -214,7 +214,7 @@ def test_export_video_draws_every_clip(tmp_path, monkeypatch, capsys):
     import av
 
     from app.cli import main
-    from app.demo import SAMPLE_DIR
+    from app.simulate.sample import SAMPLE_DIR
 
     shutil.copytree(SAMPLE_DIR, tmp_path / "walk")
     _dji(tmp_path / "drone", "DJI_0001", 20.0, drone.START, monkeypatch)

@@ -1,9 +1,9 @@
 import numpy as np
 import pytest
 
-from app import rotations
-from app.geo import LocalFrame, meridian_radius, prime_vertical_radius
-from app.trajectory import PositionTrack, device_to_camera, geodetic_rates
+from app.camera.trajectory import PositionTrack, device_to_camera, geodetic_rates
+from app.geodesy import rotations
+from app.geodesy.enu import LocalFrame, meridian_radius, prime_vertical_radius
 
 ORIGIN = (34.80, 113.53, 110.0)
 

@@ -1,9 +1,10 @@
 import numpy as np
 import pytest
 
-from app import rotations
-from app.camera import Camera, Intrinsics
-from app.errors import DataFormatError
+from app.camera.intrinsics import Intrinsics
+from app.camera.pinhole import Camera
+from app.core.errors import DataFormatError
+from app.geodesy import rotations
 from app.ui.navigation import Navigator
 from app.ui.script import Action, parse_script
 from app.ui.viewer import Options, Viewer

@@ -88,14 +88,15 @@ def test_the_docked_panels_leave_the_3d_view_most_of_the_window(scripted):
 
 
 def test_video_lands_where_an_offscreen_render_puts_it(scripted, gl_ctx):
-    from app.camera import Camera, Intrinsics
-    from app.camera_track import camera_track
-    from app.config import OverlaySettings, ProjectionSettings
+    from app.camera.intrinsics import Intrinsics
+    from app.camera.pinhole import Camera
+    from app.core.settings import OverlaySettings, ProjectionSettings
     from app.io.video import read_frame
     from app.render.offscreen import render_to_array
     from app.render.renderer import FusionRenderer
     from app.scene import load_scene
     from app.session import open_session
+    from app.session.camera_track import camera_track
 
     d, _ = scripted
     state = json.loads((d / "scene.json").read_text())
@@ -242,14 +243,15 @@ def test_a_tileset_session_in_the_window_matches_the_model_it_was_made_from(
     """The sample's stadium as 3D Tiles (plus a generated city as a second layer) in the window:
     once its tiles are loaded, the screenshot shows what an off-screen render of the same state
     shows, and the tileset's stadium is the sample GLB drawn in place."""
-    from app.camera import Camera, Intrinsics
-    from app.camera_track import camera_track
-    from app.config import OverlaySettings, ProjectionSettings
+    from app.camera.intrinsics import Intrinsics
+    from app.camera.pinhole import Camera
+    from app.core.settings import OverlaySettings, ProjectionSettings
     from app.io.video import read_frame
     from app.render.offscreen import render_to_array
     from app.render.renderer import FusionRenderer
     from app.scene import load_scene
     from app.session import open_session
+    from app.session.camera_track import camera_track
     from tools.gis_sessions import tiles
 
     manifest = tiles(tmp_path)

@@ -28,10 +28,10 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from app import geoid  # noqa: E402
-from app.demo import SAMPLE_DIR, SAMPLE_ORIGIN  # noqa: E402
-from app.geo import LocalFrame  # noqa: E402
+from app.geodesy import geoid  # noqa: E402
+from app.geodesy.enu import LocalFrame  # noqa: E402
 from app.simulate import tileset as tw  # noqa: E402
+from app.simulate.sample import SAMPLE_DIR, SAMPLE_ORIGIN  # noqa: E402
 from app.simulate.terrain import write_geotiff  # noqa: E402
 
 SESSION_FILES = (

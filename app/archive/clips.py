@@ -21,11 +21,11 @@ from pathlib import Path
 import numpy as np
 from shapely import wkb
 
-from app import rotations
-from app.clips import open_any
-from app.errors import GeofuseError
+from app.core.errors import GeofuseError
 from app.export.footprint import plan_footprint
 from app.export.records import frame_records
+from app.footage.clips import open_any
+from app.geodesy import rotations
 from app.scene.layers import Layer
 
 __all__ = ["ClipResult", "clip_key", "find_clips", "fingerprint", "index_clip"]

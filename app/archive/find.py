@@ -21,8 +21,8 @@ import pandas as pd
 import shapely
 from shapely.geometry.base import BaseGeometry
 
-from app.errors import GeofuseError
-from app.geo import METRES_PER_DEGREE, ecef_to_enu_rotation, geodetic_to_ecef
+from app.core.errors import GeofuseError
+from app.geodesy.enu import METRES_PER_DEGREE, ecef_to_enu_rotation, geodetic_to_ecef
 
 __all__ = ["Hit", "find", "place_of"]
 

@@ -18,10 +18,10 @@ from dataclasses import dataclass, replace
 import numpy as np
 import numpy.typing as npt
 
-from app import rotations
 from app.attitude import kernels
 from app.attitude.initial import init_samples, initial_orientation
 from app.attitude.offline import forward_backward
+from app.geodesy import rotations
 from app.io.streams import resample  # noqa: F401  (re-exported: part of this package's API)
 
 FloatArray = npt.NDArray[np.float64]

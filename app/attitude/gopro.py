@@ -22,9 +22,9 @@ from pathlib import Path
 
 import numpy as np
 
-from app import rotations
 from app.attitude.heading import magnetometer_plausible
-from app.geomag import field_enu
+from app.geodesy import rotations
+from app.geodesy.geomag import field_enu
 from app.io.gopro import DEFAULT_ORIN, GoProRaw, orin_map, read_gopro_raw
 from app.io.streams import (
     GnssTrack,

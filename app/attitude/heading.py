@@ -21,10 +21,10 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from app import rotations
-from app.constants import DRONE_DEFAULT_PITCH_DEG
+from app.core.constants import DRONE_DEFAULT_PITCH_DEG
+from app.core.messages import Messages
+from app.geodesy import rotations
 from app.io.streams import OrientationStream
-from app.messages import Messages
 
 FloatArray = npt.NDArray[np.float64]
 

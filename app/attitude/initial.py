@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
-from app import rotations
+from app.geodesy import rotations
 
 FloatArray = npt.NDArray[np.float64]
 

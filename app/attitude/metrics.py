@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from app import rotations
+from app.geodesy import rotations
 
 FloatArray = npt.NDArray[np.float64]
 

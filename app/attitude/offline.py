@@ -13,9 +13,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from app import rotations
 from app.attitude import kernels
 from app.attitude.initial import init_samples, initial_orientation
+from app.geodesy import rotations
 
 # "Still" is the causal filters' "at rest" (app.attitude.kernels), one set of thresholds.
 STILL_RATE = kernels.REST_RATE  # rad/s

@@ -17,7 +17,7 @@ import sys
 from collections.abc import Sequence
 
 from app.cli.parser import build_parser, joined_negative_values
-from app.errors import GeofuseError
+from app.core.errors import GeofuseError
 
 __all__ = ["build_parser", "main"]
 

@@ -7,8 +7,8 @@ import argparse
 import runpy
 
 from app.cli.parser import BENCHMARKS
-from app.demo import ROOT
-from app.errors import GeofuseError
+from app.core.errors import GeofuseError
+from app.simulate.sample import ROOT
 
 
 def run(args: argparse.Namespace) -> int:

@@ -10,22 +10,22 @@ from pathlib import Path
 
 import numpy as np
 
-from app.camera import Camera
-from app.camera_track import CameraTrack
-from app.clips import open_any
-from app.config import ProjectionSettings
-from app.constants import DRONE_DEFAULT_PITCH_DEG
-from app.errors import GeofuseError
-from app.geo import LocalFrame
-from app.imageio import read_rgb
-from app.lens import still_camera
-from app.outputs import check_output
-from app.progress import ProgressBar
+from app.camera.pinhole import Camera
+from app.camera.profiles import still_camera
+from app.core.constants import DRONE_DEFAULT_PITCH_DEG
+from app.core.errors import GeofuseError
+from app.core.imageio import read_rgb
+from app.core.outputs import check_output
+from app.core.progress import ProgressBar
+from app.core.settings import ProjectionSettings
+from app.footage.clips import open_any
+from app.geodesy.enu import LocalFrame
 from app.scene import Placement
 from app.scene.layers import Layer, LoadedLayers, load_layers, named_layers
 from app.scene.mesh import MeshData
+from app.session.camera_track import CameraTrack
 from app.session.model import Session
-from app.solve import solve_track
+from app.solve.track import solve_track
 
 
 def layers(args: argparse.Namespace, placement: Placement | None = None) -> tuple[Layer, ...]:

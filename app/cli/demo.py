@@ -8,7 +8,7 @@ from pathlib import Path
 
 from app.cli import render
 from app.cli.parser import build_parser, joined_negative_values
-from app.demo import SAMPLE_DIR
+from app.simulate.sample import SAMPLE_DIR
 
 DEMO_TIME_S = 20.0  # the demo still's moment of the sample walk (the hall's front in view)
 

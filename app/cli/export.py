@@ -8,12 +8,12 @@ import sys
 from pathlib import Path
 
 from app.cli.common import open_with_source, print_messages, print_scene_report, solved
-from app.errors import GeofuseError
+from app.core.errors import GeofuseError
+from app.core.outputs import IMAGE_SUFFIXES, check_output
+from app.core.progress import ProgressBar
 from app.export import EXPORT_SUFFIXES
 from app.export.jobs import ExportOptions, export_session, write_footprints
 from app.export.records import frame_records
-from app.outputs import IMAGE_SUFFIXES, check_output
-from app.progress import ProgressBar
 
 
 def run(args: argparse.Namespace) -> int:

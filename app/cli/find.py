@@ -13,7 +13,7 @@ import shapely
 from shapely.geometry import shape
 
 from app.archive import find, place_of
-from app.errors import DataFormatError, GeofuseError
+from app.core.errors import DataFormatError, GeofuseError
 from app.ui.viewer import Options, Viewer
 
 

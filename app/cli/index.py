@@ -6,8 +6,8 @@ import argparse
 import sys
 
 from app.archive import index_archive
-from app.errors import GeofuseError
-from app.outputs import check_output
+from app.core.errors import GeofuseError
+from app.core.outputs import check_output
 
 
 def run(args: argparse.Namespace) -> int:

@@ -1,5 +1,5 @@
 """`geofuse locate`: where pixels of a video frame (a session or clip at --time) or of a still
-(--scene, --image, --pose, --fov/--lens) lie on the scene (app.locate)."""
+(--scene, --image, --pose, --fov/--lens) lie on the scene (app.locate.location)."""
 
 from __future__ import annotations
 
@@ -11,11 +11,11 @@ from pathlib import Path
 
 import numpy as np
 
+from app.camera.frame_time import frame_at
 from app.cli.common import open_with_source, print_messages, print_scene_report, solved, still_scene
-from app.constants import DEFAULT_NEAR_M
-from app.errors import DataFormatError, GeofuseError
-from app.frame_time import frame_at
-from app.locate import LOCATE_FAR_M, Location, Locator, pose_sigmas
+from app.core.constants import DEFAULT_NEAR_M
+from app.core.errors import DataFormatError, GeofuseError
+from app.locate.location import LOCATE_FAR_M, Location, Locator, pose_sigmas
 
 
 def read_pixels(path: Path) -> list[tuple[float, float]]:

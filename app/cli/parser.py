@@ -11,7 +11,7 @@ from collections.abc import Sequence
 from datetime import datetime, timezone
 from pathlib import Path
 
-from app.constants import (
+from app.core.constants import (
     DEFAULT_DEPTH_BIAS_M,
     DEFAULT_DEPTH_LONG_SIDE_PX,
     DEFAULT_DEPTH_SLOPE_BIAS,

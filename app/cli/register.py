@@ -7,12 +7,12 @@ import argparse
 from pathlib import Path
 
 from app.cli.common import print_messages
-from app.clips import open_any
-from app.errors import GeofuseError
-from app.outputs import check_output
+from app.core.errors import GeofuseError
+from app.core.outputs import check_output
+from app.footage.clips import open_any
 from app.register.points import control_path, read_points, solve_control, write_points
 from app.register.solve import default_prior
-from app.solve import solve_track
+from app.solve.track import solve_track
 
 
 def run(args: argparse.Namespace) -> int:

@@ -7,7 +7,8 @@ import argparse
 import sys
 from pathlib import Path
 
-from app.camera import Intrinsics
+from app.camera.frame_time import frame_at
+from app.camera.intrinsics import Intrinsics
 from app.cli.common import (
     nothing_drawn,
     open_with_source,
@@ -17,17 +18,16 @@ from app.cli.common import (
     solved,
     still_scene,
 )
-from app.clips import onto
-from app.config import OverlaySettings
-from app.constants import DEFAULT_NEAR_M
-from app.errors import GeofuseError
-from app.frame_time import frame_at
-from app.imageio import write_rgb
+from app.core.constants import DEFAULT_NEAR_M
+from app.core.errors import GeofuseError
+from app.core.imageio import write_rgb
+from app.core.outputs import IMAGE_SUFFIXES, check_output
+from app.core.settings import OverlaySettings
+from app.footage.clips import onto
 from app.io.video import read_frame
-from app.outputs import IMAGE_SUFFIXES, check_output
 from app.render.still import render_still, window_camera
 from app.session.model import Session
-from app.timeline import Timeline
+from app.session.timeline import Timeline
 
 
 def run(args: argparse.Namespace) -> int:
@@ -60,7 +60,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _session(args: argparse.Namespace) -> int:
-    """The frame shown at --time (app.frame_time.frame_at, as the viewer shows it) with its pose."""
+    """The frame shown at --time (app.camera.frame_time.frame_at, as the viewer shows it) with its pose."""
     if args.time is None:
         raise GeofuseError("render --session needs --time T (seconds from the video's first frame)")
     check_output(args.out, "--out", IMAGE_SUFFIXES, [*args.session, *(args.lens or [])])
@@ -106,7 +106,7 @@ def _session(args: argparse.Namespace) -> int:
 
 def _others(args: argparse.Namespace, first: Session, index: int) -> tuple[list, list[float], str]:
     """The further clips' frames (further --session and the first manifest's [[clips]]) at the
-    first's frame `index` on one timeline (app.timeline), their cameras moved into the first's
+    first's frame `index` on one timeline (app.session.timeline), their cameras moved into the first's
     local frame; how long before that moment each frame was taken (s); and what to say of
     them."""
     refs = [(path, 0.0, 0.0) for path in args.session[1:]]

@@ -5,12 +5,12 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from app.demo import SAMPLE_ORIGIN, SAMPLE_PHOTO_POSE, SAMPLE_SCENE
-from app.errors import GeofuseError
-from app.geo import LocalFrame
-from app.imageio import write_rgb
+from app.core.errors import GeofuseError
+from app.core.imageio import write_rgb
+from app.geodesy.enu import LocalFrame
 from app.scene import load_scene
 from app.simulate.photo import make_photo, photo_camera
+from app.simulate.sample import SAMPLE_ORIGIN, SAMPLE_PHOTO_POSE, SAMPLE_SCENE
 from app.simulate.session import SampleConfig, write_sample_session
 from app.simulate.stadium import write_site
 

@@ -6,8 +6,8 @@ import argparse
 import sys
 
 from app.cli.common import open_with_source, print_messages
-from app.outputs import CSV_SUFFIXES, check_output
-from app.solve import solve_to_csv
+from app.core.outputs import CSV_SUFFIXES, check_output
+from app.solve.track import solve_to_csv
 
 
 def run(args: argparse.Namespace) -> int:

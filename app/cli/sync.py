@@ -8,10 +8,10 @@ import sys
 from pathlib import Path
 
 from app.cli.common import print_messages
-from app.clips import open_for_sync
-from app.constants import SYNC_MIN_CONFIDENCE
-from app.outputs import check_output, write_atomically
-from app.progress import ProgressBar
+from app.core.constants import SYNC_MIN_CONFIDENCE
+from app.core.outputs import check_output, write_atomically
+from app.core.progress import ProgressBar
+from app.footage.clips import open_for_sync
 from app.sync import settings_path, settings_text, sync_session, timed_by
 
 

@@ -1,11 +1,11 @@
-"""`geofuse telemetry`: what a camera file records (app.telemetry), without solving anything."""
+"""`geofuse telemetry`: what a camera file records (app.footage.telemetry), without solving anything."""
 
 from __future__ import annotations
 
 import argparse
 
-from app.outputs import CSV_SUFFIXES, check_output
-from app.telemetry import describe, inspect, write_csv
+from app.core.outputs import CSV_SUFFIXES, check_output
+from app.footage.telemetry import describe, inspect, write_csv
 
 
 def run(args: argparse.Namespace) -> int:

@@ -16,7 +16,7 @@ import numpy as np
 import shapely
 from shapely.geometry.base import BaseGeometry
 
-from app.geo import METRES_PER_DEGREE
+from app.geodesy.enu import METRES_PER_DEGREE
 
 __all__ = ["cell_rings", "plan_footprint"]
 

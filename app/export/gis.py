@@ -1,9 +1,9 @@
 """Frame records (app.export.records) as GIS layers: GeoJSON (RFC 7946), KML and KMZ (Google
 Earth), and the metadata CSV of ArcGIS Pro's Video Multiplexer (Full Motion Video). Pure text;
-files are written through app.outputs (checked, atomic, never over an input).
+files are written through app.core.outputs (checked, atomic, never over an input).
 
 Heights: GeoJSON keeps heights above the WGS84 ellipsoid (RFC 7946); KML's `absolute` and MISB's
-Sensor True Altitude and Frame Center Elevation are above mean sea level (EGM2008, app.geoid);
+Sensor True Altitude and Frame Center Elevation are above mean sea level (EGM2008, app.geodesy.geoid);
 the ellipsoidal heights sit beside them (`*_ellipsoid_height_m`, Sensor Ellipsoid Height, Frame
 Center Height Above Ellipsoid). Times: `utc` from the session's clock (Session.utc_of), null where
 none is known.

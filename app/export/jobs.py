@@ -1,5 +1,5 @@
 """One export of a solved session to a file, as `geofuse export` runs it: the frames chosen, the
-file written atomically (app.outputs), and the line that says what was written."""
+file written atomically (app.core.outputs), and the line that says what was written."""
 
 from __future__ import annotations
 
@@ -8,19 +8,19 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from app.camera_track import CameraTrack
-from app.clips import onto
-from app.errors import GeofuseError
+from app.camera.frame_time import frame_span
+from app.core.errors import GeofuseError
+from app.core.imageio import write_rgb
+from app.core.outputs import check_output, write_atomically, write_via_path
 from app.export.gis import COMPANIONS, borders_geojson, companion, track_geojson, write_records
 from app.export.klv import write_klv_ts
 from app.export.preview import footprint_preview
 from app.export.records import FrameRecord, frame_records
 from app.export.video import FurtherClip, export_video
-from app.frame_time import frame_span
-from app.imageio import write_rgb
-from app.outputs import check_output, write_atomically, write_via_path
+from app.footage.clips import onto
+from app.session.camera_track import CameraTrack
 from app.session.model import Session
-from app.timeline import Timeline
+from app.session.timeline import Timeline
 
 __all__ = ["ExportOptions", "export_session", "write_footprints"]
 
@@ -145,7 +145,7 @@ def _further_clips(
     session: Session, further: tuple[tuple[Session, CameraTrack, float, float], ...]
 ) -> tuple[FurtherClip, ...]:
     """The further clips as the video export draws them: their frame at each of the session's
-    frames on one timeline, their cameras moved onto its scene (app.clips.onto)."""
+    frames on one timeline, their cameras moved onto its scene (app.footage.clips.onto)."""
     if not further:
         return ()
     line = Timeline.of(

@@ -21,8 +21,8 @@ from pathlib import Path
 
 import av
 
+from app.camera.frame_time import frame_of
 from app.export.records import FrameRecord
-from app.frame_time import frame_of
 from app.io.video import VideoInfo, media_seconds
 
 UAS_LOCAL_SET_KEY = bytes.fromhex("060E2B34020B01010E01030101000000")

@@ -5,12 +5,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from app import rotations
-from app.camera import Camera, Intrinsics
-from app.config import OverlaySettings, ProjectionSettings
-from app.constants import VIEW_NEAR_M
+from app.camera.intrinsics import Intrinsics
+from app.camera.pinhole import Camera
+from app.core.constants import VIEW_NEAR_M
+from app.core.settings import OverlaySettings, ProjectionSettings
 from app.export.records import FrameRecord
-from app.geo import LocalFrame
+from app.geodesy import rotations
+from app.geodesy.enu import LocalFrame
 from app.render.context import create_offscreen_context
 from app.render.offscreen import render_to_array
 from app.render.renderer import FusionRenderer

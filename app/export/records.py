@@ -1,6 +1,6 @@
 """What every export says about a frame: the sensor's place and attitude, its field of view, and
 where the image lands on the scene (frame centre, corners, footprint), from the session's camera
-track (app.camera_track) and the model (or assumed ground) through the GPU position pass.
+track (app.session.camera_track) and the model (or assumed ground) through the GPU position pass.
 
 Frames: WGS84 latitude/longitude in degrees, ellipsoidal heights in metres; heading, pitch, roll
 of the optical axis in degrees (DESIGN.md); times in seconds. A border ray that meets no surface
@@ -16,14 +16,14 @@ from pathlib import Path
 
 import numpy as np
 
-from app import rotations
-from app.camera import Camera
-from app.camera_track import CameraTrack
-from app.constants import VIEW_FAR_M, VIEW_NEAR_M
-from app.geoid import undulation
+from app.camera.pinhole import Camera
+from app.core.constants import VIEW_FAR_M, VIEW_NEAR_M
+from app.geodesy import rotations
+from app.geodesy.geoid import undulation
 from app.render.probe import SurfaceProbe, border_sampling
+from app.session.camera_track import CameraTrack
 from app.session.model import Session
-from app.solve import solve_track
+from app.solve.track import solve_track
 
 FOOTPRINT_MAX_RANGE_M = 2000.0  # border rays that meet nothing are clipped at this range
 FOOTPRINT_SAMPLES = (33, 19)  # rays across the image, and down it (the border's samples)

@@ -17,18 +17,19 @@ from pathlib import Path
 import av
 import numpy as np
 
-from app.camera import Camera, Intrinsics, look_at_quat
-from app.camera_track import CameraTrack
-from app.config import OverlaySettings, ProjectionSettings
-from app.constants import VIEW_FAR_M, VIEW_NEAR_M
-from app.errors import GeofuseError
-from app.frame_time import frame_of
+from app.camera.frame_time import frame_of
+from app.camera.intrinsics import Intrinsics
+from app.camera.pinhole import Camera, look_at_quat
+from app.core.constants import VIEW_FAR_M, VIEW_NEAR_M
+from app.core.errors import GeofuseError
+from app.core.settings import OverlaySettings, ProjectionSettings
 from app.io.video import VideoInfo, media_seconds, rotate_for_display
 from app.render.context import create_offscreen_context
 from app.render.offscreen import OffscreenTarget, render_to_array
 from app.render.renderer import FusionRenderer
 from app.render.still import ThirdPerson
 from app.scene.mesh import MeshData
+from app.session.camera_track import CameraTrack
 
 VIEWS = ("ride", "follow", "orbit", "top")
 RIDE_HFOV_DEG = 80.0  # the ride view sees a little around the video

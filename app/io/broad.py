@@ -8,7 +8,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from app.errors import DataFormatError
+from app.core.errors import DataFormatError
 
 FIELDS = ("imu_gyr", "imu_acc", "imu_mag", "opt_quat", "movement")
 

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from app.errors import DataFormatError
+from app.core.errors import DataFormatError
 from app.io.streams import (
     GnssTrack,
     Messages,

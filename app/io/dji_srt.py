@@ -25,9 +25,9 @@ from pathlib import Path
 
 import numpy as np
 
-from app.errors import DataFormatError
+from app.core.errors import DataFormatError
+from app.core.messages import Messages
 from app.io.streams import GnssTrack, plausible_fixes
-from app.messages import Messages
 
 _TIMING = re.compile(r"(\d+):(\d\d):(\d\d)[,.](\d{1,3})\s*-->\s*(\d+):(\d\d):(\d\d)[,.](\d{1,3})")
 _NUM = r"([-+]?\d+(?:\.\d+)?(?:[eE][-+]?\d+)?)"

@@ -21,12 +21,12 @@ from pathlib import Path
 import av
 import numpy as np
 
-from app.errors import DataFormatError
+from app.core.errors import DataFormatError
+from app.core.messages import Messages
 from app.io.gpmf import Counts, StreamChunk, chunks, parse
 from app.io.mp4box import user_data
 from app.io.streams import GnssTrack, plausible_fixes
 from app.io.video import probe
-from app.messages import Messages
 
 DEFAULT_ORIN = {
     "HERO5": "ZXY",

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from app.errors import DataFormatError
+from app.core.errors import DataFormatError
 
 # Type character -> numpy big-endian dtype (and a divisor for the fixed-point Q types).
 NUMERIC = {

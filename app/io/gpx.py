@@ -14,9 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
-from app.errors import DataFormatError
+from app.core.errors import DataFormatError
+from app.core.messages import Messages
 from app.io.streams import GnssTrack, plausible_fixes
-from app.messages import Messages
 
 GPS_EPOCH_UNIX_S = 315964800.0  # 1980-01-06: no GNSS receiver time can be earlier
 

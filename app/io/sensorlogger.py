@@ -25,8 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
-from app import rotations
-from app.errors import DataFormatError
+from app.core.errors import DataFormatError
+from app.geodesy import rotations
 from app.io.csvlog import numeric
 from app.io.streams import (
     GnssTrack,

@@ -13,8 +13,8 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
-from app.errors import DataFormatError
-from app.messages import Messages
+from app.core.errors import DataFormatError
+from app.core.messages import Messages
 
 FloatArray = npt.NDArray[np.float64]
 GAP_FACTOR = 5.0  # a step longer than this many median steps counts as a gap

@@ -11,7 +11,7 @@ from pathlib import Path
 import av
 import numpy as np
 
-from app.errors import VideoError
+from app.core.errors import VideoError
 
 
 @dataclass(frozen=True)

@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from app.frame_time import frame_at
+from app.camera.frame_time import frame_at
 
 SPEEDS = (0.25, 0.5, 1.0, 1.5, 2.0, 4.0)
 

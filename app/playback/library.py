@@ -1,5 +1,5 @@
 """The solver library: every attitude source of a session solved in the background into a camera
-track (app.camera_track), so that the viewer can switch sources while the video plays without a
+track (app.session.camera_track), so that the viewer can switch sources while the video plays without a
 stall; and the curves and RMS figures the error panel shows (heading, pitch, roll of the optical
 axis at every frame, against the reference: the truth at the moments the frames show, else the
 phone).
@@ -19,9 +19,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from app.attitude.metrics import hpr_rms
-from app.camera_track import CameraTrack, frame_clock
+from app.session.camera_track import CameraTrack, frame_clock
 from app.session.model import COURSE, REGISTERED, TRUTH, Session
-from app.solve import solve_track
+from app.solve.track import solve_track
 
 REFERENCE_ORDER = (TRUTH, "phone")  # what the others are compared with, first found
 

@@ -19,8 +19,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 import numpy.typing as npt
 
-from app import rotations
-from app.trajectory import PoseTrack, PositionTrack
+from app.camera.trajectory import PoseTrack, PositionTrack
+from app.geodesy import rotations
 
 FloatArray = npt.NDArray[np.float64]
 POSITION_RATE_HZ = 10.0  # the corrected position track's samples (Hermite-interpolated between)

@@ -4,9 +4,9 @@ pixels to 3D through its position map, and solve the camera's absolute pose robu
 SQPnP, then Levenberg-Marquardt on the inliers).
 
 Frames and units: world = ENU metres; a pose is the camera's position (ENU m) and its camera ->
-ENU quaternion in OpenGL's camera axes (x right, y up, looking down -z), as app.camera.Camera.
+ENU quaternion in OpenGL's camera axes (x right, y up, looking down -z), as app.camera.pinhole.Camera.
 OpenCV's camera axes (x right, y down, z forward) appear only inside this module. Pixels: u right,
-v down from the top-left corner, pixel centres at half-integers (app.camera).
+v down from the top-left corner, pixel centres at half-integers (app.camera.pinhole).
 
 The matcher was chosen by measurement (docs/ACCURACY.md, "Registration"): SIFT with Lowe's ratio
 test and a mutual check; the rendering and the frame are compared in grey after a local contrast
@@ -22,8 +22,8 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from app import rotations
-from app.camera import Camera
+from app.camera.pinhole import Camera
+from app.geodesy import rotations
 
 FloatArray = npt.NDArray[np.float64]
 

@@ -22,10 +22,10 @@ import numpy as np
 import numpy.typing as npt
 from scipy.optimize import least_squares
 
-from app import rotations
-from app.camera_track import CameraTrack
-from app.errors import DataFormatError, GeofuseError
-from app.trajectory import PositionTrack
+from app.camera.trajectory import PositionTrack
+from app.core.errors import DataFormatError, GeofuseError
+from app.geodesy import rotations
+from app.session.camera_track import CameraTrack
 
 FloatArray = npt.NDArray[np.float64]
 COLUMNS = ("frame", "x", "y", "latitude", "longitude", "height")

@@ -17,14 +17,13 @@ import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
-from typing import TYPE_CHECKING
 
+import moderngl
 import numpy as np
 
-from app import rotations
-from app.camera import Camera
-from app.camera_track import CameraTrack, camera_track
-from app.errors import GeofuseError
+from app.camera.pinhole import Camera
+from app.core.errors import GeofuseError
+from app.geodesy import rotations
 from app.io.video import frames_at
 from app.register.fuse import (
     Correction,
@@ -44,11 +43,8 @@ from app.register.points import (
     solve_control,
 )
 from app.render.views import ModelViews
+from app.session.camera_track import CameraTrack, camera_track
 from app.session.model import REGISTERED, Session
-
-if TYPE_CHECKING:
-    import moderngl
-
 
 BACKGROUND_NICE = 10  # a background registration's thread priority (Linux nice value)
 
@@ -331,7 +327,7 @@ def registered_track(
     keyframe's outcome. Control points kept beside the input (`geofuse register --write`)
     correct the prior first. ctx: a GL context to render in (default: one of its own); stop:
     asked between keyframes, True cancels (Cancelled); background: run at a lower priority (the
-    viewer's solver thread). track_options go to app.camera_track.camera_track for the prior."""
+    viewer's solver thread). track_options go to app.session.camera_track.camera_track for the prior."""
     prior_track = camera_track(session, prior or default_prior(session), **track_options)
     control = None
     if control_path(

@@ -7,7 +7,7 @@ import ctypes.util
 
 import moderngl
 
-from app.errors import GeofuseError
+from app.core.errors import GeofuseError
 
 GL_REQUIRE = 400  # textureGather (nine-case rule) needs GLSL 4.00
 

@@ -5,17 +5,14 @@ what to draw from a camera and take each primitive's vertex array for their prog
 from __future__ import annotations
 
 import time
-from typing import TYPE_CHECKING
 
 import moderngl
 import numpy as np
 
+from app.camera.pinhole import Camera
 from app.render.primitives import GpuPrimitive, default_anisotropy, interleave, upload
 from app.render.tiles import DEFAULT_CACHE_BYTES, GpuTileset
 from app.scene.mesh import MeshData
-
-if TYPE_CHECKING:
-    from app.camera import Camera
 
 SETTLE_POLL_S = 0.05  # settle() waits at most this long on one tileset before looking at all again
 
@@ -53,7 +50,7 @@ class GpuScene:
     def drawables(
         self, camera: Camera | None = None, focal_px: float | None = None, key: str = "view"
     ) -> list[GpuPrimitive]:
-        """What to draw from `camera` (an app.camera.Camera): every static primitive, and each
+        """What to draw from `camera` (an app.camera.pinhole.Camera): every static primitive, and each
         tileset's ready tiles chosen for it (focal_px: the focal length in pixels of the target
         drawn into, default the camera's). Without a camera: static primitives only."""
         out = list(self.primitives)

@@ -5,8 +5,8 @@ from __future__ import annotations
 import moderngl
 import numpy as np
 
-from app.camera import Camera
-from app.config import OverlaySettings, ProjectionSettings
+from app.camera.pinhole import Camera
+from app.core.settings import OverlaySettings, ProjectionSettings
 from app.render.renderer import FusionRenderer
 
 

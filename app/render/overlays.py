@@ -6,7 +6,7 @@ import moderngl
 import numpy as np
 import numpy.typing as npt
 
-from app.camera import Camera
+from app.camera.pinhole import Camera
 from app.render.programs import load_program
 
 FRUSTUM_COLOR = (1.0, 0.85, 0.1, 1.0)

@@ -9,8 +9,8 @@ from dataclasses import dataclass
 import moderngl
 import numpy as np
 
-from app.camera import Camera
-from app.config import ProjectionSettings
+from app.camera.pinhole import Camera
+from app.core.settings import ProjectionSettings
 from app.render.gpu_scene import GpuScene
 from app.render.programs import Uniforms, load_program
 from app.render.video_texture import ExtraVideo, VideoTexture, yuv_matrix

@@ -5,7 +5,7 @@ from __future__ import annotations
 import moderngl
 import numpy as np
 
-from app.camera import Camera
+from app.camera.pinhole import Camera
 from app.render.context import wait_for_gpu
 from app.render.gpu_scene import GpuScene
 from app.render.programs import Uniforms, load_program

@@ -6,7 +6,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from app.camera import Camera, Intrinsics
+from app.camera.intrinsics import Intrinsics
+from app.camera.pinhole import Camera
 from app.render.context import create_offscreen_context
 from app.render.gpu_scene import GpuScene
 from app.render.positions import PositionPass

@@ -5,7 +5,7 @@ from __future__ import annotations
 import moderngl
 import numpy as np
 
-from app.errors import ShaderError
+from app.core.errors import ShaderError
 from app.render.shader_source import preprocess
 
 

@@ -10,8 +10,8 @@ import moderngl
 import numpy as np
 import numpy.typing as npt
 
-from app.camera import Camera, depth_map_size
-from app.config import OverlaySettings, ProjectionSettings
+from app.camera.pinhole import Camera, depth_map_size
+from app.core.settings import OverlaySettings, ProjectionSettings
 from app.render.gpu_scene import GpuScene
 from app.render.overlays import (
     FRUSTUM_COLOR,

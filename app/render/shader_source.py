@@ -11,7 +11,7 @@ import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from app.errors import ShaderError
+from app.core.errors import ShaderError
 
 SHADER_DIR = Path(__file__).resolve().parents[2] / "shaders"
 _INCLUDE = re.compile(r'^\s*#\s*include\s+"([^"]+)"\s*$')

@@ -10,10 +10,10 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from app import rotations
-from app.camera import Camera, look_at_quat
-from app.config import OverlaySettings, ProjectionSettings
-from app.constants import DEFAULT_NEAR_M
+from app.camera.pinhole import Camera, look_at_quat
+from app.core.constants import DEFAULT_NEAR_M
+from app.core.settings import OverlaySettings, ProjectionSettings
+from app.geodesy import rotations
 from app.render.context import create_offscreen_context
 from app.render.offscreen import render_to_array
 from app.render.renderer import FusionRenderer

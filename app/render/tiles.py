@@ -9,16 +9,13 @@ from __future__ import annotations
 
 import time
 from collections import OrderedDict
-from typing import TYPE_CHECKING
 
 import moderngl
 
+from app.camera.pinhole import Camera
 from app.render.primitives import GpuPrimitive, upload
 from app.scene.tiles.stream import TileStream, TileView
 from app.scene.tiles.tileset import Tile, Tileset
-
-if TYPE_CHECKING:
-    from app.camera import Camera
 
 DEFAULT_CACHE_BYTES = 1 << 30  # 1 GiB of tile buffers and textures
 

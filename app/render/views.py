@@ -11,8 +11,8 @@ import contextlib
 import moderngl
 import numpy as np
 
-from app.camera import Camera
-from app.config import ProjectionSettings
+from app.camera.pinhole import Camera
+from app.core.settings import ProjectionSettings
 from app.render.context import create_offscreen_context, wait_for_gpu
 from app.render.offscreen import OffscreenTarget
 from app.render.renderer import FusionRenderer

@@ -12,7 +12,7 @@ import moderngl
 import numpy as np
 import OpenGL.GL as gl
 
-from app.errors import GeofuseError
+from app.core.errors import GeofuseError
 from app.render.context import GL_REQUIRE
 
 GL_VERSION = (4, 1)  # core profile; 4.1 is the highest macOS offers, 4.0 is what the shaders need

@@ -85,7 +85,7 @@ def ground_heights(mesh: MeshData, xy: npt.ArrayLike) -> np.ndarray:
 
 def ellipsoidal_ground(mesh: MeshData, frame, lat_deg: float, lon_deg: float) -> float | None:
     """The ellipsoidal height (m) of the scene's lowest surface at (lat, lon) degrees in `frame`
-    (an app.geo.LocalFrame), or None where the scene has no surface there."""
+    (an app.geodesy.enu.LocalFrame), or None where the scene has no surface there."""
     xy = frame.geodetic_to_enu(lat_deg, lon_deg, 0.0)
     z = ground_heights(mesh, np.atleast_2d(xy)[:, :2])[0]
     if not np.isfinite(z):

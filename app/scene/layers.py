@@ -14,9 +14,9 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
-from app.errors import SceneError
-from app.geo import LocalFrame
-from app.messages import Messages
+from app.core.errors import SceneError
+from app.core.messages import Messages
+from app.geodesy.enu import LocalFrame
 from app.scene.loader import SUPPORTED_SUFFIXES, Placement, load_scene
 from app.scene.mesh import MeshData
 from app.scene.terrain import DEFAULT_MAX_ERROR_M, DEM_SUFFIXES, read_terrain

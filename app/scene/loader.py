@@ -23,9 +23,9 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from app.constants import ECEF_MIN_RADIUS_M
-from app.errors import SceneError
-from app.geo import LocalFrame
+from app.core.constants import ECEF_MIN_RADIUS_M
+from app.core.errors import SceneError
+from app.geodesy.enu import LocalFrame
 from app.scene.mesh import MeshData, Primitive, merge_untextured
 
 SUPPORTED_SUFFIXES = (".glb", ".gltf", ".obj", ".ply")

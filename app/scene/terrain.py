@@ -4,7 +4,7 @@
    rasterio's windowed reads, so a national DEM of gigabytes opens in a second; a window larger
    than MAX_GRID samples a side is read decimated (bilinear).
 2. Heights: nodata cells are holes (no triangle touches them). Heights above a geoid (EGM96,
-   EGM2008) become ellipsoidal with app.geoid; the datum comes from the file's vertical CRS, or
+   EGM2008) become ellipsoidal with app.geodesy.geoid; the datum comes from the file's vertical CRS, or
    the caller, or is assumed to be EGM2008 and said so.
 3. The mesh: a right-triangulated irregular network (RTIN, as Mapbox's Martini) over the grid,
    whose vertical error against every DEM sample is at most `max_error_m`: flat land gets few
@@ -31,10 +31,10 @@ from rasterio.windows import transform as window_transform
 from scipy import ndimage
 from scipy.ndimage import map_coordinates
 
-from app import geoid
-from app.errors import SceneError
-from app.geo import LocalFrame
-from app.messages import Messages
+from app.core.errors import SceneError
+from app.core.messages import Messages
+from app.geodesy import geoid
+from app.geodesy.enu import LocalFrame
 from app.scene.mesh import MeshData, Primitive
 
 MAX_GRID = 4097  # samples a side at most (2^12 + 1)

@@ -9,23 +9,24 @@ from pathlib import Path
 
 import numpy as np
 
-from app import rotations
 from app.attitude import magcal
 from app.attitude.gopro import read_gopro
 from app.attitude.heading import heading_policy
-from app.camera import Intrinsics
-from app.errors import ManifestError, VideoError
-from app.frame_time import corrected_times
-from app.geo import LocalFrame
-from app.geomag import declination, field_enu
+from app.camera.frame_time import corrected_times
+from app.camera.intrinsics import Intrinsics
+from app.camera.lens import Lens
+from app.camera.profiles import video_camera
+from app.core.errors import ManifestError, VideoError
+from app.core.messages import Messages
+from app.geodesy import rotations
+from app.geodesy.enu import LocalFrame
+from app.geodesy.geomag import declination, field_enu
 from app.io import csvlog
 from app.io.dji_srt import read_srt, srt_fixes
 from app.io.gpx import read_gpx
 from app.io.sensorlogger import read_sensorlogger
 from app.io.streams import GnssTrack, OrientationStream, VectorStream
 from app.io.video import VideoInfo, probe
-from app.lens import Lens, video_camera
-from app.messages import Messages
 from app.scene import Placement
 from app.scene.ground import ellipsoidal_ground
 from app.scene.ground_plane import ASSUMED_GROUND_MARGIN_M, ground_under_track

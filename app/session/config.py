@@ -81,9 +81,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from app.constants import DRONE_DEFAULT_PITCH_DEG, FOV_RANGE_DEG
-from app.errors import ManifestError, SceneError
-from app.geoid import VERTICAL_DATUMS
+from app.core.constants import DRONE_DEFAULT_PITCH_DEG, FOV_RANGE_DEG
+from app.core.errors import ManifestError, SceneError
+from app.geodesy.geoid import VERTICAL_DATUMS
 from app.scene import Placement
 from app.scene.layers import Layer, layer_kind
 from app.scene.tiles import fetch

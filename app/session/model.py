@@ -1,5 +1,5 @@
 """A session: every input of one clip read, validated and placed on one clock, frozen. Built by
-`app.session.assemble` (from a manifest) or `app.clips` (straight from a camera's files), read by
+`app.session.assemble` (from a manifest) or `app.footage.clips` (straight from a camera's files), read by
 everything downstream. `device_attitude` answers "the device's attitude under this source".
 
 Names: a *filter* is one of our estimators (FILTERS); a *recorded* attitude is one the device or
@@ -13,28 +13,25 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
-from app import rotations
 from app.attitude import heading
 from app.attitude.filters import estimate, resample
 from app.attitude.heading import HeadingPolicy
-from app.camera import Intrinsics
-from app.constants import COURSE, REGISTERED, TRUTH, UNIX_TIME_FLOOR_S
-from app.errors import DataFormatError
-from app.geo import LocalFrame
+from app.camera.intrinsics import Intrinsics
+from app.camera.lens import Lens
+from app.camera.trajectory import PositionTrack, device_to_camera
+from app.core.constants import COURSE, REGISTERED, TRUTH, UNIX_TIME_FLOOR_S
+from app.core.errors import DataFormatError
+from app.core.messages import Messages
+from app.geodesy import rotations
+from app.geodesy.enu import LocalFrame
 from app.io.streams import GnssTrack, OrientationStream, VectorStream
 from app.io.video import VideoInfo
-from app.messages import Messages
 from app.scene import Placement, load_scene
 from app.scene.ground import ground_heights
 from app.scene.mesh import MeshData
-from app.trajectory import PositionTrack, device_to_camera
-
-if TYPE_CHECKING:
-    from app.lens import Lens
 
 FILTERS = {
     "gd-ahrs": ("gd", True),
@@ -105,7 +102,7 @@ class Session:
 
     def camera_mount(self) -> np.ndarray:
         """Quaternion of the camera (of the displayed video) in the device frame: a phone's back
-        camera turns with the display rotation (app.trajectory.device_to_camera); an action
+        camera turns with the display rotation (app.camera.trajectory.device_to_camera); an action
         camera's or drone's device frame is its camera's, turned only when the video is."""
         if self.device_is_camera:
             return rotations.about_z(
@@ -212,7 +209,7 @@ def device_attitude(
     session.check_source(source)
     if source == REGISTERED:
         raise ValueError(
-            "the registered source is a whole pose track, not an attitude: solve it with app.solve.solve_track"
+            "the registered source is a whole pose track, not an attitude: solve it with app.solve.track.solve_track"
         )
     pos = session.positions()
     if source == COURSE:

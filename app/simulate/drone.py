@@ -16,11 +16,11 @@ from pathlib import Path
 
 import numpy as np
 
-from app import rotations
-from app.camera import Intrinsics
-from app.demo import SAMPLE_DIR
-from app.geo import LocalFrame
+from app.camera.intrinsics import Intrinsics
+from app.geodesy import rotations
+from app.geodesy.enu import LocalFrame
 from app.scene import load_scene
+from app.simulate.sample import SAMPLE_DIR
 from app.simulate.stadium import SITE_ORIGIN
 from app.simulate.video import render_video
 

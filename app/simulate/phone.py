@@ -15,8 +15,8 @@ from pathlib import Path
 import av
 import numpy as np
 
-from app import rotations
-from app.geo import LocalFrame
+from app.geodesy import rotations
+from app.geodesy.enu import LocalFrame
 
 G = 9.80665
 # A plausible field near 34.8 N 113.5 E (uT, ENU): north 33, east -3 (declination ~ -5 deg), down 42.

@@ -8,11 +8,12 @@ from dataclasses import dataclass
 import numpy as np
 from PIL import Image, ImageDraw, ImageFilter, ImageFont
 
-from app import rotations
-from app.camera import Camera, Intrinsics
-from app.config import ProjectionSettings
-from app.constants import DEFAULT_FAR_M, DEFAULT_NEAR_M
-from app.geo import LocalFrame
+from app.camera.intrinsics import Intrinsics
+from app.camera.pinhole import Camera
+from app.core.constants import DEFAULT_FAR_M, DEFAULT_NEAR_M
+from app.core.settings import ProjectionSettings
+from app.geodesy import rotations
+from app.geodesy.enu import LocalFrame
 from app.render.still import render_still
 from app.scene.mesh import MeshData
 

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from app import rotations
+from app.geodesy import rotations
 
 DEG = np.pi / 180.0
 G = 9.80665

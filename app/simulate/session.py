@@ -21,10 +21,11 @@ from pathlib import Path
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
-from app import rotations
-from app.camera import Intrinsics
-from app.geo import LocalFrame
-from app.geomag import field_enu
+from app.camera.intrinsics import Intrinsics
+from app.camera.trajectory import device_to_camera
+from app.geodesy import rotations
+from app.geodesy.enu import LocalFrame
+from app.geodesy.geomag import field_enu
 from app.scene import load_scene, shapes
 from app.scene.mesh import MeshData
 from app.simulate import sensors
@@ -32,7 +33,6 @@ from app.simulate.phone import Motion, body_rates, specific_force
 from app.simulate.stadium import HALL_MAX, HALL_MIN, SITE_ORIGIN
 from app.simulate.video import render_video
 from app.simulate.world import world_of
-from app.trajectory import device_to_camera
 
 START_UNIX_S = 1_763_200_000.0  # 2025-11-15T09:46:40Z
 DURATION_S = 80.0

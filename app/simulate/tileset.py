@@ -19,7 +19,7 @@ import numpy as np
 import numpy.typing as npt
 from PIL import Image
 
-from app.geo import LocalFrame, geodetic_to_ecef
+from app.geodesy.enu import LocalFrame, geodetic_to_ecef
 from app.scene import shapes
 from app.scene.tiles.implicit import level_offset, morton
 

@@ -9,9 +9,10 @@ from pathlib import Path
 
 import numpy as np
 
-from app.camera import Camera, Intrinsics
-from app.config import ProjectionSettings
-from app.constants import DEFAULT_FAR_M, VIEW_NEAR_M
+from app.camera.intrinsics import Intrinsics
+from app.camera.pinhole import Camera
+from app.core.constants import DEFAULT_FAR_M, VIEW_NEAR_M
+from app.core.settings import ProjectionSettings
 from app.render.context import create_offscreen_context
 from app.render.offscreen import OffscreenTarget
 from app.render.renderer import FusionRenderer

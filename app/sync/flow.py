@@ -13,8 +13,8 @@ import av
 import cv2
 import numpy as np
 
-from app import rotations
-from app.errors import GeofuseError
+from app.core.errors import GeofuseError
+from app.geodesy import rotations
 from app.io.video import media_seconds
 from app.sync.rates import RateCurve
 

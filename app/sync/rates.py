@@ -13,10 +13,10 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.ndimage import uniform_filter1d
 
-from app import rotations
 from app.attitude.heading import COURSE_HOLD_SPEED_MPS, smoothed_velocity
-from app.constants import COURSE
-from app.errors import GeofuseError
+from app.core.constants import COURSE
+from app.core.errors import GeofuseError
+from app.geodesy import rotations
 
 
 @dataclass(frozen=True)

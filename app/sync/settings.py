@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from app.errors import GeofuseError
+from app.core.errors import GeofuseError
 from app.sync.fit import SyncResult
 
 

@@ -14,7 +14,7 @@ import numpy as np
 import shapely
 
 from app.archive import find, place_of, read_clips
-from app.errors import GeofuseError
+from app.core.errors import GeofuseError
 from app.scene.ground import ground_heights
 from app.ui.measure import refresh
 from app.ui.picking import model_point

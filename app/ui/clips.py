@@ -1,4 +1,4 @@
-"""Further clips in the viewer, played with the open session on one timeline (app.timeline):
+"""Further clips in the viewer, played with the open session on one timeline (app.session.timeline):
 each with its own session, pose solver, decoder (its own worker thread) and attitude source,
 drawn as a further projector (FusionRenderer.set_extra_projectors) on the open session's scene.
 
@@ -14,16 +14,16 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from app.camera import Camera
-from app.clips import onto, open_any
-from app.errors import GeofuseError
+from app.camera.pinhole import Camera
+from app.core.errors import GeofuseError
+from app.footage.clips import onto, open_any
 from app.playback.library import SolverLibrary
 from app.playback.player import Player
 from app.render.passes import MAX_EXTRA
 from app.render.video_texture import YuvPlanes
 from app.session.config import ClipRef
 from app.session.model import Session
-from app.timeline import Timeline
+from app.session.timeline import Timeline
 
 __all__ = [
     "OtherClip",

@@ -14,9 +14,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from app.errors import GeofuseError
-from app.locate import video_pixel
-from app.outputs import check_output
+from app.core.errors import GeofuseError
+from app.core.outputs import check_output
+from app.locate.location import video_pixel
 from app.register.points import (
     MIN_PAIRS,
     ControlPoints,

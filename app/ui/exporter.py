@@ -21,7 +21,7 @@ from pathlib import Path
 import av
 import numpy as np
 
-from app.errors import GeofuseError
+from app.core.errors import GeofuseError
 from app.sync import bearings_of, estimate_offset, gyro_rates, rate_reference, video_rates
 
 _PERCENT = re.compile(rb"(\d+(?:\.\d)?)%")

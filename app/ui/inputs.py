@@ -9,7 +9,7 @@ from pathlib import Path
 import glfw
 from imgui_bundle import portable_file_dialogs as pfd
 
-from app.errors import GeofuseError
+from app.core.errors import GeofuseError
 from app.ui.gui import Gui
 
 OPEN_FILTERS = ["Sessions and clips", "*.toml *.TOML *.mp4 *.MP4 *.mov *.MOV", "All files", "*"]

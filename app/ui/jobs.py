@@ -6,9 +6,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from app.errors import GeofuseError
+from app.core.errors import GeofuseError
+from app.core.outputs import check_output
 from app.export import EXPORT_SUFFIXES
-from app.outputs import check_output
 from app.sync import rate_reference, timed_by
 from app.ui.exporter import ExportJob, Recorder, SyncJob
 

@@ -1,6 +1,6 @@
-"""Point, measure and mark in the viewer (app.marks): a pick (L, or `measure pick` in a script)
+"""Point, measure and mark in the viewer (app.locate.marks): a pick (L, or `measure pick` in a script)
 takes the model point under the cursor in the 3D view; where the video is draped there, the
-point is located as the video's pixel sees it (app.locate: the ray through that pixel, with the
+point is located as the video's pixel sees it (app.locate.location: the ray through that pixel, with the
 uncertainty the pose's error explains), else as the model point itself. The picks make the
 current measurement (point, line or polygon); Mark keeps it with a label, the clip and the frame
 shown; marks are written beside the input after each change (never into it) and read back when
@@ -13,11 +13,18 @@ from pathlib import Path
 
 import numpy as np
 
-from app.errors import DataFormatError, GeofuseError
-from app.geoid import undulation
-from app.locate import Location, PoseSigmas, location_of, pose_sigmas, ray_camera, video_pixel
-from app.marks import KINDS, MIN_POINTS, Mark, marks_path, measure, read_marks, write_marks
-from app.outputs import check_output, write_atomically
+from app.core.errors import DataFormatError, GeofuseError
+from app.core.outputs import check_output, write_atomically
+from app.geodesy.geoid import undulation
+from app.locate.location import (
+    Location,
+    PoseSigmas,
+    location_of,
+    pose_sigmas,
+    ray_camera,
+    video_pixel,
+)
+from app.locate.marks import KINDS, MIN_POINTS, Mark, marks_path, measure, read_marks, write_marks
 from app.ui.picking import model_point
 
 MARK_SUFFIXES = (".geojson", ".json", ".kml")

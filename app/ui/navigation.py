@@ -7,9 +7,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from app import rotations
-from app.camera import Camera, Intrinsics, look_at_quat
-from app.constants import VIEW_FAR_M, VIEW_NEAR_M
+from app.camera.intrinsics import Intrinsics
+from app.camera.pinhole import Camera, look_at_quat
+from app.core.constants import VIEW_FAR_M, VIEW_NEAR_M
+from app.geodesy import rotations
 
 MODES = ("free", "orbit", "phone")
 

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 from imgui_bundle import imgui, implot
 
-from app.errors import GeofuseError
+from app.core.errors import GeofuseError
 from app.playback.clock import SPEEDS
 from app.register.solve import keyframe_plot
 from app.session.model import COURSE, REGISTERED

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from app.errors import GeofuseError
+from app.core.errors import GeofuseError
 
 __all__ = ["model_point"]
 

@@ -38,7 +38,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from app.errors import DataFormatError
+from app.core.errors import DataFormatError
 from app.ui.commands import COMMANDS
 
 ACTIONS = {name: int(c.takes_arg) for name, c in COMMANDS.items()}

@@ -11,10 +11,9 @@ from pathlib import Path
 
 import numpy as np
 
-from app.clips import open_any
-from app.demo import SAMPLE_DIR
-from app.errors import GeofuseError
-from app.messages import ERROR, WARNING
+from app.core.errors import GeofuseError
+from app.core.messages import ERROR, WARNING
+from app.footage.clips import open_any
 from app.playback.clock import PlaybackClock
 from app.playback.library import SolverLibrary
 from app.playback.player import Player
@@ -22,7 +21,8 @@ from app.render.renderer import FusionRenderer
 from app.scene.layers import Layer, layer_kind
 from app.scene.mesh import MeshData
 from app.session.model import REGISTERED, Session
-from app.timeline import Timeline
+from app.session.timeline import Timeline
+from app.simulate.sample import SAMPLE_DIR
 from app.ui import archive, clips, measure
 from app.ui.navigation import Navigator
 

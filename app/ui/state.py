@@ -5,16 +5,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
 
-from app.config import OverlaySettings, ProjectionSettings
-from app.constants import DRONE_DEFAULT_PITCH_DEG
+from app.core.constants import DRONE_DEFAULT_PITCH_DEG
+from app.core.settings import OverlaySettings, ProjectionSettings
+from app.ui.archive import ArchiveOverlay
 from app.ui.control_points import ControlPicks
+from app.ui.exporter import ExportJob, Recorder, SyncJob
 from app.ui.measure import MeasureState
-
-if TYPE_CHECKING:
-    from app.ui.archive import ArchiveOverlay
-    from app.ui.exporter import ExportJob, Recorder, SyncJob
 
 VIEWER_ALPHA = 0.85  # the viewer's default video opacity: the model shows through a little
 
@@ -30,7 +27,7 @@ class UiState:
     open_path: str = ""  # the Session panel's text field
     errors: list[str] = field(default_factory=list)
     info: list[str] = field(default_factory=list)  # information: what was merely reported
-    warnings: list[str] = field(default_factory=list)  # what lowers the result (app.messages)
+    warnings: list[str] = field(default_factory=list)  # what lowers the result (app.core.messages)
     keys_down: dict[int, bool] = field(
         default_factory=dict
     )  # last frame's key states (edge detection)

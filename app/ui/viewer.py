@@ -2,7 +2,7 @@
 
 The frame loop pulls: each tick it reads its clock (injected: the wall clock, or a fixed-step
 clock a script sets), advances playback to the frame due, asks the session's camera track for
-that frame's camera (app.camera_track: the one place a pose for display is computed), updates
+that frame's camera (app.session.camera_track: the one place a pose for display is computed), updates
 the projector (the depth map is redrawn only when the pose changed), draws the scene into the 3D
 view's rectangle and the panels around it, and records each frame's playback latency (due time ->
 first display, as the paper defines it). When drawing is slower than the video, frames are
@@ -19,15 +19,15 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
-from app import rotations
-from app.camera import Camera, Intrinsics
-from app.errors import GeofuseError
-from app.imageio import write_rgb
-from app.marks import measure as measure_points
+from app.camera.intrinsics import Intrinsics
+from app.camera.pinhole import Camera
+from app.core.errors import GeofuseError
+from app.core.imageio import write_rgb
+from app.geodesy import rotations
+from app.locate.marks import measure as measure_points
 from app.playback.clock import SPEEDS
 from app.render.renderer import BACKGROUND
 from app.render.window import Window
@@ -41,9 +41,6 @@ from app.ui.navigation import Navigator
 from app.ui.script import Action, parse_script
 from app.ui.sessions import Loaded, Stats, ViewerSessions
 from app.ui.state import UiState
-
-if TYPE_CHECKING:
-    pass
 
 log = logging.getLogger("geofuse.viewer")
 TRAJECTORY_STEP = 5  # frames between trajectory polyline vertices

@@ -20,19 +20,16 @@ from __future__ import annotations
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
 
 import numpy as np
 
+from app.camera.pinhole import Camera
 from app.scene.mesh import MeshData, Primitive, merge_untextured
 from app.scene.tiles import fetch
 from app.scene.tiles.content import ContentError, read_content
 from app.scene.tiles.gltf import GltfError, Skipped
 from app.scene.tiles.implicit import Availability, Subtree, SubtreeError
 from app.scene.tiles.tileset import Tile, Tileset, TilesetError
-
-if TYPE_CHECKING:
-    from app.camera import Camera
 
 DEFAULT_MAX_SSE_PX = 16.0  # CesiumJS's maximumScreenSpaceError
 DEFAULT_WORKERS = 4
@@ -51,7 +48,7 @@ class TileView:
 
     @classmethod
     def of(cls, camera: Camera, focal_px: float | None = None) -> TileView:
-        """From an app.camera.Camera; focal_px defaults to its intrinsics' fy."""
+        """From an app.camera.pinhole.Camera; focal_px defaults to its intrinsics' fy."""
         m = np.asarray(camera.view_projection, np.float64)  # row-major, clip = m @ [x, y, z, 1]
         planes = np.stack(
             [m[3] + m[0], m[3] - m[0], m[3] + m[1], m[3] - m[1], m[3] + m[2], m[3] - m[2]]

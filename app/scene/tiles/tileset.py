@@ -21,8 +21,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from app.constants import ECEF_MIN_RADIUS_M
-from app.geo import LocalFrame, ecef_to_enu_rotation, geodetic_to_ecef
+from app.core.constants import ECEF_MIN_RADIUS_M
+from app.geodesy.enu import LocalFrame, ecef_to_enu_rotation, geodetic_to_ecef
 from app.scene.tiles import fetch
 from app.scene.tiles.gltf import Skipped
 from app.scene.tiles.implicit import (

@@ -28,18 +28,19 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
-from app.camera import Camera, Intrinsics, look_at_quat
-from app.camera_track import CameraTrack
-from app.clips import open_any
-from app.constants import DEFAULT_NEAR_M, TRUTH
-from app.errors import GeofuseError
-from app.frame_time import frame_at
-from app.geo import LocalFrame
-from app.geoid import undulation
+from app.camera.frame_time import frame_at
+from app.camera.intrinsics import Intrinsics
+from app.camera.pinhole import Camera, look_at_quat
+from app.core.constants import DEFAULT_NEAR_M, TRUTH
+from app.core.errors import GeofuseError
+from app.footage.clips import open_any
+from app.geodesy.enu import LocalFrame
+from app.geodesy.geoid import undulation
 from app.render.probe import SurfaceProbe
 from app.scene.mesh import MeshData
+from app.session.camera_track import CameraTrack
 from app.session.model import REGISTERED, Session
-from app.solve import solve_track
+from app.solve.track import solve_track
 
 __all__ = [
     "Location",
@@ -245,7 +246,7 @@ def locate(
     progress: Callable[[float], None] | None = None,
 ) -> list[Location | None]:
     """Where the pixels (N, 2) of the video frame shown at media time `time_s` (s from the first
-    frame; app.frame_time.frame_at) lie on the session's scene, under the pose source
+    frame; app.camera.frame_time.frame_at) lie on the session's scene, under the pose source
     `attitude` (default: the session's first). `source`: a Session, or a manifest or clip path.
     For notebooks; `geofuse locate` prints the same. Raises GeofuseError for a bad source or
     time, ValueError for a pixel outside the image."""

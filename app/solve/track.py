@@ -7,10 +7,10 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TextIO
 
-from app.camera_track import CameraTrack, FramePoses, camera_track
-from app.outputs import CSV_SUFFIXES, check_output, write_atomically
-from app.progress import ProgressBar
+from app.core.outputs import CSV_SUFFIXES, check_output, write_atomically
+from app.core.progress import ProgressBar
 from app.register import registered_track
+from app.session.camera_track import CameraTrack, FramePoses, camera_track
 from app.session.model import REGISTERED, Session
 
 COLUMNS = (
@@ -43,7 +43,7 @@ def solve_track(
 ) -> CameraTrack:
     """One source of a session solved into its camera track: the one entry point for every
     command and the viewer's solver. The `registered` source renders the scene (app.register);
-    the others are app.camera_track.camera_track (options: course_pitch_deg, true_timing,
+    the others are app.session.camera_track.camera_track (options: course_pitch_deg, true_timing,
     time_offset_s). progress(fraction) is called where solving takes long (registration), and
     there stop() is asked between steps: True cancels (app.register.solve.Cancelled);
     background: solved beside a playing viewer, at a lower priority."""
@@ -55,7 +55,7 @@ def solve_track(
 
 
 def solve_frames(session: Session, source: str) -> FramePoses:
-    """The camera's pose at every video frame under one source (app.camera_track.FramePoses):
+    """The camera's pose at every video frame under one source (app.session.camera_track.FramePoses):
     time in session seconds; lat/lon deg, height m ellipsoidal; ENU m; heading/pitch/roll of the
     optical axis in degrees; camera -> ENU quaternion."""
     return solve_track(session, source).frame_poses()

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from app.frame_time import frame_at
+from app.camera.frame_time import frame_at
 from app.session.model import Session
 
 __all__ = ["ClipSpan", "Timeline"]

@@ -23,7 +23,7 @@ EPSG_VERTICAL = {5773: "egm96", 3855: "egm2008", 4979: "ellipsoid", 4326: "ellip
 
 @lru_cache(maxsize=1)
 def _grid() -> tuple[np.ndarray, float, float, float]:
-    with resources.files("app").joinpath("data/egm2008_10min.npz").open("rb") as fh:
+    with resources.files("app.geodesy").joinpath("data/egm2008_10min.npz").open("rb") as fh:
         z = np.load(fh)
         return (
             z["undulation_cm"].astype(np.float32) / 100.0,

@@ -14,7 +14,9 @@ from pathlib import Path
 import numpy as np
 
 from app.attitude.gopro import read_gopro
-from app.errors import DataFormatError
+from app.core.errors import DataFormatError
+from app.core.messages import Messages
+from app.core.outputs import CSV_SUFFIXES, check_output, write_atomically
 from app.io import csvlog
 from app.io.dji_mp4 import read_dji_camera
 from app.io.dji_srt import read_srt, srt_fixes
@@ -23,8 +25,6 @@ from app.io.gpmf import Counts, chunks, parse
 from app.io.gpx import read_gpx
 from app.io.sensorlogger import read_sensorlogger
 from app.io.streams import GAP_FACTOR
-from app.messages import Messages
-from app.outputs import CSV_SUFFIXES, check_output, write_atomically
 
 
 @dataclass

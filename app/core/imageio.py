@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 from PIL import Image, UnidentifiedImageError
 
-from app.errors import DataFormatError
-from app.outputs import IMAGE_SUFFIXES, check_output, write_atomically
+from app.core.errors import DataFormatError
+from app.core.outputs import IMAGE_SUFFIXES, check_output, write_atomically
 
 
 def read_rgb(path: str | Path) -> np.ndarray:
@@ -24,7 +24,7 @@ def read_rgb(path: str | Path) -> np.ndarray:
 
 
 def write_rgb(path: str | Path, rgb: np.ndarray, option: str = "--out") -> Path:
-    """Write (H, W, 3) uint8 RGB to PNG/JPEG by suffix, atomically (app.outputs); creates the folder."""
+    """Write (H, W, 3) uint8 RGB to PNG/JPEG by suffix, atomically (app.core.outputs); creates the folder."""
     path = check_output(path, option, IMAGE_SUFFIXES)
     image = Image.fromarray(np.asarray(rgb, np.uint8))
     fmt = "PNG" if path.suffix.lower() == ".png" else "JPEG"

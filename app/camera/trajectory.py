@@ -3,7 +3,7 @@ and velocity at both ends of each interval (Eq. 3), attitude by quaternion slerp
 
 Eq. 4, corrected (DESIGN.md): velocity east/north/up (m/s) at a fix becomes geodetic rates
 dphi/dt = v_N / (M + h), dlambda/dt = v_E / ((N + h) cos phi), dh/dt = v_U, with the meridian
-radius M and prime-vertical radius N (app.geo) at the fix's latitude. Where a log has no velocity,
+radius M and prime-vertical radius N (app.geodesy.enu) at the fix's latitude. Where a log has no velocity,
 it is estimated from the neighbouring fixes (central differences in the local ENU frame).
 """
 
@@ -15,8 +15,8 @@ from functools import cached_property
 import numpy as np
 import numpy.typing as npt
 
-from app import rotations
-from app.geo import LocalFrame, meridian_radius, prime_vertical_radius
+from app.geodesy import rotations
+from app.geodesy.enu import LocalFrame, meridian_radius, prime_vertical_radius
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -149,7 +149,7 @@ class PoseTrack:
 
     def at(self, tq: npt.ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray]:
         """(ENU (M, 3) m, geodetic (M, 3) deg/deg/m, camera -> ENU quaternions (M, 4)) at session
-        times tq (s). Callers outside this module go through app.camera_track.CameraTrack."""
+        times tq (s). Callers outside this module go through app.session.camera_track.CameraTrack."""
         geo = self.positions.geodetic_at(tq)
         enu = self.frame.geodetic_to_enu(geo[:, 0], geo[:, 1], geo[:, 2])
         q_dev = self._slerp(np.atleast_1d(tq))

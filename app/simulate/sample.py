@@ -7,7 +7,7 @@ from pathlib import Path
 from app.simulate.photo import PhotoPose
 from app.simulate.stadium import SITE_ORIGIN
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 SAMPLE_DIR = ROOT / "assets" / "sample"
 SAMPLE_SCENE = SAMPLE_DIR / "scene.glb"
 SAMPLE_PHOTO = SAMPLE_DIR / "photo.jpg"

@@ -12,7 +12,7 @@ from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import IO
 
-from app.errors import GeofuseError
+from app.core.errors import GeofuseError
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 CSV_SUFFIXES = (".csv",)

@@ -20,18 +20,20 @@ import numpy as np
 
 from app.attitude.gopro import read_gopro
 from app.attitude.heading import heading_policy
-from app.camera import Camera, Intrinsics, camera_in_frame
-from app.constants import DRONE_DEFAULT_PITCH_DEG
-from app.errors import DataFormatError, GeofuseError, VideoError
-from app.geo import LocalFrame
-from app.geomag import declination
+from app.camera.intrinsics import Intrinsics
+from app.camera.lens import Lens
+from app.camera.pinhole import Camera, camera_in_frame
+from app.camera.profiles import LENS_MODES, choose_profile, video_camera
+from app.core.constants import DRONE_DEFAULT_PITCH_DEG
+from app.core.errors import DataFormatError, GeofuseError, VideoError
+from app.core.messages import Messages
+from app.geodesy.enu import LocalFrame
+from app.geodesy.geomag import declination
 from app.io.dji_mp4 import read_dji_camera
 from app.io.dji_srt import SrtTrack, check_duration, read_srt, srt_fixes
 from app.io.gopro import global_settings
 from app.io.streams import GnssTrack, OrientationStream
 from app.io.video import VideoInfo, probe
-from app.lens import LENS_MODES, Lens, choose_profile, video_camera
-from app.messages import Messages
 from app.scene import Placement
 from app.scene.ground import ellipsoidal_ground, ground_heights
 from app.scene.ground_plane import ASSUMED_GROUND_MARGIN_M, ground_under_track

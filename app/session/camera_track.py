@@ -13,23 +13,34 @@ offset. World: local ENU metres; quaternions camera -> ENU, [w, x, y, z].
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING
+from typing import Any, Protocol
 
 import numpy as np
 import numpy.typing as npt
 
-from app import rotations
-from app.camera import Camera, Intrinsics
-from app.constants import DEFAULT_FAR_M, DEFAULT_NEAR_M
-from app.frame_time import corrected_times
+from app.camera.frame_time import corrected_times
+from app.camera.intrinsics import Intrinsics
+from app.camera.lens import Lens
+from app.camera.pinhole import Camera
+from app.camera.trajectory import PoseTrack, PositionTrack
+from app.core.constants import DEFAULT_FAR_M, DEFAULT_NEAR_M
+from app.geodesy import rotations
 from app.session.model import TRUTH, Session, device_attitude
-from app.trajectory import PoseTrack, PositionTrack
-
-if TYPE_CHECKING:
-    from app.lens import Lens
-    from app.register.solve import Registration
 
 FloatArray = npt.NDArray[np.float64]
+
+
+class Registration(Protocol):
+    """What a `registered` track says of its keyframes, as its readers (the viewer's panels,
+    `locate`'s error model, the CLI) use it. Its one maker is app.register.solve.Registration; the
+    track types it by this Protocol so that the session sits below registration, which reads
+    sessions and tracks (no import from here to app.register, at run time or for typing)."""
+
+    prior: str  # the source the keyframes corrected
+    keyframes: tuple[Any, ...]  # app.register.fuse.Keyframe, one a keyframe, in time order
+    delay_s: float | None  # how late the frame times were (s), when estimated
+
+    def summary(self) -> str: ...
 
 
 @dataclass(frozen=True)
@@ -37,7 +48,7 @@ class FrameClock:
     """Media time -> session time. media_s: (F,) each frame's presentation time (s from the first
     frame); session_s: (F,) the session time the pipeline gives that frame; offset_s, drift_ppm,
     pivot_s: a live correction on top (a sync's offset in seconds and clock drift in parts per
-    million about session time pivot_s; app.frame_time.corrected_times)."""
+    million about session time pivot_s; app.camera.frame_time.corrected_times)."""
 
     media_s: FloatArray
     session_s: FloatArray

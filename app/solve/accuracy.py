@@ -13,15 +13,16 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from app import rotations
 from app.attitude.filters import estimate, resample
 from app.attitude.metrics import hpr_rms
-from app.camera import Camera, Intrinsics
-from app.camera_track import CameraTrack, camera_track, frame_clock
-from app.constants import VIEW_FAR_M, VIEW_NEAR_M
+from app.camera.intrinsics import Intrinsics
+from app.camera.pinhole import Camera
+from app.core.constants import VIEW_FAR_M, VIEW_NEAR_M
+from app.geodesy import rotations
 from app.render.probe import SurfaceProbe
 from app.session import Session
-from app.solve import solve_track
+from app.session.camera_track import CameraTrack, camera_track, frame_clock
+from app.solve.track import solve_track
 
 EDGE_FRACTION = 0.1  # the outer 10 % of columns on each side count as the image's edges
 

@@ -28,9 +28,9 @@ import numpy.typing as npt
 import shapely
 from shapely.geometry import mapping
 
-from app.errors import DataFormatError
-from app.geo import LocalFrame
-from app.geoid import undulation
+from app.core.errors import DataFormatError
+from app.geodesy.enu import LocalFrame
+from app.geodesy.geoid import undulation
 
 __all__ = [
     "KINDS",

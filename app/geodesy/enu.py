@@ -15,7 +15,7 @@ import numpy as np
 import numpy.typing as npt
 from pyproj import Transformer
 
-from app.constants import WGS84_A, WGS84_E2
+from app.core.constants import WGS84_A, WGS84_E2
 
 FloatArray = npt.NDArray[np.float64]
 

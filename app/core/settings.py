@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from app.constants import (
+from app.core.constants import (
     DEFAULT_ALPHA,
     DEFAULT_DEPTH_BIAS_M,
     DEFAULT_DEPTH_LONG_SIDE_PX,

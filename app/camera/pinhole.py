@@ -8,106 +8,17 @@ The window camera and the projector (the video's camera) both use this module.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 import numpy.typing as npt
 
-from app import rotations
-from app.constants import DEFAULT_FAR_M, DEFAULT_NEAR_M, EPS_DEGENERATE, FOV_RANGE_DEG
-from app.geo import LocalFrame
-
-if TYPE_CHECKING:
-    from app.lens import Lens
+from app.camera.intrinsics import Intrinsics, projection_matrix
+from app.camera.lens import Lens
+from app.core.constants import DEFAULT_FAR_M, DEFAULT_NEAR_M, EPS_DEGENERATE
+from app.geodesy import rotations
+from app.geodesy.enu import LocalFrame
 
 FloatArray = npt.NDArray[np.float64]
-
-
-@dataclass(frozen=True)
-class Intrinsics:
-    """Pinhole intrinsics of an image width x height pixels; fx, fy, cx, cy in pixels."""
-
-    width: int
-    height: int
-    fx: float
-    fy: float
-    cx: float
-    cy: float
-
-    def __post_init__(self) -> None:
-        if self.width <= 0 or self.height <= 0:
-            raise ValueError(f"image size must be positive, got {self.width}x{self.height}")
-        if self.fx <= 0 or self.fy <= 0:
-            raise ValueError(f"focal lengths must be positive, got fx={self.fx}, fy={self.fy}")
-
-    @classmethod
-    def from_fov(
-        cls, width: int, height: int, fov_deg: float, axis: str = "horizontal"
-    ) -> "Intrinsics":
-        """Square pixels, principal point at the image centre, FOV (deg) across the given axis."""
-        lo, hi = FOV_RANGE_DEG
-        if not lo <= fov_deg <= hi:
-            raise ValueError(f"field of view must be in [{lo:g}, {hi:g}] degrees, got {fov_deg}")
-        span = width if axis == "horizontal" else height
-        if axis not in ("horizontal", "vertical"):
-            raise ValueError(f"axis must be 'horizontal' or 'vertical', got {axis!r}")
-        f = 0.5 * span / np.tan(np.radians(fov_deg) / 2.0)
-        return cls(width, height, float(f), float(f), width / 2.0, height / 2.0)
-
-    @classmethod
-    def from_focal_length(
-        cls,
-        width: int,
-        height: int,
-        focal_mm: float,
-        sensor_width_mm: float,
-        sensor_height_mm: float | None = None,
-    ) -> "Intrinsics":
-        """From a focal length and the sensor size (mm) that the full image covers."""
-        fx = focal_mm / sensor_width_mm * width
-        fy = fx if sensor_height_mm is None else focal_mm / sensor_height_mm * height
-        return cls(width, height, float(fx), float(fy), width / 2.0, height / 2.0)
-
-    @property
-    def hfov_deg(self) -> float:
-        """Horizontal field of view, degrees."""
-        return float(np.degrees(2.0 * np.arctan(self.width / (2.0 * self.fx))))
-
-    @property
-    def vfov_deg(self) -> float:
-        """Vertical field of view, degrees."""
-        return float(np.degrees(2.0 * np.arctan(self.height / (2.0 * self.fy))))
-
-    @property
-    def aspect(self) -> float:
-        return self.width / self.height
-
-    def scaled(self, width: int, height: int) -> "Intrinsics":
-        """The same camera sampled at another resolution (same field of view)."""
-        sx, sy = width / self.width, height / self.height
-        return Intrinsics(width, height, self.fx * sx, self.fy * sy, self.cx * sx, self.cy * sy)
-
-
-def projection_matrix(
-    intr: Intrinsics, near: float = DEFAULT_NEAR_M, far: float = DEFAULT_FAR_M
-) -> FloatArray:
-    """OpenGL clip-from-camera 4x4 matrix (column vectors) for the pinhole intrinsics.
-
-    A camera point (x, y, z), z < 0, lands at pixel u = fx x/(-z) + cx, v = cy - fy y/(-z);
-    NDC depth is -1 at `near` and +1 at `far` (metres).
-    """
-    if not 0.0 < near < far:
-        raise ValueError(f"need 0 < near < far, got near={near}, far={far}")
-    w, h = intr.width, intr.height
-    p = np.zeros((4, 4))
-    p[0, 0] = 2.0 * intr.fx / w
-    p[1, 1] = 2.0 * intr.fy / h
-    p[0, 2] = 1.0 - 2.0 * intr.cx / w
-    p[1, 2] = 2.0 * intr.cy / h - 1.0
-    p[2, 2] = -(far + near) / (far - near)
-    p[2, 3] = -2.0 * far * near / (far - near)
-    p[3, 2] = -1.0
-    return p
 
 
 def view_matrix(position_enu: npt.ArrayLike, q_cam_to_world: npt.ArrayLike) -> FloatArray:
@@ -140,7 +51,7 @@ def look_at_quat(
 @dataclass(frozen=True)
 class Camera:
     """A posed camera: intrinsics, near/far planes (m), ENU position (m), orientation q, and an
-    optional real lens (app.lens.Lens). With a lens, `intrinsics` is the pinhole that encloses
+    optional real lens (app.camera.lens.Lens). With a lens, `intrinsics` is the pinhole that encloses
     the lens's whole image (the depth pass's frustum) and `project`/`pixel_rays` go through the
     lens model."""
 
@@ -263,7 +174,7 @@ def camera_in_frame(
     camera: Camera, src: LocalFrame, dst: LocalFrame, lift_m: float = 0.0
 ) -> Camera:
     """The camera moved from local frame `src` into `dst` (another clip's session): its
-    position through ECEF (then raised by lift_m, app.clips.ground_lift), its orientation
+    position through ECEF (then raised by lift_m, app.footage.clips.ground_lift), its orientation
     turned by the tangent planes' difference."""
     position = dst.ecef_to_enu(src.enu_to_ecef(np.asarray(camera.position, np.float64)))
     position = position + [0.0, 0.0, lift_m]

@@ -14,7 +14,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy.spatial.transform import Rotation, Slerp
 
-from app.constants import EPS_DEGENERATE
+from app.core.constants import EPS_DEGENERATE
 
 FloatArray = npt.NDArray[np.float64]
 

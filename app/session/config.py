@@ -1,4 +1,5 @@
-"""The session manifest: its schema, read and validated once into a frozen `SessionConfig`.
+"""The session manifest: its schema, read and validated once into a frozen `SessionConfig` (the
+TOML reader that types and checks each key is app.session.reader).
 
     [origin]                      # optional: the session's ENU origin (default: the scene's, else
                                   # the first GNSS fix)
@@ -74,12 +75,8 @@ checked for finiteness and range here, where it enters.
 
 from __future__ import annotations
 
-import difflib
-import math
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 from app.core.constants import DRONE_DEFAULT_PITCH_DEG, FOV_RANGE_DEG
 from app.core.errors import ManifestError, SceneError
@@ -87,6 +84,7 @@ from app.geodesy.geoid import VERTICAL_DATUMS
 from app.scene import Placement
 from app.scene.layers import Layer, layer_kind
 from app.scene.tiles import fetch
+from app.session.reader import Manifest, array_tables, check_keys, checked_geodetic, load_manifest
 
 HANDHELD_MOUNT_M = 1.5  # a hand-held or body camera's height above the ground, metres
 _PLACED = {"path", "origin", "up_axis", "heading_deg", "scale"}
@@ -120,172 +118,7 @@ KNOWN_KEYS: dict[str, set[str]] = {  # every table and key of the schema above
 }
 
 
-def _suggestion(word: str, known: set[str]) -> str:
-    close = difflib.get_close_matches(word, sorted(known), n=1, cutoff=0.5)
-    prefix = [k for k in sorted(known) if k.startswith(word) or word.startswith(k)]
-    best = close or prefix
-    return (
-        f"; did you mean {best[0]!r}?" if best else f"; expected one of {', '.join(sorted(known))}"
-    )
-
-
-def check_keys(path: Path, data: dict[str, Any]) -> None:
-    """ManifestError naming the first unknown table or key, with the nearest known one."""
-    for section, table in data.items():
-        if section not in KNOWN_KEYS:
-            raise ManifestError(
-                path,
-                f"unknown table [{section}]{_suggestion(section, set(KNOWN_KEYS))}",
-                field=section,
-            )
-        tables = table if isinstance(table, list) else [table]
-        for t in tables:
-            if not isinstance(t, dict):
-                continue  # the table's own reader says what it expected
-            for key in t:
-                if key not in KNOWN_KEYS[section]:
-                    raise ManifestError(
-                        path,
-                        f"unknown key{_suggestion(key, KNOWN_KEYS[section])}",
-                        field=f"{section}.{key}",
-                    )
-
-
 SENSOR_FORMATS = ("csv", "sensorlogger", "gopro", "none")
-
-
-@dataclass(frozen=True)
-class Manifest:
-    """The TOML tables of a manifest, with typed look-ups whose errors name the key."""
-
-    path: Path
-    data: dict[str, Any]
-
-    def section(self, name: str, required: bool = True) -> dict[str, Any]:
-        value = self.data.get(name)
-        if value is None:
-            if required:
-                raise ManifestError(self.path, f"missing section [{name}]", field=name)
-            return {}
-        if not isinstance(value, dict):
-            raise ManifestError(self.path, f"[{name}] must be a table", field=name)
-        return value
-
-    def get(
-        self,
-        section: str,
-        key: str,
-        kind: type | tuple[type, ...],
-        default: Any = ...,
-        required_section: bool = True,
-    ) -> Any:
-        sec = self.section(section, required_section)
-        if key not in sec:
-            if default is ...:
-                raise ManifestError(
-                    self.path,
-                    f"missing key (expected {getattr(kind, '__name__', kind)})",
-                    field=f"{section}.{key}",
-                )
-            return default
-        value = sec[key]
-        kinds = kind if isinstance(kind, tuple) else (kind,)
-        if float in kinds and isinstance(value, int) and not isinstance(value, bool):
-            value = float(value)
-        if not isinstance(value, kinds):
-            raise ManifestError(
-                self.path,
-                f"got {value!r}, expected {' or '.join(k.__name__ for k in kinds)}",
-                field=f"{section}.{key}",
-            )
-        return value
-
-    def number(
-        self,
-        section: str,
-        key: str,
-        default: Any = ...,
-        *,
-        low: float = -math.inf,
-        high: float = math.inf,
-        open_low: bool = False,
-        required_section: bool = True,
-    ) -> float | None:
-        """A finite float in [low, high] (or (low, high] with open_low)."""
-        value = self.get(section, key, float, default, required_section)
-        if value is None:
-            return None
-        if not math.isfinite(value) or value < low or value > high or (open_low and value == low):
-            bracket = "(" if open_low else "["
-            raise ManifestError(
-                self.path,
-                f"got {value!r}, expected a finite number in {bracket}{low:g}, {high:g}]",
-                field=f"{section}.{key}",
-            )
-        return value
-
-    def choice(
-        self,
-        section: str,
-        key: str,
-        options: tuple[str, ...],
-        default: str,
-        required_section: bool = True,
-    ) -> str:
-        value = self.get(section, key, str, default, required_section)
-        if value not in options:
-            raise ManifestError(
-                self.path,
-                f"got {value!r}, expected {' or '.join(repr(o) for o in options)}",
-                field=f"{section}.{key}",
-            )
-        return value
-
-    def file(
-        self, section: str, key: str, required: bool = True, required_section: bool = True
-    ) -> Path | None:
-        value = self.get(section, key, str, ... if required else None, required_section)
-        if value is None:
-            return None
-        p = (self.path.parent / value).resolve()
-        if not p.exists():
-            raise ManifestError(
-                self.path, f"names {value!r}, which does not exist ({p})", field=f"{section}.{key}"
-            )
-        return p
-
-    def geodetic(self, section: str, key: str) -> tuple[float, float, float] | None:
-        value = self.get(section, key, list, None)
-        if value is None:
-            return None
-        if len(value) != 3 or not all(
-            isinstance(v, (int, float)) and not isinstance(v, bool) for v in value
-        ):
-            raise ManifestError(
-                self.path,
-                f"got {value!r}, expected [latitude, longitude, height]",
-                field=f"{section}.{key}",
-            )
-        return _checked_geodetic(self.path, f"{section}.{key}", *(float(v) for v in value))
-
-
-def _checked_geodetic(
-    path: Path, field: str, lat: float, lon: float, h: float
-) -> tuple[float, float, float]:
-    if not (
-        math.isfinite(lat)
-        and -90.0 <= lat <= 90.0
-        and math.isfinite(lon)
-        and -180.0 <= lon <= 360.0
-        and math.isfinite(h)
-        and -12_000.0 <= h <= 100_000.0
-    ):
-        raise ManifestError(
-            path,
-            f"got ({lat}, {lon}, {h}), expected latitude in [-90, 90], longitude in [-180, 360] deg, height in [-12000, 100000] m",
-            field=field,
-        )
-    return lat, lon, h
 
 
 @dataclass(frozen=True)
@@ -406,17 +239,6 @@ class SessionConfig:
         return [p for p in files if p is not None]
 
 
-def load_manifest(path: str | Path) -> Manifest:
-    path = Path(path)
-    if not path.is_file():
-        raise ManifestError(path, "manifest does not exist")
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise ManifestError(path, f"not valid TOML ({exc})") from exc
-    return Manifest(path.resolve(), data)
-
-
 def _location(m: Manifest, section: str, key: str) -> str:
     """A layer's location: an http(s) URL as written, or an existing file's resolved path."""
     value = m.get(section, key, str)
@@ -445,13 +267,7 @@ def _layer(m: Manifest, section: str) -> tuple[Layer, tuple[float, float, float]
 
 def _layers(m: Manifest) -> list[Layer]:
     """[[layers]] tables, then [dem]."""
-    tables = m.data.get("layers", [])
-    if not isinstance(tables, list) or not all(isinstance(t, dict) for t in tables):
-        raise ManifestError(m.path, "expected [[layers]] tables, each with a path", field="layers")
-    out = []
-    for i, table in enumerate(tables):
-        name = f"layers[{i}]"
-        out.append(_layer(Manifest(m.path, {name: table}), name)[0])
+    out = [_layer(one, name)[0] for name, one in array_tables(m, "layers")]
     if m.section("dem", required=False):
         path = m.file("dem", "path")
         if layer_kind(path) != "dem":
@@ -479,13 +295,8 @@ def _layers(m: Manifest) -> list[Layer]:
 
 def _clips(m: Manifest) -> tuple[ClipRef, ...]:
     """[[clips]] tables: a further clip each (a manifest or a camera file that exists)."""
-    tables = m.data.get("clips", [])
-    if not isinstance(tables, list) or not all(isinstance(t, dict) for t in tables):
-        raise ManifestError(m.path, "expected [[clips]] tables, each with a path", field="clips")
     out = []
-    for i, table in enumerate(tables):
-        name = f"clips[{i}]"
-        one = Manifest(m.path, {name: table})
+    for name, one in array_tables(m, "clips"):
         alpha = one.get(name, "alpha", float, None)
         if alpha is not None and not 0.0 <= alpha <= 1.0:
             raise ManifestError(m.path, f"got {alpha}, expected 0 to 1", field=f"{name}.alpha")
@@ -504,11 +315,11 @@ def _clips(m: Manifest) -> tuple[ClipRef, ...]:
 def read_config(path: str | Path) -> SessionConfig:
     """Read and validate a manifest (files named must exist; values typed and in range)."""
     m = load_manifest(path)
-    check_keys(m.path, m.data)
+    check_keys(m.path, m.data, KNOWN_KEYS)
     scene = SceneConfig(*_layer(m, "scene")) if m.section("scene", required=False) else None
     layers = ([scene.layer] if scene else []) + _layers(m)
     if m.section("origin", required=False):
-        origin = _checked_geodetic(
+        origin = checked_geodetic(
             m.path, "origin", *(m.get("origin", k, float) for k in ("lat", "lon", "h"))
         )
     elif scene is not None and scene.origin is not None:

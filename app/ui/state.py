@@ -38,7 +38,7 @@ class UiState:
     screenshot_request: Path | None = None  # taken after this frame's panels are drawn
     state_request: Path | None = None
     open_request: Path | None = None  # a file dropped on the window or chosen in the dialog
-    export_what: int = 0  # the Export panel's choice (app.ui.panels.EXPORTS)
+    export_what: int = 0  # the Export panel's choice (app.ui.panels.export.EXPORTS)
     export_path: str = ""  # the Export panel's output path ("" = a name from the session's)
     export_job: ExportJob | None = None  # the running or last export
     recorder: Recorder | None = None  # while recording

@@ -1,0 +1,300 @@
+"""What several of `geofuse`'s commands parse alike: argparse types that refuse a value out of
+range with exit 2, naming the option (finite numbers in a range, counts, comma-separated
+tuples, sizes, UTC times), the parser class with the project's one-line errors, and the option
+groups commands share (a clip's scene layers, a still's camera, the projection, the pose source,
+a clip's subtitle and lens). Imports nothing heavy: `geofuse --help` loads this and no more."""
+
+from __future__ import annotations
+
+import argparse
+import math
+from collections.abc import Sequence
+from datetime import datetime, timezone
+from pathlib import Path
+
+from app.core.constants import (
+    DEFAULT_DEPTH_BIAS_M,
+    DEFAULT_DEPTH_LONG_SIDE_PX,
+    DEFAULT_DEPTH_SLOPE_BIAS,
+    DRONE_DEFAULT_PITCH_DEG,
+    FOV_RANGE_DEG,
+)
+
+MAX_IMAGE_SIDE = 8192  # pixels: what every OpenGL 4 renderbuffer (and llvmpipe) can hold
+COMMA_OPTIONS = ("--origin", "--pose", "--view-from", "--look-at")  # values that may start with '-'
+GEODETIC = (
+    (-90.0, 90.0, "latitude"),
+    (-180.0, 360.0, "longitude"),
+    (-12_000.0, 100_000.0, "height"),
+)
+ATTITUDE = ((-360.0, 360.0, "heading"), (-90.0, 90.0, "pitch"), (-180.0, 180.0, "roll"))
+
+
+def floats(
+    text: str, count: int, ranges: tuple[tuple[float, float, str], ...] = ()
+) -> tuple[float, ...]:
+    """COUNT comma-separated finite numbers, each within its (low, high, name) range if given."""
+    parts = text.split(",")
+    try:
+        values = tuple(float(p) for p in parts)
+    except ValueError:
+        values = ()
+    if len(values) != count or not all(math.isfinite(v) for v in values):
+        raise argparse.ArgumentTypeError(
+            f"expected {count} comma-separated finite numbers, got {text!r}"
+        )
+    for v, (low, high, name) in zip(values, ranges):
+        if not low <= v <= high:
+            raise argparse.ArgumentTypeError(f"{name} {v:g} is outside [{low:g}, {high:g}]")
+    return values
+
+
+def number(low: float, high: float, open_low: bool = False):
+    """An argparse type: a finite float in [low, high] ((low, high] with open_low)."""
+
+    def parse(text: str) -> float:
+        try:
+            v = float(text)
+        except ValueError:
+            v = math.nan
+        if not math.isfinite(v) or not low <= v <= high or (open_low and v == low):
+            raise argparse.ArgumentTypeError(
+                f"expected a finite number in {'(' if open_low else '['}{low:g}, {high:g}], got {text!r}"
+            )
+        return v
+
+    return parse
+
+
+def count(low: int, high: int):
+    """An argparse type: a whole number in [low, high]."""
+
+    def parse(text: str) -> int:
+        try:
+            v = int(text)
+        except ValueError:
+            v = low - 1
+        if not low <= v <= high:
+            raise argparse.ArgumentTypeError(
+                f"expected a whole number in [{low}, {high}], got {text!r}"
+            )
+        return v
+
+    return parse
+
+
+def utc(text: str) -> datetime:
+    """An argparse type: an ISO 8601 time, UTC where it names no zone."""
+    try:
+        t = datetime.fromisoformat(text.replace("Z", "+00:00"))
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(f"expected an ISO 8601 time, got {text!r}") from exc
+    return t if t.tzinfo is not None else t.replace(tzinfo=timezone.utc)
+
+
+def size(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT, got {text!r}") from exc
+    if not (0 < w <= MAX_IMAGE_SIDE and 0 < h <= MAX_IMAGE_SIDE):
+        raise argparse.ArgumentTypeError(
+            f"each side must be 1 to {MAX_IMAGE_SIDE} pixels, got {text!r}"
+        )
+    return w, h
+
+
+def joined_negative_values(argv: Sequence[str]) -> list[str]:
+    """`--view-from -150,-150,120` as `--view-from=-150,-150,120`: argparse takes a value that
+    starts with '-' for an option unless it is joined to its option."""
+    out: list[str] = []
+    args = list(argv)
+    i = 0
+    while i < len(args):
+        if (
+            args[i] in COMMA_OPTIONS
+            and i + 1 < len(args)
+            and args[i + 1][:1] == "-"
+            and args[i + 1][1:2].isdigit() | (args[i + 1][1:2] == ".")
+        ):
+            out.append(f"{args[i]}={args[i + 1]}")
+            i += 2
+            continue
+        out.append(args[i])
+        i += 1
+    return out
+
+
+def add_projection_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--alpha",
+        type=number(0.0, 1.0),
+        default=1.0,
+        help="video opacity over the model, 0..1 (default 1)",
+    )
+    p.add_argument(
+        "--bias",
+        type=number(0.0, 100.0),
+        default=DEFAULT_DEPTH_BIAS_M,
+        help="constant depth bias, metres",
+    )
+    p.add_argument(
+        "--slope-bias",
+        type=number(0.0, 100.0),
+        default=DEFAULT_DEPTH_SLOPE_BIAS,
+        help="slope-scaled depth bias, depth-map texels",
+    )
+    p.add_argument(
+        "--depth-size",
+        type=count(16, MAX_IMAGE_SIDE),
+        default=DEFAULT_DEPTH_LONG_SIDE_PX,
+        help="depth-map texels on the video's long side",
+    )
+    p.add_argument(
+        "--no-neighbourhood",
+        action="store_true",
+        help="test only the fragment's own depth texel (not the nine-case rule)",
+    )
+    p.add_argument("--no-frustum", action="store_true", help="do not draw the projector's frustum")
+
+
+def add_layer_options(p: argparse.ArgumentParser, placed_models: bool = False) -> None:
+    """--scene (repeatable), --dem, --ortho, --dem-vertical, --dem-error: a clip's scene."""
+    what = (
+        "a model (glTF/GLB, OBJ, PLY) placed by --origin, "
+        if placed_models
+        else "a model in ECEF, "
+    )
+    p.add_argument(
+        "--scene",
+        action="append",
+        default=None,
+        metavar="PATH|URL",
+        help=f"a scene layer, repeatable: a 3D Tiles tileset.json (folder or http(s) URL), a DEM .tif, or {what}drawn together",
+    )
+    p.add_argument(
+        "--dem",
+        type=Path,
+        default=None,
+        help="terrain from a GeoTIFF DEM in any CRS (the same as --scene DEM.tif)",
+    )
+    p.add_argument(
+        "--ortho", type=Path, default=None, help="an orthophoto GeoTIFF draped on the DEM"
+    )
+    p.add_argument(
+        "--dem-vertical",
+        choices=("ellipsoid", "egm2008", "egm96"),
+        default=None,
+        help="the DEM's heights are above this (default: the file's vertical CRS, else EGM2008)",
+    )
+    p.add_argument(
+        "--dem-error",
+        type=number(0.01, 100.0),
+        default=0.5,
+        help="the terrain mesh's largest vertical error, metres (default 0.5)",
+    )
+
+
+class Parser(argparse.ArgumentParser):
+    """argparse with the project's one-line errors (`geofuse: error: ...`, exit status 2)."""
+
+    def error(self, message: str):
+        self.exit(
+            2,
+            f"geofuse: error: {self.prog.split(' ', 1)[-1]}: {message}\n"
+            if " " in self.prog
+            else f"geofuse: error: {message}\n",
+        )
+
+
+def add_still_options(p: argparse.ArgumentParser) -> None:
+    """A still's scene and camera: --scene/--dem (placed by --origin, --up, --scene-heading,
+    --scene-scale), --image, --pose, --fov or --lens (render, locate)."""
+    add_layer_options(p, placed_models=True)
+    p.add_argument(
+        "--origin",
+        type=lambda s: floats(s, 3, GEODETIC),
+        metavar="LAT,LON,H",
+        help="the scene's origin: degrees, degrees, ellipsoidal metres",
+    )
+    p.add_argument(
+        "--up",
+        choices=["Y", "Z"],
+        default=None,
+        help="the scene's up axis (default: Y for glTF, Z otherwise)",
+    )
+    p.add_argument(
+        "--scene-heading",
+        type=number(-360.0, 360.0),
+        default=0.0,
+        help="rotate the scene clockwise about Up, degrees",
+    )
+    p.add_argument(
+        "--scene-scale",
+        type=number(0.0, 1e6, open_low=True),
+        default=1.0,
+        help="scene units -> metres",
+    )
+    p.add_argument(
+        "--image",
+        type=Path,
+        action="append",
+        default=None,
+        help="the image (video frame) to project: PNG or JPEG; repeatable (several projected at once, each with its own --pose)",
+    )
+    p.add_argument(
+        "--pose",
+        type=lambda s: floats(s, 6, GEODETIC + ATTITUDE),
+        action="append",
+        default=None,
+        metavar="LAT,LON,H,HEADING,PITCH,ROLL",
+        help="the image's camera: position (deg, deg, ellipsoidal m) and optical-axis heading (deg from true north, clockwise), pitch (deg above horizon), roll (deg); repeatable, paired with --image by order",
+    )
+    p.add_argument(
+        "--fov",
+        type=number(*FOV_RANGE_DEG),
+        action="append",
+        default=None,
+        help="the image's horizontal field of view, degrees; one for all images, or one each",
+    )
+    p.add_argument(
+        "--lens",
+        type=Path,
+        action="append",
+        default=None,
+        help="a gyroflow lens profile (JSON) of the image's camera, instead of --fov (one for all, or one each); with --session, of a clip",
+    )
+
+
+def add_source_option(p: argparse.ArgumentParser, help: str, filter_alias: bool = True) -> None:
+    """--source (also spelled --filter): the pose source of a session or clip."""
+    names = ("--source", "--filter") if filter_alias else ("--source",)
+    p.add_argument(*names, dest="source", default=None, help=help)
+
+
+def add_srt_option(p: argparse.ArgumentParser, help: str) -> None:
+    """--srt: a DJI clip's subtitle when it is not beside the video."""
+    p.add_argument("--srt", type=Path, default=None, help=help)
+
+
+def add_lens_option(
+    p: argparse.ArgumentParser,
+    help: str = "a gyroflow lens profile (JSON) for a clip (default: chosen from the file)",
+) -> None:
+    """--lens: a clip's gyroflow lens profile instead of the one chosen from the file."""
+    p.add_argument("--lens", type=Path, default=None, help=help)
+
+
+def add_fov_option(p: argparse.ArgumentParser) -> None:
+    """--fov: a clip's horizontal field of view (degrees), overriding its lens's."""
+    p.add_argument(
+        "--fov",
+        type=number(*FOV_RANGE_DEG),
+        default=None,
+        help="override the lens's horizontal field of view, degrees",
+    )
+
+
+def add_pitch_option(p: argparse.ArgumentParser, help: str) -> None:
+    """--pitch: a drone clip's camera pitch (degrees above the horizon) where it wrote none."""
+    p.add_argument("--pitch", type=number(-90.0, 90.0), default=DRONE_DEFAULT_PITCH_DEG, help=help)

@@ -1,0 +1,41 @@
+"""The Stats panel: frame rate and time, the decode queue, latency, dropped frames, triangles, 3D
+Tiles on the GPU."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from imgui_bundle import imgui
+
+from app.ui.panels.widgets import window
+
+
+def draw(v) -> None:
+    """This frame's panel (v: the Viewer)."""
+    if window("Stats"):
+        ft = np.asarray(v.stats.frame_times[-120:] or [0.0]) * 1000.0
+        fps = 1000.0 / max(np.mean(ft), 1e-6)
+        player = v.loaded.player
+        current, mean, p95 = player.stats.summary()
+        imgui.text(f"frame rate {fps:6.1f} fps   frame time {np.median(ft):5.1f} ms")
+        imgui.text(
+            f"decode queue {player.decoder.frames.qsize()}/{player.decoder.frames.maxsize}   corrupt packets {player.decoder.corrupt_packets}"
+        )
+        imgui.text(f"latency now {current:5.1f} ms  mean {mean:5.1f} ms  p95 {p95:5.1f} ms")
+        imgui.text(
+            f"dropped frames {player.stats.dropped} (decoder skipped {player.decoder.skipped})   depth redraws {v.stats.depth_redraws}"
+        )
+        r = v.loaded.renderer
+        imgui.text(
+            f"triangles drawn {r.scene_pass.triangles:,}   in the depth map {r.depth.triangles:,}"
+        )
+        for layer in r.scene.tilesets:
+            s = layer.stream
+            skipped = ", ".join(f"{n} {k}" for k, n in s.skipped.snapshot().items())
+            imgui.text_wrapped(
+                f"{Path(layer.tileset.location.rstrip('/')).name}: {len(layer.resident)} tiles on the GPU ({layer.bytes_held / 2**20:.0f} MB of {layer.cache_bytes / 2**20:.0f}), "
+                f"{s.pending} loading, {s.failures} failed"
+                + (f"; skipped {skipped}" if skipped else "")
+            )
+    imgui.end()

@@ -1,0 +1,67 @@
+"""The Timeline panel: play, pause, step, speed, loop, the scrubber, and each further clip's span."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from imgui_bundle import imgui
+
+from app.playback.clock import SPEEDS
+from app.ui.panels.widgets import colour, run, window
+
+
+def draw(v, now: float) -> None:
+    """This frame's panel (v: the Viewer; now: its clock, seconds)."""
+    if window("Timeline"):
+        clock = v.loaded.clock
+        if imgui.button("Pause" if not clock.paused else "Play"):
+            run(v, "toggle", None, now)
+        imgui.same_line()
+        if imgui.button("<"):
+            run(v, "step", "-1", now)
+        imgui.same_line()
+        if imgui.button(">"):
+            run(v, "step", "1", now)
+        imgui.same_line()
+        imgui.set_next_item_width(80)
+        idx = SPEEDS.index(clock.speed) if clock.speed in SPEEDS else SPEEDS.index(1.0)
+        changed, idx = imgui.combo("speed", idx, [f"{s:g}x" for s in SPEEDS])
+        if changed:
+            run(v, "speed", str(SPEEDS[idx]), now)
+        imgui.same_line()
+        _, clock.loop = imgui.checkbox("loop", clock.loop)
+        imgui.same_line()
+        media = clock.time(now)
+        imgui.text(f"{media:7.2f} / {clock.duration:.2f} s   frame {max(v.current_index, 0)}")
+        imgui.set_next_item_width(-1)
+        changed, t = imgui.slider_float("##scrub", media, 0.0, clock.duration, "%.2f s")
+        if changed or imgui.is_item_deactivated_after_edit():
+            run(v, "seek", str(t), now)  # dragging scrubs; release shows the exact frame
+        _spans(v)
+    imgui.end()
+
+
+def _spans(v) -> None:
+    """Each further clip's span under the slider, on the first clip's media time: a bar over the
+    part of the timeline where it shows a frame, and what it shows now."""
+    L = v.loaded
+    if not L.others:
+        return
+    first = L.timeline.clips[0]
+    shift = first.start_s - float(L.session.video.pts_s[0])  # timeline - media time of the first
+    width = imgui.get_content_region_avail().x
+    for clip, span in zip(L.others, L.timeline.clips[1:]):
+        lo = max(0.0, (span.start_s - shift) / max(L.clock.duration, 1e-9))
+        hi = min(1.0, (span.end_s - shift) / max(L.clock.duration, 1e-9))
+        imgui.dummy(imgui.ImVec2(max(0.0, lo) * width, 4))
+        imgui.same_line(0.0, 0.0)
+        imgui.push_style_color(imgui.Col_.plot_histogram, colour(clip.colour))
+        imgui.progress_bar(1.0, imgui.ImVec2(max(1.0, (hi - lo) * width), 6), "")
+        imgui.pop_style_color()
+        imgui.same_line()
+        shown = (
+            "hidden"
+            if not clip.visible
+            else ("no frame" if clip.frame is None else f"frame {clip.frame}")
+        )
+        imgui.text_disabled(f"{Path(clip.session.video.path).name}: {shown}")

@@ -62,20 +62,21 @@ def open_clip(
     path: str | Path,
     srt: str | Path | None = None,
     hfov_deg: float | None = None,
-    drone_pitch_deg: float = DRONE_DEFAULT_PITCH_DEG,
+    pitch_deg: float = DRONE_DEFAULT_PITCH_DEG,
     lens: str | Path | None = None,
     layers: tuple[Layer, ...] = (),
 ) -> Session:
     """A session from a GoPro MP4, or from a video with a DJI subtitle (`srt`, or found beside it).
     lens: a gyroflow profile to use instead of the one chosen from the file (GoPro) or the pinhole
-    field of view; hfov_deg: a pinhole field of view instead of any lens; layers: the scene
-    (tilesets, DEMs, models placed by themselves) instead of an assumed ground."""
+    field of view; hfov_deg: a pinhole field of view instead of any lens; pitch_deg: a drone
+    clip's camera pitch (degrees above the horizon) when its subtitle has no gimbal attitude;
+    layers: the scene (tilesets, DEMs, models placed by themselves) instead of an assumed ground."""
     path = Path(path)
     if not path.is_file():
         raise DataFormatError(path, "video file does not exist")
     srt = Path(srt) if srt is not None else find_srt(path)
     if srt is not None:
-        return _dji_session(path, srt, hfov_deg, drone_pitch_deg, lens, layers)
+        return _dji_session(path, srt, hfov_deg, pitch_deg, lens, layers)
     return _gopro_session(path, hfov_deg, lens, layers)
 
 

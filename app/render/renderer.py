@@ -242,28 +242,14 @@ class FusionRenderer:
             self.projector_age,
         )
         vp = view.view_projection
-        if overlays.frustum and self.projector is not None:
-            self.lines.draw(
-                vp,
-                frustum_segments(self.projector, overlays.frustum_length_m),
-                FRUSTUM_COLOR,
-                moderngl.LINES,
-            )
         if overlays.frustum:
-            for e in self.extras:
-                self.lines.draw(
-                    vp,
-                    frustum_segments(e.camera, overlays.frustum_length_m),
-                    e.colour,
-                    moderngl.LINES,
-                )
-        if overlays.frustum and self.reference is not None:
-            self.lines.draw(
-                vp,
-                frustum_segments(self.reference, overlays.frustum_length_m),
-                REFERENCE_COLOR,
-                moderngl.LINES,
-            )
+            frustums = [(self.projector, FRUSTUM_COLOR)]
+            frustums += [(e.camera, e.colour) for e in self.extras]
+            frustums.append((self.reference, REFERENCE_COLOR))
+            for camera, colour in frustums:
+                if camera is not None:
+                    segments = frustum_segments(camera, overlays.frustum_length_m)
+                    self.lines.draw(vp, segments, colour, moderngl.LINES)
         if overlays.trajectory and self.trajectory is not None:
             self.lines.draw(vp, self.trajectory, TRAJECTORY_COLOR, moderngl.LINE_STRIP)
         if self.outlines is not None and len(self.outlines) >= 2:

@@ -114,6 +114,19 @@ def _vertex(index: np.ndarray, verts: np.ndarray, nv: int, x: int, y: int) -> in
 
 
 @njit(cache=True)
+def _push(stack: np.ndarray, sp: int, ax: int, ay: int, bx: int, by: int, cx: int, cy: int) -> int:
+    """Push the triangle (a, b, c) (grid column, row of each corner) on `stack` at `sp`; the new
+    stack pointer."""
+    stack[sp, 0] = ax
+    stack[sp, 1] = ay
+    stack[sp, 2] = bx
+    stack[sp, 3] = by
+    stack[sp, 4] = cx
+    stack[sp, 5] = cy
+    return sp + 1
+
+
+@njit(cache=True)
 def _rtin_mesh(errors: np.ndarray, max_error: float) -> tuple[np.ndarray, np.ndarray]:
     """(vertices (N, 2) int32 column, row; triangles (M, 3) int32) of the RTIN within max_error."""
     size = errors.shape[0]
@@ -130,55 +143,18 @@ def _rtin_mesh(errors: np.ndarray, max_error: float) -> tuple[np.ndarray, np.nda
         stack = np.empty((4 * 32 + 8, 6), np.int32)
         for root in range(2):
             if root == 0:
-                stack[0, 0], stack[0, 1], stack[0, 2], stack[0, 3], stack[0, 4], stack[0, 5] = (
-                    0,
-                    0,
-                    tile,
-                    tile,
-                    tile,
-                    0,
-                )
+                sp = _push(stack, 0, 0, 0, tile, tile, tile, 0)
             else:
-                stack[0, 0], stack[0, 1], stack[0, 2], stack[0, 3], stack[0, 4], stack[0, 5] = (
-                    tile,
-                    tile,
-                    0,
-                    0,
-                    0,
-                    tile,
-                )
-            sp = 1
+                sp = _push(stack, 0, tile, tile, 0, 0, 0, tile)
             while sp > 0:
                 sp -= 1
-                ax, ay, bx, by, cx, cy = (
-                    stack[sp, 0],
-                    stack[sp, 1],
-                    stack[sp, 2],
-                    stack[sp, 3],
-                    stack[sp, 4],
-                    stack[sp, 5],
-                )
+                ax, ay, bx, by = stack[sp, 0], stack[sp, 1], stack[sp, 2], stack[sp, 3]
+                cx, cy = stack[sp, 4], stack[sp, 5]
                 mx = (ax + bx) >> 1
                 my = (ay + by) >> 1
                 if abs(ax - cx) + abs(ay - cy) > 1 and errors[my, mx] > max_error:
-                    (
-                        stack[sp, 0],
-                        stack[sp, 1],
-                        stack[sp, 2],
-                        stack[sp, 3],
-                        stack[sp, 4],
-                        stack[sp, 5],
-                    ) = cx, cy, ax, ay, mx, my
-                    sp += 1
-                    (
-                        stack[sp, 0],
-                        stack[sp, 1],
-                        stack[sp, 2],
-                        stack[sp, 3],
-                        stack[sp, 4],
-                        stack[sp, 5],
-                    ) = bx, by, cx, cy, mx, my
-                    sp += 1
+                    sp = _push(stack, sp, cx, cy, ax, ay, mx, my)
+                    sp = _push(stack, sp, bx, by, cx, cy, mx, my)
                     continue
                 if fill:
                     nv = _vertex(index, verts, nv, ax, ay)

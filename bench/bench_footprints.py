@@ -49,7 +49,7 @@ def main(argv: list[str] | None = None) -> int:
         runs.append(time.perf_counter() - t0)
         print(f"run {k + 1}/{args.repeat}: {runs[-1]:.2f} s", file=sys.stderr)
     plain, built, differ = [], [], []
-    for r, s in list(zip(records, shapes))[:: args.check]:
+    for r, s in list(zip(records, shapes, strict=True))[:: args.check]:
         lon_lat = np.asarray(r.ground)[..., ::-1]
         t0 = time.perf_counter()
         u = shapely.union_all(shapely.make_valid(shapely.polygons(cell_rings(lon_lat))))

@@ -21,7 +21,7 @@ import statistics
 import sys
 import tempfile
 import time
-from datetime import datetime, timedelta, timezone
+from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
 import numpy as np
@@ -60,7 +60,7 @@ def _query(folder: Path, n: int) -> tuple[float, int]:
     lon, lat = lon0 + x / k[0], lat0 + y / k[1]
     half = 25.0 / k
     boxes = shapely.box(lon - half[0], lat - half[1], lon + half[0], lat + half[1])
-    t0 = datetime(2026, 1, 1, tzinfo=timezone.utc)
+    t0 = datetime(2026, 1, 1, tzinfo=UTC)
     frame = gpd.GeoDataFrame(
         {
             "clip": [f"clip{i // 600:05d}.MP4" for i in range(n)],
@@ -78,7 +78,7 @@ def _query(folder: Path, n: int) -> tuple[float, int]:
     path = folder / "million.parquet"
     frame.to_parquet(path, index=False, write_covering_bbox=True, row_group_size=50_000)
     times, hits = [], 0
-    for q in range(5):
+    for _ in range(5):
         i = int(rng.integers(n))
         place = place_of((float(lat[i]), float(lon[i])), 30.0)
         t = time.perf_counter()

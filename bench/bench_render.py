@@ -127,7 +127,7 @@ def main(argv: list[str] | None = None) -> int:
         size = depth_map_size(projector.intrinsics.width, projector.intrinsics.height, long_side)
         k = [0]
 
-        def depth_only() -> None:
+        def depth_only(k: list[int] = k, size: tuple[int, int] = size) -> None:
             k[0] += 1
             cam = photo_camera(
                 SAMPLE_PHOTO_POSE.__class__(
@@ -141,7 +141,7 @@ def main(argv: list[str] | None = None) -> int:
             renderer.depth.update(cam, size)
             ctx.finish()
 
-        def full_frame() -> None:
+        def full_frame(settings: ProjectionSettings = settings, depth_only=depth_only) -> None:
             depth_only()
             renderer.set_projector(renderer.depth.camera)
             draw(settings)
@@ -370,7 +370,7 @@ def further_frames(ctx, renderer, view, target, frames: int) -> None:
         v = rng.integers(16, 240, (h // 2, w // 2), dtype=np.uint8)
         planes[w] = YuvPlanes(y, u, v, 90)
 
-        def ready(on_cpu: bool) -> None:
+        def ready(on_cpu: bool, y=y, u=u, v=v, w=w) -> None:
             if on_cpu:
                 shown.set(np.ascontiguousarray(np.rot90(yuv_to_rgb(y, u, v), k=-1)))
             else:

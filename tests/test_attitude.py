@@ -94,7 +94,7 @@ def test_gradient_step_reduces_the_error():
         )
         grad = np.array(kernels.field_gradient(*q, *d, *s))
 
-        def cost(qq):
+        def cost(qq, d=d, s=s):
             qq = qq / np.linalg.norm(qq)
             return np.sum((rotations.rotate(rotations.conjugate(qq), d) - s) ** 2)
 
@@ -151,8 +151,8 @@ def broad_scores(shared_data):
                 ).total
                 for tr in trials
             ]
-            und = [r for r, tr in zip(res, trials) if "undisturbed" in tr.name]
-            dis = [r for r, tr in zip(res, trials) if "undisturbed" not in tr.name]
+            und = [r for r, tr in zip(res, trials, strict=True) if "undisturbed" in tr.name]
+            dis = [r for r, tr in zip(res, trials, strict=True) if "undisturbed" not in tr.name]
             scores[method, nine] = (float(np.mean(und)), float(np.mean(dis)))
     return scores
 

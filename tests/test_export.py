@@ -95,7 +95,7 @@ def test_footprints_follow_the_truth(sample):
     )
     enu = lambda g: sample.frame.geodetic_to_enu(*np.asarray(g, float).T)  # noqa: E731
     checked = 0
-    for a, b in zip(est, truth):
+    for a, b in zip(est, truth, strict=True):
         if a.clipped or b.clipped:
             continue
         angle = np.degrees(
@@ -141,7 +141,7 @@ def _signed_area(ring: list[list[float]]) -> float:
     """Twice the shoelace area, about the first point (no cancellation at 113 degrees)."""
     x0, y0 = ring[0][0], ring[0][1]
     pts = [(x - x0, y - y0) for x, y, *_ in ring]
-    return sum(xa * yb - xb * ya for (xa, ya), (xb, yb) in zip(pts, pts[1:]))
+    return sum(xa * yb - xb * ya for (xa, ya), (xb, yb) in zip(pts, pts[1:], strict=False))
 
 
 def test_geojson_follows_rfc_7946(tmp_path, capsys):
@@ -248,7 +248,7 @@ def test_klv_round_trips_through_an_independent_decoder(sample, tmp_path):
                 frames += 1
     assert frames == len(sample.video.pts_s)
     assert len(packets) == len(records)
-    for raw, r in zip(packets, records.values()):
+    for raw, r in zip(packets, records.values(), strict=True):
         words = raw[:-2] + (b"\x00" if len(raw[:-2]) % 2 else b"")
         assert sum(
             int.from_bytes(words[i : i + 2], "big") for i in range(0, len(words), 2)

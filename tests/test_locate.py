@@ -106,7 +106,9 @@ def test_a_distorted_lens_pixel_lands_where_the_profile_says(still):
     scene, _ = still
     frame = LocalFrame(*ORIGIN)
     mesh = load_scene(scene, frame)
-    profile = ROOT / "app/lens_profiles/GoPro/GoPro_HERO8 Black_Wide_HS Boost_2.7k_16by9.json"
+    profile = (
+        ROOT / "app/camera/lens_profiles/GoPro/GoPro_HERO8 Black_Wide_HS Boost_2.7k_16by9.json"
+    )
     width, height = read_profile(profile).width, read_profile(profile).height
     cam = still_camera((width, height), [0.0, 0.0, 2.0], (0.0, 0.0, 0.0), profile=profile)
     pixel = (0.85 * width, 0.4 * height)

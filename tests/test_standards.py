@@ -8,7 +8,7 @@ from __future__ import annotations
 import csv
 import json
 import xml.etree.ElementTree as ET
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 
 import av
@@ -176,7 +176,7 @@ def test_dji_klv_has_a_local_set_per_frame_with_millisecond_subtitle_times(drone
     frames, sets = _klv_sets(out)
     assert frames == 180 and len(sets) == 180
     first = datetime.fromisoformat(sets[0][2])  # klvdata: '2025-11-15 09:46:40.000000+00:00'
-    assert abs((first - drone.START.replace(tzinfo=timezone.utc)).total_seconds()) < 0.05
+    assert abs((first - drone.START.replace(tzinfo=UTC)).total_seconds()) < 0.05
     lat, lon = float(sets[0][13]), float(sets[0][14])
     n = float(undulation(lat, lon))
     assert float(sets[0][15]) == pytest.approx(float(sets[0][75]) - n, abs=0.65)

@@ -244,5 +244,5 @@ def test_export_video_draws_every_clip(tmp_path, monkeypatch, capsys):
 
     a, b = frames(both), frames(alone)
     assert len(a) == len(b) >= 9
-    changed = [(np.abs(x - y).max(axis=2) > 40).mean() for x, y in zip(a, b)]
+    changed = [(np.abs(x - y).max(axis=2) > 40).mean() for x, y in zip(a, b, strict=True)]
     assert min(changed) > 0.02

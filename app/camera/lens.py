@@ -66,7 +66,7 @@ class Lens:
         cy: float,
         coeffs,
         **rest,
-    ) -> "Lens":
+    ) -> Lens:
         return cls(
             kind,
             Intrinsics(int(width), int(height), float(fx), float(fy), float(cx), float(cy)),
@@ -81,11 +81,11 @@ class Lens:
     cx = property(lambda self: self.k.cx)
     cy = property(lambda self: self.k.cy)
 
-    def scaled(self, width: int, height: int) -> "Lens":
+    def scaled(self, width: int, height: int) -> Lens:
         """The same lens at another resolution of the same field of view."""
         return replace(self, k=self.k.scaled(width, height))
 
-    def rotated(self, quarter_turns_cw: int) -> "Lens":
+    def rotated(self, quarter_turns_cw: int) -> Lens:
         """The lens of the image turned clockwise by 90 deg steps (a video stored landscape and
         shown portrait): only the symmetric models turn exactly; the stretch must be 1."""
         q = quarter_turns_cw % 4

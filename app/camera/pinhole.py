@@ -81,7 +81,7 @@ class Camera:
         lens: Lens | None = None,
         rs_turn: npt.ArrayLike | None = None,
         rs_axis: tuple[float, float, float] = (0.0, 1.0, 0.0),
-    ) -> "Camera":
+    ) -> Camera:
         p = np.asarray(position, np.float64).reshape(3)
         q = rotations.canonical(np.asarray(orientation, np.float64).reshape(4))
         turn = (

@@ -75,7 +75,7 @@ class PositionTrack:
         lon: npt.ArrayLike,
         h: npt.ArrayLike,
         vel_enu: npt.ArrayLike | None = None,
-    ) -> "PositionTrack":
+    ) -> PositionTrack:
         t, lat, lon, h = (np.asarray(a, np.float64) for a in (t, lat, lon, h))
         if len(t) < 2 or np.any(np.diff(t) <= 0):
             raise ValueError("need at least 2 fixes with strictly increasing times")

@@ -188,7 +188,7 @@ def still_scene(args: argparse.Namespace, what: str, far: float) -> StillScene:
     for message in loaded.notes.since(0):
         print(message, file=sys.stderr)
     stills = []
-    for path, pose, fov, lens in zip(args.image, args.pose, fovs, lenses):
+    for path, pose, fov, lens in zip(args.image, args.pose, fovs, lenses, strict=True):
         image = read_rgb(path)
         try:
             camera = still_camera(

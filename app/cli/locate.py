@@ -87,7 +87,7 @@ def run(args: argparse.Namespace) -> int:
     print_scene_report(mesh)
     failed = 0
     rows = []
-    for p, f in zip(pixels, found):
+    for p, f in zip(pixels, found, strict=True):
         if isinstance(f, Location):
             rows.append(f.as_dict())
             if not args.json:

@@ -9,7 +9,7 @@ from __future__ import annotations
 import argparse
 import math
 from collections.abc import Sequence
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 
 from app.core.constants import (
@@ -43,7 +43,7 @@ def floats(
         raise argparse.ArgumentTypeError(
             f"expected {count} comma-separated finite numbers, got {text!r}"
         )
-    for v, (low, high, name) in zip(values, ranges):
+    for v, (low, high, name) in zip(values, ranges, strict=False):
         if not low <= v <= high:
             raise argparse.ArgumentTypeError(f"{name} {v:g} is outside [{low:g}, {high:g}]")
     return values
@@ -89,7 +89,7 @@ def utc(text: str) -> datetime:
         t = datetime.fromisoformat(text.replace("Z", "+00:00"))
     except ValueError as exc:
         raise argparse.ArgumentTypeError(f"expected an ISO 8601 time, got {text!r}") from exc
-    return t if t.tzinfo is not None else t.replace(tzinfo=timezone.utc)
+    return t if t.tzinfo is not None else t.replace(tzinfo=UTC)
 
 
 def size(text: str) -> tuple[int, int]:

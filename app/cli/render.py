@@ -119,7 +119,7 @@ def _others(args: argparse.Namespace, first: Session, index: int) -> tuple[list,
     line = Timeline.of([first, *(s for s, _ in sessions)], [0.0, *(off for _, off, _ in refs)])
     t = float(line.clips[0].times[index])
     extras, ages, parts = [], [], []
-    for (s, source), span, (_, _, priority) in zip(sessions, line.clips[1:], refs):
+    for (s, source), span, (_, _, priority) in zip(sessions, line.clips[1:], refs, strict=True):
         print_messages(s)
         k = span.frame_at(t)
         name = Path(s.video.path).name

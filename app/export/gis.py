@@ -24,7 +24,7 @@ import json
 import math
 import zipfile
 from collections.abc import Iterable
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 from xml.sax.saxutils import escape
 
@@ -56,7 +56,7 @@ def iso_utc(unix_s: float | None) -> str | None:
     if unix_s is None:
         return None
     return (
-        datetime.fromtimestamp(unix_s, timezone.utc)
+        datetime.fromtimestamp(unix_s, UTC)
         .isoformat(timespec="microseconds")
         .replace("+00:00", "Z")
     )

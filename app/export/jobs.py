@@ -118,7 +118,7 @@ def write_footprints(
     )
     beside = []
     if out.suffix.lower() in (".geojson", ".json"):
-        for which, layer in zip(COMPANIONS, (borders_geojson, track_geojson)):
+        for which, layer in zip(COMPANIONS, (borders_geojson, track_geojson), strict=True):
             path = check_output(companion(out, which), "--out", (out.suffix,), inputs)
             write_atomically(path, "--out", lambda f, layer=layer: json.dump(layer(records), f))
             beside.append(path.name)
@@ -153,7 +153,7 @@ def _further_clips(
     )
     times = line.clips[0].times
     out = []
-    for (s, track, _, priority), span in zip(further, line.clips[1:]):
+    for (s, track, _, priority), span in zip(further, line.clips[1:], strict=True):
         frames = [span.frame_at(float(t)) for t in times]
         out.append(
             FurtherClip(
@@ -161,7 +161,10 @@ def _further_clips(
                 s.rotation_cw,
                 track,
                 frames,
-                [0.0 if j is None else float(t - span.times[j]) for t, j in zip(times, frames)],
+                [
+                    0.0 if j is None else float(t - span.times[j])
+                    for t, j in zip(times, frames, strict=True)
+                ],
                 onto(s, session),
                 priority,
             )

@@ -29,7 +29,7 @@ def footprint_preview(
     enu = lambda g: frame.geodetic_to_enu(*np.asarray(g, np.float64).T)  # noqa: E731
     rings = [enu(r.footprint) for r in records]
     track = enu([r.sensor for r in records])
-    near = [ring for ring, r in zip(rings, records) if not r.clipped] or rings
+    near = [ring for ring, r in zip(rings, records, strict=True) if not r.clipped] or rings
     pts = np.vstack(near + [track])
     lo, hi = pts.min(axis=0), pts.max(axis=0)
     centre = (lo + hi) / 2

@@ -173,7 +173,7 @@ def export_video(
                 )
                 renderer.set_projector(projector)
                 views, ages = [], []
-                for clip, reader in zip(further, readers):
+                for clip, reader in zip(further, readers, strict=True):
                     j = clip.frames[k]
                     rgb_j = None if j is None else reader.get(j)
                     if rgb_j is not None:

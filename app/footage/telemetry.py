@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import csv
 from dataclasses import dataclass, field
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
@@ -179,7 +179,7 @@ def _gopro(path: Path) -> Telemetry:
         out.info.append(f"GPS precision (DOP): median {np.median(r.raw.gps_precision[:, 1]):.2f}")
     if r.gps_utc_at_zero:
         out.info.append(
-            f"clip start (GPSU): {datetime.fromtimestamp(r.gps_utc_at_zero, timezone.utc).isoformat()}"
+            f"clip start (GPSU): {datetime.fromtimestamp(r.gps_utc_at_zero, UTC).isoformat()}"
         )
     return out
 

@@ -119,6 +119,6 @@ class LocalFrame:
         """ENU (..., 3) metres -> (..., 3) latitude deg, longitude deg, ellipsoidal height m."""
         return ecef_to_geodetic(self.enu_to_ecef(enu))
 
-    def rotation_to(self, other: "LocalFrame") -> FloatArray:
+    def rotation_to(self, other: LocalFrame) -> FloatArray:
         """3x3 R with v_other_enu = R @ v_self_enu (directions; tangent planes differ slightly)."""
         return other.rotation @ self.rotation.T

@@ -3,7 +3,7 @@
 National DEMs, SRTM and the Copernicus DEM give heights above a geoid (EGM96 or EGM2008); GNSS
 receivers and geofuse's world frame use heights above the WGS84 ellipsoid. The two differ by
 -107 m to +86 m over the globe. geofuse ships EGM2008 on a 10 arc-minute grid
-(app/data/egm2008_10min.npz, see tools/geoid_grid.py; 3.7 cm RMS against the full 2.5' grid).
+(app/geodesy/data/egm2008_10min.npz, see tools/geoid_grid.py; 3.7 cm RMS against the full 2.5' grid).
 EGM96 heights are converted with the same EGM2008 undulations: the two models differ by less than
 a metre almost everywhere (a few metres in the Himalaya and the Andes), which callers say.
 """

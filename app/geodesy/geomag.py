@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 
 import numpy as np
 from pygeomag import GeoMag, decimal_year_from_date
@@ -12,7 +12,7 @@ WMM_EPOCHS = (2010, 2015, 2020, 2025)  # coefficient files pygeomag ships (wmm/W
 
 def _wmm(lat: float, lon: float, h_m: float, when_unix_s: float):
 
-    year = decimal_year_from_date(datetime.fromtimestamp(when_unix_s, timezone.utc).date())
+    year = decimal_year_from_date(datetime.fromtimestamp(when_unix_s, UTC).date())
     epoch = max([e for e in WMM_EPOCHS if e <= year] or [WMM_EPOCHS[0]])
     gm = GeoMag(coefficients_file=f"wmm/WMM_{epoch}.COF")
     return gm.calculate(

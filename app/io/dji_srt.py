@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
@@ -159,14 +159,14 @@ def _entry_fields(text: str) -> tuple[dict[str, float], str]:
     d = _DATE_DASH.search(text)
     if d:
         g = d.groups()
-        base = datetime(*(int(x) for x in g[:6]), tzinfo=timezone.utc).timestamp()
+        base = datetime(*(int(x) for x in g[:6]), tzinfo=UTC).timestamp()
         f["wall"] = (
             base + (int(g[6]) / 1000.0 if g[6] else 0.0) + (int(g[7]) / 1e6 if g[7] else 0.0)
         )
     else:
         d = _DATE_DOT.search(text)
         if d:
-            f["wall"] = datetime(*(int(x) for x in d.groups()), tzinfo=timezone.utc).timestamp()
+            f["wall"] = datetime(*(int(x) for x in d.groups()), tzinfo=UTC).timestamp()
     return f, layout
 
 
@@ -317,12 +317,15 @@ def _times_from_dates(
     wall = _cadence_within_seconds(wall)
     out = [
         (float(w - w0), np.nan, f) if not np.isfinite(t0) else (t0, t1, f)
-        for (t0, t1, f), w in zip(rows, wall)
+        for (t0, t1, f), w in zip(rows, wall, strict=True)
     ]
     starts = np.array([r[0] for r in out])
     step = float(np.median(np.diff(starts))) if len(starts) > 1 else 1.0
     ends = np.append(starts[1:], starts[-1] + step)
-    return [(t0, t1 if np.isfinite(t1) else float(e), f) for (t0, t1, f), e in zip(out, ends)]
+    return [
+        (t0, t1 if np.isfinite(t1) else float(e), f)
+        for (t0, t1, f), e in zip(out, ends, strict=True)
+    ]
 
 
 def srt_fixes(track: SrtTrack, messages: Messages, offset_s: float = 0.0) -> GnssTrack:

@@ -15,7 +15,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 
 import av
@@ -262,9 +262,7 @@ TIMELAPSE_MIN_SPAN_S = 3.0  # of video, for the ratio to mean anything (GPSU has
 
 def _gpsu_seconds(text: str) -> float | None:
     try:
-        return (
-            datetime.strptime(text[:16], "%y%m%d%H%M%S.%f").replace(tzinfo=timezone.utc).timestamp()
-        )
+        return datetime.strptime(text[:16], "%y%m%d%H%M%S.%f").replace(tzinfo=UTC).timestamp()
     except ValueError:
         return None
 

@@ -9,7 +9,7 @@ Heights: GPX <ele> is usually above mean sea level; the session manifest's `gnss
 from __future__ import annotations
 
 import xml.etree.ElementTree as ET
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
@@ -84,7 +84,7 @@ def read_gpx(path: str | Path, messages: Messages | None = None) -> GnssTrack:
     early = arr[:, 0] < GPS_EPOCH_UNIX_S
     if early.any():
         k = int(np.flatnonzero(early)[0])
-        when = datetime.fromtimestamp(arr[k, 0], timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
+        when = datetime.fromtimestamp(arr[k, 0], UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
         raise DataFormatError(
             path,
             f"track point {k + 1} is dated {when}, before GNSS time began (1980): a broken logger clock "

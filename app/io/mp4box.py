@@ -11,8 +11,9 @@ media data (a 4 GB clip costs a handful of reads). Pure Python; PyAV does the me
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from pathlib import Path
-from typing import BinaryIO, Iterator
+from typing import BinaryIO
 
 MAX_UDTA_BYTES = 16 << 20  # a user-data box larger than this is not metadata worth reading
 

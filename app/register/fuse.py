@@ -115,7 +115,7 @@ class Correction:
     @classmethod
     def from_keyframes(
         cls, keyframes: list[Keyframe], settings: FuseSettings = FuseSettings()
-    ) -> "Correction":
+    ) -> Correction:
         used = sorted((k for k in keyframes if k.used), key=lambda k: k.time_s)
         if not used:
             return cls(np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3)), settings.hold_s)

@@ -105,7 +105,9 @@ def write_points(path: str | Path, points: ControlPoints) -> Path:
     with open(path, "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(COLUMNS)
-        for k, (u, v), (lat, lon, h) in zip(points.frame, points.pixel, points.geodetic):
+        for k, (u, v), (lat, lon, h) in zip(
+            points.frame, points.pixel, points.geodetic, strict=True
+        ):
             w.writerow([int(k), f"{u:.2f}", f"{v:.2f}", f"{lat:.9f}", f"{lon:.9f}", f"{h:.3f}"])
     return path
 
@@ -138,7 +140,7 @@ class ControlSolution:
         ]
         lines += [
             f"  pair {i + 1}: {p:.2f} px, {m:.2f} m"
-            for i, (p, m) in enumerate(zip(self.residual_px, self.residual_m))
+            for i, (p, m) in enumerate(zip(self.residual_px, self.residual_m, strict=True))
         ]
         return "\n".join(lines)
 

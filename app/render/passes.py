@@ -298,7 +298,7 @@ def _set_extras(p: Uniforms, extras: tuple[ExtraProjector, ...]) -> None:
     p["u_extra_far"] = [c.far for c in cams]
     p["u_extra_focal_texels"] = [
         max(c.intrinsics.fx, c.intrinsics.fy) * e.depth.size[0] / c.intrinsics.width
-        for c, e in zip(cams, extras)
+        for c, e in zip(cams, extras, strict=True)
     ]
     p["u_extra_priority"] = [float(e.priority) for e in extras]
     p["u_extra_age"] = [float(e.age_s) for e in extras]

@@ -32,7 +32,8 @@ class GpuPrimitive:
             fmt = VERTEX_FORMAT[0].split()
             names = VERTEX_FORMAT[1:]
             layout = " ".join(
-                f if name in attributes else f.replace("f", "x4") for f, name in zip(fmt, names)
+                f if name in attributes else f.replace("f", "x4")
+                for f, name in zip(fmt, names, strict=True)
             )
             used = [name for name in names if name in attributes]
             self.vaos[key] = ctx.vertex_array(

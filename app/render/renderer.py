@@ -99,7 +99,9 @@ class FusionRenderer:
             key = f"projector{len(self.extras)}"
             depth = DepthPass(self.ctx, self.scene, key)
             self.extras.append(_Extra(depth, ExtraVideo(self.ctx)))
-        for k, (extra, (camera, frame, priority)) in enumerate(zip(self.extras, views)):
+        for k, (extra, (camera, frame, priority)) in enumerate(
+            zip(self.extras, views, strict=True)
+        ):
             extra.set(camera, frame, priority)
             extra.alpha = None if alphas is None else float(alphas[k])
             extra.age_s = 0.0 if ages_s is None else float(ages_s[k])
@@ -110,7 +112,7 @@ class FusionRenderer:
         each further one's (as set_extra_projectors ordered them). Where views tie, the younger
         wins; set every frame by a player, without uploading the frames again."""
         self.projector_age = float(first_s)
-        for extra, age in zip(self.extras, extras_s):
+        for extra, age in zip(self.extras, extras_s, strict=True):
             extra.age_s = float(age)
 
     def set_reference(self, camera: Camera | None) -> None:

@@ -89,7 +89,7 @@ class VideoTexture:
         h, w = y.shape
         shapes = [(w, h, 1), (u.shape[1], u.shape[0], 1), (v.shape[1], v.shape[0], 1)]
         self.planes = _textures(self.ctx, self.planes, shapes)
-        for tex, plane in zip(self.planes, (y, u, v)):
+        for tex, plane in zip(self.planes, (y, u, v), strict=True):
             tex.write(np.ascontiguousarray(plane).tobytes())
         self.yuv, self.rotation, self.bt709, self.full_range = (
             True,
@@ -110,7 +110,9 @@ class VideoTexture:
         m, offset = yuv_matrix(self.bt709, self.full_range)
         uniforms.matrices("u_yuv_matrix", [m])
         uniforms["u_yuv_offset"] = tuple(offset)
-        for unit, tex in zip((2, 3, 4), self.planes + [self.planes[0]] * (3 - len(self.planes))):
+        for unit, tex in zip(
+            (2, 3, 4), self.planes + [self.planes[0]] * (3 - len(self.planes)), strict=True
+        ):
             tex.use(unit)
 
     def release(self) -> None:

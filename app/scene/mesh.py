@@ -108,7 +108,9 @@ def merge_untextured(prims: list[Primitive], name: str = "untextured") -> list[P
     merged = Primitive(
         positions=np.concatenate([p.positions for p in flat]),
         colors=np.concatenate([p.colors for p in flat]),
-        indices=np.concatenate([p.indices + np.uint32(o) for p, o in zip(flat, offsets)]),
+        indices=np.concatenate(
+            [p.indices + np.uint32(o) for p, o in zip(flat, offsets, strict=True)]
+        ),
         name=name,
     )
     return [p for p in prims if p.textured] + [merged]

@@ -22,7 +22,7 @@ class Shape:
         offsets = np.cumsum([0] + [len(s.vertices) for s in shapes[:-1]])
         return Shape(
             np.concatenate([s.vertices for s in shapes]),
-            np.concatenate([s.faces + o for s, o in zip(shapes, offsets)]),
+            np.concatenate([s.faces + o for s, o in zip(shapes, offsets, strict=True)]),
             np.concatenate([s.uvs for s in shapes]),
         )
 

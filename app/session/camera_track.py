@@ -111,7 +111,7 @@ class CameraTrack:
 
     def with_offset(
         self, offset_s: float, drift_ppm: float = 0.0, pivot_s: float = 0.0
-    ) -> "CameraTrack":
+    ) -> CameraTrack:
         """The same track with another live time correction: offset (s), clock drift (ppm)
         about session time pivot_s."""
         clock = replace(
@@ -119,7 +119,7 @@ class CameraTrack:
         )
         return replace(self, clock=clock)
 
-    def with_clip(self, near: float, far: float) -> "CameraTrack":
+    def with_clip(self, near: float, far: float) -> CameraTrack:
         return replace(self, near=near, far=far)
 
     def camera_at(self, t_media: float) -> Camera:

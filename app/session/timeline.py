@@ -73,7 +73,7 @@ class Timeline:
         starts = [u[0] for u in utc if u is not None]
         utc0 = min(starts) if starts else None
         clips = []
-        for s, u, off in zip(sessions, utc, offsets):
+        for s, u, off in zip(sessions, utc, offsets, strict=True):
             local = np.asarray(s.frame_times, np.float64)
             times = (u - utc0) if u is not None else local - local[0]
             clips.append(ClipSpan(Path(s.video.path).name, times + off, u is not None, off))

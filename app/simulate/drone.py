@@ -11,7 +11,7 @@ sync` (the GNSS lag found from the course)."""
 
 from __future__ import annotations
 
-from datetime import datetime, timedelta, timezone
+from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
 import numpy as np
@@ -32,7 +32,7 @@ PITCH_DEG = -25.0
 FOCAL_35MM = 24.0
 HFOV_DEG = float(np.degrees(2 * np.arctan(18.0 / FOCAL_35MM)))  # 73.7 deg
 FPS = 30.0
-START = datetime(2025, 11, 15, 9, 46, 40, tzinfo=timezone.utc)
+START = datetime(2025, 11, 15, 9, 46, 40, tzinfo=UTC)
 
 
 def flight(t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -170,7 +170,7 @@ def extras() -> list:
         shapes.box(*np.split(np.zeros(6), 2)).primitive((*m.colour, 1.0), name=f"mover{i}")
         for i, m in enumerate(MOVERS)
     ]
-    for m, prim in zip(MOVERS, movers):
+    for m, prim in zip(MOVERS, movers, strict=True):
         prim.positions = _mover_vertices(m, 0.0).astype(np.float32)
     return [banner, *movers]
 

@@ -257,7 +257,7 @@ def building_texture(b: Building, rng: np.random.Generator) -> Image.Image:
     spans = shapes.wall_spans(b.min_corner, b.max_corner)
     height = b.max_corner[2] - b.min_corner[2]
     img, draw, ppm = _facade(spans[-1][2], height, b.wall_rgb, rng)
-    for facing, x0, x1 in spans:
+    for _facing, x0, x1 in spans:
         _windows(draw, ppm, height, x0 + 1, x1 - 1, floor_m=b.floor_m, bay_m=3.2, first_floor=0)
         draw.rectangle(
             [

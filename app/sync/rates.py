@@ -29,7 +29,7 @@ class RateCurve:
     omega: np.ndarray
     axis: np.ndarray | None = None
 
-    def along(self, reference: "RateCurve") -> "RateCurve":
+    def along(self, reference: RateCurve) -> RateCurve:
         """This three-axis curve made comparable with `reference`: its rate about the
         reference's axis where the reference has one, else itself."""
         if reference.axis is None:

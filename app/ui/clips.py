@@ -152,7 +152,7 @@ def update(v, now: float, wait_s: float = 0.0) -> None:
     # The moment drawn: the first clip's clock, a little after its frame's time.
     first_age = max(0.0, L.clock.time(now) - float(L.session.video.pts_s[k0])) if k0 >= 0 else 0.0
     views, key, ages = [], [], []
-    for clip, span in zip(L.others, L.timeline.clips[1:]):
+    for clip, span in zip(L.others, L.timeline.clips[1:], strict=True):
         clip.frame = None if t is None or not clip.visible else span.frame_at(t)
         p = clip.player
         if clip.frame is None or p is None:

@@ -232,7 +232,7 @@ def refresh(v) -> None:
         pts = np.vstack([points, points[:1]]) if closed and len(points) > 2 else points
         if len(pts) == 1:  # a point: a small vertical tick
             pts = np.vstack([pts, pts + [0.0, 0.0, 2.0]])
-        for a, b in zip(pts[:-1], pts[1:]):
+        for a, b in zip(pts[:-1], pts[1:], strict=True):
             segments.extend((a, b))
 
     for m in state.marks:

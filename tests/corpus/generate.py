@@ -173,7 +173,7 @@ def scene_without_faces(d: Path) -> None:
 
 
 def scene_truncated_glb(d: Path) -> None:
-    from app.demo import SAMPLE_SCENE
+    from app.simulate.sample import SAMPLE_SCENE
 
     data = SAMPLE_SCENE.read_bytes()
     (d / "session/scene.glb").write_bytes(data[: len(data) // 3])
@@ -305,7 +305,7 @@ def script_not_utf8(d: Path) -> None:
 
 
 def photo_copy(d: Path) -> None:
-    from app.demo import SAMPLE_PHOTO
+    from app.simulate.sample import SAMPLE_PHOTO
 
     shutil.copy(SAMPLE_PHOTO, d / "photo.jpg")
 
@@ -322,7 +322,7 @@ PHONE_ORIGIN = (34.80, 113.53, 110.0)
 def _ground_tileset(folder: Path, north_m: float = 0.0) -> Path:
     """A tileset of one b3dm: a 400 m square of ground at the phone session's origin height,
     its centre north_m north of the origin (RTC_CENTER, region volume)."""
-    from app.geo import LocalFrame
+    from app.geodesy.enu import LocalFrame
     from app.scene import shapes
     from app.simulate import tileset as tw
 
@@ -403,7 +403,7 @@ def tileset_and_photo(d: Path) -> None:
 def dem_under_gopro_clip(d: Path, shared: Path) -> None:
     """A DEM (flat, 1 arc-second, 0.04 deg square) around the first GPS fix of a real GoPro clip."""
     from app.attitude.gopro import read_gopro
-    from app.messages import Messages
+    from app.core.messages import Messages
     from app.simulate.terrain import write_geotiff
 
     rec = read_gopro(shared / "real/gopro/max-heromode.mp4", Messages())

@@ -107,6 +107,6 @@ def expand_template(template: str, level: int, coords: tuple[int, ...]) -> str:
     """A template URI with {level}, {x}, {y} and {z} filled in."""
     names = ("x", "y", "z")
     out = template.replace("{level}", str(level))
-    for name, value in zip(names, coords):
+    for name, value in zip(names, coords, strict=False):
         out = out.replace("{" + name + "}", str(value))
     return out

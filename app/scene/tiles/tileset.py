@@ -444,7 +444,7 @@ class Tileset:
     def _local_index(self, imp: Implicit) -> tuple[int, tuple[int, ...]]:
         root_level, root_coords = imp.subtree_root
         local_level = imp.level - root_level
-        local = tuple(c - (r << local_level) for c, r in zip(imp.coords, root_coords))
+        local = tuple(c - (r << local_level) for c, r in zip(imp.coords, root_coords, strict=True))
         return local_level, local
 
     def _implicit_contents(self, tile: Tile) -> None:
@@ -453,7 +453,7 @@ class Tileset:
         index = level_offset(local_level, imp.scheme_dims) + morton(local)
         tile.contents = tuple(
             expand_template(t, imp.level, imp.coords)
-            for t, avail in zip(imp.content_templates, imp.subtree.contents)
+            for t, avail in zip(imp.content_templates, imp.subtree.contents, strict=True)
             if avail(index)
         )
 
@@ -471,8 +471,8 @@ class Tileset:
         local_level, local = self._local_index(imp)
         kids = []
         for bits in itertools.product((0, 1), repeat=imp.scheme_dims):
-            coords = tuple(2 * c + b for c, b in zip(imp.coords, bits))
-            child_local = tuple(2 * c + b for c, b in zip(local, bits))
+            coords = tuple(2 * c + b for c, b in zip(imp.coords, bits, strict=True))
+            child_local = tuple(2 * c + b for c, b in zip(local, bits, strict=True))
             if local_level + 1 < imp.subtree_levels:
                 index = level_offset(local_level + 1, imp.scheme_dims) + morton(child_local)
                 if imp.subtree.tiles(index):

@@ -88,7 +88,7 @@ def _clips(v) -> None:
         return
     imgui.separator()
     imgui.text(f"{1 + len(L.others)} clips on one timeline ({L.timeline.duration_s:.1f} s)")
-    for i, (clip, span) in enumerate(zip(L.others, L.timeline.clips[1:]), start=1):
+    for i, (clip, span) in enumerate(zip(L.others, L.timeline.clips[1:], strict=True), start=1):
         changed, on = imgui.checkbox(f"{Path(clip.session.video.path).name}##clip{i}", clip.visible)
         if changed:
             run(v, "clip", f"{i} {'on' if on else 'off'}")

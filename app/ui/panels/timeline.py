@@ -50,7 +50,7 @@ def _spans(v) -> None:
     first = L.timeline.clips[0]
     shift = first.start_s - float(L.session.video.pts_s[0])  # timeline - media time of the first
     width = imgui.get_content_region_avail().x
-    for clip, span in zip(L.others, L.timeline.clips[1:]):
+    for clip, span in zip(L.others, L.timeline.clips[1:], strict=True):
         lo = max(0.0, (span.start_s - shift) / max(L.clock.duration, 1e-9))
         hi = min(1.0, (span.end_s - shift) / max(L.clock.duration, 1e-9))
         imgui.dummy(imgui.ImVec2(max(0.0, lo) * width, 4))

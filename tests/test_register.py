@@ -371,11 +371,12 @@ def test_solve_offers_the_registered_source_and_says_how_much_registered(short_s
 def test_the_viewer_registers_in_the_background_and_shows_the_registered_source(
     short_session, display, tmp_path
 ):
-
+    """Nobody asks for `registered`: once solved in the background the viewer shows it, and says
+    so among the notes."""
     state, shot = tmp_path / "state.json", tmp_path / "shot.png"
     script = tmp_path / "script.txt"
     script.write_text(
-        f"0 clock 0.05\n0 wait registered\n0 source registered\n0.2 screenshot {shot}\n0.2 state {state}\n0.3 quit\n"
+        f"0 clock 0.05\n0 wait registered\n0.2 screenshot {shot}\n0.2 state {state}\n0.3 quit\n"
     )
     result = run_viewer(
         display, str(short_session.path), "--script", str(script), "--size", "800x450"
@@ -384,6 +385,7 @@ def test_the_viewer_registers_in_the_background_and_shows_the_registered_source(
 
     s = json.loads(state.read_text())
     assert s["source"] == "registered" and "registered" in s["solved"] and s["errors"] == []
+    assert any(n.startswith("registered is solved: showing it instead of") for n in s["info"])
     reg = s["registration"]
     assert reg["prior"] == "offline" and reg["keyframes"] == 12 and reg["used"] >= 9
     assert reg["summary"].startswith(f"registered {reg['used']} of 12 keyframes")

@@ -1,3 +1,5 @@
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
@@ -5,8 +7,11 @@ from app.camera.intrinsics import Intrinsics
 from app.camera.pinhole import Camera
 from app.core.errors import DataFormatError
 from app.geodesy import rotations
+from app.session.model import REGISTERED
 from app.ui.navigation import Navigator
 from app.ui.script import Action, parse_script
+from app.ui.sessions import Loaded, ViewerSessions
+from app.ui.state import UiState
 from app.ui.viewer import Options, Viewer
 
 
@@ -81,3 +86,42 @@ def test_actions_after_a_wait_see_the_time_it_took():
     v.script = [Action(0.0, "wait", "registered", 1), Action(0.0, "play", None, 2)]
     v._run_script(0.0, now[0])
     assert seen == [("wait", 100.0), ("play", 160.0)]
+
+
+def _viewer_with_registered(used: list[bool], chosen: bool) -> SimpleNamespace:
+    """A viewer's state as _prefer_registered reads it: gd-ahrs shown, `registered` solved with
+    keyframes used or not, the user having chosen a source or not."""
+    keyframes = tuple(SimpleNamespace(used=u) for u in used)
+    registered = SimpleNamespace(registration=SimpleNamespace(keyframes=keyframes))
+    loaded = Loaded(
+        session=SimpleNamespace(sources=("gd-ahrs", "offline", REGISTERED)),
+        renderer=None,
+        player=None,
+        library=SimpleNamespace(track=lambda name: registered if name == REGISTERED else None),
+        source="gd-ahrs",
+        source_chosen=chosen,
+    )
+    return SimpleNamespace(loaded=loaded, ui=UiState())
+
+
+def test_the_viewer_shows_registered_once_solved_unless_the_user_chose_a_source():
+    v = _viewer_with_registered([True, False, True], chosen=False)
+    ViewerSessions._prefer_registered(v)
+    assert v.loaded.source == REGISTERED
+    assert v.ui.info == [
+        "registered is solved: showing it instead of gd-ahrs (the Attitude panel switches back)"
+    ]
+    v.loaded.source = "gd-ahrs"  # switched back by hand: not switched again
+    ViewerSessions._prefer_registered(v)
+    assert v.loaded.source == "gd-ahrs" and len(v.ui.info) == 1
+
+    chosen = _viewer_with_registered([True], chosen=True)
+    ViewerSessions._prefer_registered(chosen)
+    assert chosen.loaded.source == "gd-ahrs" and chosen.ui.info == []
+
+    useless = _viewer_with_registered([False, False], chosen=False)
+    ViewerSessions._prefer_registered(useless)
+    assert useless.loaded.source == "gd-ahrs"
+    assert useless.ui.info == [
+        "registered used no keyframe: staying on gd-ahrs (the Attitude panel says why)"
+    ]

@@ -50,6 +50,8 @@ class Loaded:
     others: list = field(default_factory=list)  # further clips (app.ui.clips.OtherClip)
     timeline: Timeline | None = None  # this clip and the others on one clock
     extras_shown: tuple = ()  # what the further projectors were last given
+    source_chosen: bool = False  # the user picked a source: never switched for them
+    registered_said: bool = False  # the switch to `registered` (or why not) was said
 
     @property
     def clock(self) -> PlaybackClock:
@@ -229,6 +231,30 @@ class ViewerSessions:
             self.loaded.library.close()
             self.loaded.renderer.release()
             self.loaded = None
+
+    def _prefer_registered(self) -> None:
+        """Once `registered` is solved in the background, show it: it lines the video up with the
+        model where the sensor filters leave it metres off. Said among the notes; a source the
+        user chose (panel, key, script) is kept, and a registration that used no keyframe changes
+        nothing worth switching to."""
+        L = self.loaded
+        if L.registered_said or L.source_chosen or L.source == REGISTERED:
+            return
+        if REGISTERED not in L.session.sources:
+            return
+        track = L.library.track(REGISTERED)
+        if track is None or track.registration is None:
+            return
+        L.registered_said = True
+        if not any(k.used for k in track.registration.keyframes):
+            self.ui.info.append(
+                f"registered used no keyframe: staying on {L.source} (the Attitude panel says why)"
+            )
+            return
+        self.ui.info.append(
+            f"registered is solved: showing it instead of {L.source} (the Attitude panel switches back)"
+        )
+        L.source = REGISTERED
 
     def _show_messages(self) -> None:
         """The session's messages not shown yet, by level: information among the notes,

@@ -130,8 +130,11 @@ class Viewer(ViewerJobs, ViewerSessions):
         return self.loaded.player.index if self.loaded is not None else -1
 
     def set_source(self, name: str) -> None:
+        """Show the pose source `name`: the user's choice, kept from then on (the viewer no
+        longer switches to `registered` by itself once it is solved)."""
         self.loaded.session.check_source(name)
         self.loaded.source = name
+        self.loaded.source_chosen = True
 
     def toggle_ahrs(self, on: bool | None = None) -> None:
         """Switch between the AHRS and IMU forms of the current filter."""
@@ -198,6 +201,7 @@ class Viewer(ViewerJobs, ViewerSessions):
         if L is None:
             return
         self._show_messages()
+        self._prefer_registered()
         if L.player.decoder.error:
             self.ui.error(L.player.decoder.error)
         self._apply_sync()

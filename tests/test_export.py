@@ -21,6 +21,8 @@ from app.export.records import FootprintCaster, frame_records
 from app.geodesy import rotations
 from app.geodesy.enu import LocalFrame
 from app.geodesy.geoid import undulation
+from app.io.misb import camera_orientation
+from app.io.misb import parse as parse_klv
 from app.scene.ground_plane import ground_plane
 from app.simulate.sample import SAMPLE_DIR
 from app.solve.track import solve_frames
@@ -255,6 +257,15 @@ def test_klv_round_trips_through_an_independent_decoder(sample, tmp_path):
         ) & 0xFFFF == int.from_bytes(raw[-2:], "big")
         (ls,) = list(klvdata.StreamParser(raw))
         m = {k: float(v[3]) if k not in (2, 1) else v[3] for k, v in ls.MetadataList().items()}
+        # Our own reader (app.io.misb) agrees, down to the camera the set describes: 0.0055 deg
+        # is the heading's step over 16 bits.
+        ours = parse_klv(raw)
+        t = r.utc_s if r.utc_s is not None else r.session_s
+        assert ours.time_us == round(t * 1e6) and ours.version == 17
+        assert ours.get("sensor_latitude_deg") == pytest.approx(m[13], abs=1e-9)
+        q = camera_orientation(ours)
+        assert q is not None
+        assert np.degrees(rotations.angle_between(q, rotations.camera_quat_from_hpr(*r.hpr))) < 0.01
         assert m[13] == pytest.approx(r.sensor[0], abs=1e-7) and m[14] == pytest.approx(
             r.sensor[1], abs=1e-7
         )

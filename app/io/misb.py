@@ -1,0 +1,304 @@
+"""MISB ST 0601 (UAS Datalink Local Set) KLV: the bytes both ways, and the camera it describes.
+
+A Local Set is the 16-byte UAS Datalink universal key, a BER length, then tag-length-value items
+(tags BER-OID, lengths BER) ending with the checksum (tag 1): the 16-bit running sum of the packet
+from the key's first byte through the checksum's own tag and length, even-offset bytes as the
+high byte. A set that fails it is refused (KlvError), never half-read.
+
+Values are ST 0601's integer mappings: a quantity of range [low, high] over an N-byte unsigned
+integer is low + v (high - low) / (2^(8N) - 1); a signed one of span S over an N-byte signed
+integer is v S / (2^(8N-1) - 1), the most negative integer being the standard's reserved "out of
+range" code, read as NaN (a gap, not a pose). Every version in use is read: older sets without
+the version tag (65), sets that write a shorter integer than the nominal length (the mapping
+scales with the length found), the full-range platform pitch and roll (90, 91) preferred to the
+short ones (6, 7), the ellipsoid height (75) preferred to the true altitude above sea level (15).
+
+Angles are degrees; the platform's heading is clockwise from true north, its pitch positive nose
+up and roll positive right wing down; the sensor's relative azimuth is clockwise from the nose
+seen from above, its relative elevation positive above the platform's longitudinal-transverse
+plane, its relative roll clockwise about the line of sight looking out (`camera_orientation`
+composes them).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+
+import numpy as np
+import numpy.typing as npt
+
+from app.geodesy import rotations
+
+UAS_LOCAL_SET_KEY = bytes.fromhex("060E2B34020B01010E01030101000000")
+KEY_VERSION_BYTE = 7  # the UL's version byte: any value is accepted when reading
+CHECKSUM_TAG = 1
+TIMESTAMP_TAG = 2  # Precision Time Stamp: microseconds since 1970 (UTC), uint64
+VERSION_TAG = 65
+
+FloatArray = npt.NDArray[np.float64]
+
+
+class KlvError(ValueError):
+    """A Local Set that cannot be read: what is wrong, and where (byte offset in the set)."""
+
+
+@dataclass(frozen=True)
+class Mapping:
+    """One tag's integer mapping: [low, high] over `size` bytes unsigned, or +-span signed (low =
+    -high) with the most negative integer reserved for "out of range"."""
+
+    name: str
+    low: float
+    high: float
+    size: int
+    signed: bool = False
+
+
+TAGS: dict[int, Mapping] = {
+    5: Mapping("platform_heading_deg", 0.0, 360.0, 2),
+    6: Mapping("platform_pitch_deg", -20.0, 20.0, 2, signed=True),
+    7: Mapping("platform_roll_deg", -50.0, 50.0, 2, signed=True),
+    13: Mapping("sensor_latitude_deg", -90.0, 90.0, 4, signed=True),
+    14: Mapping("sensor_longitude_deg", -180.0, 180.0, 4, signed=True),
+    15: Mapping("sensor_msl_m", -900.0, 19000.0, 2),  # Sensor True Altitude, above sea level
+    16: Mapping("hfov_deg", 0.0, 180.0, 2),
+    17: Mapping("vfov_deg", 0.0, 180.0, 2),
+    18: Mapping("sensor_azimuth_deg", 0.0, 360.0, 4),  # relative to the platform
+    19: Mapping("sensor_elevation_deg", -180.0, 180.0, 4, signed=True),
+    20: Mapping("sensor_roll_deg", 0.0, 360.0, 4),
+    21: Mapping("slant_range_m", 0.0, 5_000_000.0, 4),
+    23: Mapping("centre_latitude_deg", -90.0, 90.0, 4, signed=True),
+    24: Mapping("centre_longitude_deg", -180.0, 180.0, 4, signed=True),
+    25: Mapping("centre_msl_m", -900.0, 19000.0, 2),
+    75: Mapping("sensor_ellipsoid_m", -900.0, 19000.0, 2),
+    78: Mapping("centre_ellipsoid_m", -900.0, 19000.0, 2),
+    90: Mapping("platform_pitch_full_deg", -90.0, 90.0, 4, signed=True),
+    91: Mapping("platform_roll_full_deg", -90.0, 90.0, 4, signed=True),
+}
+
+
+# --- writing -----------------------------------------------------------------------------------
+
+
+def ber_length(n: int) -> bytes:
+    """BER length: short form below 128, else long form (0x80 | byte count, big-endian)."""
+    if n < 128:
+        return bytes([n])
+    body = n.to_bytes((n.bit_length() + 7) // 8, "big")
+    return bytes([0x80 | len(body)]) + body
+
+
+def ber_oid(tag: int) -> bytes:
+    """A tag as BER-OID: 7 bits a byte, most significant first, the high bit set on all but the
+    last (tags below 128 are one byte)."""
+    out = [tag & 0x7F]
+    tag >>= 7
+    while tag:
+        out.append(0x80 | (tag & 0x7F))
+        tag >>= 7
+    return bytes(reversed(out))
+
+
+def unsigned(value: float, low: float, high: float, size: int) -> bytes:
+    """value in [low, high] mapped onto an unsigned integer of `size` bytes (clamped)."""
+    top = 2 ** (8 * size) - 1
+    v = int(round((min(max(value, low), high) - low) * top / (high - low)))
+    return v.to_bytes(size, "big")
+
+
+def signed(value: float, span: float, size: int) -> bytes:
+    """value in [-span, span] mapped onto a signed integer of `size` bytes; NaN or out of range:
+    the most negative integer (ST 0601's error marker)."""
+    top = 2 ** (8 * size - 1) - 1
+    if not math.isfinite(value) or abs(value) > span:
+        return (-(top + 1)).to_bytes(size, "big", signed=True)
+    return int(round(value * top / span)).to_bytes(size, "big", signed=True)
+
+
+def encode(tag: int, value: float) -> bytes:
+    """A value of a mapped tag (TAGS) as its nominal-length integer."""
+    m = TAGS[tag]
+    if m.signed:
+        return signed(value, m.high, m.size)
+    return unsigned(value, m.low, m.high, m.size)
+
+
+def checksum(data: bytes) -> int:
+    """ST 0601's running 16-bit sum: even-offset bytes as the high byte, odd as the low byte."""
+    total = 0
+    for i, b in enumerate(data):
+        total += b << (8 * ((i + 1) % 2))
+    return total & 0xFFFF
+
+
+def local_set(items: list[tuple[int, bytes]]) -> bytes:
+    """A whole Local Set: the key, the BER length, the items in order, the checksum last."""
+    body = b"".join(ber_oid(tag) + ber_length(len(v)) + v for tag, v in items)
+    body += bytes([CHECKSUM_TAG, 2])
+    head = UAS_LOCAL_SET_KEY + ber_length(len(body) + 2)
+    return head + body + checksum(head + body).to_bytes(2, "big")
+
+
+# --- reading -----------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class LocalSet:
+    """One Local Set read: its time stamp (microseconds since 1970, UTC; None when absent), the
+    version it says (None: before tag 65 existed), the mapped values by name (NaN: the standard's
+    error code) and the raw bytes of every other tag."""
+
+    time_us: int | None
+    version: int | None
+    values: dict[str, float] = field(default_factory=dict)
+    other: dict[int, bytes] = field(default_factory=dict)
+
+    def get(self, name: str) -> float:
+        """A mapped value by name (TAGS), NaN when the set does not carry it or says "error"."""
+        return self.values.get(name, math.nan)
+
+
+def read_ber(data: bytes, i: int) -> tuple[int, int]:
+    """(length, index after it) of the BER length at data[i]; KlvError when it runs out."""
+    if i >= len(data):
+        raise KlvError(f"a length is cut off at byte {i}")
+    first = data[i]
+    if first < 128:
+        return first, i + 1
+    n = first & 0x7F
+    if n == 0 or n > 8 or i + 1 + n > len(data):
+        raise KlvError(f"bad BER length at byte {i}")
+    return int.from_bytes(data[i + 1 : i + 1 + n], "big"), i + 1 + n
+
+
+def read_oid(data: bytes, i: int) -> tuple[int, int]:
+    """(tag, index after it) of the BER-OID tag at data[i]; KlvError when it runs out."""
+    tag = 0
+    for j in range(i, min(len(data), i + 4)):
+        tag = (tag << 7) | (data[j] & 0x7F)
+        if data[j] < 128:
+            return tag, j + 1
+    raise KlvError(f"bad tag at byte {i}")
+
+
+def decode(tag: int, raw: bytes) -> float:
+    """A mapped tag's value from its bytes (any length: the mapping scales with it); NaN for the
+    reserved error code of a signed mapping."""
+    m = TAGS[tag]
+    if not raw:
+        return math.nan
+    size = len(raw)
+    if m.signed:
+        v = int.from_bytes(raw, "big", signed=True)
+        top = 2 ** (8 * size - 1) - 1
+        return math.nan if v == -(top + 1) else v * m.high / top
+    v = int.from_bytes(raw, "big")
+    return m.low + v * (m.high - m.low) / (2 ** (8 * size) - 1)
+
+
+def is_key(data: bytes, i: int = 0) -> bool:
+    """Whether the UAS Datalink key starts at data[i] (its version byte may be any)."""
+    key = data[i : i + 16]
+    return (
+        len(key) == 16
+        and key[:KEY_VERSION_BYTE] == UAS_LOCAL_SET_KEY[:KEY_VERSION_BYTE]
+        and key[KEY_VERSION_BYTE + 1 :] == UAS_LOCAL_SET_KEY[KEY_VERSION_BYTE + 1 :]
+    )
+
+
+def parse(packet: bytes) -> LocalSet:
+    """One Local Set (key first) read and checked: KlvError for a wrong key, a length past the
+    end, a missing checksum or one that does not match."""
+    if not is_key(packet):
+        raise KlvError("not a UAS Datalink Local Set (wrong key)")
+    length, start = read_ber(packet, 16)
+    end = start + length
+    if end > len(packet):
+        raise KlvError(f"the set says {length} bytes, {len(packet) - start} follow")
+    items: list[tuple[int, bytes]] = []
+    i = start
+    while i < end:
+        tag, i = read_oid(packet, i)
+        n, i = read_ber(packet, i)
+        if i + n > end:
+            raise KlvError(f"tag {tag} runs past the set's end at byte {i}")
+        items.append((tag, packet[i : i + n]))
+        i += n
+    if not items or items[-1][0] != CHECKSUM_TAG or len(items[-1][1]) != 2:
+        raise KlvError("no checksum (tag 1) at the set's end")
+    expected = int.from_bytes(items[-1][1], "big")
+    if checksum(packet[: end - 2]) != expected:
+        raise KlvError(f"checksum {checksum(packet[: end - 2]):04x}, the set says {expected:04x}")
+    time_us = version = None
+    values: dict[str, float] = {}
+    other: dict[int, bytes] = {}
+    for tag, raw in items[:-1]:
+        if tag == TIMESTAMP_TAG and len(raw) == 8:
+            time_us = int.from_bytes(raw, "big")
+        elif tag == VERSION_TAG and len(raw) == 1:
+            version = raw[0]
+        elif tag in TAGS:
+            values[TAGS[tag].name] = decode(tag, raw)
+        else:
+            other[tag] = raw
+    return LocalSet(time_us, version, values, other)
+
+
+def split(data: bytes) -> Iterator[bytes]:
+    """The Local Sets in a run of bytes (a KLV packet may hold several; bytes before a key are
+    skipped), each cut at the length it says; a set cut off by the end is left out."""
+    i = 0
+    while True:
+        i = data.find(UAS_LOCAL_SET_KEY[:KEY_VERSION_BYTE], i)
+        if i < 0:
+            return
+        if not is_key(data, i):
+            i += 1
+            continue
+        try:
+            length, start = read_ber(data, i + 16)
+        except KlvError:
+            return
+        if start + length > len(data):
+            return
+        yield data[i : start + length]
+        i = start + length
+
+
+# --- the camera it describes -------------------------------------------------------------------
+
+_NED_TO_ENU = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+# Our camera frame (OpenGL: x right, y up, looking down -z) in the sensor's (x the line of sight,
+# y right, z down): the columns are the camera's axes.
+_CAMERA_IN_SENSOR = np.array([[0.0, 0.0, -1.0], [1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+
+
+def _ypr(yaw_deg: float, pitch_deg: float, roll_deg: float) -> FloatArray:
+    """Rz(yaw) Ry(pitch) Rx(roll): an aerospace (x forward, y right, z down) body's rotation."""
+    y, p, r = np.radians([yaw_deg, pitch_deg, roll_deg])
+    cy, sy, cp, sp, cr, sr = np.cos(y), np.sin(y), np.cos(p), np.sin(p), np.cos(r), np.sin(r)
+    rz = np.array([[cy, -sy, 0.0], [sy, cy, 0.0], [0.0, 0.0, 1.0]])
+    ry = np.array([[cp, 0.0, sp], [0.0, 1.0, 0.0], [-sp, 0.0, cp]])
+    rx = np.array([[1.0, 0.0, 0.0], [0.0, cr, -sr], [0.0, sr, cr]])
+    return rz @ ry @ rx
+
+
+def camera_orientation(s: LocalSet) -> FloatArray | None:
+    """Camera -> ENU quaternion [w, x, y, z] of a set: the platform's rotation (heading, pitch,
+    roll: Rz Ry Rx of the aircraft in North-East-Down), then the sensor's relative rotation
+    (azimuth, elevation, roll: Rz Ry Rx of the line of sight in the aircraft's frame), as ST 0601
+    defines them. The full-range pitch and roll (90, 91) are used where present; a missing
+    pitch, roll or relative angle counts as 0; no heading, or any angle in error: None."""
+    heading = s.get("platform_heading_deg")
+    pitch = s.values.get("platform_pitch_full_deg", s.values.get("platform_pitch_deg", 0.0))
+    roll = s.values.get("platform_roll_full_deg", s.values.get("platform_roll_deg", 0.0))
+    az = s.values.get("sensor_azimuth_deg", 0.0)
+    el = s.values.get("sensor_elevation_deg", 0.0)
+    sroll = s.values.get("sensor_roll_deg", 0.0)
+    angles = (heading, pitch, roll, az, el, sroll)
+    if not all(math.isfinite(a) for a in angles):
+        return None
+    r = _NED_TO_ENU @ _ypr(heading, pitch, roll) @ _ypr(az, el, sroll) @ _CAMERA_IN_SENSOR
+    return rotations.from_matrix(r)

@@ -68,18 +68,19 @@ def display():
     )
     os.close(write_end)
     number = b""
-    ready, _, _ = select.select([read_end], [], [], XVFB_START_S)
-    while ready:
-        chunk = os.read(read_end, 16)
-        number += chunk
-        if not chunk or b"\n" in number:
+    while b"\n" not in number:  # every read waits at most XVFB_START_S
+        ready, _, _ = select.select([read_end], [], [], XVFB_START_S)
+        chunk = os.read(read_end, 16) if ready else b""
+        if not chunk:
             break
+        number += chunk
     os.close(read_end)
     if not number.strip().isdigit():
         proc.kill()
         proc.wait()
         log.seek(0)
         said = log.read().decode(errors="replace").strip().splitlines()[-3:]
+        log.close()
         _unavailable(
             f"Xvfb gave no display within {XVFB_START_S:g} s: {' / '.join(said) or 'it said nothing'}"
         )

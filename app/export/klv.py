@@ -3,9 +3,9 @@ MPEG transport stream (the video copied, not re-encoded), so that a Full Motion 
 a phone's, GoPro's or consumer drone's clip.
 
 Each Local Set is written by app.io.misb (the key, BER lengths, ST 0601's integer mappings, the
-checksum last), the module that reads them too. The camera is the platform: platform heading = the optical axis's
-heading, platform pitch and roll 0; the sensor's relative elevation and roll carry its pitch and
-roll, as a gimbal's would.
+checksum last), the module that reads them too. The camera is the platform: platform heading =
+the optical axis's heading, platform pitch and roll 0; the sensor's relative elevation and roll
+carry its pitch and roll, as a gimbal's would.
 """
 
 from __future__ import annotations

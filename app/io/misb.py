@@ -228,9 +228,9 @@ def parse(packet: bytes) -> LocalSet:
         i += n
     if not items or items[-1][0] != CHECKSUM_TAG or len(items[-1][1]) != 2:
         raise KlvError("no checksum (tag 1) at the set's end")
-    expected = int.from_bytes(items[-1][1], "big")
-    if checksum(packet[: end - 2]) != expected:
-        raise KlvError(f"checksum {checksum(packet[: end - 2]):04x}, the set says {expected:04x}")
+    expected, found = int.from_bytes(items[-1][1], "big"), checksum(packet[: end - 2])
+    if found != expected:
+        raise KlvError(f"checksum {found:04x}, the set says {expected:04x}")
     time_us = version = None
     values: dict[str, float] = {}
     other: dict[int, bytes] = {}

@@ -30,7 +30,7 @@ from app.scene.layers import Layer
 
 __all__ = ["ClipResult", "clip_key", "find_clips", "fingerprint", "index_clip"]
 
-VIDEO_SUFFIXES = (".mp4", ".mov")
+VIDEO_SUFFIXES = (".mp4", ".mov", ".ts")  # .ts: MPEG-TS with MISB KLV
 SKIPPED_TOMLS = (".geofuse.toml",)  # settings geofuse writes beside a clip, not manifests
 FINGERPRINT_BYTES = 1 << 20
 

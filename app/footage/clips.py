@@ -32,6 +32,15 @@ from app.geodesy.geomag import declination
 from app.io.dji_mp4 import read_dji_camera
 from app.io.dji_srt import SrtTrack, check_duration, read_srt, srt_fixes
 from app.io.gopro import global_settings
+from app.io.klv_track import (
+    CONSISTENCY_LIMIT_DEG,
+    IMAGE_SOURCE_SENSOR_TAG,
+    PLATFORM_DESIGNATION_TAG,
+    KlvTrack,
+    describe,
+    has_klv,
+    read_klv,
+)
 from app.io.streams import GnssTrack, OrientationStream
 from app.io.video import VideoInfo, probe
 from app.scene import Placement
@@ -45,6 +54,7 @@ from app.session.model import Session
 
 DJI_DEFAULT_FOCAL_MM = 24.0  # 35 mm equivalent focal length of most DJI main cameras
 DJI_FOCAL_RANGE_MM = (8.0, 1200.0)  # 35 mm equivalent: a 132 deg to a 1.7 deg horizontal view
+KLV_ASSUMED_HEIGHT_M = 100.0  # a KLV clip without a frame centre: the ground this far under it
 DRONE_GROUND_MARGIN_M = (
     500.0  # the assumed ground beyond a drone clip's track, plus 10x its height above the ground
 )
@@ -66,7 +76,8 @@ def open_clip(
     lens: str | Path | None = None,
     layers: tuple[Layer, ...] = (),
 ) -> Session:
-    """A session from a GoPro MP4, or from a video with a DJI subtitle (`srt`, or found beside it).
+    """A session from a GoPro MP4, a video with MISB ST 0601 KLV (an MPEG-TS from a drone or
+    an FMV tool), or from a video with a DJI subtitle (`srt`, or found beside it).
     lens: a gyroflow profile to use instead of the one chosen from the file (GoPro) or the pinhole
     field of view; hfov_deg: a pinhole field of view instead of any lens; pitch_deg: a drone
     clip's camera pitch (degrees above the horizon) when its subtitle has no gimbal attitude;
@@ -77,6 +88,8 @@ def open_clip(
     srt = Path(srt) if srt is not None else find_srt(path)
     if srt is not None:
         return _dji_session(path, srt, hfov_deg, pitch_deg, lens, layers)
+    if has_klv(path):
+        return _klv_session(path, hfov_deg, lens, layers)
     return _gopro_session(path, hfov_deg, lens, layers)
 
 
@@ -371,6 +384,136 @@ def _dji_session(
         _subtitle_clock(track, srt, messages),
         _dji_name(path),
     )
+
+
+def _klv_session(
+    path: Path,
+    hfov_deg: float | None,
+    lens_path: str | Path | None = None,
+    layers: tuple[Layer, ...] = (),
+) -> Session:
+    """A video with MISB ST 0601 KLV: positions from the sensor's latitude, longitude and height,
+    the camera's attitude from the platform's then the sensor's angles (pose source
+    `telemetry`), the field of view from tag 16, UTC from the Precision Time Stamps."""
+    messages = Messages()
+    video = probe(path)
+    video.note_damage(messages)
+    track = read_klv(path, video, messages)
+    messages.info(f"{path.name}: {describe(track, video.pts_s)}")
+    gnss = track.gnss()
+    if gnss is None:
+        raise DataFormatError(
+            path,
+            "no KLV set places the sensor (tags 13, 14 and 75 or 15 missing or in error): the camera cannot be placed",
+            field="KLV",
+        )
+    attitude = track.attitude()
+    if attitude is None:
+        raise DataFormatError(
+            path,
+            "no KLV set gives the camera's attitude (platform heading, tag 5, missing or every angle in error)",
+            field="KLV",
+        )
+    if len(attitude.t) < len(track.t):
+        messages.add(
+            f"{path.name}: {len(track.t) - len(attitude.t)} of {len(track.t)} KLV sets have angles in error or missing: their times are interpolated"
+        )
+    if len(gnss.t) < len(track.t):
+        messages.add(
+            f"{path.name}: {len(track.t) - len(gnss.t)} of {len(track.t)} KLV sets have no valid position: their times are interpolated"
+        )
+    ground = _klv_ground(track, gnss, path, messages, bool(layers))
+    frame, mesh, gnss = _frame_and_ground(
+        gnss,
+        ground,
+        DRONE_GROUND_MARGIN_M + 10.0 * float(np.max(gnss.h - ground)),
+        layers,
+        messages,
+    )
+    utc = track.utc_at_zero()
+    decl = declination(frame.lat_deg, frame.lon_deg, frame.h_m, utc or video.creation_time or 0.0)
+    _check_centre(track, path, messages)
+    if hfov_deg is None and lens_path is None:
+        fov = track.values("hfov_deg")
+        fov = fov[np.isfinite(fov) & (fov > 0.1)]
+        if len(fov):
+            hfov_deg = float(np.median(fov))
+            if np.ptp(fov) > 0.5:
+                messages.add(
+                    f"{path.name}: the KLV field of view changes ({fov.min():.1f} to {fov.max():.1f} deg, a zoom): the median {hfov_deg:.1f} deg is used for the whole clip"
+                )
+        else:
+            hfov_deg = float(np.degrees(2 * np.arctan(18.0 / DJI_DEFAULT_FOCAL_MM)))
+            messages.add(
+                f"{path.name}: the KLV gives no field of view (tag 16): a pinhole of {hfov_deg:.1f} deg is assumed (give --fov or --lens)"
+            )
+    intr, lens, lens_files = _camera_model(video, hfov_deg or 0.0, lens_path, None, messages)
+    platform = track.text(PLATFORM_DESIGNATION_TAG)
+    sensor = track.text(IMAGE_SOURCE_SENSOR_TAG)
+    camera = " / ".join(x for x in (platform, sensor) if x) or "MISB KLV platform"
+    return _clip_session(
+        path,
+        (path.resolve(), *lens_files),
+        frame,
+        mesh,
+        video,
+        intr,
+        None,
+        None,
+        None,
+        gnss,
+        {"telemetry": attitude},
+        decl,
+        messages,
+        lens=lens,
+        readout_s=_readout(None, lens, path, messages),
+        layers=layers,
+        utc_at_zero_s=utc,
+        camera=camera,
+    )
+
+
+def _klv_ground(
+    track: KlvTrack, gnss: GnssTrack, path: Path, messages: Messages, has_scene: bool
+) -> float:
+    """The assumed ground's ellipsoidal height (m): the median frame-centre height where the
+    KLV gives one below the sensor (a drone), a hand-held camera's mount height under the lowest
+    position where the centre lies level with it or above, else 100 m under the lowest position.
+    Said unless a scene replaces it."""
+    centre = track.centre_heights()
+    centre = centre[np.isfinite(centre)]
+    lowest = float(np.min(gnss.h))
+    if len(centre):
+        ground = min(float(np.median(centre)), lowest - HANDHELD_MOUNT_M)
+        how = (
+            "the KLV frame centre's median height"
+            if ground < lowest - HANDHELD_MOUNT_M
+            else f"{HANDHELD_MOUNT_M:g} m under the lowest position (the KLV frame centre lies level with the camera: held by hand)"
+        )
+        if not has_scene:
+            messages.info(
+                f"{path.name}: the assumed ground is {how} ({ground:.1f} m above the ellipsoid)"
+            )
+        return ground
+    if not has_scene:
+        messages.add(
+            f"{path.name}: the KLV gives no frame centre: the ground is assumed {KLV_ASSUMED_HEIGHT_M:g} m under the lowest position (give --scene or --dem)"
+        )
+    return lowest - KLV_ASSUMED_HEIGHT_M
+
+
+def _check_centre(track: KlvTrack, path: Path, messages: Messages) -> None:
+    """Says when the frame centre the KLV gives (tags 23-25) lies off the optical axis its
+    angles give (median over the sets), a sign of angles or a centre computed another way."""
+    off = track.centre_offsets_deg()
+    if len(off) and float(np.median(off)) > CONSISTENCY_LIMIT_DEG:
+        messages.add(
+            f"{path.name}: KLV consistency: the frame centre (tags 23-25) lies {np.median(off):.1f} deg (median, up to {off.max():.1f}) from the optical axis the platform and sensor angles give: the pose or the centre is wrong"
+        )
+    elif len(off):
+        messages.info(
+            f"{path.name}: KLV consistency: the frame centre lies {np.median(off):.2f} deg (median) from the optical axis"
+        )
 
 
 def _dji_name(path: Path) -> str:

@@ -17,14 +17,23 @@ from app.attitude.gopro import read_gopro
 from app.core.errors import DataFormatError
 from app.core.messages import Messages
 from app.core.outputs import CSV_SUFFIXES, check_output, write_atomically
+from app.geodesy.rotations import hpr_from_camera_quat, slerp
 from app.io import csvlog
 from app.io.dji_mp4 import read_dji_camera
 from app.io.dji_srt import read_srt, srt_fixes
 from app.io.gopro import global_settings
 from app.io.gpmf import Counts, chunks, parse
 from app.io.gpx import read_gpx
+from app.io.klv_track import (
+    IMAGE_SOURCE_SENSOR_TAG,
+    PLATFORM_DESIGNATION_TAG,
+    has_klv,
+    read_klv,
+)
+from app.io.klv_track import describe as describe_klv
 from app.io.sensorlogger import read_sensorlogger
 from app.io.streams import GAP_FACTOR
+from app.io.video import probe
 
 
 @dataclass
@@ -58,6 +67,8 @@ def inspect(path: str | Path) -> Telemetry:
         return _srt(path)
     if suffix == ".gpx":
         return _gpx(path)
+    if suffix in KLV_SUFFIXES or (suffix in (".mp4", ".mov") and has_klv(path)):
+        return _klv(path)
     if suffix in (".mp4", ".mov", ".360"):
         _refuse_dji_video(path)
         return _gopro(path)
@@ -69,10 +80,11 @@ def inspect(path: str | Path) -> Telemetry:
         return _csv(path)
     raise DataFormatError(
         path,
-        f"unknown telemetry format {suffix!r} (expected .MP4 from a GoPro, raw GPMF .bin/.gpmd/.raw, .SRT, .GPX, .CSV, or a Sensor Logger folder or zip)",
+        f"unknown telemetry format {suffix!r} (expected .MP4 from a GoPro, .TS with MISB KLV, raw GPMF .bin/.gpmd/.raw, .SRT, .GPX, .CSV, or a Sensor Logger folder or zip)",
     )
 
 
+KLV_SUFFIXES = (".ts", ".m2ts", ".mpg")  # MPEG transport streams, where MISB KLV travels
 RAW_GPMF_SUFFIXES = (".bin", ".gpmd", ".raw", ".gpmf")  # GPMF extracted from an MP4 by other tools
 
 
@@ -119,6 +131,31 @@ def _srt(path: Path) -> Telemetry:
             "gimbal_yaw": tr.gimbal_pry[ok, 2],
         }
     out.info.append(f"layouts: {', '.join(tr.layouts)}")
+    return out
+
+
+def _klv(path: Path) -> Telemetry:
+    """A video's MISB ST 0601 KLV: sets, the sensor's positions and the camera's angles (the
+    platform's and the sensor's, and the composed optical axis's heading, pitch and roll)."""
+    out = Telemetry(path, "MISB ST 0601 KLV in a video")
+    video = probe(path)
+    track = read_klv(path, video, out.messages)
+    out.info.append(describe_klv(track, video.pts_s))
+    platform, sensor = track.text(PLATFORM_DESIGNATION_TAG), track.text(IMAGE_SOURCE_SENSOR_TAG)
+    if platform or sensor:
+        out.info.append(f"platform: {platform or 'unnamed'}; sensor: {sensor or 'unnamed'}")
+    out.streams.append(Stream("Local Sets", track.times()))
+    g = track.gnss()
+    if g is not None:
+        out.streams.append(Stream("sensor positions (tags 13, 14, 75/15)", g.t))
+        out.position = (g.t, g.lat, g.lon, g.h)
+        out.height_note = "ellipsoidal (tag 75, or tag 15 above sea level through EGM2008)"
+    att = track.attitude()
+    if att is not None:
+        out.streams.append(Stream("camera attitude (platform then sensor angles)", att.t))
+        if g is not None:
+            hpr = hpr_from_camera_quat(slerp(att.t, att.q, g.t))
+            out.attitude = {"heading": hpr[:, 0], "pitch": hpr[:, 1], "roll": hpr[:, 2]}
     return out
 
 

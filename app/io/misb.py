@@ -275,7 +275,7 @@ _NED_TO_ENU = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
 _CAMERA_IN_SENSOR = np.array([[0.0, 0.0, -1.0], [1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 
 
-def _ypr(yaw_deg: float, pitch_deg: float, roll_deg: float) -> FloatArray:
+def ypr_matrix(yaw_deg: float, pitch_deg: float, roll_deg: float) -> FloatArray:
     """Rz(yaw) Ry(pitch) Rx(roll): an aerospace (x forward, y right, z down) body's rotation."""
     y, p, r = np.radians([yaw_deg, pitch_deg, roll_deg])
     cy, sy, cp, sp, cr, sr = np.cos(y), np.sin(y), np.cos(p), np.sin(p), np.cos(r), np.sin(r)
@@ -300,5 +300,10 @@ def camera_orientation(s: LocalSet) -> FloatArray | None:
     angles = (heading, pitch, roll, az, el, sroll)
     if not all(math.isfinite(a) for a in angles):
         return None
-    r = _NED_TO_ENU @ _ypr(heading, pitch, roll) @ _ypr(az, el, sroll) @ _CAMERA_IN_SENSOR
+    r = (
+        _NED_TO_ENU
+        @ ypr_matrix(heading, pitch, roll)
+        @ ypr_matrix(az, el, sroll)
+        @ _CAMERA_IN_SENSOR
+    )
     return rotations.from_matrix(r)

@@ -8,7 +8,8 @@ This is the core the sample-session generator builds on; noise is off unless ask
 from __future__ import annotations
 
 import fractions
-from collections.abc import Callable
+import math
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -93,26 +94,44 @@ def write_video(
     creation_time: str | None = None,
     frame: Callable[[int], np.ndarray] | None = None,
     crf: int = 18,
+    klv: Sequence[tuple[float, bytes]] = (),
 ) -> Path:
-    """An H.264 MP4 whose frames carry the given presentation times (s) and display rotation.
+    """An H.264 video (MP4, or MPEG-TS for a .ts path) whose frames carry the given presentation
+    times (s) and display rotation.
 
     size: the stored (coded) width and height; frame(k) returns frame k as a player displays it
     (turned by rotation_cw); by default `bar_frame`. Frames are stored turned back by rotation_cw.
+    klv: (time s, payload) packets of a KLV data stream muxed beside the video at their own
+    presentation times (a set per frame, or their own rate).
     """
 
     w, h = size
     display = (h, w) if rotation_cw % 180 else (w, h)
     frame = frame or (lambda k: bar_frame(k, display))
+    pending = sorted(klv, key=lambda p: p[0])
+    tb = fractions.Fraction(1, 90000)
     with av.open(str(path), "w") as c:
         if creation_time:
             c.metadata["creation_time"] = creation_time
         s = c.add_stream("libx264", rate=30)
         s.width, s.height, s.pix_fmt = w, h, "yuv420p"
-        s.time_base = fractions.Fraction(1, 90000)
+        s.time_base = tb
         s.codec_context.time_base = s.time_base  # keep real presentation times (variable rate)
         s.codec_context.options = {"preset": "veryfast", "crf": str(crf), "bf": "0"}
-        s.set_display_rotation(-rotation_cw)  # FFmpeg's display matrix turns counter-clockwise
+        if rotation_cw:
+            s.set_display_rotation(-rotation_cw)  # FFmpeg's display matrix turns counter-clockwise
+        data = c.add_data_stream("klv") if pending else None
+
+        def mux_klv(until_s: float) -> None:
+            while pending and pending[0][0] <= until_s:
+                t, payload = pending.pop(0)
+                k = av.Packet(payload)
+                k.stream, k.time_base = data, tb
+                k.pts = k.dts = int(round(t * 90000))
+                c.mux(k)
+
         for k, ts in enumerate(times):
+            mux_klv(ts)
             stored = np.ascontiguousarray(np.rot90(frame(k), k=(rotation_cw // 90) % 4))
             f = av.VideoFrame.from_ndarray(stored, format="rgb24")
             f.pts = int(round(ts * 90000))
@@ -121,6 +140,7 @@ def write_video(
                 c.mux(p)
         for p in s.encode():
             c.mux(p)
+        mux_klv(math.inf)
     return path
 
 

@@ -1,0 +1,266 @@
+"""The MISB ST 0601 KLV of a video, as tracks: every Local Set of a file's (or a live stream's) KLV
+data stream read on the video's own clock, then the GNSS track, the camera's attitude and the
+field of view it describes.
+
+Timing. A KLV packet's presentation time (PTS) is on the transport stream's clock, the video's:
+its media time (app.io.video.media_seconds, the video stream's origin) is the set's time, whether
+the KLV is synchronous (a set per frame at that frame's PTS) or asynchronous (its own rate and
+PTS, interpolated to each frame's time downstream like every other track). A packet without a PTS
+takes its set's Precision Time Stamp (tag 2) through the median offset between the two on the
+packets that have both; with neither it is dropped and counted.
+
+What is kept. A set failing its checksum is dropped and counted (never half-read); the reserved
+error codes are gaps: a set whose position is in error adds no GNSS fix, one whose angles are in
+error adds no attitude, and the rest of the set is still used.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import av
+import numpy as np
+
+from app.core.errors import VideoError
+from app.core.messages import Messages
+from app.geodesy import rotations
+from app.geodesy.enu import LocalFrame
+from app.geodesy.geoid import undulation
+from app.io.misb import KlvError, LocalSet, camera_orientation, parse, split
+from app.io.streams import FloatArray, GnssTrack, OrientationStream
+from app.io.video import VideoInfo, ffmpeg_reason, media_seconds
+
+KLV_CODECS = ("klv", "smpte_klv")
+CONSISTENCY_LIMIT_DEG = 2.0  # the frame centre further than this from the optical axis: said
+PLATFORM_DESIGNATION_TAG = 10
+IMAGE_SOURCE_SENSOR_TAG = 11
+
+
+@dataclass
+class KlvCounts:
+    """What reading found: sets read, sets failing their checksum or unreadable, packets with
+    no time, sets whose position or angles were in error (gaps)."""
+
+    sets: int = 0
+    bad: int = 0
+    untimed: int = 0
+    first_error: str = ""
+
+    def said(self, where: str, messages: Messages) -> None:
+        """One warning per kind of fault, with its count."""
+        if self.bad:
+            messages.add_once(
+                "klv-bad",
+                f"{where}: {self.bad} KLV set(s) failed their checksum or could not be read and were dropped (first: {self.first_error})",
+            )
+        if self.untimed:
+            messages.add_once(
+                "klv-untimed",
+                f"{where}: {self.untimed} KLV packet(s) had neither a presentation time nor a Precision Time Stamp and were dropped",
+            )
+
+
+@dataclass
+class KlvTrack:
+    """Local Sets in time order: t (N,) media seconds on the video's clock, the sets, and the
+    counts of what was dropped. Grows as packets arrive (`add`), so a live stream and a file
+    share it."""
+
+    path: str
+    t: list[float] = field(default_factory=list)
+    sets: list[LocalSet] = field(default_factory=list)
+    counts: KlvCounts = field(default_factory=KlvCounts)
+    _untimed: list[LocalSet] = field(default_factory=list)
+
+    def add(self, payload: bytes, t: float | None) -> int:
+        """The sets in one KLV packet's payload, at media time t (None: the packet had no PTS);
+        returns how many were kept."""
+        kept = 0
+        for raw in split(payload):
+            try:
+                s = parse(raw)
+            except KlvError as exc:
+                self.counts.bad += 1
+                self.counts.first_error = self.counts.first_error or str(exc)
+                continue
+            self.counts.sets += 1
+            if t is None or not math.isfinite(t):
+                self._untimed.append(s)
+                continue
+            self.t.append(float(t))
+            self.sets.append(s)
+            kept += 1
+        return kept
+
+    def finish(self) -> KlvTrack:
+        """Untimed sets placed by their Precision Time Stamps, everything sorted by time."""
+        stamped = [(t, s.time_us) for t, s in zip(self.t, self.sets, strict=True) if s.time_us]
+        offset = (
+            float(np.median([us / 1e6 - t for t, us in stamped])) if stamped else None
+        )  # UTC s - media s
+        if offset is None and self.sets == [] and self._untimed:
+            stamps = [s.time_us for s in self._untimed if s.time_us]
+            offset = min(stamps) / 1e6 if stamps else None  # none timed: the first stamp is 0
+        for s in self._untimed:
+            if s.time_us and offset is not None:
+                self.t.append(s.time_us / 1e6 - offset)
+                self.sets.append(s)
+            else:
+                self.counts.untimed += 1
+        self._untimed = []
+        order = sorted(range(len(self.t)), key=self.t.__getitem__)
+        self.t = [self.t[i] for i in order]
+        self.sets = [self.sets[i] for i in order]
+        return self
+
+    def times(self) -> FloatArray:
+        return np.asarray(self.t, np.float64)
+
+    def values(self, name: str) -> FloatArray:
+        """One mapped value (app.io.misb.TAGS name) of every set, NaN where absent or in error."""
+        return np.array([s.get(name) for s in self.sets], np.float64)
+
+    def text(self, tag: int) -> str:
+        """The most common text a string tag carries (10: platform, 11: sensor), or ''."""
+        found = [
+            s.other[tag].decode("utf-8", "replace").strip() for s in self.sets if tag in s.other
+        ]
+        return max(set(found), key=found.count) if found else ""
+
+    def utc_at_zero(self) -> float | None:
+        """Unix time (UTC) of media time 0: the median of Precision Time Stamp minus set time."""
+        d = [s.time_us / 1e6 - t for t, s in zip(self.t, self.sets, strict=True) if s.time_us]
+        return float(np.median(d)) if d else None
+
+    def synchronous(self, frame_pts_s: FloatArray) -> bool:
+        """Whether the KLV is a set per frame: as many sets as frames (9 in 10 at least), every
+        one on a frame's presentation time (within 1 ms)."""
+        if not self.t or len(self.t) < 0.9 * len(frame_pts_s) or len(frame_pts_s) < 2:
+            return False
+        t = self.times()
+        i = np.clip(np.searchsorted(frame_pts_s, t), 1, len(frame_pts_s) - 1)
+        near = np.minimum(np.abs(frame_pts_s[i] - t), np.abs(frame_pts_s[i - 1] - t))
+        return bool(np.all(near < 1e-3))
+
+    def heights(self, ellipsoid: str, msl: str, lat: FloatArray, lon: FloatArray) -> FloatArray:
+        """Ellipsoidal heights (m): the ellipsoid tag where it is given, else the height above
+        sea level through EGM2008; NaN where neither."""
+        h = self.values(ellipsoid)
+        above_sea = self.values(msl) + undulation(np.nan_to_num(lat), np.nan_to_num(lon))
+        return np.where(np.isfinite(h), h, above_sea)
+
+    def gnss(self) -> GnssTrack | None:
+        """The sensor's positions (tags 13, 14, and 75 or 15): sets with any of them in error are
+        gaps. None when no set places the sensor."""
+        t = self.times()
+        lat, lon = self.values("sensor_latitude_deg"), self.values("sensor_longitude_deg")
+        h = self.heights("sensor_ellipsoid_m", "sensor_msl_m", lat, lon)
+        ok = np.isfinite(lat) & np.isfinite(lon) & np.isfinite(h)
+        ok &= np.concatenate([[True], np.diff(t) > 0])  # one fix per time
+        if ok.sum() == 0:
+            return None
+        return GnssTrack(t[ok], lat[ok], lon[ok], h[ok], path=self.path)
+
+    def attitude(
+        self, note: str = "MISB ST 0601 platform and sensor angles"
+    ) -> OrientationStream | None:
+        """Camera -> ENU quaternions of the sets whose angles are all valid (app.io.misb.
+        camera_orientation); None when none is."""
+        t, q = [], []
+        for ti, s in zip(self.t, self.sets, strict=True):
+            r = camera_orientation(s)
+            if r is not None and (not t or ti > t[-1]):
+                t.append(ti)
+                q.append(r)
+        if not t:
+            return None
+        return OrientationStream(np.asarray(t), np.asarray(q), self.path, note)
+
+    def centre_heights(self) -> FloatArray:
+        """Ellipsoidal heights (m) of the frame centres (78, else 25 through the geoid)."""
+        lat, lon = self.values("centre_latitude_deg"), self.values("centre_longitude_deg")
+        return self.heights("centre_ellipsoid_m", "centre_msl_m", lat, lon)
+
+    def centre_offsets_deg(self) -> FloatArray:
+        """For every set with a pose and a frame centre: the angle (deg) between the optical axis
+        the angles give and the direction from the sensor to the frame centre (tags 23-25/78)."""
+        out = []
+        lat, lon = self.values("sensor_latitude_deg"), self.values("sensor_longitude_deg")
+        h = self.heights("sensor_ellipsoid_m", "sensor_msl_m", lat, lon)
+        clat, clon = self.values("centre_latitude_deg"), self.values("centre_longitude_deg")
+        ch = self.centre_heights()
+        for k, s in enumerate(self.sets):
+            q = camera_orientation(s)
+            row = (lat[k], lon[k], h[k], clat[k], clon[k], ch[k])
+            if q is None or not all(math.isfinite(v) for v in row):
+                continue
+            frame = LocalFrame(lat[k], lon[k], h[k])
+            d = frame.geodetic_to_enu([clat[k]], [clon[k]], [ch[k]])[0]
+            n = np.linalg.norm(d)
+            if n < 1.0:
+                continue
+            axis = -rotations.to_matrix(q)[:, 2]
+            out.append(math.degrees(math.acos(float(np.clip(axis @ d / n, -1.0, 1.0)))))
+        return np.asarray(out, np.float64)
+
+
+def klv_streams(container) -> list:
+    """The container's KLV data streams (SMPTE 336M KLV, as FFmpeg names it)."""
+    return [s for s in container.streams.data if (s.name or "") in KLV_CODECS]
+
+
+def has_klv(path: str | Path) -> bool:
+    """Whether a video file carries a KLV data stream (False where it cannot be opened)."""
+    try:
+        with av.open(str(path)) as c:
+            return bool(klv_streams(c))
+    except (av.FFmpegError, OSError):
+        return False
+
+
+def read_klv(path: str | Path, video: VideoInfo, messages: Messages) -> KlvTrack:
+    """Every Local Set of the file's first KLV data stream on the video's media clock; faults
+    counted and said. VideoError when the file has no KLV stream or no set can be read."""
+    path = Path(path)
+    track = KlvTrack(str(path))
+    try:
+        with av.open(str(path)) as c:
+            streams = klv_streams(c)
+            if not streams:
+                raise VideoError(path, "no KLV data stream (MISB ST 0601 metadata)")
+            stream = streams[0]
+            tb = stream.time_base
+            try:
+                for packet in c.demux(stream):
+                    if not packet.size:
+                        continue
+                    t = (
+                        media_seconds(packet.pts, tb, video.origin_s)
+                        if packet.pts is not None
+                        else None
+                    )
+                    track.add(bytes(packet), t)
+            except av.FFmpegError:
+                messages.add(f"{path.name}: the file is cut short: the KLV read so far is used")
+    except (av.FFmpegError, OSError) as exc:
+        raise VideoError(path, f"cannot read the KLV stream ({ffmpeg_reason(exc)})") from exc
+    track.finish()
+    track.counts.said(path.name, messages)
+    if not track.sets:
+        raise VideoError(
+            path,
+            f"the KLV data stream holds no readable MISB ST 0601 Local Set ({track.counts.sets + track.counts.bad} found)",
+        )
+    return track
+
+
+def describe(track: KlvTrack, frame_pts_s: FloatArray) -> str:
+    """One line: how many sets, at what rate, synchronous or not, and the ST 0601 versions."""
+    t = track.times()
+    rate = (len(t) - 1) / (t[-1] - t[0]) if len(t) > 1 and t[-1] > t[0] else 0.0
+    versions = sorted({s.version for s in track.sets if s.version is not None})
+    kind = "synchronous (a set per frame)" if track.synchronous(frame_pts_s) else "asynchronous"
+    said = f"ST 0601.{'/'.join(map(str, versions))}" if versions else "ST 0601 (no version tag)"
+    return f"MISB KLV: {len(t)} Local Sets at {rate:.1f} Hz, {kind}, {said}"

@@ -1,0 +1,128 @@
+"""A drone's downlink, simulated: an aircraft orbiting a point with its sensor on the point, the
+MISB ST 0601 Local Sets it sends (synchronous, a set per frame, or at their own rate), and the
+H.264 MPEG-TS that carries them; for tests, `geofuse simulate feed` and `bench live`.
+
+Geometry (ENU in the LocalFrame at the orbit's centre on the ground): the aircraft flies
+counter-clockwise seen from above on a circle of radius_m at height_m, banked bank_deg into the
+turn (left wing down: a negative roll) and pitched pitch_deg nose up; the sensor's relative angles
+are whatever puts its line of sight on the centre, so the frame centre (tags 23-25, 78) is the
+orbit's centre and the slant range is hypot(radius, height).
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from app.geodesy.enu import LocalFrame
+from app.geodesy.geoid import undulation
+from app.io.misb import encode, local_set, ypr_matrix
+from app.simulate.phone import write_video
+
+UTC_START_S = 1_790_000_000.0  # 2026-09-21, the simulated flight's first set (Unix s)
+
+
+@dataclass(frozen=True)
+class Orbit:
+    """The simulated flight: centre on the ground (deg, ellipsoidal m), circle and attitude."""
+
+    lat_deg: float = 34.8
+    lon_deg: float = 113.53
+    ground_h_m: float = 100.0
+    radius_m: float = 150.0
+    height_m: float = 80.0
+    period_s: float = 60.0
+    bank_deg: float = -8.0
+    pitch_deg: float = 2.0
+    hfov_deg: float = 50.0
+    platform: str = "geofuse orbit"
+    sensor: str = "EO"
+
+    def frame(self) -> LocalFrame:
+        return LocalFrame(self.lat_deg, self.lon_deg, self.ground_h_m)
+
+    def position(self, t: float) -> np.ndarray:
+        """The aircraft's ENU position (m) at t s."""
+        a = 2 * math.pi * t / self.period_s
+        return np.array([self.radius_m * math.cos(a), self.radius_m * math.sin(a), self.height_m])
+
+    def angles(self, t: float) -> tuple[float, float, float, float, float, float]:
+        """(platform heading, pitch, roll, sensor azimuth, elevation, roll), degrees as ST 0601
+        defines them, with the line of sight on the orbit's centre."""
+        a = 2 * math.pi * t / self.period_s
+        heading = math.degrees(math.atan2(-math.sin(a), math.cos(a))) % 360.0
+        p = self.position(t)
+        los_ned = np.array([-p[1], -p[0], p[2]]) / np.linalg.norm(p)  # to the centre, N E D
+        body = ypr_matrix(heading, self.pitch_deg, self.bank_deg)
+        x, y, z = body.T @ los_ned
+        az = math.degrees(math.atan2(y, x)) % 360.0
+        el = -math.degrees(math.asin(max(-1.0, min(1.0, z))))
+        return heading, self.pitch_deg, self.bank_deg, az, el, 0.0
+
+
+def orbit_set(orbit: Orbit, t: float, vfov_deg: float, msl_only: bool = False) -> bytes:
+    """The Local Set the aircraft sends at t s (msl_only: heights above sea level only, tag 15,
+    as older encoders write)."""
+    frame = orbit.frame()
+    lat, lon, h = (float(v) for v in frame.enu_to_geodetic(orbit.position(t)))
+    n = float(undulation(lat, lon))
+    nc = float(undulation(orbit.lat_deg, orbit.lon_deg))
+    heading, pitch, roll, az, el, sroll = orbit.angles(t)
+    items = [
+        (2, struct.pack(">Q", int(round((UTC_START_S + t) * 1e6)))),
+        (65, bytes([17])),
+        (10, orbit.platform.encode()),
+        (11, orbit.sensor.encode()),
+        (5, encode(5, heading)),
+        (90, encode(90, pitch)),
+        (91, encode(91, roll)),
+        (13, encode(13, lat)),
+        (14, encode(14, lon)),
+        (15, encode(15, h - n)),
+        (16, encode(16, orbit.hfov_deg)),
+        (17, encode(17, vfov_deg)),
+        (18, encode(18, az)),
+        (19, encode(19, el)),
+        (20, encode(20, sroll)),
+        (21, encode(21, math.hypot(orbit.radius_m, orbit.height_m))),
+        (23, encode(23, orbit.lat_deg)),
+        (24, encode(24, orbit.lon_deg)),
+        (25, encode(25, orbit.ground_h_m - nc)),
+    ]
+    if not msl_only:
+        items += [(75, encode(75, h)), (78, encode(78, orbit.ground_h_m))]
+    return local_set(items)
+
+
+def moving_texture(size: tuple[int, int], seed: int = 0):
+    """frame(k) -> (h, w, 3) uint8: 8-pixel random blocks sliding 4 pixels a frame (real work
+    for an encoder and a decoder, unlike a flat colour)."""
+    w, h = size
+    rng = np.random.default_rng(seed)
+    base = rng.integers(0, 255, (-(-h // 8), -(-w // 8), 3), dtype=np.uint8)
+    base = base.repeat(8, 0).repeat(8, 1)[:h, :w]
+    return lambda k: np.roll(base, 4 * k, axis=1)
+
+
+def write_feed(
+    path: str | Path,
+    seconds: float,
+    size: tuple[int, int] = (640, 360),
+    fps: float = 30.0,
+    klv_hz: float | None = None,
+    orbit: Orbit = Orbit(),
+    crf: int = 28,
+) -> Path:
+    """An H.264 MPEG-TS of the orbit: `size` (w, h) at `fps`, with a KLV data stream, a set per
+    frame at its presentation time (klv_hz None: synchronous) or at klv_hz with its own times."""
+    times = np.arange(int(round(seconds * fps))) / fps
+    klv_times = times if klv_hz is None else np.arange(int(seconds * klv_hz)) / klv_hz
+    vfov = math.degrees(
+        2 * math.atan(math.tan(math.radians(orbit.hfov_deg) / 2) * size[1] / size[0])
+    )
+    packets = [(float(t), orbit_set(orbit, float(t), vfov)) for t in klv_times]
+    return write_video(Path(path), times, size, 0, frame=moving_texture(size), crf=crf, klv=packets)

@@ -90,3 +90,38 @@ def test_unreadable_video_reports_an_error(tmp_path):
         assert "junk.mp4" in dec.error
     finally:
         dec.close()
+
+
+def test_a_transport_stream_with_one_keyframe_seeks_by_decoding_from_its_start(tmp_path):
+    """A TS has no index; with a single keyframe FFmpeg's search for the keyframe before a target
+    comes back empty. The exact frame is still delivered (the decoder and read_frame decode from
+    the start up to it)."""
+    import av
+
+    from app.io.video import read_frame
+
+    ts = tmp_path / "long_gop.ts"
+    keys = 0
+    with av.open(str(ts), "w", format="mpegts") as c:
+        s = c.add_stream("libx264", rate=30)
+        s.width, s.height, s.pix_fmt = 64, 32, "yuv420p"
+        s.codec_context.options = {"g": "1000", "sc_threshold": "0", "bf": "0"}
+        for k in range(150):
+            rgb = np.full((32, 64, 3), k, np.uint8)  # frame k's grey level is k
+            for p in s.encode(av.VideoFrame.from_ndarray(rgb, format="rgb24")):
+                keys += p.is_keyframe
+                c.mux(p)
+        for p in s.encode():
+            keys += p.is_keyframe
+            c.mux(p)
+    assert keys == 1
+    assert abs(float(read_frame(ts, 100).mean()) - 100) < 3
+    dec = Decoder(str(ts))
+    try:
+        dec.seek(3.0, serial=3)
+        f = dec.frames.get(timeout=60)
+        while f.serial != 3:
+            f = dec.frames.get(timeout=60)
+        assert round(f.pts_s * 30) == 90
+    finally:
+        dec.close()

@@ -169,17 +169,22 @@ def read_frame(path: str | Path, index: int, info: VideoInfo | None = None) -> n
     with av.open(str(path)) as container:
         stream = container.streams.video[0]
         tb = stream.time_base
-        container.seek(
-            int((target + info.origin_s) / tb), stream=stream, backward=True, any_frame=False
-        )
-        try:
-            for frame in container.decode(stream):
-                if frame.pts is not None and media_seconds(
-                    frame.pts, tb, info.origin_s
-                ) >= target - 0.5 / max(info.nominal_fps, 1.0):
-                    return rotate_for_display(frame.to_ndarray(format="rgb24"), info.rotation_cw)
-        except av.FFmpegError as exc:
-            raise VideoError(path, f"cannot decode frame {index} ({exc})") from exc
+        # A transport stream has no index: FFmpeg's search for the keyframe before the target
+        # can come back empty (a long GOP); then decode from the start.
+        for start in (target, 0.0):
+            container.seek(
+                int((start + info.origin_s) / tb), stream=stream, backward=True, any_frame=False
+            )
+            try:
+                for frame in container.decode(stream):
+                    if frame.pts is not None and media_seconds(
+                        frame.pts, tb, info.origin_s
+                    ) >= target - 0.5 / max(info.nominal_fps, 1.0):
+                        return rotate_for_display(
+                            frame.to_ndarray(format="rgb24"), info.rotation_cw
+                        )
+            except av.FFmpegError as exc:
+                raise VideoError(path, f"cannot decode frame {index} ({exc})") from exc
     raise VideoError(path, f"frame {index} not found")
 
 

@@ -62,6 +62,7 @@ class Decoder:
         self.origin_s = origin_s
         self.due_s: float | None = None  # set by the render thread: the media time it shows next
         self.skipped = 0
+        self._delivered = False  # a frame was queued since the last seek
         self.at_end = False  # the last frame of the stream has been queued; no more until a seek
         self.frames: queue.Queue[DecodedFrame | None] = queue.Queue(maxsize=QUEUE_FRAMES)
         self.corrupt_packets = 0
@@ -136,7 +137,15 @@ class Decoder:
                     any_frame=False,
                 )
                 self.at_end = False
+                self._delivered = False
                 command = self._decode_from(container, stream, target, serial, rate, bt709)
+                if command is None and not self._delivered and target > 0.0:
+                    # A transport stream has no index: the search for the keyframe before the
+                    # target found none (a long GOP): decode from the start up to it.
+                    container.seek(
+                        int(self.origin_s / stream.time_base), stream=stream, backward=True
+                    )
+                    command = self._decode_from(container, stream, target, serial, rate, bt709)
                 if command is None and not self._stop.is_set():
                     self.at_end = True
                     command = self._commands.get()  # end of stream: wait for a seek or stop
@@ -176,7 +185,7 @@ class Decoder:
                             serial,
                         )  # too far behind: jump to the keyframe before the due time
                     continue
-                delivered = True
+                delivered = self._delivered = True
                 space = getattr(frame, "colorspace", None)
                 item = DecodedFrame(
                     serial,

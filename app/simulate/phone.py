@@ -118,6 +118,8 @@ def write_video(
         s.time_base = tb
         s.codec_context.time_base = s.time_base  # keep real presentation times (variable rate)
         s.codec_context.options = {"preset": "veryfast", "crf": str(crf), "bf": "0"}
+        if Path(path).suffix.lower() == ".ts":  # a broadcast stream: a keyframe every second
+            s.codec_context.options = {**s.codec_context.options, "g": "30"}
         if rotation_cw:
             s.set_display_rotation(-rotation_cw)  # FFmpeg's display matrix turns counter-clockwise
         data = c.add_data_stream("klv") if pending else None

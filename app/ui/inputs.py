@@ -12,7 +12,12 @@ from imgui_bundle import portable_file_dialogs as pfd
 from app.core.errors import GeofuseError
 from app.ui.gui import Gui
 
-OPEN_FILTERS = ["Sessions and clips", "*.toml *.TOML *.mp4 *.MP4 *.mov *.MOV *.ts *.TS", "All files", "*"]
+OPEN_FILTERS = [
+    "Sessions and clips",
+    "*.toml *.TOML *.mp4 *.MP4 *.mov *.MOV *.ts *.TS",
+    "All files",
+    "*",
+]
 KEY_COMMANDS = {  # key name in glfw -> (command, argument)
     "KEY_SPACE": ("toggle", None), "KEY_RIGHT": ("step", "1"), "KEY_LEFT": ("step", "-1"),
     "KEY_RIGHT_BRACKET": ("faster", None), "KEY_LEFT_BRACKET": ("slower", None), "KEY_I": ("ahrs", None),

@@ -48,6 +48,7 @@ BENCHMARKS = {
     "registration": "bench_registration.py",
     "footprints": "bench_footprints.py",
     "index": "bench_index.py",
+    "live": "bench_live.py",
 }
 SOURCE_HELP = "attitude source (default: the first the session offers)"
 SRT_HELP = "the DJI subtitle of the clip, when not beside it"
@@ -58,8 +59,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser = Parser(prog="geofuse", description="Drape mobile video onto a georeferenced 3D model.")
     sub = parser.add_subparsers(dest="command", required=True)
     for command in (
-        _render, _locate, _index, _find, _view, _solve, _export, _register, _sync, _telemetry,
-        _simulate, _demo, _bench,
+        _render, _locate, _index, _find, _view, _live, _solve, _export, _register, _sync,
+        _telemetry, _simulate, _demo, _bench,
     ):  # fmt: skip
         command(sub)
     return parser
@@ -257,6 +258,42 @@ def _view(sub: Commands) -> None:
     v.set_defaults(job="view")
 
 
+def _live(sub: Commands) -> None:
+    li = sub.add_parser(
+        "live",
+        help="receive a live feed (MPEG-TS with MISB KLV) and drape it off screen: the viewer's pipeline without a window",
+    )
+    li.add_argument(
+        "url",
+        help="the stream: udp://HOST:PORT (unicast or multicast MPEG-TS), rtp://, rtsp://, srt:// where this FFmpeg has it",
+    )
+    li.add_argument(
+        "--record", type=Path, default=None, help="keep what arrives as MPEG-TS (a .ts file)"
+    )
+    li.add_argument(
+        "--for",
+        dest="seconds",
+        type=number(0.1, 86400.0),
+        default=None,
+        help="stop after this many seconds (default: when the stream has been silent for 10 s)",
+    )
+    li.add_argument(
+        "--buffer-ms",
+        type=number(0.0, 5000.0),
+        default=100.0,
+        help="the jitter buffer, milliseconds (default 100)",
+    )
+    li.add_argument("--size", type=size, default=(1280, 720), help="the drawing's WIDTHxHEIGHT")
+    li.add_argument(
+        "--origin",
+        type=lambda s: floats(s, 3, GEODETIC),
+        default=None,
+        help="the assumed ground's origin: latitude, longitude (deg), ellipsoidal height (m)",
+    )
+    add_layer_options(li)
+    li.set_defaults(job="live")
+
+
 def _solve(sub: Commands) -> None:
     so = sub.add_parser(
         "solve", help="a camera pose for every video frame of a session or clip, as CSV"
@@ -441,6 +478,32 @@ def _simulate(sub: Commands) -> None:
     sp.add_argument("--scene", required=True, type=Path)
     sp.add_argument("--out", required=True, type=Path)
     sp.set_defaults(job="simulate:photo")
+    sf = ssub.add_parser(
+        "feed",
+        help="a drone's downlink: an orbiting aircraft's H.264 MPEG-TS with MISB ST 0601 KLV, written and optionally sent over UDP in real time",
+    )
+    sf.add_argument("--out", required=True, type=Path, help="the .ts to write")
+    sf.add_argument("--seconds", type=number(1.0, 3600.0), default=20.0)
+    sf.add_argument("--size", type=size, default=(1280, 720), help="WIDTHxHEIGHT")
+    sf.add_argument(
+        "--klv-hz",
+        type=number(0.1, 240.0),
+        default=None,
+        help="KLV at its own rate (default: a set per frame, synchronous)",
+    )
+    sf.add_argument(
+        "--send",
+        default=None,
+        metavar="HOST:PORT",
+        help="then send it over UDP in real time (1316-byte datagrams, paced by its clock)",
+    )
+    sf.add_argument(
+        "--loss",
+        type=number(0.0, 0.9),
+        default=0.0,
+        help="with --send: the fraction of datagrams dropped (a lossy link)",
+    )
+    sf.set_defaults(job="simulate:feed")
 
 
 def _demo(sub: Commands) -> None:

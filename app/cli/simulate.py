@@ -1,4 +1,4 @@
-"""`geofuse simulate scene|session|photo`: the sample data (app.simulate)."""
+"""`geofuse simulate scene|session|photo|feed`: the sample data (app.simulate)."""
 
 from __future__ import annotations
 
@@ -9,6 +9,7 @@ from app.core.errors import GeofuseError
 from app.core.imageio import write_rgb
 from app.geodesy.enu import LocalFrame
 from app.scene import load_scene
+from app.simulate.feed import Sender, write_feed
 from app.simulate.photo import make_photo, photo_camera
 from app.simulate.sample import SAMPLE_ORIGIN, SAMPLE_PHOTO_POSE, SAMPLE_SCENE
 from app.simulate.session import SampleConfig, write_sample_session
@@ -42,4 +43,22 @@ def session(args: argparse.Namespace) -> int:
     )
     total = sum(p.stat().st_size for p in Path(args.out).iterdir() if p.is_file())
     print(f"wrote {manifest} ({total / 1e6:.1f} MB in {args.out})")
+    return 0
+
+
+def feed(args: argparse.Namespace) -> int:
+    out = write_feed(args.out, args.seconds, tuple(args.size), klv_hz=args.klv_hz)
+    print(f"wrote {out} ({out.stat().st_size / 1e6:.1f} MB, {args.seconds:g} s)", flush=True)
+    if args.send is None:
+        return 0
+    host, _, port = args.send.rpartition(":")
+    if not host or not port.isdigit():
+        raise GeofuseError(f"--send {args.send}: expected HOST:PORT")
+    sender = Sender(out.read_bytes(), (host, int(port)), loss=args.loss).start()
+    print(f"sending to udp://{host}:{port} in real time", flush=True)
+    try:
+        sender.join()
+    except KeyboardInterrupt:
+        sender.stop()
+    print(f"sent {sender.datagrams} datagrams, {sender.dropped} dropped on purpose")
     return 0

@@ -12,7 +12,11 @@ orbit's centre and the slant range is hypot(radius, height).
 from __future__ import annotations
 
 import math
+import socket
 import struct
+import threading
+import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -126,3 +130,109 @@ def write_feed(
     )
     packets = [(float(t), orbit_set(orbit, float(t), vfov)) for t in klv_times]
     return write_video(Path(path), times, size, 0, frame=moving_texture(size), crf=crf, klv=packets)
+
+
+TS_PACKET = 188
+DATAGRAM_PACKETS = 7  # 1316 bytes: what MPEG-TS over UDP sends per datagram
+
+
+def _pcr(packet: bytes) -> int | None:
+    """A TS packet's program clock reference base (90 kHz), None when it carries none."""
+    if (packet[3] >> 4) & 2 and packet[4] >= 7 and packet[5] & 0x10:
+        b = packet[6:11]
+        return (b[0] << 25) | (b[1] << 17) | (b[2] << 9) | (b[3] << 1) | (b[4] >> 7)
+    return None
+
+
+def _video_pes_pts(packet: bytes) -> int | None:
+    """The PTS (90 kHz) of a video PES starting in this TS packet, None otherwise."""
+    if not packet[1] & 0x40:  # payload_unit_start_indicator
+        return None
+    start = 4 + (packet[4] + 1 if (packet[3] >> 4) & 2 else 0)
+    pes = packet[start:]
+    if len(pes) < 14 or pes[:3] != b"\x00\x00\x01" or not 0xE0 <= pes[3] <= 0xEF:
+        return None
+    if not pes[7] & 0x80:
+        return None
+    b = pes[9:14]
+    return ((b[0] >> 1) & 7) << 30 | b[1] << 22 | (b[2] >> 1) << 15 | b[3] << 7 | b[4] >> 1
+
+
+class Sender:
+    """Sends an MPEG-TS over UDP in real time, paced by its program clock: 1316-byte datagrams
+    as an encoder's UDP output sends them, a fraction `loss` of them dropped and a fraction
+    `reorder` swapped with the next (a seeded, repeatable network). `sent` maps each video
+    frame's PTS (90 kHz) to when its last datagram left (clock s): latency is measured from it."""
+
+    def __init__(
+        self,
+        data: bytes,
+        address: tuple[str, int],
+        loss: float = 0.0,
+        reorder: float = 0.0,
+        seed: int = 0,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.data = data
+        self.address = address
+        self.loss, self.reorder = loss, reorder
+        self.rng = np.random.default_rng(seed)
+        self.clock = clock
+        self.sent: dict[int, float] = {}
+        self.datagrams = self.dropped = 0
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="geofuse-sender", daemon=True)
+
+    def start(self) -> Sender:
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread.ident is not None:
+            self._thread.join(5.0)
+        self.sock.close()
+
+    def join(self, timeout: float | None = None) -> None:
+        """Waits until everything is sent (returns at once when never started)."""
+        if self._thread.ident is not None:
+            self._thread.join(timeout)
+
+    def _run(self) -> None:
+        d = self.data
+        n = len(d) // TS_PACKET
+        step = DATAGRAM_PACKETS
+        start = self.clock()
+        pcr0 = None
+        pts = None
+        held: bytes | None = None
+        for i in range(0, n, step):
+            if self._stop.is_set():
+                return
+            chunk = d[i * TS_PACKET : min(n, i + step) * TS_PACKET]
+            for k in range(0, len(chunk), TS_PACKET):
+                p = chunk[k : k + TS_PACKET]
+                pcr = _pcr(p)
+                if pcr is not None:
+                    pcr0 = pcr if pcr0 is None else pcr0
+                    wait = start + (pcr - pcr0) / 90000.0 - self.clock()
+                    if wait > 0:
+                        self._stop.wait(wait)
+                v = _video_pes_pts(p)
+                if v is not None:
+                    pts = v
+            self.datagrams += 1
+            if self.rng.random() < self.loss:
+                self.dropped += 1
+            elif held is None and self.rng.random() < self.reorder:
+                held = chunk  # sent after the next one
+            else:
+                self.sock.sendto(chunk, self.address)
+                if held is not None:
+                    self.sock.sendto(held, self.address)
+                    held = None
+            if pts is not None:
+                self.sent[pts] = self.clock()
+        if held is not None:
+            self.sock.sendto(held, self.address)

@@ -1,0 +1,36 @@
+"""`geofuse live URL`: a live feed received, recorded and drawn off screen (app.live.run), one
+summary line at the end."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from app.cli.common import layers
+from app.core.errors import GeofuseError
+from app.core.outputs import check_output
+from app.live.run import LiveOptions, run_live
+
+
+def run(args: argparse.Namespace) -> int:
+    if "://" not in args.url:
+        raise GeofuseError(
+            f"{args.url}: expected a stream URL (udp://HOST:PORT, rtp://, rtsp://, srt://); a recorded file opens with view, solve or export"
+        )
+    record = check_output(args.record, "--record", (".ts",), []) if args.record else None
+    options = LiveOptions(
+        seconds=args.seconds,
+        record=record,
+        delay_s=args.buffer_ms / 1000.0,
+        size=tuple(args.size),
+        layers=layers(args),
+        origin=tuple(args.origin) if args.origin else None,
+    )
+    print(f"receiving {args.url} (jitter buffer {args.buffer_ms:g} ms)", flush=True)
+    result = run_live(args.url, options)
+    for m in result.messages.since(0):
+        print(m, file=sys.stderr)
+    print(result.summary())
+    if record is not None:
+        print(f"recorded {record}")
+    return 0 if result.drawn else 1

@@ -1,0 +1,103 @@
+"""Camera poses of a live feed, forward only: each frame gets the pose of its own presentation
+time from the KLV sets that have arrived by the time it is drawn, never from later ones.
+
+Between two arrived sets the position is interpolated linearly and the attitude by slerp; past the
+newest set the newest is held. A pose whose newest set is older than its frame by more than the
+jitter buffer is `stale` (drawn, marked); before any set with a pose the frame has none.
+Thread-safe: the receiver adds, the drawing thread asks.
+"""
+
+from __future__ import annotations
+
+import bisect
+import threading
+from dataclasses import dataclass
+
+import numpy as np
+
+from app.camera.intrinsics import Intrinsics
+from app.camera.pinhole import Camera
+from app.geodesy import rotations
+from app.geodesy.enu import LocalFrame
+from app.io.klv_track import KlvTrack
+from app.io.misb import LocalSet, camera_orientation
+
+FRESH, STALE, NONE = "fresh", "stale", "none"
+
+
+@dataclass(frozen=True)
+class LivePose:
+    """A frame's camera (None before any pose), whether it is fresh, stale or none, and how old
+    the newest set behind it is relative to the frame (s)."""
+
+    camera: Camera | None
+    state: str
+    age_s: float
+
+
+class LivePoses:
+    """Sets with a position and an attitude, in time order (media s)."""
+
+    def __init__(self, stale_after_s: float) -> None:
+        self.stale_after_s = stale_after_s
+        self.t: list[float] = []
+        self.geodetic: list[tuple[float, float, float]] = []
+        self.q: list[np.ndarray] = []
+        self.hfov_deg: float | None = None
+        self.centre_h: float | None = None
+        self.without_pose = 0  # sets that arrived with a position or angles in error
+        self._lock = threading.Lock()
+
+    def add(self, t: float, s: LocalSet) -> bool:
+        """One set at media time t; False (counted) when it gives no full pose."""
+        one = KlvTrack("", [t], [s])
+        g = one.gnss()
+        q = camera_orientation(s)
+        if g is None or q is None:
+            self.without_pose += 1
+            return False
+        fov = s.get("hfov_deg")
+        centre = one.centre_heights()[0]
+        with self._lock:
+            i = bisect.bisect_right(self.t, t)
+            if i and self.t[i - 1] == t:
+                return True
+            self.t.insert(i, t)
+            self.geodetic.insert(i, (float(g.lat[0]), float(g.lon[0]), float(g.h[0])))
+            self.q.insert(i, q)
+            if np.isfinite(fov) and fov > 0.1:
+                self.hfov_deg = float(fov)
+            if np.isfinite(centre):
+                self.centre_h = float(centre)
+        return True
+
+    def first(self) -> tuple[float, float, float] | None:
+        """The first position (lat, lon, ellipsoidal h), None before any."""
+        with self._lock:
+            return self.geodetic[0] if self.geodetic else None
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+    def at(self, t: float, frame: LocalFrame, intrinsics: Intrinsics, far: float) -> LivePose:
+        """The camera at media time t in `frame` from the sets arrived so far."""
+        with self._lock:
+            if not self.t:
+                return LivePose(None, NONE, float("inf"))
+            i = bisect.bisect_right(self.t, t)
+            if i == 0:  # the frame precedes every set: the first one, marked stale
+                k, w, age = 0, 0.0, self.t[0] - t
+            elif i == len(self.t):
+                k, w, age = i - 1, 0.0, t - self.t[-1]
+            else:
+                k, w, age = i - 1, (t - self.t[i - 1]) / (self.t[i] - self.t[i - 1]), 0.0
+            a = np.array(self.geodetic[k])
+            qa = self.q[k]
+            if w > 0.0:
+                b, qb = np.array(self.geodetic[k + 1]), self.q[k + 1]
+            else:
+                b, qb = a, qa
+        enu = frame.geodetic_to_enu(*(np.array([v]) for v in (1 - w) * a + w * b))[0]
+        q = rotations.slerp([0.0, 1.0], np.stack([qa, qb]), [w])[0]
+        camera = Camera.create(intrinsics, enu, q, far=far)
+        return LivePose(camera, FRESH if age <= self.stale_after_s else STALE, age)

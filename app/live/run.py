@@ -1,0 +1,230 @@
+"""A live feed drawn without a window (`geofuse live`, `bench live`): the viewer's pipeline, off
+screen through EGL, with the same clock and the same figures.
+
+The loop never waits on the network: it takes the newest frame due from the jitter buffer,
+draws it projected with the pose of its own time (app.live.pose: stale or missing poses drawn
+with the last one, counted) and records when the drawing was finished (the GPU waited for). It
+ends after `seconds`, or once the stream has been silent for `silence_s` (said).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from app.camera.intrinsics import Intrinsics
+from app.camera.pinhole import Camera
+from app.core.constants import DEFAULT_FAR_M
+from app.core.messages import Messages
+from app.geodesy.enu import LocalFrame
+from app.io.streams import GnssTrack
+from app.live.buffer import DEFAULT_DELAY_S, JitterBuffer
+from app.live.pose import NONE, STALE, LivePoses
+from app.live.receiver import Receiver
+from app.live.recorder import Recorder
+from app.render.context import create_offscreen_context, wait_for_gpu
+from app.render.offscreen import OffscreenTarget
+from app.render.renderer import FusionRenderer
+from app.render.still import window_camera
+from app.scene.ground_plane import ground_under_track
+from app.session.assemble import load_scene_layers
+
+SILENCE_S = 10.0
+ASSUMED_HFOV_DEG = 50.0  # a feed whose KLV gives no field of view (tag 16)
+ASSUMED_DEPTH_M = 100.0  # a feed without a frame centre: the ground this far under the sensor
+GROUND_MARGIN_M = 3000.0
+
+
+@dataclass
+class Drawn:
+    """One frame drawn: its media time (s), when it arrived, when the jitter buffer made it due
+    and when its drawing finished (monotonic s), and the pose's state (fresh, stale, none)."""
+
+    pts_s: float
+    arrival_s: float
+    due_s: float
+    drawn_s: float
+    pose: str
+
+
+@dataclass
+class LiveRun:
+    """What a run received, drew and lost, with the messages it said."""
+
+    url: str
+    drawn: list[Drawn] = field(default_factory=list)
+    received: int = 0
+    missing: int = 0
+    skipped: int = 0
+    late: int = 0
+    overflow: int = 0
+    undecodable: int = 0
+    bad_klv: int = 0
+    stale: int = 0
+    without_pose: int = 0
+    reconnects: int = 0
+    ended: str = ""
+    delay_s: float = DEFAULT_DELAY_S
+    origin_s: float | None = None  # the stream-clock seconds of media time 0
+    frame: LocalFrame | None = None  # the local ENU frame the cameras are in
+    messages: Messages = field(default_factory=Messages)
+
+    def latency_ms(self, q: float) -> float:
+        """The q-th percentile of arrival -> drawn (ms), NaN before any frame is drawn."""
+        lat = [1000.0 * (d.drawn_s - d.arrival_s) for d in self.drawn]
+        return float(np.percentile(lat, q)) if lat else math.nan
+
+    def added_ms(self, q: float) -> float:
+        """The q-th percentile of due -> drawn (ms): what geofuse adds past the jitter buffer
+        (waiting for the draw loop, decoding behind, drawing)."""
+        lat = [1000.0 * (d.drawn_s - max(d.due_s, d.arrival_s)) for d in self.drawn]
+        return float(np.percentile(lat, q)) if lat else math.nan
+
+    def summary(self) -> str:
+        """The one line `geofuse live` prints at the end."""
+        return (
+            f"{self.url}: {self.received} frames received ({self.missing} lost on the way), "
+            f"{len(self.drawn)} drawn, "
+            f"{self.skipped + self.late + self.overflow} dropped by geofuse "
+            f"({self.skipped} behind, {self.late} late, {self.overflow} overflow), "
+            f"{self.undecodable} undecodable packets, latency arrival->drawn p50 "
+            f"{self.latency_ms(50):.1f} ms p95 {self.latency_ms(95):.1f} ms (past the "
+            f"{1000 * self.delay_s:.0f} ms buffer: p50 {self.added_ms(50):.1f} p95 {self.added_ms(95):.1f} ms); "
+            f"{self.stale} drawn with a stale pose, {self.without_pose} without one; {self.ended}"
+        )
+
+
+@dataclass(frozen=True)
+class LiveOptions:
+    """seconds: stop after this long (None: until silence); record: keep what arrives as
+    MPEG-TS; delay_s: the jitter buffer; size: the drawing's (w, h); layers: the scene (else an
+    assumed ground); origin: (lat, lon, ellipsoidal h) of the ground's origin."""
+
+    seconds: float | None = None
+    record: Path | None = None
+    delay_s: float = DEFAULT_DELAY_S
+    size: tuple[int, int] = (1280, 720)
+    layers: tuple = ()
+    origin: tuple[float, float, float] | None = None
+    silence_s: float = SILENCE_S
+    far_m: float = DEFAULT_FAR_M
+
+
+def _scene(poses: LivePoses, options: LiveOptions, messages: Messages):
+    """(frame, mesh) once the first position is known: the layers around it, else a flat
+    ground at the origin's height, the frame centre's, or 100 m under the sensor (said)."""
+    lat, lon, h = options.origin or poses.first()
+    if options.origin is not None:
+        ground = options.origin[2]
+    elif poses.centre_h is not None and poses.centre_h < h:
+        ground = poses.centre_h
+        messages.info(f"the assumed ground is the KLV frame centre's height ({ground:.1f} m)")
+    else:
+        ground = h - ASSUMED_DEPTH_M
+        messages.add(
+            f"no frame centre in the KLV: the ground is assumed {ASSUMED_DEPTH_M:g} m under the sensor (give --scene, --dem or --origin)"
+        )
+    frame = LocalFrame(lat, lon, ground)
+    one = np.array([lat])
+    if options.layers:
+        track = GnssTrack(np.zeros(1), one, np.array([lon]), np.array([h]))
+        return frame, load_scene_layers(options.layers, frame, track, messages)
+    messages.add("no scene given: the video is projected on an assumed flat ground with a 1 m grid")
+    return frame, ground_under_track(frame, one, np.array([lon]), ground, GROUND_MARGIN_M)
+
+
+def run_live(
+    url: str,
+    options: LiveOptions = LiveOptions(),
+    clock: Callable[[], float] = time.monotonic,
+    on_drawn: Callable[[Drawn, Camera, np.ndarray | None], None] | None = None,
+    read_pixels: bool = False,
+) -> LiveRun:
+    """Receive `url` and draw it off screen until `options.seconds` or silence; see the module
+    docstring. on_drawn(d, projector, rgb): called after each frame is drawn (rgb read back
+    when read_pixels)."""
+    run = LiveRun(url, delay_s=options.delay_s)
+    messages = run.messages
+    buffer = JitterBuffer(options.delay_s)
+    poses = LivePoses(stale_after_s=options.delay_s)
+    recorder = Recorder(options.record) if options.record is not None else None
+    receiver = Receiver(url, buffer, poses, messages, recorder, clock).start()
+    start = clock()
+    ctx = renderer = target = None
+    frame = intr = None
+    last_camera: Camera | None = None
+    try:
+        while True:
+            now = clock()
+            if options.seconds is not None and now - start >= options.seconds:
+                run.ended = f"ended after {options.seconds:g} s"
+                break
+            heard = receiver.last_arrival_s if receiver.last_arrival_s is not None else start
+            if now - heard >= options.silence_s:
+                run.ended = f"ended: the stream was silent for {options.silence_s:g} s"
+                messages.add(run.ended)
+                break
+            if renderer is None:
+                if receiver.size is None or (not len(poses) and options.origin is None):
+                    time.sleep(0.005)
+                    continue
+                frame, mesh = _scene(poses, options, messages)
+                run.frame = frame
+                hfov = poses.hfov_deg or ASSUMED_HFOV_DEG
+                if poses.hfov_deg is None:
+                    messages.add(f"the KLV gives no field of view: {hfov:g} deg assumed")
+                intr = Intrinsics.from_fov(*receiver.size, hfov)
+                ctx = create_offscreen_context()
+                renderer = FusionRenderer(ctx, mesh)
+                target = OffscreenTarget(ctx, *options.size)
+            with receiver.lock:
+                item = buffer.take(now)
+                due = buffer.due_at(item) if item is not None else now
+                wake = buffer.next_due()
+            if item is None:
+                time.sleep(min(max((wake or now + 0.005) - clock(), 0.0005), 0.005))
+                continue
+            pose = poses.at(item.pts_s, frame, intr, options.far_m)
+            camera = pose.camera or last_camera
+            if pose.state == STALE:
+                run.stale += 1
+                messages.add_once(
+                    "stale",
+                    "frames drawn with a stale pose (the KLV lags behind the video by more than the buffer): counted",
+                )
+            elif pose.state == NONE:
+                run.without_pose += 1
+            if camera is None:
+                continue  # no pose has arrived yet: nothing to project from
+            last_camera = camera
+            y, u, v = item.payload
+            renderer.set_video_yuv(y, u, v, 0, y.shape[0] >= 720)
+            renderer.set_projector(camera)
+            view_intr = Intrinsics.from_fov(*options.size, 60.0)
+            view = window_camera(camera, view_intr, None, None, options.far_m)
+            renderer.draw(view, target.fbo)
+            rgb = target.read() if read_pixels else None
+            wait_for_gpu(ctx)
+            d = Drawn(item.pts_s, item.arrival_s, due, clock(), pose.state)
+            run.drawn.append(d)
+            if on_drawn is not None:
+                on_drawn(d, camera, rgb)
+    finally:
+        receiver.stop()
+        if recorder is not None:
+            recorder.close()
+        if renderer is not None:
+            target.release()
+            renderer.release()
+            ctx.release()
+    c = receiver.counts
+    run.received, run.undecodable, run.missing = c.frames, c.undecodable, c.missing
+    run.skipped, run.late, run.overflow = buffer.skipped, buffer.late, buffer.overflow
+    run.bad_klv, run.reconnects = receiver.track.counts.bad, max(c.connects - 1, 0)
+    run.origin_s = receiver.origin_s
+    return run

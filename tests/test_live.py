@@ -1,0 +1,213 @@
+"""Live feeds: the jitter buffer and the forward-only poses with injected times, then a drone's
+downlink (app.simulate.feed) sent over the loopback by the test itself, with lost and reordered
+datagrams, a pause, and a port already in use. The end-to-end tests run in real time (the sender
+paces the stream) but assert only what must hold whatever the machine's speed."""
+
+from __future__ import annotations
+
+import socket
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from app.camera.intrinsics import Intrinsics
+from app.cli import main
+from app.core.messages import Messages
+from app.footage.clips import open_clip
+from app.geodesy.enu import LocalFrame
+from app.io.misb import parse
+from app.live.buffer import Arrival, JitterBuffer
+from app.live.pose import FRESH, NONE, STALE, LivePoses
+from app.live.receiver import Receiver, protocols_missing, stream_url
+from app.live.run import LiveOptions, run_live
+from app.simulate.feed import Orbit, Sender, orbit_set, write_feed
+
+ORBIT = Orbit()
+
+
+def test_the_buffer_shows_each_frame_at_its_own_pace_after_the_delay():
+    """Frames 1/30 s apart arrive with jitter (the fastest 0.5 s after its time stamp): each is
+    due at pts + 0.5 + 0.1, whatever its own delay; reordered arrivals are put back in order."""
+    buf = JitterBuffer(delay_s=0.1)
+    jitter = [0.0, 0.04, 0.01, 0.08, 0.02]
+    for k in (0, 2, 1, 3, 4):  # frame 2 overtakes frame 1
+        buf.push(Arrival(k / 30, k / 30 + 0.5 + jitter[k], k))
+    assert buf.link_s == pytest.approx(0.5)
+    assert buf.take(0.599) is None  # frame 0 is due at 0.6
+    assert buf.take(0.6).payload == 0
+    assert buf.take(0.6 + 1 / 30 + 1e-9).payload == 1
+    # the display was held up: frames 2 and 3 are both due; the newest is shown, one skipped
+    assert buf.take(0.6 + 3 / 30 + 1e-9).payload == 3 and buf.skipped == 1
+    buf.push(Arrival(2.5 / 30, 1.0, "late"))  # older than what was shown: late, dropped
+    assert buf.late == 1 and [f.payload for f in buf.pending] == [4]
+    # an encoder restarting its clock: the link starts afresh instead of freezing the display
+    buf.push(Arrival(0.0, 100.0, "restart"))
+    assert buf.resyncs == 1 and buf.take(100.1).payload == "restart"
+
+
+def test_poses_are_forward_only_and_stale_past_the_buffer():
+    poses = LivePoses(stale_after_s=0.1)
+    frame = LocalFrame(ORBIT.lat_deg, ORBIT.lon_deg, ORBIT.ground_h_m)
+    intr = Intrinsics.from_fov(320, 180, 50.0)
+    assert poses.at(0.0, frame, intr, 1000.0).state == NONE
+    for t in (0.0, 0.2):
+        assert poses.add(t, parse(orbit_set(ORBIT, t, 30.0)))
+    mid = poses.at(0.1, frame, intr, 1000.0)  # between two arrived sets: interpolated
+    want = ORBIT.position(0.1)
+    assert mid.state == FRESH
+    assert np.linalg.norm(np.asarray(mid.camera.position)[:2] - want[:2]) < 0.01
+    held = poses.at(0.35, frame, intr, 1000.0)  # past the newest set by 0.15 s: held, stale
+    assert held.state == STALE and held.age_s == pytest.approx(0.15)
+    assert np.allclose(held.camera.position[:2], ORBIT.position(0.2)[:2], atol=0.01)
+
+
+def _up(ecef: np.ndarray) -> np.ndarray:
+    """The local vertical (unit, ECEF) at a point, near enough for a 0.1 m test."""
+    lat, lon = np.radians([ORBIT.lat_deg, ORBIT.lon_deg])
+    return np.array([np.cos(lat) * np.cos(lon), np.cos(lat) * np.sin(lon), np.sin(lat)])
+
+
+def _free_port() -> int:
+    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    s.bind(("127.0.0.1", 0))
+    port = s.getsockname()[1]
+    s.close()
+    return port
+
+
+@pytest.fixture(scope="module")
+def feed(tmp_path_factory) -> Path:
+    """3 s of the orbit at 320x180, 30 fps, a KLV set per frame."""
+    return write_feed(tmp_path_factory.mktemp("live") / "feed.ts", 3.0, (320, 180))
+
+
+def _wait_until(condition, limit_s: float = 60.0) -> bool:
+    """Polls a condition (the limit only keeps a broken receiver from hanging the test)."""
+    end = time.monotonic() + limit_s
+    while not condition():
+        if time.monotonic() > end:
+            return False
+        time.sleep(0.01)
+    return True
+
+
+def _run_with_sender(feed: Path, tmp_path: Path, sender_kwargs: dict, **options):
+    port = _free_port()
+    url = f"udp://127.0.0.1:{port}"
+    sender = Sender(feed.read_bytes(), ("127.0.0.1", port), **sender_kwargs)
+    cameras = []
+    started = []
+
+    def on_drawn(d, camera, rgb):
+        cameras.append((d, camera))
+
+    opts = LiveOptions(silence_s=2.0, size=(160, 90), record=tmp_path / "rec.ts", **options)
+
+    # the sender starts once the receiver listens: the first time the clock is read after start
+    def clock() -> float:
+        if not started:
+            started.append(True)
+            sender.start()
+        return time.monotonic()
+
+    run = run_live(url, opts, clock=clock, on_drawn=on_drawn)
+    sender.stop()
+    return run, sender, cameras
+
+
+def test_a_lossy_downlink_is_drawn_frame_by_frame_with_each_frames_own_pose(feed, tmp_path):
+    run, sender, cameras = _run_with_sender(
+        feed, tmp_path, {"loss": 0.05, "reorder": 0.02, "seed": 3}
+    )
+    assert sender.dropped > 0 and run.drawn
+    # Every frame that arrived is accounted for: drawn, or counted as dropped by geofuse
+    # (behind, late, overflow) or drawn without a pose; none vanishes.
+    accounted = len(run.drawn) + run.skipped + run.late + run.overflow + run.without_pose
+    assert accounted <= run.received <= accounted + 3  # at most the buffer's tail at the end
+    # What the network lost is counted as lost: every frame from the first that reached the
+    # receiver (its socket may open after the sender began) is received or counted missing,
+    # but for lost frames at the very end, which no later frame reveals.
+    sent_after_first = 90 - round(run.origin_s * 30)
+    assert sent_after_first - 3 <= run.received + run.missing <= sent_after_first
+    assert "silent for 2 s" in run.ended
+    # Each frame drawn with the pose of its own time: the orbit at that frame's time (a pose one
+    # frame off would be 0.52 m away along the circle; the KLV's positions are mm-exact).
+    frame = ORBIT.frame()
+    fresh = [(d, c) for d, c in cameras if d.pose == FRESH]
+    assert len(fresh) >= 0.9 * len(cameras)
+    for d, cam in fresh:
+        t = d.pts_s + run.origin_s
+        got = run.frame.enu_to_ecef(np.asarray(cam.position))
+        want = frame.enu_to_ecef(ORBIT.position(t))
+        assert np.linalg.norm(got - want) < 0.35, (t, got - want)  # heights in 0.3 m steps
+        along = got - want - (got - want) @ _up(want) * _up(want)
+        assert np.linalg.norm(along) < 0.1, (t, along)
+    # and the times are the stream's: arrival before due before drawn
+    assert all(d.arrival_s <= d.drawn_s and d.due_s <= d.drawn_s for d, _ in cameras)
+    # The recording is a clip like any other: its KLV gives the pose source `telemetry`.
+    clip = open_clip(tmp_path / "rec.ts")
+    assert "telemetry" in clip.recorded
+    assert len(clip.video.pts_s) >= run.received - 2
+
+
+def test_a_feed_that_pauses_is_reopened_and_drawn_again(feed, tmp_path):
+    """The sender stops for 3 s mid-flight (longer than the read timeout) then resumes: the
+    receiver says the stream dropped, reconnects, and frames after the pause are drawn."""
+    data = feed.read_bytes()
+    half = (len(data) // 188 // 2) * 188
+    port = _free_port()
+    first = Sender(data[:half], ("127.0.0.1", port))
+    second = Sender(data[half:], ("127.0.0.1", port))
+    drawn = []
+
+    def resume():
+        first.join()
+        time.sleep(3.0)
+        second.start()
+
+    first.start()
+    threading.Thread(target=resume, daemon=True).start()
+    run = run_live(
+        f"udp://127.0.0.1:{port}",
+        LiveOptions(silence_s=5.0, size=(160, 90)),
+        on_drawn=lambda d, c, rgb: drawn.append(d),
+    )
+    second.stop()
+    said = " ".join(run.messages.items)
+    assert "reading stopped (nothing arrived for 2 s)" in said
+    assert run.reconnects >= 1
+    late = [d for d in drawn if d.pts_s > 1.6]  # frames of the second half
+    assert late, said
+
+
+def test_a_port_already_in_use_is_said_and_the_receiver_keeps_trying():
+    holder = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    holder.bind(("127.0.0.1", 0))
+    port = holder.getsockname()[1]
+    messages = Messages()
+    r = Receiver(f"udp://127.0.0.1:{port}", JitterBuffer(), LivePoses(0.1), messages).start()
+    try:
+        assert _wait_until(lambda: r.counts.failed_opens >= 1)
+        assert r.alive  # it retries with back-off instead of ending
+        assert any(
+            "already in use" in m and "another program holds the port" in m for m in messages.items
+        )
+    finally:
+        r.stop()
+        holder.close()
+
+
+def test_stream_urls_and_what_this_ffmpeg_cannot_open():
+    assert "overrun_nonfatal=1" in stream_url("udp://239.0.0.1:5600")
+    assert stream_url("rtsp://cam/live") == "rtsp://cam/live"
+    assert protocols_missing("udp://127.0.0.1:1") is None
+    missing = protocols_missing("nosuch://x")
+    assert missing is None or "built without nosuch://" in missing
+
+
+def test_live_refuses_a_file_path_naming_what_it_expects(tmp_path, capsys):
+    assert main(["live", str(tmp_path / "flight.ts")]) == 2
+    assert "expected a stream URL" in capsys.readouterr().err

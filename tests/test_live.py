@@ -48,6 +48,25 @@ def test_the_buffer_shows_each_frame_at_its_own_pace_after_the_delay():
     assert buf.resyncs == 1 and buf.take(100.1).payload == "restart"
 
 
+def test_the_burst_of_a_joined_stream_is_played_out_catching_up_not_skipped():
+    """Joining, the demuxer hands over half a second of frames at once: the display starts from
+    the first and plays 25 % fast until it reaches the live edge; nothing is skipped."""
+    buf = JitterBuffer(delay_s=0.1)
+    for k in range(15):  # frames 0..14 all handed over at 10.0 s
+        buf.push(Arrival(k / 30, 10.0, k))
+    shown, now = [], 10.0
+    for k in range(15, 120):  # then one a frame, on time
+        buf.push(Arrival(k / 30, 10.0 + (k - 14) / 30, k))
+        while (f := buf.take(now)) is not None or now < 10.0 + (k - 14) / 30:
+            if f is not None:
+                shown.append(f.payload)
+            now += 1 / 240  # a display that polls often
+    assert shown == list(range(len(shown))) and buf.skipped == 0  # in order, none skipped
+    # The 0.47 s backlog is caught up at 0.25 s a second: 3.5 s later a frame is due the
+    # buffer's 0.1 s after its arrival, as if the stream had been joined without a burst.
+    assert buf.due_at(Arrival(119 / 30, 0.0)) - (10.0 + 105 / 30) == pytest.approx(0.1, abs=0.01)
+
+
 def test_poses_are_forward_only_and_stale_past_the_buffer():
     poses = LivePoses(stale_after_s=0.1)
     frame = LocalFrame(ORBIT.lat_deg, ORBIT.lon_deg, ORBIT.ground_h_m)

@@ -176,7 +176,7 @@ class Receiver:
                 container = av.open(
                     stream_url(self.url),
                     timeout=(OPEN_TIMEOUT_S, READ_TIMEOUT_S),
-                    options={"analyzeduration": "500000", "probesize": "1000000"},
+                    options={"analyzeduration": "200000", "probesize": "500000"},
                 )
             except (av.FFmpegError, OSError) as exc:
                 self.counts.failed_opens += 1

@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import socket
 import statistics
 import sys
 import tempfile
@@ -33,23 +32,15 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from app.live.run import LiveOptions, run_live  # noqa: E402
-from app.simulate.feed import Sender, write_feed  # noqa: E402
+from app.simulate.feed import Sender, free_udp_port, write_feed  # noqa: E402
 from bench.common import machine, table  # noqa: E402
 
 JOIN_S = 4.0  # the first seconds after joining, while the display catches up the probe's burst
 
 
-def _port() -> int:
-    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    s.bind(("127.0.0.1", 0))
-    port = s.getsockname()[1]
-    s.close()
-    return port
-
-
 def one_run(feed: Path, loss: float, seconds: float, buffer_ms: float, seed: int) -> dict:
     """One feed sent and received; the figures of that run."""
-    port = _port()
+    port = free_udp_port()
     sender = Sender(feed.read_bytes(), ("127.0.0.1", port), loss=loss, seed=seed)
     started: list[bool] = []
 

@@ -23,7 +23,7 @@ from app.live.buffer import Arrival, JitterBuffer
 from app.live.pose import FRESH, NONE, STALE, LivePoses
 from app.live.receiver import Receiver, protocols_missing, stream_url
 from app.live.run import LiveOptions, run_live
-from app.simulate.feed import Orbit, Sender, orbit_set, write_feed
+from app.simulate.feed import Orbit, Sender, free_udp_port, orbit_set, write_feed
 
 ORBIT = Orbit()
 
@@ -89,14 +89,6 @@ def _up(ecef: np.ndarray) -> np.ndarray:
     return np.array([np.cos(lat) * np.cos(lon), np.cos(lat) * np.sin(lon), np.sin(lat)])
 
 
-def _free_port() -> int:
-    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    s.bind(("127.0.0.1", 0))
-    port = s.getsockname()[1]
-    s.close()
-    return port
-
-
 @pytest.fixture(scope="module")
 def feed(tmp_path_factory) -> Path:
     """3 s of the orbit at 320x180, 30 fps, a KLV set per frame."""
@@ -114,7 +106,7 @@ def _wait_until(condition, limit_s: float = 60.0) -> bool:
 
 
 def _run_with_sender(feed: Path, tmp_path: Path, sender_kwargs: dict, **options):
-    port = _free_port()
+    port = free_udp_port()
     url = f"udp://127.0.0.1:{port}"
     sender = Sender(feed.read_bytes(), ("127.0.0.1", port), **sender_kwargs)
     cameras = []
@@ -177,7 +169,7 @@ def test_a_feed_that_pauses_is_reopened_and_drawn_again(feed, tmp_path):
     receiver says the stream dropped, reconnects, and frames after the pause are drawn."""
     data = feed.read_bytes()
     half = (len(data) // 188 // 2) * 188
-    port = _free_port()
+    port = free_udp_port()
     first = Sender(data[:half], ("127.0.0.1", port))
     second = Sender(data[half:], ("127.0.0.1", port))
     drawn = []
@@ -230,3 +222,8 @@ def test_stream_urls_and_what_this_ffmpeg_cannot_open():
 def test_live_refuses_a_file_path_naming_what_it_expects(tmp_path, capsys):
     assert main(["live", str(tmp_path / "flight.ts")]) == 2
     assert "expected a stream URL" in capsys.readouterr().err
+
+
+def test_view_says_where_streams_go_instead_of_failing_on_a_url(capsys):
+    assert main(["view", "udp://127.0.0.1:5600"]) == 2
+    assert "geofuse live URL --record" in capsys.readouterr().err

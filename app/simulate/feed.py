@@ -132,6 +132,13 @@ def write_feed(
     return write_video(Path(path), times, size, 0, frame=moving_texture(size), crf=crf, klv=packets)
 
 
+def free_udp_port(host: str = "127.0.0.1") -> int:
+    """A UDP port nobody holds now on host (for tests and benchmarks that send to themselves)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind((host, 0))
+        return int(s.getsockname()[1])
+
+
 TS_PACKET = 188
 DATAGRAM_PACKETS = 7  # 1316 bytes: what MPEG-TS over UDP sends per datagram
 

@@ -6,6 +6,8 @@ paces the stream) but assert only what must hold whatever the machine's speed.""
 from __future__ import annotations
 
 import socket
+import subprocess
+import sys
 import threading
 import time
 from pathlib import Path
@@ -227,3 +229,31 @@ def test_live_refuses_a_file_path_naming_what_it_expects(tmp_path, capsys):
 def test_view_says_where_streams_go_instead_of_failing_on_a_url(capsys):
     assert main(["view", "udp://127.0.0.1:5600"]) == 2
     assert "geofuse live URL --record" in capsys.readouterr().err
+
+
+def test_a_recording_killed_mid_flight_is_still_a_clip(tmp_path):
+    """`geofuse live --record` killed with SIGKILL while the feed is arriving: what it wrote
+    opens as a clip with its KLV poses (a transport stream needs no trailer; each packet is
+    flushed as it is muxed)."""
+    feed = write_feed(tmp_path / "long.ts", 10.0, (320, 180))
+    port = free_udp_port()
+    record = tmp_path / "killed.ts"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "app", "live", f"udp://127.0.0.1:{port}", "--record", str(record)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+    )
+    sender = Sender(feed.read_bytes(), ("127.0.0.1", port))
+    try:
+        assert proc.stdout.readline().startswith("receiving")  # it is about to listen
+        sender.start()
+        assert _wait_until(lambda: record.is_file() and record.stat().st_size > 40_000, 60.0)
+        proc.kill()
+        proc.wait(10)
+    finally:
+        sender.stop()
+        if proc.poll() is None:
+            proc.kill()
+    clip = open_clip(record)
+    assert len(clip.video.pts_s) >= 10 and "telemetry" in clip.recorded

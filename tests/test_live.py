@@ -114,7 +114,7 @@ def _run_with_sender(feed: Path, tmp_path: Path, sender_kwargs: dict, **options)
     cameras = []
     started = []
 
-    def on_drawn(d, camera, rgb):
+    def on_drawn(d, camera):
         cameras.append((d, camera))
 
     opts = LiveOptions(silence_s=2.0, size=(160, 90), record=tmp_path / "rec.ts", **options)
@@ -186,7 +186,7 @@ def test_a_feed_that_pauses_is_reopened_and_drawn_again(feed, tmp_path):
     run = run_live(
         f"udp://127.0.0.1:{port}",
         LiveOptions(silence_s=5.0, size=(160, 90)),
-        on_drawn=lambda d, c, rgb: drawn.append(d),
+        on_drawn=lambda d, c: drawn.append(d),
     )
     second.stop()
     said = " ".join(run.messages.items)

@@ -236,7 +236,7 @@ def test_drone_heights_above_take_off_start_from_the_terrain_under_the_first_fix
     """A clip's subtitle gives heights above take-off: with a DEM layer, the take-off height is
     the terrain's (250 m above EGM2008 here) under the first fix, and every height is shifted by it."""
     from app.core.messages import Messages
-    from app.footage.clips import _frame_and_ground
+    from app.footage.clips import frame_and_ground
     from app.io.streams import GnssTrack
     from app.scene.layers import Layer
 
@@ -255,7 +255,7 @@ def test_drone_heights_above_take_off_start_from_the_terrain_under_the_first_fix
     relative = np.array([0.0, 30.0, 60.0])
     gnss = GnssTrack(np.arange(3.0), lat, lon, relative.copy())
     messages = Messages()
-    frame, mesh, placed = _frame_and_ground(
+    frame, mesh, placed = frame_and_ground(
         gnss, 0.0, 500.0, (Layer.of(dem),), messages, above_takeoff=True
     )
     takeoff = 250.0 + float(geoid.undulation(LAT0, LON0))

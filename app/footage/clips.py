@@ -93,7 +93,7 @@ def open_clip(
     return _gopro_session(path, hfov_deg, lens, layers)
 
 
-def _frame_and_ground(
+def frame_and_ground(
     gnss: GnssTrack,
     ground_h: float,
     margin_m: float,
@@ -195,7 +195,7 @@ def _gopro_session(
     video = probe(path)
     video.note_damage(messages)
     when = rec.gps_utc_at_zero or video.creation_time or 0.0
-    frame, mesh, gnss = _frame_and_ground(
+    frame, mesh, gnss = frame_and_ground(
         rec.gnss, float(rec.gnss.h[0]) - HANDHELD_MOUNT_M, ASSUMED_GROUND_MARGIN_M, layers, messages
     )
     decl = declination(frame.lat_deg, frame.lon_deg, frame.h_m, when)
@@ -318,7 +318,7 @@ def _dji_session(
             messages.info(
                 f"{srt.name}: absolute heights; the assumed ground is the lowest height of the flight ({ground:.1f} m)"
             )
-    frame, mesh, gnss = _frame_and_ground(
+    frame, mesh, gnss = frame_and_ground(
         gnss,
         ground,
         DRONE_GROUND_MARGIN_M + 10.0 * float(np.max(heights - ground)),
@@ -423,7 +423,7 @@ def _klv_session(
             f"{path.name}: {len(track.t) - len(gnss.t)} of {len(track.t)} KLV sets have no valid position: their times are interpolated"
         )
     ground = _klv_ground(track, gnss, path, messages, bool(layers))
-    frame, mesh, gnss = _frame_and_ground(
+    frame, mesh, gnss = frame_and_ground(
         gnss,
         ground,
         DRONE_GROUND_MARGIN_M + 10.0 * float(np.max(gnss.h - ground)),

@@ -74,10 +74,10 @@ class KlvTrack:
     counts: KlvCounts = field(default_factory=KlvCounts)
     _untimed: list[LocalSet] = field(default_factory=list)
 
-    def add(self, payload: bytes, t: float | None) -> int:
-        """The sets in one KLV packet's payload, at media time t (None: the packet had no PTS);
-        returns how many were kept."""
-        kept = 0
+    def add(self, payload: bytes, t: float | None) -> list[LocalSet]:
+        """The sets in one KLV packet's payload, at media time t (None: the packet had no PTS,
+        kept aside for `finish`); returns the sets placed at t."""
+        kept: list[LocalSet] = []
         for raw in split(payload):
             try:
                 s = parse(raw)
@@ -91,7 +91,7 @@ class KlvTrack:
                 continue
             self.t.append(float(t))
             self.sets.append(s)
-            kept += 1
+            kept.append(s)
         return kept
 
     def finish(self) -> KlvTrack:

@@ -19,7 +19,7 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from urllib.parse import parse_qsl, urlencode, urlsplit, urlunsplit
 
@@ -27,7 +27,6 @@ import av
 
 from app.core.messages import Messages
 from app.io.klv_track import KlvTrack, klv_streams
-from app.io.misb import KlvError, parse, split
 from app.io.video import ffmpeg_reason, media_seconds
 from app.live.buffer import Arrival, JitterBuffer
 from app.live.pose import LivePoses
@@ -105,15 +104,11 @@ def _reason(exc: BaseException, timeout: str) -> str:
 class ReceiverCounts:
     """What arrived and what went wrong (the network's faults and the stream's)."""
 
-    packets: int = 0
     frames: int = 0  # decoded video frames handed to the buffer
     missing: int = 0  # frames the presentation times skip: lost on the way (the network's)
     undecodable: int = 0  # packets FFmpeg could not decode (lost or corrupt datagrams)
-    klv_packets: int = 0
     connects: int = 0
-    disconnects: int = 0
     failed_opens: int = 0
-    errors: list[str] = field(default_factory=list)
 
 
 class Receiver:
@@ -165,10 +160,6 @@ class Receiver:
     def alive(self) -> bool:
         return self._thread.is_alive()
 
-    def _say(self, key: str, text: str) -> None:
-        self.messages.add_once(key, text)
-        self.counts.errors.append(text)
-
     def _run(self) -> None:
         attempt = 0
         while not self._stop.is_set():
@@ -183,7 +174,9 @@ class Receiver:
                 reason = _reason(exc, f"nothing arrived within {OPEN_TIMEOUT_S:g} s")
                 if "in use" in reason.lower():
                     reason += " (another program holds the port: choose another, or stop it)"
-                self._say("open", f"{self.url}: cannot open the stream ({reason}); retrying")
+                self.messages.add_once(
+                    "open", f"{self.url}: cannot open the stream ({reason}); retrying"
+                )
                 self._stop.wait(BACKOFF_S[min(attempt, len(BACKOFF_S) - 1)])
                 attempt += 1
                 continue
@@ -194,15 +187,14 @@ class Receiver:
             with container:
                 self._receive(container)
             if not self._stop.is_set():
-                self.counts.disconnects += 1
-                self._say("drop", f"{self.url}: the stream dropped; reconnecting")
+                self.messages.add_once("drop", f"{self.url}: the stream dropped; reconnecting")
 
     def _receive(self, container) -> None:
         video = container.streams.video[0] if container.streams.video else None
         klvs = klv_streams(container)
         klv = klvs[0] if klvs else None
         if video is None:
-            self._say("novideo", f"{self.url}: no video stream in the feed")
+            self.messages.add_once("novideo", f"{self.url}: no video stream in the feed")
             return
         if klv is None:
             self.messages.add_once(
@@ -221,7 +213,6 @@ class Receiver:
                     continue
                 now = self.clock()
                 self.last_arrival_s = now
-                self.counts.packets += 1
                 kind = "video" if packet.stream is video else "klv"
                 if self.recorder is not None:
                     self.recorder.write(packet, kind)
@@ -232,7 +223,7 @@ class Receiver:
         except av.FFmpegError as exc:
             if not self._stop.is_set():
                 reason = _reason(exc, f"nothing arrived for {READ_TIMEOUT_S:g} s")
-                self._say("read", f"{self.url}: reading stopped ({reason})")
+                self.messages.add_once("read", f"{self.url}: reading stopped ({reason})")
 
     def _media(self, pts: int | None, time_base) -> float | None:
         if pts is None:
@@ -254,22 +245,15 @@ class Receiver:
             self.counts.missing += gap
 
     def _klv(self, packet) -> None:
-        self.counts.klv_packets += 1
         payload = bytes(packet)
         t = self._media(packet.pts, packet.time_base)
         bad = self.track.counts.bad
-        self.track.add(payload, t)
+        for s in self.track.add(payload, t):
+            self.poses.add(t, s)
         if self.track.counts.bad > bad:
             self.messages.add_once(
                 "klv-bad", f"{self.url}: KLV sets failing their checksum are dropped (counted)"
             )
-        if t is None:
-            return
-        for raw in split(payload):
-            try:
-                self.poses.add(t, parse(raw))
-            except KlvError:
-                pass  # counted by the track above
 
     def _video(self, codec, packet, arrival: float) -> None:
         try:

@@ -21,6 +21,7 @@ from app.camera.intrinsics import Intrinsics
 from app.camera.pinhole import Camera
 from app.core.constants import DEFAULT_FAR_M
 from app.core.messages import Messages
+from app.footage.clips import KLV_ASSUMED_HEIGHT_M, frame_and_ground
 from app.geodesy.enu import LocalFrame
 from app.io.streams import GnssTrack
 from app.live.buffer import DEFAULT_DELAY_S, JitterBuffer
@@ -31,13 +32,11 @@ from app.render.context import create_offscreen_context, wait_for_gpu
 from app.render.offscreen import OffscreenTarget
 from app.render.renderer import FusionRenderer
 from app.render.still import window_camera
-from app.scene.ground_plane import ground_under_track
-from app.session.assemble import load_scene_layers
 
 SILENCE_S = 10.0
 ASSUMED_HFOV_DEG = 50.0  # a feed whose KLV gives no field of view (tag 16)
-ASSUMED_DEPTH_M = 100.0  # a feed without a frame centre: the ground this far under the sensor
 GROUND_MARGIN_M = 3000.0
+VIEW_HFOV_DEG = 60.0  # the off-screen view, third person behind the projector
 
 
 @dataclass
@@ -125,29 +124,23 @@ def _scene(poses: LivePoses, options: LiveOptions, messages: Messages):
         ground = poses.centre_h
         messages.info(f"the assumed ground is the KLV frame centre's height ({ground:.1f} m)")
     else:
-        ground = h - ASSUMED_DEPTH_M
+        ground = h - KLV_ASSUMED_HEIGHT_M
         messages.add(
-            f"no frame centre in the KLV: the ground is assumed {ASSUMED_DEPTH_M:g} m under the sensor (give --scene, --dem or --origin)"
+            f"no frame centre in the KLV: the ground is assumed {KLV_ASSUMED_HEIGHT_M:g} m under the sensor (give --scene, --dem or --origin)"
         )
-    frame = LocalFrame(lat, lon, ground)
-    one = np.array([lat])
-    if options.layers:
-        track = GnssTrack(np.zeros(1), one, np.array([lon]), np.array([h]))
-        return frame, load_scene_layers(options.layers, frame, track, messages)
-    messages.add("no scene given: the video is projected on an assumed flat ground with a 1 m grid")
-    return frame, ground_under_track(frame, one, np.array([lon]), ground, GROUND_MARGIN_M)
+    track = GnssTrack(np.zeros(1), np.array([lat]), np.array([lon]), np.array([h]))
+    frame, mesh, _ = frame_and_ground(track, ground, GROUND_MARGIN_M, options.layers, messages)
+    return frame, mesh
 
 
 def run_live(
     url: str,
     options: LiveOptions = LiveOptions(),
     clock: Callable[[], float] = time.monotonic,
-    on_drawn: Callable[[Drawn, Camera, np.ndarray | None], None] | None = None,
-    read_pixels: bool = False,
+    on_drawn: Callable[[Drawn, Camera], None] | None = None,
 ) -> LiveRun:
     """Receive `url` and draw it off screen until `options.seconds` or silence; see the module
-    docstring. on_drawn(d, projector, rgb): called after each frame is drawn (rgb read back
-    when read_pixels)."""
+    docstring. on_drawn(d, projector): called after each frame is drawn."""
     run = LiveRun(url, delay_s=options.delay_s)
     messages = run.messages
     buffer = JitterBuffer(options.delay_s)
@@ -157,6 +150,7 @@ def run_live(
     start = clock()
     ctx = renderer = target = None
     frame = intr = None
+    view_intr = Intrinsics.from_fov(*options.size, VIEW_HFOV_DEG)
     last_camera: Camera | None = None
     try:
         while True:
@@ -205,15 +199,13 @@ def run_live(
             y, u, v = item.payload
             renderer.set_video_yuv(y, u, v, 0, y.shape[0] >= 720)
             renderer.set_projector(camera)
-            view_intr = Intrinsics.from_fov(*options.size, 60.0)
             view = window_camera(camera, view_intr, None, None, options.far_m)
             renderer.draw(view, target.fbo)
-            rgb = target.read() if read_pixels else None
             wait_for_gpu(ctx)
             d = Drawn(item.pts_s, item.arrival_s, due, clock(), pose.state)
             run.drawn.append(d)
             if on_drawn is not None:
-                on_drawn(d, camera, rgb)
+                on_drawn(d, camera)
     finally:
         receiver.stop()
         if recorder is not None:

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import csv
 import math
+from fractions import Fraction
 
 import numpy as np
 import pytest
@@ -173,3 +174,45 @@ def test_telemetry_and_render_take_a_klv_clip(async_feed, tmp_path, capsys):
     args = ["render", "--session", str(async_feed), "--time", "1", "--out", str(png)]
     assert main([*args, "--size", "160x90"]) == 0  # 1: nothing of the drape drawn
     assert png.is_file()
+
+
+def test_export_klv_gives_every_frame_its_set_on_an_mp4_time_base_with_b_frames(tmp_path):
+    """A DJI clip as cameras write it (MP4 time base 1/15360, B-frames, 30 fps; the subtitle's
+    times truncated to the millisecond): every frame gets its Local Set, at its own presentation
+    time. Before, the sets' times were read from packets the muxer had already rebased to 1/90000,
+    so 10 s of video got ~51 sets (60 s: 308 of 1,800), or the muxer refused times going back."""
+    import av
+
+    from app.simulate import drone
+
+    video = tmp_path / "DJI_0004.MP4"
+    with av.open(str(video), "w") as c:
+        s = c.add_stream("libx264", rate=30)
+        s.width, s.height, s.pix_fmt = 64, 36, "yuv420p"
+        s.options = {"bf": "2", "g": "30"}
+        for i in range(300):
+            img = np.full((36, 64, 3), (i * 7) % 255, np.uint8)
+            for p in s.encode(av.VideoFrame.from_ndarray(img, format="rgb24")):
+                c.mux(p)
+        for p in s.encode():
+            c.mux(p)
+    with av.open(str(video)) as c:
+        assert c.streams.video[0].time_base == Fraction(1, 15360)
+
+    def truncated(s: float) -> str:
+        ms = int(s * 1000)
+        return f"00:00:{ms // 1000 % 60:02d},{ms % 1000:03d}"
+
+    entries = drone.srt_text(10.0, 0.0).split("\n\n")
+    for k, e in enumerate(entries):
+        lines = e.split("\n")
+        lines[1] = f"{truncated(k / 30)} --> {truncated((k + 1) / 30)}"
+        entries[k] = "\n".join(lines)
+    (tmp_path / "DJI_0004.SRT").write_text("\n\n".join(entries) + "\n", encoding="utf-8")
+    out = tmp_path / "klv.ts"
+    assert main(["export", "klv", str(video), "--out", str(out)]) == 0
+    info = probe(out)
+    track = read_klv(out, info, Messages())
+    assert len(info.pts_s) == 300 and len(track.sets) == 300
+    assert track.synchronous(info.pts_s)
+    np.testing.assert_allclose(track.times(), info.pts_s, atol=1.5e-5)

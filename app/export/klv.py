@@ -21,7 +21,7 @@ import av
 from app.camera.frame_time import frame_of
 from app.export.records import FrameRecord
 from app.io.misb import encode, local_set, signed
-from app.io.video import VideoInfo, media_seconds
+from app.io.video import VideoInfo
 
 ST0601_VERSION = 17
 CORNER_OFFSET_DEG = 0.075  # ST 0601 offset corners (tags 26-33) cover +-0.075 deg from the centre
@@ -68,32 +68,39 @@ def write_klv_ts(
     progress: Callable[[float], None] | None = None,
 ) -> int:
     """An MPEG-TS at `out`: the video's packets copied, and a KLV data stream with one Local Set
-    per record at its frame's presentation time; returns the number of Local Sets written."""
+    per record at its frame's presentation time; returns the number of Local Sets written.
 
-    by_frame = {k: r for r in records if (k := frame_of(video.pts_s, r.media_s)) is not None}
+    The sets' times come from the frame table (video.pts_s, on the stream's clock by adding
+    origin_s), never from a muxed packet: the muxer rebases a packet to the output's 1/90000 time
+    base in place, and packets arrive in decode order (B-frames), while a data stream's times must
+    rise. The sets are muxed in presentation order, each once the video's decode time reaches it."""
+
+    frames = sorted((k, r) for r in records if (k := frame_of(video.pts_s, r.media_s)) is not None)
+    tb = Fraction(1, 90000)
+    ticks = [int(round((float(video.pts_s[k]) + video.origin_s) * 90000)) for k, _ in frames]
     written = 0
     with av.open(str(video.path)) as src, av.open(str(out), "w", format="mpegts") as dst:
         vin = src.streams.video[0]
         vout = dst.add_stream_from_template(vin)
         data = dst.add_data_stream("klv")
-        origin = video.origin_s
-        tb = Fraction(1, 90000)
-        for packet in src.demux(vin):
-            if packet.dts is None:
-                continue
-            packet.stream = vout
-            dst.mux(packet)
-            if packet.pts is None:
-                continue
-            media = media_seconds(packet.pts, vin.time_base, origin)
-            r = by_frame.get(frame_of(video.pts_s, media))
-            if r is not None:
-                k = av.Packet(frame_set(r))
+
+        def mux_sets(until: float) -> None:
+            nonlocal written
+            while written < len(frames) and ticks[written] <= until:
+                k = av.Packet(frame_set(frames[written][1]))
                 k.stream = data
                 k.time_base = tb
-                k.pts = k.dts = int(round(float(packet.pts * vin.time_base) * 90000))
+                k.pts = k.dts = ticks[written]
                 dst.mux(k)
                 written += 1
                 if progress is not None:
-                    progress(written / max(len(by_frame), 1))
+                    progress(written / len(frames))
+
+        for packet in src.demux(vin):
+            if packet.dts is None:
+                continue
+            mux_sets(float(packet.dts * vin.time_base) * 90000)
+            packet.stream = vout
+            dst.mux(packet)
+        mux_sets(float("inf"))
     return written

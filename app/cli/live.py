@@ -25,8 +25,11 @@ def run(args: argparse.Namespace) -> int:
         size=tuple(args.size),
         layers=layers(args),
         origin=tuple(args.origin) if args.origin else None,
+        mavlink=args.mavlink,
+        hfov_deg=args.fov,
     )
-    print(f"receiving {args.url} (jitter buffer {args.buffer_ms:g} ms)", flush=True)
+    beside = f", MAVLink from {args.mavlink}" if args.mavlink else ""
+    print(f"receiving {args.url} (jitter buffer {args.buffer_ms:g} ms){beside}", flush=True)
     result = run_live(args.url, options)
     for m in result.messages.since(0):
         print(m, file=sys.stderr)

@@ -290,6 +290,19 @@ def _live(sub: Commands) -> None:
         default=None,
         help="the assumed ground's origin: latitude, longitude (deg), ellipsoidal height (m)",
     )
+    li.add_argument(
+        "--mavlink",
+        default=None,
+        metavar="CONNECTION",
+        help="pose the video from MAVLink telemetry (ArduPilot, PX4) instead of KLV: udp:HOST:PORT listens, "
+        "udpout:, tcp:HOST:PORT or a serial device as pymavlink opens them; its lag behind the video is estimated as it flies",
+    )
+    li.add_argument(
+        "--fov",
+        type=number(1.0, 179.0),
+        default=None,
+        help="the camera's horizontal field of view, degrees, where the feed does not say it (default: the KLV's, else 73.7)",
+    )
     add_layer_options(li)
     li.set_defaults(job="live")
 
@@ -502,6 +515,13 @@ def _simulate(sub: Commands) -> None:
         type=number(0.0, 0.9),
         default=0.0,
         help="with --send: the fraction of datagrams dropped (a lossy link)",
+    )
+    sf.add_argument(
+        "--mavlink",
+        default=None,
+        metavar="HOST:PORT",
+        help="an autopilot's drone instead (ArduPilot, PX4): the sample site seen from a weaving flight, video without KLV; "
+        "with --send, its MAVLink telemetry (GLOBAL_POSITION_INT, ATTITUDE, GIMBAL_DEVICE_ATTITUDE_STATUS) sent here beside it, 0.3 s ahead",
     )
     sf.set_defaults(job="simulate:feed")
 

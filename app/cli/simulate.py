@@ -3,17 +3,22 @@
 from __future__ import annotations
 
 import argparse
+import time
 from pathlib import Path
 
 from app.core.errors import GeofuseError
 from app.core.imageio import write_rgb
 from app.geodesy.enu import LocalFrame
 from app.scene import load_scene
+from app.simulate import drone
+from app.simulate.autopilot import MavlinkSender
 from app.simulate.feed import Sender, write_feed
 from app.simulate.photo import make_photo, photo_camera
 from app.simulate.sample import SAMPLE_ORIGIN, SAMPLE_PHOTO_POSE, SAMPLE_SCENE
 from app.simulate.session import SampleConfig, write_sample_session
 from app.simulate.stadium import write_site
+
+MAVLINK_LEAD_S = 0.3  # the simulated telemetry leaves this much ahead of its video
 
 
 def scene(args: argparse.Namespace) -> int:
@@ -46,19 +51,42 @@ def session(args: argparse.Namespace) -> int:
     return 0
 
 
+def _address(text: str, option: str) -> tuple[str, int]:
+    host, _, port = text.rpartition(":")
+    if not host or not port.isdigit():
+        raise GeofuseError(f"{option} {text}: expected HOST:PORT")
+    return host, int(port)
+
+
 def feed(args: argparse.Namespace) -> int:
-    out = write_feed(args.out, args.seconds, tuple(args.size), klv_hz=args.klv_hz)
+    mavlink_to = _address(args.mavlink, "--mavlink") if args.mavlink else None
+    if mavlink_to is not None:
+        if args.klv_hz is not None:
+            raise GeofuseError("--klv-hz: an autopilot's feed (--mavlink) carries no KLV")
+        out = drone.write_video(args.out, args.seconds, tuple(args.size))
+    else:
+        out = write_feed(args.out, args.seconds, tuple(args.size), klv_hz=args.klv_hz)
     print(f"wrote {out} ({out.stat().st_size / 1e6:.1f} MB, {args.seconds:g} s)", flush=True)
     if args.send is None:
         return 0
-    host, _, port = args.send.rpartition(":")
-    if not host or not port.isdigit():
-        raise GeofuseError(f"--send {args.send}: expected HOST:PORT")
-    sender = Sender(out.read_bytes(), (host, int(port)), loss=args.loss).start()
-    print(f"sending to udp://{host}:{port} in real time", flush=True)
+    host, port = _address(args.send, "--send")
+    sender = Sender(out.read_bytes(), (host, port), loss=args.loss)
+    telemetry = None
+    if mavlink_to is not None:
+        telemetry = MavlinkSender(mavlink_to, args.seconds, time.monotonic(), MAVLINK_LEAD_S)
+        telemetry.start()
+    sender.start()
+    beside = f", MAVLink to {args.mavlink}" if telemetry is not None else ""
+    print(f"sending to udp://{host}:{port} in real time{beside}", flush=True)
     try:
         sender.join()
+        if telemetry is not None:
+            telemetry.join()
     except KeyboardInterrupt:
         sender.stop()
-    print(f"sent {sender.datagrams} datagrams, {sender.dropped} dropped on purpose")
+    finally:
+        if telemetry is not None:
+            telemetry.stop()
+    more = f", {telemetry.sent} MAVLink messages" if telemetry is not None else ""
+    print(f"sent {sender.datagrams} datagrams, {sender.dropped} dropped on purpose{more}")
     return 0

@@ -12,6 +12,7 @@ Heading without a trustworthy magnetometer comes from the GNSS course (app.attit
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
@@ -53,6 +54,9 @@ from app.session.config import HANDHELD_MOUNT_M, read_config
 from app.session.model import Session
 
 DJI_DEFAULT_FOCAL_MM = 24.0  # 35 mm equivalent focal length of most DJI main cameras
+# The pinhole assumed for a drone's camera that states no field of view (KLV without tag 16, a
+# MAVLink feed): a 24 mm equivalent, 73.7 deg across.
+ASSUMED_DRONE_HFOV_DEG = math.degrees(2 * math.atan(18.0 / DJI_DEFAULT_FOCAL_MM))
 DJI_FOCAL_RANGE_MM = (8.0, 1200.0)  # 35 mm equivalent: a 132 deg to a 1.7 deg horizontal view
 KLV_ASSUMED_HEIGHT_M = 100.0  # a KLV clip without a frame centre: the ground this far under it
 DRONE_GROUND_MARGIN_M = (
@@ -443,7 +447,7 @@ def _klv_session(
                     f"{path.name}: the KLV field of view changes ({fov.min():.1f} to {fov.max():.1f} deg, a zoom): the median {hfov_deg:.1f} deg is used for the whole clip"
                 )
         else:
-            hfov_deg = float(np.degrees(2 * np.arctan(18.0 / DJI_DEFAULT_FOCAL_MM)))
+            hfov_deg = ASSUMED_DRONE_HFOV_DEG
             messages.add(
                 f"{path.name}: the KLV gives no field of view (tag 16): a pinhole of {hfov_deg:.1f} deg is assumed (give --fov or --lens)"
             )

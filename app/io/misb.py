@@ -300,10 +300,11 @@ def camera_orientation(s: LocalSet) -> FloatArray | None:
     angles = (heading, pitch, roll, az, el, sroll)
     if not all(math.isfinite(a) for a in angles):
         return None
-    r = (
-        _NED_TO_ENU
-        @ ypr_matrix(heading, pitch, roll)
-        @ ypr_matrix(az, el, sroll)
-        @ _CAMERA_IN_SENSOR
-    )
-    return rotations.from_matrix(r)
+    return camera_from_sensor(ypr_matrix(heading, pitch, roll) @ ypr_matrix(az, el, sroll))
+
+
+def camera_from_sensor(r_ned: FloatArray) -> FloatArray:
+    """Camera -> ENU quaternion [w, x, y, z] of a sensor whose axes (x the line of sight, y right,
+    z down) are the columns of r_ned in North-East-Down: the one convention ST 0601 and MAVLink
+    share (app.io.mavlink uses it too)."""
+    return rotations.from_matrix(_NED_TO_ENU @ r_ned @ _CAMERA_IN_SENSOR)

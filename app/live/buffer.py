@@ -51,12 +51,14 @@ class JitterBuffer:
     shown_pts: float = float("-inf")
     _links: deque = field(default_factory=lambda: deque(maxlen=LINK_WINDOW))
     _link: float | None = None  # the link in use, slewing toward the fastest
+    _fastest: float | None = None  # min(_links), kept as one value other threads may read
     _slewed_at: float | None = None
 
     @property
     def link_s(self) -> float | None:
-        """arrival - pts of the fastest recent frame (s), None before the first."""
-        return min(self._links) if self._links else None
+        """arrival - pts of the fastest recent frame (s), None before the first; safe to read
+        from another thread than the one pushing."""
+        return self._fastest
 
     def _slew(self, now_s: float) -> None:
         target = self.link_s
@@ -74,6 +76,7 @@ class JitterBuffer:
             self._link = None
             self.resyncs += 1
         self._links.append(link)
+        self._fastest = min(self._links)
         if self._link is None:
             self._link, self._slewed_at = link, frame.arrival_s
         if frame.pts_s <= self.shown_pts:

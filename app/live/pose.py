@@ -1,5 +1,6 @@
 """Camera poses of a live feed, forward only: each frame gets the pose of its own presentation
-time from the KLV sets that have arrived by the time it is drawn, never from later ones.
+time from the KLV sets (LivePoses) or the MAVLink messages (MavlinkPoses) that have arrived by the
+time it is drawn, never from later ones.
 
 Between two arrived sets the position is interpolated linearly and the attitude by slerp; past the
 newest set the newest is held. A pose whose newest set is older than its frame by more than the
@@ -11,6 +12,7 @@ from __future__ import annotations
 
 import bisect
 import threading
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -20,6 +22,7 @@ from app.camera.pinhole import Camera
 from app.geodesy import rotations
 from app.geodesy.enu import LocalFrame
 from app.io.klv_track import KlvTrack
+from app.io.mavlink import MavlinkTelemetry
 from app.io.misb import LocalSet, camera_orientation
 
 FRESH, STALE, NONE = "fresh", "stale", "none"
@@ -76,6 +79,12 @@ class LivePoses:
         with self._lock:
             return self.geodetic[0] if self.geodetic else None
 
+    def ground(self) -> tuple[float, str] | None:
+        """The assumed ground's ellipsoidal height (m) and where it comes from, None unknown."""
+        if self.centre_h is None:
+            return None
+        return self.centre_h, "the KLV frame centre's height"
+
     def __len__(self) -> int:
         return len(self.t)
 
@@ -101,3 +110,51 @@ class LivePoses:
         q = rotations.slerp([0.0, 1.0], np.stack([qa, qb]), [w])[0]
         camera = Camera.create(intrinsics, enu, q, far=far)
         return LivePose(camera, FRESH if age <= self.stale_after_s else STALE, age)
+
+
+class MavlinkPoses:
+    """The camera of a video frame from MAVLink telemetry (app.io.mavlink) beside a video
+    without KLV. A frame's media time t is put on the autopilot's boot clock through the arrival
+    clock: boot = t + video_link - telemetry_link + offset_s, where the links are the fastest
+    arrivals of each (the jitter buffer's and the telemetry's) and offset_s, the video's lag
+    behind the telemetry with its sign turned (the video's pipeline is slower), is what the
+    lag estimator (app.live.lag) finds from the rotation the video shows; 0 until then."""
+
+    hfov_deg = None  # MAVLink does not say the camera's field of view
+
+    def __init__(
+        self,
+        telemetry: MavlinkTelemetry,
+        video_link: Callable[[], float | None],
+        stale_after_s: float,
+    ) -> None:
+        self.telemetry = telemetry
+        self.video_link = video_link
+        self.stale_after_s = stale_after_s
+        self.offset_s = 0.0
+        self.without_pose = 0
+
+    def __len__(self) -> int:
+        return len(self.telemetry)
+
+    def first(self) -> tuple[float, float, float] | None:
+        return self.telemetry.first()
+
+    def ground(self) -> tuple[float, str] | None:
+        h = self.telemetry.home_h
+        return None if h is None else (h, "the home (take-off) height of GLOBAL_POSITION_INT")
+
+    def boot_offset(self) -> float | None:
+        """boot - media (s) without the lag: None before both clocks are linked."""
+        v, m = self.video_link(), self.telemetry.link_s
+        return None if v is None or m is None else v - m
+
+    def at(self, t: float, frame: LocalFrame, intrinsics: Intrinsics, far: float) -> LivePose:
+        """The camera at media time t in `frame` from the messages arrived so far."""
+        c = self.boot_offset()
+        pose = None if c is None else self.telemetry.at(t + c + self.offset_s)
+        if pose is None:
+            return LivePose(None, NONE, float("inf"))
+        enu = frame.geodetic_to_enu(*(np.array([v]) for v in pose.geodetic))[0]
+        camera = Camera.create(intrinsics, enu, pose.q, far=far)
+        return LivePose(camera, FRESH if pose.age_s <= self.stale_after_s else STALE, pose.age_s)

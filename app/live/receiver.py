@@ -122,8 +122,15 @@ class Receiver:
         messages: Messages,
         recorder: Recorder | None = None,
         clock: Callable[[], float] = time.monotonic,
+        on_frame: Callable[[float, object], None] | None = None,
+        poses_elsewhere: bool = False,
     ) -> None:
+        """on_frame(t, luma): each decoded frame's media time (s) and luma plane, on this
+        thread (the MAVLink lag estimator's feed); poses_elsewhere: the poses come from another
+        feed (MAVLink), so a video without KLV is not said to have none."""
         self.url = url
+        self.on_frame = on_frame
+        self.poses_elsewhere = poses_elsewhere
         self.buffer = buffer
         self.poses = poses
         self.messages = messages
@@ -196,7 +203,7 @@ class Receiver:
         if video is None:
             self.messages.add_once("novideo", f"{self.url}: no video stream in the feed")
             return
-        if klv is None:
+        if klv is None and not self.poses_elsewhere:
             self.messages.add_once(
                 "noklv", f"{self.url}: no KLV data stream: the video has no pose of its own"
             )
@@ -275,3 +282,5 @@ class Receiver:
             self.counts.frames += 1
             with self.lock:
                 self.buffer.push(item)
+            if self.on_frame is not None:
+                self.on_frame(t, item.payload[0])

@@ -5,6 +5,9 @@ The loop never waits on the network: it takes the newest frame due from the jitt
 draws it projected with the pose of its own time (app.live.pose: stale or missing poses drawn
 with the last one, counted) and records when the drawing was finished (the GPU waited for). It
 ends after `seconds`, or once the stream has been silent for `silence_s` (said).
+
+Poses come from the stream's own KLV, or, given `mavlink`, from MAVLink telemetry beside it
+(app.live.mavlink), its lag behind the video estimated as it flies (app.live.lag).
 """
 
 from __future__ import annotations
@@ -21,11 +24,14 @@ from app.camera.intrinsics import Intrinsics
 from app.camera.pinhole import Camera
 from app.core.constants import DEFAULT_FAR_M
 from app.core.messages import Messages
-from app.footage.clips import KLV_ASSUMED_HEIGHT_M, frame_and_ground
+from app.footage.clips import ASSUMED_DRONE_HFOV_DEG, KLV_ASSUMED_HEIGHT_M, frame_and_ground
 from app.geodesy.enu import LocalFrame
+from app.io.mavlink import MavlinkTelemetry
 from app.io.streams import GnssTrack
 from app.live.buffer import DEFAULT_DELAY_S, JitterBuffer
-from app.live.pose import NONE, STALE, LivePoses
+from app.live.lag import LagEstimator
+from app.live.mavlink import MavlinkReceiver
+from app.live.pose import NONE, STALE, LivePoses, MavlinkPoses
 from app.live.receiver import Receiver
 from app.live.recorder import Recorder
 from app.render.context import create_offscreen_context, wait_for_gpu
@@ -34,7 +40,6 @@ from app.render.renderer import FusionRenderer
 from app.render.still import window_camera
 
 SILENCE_S = 10.0
-ASSUMED_HFOV_DEG = 50.0  # a feed whose KLV gives no field of view (tag 16)
 GROUND_MARGIN_M = 3000.0
 VIEW_HFOV_DEG = 60.0  # the off-screen view, third person behind the projector
 
@@ -49,6 +54,29 @@ class Drawn:
     due_s: float
     drawn_s: float
     pose: str
+
+
+@dataclass
+class MavlinkSummary:
+    """What a run took from MAVLink: messages used by type, the lag applied at the end and each
+    window's estimate (s, the video behind the telemetry), and the gimbal's presence."""
+
+    address: str
+    used: dict[str, int] = field(default_factory=dict)
+    lag_s: float | None = None
+    estimates_s: list[float] = field(default_factory=list)
+    gimbal: bool = False
+
+    def line(self) -> str:
+        used = ", ".join(f"{n} {k}" for k, n in sorted(self.used.items())) or "nothing"
+        e = self.estimates_s
+        lag = (
+            f"the video lags the telemetry by {1000 * self.lag_s:.0f} ms (the median of {len(e)} estimates, "
+            f"{1000 * min(e):.0f} to {1000 * max(e):.0f} ms)"
+            if self.lag_s is not None
+            else "no lag estimated (the camera did not turn enough, or too short)"
+        )
+        return f"MAVLink {self.address}: {used}; {lag}"
 
 
 @dataclass
@@ -71,6 +99,7 @@ class LiveRun:
     delay_s: float = DEFAULT_DELAY_S
     origin_s: float | None = None  # the stream-clock seconds of media time 0
     frame: LocalFrame | None = None  # the local ENU frame the cameras are in
+    mavlink: MavlinkSummary | None = None
     messages: Messages = field(default_factory=Messages)
 
     def latency_ms(self, q: float) -> float:
@@ -86,6 +115,7 @@ class LiveRun:
 
     def summary(self) -> str:
         """The one line `geofuse live` prints at the end."""
+        mavlink = f"; {self.mavlink.line()}" if self.mavlink is not None else ""
         return (
             f"{self.url}: {self.received} frames received ({self.missing} lost on the way), "
             f"{len(self.drawn)} drawn, "
@@ -94,7 +124,7 @@ class LiveRun:
             f"{self.undecodable} undecodable packets, latency arrival->drawn p50 "
             f"{self.latency_ms(50):.1f} ms p95 {self.latency_ms(95):.1f} ms (past the "
             f"{1000 * self.delay_s:.0f} ms buffer: p50 {self.added_ms(50):.1f} p95 {self.added_ms(95):.1f} ms); "
-            f"{self.stale} drawn with a stale pose, {self.without_pose} without one; {self.ended}"
+            f"{self.stale} drawn with a stale pose, {self.without_pose} without one{mavlink}; {self.ended}"
         )
 
 
@@ -102,7 +132,9 @@ class LiveRun:
 class LiveOptions:
     """seconds: stop after this long (None: until silence); record: keep what arrives as
     MPEG-TS; delay_s: the jitter buffer; size: the drawing's (w, h); layers: the scene (else an
-    assumed ground); origin: (lat, lon, ellipsoidal h) of the ground's origin."""
+    assumed ground); origin: (lat, lon, ellipsoidal h) of the ground's origin; mavlink: a
+    pymavlink connection (udp:HOST:PORT) whose telemetry poses the video; hfov_deg: the camera's
+    horizontal field of view where the feed does not say it (None: the KLV's, else 73.7 deg)."""
 
     seconds: float | None = None
     record: Path | None = None
@@ -112,21 +144,25 @@ class LiveOptions:
     origin: tuple[float, float, float] | None = None
     silence_s: float = SILENCE_S
     far_m: float = DEFAULT_FAR_M
+    mavlink: str | None = None
+    hfov_deg: float | None = None
 
 
-def _scene(poses: LivePoses, options: LiveOptions, messages: Messages):
+def _scene(poses: LivePoses | MavlinkPoses, options: LiveOptions, messages: Messages):
     """(frame, mesh) once the first position is known: the layers around it, else a flat
-    ground at the origin's height, the frame centre's, or 100 m under the sensor (said)."""
+    ground at the origin's height, the KLV frame centre's or MAVLink's home height, or 100 m
+    under the sensor (said)."""
     lat, lon, h = options.origin or poses.first()
+    known = poses.ground()
     if options.origin is not None:
         ground = options.origin[2]
-    elif poses.centre_h is not None and poses.centre_h < h:
-        ground = poses.centre_h
-        messages.info(f"the assumed ground is the KLV frame centre's height ({ground:.1f} m)")
+    elif known is not None and known[0] < h:
+        ground = known[0]
+        messages.info(f"the assumed ground is {known[1]} ({ground:.1f} m)")
     else:
         ground = h - KLV_ASSUMED_HEIGHT_M
         messages.add(
-            f"no frame centre in the KLV: the ground is assumed {KLV_ASSUMED_HEIGHT_M:g} m under the sensor (give --scene, --dem or --origin)"
+            f"no ground height in the telemetry: the ground is assumed {KLV_ASSUMED_HEIGHT_M:g} m under the sensor (give --scene, --dem or --origin)"
         )
     track = GnssTrack(np.zeros(1), np.array([lat]), np.array([lon]), np.array([h]))
     frame, mesh, _ = frame_and_ground(track, ground, GROUND_MARGIN_M, options.layers, messages)
@@ -144,9 +180,24 @@ def run_live(
     run = LiveRun(url, delay_s=options.delay_s)
     messages = run.messages
     buffer = JitterBuffer(options.delay_s)
-    poses = LivePoses(stale_after_s=options.delay_s)
+    klv_poses = LivePoses(stale_after_s=options.delay_s)
+    poses: LivePoses | MavlinkPoses = klv_poses
+    mav = lag = None
+    if options.mavlink is not None:
+        telemetry = MavlinkTelemetry()
+        poses = MavlinkPoses(telemetry, lambda: buffer.link_s, options.delay_s)
+        mav = MavlinkReceiver(options.mavlink, telemetry, messages, clock).start()
+        mav.wait_ready()
+        run.mavlink = MavlinkSummary(options.mavlink)
     recorder = Recorder(options.record) if options.record is not None else None
-    receiver = Receiver(url, buffer, poses, messages, recorder, clock).start()
+
+    def on_frame(t: float, luma) -> None:
+        if lag is not None:
+            lag.feed(t, luma)
+
+    receiver = Receiver(
+        url, buffer, klv_poses, messages, recorder, clock, on_frame, mav is not None
+    ).start()
     start = clock()
     ctx = renderer = target = None
     frame = intr = None
@@ -169,10 +220,18 @@ def run_live(
                     continue
                 frame, mesh = _scene(poses, options, messages)
                 run.frame = frame
-                hfov = poses.hfov_deg or ASSUMED_HFOV_DEG
-                if poses.hfov_deg is None:
-                    messages.add(f"the KLV gives no field of view: {hfov:g} deg assumed")
+                hfov = options.hfov_deg or poses.hfov_deg or ASSUMED_DRONE_HFOV_DEG
+                if options.hfov_deg is None and poses.hfov_deg is None:
+                    messages.add(
+                        f"the feed gives no field of view: {hfov:.1f} deg assumed (give --fov)"
+                    )
                 intr = Intrinsics.from_fov(*receiver.size, hfov)
+                if mav is not None:
+                    if not poses.telemetry.has_gimbal:
+                        messages.add(
+                            "MAVLink: no gimbal attitude (GIMBAL_DEVICE_ATTITUDE_STATUS, MOUNT_STATUS): the camera is taken to look along the vehicle's nose"
+                        )
+                    lag = LagEstimator(poses, intr, messages).start()
                 ctx = create_offscreen_context()
                 renderer = FusionRenderer(ctx, mesh)
                 target = OffscreenTarget(ctx, *options.size)
@@ -187,9 +246,10 @@ def run_live(
             camera = pose.camera or last_camera
             if pose.state == STALE:
                 run.stale += 1
+                feed = "MAVLink telemetry" if mav is not None else "KLV"
                 messages.add_once(
                     "stale",
-                    "frames drawn with a stale pose (the KLV lags behind the video by more than the buffer): counted",
+                    f"frames drawn with a stale pose (the {feed} lags behind the video by more than the buffer): counted",
                 )
             elif pose.state == NONE:
                 run.without_pose += 1
@@ -208,6 +268,10 @@ def run_live(
                 on_drawn(d, camera)
     finally:
         receiver.stop()
+        if lag is not None:
+            lag.stop()
+        if mav is not None:
+            mav.stop()
         if recorder is not None:
             recorder.close()
         if renderer is not None:
@@ -219,4 +283,10 @@ def run_live(
     run.skipped, run.late, run.overflow = buffer.skipped, buffer.late, buffer.overflow
     run.bad_klv, run.reconnects = receiver.track.counts.bad, max(c.connects - 1, 0)
     run.origin_s = receiver.origin_s
+    if run.mavlink is not None:
+        run.mavlink.used = dict(poses.telemetry.counts.used)
+        run.mavlink.gimbal = poses.telemetry.has_gimbal
+        if lag is not None:
+            run.mavlink.lag_s = lag.lag_s
+            run.mavlink.estimates_s = [-e.offset_s for e in lag.estimates]
     return run

@@ -35,15 +35,18 @@ FPS = 30.0
 START = datetime(2025, 11, 15, 9, 46, 40, tzinfo=UTC)
 
 
-def flight(t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(positions (N, 3) ENU m, headings (N,) deg from north) at times t (N,) s."""
+def flight(
+    t: np.ndarray, period_s: float = WEAVE_PERIOD_S, weave_deg: float = WEAVE_DEG
+) -> tuple[np.ndarray, np.ndarray]:
+    """(positions (N, 3) ENU m, headings (N,) deg from north) at times t (N,) s; period_s and
+    weave_deg: the weave's period and its swing either side of east."""
     t = np.asarray(t, np.float64)
-    w = 2 * np.pi / WEAVE_PERIOD_S
-    north_speed = SPEED_MPS * np.tan(np.radians(WEAVE_DEG)) * np.cos(w * t)
+    w = 2 * np.pi / period_s
+    north_speed = SPEED_MPS * np.tan(np.radians(weave_deg)) * np.cos(w * t)
     pos = np.column_stack(
         [
             -110.0 + SPEED_MPS * t,
-            -95.0 + SPEED_MPS * np.tan(np.radians(WEAVE_DEG)) * np.sin(w * t) / w,
+            -95.0 + SPEED_MPS * np.tan(np.radians(weave_deg)) * np.sin(w * t) / w,
             np.full(len(t), HEIGHT_M),
         ]
     )
@@ -51,12 +54,17 @@ def flight(t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def write_video(
-    path: Path, duration_s: float = 24.0, size: tuple[int, int] = (320, 180), crf: int = 20
+    path: Path,
+    duration_s: float = 24.0,
+    size: tuple[int, int] = (320, 180),
+    crf: int = 20,
+    path_of=flight,
 ) -> Path:
-    """The drone's video: the sample scene seen from the flight, at FPS, width x height pixels."""
+    """The drone's video: the sample scene seen from the flight (path_of(t) -> positions,
+    headings, as `flight`), at FPS, width x height pixels."""
 
     t = np.arange(0.0, duration_s, 1.0 / FPS)
-    pos, heading = flight(t)
+    pos, heading = path_of(t)
     q = rotations.camera_quat_from_hpr(heading, np.full(len(t), PITCH_DEG), np.zeros(len(t)))
     mesh = load_scene(SAMPLE_DIR / "scene.glb", LocalFrame(*SITE_ORIGIN))
     return render_video(path, mesh, Intrinsics.from_fov(*size, HFOV_DEG), pos, q, t, crf=crf)

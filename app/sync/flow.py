@@ -41,6 +41,33 @@ def frame_rotation(b1: np.ndarray, b2: np.ndarray) -> np.ndarray | None:
     return _kabsch(b1[keep], b2[keep]) if keep.sum() >= MIN_TRACKS else r
 
 
+def pair_rotation(
+    prev: np.ndarray,
+    grey: np.ndarray,
+    scale: float,
+    bearings: Callable[[np.ndarray], np.ndarray],
+) -> np.ndarray | None:
+    """The camera's rotation (rotation vector, rad, camera frame in OpenGL axes) from grey image
+    `prev` to `grey` (a copy reduced by `scale` from the display pixels `bearings` takes), by
+    sparse optical flow; None when too few features are tracked. Divided by the frames' time
+    step it is the rate at their mid time (video_rates, and the live feed's lag: app.live.lag)."""
+    pts = cv2.goodFeaturesToTrack(prev, MAX_FEATURES, 0.01, 6)
+    if pts is None or len(pts) < MIN_TRACKS:
+        return None
+    nxt, ok, _ = cv2.calcOpticalFlowPyrLK(prev, grey, pts, None, winSize=(15, 15), maxLevel=3)
+    ok = ok.ravel() == 1
+    if ok.sum() < MIN_TRACKS:
+        return None
+    p1 = (pts[ok, 0, :] + 0.5) / scale  # display pixels of the full video
+    p2 = (nxt[ok, 0, :] + 0.5) / scale
+    rot = frame_rotation(bearings(p1), bearings(p2))
+    if rot is None:
+        return None
+    # b2 = D^T b1 for a body turn D: the camera's rotation is -rotvec(R).
+    rv = -rotations.to_scipy(rotations.from_matrix(rot)).as_rotvec()
+    return np.array([rv[0], -rv[1], -rv[2]])  # OpenCV camera axes -> OpenGL's
+
+
 def video_rates(
     video,
     bearings: Callable[[np.ndarray], np.ndarray],
@@ -70,23 +97,10 @@ def video_rates(
                 )
             )
             if prev is not None and t > prev_t:
-                pts = cv2.goodFeaturesToTrack(prev, MAX_FEATURES, 0.01, 6)
-                if pts is not None and len(pts) >= MIN_TRACKS:
-                    nxt, ok, _ = cv2.calcOpticalFlowPyrLK(
-                        prev, grey, pts, None, winSize=(15, 15), maxLevel=3
-                    )
-                    ok = ok.ravel() == 1
-                    if ok.sum() >= MIN_TRACKS:
-                        p1 = (pts[ok, 0, :] + 0.5) / scale  # display pixels of the full video
-                        p2 = (nxt[ok, 0, :] + 0.5) / scale
-                        rot = frame_rotation(bearings(p1), bearings(p2))
-                        if rot is not None:
-                            # b2 = D^T b1 for a body turn D: the camera's rate is -rotvec(R) / dt.
-                            rv = -rotations.to_scipy(rotations.from_matrix(rot)).as_rotvec() / (
-                                t - prev_t
-                            )
-                            t_out.append((t + prev_t) / 2)
-                            w_out.append([rv[0], -rv[1], -rv[2]])  # OpenCV camera axes -> OpenGL's
+                rv = pair_rotation(prev, grey, scale, bearings)
+                if rv is not None:
+                    t_out.append((t + prev_t) / 2)
+                    w_out.append(rv / (t - prev_t))
             prev, prev_t = grey, t
             if progress is not None and i % 50 == 0:
                 progress(min(1.0, i / max(n, 1)))

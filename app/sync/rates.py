@@ -163,16 +163,22 @@ def _check_course_turns(t: np.ndarray, rate: np.ndarray, session) -> None:
         )
 
 
+def unit_bearings(ab: np.ndarray) -> np.ndarray:
+    """Normalised image coordinates (N, 2) -> unit bearings (N, 3), OpenCV camera frame."""
+    b = np.column_stack([ab, np.ones(len(ab))])
+    return b / np.linalg.norm(b, axis=1, keepdims=True)
+
+
+def pinhole_bearings(intr) -> Callable[[np.ndarray], np.ndarray]:
+    """Display pixels -> unit bearings (OpenCV camera frame) through a pinhole (Intrinsics)."""
+    return lambda uv: unit_bearings(
+        np.column_stack([(uv[:, 0] - intr.cx) / intr.fx, (uv[:, 1] - intr.cy) / intr.fy])
+    )
+
+
 def bearings_of(session) -> Callable[[np.ndarray], np.ndarray]:
     """Display pixels -> unit bearings (OpenCV camera frame) through the session's lens or pinhole."""
-    lens, intr = session.lens, session.intrinsics
-
-    def bearings(uv: np.ndarray) -> np.ndarray:
-        if lens is not None:
-            ab = lens.undistort(uv)
-        else:
-            ab = np.column_stack([(uv[:, 0] - intr.cx) / intr.fx, (uv[:, 1] - intr.cy) / intr.fy])
-        b = np.column_stack([ab, np.ones(len(ab))])
-        return b / np.linalg.norm(b, axis=1, keepdims=True)
-
-    return bearings
+    lens = session.lens
+    if lens is None:
+        return pinhole_bearings(session.intrinsics)
+    return lambda uv: unit_bearings(lens.undistort(uv))

@@ -1,0 +1,236 @@
+"""MAVLink telemetry as camera poses (pure: messages come in as the dictionaries pymavlink's
+`to_dict()` gives, each with the time it arrived; app.live.mavlink receives them).
+
+Messages used (MAVLink's common set, as ArduPilot and PX4 send them):
+
+- GLOBAL_POSITION_INT: time_boot_ms; lat, lon (1e-7 deg); alt (mm above mean sea level: taken
+  to the ellipsoid through EGM2008); relative_alt (mm above home: home's height, alt -
+  relative_alt, is the assumed ground). lat = lon = 0 is "no fix": a gap, counted.
+- ATTITUDE: time_boot_ms; roll, pitch, yaw (rad): the vehicle's body (x forward, y right, z
+  down) in North-East-Down as Rz(yaw) Ry(pitch) Rx(roll), the convention of ST 0601's platform
+  angles (app.io.misb.ypr_matrix).
+- GIMBAL_DEVICE_ATTITUDE_STATUS: time_boot_ms; q [w, x, y, z]: the gimbal's (camera's) body in
+  North-East-Down, its pitch and roll against the horizon; its yaw absolute (from north) when the
+  flags say YAW_IN_EARTH_FRAME (64), or YAW_LOCK (16) without YAW_IN_VEHICLE_FRAME (32); else
+  relative to the vehicle's heading (the message's own definition).
+- MOUNT_STATUS (ArduPilot): pointing_a pitch, pointing_b roll, pointing_c yaw (centidegrees):
+  pitch and roll against the horizon, yaw relative to the vehicle's heading. It has no time stamp:
+  it is placed at its arrival through the clock link below.
+
+The camera: with a gimbal, Rz(heading) Ry(pitch) Rx(roll) of the gimbal, heading = its yaw (plus
+the vehicle's yaw when relative); without one, the vehicle's own rotation (a camera fixed along
+the nose: said by the caller). Either goes through app.io.misb.camera_from_sensor, the
+convention KLV uses.
+
+Time: the autopilot's boot clock (time_boot_ms / 1000, s). Its link to the arrival clock
+(monotonic s) is the smallest arrival - boot over recent messages (the one that travelled
+fastest), as the video's jitter buffer links the video's presentation times.
+"""
+
+from __future__ import annotations
+
+import bisect
+import math
+import threading
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from app.geodesy.geoid import undulation
+from app.io.misb import camera_from_sensor, ypr_matrix
+
+LINK_WINDOW = 500  # messages over which the fastest sets the boot -> arrival link
+FLAG_YAW_LOCK, FLAG_YAW_IN_VEHICLE, FLAG_YAW_IN_EARTH = 16, 32, 64
+USED = ("GLOBAL_POSITION_INT", "ATTITUDE", "GIMBAL_DEVICE_ATTITUDE_STATUS", "MOUNT_STATUS")
+
+FloatArray = np.ndarray
+
+
+def gimbal_angles(q: list[float], flags: int) -> tuple[float, float, float, bool]:
+    """(yaw, pitch, roll) in degrees of a GIMBAL_DEVICE_ATTITUDE_STATUS quaternion [w, x, y, z]
+    (Rz Ry Rx in North-East-Down), and whether the yaw is relative to the vehicle's heading."""
+    w, x, y, z = (float(v) for v in q)
+    n = math.sqrt(w * w + x * x + y * y + z * z)
+    if not n or not math.isfinite(n):
+        raise ValueError("a gimbal quaternion of zero length or not a number")
+    w, x, y, z = w / n, x / n, y / n, z / n
+    yaw = math.degrees(math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z)))
+    pitch = math.degrees(math.asin(max(-1.0, min(1.0, 2 * (w * y - z * x)))))
+    roll = math.degrees(math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y)))
+    earth = bool(flags & FLAG_YAW_IN_EARTH) or (
+        bool(flags & FLAG_YAW_LOCK) and not flags & FLAG_YAW_IN_VEHICLE
+    )
+    return yaw, pitch, roll, not earth
+
+
+def camera_quat(
+    vehicle_ypr: tuple[float, float, float],
+    gimbal_ypr: tuple[float, float, float] | None,
+    gimbal_relative: bool = True,
+) -> FloatArray:
+    """Camera -> ENU quaternion from the vehicle's (yaw, pitch, roll) and the gimbal's (degrees;
+    None: the camera along the vehicle's nose); see the module docstring."""
+    if gimbal_ypr is None:
+        return camera_from_sensor(ypr_matrix(*vehicle_ypr))
+    yaw, pitch, roll = gimbal_ypr
+    heading = yaw + vehicle_ypr[0] if gimbal_relative else yaw
+    return camera_from_sensor(ypr_matrix(heading, pitch, roll))
+
+
+def _angle_at(t: list[float], a: list[float], x: float) -> float:
+    """Degrees interpolated at x between samples (held beyond the ends), the short way round."""
+    i = bisect.bisect_right(t, x)
+    if i == 0:
+        return a[0]
+    if i == len(t):
+        return a[-1]
+    w = (x - t[i - 1]) / (t[i] - t[i - 1])
+    d = (a[i] - a[i - 1] + 180.0) % 360.0 - 180.0
+    return a[i - 1] + w * d
+
+
+def _value_at(t: list[float], v: list, x: float) -> np.ndarray:
+    i = bisect.bisect_right(t, x)
+    if i == 0:
+        return np.asarray(v[0], np.float64)
+    if i == len(t):
+        return np.asarray(v[-1], np.float64)
+    w = (x - t[i - 1]) / (t[i] - t[i - 1])
+    return (1 - w) * np.asarray(v[i - 1], np.float64) + w * np.asarray(v[i], np.float64)
+
+
+@dataclass
+class MavlinkCounts:
+    """Messages used, by type; positions without a fix; gimbal messages that could not be read."""
+
+    used: dict[str, int] = field(default_factory=dict)
+    no_fix: int = 0
+    bad: int = 0
+
+
+@dataclass(frozen=True)
+class TelemetryPose:
+    """The camera at a boot time: geodetic (lat, lon deg, ellipsoidal h m), camera -> ENU
+    quaternion, and how far past the newest position or attitude it lies (s, 0 when between)."""
+
+    geodetic: tuple[float, float, float]
+    q: FloatArray
+    age_s: float
+    gimbal: bool
+
+
+class MavlinkTelemetry:
+    """Positions, attitudes and gimbal angles on the boot clock, growing as messages arrive;
+    thread-safe (a receiver adds, the drawing thread and the lag estimator ask)."""
+
+    def __init__(self) -> None:
+        self.counts = MavlinkCounts()
+        self.home_h: float | None = None  # home's ellipsoidal height (m): the take-off ground
+        self._pos_t: list[float] = []
+        self._pos: list[tuple[float, float, float]] = []
+        self._att_t: list[float] = []
+        self._att: list[tuple[float, float, float]] = []  # yaw, pitch, roll (deg)
+        self._gim_t: list[float] = []
+        self._gim: list[tuple[float, float, float]] = []
+        self._gim_relative = True
+        self._links: deque[float] = deque(maxlen=LINK_WINDOW)
+        self._lock = threading.Lock()
+
+    @property
+    def link_s(self) -> float | None:
+        """arrival - boot of the fastest recent message (s), None before any."""
+        with self._lock:
+            return min(self._links) if self._links else None
+
+    @property
+    def has_gimbal(self) -> bool:
+        return bool(self._gim_t)
+
+    def __len__(self) -> int:
+        """Poses available: positions once an attitude has arrived too."""
+        return len(self._pos_t) if self._att_t else 0
+
+    def first(self) -> tuple[float, float, float] | None:
+        with self._lock:
+            return self._pos[0] if self._pos else None
+
+    def add(self, kind: str, m: dict[str, Any], arrival_s: float) -> bool:
+        """One message (`kind`: its type name; `m`: its fields) that arrived at arrival_s;
+        False when it is not one of USED or carries nothing usable (counted)."""
+        if kind not in USED:
+            return False
+        with self._lock:
+            if "time_boot_ms" in m:
+                boot = float(m["time_boot_ms"]) / 1000.0
+                self._links.append(arrival_s - boot)
+            elif self._links:
+                boot = arrival_s - min(self._links)
+            else:
+                return False
+            if kind == "GLOBAL_POSITION_INT":
+                if m["lat"] == 0 and m["lon"] == 0:
+                    self.counts.no_fix += 1
+                    return False
+                lat, lon = m["lat"] / 1e7, m["lon"] / 1e7
+                n = float(undulation(lat, lon))
+                h = m["alt"] / 1000.0 + n
+                if self.home_h is None and "relative_alt" in m:
+                    self.home_h = h - m["relative_alt"] / 1000.0
+                self._insert(self._pos_t, self._pos, boot, (lat, lon, h))
+            elif kind == "ATTITUDE":
+                ypr = tuple(math.degrees(float(m[k])) for k in ("yaw", "pitch", "roll"))
+                if not all(math.isfinite(v) for v in ypr):
+                    self.counts.bad += 1
+                    return False
+                self._insert(self._att_t, self._att, boot, ypr)
+            elif kind == "GIMBAL_DEVICE_ATTITUDE_STATUS":
+                try:
+                    yaw, pitch, roll, relative = gimbal_angles(m["q"], int(m.get("flags", 0)))
+                except ValueError:
+                    self.counts.bad += 1
+                    return False
+                self._gim_relative = relative
+                self._insert(self._gim_t, self._gim, boot, (yaw, pitch, roll))
+            else:  # MOUNT_STATUS: pitch, roll, yaw in centidegrees
+                pyr = (m["pointing_c"] / 100.0, m["pointing_a"] / 100.0, m["pointing_b"] / 100.0)
+                self._gim_relative = True
+                self._insert(self._gim_t, self._gim, boot, pyr)
+            self.counts.used[kind] = self.counts.used.get(kind, 0) + 1
+            return True
+
+    @staticmethod
+    def _insert(times: list[float], values: list, t: float, v) -> None:
+        i = bisect.bisect_right(times, t)
+        if i and times[i - 1] == t:
+            values[i - 1] = v
+            return
+        times.insert(i, t)
+        values.insert(i, v)
+
+    def at(self, boot_s: float) -> TelemetryPose | None:
+        """The camera at boot_s from the messages arrived so far (positions linear, angles the
+        short way round, held past the newest); None before a position and an attitude."""
+        with self._lock:
+            if not self._pos_t or not self._att_t:
+                return None
+            lat, lon, h = _value_at(self._pos_t, self._pos, boot_s)
+            vehicle = tuple(
+                _angle_at(self._att_t, [a[j] for a in self._att], boot_s) for j in range(3)
+            )
+            gimbal = None
+            if self._gim_t:
+                gimbal = tuple(
+                    _angle_at(self._gim_t, [g[j] for g in self._gim], boot_s) for j in range(3)
+                )
+            age = max(boot_s - self._pos_t[-1], boot_s - self._att_t[-1], 0.0)
+            relative = self._gim_relative
+        q = camera_quat(vehicle, gimbal, relative)
+        return TelemetryPose((float(lat), float(lon), float(h)), q, age, gimbal is not None)
+
+    def attitude_times(self, since_s: float = -math.inf) -> FloatArray:
+        """Boot times (s) of the vehicle attitudes since since_s: where the camera's rotation is
+        sampled for the lag estimate."""
+        with self._lock:
+            return np.array([t for t in self._att_t if t >= since_s], np.float64)

@@ -1,0 +1,134 @@
+"""A drone flown by an autopilot (ArduPilot, PX4), simulated: the MAVLink telemetry it sends
+beside a video without KLV, for tests, `geofuse simulate feed --mavlink` and demos.
+
+The flight is app.simulate.drone's weave over the sample site (the video: drone.write_video to a
+.ts path); the vehicle flies it nose first, pitched VEHICLE_PITCH_DEG down and banked into its
+turns, and its gimbal holds the camera drone.PITCH_DEG below the horizon, its yaw with the
+vehicle's (GIMBAL_DEVICE_ATTITUDE_STATUS with the yaw in the vehicle frame, or ArduPilot's
+MOUNT_STATUS). Heights are sent above sea level (through EGM2008), the home at take-off on the
+ground. Messages are encoded and sent by pymavlink, as an autopilot's own would be.
+"""
+
+from __future__ import annotations
+
+import math
+import socket
+import threading
+import time
+from collections.abc import Callable
+
+import numpy as np
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from app.geodesy.enu import LocalFrame
+from app.geodesy.geoid import undulation
+from app.simulate import drone
+from app.simulate.stadium import SITE_ORIGIN
+
+VEHICLE_PITCH_DEG = -6.0  # flying forward, nose down
+BANK_GAIN = 0.8  # roll (deg) per deg/s of turn
+BOOT_MS = 300_000  # the autopilot's boot clock at the flight's start
+RATES_HZ = {"ATTITUDE": 25.0, "GLOBAL_POSITION_INT": 10.0, "GIMBAL": 10.0}
+
+
+def vehicle_state(
+    t: float, path_of=drone.flight
+) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+    """((lat, lon, ellipsoidal h), (yaw, pitch, roll) deg) of the vehicle at flight time t s
+    (path_of: the flight, as drone.flight)."""
+    pos, heading = path_of(np.array([t - 0.05, t, t + 0.05]))
+    turn = ((heading[2] - heading[0] + 180.0) % 360.0 - 180.0) / 0.1  # deg/s
+    lat, lon, h = LocalFrame(*SITE_ORIGIN).enu_to_geodetic(pos[1:2])[0]
+    return (float(lat), float(lon), float(h)), (
+        float(heading[1]),
+        VEHICLE_PITCH_DEG,
+        BANK_GAIN * turn,
+    )
+
+
+def messages_at(t: float, kind: str, gimbal: str | None, mav, path_of=drone.flight) -> list:
+    """The messages of `kind` (a RATES_HZ key) the autopilot sends at flight time t s, encoded
+    by `mav` (a pymavlink MAVLink object); gimbal: 'device', 'mount' or None (no gimbal)."""
+    (lat, lon, h), (yaw, pitch, roll) = vehicle_state(t, path_of)
+    boot = BOOT_MS + int(round(t * 1000))
+    if kind == "ATTITUDE":
+        return [mav.attitude_encode(boot, *np.radians([roll, pitch, yaw]), 0.0, 0.0, 0.0)]
+    if kind == "GLOBAL_POSITION_INT":
+        msl = h - float(undulation(lat, lon))
+        home_msl = SITE_ORIGIN[2] - float(undulation(lat, lon))
+        return [
+            mav.global_position_int_encode(
+                boot,
+                int(round(lat * 1e7)),
+                int(round(lon * 1e7)),
+                int(round(msl * 1000)),
+                int(round((msl - home_msl) * 1000)),
+                0,
+                0,
+                0,
+                int(round(yaw * 100)) % 36000,
+            )
+        ]
+    if gimbal == "device":  # earth-levelled pitch, yaw in the vehicle frame (0: with the nose)
+        half = math.radians(drone.PITCH_DEG) / 2
+        q = [math.cos(half), 0.0, math.sin(half), 0.0]
+        flags = mavlink.GIMBAL_DEVICE_FLAGS_YAW_IN_VEHICLE_FRAME
+        return [mav.gimbal_device_attitude_status_encode(0, 0, boot, flags, q, 0, 0, 0, 0)]
+    if gimbal == "mount":
+        return [mav.mount_status_encode(0, 0, int(drone.PITCH_DEG * 100), 0, 0)]
+    return []
+
+
+class MavlinkSender:
+    """Sends the autopilot's telemetry for flight times 0..seconds as MAVLink 2 datagrams to
+    `address` (host, port) in real time: the messages of flight time t leave at start_s + t -
+    lead_s on `clock` (lead_s > 0: the telemetry ahead of a video that left at start_s + t)."""
+
+    def __init__(
+        self,
+        address: tuple[str, int],
+        seconds: float,
+        start_s: float,
+        lead_s: float = 0.0,
+        gimbal: str | None = "device",
+        clock: Callable[[], float] = time.monotonic,
+        path_of=drone.flight,
+    ) -> None:
+        self.path_of = path_of
+        self.address = address
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.mav = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
+        self.seconds, self.start_s, self.lead_s = seconds, start_s, lead_s
+        self.gimbal = gimbal
+        self.clock = clock
+        self.sent = 0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="geofuse-autopilot", daemon=True)
+
+    def _schedule(self) -> list[tuple[float, str]]:
+        out = []
+        for kind, hz in RATES_HZ.items():
+            out += [(float(t), kind) for t in np.arange(0.0, self.seconds, 1.0 / hz)]
+        return sorted(out)
+
+    def start(self) -> MavlinkSender:
+        self._thread.start()
+        return self
+
+    def join(self, timeout: float | None = None) -> None:
+        self._thread.join(timeout)
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread.ident is not None:
+            self._thread.join(5.0)
+        self.sock.close()
+
+    def _run(self) -> None:
+        for t, kind in self._schedule():
+            wait = self.start_s + t - self.lead_s - self.clock()
+            if wait > 0 and self._stop.wait(wait):
+                return
+            for m in messages_at(t, kind, self.gimbal, self.mav, self.path_of):
+                self.sock.sendto(m.pack(self.mav), self.address)
+                self.sent += 1

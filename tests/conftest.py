@@ -90,14 +90,21 @@ def display():
     log.close()
 
 
-def run_viewer(display: str, *args: str, timeout: float = 300, config_home: Path | None = None):
+def run_viewer(
+    display: str,
+    *args: str,
+    timeout: float = 300,
+    config_home: Path | None = None,
+    cwd: Path | None = None,
+):
     """`geofuse view ARGS` as a subprocess on the given X display, remembering its panel layout
-    in `config_home` (default: a fresh folder, so that no earlier run's layout is used)."""
+    in `config_home` (default: a fresh folder, so that no earlier run's layout is used), run in
+    `cwd` (default: the repository)."""
     home = config_home or Path(tempfile.mkdtemp(prefix="geofuse-config-"))
     env = dict(os.environ, DISPLAY=display, XDG_CONFIG_HOME=str(home))
     return subprocess.run(
         [sys.executable, "-m", "app", "view", *args],
-        cwd=ROOT,
+        cwd=cwd or ROOT,
         env=env,
         capture_output=True,
         text=True,

@@ -232,9 +232,9 @@ def _view(sub: Commands) -> None:
     v.add_argument(
         "manifest",
         nargs="*",
-        type=Path,
         default=None,
-        help="a session manifest, a GoPro MP4 or a DJI clip (default: the bundled sample); several play together on one timeline, on the first one's scene",
+        help="a session manifest, a GoPro MP4, a DJI clip or a drone's .ts (default: the bundled sample); several play together on one timeline, "
+        "on the first one's scene; or a stream to receive live: udp://HOST:PORT, rtp://, rtsp://, srt:// (recorded under out/live/)",
     )
     add_srt_option(v, SRT_HELP)
     add_lens_option(v)
@@ -255,7 +255,37 @@ def _view(sub: Commands) -> None:
         default=2.0,
         help="with --screenshot alone: seconds to play first",
     )
+    _stream_options(v)
     v.set_defaults(job="view")
+
+
+def _stream_options(p: argparse.ArgumentParser) -> None:
+    """What a stream needs beside its URL (geofuse live, and geofuse view URL)."""
+    p.add_argument(
+        "--buffer-ms",
+        type=number(0.0, 5000.0),
+        default=100.0,
+        help="a stream's jitter buffer, milliseconds (default 100)",
+    )
+    p.add_argument(
+        "--origin",
+        type=lambda s: floats(s, 3, GEODETIC),
+        default=None,
+        help="a stream's assumed ground: latitude, longitude (deg), ellipsoidal height (m) of its origin",
+    )
+    p.add_argument(
+        "--mavlink",
+        default=None,
+        metavar="CONNECTION",
+        help="pose a stream from MAVLink telemetry (ArduPilot, PX4) instead of KLV: udp:HOST:PORT listens, "
+        "udpout:, tcp:HOST:PORT or a serial device as pymavlink opens them; its lag behind the video is estimated as it flies",
+    )
+    p.add_argument(
+        "--fov",
+        type=number(1.0, 179.0),
+        default=None,
+        help="a stream camera's horizontal field of view, degrees, where the feed does not say it (default: the KLV's, else 73.7)",
+    )
 
 
 def _live(sub: Commands) -> None:
@@ -277,32 +307,8 @@ def _live(sub: Commands) -> None:
         default=None,
         help="stop after this many seconds (default: when the stream has been silent for 10 s)",
     )
-    li.add_argument(
-        "--buffer-ms",
-        type=number(0.0, 5000.0),
-        default=100.0,
-        help="the jitter buffer, milliseconds (default 100)",
-    )
     li.add_argument("--size", type=size, default=(1280, 720), help="the drawing's WIDTHxHEIGHT")
-    li.add_argument(
-        "--origin",
-        type=lambda s: floats(s, 3, GEODETIC),
-        default=None,
-        help="the assumed ground's origin: latitude, longitude (deg), ellipsoidal height (m)",
-    )
-    li.add_argument(
-        "--mavlink",
-        default=None,
-        metavar="CONNECTION",
-        help="pose the video from MAVLink telemetry (ArduPilot, PX4) instead of KLV: udp:HOST:PORT listens, "
-        "udpout:, tcp:HOST:PORT or a serial device as pymavlink opens them; its lag behind the video is estimated as it flies",
-    )
-    li.add_argument(
-        "--fov",
-        type=number(1.0, 179.0),
-        default=None,
-        help="the camera's horizontal field of view, degrees, where the feed does not say it (default: the KLV's, else 73.7)",
-    )
+    _stream_options(li)
     add_layer_options(li)
     li.set_defaults(job="live")
 

@@ -4,9 +4,13 @@ from __future__ import annotations
 
 import argparse
 import logging
+from pathlib import Path
 
 from app.cli.common import layers
 from app.core.errors import GeofuseError
+from app.live.feed import LiveOptions
+from app.live.receiver import protocols_missing
+from app.ui.live import is_stream
 from app.ui.script import parse_script
 from app.ui.viewer import Options, Viewer
 
@@ -16,15 +20,26 @@ def run(args: argparse.Namespace) -> int:
         parse_script(args.script)  # a bad script is refused before a window opens
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
     inputs = list(args.manifest or [])
-    for given in inputs:
-        scheme, sep, _ = str(given).partition(":/")  # argparse's Path folds "//" to "/"
-        if sep and scheme.isalpha() and len(scheme) > 1:
-            raise GeofuseError(
-                f"{scheme}://...: the window does not receive streams yet: `geofuse live URL --record FLIGHT.ts` receives and drapes one off screen, and the recording opens here (geofuse view FLIGHT.ts)"
-            )
+    streams = [x for x in inputs if is_stream(x)]
+    if streams and len(inputs) > 1:
+        raise GeofuseError(
+            f"{streams[0]}: a stream opens alone (its recording, a clip, plays with others afterwards)"
+        )
+    stream = streams[0] if streams else None
+    if stream is not None:
+        missing = protocols_missing(stream)
+        if missing:
+            raise GeofuseError(missing)
+    live = LiveOptions(
+        delay_s=args.buffer_ms / 1000.0,
+        origin=tuple(args.origin) if args.origin else None,
+        mavlink=args.mavlink,
+        hfov_deg=args.fov,
+    )
+    paths = [Path(x) for x in inputs if not is_stream(x)]
     return Viewer(
         Options(
-            inputs[0] if inputs else None,
+            paths[0] if paths else None,
             args.size,
             args.script,
             args.screenshot,
@@ -32,6 +47,8 @@ def run(args: argparse.Namespace) -> int:
             srt=args.srt,
             lens=args.lens,
             layers=layers(args),
-            more=tuple(inputs[1:]),
+            more=tuple(paths[1:]),
+            stream=stream,
+            live=live,
         )
     ).run()

@@ -158,6 +158,32 @@ def rotate_for_display(rgb: np.ndarray, rotation_cw: int) -> np.ndarray:
     return np.ascontiguousarray(np.rot90(rgb, k=-(rotation_cw // 90) % 4))
 
 
+def decode_at(container, stream, stream_s: float, tolerance_s: float = 0.0):
+    """The first frame of `stream` (in an open PyAV `container`) whose time on the stream's clock
+    (pts x time base, s) reaches stream_s - tolerance_s, decoded from a keyframe before it; None
+    when no frame does. A transport stream has no index: FFmpeg finds its keyframe by bisecting
+    the file's time stamps and may land after the target (or find nothing, in a long GOP), so a
+    seek that overshoots is retried from further back, and finally from the start.
+    av.FFmpegError passes."""
+    tb = stream.time_base
+    start = float(stream.start_time * tb) if stream.start_time is not None else 0.0
+    for seek_s in (stream_s, stream_s - 1.0, stream_s - 5.0, start):
+        if seek_s < start and seek_s != start:
+            continue
+        container.seek(int(seek_s / tb), stream=stream, backward=True, any_frame=False)
+        first = True
+        for frame in container.decode(stream):
+            if frame.pts is None:
+                continue
+            t = float(frame.pts * tb)
+            if first and t > stream_s + tolerance_s and seek_s != start:
+                break  # landed after the target: from further back
+            first = False
+            if t >= stream_s - tolerance_s:
+                return frame
+    return None
+
+
 def read_frame(path: str | Path, index: int, info: VideoInfo | None = None) -> np.ndarray:
     """Frame `index` (display order) as (H, W, 3) uint8 RGB in display orientation."""
 
@@ -165,27 +191,16 @@ def read_frame(path: str | Path, index: int, info: VideoInfo | None = None) -> n
     info = info or probe(path)
     if not 0 <= index < len(info.pts_s):
         raise VideoError(path, f"frame {index} out of range (0..{len(info.pts_s) - 1})")
-    target = info.pts_s[index]
+    target = info.pts_s[index] + info.origin_s
     with av.open(str(path)) as container:
         stream = container.streams.video[0]
-        tb = stream.time_base
-        # A transport stream has no index: FFmpeg's search for the keyframe before the target
-        # can come back empty (a long GOP); then decode from the start.
-        for start in (target, 0.0):
-            container.seek(
-                int((start + info.origin_s) / tb), stream=stream, backward=True, any_frame=False
-            )
-            try:
-                for frame in container.decode(stream):
-                    if frame.pts is not None and media_seconds(
-                        frame.pts, tb, info.origin_s
-                    ) >= target - 0.5 / max(info.nominal_fps, 1.0):
-                        return rotate_for_display(
-                            frame.to_ndarray(format="rgb24"), info.rotation_cw
-                        )
-            except av.FFmpegError as exc:
-                raise VideoError(path, f"cannot decode frame {index} ({exc})") from exc
-    raise VideoError(path, f"frame {index} not found")
+        try:
+            frame = decode_at(container, stream, target, 0.5 / max(info.nominal_fps, 1.0))
+        except av.FFmpegError as exc:
+            raise VideoError(path, f"cannot decode frame {index} ({exc})") from exc
+    if frame is None:
+        raise VideoError(path, f"frame {index} not found")
+    return rotate_for_display(frame.to_ndarray(format="rgb24"), info.rotation_cw)
 
 
 def frames_at(

@@ -114,6 +114,16 @@ class JitterBuffer:
         self.shown_pts = newest.pts_s
         return newest
 
+    def discard_due(self, now_s: float) -> int:
+        """Frames due at now_s taken away unshown and uncounted (the display is elsewhere on
+        purpose: a viewer reviewing what was recorded); returns how many."""
+        self._slew(now_s)
+        n = sum(1 for f in self.pending if self.due_at(f) <= now_s)
+        if n:
+            self.shown_pts = self.pending[n - 1].pts_s
+            self.pending = self.pending[n:]
+        return n
+
     def next_due(self) -> float | None:
         """When the next pending frame is due (s), None when none waits."""
         return self.due_at(self.pending[0]) if self.pending else None

@@ -5,11 +5,14 @@ small buffer), so a recording stays playable when the process is killed mid-flig
 
 from __future__ import annotations
 
+import threading
+from dataclasses import dataclass
 from pathlib import Path
 
 import av
 
 WRITE_BUFFER = 188 * 7  # bytes FFmpeg gathers before it hands them to the file: one datagram
+SEGMENT_S = 60.0  # the viewer's rolling recording: a new file every minute, at a keyframe
 
 
 class Recorder:
@@ -54,3 +57,81 @@ class Recorder:
         except (av.FFmpegError, ValueError):
             pass
         self._file.close()
+
+
+@dataclass
+class Segment:
+    """One recorded file and the span of stream-clock seconds (pts x time base) its video
+    packets cover."""
+
+    path: Path
+    first_s: float | None = None
+    last_s: float | None = None
+
+
+class SegmentRecorder:
+    """Recording in rolling segments (the viewer records every stream it opens): a new MPEG-TS
+    in `folder` starts at the first video keyframe SEGMENT_S after the current one began, so
+    that each segment is a clip of its own (none is ever deleted: a recording can be evidence).
+    `segments` says which file holds which stretch of the stream, for scrubbing back."""
+
+    def __init__(self, folder: str | Path, segment_s: float = SEGMENT_S) -> None:
+        self.folder = Path(folder)
+        self.segment_s = segment_s
+        self.segments: list[Segment] = []
+        self._inputs: tuple = (None, None)
+        self._current: Recorder | None = None
+        self.packets = self.errors = 0
+        self._lock = threading.Lock()
+
+    def add_input(self, video_stream, klv_stream) -> None:
+        self._inputs = (video_stream, klv_stream)
+        if self._current is not None:
+            self._current.add_input(video_stream, klv_stream)
+
+    def _open(self) -> Recorder:
+        path = self.folder / f"segment-{len(self.segments) + 1:04d}.ts"
+        rec = Recorder(path)
+        rec.add_input(*self._inputs)
+        with self._lock:
+            self.segments.append(Segment(path))
+        return rec
+
+    def write(self, packet, kind: str) -> None:
+        t = None
+        if kind == "video" and packet.pts is not None and packet.time_base is not None:
+            t = float(packet.pts * packet.time_base)
+        cur = self.segments[-1] if self.segments else None
+        if self._current is None or (
+            kind == "video"
+            and packet.is_keyframe
+            and t is not None
+            and cur.first_s is not None
+            and t - cur.first_s >= self.segment_s
+        ):
+            if self._current is not None:
+                self._current.close()
+            self._current = self._open()
+            cur = self.segments[-1]
+        self._current.write(packet, kind)
+        self.packets += 1
+        if t is not None:
+            with self._lock:
+                cur.first_s = t if cur.first_s is None else min(cur.first_s, t)
+                cur.last_s = t if cur.last_s is None else max(cur.last_s, t)
+
+    def holding(self, stream_s: float) -> Segment | None:
+        """The segment whose video covers stream-clock second stream_s (the nearest one)."""
+        with self._lock:
+            spans = [s for s in self.segments if s.first_s is not None]
+        if not spans:
+            return None
+        for s in spans:
+            if s.first_s <= stream_s <= s.last_s:
+                return s
+        return min(spans, key=lambda s: min(abs(s.first_s - stream_s), abs(s.last_s - stream_s)))
+
+    def close(self) -> None:
+        if self._current is not None:
+            self._current.close()
+            self._current = None

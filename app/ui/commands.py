@@ -9,7 +9,9 @@ from pathlib import Path
 
 import numpy as np
 
-from app.ui import archive, clips, control_points, measure
+from app.ui import archive, clips, control_points, live, measure
+
+LIVE_WAIT_S = 120.0  # `wait live N` gives up after this long (real seconds)
 
 
 @dataclass(frozen=True)
@@ -148,9 +150,28 @@ def _wait(v, arg, now) -> None:
         v.wait_until_synced()
     elif arg == "tiles":
         v.wait_until_tiles_loaded()
+    elif arg.split()[:1] in (["live"], ["arrived"]) and len(arg.split()) <= 2:
+        words = arg.split()
+        n = int(_number(words[1])) if len(words) == 2 else 1
+        if v.live is None:
+            raise ValueError("no stream is open")
+        feed = v.live.feed
+        if words[0] == "live":
+            v.hold_script(
+                lambda: v.live is not None and v.live.run.frames_drawn >= n,
+                f"{n} frames of {feed.url} shown",
+                LIVE_WAIT_S,
+            )
+        else:
+            until = feed.receiver.counts.frames + n
+            v.hold_script(
+                lambda: feed.receiver.counts.frames >= until,
+                f"{n} more frames of {feed.url} to arrive",
+                LIVE_WAIT_S,
+            )
     else:
         raise ValueError(
-            f"expected 'solved', 'registered', 'exported', 'synced' or 'tiles', got {arg!r}"
+            f"expected 'solved', 'registered', 'exported', 'synced', 'tiles', 'live [N]' or 'arrived [N]', got {arg!r}"
         )
 
 
@@ -161,6 +182,24 @@ def _export(v, arg, now) -> None:
             "expected WHAT PATH (footprints, fmv-csv, klv or video, and the output file)"
         )
     v.start_export(what, Path(path.strip()))
+
+
+def _live(v, arg, now) -> None:
+    if v.live is None:
+        raise ValueError("no stream is open")
+    words = (arg or "").split()
+    what = words[0] if words else ""
+    if what == "edge":
+        live.review(v, None)
+    elif what == "close":
+        live.close(v)
+    elif what in ("back", "at") and len(words) == 2:
+        t = _number(words[1])
+        span = v.live.recorded_span()
+        edge = span[1] if span is not None else 0.0
+        live.review(v, edge - t if what == "back" else t)
+    else:
+        raise ValueError(f"expected 'back S', 'at S', 'edge' or 'close', got {arg!r}")
 
 
 def _record(v, arg, now) -> None:
@@ -204,7 +243,18 @@ def _set_ui(**changes) -> Callable:
 
 COMMANDS: dict[str, Command] = {
     "quit": Command(lambda v, a, n: setattr(v.ui, "quit", True), False, False, "close the viewer"),
-    "open": Command(lambda v, a, n: v.open(Path(a)), False, True, "open a manifest or clip"),
+    "open": Command(
+        lambda v, a, n: v.open_input(a),
+        False,
+        True,
+        "open a manifest or clip, or receive a stream (udp://, rtp://, rtsp://, srt://)",
+    ),
+    "live": Command(
+        _live,
+        False,
+        True,
+        "back S | at S | edge | close: an open stream: show the moment S seconds behind the live edge, or at media time S, from the recording; back to the live edge; stop receiving",
+    ),
     "screenshot": Command(
         lambda v, a, n: setattr(v.ui, "screenshot_request", Path(a)),
         False,
@@ -226,7 +276,7 @@ COMMANDS: dict[str, Command] = {
         _wait,
         False,
         True,
-        "solved | registered | exported | synced | tiles: hold the clock until every source but the registered one is solved, the registered one too, the export or sync has finished, or the 3D Tiles this view needs are loaded",
+        "solved | registered | exported | synced | tiles | live [N] | arrived [N]: hold the clock until every source but the registered one is solved, the registered one too, the export or sync has finished, or the 3D Tiles this view needs are loaded; live N: hold the script until N frames of the stream have been shown; arrived N: until N more have arrived",
     ),
     "export": Command(
         _export,

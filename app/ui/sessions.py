@@ -23,7 +23,7 @@ from app.scene.mesh import MeshData
 from app.session.model import REGISTERED, Session
 from app.session.timeline import Timeline
 from app.simulate.sample import SAMPLE_DIR
-from app.ui import archive, clips, measure
+from app.ui import archive, clips, live, measure
 from app.ui.navigation import Navigator
 
 log = logging.getLogger("geofuse.viewer")
@@ -191,6 +191,7 @@ class ViewerSessions:
             self.ui.error(f"{path}: {type(exc).__name__}: {exc}")
             log.exception("opening %s", path)
             return False
+        live.close(self)
         self.close_session()
         first = session.sources[0]
         self.loaded = Loaded(

@@ -37,7 +37,8 @@ class UiState:
     file_dialog: object | None = None  # an open portable-file-dialogs request
     screenshot_request: Path | None = None  # taken after this frame's panels are drawn
     state_request: Path | None = None
-    open_request: Path | None = None  # a file dropped on the window or chosen in the dialog
+    open_request: str | Path | None = None  # dropped, chosen in the dialog, typed (or a URL)
+    stream_url: str = "udp://0.0.0.0:5600"  # the Session panel's stream field
     export_what: int = 0  # the Export panel's choice (app.ui.panels.export.EXPORTS)
     export_path: str = ""  # the Export panel's output path ("" = a name from the session's)
     export_job: ExportJob | None = None  # the running or last export

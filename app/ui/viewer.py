@@ -27,12 +27,13 @@ from app.camera.pinhole import Camera
 from app.core.errors import GeofuseError
 from app.core.imageio import write_rgb
 from app.geodesy import rotations
+from app.live.feed import LiveOptions
 from app.locate.marks import measure as measure_points
 from app.playback.clock import SPEEDS
 from app.render.renderer import BACKGROUND
 from app.render.window import Window
 from app.session.model import REGISTERED
-from app.ui import clips, measure, panels
+from app.ui import clips, live, measure, panels
 from app.ui.commands import run_command
 from app.ui.gui import Gui
 from app.ui.inputs import handle_input
@@ -61,6 +62,8 @@ class Options:
     lens: Path | None = None  # a lens profile for a clip opened from the command line
     layers: tuple = ()  # app.scene.layers.Layer: the scene of a clip opened from the command line
     more: tuple = ()  # further clips (paths) played with the first on one timeline
+    stream: str | None = None  # a stream URL to receive instead of a file (app.ui.live)
+    live: LiveOptions | None = None  # its options (MAVLink, field of view, buffer, origin)
 
 
 class FixedStepClock:
@@ -89,10 +92,13 @@ class Viewer(ViewerJobs, ViewerSessions):
         self.options = options
         self.clock = clock
         self.loaded: Loaded | None = None
+        self.live: live.LiveView | None = None  # an open stream instead of a session
         self.ui = UiState()
         self.nav = Navigator()
         self.stats = Stats()
         self.script: list[Action] = []
+        self._hold: tuple | None = None  # a script action waiting for a condition the loop meets
+        self._script_shift = 0.0  # seconds the script was held for
         self.window = None
         self.window_camera: Camera | None = None
         self._messages_seen = 0  # of the open session's messages, shown so far
@@ -196,7 +202,17 @@ class Viewer(ViewerJobs, ViewerSessions):
 
     # --- one frame ------------------------------------------------------------------------------
 
+    def open_input(self, text: str) -> bool:
+        """Open what was typed or given: a stream URL (received live), else a file or folder."""
+        if live.is_stream(text):
+            live.open_stream(self, text, self.options.live)
+            return True
+        return self.open(Path(text))
+
     def _update(self, now: float) -> None:
+        if self.live is not None:
+            live.update(self)
+            return
         L = self.loaded
         if L is None:
             return
@@ -227,9 +243,19 @@ class Viewer(ViewerJobs, ViewerSessions):
 
     def _draw(self) -> None:
         fb_w, fb_h = self.window.clear(BACKGROUND)
-        if self.loaded is None or fb_w <= 0 or fb_h <= 0:
+        if fb_w <= 0 or fb_h <= 0:
             return
         rect = self.view_rect or (0, 0, fb_w, fb_h)
+        if self.live is not None and self.live.renderer is not None:
+            r = self.live.renderer
+            self.window_camera = self.nav.camera(
+                Intrinsics.from_fov(rect[2], rect[3], VIEW_HFOV_DEG), r.projector
+            )
+            with self.window.region(rect) as screen:
+                r.draw(self.window_camera, screen, self.ui.settings, self.ui.overlays)
+            return
+        if self.loaded is None:
+            return
         L = self.loaded
         self.window_camera = self.nav.camera(
             Intrinsics.from_fov(rect[2], rect[3], VIEW_HFOV_DEG), L.renderer.projector
@@ -258,6 +284,8 @@ class Viewer(ViewerJobs, ViewerSessions):
         ui = self.ui
         fb = self.window.framebuffer_size()
         state: dict = {
+            "live": None if self.live is None else live.state(self),
+            "window_camera": _camera_state(self.window_camera),
             "errors": ui.errors,
             "info": ui.info,
             "warnings": ui.warnings,
@@ -269,7 +297,6 @@ class Viewer(ViewerJobs, ViewerSessions):
         L = self.loaded
         if L is not None:
             cam = self.window_camera
-            i = cam.intrinsics
             proj = L.renderer.projector
             s = L.player.stats
             state.update(
@@ -282,14 +309,38 @@ class Viewer(ViewerJobs, ViewerSessions):
                 extra_projectors=len(L.renderer.extras), frame_ages_s=[L.renderer.projector_age, *(e.age_s for e in L.renderer.extras)], timeline_s=None if self.current_index < 0 else float(L.timeline.clips[0].times[self.current_index]),
                 archive=None if ui.archive is None else {"path": str(ui.archive.path), "footprints": ui.archive.footprints, "clips": ui.archive.clips, "picked": ui.archive.picked, "opened": ui.archive.opened, "opened_s": ui.archive.opened_s},
                 sync=None if ui.sync_job is None or ui.sync_job.result is None else {"offset_s": ui.sync_job.result.offset_s, "confidence": ui.sync_job.result.confidence},
-                window_camera={"size": [i.width, i.height], "fx": i.fx, "fy": i.fy, "cx": i.cx, "cy": i.cy, "position": list(cam.position), "orientation": list(cam.orientation), "near": cam.near, "far": cam.far},
+                window_camera=_camera_state(cam),
                 projector=None if proj is None else {"position": list(proj.position), "orientation": list(proj.orientation)},
                 frame_ms=float(np.median(self.stats.frame_times) * 1000) if self.stats.frame_times else None,
             )  # fmt: skip
         Path(path).write_text(json.dumps(state, indent=1))
 
+    def hold_script(self, until: Callable[[], bool], what: str, limit_s: float) -> None:
+        """Hold the script (not the frame loop: what it waits for is drawn by the loop) until
+        `until()` holds, or limit_s real seconds have gone (said as an error); the actions after
+        it keep their spacing from the moment it is released."""
+        self._hold = (until, what, time.perf_counter() + limit_s, None)
+
+    def _held(self, elapsed: float) -> bool:
+        until, what, deadline, since = self._hold
+        if since is None:
+            self._hold = (until, what, deadline, elapsed)
+            since = elapsed
+        done = until()
+        if not done and time.perf_counter() < deadline:
+            return True
+        if not done:
+            self.ui.error(f"script: gave up waiting for {what}")
+        self._script_shift += elapsed - since
+        self._hold = None
+        return False
+
     def _run_script(self, elapsed: float, now: float) -> None:
-        while self.script and self.script[0].at_s <= elapsed + 1e-9:
+        while self.script or self._hold is not None:
+            if self._hold is not None and self._held(elapsed):
+                return
+            if not self.script or self.script[0].at_s > elapsed - self._script_shift + 1e-9:
+                return
             a = self.script.pop(0)
             try:
                 self.apply(a.name, a.arg, now)
@@ -308,7 +359,7 @@ class Viewer(ViewerJobs, ViewerSessions):
             ui.state_request = None
         if ui.open_request is not None:
             path, ui.open_request = ui.open_request, None
-            self.open(path)
+            self.open_input(str(path))
 
     # --- the loop -------------------------------------------------------------------------------
 
@@ -324,8 +375,12 @@ class Viewer(ViewerJobs, ViewerSessions):
                 self.script = parse_script(self.options.script)
             except GeofuseError as exc:
                 self.ui.error(str(exc))
-        opened = self.open(self.options.manifest)
-        for path in self.options.more if opened else ():
+        if self.options.stream is not None:
+            live.open_stream(self, self.options.stream, self.options.live)
+            opened = True
+        else:
+            opened = self.open(self.options.manifest)
+        for path in self.options.more if opened and self.live is None else ():
             try:
                 clips.add(self, Path(path))
             except GeofuseError as exc:
@@ -364,6 +419,7 @@ class Viewer(ViewerJobs, ViewerSessions):
                     self.ui.recorder.add(self.window.read_back_buffer(), now)
                 self.window.swap()
                 shown = self.clock()
+                live.swapped(self)
                 if self.loaded is not None:
                     self.loaded.player.shown(shown, shown - now)
                     for clip in self.loaded.others:
@@ -385,6 +441,7 @@ class Viewer(ViewerJobs, ViewerSessions):
                     p95,
                     self.loaded.player.stats.dropped,
                 )
+            live.close(self)
             self.close_session()
             gui.shutdown()
             self.window.close()
@@ -392,6 +449,18 @@ class Viewer(ViewerJobs, ViewerSessions):
             log.error("the session did not open: the screenshot shows the error, not a session")
             return 1
         return 0
+
+
+def _camera_state(cam: Camera | None) -> dict | None:
+    """The window camera for a script's `state`: intrinsics and pose (ENU m, camera -> ENU)."""
+    if cam is None:
+        return None
+    i = cam.intrinsics
+    return {
+        "size": [i.width, i.height], "fx": i.fx, "fy": i.fy, "cx": i.cx, "cy": i.cy,
+        "position": list(map(float, cam.position)), "orientation": list(map(float, cam.orientation)),
+        "near": cam.near, "far": cam.far,
+    }  # fmt: skip
 
 
 def _registration_state(track) -> dict | None:

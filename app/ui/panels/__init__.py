@@ -1,5 +1,5 @@
 """The viewer's ImGui panels, one module a panel (Session, Timeline, Attitude, Projection, Error
-inspection, Stats, Export, Measure, Help; widgets: what they share). Every control runs the same
+inspection, Stats, Export, Measure, Live (a stream), Help; widgets: what they share). Every control runs the same
 commands as the script (app.ui.commands) or the same Viewer methods; the docked layout is
 app.ui.gui's, keys and mouse app.ui.inputs'.
 """
@@ -13,6 +13,7 @@ from app.ui.panels import (
     export,
     help,
     inspection,
+    live,
     measure,
     projection,
     session,
@@ -29,7 +30,11 @@ def draw(v, gui: Gui, now: float) -> None:
     if not v.ui.show_panels:
         return
     session.draw(v)
-    if v.loaded is not None:
+    if v.live is not None:
+        live.draw(v, now)
+        projection.draw(v)
+        stats.draw(v)
+    elif v.loaded is not None:
         timeline.draw(v, now)
         attitude.draw(v)
         projection.draw(v)

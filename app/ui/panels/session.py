@@ -21,6 +21,8 @@ def draw(v) -> None:
         ):  # once the docks exist: the first tab, whatever was docked last
             imgui.set_next_window_focus()
     if window("Session"):
+        if v.live is not None:
+            _stream(v)
         if v.loaded is not None:
             s = v.loaded.session
             imgui.text(Path(s.path).name)
@@ -59,7 +61,12 @@ def draw(v) -> None:
         _, ui.open_path = imgui.input_text("##path", ui.open_path)
         imgui.same_line()
         if imgui.button("Open") and ui.open_path.strip():
-            ui.open_request = Path(ui.open_path.strip())
+            ui.open_request = ui.open_path.strip()  # a file, or a stream's URL
+        imgui.set_next_item_width(-110)
+        _, ui.stream_url = imgui.input_text("##stream", ui.stream_url)
+        imgui.same_line()
+        if imgui.button("Open stream") and ui.stream_url.strip():
+            run(v, "open", ui.stream_url.strip())
         for warning in ui.warnings[-6:]:
             imgui.text_colored(colour(AMBER), "warning:")
             imgui.same_line()
@@ -112,3 +119,25 @@ def _clips(v) -> None:
         changed, k = imgui.combo(f"source##clip{i}", sources.index(clip.source), sources)
         if changed:
             run(v, "clip", f"{i} source {sources[k]}")
+
+
+def _stream(v) -> None:
+    """The open stream: where it comes from, what has arrived, where it is recorded."""
+    L = v.live
+    run = L.run
+    imgui.text_wrapped(run.url)
+    if L.renderer is None:
+        imgui.text_colored(colour(AMBER), "waiting for video and a first pose...")
+    silent = L.feed.silent_for(L.feed.clock(), L.opened_s)
+    if silent > 2.0:
+        imgui.text_colored(colour(AMBER), f"nothing has arrived for {silent:.0f} s")
+    if run.mavlink is not None:
+        imgui.text_wrapped(f"poses: MAVLink {run.mavlink.address}")
+    imgui.text_wrapped(f"recording in {L.folder}/ (rolling segments, each a clip)")
+    if imgui.button("Close stream"):
+        run_close(v)
+    imgui.separator()
+
+
+def run_close(v) -> None:
+    run(v, "live", "close")

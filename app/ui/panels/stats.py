@@ -16,6 +16,10 @@ def draw(v) -> None:
     if window("Stats"):
         ft = np.asarray(v.stats.frame_times[-120:] or [0.0]) * 1000.0
         fps = 1000.0 / max(np.mean(ft), 1e-6)
+        if v.live is not None:
+            _live(v, fps, ft)
+            imgui.end()
+            return
         player = v.loaded.player
         current, mean, p95 = player.stats.summary()
         imgui.text(f"frame rate {fps:6.1f} fps   frame time {np.median(ft):5.1f} ms")
@@ -39,3 +43,19 @@ def draw(v) -> None:
                 + (f"; skipped {skipped}" if skipped else "")
             )
     imgui.end()
+
+
+def _live(v, fps: float, ft: np.ndarray) -> None:
+    """A stream's figures: the frame rate, and latency from a frame's arrival to the screen over
+    the last frames shown (and what geofuse adds past the jitter buffer)."""
+    run = v.live.feed.run
+    imgui.text(f"frame rate {fps:6.1f} fps   frame time {np.median(ft):5.1f} ms")
+    imgui.text(
+        f"latency arrival -> shown  p50 {run.latency_ms(50):5.1f} ms  p95 {run.latency_ms(95):5.1f} ms"
+    )
+    imgui.text(
+        f"past the {1000 * run.delay_s:.0f} ms jitter buffer  p50 {run.added_ms(50):5.1f} ms  p95 {run.added_ms(95):5.1f} ms"
+    )
+    r = v.live.renderer
+    if r is not None:
+        imgui.text(f"triangles drawn {r.scene_pass.triangles:,}")

@@ -1,0 +1,346 @@
+"""A live feed as the viewer and `geofuse live` draw it (no GL here): the receiver thread, the
+jitter buffer, the poses (the stream's KLV, or MAVLink beside it with its lag estimated), the
+recorder, and the scene around the first position; `take(now)` hands the drawing loop the frame
+due with the camera of its own time, never waiting on the network.
+
+Poses come from the stream's own KLV, or, given `mavlink`, from MAVLink telemetry beside it
+(app.live.mavlink), its lag behind the video estimated as it flies (app.live.lag). A frame
+whose pose is stale or missing is drawn with the last camera (counted, said once).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import av
+import numpy as np
+
+from app.camera.intrinsics import Intrinsics
+from app.camera.pinhole import Camera
+from app.core.constants import DEFAULT_FAR_M
+from app.core.messages import Messages
+from app.footage.clips import ASSUMED_DRONE_HFOV_DEG, KLV_ASSUMED_HEIGHT_M, frame_and_ground
+from app.geodesy.enu import LocalFrame
+from app.io.mavlink import MavlinkTelemetry
+from app.io.streams import GnssTrack
+from app.io.video import decode_at, media_seconds
+from app.live.buffer import DEFAULT_DELAY_S, Arrival, JitterBuffer
+from app.live.lag import LagEstimator
+from app.live.mavlink import MavlinkReceiver
+from app.live.pose import NONE, STALE, LivePoses, MavlinkPoses
+from app.live.receiver import Receiver
+from app.live.recorder import Recorder, SegmentRecorder
+from app.playback.decoder import yuv_planes
+from app.scene.mesh import MeshData
+
+REVIEW_TOLERANCE_S = 0.02  # a reviewed frame is the first at or after the time asked, less this
+
+SILENCE_S = 10.0
+GROUND_MARGIN_M = 3000.0
+
+
+@dataclass
+class Drawn:
+    """One frame drawn: its media time (s), when it arrived, when the jitter buffer made it due
+    and when its drawing finished (monotonic s), and the pose's state (fresh, stale, none)."""
+
+    pts_s: float
+    arrival_s: float
+    due_s: float
+    drawn_s: float
+    pose: str
+
+
+@dataclass
+class MavlinkSummary:
+    """What a run took from MAVLink: messages used by type, the lag applied at the end and each
+    window's estimate (s, the video behind the telemetry), and the gimbal's presence."""
+
+    address: str
+    used: dict[str, int] = field(default_factory=dict)
+    lag_s: float | None = None
+    estimates_s: list[float] = field(default_factory=list)
+    gimbal: bool = False
+
+    def line(self) -> str:
+        used = ", ".join(f"{n} {k}" for k, n in sorted(self.used.items())) or "nothing"
+        e = self.estimates_s
+        lag = (
+            f"the video lags the telemetry by {1000 * self.lag_s:.0f} ms (the median of {len(e)} estimates, "
+            f"{1000 * min(e):.0f} to {1000 * max(e):.0f} ms)"
+            if self.lag_s is not None
+            else "no lag estimated (the camera did not turn enough, or too short)"
+        )
+        return f"MAVLink {self.address}: {used}; {lag}"
+
+
+@dataclass
+class LiveRun:
+    """What a run received, drew and lost, with the messages it said."""
+
+    url: str
+    drawn: list[Drawn] | deque[Drawn] = field(default_factory=list)  # (the viewer keeps the last)
+    frames_drawn: int = 0
+    received: int = 0
+    missing: int = 0
+    skipped: int = 0
+    late: int = 0
+    overflow: int = 0
+    undecodable: int = 0
+    bad_klv: int = 0
+    stale: int = 0
+    without_pose: int = 0
+    reconnects: int = 0
+    ended: str = ""
+    delay_s: float = DEFAULT_DELAY_S
+    origin_s: float | None = None  # the stream-clock seconds of media time 0
+    frame: LocalFrame | None = None  # the local ENU frame the cameras are in
+    mavlink: MavlinkSummary | None = None
+    messages: Messages = field(default_factory=Messages)
+
+    def add_drawn(self, d: Drawn) -> None:
+        self.drawn.append(d)
+        self.frames_drawn += 1
+
+    def latency_ms(self, q: float) -> float:
+        """The q-th percentile of arrival -> drawn (ms), NaN before any frame is drawn."""
+        lat = [1000.0 * (d.drawn_s - d.arrival_s) for d in self.drawn]
+        return float(np.percentile(lat, q)) if lat else math.nan
+
+    def added_ms(self, q: float) -> float:
+        """The q-th percentile of due -> drawn (ms): what geofuse adds past the jitter buffer
+        (waiting for the draw loop, decoding behind, drawing)."""
+        lat = [1000.0 * (d.drawn_s - max(d.due_s, d.arrival_s)) for d in self.drawn]
+        return float(np.percentile(lat, q)) if lat else math.nan
+
+    def summary(self) -> str:
+        """The one line `geofuse live` prints at the end."""
+        mavlink = f"; {self.mavlink.line()}" if self.mavlink is not None else ""
+        return (
+            f"{self.url}: {self.received} frames received ({self.missing} lost on the way), "
+            f"{self.frames_drawn} drawn, "
+            f"{self.skipped + self.late + self.overflow} dropped by geofuse "
+            f"({self.skipped} behind, {self.late} late, {self.overflow} overflow), "
+            f"{self.undecodable} undecodable packets, latency arrival->drawn p50 "
+            f"{self.latency_ms(50):.1f} ms p95 {self.latency_ms(95):.1f} ms (past the "
+            f"{1000 * self.delay_s:.0f} ms buffer: p50 {self.added_ms(50):.1f} p95 {self.added_ms(95):.1f} ms); "
+            f"{self.stale} drawn with a stale pose, {self.without_pose} without one{mavlink}; {self.ended}"
+        )
+
+
+@dataclass(frozen=True)
+class LiveOptions:
+    """seconds: stop after this long (None: until silence); record: keep what arrives as
+    MPEG-TS; delay_s: the jitter buffer; size: the drawing's (w, h); layers: the scene (else an
+    assumed ground); origin: (lat, lon, ellipsoidal h) of the ground's origin; mavlink: a
+    pymavlink connection (udp:HOST:PORT) whose telemetry poses the video; hfov_deg: the camera's
+    horizontal field of view where the feed does not say it (None: the KLV's, else 73.7 deg)."""
+
+    seconds: float | None = None
+    record: Path | None = None
+    delay_s: float = DEFAULT_DELAY_S
+    size: tuple[int, int] = (1280, 720)
+    layers: tuple = ()
+    origin: tuple[float, float, float] | None = None
+    silence_s: float = SILENCE_S
+    far_m: float = DEFAULT_FAR_M
+    mavlink: str | None = None
+    hfov_deg: float | None = None
+    segments: Path | None = None  # the viewer's rolling recording: a folder of segments
+
+
+def scene_for(poses: LivePoses | MavlinkPoses, options: LiveOptions, messages: Messages):
+    """(frame, mesh) once the first position is known: the layers around it, else a flat
+    ground at the origin's height, the KLV frame centre's or MAVLink's home height, or 100 m
+    under the sensor (said)."""
+    lat, lon, h = options.origin or poses.first()
+    known = poses.ground()
+    if options.origin is not None:
+        ground = options.origin[2]
+    elif known is not None and known[0] < h:
+        ground = known[0]
+        messages.info(f"the assumed ground is {known[1]} ({ground:.1f} m)")
+    else:
+        ground = h - KLV_ASSUMED_HEIGHT_M
+        messages.add(
+            f"no ground height in the telemetry: the ground is assumed {KLV_ASSUMED_HEIGHT_M:g} m under the sensor (give --scene, --dem or --origin)"
+        )
+    track = GnssTrack(np.zeros(1), np.array([lat]), np.array([lon]), np.array([h]))
+    frame, mesh, _ = frame_and_ground(track, ground, GROUND_MARGIN_M, options.layers, messages)
+    return frame, mesh
+
+
+class LiveFeed:
+    """One stream received (see the module docstring); `run` holds its figures and messages."""
+
+    def __init__(
+        self,
+        url: str,
+        options: LiveOptions = LiveOptions(),
+        run: LiveRun | None = None,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.url, self.options, self.clock = url, options, clock
+        self.run = run or LiveRun(url, delay_s=options.delay_s)
+        self.buffer = JitterBuffer(options.delay_s)
+        self.klv_poses = LivePoses(stale_after_s=options.delay_s)
+        self.poses: LivePoses | MavlinkPoses = self.klv_poses
+        self.mav: MavlinkReceiver | None = None
+        self.lag: LagEstimator | None = None
+        self.recorder: Recorder | SegmentRecorder | None = None
+        self.receiver: Receiver | None = None
+        self.frame: LocalFrame | None = None
+        self.intrinsics: Intrinsics | None = None
+        self.last_camera: Camera | None = None
+        self.last_shown: Arrival | None = None
+
+    def start(self) -> LiveFeed:
+        o, messages = self.options, self.run.messages
+        if o.mavlink is not None:
+            telemetry = MavlinkTelemetry()
+            self.poses = MavlinkPoses(telemetry, lambda: self.buffer.link_s, o.delay_s)
+            self.mav = MavlinkReceiver(o.mavlink, telemetry, messages, self.clock).start()
+            self.mav.wait_ready()
+            self.run.mavlink = MavlinkSummary(o.mavlink)
+        if o.record is not None:
+            self.recorder = Recorder(o.record)
+        elif o.segments is not None:
+            self.recorder = SegmentRecorder(o.segments)
+        self.receiver = Receiver(
+            self.url,
+            self.buffer,
+            self.klv_poses,
+            messages,
+            self.recorder,
+            self.clock,
+            self._on_frame,
+            self.mav is not None,
+        ).start()
+        return self
+
+    def _on_frame(self, t: float, luma) -> None:
+        if self.lag is not None:
+            self.lag.feed(t, luma)
+
+    def silent_for(self, now: float, since: float) -> float:
+        """Seconds since anything arrived (since `since` when nothing has yet)."""
+        heard = self.receiver.last_arrival_s
+        return now - (heard if heard is not None else since)
+
+    def ready(self) -> bool:
+        """Whether the video's size and a first position (or the given origin) are known."""
+        return self.receiver.size is not None and (
+            len(self.poses) > 0 or self.options.origin is not None
+        )
+
+    def build_scene(self) -> MeshData:
+        """The scene around the first position and the video's pinhole (once `ready`)."""
+        o, messages = self.options, self.run.messages
+        self.frame, mesh = scene_for(self.poses, o, messages)
+        self.run.frame = self.frame
+        hfov = o.hfov_deg or self.poses.hfov_deg or ASSUMED_DRONE_HFOV_DEG
+        if o.hfov_deg is None and self.poses.hfov_deg is None:
+            messages.add(f"the feed gives no field of view: {hfov:.1f} deg assumed (give --fov)")
+        self.intrinsics = Intrinsics.from_fov(*self.receiver.size, hfov)
+        if self.mav is not None:
+            if not self.poses.telemetry.has_gimbal:
+                messages.add(
+                    "MAVLink: no gimbal attitude (GIMBAL_DEVICE_ATTITUDE_STATUS, MOUNT_STATUS): the camera is taken to look along the vehicle's nose"
+                )
+            self.lag = LagEstimator(self.poses, self.intrinsics, messages).start()
+        return mesh
+
+    def camera_at(self, t: float) -> tuple[Camera | None, str]:
+        """The camera of media time t (s) from what has arrived, and its state (fresh, stale,
+        none): the last camera drawn stands in for a missing one."""
+        pose = self.poses.at(t, self.frame, self.intrinsics, self.options.far_m)
+        return pose.camera or self.last_camera, pose.state
+
+    def take(self, now: float) -> tuple[Arrival, float, Camera, str] | None:
+        """The frame due at now with when it was due, its camera and the pose's state; None
+        when none is due, or no pose has arrived yet (nothing to project from)."""
+        with self.receiver.lock:
+            item = self.buffer.take(now)
+            due = self.buffer.due_at(item) if item is not None else now
+        if item is None:
+            return None
+        camera, state = self.camera_at(item.pts_s)
+        run = self.run
+        if state == STALE:
+            run.stale += 1
+            feed = "MAVLink telemetry" if self.mav is not None else "KLV"
+            run.messages.add_once(
+                "stale",
+                f"frames drawn with a stale pose (the {feed} lags behind the video by more than the buffer): counted",
+            )
+        elif state == NONE:
+            run.without_pose += 1
+        if camera is None:
+            return None
+        self.last_camera, self.last_shown = camera, item
+        return item, due, camera, state
+
+    def discard_due(self, now: float) -> int:
+        """Frames due now taken away unshown and uncounted (JitterBuffer.discard_due)."""
+        with self.receiver.lock:
+            return self.buffer.discard_due(now)
+
+    def recorded_frame(self, t: float) -> Arrival | None:
+        """The frame of media time t (s), decoded from the rolling recording (scrubbing back);
+        None when nothing recorded holds it or it cannot be read (a segment being written can
+        end in half a packet)."""
+        rec, origin = self.recorder, self.receiver.origin_s
+        if not isinstance(rec, SegmentRecorder) or origin is None:
+            return None
+        segment = rec.holding(t + origin)
+        if segment is None:
+            return None
+        try:
+            with av.open(str(segment.path)) as c:
+                stream = c.streams.video[0]
+                frame = decode_at(c, stream, t + origin, REVIEW_TOLERANCE_S)
+                if frame is None:
+                    return None
+                pts = media_seconds(frame.pts, stream.time_base, origin)
+                return Arrival(pts, math.nan, yuv_planes(frame))
+        except (av.FFmpegError, OSError, IndexError):
+            return None
+
+    def next_wake(self, now: float) -> float:
+        """When the next pending frame is due (clock s); a little after now when none waits."""
+        with self.receiver.lock:
+            wake = self.buffer.next_due()
+        return wake if wake is not None else now + 0.005
+
+    def update_counts(self) -> LiveRun:
+        """The run's counts brought up to date (any time, from the drawing thread)."""
+        run, c = self.run, self.receiver.counts
+        run.received, run.undecodable, run.missing = c.frames, c.undecodable, c.missing
+        b = self.buffer
+        run.skipped, run.late, run.overflow = b.skipped, b.late, b.overflow
+        run.bad_klv = self.receiver.track.counts.bad
+        run.reconnects = max(c.connects - 1, 0)
+        run.origin_s = self.receiver.origin_s
+        if run.mavlink is not None:
+            run.mavlink.used = dict(self.poses.telemetry.counts.used)
+            run.mavlink.gimbal = self.poses.telemetry.has_gimbal
+            if self.lag is not None:
+                run.mavlink.lag_s = self.lag.lag_s
+                run.mavlink.estimates_s = [-e.offset_s for e in self.lag.estimates]
+        return run
+
+    def stop(self) -> LiveRun:
+        """Everything stopped and closed (the recording kept); the final counts."""
+        self.receiver.stop()
+        if self.lag is not None:
+            self.lag.stop()
+        if self.mav is not None:
+            self.mav.stop()
+        if self.recorder is not None:
+            self.recorder.close()
+        return self.update_counts()

@@ -1,0 +1,221 @@
+"""A live stream in the viewer (`geofuse view URL`, the Session panel's "Open stream"): the feed
+of app.live.feed drawn in the window, recorded as it arrives in rolling segments, reviewable.
+
+Each frame, following the live edge, the newest frame due from the jitter buffer is drawn with
+the camera of its own time; the display never waits on the network. Scrubbing back ("review")
+shows the frame of any moment that has arrived, decoded from the recording, with its pose;
+frames keep arriving and being recorded meanwhile (not shown, not counted as dropped), and
+"Live" returns to the edge. Latency (arrival -> shown) is measured on the window's swap.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from pathlib import Path
+
+import numpy as np
+
+from app.camera.pinhole import Camera
+from app.core.messages import ERROR, WARNING
+from app.geodesy import rotations
+from app.live.buffer import Arrival
+from app.live.feed import Drawn, LiveFeed, LiveOptions, LiveRun
+from app.render.renderer import FusionRenderer
+from app.render.still import ThirdPerson
+from app.ui.navigation import Navigator
+
+log = logging.getLogger("geofuse.viewer")
+DRAWN_KEPT = 900  # frames whose latency the Stats panel summarises (30 s at 30 fps)
+LIVE_FOLDER = Path("out/live")
+
+
+def is_stream(text: str) -> bool:
+    """Whether what was typed or given is a stream URL (udp://, rtsp://, ...), not a file."""
+    scheme, sep, _ = text.partition("://")
+    return bool(sep) and scheme.isalpha() and len(scheme) > 1
+
+
+@dataclass
+class LiveView:
+    """The open stream: its feed, the renderer (once the first pose has placed the scene), the
+    moment under review (None: following the live edge) and the frame waiting for its swap."""
+
+    feed: LiveFeed
+    folder: Path
+    opened_s: float
+    renderer: FusionRenderer | None = None
+    review_s: float | None = None
+    reviewed_s: float | None = None  # the media time of the reviewed frame on the renderer
+    shown_s: float | None = None  # media time of the frame on the renderer
+    pending: Drawn | None = None
+    ended: str = ""
+    pose_states: dict[str, int] = field(default_factory=dict)
+
+    @property
+    def run(self) -> LiveRun:
+        return self.feed.run
+
+    def recorded_span(self) -> tuple[float, float] | None:
+        """(first, last) media seconds of the video recorded so far, None before any."""
+        rec, origin = self.feed.recorder, self.feed.receiver.origin_s
+        segments = getattr(rec, "segments", [])
+        spans = [s for s in segments if s.first_s is not None]
+        if origin is None or not spans:
+            return None
+        return spans[0].first_s - origin, max(s.last_s for s in spans) - origin
+
+
+def open_stream(v, url: str, options: LiveOptions | None = None) -> None:
+    """Receive `url` in the window (closing what was open), recording it under out/live/."""
+    close(v)
+    v.close_session()
+    stamp = datetime.now(UTC).strftime("%Y%m%d-%H%M%S")
+    folder = LIVE_FOLDER / stamp
+    base = options or LiveOptions()
+    opts = LiveOptions(
+        **{**base.__dict__, "segments": folder, "record": None, "layers": v.options.layers}
+    )
+    run = LiveRun(url, drawn=deque(maxlen=DRAWN_KEPT), delay_s=opts.delay_s)
+    feed = LiveFeed(url, opts, run, clock=time.perf_counter).start()
+    v.live = LiveView(feed, folder, time.perf_counter())
+    v.ui.info, v.ui.warnings = [f"receiving {url}; recording in {folder}/"], []
+    v._messages_seen = 0
+    log.info("receiving %s, recording in %s", url, folder)
+
+
+def close(v) -> None:
+    """Stop the stream (the recording is kept and said)."""
+    L = v.live
+    if L is None:
+        return
+    run = L.feed.stop()
+    if L.renderer is not None:
+        L.renderer.release()
+    v.live = None
+    log.info("%s", run.summary())
+    v.ui.info.append(f"{run.url} closed: {run.summary()} (recorded in {L.folder}/)")
+
+
+def home(projector: Camera) -> Navigator:
+    """The window camera behind and above the first projector, looking at where its optical
+    axis meets the local ground (ENU height 0, the feed's frame; 35 m ahead at least): an
+    aircraft's view and what it covers in one picture; free to move from there."""
+    forward = rotations.rotate(projector.orientation, [0.0, 0.0, -1.0])
+    height = float(projector.position[2])
+    ahead = float(np.clip(height / max(-forward[2], 0.05), 35.0, 3000.0))
+    eye, target = ThirdPerson(0.6 * ahead, 0.35 * ahead, ahead).eye_and_target(projector)
+    nav = Navigator()
+    nav.look_at(np.asarray(eye, np.float64), np.asarray(target, np.float64))
+    nav.home = (nav.position.copy(), nav.yaw, nav.pitch)
+    return nav
+
+
+def review(v, t: float | None) -> None:
+    """Show media time t (s) from the recording (None: back to the live edge)."""
+    L = v.live
+    if t is None:
+        L.review_s = None
+        return
+    span = L.recorded_span()
+    if span is None:
+        raise ValueError("nothing has been recorded yet")
+    L.review_s = float(min(max(t, span[0]), span[1]))
+
+
+def _messages(v) -> None:
+    new = v.live.run.messages.since(v._messages_seen)
+    v._messages_seen += len(new)
+    for m in new:
+        if m.level == ERROR:
+            v.ui.error(m.text)
+        else:
+            (v.ui.warnings if m.level == WARNING else v.ui.info).append(m.text)
+
+
+def update(v) -> None:
+    """This frame's work: build the scene once the feed is ready, then the frame due (or the
+    frame under review) and its camera onto the renderer. A stream runs on the real clock
+    whatever clock the viewer's script set (the network does not wait for it)."""
+    L = v.live
+    feed = L.feed
+    now = feed.clock()
+    _messages(v)
+    if L.renderer is None:
+        if not feed.ready():
+            return
+        try:
+            mesh = feed.build_scene()
+        except Exception as exc:  # a layer that cannot be read: said, the stream kept
+            v.ui.error(f"{feed.url}: cannot build the scene ({exc})")
+            L.ended = str(exc)
+            return
+        L.renderer = FusionRenderer(v.window.ctx, mesh)
+    if L.review_s is None:
+        shown = feed.take(now)
+        if shown is not None:
+            item, due, camera, state = shown
+            if L.shown_s is None:
+                v.nav = home(camera)
+            _show(L, item, camera)
+            L.pending = Drawn(item.pts_s, item.arrival_s, due, math.nan, state)
+            L.reviewed_s = None
+        return
+    feed.discard_due(now)  # arriving frames are recorded, not shown, while reviewing
+    if L.reviewed_s != L.review_s:
+        item = feed.recorded_frame(L.review_s)
+        if item is not None:
+            camera, _ = feed.camera_at(item.pts_s)
+            if camera is not None:
+                _show(L, item, camera)
+        L.reviewed_s = L.review_s
+
+
+def _show(L: LiveView, item: Arrival, camera) -> None:
+    y, u, v_ = item.payload
+    L.renderer.set_video_yuv(y, u, v_, 0, y.shape[0] >= 720)
+    L.renderer.set_projector(camera)
+    L.shown_s = item.pts_s
+
+
+def swapped(v) -> None:
+    """The frame drawn this tick has reached the screen (the window swapped): its latency."""
+    L = v.live
+    if L is None or L.pending is None:
+        return
+    shown_at = L.feed.clock()
+    d = L.pending
+    L.run.add_drawn(Drawn(d.pts_s, d.arrival_s, d.due_s, shown_at, d.pose))
+    L.pose_states[d.pose] = L.pose_states.get(d.pose, 0) + 1
+    L.pending = None
+
+
+def state(v) -> dict:
+    """The open stream for a script's `state`: its figures, what is shown and recorded."""
+    L = v.live
+    run = L.feed.update_counts()
+    span = L.recorded_span()
+    proj = L.renderer.projector if L.renderer is not None else None
+    rec = L.feed.recorder
+    return {
+        "url": run.url,
+        "received": run.received,
+        "drawn": run.frames_drawn,
+        "missing": run.missing,
+        "dropped": run.skipped + run.late + run.overflow,
+        "latency_ms": [run.latency_ms(50), run.latency_ms(95)],
+        "added_ms": [run.added_ms(50), run.added_ms(95)],
+        "poses": dict(L.pose_states),
+        "shown_s": L.shown_s,
+        "review_s": L.review_s,
+        "recorded_s": None if span is None else list(span),
+        "segments": [str(s.path) for s in getattr(rec, "segments", [])],
+        "origin_s": run.origin_s,
+        "frame": None if L.feed.frame is None else [L.feed.frame.lat_deg, L.feed.frame.lon_deg, L.feed.frame.h_m],
+        "projector": None if proj is None else {"position": list(map(float, proj.position)), "orientation": list(map(float, proj.orientation))},
+        "mavlink_lag_s": None if run.mavlink is None else run.mavlink.lag_s,
+    }  # fmt: skip

@@ -5,6 +5,7 @@ paces the stream) but assert only what must hold whatever the machine's speed.""
 
 from __future__ import annotations
 
+import errno
 import socket
 import subprocess
 import sys
@@ -97,6 +98,16 @@ def feed(tmp_path_factory) -> Path:
     return write_feed(tmp_path_factory.mktemp("live") / "feed.ts", 3.0, (320, 180))
 
 
+def port_held(port: int) -> bool:
+    """Whether someone (a receiver) holds the UDP port on the loopback."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        try:
+            s.bind(("127.0.0.1", port))
+        except OSError as exc:
+            return exc.errno == errno.EADDRINUSE
+    return False
+
+
 def _wait_until(condition, limit_s: float = 60.0) -> bool:
     """Polls a condition (the limit only keeps a broken receiver from hanging the test)."""
     end = time.monotonic() + limit_s
@@ -119,10 +130,12 @@ def _run_with_sender(feed: Path, tmp_path: Path, sender_kwargs: dict, **options)
 
     opts = LiveOptions(silence_s=2.0, size=(160, 90), record=tmp_path / "rec.ts", **options)
 
-    # the sender starts once the receiver listens: the first time the clock is read after start
+    # the sender starts once the receiver listens: the first time the clock is read after start,
+    # once the receiver's socket holds the port (a busy machine opens it late)
     def clock() -> float:
         if not started:
             started.append(True)
+            _wait_until(lambda: port_held(port), 30.0)
             sender.start()
         return time.monotonic()
 
@@ -226,9 +239,13 @@ def test_live_refuses_a_file_path_naming_what_it_expects(tmp_path, capsys):
     assert "expected a stream URL" in capsys.readouterr().err
 
 
-def test_view_says_where_streams_go_instead_of_failing_on_a_url(capsys):
-    assert main(["view", "udp://127.0.0.1:5600"]) == 2
-    assert "geofuse live URL --record" in capsys.readouterr().err
+def test_view_refuses_a_stream_beside_files_and_a_protocol_this_ffmpeg_lacks(capsys):
+    """(The window receiving a stream: tests/test_live_viewer.py.)"""
+    assert main(["view", "udp://127.0.0.1:5600", "other.mp4"]) == 2
+    assert "a stream opens alone" in capsys.readouterr().err
+    if protocols_missing("srt://127.0.0.1:9000") is not None:
+        assert main(["view", "srt://127.0.0.1:9000"]) == 2
+        assert "was built without srt://" in capsys.readouterr().err
 
 
 def test_a_recording_killed_mid_flight_is_still_a_clip(tmp_path):
@@ -247,6 +264,7 @@ def test_a_recording_killed_mid_flight_is_still_a_clip(tmp_path):
     sender = Sender(feed.read_bytes(), ("127.0.0.1", port))
     try:
         assert proc.stdout.readline().startswith("receiving")  # it is about to listen
+        assert _wait_until(lambda: port_held(port), 60.0)
         sender.start()
         assert _wait_until(lambda: record.is_file() and record.stat().st_size > 40_000, 60.0)
         proc.kill()
@@ -257,3 +275,31 @@ def test_a_recording_killed_mid_flight_is_still_a_clip(tmp_path):
             proc.kill()
     clip = open_clip(record)
     assert len(clip.video.pts_s) >= 10 and "telemetry" in clip.recorded
+
+
+def test_rolling_segments_start_at_keyframes_and_each_opens_as_a_clip(feed, tmp_path):
+    """The viewer's recording: a new segment at the first keyframe a segment's length after the
+    last began (the feed has a keyframe a second); every frame kept once, each segment a clip
+    with its KLV poses, and `holding` names the segment of a moment."""
+    import av
+
+    from app.io.klv_track import klv_streams
+    from app.live.recorder import SegmentRecorder
+
+    rec = SegmentRecorder(tmp_path / "live", segment_s=1.0)
+    with av.open(str(feed)) as c:
+        video, klv = c.streams.video[0], klv_streams(c)[0]
+        rec.add_input(video, klv)
+        for packet in c.demux(video, klv):
+            if packet.size:
+                rec.write(packet, "video" if packet.stream is video else "klv")
+    rec.close()
+    assert len(rec.segments) == 3
+    frames = 0
+    for k, segment in enumerate(rec.segments):
+        clip = open_clip(segment.path)
+        assert "telemetry" in clip.recorded
+        frames += len(clip.video.pts_s)
+        assert segment.first_s == pytest.approx(clip.video.origin_s, abs=1e-6)
+        assert rec.holding(segment.first_s + 0.5) is segment, k
+    assert frames == 90

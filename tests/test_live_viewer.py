@@ -6,9 +6,7 @@ meets the ground."""
 
 from __future__ import annotations
 
-import errno
 import json
-import socket
 import threading
 import time
 
@@ -24,21 +22,12 @@ from app.geodesy.enu import LocalFrame
 from app.io.video import decode_at, probe
 from app.simulate.feed import Orbit, Sender, free_udp_port, write_feed
 from tests.conftest import run_viewer
+from tests.test_live import port_held
 
 pytestmark = pytest.mark.gl
 
 ORBIT = Orbit()
 SIZE = (320, 180)
-
-
-def _bound(port: int) -> bool:
-    """Whether someone (the viewer's receiver) holds the UDP port."""
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        try:
-            s.bind(("127.0.0.1", port))
-        except OSError as exc:
-            return exc.errno == errno.EADDRINUSE
-    return False
 
 
 @pytest.fixture(scope="module")
@@ -50,7 +39,7 @@ def live_window(display, tmp_path_factory):
 
     def send_once_listening():  # the viewer takes seconds to start; the feed waits for it
         end = time.monotonic() + 120.0
-        while not _bound(port) and time.monotonic() < end:
+        while not port_held(port) and time.monotonic() < end:
             time.sleep(0.05)
         sender.start()
 

@@ -21,6 +21,7 @@ from app.live.run import LiveOptions, run_live
 from app.simulate import autopilot, drone
 from app.simulate.feed import Sender, free_udp_port
 from app.simulate.stadium import SITE_ORIGIN
+from tests.test_live import port_held
 
 
 def _hpr(q: np.ndarray) -> np.ndarray:
@@ -137,6 +138,10 @@ def test_live_video_posed_by_mavlink_with_its_lag_estimated_while_flying(downlin
     def clock() -> float:  # both senders start once the receivers listen
         now = time.monotonic()
         if not telemetry:
+            end = now + 30.0
+            while not port_held(video_port) and time.monotonic() < end:
+                time.sleep(0.01)
+            now = time.monotonic()
             sender.start()
             telemetry.append(
                 autopilot.MavlinkSender(

@@ -217,10 +217,10 @@ def _view(v, arg, now) -> None:
         v.nav.reset()
     elif arg == "orbit":
         v.orbit_pick()  # as the O key: around the point under the cursor
-    elif arg in ("free", "phone"):
+    elif arg in ("free", "phone", "follow"):
         v.nav.mode = arg
     else:
-        raise ValueError(f"expected free, orbit, phone or reset, got {arg!r}")
+        raise ValueError(f"expected free, orbit, phone, follow or reset, got {arg!r}")
 
 
 def _look(v, arg, now) -> None:
@@ -349,7 +349,9 @@ COMMANDS: dict[str, Command] = {
         True,
         "projection-error colours",
     ),
-    "view": Command(_view, False, True, "free | orbit | phone | reset"),
+    "view": Command(
+        _view, False, True, "free | orbit | phone | follow (behind the projector) | reset"
+    ),
     "look": Command(
         _look,
         False,

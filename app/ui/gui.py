@@ -1,6 +1,6 @@
 """The viewer's ImGui: ImGui and ImPlot on the window, and the docked layout. The panels dock
 around the 3D view (imgui-bundle's docking): Session, Attitude, Projection and Export as tabs at
-the top left, Error inspection and Stats below them, the Timeline along the bottom. The 3D view is
+the top left, Error inspection and Stats below them, the Timeline (a stream's Live panel) along the bottom. The 3D view is
 the dock space's central node and keeps about two thirds of the window; the user may move,
 collapse and re-dock panels, and the layout is remembered between runs in
 $XDG_CONFIG_HOME/geofuse/imgui.ini (never in the user's working folder).
@@ -105,6 +105,7 @@ class Gui:
         for name in LOWER_PANELS:
             internal.dock_builder_dock_window(name, lower)
         internal.dock_builder_dock_window("Timeline", bottom)
+        internal.dock_builder_dock_window("Live", bottom)  # a stream's timeline
         internal.dock_builder_finish(self.dock_id)
 
     def render(self) -> None:

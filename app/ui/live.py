@@ -18,16 +18,12 @@ from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
 
-import numpy as np
-
 from app.camera.pinhole import Camera
 from app.core.messages import ERROR, WARNING
-from app.geodesy import rotations
 from app.live.buffer import Arrival
 from app.live.feed import Drawn, LiveFeed, LiveOptions, LiveRun
 from app.render.renderer import FusionRenderer
-from app.render.still import ThirdPerson
-from app.ui.navigation import Navigator
+from app.ui.navigation import Navigator, chase
 
 log = logging.getLogger("geofuse.viewer")
 DRAWN_KEPT = 900  # frames whose latency the Stats panel summarises (30 s at 30 fps)
@@ -102,16 +98,13 @@ def close(v) -> None:
 
 
 def home(projector: Camera) -> Navigator:
-    """The window camera behind and above the first projector, looking at where its optical
-    axis meets the local ground (ENU height 0, the feed's frame; 35 m ahead at least): an
-    aircraft's view and what it covers in one picture; free to move from there."""
-    forward = rotations.rotate(projector.orientation, [0.0, 0.0, -1.0])
-    height = float(projector.position[2])
-    ahead = float(np.clip(height / max(-forward[2], 0.05), 35.0, 3000.0))
-    eye, target = ThirdPerson(0.6 * ahead, 0.35 * ahead, ahead).eye_and_target(projector)
+    """The window camera of a stream: following the aircraft (app.ui.navigation.chase), its
+    reset the chase view of the first frame; moving or looking roams freely from there."""
+    eye, target = chase(projector)
     nav = Navigator()
-    nav.look_at(np.asarray(eye, np.float64), np.asarray(target, np.float64))
+    nav.look_at(eye, target)
     nav.home = (nav.position.copy(), nav.yaw, nav.pitch)
+    nav.mode = "follow"
     return nav
 
 

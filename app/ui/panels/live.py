@@ -24,6 +24,10 @@ def draw(v, now: float) -> None:
             if imgui.button("Live"):
                 run(v, "live", "edge", now)
         imgui.same_line()
+        changed, on = imgui.checkbox("follow", v.nav.mode == "follow")
+        if changed:
+            run(v, "view", "follow" if on else "free", now)
+        imgui.same_line()
         behind = (
             ""
             if span is None or L.shown_s is None

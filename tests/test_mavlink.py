@@ -177,7 +177,10 @@ def test_live_video_posed_by_mavlink_with_its_lag_estimated_while_flying(downlin
     joined_s = run.origin_s - first / 90000.0
     true_lag = video_late - (telemetry[0].start_s - LEAD_S)
     assert run.mavlink.lag_s is not None, said
-    assert true_lag - 0.03 < run.mavlink.lag_s < true_lag + 1 / 30 + 0.04, said
+    # The lag that matters is the receiver's (its demuxer hands a frame over when the next one
+    # begins, its decoder and clock add their own): a little more than the senders made. What
+    # must be exact is what it does to the poses drawn (below).
+    assert true_lag - 0.03 < run.mavlink.lag_s < true_lag + 0.12, said
     # Frames drawn once the lag is applied (two agreeing fits of 10 s windows) wear the pose of their
     # own flight time: heading within 1 deg (uncorrected, the lag would put it several off),
     # the position within 0.5 m (9 m/s: a 0.3 s lag would be 2.7 m).

@@ -27,6 +27,7 @@ def run(args: argparse.Namespace) -> int:
         origin=tuple(args.origin) if args.origin else None,
         mavlink=args.mavlink,
         hfov_deg=args.fov,
+        register=args.register,
     )
     beside = f", MAVLink from {args.mavlink}" if args.mavlink else ""
     print(f"receiving {args.url} (jitter buffer {args.buffer_ms:g} ms){beside}", flush=True)

@@ -286,6 +286,12 @@ def _stream_options(p: argparse.ArgumentParser) -> None:
         default=None,
         help="a stream camera's horizontal field of view, degrees, where the feed does not say it (default: the KLV's, else 73.7)",
     )
+    p.add_argument(
+        "--no-register",
+        dest="register",
+        action="store_false",
+        help="a stream over a textured scene: do not register keyframes against it (by default they are, in the background, the correction applied forward)",
+    )
 
 
 def _live(sub: Commands) -> None:

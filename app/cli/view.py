@@ -35,6 +35,7 @@ def run(args: argparse.Namespace) -> int:
         origin=tuple(args.origin) if args.origin else None,
         mavlink=args.mavlink,
         hfov_deg=args.fov,
+        register=args.register,
     )
     paths = [Path(x) for x in inputs if not is_stream(x)]
     return Viewer(

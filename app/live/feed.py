@@ -5,7 +5,9 @@ due with the camera of its own time, never waiting on the network.
 
 Poses come from the stream's own KLV, or, given `mavlink`, from MAVLink telemetry beside it
 (app.live.mavlink), its lag behind the video estimated as it flies (app.live.lag). A frame
-whose pose is stale or missing is drawn with the last camera (counted, said once).
+whose pose is stale or missing is drawn with the last camera (counted, said once). Over a
+textured scene, keyframes are registered in the background and their correction applied
+forward (app.live.register); over an assumed ground or a grey model, it says why not, once.
 """
 
 from __future__ import annotations
@@ -35,8 +37,10 @@ from app.live.mavlink import MavlinkReceiver
 from app.live.pose import NONE, STALE, LivePoses, MavlinkPoses
 from app.live.receiver import Receiver
 from app.live.recorder import Recorder, SegmentRecorder
+from app.live.register import LiveCorrection, LiveRegistration
 from app.playback.decoder import yuv_planes
 from app.scene.mesh import MeshData
+from app.session.model import scene_refusal
 
 REVIEW_TOLERANCE_S = 0.02  # a reviewed frame is the first at or after the time asked, less this
 
@@ -101,6 +105,7 @@ class LiveRun:
     origin_s: float | None = None  # the stream-clock seconds of media time 0
     frame: LocalFrame | None = None  # the local ENU frame the cameras are in
     mavlink: MavlinkSummary | None = None
+    registration: LiveCorrection | None = None
     messages: Messages = field(default_factory=Messages)
 
     def add_drawn(self, d: Drawn) -> None:
@@ -121,6 +126,8 @@ class LiveRun:
     def summary(self) -> str:
         """The one line `geofuse live` prints at the end."""
         mavlink = f"; {self.mavlink.line()}" if self.mavlink is not None else ""
+        if self.registration is not None:
+            mavlink += f"; {self.registration.line()}"
         return (
             f"{self.url}: {self.received} frames received ({self.missing} lost on the way), "
             f"{self.frames_drawn} drawn, "
@@ -152,6 +159,7 @@ class LiveOptions:
     mavlink: str | None = None
     hfov_deg: float | None = None
     segments: Path | None = None  # the viewer's rolling recording: a folder of segments
+    register: bool = True  # register keyframes against a textured scene, forward only
 
 
 def scene_for(poses: LivePoses | MavlinkPoses, options: LiveOptions, messages: Messages):
@@ -198,6 +206,7 @@ class LiveFeed:
         self.intrinsics: Intrinsics | None = None
         self.last_camera: Camera | None = None
         self.last_shown: Arrival | None = None
+        self.registration: LiveRegistration | None = None
 
     def start(self) -> LiveFeed:
         o, messages = self.options, self.run.messages
@@ -253,13 +262,28 @@ class LiveFeed:
                     "MAVLink: no gimbal attitude (GIMBAL_DEVICE_ATTITUDE_STATUS, MOUNT_STATUS): the camera is taken to look along the vehicle's nose"
                 )
             self.lag = LagEstimator(self.poses, self.intrinsics, messages).start()
+        if o.register:
+            refusal = scene_refusal(mesh if o.layers else None, o.layers)
+            if refusal is None:
+                self.registration = LiveRegistration(mesh, messages).start()
+                self.run.registration = self.registration.state
+            else:
+                messages.info(f"live registration off: {refusal}")
         return mesh
 
     def camera_at(self, t: float) -> tuple[Camera | None, str]:
-        """The camera of media time t (s) from what has arrived, and its state (fresh, stale,
-        none): the last camera drawn stands in for a missing one."""
+        """The camera of media time t (s) from what has arrived, corrected by the registration
+        in force, and its state (fresh, stale, none): the last camera drawn stands in for a
+        missing one."""
+        camera = self._telemetry_camera(t)
+        if camera is None:
+            return self.last_camera, NONE
+        reg = self.registration
+        return (reg.correct(camera[0]) if reg is not None else camera[0]), camera[1]
+
+    def _telemetry_camera(self, t: float) -> tuple[Camera, str] | None:
         pose = self.poses.at(t, self.frame, self.intrinsics, self.options.far_m)
-        return pose.camera or self.last_camera, pose.state
+        return None if pose.camera is None else (pose.camera, pose.state)
 
     def take(self, now: float) -> tuple[Arrival, float, Camera, str] | None:
         """The frame due at now with when it was due, its camera and the pose's state; None
@@ -269,7 +293,10 @@ class LiveFeed:
             due = self.buffer.due_at(item) if item is not None else now
         if item is None:
             return None
+        raw = self._telemetry_camera(item.pts_s)
         camera, state = self.camera_at(item.pts_s)
+        if raw is not None and self.registration is not None:
+            self.registration.offer(item.pts_s, item.payload, raw[0])
         run = self.run
         if state == STALE:
             run.stale += 1
@@ -337,6 +364,8 @@ class LiveFeed:
     def stop(self) -> LiveRun:
         """Everything stopped and closed (the recording kept); the final counts."""
         self.receiver.stop()
+        if self.registration is not None:
+            self.registration.stop()
         if self.lag is not None:
             self.lag.stop()
         if self.mav is not None:

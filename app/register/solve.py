@@ -43,6 +43,7 @@ from app.register.points import (
     solve_control,
 )
 from app.render.views import ModelViews
+from app.scene.mesh import MeshData
 from app.session.camera_track import CameraTrack, camera_track
 from app.session.model import REGISTERED, Session
 
@@ -189,10 +190,26 @@ class Registrar:
         refusal = session.registration_refusal()
         if refusal is not None:
             raise GeofuseError(f"{session.path}: {refusal}")
+        self._start(session.scene(), settings, ctx, background)
+        self.session = session
+
+    @classmethod
+    def of_scene(
+        cls,
+        mesh: MeshData,
+        settings: RegistrationSettings = RegistrationSettings(),
+        background: bool = False,
+    ) -> Registrar:
+        """A registrar of single keyframes (`keyframe`) against a scene without a session (a
+        live feed's, app.live.register); `run` needs a session. Its GL context is its own."""
+        self = cls.__new__(cls)
+        self._start(mesh, settings, None, background)
+        self.session = None
+        return self
+
+    def _start(self, mesh: MeshData, settings, ctx, background: bool) -> None:
         if background:
             _lower_priority()
-        mesh = session.scene()
-        self.session = session
         self.settings = settings
         self.views = ModelViews(mesh, ctx)
         self.matcher = Matcher(settings.match)

@@ -170,16 +170,7 @@ class Session:
         """Why the video cannot be registered against this scene (None: it can): an assumed flat
         ground has nothing to register against; a scene without texture (a grey model, a bare
         DEM) gives the matcher nothing to match. Streamed tilesets are taken as textured."""
-        if not self.layers:
-            return "the scene is an assumed flat ground: there is nothing to register the video against (name a model, tileset or DEM)"
-        mesh = self.scene()
-        if not mesh.tilesets and not any(p.textured for p in mesh.primitives):
-            names = ", ".join(layer.name for layer in self.layers)
-            return (
-                f"the scene ({names}) has no texture: registration matches the video against the model's textures, "
-                "and a grey model or a bare DEM has none (give the DEM an orthophoto, or use a textured model)"
-            )
-        return None
+        return scene_refusal(self.scene() if self.layers else None, self.layers)
 
     def utc_of(self, session_s: float) -> float | None:
         """Unix seconds (UTC) at session time session_s: from the camera's own clock
@@ -247,3 +238,18 @@ def device_attitude(
             pos.t, pos.vel_enu, t, q, session.camera_mount(), session.messages
         )
     return t, q
+
+
+def scene_refusal(mesh, layers) -> str | None:
+    """Why a video cannot be registered against this scene (mesh: its MeshData, None for an
+    assumed flat ground; layers: what it was made of), None when it can (a session's, and a live
+    feed's, app.live.register)."""
+    if mesh is None or not layers:
+        return "the scene is an assumed flat ground: there is nothing to register the video against (name a model, tileset or DEM)"
+    if not mesh.tilesets and not any(p.textured for p in mesh.primitives):
+        names = ", ".join(layer.name for layer in layers)
+        return (
+            f"the scene ({names}) has no texture: registration matches the video against the model's textures, "
+            "and a grey model or a bare DEM has none (give the DEM an orthophoto, or use a textured model)"
+        )
+    return None

@@ -11,6 +11,7 @@ sync` (the GNSS lag found from the course)."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
@@ -59,15 +60,19 @@ def write_video(
     size: tuple[int, int] = (320, 180),
     crf: int = 20,
     path_of=flight,
+    klv: Sequence[tuple[float, bytes]] = (),
 ) -> Path:
     """The drone's video: the sample scene seen from the flight (path_of(t) -> positions,
-    headings, as `flight`), at FPS, width x height pixels."""
+    headings, as `flight`), at FPS, width x height pixels; klv: (time s, payload) packets beside
+    it (a .ts: a drone's downlink)."""
 
     t = np.arange(0.0, duration_s, 1.0 / FPS)
     pos, heading = path_of(t)
     q = rotations.camera_quat_from_hpr(heading, np.full(len(t), PITCH_DEG), np.zeros(len(t)))
     mesh = load_scene(SAMPLE_DIR / "scene.glb", LocalFrame(*SITE_ORIGIN))
-    return render_video(path, mesh, Intrinsics.from_fov(*size, HFOV_DEG), pos, q, t, crf=crf)
+    return render_video(
+        path, mesh, Intrinsics.from_fov(*size, HFOV_DEG), pos, q, t, crf=crf, klv=klv
+    )
 
 
 def srt_text(duration_s: float, lag_s: float, path_of=flight) -> str:

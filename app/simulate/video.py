@@ -4,7 +4,7 @@ app.simulate.phone.write_video at the given presentation times."""
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -33,13 +33,14 @@ def render_video(
     before_frame: Callable[[object, int], None] | None = None,
     light_dir: np.ndarray | None = None,
     after_frame: Callable[[np.ndarray, int], np.ndarray] | None = None,
+    klv: Sequence[tuple[float, bytes]] = (),
 ) -> Path:
     """An H.264 MP4 of `mesh` (ENU metres) seen through `intr` (the displayed image's pinhole)
         from positions (N, 3) ENU m and camera -> ENU quaternions (N, 4) at presentation times pts
         (N,) s; stored turned back by rotation_cw as a phone would. before_frame(renderer, k) may move
         things in the scene before frame k is drawn; light_dir (ENU, toward the light) lights the scene
     otherwise than the viewer does; after_frame(rgb, k) -> rgb applies the camera's own effects
-    (blur, noise) to the drawn frame."""
+    (blur, noise) to the drawn frame; klv: (time s, payload) packets muxed beside it (a .ts)."""
 
     ctx = create_offscreen_context()
     renderer = FusionRenderer(ctx, mesh)
@@ -59,7 +60,14 @@ def render_video(
     stored = (intr.height, intr.width) if rotation_cw % 180 else (intr.width, intr.height)
     try:
         write_video(
-            path, pts, stored, rotation_cw, creation_time=creation_time, frame=frame_at, crf=crf
+            path,
+            pts,
+            stored,
+            rotation_cw,
+            creation_time=creation_time,
+            frame=frame_at,
+            crf=crf,
+            klv=klv,
         )
     finally:
         target.release()

@@ -211,4 +211,5 @@ def state(v) -> dict:
         "frame": None if L.feed.frame is None else [L.feed.frame.lat_deg, L.feed.frame.lon_deg, L.feed.frame.h_m],
         "projector": None if proj is None else {"position": list(map(float, proj.position)), "orientation": list(map(float, proj.orientation))},
         "mavlink_lag_s": None if run.mavlink is None else run.mavlink.lag_s,
+        "registration": None if run.registration is None else run.registration.line(),
     }  # fmt: skip

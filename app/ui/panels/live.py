@@ -49,6 +49,8 @@ def draw(v, now: float) -> None:
         imgui.text(
             f"poses: stale {stale}, none {L.pose_states.get('none', 0)}, bad KLV sets {r.bad_klv}, reconnects {r.reconnects}"
         )
+        if r.registration is not None:
+            imgui.text_wrapped(r.registration.line())
         if r.mavlink is not None:
             lag = "estimating..." if r.mavlink.lag_s is None else f"{1000 * r.mavlink.lag_s:.0f} ms"
             imgui.text(f"MAVLink: the video lags the telemetry by {lag}")

@@ -121,3 +121,17 @@ def session_dir(tmp_path_factory):
     folder = tmp_path_factory.mktemp("phone")
     write_session(folder, walking_pan(), duration_s=20.0)
     return folder
+
+
+def state_camera(wc: dict):
+    """The window camera a viewer's `state` JSON describes (its "window_camera")."""
+    from app.camera.intrinsics import Intrinsics
+    from app.camera.pinhole import Camera
+
+    return Camera.create(
+        Intrinsics(*wc["size"], wc["fx"], wc["fy"], wc["cx"], wc["cy"]),
+        wc["position"],
+        wc["orientation"],
+        wc["near"],
+        wc["far"],
+    )

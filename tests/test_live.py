@@ -108,6 +108,21 @@ def port_held(port: int) -> bool:
     return False
 
 
+def sending_clock(sender: Sender, port: int):
+    """A clock for run_live that starts `sender` the first time it is read (after the receiver
+    has started), once the receiver's socket holds `port` (a busy machine opens it late)."""
+    started = []
+
+    def clock() -> float:
+        if not started:
+            started.append(True)
+            _wait_until(lambda: port_held(port), 30.0)
+            sender.start()
+        return time.monotonic()
+
+    return clock
+
+
 def _wait_until(condition, limit_s: float = 60.0) -> bool:
     """Polls a condition (the limit only keeps a broken receiver from hanging the test)."""
     end = time.monotonic() + limit_s
@@ -123,23 +138,13 @@ def _run_with_sender(feed: Path, tmp_path: Path, sender_kwargs: dict, **options)
     url = f"udp://127.0.0.1:{port}"
     sender = Sender(feed.read_bytes(), ("127.0.0.1", port), **sender_kwargs)
     cameras = []
-    started = []
 
     def on_drawn(d, camera):
         cameras.append((d, camera))
 
     opts = LiveOptions(silence_s=2.0, size=(160, 90), record=tmp_path / "rec.ts", **options)
 
-    # the sender starts once the receiver listens: the first time the clock is read after start,
-    # once the receiver's socket holds the port (a busy machine opens it late)
-    def clock() -> float:
-        if not started:
-            started.append(True)
-            _wait_until(lambda: port_held(port), 30.0)
-            sender.start()
-        return time.monotonic()
-
-    run = run_live(url, opts, clock=clock, on_drawn=on_drawn)
+    run = run_live(url, opts, clock=sending_clock(sender, port), on_drawn=on_drawn)
     sender.stop()
     return run, sender, cameras
 

@@ -5,8 +5,6 @@ every frame is drawn within 0.5 m and 0.5 deg of where the camera truly was."""
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 import pytest
 
@@ -19,7 +17,7 @@ from app.simulate import drone
 from app.simulate.feed import Sender, camera_set, free_udp_port
 from app.simulate.sample import SAMPLE_DIR
 from app.simulate.stadium import SITE_ORIGIN
-from tests.test_live import _wait_until, port_held
+from tests.test_live import sending_clock
 
 pytestmark = pytest.mark.gl
 
@@ -53,20 +51,13 @@ def downlink(tmp_path_factory):
 def test_a_biased_feed_is_registered_live_and_drawn_where_the_camera_was(downlink):
     port = free_udp_port()
     sender = Sender(downlink.read_bytes(), ("127.0.0.1", port))
-    started, drawn = [], []
-
-    def clock() -> float:
-        if not started:
-            started.append(True)
-            _wait_until(lambda: port_held(port), 30.0)
-            sender.start()
-        return time.monotonic()
+    drawn = []
 
     scene = Layer.of(SAMPLE_DIR / "scene.glb", placement=Placement(origin=SITE_ORIGIN))
     run = run_live(
         f"udp://127.0.0.1:{port}",
         LiveOptions(silence_s=2.0, size=(160, 90), layers=(scene,)),
-        clock=clock,
+        clock=sending_clock(sender, port),
         on_drawn=lambda d, c: drawn.append((d, c)),
     )
     sender.stop()

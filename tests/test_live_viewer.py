@@ -21,7 +21,7 @@ from app.footage.clips import open_clip
 from app.geodesy.enu import LocalFrame
 from app.io.video import decode_at, probe
 from app.simulate.feed import Orbit, Sender, free_udp_port, write_feed
-from tests.conftest import run_viewer
+from tests.conftest import run_viewer, state_camera
 from tests.test_live import port_held
 
 pytestmark = pytest.mark.gl
@@ -106,13 +106,7 @@ def test_a_texel_of_the_frame_shown_lands_where_the_frustum_says(live_window):
         Intrinsics.from_fov(*SIZE, ORBIT.hfov_deg), p["position"], p["orientation"]
     )
     wc = s["window_camera"]
-    window = Camera.create(
-        Intrinsics(*wc["size"], wc["fx"], wc["fy"], wc["cx"], wc["cy"]),
-        wc["position"],
-        wc["orientation"],
-        wc["near"],
-        wc["far"],
-    )
+    window = state_camera(wc)
     ground = frame.geodetic_to_enu(
         np.array([ORBIT.lat_deg]), np.array([ORBIT.lon_deg]), np.array([ORBIT.ground_h_m])
     )[0][2]

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from tests.conftest import ROOT, run_viewer
+from tests.conftest import ROOT, run_viewer, state_camera
 
 pytestmark = pytest.mark.gl
 
@@ -88,8 +88,6 @@ def test_the_docked_panels_leave_the_3d_view_most_of_the_window(scripted):
 
 
 def test_video_lands_where_an_offscreen_render_puts_it(scripted, gl_ctx):
-    from app.camera.intrinsics import Intrinsics
-    from app.camera.pinhole import Camera
     from app.core.settings import OverlaySettings, ProjectionSettings
     from app.io.video import read_frame
     from app.render.offscreen import render_to_array
@@ -106,13 +104,7 @@ def test_video_lands_where_an_offscreen_render_puts_it(scripted, gl_ctx):
     projector = camera_track(session, state["source"]).frame_camera(k)
     np.testing.assert_allclose(projector.position, state["projector"]["position"], atol=1e-3)
     wc = state["window_camera"]
-    view = Camera.create(
-        Intrinsics(*wc["size"], wc["fx"], wc["fy"], wc["cx"], wc["cy"]),
-        wc["position"],
-        wc["orientation"],
-        wc["near"],
-        wc["far"],
-    )
+    view = state_camera(wc)
     renderer = FusionRenderer(
         gl_ctx, load_scene(session.scene_path, session.frame, session.placement)
     )
@@ -243,8 +235,6 @@ def test_a_tileset_session_in_the_window_matches_the_model_it_was_made_from(
     """The sample's stadium as 3D Tiles (plus a generated city as a second layer) in the window:
     once its tiles are loaded, the screenshot shows what an off-screen render of the same state
     shows, and the tileset's stadium is the sample GLB drawn in place."""
-    from app.camera.intrinsics import Intrinsics
-    from app.camera.pinhole import Camera
     from app.core.settings import OverlaySettings, ProjectionSettings
     from app.io.video import read_frame
     from app.render.offscreen import render_to_array
@@ -284,13 +274,7 @@ def test_a_tileset_session_in_the_window_matches_the_model_it_was_made_from(
     k = state["frame"]
     projector = camera_track(session, state["source"]).frame_camera(k)
     wc = state["window_camera"]
-    view = Camera.create(
-        Intrinsics(*wc["size"], wc["fx"], wc["fy"], wc["cx"], wc["cy"]),
-        wc["position"],
-        wc["orientation"],
-        wc["near"],
-        wc["far"],
-    )
+    view = state_camera(wc)
     none = OverlaySettings(frustum=False, trajectory=False)
     renderer = FusionRenderer(gl_ctx, session.scene())
     try:

@@ -49,6 +49,7 @@ class LiveView:
     reviewed_s: float | None = None  # the media time of the reviewed frame on the renderer
     shown_s: float | None = None  # media time of the frame on the renderer
     pending: Drawn | None = None
+    pose_state: str = ""  # the shown frame's pose: fresh, stale (older than the buffer), none
     ended: str = ""
     pose_states: dict[str, int] = field(default_factory=dict)
 
@@ -155,6 +156,7 @@ def update(v) -> None:
             if L.shown_s is None:
                 v.nav = home(camera)
             _show(L, item, camera)
+            L.pose_state = state
             L.pending = Drawn(item.pts_s, item.arrival_s, due, math.nan, state)
             L.reviewed_s = None
         return

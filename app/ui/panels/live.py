@@ -45,6 +45,13 @@ def draw(v, now: float) -> None:
             f"received {r.received}  drawn {r.frames_drawn}  lost on the way {r.missing}  "
             f"dropped by geofuse {r.skipped + r.late + r.overflow}  undecodable {r.undecodable}"
         )
+        if L.pose_state and L.pose_state != "fresh":
+            imgui.text_colored(
+                colour(AMBER),
+                "pose STALE: the telemetry is older than the frame by more than the buffer"
+                if L.pose_state == "stale"
+                else "no pose for this frame: drawn with the last one",
+            )
         stale = L.pose_states.get("stale", 0)
         imgui.text(
             f"poses: stale {stale}, none {L.pose_states.get('none', 0)}, bad KLV sets {r.bad_klv}, reconnects {r.reconnects}"

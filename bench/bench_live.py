@@ -22,7 +22,6 @@ import json
 import statistics
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
@@ -32,7 +31,7 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from app.live.run import LiveOptions, run_live  # noqa: E402
-from app.simulate.feed import Sender, free_udp_port, write_feed  # noqa: E402
+from app.simulate.feed import Sender, free_udp_port, sending_clock, write_feed  # noqa: E402
 from bench.common import machine, table  # noqa: E402
 
 JOIN_S = 4.0  # the first seconds after joining, while the display catches up the probe's burst
@@ -42,14 +41,6 @@ def one_run(feed: Path, loss: float, seconds: float, buffer_ms: float, seed: int
     """One feed sent and received; the figures of that run."""
     port = free_udp_port()
     sender = Sender(feed.read_bytes(), ("127.0.0.1", port), loss=loss, seed=seed)
-    started: list[bool] = []
-
-    def clock() -> float:
-        if not started:
-            started.append(True)
-            sender.start()
-        return time.monotonic()
-
     with tempfile.TemporaryDirectory() as tmp:
         run = run_live(
             f"udp://127.0.0.1:{port}",
@@ -59,7 +50,7 @@ def one_run(feed: Path, loss: float, seconds: float, buffer_ms: float, seed: int
                 delay_s=buffer_ms / 1000.0,
                 record=Path(tmp) / "rec.ts",
             ),
-            clock=clock,
+            clock=sending_clock(sender, port),
         )
     sender.stop()
     origin = run.origin_s or 0.0

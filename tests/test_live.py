@@ -5,7 +5,6 @@ paces the stream) but assert only what must hold whatever the machine's speed.""
 
 from __future__ import annotations
 
-import errno
 import socket
 import subprocess
 import sys
@@ -26,7 +25,15 @@ from app.live.buffer import Arrival, JitterBuffer
 from app.live.pose import FRESH, NONE, STALE, LivePoses
 from app.live.receiver import Receiver, protocols_missing, stream_url
 from app.live.run import LiveOptions, run_live
-from app.simulate.feed import Orbit, Sender, free_udp_port, orbit_set, write_feed
+from app.simulate.feed import (
+    Orbit,
+    Sender,
+    free_udp_port,
+    orbit_set,
+    port_held,
+    sending_clock,
+    write_feed,
+)
 
 ORBIT = Orbit()
 
@@ -96,31 +103,6 @@ def _up(ecef: np.ndarray) -> np.ndarray:
 def feed(tmp_path_factory) -> Path:
     """3 s of the orbit at 320x180, 30 fps, a KLV set per frame."""
     return write_feed(tmp_path_factory.mktemp("live") / "feed.ts", 3.0, (320, 180))
-
-
-def port_held(port: int) -> bool:
-    """Whether someone (a receiver) holds the UDP port on the loopback."""
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        try:
-            s.bind(("127.0.0.1", port))
-        except OSError as exc:
-            return exc.errno == errno.EADDRINUSE
-    return False
-
-
-def sending_clock(sender: Sender, port: int):
-    """A clock for run_live that starts `sender` the first time it is read (after the receiver
-    has started), once the receiver's socket holds `port` (a busy machine opens it late)."""
-    started = []
-
-    def clock() -> float:
-        if not started:
-            started.append(True)
-            _wait_until(lambda: port_held(port), 30.0)
-            sender.start()
-        return time.monotonic()
-
-    return clock
 
 
 def _wait_until(condition, limit_s: float = 60.0) -> bool:

@@ -14,10 +14,9 @@ from app.live.run import LiveOptions, run_live
 from app.scene.layers import Layer
 from app.scene.loader import Placement
 from app.simulate import drone
-from app.simulate.feed import Sender, camera_set, free_udp_port
+from app.simulate.feed import Sender, camera_set, free_udp_port, sending_clock
 from app.simulate.sample import SAMPLE_DIR
 from app.simulate.stadium import SITE_ORIGIN
-from tests.test_live import sending_clock
 
 pytestmark = pytest.mark.gl
 

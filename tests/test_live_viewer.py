@@ -20,9 +20,8 @@ from app.camera.pinhole import Camera
 from app.footage.clips import open_clip
 from app.geodesy.enu import LocalFrame
 from app.io.video import decode_at, probe
-from app.simulate.feed import Orbit, Sender, free_udp_port, write_feed
+from app.simulate.feed import Orbit, Sender, free_udp_port, port_held, write_feed
 from tests.conftest import run_viewer, state_camera
-from tests.test_live import port_held
 
 pytestmark = pytest.mark.gl
 

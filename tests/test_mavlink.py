@@ -19,9 +19,8 @@ from app.geodesy.geoid import undulation
 from app.io.mavlink import MavlinkTelemetry, camera_quat, gimbal_angles
 from app.live.run import LiveOptions, run_live
 from app.simulate import autopilot, drone
-from app.simulate.feed import Sender, free_udp_port
+from app.simulate.feed import Sender, free_udp_port, port_held
 from app.simulate.stadium import SITE_ORIGIN
-from tests.test_live import port_held
 
 
 def _hpr(q: np.ndarray) -> np.ndarray:

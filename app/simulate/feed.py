@@ -11,6 +11,7 @@ orbit's centre and the slant range is hypot(radius, height).
 
 from __future__ import annotations
 
+import errno
 import math
 import socket
 import struct
@@ -170,6 +171,34 @@ def free_udp_port(host: str = "127.0.0.1") -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.bind((host, 0))
         return int(s.getsockname()[1])
+
+
+def port_held(port: int, host: str = "127.0.0.1") -> bool:
+    """Whether someone (a receiver) holds the UDP port on host."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        try:
+            s.bind((host, port))
+        except OSError as exc:
+            return exc.errno == errno.EADDRINUSE
+    return False
+
+
+def sending_clock(sender: Sender, port: int, limit_s: float = 30.0) -> Callable[[], float]:
+    """A monotonic clock for run_live that starts `sender` the first time it is read (after the
+    receiver has started), once the receiver's socket holds `port` (a busy machine opens it
+    late; at most limit_s)."""
+    started: list[bool] = []
+
+    def clock() -> float:
+        if not started:
+            started.append(True)
+            end = time.monotonic() + limit_s
+            while not port_held(port) and time.monotonic() < end:
+                time.sleep(0.01)
+            sender.start()
+        return time.monotonic()
+
+    return clock
 
 
 TS_PACKET = 188

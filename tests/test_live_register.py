@@ -10,11 +10,12 @@ import pytest
 
 from app.geodesy import rotations
 from app.geodesy.enu import LocalFrame
+from app.io.misb import camera_set
 from app.live.run import LiveOptions, run_live
 from app.scene.layers import Layer
 from app.scene.loader import Placement
 from app.simulate import drone
-from app.simulate.feed import Sender, camera_set, free_udp_port, sending_clock
+from app.simulate.feed import Sender, free_udp_port, sending_clock
 from app.simulate.sample import SAMPLE_DIR
 from app.simulate.stadium import SITE_ORIGIN
 

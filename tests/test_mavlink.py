@@ -13,11 +13,13 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from app.footage.clips import open_clip
 from app.geodesy import rotations
 from app.geodesy.enu import LocalFrame
 from app.geodesy.geoid import undulation
 from app.io.mavlink import MavlinkTelemetry, camera_quat, gimbal_angles
 from app.live.run import LiveOptions, run_live
+from app.session.camera_track import camera_track
 from app.simulate import autopilot, drone
 from app.simulate.feed import Sender, free_udp_port, port_held
 from app.simulate.stadium import SITE_ORIGIN
@@ -128,7 +130,7 @@ def downlink(tmp_path_factory):
     )
 
 
-def test_live_video_posed_by_mavlink_with_its_lag_estimated_while_flying(downlink):
+def test_live_video_posed_by_mavlink_with_its_lag_estimated_while_flying(downlink, tmp_path):
     video_port, mav_port = free_udp_port(), free_udp_port()
     sender = Sender(downlink.read_bytes(), ("127.0.0.1", video_port))
     telemetry: list[autopilot.MavlinkSender] = []
@@ -157,6 +159,7 @@ def test_live_video_posed_by_mavlink_with_its_lag_estimated_while_flying(downlin
             mavlink=f"udp:127.0.0.1:{mav_port}",
             hfov_deg=drone.HFOV_DEG,
             origin=None,
+            record=tmp_path / "flight.ts",
         ),
         clock=clock,
         on_drawn=lambda d, c: drawn.append((d, c)),
@@ -200,3 +203,18 @@ def test_live_video_posed_by_mavlink_with_its_lag_estimated_while_flying(downlin
     assert max(uncorrected) > 3.0  # what the test would miss without the lag
     assert np.median(position_err) < 0.5, position_err
     assert "the video lags the telemetry by" in said
+    # The recording is a clip with poses: the MAVLink pose of each frame written beside it as a
+    # Local Set (with the lag as estimated then), so that solve, export and index take it.
+    clip = open_clip(tmp_path / "flight.ts")
+    track = camera_track(clip, "telemetry")
+    recorded_late = [
+        k
+        for k, t in enumerate(clip.video.pts_s)
+        if t + clip.video.origin_s - first / 90000.0 >= 14.0
+    ]
+    assert len(recorded_late) > 60
+    for k in recorded_late:
+        t = clip.video.pts_s[k] + clip.video.origin_s - first / 90000.0
+        _, heading = FLIGHT(np.array([t]))
+        got = _hpr(np.asarray(track.frame_camera(k).orientation))
+        assert abs((got[0] - heading[0] + 180) % 360 - 180) < 0.6, (t, got, heading)

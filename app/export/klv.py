@@ -20,10 +20,9 @@ import av
 
 from app.camera.frame_time import frame_of
 from app.export.records import FrameRecord
-from app.io.misb import encode, local_set, signed
+from app.io.misb import ST0601_VERSION, encode, local_set, signed
 from app.io.video import VideoInfo
 
-ST0601_VERSION = 17
 CORNER_OFFSET_DEG = 0.075  # ST 0601 offset corners (tags 26-33) cover +-0.075 deg from the centre
 
 

@@ -23,6 +23,7 @@ composes them).
 from __future__ import annotations
 
 import math
+import struct
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 
@@ -36,6 +37,7 @@ KEY_VERSION_BYTE = 7  # the UL's version byte: any value is accepted when readin
 CHECKSUM_TAG = 1
 TIMESTAMP_TAG = 2  # Precision Time Stamp: microseconds since 1970 (UTC), uint64
 VERSION_TAG = 65
+ST0601_VERSION = 17  # the UAS Datalink LS version this writes (tag 65)
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -308,3 +310,37 @@ def camera_from_sensor(r_ned: FloatArray) -> FloatArray:
     z down) are the columns of r_ned in North-East-Down: the one convention ST 0601 and MAVLink
     share (app.io.mavlink uses it too)."""
     return rotations.from_matrix(_NED_TO_ENU @ r_ned @ _CAMERA_IN_SENSOR)
+
+
+def camera_set(
+    utc_s: float,
+    geodetic: tuple[float, float, float],
+    hpr_deg: tuple[float, float, float],
+    hfov_deg: float,
+    ground_h_m: float | None = None,
+) -> bytes:
+    """The Local Set of a camera at a position (lat, lon deg, ellipsoidal h m) with a heading,
+    pitch and roll (deg): the platform level on that heading, the sensor's relative elevation
+    and roll the camera's pitch and roll (as a gimbal on a level aircraft: ST 0601's platform
+    pitch only spans +-20 deg); its field of view, UTC (utc_s: Unix seconds, tag 2), and the
+    ground's ellipsoidal height as the frame centre's (tag 78). What the
+    live recorder writes for a MAVLink flight, and the simulator's downlinks."""
+    lat, lon, h = geodetic
+    heading, pitch, roll = hpr_deg
+    items = [
+        (2, struct.pack(">Q", int(round(utc_s * 1e6)))),
+        (65, bytes([ST0601_VERSION])),
+        (5, encode(5, heading % 360.0)),
+        (6, encode(6, 0.0)),
+        (7, encode(7, 0.0)),
+        (18, encode(18, 0.0)),
+        (19, encode(19, pitch)),
+        (20, encode(20, roll % 360.0)),
+        (13, encode(13, lat)),
+        (14, encode(14, lon)),
+        (75, encode(75, h)),
+        (16, encode(16, hfov_deg)),
+    ]
+    if ground_h_m is not None:
+        items.append((78, encode(78, ground_h_m)))
+    return local_set(items)

@@ -27,8 +27,10 @@ from app.camera.pinhole import Camera
 from app.core.constants import DEFAULT_FAR_M
 from app.core.messages import Messages
 from app.footage.clips import ASSUMED_DRONE_HFOV_DEG, KLV_ASSUMED_HEIGHT_M, frame_and_ground
+from app.geodesy import rotations
 from app.geodesy.enu import LocalFrame
 from app.io.mavlink import MavlinkTelemetry
+from app.io.misb import camera_set
 from app.io.streams import GnssTrack
 from app.io.video import decode_at, media_seconds
 from app.live.buffer import DEFAULT_DELAY_S, Arrival, JitterBuffer
@@ -233,8 +235,27 @@ class LiveFeed:
         return self
 
     def _on_frame(self, t: float, luma) -> None:
+        """Each decoded frame, on the receiver's thread: the lag estimator's feed, and for a
+        MAVLink flight its pose written into the recording as a Local Set (the lag as estimated
+        then: forward only), so that the recording is a clip with poses."""
         if self.lag is not None:
             self.lag.feed(t, luma)
+        if self.mav is not None and self.recorder is not None:
+            self._record_pose(t)
+
+    def _record_pose(self, t: float) -> None:
+        c, origin = self.poses.boot_offset(), self.receiver.origin_s
+        if c is None or origin is None:
+            return
+        pose = self.poses.telemetry.at(t + c + self.poses.offset_s)
+        if pose is None:
+            return
+        heading, pitch, roll = rotations.hpr_from_camera_quat(pose.q[None])[0]
+        hfov = self.options.hfov_deg or ASSUMED_DRONE_HFOV_DEG
+        payload = camera_set(
+            time.time(), pose.geodetic, (heading, pitch, roll), hfov, self.poses.telemetry.home_h
+        )
+        self.recorder.write_set(payload, t + origin)
 
     def silent_for(self, now: float, since: float) -> float:
         """Seconds since anything arrived (since `since` when nothing has yet)."""
@@ -275,11 +296,13 @@ class LiveFeed:
         """The camera of media time t (s) from what has arrived, corrected by the registration
         in force, and its state (fresh, stale, none): the last camera drawn stands in for a
         missing one."""
-        camera = self._telemetry_camera(t)
-        if camera is None:
+        return self._corrected(self._telemetry_camera(t))
+
+    def _corrected(self, raw: tuple[Camera, str] | None) -> tuple[Camera | None, str]:
+        if raw is None:
             return self.last_camera, NONE
         reg = self.registration
-        return (reg.correct(camera[0]) if reg is not None else camera[0]), camera[1]
+        return (reg.correct(raw[0]) if reg is not None else raw[0]), raw[1]
 
     def _telemetry_camera(self, t: float) -> tuple[Camera, str] | None:
         pose = self.poses.at(t, self.frame, self.intrinsics, self.options.far_m)
@@ -294,7 +317,7 @@ class LiveFeed:
         if item is None:
             return None
         raw = self._telemetry_camera(item.pts_s)
-        camera, state = self.camera_at(item.pts_s)
+        camera, state = self._corrected(raw)
         if raw is not None and self.registration is not None:
             self.registration.offer(item.pts_s, item.payload, raw[0])
         run = self.run

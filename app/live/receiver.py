@@ -208,7 +208,7 @@ class Receiver:
                 "noklv", f"{self.url}: no KLV data stream: the video has no pose of its own"
             )
         if self.recorder is not None:
-            self.recorder.add_input(video, klv)
+            self.recorder.add_input(video, klv, self.poses_elsewhere)
         codec = video.codec_context
         codec.thread_type = "SLICE"  # frame threads would hold frames back: latency
         wanted = [s for s in (video, klv) if s is not None]

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import threading
 from dataclasses import dataclass
+from fractions import Fraction
 from pathlib import Path
 
 import av
@@ -27,12 +28,29 @@ class Recorder:
         self.packets = 0
         self.errors = 0
 
-    def add_input(self, video_stream, klv_stream) -> None:
-        """The input's streams (again after a reconnect: the output streams are kept)."""
+    def add_input(self, video_stream, klv_stream, poses_written: bool = False) -> None:
+        """The input's streams (again after a reconnect: the output streams are kept);
+        poses_written: a KLV stream even when the input has none, for `write_set` (a MAVLink
+        flight's poses, so that its recording is a clip with poses)."""
         if "video" not in self._streams and video_stream is not None:
             self._streams["video"] = self._out.add_stream_from_template(video_stream)
-        if "klv" not in self._streams and klv_stream is not None:
+        if "klv" not in self._streams and (klv_stream is not None or poses_written):
             self._streams["klv"] = self._out.add_data_stream("klv")
+
+    def write_set(self, payload: bytes, stream_s: float) -> None:
+        """One Local Set at stream-clock second stream_s (the video's own clock)."""
+        out = self._streams.get("klv")
+        if out is None:
+            return
+        packet = av.Packet(payload)
+        packet.stream, packet.time_base = out, Fraction(1, 90000)
+        packet.pts = packet.dts = int(round(stream_s * 90000))
+        try:
+            self._out.mux(packet)
+            self.packets += 1
+        except (av.FFmpegError, ValueError):
+            self.errors += 1
+        self._file.flush()
 
     def write(self, packet, kind: str) -> None:
         """A copy of one demuxed packet of the input's `kind` stream ('video' or 'klv'); the
@@ -79,15 +97,19 @@ class SegmentRecorder:
         self.folder = Path(folder)
         self.segment_s = segment_s
         self.segments: list[Segment] = []
-        self._inputs: tuple = (None, None)
+        self._inputs: tuple = (None, None, False)
         self._current: Recorder | None = None
         self.packets = self.errors = 0
         self._lock = threading.Lock()
 
-    def add_input(self, video_stream, klv_stream) -> None:
-        self._inputs = (video_stream, klv_stream)
+    def add_input(self, video_stream, klv_stream, poses_written: bool = False) -> None:
+        self._inputs = (video_stream, klv_stream, poses_written)
         if self._current is not None:
-            self._current.add_input(video_stream, klv_stream)
+            self._current.add_input(video_stream, klv_stream, poses_written)
+
+    def write_set(self, payload: bytes, stream_s: float) -> None:
+        if self._current is not None:
+            self._current.write_set(payload, stream_s)
 
     def _open(self) -> Recorder:
         path = self.folder / f"segment-{len(self.segments) + 1:04d}.ts"

@@ -103,39 +103,6 @@ def orbit_set(orbit: Orbit, t: float, vfov_deg: float, msl_only: bool = False) -
     return local_set(items)
 
 
-def camera_set(
-    t: float,
-    geodetic: tuple[float, float, float],
-    hpr_deg: tuple[float, float, float],
-    hfov_deg: float,
-    ground_h_m: float | None = None,
-) -> bytes:
-    """The Local Set of a camera at a position (lat, lon deg, ellipsoidal h m) with a heading,
-    pitch and roll (deg): the platform level on that heading, the sensor's relative elevation
-    and roll the camera's pitch and roll (as a gimbal on a level aircraft: ST 0601's platform
-    pitch only spans +-20 deg); its field of view, UTC from UTC_START_S + t, and the ground's
-    ellipsoidal height as the frame centre's (tag 78)."""
-    lat, lon, h = geodetic
-    heading, pitch, roll = hpr_deg
-    items = [
-        (2, struct.pack(">Q", int(round((UTC_START_S + t) * 1e6)))),
-        (65, bytes([17])),
-        (5, encode(5, heading % 360.0)),
-        (6, encode(6, 0.0)),
-        (7, encode(7, 0.0)),
-        (18, encode(18, 0.0)),
-        (19, encode(19, pitch)),
-        (20, encode(20, roll % 360.0)),
-        (13, encode(13, lat)),
-        (14, encode(14, lon)),
-        (75, encode(75, h)),
-        (16, encode(16, hfov_deg)),
-    ]
-    if ground_h_m is not None:
-        items.append((78, encode(78, ground_h_m)))
-    return local_set(items)
-
-
 def moving_texture(size: tuple[int, int], seed: int = 0):
     """frame(k) -> (h, w, 3) uint8: 8-pixel random blocks sliding 4 pixels a frame (real work
     for an encoder and a decoder, unlike a flat colour)."""

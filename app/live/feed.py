@@ -207,7 +207,6 @@ class LiveFeed:
         self.frame: LocalFrame | None = None
         self.intrinsics: Intrinsics | None = None
         self.last_camera: Camera | None = None
-        self.last_shown: Arrival | None = None
         self.registration: LiveRegistration | None = None
 
     def start(self) -> LiveFeed:
@@ -244,16 +243,17 @@ class LiveFeed:
             self._record_pose(t)
 
     def _record_pose(self, t: float) -> None:
-        c, origin = self.poses.boot_offset(), self.receiver.origin_s
-        if c is None or origin is None:
-            return
-        pose = self.poses.telemetry.at(t + c + self.poses.offset_s)
-        if pose is None:
+        origin = self.receiver.origin_s
+        pose = self.poses.telemetry_at(t)
+        if pose is None or origin is None:
             return
         heading, pitch, roll = rotations.hpr_from_camera_quat(pose.q[None])[0]
-        hfov = self.options.hfov_deg or ASSUMED_DRONE_HFOV_DEG
         payload = camera_set(
-            time.time(), pose.geodetic, (heading, pitch, roll), hfov, self.poses.telemetry.home_h
+            time.time(),
+            pose.geodetic,
+            (heading, pitch, roll),
+            self._hfov_deg(),
+            self.poses.telemetry.home_h,
         )
         self.recorder.write_set(payload, t + origin)
 
@@ -268,12 +268,16 @@ class LiveFeed:
             len(self.poses) > 0 or self.options.origin is not None
         )
 
+    def _hfov_deg(self) -> float:
+        """The camera's horizontal field of view: given, else the KLV's, else assumed (deg)."""
+        return self.options.hfov_deg or self.poses.hfov_deg or ASSUMED_DRONE_HFOV_DEG
+
     def build_scene(self) -> MeshData:
         """The scene around the first position and the video's pinhole (once `ready`)."""
         o, messages = self.options, self.run.messages
         self.frame, mesh = scene_for(self.poses, o, messages)
         self.run.frame = self.frame
-        hfov = o.hfov_deg or self.poses.hfov_deg or ASSUMED_DRONE_HFOV_DEG
+        hfov = self._hfov_deg()
         if o.hfov_deg is None and self.poses.hfov_deg is None:
             messages.add(f"the feed gives no field of view: {hfov:.1f} deg assumed (give --fov)")
         self.intrinsics = Intrinsics.from_fov(*self.receiver.size, hfov)
@@ -332,7 +336,7 @@ class LiveFeed:
             run.without_pose += 1
         if camera is None:
             return None
-        self.last_camera, self.last_shown = camera, item
+        self.last_camera = camera
         return item, due, camera, state
 
     def discard_due(self, now: float) -> int:

@@ -22,7 +22,7 @@ from app.camera.pinhole import Camera
 from app.geodesy import rotations
 from app.geodesy.enu import LocalFrame
 from app.io.klv_track import KlvTrack
-from app.io.mavlink import MavlinkTelemetry
+from app.io.mavlink import MavlinkTelemetry, TelemetryPose
 from app.io.misb import LocalSet, camera_orientation
 
 FRESH, STALE, NONE = "fresh", "stale", "none"
@@ -149,10 +149,15 @@ class MavlinkPoses:
         v, m = self.video_link(), self.telemetry.link_s
         return None if v is None or m is None else v - m
 
+    def telemetry_at(self, t: float) -> TelemetryPose | None:
+        """The telemetry's camera at media time t (s), None before both clocks are linked or
+        before a position and an attitude have arrived."""
+        c = self.boot_offset()
+        return None if c is None else self.telemetry.at(t + c + self.offset_s)
+
     def at(self, t: float, frame: LocalFrame, intrinsics: Intrinsics, far: float) -> LivePose:
         """The camera at media time t in `frame` from the messages arrived so far."""
-        c = self.boot_offset()
-        pose = None if c is None else self.telemetry.at(t + c + self.offset_s)
+        pose = self.telemetry_at(t)
         if pose is None:
             return LivePose(None, NONE, float("inf"))
         enu = frame.geodetic_to_enu(*(np.array([v]) for v in pose.geodetic))[0]

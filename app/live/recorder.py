@@ -142,6 +142,12 @@ class SegmentRecorder:
                 cur.first_s = t if cur.first_s is None else min(cur.first_s, t)
                 cur.last_s = t if cur.last_s is None else max(cur.last_s, t)
 
+    def span_s(self) -> tuple[float, float] | None:
+        """(first, last) stream-clock seconds of the video recorded so far, None before any."""
+        with self._lock:
+            spans = [(s.first_s, s.last_s) for s in self.segments if s.first_s is not None]
+        return (spans[0][0], max(last for _, last in spans)) if spans else None
+
     def holding(self, stream_s: float) -> Segment | None:
         """The segment whose video covers stream-clock second stream_s (the nearest one)."""
         with self._lock:

@@ -19,9 +19,9 @@ from datetime import UTC, datetime
 from pathlib import Path
 
 from app.camera.pinhole import Camera
-from app.core.messages import ERROR, WARNING
 from app.live.buffer import Arrival
 from app.live.feed import Drawn, LiveFeed, LiveOptions, LiveRun
+from app.live.recorder import SegmentRecorder
 from app.render.renderer import FusionRenderer
 from app.ui.navigation import Navigator, chase
 
@@ -50,7 +50,7 @@ class LiveView:
     shown_s: float | None = None  # media time of the frame on the renderer
     pending: Drawn | None = None
     pose_state: str = ""  # the shown frame's pose: fresh, stale (older than the buffer), none
-    ended: str = ""
+    ended: str = ""  # why the scene could not be built (then not tried again each frame)
     pose_states: dict[str, int] = field(default_factory=dict)
 
     @property
@@ -59,12 +59,16 @@ class LiveView:
 
     def recorded_span(self) -> tuple[float, float] | None:
         """(first, last) media seconds of the video recorded so far, None before any."""
-        rec, origin = self.feed.recorder, self.feed.receiver.origin_s
-        segments = getattr(rec, "segments", [])
-        spans = [s for s in segments if s.first_s is not None]
-        if origin is None or not spans:
+        origin = self.feed.receiver.origin_s
+        span = self.segments.span_s()
+        if origin is None or span is None:
             return None
-        return spans[0].first_s - origin, max(s.last_s for s in spans) - origin
+        return span[0] - origin, span[1] - origin
+
+    @property
+    def segments(self) -> SegmentRecorder:
+        """The rolling recording (open_stream always records in segments)."""
+        return self.feed.recorder
 
 
 def open_stream(v, url: str, options: LiveOptions | None = None) -> None:
@@ -121,16 +125,6 @@ def review(v, t: float | None) -> None:
     L.review_s = float(min(max(t, span[0]), span[1]))
 
 
-def _messages(v) -> None:
-    new = v.live.run.messages.since(v._messages_seen)
-    v._messages_seen += len(new)
-    for m in new:
-        if m.level == ERROR:
-            v.ui.error(m.text)
-        else:
-            (v.ui.warnings if m.level == WARNING else v.ui.info).append(m.text)
-
-
 def update(v) -> None:
     """This frame's work: build the scene once the feed is ready, then the frame due (or the
     frame under review) and its camera onto the renderer. A stream runs on the real clock
@@ -138,9 +132,9 @@ def update(v) -> None:
     L = v.live
     feed = L.feed
     now = feed.clock()
-    _messages(v)
+    v.show_messages(L.run.messages)
     if L.renderer is None:
-        if not feed.ready():
+        if L.ended or not feed.ready():
             return
         try:
             mesh = feed.build_scene()
@@ -195,7 +189,6 @@ def state(v) -> dict:
     run = L.feed.update_counts()
     span = L.recorded_span()
     proj = L.renderer.projector if L.renderer is not None else None
-    rec = L.feed.recorder
     return {
         "url": run.url,
         "received": run.received,
@@ -208,7 +201,7 @@ def state(v) -> dict:
         "shown_s": L.shown_s,
         "review_s": L.review_s,
         "recorded_s": None if span is None else list(span),
-        "segments": [str(s.path) for s in getattr(rec, "segments", [])],
+        "segments": [str(s.path) for s in L.segments.segments],
         "origin_s": run.origin_s,
         "frame": None if L.feed.frame is None else [L.feed.frame.lat_deg, L.feed.frame.lon_deg, L.feed.frame.h_m],
         "projector": None if proj is None else {"position": list(map(float, proj.position)), "orientation": list(map(float, proj.orientation))},

@@ -261,7 +261,12 @@ class ViewerSessions:
         """The session's messages not shown yet, by level: information among the notes,
         warnings apart (the Session panel shows them first), errors as errors. What the solver
         thread finds arrives here too."""
-        new = self.loaded.session.messages.since(self._messages_seen)
+        self.show_messages(self.loaded.session.messages)
+
+    def show_messages(self, messages) -> None:
+        """Messages (app.core.messages) not shown yet, from what is open (a session, a stream),
+        by level: information among the notes, warnings apart, errors as errors."""
+        new = messages.since(self._messages_seen)
         self._messages_seen += len(new)
         for m in new:
             if m.level == ERROR:

@@ -6,59 +6,22 @@
 #include "projective.glsl"
 #include "lens.glsl"
 #include "video.glsl"
+#include "surface.glsl"
 
 uniform sampler2D u_base_texture;
 uniform bool u_has_texture;
 uniform vec3 u_eye;            // window camera position, ENU metres
 uniform vec3 u_light_dir;      // unit vector toward the light, ENU
 
-uniform vec3 u_proj_position;  // projector position, ENU metres
-uniform float u_proj_near;
-uniform float u_proj_far;
-uniform float u_proj_focal_texels; // depth-map focal length, texels
-uniform sampler2D u_depth_map;
-uniform float u_alpha;         // video opacity: 0 = model, 1 = video
-uniform float u_bias_constant; // metres
-uniform float u_bias_slope;    // depth-map texels of surface slope
-
-// The video camera's lens (lens.glsl): with one, u_proj_view_proj is the pinhole enclosing its
-// image (the depth map's), and the video texel comes from the lens model.
-uniform mat4 u_proj_view;      // projector camera-from-world (OpenGL camera frame)
-uniform int u_lens_kind;       // LENS_PINHOLE, LENS_FISHEYE or LENS_BROWN
-uniform vec4 u_lens_k;         // fisheye k1..k4; Brown k1, k2 (z, w unused)
-uniform vec2 u_lens_p;         // Brown p1, p2
-uniform float u_lens_k3;       // Brown k3
-uniform vec2 u_lens_f;         // focal lengths, video pixels
-uniform vec2 u_lens_c;         // principal point, video pixels
-uniform vec2 u_lens_size;      // video size, pixels
-uniform float u_lens_stretch;  // horizontal stretch of digital lens modes
-uniform vec3 u_rs_turn;        // rolling shutter: the camera's turn from the first row to the last
-                               // (radians, camera frame); the frame's pose is its middle row's
-uniform vec3 u_rs_axis;        // the readout fraction of a displayed pixel: dot(axis, (u/W, v/H, 1));
-                               // (0, 1, 0) for a landscape display, u for a portrait one
-
-// The video pixel of a camera-frame point (OpenGL axes): through the lens, and with a rolling
-// shutter, from the pose of the row that saw it (two fixed-point steps: the row depends on the
-// pixel, the pixel on the row's pose).
-vec2 video_pixel(vec3 c) {
-    vec2 uv = vec2(0.0);
-    vec3 p = c;
-    for (int i = 0; i < 3; ++i) {
-        uv = lens_distort(vec2(p.x, -p.y) / -p.z, u_lens_kind, u_lens_k, u_lens_p, u_lens_k3, u_lens_f, u_lens_c, u_lens_stretch);
-        float row = clamp(dot(u_rs_axis, vec3(uv / u_lens_size, 1.0)), 0.0, 1.0) - 0.5;
-        p = rotate_by(c, -row * u_rs_turn);  // the point in the camera frame of that row
-    }
-    return uv;
-}
+#include "projector.glsl"
+#include "blend.glsl"
 
 // Further projectors: the other clips shown at once, each with its own pose, lens (no rolling
 // shutter), depth map and video (an RGB still or a playback frame's planes). Where several see a
 // fragment, the views are blended by a soft maximum of their scores (view_score): the most
 // head-on and nearest wins, with a soft seam u_seam wide; where those tie, the most recent frame
 // (the age term, one seam for a 30 fps frame interval); a clip's priority (10 score units a
-// level) overrides. app/render/passes.py keeps the same constants.
-const float RANGE_SCORE_M = 2000.0;  // a view 100 m nearer counts as 0.05 of cos(incidence)
-const float AGE_SCORE_PER_S = 0.6;   // a frame 1/30 s older counts as 0.02 (one seam) less
+// level) overrides (include/blend.glsl).
 uniform mat4 u_extra_view[MAX_EXTRA];
 uniform vec3 u_extra_position[MAX_EXTRA];
 uniform float u_extra_near[MAX_EXTRA];
@@ -82,26 +45,6 @@ uniform sampler2D u_extra_chroma[MAX_EXTRA];  // U and V in one two-channel text
 uniform int u_extra_rotation[MAX_EXTRA];      // the display: stored turned clockwise, degrees
 uniform mat3 u_extra_yuv_matrix[MAX_EXTRA];
 uniform vec3 u_extra_yuv_offset[MAX_EXTRA];
-uniform float u_proj_priority;  // the first projector's
-uniform float u_proj_age;       // the first projector's frame's age, s
-uniform float u_seam;           // score difference over which two views blend
-
-float view_score(float priority, float cos_incidence, float range_m, float age_s) {
-    return 10.0 * priority + cos_incidence - range_m / RANGE_SCORE_M - age_s * AGE_SCORE_PER_S;
-}
-
-// Running soft maximum: the views' colours and opacities weighted by exp((score - best) / u_seam).
-// A new best rescales what was summed by exp((best - score) / u_seam) and weighs 1; otherwise
-// the new view weighs exp((score - best) / u_seam): one exponential either way, no branch.
-void add_view(inout vec4 sum, inout float weight, inout float best, float score, vec3 colour, float alpha) {
-    float e = exp(-abs(score - best) / u_seam);
-    bool higher = score > best;
-    float k = higher ? e : 1.0;
-    float w = higher ? 1.0 : e;
-    sum = sum * k + w * vec4(colour, alpha);
-    weight = weight * k + w;
-    best = max(best, score);
-}
 
 // Error overlay (sessions with ground truth): the true camera's position map. The video texel
 // that lands on this fragment truly shows the model point stored at the same texel.
@@ -118,7 +61,12 @@ in vec4 v_extra_clip[EXTRA_COUNT];  // the further projectors'
 in vec2 v_uv;
 in vec4 v_color;
 
-out vec4 f_color;
+layout(location = 0) out vec4 f_color;
+#if GBUFFER
+// The deferred projectors' surface (app/render/decals.py): the distance from the eye (m, float
+// bits; 0 where nothing was drawn) and the normal facing the eye (octahedral, 16 bits a side).
+layout(location = 1) out uvec2 f_surface;
+#endif
 
 // Green (0 m) -> yellow (half the scale) -> red (the scale and beyond).
 vec3 error_colour(float metres) {
@@ -262,4 +210,7 @@ void main() {
 #endif
     }
     f_color = vec4(colour, 1.0);
+#if GBUFFER
+    f_surface = uvec2(floatBitsToUint(distance(v_world, u_eye)), pack_normal(normal));
+#endif
 }

@@ -291,7 +291,7 @@ def test_further_projectors_beyond_the_drivers_samplers_are_left_out_and_said(gl
     from app.render.renderer import FusionRenderer
 
     views = _ring([(255, 0, 0), (0, 255, 0), (0, 0, 255), (255, 255, 0)])
-    r = FusionRenderer(gl_ctx, ground_plane(np.zeros(2), 0.0, 200.0))
+    r = FusionRenderer(gl_ctx, ground_plane(np.zeros(2), 0.0, 200.0), deferred=False)
     try:
         r.set_video_frame(views[0][0])
         r.set_projector(views[0][1])

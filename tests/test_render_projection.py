@@ -25,10 +25,12 @@ VIDEO_W, VIDEO_H = 64, 48
 BLOCK = 8  # texels per checkerboard block
 
 
-def make_renderer(ctx, prims):
+def make_renderer(ctx, prims, deferred=None):
+    """deferred: None the renderer's default (the deferred projectors where the context can),
+    False the forward scene pass (the full-cost path)."""
     from app.render.renderer import FusionRenderer
 
-    return FusionRenderer(ctx, MeshData(prims))
+    return FusionRenderer(ctx, MeshData(prims), deferred=deferred)
 
 
 def render(renderer, view, **settings):
@@ -209,8 +211,8 @@ def test_each_frame_draws_a_variant_holding_only_its_switches(gl_ctx):
     """The scene shader is compiled per combination of what a frame draws: with projection off
     the variant drawn has no projector uniforms at all (its code compiled out: what makes it
     cheap on a software rasteriser, which runs every branch a shader holds); switched back on,
-    the variant made first is drawn again, pixel for pixel the same."""
-    r = make_renderer(gl_ctx, [wall()])
+    the variant made first is drawn again, pixel for pixel the same (the forward pass)."""
+    r = make_renderer(gl_ctx, [wall()], deferred=False)
     r.set_video_frame(checkerboard())
     r.set_projector(projector())
     view = view_camera([0, -10, 10], [0, WALL_Y, 10])
@@ -264,8 +266,9 @@ def test_neighbourhood_rule_trims_the_occlusion_edge(gl_ctx):
     r.release()
 
 
-def test_depth_map_redrawn_only_when_the_pose_changes(gl_ctx):
-    r = make_renderer(gl_ctx, [wall()])
+@pytest.mark.parametrize("deferred", [False, True])
+def test_depth_map_redrawn_only_when_the_pose_changes(gl_ctx, deferred):
+    r = make_renderer(gl_ctx, [wall()], deferred=deferred)
     r.set_video_frame(checkerboard())
     view = view_camera([0, 0, 10], [0, WALL_Y, 10], 64, 48)
     r.set_projector(projector())
@@ -275,7 +278,10 @@ def test_depth_map_redrawn_only_when_the_pose_changes(gl_ctx):
     r.set_projector(projector(heading=1.0))
     render(r, view)
     assert r.depth.renders == 2
-    assert r.depth.size == (2048, 1536)  # default: 2048 on the long side, the video's aspect
+    if not deferred:  # default: 2048 on the long side, the video's aspect
+        assert r.depth.size == (2048, 1536)
+    else:  # what a 64x48 view needs of it (app.render.coverage.depth_long_side)
+        assert r.depth.size[0] < 2048 and r.depth.size[0] * 3 == r.depth.size[1] * 4
     r.release()
 
 

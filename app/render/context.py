@@ -44,6 +44,64 @@ def _libgl_finish():
 
 _GL_FINISH = _libgl_finish()
 
+GL_READ_FRAMEBUFFER, GL_DRAW_FRAMEBUFFER = 0x8CA8, 0x8CA9
+GL_COLOR_BUFFER_BIT, GL_NEAREST = 0x4000, 0x2600
+
+
+def _gl_blit():
+    """glBlitFramebuffer of the current context (moderngl's copy_framebuffer copies from the
+    origin only, and with the depth buffer, which a window's may not match): from libGL, else
+    through EGL's eglGetProcAddress (glvnd's dispatch serves EGL and GLX contexts alike)."""
+    args = [ctypes.c_int] * 8 + [ctypes.c_uint, ctypes.c_uint]
+    for name in ("libGL.so.1", ctypes.util.find_library("GL") or ""):
+        try:
+            lib = ctypes.CDLL(name)
+            lib.glBlitFramebuffer.argtypes = args
+            lib.glBindFramebuffer.argtypes = [ctypes.c_uint, ctypes.c_uint]
+            return lib.glBindFramebuffer, lib.glBlitFramebuffer
+        except (OSError, AttributeError):
+            continue
+    for name in ("libEGL.so.1", ctypes.util.find_library("EGL") or ""):
+        try:
+            egl = ctypes.CDLL(name)
+        except OSError:
+            continue
+        egl.eglGetProcAddress.restype = ctypes.c_void_p
+        egl.eglGetProcAddress.argtypes = [ctypes.c_char_p]
+        bind = egl.eglGetProcAddress(b"glBindFramebuffer")
+        blit = egl.eglGetProcAddress(b"glBlitFramebuffer")
+        if bind and blit:
+            return (
+                ctypes.CFUNCTYPE(None, ctypes.c_uint, ctypes.c_uint)(bind),
+                ctypes.CFUNCTYPE(None, *args)(blit),
+            )
+    return None
+
+
+_GL_BLIT = _gl_blit()
+
+
+def can_blit() -> bool:
+    """Whether blit_colour can copy between framebuffers on this machine."""
+    return _GL_BLIT is not None
+
+
+def blit_colour(
+    src: moderngl.Framebuffer,
+    src_rect: tuple[int, int, int, int],
+    dst: moderngl.Framebuffer,
+    dst_rect: tuple[int, int, int, int],
+) -> None:
+    """Copy the colour of rectangle src_rect (x, y, w, h; GL rows from the bottom) of `src` into
+    dst_rect of `dst`, texel for texel where the sizes agree; `dst` is bound afterwards."""
+    bind, blit = _GL_BLIT
+    sx, sy, sw, sh = src_rect
+    dx, dy, dw, dh = dst_rect
+    bind(GL_READ_FRAMEBUFFER, src.glo)
+    bind(GL_DRAW_FRAMEBUFFER, dst.glo)
+    blit(sx, sy, sx + sw, sy + sh, dx, dy, dx + dw, dy + dh, GL_COLOR_BUFFER_BIT, GL_NEAREST)
+    dst.use()
+
 
 def wait_for_gpu(ctx: moderngl.Context) -> None:
     """Block until the GPU has finished, with Python's GIL released.

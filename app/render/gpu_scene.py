@@ -36,6 +36,7 @@ class GpuScene:
         cap = DEFAULT_CACHE_BYTES if tile_cache_bytes is None else tile_cache_bytes
         self.tilesets = [GpuTileset(ctx, t, anisotropy, cap) for t in mesh.tilesets]
         self.version = 0  # bumps when streamed tiles arrive or leave
+        self._bounds: np.ndarray | None = None
 
     def update(self, budget_s: float = 0.008) -> bool:
         """Upload what the tile workers finished, within about budget_s seconds, and evict least
@@ -91,6 +92,13 @@ class GpuScene:
             for key in [k for k in prim.vaos if k[0] == program.glo]:
                 prim.vaos.pop(key).release()
 
+    def bounds(self) -> np.ndarray:
+        """(2, 3) min and max corner of everything the scene may draw, ENU metres (a tileset's
+        by its root volume); kept until positions change."""
+        if self._bounds is None:
+            self._bounds = self.mesh.bounds()
+        return self._bounds
+
     def update_positions(self, index: int, positions: np.ndarray) -> None:
         """Replace primitive `index`'s vertex positions (same vertex count), keeping uv and colour:
         moving objects without re-creating GL objects."""
@@ -98,6 +106,7 @@ class GpuScene:
         if positions.shape != prim.positions.shape:
             raise ValueError(f"positions shape {positions.shape}, expected {prim.positions.shape}")
         prim.positions = np.asarray(positions, np.float32)
+        self._bounds = None
         self.primitives[index].vbo.write(interleave(prim).tobytes())
 
     def release(self) -> None:

@@ -161,24 +161,30 @@ class ScenePass:
         extras: tuple[ExtraProjector, ...] = (),
         priority: float = 0.0,
         age_s: float = 0.0,
+        surface: bool = False,
     ) -> None:
         """Draw into the bound framebuffer. Projection needs projector, depth and video; the error
         overlay a position map from the true camera; extras: further projectors (other clips),
-        at most MAX_EXTRA; priority and age_s: the first projector's (see ExtraProjector)."""
+        at most MAX_EXTRA; priority and age_s: the first projector's (see ExtraProjector).
+        surface: the model alone, with the surface each pixel sees written to a second colour
+        attachment, for the deferred projectors (app.render.decals) to draw over."""
         if len(extras) > MAX_EXTRA:
             raise ValueError(f"at most {MAX_EXTRA + 1} projectors at once, got {len(extras) + 1}")
         on = (
-            settings.enabled
+            not surface
+            and settings.enabled
             and projector is not None
             and depth is not None
             and video is not None
             and video.ready
         )
-        extras = extras if settings.enabled else ()
+        extras = extras if settings.enabled and not surface else ()
         fitting = _fitting(extras, self.max_samplers)
         self.left_out = len(extras) - len(fitting)
         extras = fitting
         defines = {"PROJECTION": int(on), "EXTRA_COUNT": len(extras)}
+        if surface:
+            defines["GBUFFER"] = 1
         if on or extras:
             defines["NEIGHBOURHOOD"] = int(settings.neighbourhood)
         if on:
@@ -208,7 +214,7 @@ class ScenePass:
             scale = size[0] / projector.intrinsics.width
             p["u_proj_focal_texels"] = max(projector.intrinsics.fx, projector.intrinsics.fy) * scale
             p["u_alpha"] = settings.alpha
-            _set_lens(p, projector)
+            set_lens(p, projector)
             depth.texture.use(1)
             video.bind(p)
         else:
@@ -351,7 +357,7 @@ def _lens_uniforms(camera: Camera) -> dict[str, object]:
     }
 
 
-def _set_lens(p: Uniforms, projector: Camera) -> None:
+def set_lens(p: Uniforms, projector: Camera) -> None:
     """The projector's lens and rolling-shutter uniforms (read by the EXACT_VIDEO variant)."""
     p.matrices("u_proj_view", [projector.view])
     p["u_rs_turn"] = projector.rs_turn or (0.0, 0.0, 0.0)

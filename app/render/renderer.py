@@ -12,6 +12,8 @@ import numpy.typing as npt
 
 from app.camera.pinhole import Camera, depth_map_size
 from app.core.settings import OverlaySettings, ProjectionSettings
+from app.render.coverage import coverage, depth_long_side
+from app.render.decals import Decal, DeferredProjectors, deferred_available
 from app.render.gpu_scene import GpuScene
 from app.render.overlays import (
     FRUSTUM_COLOR,
@@ -33,7 +35,11 @@ PICK_DOWNSCALE = 4  # picking renders positions at a quarter of the view's resol
 class FusionRenderer:
     """Owns every GL object of one scene; call from the GL thread only."""
 
-    def __init__(self, ctx: moderngl.Context, mesh: MeshData) -> None:
+    def __init__(self, ctx: moderngl.Context, mesh: MeshData, deferred: bool | None = None) -> None:
+        """deferred: draw the projectors as deferred decals (app.render.decals), each over what
+        it covers; False: the forward scene pass, every projector in every fragment (the
+        full-cost path, kept as the reference and where OpenGL 4.2 is missing); None: deferred
+        where the context can."""
         self.ctx = ctx
         self.scene = GpuScene(ctx, mesh)
         self.depth = DepthPass(ctx, self.scene)
@@ -51,6 +57,8 @@ class FusionRenderer:
         self.trajectory: np.ndarray | None = None
         self.outlines: np.ndarray | None = None
         self.extras: list[_Extra] = []  # further projectors (other clips), drawn with the first
+        self.deferred = deferred_available(ctx) if deferred is None else bool(deferred)
+        self.deferred_pass = DeferredProjectors(ctx) if self.deferred else None
 
     def set_video_frame(self, rgb: npt.NDArray[np.uint8]) -> None:
         """Upload one display-oriented video frame (H, W, 3) uint8 RGB, row 0 = the top row."""
@@ -214,6 +222,18 @@ class FusionRenderer:
         """Draw one frame from the window camera `view` into `fbo` (its viewport is used whole).
         Streamed tiles that finished loading are uploaded first, within a small time budget."""
         self.scene.update()
+        truth_map = self._truth_positions(overlays)
+        decals = None
+        if self.deferred and truth_map is None and not self.scene_pass.count_samples:
+            decals = self._decals(view, settings)
+        if decals is not None:
+            self.deferred_pass.begin(fbo, BACKGROUND)
+            self.scene_pass.render(view, settings, None, None, None, surface=True)
+            self.deferred_pass.project(view, settings, decals)
+            self.deferred_pass.overlays()
+            self._draw_overlays(view, overlays)
+            self.deferred_pass.finish(fbo)
+            return
         if settings.enabled and self.projector is not None and self.video.ready:
             w, h = self.projector.intrinsics.width, self.projector.intrinsics.height
             self.depth.update(self.projector, depth_map_size(w, h, settings.depth_long_side))
@@ -228,7 +248,6 @@ class FusionRenderer:
                 extras.append(
                     ExtraProjector(e.camera, e.depth, e.video, e.priority, alpha, e.age_s)
                 )
-        truth_map = self._truth_positions(overlays)
         fbo.use()
         fbo.clear(*BACKGROUND, 1.0, depth=1.0)
         self.scene_pass.render(
@@ -243,6 +262,46 @@ class FusionRenderer:
             self.projector_priority,
             self.projector_age,
         )
+        self._draw_overlays(view, overlays)
+
+    def _decals(self, view: Camera, settings: ProjectionSettings) -> list[Decal] | None:
+        """The projectors drawn as deferred decals this frame, each with its depth map brought
+        up to date at the size its reach on screen needs; None when none is on (the scene is
+        then drawn alone, forward)."""
+        if not settings.enabled:
+            return None
+        views = []
+        if self.projector is not None and self.video.ready:
+            views.append(
+                (
+                    self.projector,
+                    self.depth,
+                    self.video,
+                    self.projector_priority,
+                    settings.alpha,
+                    self.projector_age,
+                )
+            )
+        for e in self.extras[:MAX_EXTRA]:
+            if e.video.ready:
+                alpha = settings.alpha if e.alpha is None else e.alpha
+                views.append((e.camera, e.depth, e.video, e.priority, alpha, e.age_s))
+        if not views:
+            return None
+        bounds = self.scene.bounds()
+        decals = []
+        for camera, depth, video, priority, alpha, age in views:
+            reach = coverage(camera, view, bounds)
+            if reach is None:
+                continue  # nothing of the scene it lights is on the screen
+            i = camera.intrinsics
+            long_side = depth_long_side(camera, view, reach.ratio, settings.depth_long_side)
+            depth.update(camera, depth_map_size(i.width, i.height, long_side))
+            decals.append(Decal(camera, depth, video, reach.polygon, priority, alpha, age))
+        return decals
+
+    def _draw_overlays(self, view: Camera, overlays: OverlaySettings) -> None:
+        """Frustums, the trajectory and outlines over the bound framebuffer, depth-tested."""
         vp = view.view_projection
         if overlays.frustum:
             frustums = [(self.projector, FRUSTUM_COLOR)]
@@ -265,6 +324,8 @@ class FusionRenderer:
             e.release()
         self.extras = []
         self.scene_pass.release()
+        if self.deferred_pass is not None:
+            self.deferred_pass.release()
         self.depth.release()
         self.scene.release()
         self.video.release()

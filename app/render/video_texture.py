@@ -115,6 +115,11 @@ class VideoTexture:
         ):
             tex.use(unit)
 
+    @property
+    def variant(self) -> int:
+        """video.glsl's VIDEO_YUV for this frame: 0 an RGB still, 1 three planes."""
+        return int(self.yuv)
+
     def release(self) -> None:
         for t in self.planes:
             t.release()
@@ -157,6 +162,25 @@ class ExtraVideo:
     def chroma(self) -> moderngl.Texture | None:
         """U and V in one texture; None for an RGB still."""
         return self.planes[1] if len(self.planes) == 2 else None
+
+    @property
+    def ready(self) -> bool:
+        return bool(self.planes)
+
+    @property
+    def variant(self) -> int:
+        """video.glsl's VIDEO_YUV for this frame: 0 an RGB still, 2 Y and a two-channel U, V."""
+        return 2 if self.chroma is not None else 0
+
+    def bind(self, uniforms: Uniforms) -> None:
+        """Its planes on texture units 2 and 3 and video.glsl's uniforms (a shader compiled with
+        VIDEO_YUV = self.variant): as VideoTexture.bind, for the deferred projectors."""
+        uniforms["u_video_rotation"] = self.rotation
+        m, offset = yuv_matrix(self.bt709, self.full_range)
+        uniforms.matrices("u_yuv_matrix", [m])
+        uniforms["u_yuv_offset"] = tuple(offset)
+        self.texture.use(2)
+        (self.chroma or self.texture).use(3)
 
     def set(self, frame: np.ndarray | YuvPlanes) -> None:
         """An RGB frame (H, W, 3) uint8, row 0 the displayed top, or a stored frame's planes."""

@@ -25,4 +25,7 @@
 #ifndef EXTRA_YUV
 #define EXTRA_YUV 0       // bit i set: further projector i's video is a playback frame's planes
 #endif
+#ifndef GBUFFER
+#define GBUFFER 0         // also write the surface for the deferred projectors (decal.frag)
+#endif
 const int MAX_EXTRA = 7;  // app/render/passes.py MAX_EXTRA

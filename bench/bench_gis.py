@@ -95,8 +95,19 @@ def _first_full_frame(ctx, renderer, view, target, start: float, limit_s: float 
 
 
 def city(
-    ctx, photo, target, w: int, h: int, frames: int, sample_off_ms: float, leaf_detail: int = 24
-) -> None:
+    ctx,
+    photo,
+    target,
+    w: int,
+    h: int,
+    frames: int,
+    sample_off_ms: float | None,
+    leaf_detail: int = 24,
+) -> dict:
+    """The generated city's load and frame times, projection on and off on each drawing path
+    (deferred decals where the context has them, and the forward pass): {path: {"on_ms",
+    "off_ms", "ratio"}}. sample_off_ms: the sample's frame time without projection from the
+    same run, for the city/sample ratio (None: not printed)."""
     from app.geodesy.enu import LocalFrame
     from app.render.renderer import FusionRenderer
     from app.scene.mesh import MeshData
@@ -129,7 +140,14 @@ def city(
         renderer.set_video_frame(photo)
         renderer.set_projector(projector)
         first_s, loading = _first_full_frame(ctx, renderer, view, target, start)
-        t_on, t_off = _steady(ctx, renderer, view, projector, target, frames)
+        paths = {"deferred": True, "forward": False}
+        if renderer.deferred_pass is None:
+            paths.pop("deferred")
+        steady = {}
+        for path, flag in paths.items():
+            renderer.deferred = flag
+            steady[path] = _steady(ctx, renderer, view, projector, target, frames)
+        renderer.deferred = renderer.deferred_pass is not None
         layer = renderer.scene.tilesets[0]
         print(
             f"\n## A city as 3D Tiles: {stats.triangles:,} triangles in {stats.tiles} tiles, {stats.levels} levels ({stats.leaf_triangles:,} at full detail)\n"
@@ -143,12 +161,24 @@ def city(
             ["triangles in the depth map", f"{renderer.depth.triangles:,}"],
             ["tiles on the GPU / GPU memory held", f"{len(layer.resident)} / {layer.bytes_held / 2**20:.0f} MiB (cap {layer.cache_bytes / 2**20:.0f} MiB)"],
         ]))  # fmt: skip
-        print()
-        print(on_off_table(t_on, t_off, "on, depth redrawn every frame"))
-        print(
-            f"\nratio on/off: **{median_ms(t_on) / median_ms(t_off):.3f}** (goal <= 1.35); city off / sample off: **{median_ms(t_off) / sample_off_ms:.2f}** (goal <= 1.5)"
-        )
+        out = {}
+        for path, (t_on, t_off) in steady.items():
+            ratio = median_ms(t_on) / median_ms(t_off)
+            out[path] = {
+                "on_ms": round(median_ms(t_on), 2),
+                "off_ms": round(median_ms(t_off), 2),
+                "ratio": round(ratio, 3),
+            }
+            print(f"\n{path}:\n")
+            print(on_off_table(t_on, t_off, "on, depth redrawn every frame"))
+            versus = (
+                ""
+                if sample_off_ms is None
+                else f"; city off / sample off: **{median_ms(t_off) / sample_off_ms:.2f}** (goal <= 1.5)"
+            )
+            print(f"\nratio on/off: **{ratio:.3f}** (goal <= 1.35){versus}")
         renderer.release()
+        return out
 
 
 def dem(

@@ -15,6 +15,7 @@ noise hits both alike, and their ratio is taken in the same run.
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import tempfile
 import time
@@ -65,7 +66,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--projectors-only",
         action="store_true",
-        help="only the several-projectors table (1, 2, 4 and 8 at once)",
+        help="only the projectors' tables: 1, 2, 4 and 8 at once, the sample and the city on/off",
+    )
+    parser.add_argument(
+        "--json", type=Path, default=None, help="also write the projectors' figures to this file"
     )
     args = parser.parse_args(argv)
     w, h = (int(v) for v in args.size.split("x"))
@@ -102,8 +106,25 @@ def main(argv: list[str] | None = None) -> int:
 
     on, off = ProjectionSettings(), ProjectionSettings(enabled=False)
     if args.projectors_only:
-        projectors(ctx, renderer, view, target, photo, frame, args.frames)
-        further_frames(ctx, renderer, view, target, max(5, args.frames // 6))
+        figures = projectors(ctx, renderer, view, target, photo, frame, args.frames)
+        renderer.set_extra_projectors([])
+        renderer.set_projector(projector)
+        figures["sample_on_off"] = sample_on_off(ctx, renderer, view, target, args.frames)
+        if not args.no_gis:
+            from bench import bench_gis
+
+            city = bench_gis.city(
+                ctx, photo, target, w, h, max(10, args.frames // 4), None, args.city_detail
+            )
+            figures["city"] = city
+            figures["city_on_off"] = city[figures["path"]]["ratio"]
+        figures["sample_on_off_ratio"] = figures["sample_on_off"][figures["path"]]["ratio"]
+        figures["machine"] = machine()
+        figures["gl"] = describe(ctx)
+        figures["view"] = [w, h]
+        if args.json is not None:
+            args.json.write_text(json.dumps(figures, indent=2) + "\n", encoding="utf-8")
+            print(f"\nwritten {args.json}")
         renderer.release()
         target.release()
         return 0
@@ -253,19 +274,23 @@ def dense_scene(ctx, renderer, mesh, photo, target, w: int, h: int, frames: int)
     print(f"\nratio on/off (medians, same run): **{median_ms(t_on) / median_ms(t_off):.3f}**")
 
 
-def projectors(ctx, renderer, view, target, photo, frame, frames: int) -> None:
+PATHS = {"deferred": True, "forward": False}  # FusionRenderer.deferred for each drawing path
+
+
+def projectors(ctx, renderer, view, target, photo, frame, frames: int) -> dict:
     """The sample drawn with 1, 2, 4 and 8 projectors at once (several clips), every depth map
-    redrawn every frame (each projector turns by a millidegree a frame): the frame time against
-    one projector's, the counts interleaved frame by frame in the same run. Beside it, in the same
-    run, what a frame is made of: the scene pass alone (the poses kept, so no depth map is
-    redrawn) and one depth pass at the settings' size."""
-    from app.camera.pinhole import depth_map_size
+    redrawn every frame (each projector turns by a millidegree a frame), on both drawing paths:
+    the deferred decals (each projector over its reach, adaptive depth maps) and the forward
+    full-cost pass. Counts, paths and moving/still frames are interleaved frame by frame in the
+    same run; ratios are taken against one projector on the same path. Raises unless every depth
+    map a moving frame claims to redraw was redrawn. Returns the medians and ratios (JSON)."""
     from app.core.settings import ProjectionSettings
     from app.simulate.photo import photo_camera
     from app.simulate.sample import SAMPLE_PHOTO_POSE
 
     settings = ProjectionSettings()
     counts = (1, 2, 4, 8)
+    paths = [k for k in PATHS if PATHS[k] is False or renderer.deferred_pass is not None]
 
     def camera(k: int, tick: int):
         pose = SAMPLE_PHOTO_POSE.__dict__
@@ -282,73 +307,116 @@ def projectors(ctx, renderer, view, target, photo, frame, frames: int) -> None:
     renderer.set_extra_projectors([(camera(k, 0), photo, 0.0) for k in range(1, max(counts))])
     extras = list(renderer.extras)
     tick = [0]
+    missed = []
 
-    def draw(n: int, move: bool) -> None:
+    def draw(path: str, n: int, move: bool) -> None:
         tick[0] += move
+        renderer.deferred = PATHS[path]
         renderer.extras = extras[: n - 1]
         renderer.set_projector(camera(0, tick[0]))
         for k, e in enumerate(renderer.extras, start=1):
             e.camera = camera(k, tick[0])
+        depths = [renderer.depth] + [e.depth for e in renderer.extras]
+        before = [d.renders for d in depths]
         renderer.draw(view, target.fbo, settings)
         ctx.finish()
+        redrawn = sum(d.renders - b for d, b in zip(depths, before, strict=True))
+        if move and redrawn != n:
+            missed.append((path, n, redrawn))
 
-    size = depth_map_size(photo.shape[1], photo.shape[0], settings.depth_long_side)
-
-    def depth_pass() -> None:
-        tick[0] += 1
-        renderer.depth.update(camera(0, tick[0]), size)
-        ctx.finish()
-
-    times = {(n, move): [] for n in counts for move in (True, False)}
-    depth = []
+    times = {(path, n, move): [] for path in paths for n in counts for move in (True, False)}
     for _ in range(3):
-        for n in counts:
-            draw(n, True)
-            draw(n, False)
+        for key in times:
+            draw(*key)
     for _ in range(frames):
-        for n in counts:
-            for move in (True, False):
-                t0 = time.perf_counter()
-                draw(n, move)
-                times[n, move].append(time.perf_counter() - t0)
-        t0 = time.perf_counter()
-        depth_pass()
-        depth.append(time.perf_counter() - t0)
+        for key, bucket in times.items():
+            t0 = time.perf_counter()
+            draw(*key)
+            bucket.append(time.perf_counter() - t0)
     renderer.extras = extras
-    base = median_ms(times[1, True])
-    scene_base = median_ms(times[1, False])
-    goal = {1: "", 2: "", 4: "1.5x", 8: "2x"}
-    rows = [
-        [
-            n,
-            f"{median_ms(times[n, True]):.1f}",
-            f"{median_ms(times[n, True]) / base:.2f}x",
-            goal[n],
-            f"{median_ms(times[n, False]):.1f}",
-            f"{(median_ms(times[n, False]) - scene_base) / max(n - 1, 1):.1f}" if n > 1 else "",
-        ]
-        for n in counts
-    ]
-    print("\n## Several projectors at once (every depth map redrawn every frame)\n")
-    print(
-        table(
-            [
-                "projectors",
-                "frame median ms",
-                "against one (same run)",
-                "goal",
-                "scene pass alone ms (no depth redraw)",
-                "scene pass ms per further projector",
-            ],
-            rows,
+    renderer.deferred = renderer.deferred_pass is not None
+    if missed:
+        raise RuntimeError(
+            f"depth maps not redrawn on moving frames (path, count, redrawn): {missed[:5]}"
         )
-    )
-    d = median_ms(depth)
-    print(
-        f"\nOne depth pass ({size[0]}x{size[1]}): {d:.1f} ms median. The further projectors' depth"
-        f" passes alone: 3 x {d:.1f} = {3 * d:.1f} ms ({3 * d / base:.2f}x one projector's frame),"
-        f" 7 x {d:.1f} = {7 * d:.1f} ms ({7 * d / base:.2f}x)."
-    )
+    goal = {1: "", 2: "", 4: "1.5x", 8: "2x"}
+    out: dict = {"frames": frames, "paths": {}}
+    print("\n## Several projectors at once (every depth map redrawn every frame)\n")
+    for path in paths:
+        base = median_ms(times[path, 1, True])
+        rows, medians, ratios = [], {}, {}
+        for n in counts:
+            moving, still = median_ms(times[path, n, True]), median_ms(times[path, n, False])
+            medians[str(n)] = round(moving, 2)
+            ratios[str(n)] = round(moving / base, 3)
+            rows.append([n, f"{moving:.1f}", f"{moving / base:.2f}x", goal[n], f"{still:.1f}"])
+        out["paths"][path] = {"frame_median_ms": medians, "projector_ratios": ratios}
+        print(f"### {path}\n")
+        print(
+            table(
+                [
+                    "projectors",
+                    "frame median ms",
+                    "against one (same path, same run)",
+                    "goal",
+                    "depth maps kept ms",
+                ],
+                rows,
+            )
+        )
+        print()
+    if "forward" in out["paths"] and "deferred" in out["paths"]:
+        rel = {
+            n: median_ms(times["deferred", n, True]) / median_ms(times["forward", n, True])
+            for n in counts
+        }
+        print(
+            "deferred / forward, same count: "
+            + ", ".join(f"{n}: {r:.2f}x" for n, r in rel.items())
+            + "\n"
+        )
+    first = "deferred" if "deferred" in out["paths"] else "forward"
+    out["projector_ratios"] = out["paths"][first]["projector_ratios"]
+    out["frame_median_ms"] = out["paths"][first]["frame_median_ms"]
+    out["path"] = first
+    return out
+
+
+def sample_on_off(ctx, renderer, view, target, frames: int) -> dict:
+    """The sample with projection on and off (the depth map kept), on each path, interleaved:
+    medians and the on/off ratio per path."""
+    from app.core.settings import ProjectionSettings
+
+    on, off = ProjectionSettings(), ProjectionSettings(enabled=False)
+    paths = [k for k in PATHS if PATHS[k] is False or renderer.deferred_pass is not None]
+    keys = [(path, s) for path in paths for s in (on, off)]
+    times = {k: [] for k in range(len(keys))}
+    for _ in range(3):
+        for path, s in keys:
+            renderer.deferred = PATHS[path]
+            renderer.draw(view, target.fbo, s)
+            ctx.finish()
+    for _ in range(frames):
+        for k, (path, s) in enumerate(keys):
+            renderer.deferred = PATHS[path]
+            t0 = time.perf_counter()
+            renderer.draw(view, target.fbo, s)
+            ctx.finish()
+            times[k].append(time.perf_counter() - t0)
+    renderer.deferred = renderer.deferred_pass is not None
+    out = {}
+    rows = []
+    for i, path in enumerate(paths):
+        t_on, t_off = median_ms(times[2 * i]), median_ms(times[2 * i + 1])
+        out[path] = {
+            "on_ms": round(t_on, 2),
+            "off_ms": round(t_off, 2),
+            "ratio": round(t_on / t_off, 3),
+        }
+        rows.append([path, f"{t_on:.2f}", f"{t_off:.2f}", f"{t_on / t_off:.3f}"])
+    print("\n## The sample, projection on vs off (depth map kept), both paths in one run\n")
+    print(table(["path", "on median ms", "off median ms", "on / off (goal <= 1.35)"], rows))
+    return out
 
 
 def further_frames(ctx, renderer, view, target, frames: int) -> None:

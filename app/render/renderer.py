@@ -38,7 +38,7 @@ class FusionRenderer:
     def __init__(self, ctx: moderngl.Context, mesh: MeshData, deferred: bool | None = None) -> None:
         """deferred: draw the projectors as deferred decals (app.render.decals), each over what
         it covers; False: the forward scene pass, every projector in every fragment (the
-        full-cost path, kept as the reference and where OpenGL 4.2 is missing); None: deferred
+        full-cost path, kept as the reference and where no blit is found); None: deferred
         where the context can."""
         self.ctx = ctx
         self.scene = GpuScene(ctx, mesh)
@@ -57,8 +57,9 @@ class FusionRenderer:
         self.trajectory: np.ndarray | None = None
         self.outlines: np.ndarray | None = None
         self.extras: list[_Extra] = []  # further projectors (other clips), drawn with the first
-        self.deferred = deferred_available(ctx) if deferred is None else bool(deferred)
-        self.deferred_pass = DeferredProjectors(ctx) if self.deferred else None
+        self.deferred_pass = DeferredProjectors(ctx) if deferred_available(ctx) else None
+        # Switchable between frames (benchmarks compare both in one run); never on without a pass.
+        self.deferred = self.deferred_pass is not None and deferred is not False
 
     def set_video_frame(self, rgb: npt.NDArray[np.uint8]) -> None:
         """Upload one display-oriented video frame (H, W, 3) uint8 RGB, row 0 = the top row."""
@@ -224,7 +225,12 @@ class FusionRenderer:
         self.scene.update()
         truth_map = self._truth_positions(overlays)
         decals = None
-        if self.deferred and truth_map is None and not self.scene_pass.count_samples:
+        if (
+            self.deferred
+            and self.deferred_pass is not None
+            and truth_map is None
+            and not self.scene_pass.count_samples
+        ):
             decals = self._decals(view, settings)
         if decals is not None:
             self.deferred_pass.begin(fbo, BACKGROUND)

@@ -56,20 +56,8 @@ def test_a_projector_looking_down_reaches_its_footprint_on_the_ground():
     square |x|, |y| <= 20 m; the scene is that ground (a thin box). Seen from straight above at
     100 m with a 60 degree view, the square's corners land at NDC +-20 / (100 tan 30 deg) = 0.346:
     the reach is that square (the frustum above the ground adds nothing the ground does not)."""
-    projector = Camera.create(
-        Intrinsics.from_fov(100, 100, 90.0),
-        [0.0, 0.0, 20.0],
-        look_at_quat([0, 0, 20], [0, 0, 0], (0, 1, 0)),
-        0.5,
-        500.0,
-    )
-    view = Camera.create(
-        Intrinsics.from_fov(200, 200, 60.0),
-        [0.0, 0.0, 100.0],
-        look_at_quat([0, 0, 100], [0, 0, 0], (0, 1, 0)),
-        0.5,
-        500.0,
-    )
+    projector = _camera([0, 0, 20], [0, 0, 0], 100, 100, 90.0, up=(0, 1, 0))
+    view = _camera([0, 0, 100], [0, 0, 0], 200, 200, 60.0, up=(0, 1, 0))
     reach = coverage(projector, view, [[-500, -500, -0.1], [500, 500, 0.0]], margin_m=0.0)
     half = 20.0 / (100.0 * np.tan(np.radians(30.0)))
     lo, hi = reach.polygon.min(axis=0), reach.polygon.max(axis=0)
@@ -231,13 +219,7 @@ def test_eight_clips_by_priority_match_the_full_cost_path(gl_ctx):
         centre = (12.0 * np.cos(angle), 12.0 * np.sin(angle), 0.0)
         eye = (centre[0] * 1.2, centre[1] * 1.2, 25.0)
         views.append((_solid(colour), _camera(eye, centre, fov=50.0), float(k)))
-    top = Camera.create(
-        Intrinsics.from_fov(240, 240, 60.0),
-        [0.0, 0.0, 60.0],
-        look_at_quat([0, 0, 60], [0, 0, 0], (0, 1, 0)),
-        0.5,
-        500.0,
-    )
+    top = _camera([0, 0, 60], [0, 0, 0], 240, 240, 60.0, up=(0, 1, 0))
     mesh = ground_plane(np.zeros(2), 0.0, 200.0)
     pillar = shapes.box([-2, -2, 0], [2, 2, 10], bottom=True).primitive(GREY)
     mesh = MeshData([*mesh.primitives, pillar])

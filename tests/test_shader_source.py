@@ -12,6 +12,9 @@ def test_include_is_inlined_with_line_directives():
         "include/projective.glsl",
         "include/lens.glsl",
         "include/video.glsl",
+        "include/surface.glsl",
+        "include/projector.glsl",
+        "include/blend.glsl",
     ]
     lines = src.text.splitlines()
     assert lines[0].startswith("#version 400")

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.common import interleaved, median_ms, on_off_table, table
+from bench.common import drawing_paths, interleaved, median_ms, on_off_table, table
 
 CITY_ORIGIN = (47.0, 8.0, 400.0)
 
@@ -140,11 +140,8 @@ def city(
         renderer.set_video_frame(photo)
         renderer.set_projector(projector)
         first_s, loading = _first_full_frame(ctx, renderer, view, target, start)
-        paths = {"deferred": True, "forward": False}
-        if renderer.deferred_pass is None:
-            paths.pop("deferred")
         steady = {}
-        for path, flag in paths.items():
+        for path, flag in drawing_paths(renderer).items():
             renderer.deferred = flag
             steady[path] = _steady(ctx, renderer, view, projector, target, frames)
         renderer.deferred = renderer.deferred_pass is not None

@@ -27,7 +27,15 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from bench.common import interleaved, machine, median_ms, on_off_table, table, time_calls  # noqa: E402
+from bench.common import (  # noqa: E402
+    drawing_paths,
+    interleaved,
+    machine,
+    median_ms,
+    on_off_table,
+    table,
+    time_calls,
+)
 
 
 def _big_scene(path: Path, triangles: int) -> None:
@@ -274,9 +282,6 @@ def dense_scene(ctx, renderer, mesh, photo, target, w: int, h: int, frames: int)
     print(f"\nratio on/off (medians, same run): **{median_ms(t_on) / median_ms(t_off):.3f}**")
 
 
-PATHS = {"deferred": True, "forward": False}  # FusionRenderer.deferred for each drawing path
-
-
 def projectors(ctx, renderer, view, target, photo, frame, frames: int) -> dict:
     """The sample drawn with 1, 2, 4 and 8 projectors at once (several clips), every depth map
     redrawn every frame (each projector turns by a millidegree a frame), on both drawing paths:
@@ -290,7 +295,7 @@ def projectors(ctx, renderer, view, target, photo, frame, frames: int) -> dict:
 
     settings = ProjectionSettings()
     counts = (1, 2, 4, 8)
-    paths = [k for k in PATHS if PATHS[k] is False or renderer.deferred_pass is not None]
+    paths = drawing_paths(renderer)
 
     def camera(k: int, tick: int):
         pose = SAMPLE_PHOTO_POSE.__dict__
@@ -311,7 +316,7 @@ def projectors(ctx, renderer, view, target, photo, frame, frames: int) -> dict:
 
     def draw(path: str, n: int, move: bool) -> None:
         tick[0] += move
-        renderer.deferred = PATHS[path]
+        renderer.deferred = paths[path]
         renderer.extras = extras[: n - 1]
         renderer.set_projector(camera(0, tick[0]))
         for k, e in enumerate(renderer.extras, start=1):
@@ -388,17 +393,17 @@ def sample_on_off(ctx, renderer, view, target, frames: int) -> dict:
     from app.core.settings import ProjectionSettings
 
     on, off = ProjectionSettings(), ProjectionSettings(enabled=False)
-    paths = [k for k in PATHS if PATHS[k] is False or renderer.deferred_pass is not None]
+    paths = drawing_paths(renderer)
     keys = [(path, s) for path in paths for s in (on, off)]
     times = {k: [] for k in range(len(keys))}
     for _ in range(3):
         for path, s in keys:
-            renderer.deferred = PATHS[path]
+            renderer.deferred = paths[path]
             renderer.draw(view, target.fbo, s)
             ctx.finish()
     for _ in range(frames):
         for k, (path, s) in enumerate(keys):
-            renderer.deferred = PATHS[path]
+            renderer.deferred = paths[path]
             t0 = time.perf_counter()
             renderer.draw(view, target.fbo, s)
             ctx.finish()

@@ -64,3 +64,12 @@ def on_off_table(t_on: list[float], t_off: list[float], on_label: str = "on") ->
         ["off", f"{median_ms(t_off):.2f}", f"{p95_ms(t_off):.2f}", f"{1000 / median_ms(t_off):.1f}"],
         [on_label, f"{median_ms(t_on):.2f}", f"{p95_ms(t_on):.2f}", f"{1000 / median_ms(t_on):.1f}"],
     ])  # fmt: skip
+
+
+def drawing_paths(renderer) -> dict[str, bool]:
+    """The drawing paths a FusionRenderer can take, by name, each its `deferred` switch: the
+    deferred decals (where the context has them) and the forward full-cost pass."""
+    paths = {"deferred": True, "forward": False}
+    if renderer.deferred_pass is None:
+        paths.pop("deferred")
+    return paths

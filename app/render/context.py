@@ -32,17 +32,19 @@ def describe(ctx: moderngl.Context) -> str:
     return f"{ctx.info['GL_RENDERER']}, {ctx.info['GL_VERSION']}"
 
 
-def _libgl_finish():
-
-    for name in ("libGL.so.1", ctypes.util.find_library("GL") or ""):
+def _library(soname: str, short: str) -> ctypes.CDLL | None:
+    """A shared library by its soname, else by what find_library finds for its short name;
+    None if neither loads."""
+    for name in (soname, ctypes.util.find_library(short) or ""):
         try:
-            return ctypes.CDLL(name).glFinish
+            return ctypes.CDLL(name)
         except OSError:
             continue
     return None
 
 
-_GL_FINISH = _libgl_finish()
+_LIBGL = _library("libGL.so.1", "GL")
+_GL_FINISH = getattr(_LIBGL, "glFinish", None)
 
 GL_READ_FRAMEBUFFER, GL_DRAW_FRAMEBUFFER = 0x8CA8, 0x8CA9
 GL_COLOR_BUFFER_BIT, GL_NEAREST = 0x4000, 0x2600
@@ -53,29 +55,23 @@ def _gl_blit():
     origin only, and with the depth buffer, which a window's may not match): from libGL, else
     through EGL's eglGetProcAddress (glvnd's dispatch serves EGL and GLX contexts alike)."""
     args = [ctypes.c_int] * 8 + [ctypes.c_uint, ctypes.c_uint]
-    for name in ("libGL.so.1", ctypes.util.find_library("GL") or ""):
-        try:
-            lib = ctypes.CDLL(name)
-            lib.glBlitFramebuffer.argtypes = args
-            lib.glBindFramebuffer.argtypes = [ctypes.c_uint, ctypes.c_uint]
-            return lib.glBindFramebuffer, lib.glBlitFramebuffer
-        except (OSError, AttributeError):
-            continue
-    for name in ("libEGL.so.1", ctypes.util.find_library("EGL") or ""):
-        try:
-            egl = ctypes.CDLL(name)
-        except OSError:
-            continue
-        egl.eglGetProcAddress.restype = ctypes.c_void_p
-        egl.eglGetProcAddress.argtypes = [ctypes.c_char_p]
-        bind = egl.eglGetProcAddress(b"glBindFramebuffer")
-        blit = egl.eglGetProcAddress(b"glBlitFramebuffer")
-        if bind and blit:
-            return (
-                ctypes.CFUNCTYPE(None, ctypes.c_uint, ctypes.c_uint)(bind),
-                ctypes.CFUNCTYPE(None, *args)(blit),
-            )
-    return None
+    if _LIBGL is not None and hasattr(_LIBGL, "glBlitFramebuffer"):
+        _LIBGL.glBlitFramebuffer.argtypes = args
+        _LIBGL.glBindFramebuffer.argtypes = [ctypes.c_uint, ctypes.c_uint]
+        return _LIBGL.glBindFramebuffer, _LIBGL.glBlitFramebuffer
+    egl = _library("libEGL.so.1", "EGL")
+    if egl is None:
+        return None
+    egl.eglGetProcAddress.restype = ctypes.c_void_p
+    egl.eglGetProcAddress.argtypes = [ctypes.c_char_p]
+    bind = egl.eglGetProcAddress(b"glBindFramebuffer")
+    blit = egl.eglGetProcAddress(b"glBlitFramebuffer")
+    if not (bind and blit):
+        return None
+    return (
+        ctypes.CFUNCTYPE(None, ctypes.c_uint, ctypes.c_uint)(bind),
+        ctypes.CFUNCTYPE(None, *args)(blit),
+    )
 
 
 _GL_BLIT = _gl_blit()

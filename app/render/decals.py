@@ -19,6 +19,7 @@ The frame is then copied into the caller's framebuffer (its viewport).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import moderngl
@@ -28,25 +29,20 @@ from app.camera.pinhole import Camera
 from app.core.settings import ProjectionSettings
 from app.render.context import GL_REQUIRE, blit_colour, can_blit
 from app.render.coverage import polygon_pixels
-from app.render.passes import DepthPass, set_lens
+from app.render.passes import ExtraProjector, set_lens
 from app.render.programs import Uniforms, load_program
-from app.render.video_texture import ExtraVideo, VideoTexture
 
+MAX_POLYGON = math.comb(13, 3)  # coverage()'s 13 planes, three at a time
 DEPTH_UNIT, SURFACE_UNIT = 1, 5  # texture units; the video takes 2-4 (VideoTexture.bind)
 
 
 @dataclass(frozen=True)
 class Decal:
-    """One projector for one frame: its camera, depth map (drawn), video, the polygon of its reach
-    (window NDC, (K, 2)), its priority, opacity and frame age (s), as passes.ExtraProjector."""
+    """One projector for one frame (its depth map drawn) and the polygon of its reach on the
+    screen (window NDC, (K, 2): app.render.coverage)."""
 
-    camera: Camera
-    depth: DepthPass
-    video: VideoTexture | ExtraVideo
+    view: ExtraProjector
     polygon: np.ndarray
-    priority: float
-    alpha: float
-    age_s: float
 
 
 def deferred_available(ctx: moderngl.Context) -> bool:
@@ -57,7 +53,7 @@ def deferred_available(ctx: moderngl.Context) -> bool:
 
 def drawing_order(decals: list[Decal]) -> list[Decal]:
     """Best first: higher priority, then the younger frame, then the order given (stable)."""
-    return sorted(decals, key=lambda d: (-d.priority, d.age_s))
+    return sorted(decals, key=lambda d: (-d.view.priority, d.view.age_s))
 
 
 class DeferredProjectors:
@@ -67,7 +63,8 @@ class DeferredProjectors:
     def __init__(self, ctx: moderngl.Context) -> None:
         self.ctx = ctx
         self.programs: dict[tuple[tuple[str, int], ...], moderngl.Program] = {}
-        self.vbo = ctx.buffer(reserve=64 * 8, dynamic=True)
+        # A reach polygon has at most as many vertices as its polytope: C(13, 3) plane triples.
+        self.vbo = ctx.buffer(reserve=MAX_POLYGON * 8, dynamic=True)
         self.vao: dict[int, moderngl.VertexArray] = {}
         self.size = (0, 0)
         self._objects: list = []
@@ -149,7 +146,8 @@ class DeferredProjectors:
         )
         self.surface.use(SURFACE_UNIT)
         view_inverse = np.linalg.inv(view.view)
-        for d in drawing_order(decals):
+        for decal in drawing_order(decals):
+            d = decal.view
             exact = d.camera.lens is not None or d.camera.rs_turn is not None
             program = self._program(
                 {
@@ -174,19 +172,11 @@ class DeferredProjectors:
             set_lens(p, d.camera)
             d.depth.texture.use(DEPTH_UNIT)
             d.video.bind(p)
-            fan = np.ascontiguousarray(d.polygon, np.float32)
-            if fan.nbytes > self.vbo.size:
-                self.vbo.orphan(fan.nbytes)
-                for vao in self.vao.values():
-                    vao.release()
-                self.vao = {
-                    q.glo: ctx.vertex_array(q, [(self.vbo, "2f", "in_ndc")])
-                    for q in self.programs.values()
-                }
+            fan = np.ascontiguousarray(decal.polygon, np.float32)
             self.vbo.write(fan.tobytes())
             self.vao[program.glo].render(moderngl.TRIANGLE_FAN, vertices=len(fan))
             self.drawn += 1
-            self.pixels += polygon_pixels(d.polygon, vw, vh)
+            self.pixels += polygon_pixels(decal.polygon, vw, vh)
         ctx.disable(moderngl.BLEND)
 
     def overlays(self) -> moderngl.Framebuffer:

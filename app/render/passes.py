@@ -267,12 +267,13 @@ SAMPLER_UNITS = {  # the scene shader's other samplers and their texture units
 
 @dataclass(frozen=True)
 class ExtraProjector:
-    """A further projector for one draw: its camera, depth pass (drawn), video (an RGB still or a
-    playback frame's planes) and priority (higher wins where several see a surface)."""
+    """A projector for one draw: its camera, depth pass (drawn), video (an RGB still or a
+    playback frame's planes) and priority (higher wins where several see a surface). The scene
+    pass takes the further ones (ExtraVideo); the deferred decals take the first too."""
 
     camera: Camera
     depth: DepthPass
-    video: ExtraVideo
+    video: VideoTexture | ExtraVideo
     priority: float = 0.0
     alpha: float = 1.0  # its opacity over the model (the first projector's: the settings' alpha)
     age_s: float = 0.0  # how long before the drawn moment its frame was taken (ties: the younger)

@@ -240,20 +240,11 @@ class FusionRenderer:
             self._draw_overlays(view, overlays)
             self.deferred_pass.finish(fbo)
             return
-        if settings.enabled and self.projector is not None and self.video.ready:
-            w, h = self.projector.intrinsics.width, self.projector.intrinsics.height
-            self.depth.update(self.projector, depth_map_size(w, h, settings.depth_long_side))
-        extras = []
-        if settings.enabled:
-            for e in self.extras:
-                i = e.camera.intrinsics
-                e.depth.update(
-                    e.camera, depth_map_size(i.width, i.height, settings.depth_long_side)
-                )
-                alpha = settings.alpha if e.alpha is None else e.alpha
-                extras.append(
-                    ExtraProjector(e.camera, e.depth, e.video, e.priority, alpha, e.age_s)
-                )
+        views = self._views(settings)
+        for v in views:
+            i = v.camera.intrinsics
+            v.depth.update(v.camera, depth_map_size(i.width, i.height, settings.depth_long_side))
+        extras = [v for v in views if v.depth is not self.depth]  # the first goes on its own
         fbo.use()
         fbo.clear(*BACKGROUND, 1.0, depth=1.0)
         self.scene_pass.render(
@@ -270,16 +261,16 @@ class FusionRenderer:
         )
         self._draw_overlays(view, overlays)
 
-    def _decals(self, view: Camera, settings: ProjectionSettings) -> list[Decal] | None:
-        """The projectors drawn as deferred decals this frame, each with its depth map brought
-        up to date at the size its reach on screen needs; None when none is on (the scene is
-        then drawn alone, forward)."""
+    def _views(self, settings: ProjectionSettings) -> list[ExtraProjector]:
+        """The projectors this frame draws, the first (the session's video, once it has a frame)
+        first, then the further ones in order; none with projection off. Their depth maps are
+        not brought up to date here (each path sizes them its way)."""
         if not settings.enabled:
-            return None
+            return []
         views = []
         if self.projector is not None and self.video.ready:
             views.append(
-                (
+                ExtraProjector(
                     self.projector,
                     self.depth,
                     self.video,
@@ -288,22 +279,28 @@ class FusionRenderer:
                     self.projector_age,
                 )
             )
-        for e in self.extras[:MAX_EXTRA]:
-            if e.video.ready:
-                alpha = settings.alpha if e.alpha is None else e.alpha
-                views.append((e.camera, e.depth, e.video, e.priority, alpha, e.age_s))
+        for e in self.extras:
+            alpha = settings.alpha if e.alpha is None else e.alpha
+            views.append(ExtraProjector(e.camera, e.depth, e.video, e.priority, alpha, e.age_s))
+        return views
+
+    def _decals(self, view: Camera, settings: ProjectionSettings) -> list[Decal] | None:
+        """The projectors drawn as deferred decals this frame, each with its depth map brought
+        up to date at the size its reach on screen needs; None when none is on (the scene is
+        then drawn alone, forward)."""
+        views = self._views(settings)
         if not views:
             return None
         bounds = self.scene.bounds()
         decals = []
-        for camera, depth, video, priority, alpha, age in views:
-            reach = coverage(camera, view, bounds)
+        for v in views:
+            reach = coverage(v.camera, view, bounds)
             if reach is None:
                 continue  # nothing of the scene it lights is on the screen
-            i = camera.intrinsics
-            long_side = depth_long_side(camera, view, reach.ratio, settings.depth_long_side)
-            depth.update(camera, depth_map_size(i.width, i.height, long_side))
-            decals.append(Decal(camera, depth, video, reach.polygon, priority, alpha, age))
+            i = v.camera.intrinsics
+            long_side = depth_long_side(v.camera, view, reach.ratio, settings.depth_long_side)
+            v.depth.update(v.camera, depth_map_size(i.width, i.height, long_side))
+            decals.append(Decal(v, reach.polygon))
         return decals
 
     def _draw_overlays(self, view: Camera, overlays: OverlaySettings) -> None:

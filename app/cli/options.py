@@ -170,7 +170,7 @@ def add_layer_options(p: argparse.ArgumentParser, placed_models: bool = False) -
         action="append",
         default=None,
         metavar="PATH|URL",
-        help=f"a scene layer, repeatable: a 3D Tiles tileset.json (folder or http(s) URL), a DEM .tif, or {what}drawn together",
+        help=f"a scene layer, repeatable: a 3D Tiles tileset.json (folder or http(s) URL), a DEM .tif, a CityJSON (.city.json, .city.jsonl) or CityGML (.gml, .xml, .zip) city model, or {what}drawn together",
     )
     p.add_argument(
         "--dem",
@@ -185,7 +185,7 @@ def add_layer_options(p: argparse.ArgumentParser, placed_models: bool = False) -
         "--dem-vertical",
         choices=("ellipsoid", "egm2008", "egm96"),
         default=None,
-        help="the DEM's heights are above this (default: the file's vertical CRS, else EGM2008)",
+        help="the heights of a DEM or a city model are above this (default: the file's vertical CRS, else EGM2008)",
     )
     p.add_argument(
         "--dem-error",

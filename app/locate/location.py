@@ -37,6 +37,7 @@ from app.footage.clips import open_any
 from app.geodesy.enu import LocalFrame
 from app.geodesy.geoid import undulation
 from app.render.probe import SurfaceProbe
+from app.scene.city.model import Feature
 from app.scene.mesh import MeshData
 from app.session.camera_track import CameraTrack
 from app.session.model import REGISTERED, Session
@@ -45,6 +46,7 @@ from app.solve.track import solve_track
 __all__ = [
     "Location",
     "Locator",
+    "feature_tolerance",
     "PoseSigmas",
     "image_size",
     "locate",
@@ -60,6 +62,8 @@ GNSS_SIGMA_M = 3.0  # a phone's or drone's GNSS position error without its own a
 FILTER_SIGMA_DEG = 2.0  # the attitude error the sensor filters are held to (the paper's RMS)
 REGISTERED_SIGMA_M = 0.3  # the registered position's error on the sample (docs/ACCURACY.md)
 MIN_SIN_INCIDENCE = 0.1  # grazing views stretch the error at most 10 times
+FEATURE_TOLERANCE_M = 0.05  # a located point this near a city surface is on it, plus
+FEATURE_TOLERANCE_PER_M = 1e-3  # this much per metre of range
 
 
 @dataclass(frozen=True)
@@ -77,7 +81,8 @@ class Location:
     frame; lat, lon: WGS84 deg; height_m: above the ellipsoid; msl_m: above mean sea level
     (EGM2008); range_m: from the camera; incidence_deg: between the ray and the surface (90:
     head-on; None where the neighbours do not give a normal); uncertainty_m: what the pose's
-    error explains on the surface (None without sigmas)."""
+    error explains on the surface (None without sigmas); feature: the city object the point
+    lies on (its id, surface kind, attributes), None off city models."""
 
     pixel: tuple[float, float]
     enu: tuple[float, float, float]
@@ -88,6 +93,7 @@ class Location:
     range_m: float
     incidence_deg: float | None
     uncertainty_m: float | None
+    feature: Feature | None = None
 
     def as_dict(self) -> dict[str, object]:
         """The fields for JSON, named with their units."""
@@ -101,16 +107,18 @@ class Location:
             "range_m": self.range_m,
             "incidence_deg": self.incidence_deg,
             "uncertainty_m": self.uncertainty_m,
+            "object": None if self.feature is None else self.feature.as_dict(),
         }
 
     def line(self) -> str:
         """One line for people."""
         e, n, u = self.enu
         unc = "" if self.uncertainty_m is None else f", +-{self.uncertainty_m:.2f} m"
+        on = "" if self.feature is None else f"; on {self.feature.line()}"
         return (
             f"pixel {self.pixel[0]:g},{self.pixel[1]:g}: {self.lat:.8f}, {self.lon:.8f}, "
             f"{self.height_m:.2f} m ellipsoidal ({self.msl_m:.2f} m above sea level); "
-            f"ENU {e:.2f}, {n:.2f}, {u:.2f} m; range {self.range_m:.2f} m{unc}"
+            f"ENU {e:.2f}, {n:.2f}, {u:.2f} m; range {self.range_m:.2f} m{unc}{on}"
         )
 
 
@@ -159,9 +167,10 @@ def location_of(
     pixel: tuple[float, float],
     frame: LocalFrame,
     sigmas: PoseSigmas | None,
+    scene: MeshData | None = None,
 ) -> Location | None:
     """The Location from a ray camera's position map (RAY_GRID, RAY_GRID, 3) ENU m; None where
-    its centre meets nothing."""
+    its centre meets nothing. scene: the city objects of its feature tables are named."""
     c = RAY_GRID // 2
     p = np.asarray(points[c, c], np.float64)
     if not np.all(np.isfinite(p)):
@@ -193,7 +202,14 @@ def location_of(
         rng,
         incidence,
         unc,
+        None if scene is None else scene.feature_at(p, feature_tolerance(rng)),
     )
+
+
+def feature_tolerance(range_m: float) -> float:
+    """How far (m) a located point may lie from a city object's surface and still be on it:
+    the position pass's depth precision grows with range."""
+    return FEATURE_TOLERANCE_M + FEATURE_TOLERANCE_PER_M * range_m
 
 
 class Locator:
@@ -201,6 +217,7 @@ class Locator:
 
     def __init__(self, mesh: MeshData, frame: LocalFrame) -> None:
         self.frame = frame
+        self.mesh = mesh
         self.probe = SurfaceProbe(mesh)
 
     def locate(
@@ -214,7 +231,9 @@ class Locator:
         out = []
         for x, y in np.atleast_2d(np.asarray(pixels, np.float64)):
             ray = ray_camera(camera, (x, y))
-            out.append(location_of(self.probe.points(ray), ray, (x, y), self.frame, sigmas))
+            out.append(
+                location_of(self.probe.points(ray), ray, (x, y), self.frame, sigmas, self.mesh)
+            )
         return out
 
     def release(self) -> None:

@@ -85,7 +85,9 @@ def measure(points_enu: npt.ArrayLike) -> Measure:
 class Mark:
     """A kept point, line or polygon: kind (KINDS), label, clip (the file it was taken from),
     frame (video frame index) and media_s (its time, s from the first frame), points (N, 3)
-    ENU m in the session's frame."""
+    ENU m in the session's frame; city_object: the city object every point lies on
+    (app.scene.city.model.Feature.as_dict: layer, id, type, surface, parent, attributes), None
+    off city models."""
 
     kind: str
     label: str
@@ -93,6 +95,7 @@ class Mark:
     frame: int
     media_s: float
     points: np.ndarray = field(repr=False)
+    city_object: dict | None = None
 
     def __post_init__(self) -> None:
         if self.kind not in KINDS:
@@ -133,7 +136,30 @@ class Mark:
             "length_m": round(m.straight_m, 3) if self.kind != "point" else None,
             "ground_length_m": round(m.ground_m, 3) if self.kind != "point" else None,
             "area_m2": round(m.area_m2, 3) if self.kind == "polygon" else None,
+            **_object_properties(self.city_object),
         }
+
+
+OBJECT_KEYS = ("layer", "id", "type", "surface", "parent")
+
+
+def _object_properties(city_object: dict | None) -> dict[str, object]:
+    """A city object as flat properties (object_id, object_surface...; GIS tables are flat) and
+    its attributes as one JSON text (object_attributes)."""
+    if city_object is None:
+        return {}
+    out: dict[str, object] = {f"object_{k}": city_object.get(k) for k in OBJECT_KEYS}
+    out["object_attributes"] = json.dumps(city_object.get("attributes") or {}, default=str)
+    return out
+
+
+def _object_of(props: dict) -> dict | None:
+    """The city object back from a mark's properties (None when it has none)."""
+    if props.get("object_id") is None:
+        return None
+    out = {k: props.get(f"object_{k}") for k in OBJECT_KEYS}
+    out["attributes"] = json.loads(props.get("object_attributes") or "{}")
+    return out
 
 
 def marks_path(input_path: str | Path) -> Path:
@@ -222,6 +248,7 @@ def read_marks(path: str | Path, frame: LocalFrame) -> list[Mark]:
                     int(props["frame"]),
                     float(props["media_time_s"]),
                     enu,
+                    _object_of(props),
                 )
             )
         except (KeyError, IndexError, TypeError, ValueError) as exc:

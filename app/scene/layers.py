@@ -1,9 +1,10 @@
 """A session's scene as layers: model files, 3D Tiles tilesets (folders or URLs), DEM terrain
-with its orthophoto; all placed in one ENU frame into one MeshData.
+with its orthophoto, city models; all placed in one ENU frame into one MeshData.
 
-The kind of a layer comes from its name: `.json` or an http(s) URL is a tileset, `.tif`/`.tiff`
-a DEM, `.glb`/`.gltf`/`.obj`/`.ply` a model. Tilesets and DEMs are georeferenced by themselves;
-models by their placement (app.scene.loader).
+The kind of a layer comes from its name: a CityJSON file (`.city.json`, `.city.jsonl`, or a
+`.json` that says CityJSON) or CityGML (`.gml`, `.xml`, `.zip`) is a city, any other `.json` or
+an http(s) URL a tileset, `.tif`/`.tiff` a DEM, `.glb`/`.gltf`/`.obj`/`.ply` a model. Tilesets,
+DEMs and cities are georeferenced by themselves; models by their placement (app.scene.loader).
 """
 
 from __future__ import annotations
@@ -17,20 +18,24 @@ import numpy.typing as npt
 from app.core.errors import SceneError
 from app.core.messages import Messages
 from app.geodesy.enu import LocalFrame
+from app.scene.city.read import is_city, read_city
 from app.scene.loader import SUPPORTED_SUFFIXES, Placement, load_scene
 from app.scene.mesh import MeshData
 from app.scene.terrain import DEFAULT_MAX_ERROR_M, DEM_SUFFIXES, read_terrain
 from app.scene.tiles import fetch
 from app.scene.tiles.tileset import Tileset, TilesetError
 
-KINDS = ("mesh", "tileset", "dem")
+KINDS = ("mesh", "tileset", "dem", "city")
 SCENE_FAR_M = 500.0  # a scene farther than this from the camera is misplaced, or the camera is
 
 
 def layer_kind(location: str | Path) -> str:
-    """'tileset', 'dem' or 'mesh' from a layer's name; raises SceneError for anything else."""
+    """'city', 'tileset', 'dem' or 'mesh' from a layer's name (and a .json's first bytes);
+    raises SceneError for anything else."""
     text = str(location)
     suffix = Path(text.split("?")[0]).suffix.lower()
+    if not fetch.is_url(text) and is_city(text):
+        return "city"
     if fetch.is_url(text) or suffix == ".json":
         return "tileset"
     if suffix in DEM_SUFFIXES:
@@ -39,15 +44,15 @@ def layer_kind(location: str | Path) -> str:
         return "mesh"
     raise SceneError(
         text,
-        f"unknown scene layer {suffix or 'without a suffix'!r} (expected a 3D Tiles tileset.json or URL, a DEM .tif, or {', '.join(SUPPORTED_SUFFIXES)})",
+        f"unknown scene layer {suffix or 'without a suffix'!r} (expected a 3D Tiles tileset.json or URL, a DEM .tif, a CityJSON or CityGML city model, or {', '.join(SUPPORTED_SUFFIXES)})",
     )
 
 
 @dataclass(frozen=True)
 class Layer:
     """One layer. location: a file path or URL; placement: a model's (app.scene.loader); ortho,
-    vertical, max_error_m: a DEM's orthophoto, vertical datum (None: the file's, else EGM2008)
-    and largest vertical error of its mesh, m."""
+    max_error_m: a DEM's orthophoto and largest vertical error of its mesh, m; vertical: a DEM's
+    or a city's vertical datum (None: the file's, else EGM2008)."""
 
     location: str
     kind: str
@@ -68,7 +73,7 @@ class Layer:
 
     @property
     def georeferenced(self) -> bool:
-        """Placed by its own coordinates (a tileset, a DEM), not by a manifest's origin."""
+        """Placed by its own coordinates (a tileset, a DEM, a city), not by a manifest's origin."""
         return self.kind != "mesh"
 
     def files(self) -> list[Path]:
@@ -86,7 +91,8 @@ def named_layers(
 ) -> tuple[Layer, ...]:
     """The layers a user named (files or URLs), checked before anything loads: local files
     exist, kinds are known; a DEM takes the orthophoto, vertical datum and largest error (m)
-    given, a model the placement. Raises SceneError naming the file at fault."""
+    given, a city the vertical datum, a model the placement. Raises SceneError naming the file
+    at fault."""
     out = []
     for name in names:
         if not fetch.is_url(name) and not Path(name).exists():
@@ -94,6 +100,8 @@ def named_layers(
         layer = Layer.of(name)
         if layer.kind == "dem":
             layer = Layer.of(name, ortho=ortho, vertical=vertical, max_error_m=max_error_m)
+        elif layer.kind == "city":
+            layer = Layer.of(name, vertical=vertical)
         elif layer.kind in ("mesh", "tileset") and placement is not None:
             layer = Layer.of(name, placement=placement)
         out.append(layer)
@@ -148,7 +156,7 @@ def load_layers(
     track_ll: npt.ArrayLike | None = None,
 ) -> LoadedLayers:
     """Every layer in `frame`, in one MeshData. track_ll: (N, 2) lat, lon (deg) of the clip's
-    track: DEMs are read around it. Raises SceneError naming the file at fault."""
+    track: DEMs and city models are read around it. Raises SceneError naming the file at fault."""
     out = LoadedLayers(MeshData())
     notes = out.notes
     for layer in layers:
@@ -158,6 +166,10 @@ def load_layers(
             ts = _tileset(layer, frame)
             part = MeshData(tilesets=[ts])
             notes.info(f"{layer.name}: 3D Tiles {ts.version}, streamed by level of detail")
+        elif layer.kind == "city":
+            city = read_city(layer.location, frame, track_ll, layer.vertical)
+            part = city.mesh
+            notes.extend(city.notes)
         else:
             terrain = read_terrain(
                 layer.location, frame, track_ll, layer.ortho, layer.vertical, layer.max_error_m

@@ -57,15 +57,27 @@ class Primitive:
 @dataclass
 class MeshData:
     """A whole scene in the session ENU frame: static primitives (model files, terrain, the
-    assumed ground) and streamed 3D Tiles layers (app.scene.tiles.Tileset), whose tiles the
-    renderer loads as cameras need them."""
+    assumed ground), streamed 3D Tiles layers (app.scene.tiles.Tileset), whose tiles the
+    renderer loads as cameras need them, and the feature tables of city layers
+    (app.scene.city.model.FeatureTable), which name the object each of their triangles is."""
 
     primitives: list[Primitive] = field(default_factory=list)
     tilesets: list = field(default_factory=list)
+    features: list = field(default_factory=list)
 
     def merged(self, other: MeshData) -> MeshData:
         """Both scenes' layers in one."""
-        return MeshData(self.primitives + other.primitives, self.tilesets + other.tilesets)
+        return MeshData(
+            self.primitives + other.primitives,
+            self.tilesets + other.tilesets,
+            self.features + other.features,
+        )
+
+    def feature_at(self, point_enu: npt.ArrayLike, tolerance_m: float = 0.25):
+        """The city object (app.scene.city.model.Feature) whose surface lies nearest the ENU
+        point (m) within tolerance_m, None where no city layer has one."""
+        found = [f for t in self.features if (f := t.at(point_enu, tolerance_m)) is not None]
+        return min(found, key=lambda f: f.distance_m, default=None)
 
     @property
     def triangle_count(self) -> int:

@@ -34,6 +34,7 @@ from scipy.ndimage import map_coordinates
 from app.core.errors import SceneError
 from app.core.messages import Messages
 from app.geodesy import geoid
+from app.geodesy.crs import horizontal, vertical_datum
 from app.geodesy.enu import LocalFrame
 from app.scene.mesh import MeshData, Primitive
 
@@ -222,33 +223,21 @@ def _affine(t: object, col: npt.ArrayLike, row: npt.ArrayLike) -> tuple[np.ndarr
     return t.a * col + t.b * row + t.c, t.d * col + t.e * row + t.f
 
 
+def _pyproj_crs(crs: object) -> pyproj.CRS:
+    """A rasterio CRS as pyproj's."""
+    return pyproj.CRS.from_wkt(crs.to_wkt())
+
+
 def _vertical_datum(crs: object) -> str | None:
     """'egm96', 'egm2008' or 'ellipsoid' from a rasterio CRS with a vertical part; None if silent."""
-
     try:
-        pcrs = pyproj.CRS.from_wkt(crs.to_wkt())
-    except Exception:
+        return vertical_datum(_pyproj_crs(crs))
+    except pyproj.exceptions.CRSError:
         return None
-    parts = pcrs.sub_crs_list if pcrs.is_compound else [pcrs]
-    for part in parts:
-        if part.is_vertical:
-            code = part.to_epsg()
-            if code in geoid.EPSG_VERTICAL:
-                return geoid.EPSG_VERTICAL[code]
-            name = part.name.lower()
-            if "egm2008" in name or "egm08" in name:
-                return "egm2008"
-            if "egm96" in name:
-                return "egm96"
-        if part.to_epsg() == 4979 or (part.is_geographic and len(part.axis_info) == 3):
-            return "ellipsoid"
-    return None
 
 
-def _horizontal(crs: object):
-
-    pcrs = pyproj.CRS.from_wkt(crs.to_wkt())
-    return pcrs.sub_crs_list[0] if pcrs.is_compound else pcrs
+def _horizontal(crs: object) -> pyproj.CRS:
+    return horizontal(_pyproj_crs(crs))
 
 
 def _window_around(src, track_ll: np.ndarray | None, margin_m: float):

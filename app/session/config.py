@@ -10,11 +10,15 @@ TOML reader that types and checks each key is app.session.reader).
     [scene]                       # optional: without it (and without layers or a DEM), an
                                   # assumed flat ground under the track
     path = "scene.glb"            # glTF/GLB, OBJ, PLY; or a 3D Tiles tileset.json (folder or
-                                  # http(s) URL) or a DEM .tif, which place themselves
+                                  # http(s) URL), a DEM .tif or a city model (CityJSON
+                                  # .city.json/.city.jsonl, CityGML .gml/.xml/.zip), which
+                                  # place themselves
     origin = [34.80, 113.53, 110.0]  # a model's origin (tilesets and DEMs need none)
     up_axis = "Y"                 # optional: Y for glTF, Z otherwise
     heading_deg = 0.0             # optional
     scale = 1.0                   # optional
+    vertical = "egm2008"          # a city model's heights, optional: "ellipsoid", "egm2008" or
+                                  # "egm96" (default: its CRS's vertical datum, else EGM2008)
 
     [[layers]]                    # optional, repeated: more layers drawn together with [scene]
     path = "city/tileset.json"    # same kinds as scene.path; a model here takes the same keys
@@ -90,8 +94,8 @@ HANDHELD_MOUNT_M = 1.5  # a hand-held or body camera's height above the ground, 
 _PLACED = {"path", "origin", "up_axis", "heading_deg", "scale"}
 KNOWN_KEYS: dict[str, set[str]] = {  # every table and key of the schema above
     "origin": {"lat", "lon", "h"},
-    "scene": _PLACED,
-    "layers": _PLACED,
+    "scene": _PLACED | {"vertical"},
+    "layers": _PLACED | {"vertical"},
     "dem": {"path", "ortho", "vertical", "max_error_m"},
     "clips": {"path", "offset_s", "priority", "alpha", "source"},
     "video": {"path", "start_time", "time_offset_s", "timing"},
@@ -262,7 +266,16 @@ def _layer(m: Manifest, section: str) -> tuple[Layer, tuple[float, float, float]
         m.number(section, "heading_deg", 0.0, low=-360.0, high=360.0),
         m.number(section, "scale", 1.0, low=0.0, high=1e6, open_low=True),
     )
-    return Layer(location, kind, placement), origin
+    vertical = m.get(section, "vertical", str, None)
+    if vertical is not None and (kind != "city" or vertical not in VERTICAL_DATUMS):
+        raise ManifestError(
+            m.path,
+            f"got {vertical!r}, expected {' or '.join(repr(v) for v in VERTICAL_DATUMS)} for a city model"
+            if kind == "city"
+            else "a vertical datum is a city model's key (a DEM's is dem.vertical)",
+            field=f"{section}.vertical",
+        )
+    return Layer(location, kind, placement, vertical=vertical), origin
 
 
 def _layers(m: Manifest) -> list[Layer]:

@@ -19,12 +19,14 @@ from app.geodesy.geoid import undulation
 from app.locate.location import (
     Location,
     PoseSigmas,
+    feature_tolerance,
     location_of,
     pose_sigmas,
     ray_camera,
     video_pixel,
 )
 from app.locate.marks import KINDS, MIN_POINTS, Mark, marks_path, measure, read_marks, write_marks
+from app.scene.city.model import Feature
 from app.ui.picking import model_point
 
 MARK_SUFFIXES = (".geojson", ".json", ".kml")
@@ -33,12 +35,13 @@ MARK_SUFFIXES = (".geojson", ".json", ".kml")
 @dataclass
 class Pick:
     """A picked point: enu (3,) m; location: as the video sees it (None: not in the video);
-    frame and media_s: the frame shown."""
+    frame and media_s: the frame shown; feature: the city object it lies on (None: none)."""
 
     enu: np.ndarray
     location: Location | None
     frame: int
     media_s: float
+    feature: Feature | None = None
 
 
 @dataclass
@@ -76,14 +79,24 @@ def locate_at(v, xy: tuple[float, float]) -> Pick:
     pixel = None if projector is None else video_pixel(projector, p)
     if pixel is not None:
         ray = ray_camera(projector, pixel)
-        found = location_of(L.renderer.pick_map(ray), ray, pixel, L.session.frame, _sigmas(v))
+        found = location_of(
+            L.renderer.pick_map(ray), ray, pixel, L.session.frame, _sigmas(v), L.renderer.scene.mesh
+        )
         # the video's own ray meets this very point (not an occluder in front of it)
         if found is not None and np.linalg.norm(np.asarray(found.enu) - p) < 0.05 * max(
             1.0, found.range_m
         ):
             location = found
     index = max(v.current_index, 0)
-    return Pick(p, location, index, float(L.session.video.pts_s[index]) if index >= 0 else 0.0)
+    eye = p if v.window_camera is None else np.asarray(v.window_camera.position, np.float64)
+    distance = float(np.linalg.norm(p - eye))
+    return Pick(
+        p,
+        location,
+        index,
+        float(L.session.video.pts_s[index]) if index >= 0 else 0.0,
+        L.renderer.scene.mesh.feature_at(p, feature_tolerance(distance)),
+    )
 
 
 HOVER_EVERY_S = 0.2  # the point under a moving cursor is read at most this often (a position pass)
@@ -121,6 +134,19 @@ def set_kind(v, kind: str) -> None:
     v.ui.measure.picks = v.ui.measure.picks[-1:] if kind == "point" else v.ui.measure.picks
 
 
+def _common_object(picks: list[Pick]) -> dict | None:
+    """The city object every pick lies on (as Feature.as_dict), None if they are not one."""
+    features = [p.feature for p in picks]
+    if not features or any(f is None for f in features):
+        return None
+    if len({(f.layer, f.id) for f in features}) != 1:
+        return None
+    surfaces = {f.surface for f in features}
+    out = features[0].as_dict()
+    out["surface"] = surfaces.pop() if len(surfaces) == 1 else "several"
+    return out
+
+
 def keep(v, label: str) -> None:
     """Keep the current measurement as a mark with this label, and save the marks."""
     state, L = v.ui.measure, v.loaded
@@ -137,6 +163,7 @@ def keep(v, label: str) -> None:
             first.frame,
             first.media_s,
             state.points(),
+            _common_object(state.picks),
         )
     )
     state.picks, state.label = [], ""
@@ -198,10 +225,12 @@ def remove(v, index: int) -> None:
 
 
 def readout(p: Pick) -> str:
-    """The picked point for people: as the video sees it, or the model point."""
+    """The picked point for people: as the video sees it, or the model point; the city object
+    it lies on."""
     if p.location is not None:
         return p.location.line().split(": ", 1)[1]
-    return "on the model, not in the video: " + ", ".join(f"{c:.2f}" for c in p.enu) + " m ENU"
+    on = "" if p.feature is None else f"; on {p.feature.line()}"
+    return "on the model, not in the video: " + ", ".join(f"{c:.2f}" for c in p.enu) + f" m ENU{on}"
 
 
 def geodetic(v, p: Pick) -> tuple[float, float, float, float]:

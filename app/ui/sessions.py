@@ -86,10 +86,10 @@ def home_view(session: Session, mesh: MeshData) -> Navigator:
 
 
 def _is_layer(path: Path) -> bool:
-    """A tileset, a DEM or a model: added to the open clip's scene rather than opened."""
+    """A tileset, a DEM, a city or a model: added to the open clip's scene rather than opened."""
 
     try:
-        return layer_kind(path) in ("tileset", "dem") or (
+        return layer_kind(path) in ("tileset", "dem", "city") or (
             layer_kind(path) == "mesh" and path.suffix.lower() != ".toml"
         )
     except GeofuseError:

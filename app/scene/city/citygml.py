@@ -1,0 +1,259 @@
+"""CityGML 1.0/2.0/3.0 (`.gml`, `.xml`, or either inside a `.zip`), read one city object at a time.
+
+lxml's `iterparse` walks the file and each `cityObjectMember` is read and then freed, so a
+district of 100,000 buildings is never one tree in memory. Of an object the polygons
+(`gml:Polygon`, `gml:Triangle`) are the geometry, read where they are defined (a solid that
+refers to its boundary surfaces by xlink is thus read once); each takes its semantic kind from
+the boundary surface around it (bldg:RoofSurface, con:WallSurface, ...) and its LoD from the
+property around it (lod2MultiSurface, lod1Solid, ...); the object's highest LoD (at most
+`max_lod`) is drawn. BuildingParts are objects of their own, with their building as parent.
+Attributes: generic attributes (2.0 and 3.0 forms), simple properties (measuredHeight,
+function, yearOfConstruction...) and the address, as one line.
+"""
+
+from __future__ import annotations
+
+import re
+import zipfile
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import IO
+
+import numpy as np
+from lxml import etree
+
+from app.core.errors import SceneError
+from app.scene.city.cityjson import Keep
+from app.scene.city.model import SURFACE_KINDS, CityObject, Surface, kind_of
+
+SUFFIXES = (".gml", ".xml", ".zip")
+PART_NAMES = ("BuildingPart", "BridgePart", "TunnelPart")
+LOD_PATTERN = re.compile(r"^lod(\d)")
+MEMBERS = ("cityObjectMember", "featureMember", "member")
+GENERIC = ("stringAttribute", "intAttribute", "doubleAttribute", "dateAttribute", "uriAttribute")
+
+
+def _local(el: etree._Element) -> str:
+    tag = el.tag
+    return tag.rsplit("}", 1)[-1] if isinstance(tag, str) else ""
+
+
+def _coordinates(ring: etree._Element) -> np.ndarray:
+    """(N, 3) of a gml:LinearRing (posList, pos or the old coordinates), open (last dropped
+    when it repeats the first)."""
+    values: list[float] = []
+    dim = 3
+    for el in ring.iter():
+        name = _local(el)
+        if name == "posList":
+            dim = int(el.get("srsDimension") or el.get("dimension") or 3)
+            values += [float(v) for v in (el.text or "").split()]
+        elif name == "pos":
+            values += [float(v) for v in (el.text or "").split()]
+        elif name == "coordinates":
+            values += [float(v) for v in re.split(r"[,\s]+", (el.text or "").strip()) if v]
+    if dim != 3 or len(values) % 3:
+        raise ValueError(f"{len(values)} numbers in a ring, expected x y z triples")
+    p = np.asarray(values, np.float64).reshape(-1, 3)
+    if len(p) > 1 and np.array_equal(p[0], p[-1]):
+        p = p[:-1]
+    return p
+
+
+class CityGmlReader:
+    """Reads one CityGML file. `crs` (the first srsName, None if none) is known once the first
+    object is read; `objects(keep)` yields the objects whose horizontal centre `keep` accepts;
+    `count`: objects with geometry seen."""
+
+    def __init__(self, path: str | Path, max_lod: float = 9.0) -> None:
+        self.path = Path(path)
+        self.max_lod = max_lod
+        self.count = 0
+        self.crs: str | None = None
+        self.version: str | None = None
+
+    def _error(self, message: str, field: str | None = None, line: int | None = None) -> SceneError:
+        return SceneError(self.path, message, field=field, line=line)
+
+    @contextmanager
+    def _open(self) -> Iterator[IO[bytes]]:
+        if self.path.suffix.lower() != ".zip":
+            with self.path.open("rb") as f:
+                yield f
+            return
+        try:
+            archive = zipfile.ZipFile(self.path)
+        except zipfile.BadZipFile as exc:
+            raise self._error(f"not a zip archive: {exc}") from exc
+        with archive:
+            members = [
+                i for i in archive.infolist() if i.filename.lower().endswith((".gml", ".xml"))
+            ]
+            if not members:
+                raise self._error("the archive holds no .gml or .xml file (expected CityGML)")
+            biggest = max(members, key=lambda i: i.file_size)
+            with archive.open(biggest) as f:
+                yield f
+
+    def _note_root(self, el: etree._Element) -> None:
+        if self.version is None:
+            ns = el.tag.split("}", 1)[0].lstrip("{") if "}" in el.tag else ""
+            m = re.search(r"citygml/(\d\.\d)", ns)
+            self.version = m.group(1) if m else None
+
+    def objects(self, keep: Keep | None = None) -> Iterator[CityObject]:
+        """The city objects with geometry (top-level members and their parts)."""
+        seen_root = False
+        tags = ("{*}CityModel", "{*}Envelope", *(f"{{*}}{m}" for m in MEMBERS))
+        try:
+            with self._open() as f:
+                for event, el in etree.iterparse(
+                    f, events=("start", "end"), tag=tags, huge_tree=True
+                ):
+                    name = _local(el)
+                    if event == "start":
+                        if name == "CityModel" and not seen_root:
+                            seen_root = True
+                            self._note_root(el)
+                        continue
+                    if name == "Envelope":
+                        self.crs = self.crs or el.get("srsName")
+                        continue
+                    if name not in MEMBERS or not seen_root:
+                        continue
+                    parent = el.getparent()
+                    if parent is None or _local(parent) != "CityModel":
+                        continue
+                    if self.crs is None:
+                        found = el.find(".//*[@srsName]")
+                        self.crs = None if found is None else found.get("srsName")
+                    for child in el:
+                        if isinstance(child.tag, str):
+                            yield from self._read(child, keep, None)
+                    el.clear()
+                    while el.getprevious() is not None:
+                        del parent[0]
+        except etree.XMLSyntaxError as exc:
+            raise self._error(f"broken XML: {exc.msg}", line=exc.lineno) from exc
+        except zipfile.BadZipFile as exc:
+            raise self._error(f"broken zip archive: {exc}") from exc
+        if not seen_root:
+            raise self._error("no CityModel element (expected a CityGML file)")
+
+    def _read(
+        self,
+        obj: etree._Element,
+        keep: Keep | None,
+        parent: str | None,
+        inherited: dict | None = None,
+    ) -> Iterator[CityObject]:
+        """The object (if it has polygons of its own) and its parts, each with the attributes
+        of the objects around it merged under its own."""
+        oid = obj.get("{http://www.opengis.net/gml}id") or obj.get(
+            "{http://www.opengis.net/gml/3.2}id"
+        )
+        oid = oid or f"{_local(obj)}@{obj.sourceline}"
+        parts = [el for el in obj.iter(*(f"{{*}}{n}" for n in PART_NAMES)) if el is not obj]
+        inside_parts = {id(x) for p in parts for x in p.iter("{*}Polygon", "{*}Triangle")}
+        polygons = []
+        for el in obj.iter("{*}Polygon", "{*}Triangle"):
+            if id(el) in inside_parts:
+                continue
+            lod, kind = self._context(el, obj)
+            if lod is not None and lod <= self.max_lod:
+                polygons.append((lod, kind, el))
+        attributes = {**(inherited or {}), **_attributes(obj)}
+        if polygons:
+            self.count += 1
+            yield from self._object(obj, oid, polygons, keep, parent, attributes)
+        for part in parts:
+            yield from self._read(part, keep, oid, attributes)
+
+    @staticmethod
+    def _context(polygon: etree._Element, obj: etree._Element) -> tuple[int | None, str | None]:
+        """(LoD, semantic surface name) of a polygon, from the elements around it."""
+        lod = kind = None
+        el = polygon.getparent()
+        while el is not None and el is not obj:
+            name = _local(el)
+            if lod is None:
+                m = LOD_PATTERN.match(name)
+                if m:
+                    lod = int(m.group(1))
+            if kind is None and name in SURFACE_KINDS:
+                kind = name
+            el = el.getparent()
+        return lod, kind
+
+    def _object(
+        self,
+        obj: etree._Element,
+        oid: str,
+        polygons: list,
+        keep: Keep | None,
+        parent: str | None,
+        attributes: dict,
+    ) -> Iterator[CityObject]:
+        top = max(lod for lod, _, _ in polygons)
+        otype = _local(obj)
+        surfaces = []
+        for lod, name, polygon in polygons:
+            if lod != top:
+                continue
+            rings = []
+            for ring in polygon.iter("{*}LinearRing"):
+                try:
+                    coords = _coordinates(ring)
+                except ValueError as exc:
+                    raise self._error(
+                        str(exc), field=f"{oid} polygon", line=polygon.sourceline
+                    ) from exc
+                if not np.isfinite(coords).all():
+                    raise self._error(
+                        "coordinates that are not finite numbers",
+                        field=f"{oid} polygon",
+                        line=polygon.sourceline,
+                    )
+                rings.append(coords)
+            if rings:
+                surfaces.append(Surface(rings, kind_of(name, otype)))
+        if not surfaces:
+            return
+        points = np.concatenate([r for s in surfaces for r in s.rings])
+        centre = (points[:, :2].min(axis=0) + points[:, :2].max(axis=0)) / 2
+        if keep is not None and not keep(centre):
+            return
+        yield CityObject(oid, otype, attributes, surfaces, str(top), parent)
+
+
+def _attributes(obj: etree._Element) -> dict:
+    """Generic attributes, simple properties and the address of an object (not of its parts)."""
+    out: dict[str, object] = {}
+    for el in obj:
+        name = _local(el)
+        if name in GENERIC or name == "genericAttribute":
+            generic = el if name in GENERIC else next((c for c in el if isinstance(c.tag, str)), el)
+            key = generic.get("name") or next(
+                (c.text for c in generic if _local(c) == "name"), None
+            )
+            value = next((c.text for c in generic if _local(c) == "value"), None)
+            if key and value is not None:
+                out[key] = _number(value)
+        elif name == "address":
+            texts = [t.strip() for t in el.itertext() if t.strip()]
+            if texts:
+                out["address"] = " ".join(texts)
+        elif len(el) == 0 and el.text and el.text.strip() and name not in ("boundedBy",):
+            out[name] = _number(el.text.strip())
+    return out
+
+
+def _number(text: str) -> object:
+    try:
+        return int(text)
+    except ValueError:
+        try:
+            return float(text)
+        except ValueError:
+            return text

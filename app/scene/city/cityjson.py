@@ -1,0 +1,337 @@
+"""CityJSON 1.0/1.1/2.0 documents (`.city.json`) and CityJSON Sequences (`.city.jsonl`), read
+one city object at a time.
+
+A CityJSON document keeps every vertex in one array and its objects in one dictionary; both are
+read with ijson's streaming parser (the C backend), the vertices into a numpy array (the only
+thing held whole: 24 bytes a vertex), the objects one by one, so a district of 100,000 buildings
+never becomes one Python structure. A Sequence (CityJSONL) is a header line and then one
+CityJSONFeature a line, each with its own vertices: read line by line.
+
+Geometry: MultiSurface, CompositeSurface, Solid (outer and inner shells), MultiSolid,
+CompositeSolid and GeometryInstance (a template placed by its matrix); of an object's
+geometries the one of highest LoD (at most `max_lod`) is drawn. Semantic surfaces give each
+surface its kind. A BuildingPart's parent attributes are merged under its own.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import ijson
+import numpy as np
+
+from app.core.errors import SceneError
+from app.scene.city.model import CityObject, Surface, kind_of
+
+VERSIONS = ("1.0", "1.1", "2.0")
+SURFACE_DEPTH = {  # nesting of `boundaries` down to a surface (a list of rings)
+    "MultiSurface": 1,
+    "CompositeSurface": 1,
+    "Solid": 2,
+    "MultiSolid": 3,
+    "CompositeSolid": 3,
+}
+VERTEX_BLOCK = 65536
+
+Keep = Callable[[np.ndarray], bool]  # a city object's horizontal centre (CRS) -> read it?
+
+
+@dataclass
+class Header:
+    """What a CityJSON file says of itself: version, CRS (as written, None if absent), the
+    vertices' transform (scale (3,), translate (3,)) and geometry templates."""
+
+    version: str
+    crs: str | None
+    scale: np.ndarray
+    translate: np.ndarray
+    templates: list[dict]
+    template_vertices: np.ndarray
+
+
+def _lod_value(lod: object) -> float:
+    try:
+        return float(str(lod))
+    except ValueError:
+        return -1.0
+
+
+def _flat(boundaries: list, depth: int) -> list[int]:
+    """Every vertex index of `boundaries` whose surfaces lie `depth` lists down."""
+    if depth == 1:
+        return [i for surface in boundaries for ring in surface for i in ring]
+    if depth == 2:
+        return [i for shell in boundaries for surface in shell for ring in surface for i in ring]
+    return [i for solid in boundaries for part in _flat_solid(solid) for i in part]
+
+
+def _flat_solid(solid: list) -> list[list[int]]:
+    return [ring for shell in solid for surface in shell for ring in surface]
+
+
+def _surfaces_of(boundaries: list, depth: int) -> list[tuple[list, tuple[int, ...]]]:
+    """(rings, path) of each surface: path indexes `semantics.values` the same way."""
+    if depth == 1:
+        return [(rings, (i,)) for i, rings in enumerate(boundaries)]
+    return [
+        (rings, (i, *path))
+        for i, inner in enumerate(boundaries)
+        for rings, path in _surfaces_of(inner, depth - 1)
+    ]
+
+
+def _semantic_type(semantics: dict | None, path: tuple[int, ...]) -> str | None:
+    if not semantics:
+        return None
+    values = semantics.get("values")
+    try:
+        for i in path:
+            if values is None:
+                return None
+            values = values[i]
+        if values is None:
+            return None
+        return semantics["surfaces"][int(values)].get("type")
+    except (IndexError, KeyError, TypeError):
+        return None
+
+
+class CityJsonReader:
+    """Reads one CityJSON document or Sequence. `header` first; `objects(keep)` then yields the
+    objects whose horizontal centre `keep` accepts; `count` is how many objects with geometry
+    the file holds (known after `objects` ran)."""
+
+    def __init__(self, path: str | Path, max_lod: float = 9.0) -> None:
+        self.path = Path(path)
+        self.sequence = self.path.suffix.lower() == ".jsonl"
+        self.max_lod = max_lod
+        self.count = 0
+        self.parents_wanted: set[str] = set()
+        self.header = self._read_header()
+        self._vertices: np.ndarray | None = None
+
+    # -- the header ----------------------------------------------------------------------------
+
+    def _error(self, message: str, field: str | None = None, line: int | None = None) -> SceneError:
+        return SceneError(self.path, message, field=field, line=line)
+
+    def _items(self, prefix: str) -> object:
+        """The first value at `prefix` of the document (None if absent), streamed."""
+        try:
+            with self.path.open("rb") as f:
+                return next(ijson.items(f, prefix, use_float=True), None)
+        except (ijson.JSONError, ijson.IncompleteJSONError) as exc:
+            raise self._error(f"broken JSON: {exc} (expected a CityJSON document)") from exc
+
+    def _read_header(self) -> Header:
+        if self.sequence:
+            with self.path.open("rb") as f:
+                first = f.readline()
+            try:
+                doc = json.loads(first)
+            except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+                raise self._error(f"broken JSON: {exc}", line=1) from exc
+            if not isinstance(doc, dict):
+                raise self._error("expected the CityJSON header object", line=1)
+            get = doc.get
+        else:
+            cache: dict[str, object] = {}
+
+            def get(key: str, default: object = None) -> object:
+                if key not in cache:
+                    cache[key] = self._items(key)
+                return default if cache[key] is None else cache[key]
+
+        kind = get("type")
+        if kind != "CityJSON":
+            raise self._error(f"got type {kind!r}, expected 'CityJSON'", field="type")
+        version = str(get("version", ""))
+        if not any(version == v or version.startswith(v + ".") for v in VERSIONS):
+            raise self._error(
+                f"version {version!r} not read (expected {', '.join(VERSIONS)})", field="version"
+            )
+        transform = get("transform") or {}
+        scale = np.asarray(transform.get("scale", [1.0, 1.0, 1.0]), np.float64)
+        translate = np.asarray(transform.get("translate", [0.0, 0.0, 0.0]), np.float64)
+        if scale.shape != (3,) or translate.shape != (3,):
+            raise self._error("expected 3 numbers in scale and translate", field="transform")
+        metadata = get("metadata") or {}
+        crs = metadata.get("referenceSystem") if isinstance(metadata, dict) else None
+        templates = get("geometry-templates") or {}
+        tv = np.asarray(templates.get("vertices-templates", []), np.float64).reshape(-1, 3)
+        return Header(version, crs, scale, translate, templates.get("templates", []), tv)
+
+    # -- vertices ------------------------------------------------------------------------------
+
+    def _real(self, ints: np.ndarray) -> np.ndarray:
+        return ints * self.header.scale + self.header.translate
+
+    def vertices(self) -> np.ndarray:
+        """(N, 3) float64 CRS coordinates of a document's vertices (transform applied), read in
+        blocks."""
+        if self._vertices is None:
+            blocks, block = [], []
+
+            def close(block: list) -> None:
+                a = np.asarray(block, np.float64)
+                if a.ndim != 2 or a.shape[1] != 3:
+                    raise self._error("expected [x, y, z] for every vertex", field="vertices")
+                a *= self.header.scale
+                a += self.header.translate
+                blocks.append(a)
+
+            try:
+                with self.path.open("rb") as f:
+                    for v in ijson.items(f, "vertices.item", use_float=True):
+                        block.append(v)
+                        if len(block) == VERTEX_BLOCK:
+                            close(block)
+                            block = []
+            except (ijson.JSONError, ijson.IncompleteJSONError) as exc:
+                raise self._error(f"broken JSON: {exc}", field="vertices") from exc
+            except ValueError as exc:
+                raise self._error(f"{exc} (expected [x, y, z] numbers)", field="vertices") from exc
+            if block:
+                close(block)
+            vertices = np.concatenate(blocks) if blocks else np.zeros((0, 3))
+            blocks.clear()
+            if not np.isfinite(vertices).all():
+                raise self._error("vertices that are not finite numbers", field="vertices")
+            self._vertices = vertices
+        return self._vertices
+
+    # -- objects -------------------------------------------------------------------------------
+
+    def _raw_objects(self) -> Iterator[tuple[str, dict, np.ndarray, int | None]]:
+        """(id, object, its vertices (N, 3) CRS, line) of every object in the file."""
+        if not self.sequence:
+            vertices = self.vertices()
+            try:
+                with self.path.open("rb") as f:
+                    for oid, obj in ijson.kvitems(f, "CityObjects", use_float=True):
+                        yield oid, obj, vertices, None
+            except (ijson.JSONError, ijson.IncompleteJSONError) as exc:
+                raise self._error(f"broken JSON: {exc}", field="CityObjects") from exc
+            return
+        with self.path.open("rb") as f:
+            f.readline()
+            for number, line in enumerate(f, start=2):
+                if not line.strip():
+                    continue
+                try:
+                    feature = json.loads(line)
+                    local = np.asarray(feature.get("vertices", []), np.float64).reshape(-1, 3)
+                    objects = feature["CityObjects"].items()
+                except (json.JSONDecodeError, UnicodeDecodeError, AttributeError, KeyError) as exc:
+                    raise self._error(f"broken CityJSONFeature: {exc}", line=number) from exc
+                except ValueError as exc:
+                    raise self._error(f"{exc} (expected [x, y, z] vertices)", line=number) from exc
+                real = self._real(local)
+                for oid, obj in objects:
+                    yield oid, obj, real, number
+
+    def _geometry(self, oid: str, obj: dict) -> tuple[int, dict] | None:
+        """(index, geometry) of the object's highest LoD at most max_lod."""
+        best = None
+        for g, geom in enumerate(obj.get("geometry") or []):
+            lod = geom.get("lod")
+            if geom.get("type") == "GeometryInstance":
+                t = geom.get("template")
+                if not isinstance(t, int) or not 0 <= t < len(self.header.templates):
+                    raise self._error(
+                        f"template {t!r} not among the file's {len(self.header.templates)}",
+                        field=f"CityObjects.{oid}.geometry[{g}]",
+                    )
+                lod = self.header.templates[t].get("lod")
+            value = _lod_value(lod)
+            if value <= self.max_lod and (best is None or value > best[0]):
+                best = (value, g, geom)
+        return None if best is None else (best[1], best[2])
+
+    def _instance(
+        self, oid: str, g: int, geom: dict, vertices: np.ndarray
+    ) -> tuple[dict, np.ndarray]:
+        """A GeometryInstance as (template geometry, its vertices placed in CRS coordinates)."""
+        where = f"CityObjects.{oid}.geometry[{g}]"
+        template = self.header.templates[geom["template"]]
+        try:
+            anchor = vertices[int(geom["boundaries"][0])]
+            m = np.asarray(geom.get("transformationMatrix", np.eye(4).ravel()), np.float64)
+            m = m.reshape(4, 4)
+        except (IndexError, KeyError, TypeError, ValueError) as exc:
+            raise self._error(f"broken GeometryInstance: {exc}", field=where) from exc
+        tv = self.header.template_vertices
+        placed = tv @ m[:3, :3].T + m[:3, 3] + anchor
+        return template, placed
+
+    def objects(self, keep: Keep | None = None) -> Iterator[CityObject]:
+        """The file's city objects with geometry whose centre `keep` accepts (all if None)."""
+        for oid, obj, vertices, line in self._raw_objects():
+            if not isinstance(obj, dict):
+                raise self._error("expected a city object", field=f"CityObjects.{oid}", line=line)
+            chosen = self._geometry(oid, obj)
+            if chosen is None:
+                continue
+            self.count += 1
+            g, geom = chosen
+            where = f"CityObjects.{oid}.geometry[{g}]"
+            if geom.get("type") == "GeometryInstance":
+                geom, vertices = self._instance(oid, g, geom, vertices)
+            depth = SURFACE_DEPTH.get(geom.get("type", ""))
+            if depth is None:
+                continue  # points and lines draw nothing
+            boundaries = geom.get("boundaries") or []
+            try:
+                index = np.asarray(_flat(boundaries, depth), np.int64)
+            except (TypeError, ValueError) as exc:
+                raise self._error(
+                    f"broken boundaries: {exc} (expected {geom.get('type')} nesting)",
+                    field=where,
+                    line=line,
+                ) from exc
+            if not len(index):
+                continue
+            if index.min() < 0 or index.max() >= len(vertices):
+                raise self._error(
+                    f"vertex index {int(index.max() if index.max() >= len(vertices) else index.min())} "
+                    f"out of range (the file has {len(vertices)} vertices)",
+                    field=where,
+                    line=line,
+                )
+            used = vertices[index]
+            lo, hi = used.min(axis=0), used.max(axis=0)
+            centre = (lo[:2] + hi[:2]) / 2
+            if keep is not None and not keep(centre):
+                continue
+            otype = str(obj.get("type", ""))
+            surfaces = []
+            for rings, path in _surfaces_of(boundaries, depth):
+                kind = kind_of(_semantic_type(geom.get("semantics"), path), otype)
+                surfaces.append(Surface([vertices[np.asarray(r, np.int64)] for r in rings], kind))
+            parents = obj.get("parents") or []
+            parent = str(parents[0]) if parents else None
+            if parent is not None:
+                self.parents_wanted.add(parent)
+            yield CityObject(
+                str(oid),
+                otype,
+                dict(obj.get("attributes") or {}),
+                surfaces,
+                str(geom.get("lod", "")),
+                parent,
+            )
+
+    def attributes_of(self, ids: set[str]) -> dict[str, dict]:
+        """The attributes of the objects named (parents of the objects read), in one pass."""
+        out: dict[str, dict] = {}
+        if not ids:
+            return out
+        for oid, obj, _, _ in self._raw_objects():
+            if oid in ids and isinstance(obj, dict):
+                out[oid] = dict(obj.get("attributes") or {})
+                if len(out) == len(ids):
+                    break
+        return out

@@ -1,0 +1,328 @@
+"""A city model file as a scene layer: read around the clip's track, placed in the session's ENU
+frame, coloured by surface kind, with the table that names what each triangle is.
+
+1. The reader (CityJSON document or Sequence, CityGML, zipped or not) yields one object at a
+   time; an object is read only if its horizontal centre lies within `margin_m` of the track
+   (the track is taken into the file's CRS once), so a district of 100,000 buildings opens in
+   the memory of the part around the clip.
+2. Memory is bounded whatever the file: at most `max_triangles` triangles are kept, the objects
+   nearest the track first (farther ones are dropped as nearer ones come, and that is said).
+3. Heights: the file's vertical datum from its compound CRS (EGM2008, EGM96 or a 3D geographic
+   CRS's ellipsoid are converted exactly, app.geodesy.geoid); a vertical datum geofuse has no
+   model of (NAP, DHHN2016, NAVD88...) and a CRS without a vertical part are taken as above the
+   EGM2008 geoid, and said; `vertical` overrides both, as the DEM's option does.
+4. Placement: CRS (x, y) -> WGS84 lat, lon (pyproj) and height -> ellipsoidal -> ECEF -> ENU,
+   per vertex, so buildings land where GNSS positions do, curvature included.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import numpy.typing as npt
+import pyproj
+from scipy.spatial import cKDTree
+
+from app.core.errors import SceneError
+from app.core.messages import Messages
+from app.geodesy import geoid
+from app.geodesy.crs import horizontal, parse_crs, vertical_datum, vertical_name, vertical_part
+from app.geodesy.enu import LocalFrame
+from app.scene.city.citygml import SUFFIXES as GML_SUFFIXES
+from app.scene.city.citygml import CityGmlReader
+from app.scene.city.cityjson import CityJsonReader
+from app.scene.city.model import KIND_CODE, KIND_COLORS, CityObject, FeatureTable, triangulate
+from app.scene.mesh import MeshData, Primitive
+
+DEFAULT_MARGIN_M = 1000.0  # objects this far from the track are read
+DEFAULT_MAX_TRIANGLES = 1_500_000  # ~150 MB drawn and indexed at most
+FLUSH_TRIANGLES = 50_000  # triangles placed in ENU in batches of this many
+CITYJSON_SUFFIXES = (".jsonl",)
+
+
+def is_city(location: str | Path) -> bool:
+    """A CityJSON (.city.json, .city.jsonl or any .json whose start says CityJSON) or CityGML
+    (.gml, .xml, .zip) file."""
+    path = Path(str(location))
+    name = path.name.lower()
+    if (
+        name.endswith((".city.json", ".city.jsonl", ".jsonl"))
+        or path.suffix.lower() in GML_SUFFIXES
+    ):
+        return True
+    if path.suffix.lower() == ".json" and path.is_file():
+        with path.open("rb") as f:
+            return b'"CityJSON"' in f.read(4096)
+    return False
+
+
+@dataclass
+class City:
+    """A city layer read: the mesh (one primitive coloured by kind, and its FeatureTable), the
+    datum its heights were taken above, what was said, and counts."""
+
+    mesh: MeshData
+    datum: str
+    notes: Messages
+    objects_read: int
+    objects_in_file: int
+    triangles: int
+    bytes: int
+    crs_name: str
+
+
+class _Window:
+    """Which object centres (file CRS) lie within margin_m of the track."""
+
+    def __init__(self, crs: pyproj.CRS, track_ll: np.ndarray, margin_m: float) -> None:
+        h = horizontal(crs)
+        x, y = pyproj.Transformer.from_crs("EPSG:4326", h, always_xy=True).transform(
+            track_ll[:, 1], track_ll[:, 0]
+        )
+        if h.is_geographic:  # degrees: scale longitude by cos(latitude) and use metres
+            lat0 = float(np.radians(np.mean(track_ll[:, 0])))
+            self.scale = np.array([111_320.0 * np.cos(lat0), 110_574.0])
+        else:
+            self.scale = np.full(2, h.axis_info[0].unit_conversion_factor)
+        pts = np.stack([x, y], axis=1) * self.scale
+        if not np.isfinite(pts).all():
+            raise ValueError("the track lies outside the file's CRS")
+        self.tree = cKDTree(pts)
+        self.lo = (pts.min(axis=0) - margin_m).tolist()
+        self.hi = (pts.max(axis=0) + margin_m).tolist()
+        self.margin_m = margin_m
+
+    def distance(self, centre: np.ndarray) -> float:
+        """Horizontal distance (m) from the track; inf beyond its box plus the margin."""
+        x, y = float(centre[0] * self.scale[0]), float(centre[1] * self.scale[1])
+        if not (self.lo[0] <= x <= self.hi[0] and self.lo[1] <= y <= self.hi[1]):
+            return np.inf
+        return float(self.tree.query((x, y))[0])
+
+
+@dataclass
+class _Kept:
+    """One object read, its triangles in ENU (float32) and kind codes."""
+
+    obj: CityObject
+    triangles: np.ndarray
+    kinds: np.ndarray
+    distance: float
+
+
+def _datum(path: Path, crs: pyproj.CRS, vertical: str | None, notes: Messages) -> tuple[str, float]:
+    """(datum, metres per vertical unit) of the file's heights, with what was assumed said."""
+    part = vertical_part(crs)
+    unit = part.axis_info[0].unit_conversion_factor if part is not None else 1.0
+    if vertical is not None:
+        if vertical not in geoid.VERTICAL_DATUMS:
+            raise SceneError(
+                path,
+                f"vertical datum {vertical!r} unknown (expected one of {', '.join(geoid.VERTICAL_DATUMS)})",
+                field="vertical",
+            )
+        return vertical, unit
+    datum = vertical_datum(crs)
+    if datum is not None:
+        return datum, unit
+    name = vertical_name(crs)
+    if name is None:
+        notes.add(
+            f"{path.name}: heights taken as above sea level (EGM2008): the CRS names no vertical datum; set the layer's vertical datum to change it"
+        )
+    else:
+        notes.add(
+            f"{path.name}: {name}s taken as above the EGM2008 geoid (geofuse has no model of that datum: expect an error of up to a metre); set the layer's vertical datum to change it"
+        )
+    return "egm2008", unit
+
+
+class _Placer:
+    """File CRS coordinates -> session ENU (float64)."""
+
+    def __init__(self, crs: pyproj.CRS, datum: str, unit: float, frame: LocalFrame) -> None:
+        self.to_ll = pyproj.Transformer.from_crs(horizontal(crs), "EPSG:4326", always_xy=True)
+        self.datum, self.unit, self.frame = datum, unit, frame
+
+    def __call__(self, p: np.ndarray) -> np.ndarray:
+        lon, lat = self.to_ll.transform(p[:, 0], p[:, 1])
+        lat, lon = np.asarray(lat), np.asarray(lon)
+        h = geoid.to_ellipsoidal(p[:, 2] * self.unit, lat, lon, self.datum)
+        return self.frame.geodetic_to_enu(lat, lon, h)
+
+
+def read_city(
+    path: str | Path,
+    frame: LocalFrame,
+    track_ll: npt.ArrayLike | None = None,
+    vertical: str | None = None,
+    margin_m: float = DEFAULT_MARGIN_M,
+    max_triangles: int = DEFAULT_MAX_TRIANGLES,
+    max_lod: float = 9.0,
+) -> City:
+    """The city model at `path` in `frame` (see the module docstring). track_ll: (N, 2) lat,
+    lon (deg) of the clip's track, None to read every object (up to max_triangles). Raises
+    SceneError naming the file, and the object or line at fault."""
+    path = Path(path)
+    if not path.is_file():
+        raise SceneError(path, "city model file does not exist")
+    notes = Messages()
+    gml = path.suffix.lower() in GML_SUFFIXES
+    reader = CityGmlReader(path, max_lod) if gml else CityJsonReader(path, max_lod)
+    track = None if track_ll is None else np.atleast_2d(np.asarray(track_ll, np.float64))
+    state: dict[str, object] = {}
+
+    def setup() -> tuple[_Window | None, _Placer]:
+        if "placer" not in state:
+            text = reader.crs if gml else reader.header.crs
+            field = "srsName" if gml else "metadata.referenceSystem"
+            if not text:
+                raise SceneError(path, "the file names no CRS (expected one)", field=field)
+            try:
+                crs = parse_crs(str(text))
+                window = None if track is None or not len(track) else _Window(crs, track, margin_m)
+            except ValueError as exc:
+                raise SceneError(path, str(exc), field=field) from exc
+            datum, unit = _datum(path, crs, vertical, notes)
+            state.update(
+                crs=crs, datum=datum, window=window, placer=_Placer(crs, datum, unit, frame)
+            )
+        return state["window"], state["placer"]  # type: ignore[return-value]
+
+    def keep(centre: np.ndarray) -> bool:
+        window, _ = setup()
+        return window is None or window.distance(centre) <= margin_m
+
+    kept: list[_Kept] = []
+    pending: list[tuple[CityObject, list[np.ndarray], list[np.ndarray]]] = []
+    pending_triangles = 0
+    total = 0
+    dropped = 0
+
+    def flush() -> None:
+        nonlocal pending_triangles, total, dropped
+        if not pending:
+            return
+        window, placer = setup()
+        flat = np.concatenate([t for _, tris, _ in pending for t in tris]).reshape(-1, 3)
+        enu = placer(flat).astype(np.float32).reshape(-1, 3, 3)
+        start = 0
+        for obj, tris, kinds in pending:
+            n = sum(len(t) for t in tris)
+            distance = 0.0 if window is None else window.distance(obj.centre_xy())
+            kept.append(_Kept(obj, enu[start : start + n], np.concatenate(kinds), distance))
+            start += n
+            total += n
+        pending.clear()
+        pending_triangles = 0
+        if total > max_triangles * 1.25:
+            kept.sort(key=lambda k: k.distance)
+            while total > max_triangles and kept:
+                total -= len(kept.pop().triangles)
+                dropped += 1
+
+    for obj in reader.objects(keep):
+        tris, kinds = [], []
+        for s in obj.surfaces:
+            t = triangulate(s)
+            if len(t):
+                tris.append(t)
+                kinds.append(np.full(len(t), KIND_CODE[s.kind], np.uint8))
+        if not tris:
+            continue
+        pending.append((obj, tris, kinds))
+        pending_triangles += sum(len(t) for t in tris)
+        if pending_triangles >= FLUSH_TRIANGLES:
+            flush()
+    flush()
+    if total > max_triangles:
+        kept.sort(key=lambda k: k.distance)
+        while total > max_triangles and kept:
+            total -= len(kept.pop().triangles)
+            dropped += 1
+    if reader.count == 0:
+        raise SceneError(
+            path, "the city holds no object with surfaces to draw (expected buildings, terrain...)"
+        )
+    if not kept:
+        raise SceneError(
+            path,
+            f"none of its {reader.count} objects lies within {margin_m:.0f} m of the clip's track: check the file's CRS and the track",
+        )
+    return _city(
+        path, reader, kept, dropped, state, notes, track is not None, margin_m, max_triangles
+    )
+
+
+def _city(
+    path: Path,
+    reader: CityJsonReader | CityGmlReader,
+    kept: list[_Kept],
+    dropped: int,
+    state: dict,
+    notes: Messages,
+    windowed: bool,
+    margin_m: float,
+    max_triangles: int,
+) -> City:
+    """The kept objects as one primitive and its feature table, with the layer's note."""
+    parents = {k.obj.parent for k in kept if k.obj.parent is not None}
+    inherited = reader.attributes_of(parents) if isinstance(reader, CityJsonReader) else {}
+    triangles = np.concatenate([k.triangles for k in kept])
+    kinds = np.concatenate([k.kinds for k in kept])
+    positions = np.ascontiguousarray(triangles.reshape(-1, 3))
+    n = len(positions)
+    colors = np.ones((n, 4), np.float32)
+    colors[:, :3] = np.repeat(KIND_COLORS[kinds], 3, axis=0)
+    prim = Primitive(
+        positions=positions,
+        colors=colors,
+        indices=np.arange(n, dtype=np.uint32).reshape(-1, 3),
+        name=path.name,
+    )
+    starts = np.concatenate([[0], np.cumsum([len(k.triangles) for k in kept])]).astype(np.int64)
+    table = FeatureTable(
+        path.name,
+        [k.obj.id for k in kept],
+        [k.obj.type for k in kept],
+        [{**inherited.get(k.obj.parent or "", {}), **k.obj.attributes} for k in kept],
+        [k.obj.parent for k in kept],
+        positions.reshape(-1, 3, 3),
+        starts,
+        kinds,
+    )
+    size = (
+        positions.nbytes
+        + colors.nbytes
+        + prim.indices.nbytes
+        + kinds.nbytes
+        + table.boxes.nbytes
+        + starts.nbytes
+    )
+    crs = state["crs"]
+    lods = sorted({k.obj.lod for k in kept if k.obj.lod})
+    where = f" within {margin_m:.0f} m of the track" if windowed else ""
+    kind = "CityGML" if isinstance(reader, CityGmlReader) else "CityJSON"
+    version = (
+        reader.version if isinstance(reader, CityGmlReader) else reader.header.version
+    ) or "?"
+    notes.info(
+        f"{path.name}: {kind} {version} in {crs.name}, {len(kept):,} of {reader.count:,} objects{where} "
+        f"(LoD {', '.join(lods)}), {len(triangles):,} triangles, {size / 1e6:.1f} MB, heights above {state['datum']}"
+    )
+    if dropped:
+        notes.add(
+            f"{path.name}: {dropped:,} objects farther from the track left out to keep within {max_triangles:,} triangles"
+        )
+    return City(
+        MeshData([prim], features=[table]),
+        str(state["datum"]),
+        notes,
+        len(kept),
+        reader.count,
+        len(triangles),
+        size,
+        crs.name,
+    )

@@ -1,0 +1,246 @@
+"""Write city models: LoD2 buildings as CityJSON, CityJSON Sequences and CityGML 2.0/3.0.
+
+Used by the tests (a few buildings at known coordinates in a compound CRS; a district of 100,000
+for bounded memory) and by the demos. A building is a box with a flat roof: a footprint
+rectangle (x0, y0, x1, y1) in the CRS's horizontal units, a ground height and a roof height in
+its vertical datum; its LoD2 solid has a ground, a roof and four walls with their semantics,
+outward-facing (exterior rings counter-clockwise seen from outside).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Building:
+    """A flat-roofed box. footprint: (x0, y0, x1, y1) CRS units; ground_z, roof_z: heights in
+    the CRS's vertical datum; attributes as CityJSON holds them."""
+
+    id: str
+    footprint: tuple[float, float, float, float]
+    ground_z: float
+    roof_z: float
+    attributes: dict | None = None
+
+    def corners(self) -> np.ndarray:
+        """(8, 3): the four ground corners counter-clockwise from (x0, y0), then the roof's."""
+        x0, y0, x1, y1 = self.footprint
+        ring = [(x0, y0), (x1, y0), (x1, y1), (x0, y1)]
+        return np.array(
+            [(x, y, self.ground_z) for x, y in ring] + [(x, y, self.roof_z) for x, y in ring]
+        )
+
+
+# The solid's faces as corner indices (outward, counter-clockwise seen from outside), with kinds
+FACES = (
+    ((0, 3, 2, 1), "GroundSurface"),
+    ((4, 5, 6, 7), "RoofSurface"),
+    ((0, 1, 5, 4), "WallSurface"),
+    ((1, 2, 6, 5), "WallSurface"),
+    ((2, 3, 7, 6), "WallSurface"),
+    ((3, 0, 4, 7), "WallSurface"),
+)
+SEMANTIC_TYPES = ("GroundSurface", "RoofSurface", "WallSurface")
+
+
+def district(
+    count: int, origin_xy: tuple[float, float], spacing: float = 30.0, seed: int = 0
+) -> Iterable[Building]:
+    """`count` buildings on a square grid `spacing` apart from origin_xy, 8-20 m wide, 6-30 m
+    tall, ground at 0-5 m: a district to open with bounded memory."""
+    rng = np.random.default_rng(seed)
+    side = int(np.ceil(np.sqrt(count)))
+    for i in range(count):
+        x = origin_xy[0] + (i % side) * spacing
+        y = origin_xy[1] + (i // side) * spacing
+        w, d = rng.uniform(8.0, 20.0, 2)
+        ground = float(rng.uniform(0.0, 5.0))
+        yield Building(
+            f"b{i}",
+            (round(x, 3), round(y, 3), round(x + w, 3), round(y + d, 3)),
+            round(ground, 3),
+            round(ground + float(rng.uniform(6.0, 30.0)), 3),
+            {"measuredHeight": 10.0, "function": "residential"},
+        )
+
+
+def _object(b: Building, first_vertex: int, lod: str = "2.2") -> dict:
+    faces = [[[first_vertex + i for i in f]] for f, _ in FACES]
+    return {
+        "type": "Building",
+        "attributes": dict(b.attributes or {}),
+        "geometry": [
+            {
+                "type": "Solid",
+                "lod": lod,
+                "boundaries": [faces],
+                "semantics": {
+                    "surfaces": [{"type": t} for t in SEMANTIC_TYPES],
+                    "values": [[SEMANTIC_TYPES.index(k) for _, k in FACES]],
+                },
+            }
+        ],
+    }
+
+
+def _quantised(corners: np.ndarray, scale: float, translate: np.ndarray) -> list[list[int]]:
+    return np.round((corners - translate) / scale).astype(np.int64).tolist()
+
+
+def cityjson(
+    buildings: Iterable[Building],
+    crs: str,
+    version: str = "2.0",
+    scale: float = 0.001,
+    translate: tuple[float, float, float] = (0.0, 0.0, 0.0),
+) -> dict:
+    """A CityJSON document (as a dict) of the buildings, vertices quantised by `scale` about
+    `translate` (the file's `transform`); crs: the `referenceSystem` as written."""
+    t = np.asarray(translate, np.float64)
+    objects, vertices = {}, []
+    for b in buildings:
+        objects[b.id] = _object(b, len(vertices))
+        vertices += _quantised(b.corners(), scale, t)
+    return {
+        "type": "CityJSON",
+        "version": version,
+        "transform": {"scale": [scale] * 3, "translate": t.tolist()},
+        "metadata": {"referenceSystem": crs},
+        "CityObjects": objects,
+        "vertices": vertices,
+    }
+
+
+def write_cityjson(
+    path: Path,
+    buildings: Iterable[Building],
+    crs: str,
+    version: str = "2.0",
+    scale: float = 0.001,
+    translate: tuple[float, float, float] = (0.0, 0.0, 0.0),
+) -> Path:
+    """The buildings as a CityJSON file (as `cityjson` makes it), written object by object and
+    then the vertices, so that a district of any size is written in little memory."""
+    t = np.asarray(translate, np.float64)
+    head = cityjson([], crs, version, scale, translate)
+    del head["CityObjects"], head["vertices"]
+    with path.open("w") as f:
+        f.write(json.dumps(head)[:-1] + ', "CityObjects": {')
+        vertices: list[list[int]] = []
+        for i, b in enumerate(buildings):
+            sep = "," if i else ""
+            f.write(
+                f"{sep}{json.dumps(b.id)}:{json.dumps(_object(b, len(vertices)), separators=(',', ':'))}"
+            )
+            vertices += _quantised(b.corners(), scale, t)
+        f.write('}, "vertices": ' + json.dumps(vertices, separators=(",", ":")) + "}")
+    return path
+
+
+def write_cityjsonseq(
+    path: Path,
+    buildings: Iterable[Building],
+    crs: str,
+    scale: float = 0.001,
+    translate: tuple[float, float, float] = (0.0, 0.0, 0.0),
+) -> Path:
+    """The buildings as a CityJSON Sequence (.city.jsonl): a header line, then one
+    CityJSONFeature a line with its own vertices, written as they come (any count)."""
+    t = np.asarray(translate, np.float64)
+    header = cityjson([], crs, scale=scale, translate=translate)
+    with path.open("w") as f:
+        f.write(json.dumps(header) + "\n")
+        for b in buildings:
+            feature = {
+                "type": "CityJSONFeature",
+                "id": b.id,
+                "CityObjects": {b.id: _object(b, 0)},
+                "vertices": _quantised(b.corners(), scale, t),
+            }
+            f.write(json.dumps(feature, separators=(",", ":")) + "\n")
+    return path
+
+
+CITYGML_NS = {
+    "2.0": {
+        "core": "http://www.opengis.net/citygml/2.0",
+        "bldg": "http://www.opengis.net/citygml/building/2.0",
+        "gen": "http://www.opengis.net/citygml/generics/2.0",
+    },
+    "3.0": {
+        "core": "http://www.opengis.net/citygml/3.0",
+        "bldg": "http://www.opengis.net/citygml/building/3.0",
+        "gen": "http://www.opengis.net/citygml/generics/3.0",
+        "con": "http://www.opengis.net/citygml/construction/3.0",
+    },
+}
+GML_NS = "http://www.opengis.net/gml"
+GML32_NS = "http://www.opengis.net/gml/3.2"
+
+
+def _poslist(points: np.ndarray) -> str:
+    closed = np.vstack([points, points[:1]])
+    return " ".join(f"{v:.3f}" for v in closed.ravel())
+
+
+def _citygml_building(b: Building, version: str) -> str:
+    corners = b.corners()
+    surfaces = []
+    for i, (face, kind) in enumerate(FACES):
+        polygon = (
+            f'<gml:Polygon gml:id="{b.id}_p{i}"><gml:exterior><gml:LinearRing>'
+            f'<gml:posList srsDimension="3">{_poslist(corners[list(face)])}</gml:posList>'
+            "</gml:LinearRing></gml:exterior></gml:Polygon>"
+        )
+        geometry = (
+            f"<bldg:lod2MultiSurface><gml:MultiSurface><gml:surfaceMember>{polygon}"
+            "</gml:surfaceMember></gml:MultiSurface></bldg:lod2MultiSurface>"
+        )
+        if version == "2.0":
+            surfaces.append(
+                f"<bldg:boundedBy><bldg:{kind}>{geometry}</bldg:{kind}></bldg:boundedBy>"
+            )
+        else:
+            geometry = geometry.replace("bldg:lod2MultiSurface", "core:lod2MultiSurface")
+            surfaces.append(f"<core:boundary><con:{kind}>{geometry}</con:{kind}></core:boundary>")
+    attributes = "".join(
+        f'<gen:stringAttribute name="{k}"><gen:value>{v}</gen:value></gen:stringAttribute>'
+        if version == "2.0"
+        else f"<core:genericAttribute><gen:StringAttribute><gen:name>{k}</gen:name><gen:value>{v}</gen:value></gen:StringAttribute></core:genericAttribute>"
+        for k, v in (b.attributes or {}).items()
+        if k != "measuredHeight"
+    )
+    height = ""
+    if b.attributes and "measuredHeight" in b.attributes and version == "2.0":
+        height = (
+            f'<bldg:measuredHeight uom="m">{b.attributes["measuredHeight"]}</bldg:measuredHeight>'
+        )
+    return (
+        f'<core:cityObjectMember><bldg:Building gml:id="{b.id}">{attributes}{height}'
+        f"{''.join(surfaces)}</bldg:Building></core:cityObjectMember>"
+    )
+
+
+def write_citygml(
+    path: Path, buildings: Iterable[Building], crs: str, version: str = "2.0"
+) -> Path:
+    """The buildings as CityGML 2.0 or 3.0 (LoD2 boundary surfaces with semantics), srsName
+    `crs` on the envelope."""
+    ns = CITYGML_NS[version]
+    gml = GML_NS if version == "2.0" else GML32_NS
+    xmlns = " ".join(f'xmlns:{k}="{v}"' for k, v in ns.items())
+    with path.open("w") as f:
+        f.write(
+            f'<?xml version="1.0" encoding="UTF-8"?>\n<core:CityModel {xmlns} xmlns:gml="{gml}">'
+        )
+        f.write(f'<gml:boundedBy><gml:Envelope srsName="{crs}" srsDimension="3"/></gml:boundedBy>')
+        for b in buildings:
+            f.write(_citygml_building(b, version))
+        f.write("</core:CityModel>\n")
+    return path

@@ -36,14 +36,14 @@ COMPOUND = (
 )
 SITE = (480_000.0, 5_550_000.0)  # near Frankfurt: the geoid lies ~48 m above the ellipsoid
 BUILDINGS = [
-    Building(
+    Building.box(
         "A",
         (480_010.0, 5_550_020.0, 480_030.0, 5_550_035.0),
         100.0,
         112.0,
         {"function": "residential", "measuredHeight": 12.0},
     ),
-    Building(
+    Building.box(
         "B", (479_960.0, 5_550_040.0, 479_975.0, 5_550_060.0), 101.5, 125.0, {"function": "office"}
     ),
 ]
@@ -133,7 +133,7 @@ def test_every_format_places_the_buildings_where_pyproj_and_the_geoid_do(city_fi
     assert table.ids == ["A", "B"]
     assert table.attributes[0]["function"] == "residential"
     a = table.triangles[table.starts[0] : table.starts[1]].reshape(-1, 3)
-    x0, y0, x1, y1 = BUILDINGS[0].footprint
+    (x0, y0), _, (x1, y1), _ = BUILDINGS[0].footprint
     corners = np.array(
         [_expected_enu(frame, x, y, z) for x in (x0, x1) for y in (y0, y1) for z in (100.0, 112.0)]
     )
@@ -177,7 +177,7 @@ def test_a_walls_pixel_lands_where_the_frustum_says_and_names_its_building(city_
 
     frame = _frame()
     city = read_city(city_files["cityjson"], frame)
-    x0, y0, x1, _ = BUILDINGS[0].footprint
+    (x0, y0), _, (x1, _), _ = BUILDINGS[0].footprint
     wall = _expected_enu(frame, (x0 + x1) / 2, y0, 104.0)
     eye = wall + [0.0, -30.0, 2.0]
     camera = Camera.create(
@@ -379,3 +379,45 @@ def test_a_mark_keeps_the_city_object_it_was_drawn_on(tmp_path):
     assert (props["object_id"], props["object_surface"]) == ("A", "roof")
     (back,) = read_marks(path, frame)
     assert back.city_object == obj
+
+
+def test_the_sample_sites_city_model_lands_on_the_sample_model(tmp_path):
+    """`geofuse simulate city` writes the sample site as a city publishes it (UTM zone 49 +
+    EGM2008, a TINRelief ground): read back, the hall stands where the sample model's does,
+    to the centimetre, and the ground is terrain."""
+    from app.cli import main
+    from app.simulate.sample import SAMPLE_ORIGIN
+    from app.simulate.stadium import HALL_MAX, HALL_MIN
+
+    out = tmp_path / "site.city.json"
+    assert main(["simulate", "city", "--out", str(out)]) == 0
+    city = read_city(out, LocalFrame(*SAMPLE_ORIGIN))
+    table = city.mesh.features[0]
+    hall = table.ids.index("hall")
+    tris = table.triangles[table.starts[hall] : table.starts[hall + 1]].reshape(-1, 3)
+    assert tris.min(axis=0) == pytest.approx(HALL_MIN, abs=0.01)
+    assert tris.max(axis=0) == pytest.approx(HALL_MAX, abs=0.01)
+    ground = table.ids.index("ground")
+    assert table.types[ground] == "TINRelief"
+    assert set(table.kinds[table.starts[ground] : table.starts[ground + 1]]) == {
+        KIND_CODE["terrain"]
+    }
+
+
+def test_a_citygml_relief_states_its_lod_in_an_element(tmp_path):
+    gml = tmp_path / "relief.gml"
+    gml.write_text(
+        '<core:CityModel xmlns:core="http://www.opengis.net/citygml/2.0" '
+        'xmlns:dem="http://www.opengis.net/citygml/relief/2.0" xmlns:gml="http://www.opengis.net/gml">'
+        '<gml:boundedBy><gml:Envelope srsName="EPSG:32632+3855"/></gml:boundedBy>'
+        '<core:cityObjectMember><dem:ReliefFeature gml:id="terrain"><dem:lod>1</dem:lod>'
+        "<dem:reliefComponent><dem:TINRelief><dem:tin><gml:TriangulatedSurface><gml:trianglePatches>"
+        "<gml:Triangle><gml:exterior><gml:LinearRing><gml:posList>"
+        "480000 5550000 100 480050 5550000 100 480050 5550050 100 480000 5550000 100"
+        "</gml:posList></gml:LinearRing></gml:exterior></gml:Triangle>"
+        "</gml:trianglePatches></gml:TriangulatedSurface></dem:tin></dem:TINRelief></dem:reliefComponent>"
+        "</dem:ReliefFeature></core:cityObjectMember></core:CityModel>"
+    )
+    city = read_city(gml, _frame())
+    table = city.mesh.features[0]
+    assert table.ids == ["terrain"] and list(table.kinds) == [KIND_CODE["terrain"]]

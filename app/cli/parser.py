@@ -496,6 +496,17 @@ def _simulate(sub: Commands) -> None:
         help="render the video from the plain model itself (the old sample), not from a world that differs from it",
     )
     ss.set_defaults(job="simulate:session")
+    sy = ssub.add_parser(
+        "city",
+        help="the sample site's buildings as an untextured LoD2 city model (UTM + EGM2008), as a city publishes them",
+    )
+    sy.add_argument(
+        "--out",
+        required=True,
+        type=Path,
+        help="the file: .city.json or .city.jsonl (CityJSON 2.0), .gml (CityGML 2.0)",
+    )
+    sy.set_defaults(job="simulate:city")
     sp = ssub.add_parser(
         "photo",
         help="the sample photo: the site seen from the sample pose, plus a banner, people, a car",

@@ -1,4 +1,4 @@
-"""`geofuse simulate scene|session|photo|feed`: the sample data (app.simulate)."""
+"""`geofuse simulate scene|session|city|photo|feed`: the sample data (app.simulate)."""
 
 from __future__ import annotations
 
@@ -12,6 +12,7 @@ from app.geodesy.enu import LocalFrame
 from app.scene import load_scene
 from app.simulate import drone
 from app.simulate.autopilot import MavlinkSender
+from app.simulate.city import site_buildings, write_citygml, write_cityjson, write_cityjsonseq
 from app.simulate.feed import Sender, write_feed
 from app.simulate.photo import make_photo, photo_camera
 from app.simulate.sample import SAMPLE_ORIGIN, SAMPLE_PHOTO_POSE, SAMPLE_SCENE
@@ -24,6 +25,25 @@ MAVLINK_LEAD_S = 0.3  # the simulated telemetry leaves this much ahead of its vi
 def scene(args: argparse.Namespace) -> int:
     out = write_site(args.out, seed=args.seed)
     print(f"wrote {out} ({out.stat().st_size / 1e6:.2f} MB)")
+    return 0
+
+
+def city(args: argparse.Namespace) -> int:
+    out = Path(args.out)
+    buildings, relief, crs = site_buildings(LocalFrame(*SAMPLE_ORIGIN))
+    name = out.name.lower()
+    if name.endswith(".city.json"):
+        write_cityjson(out, buildings, crs, relief=relief)
+        ground = " and its ground (a TINRelief)"
+    elif name.endswith(".city.jsonl"):
+        write_cityjsonseq(out, buildings, crs)
+        ground = ""
+    elif name.endswith(".gml"):
+        write_citygml(out, buildings, crs)
+        ground = ""
+    else:
+        raise GeofuseError(f"--out {out}: expected a .city.json, .city.jsonl or .gml file")
+    print(f"wrote {out}: {len(buildings)} LoD2 buildings{ground} in {crs} (no texture)")
     return 0
 
 

@@ -1,10 +1,12 @@
 """Write city models: LoD2 buildings as CityJSON, CityJSON Sequences and CityGML 2.0/3.0.
 
 Used by the tests (a few buildings at known coordinates in a compound CRS; a district of 100,000
-for bounded memory) and by the demos. A building is a box with a flat roof: a footprint
-rectangle (x0, y0, x1, y1) in the CRS's horizontal units, a ground height and a roof height in
-its vertical datum; its LoD2 solid has a ground, a roof and four walls with their semantics,
-outward-facing (exterior rings counter-clockwise seen from outside).
+for bounded memory), by `geofuse simulate city` (the sample site's buildings as the LoD2 model a
+city would publish: no texture, UTM and EGM2008 heights) and the demos. A building is a prism
+with a flat roof: a footprint of four corners counter-clockwise seen from above, in the CRS's
+horizontal units (`Building.box` for an axis-aligned rectangle), a ground height and a roof
+height in its vertical datum; its LoD2 solid has a ground, a roof and four walls with their
+semantics, outward-facing (exterior rings counter-clockwise seen from outside).
 """
 
 from __future__ import annotations
@@ -15,23 +17,41 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import pyproj
+
+from app.geodesy.enu import LocalFrame
+from app.geodesy.geoid import undulation
+from app.simulate.stadium import BUILDINGS, GROUND_HALF, HALL_MAX, HALL_MIN
 
 
 @dataclass(frozen=True)
 class Building:
-    """A flat-roofed box. footprint: (x0, y0, x1, y1) CRS units; ground_z, roof_z: heights in
-    the CRS's vertical datum; attributes as CityJSON holds them."""
+    """A flat-roofed prism. footprint: four (x, y) corners counter-clockwise seen from above,
+    CRS units; ground_z, roof_z: heights in the CRS's vertical datum; attributes as CityJSON
+    holds them."""
 
     id: str
-    footprint: tuple[float, float, float, float]
+    footprint: tuple[tuple[float, float], ...]
     ground_z: float
     roof_z: float
     attributes: dict | None = None
 
+    @classmethod
+    def box(
+        cls,
+        id: str,
+        rect: tuple[float, float, float, float],
+        ground_z: float,
+        roof_z: float,
+        attributes: dict | None = None,
+    ) -> Building:
+        """An axis-aligned box over rect = (x0, y0, x1, y1)."""
+        x0, y0, x1, y1 = rect
+        return cls(id, ((x0, y0), (x1, y0), (x1, y1), (x0, y1)), ground_z, roof_z, attributes)
+
     def corners(self) -> np.ndarray:
-        """(8, 3): the four ground corners counter-clockwise from (x0, y0), then the roof's."""
-        x0, y0, x1, y1 = self.footprint
-        ring = [(x0, y0), (x1, y0), (x1, y1), (x0, y1)]
+        """(8, 3): the four ground corners, then the roof's above them."""
+        ring = self.footprint
         return np.array(
             [(x, y, self.ground_z) for x, y in ring] + [(x, y, self.roof_z) for x, y in ring]
         )
@@ -61,7 +81,7 @@ def district(
         y = origin_xy[1] + (i // side) * spacing
         w, d = rng.uniform(8.0, 20.0, 2)
         ground = float(rng.uniform(0.0, 5.0))
-        yield Building(
+        yield Building.box(
             f"b{i}",
             (round(x, 3), round(y, 3), round(x + w, 3), round(y + d, 3)),
             round(ground, 3),
@@ -93,12 +113,32 @@ def _quantised(corners: np.ndarray, scale: float, translate: np.ndarray) -> list
     return np.round((corners - translate) / scale).astype(np.int64).tolist()
 
 
+@dataclass(frozen=True)
+class Relief:
+    """Flat terrain: a quadrilateral ring (four (x, y) corners counter-clockwise from above) at
+    height z, as a TINRelief of two triangles."""
+
+    id: str
+    ring: tuple[tuple[float, float], ...]
+    z: float
+
+    def object(self, first_vertex: int) -> tuple[dict, list[tuple[float, float, float]]]:
+        a, b, c, d = (first_vertex + i for i in range(4))
+        geometry = {
+            "type": "CompositeSurface",
+            "lod": "1",
+            "boundaries": [[[a, b, c]], [[a, c, d]]],
+        }
+        return {"type": "TINRelief", "geometry": [geometry]}, [(x, y, self.z) for x, y in self.ring]
+
+
 def cityjson(
     buildings: Iterable[Building],
     crs: str,
     version: str = "2.0",
     scale: float = 0.001,
     translate: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    relief: Relief | None = None,
 ) -> dict:
     """A CityJSON document (as a dict) of the buildings, vertices quantised by `scale` about
     `translate` (the file's `transform`); crs: the `referenceSystem` as written."""
@@ -107,6 +147,9 @@ def cityjson(
     for b in buildings:
         objects[b.id] = _object(b, len(vertices))
         vertices += _quantised(b.corners(), scale, t)
+    if relief is not None:
+        objects[relief.id], corners = relief.object(len(vertices))
+        vertices += _quantised(np.array(corners), scale, t)
     return {
         "type": "CityJSON",
         "version": version,
@@ -124,9 +167,11 @@ def write_cityjson(
     version: str = "2.0",
     scale: float = 0.001,
     translate: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    relief: Relief | None = None,
 ) -> Path:
-    """The buildings as a CityJSON file (as `cityjson` makes it), written object by object and
-    then the vertices, so that a district of any size is written in little memory."""
+    """The buildings (and a relief) as a CityJSON file (as `cityjson` makes it), written object
+    by object and then the vertices, so that a district of any size is written in little
+    memory."""
     t = np.asarray(translate, np.float64)
     head = cityjson([], crs, version, scale, translate)
     del head["CityObjects"], head["vertices"]
@@ -139,6 +184,11 @@ def write_cityjson(
                 f"{sep}{json.dumps(b.id)}:{json.dumps(_object(b, len(vertices)), separators=(',', ':'))}"
             )
             vertices += _quantised(b.corners(), scale, t)
+        if relief is not None:
+            obj, corners = relief.object(len(vertices))
+            sep = "," if vertices else ""
+            f.write(f"{sep}{json.dumps(relief.id)}:{json.dumps(obj)}")
+            vertices += _quantised(np.array(corners), scale, t)
         f.write('}, "vertices": ' + json.dumps(vertices, separators=(",", ":")) + "}")
     return path
 
@@ -244,3 +294,46 @@ def write_citygml(
             f.write(_citygml_building(b, version))
         f.write("</core:CityModel>\n")
     return path
+
+
+def utm_crs(lat_deg: float, lon_deg: float) -> pyproj.CRS:
+    """The WGS 84 UTM zone's CRS at a place (EPSG:326zz north, 327zz south)."""
+    zone = int((lon_deg + 180.0) // 6) + 1
+    return pyproj.CRS.from_epsg((32600 if lat_deg >= 0 else 32700) + zone)
+
+
+def site_buildings(frame: LocalFrame) -> tuple[list[Building], Relief, str]:
+    """The sample site's hall and buildings (app.simulate.stadium) as LoD2 buildings in the
+    site's UTM zone with EGM2008 heights, as a city would publish them, and its ground as a
+    relief: (buildings, relief, the compound CRS as `EPSG:h+3855`). Corners go ENU -> WGS84 ->
+    UTM one by one, so the footprints keep their shape and place (UTM's grid is turned from
+    true north)."""
+    crs = utm_crs(frame.lat_deg, frame.lon_deg)
+    to_utm = pyproj.Transformer.from_crs("EPSG:4326", crs, always_xy=True)
+    boxes = [("hall", HALL_MIN, HALL_MAX, "stadium")] + [
+        (f"building_{b.name}", b.min_corner, b.max_corner, "office") for b in BUILDINGS
+    ]
+
+    def placed(lo: tuple, hi: tuple) -> tuple[tuple[tuple[float, float], ...], float]:
+        ring = np.array([(lo[0], lo[1]), (hi[0], lo[1]), (hi[0], hi[1]), (lo[0], hi[1])])
+        geo = frame.enu_to_geodetic(np.column_stack([ring, np.full(4, lo[2])]))
+        x, y = to_utm.transform(geo[:, 1], geo[:, 0])
+        corners = tuple((round(float(a), 3), round(float(b), 3)) for a, b in zip(x, y, strict=True))
+        return corners, round(float(np.mean(geo[:, 2] - undulation(geo[:, 0], geo[:, 1]))), 3)
+
+    out = []
+    for name, lo, hi, function in boxes:
+        corners, ground = placed(lo, hi)
+        height = round(hi[2] - lo[2], 2)
+        out.append(
+            Building(
+                name,
+                corners,
+                ground,
+                round(ground + height, 3),
+                {"function": function, "measuredHeight": height},
+            )
+        )
+    g = GROUND_HALF
+    relief = Relief("ground", *placed((-g, -g, 0.0), (g, g, 0.0)))
+    return out, relief, f"EPSG:{crs.to_epsg()}+3855"

@@ -157,11 +157,15 @@ class CityGmlReader:
         parts = [el for el in obj.iter(*(f"{{*}}{n}" for n in PART_NAMES)) if el is not obj]
         inside_parts = {id(x) for p in parts for x in p.iter("{*}Polygon", "{*}Triangle")}
         polygons = []
+        # a relief (dem:ReliefFeature) says its LoD in a `lod` element, not a property's name
+        stated = next((c.text for c in obj if _local(c) == "lod" and c.text), None)
+        default_lod = int(float(stated)) if stated and stated.strip().isdigit() else 1
         for el in obj.iter("{*}Polygon", "{*}Triangle"):
             if id(el) in inside_parts:
                 continue
             lod, kind = self._context(el, obj)
-            if lod is not None and lod <= self.max_lod:
+            lod = default_lod if lod is None else lod
+            if lod <= self.max_lod:
                 polygons.append((lod, kind, el))
         attributes = {**(inherited or {}), **_attributes(obj)}
         if polygons:

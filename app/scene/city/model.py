@@ -58,6 +58,7 @@ SURFACE_KINDS = {
 # A surface without semantics takes its kind from its object's type (prefix match)
 TYPE_KINDS = (
     ("TINRelief", "terrain"),
+    ("ReliefFeature", "terrain"),
     ("LandUse", "terrain"),
     ("WaterBody", "water"),
     ("PlantCover", "vegetation"),

@@ -9,6 +9,7 @@ import json
 import re
 
 import numpy as np
+import pyproj
 import pytest
 from PIL import Image
 
@@ -326,3 +327,45 @@ def test_a_dem_dropped_on_an_open_clip_becomes_its_terrain(display, tmp_path, sh
     refused = json.loads((tmp_path / "manifest.json").read_text())
     assert any("a manifest names its scene" in e for e in refused["errors"])
     assert refused["manifest"].endswith("session.toml")
+
+
+def test_a_city_model_opened_on_a_clip_is_drawn_and_a_damaged_one_is_refused(
+    display, tmp_path, shared_data
+):
+    """Opening a CityJSON while a GoPro clip is open adds it to the clip's scene, read around
+    its track; a damaged one is refused with the file named, and the viewer goes on with the
+    scene it had."""
+    from app.footage.clips import open_any
+    from app.simulate.city import Building, utm_crs, write_cityjson
+
+    clip = shared_data / "real/gopro/max-heromode.mp4"
+    frame = open_any(clip).frame
+    crs = utm_crs(frame.lat_deg, frame.lon_deg)
+    x, y = pyproj.Transformer.from_crs("EPSG:4326", crs, always_xy=True).transform(
+        frame.lon_deg, frame.lat_deg
+    )
+    good = write_cityjson(
+        tmp_path / "block.city.json",
+        [Building.box("block", (x + 10, y + 10, x + 30, y + 25), 0.0, 15.0)],
+        f"EPSG:{crs.to_epsg()}",
+    )
+    broken = tmp_path / "broken.city.json"
+    broken.write_text(good.read_text()[:200])
+    run_script(
+        display,
+        tmp_path,
+        str(clip),
+        f"""0.0 clock 0.0333333
+0.2 open {good}
+0.4 state {tmp_path / "with_city.json"}
+0.5 open {broken}
+0.7 state {tmp_path / "after.json"}
+0.8 quit
+""",
+    )
+    with_city = json.loads((tmp_path / "with_city.json").read_text())
+    assert with_city["errors"] == [] and with_city["layers"] == ["city:block.city.json"]
+    assert any("CityJSON 2.0" in n and "1 of 1 objects" in n for n in with_city["info"])
+    after = json.loads((tmp_path / "after.json").read_text())
+    assert any("broken.city.json" in e and "broken JSON" in e for e in after["errors"])
+    assert after["layers"] == ["city:block.city.json"]

@@ -421,3 +421,78 @@ def test_a_citygml_relief_states_its_lod_in_an_element(tmp_path):
     city = read_city(gml, _frame())
     table = city.mesh.features[0]
     assert table.ids == ["terrain"] and list(table.kinds) == [KIND_CODE["terrain"]]
+
+
+def test_a_textured_wall_shows_its_image_the_right_way_up(tmp_path, gl_ctx):
+    """CityJSON appearances: A's south wall carries a four-colour image (texture coordinates
+    (0, 0) at its lower-left corner, as CityJSON has them); seen from the south, the wall's
+    upper-left quarter is the image's upper-left colour, its lower-right the lower-right's;
+    the other surfaces keep their kind's colour, and locate still names the wall."""
+    from PIL import Image
+
+    from app.camera.intrinsics import Intrinsics
+    from app.camera.pinhole import Camera, look_at_quat
+    from app.core.settings import OverlaySettings, ProjectionSettings
+    from app.render.offscreen import render_to_array
+    from app.render.renderer import FusionRenderer
+    from app.simulate.city import cityjson
+
+    quads = np.zeros((64, 64, 3), np.uint8)  # row 0 = the image's top
+    quads[:32, :32] = (220, 30, 30)  # upper left: red
+    quads[:32, 32:] = (30, 200, 30)  # upper right: green
+    quads[32:, :32] = (30, 30, 220)  # lower left: blue
+    quads[32:, 32:] = (230, 220, 30)  # lower right: yellow
+    (tmp_path / "appearances").mkdir()
+    Image.fromarray(quads).save(tmp_path / "appearances" / "wall.png")
+    doc = cityjson(BUILDINGS, COMPOUND, translate=(*SITE, 0.0))
+    doc["appearance"] = {
+        "textures": [{"type": "PNG", "image": "appearances/wall.png"}],
+        "vertices-texture": [[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]],
+    }
+    solid = doc["CityObjects"]["A"]["geometry"][0]
+    # faces as app.simulate.city.FACES: the third is the south wall (corners 0, 1, 5, 4)
+    values = [[None] for _ in solid["boundaries"][0]]
+    values[2] = [[0, 0, 1, 2, 3]]
+    solid["texture"] = {"winter": {"values": [values]}}
+    path = tmp_path / "textured.city.json"
+    path.write_text(json.dumps(doc))
+    frame = _frame()
+    city = read_city(path, frame)
+    assert sum(p.textured for p in city.mesh.primitives) == 1
+    (x0, y0), _, (x1, _), _ = BUILDINGS[0].footprint
+    wall = _expected_enu(frame, (x0 + x1) / 2, y0, 106.0)
+    eye = wall + [0.0, -30.0, 0.0]
+    camera = Camera.create(
+        Intrinsics(320, 240, 250.0, 250.0, 160.0, 120.0), eye, look_at_quat(eye, wall), far=2000.0
+    )
+    renderer = FusionRenderer(gl_ctx, city.mesh)
+    try:
+        image = render_to_array(
+            renderer, camera, ProjectionSettings(), OverlaySettings(frustum=False, trajectory=False)
+        ).astype(int)
+    finally:
+        renderer.release()
+
+    def at(x, z):
+        uv, _ = camera.project(_expected_enu(frame, x, y0, z)[None])
+        return image[int(uv[0, 1]), int(uv[0, 0])]
+
+    west, east = x0 + 0.25 * (x1 - x0), x0 + 0.75 * (x1 - x0)
+    upper, lower = 100.0 + 0.75 * 12.0, 100.0 + 0.25 * 12.0
+    for (x, z), channel in (((west, upper), 0), ((east, upper), 1), ((west, lower), 2)):
+        px = at(x, z)
+        assert px[channel] > 1.5 * max(np.delete(px, channel)), (x, z, px)
+    yellow = at(east, lower)
+    assert yellow[0] > 2 * yellow[2] and yellow[1] > 2 * yellow[2]
+    feature = city.mesh.feature_at(_expected_enu(frame, west, y0, upper))
+    assert feature is not None and (feature.id, feature.surface) == ("A", "wall")
+    # a texture image that is missing is said, and its surfaces are drawn by kind
+    (tmp_path / "appearances" / "wall.png").unlink()
+    city = read_city(path, frame)
+    assert not any(p.textured for p in city.mesh.primitives)
+    assert any("wall.png: texture not drawn" in m for m in city.notes.items)
+    # a surface naming a texture the file does not have is refused, naming the object
+    values[2] = [[5, 0, 1, 2, 3]]
+    path.write_text(json.dumps(doc))
+    with pytest.raises(SceneError, match=r"CityObjects.A.geometry\[0\].texture.*texture 5"):
+        read_city(path, frame)

@@ -76,6 +76,10 @@ class CityGmlReader:
     def _error(self, message: str, field: str | None = None, line: int | None = None) -> SceneError:
         return SceneError(self.path, message, field=field, line=line)
 
+    def texture_files(self) -> list[Path]:
+        """Texture images: CityGML appearances are not read yet (drawn by kind)."""
+        return []
+
     @contextmanager
     def _open(self) -> Iterator[IO[bytes]]:
         if self.path.suffix.lower() != ".zip":

@@ -42,7 +42,8 @@ Keep = Callable[[np.ndarray], bool]  # a city object's horizontal centre (CRS) -
 @dataclass
 class Header:
     """What a CityJSON file says of itself: version, CRS (as written, None if absent), the
-    vertices' transform (scale (3,), translate (3,)) and geometry templates."""
+    vertices' transform (scale (3,), translate (3,)), geometry templates and the texture
+    images (paths as written, relative to the file)."""
 
     version: str
     crs: str | None
@@ -50,6 +51,7 @@ class Header:
     translate: np.ndarray
     templates: list[dict]
     template_vertices: np.ndarray
+    textures: list[str]
 
 
 def _lod_value(lod: object) -> float:
@@ -83,6 +85,14 @@ def _surfaces_of(boundaries: list, depth: int) -> list[tuple[list, tuple[int, ..
     ]
 
 
+def _texture_values(texture: object) -> list | None:
+    """The `values` of a geometry's first texture theme (None without textures)."""
+    if not isinstance(texture, dict) or not texture:
+        return None
+    theme = texture[sorted(texture)[0]]
+    return theme.get("values") if isinstance(theme, dict) else None
+
+
 def _semantic_type(semantics: dict | None, path: tuple[int, ...]) -> str | None:
     if not semantics:
         return None
@@ -112,6 +122,7 @@ class CityJsonReader:
         self.parents_wanted: set[str] = set()
         self.header = self._read_header()
         self._vertices: np.ndarray | None = None
+        self._uvs: np.ndarray | None = None
 
     # -- the header ----------------------------------------------------------------------------
 
@@ -162,57 +173,77 @@ class CityJsonReader:
         crs = metadata.get("referenceSystem") if isinstance(metadata, dict) else None
         templates = get("geometry-templates") or {}
         tv = np.asarray(templates.get("vertices-templates", []), np.float64).reshape(-1, 3)
-        return Header(version, crs, scale, translate, templates.get("templates", []), tv)
+        textures = get("appearance.textures") if not self.sequence else None
+        if self.sequence:
+            textures = (get("appearance") or {}).get("textures")
+        images = [str(t.get("image", "")) for t in textures or [] if isinstance(t, dict)]
+        return Header(version, crs, scale, translate, templates.get("templates", []), tv, images)
 
     # -- vertices ------------------------------------------------------------------------------
 
     def _real(self, ints: np.ndarray) -> np.ndarray:
         return ints * self.header.scale + self.header.translate
 
+    def _array(self, prefix: str, width: int, field: str) -> np.ndarray:
+        """(N, width) float64 of the document's array at `prefix`, read in blocks."""
+        blocks, block = [], []
+
+        def close(block: list) -> None:
+            a = np.asarray(block, np.float64)
+            if a.ndim != 2 or a.shape[1] != width:
+                raise self._error(f"expected {width} numbers in every item", field=field)
+            blocks.append(a)
+
+        try:
+            with self.path.open("rb") as f:
+                for v in ijson.items(f, prefix, use_float=True):
+                    block.append(v)
+                    if len(block) == VERTEX_BLOCK:
+                        close(block)
+                        block = []
+        except (ijson.JSONError, ijson.IncompleteJSONError) as exc:
+            raise self._error(f"broken JSON: {exc}", field=field) from exc
+        except ValueError as exc:
+            raise self._error(f"{exc} (expected numbers)", field=field) from exc
+        if block:
+            close(block)
+        out = np.concatenate(blocks) if blocks else np.zeros((0, width))
+        blocks.clear()
+        if not np.isfinite(out).all():
+            raise self._error("numbers that are not finite", field=field)
+        return out
+
     def vertices(self) -> np.ndarray:
         """(N, 3) float64 CRS coordinates of a document's vertices (transform applied), read in
         blocks."""
         if self._vertices is None:
-            blocks, block = [], []
-
-            def close(block: list) -> None:
-                a = np.asarray(block, np.float64)
-                if a.ndim != 2 or a.shape[1] != 3:
-                    raise self._error("expected [x, y, z] for every vertex", field="vertices")
-                a *= self.header.scale
-                a += self.header.translate
-                blocks.append(a)
-
-            try:
-                with self.path.open("rb") as f:
-                    for v in ijson.items(f, "vertices.item", use_float=True):
-                        block.append(v)
-                        if len(block) == VERTEX_BLOCK:
-                            close(block)
-                            block = []
-            except (ijson.JSONError, ijson.IncompleteJSONError) as exc:
-                raise self._error(f"broken JSON: {exc}", field="vertices") from exc
-            except ValueError as exc:
-                raise self._error(f"{exc} (expected [x, y, z] numbers)", field="vertices") from exc
-            if block:
-                close(block)
-            vertices = np.concatenate(blocks) if blocks else np.zeros((0, 3))
-            blocks.clear()
-            if not np.isfinite(vertices).all():
-                raise self._error("vertices that are not finite numbers", field="vertices")
-            self._vertices = vertices
+            v = self._array("vertices.item", 3, "vertices")
+            v *= self.header.scale
+            v += self.header.translate
+            self._vertices = v
         return self._vertices
+
+    def texture_vertices(self) -> np.ndarray:
+        """(N, 2) texture coordinates of a document (none when it has no textures)."""
+        if self._uvs is None:
+            self._uvs = (
+                self._array("appearance.vertices-texture.item", 2, "appearance.vertices-texture")
+                if self.header.textures
+                else np.zeros((0, 2))
+            )
+        return self._uvs
 
     # -- objects -------------------------------------------------------------------------------
 
-    def _raw_objects(self) -> Iterator[tuple[str, dict, np.ndarray, int | None]]:
-        """(id, object, its vertices (N, 3) CRS, line) of every object in the file."""
+    def _raw_objects(self) -> Iterator[tuple[str, dict, np.ndarray, np.ndarray, int | None]]:
+        """(id, object, its vertices (N, 3) CRS, its texture coordinates (M, 2), line) of every
+        object in the file."""
         if not self.sequence:
-            vertices = self.vertices()
+            vertices, uvs = self.vertices(), self.texture_vertices()
             try:
                 with self.path.open("rb") as f:
                     for oid, obj in ijson.kvitems(f, "CityObjects", use_float=True):
-                        yield oid, obj, vertices, None
+                        yield oid, obj, vertices, uvs, None
             except (ijson.JSONError, ijson.IncompleteJSONError) as exc:
                 raise self._error(f"broken JSON: {exc}", field="CityObjects") from exc
             return
@@ -224,6 +255,9 @@ class CityJsonReader:
                 try:
                     feature = json.loads(line)
                     local = np.asarray(feature.get("vertices", []), np.float64).reshape(-1, 3)
+                    appearance = feature.get("appearance") or {}
+                    uvs = np.asarray(appearance.get("vertices-texture", []), np.float64)
+                    uvs = uvs.reshape(-1, 2)
                     objects = feature["CityObjects"].items()
                 except (json.JSONDecodeError, UnicodeDecodeError, AttributeError, KeyError) as exc:
                     raise self._error(f"broken CityJSONFeature: {exc}", line=number) from exc
@@ -231,7 +265,7 @@ class CityJsonReader:
                     raise self._error(f"{exc} (expected [x, y, z] vertices)", line=number) from exc
                 real = self._real(local)
                 for oid, obj in objects:
-                    yield oid, obj, real, number
+                    yield oid, obj, real, uvs, number
 
     def _geometry(self, oid: str, obj: dict) -> tuple[int, dict] | None:
         """(index, geometry) of the object's highest LoD at most max_lod."""
@@ -269,7 +303,7 @@ class CityJsonReader:
 
     def objects(self, keep: Keep | None = None) -> Iterator[CityObject]:
         """The file's city objects with geometry whose centre `keep` accepts (all if None)."""
-        for oid, obj, vertices, line in self._raw_objects():
+        for oid, obj, vertices, uvs, line in self._raw_objects():
             if not isinstance(obj, dict):
                 raise self._error("expected a city object", field=f"CityObjects.{oid}", line=line)
             chosen = self._geometry(oid, obj)
@@ -308,9 +342,13 @@ class CityJsonReader:
                 continue
             otype = str(obj.get("type", ""))
             surfaces = []
+            textured = _texture_values(geom.get("texture"))
             for rings, path in _surfaces_of(boundaries, depth):
                 kind = kind_of(_semantic_type(geom.get("semantics"), path), otype)
-                surfaces.append(Surface([vertices[np.asarray(r, np.int64)] for r in rings], kind))
+                surface = Surface([vertices[np.asarray(r, np.int64)] for r in rings], kind)
+                if textured is not None:
+                    self._texture(surface, textured, path, uvs, where, line)
+                surfaces.append(surface)
             parents = obj.get("parents") or []
             parent = str(parents[0]) if parents else None
             if parent is not None:
@@ -324,12 +362,55 @@ class CityJsonReader:
                 parent,
             )
 
+    def _texture(
+        self,
+        surface: Surface,
+        values: list,
+        path: tuple[int, ...],
+        uvs: np.ndarray,
+        where: str,
+        line: int | None,
+    ) -> None:
+        """Give the surface its texture and coordinates from a theme's `values` (nested as the
+        boundaries, one [texture, uv index per vertex] list a ring), when every ring has them."""
+        try:
+            rings = values
+            for i in path:
+                rings = rings[i]
+            if rings is None or not all(r and r[0] is not None for r in rings):
+                return
+            texture = int(rings[0][0])
+            coords = [uvs[np.asarray(r[1:], np.int64)] for r in rings]
+        except (IndexError, TypeError, ValueError) as exc:
+            raise self._error(
+                f"texture values do not match the boundaries ({exc})",
+                field=f"{where}.texture",
+                line=line,
+            ) from exc
+        if not 0 <= texture < len(self.header.textures):
+            raise self._error(
+                f"texture {texture} not among the file's {len(self.header.textures)}",
+                field=f"{where}.texture",
+                line=line,
+            )
+        if any(len(c) != len(r) for c, r in zip(coords, surface.rings, strict=True)):
+            raise self._error(
+                "texture coordinates and ring vertices differ in number",
+                field=f"{where}.texture",
+                line=line,
+            )
+        surface.texture, surface.uvs = texture, coords
+
+    def texture_files(self) -> list[Path]:
+        """The texture images, in the order surfaces name them (relative to the file)."""
+        return [self.path.parent / t for t in self.header.textures]
+
     def attributes_of(self, ids: set[str]) -> dict[str, dict]:
         """The attributes of the objects named (parents of the objects read), in one pass."""
         out: dict[str, dict] = {}
         if not ids:
             return out
-        for oid, obj, _, _ in self._raw_objects():
+        for oid, obj, _, _, _ in self._raw_objects():
             if oid in ids and isinstance(obj, dict):
                 out[oid] = dict(obj.get("attributes") or {})
                 if len(out) == len(ids):

@@ -106,10 +106,14 @@ def kind_of(surface_type: str | None, object_type: str) -> str:
 @dataclass
 class Surface:
     """A planar polygon: rings[0] the exterior, the others holes; each (N, 3) float64 in the
-    file's CRS (x, y horizontal, z height), not closed (the first vertex is not repeated)."""
+    file's CRS (x, y horizontal, z height), not closed (the first vertex is not repeated).
+    texture: the index of its image among the reader's `textures` (None: untextured), uvs: its
+    rings' texture coordinates ((N, 2) each, (0, 0) the image's lower-left corner)."""
 
     rings: list[np.ndarray]
     kind: str
+    texture: int | None = None
+    uvs: list[np.ndarray] | None = None
 
 
 @dataclass
@@ -143,34 +147,49 @@ def _newell(ring: np.ndarray) -> np.ndarray:
     )
 
 
+def usable_rings(surface: Surface) -> list[int]:
+    """The rings that take part in triangulation (three vertices or more), by index; none when
+    the exterior has fewer."""
+    if not surface.rings or len(surface.rings[0]) < 3:
+        return []
+    return [i for i, r in enumerate(surface.rings) if len(r) >= 3]
+
+
 def triangulate(surface: Surface) -> np.ndarray:
-    """(T, 3, 3) float64 triangles of a surface, in its coordinates, wound as its exterior ring.
+    """(T, 3, 3) float64 triangles of a surface, in its coordinates, wound as its exterior ring
+    (see `triangle_indices`)."""
+    points = np.concatenate([surface.rings[i] for i in usable_rings(surface)] or [np.zeros((0, 3))])
+    return points[triangle_indices(surface)]
+
+
+def triangle_indices(surface: Surface) -> np.ndarray:
+    """(T, 3) indices of a surface's triangles into its usable rings' vertices concatenated.
 
     Three-vertex rings are taken as they are; others are ear-clipped (mapbox_earcut) in their
     own plane: the vertices are projected on the two axes most perpendicular to the Newell
     normal, so a wall is triangulated in its own plane, not squashed on the ground. A degenerate
     ring (fewer than 3 vertices, or no area) gives no triangles."""
-    rings = [r for r in surface.rings if len(r) >= 3]
-    if not rings or len(surface.rings[0]) < 3:
-        return np.zeros((0, 3, 3))
+    rings = [surface.rings[i] for i in usable_rings(surface)]
+    if not rings:
+        return np.zeros((0, 3), np.int64)
     if len(rings) == 1 and len(rings[0]) == 3:
-        return rings[0][None].copy()
+        return np.array([[0, 1, 2]])
     points = np.concatenate(rings)
     origin = points[0]
     local = points - origin  # CRS coordinates are large (UTM northing ~5e6 m): subtract first
     normal = _newell(local[: len(rings[0])])
     if not np.linalg.norm(normal) > 1e-12:
-        return np.zeros((0, 3, 3))
+        return np.zeros((0, 3), np.int64)
     drop = int(np.argmax(np.abs(normal)))
     axes = [a for a in range(3) if a != drop]
     ends = np.cumsum([len(r) for r in rings]).astype(np.uint32)
-    tri = mapbox_earcut.triangulate_float64(local[:, axes], ends).reshape(-1, 3)
-    out = points[tri]
+    tri = mapbox_earcut.triangulate_float64(local[:, axes], ends).reshape(-1, 3).astype(np.int64)
     # earcut winds triangles its own way: keep the ring's orientation (outward for a solid)
+    out = local[tri]
     n = np.cross(out[:, 1] - out[:, 0], out[:, 2] - out[:, 0])
     flip = n @ normal < 0
-    out[flip] = out[flip][:, ::-1]
-    return out
+    tri[flip] = tri[flip][:, ::-1]
+    return tri
 
 
 @dataclass

@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 import pyproj
+from PIL import Image, UnidentifiedImageError
 from scipy.spatial import cKDTree
 
 from app.core.errors import SceneError
@@ -33,12 +34,20 @@ from app.geodesy.enu import LocalFrame
 from app.scene.city.citygml import SUFFIXES as GML_SUFFIXES
 from app.scene.city.citygml import CityGmlReader
 from app.scene.city.cityjson import CityJsonReader
-from app.scene.city.model import KIND_CODE, KIND_COLORS, CityObject, FeatureTable, triangulate
+from app.scene.city.model import (
+    KIND_CODE,
+    KIND_COLORS,
+    CityObject,
+    FeatureTable,
+    triangle_indices,
+    usable_rings,
+)
 from app.scene.mesh import MeshData, Primitive
 
 DEFAULT_MARGIN_M = 1000.0  # objects this far from the track are read
 DEFAULT_MAX_TRIANGLES = 1_500_000  # ~150 MB drawn and indexed at most
 FLUSH_TRIANGLES = 50_000  # triangles placed in ENU in batches of this many
+MAX_TEXTURE_PX = 8192  # a texture image is drawn at most this many pixels a side
 CITYJSON_SUFFIXES = (".jsonl",)
 
 
@@ -104,12 +113,34 @@ class _Window:
 
 @dataclass
 class _Kept:
-    """One object read, its triangles in ENU (float32) and kind codes."""
+    """One object read: its triangles in ENU (T, 3, 3 float32), kind codes (T,), texture
+    indices (T,; -1 untextured) and texture coordinates (T, 3, 2)."""
 
     obj: CityObject
     triangles: np.ndarray
     kinds: np.ndarray
+    textures: np.ndarray
+    uvs: np.ndarray
     distance: float
+
+
+def _triangles(obj: CityObject) -> tuple[list, list, list, list]:
+    """(triangles, kinds, textures, uvs) of an object's surfaces, as lists of arrays."""
+    tris, kinds, textures, uvs = [], [], [], []
+    for s in obj.surfaces:
+        idx = triangle_indices(s)
+        if not len(idx):
+            continue
+        used = usable_rings(s)
+        tris.append(np.concatenate([s.rings[i] for i in used])[idx])
+        kinds.append(np.full(len(idx), KIND_CODE[s.kind], np.uint8))
+        if s.texture is not None and s.uvs is not None:
+            textures.append(np.full(len(idx), s.texture, np.int32))
+            uvs.append(np.concatenate([s.uvs[i] for i in used])[idx].astype(np.float32))
+        else:
+            textures.append(np.full(len(idx), -1, np.int32))
+            uvs.append(np.zeros((len(idx), 3, 2), np.float32))
+    return tris, kinds, textures, uvs
 
 
 def _datum(path: Path, crs: pyproj.CRS, vertical: str | None, notes: Messages) -> tuple[str, float]:
@@ -196,7 +227,7 @@ def read_city(
         return window is None or window.distance(centre) <= margin_m
 
     kept: list[_Kept] = []
-    pending: list[tuple[CityObject, list[np.ndarray], list[np.ndarray]]] = []
+    pending: list[tuple[CityObject, list, list, list, list]] = []
     pending_triangles = 0
     total = 0
     dropped = 0
@@ -206,13 +237,22 @@ def read_city(
         if not pending:
             return
         window, placer = setup()
-        flat = np.concatenate([t for _, tris, _ in pending for t in tris]).reshape(-1, 3)
+        flat = np.concatenate([t for _, tris, *_ in pending for t in tris]).reshape(-1, 3)
         enu = placer(flat).astype(np.float32).reshape(-1, 3, 3)
         start = 0
-        for obj, tris, kinds in pending:
+        for obj, tris, kinds, textures, uvs in pending:
             n = sum(len(t) for t in tris)
             distance = 0.0 if window is None else window.distance(obj.centre_xy())
-            kept.append(_Kept(obj, enu[start : start + n], np.concatenate(kinds), distance))
+            kept.append(
+                _Kept(
+                    obj,
+                    enu[start : start + n],
+                    np.concatenate(kinds),
+                    np.concatenate(textures),
+                    np.concatenate(uvs),
+                    distance,
+                )
+            )
             start += n
             total += n
         pending.clear()
@@ -224,15 +264,10 @@ def read_city(
                 dropped += 1
 
     for obj in reader.objects(keep):
-        tris, kinds = [], []
-        for s in obj.surfaces:
-            t = triangulate(s)
-            if len(t):
-                tris.append(t)
-                kinds.append(np.full(len(t), KIND_CODE[s.kind], np.uint8))
+        tris, kinds, textures, uvs = _triangles(obj)
         if not tris:
             continue
-        pending.append((obj, tris, kinds))
+        pending.append((obj, tris, kinds, textures, uvs))
         pending_triangles += sum(len(t) for t in tris)
         if pending_triangles >= FLUSH_TRIANGLES:
             flush()
@@ -256,6 +291,47 @@ def read_city(
     )
 
 
+def _primitive(
+    triangles: np.ndarray,
+    kinds: np.ndarray | None,
+    uvs: np.ndarray | None,
+    image: np.ndarray | None,
+    name: str,
+) -> Primitive:
+    """Triangles (T, 3, 3) as a primitive: coloured by kind, or white under a texture."""
+    positions = np.ascontiguousarray(triangles.reshape(-1, 3))
+    n = len(positions)
+    colors = np.ones((n, 4), np.float32)
+    if kinds is not None:
+        colors[:, :3] = np.repeat(KIND_COLORS[kinds], 3, axis=0)
+    return Primitive(
+        positions=positions,
+        colors=colors,
+        indices=np.arange(n, dtype=np.uint32).reshape(-1, 3),
+        uvs=None if uvs is None else np.ascontiguousarray(uvs.reshape(-1, 2)),
+        texture=image,
+        name=name,
+    )
+
+
+def _images(files: list[Path], used: set[int], notes: Messages) -> dict[int, np.ndarray]:
+    """The texture images used, as RGBA bottom row first (app.scene.mesh), at most
+    MAX_TEXTURE_PX a side; one that is missing or unreadable is said and its surfaces are drawn
+    by kind."""
+    out = {}
+    for t in sorted(used):
+        file = files[t]
+        try:
+            with Image.open(file) as img:
+                img = img.convert("RGBA")
+                if max(img.size) > MAX_TEXTURE_PX:
+                    img.thumbnail((MAX_TEXTURE_PX, MAX_TEXTURE_PX))
+                out[t] = np.ascontiguousarray(np.asarray(img, np.uint8)[::-1])
+        except (OSError, UnidentifiedImageError) as exc:
+            notes.add(f"{file}: texture not drawn ({exc}); its surfaces are drawn by kind")
+    return out
+
+
 def _city(
     path: Path,
     reader: CityJsonReader | CityGmlReader,
@@ -267,21 +343,26 @@ def _city(
     margin_m: float,
     max_triangles: int,
 ) -> City:
-    """The kept objects as one primitive and its feature table, with the layer's note."""
+    """The kept objects as primitives (one coloured by kind, one per texture image) and their
+    feature table, with the layer's note."""
     parents = {k.obj.parent for k in kept if k.obj.parent is not None}
     inherited = reader.attributes_of(parents) if isinstance(reader, CityJsonReader) else {}
     triangles = np.concatenate([k.triangles for k in kept])
     kinds = np.concatenate([k.kinds for k in kept])
-    positions = np.ascontiguousarray(triangles.reshape(-1, 3))
-    n = len(positions)
-    colors = np.ones((n, 4), np.float32)
-    colors[:, :3] = np.repeat(KIND_COLORS[kinds], 3, axis=0)
-    prim = Primitive(
-        positions=positions,
-        colors=colors,
-        indices=np.arange(n, dtype=np.uint32).reshape(-1, 3),
-        name=path.name,
-    )
+    textures = np.concatenate([k.textures for k in kept])
+    uvs = np.concatenate([k.uvs for k in kept])
+    used = set(np.unique(textures[textures >= 0]).tolist())
+    images = _images(reader.texture_files(), used, notes)
+    textures = np.where(np.isin(textures, list(images)), textures, -1)
+    prims = [
+        _primitive(
+            triangles[textures == t], None, uvs[textures == t], image, f"{path.name} texture {t}"
+        )
+        for t, image in images.items()
+    ]
+    plain = textures < 0
+    if plain.any():
+        prims.append(_primitive(triangles[plain], kinds[plain], None, None, path.name))
     starts = np.concatenate([[0], np.cumsum([len(k.triangles) for k in kept])]).astype(np.int64)
     table = FeatureTable(
         path.name,
@@ -289,14 +370,14 @@ def _city(
         [k.obj.type for k in kept],
         [{**inherited.get(k.obj.parent or "", {}), **k.obj.attributes} for k in kept],
         [k.obj.parent for k in kept],
-        positions.reshape(-1, 3, 3),
+        triangles,
         starts,
         kinds,
     )
     size = (
-        positions.nbytes
-        + colors.nbytes
-        + prim.indices.nbytes
+        sum(p.positions.nbytes + p.colors.nbytes + p.indices.nbytes for p in prims)
+        + sum(p.texture.nbytes + p.uvs.nbytes for p in prims if p.textured)
+        + triangles.nbytes
         + kinds.nbytes
         + table.boxes.nbytes
         + starts.nbytes
@@ -317,7 +398,7 @@ def _city(
             f"{path.name}: {dropped:,} objects farther from the track left out to keep within {max_triangles:,} triangles"
         )
     return City(
-        MeshData([prim], features=[table]),
+        MeshData(prims, features=[table]),
         str(state["datum"]),
         notes,
         len(kept),

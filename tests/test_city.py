@@ -423,41 +423,30 @@ def test_a_citygml_relief_states_its_lod_in_an_element(tmp_path):
     assert table.ids == ["terrain"] and list(table.kinds) == [KIND_CODE["terrain"]]
 
 
-def test_a_textured_wall_shows_its_image_the_right_way_up(tmp_path, gl_ctx):
-    """CityJSON appearances: A's south wall carries a four-colour image (texture coordinates
-    (0, 0) at its lower-left corner, as CityJSON has them); seen from the south, the wall's
-    upper-left quarter is the image's upper-left colour, its lower-right the lower-right's;
-    the other surfaces keep their kind's colour, and locate still names the wall."""
+def _quadrant_image(folder) -> None:
+    """appearances/wall.png: 64 x 64, red upper left, green upper right, blue lower left,
+    yellow lower right."""
     from PIL import Image
 
+    quads = np.zeros((64, 64, 3), np.uint8)  # row 0 = the image's top
+    quads[:32, :32] = (220, 30, 30)
+    quads[:32, 32:] = (30, 200, 30)
+    quads[32:, :32] = (30, 30, 220)
+    quads[32:, 32:] = (230, 220, 30)
+    (folder / "appearances").mkdir(exist_ok=True)
+    Image.fromarray(quads).save(folder / "appearances" / "wall.png")
+
+
+def _check_wall_quadrants(city, frame, gl_ctx) -> None:
+    """Seen from the south, A's south wall shows the quadrant image the right way up: its
+    upper-left quarter red, upper-right green, lower-left blue, lower-right yellow; locate
+    still names the wall."""
     from app.camera.intrinsics import Intrinsics
     from app.camera.pinhole import Camera, look_at_quat
     from app.core.settings import OverlaySettings, ProjectionSettings
     from app.render.offscreen import render_to_array
     from app.render.renderer import FusionRenderer
-    from app.simulate.city import cityjson
 
-    quads = np.zeros((64, 64, 3), np.uint8)  # row 0 = the image's top
-    quads[:32, :32] = (220, 30, 30)  # upper left: red
-    quads[:32, 32:] = (30, 200, 30)  # upper right: green
-    quads[32:, :32] = (30, 30, 220)  # lower left: blue
-    quads[32:, 32:] = (230, 220, 30)  # lower right: yellow
-    (tmp_path / "appearances").mkdir()
-    Image.fromarray(quads).save(tmp_path / "appearances" / "wall.png")
-    doc = cityjson(BUILDINGS, COMPOUND, translate=(*SITE, 0.0))
-    doc["appearance"] = {
-        "textures": [{"type": "PNG", "image": "appearances/wall.png"}],
-        "vertices-texture": [[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]],
-    }
-    solid = doc["CityObjects"]["A"]["geometry"][0]
-    # faces as app.simulate.city.FACES: the third is the south wall (corners 0, 1, 5, 4)
-    values = [[None] for _ in solid["boundaries"][0]]
-    values[2] = [[0, 0, 1, 2, 3]]
-    solid["texture"] = {"winter": {"values": [values]}}
-    path = tmp_path / "textured.city.json"
-    path.write_text(json.dumps(doc))
-    frame = _frame()
-    city = read_city(path, frame)
     assert sum(p.textured for p in city.mesh.primitives) == 1
     (x0, y0), _, (x1, _), _ = BUILDINGS[0].footprint
     wall = _expected_enu(frame, (x0 + x1) / 2, y0, 106.0)
@@ -486,6 +475,30 @@ def test_a_textured_wall_shows_its_image_the_right_way_up(tmp_path, gl_ctx):
     assert yellow[0] > 2 * yellow[2] and yellow[1] > 2 * yellow[2]
     feature = city.mesh.feature_at(_expected_enu(frame, west, y0, upper))
     assert feature is not None and (feature.id, feature.surface) == ("A", "wall")
+
+
+def test_a_textured_wall_shows_its_image_the_right_way_up(tmp_path, gl_ctx):
+    """CityJSON appearances: A's south wall carries a four-colour image (texture coordinates
+    (0, 0) at its lower-left corner, as CityJSON has them), drawn the right way up; the other
+    surfaces keep their kind's colour. A missing image is said and drawn by kind; a texture
+    the file does not have is refused naming the object."""
+    from app.simulate.city import cityjson
+
+    _quadrant_image(tmp_path)
+    doc = cityjson(BUILDINGS, COMPOUND, translate=(*SITE, 0.0))
+    doc["appearance"] = {
+        "textures": [{"type": "PNG", "image": "appearances/wall.png"}],
+        "vertices-texture": [[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]],
+    }
+    solid = doc["CityObjects"]["A"]["geometry"][0]
+    # faces as app.simulate.city.FACES: the third is the south wall (corners 0, 1, 5, 4)
+    values = [[None] for _ in solid["boundaries"][0]]
+    values[2] = [[0, 0, 1, 2, 3]]
+    solid["texture"] = {"winter": {"values": [values]}}
+    path = tmp_path / "textured.city.json"
+    path.write_text(json.dumps(doc))
+    frame = _frame()
+    _check_wall_quadrants(read_city(path, frame), frame, gl_ctx)
     # a texture image that is missing is said, and its surfaces are drawn by kind
     (tmp_path / "appearances" / "wall.png").unlink()
     city = read_city(path, frame)
@@ -496,3 +509,24 @@ def test_a_textured_wall_shows_its_image_the_right_way_up(tmp_path, gl_ctx):
     path.write_text(json.dumps(doc))
     with pytest.raises(SceneError, match=r"CityObjects.A.geometry\[0\].texture.*texture 5"):
         read_city(path, frame)
+
+
+def test_a_citygml_texture_kept_apart_from_its_building_is_drawn(tmp_path, gl_ctx):
+    """CityGML appearances: a ParameterizedTexture in an appearanceMember after the buildings
+    (as many exports keep them), aimed at the south wall's ring by its gml:id: drawn the right
+    way up as the CityJSON one."""
+    _quadrant_image(tmp_path)
+    path = write_citygml(tmp_path / "textured.gml", BUILDINGS, "EPSG:32632+3855")
+    appearance = (
+        '<app:appearanceMember xmlns:app="http://www.opengis.net/citygml/appearance/2.0">'
+        "<app:Appearance><app:theme>rgbTexture</app:theme><app:surfaceDataMember>"
+        "<app:ParameterizedTexture><app:imageURI>appearances/wall.png</app:imageURI>"
+        '<app:target uri="#A_p2"><app:TexCoordList>'
+        '<app:textureCoordinates ring="#A_p2_r0">0 0 1 0 1 1 0 1 0 0</app:textureCoordinates>'
+        "</app:TexCoordList></app:target></app:ParameterizedTexture>"
+        "</app:surfaceDataMember></app:Appearance></app:appearanceMember>"
+    )
+    text = path.read_text().replace("</core:CityModel>", appearance + "</core:CityModel>")
+    path.write_text(text)
+    frame = _frame()
+    _check_wall_quadrants(read_city(path, frame), frame, gl_ctx)

@@ -244,7 +244,7 @@ def _citygml_building(b: Building, version: str) -> str:
     surfaces = []
     for i, (face, kind) in enumerate(FACES):
         polygon = (
-            f'<gml:Polygon gml:id="{b.id}_p{i}"><gml:exterior><gml:LinearRing>'
+            f'<gml:Polygon gml:id="{b.id}_p{i}"><gml:exterior><gml:LinearRing gml:id="{b.id}_p{i}_r0">'
             f'<gml:posList srsDimension="3">{_poslist(corners[list(face)])}</gml:posList>'
             "</gml:LinearRing></gml:exterior></gml:Polygon>"
         )

@@ -30,6 +30,8 @@ from app.scene.city.model import SURFACE_KINDS, CityObject, Surface, kind_of
 SUFFIXES = (".gml", ".xml", ".zip")
 PART_NAMES = ("BuildingPart", "BridgePart", "TunnelPart")
 LOD_PATTERN = re.compile(r"^lod(\d)")
+GML_ID = "{http://www.opengis.net/gml}id"
+GML32_ID = "{http://www.opengis.net/gml/3.2}id"
 MEMBERS = ("cityObjectMember", "featureMember", "member")
 GENERIC = ("stringAttribute", "intAttribute", "doubleAttribute", "dateAttribute", "uriAttribute")
 
@@ -72,13 +74,64 @@ class CityGmlReader:
         self.count = 0
         self.crs: str | None = None
         self.version: str | None = None
+        self.textures: list[str] = []
+        self._texture_ids: dict[str, int] = {}
+        self.ring_textures: dict[str, tuple[int, np.ndarray]] = {}
 
     def _error(self, message: str, field: str | None = None, line: int | None = None) -> SceneError:
         return SceneError(self.path, message, field=field, line=line)
 
     def texture_files(self) -> list[Path]:
-        """Texture images: CityGML appearances are not read yet (drawn by kind)."""
-        return []
+        """The texture images (ParameterizedTexture imageURI, relative to the file), in the
+        order surfaces name them."""
+        return [self.path.parent / uri for uri in self.textures]
+
+    def _texture_index(self, uri: str) -> int:
+        if uri not in self._texture_ids:
+            self._texture_ids[uri] = len(self.textures)
+            self.textures.append(uri)
+        return self._texture_ids[uri]
+
+    def _read_textures(self, root: etree._Element) -> None:
+        """Every ParameterizedTexture under `root`: its image, and the coordinates it gives
+        each ring (by the ring's gml:id), kept in `ring_textures`."""
+        for tex in root.iter("{*}ParameterizedTexture"):
+            uri = next((c.text for c in tex.iter("{*}imageURI") if c.text), None)
+            if not uri:
+                continue
+            index = self._texture_index(uri.strip())
+            for coords in tex.iter("{*}textureCoordinates"):
+                ring = (coords.get("ring") or "").lstrip("#")
+                try:
+                    uv = np.asarray([float(v) for v in (coords.text or "").split()], np.float64)
+                    uv = uv.reshape(-1, 2)
+                except ValueError as exc:
+                    raise self._error(
+                        f"texture coordinates: {exc} (expected u v pairs)", line=coords.sourceline
+                    ) from exc
+                if len(uv) > 1 and np.array_equal(uv[0], uv[-1]):
+                    uv = uv[:-1]
+                if ring:
+                    self.ring_textures[ring] = (index, uv)
+
+    def _global_appearances(self) -> None:
+        """Appearances kept apart from the objects (CityModel/appearanceMember, often after
+        them): read in a first pass when the file has any, so that one pass over the objects
+        finds them."""
+        with self._open() as f:
+            found = False
+            while chunk := f.read(1 << 22):
+                if b"appearanceMember" in chunk:
+                    found = True
+                    break
+        if not found:
+            return
+        with self._open() as f:
+            for _, el in etree.iterparse(
+                f, events=("end",), tag="{*}appearanceMember", huge_tree=True
+            ):
+                self._read_textures(el)
+                el.clear()
 
     @contextmanager
     def _open(self) -> Iterator[IO[bytes]]:
@@ -111,6 +164,7 @@ class CityGmlReader:
         seen_root = False
         tags = ("{*}CityModel", "{*}Envelope", *(f"{{*}}{m}" for m in MEMBERS))
         try:
+            self._global_appearances()
             with self._open() as f:
                 for event, el in etree.iterparse(
                     f, events=("start", "end"), tag=tags, huge_tree=True
@@ -134,6 +188,7 @@ class CityGmlReader:
                         self.crs = None if found is None else found.get("srsName")
                     for child in el:
                         if isinstance(child.tag, str):
+                            self._read_textures(child)  # the object's own appearances
                             yield from self._read(child, keep, None)
                     el.clear()
                     while el.getprevious() is not None:
@@ -154,9 +209,7 @@ class CityGmlReader:
     ) -> Iterator[CityObject]:
         """The object (if it has polygons of its own) and its parts, each with the attributes
         of the objects around it merged under its own."""
-        oid = obj.get("{http://www.opengis.net/gml}id") or obj.get(
-            "{http://www.opengis.net/gml/3.2}id"
-        )
+        oid = obj.get(GML_ID) or obj.get(GML32_ID)
         oid = oid or f"{_local(obj)}@{obj.sourceline}"
         parts = [el for el in obj.iter(*(f"{{*}}{n}" for n in PART_NAMES)) if el is not obj]
         inside_parts = {id(x) for p in parts for x in p.iter("{*}Polygon", "{*}Triangle")}
@@ -209,7 +262,7 @@ class CityGmlReader:
         for lod, name, polygon in polygons:
             if lod != top:
                 continue
-            rings = []
+            rings, textures = [], []
             for ring in polygon.iter("{*}LinearRing"):
                 try:
                     coords = _coordinates(ring)
@@ -224,8 +277,16 @@ class CityGmlReader:
                         line=polygon.sourceline,
                     )
                 rings.append(coords)
+                textures.append(self.ring_textures.get(ring.get(GML_ID) or ring.get(GML32_ID)))
             if rings:
-                surfaces.append(Surface(rings, kind_of(name, otype)))
+                surface = Surface(rings, kind_of(name, otype))
+                if all(
+                    t is not None and len(t[1]) == len(r)
+                    for t, r in zip(textures, rings, strict=True)
+                ):
+                    if len({t[0] for t in textures}) == 1:
+                        surface.texture, surface.uvs = textures[0][0], [t[1] for t in textures]
+                surfaces.append(surface)
         if not surfaces:
             return
         points = np.concatenate([r for s in surfaces for r in s.rings])

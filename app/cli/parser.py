@@ -482,13 +482,19 @@ def _simulate(sub: Commands) -> None:
     sc.set_defaults(job="simulate:scene")
     ss = ssub.add_parser(
         "session",
-        help="the sample session: a phone filming the sample site while walking, with truth",
+        help="the sample session: a phone filming the sample site while walking (or a drone's survey or orbit, --flight), with truth",
     )
     ss.add_argument("--out", required=True, type=Path)
     ss.add_argument(
         "--scene", type=Path, default=None, help="the site GLB (default: the bundled sample)"
     )
     ss.add_argument("--seed", type=int, default=2026)
+    ss.add_argument(
+        "--flight",
+        choices=("walk", "survey", "orbit"),
+        default="walk",
+        help="walk: a phone carried past the hall (the bundled sample); survey: a drone's lawn-mower lines at 70 m, camera looking down; orbit: a drone circling the hall at 60 m, camera on it",
+    )
     ss.add_argument("--duration", type=number(1.0, 3600.0), default=80.0, help="seconds of video")
     ss.add_argument(
         "--model-world",

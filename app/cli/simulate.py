@@ -64,7 +64,12 @@ def session(args: argparse.Namespace) -> int:
     manifest = write_sample_session(
         args.out,
         site,
-        SampleConfig(seed=args.seed, duration_s=args.duration, world=not args.model_world),
+        SampleConfig(
+            seed=args.seed,
+            duration_s=args.duration,
+            world=not args.model_world,
+            flight=args.flight,
+        ),
     )
     total = sum(p.stat().st_size for p in Path(args.out).iterdir() if p.is_file())
     print(f"wrote {manifest} ({total / 1e6:.1f} MB in {args.out})")

@@ -70,6 +70,21 @@ def _expected_enu(frame: LocalFrame, x: float, y: float, h_egm2008: float) -> np
     ).reshape(3)
 
 
+def _render(gl_ctx, mesh, camera) -> np.ndarray:
+    """The scene alone (no video, no overlays) seen by `camera`: (H, W, 3) uint8."""
+    from app.core.settings import OverlaySettings, ProjectionSettings
+    from app.render.offscreen import render_to_array
+    from app.render.renderer import FusionRenderer
+
+    renderer = FusionRenderer(gl_ctx, mesh)
+    try:
+        return render_to_array(
+            renderer, camera, ProjectionSettings(), OverlaySettings(frustum=False, trajectory=False)
+        )
+    finally:
+        renderer.release()
+
+
 def test_crs_spellings_of_city_files():
     for text in (
         "EPSG:32632+3855",
@@ -170,10 +185,7 @@ def test_a_walls_pixel_lands_where_the_frustum_says_and_names_its_building(city_
     in the roof's."""
     from app.camera.intrinsics import Intrinsics
     from app.camera.pinhole import Camera, look_at_quat
-    from app.core.settings import OverlaySettings, ProjectionSettings
     from app.locate.location import Locator
-    from app.render.offscreen import render_to_array
-    from app.render.renderer import FusionRenderer
 
     frame = _frame()
     city = read_city(city_files["cityjson"], frame)
@@ -195,13 +207,7 @@ def test_a_walls_pixel_lands_where_the_frustum_says_and_names_its_building(city_
     assert loc.feature.attributes["function"] == "residential"
     assert "Building A, wall" in loc.line() and loc.as_dict()["object"]["id"] == "A"
 
-    renderer = FusionRenderer(gl_ctx, city.mesh)
-    try:
-        image = render_to_array(
-            renderer, camera, ProjectionSettings(), OverlaySettings(frustum=False, trajectory=False)
-        ).astype(float)
-    finally:
-        renderer.release()
+    image = _render(gl_ctx, city.mesh, camera).astype(float)
     px = image[int(uv[0, 1]), int(uv[0, 0])]
     wall_rgb = KIND_COLORS[KIND_CODE["wall"]]
     assert px[0] > 60 and abs(px[0] / px[1] - wall_rgb[0] / wall_rgb[1]) < 0.15  # off-white
@@ -213,13 +219,7 @@ def test_a_walls_pixel_lands_where_the_frustum_says_and_names_its_building(city_
         look_at_quat(top_eye, top_eye - [0, 0, 1], (0.0, 1.0, 0.0)),
         far=2000.0,
     )
-    renderer = FusionRenderer(gl_ctx, city.mesh)
-    try:
-        roof = render_to_array(
-            renderer, top, ProjectionSettings(), OverlaySettings(frustum=False, trajectory=False)
-        )
-    finally:
-        renderer.release()
+    roof = _render(gl_ctx, city.mesh, top)
     r, g, _ = roof[32, 32].astype(float)
     assert r > 1.5 * g
 
@@ -443,9 +443,6 @@ def _check_wall_quadrants(city, frame, gl_ctx) -> None:
     still names the wall."""
     from app.camera.intrinsics import Intrinsics
     from app.camera.pinhole import Camera, look_at_quat
-    from app.core.settings import OverlaySettings, ProjectionSettings
-    from app.render.offscreen import render_to_array
-    from app.render.renderer import FusionRenderer
 
     assert sum(p.textured for p in city.mesh.primitives) == 1
     (x0, y0), _, (x1, _), _ = BUILDINGS[0].footprint
@@ -454,13 +451,7 @@ def _check_wall_quadrants(city, frame, gl_ctx) -> None:
     camera = Camera.create(
         Intrinsics(320, 240, 250.0, 250.0, 160.0, 120.0), eye, look_at_quat(eye, wall), far=2000.0
     )
-    renderer = FusionRenderer(gl_ctx, city.mesh)
-    try:
-        image = render_to_array(
-            renderer, camera, ProjectionSettings(), OverlaySettings(frustum=False, trajectory=False)
-        ).astype(int)
-    finally:
-        renderer.release()
+    image = _render(gl_ctx, city.mesh, camera).astype(int)
 
     def at(x, z):
         uv, _ = camera.project(_expected_enu(frame, x, y0, z)[None])

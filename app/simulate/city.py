@@ -132,6 +132,21 @@ class Relief:
         return {"type": "TINRelief", "geometry": [geometry]}, [(x, y, self.z) for x, y in self.ring]
 
 
+def _entries(
+    buildings: Iterable[Building], relief: Relief | None, scale: float, translate: np.ndarray
+) -> Iterable[tuple[str, dict, list[list[int]]]]:
+    """(id, CityJSON object, its quantised vertices) of each building and the relief, the
+    objects' vertex indices counted on from the ones before."""
+    count = 0
+    for b in buildings:
+        vertices = _quantised(b.corners(), scale, translate)
+        yield b.id, _object(b, count), vertices
+        count += len(vertices)
+    if relief is not None:
+        obj, corners = relief.object(count)
+        yield relief.id, obj, _quantised(np.array(corners), scale, translate)
+
+
 def cityjson(
     buildings: Iterable[Building],
     crs: str,
@@ -140,16 +155,13 @@ def cityjson(
     translate: tuple[float, float, float] = (0.0, 0.0, 0.0),
     relief: Relief | None = None,
 ) -> dict:
-    """A CityJSON document (as a dict) of the buildings, vertices quantised by `scale` about
-    `translate` (the file's `transform`); crs: the `referenceSystem` as written."""
+    """A CityJSON document (as a dict) of the buildings (and a relief), vertices quantised by
+    `scale` about `translate` (the file's `transform`); crs: the `referenceSystem` as written."""
     t = np.asarray(translate, np.float64)
     objects, vertices = {}, []
-    for b in buildings:
-        objects[b.id] = _object(b, len(vertices))
-        vertices += _quantised(b.corners(), scale, t)
-    if relief is not None:
-        objects[relief.id], corners = relief.object(len(vertices))
-        vertices += _quantised(np.array(corners), scale, t)
+    for oid, obj, v in _entries(buildings, relief, scale, t):
+        objects[oid] = obj
+        vertices += v
     return {
         "type": "CityJSON",
         "version": version,
@@ -160,35 +172,19 @@ def cityjson(
     }
 
 
-def write_cityjson(
-    path: Path,
-    buildings: Iterable[Building],
-    crs: str,
-    version: str = "2.0",
-    scale: float = 0.001,
-    translate: tuple[float, float, float] = (0.0, 0.0, 0.0),
-    relief: Relief | None = None,
-) -> Path:
-    """The buildings (and a relief) as a CityJSON file (as `cityjson` makes it), written object
-    by object and then the vertices, so that a district of any size is written in little
-    memory."""
-    t = np.asarray(translate, np.float64)
-    head = cityjson([], crs, version, scale, translate)
+def write_cityjson(path: Path, buildings: Iterable[Building], crs: str, **options) -> Path:
+    """The buildings (and a relief) as a CityJSON file (as `cityjson` makes it, same options),
+    written object by object and then the vertices, so that a district of any size is written
+    in little memory."""
+    head = cityjson([], crs, **{**options, "relief": None})
     del head["CityObjects"], head["vertices"]
+    scale, t = head["transform"]["scale"][0], np.asarray(head["transform"]["translate"])
     with path.open("w") as f:
         f.write(json.dumps(head)[:-1] + ', "CityObjects": {')
         vertices: list[list[int]] = []
-        for i, b in enumerate(buildings):
-            sep = "," if i else ""
-            f.write(
-                f"{sep}{json.dumps(b.id)}:{json.dumps(_object(b, len(vertices)), separators=(',', ':'))}"
-            )
-            vertices += _quantised(b.corners(), scale, t)
-        if relief is not None:
-            obj, corners = relief.object(len(vertices))
-            sep = "," if vertices else ""
-            f.write(f"{sep}{json.dumps(relief.id)}:{json.dumps(obj)}")
-            vertices += _quantised(np.array(corners), scale, t)
+        for i, (oid, obj, v) in enumerate(_entries(buildings, options.get("relief"), scale, t)):
+            f.write(f"{',' if i else ''}{json.dumps(oid)}:{json.dumps(obj, separators=(',', ':'))}")
+            vertices += v
         f.write('}, "vertices": ' + json.dumps(vertices, separators=(",", ":")) + "}")
     return path
 

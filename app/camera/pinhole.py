@@ -184,3 +184,10 @@ def camera_in_frame(
     return Camera.create(
         camera.intrinsics, position, orientation, camera.near, camera.far, camera.lens
     )
+
+
+def image_size(camera: Camera) -> tuple[int, int]:
+    """(width, height) px of the image a camera takes: its lens's, else its pinhole's."""
+    if camera.lens is not None:
+        return camera.lens.width, camera.lens.height
+    return camera.intrinsics.width, camera.intrinsics.height

@@ -1,19 +1,70 @@
-"""`geofuse export`: footprints, an FMV CSV, KLV or the fused video of a session or clip
-(app.export.jobs)."""
+"""`geofuse export`: footprints, an FMV CSV, KLV, the fused video or the true orthophoto of a
+session or clip (app.export.jobs, app.export.orthophoto)."""
 
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from pathlib import Path
 
+import numpy as np
+import shapely.geometry
+
 from app.cli.common import open_with_source, print_messages, print_scene_report, solved
-from app.core.errors import GeofuseError
+from app.core.errors import DataFormatError, GeofuseError
 from app.core.outputs import IMAGE_SUFFIXES, check_output
 from app.core.progress import ProgressBar
 from app.export import EXPORT_SUFFIXES
 from app.export.jobs import ExportOptions, export_session, write_footprints
+from app.export.orthophoto import OrthoOptions, paint_clip, write_orthophoto
 from app.export.records import frame_records
+from app.geodesy.crs import parse_crs
+
+
+def _area(path: Path | None) -> tuple[float, float, float, float] | None:
+    """(lat_min, lon_min, lat_max, lon_max) of a GeoJSON file's geometries (WGS84)."""
+    if path is None:
+        return None
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+        features = doc.get("features", [doc]) if isinstance(doc, dict) else []
+        geometries = [f.get("geometry", f) for f in features]
+        bounds = np.array([shapely.geometry.shape(g).bounds for g in geometries if g])
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, AttributeError, ValueError) as exc:
+        raise DataFormatError(path, f"not a GeoJSON area ({exc})", field="--area") from exc
+    if not len(bounds):
+        raise DataFormatError(path, "no geometry (expected a polygon in WGS84)", field="--area")
+    return (
+        float(bounds[:, 1].min()),
+        float(bounds[:, 0].min()),
+        float(bounds[:, 3].max()),
+        float(bounds[:, 2].max()),
+    )
+
+
+def _ortho(args: argparse.Namespace, input_path: Path, suffixes, bar: ProgressBar) -> int:
+    """`export ortho`: the clip's true orthophoto (app.export.orthophoto)."""
+    session, source = open_with_source(input_path, args, suffixes)
+    print_messages(session)
+    try:
+        crs = None if args.crs is None else parse_crs(args.crs)
+    except ValueError as exc:
+        raise GeofuseError(f"--crs: {exc}") from exc
+    options = OrthoOptions(args.gsd, crs, _area(args.area), args.rule, args.every_s)
+    try:
+        memory = paint_clip(session, solved(session, source), options, bar)
+    except ValueError as exc:
+        raise GeofuseError(f"export ortho {input_path}: {exc}") from exc
+    out, seen = write_orthophoto(memory, Path(args.out), list(session.inputs))
+    g = memory.grid
+    covered = 100.0 * memory.seen.sum() / max(1, np.isfinite(memory.points[..., 2]).sum())
+    print(
+        f"wrote {out} ({g.shape[1]} x {g.shape[0]} cells of {g.gsd:g} m in {g.crs.name}, "
+        f"{covered:.0f} % of the surface seen, {memory.frames} frames, rule {memory.rule}) "
+        f"and {seen} (seen at, quality)"
+    )
+    return 0
 
 
 def run(args: argparse.Namespace) -> int:
@@ -36,6 +87,8 @@ def run(args: argparse.Namespace) -> int:
         name=Path(inputs[0]).stem,
     )
     bar = ProgressBar(f"export {args.what}", sys.stderr)
+    if args.what == "ortho":
+        return _ortho(args, inputs[0], suffixes, bar)
     if len(inputs) == 1 or args.what == "video":
         session, source = open_with_source(inputs[0], args, suffixes)
         print_messages(session)

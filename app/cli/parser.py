@@ -347,12 +347,12 @@ def _solve(sub: Commands) -> None:
 def _export(sub: Commands) -> None:
     ex = sub.add_parser(
         "export",
-        help="footprints (GeoJSON/KML/KMZ), an FMV metadata CSV, MISB KLV in MPEG-TS, or the fused view as a video",
+        help="footprints (GeoJSON/KML/KMZ), an FMV metadata CSV, MISB KLV in MPEG-TS, the fused view as a video, or a true orthophoto (COG)",
     )
     ex.add_argument(
         "what",
         choices=sorted(EXPORT_SUFFIXES),
-        help="footprints: .geojson/.kml/.kmz; fmv-csv: .csv; klv: .ts; video: .mp4",
+        help="footprints: .geojson/.kml/.kmz; fmv-csv: .csv; klv: .ts; video: .mp4; ortho: .tif (and .seen.tif beside it)",
     )
     ex.add_argument(
         "input",
@@ -383,6 +383,36 @@ def _export(sub: Commands) -> None:
         help="video: last second (media time)",
     )
     ex.add_argument("--size", type=size, default=(1280, 720), help="video: WIDTHxHEIGHT")
+    ex.add_argument(
+        "--gsd",
+        type=number(0.01, 100.0),
+        default=None,
+        help="ortho: metres a cell (default: the video's ground sampling, rounded up to 5 cm)",
+    )
+    ex.add_argument(
+        "--crs",
+        default=None,
+        help="ortho: a projected CRS, e.g. EPSG:25832 (default: the site's UTM zone)",
+    )
+    ex.add_argument(
+        "--area",
+        type=Path,
+        default=None,
+        metavar="GEOJSON",
+        help="ortho: the area, a GeoJSON polygon's box (default: what the frames see)",
+    )
+    ex.add_argument(
+        "--rule",
+        choices=("newest", "best", "first"),
+        default="newest",
+        help="ortho: what a cell keeps: the newest frame that saw it, the best (range, incidence) or the first",
+    )
+    ex.add_argument(
+        "--every-s",
+        type=number(0.0, 3600.0),
+        default=0.2,
+        help="ortho: seconds of video between frames painted (0: every frame)",
+    )
     ex.add_argument(
         "--view",
         choices=("ride", "follow", "orbit", "top"),

@@ -9,4 +9,5 @@ EXPORT_SUFFIXES = {
     "fmv-csv": (".csv",),
     "klv": (".ts",),
     "video": (".mp4",),
+    "ortho": (".tif", ".tiff"),
 }

@@ -30,7 +30,7 @@ import numpy.typing as npt
 
 from app.camera.frame_time import frame_at
 from app.camera.intrinsics import Intrinsics
-from app.camera.pinhole import Camera, look_at_quat
+from app.camera.pinhole import Camera, image_size, look_at_quat
 from app.core.constants import DEFAULT_NEAR_M, TRUTH
 from app.core.errors import GeofuseError
 from app.footage.clips import open_any
@@ -120,13 +120,6 @@ class Location:
             f"{self.height_m:.2f} m ellipsoidal ({self.msl_m:.2f} m above sea level); "
             f"ENU {e:.2f}, {n:.2f}, {u:.2f} m; range {self.range_m:.2f} m{unc}{on}"
         )
-
-
-def image_size(camera: Camera) -> tuple[int, int]:
-    """(width, height) px of the image a camera takes: its lens's, else its pinhole's."""
-    if camera.lens is not None:
-        return camera.lens.width, camera.lens.height
-    return camera.intrinsics.width, camera.intrinsics.height
 
 
 def video_pixel(camera: Camera, point_enu: npt.ArrayLike) -> tuple[float, float] | None:

@@ -1,0 +1,264 @@
+"""A true orthophoto painted from a clip: what the video saw, kept on the scene's surfaces as seen
+from straight above, in a map grid. Pure numpy and numba: the GL part (each frame's distances,
+for the occlusion test) comes in as a function.
+
+1. The grid: north-up cells of `gsd` metres in a projected CRS (the site's UTM zone by default),
+   over an area. ENU -> grid is one affine map fitted on the area's corners through pyproj (its
+   error is reported: micrometres over a site, the map's curvature only).
+2. The surface: every triangle of the scene rasterised from above (a z-buffer keeping the
+   highest), so each cell holds the model's top surface point (ENU m) and its normal: a true
+   orthophoto, roofs where roofs are, not leaning.
+3. Painting (`OrthoMemory.paint`): each cell's surface point is projected into the frame
+   (through its lens); it is painted when it lies in the image and the frame's own distance map
+   (rendered from the camera: app.render.views) says nothing nearer hides it, within a bias that
+   grows with range, as the drape's depth test does. The colour is the frame's, bilinear; with
+   it the time seen (UTC s) and a quality in (0, 1]: the incidence's cosine over (1 + range /
+   QUALITY_RANGE_M). The rule decides what a cell keeps: newest (the last frame that saw it,
+   default), best (the highest quality) or first.
+The memory is the grid's size whatever the clip's length.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+import numpy.typing as npt
+import pyproj
+from numba import njit
+from scipy.ndimage import map_coordinates
+
+from app.camera.pinhole import Camera
+from app.geodesy.enu import LocalFrame
+from app.locate.location import image_size
+from app.scene.mesh import MeshData
+
+RULES = ("newest", "best", "first")
+QUALITY_RANGE_M = 100.0  # quality halves at this range (head-on)
+DEPTH_BIAS_M = 0.15  # a surface point within this of the frame's distance map is the one seen,
+DEPTH_BIAS_PER_M = 0.01  # plus this much per metre of range
+MAX_CELLS = 64_000_000  # 8000 x 8000: an area and a gsd beyond this are refused
+
+
+@dataclass(frozen=True)
+class Grid:
+    """North-up cells: crs (pyproj CRS), west and north edges (CRS units), gsd (units a cell),
+    shape (rows, columns). `enu_to_grid` is the affine (2, 3) that takes ENU (x, y, 1) to
+    (column, row) in cells (0, 0 the top-left corner of the top-left cell)."""
+
+    crs: pyproj.CRS
+    west: float
+    north: float
+    gsd: float
+    shape: tuple[int, int]
+    enu_to_grid: np.ndarray = field(repr=False)
+    fit_error_m: float = 0.0
+
+    @property
+    def transform(self) -> tuple[float, float, float, float, float, float]:
+        """The GDAL geotransform's affine (a, b, c, d, e, f): x = a col + b row + c."""
+        return (self.gsd, 0.0, self.west, 0.0, -self.gsd, self.north)
+
+    def cell_centres_enu(self, frame: LocalFrame) -> np.ndarray:
+        """(rows, cols, 2) ENU x, y of the cells' centres (through the inverse of the affine)."""
+        rows, cols = self.shape
+        c, r = np.meshgrid(np.arange(cols) + 0.5, np.arange(rows) + 0.5)
+        a = np.vstack([self.enu_to_grid, [0.0, 0.0, 1.0]])
+        inv = np.linalg.inv(a)
+        xy = np.stack([c, r, np.ones_like(c)], axis=-1) @ inv.T
+        return xy[..., :2]
+
+
+def utm_of(lat_deg: float, lon_deg: float) -> pyproj.CRS:
+    """The WGS 84 UTM zone's CRS at a place."""
+    zone = int((lon_deg + 180.0) // 6) + 1
+    return pyproj.CRS.from_epsg((32600 if lat_deg >= 0 else 32700) + zone)
+
+
+def make_grid(
+    frame: LocalFrame,
+    lo_enu: npt.ArrayLike,
+    hi_enu: npt.ArrayLike,
+    gsd: float,
+    crs: pyproj.CRS | None = None,
+) -> Grid:
+    """The grid of `gsd` (CRS units, metres for UTM) covering the ENU box lo..hi (x, y m) in
+    `crs` (the site's UTM zone when None), its edges on whole multiples of gsd. Raises
+    ValueError for a grid beyond MAX_CELLS or a CRS that is not projected."""
+    crs = crs or utm_of(frame.lat_deg, frame.lon_deg)
+    if not crs.is_projected:
+        raise ValueError(f"{crs.name}: an orthophoto needs a projected CRS (metres), e.g. UTM")
+    lo, hi = np.asarray(lo_enu, np.float64)[:2], np.asarray(hi_enu, np.float64)[:2]
+    xs = np.array([lo[0], hi[0], hi[0], lo[0], (lo[0] + hi[0]) / 2])
+    ys = np.array([lo[1], lo[1], hi[1], hi[1], (lo[1] + hi[1]) / 2])
+    geo = frame.enu_to_geodetic(np.column_stack([xs, ys, np.zeros(5)]))
+    to_crs = pyproj.Transformer.from_crs("EPSG:4326", crs, always_xy=True)
+    X, Y = (np.asarray(v) for v in to_crs.transform(geo[:, 1], geo[:, 0]))
+    west = np.floor(X.min() / gsd) * gsd
+    north = np.ceil(Y.max() / gsd) * gsd
+    cols = int(np.ceil((X.max() - west) / gsd))
+    rows = int(np.ceil((north - Y.min()) / gsd))
+    if rows * cols > MAX_CELLS:
+        raise ValueError(
+            f"{cols} x {rows} cells of {gsd:g} m: more than {MAX_CELLS:,} (give a larger --gsd or a smaller --area)"
+        )
+    # ENU (x, y, 1) -> (col, row): least squares over the corners, the middle as a check
+    design = np.column_stack([xs, ys, np.ones(5)])
+    target = np.column_stack([(X - west) / gsd, (north - Y) / gsd])
+    affine, *_ = np.linalg.lstsq(design, target, rcond=None)
+    error = float(np.abs(design @ affine - target).max() * gsd)
+    return Grid(crs, float(west), float(north), float(gsd), (rows, cols), affine.T, error)
+
+
+@njit(cache=True)
+def _rasterise(tri: np.ndarray, top: np.ndarray, which: np.ndarray) -> None:
+    """Keep, per cell, the highest triangle over its centre: tri (T, 3, 3) with x, y in grid
+    cells (column, row) and z in ENU metres; top (rows, cols) the height there so far, which
+    (rows, cols) the triangle's index."""
+    rows, cols = top.shape
+    for t in range(tri.shape[0]):
+        ax, ay, az = tri[t, 0, 0], tri[t, 0, 1], tri[t, 0, 2]
+        bx, by, bz = tri[t, 1, 0], tri[t, 1, 1], tri[t, 1, 2]
+        cx, cy, cz = tri[t, 2, 0], tri[t, 2, 1], tri[t, 2, 2]
+        det = (by - cy) * (ax - cx) + (cx - bx) * (ay - cy)
+        if abs(det) < 1e-12:
+            continue  # a wall seen edge-on from above covers no cell centre
+        c0 = max(0, int(np.floor(min(ax, bx, cx) - 0.5)))
+        c1 = min(cols - 1, int(np.ceil(max(ax, bx, cx) - 0.5)))
+        r0 = max(0, int(np.floor(min(ay, by, cy) - 0.5)))
+        r1 = min(rows - 1, int(np.ceil(max(ay, by, cy) - 0.5)))
+        for r in range(r0, r1 + 1):
+            py = r + 0.5
+            for c in range(c0, c1 + 1):
+                px = c + 0.5
+                w0 = ((by - cy) * (px - cx) + (cx - bx) * (py - cy)) / det
+                w1 = ((cy - ay) * (px - cx) + (ax - cx) * (py - cy)) / det
+                w2 = 1.0 - w0 - w1
+                if w0 < -1e-9 or w1 < -1e-9 or w2 < -1e-9:
+                    continue
+                z = w0 * az + w1 * bz + w2 * cz
+                if z > top[r, c]:
+                    top[r, c] = z
+                    which[r, c] = t
+
+
+def surface(mesh: MeshData, grid: Grid, frame: LocalFrame) -> tuple[np.ndarray, np.ndarray]:
+    """The scene's top surface over each cell: (points (rows, cols, 3) ENU m, NaN where no
+    triangle lies; normals (rows, cols, 3) unit, pointing up). Static primitives only (models,
+    terrain, city models); streamed 3D Tiles are not rasterised."""
+    rows, cols = grid.shape
+    top = np.full((rows, cols), -np.inf)
+    which = np.full((rows, cols), -1, np.int64)
+    tris = [p.positions.astype(np.float64)[p.indices] for p in mesh.primitives if len(p.indices)]
+    if not tris:
+        return np.full((rows, cols, 3), np.nan), np.full((rows, cols, 3), np.nan)
+    enu = np.concatenate(tris)  # (T, 3, 3)
+    g = enu.copy()
+    flat = enu.reshape(-1, 3)
+    g.reshape(-1, 3)[:, :2] = (
+        np.column_stack([flat[:, :2], np.ones(len(flat))]) @ grid.enu_to_grid.T
+    )
+    _rasterise(g, top, which)
+    seen = np.isfinite(top)
+    xy = grid.cell_centres_enu(frame)
+    points = np.full((rows, cols, 3), np.nan)
+    points[..., :2] = np.where(seen[..., None], xy, np.nan)
+    points[..., 2] = np.where(seen, top, np.nan)
+    t = which
+    n = np.cross(enu[:, 1] - enu[:, 0], enu[:, 2] - enu[:, 0])
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+    n *= np.where(n[:, 2:3] < 0, -1.0, 1.0)
+    normals = np.where(seen[..., None], n[np.clip(t, 0, len(n) - 1)], np.nan)
+    return points, normals
+
+
+DistanceMap = Callable[[Camera], np.ndarray]  # camera -> (h, w) metres from it, inf: none
+
+
+@dataclass
+class OrthoMemory:
+    """What the clip painted on the grid's cells: rgb (rows, cols, 3) uint8, seen (bool), time
+    (UTC s, NaN unseen), quality (0 unseen); the surface it paints (points, normals)."""
+
+    grid: Grid
+    points: np.ndarray
+    normals: np.ndarray
+    rule: str = "newest"
+    rgb: np.ndarray = field(init=False)
+    seen: np.ndarray = field(init=False)
+    time: np.ndarray = field(init=False)
+    quality: np.ndarray = field(init=False)
+    frames: int = 0
+
+    def __post_init__(self) -> None:
+        if self.rule not in RULES:
+            raise ValueError(f"rule {self.rule!r}: expected one of {', '.join(RULES)}")
+        rows, cols = self.grid.shape
+        self.rgb = np.zeros((rows, cols, 3), np.uint8)
+        self.seen = np.zeros((rows, cols), bool)
+        self.time = np.full((rows, cols), np.nan)
+        self.quality = np.zeros((rows, cols), np.float32)
+        self._cells = np.flatnonzero(np.isfinite(self.points[..., 2]).ravel())
+        self._p = self.points.reshape(-1, 3)[self._cells]
+        self._n = self.normals.reshape(-1, 3)[self._cells]
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes held, whatever the number of frames painted."""
+        arrays = (self.rgb, self.seen, self.time, self.quality, self.points, self.normals)
+        return sum(a.nbytes for a in arrays) + self._cells.nbytes + self._p.nbytes + self._n.nbytes
+
+    def paint(self, rgb: np.ndarray, camera: Camera, distances: np.ndarray, time_s: float) -> int:
+        """Paint one frame: rgb (H, W, 3) uint8 (the camera's image, at any scale); distances
+        (h, w) metres from the camera to the scene through each pixel of its pinhole
+        (app.render.views, any resolution: it is scaled), inf where none. Returns the cells
+        painted."""
+        if not len(self._p):
+            return 0
+        h, w = rgb.shape[:2]
+        iw, ih = image_size(camera)
+        uv, depth = camera.project(self._p)
+        uv = uv * [w / iw, h / ih]  # frames may be decoded smaller than the camera's image
+        inside = (depth > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < w) & (uv[:, 1] >= 0) & (uv[:, 1] < h)
+        idx = np.flatnonzero(inside)
+        if not len(idx):
+            return 0
+        eye = np.asarray(camera.position, np.float64)
+        ray = self._p[idx] - eye
+        rng = np.linalg.norm(ray, axis=1)
+        # the distance map is drawn through the camera's pinhole: where does the point fall?
+        pinhole = Camera.create(
+            camera.intrinsics, camera.position, camera.orientation, camera.near, camera.far
+        )
+        pin, _ = pinhole.project(self._p[idx])
+        dh, dw = distances.shape
+        sx, sy = dw / camera.intrinsics.width, dh / camera.intrinsics.height
+        nearest = map_coordinates(
+            distances, [pin[:, 1] * sy - 0.5, pin[:, 0] * sx - 0.5], order=0, mode="nearest"
+        )
+        visible = rng <= nearest + DEPTH_BIAS_M + DEPTH_BIAS_PER_M * rng
+        idx, ray, rng = idx[visible], ray[visible], rng[visible]
+        if not len(idx):
+            return 0
+        cos = np.abs(np.einsum("ij,ij->i", ray, self._n[idx])) / rng
+        quality = (cos / (1.0 + rng / QUALITY_RANGE_M)).astype(np.float32)
+        cells = self._cells[idx]
+        if self.rule == "first":
+            take = ~self.seen.ravel()[cells]
+        elif self.rule == "best":
+            take = quality > self.quality.ravel()[cells]
+        else:
+            take = np.ones(len(cells), bool)
+        cells, quality = cells[take], quality[take]
+        u, v = uv[idx[take], 0] - 0.5, uv[idx[take], 1] - 0.5
+        colour = np.stack(
+            [map_coordinates(rgb[..., c].astype(np.float32), [v, u], order=1, mode="nearest") for c in range(3)],
+            axis=1,
+        )  # fmt: skip
+        self.rgb.reshape(-1, 3)[cells] = np.clip(np.round(colour), 0, 255).astype(np.uint8)
+        self.seen.ravel()[cells] = True
+        self.time.ravel()[cells] = time_s
+        self.quality.ravel()[cells] = quality
+        self.frames += 1
+        return int(len(cells))

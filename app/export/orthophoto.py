@@ -1,0 +1,194 @@
+"""`geofuse export ortho`: a clip's true orthophoto, painted frame by frame (app.export.ortho)
+and written as Cloud Optimized GeoTIFFs.
+
+Frames are taken every `every_s` seconds of video; each is decoded at most DECODE_LONG_SIDE
+pixels on its long side and its camera's distances are rendered off-screen (app.render.views)
+at most DISTANCE_LONG_SIDE, for the occlusion test. The area is the one the frames see (their
+footprints' box, or `area` given as lat/lon corners), the cell `gsd` metres (default: the
+video's median ground sampling at the footprints' centres, rounded up to 5 cm).
+
+Files: OUT.tif, RGBA uint8 (alpha 0 where the clip saw nothing), and OUT.seen.tif, float64: band
+1 the time each cell was seen (UTC s where the clip has a clock, else session s; NaN unseen),
+band 2 its quality (0 unseen); both COGs with overviews, in the grid's CRS (the site's UTM zone
+by default). A GeoTIFF holds one sample type, so the picture and its float bands are two files.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pyproj
+import rasterio
+from rasterio.enums import ColorInterp
+from rasterio.transform import Affine
+
+from app.camera.pinhole import Camera
+from app.core.outputs import check_output, write_via_path
+from app.export.ortho import Grid, OrthoMemory, make_grid, surface
+from app.io.video import frames_at
+from app.render.views import ModelViews
+from app.session.camera_track import CameraTrack
+from app.session.model import Session
+
+DECODE_LONG_SIDE = 960
+DISTANCE_LONG_SIDE = 480
+DEFAULT_EVERY_S = 0.2
+AREA_MARGIN_M = 5.0
+SEEN_SUFFIX = ".seen.tif"
+
+
+@dataclass(frozen=True)
+class OrthoOptions:
+    """gsd: metres a cell (None: from the video); crs: the output CRS (None: the site's UTM);
+    area: (lat_min, lon_min, lat_max, lon_max) deg or None (what the frames see); rule:
+    newest, best or first; every_s: seconds of video between frames painted."""
+
+    gsd: float | None = None
+    crs: pyproj.CRS | None = None
+    area: tuple[float, float, float, float] | None = None
+    rule: str = "newest"
+    every_s: float = DEFAULT_EVERY_S
+
+
+def seen_path(out: Path) -> Path:
+    """Where the time and quality bands go beside OUT.tif."""
+    return out.with_name(out.stem + SEEN_SUFFIX)
+
+
+def _frames(track: CameraTrack, every_s: float) -> np.ndarray:
+    media = np.asarray(track.clock.media_s, np.float64)
+    picked, last = [], -np.inf
+    for k, t in enumerate(media):
+        if t - last >= every_s - 1e-9:
+            picked.append(k)
+            last = t
+    return np.asarray(picked, np.int64)
+
+
+def _distances(views: ModelViews, camera: Camera) -> np.ndarray:
+    """(h, w) metres from the camera through each pixel of its pinhole, at most
+    DISTANCE_LONG_SIDE px; inf where the scene is not."""
+    i = camera.intrinsics
+    k = min(1.0, DISTANCE_LONG_SIDE / max(i.width, i.height))
+    small = Camera.create(
+        i.scaled(max(2, round(i.width * k)), max(2, round(i.height * k))),
+        camera.position,
+        camera.orientation,
+        camera.near,
+        camera.far,
+    )
+    _, positions = views.render(small)
+    d = np.linalg.norm(positions - np.asarray(camera.position), axis=2)
+    return np.where(np.isfinite(d), d, np.inf)
+
+
+def _ground_box(
+    session: Session, track: CameraTrack, frames: np.ndarray, views: ModelViews
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """(lo, hi) ENU x, y of what the frames see (the surface under their image's corners and
+    centre, from their distance maps), and the median ground sampling (m a video pixel) at
+    their centres."""
+    points, gsds = [], []
+    for k in frames[:: max(1, len(frames) // 40)]:
+        cam = track.frame_camera(int(k))
+        _, positions = views.render(
+            Camera.create(
+                cam.intrinsics.scaled(64, max(2, round(64 * cam.intrinsics.height / cam.intrinsics.width))),
+                cam.position, cam.orientation, cam.near, cam.far,
+            )
+        )  # fmt: skip
+        p = positions.reshape(-1, 3)
+        p = p[np.isfinite(p[:, 0])]
+        if len(p):
+            points.append(p[:, :2])
+            centre = positions[positions.shape[0] // 2, positions.shape[1] // 2]
+            if np.all(np.isfinite(centre)):
+                rng = float(np.linalg.norm(centre - np.asarray(cam.position)))
+                gsds.append(rng / cam.intrinsics.fx)
+    if not points:
+        raise ValueError("the frames see none of the scene: nothing to paint")
+    allp = np.concatenate(points)
+    lo, hi = allp.min(axis=0) - AREA_MARGIN_M, allp.max(axis=0) + AREA_MARGIN_M
+    return lo, hi, float(np.median(gsds)) if gsds else 0.1
+
+
+def paint_clip(
+    session: Session,
+    track: CameraTrack,
+    options: OrthoOptions = OrthoOptions(),
+    progress: Callable[[float], None] | None = None,
+) -> OrthoMemory:
+    """The orthophoto memory of a clip under one solved track (see the module docstring)."""
+    frames = _frames(track, options.every_s)
+    views = ModelViews(session.scene())
+    try:
+        if options.area is not None:
+            la0, lo0, la1, lo1 = options.area
+            corners = session.frame.geodetic_to_enu(
+                np.array([la0, la1]), np.array([lo0, lo1]), np.zeros(2)
+            )
+            lo, hi = corners.min(axis=0)[:2], corners.max(axis=0)[:2]
+            _, _, video_gsd = _ground_box(session, track, frames, views)
+        else:
+            lo, hi, video_gsd = _ground_box(session, track, frames, views)
+        gsd = options.gsd or max(0.05, np.ceil(video_gsd / 0.05) * 0.05)
+        grid = make_grid(session.frame, lo, hi, gsd, options.crs)
+        points, normals = surface(session.scene(), grid, session.frame)
+        memory = OrthoMemory(grid, points, normals, options.rule)
+        for n, (k, rgb) in enumerate(frames_at(session.video, frames, DECODE_LONG_SIDE)):
+            cam = track.frame_camera(int(k))
+            t = float(track.clock.session_time(float(track.clock.media_s[k])))
+            utc = session.utc_of(t)
+            memory.paint(rgb, cam, _distances(views, cam), utc if utc is not None else t)
+            if progress is not None:
+                progress((n + 1) / len(frames))
+    finally:
+        views.release()
+    return memory
+
+
+def write_orthophoto(memory: OrthoMemory, out: Path, inputs: list[Path]) -> tuple[Path, Path]:
+    """OUT.tif (RGBA uint8) and OUT.seen.tif (float64 time and quality) as COGs; atomically,
+    never over an input. Returns both paths."""
+    out = check_output(out, "--out", (".tif", ".tiff"), inputs)
+    seen = check_output(seen_path(out), "--out", (".tif",), inputs)
+    g: Grid = memory.grid
+    rows, cols = g.shape
+    transform = Affine(*g.transform)
+    rgba = np.concatenate(
+        [memory.rgb, np.where(memory.seen, 255, 0).astype(np.uint8)[..., None]], axis=2
+    ).transpose(2, 0, 1)
+    bands = np.stack([memory.time, memory.quality.astype(np.float64)])
+
+    def write(path: Path, data: np.ndarray, extra: dict) -> None:
+        profile = {
+            "driver": "COG",
+            "width": cols,
+            "height": rows,
+            "count": data.shape[0],
+            "dtype": data.dtype.name,
+            "crs": g.crs.to_wkt(),
+            "transform": transform,
+            "compress": "deflate",
+            "overview_resampling": "average" if data.dtype == np.uint8 else "nearest",
+            **extra,
+        }
+        with rasterio.open(path, "w", **profile) as dst:
+            dst.write(data)
+            if data.shape[0] == 4:
+                dst.colorinterp = [
+                    ColorInterp.red,
+                    ColorInterp.green,
+                    ColorInterp.blue,
+                    ColorInterp.alpha,
+                ]
+            else:
+                dst.set_band_description(1, "seen at (UTC s, or session s without a clock)")
+                dst.set_band_description(2, "quality (incidence cosine / (1 + range / 100 m))")
+
+    write_via_path(out, "--out", lambda p: write(p, rgba, {}))
+    write_via_path(seen, "--out", lambda p: write(p, bands, {"nodata": np.nan}))
+    return out, seen

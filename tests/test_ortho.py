@@ -170,3 +170,50 @@ def test_memory_stays_within_its_cap_on_a_long_clip(scene_views):
         tracemalloc.stop()
     assert m.nbytes == held and m.frames == 600
     assert peak < 0.5 * held + 20e6, f"painting peaked at {peak / 1e6:.1f} MB over {held / 1e6:.1f}"
+
+
+def test_export_ortho_of_a_survey_puts_the_roof_where_the_model_has_it(tmp_path):
+    """`geofuse export ortho` on a 3 s survey (truth poses): the COG opens with rasterio in the
+    site's UTM zone; where the model's surface is building 5's roof (10 m up) the picture is
+    its grey roof, around it the green ground."""
+    from app.cli import main
+    from app.simulate.sample import SAMPLE_ORIGIN, SAMPLE_SCENE
+    from app.simulate.session import SampleConfig, quick_config, write_sample_session
+
+    manifest = write_sample_session(
+        tmp_path / "s",
+        SAMPLE_SCENE,
+        SampleConfig(**{**quick_config(3.0).__dict__, "flight": "survey"}),
+    )
+    out = tmp_path / "ortho.tif"
+    args = [
+        "export",
+        "ortho",
+        str(manifest),
+        "--out",
+        str(out),
+        "--source",
+        "truth",
+        "--gsd",
+        "0.5",
+    ]
+    assert main(args) == 0
+    with rasterio.open(out) as src:
+        assert src.crs.to_epsg() == 32649 and src.res == pytest.approx((0.5, 0.5))
+        rgba = src.read().transpose(1, 2, 0).astype(int)
+        transform, crs = src.transform, src.crs
+    # the roof of building 5 (app.simulate.stadium: -104..-76 E, -62..-36 N, 10 m), inset 2 m
+    frame = LocalFrame(*SAMPLE_ORIGIN)
+    to_utm = pyproj.Transformer.from_crs("EPSG:4326", crs.to_wkt(), always_xy=True)
+
+    def pixel(e, n):
+        lat, lon, _ = frame.enu_to_geodetic(np.array([[e, n, 0.0]]))[0]
+        x, y = to_utm.transform(lon, lat)
+        col, row = ~transform @ (x, y)
+        return rgba[int(row), int(col)]
+
+    roof = np.array([pixel(e, n) for e in (-100, -90, -80) for n in (-58, -49, -40)])
+    grass = np.array([pixel(e, n) for e in (-70, -60) for n in (-95, -85)])
+    assert np.all(roof[:, 3] == 255) and np.all(grass[:, 3] == 255)
+    assert np.all(np.abs(roof[:, 1] - roof[:, 0]) < 25)  # grey
+    assert np.all(grass[:, 1] > grass[:, 0] + 20)  # green

@@ -115,27 +115,39 @@ def _ground_box(
     return lo, hi, float(np.median(gsds)) if gsds else 0.1
 
 
+def _grid(
+    session: Session,
+    track: CameraTrack,
+    frames: np.ndarray,
+    views: ModelViews,
+    options: OrthoOptions,
+) -> Grid:
+    """The grid over the area given, or what the frames see; cells of the gsd given, or the
+    video's ground sampling rounded up to 5 cm."""
+    lo, hi, video_gsd = _ground_box(session, track, frames, views)
+    if options.area is not None:
+        la0, lo0, la1, lo1 = options.area
+        corners = session.frame.geodetic_to_enu(
+            np.array([la0, la1]), np.array([lo0, lo1]), np.zeros(2)
+        )
+        lo, hi = corners.min(axis=0)[:2], corners.max(axis=0)[:2]
+    gsd = options.gsd or max(0.05, np.ceil(video_gsd / 0.05) * 0.05)
+    return make_grid(session.frame, lo, hi, gsd, options.crs)
+
+
 def paint_clip(
     session: Session,
     track: CameraTrack,
     options: OrthoOptions = OrthoOptions(),
     progress: Callable[[float], None] | None = None,
+    grid: Grid | None = None,
 ) -> OrthoMemory:
-    """The orthophoto memory of a clip under one solved track (see the module docstring)."""
+    """The orthophoto memory of a clip under one solved track (see the module docstring); on
+    `grid` when given (another clip's or source's, to compare them cell by cell)."""
     frames = _frames(track, options.every_s)
     views = ModelViews(session.scene())
     try:
-        if options.area is not None:
-            la0, lo0, la1, lo1 = options.area
-            corners = session.frame.geodetic_to_enu(
-                np.array([la0, la1]), np.array([lo0, lo1]), np.zeros(2)
-            )
-            lo, hi = corners.min(axis=0)[:2], corners.max(axis=0)[:2]
-            _, _, video_gsd = _ground_box(session, track, frames, views)
-        else:
-            lo, hi, video_gsd = _ground_box(session, track, frames, views)
-        gsd = options.gsd or max(0.05, np.ceil(video_gsd / 0.05) * 0.05)
-        grid = make_grid(session.frame, lo, hi, gsd, options.crs)
+        grid = grid or _grid(session, track, frames, views, options)
         points, normals = surface(session.scene(), grid, session.frame)
         memory = OrthoMemory(grid, points, normals, options.rule)
         for n, (k, rgb) in enumerate(frames_at(session.video, frames, DECODE_LONG_SIDE)):

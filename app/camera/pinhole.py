@@ -112,6 +112,14 @@ class Camera:
     def view_projection(self) -> FloatArray:
         return self.projection @ self.view
 
+    def pinhole(self, factor: float = 1.0) -> Camera:
+        """The same pose through its pinhole alone (no lens), sampled at `factor` times its
+        resolution (same field of view; at least 2 px a side): what off-screen renderings of
+        this camera draw."""
+        i = self.intrinsics
+        size = (max(2, round(i.width * factor)), max(2, round(i.height * factor)))
+        return Camera.create(i.scaled(*size), self.position, self.orientation, self.near, self.far)
+
     def project(self, points_enu: npt.ArrayLike) -> tuple[FloatArray, FloatArray]:
         """World points (N, 3) -> pixel coordinates (N, 2) as (u, v) and camera depth (N,) metres.
 

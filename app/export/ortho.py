@@ -228,10 +228,7 @@ class OrthoMemory:
         ray = self._p[idx] - eye
         rng = np.linalg.norm(ray, axis=1)
         # the distance map is drawn through the camera's pinhole: where does the point fall?
-        pinhole = Camera.create(
-            camera.intrinsics, camera.position, camera.orientation, camera.near, camera.far
-        )
-        pin, _ = pinhole.project(self._p[idx])
+        pin, _ = camera.pinhole().project(self._p[idx])
         dh, dw = distances.shape
         sx, sy = dw / camera.intrinsics.width, dh / camera.intrinsics.height
         nearest = map_coordinates(

@@ -72,14 +72,7 @@ def _distances(views: ModelViews, camera: Camera) -> np.ndarray:
     """(h, w) metres from the camera through each pixel of its pinhole, at most
     DISTANCE_LONG_SIDE px; inf where the scene is not."""
     i = camera.intrinsics
-    k = min(1.0, DISTANCE_LONG_SIDE / max(i.width, i.height))
-    small = Camera.create(
-        i.scaled(max(2, round(i.width * k)), max(2, round(i.height * k))),
-        camera.position,
-        camera.orientation,
-        camera.near,
-        camera.far,
-    )
+    small = camera.pinhole(min(1.0, DISTANCE_LONG_SIDE / max(i.width, i.height)))
     _, positions = views.render(small)
     d = np.linalg.norm(positions - np.asarray(camera.position), axis=2)
     return np.where(np.isfinite(d), d, np.inf)
@@ -94,12 +87,7 @@ def _ground_box(
     points, gsds = [], []
     for k in frames[:: max(1, len(frames) // 40)]:
         cam = track.frame_camera(int(k))
-        _, positions = views.render(
-            Camera.create(
-                cam.intrinsics.scaled(64, max(2, round(64 * cam.intrinsics.height / cam.intrinsics.width))),
-                cam.position, cam.orientation, cam.near, cam.far,
-            )
-        )  # fmt: skip
+        _, positions = views.render(cam.pinhole(64 / cam.intrinsics.width))
         p = positions.reshape(-1, 3)
         p = p[np.isfinite(p[:, 0])]
         if len(p):

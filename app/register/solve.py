@@ -226,14 +226,7 @@ class Registrar:
         )
         cam, solved, fix, fine = start, None, None, False
         for it in range(1, s.max_iterations + 1):
-            i = cam.intrinsics
-            small = Camera.create(
-                i.scaled(max(2, round(i.width * scale)), max(2, round(i.height * scale))),
-                cam.position,
-                cam.orientation,
-                cam.near,
-                cam.far,
-            )
+            small = cam.pinhole(scale)
             with _lap(self.stage_s, "render"):
                 rgb, positions = self.views.render(small)
             with _lap(self.stage_s, "match"):

@@ -4,6 +4,8 @@ georeference checked with rasterio, memory that does not grow with the clip."""
 
 from __future__ import annotations
 
+import subprocess
+import sys
 import tracemalloc
 
 import numpy as np
@@ -176,7 +178,6 @@ def test_export_ortho_of_a_survey_puts_the_roof_where_the_model_has_it(tmp_path)
     """`geofuse export ortho` on a 3 s survey (truth poses): the COG opens with rasterio in the
     site's UTM zone; where the model's surface is building 5's roof (10 m up) the picture is
     its grey roof, around it the green ground."""
-    from app.cli import main
     from app.simulate.sample import SAMPLE_ORIGIN, SAMPLE_SCENE
     from app.simulate.session import SampleConfig, quick_config, write_sample_session
 
@@ -197,7 +198,9 @@ def test_export_ortho_of_a_survey_puts_the_roof_where_the_model_has_it(tmp_path)
         "--gsd",
         "0.5",
     ]
-    assert main(args) == 0
+    # a process of its own: the command makes its own GL context current on this thread, which
+    # the session's shared context (gl_ctx, this module's other tests) must not meet
+    subprocess.run([sys.executable, "-m", "app", *args], check=True, capture_output=True)
     with rasterio.open(out) as src:
         assert src.crs.to_epsg() == 32649 and src.res == pytest.approx((0.5, 0.5))
         rgba = src.read().transpose(1, 2, 0).astype(int)

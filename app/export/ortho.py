@@ -8,36 +8,25 @@ for the occlusion test) comes in as a function.
 2. The surface: every triangle of the scene rasterised from above (a z-buffer keeping the
    highest), so each cell holds the model's top surface point (ENU m) and its normal: a true
    orthophoto, roofs where roofs are, not leaning.
-3. Painting (`OrthoMemory.paint`): each cell's surface point is projected into the frame
-   (through its lens); it is painted when it lies in the image and the frame's own distance map
-   (rendered from the camera: app.render.views) says nothing nearer hides it, within a bias that
-   grows with range, as the drape's depth test does. The colour is the frame's, bilinear; with
-   it the time seen (UTC s) and a quality in (0, 1]: the incidence's cosine over (1 + range /
-   QUALITY_RANGE_M). The rule decides what a cell keeps: newest (the last frame that saw it,
-   default), best (the highest quality) or first.
+3. Painting: the cells with a surface are the samples of a SurfaceMemory (app.export.memory:
+   the occlusion test, colour, time, quality and the rules newest, best, first).
 The memory is the grid's size whatever the clip's length.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 import numpy.typing as npt
 import pyproj
 from numba import njit
-from scipy.ndimage import map_coordinates
 
 from app.camera.pinhole import Camera
+from app.export.memory import SurfaceMemory
 from app.geodesy.enu import LocalFrame
-from app.locate.location import image_size
 from app.scene.mesh import MeshData
 
-RULES = ("newest", "best", "first")
-QUALITY_RANGE_M = 100.0  # quality halves at this range (head-on)
-DEPTH_BIAS_M = 0.15  # a surface point within this of the frame's distance map is the one seen,
-DEPTH_BIAS_PER_M = 0.01  # plus this much per metre of range
 MAX_CELLS = 64_000_000  # 8000 x 8000: an area and a gsd beyond this are refused
 
 
@@ -173,89 +162,53 @@ def surface(mesh: MeshData, grid: Grid, frame: LocalFrame) -> tuple[np.ndarray, 
     return points, normals
 
 
-DistanceMap = Callable[[Camera], np.ndarray]  # camera -> (h, w) metres from it, inf: none
-
-
-@dataclass
 class OrthoMemory:
-    """What the clip painted on the grid's cells: rgb (rows, cols, 3) uint8, seen (bool), time
-    (UTC s, NaN unseen), quality (0 unseen); the surface it paints (points, normals)."""
+    """A SurfaceMemory (app.export.memory) over the grid's cells that have a surface, seen as
+    grids: rgb (rows, cols, 3) uint8, seen (bool), time (UTC s, NaN unseen), quality (0
+    unseen); points and normals (rows, cols, 3) the surface it paints (NaN: none)."""
 
-    grid: Grid
-    points: np.ndarray
-    normals: np.ndarray
-    rule: str = "newest"
-    rgb: np.ndarray = field(init=False)
-    seen: np.ndarray = field(init=False)
-    time: np.ndarray = field(init=False)
-    quality: np.ndarray = field(init=False)
-    frames: int = 0
+    def __init__(self, grid: Grid, points: np.ndarray, normals: np.ndarray, rule: str = "newest"):
+        self.grid, self.points, self.normals = grid, points, normals
+        self._cells = np.flatnonzero(np.isfinite(points[..., 2]).ravel())
+        self.memory = SurfaceMemory(
+            points.reshape(-1, 3)[self._cells], normals.reshape(-1, 3)[self._cells], rule
+        )
 
-    def __post_init__(self) -> None:
-        if self.rule not in RULES:
-            raise ValueError(f"rule {self.rule!r}: expected one of {', '.join(RULES)}")
-        rows, cols = self.grid.shape
-        self.rgb = np.zeros((rows, cols, 3), np.uint8)
-        self.seen = np.zeros((rows, cols), bool)
-        self.time = np.full((rows, cols), np.nan)
-        self.quality = np.zeros((rows, cols), np.float32)
-        self._cells = np.flatnonzero(np.isfinite(self.points[..., 2]).ravel())
-        self._p = self.points.reshape(-1, 3)[self._cells]
-        self._n = self.normals.reshape(-1, 3)[self._cells]
+    @property
+    def rule(self) -> str:
+        return self.memory.rule
+
+    @property
+    def frames(self) -> int:
+        return self.memory.frames
 
     @property
     def nbytes(self) -> int:
         """Bytes held, whatever the number of frames painted."""
-        arrays = (self.rgb, self.seen, self.time, self.quality, self.points, self.normals)
-        return sum(a.nbytes for a in arrays) + self._cells.nbytes + self._p.nbytes + self._n.nbytes
+        return self.memory.nbytes + self.points.nbytes + self.normals.nbytes + self._cells.nbytes
+
+    def _grid(self, values: np.ndarray, empty: object) -> np.ndarray:
+        rows, cols = self.grid.shape
+        out = np.full((rows * cols, *values.shape[1:]), empty, values.dtype)
+        out[self._cells] = values
+        return out.reshape(rows, cols, *values.shape[1:])
+
+    @property
+    def rgb(self) -> np.ndarray:
+        return self._grid(self.memory.rgb, 0)
+
+    @property
+    def seen(self) -> np.ndarray:
+        return self._grid(self.memory.seen, False)
+
+    @property
+    def time(self) -> np.ndarray:
+        return self._grid(self.memory.time, np.nan)
+
+    @property
+    def quality(self) -> np.ndarray:
+        return self._grid(self.memory.quality, 0.0)
 
     def paint(self, rgb: np.ndarray, camera: Camera, distances: np.ndarray, time_s: float) -> int:
-        """Paint one frame: rgb (H, W, 3) uint8 (the camera's image, at any scale); distances
-        (h, w) metres from the camera to the scene through each pixel of its pinhole
-        (app.render.views, any resolution: it is scaled), inf where none. Returns the cells
-        painted."""
-        if not len(self._p):
-            return 0
-        h, w = rgb.shape[:2]
-        iw, ih = image_size(camera)
-        uv, depth = camera.project(self._p)
-        uv = uv * [w / iw, h / ih]  # frames may be decoded smaller than the camera's image
-        inside = (depth > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < w) & (uv[:, 1] >= 0) & (uv[:, 1] < h)
-        idx = np.flatnonzero(inside)
-        if not len(idx):
-            return 0
-        eye = np.asarray(camera.position, np.float64)
-        ray = self._p[idx] - eye
-        rng = np.linalg.norm(ray, axis=1)
-        # the distance map is drawn through the camera's pinhole: where does the point fall?
-        pin, _ = camera.pinhole().project(self._p[idx])
-        dh, dw = distances.shape
-        sx, sy = dw / camera.intrinsics.width, dh / camera.intrinsics.height
-        nearest = map_coordinates(
-            distances, [pin[:, 1] * sy - 0.5, pin[:, 0] * sx - 0.5], order=0, mode="nearest"
-        )
-        visible = rng <= nearest + DEPTH_BIAS_M + DEPTH_BIAS_PER_M * rng
-        idx, ray, rng = idx[visible], ray[visible], rng[visible]
-        if not len(idx):
-            return 0
-        cos = np.abs(np.einsum("ij,ij->i", ray, self._n[idx])) / rng
-        quality = (cos / (1.0 + rng / QUALITY_RANGE_M)).astype(np.float32)
-        cells = self._cells[idx]
-        if self.rule == "first":
-            take = ~self.seen.ravel()[cells]
-        elif self.rule == "best":
-            take = quality > self.quality.ravel()[cells]
-        else:
-            take = np.ones(len(cells), bool)
-        cells, quality = cells[take], quality[take]
-        u, v = uv[idx[take], 0] - 0.5, uv[idx[take], 1] - 0.5
-        colour = np.stack(
-            [map_coordinates(rgb[..., c].astype(np.float32), [v, u], order=1, mode="nearest") for c in range(3)],
-            axis=1,
-        )  # fmt: skip
-        self.rgb.reshape(-1, 3)[cells] = np.clip(np.round(colour), 0, 255).astype(np.uint8)
-        self.seen.ravel()[cells] = True
-        self.time.ravel()[cells] = time_s
-        self.quality.ravel()[cells] = quality
-        self.frames += 1
-        return int(len(cells))
+        """Paint one frame (SurfaceMemory.paint); returns the cells painted."""
+        return self.memory.paint(rgb, camera, distances, time_s)

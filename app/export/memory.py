@@ -1,0 +1,136 @@
+"""What the video saw, kept on the scene's surfaces: one colour, time and quality per surface
+sample (a texel of a painted model's atlas, a cell of an orthophoto's grid). Pure numpy; the
+GL part (each frame's distances, for the occlusion test) comes in as an array.
+
+A sample is painted by a frame when its point (ENU m) lies in the image (through the camera's
+lens) and the frame's own distance map, rendered through the camera's pinhole, says nothing
+nearer hides it, within a bias that grows with range (as the drape's depth test). Its colour is
+the frame's, bilinear; its time the frame's (UTC s); its quality in (0, 1] the incidence's cosine
+over (1 + range / QUALITY_RANGE_M). The rule decides what a sample keeps: newest (the last frame
+that saw it, default), best (the highest quality) or first. Samples are kept in blocks of
+BLOCK consecutive ones with their bounding boxes, and a frame only looks at the blocks its
+frustum meets. The memory's size is fixed by its samples, whatever the number of frames.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.ndimage import map_coordinates
+
+from app.camera.pinhole import Camera, image_size
+
+RULES = ("newest", "best", "first")
+QUALITY_RANGE_M = 100.0  # quality halves at this range (head-on)
+DEPTH_BIAS_M = 0.15  # a surface point within this of the frame's distance map is the one seen,
+DEPTH_BIAS_PER_M = 0.01  # plus this much per metre of range
+BLOCK = 4096  # samples a culling block
+
+
+def frustum_planes(camera: Camera) -> np.ndarray:
+    """(6, 4) planes (a, b, c, d) of the camera's pinhole frustum, normals inward (ENU)."""
+    m = np.asarray(camera.view_projection, np.float64)
+    planes = np.stack(
+        [m[3] + m[0], m[3] - m[0], m[3] + m[1], m[3] - m[1], m[3] + m[2], m[3] - m[2]]
+    )
+    return planes / np.linalg.norm(planes[:, :3], axis=1, keepdims=True)
+
+
+@dataclass
+class SurfaceMemory:
+    """points (N, 3) float32 ENU m and normals (N, 3) float32 of the samples; rgb (N, 3) uint8,
+    seen (N,) bool, time (N,) float64 (NaN unseen), quality (N,) float32 (0 unseen) as painted;
+    frames: how many frames painted something."""
+
+    points: np.ndarray
+    normals: np.ndarray
+    rule: str = "newest"
+    rgb: np.ndarray = field(init=False)
+    seen: np.ndarray = field(init=False)
+    time: np.ndarray = field(init=False)
+    quality: np.ndarray = field(init=False)
+    frames: int = 0
+
+    def __post_init__(self) -> None:
+        if self.rule not in RULES:
+            raise ValueError(f"rule {self.rule!r}: expected one of {', '.join(RULES)}")
+        self.points = np.ascontiguousarray(self.points, np.float32)
+        self.normals = np.ascontiguousarray(self.normals, np.float32)
+        n = len(self.points)
+        self.rgb = np.zeros((n, 3), np.uint8)
+        self.seen = np.zeros(n, bool)
+        self.time = np.full(n, np.nan)
+        self.quality = np.zeros(n, np.float32)
+        starts = np.arange(0, n, BLOCK)
+        self._starts = starts
+        self._lo = np.array([self.points[s : s + BLOCK].min(axis=0) for s in starts]).reshape(-1, 3)
+        self._hi = np.array([self.points[s : s + BLOCK].max(axis=0) for s in starts]).reshape(-1, 3)
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes held, whatever the number of frames painted."""
+        arrays = (self.points, self.normals, self.rgb, self.seen, self.time, self.quality)
+        return sum(a.nbytes for a in arrays) + self._lo.nbytes + self._hi.nbytes
+
+    def _in_view(self, camera: Camera) -> np.ndarray:
+        """Indices of the samples in the blocks the camera's frustum meets."""
+        planes = frustum_planes(camera)
+        inside = np.ones(len(self._starts), bool)
+        for a, b, c, d in planes:
+            far_corner = np.where(np.array([a, b, c]) > 0, self._hi, self._lo)
+            inside &= far_corner @ np.array([a, b, c]) + d >= 0
+        n = len(self.points)
+        blocks = [np.arange(s, min(s + BLOCK, n)) for s in self._starts[inside]]
+        return np.concatenate(blocks) if blocks else np.zeros(0, np.int64)
+
+    def paint(self, rgb: np.ndarray, camera: Camera, distances: np.ndarray, time_s: float) -> int:
+        """Paint one frame: rgb (H, W, 3) uint8 (the camera's image, at any scale); distances
+        (h, w) metres from the camera to the scene through each pixel of its pinhole
+        (app.render.views, any resolution: it is scaled), inf where none. Returns the samples
+        painted."""
+        idx = self._in_view(camera)
+        if not len(idx):
+            return 0
+        p = self.points[idx].astype(np.float64)
+        h, w = rgb.shape[:2]
+        iw, ih = image_size(camera)
+        uv, depth = camera.project(p)
+        uv = uv * [w / iw, h / ih]  # frames may be decoded smaller than the camera's image
+        inside = (depth > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < w) & (uv[:, 1] >= 0) & (uv[:, 1] < h)
+        idx, p, uv = idx[inside], p[inside], uv[inside]
+        if not len(idx):
+            return 0
+        ray = p - np.asarray(camera.position, np.float64)
+        rng = np.linalg.norm(ray, axis=1)
+        # the distance map is drawn through the camera's pinhole: where does the point fall?
+        pin, _ = camera.pinhole().project(p)
+        dh, dw = distances.shape
+        sx, sy = dw / camera.intrinsics.width, dh / camera.intrinsics.height
+        nearest = map_coordinates(
+            distances, [pin[:, 1] * sy - 0.5, pin[:, 0] * sx - 0.5], order=0, mode="nearest"
+        )
+        visible = rng <= nearest + DEPTH_BIAS_M + DEPTH_BIAS_PER_M * rng
+        idx, ray, rng, uv = idx[visible], ray[visible], rng[visible], uv[visible]
+        if not len(idx):
+            return 0
+        cos = np.abs(np.einsum("ij,ij->i", ray, self.normals[idx])) / rng
+        quality = (cos / (1.0 + rng / QUALITY_RANGE_M)).astype(np.float32)
+        if self.rule == "first":
+            take = ~self.seen[idx]
+        elif self.rule == "best":
+            take = quality > self.quality[idx]
+        else:
+            take = np.ones(len(idx), bool)
+        idx, quality, uv = idx[take], quality[take], uv[take]
+        u, v = uv[:, 0] - 0.5, uv[:, 1] - 0.5
+        colour = np.stack(
+            [map_coordinates(rgb[..., c].astype(np.float32), [v, u], order=1, mode="nearest") for c in range(3)],
+            axis=1,
+        )  # fmt: skip
+        self.rgb[idx] = np.clip(np.round(colour), 0, 255).astype(np.uint8)
+        self.seen[idx] = True
+        self.time[idx] = time_s
+        self.quality[idx] = quality
+        self.frames += 1
+        return int(len(idx))

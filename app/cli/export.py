@@ -1,5 +1,5 @@
-"""`geofuse export`: footprints, an FMV CSV, KLV, the fused video or the true orthophoto of a
-session or clip (app.export.jobs, app.export.orthophoto)."""
+"""`geofuse export`: footprints, an FMV CSV, KLV, the fused video, the true orthophoto or the
+painted model of a session or clip (app.export.jobs, app.export.orthophoto, app.export.painted)."""
 
 from __future__ import annotations
 
@@ -18,6 +18,7 @@ from app.core.progress import ProgressBar
 from app.export import EXPORT_SUFFIXES
 from app.export.jobs import ExportOptions, export_session, write_footprints
 from app.export.orthophoto import OrthoOptions, paint_clip, write_orthophoto
+from app.export.painted import ModelOptions, paint_model, write_painted
 from app.export.records import frame_records
 from app.geodesy.crs import parse_crs
 
@@ -67,6 +68,28 @@ def _ortho(args: argparse.Namespace, input_path: Path, suffixes, bar: ProgressBa
     return 0
 
 
+def _model(args: argparse.Namespace, input_path: Path, suffixes, bar: ProgressBar) -> int:
+    """`export model`: the scene with the clip painted on it (app.export.painted)."""
+    session, source = open_with_source(input_path, args, suffixes)
+    print_messages(session)
+    options = ModelOptions(args.rule, args.every_s, args.max_texels)
+    try:
+        atlas, memory = paint_model(session, solved(session, source), options, bar)
+    except ValueError as exc:
+        raise GeofuseError(f"export model {input_path}: {exc}") from exc
+    f = session.frame
+    out = write_painted(
+        atlas, memory, (f.lat_deg, f.lon_deg, f.h_m), Path(args.out), list(session.inputs)
+    )
+    w, h = atlas.size
+    print(
+        f"wrote {out} ({len(atlas.triangles):,} triangles, a {w} x {h} atlas of {atlas.texel_m:.2f} m texels, "
+        f"{100.0 * memory.seen.mean():.0f} % of the surface seen, {memory.frames} frames, rule {memory.rule}; "
+        f"local east-north-up from {f.lat_deg:.7f}, {f.lon_deg:.7f}, {f.h_m:.2f} m, glTF Y-up)"
+    )
+    return 0
+
+
 def run(args: argparse.Namespace) -> int:
     inputs = list(args.input)
     if len(inputs) > 1 and args.what not in ("footprints", "video"):
@@ -89,6 +112,8 @@ def run(args: argparse.Namespace) -> int:
     bar = ProgressBar(f"export {args.what}", sys.stderr)
     if args.what == "ortho":
         return _ortho(args, inputs[0], suffixes, bar)
+    if args.what == "model":
+        return _model(args, inputs[0], suffixes, bar)
     if len(inputs) == 1 or args.what == "video":
         session, source = open_with_source(inputs[0], args, suffixes)
         print_messages(session)

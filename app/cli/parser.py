@@ -347,12 +347,12 @@ def _solve(sub: Commands) -> None:
 def _export(sub: Commands) -> None:
     ex = sub.add_parser(
         "export",
-        help="footprints (GeoJSON/KML/KMZ), an FMV metadata CSV, MISB KLV in MPEG-TS, the fused view as a video, or a true orthophoto (COG)",
+        help="footprints (GeoJSON/KML/KMZ), an FMV metadata CSV, MISB KLV in MPEG-TS, the fused view as a video, a true orthophoto (COG) or the scene painted by the clip (GLB)",
     )
     ex.add_argument(
         "what",
         choices=sorted(EXPORT_SUFFIXES),
-        help="footprints: .geojson/.kml/.kmz; fmv-csv: .csv; klv: .ts; video: .mp4; ortho: .tif (and .seen.tif beside it)",
+        help="footprints: .geojson/.kml/.kmz; fmv-csv: .csv; klv: .ts; video: .mp4; ortho: .tif (and .seen.tif beside it); model: .glb",
     )
     ex.add_argument(
         "input",
@@ -405,13 +405,19 @@ def _export(sub: Commands) -> None:
         "--rule",
         choices=("newest", "best", "first"),
         default="newest",
-        help="ortho: what a cell keeps: the newest frame that saw it, the best (range, incidence) or the first",
+        help="ortho, model: what a cell or texel keeps: the newest frame that saw it, the best (range, incidence) or the first",
     )
     ex.add_argument(
         "--every-s",
         type=number(0.0, 3600.0),
         default=0.2,
-        help="ortho: seconds of video between frames painted (0: every frame)",
+        help="ortho, model: seconds of video between frames painted (0: every frame)",
+    )
+    ex.add_argument(
+        "--max-texels",
+        type=count(1000, 256_000_000),
+        default=4_000_000,
+        help="model: the atlas's texels at most (the texel size follows; memory ~32 bytes a texel)",
     )
     ex.add_argument(
         "--view",

@@ -3,8 +3,10 @@ sample (a texel of a painted model's atlas, a cell of an orthophoto's grid). Pur
 GL part (each frame's distances, for the occlusion test) comes in as an array.
 
 A sample is painted by a frame when its point (ENU m) lies in the image (through the camera's
-lens) and the frame's own distance map, rendered through the camera's pinhole, says nothing
-nearer hides it, within a bias that grows with range (as the drape's depth test). Its colour is
+lens), the frame's own distance map, rendered through the camera's pinhole, says nothing nearer
+hides it, within a bias that grows with range (as the drape's depth test), and the frame sees
+its surface less obliquely than MIN_COS_INCIDENCE (a wall seen edge-on from a drone is a few
+pixels wide, and any error in the pose paints it with the ground beside it). Its colour is
 the frame's, bilinear; its time the frame's (UTC s); its quality in (0, 1] the incidence's cosine
 over (1 + range / QUALITY_RANGE_M). The rule decides what a sample keeps: newest (the last frame
 that saw it, default), best (the highest quality) or first. Samples are kept in blocks of
@@ -26,6 +28,9 @@ QUALITY_RANGE_M = 100.0  # quality halves at this range (head-on)
 DEPTH_BIAS_M = 0.15  # a surface point within this of the frame's distance map is the one seen,
 DEPTH_BIAS_PER_M = 0.01  # plus this much per metre of range
 BLOCK = 4096  # samples a culling block
+MIN_COS_INCIDENCE = (
+    0.2  # surfaces seen more obliquely than 78 deg from their normal are not painted
+)
 
 
 def frustum_planes(camera: Camera) -> np.ndarray:
@@ -115,6 +120,8 @@ class SurfaceMemory:
         if not len(idx):
             return 0
         cos = np.abs(np.einsum("ij,ij->i", ray, self.normals[idx])) / rng
+        facing = cos >= MIN_COS_INCIDENCE
+        idx, cos, rng, uv = idx[facing], cos[facing], rng[facing], uv[facing]
         quality = (cos / (1.0 + rng / QUALITY_RANGE_M)).astype(np.float32)
         if self.rule == "first":
             take = ~self.seen[idx]

@@ -27,6 +27,7 @@ from rasterio.transform import Affine
 
 from app.camera.pinhole import Camera
 from app.core.outputs import check_output, write_via_path
+from app.export.memory import SurfaceMemory
 from app.export.ortho import Grid, OrthoMemory, make_grid, surface
 from app.io.video import frames_at
 from app.render.views import ModelViews
@@ -58,7 +59,8 @@ def seen_path(out: Path) -> Path:
     return out.with_name(out.stem + SEEN_SUFFIX)
 
 
-def _frames(track: CameraTrack, every_s: float) -> np.ndarray:
+def paint_frame_indices(track: CameraTrack, every_s: float) -> np.ndarray:
+    """The frames painted: one every `every_s` seconds of video (0: all)."""
     media = np.asarray(track.clock.media_s, np.float64)
     picked, last = [], -np.inf
     for k, t in enumerate(media):
@@ -123,6 +125,25 @@ def _grid(
     return make_grid(session.frame, lo, hi, gsd, options.crs)
 
 
+def paint_frames(
+    session: Session,
+    track: CameraTrack,
+    memory: OrthoMemory | SurfaceMemory,
+    views: ModelViews,
+    frames: np.ndarray,
+    progress: Callable[[float], None] | None = None,
+) -> None:
+    """Paint the video's frames (indices) into a memory, each with its camera's distances
+    (the occlusion test) and its time (UTC s where the clip has a clock, else session s)."""
+    for n, (k, rgb) in enumerate(frames_at(session.video, frames, DECODE_LONG_SIDE)):
+        cam = track.frame_camera(int(k))
+        t = float(track.clock.session_time(float(track.clock.media_s[k])))
+        utc = session.utc_of(t)
+        memory.paint(rgb, cam, _distances(views, cam), utc if utc is not None else t)
+        if progress is not None:
+            progress((n + 1) / len(frames))
+
+
 def paint_clip(
     session: Session,
     track: CameraTrack,
@@ -132,19 +153,13 @@ def paint_clip(
 ) -> OrthoMemory:
     """The orthophoto memory of a clip under one solved track (see the module docstring); on
     `grid` when given (another clip's or source's, to compare them cell by cell)."""
-    frames = _frames(track, options.every_s)
+    frames = paint_frame_indices(track, options.every_s)
     views = ModelViews(session.scene())
     try:
         grid = grid or _grid(session, track, frames, views, options)
         points, normals = surface(session.scene(), grid, session.frame)
         memory = OrthoMemory(grid, points, normals, options.rule)
-        for n, (k, rgb) in enumerate(frames_at(session.video, frames, DECODE_LONG_SIDE)):
-            cam = track.frame_camera(int(k))
-            t = float(track.clock.session_time(float(track.clock.media_s[k])))
-            utc = session.utc_of(t)
-            memory.paint(rgb, cam, _distances(views, cam), utc if utc is not None else t)
-            if progress is not None:
-                progress((n + 1) / len(frames))
+        paint_frames(session, track, memory, views, frames, progress)
     finally:
         views.release()
     return memory

@@ -90,10 +90,10 @@ def test_a_texel_keeps_its_frames_colour_and_time_after_the_camera_turns_away(sc
 
 
 def test_a_hidden_surface_is_never_painted(scene_views):
-    """From low in the south-west, the block hides the ground behind it: that ground stays
+    """From 12 m up in the south-west, the block hides the ground behind it: that ground stays
     unseen while the ground in front of it and the block's roof are painted."""
     m = _memory()
-    cam = _camera([0.0, 0.0, 3.0], [25.0, 25.0, 2.0], f=150.0)
+    cam = _camera([0.0, 0.0, 12.0], [25.0, 25.0, 2.0], f=150.0)
     m.paint(_flat((90, 200, 90)), cam, _distances(scene_views, cam), 5.0)
     assert m.seen[_cell(m, 15.0, 15.0)]  # the ground in front
     behind = [_cell(m, x, y) for x, y in ((34.0, 34.0), (36.0, 33.0), (33.0, 37.0))]
@@ -220,3 +220,13 @@ def test_export_ortho_of_a_survey_puts_the_roof_where_the_model_has_it(tmp_path)
     assert np.all(roof[:, 3] == 255) and np.all(grass[:, 3] == 255)
     assert np.all(np.abs(roof[:, 1] - roof[:, 0]) < 25)  # grey
     assert np.all(grass[:, 1] > grass[:, 0] + 20)  # green
+
+
+def test_a_surface_seen_edge_on_is_not_painted(scene_views):
+    """From 3 m up, the ground 21 m away is seen 82 deg from its normal (cosine 0.14): too
+    oblique to paint (MIN_COS_INCIDENCE), while nearer ground (cosine over 0.2) is."""
+    m = _memory()
+    cam = _camera([0.0, 0.0, 3.0], [25.0, 25.0, 0.0], f=150.0)
+    m.paint(_flat((90, 200, 90)), cam, _distances(scene_views, cam), 5.0)
+    assert not m.seen[_cell(m, 15.0, 15.0)]
+    assert m.seen[_cell(m, 7.0, 7.0)]  # 9.9 m away: cosine 0.29

@@ -336,11 +336,12 @@ def test_a_city_model_opened_on_a_clip_is_drawn_and_a_damaged_one_is_refused(
     its track; a damaged one is refused with the file named, and the viewer goes on with the
     scene it had."""
     from app.footage.clips import open_any
-    from app.simulate.city import Building, utm_crs, write_cityjson
+    from app.geodesy.crs import utm_zone
+    from app.simulate.city import Building, write_cityjson
 
     clip = shared_data / "real/gopro/max-heromode.mp4"
     frame = open_any(clip).frame
-    crs = utm_crs(frame.lat_deg, frame.lon_deg)
+    crs = utm_zone(frame.lat_deg, frame.lon_deg)
     x, y = pyproj.Transformer.from_crs("EPSG:4326", crs, always_xy=True).transform(
         frame.lon_deg, frame.lat_deg
     )

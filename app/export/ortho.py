@@ -24,6 +24,7 @@ from numba import njit
 
 from app.camera.pinhole import Camera
 from app.export.memory import SurfaceMemory
+from app.geodesy.crs import utm_zone
 from app.geodesy.enu import LocalFrame
 from app.scene.mesh import MeshData
 
@@ -59,12 +60,6 @@ class Grid:
         return xy[..., :2]
 
 
-def utm_of(lat_deg: float, lon_deg: float) -> pyproj.CRS:
-    """The WGS 84 UTM zone's CRS at a place."""
-    zone = int((lon_deg + 180.0) // 6) + 1
-    return pyproj.CRS.from_epsg((32600 if lat_deg >= 0 else 32700) + zone)
-
-
 def make_grid(
     frame: LocalFrame,
     lo_enu: npt.ArrayLike,
@@ -75,7 +70,7 @@ def make_grid(
     """The grid of `gsd` (CRS units, metres for UTM) covering the ENU box lo..hi (x, y m) in
     `crs` (the site's UTM zone when None), its edges on whole multiples of gsd. Raises
     ValueError for a grid beyond MAX_CELLS or a CRS that is not projected."""
-    crs = crs or utm_of(frame.lat_deg, frame.lon_deg)
+    crs = crs or utm_zone(frame.lat_deg, frame.lon_deg)
     if not crs.is_projected:
         raise ValueError(f"{crs.name}: an orthophoto needs a projected CRS (metres), e.g. UTM")
     lo, hi = np.asarray(lo_enu, np.float64)[:2], np.asarray(hi_enu, np.float64)[:2]

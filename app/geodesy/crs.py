@@ -69,6 +69,12 @@ def parse_crs(text: str) -> pyproj.CRS:
         raise ValueError(f"unknown CRS {text!r} (expected an EPSG code, URL or URN)") from exc
 
 
+def utm_zone(lat_deg: float, lon_deg: float) -> pyproj.CRS:
+    """The WGS 84 UTM zone's CRS at a place (EPSG:326zz north of the equator, 327zz south)."""
+    zone = int((lon_deg + 180.0) // 6) + 1
+    return pyproj.CRS.from_epsg((32600 if lat_deg >= 0 else 32700) + zone)
+
+
 def horizontal(crs: pyproj.CRS) -> pyproj.CRS:
     """The horizontal part of a CRS (the CRS itself when not compound)."""
     return crs.sub_crs_list[0] if crs.is_compound else crs

@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 import pyproj
 
+from app.geodesy.crs import utm_zone
 from app.geodesy.enu import LocalFrame
 from app.geodesy.geoid import undulation
 from app.simulate.stadium import BUILDINGS, GROUND_HALF, HALL_MAX, HALL_MIN
@@ -292,19 +293,13 @@ def write_citygml(
     return path
 
 
-def utm_crs(lat_deg: float, lon_deg: float) -> pyproj.CRS:
-    """The WGS 84 UTM zone's CRS at a place (EPSG:326zz north, 327zz south)."""
-    zone = int((lon_deg + 180.0) // 6) + 1
-    return pyproj.CRS.from_epsg((32600 if lat_deg >= 0 else 32700) + zone)
-
-
 def site_buildings(frame: LocalFrame) -> tuple[list[Building], Relief, str]:
     """The sample site's hall and buildings (app.simulate.stadium) as LoD2 buildings in the
     site's UTM zone with EGM2008 heights, as a city would publish them, and its ground as a
     relief: (buildings, relief, the compound CRS as `EPSG:h+3855`). Corners go ENU -> WGS84 ->
     UTM one by one, so the footprints keep their shape and place (UTM's grid is turned from
     true north)."""
-    crs = utm_crs(frame.lat_deg, frame.lon_deg)
+    crs = utm_zone(frame.lat_deg, frame.lon_deg)
     to_utm = pyproj.Transformer.from_crs("EPSG:4326", crs, always_xy=True)
     boxes = [("hall", HALL_MIN, HALL_MAX, "stadium")] + [
         (f"building_{b.name}", b.min_corner, b.max_corner, "office") for b in BUILDINGS

@@ -25,7 +25,7 @@ from lxml import etree
 
 from app.core.errors import SceneError
 from app.scene.city.cityjson import Keep
-from app.scene.city.model import SURFACE_KINDS, CityObject, Surface, kind_of
+from app.scene.city.model import SURFACE_KINDS, CityObject, Surface, footprint_centre, kind_of
 
 SUFFIXES = (".gml", ".xml", ".zip")
 PART_NAMES = ("BuildingPart", "BridgePart", "TunnelPart")
@@ -216,7 +216,7 @@ class CityGmlReader:
         polygons = []
         # a relief (dem:ReliefFeature) says its LoD in a `lod` element, not a property's name
         stated = next((c.text for c in obj if _local(c) == "lod" and c.text), None)
-        default_lod = int(float(stated)) if stated and stated.strip().isdigit() else 1
+        default_lod = int(stated) if stated and stated.strip().isdigit() else 1
         for el in obj.iter("{*}Polygon", "{*}Triangle"):
             if id(el) in inside_parts:
                 continue
@@ -289,11 +289,10 @@ class CityGmlReader:
                 surfaces.append(surface)
         if not surfaces:
             return
-        points = np.concatenate([r for s in surfaces for r in s.rings])
-        centre = (points[:, :2].min(axis=0) + points[:, :2].max(axis=0)) / 2
+        centre = footprint_centre(np.concatenate([r for s in surfaces for r in s.rings]))
         if keep is not None and not keep(centre):
             return
-        yield CityObject(oid, otype, attributes, surfaces, str(top), parent)
+        yield CityObject(oid, otype, attributes, surfaces, centre, str(top), parent)
 
 
 def _attributes(obj: etree._Element) -> dict:

@@ -24,7 +24,7 @@ import ijson
 import numpy as np
 
 from app.core.errors import SceneError
-from app.scene.city.model import CityObject, Surface, kind_of
+from app.scene.city.model import CityObject, Surface, footprint_centre, kind_of
 
 VERSIONS = ("1.0", "1.1", "2.0")
 SURFACE_DEPTH = {  # nesting of `boundaries` down to a surface (a list of rings)
@@ -119,7 +119,6 @@ class CityJsonReader:
         self.sequence = self.path.suffix.lower() == ".jsonl"
         self.max_lod = max_lod
         self.count = 0
-        self.parents_wanted: set[str] = set()
         self.header = self._read_header()
         self._vertices: np.ndarray | None = None
         self._uvs: np.ndarray | None = None
@@ -173,9 +172,10 @@ class CityJsonReader:
         crs = metadata.get("referenceSystem") if isinstance(metadata, dict) else None
         templates = get("geometry-templates") or {}
         tv = np.asarray(templates.get("vertices-templates", []), np.float64).reshape(-1, 3)
-        textures = get("appearance.textures") if not self.sequence else None
         if self.sequence:
             textures = (get("appearance") or {}).get("textures")
+        else:
+            textures = get("appearance.textures")
         images = [str(t.get("image", "")) for t in textures or [] if isinstance(t, dict)]
         return Header(version, crs, scale, translate, templates.get("templates", []), tv, images)
 
@@ -335,9 +335,7 @@ class CityJsonReader:
                     field=where,
                     line=line,
                 )
-            used = vertices[index]
-            lo, hi = used.min(axis=0), used.max(axis=0)
-            centre = (lo[:2] + hi[:2]) / 2
+            centre = footprint_centre(vertices[index])
             if keep is not None and not keep(centre):
                 continue
             otype = str(obj.get("type", ""))
@@ -350,16 +348,14 @@ class CityJsonReader:
                     self._texture(surface, textured, path, uvs, where, line)
                 surfaces.append(surface)
             parents = obj.get("parents") or []
-            parent = str(parents[0]) if parents else None
-            if parent is not None:
-                self.parents_wanted.add(parent)
             yield CityObject(
                 str(oid),
                 otype,
                 dict(obj.get("attributes") or {}),
                 surfaces,
+                centre,
                 str(geom.get("lod", "")),
-                parent,
+                str(parents[0]) if parents else None,
             )
 
     def _texture(

@@ -116,23 +116,25 @@ class Surface:
     uvs: list[np.ndarray] | None = None
 
 
+def footprint_centre(points: np.ndarray) -> np.ndarray:
+    """(2,) the middle of the points' (N, 3) horizontal extent: where a reader places a city
+    object to decide whether it lies near the track."""
+    return (points[:, :2].min(axis=0) + points[:, :2].max(axis=0)) / 2
+
+
 @dataclass
 class CityObject:
     """One city object with geometry. attributes: as the file gives them (parent's merged under
-    its own); lod: the level of detail drawn ('2.2', '1', ...); surfaces in the file's CRS."""
+    its own); lod: the level of detail drawn ('2.2', '1', ...); surfaces in the file's CRS;
+    centre: its footprint_centre (file CRS), as the reader tested it."""
 
     id: str
     type: str
     attributes: dict
     surfaces: list[Surface]
+    centre: np.ndarray
     lod: str = ""
     parent: str | None = None
-
-    def centre_xy(self) -> np.ndarray:
-        """(2,) the middle of its vertices' horizontal extent, in the file's CRS."""
-        lo = np.min([r[:, :2].min(axis=0) for s in self.surfaces for r in s.rings], axis=0)
-        hi = np.max([r[:, :2].max(axis=0) for s in self.surfaces for r in s.rings], axis=0)
-        return (lo + hi) / 2
 
 
 def _newell(ring: np.ndarray) -> np.ndarray:
@@ -252,13 +254,12 @@ class FeatureTable:
     boxes: npt.NDArray[np.float64] = field(init=False)
 
     def __post_init__(self) -> None:
-        n = len(self.ids)
-        self.boxes = np.zeros((n, 2, 3))
-        flat = self.triangles.reshape(-1, 9)
-        for i in range(n):
-            t = flat[self.starts[i] : self.starts[i + 1]].reshape(-1, 3)
-            if len(t):
-                self.boxes[i] = t.min(axis=0), t.max(axis=0)
+        # every object has a triangle (the reader keeps none without): one reduction each way
+        corners = self.triangles.reshape(-1, 3)
+        first = self.starts[:-1] * 3
+        self.boxes = np.stack(
+            [np.minimum.reduceat(corners, first), np.maximum.reduceat(corners, first)], axis=1
+        ).astype(np.float64)
 
     def at(self, point_enu: npt.ArrayLike, tolerance_m: float = 0.25) -> Feature | None:
         """The object whose surface lies nearest the ENU point (m), if within tolerance_m."""

@@ -48,7 +48,6 @@ DEFAULT_MARGIN_M = 1000.0  # objects this far from the track are read
 DEFAULT_MAX_TRIANGLES = 1_500_000  # ~150 MB drawn and indexed at most
 FLUSH_TRIANGLES = 50_000  # triangles placed in ENU in batches of this many
 MAX_TEXTURE_PX = 8192  # a texture image is drawn at most this many pixels a side
-CITYJSON_SUFFIXES = (".jsonl",)
 
 
 def is_city(location: str | Path) -> bool:
@@ -69,8 +68,8 @@ def is_city(location: str | Path) -> bool:
 
 @dataclass
 class City:
-    """A city layer read: the mesh (one primitive coloured by kind, and its FeatureTable), the
-    datum its heights were taken above, what was said, and counts."""
+    """A city layer read: the mesh (a primitive coloured by kind and one per texture image, and
+    its FeatureTable), the datum its heights were taken above, what was said, and counts."""
 
     mesh: MeshData
     datum: str
@@ -101,7 +100,6 @@ class _Window:
         self.tree = cKDTree(pts)
         self.lo = (pts.min(axis=0) - margin_m).tolist()
         self.hi = (pts.max(axis=0) + margin_m).tolist()
-        self.margin_m = margin_m
 
     def distance(self, centre: np.ndarray) -> float:
         """Horizontal distance (m) from the track; inf beyond its box plus the margin."""
@@ -232,8 +230,16 @@ def read_city(
     total = 0
     dropped = 0
 
+    def trim() -> None:
+        """Drop the objects farthest from the track until at most max_triangles are kept."""
+        nonlocal total, dropped
+        kept.sort(key=lambda k: k.distance)
+        while total > max_triangles and kept:
+            total -= len(kept.pop().triangles)
+            dropped += 1
+
     def flush() -> None:
-        nonlocal pending_triangles, total, dropped
+        nonlocal pending_triangles, total
         if not pending:
             return
         window, placer = setup()
@@ -242,7 +248,7 @@ def read_city(
         start = 0
         for obj, tris, kinds, textures, uvs in pending:
             n = sum(len(t) for t in tris)
-            distance = 0.0 if window is None else window.distance(obj.centre_xy())
+            distance = 0.0 if window is None else window.distance(obj.centre)
             kept.append(
                 _Kept(
                     obj,
@@ -257,11 +263,8 @@ def read_city(
             total += n
         pending.clear()
         pending_triangles = 0
-        if total > max_triangles * 1.25:
-            kept.sort(key=lambda k: k.distance)
-            while total > max_triangles and kept:
-                total -= len(kept.pop().triangles)
-                dropped += 1
+        if total > max_triangles * 1.25:  # trimmed now and then, not after every object
+            trim()
 
     for obj in reader.objects(keep):
         tris, kinds, textures, uvs = _triangles(obj)
@@ -273,10 +276,7 @@ def read_city(
             flush()
     flush()
     if total > max_triangles:
-        kept.sort(key=lambda k: k.distance)
-        while total > max_triangles and kept:
-            total -= len(kept.pop().triangles)
-            dropped += 1
+        trim()
     if reader.count == 0:
         raise SceneError(
             path, "the city holds no object with surfaces to draw (expected buildings, terrain...)"

@@ -16,7 +16,8 @@ import rasterio
 from app.camera.intrinsics import Intrinsics
 from app.camera.pinhole import Camera, look_at_quat
 from app.export.ortho import OrthoMemory, make_grid, surface
-from app.export.orthophoto import _distances, write_orthophoto
+from app.export.orthophoto import write_orthophoto
+from app.export.painting import distances
 from app.geodesy.enu import LocalFrame
 from app.render.views import ModelViews
 from app.scene import shapes
@@ -80,9 +81,9 @@ def _flat(colour, size=(320, 240)) -> np.ndarray:
 def test_a_texel_keeps_its_frames_colour_and_time_after_the_camera_turns_away(scene_views):
     m = _memory()
     down = _camera([0.0, 0.0, 60.0], [0.0, 0.0, 0.0])
-    assert m.paint(_flat((200, 30, 30)), down, _distances(scene_views, down), 1000.0) > 0
+    assert m.paint(_flat((200, 30, 30)), down, distances(scene_views, down), 1000.0) > 0
     away = _camera([0.0, 0.0, 60.0], [0.0, 200.0, 50.0])  # looking at the sky over the north
-    m.paint(_flat((30, 30, 200)), away, _distances(scene_views, away), 1001.0)
+    m.paint(_flat((30, 30, 200)), away, distances(scene_views, away), 1001.0)
     r, c = _cell(m, 0.0, 0.0)
     assert m.seen[r, c] and tuple(m.rgb[r, c]) == (200, 30, 30) and m.time[r, c] == 1000.0
     far = _cell(m, -39.0, 59.0)  # never in view
@@ -94,7 +95,7 @@ def test_a_hidden_surface_is_never_painted(scene_views):
     unseen while the ground in front of it and the block's roof are painted."""
     m = _memory()
     cam = _camera([0.0, 0.0, 12.0], [25.0, 25.0, 2.0], f=150.0)
-    m.paint(_flat((90, 200, 90)), cam, _distances(scene_views, cam), 5.0)
+    m.paint(_flat((90, 200, 90)), cam, distances(scene_views, cam), 5.0)
     assert m.seen[_cell(m, 15.0, 15.0)]  # the ground in front
     behind = [_cell(m, x, y) for x, y in ((34.0, 34.0), (36.0, 33.0), (33.0, 37.0))]
     assert not any(m.seen[rc] for rc in behind)
@@ -113,10 +114,10 @@ def test_the_rules_choose_as_documented(scene_views, rule, expected):
     m = _memory(rule)
     near = _camera([0.0, 0.0, 20.0], [0.0, 0.0, 0.0])
     far = _camera([-80.0, -80.0, 40.0], [0.0, 0.0, 0.0], f=600.0)
-    m.paint(_flat((200, 30, 30)), near, _distances(scene_views, near), 1.0)
+    m.paint(_flat((200, 30, 30)), near, distances(scene_views, near), 1.0)
     r, c = _cell(m, 0.0, 0.0)
     q_near = m.quality[r, c]
-    m.paint(_flat((30, 30, 200)), far, _distances(scene_views, far), 2.0)
+    m.paint(_flat((30, 30, 200)), far, distances(scene_views, far), 2.0)
     assert tuple(m.rgb[r, c]) == expected
     assert m.time[r, c] == (2.0 if rule == "newest" else 1.0)
     assert rule != "newest" or m.quality[r, c] < q_near
@@ -133,7 +134,7 @@ def test_a_painted_marker_lands_at_its_coordinates_in_the_geotiff(scene_views, t
     frame = _flat((128, 128, 128))
     yy, xx = np.mgrid[0:240, 0:320]
     frame[(xx + 0.5 - u) ** 2 + (yy + 0.5 - v) ** 2 < 2.0**2] = (255, 0, 0)
-    m.paint(frame, cam, _distances(scene_views, cam), 7.0)
+    m.paint(frame, cam, distances(scene_views, cam), 7.0)
     out, seen = write_orthophoto(m, tmp_path / "ortho.tif", [])
     with rasterio.open(out) as src:
         assert src.crs.to_epsg() == 32632 and src.count == 4 and src.overviews(1) is not None
@@ -161,7 +162,7 @@ def test_memory_stays_within_its_cap_on_a_long_clip(scene_views):
         _camera([np.cos(a) * 30, np.sin(a) * 30, 50.0], [0.0, 0.0, 0.0])
         for a in np.linspace(0, 6.28, 8)
     ]
-    dists = [_distances(scene_views, c) for c in cams]
+    dists = [distances(scene_views, c) for c in cams]
     frame = _flat((120, 140, 160))
     tracemalloc.start()
     try:
@@ -227,6 +228,6 @@ def test_a_surface_seen_edge_on_is_not_painted(scene_views):
     oblique to paint (MIN_COS_INCIDENCE), while nearer ground (cosine over 0.2) is."""
     m = _memory()
     cam = _camera([0.0, 0.0, 3.0], [25.0, 25.0, 0.0], f=150.0)
-    m.paint(_flat((90, 200, 90)), cam, _distances(scene_views, cam), 5.0)
+    m.paint(_flat((90, 200, 90)), cam, distances(scene_views, cam), 5.0)
     assert not m.seen[_cell(m, 15.0, 15.0)]
     assert m.seen[_cell(m, 7.0, 7.0)]  # 9.9 m away: cosine 0.29

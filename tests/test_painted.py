@@ -15,8 +15,8 @@ from app.camera.intrinsics import Intrinsics
 from app.camera.pinhole import Camera, look_at_quat
 from app.export.atlas import layout
 from app.export.memory import SurfaceMemory
-from app.export.orthophoto import _distances
 from app.export.painted import painted_glb
+from app.export.painting import distances
 from app.geodesy.enu import LocalFrame
 from app.render.views import ModelViews
 from app.scene import shapes
@@ -84,7 +84,7 @@ def test_a_facade_is_painted_by_the_frame_that_saw_it(gl_ctx, tmp_path):
     views = ModelViews(scene, gl_ctx)
     try:
         memory.paint(
-            np.full((240, 320, 3), (220, 20, 20), np.uint8), cam, _distances(views, cam), 3.0
+            np.full((240, 320, 3), (220, 20, 20), np.uint8), cam, distances(views, cam), 3.0
         )
     finally:
         views.release()

@@ -1,6 +1,6 @@
 """A true orthophoto painted from a clip: what the video saw, kept on the scene's surfaces as seen
-from straight above, in a map grid. Pure numpy and numba: the GL part (each frame's distances,
-for the occlusion test) comes in as a function.
+from straight above, in a map grid. Pure numpy and numba (the GL part, each frame's distances,
+is app.export.painting's).
 
 1. The grid: north-up cells of `gsd` metres in a projected CRS (the site's UTM zone by default),
    over an area. ENU -> grid is one affine map fitted on the area's corners through pyproj (its
@@ -149,11 +149,10 @@ def surface(mesh: MeshData, grid: Grid, frame: LocalFrame) -> tuple[np.ndarray, 
     points = np.full((rows, cols, 3), np.nan)
     points[..., :2] = np.where(seen[..., None], xy, np.nan)
     points[..., 2] = np.where(seen, top, np.nan)
-    t = which
     n = np.cross(enu[:, 1] - enu[:, 0], enu[:, 2] - enu[:, 0])
     n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
     n *= np.where(n[:, 2:3] < 0, -1.0, 1.0)
-    normals = np.where(seen[..., None], n[np.clip(t, 0, len(n) - 1)], np.nan)
+    normals = np.where(seen[..., None], n[np.clip(which, 0, len(n) - 1)], np.nan)
     return points, normals
 
 

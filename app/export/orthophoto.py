@@ -1,9 +1,7 @@
 """`geofuse export ortho`: a clip's true orthophoto, painted frame by frame (app.export.ortho)
 and written as Cloud Optimized GeoTIFFs.
 
-Frames are taken every `every_s` seconds of video; each is decoded at most DECODE_LONG_SIDE
-pixels on its long side and its camera's distances are rendered off-screen (app.render.views)
-at most DISTANCE_LONG_SIDE, for the occlusion test. The area is the one the frames see (their
+Frames are taken and painted as app.export.painting does it. The area is the one the frames see (their
 footprints' box, or `area` given as lat/lon corners), the cell `gsd` metres (default: the
 video's median ground sampling at the footprints' centres, rounded up to 5 cm).
 
@@ -25,18 +23,13 @@ import rasterio
 from rasterio.enums import ColorInterp
 from rasterio.transform import Affine
 
-from app.camera.pinhole import Camera
 from app.core.outputs import check_output, write_via_path
-from app.export.memory import SurfaceMemory
 from app.export.ortho import Grid, OrthoMemory, make_grid, surface
-from app.io.video import frames_at
+from app.export.painting import DEFAULT_EVERY_S, paint_frame_indices, paint_frames
 from app.render.views import ModelViews
 from app.session.camera_track import CameraTrack
 from app.session.model import Session
 
-DECODE_LONG_SIDE = 960
-DISTANCE_LONG_SIDE = 480
-DEFAULT_EVERY_S = 0.2
 AREA_MARGIN_M = 5.0
 SEEN_SUFFIX = ".seen.tif"
 
@@ -59,29 +52,8 @@ def seen_path(out: Path) -> Path:
     return out.with_name(out.stem + SEEN_SUFFIX)
 
 
-def paint_frame_indices(track: CameraTrack, every_s: float) -> np.ndarray:
-    """The frames painted: one every `every_s` seconds of video (0: all)."""
-    media = np.asarray(track.clock.media_s, np.float64)
-    picked, last = [], -np.inf
-    for k, t in enumerate(media):
-        if t - last >= every_s - 1e-9:
-            picked.append(k)
-            last = t
-    return np.asarray(picked, np.int64)
-
-
-def _distances(views: ModelViews, camera: Camera) -> np.ndarray:
-    """(h, w) metres from the camera through each pixel of its pinhole, at most
-    DISTANCE_LONG_SIDE px; inf where the scene is not."""
-    i = camera.intrinsics
-    small = camera.pinhole(min(1.0, DISTANCE_LONG_SIDE / max(i.width, i.height)))
-    _, positions = views.render(small)
-    d = np.linalg.norm(positions - np.asarray(camera.position), axis=2)
-    return np.where(np.isfinite(d), d, np.inf)
-
-
 def _ground_box(
-    session: Session, track: CameraTrack, frames: np.ndarray, views: ModelViews
+    track: CameraTrack, frames: np.ndarray, views: ModelViews
 ) -> tuple[np.ndarray, np.ndarray, float]:
     """(lo, hi) ENU x, y of what the frames see (the surface under their image's corners and
     centre, from their distance maps), and the median ground sampling (m a video pixel) at
@@ -113,8 +85,10 @@ def _grid(
     options: OrthoOptions,
 ) -> Grid:
     """The grid over the area given, or what the frames see; cells of the gsd given, or the
-    video's ground sampling rounded up to 5 cm."""
-    lo, hi, video_gsd = _ground_box(session, track, frames, views)
+    video's ground sampling rounded up to 5 cm (the frames are looked at only when either is
+    wanted)."""
+    if options.area is None or options.gsd is None:
+        lo, hi, video_gsd = _ground_box(track, frames, views)
     if options.area is not None:
         la0, lo0, la1, lo1 = options.area
         corners = session.frame.geodetic_to_enu(
@@ -123,25 +97,6 @@ def _grid(
         lo, hi = corners.min(axis=0)[:2], corners.max(axis=0)[:2]
     gsd = options.gsd or max(0.05, np.ceil(video_gsd / 0.05) * 0.05)
     return make_grid(session.frame, lo, hi, gsd, options.crs)
-
-
-def paint_frames(
-    session: Session,
-    track: CameraTrack,
-    memory: OrthoMemory | SurfaceMemory,
-    views: ModelViews,
-    frames: np.ndarray,
-    progress: Callable[[float], None] | None = None,
-) -> None:
-    """Paint the video's frames (indices) into a memory, each with its camera's distances
-    (the occlusion test) and its time (UTC s where the clip has a clock, else session s)."""
-    for n, (k, rgb) in enumerate(frames_at(session.video, frames, DECODE_LONG_SIDE)):
-        cam = track.frame_camera(int(k))
-        t = float(track.clock.session_time(float(track.clock.media_s[k])))
-        utc = session.utc_of(t)
-        memory.paint(rgb, cam, _distances(views, cam), utc if utc is not None else t)
-        if progress is not None:
-            progress((n + 1) / len(frames))
 
 
 def paint_clip(

@@ -22,7 +22,7 @@ from PIL import Image
 from app.core.outputs import check_output, write_atomically
 from app.export.atlas import Atlas, layout
 from app.export.memory import SurfaceMemory
-from app.export.orthophoto import DEFAULT_EVERY_S, paint_frame_indices, paint_frames
+from app.export.painting import DEFAULT_EVERY_S, paint_frame_indices, paint_frames
 from app.render.views import ModelViews
 from app.session.camera_track import CameraTrack
 from app.session.model import Session

@@ -370,3 +370,64 @@ def test_a_city_model_opened_on_a_clip_is_drawn_and_a_damaged_one_is_refused(
     after = json.loads((tmp_path / "after.json").read_text())
     assert any("broken.city.json" in e and "broken JSON" in e for e in after["errors"])
     assert after["layers"] == ["city:block.city.json"]
+
+
+def _grey(path) -> np.ndarray:
+    return np.asarray(Image.open(path).convert("L"), np.float64)
+
+
+def test_the_scene_memory_shows_what_the_video_saw_as_it_was(display, tmp_path):
+    """Painted in the background (a frame a second), the memory seen through the video's camera
+    looks like the video draped there (it is the video, where the frustum put it), much more than
+    the model does (the sample's world differs from its model); "seen at" is mostly recent there;
+    and scrubbed back to 2 s, the memory holds only what had been seen by then."""
+    d = tmp_path
+    run_script(
+        display,
+        d,
+        str(ROOT / "assets/sample/session.toml"),
+        f"""0.0 clock 0.0333333
+0.0 wait solved
+0.0 pause
+0.1 seek 30
+0.2 panels off
+0.2 lines off
+0.2 view phone
+0.2 alpha 1.0
+0.4 screenshot {d / "drape.png"}
+0.5 project off
+0.7 screenshot {d / "model.png"}
+0.8 memory paint newest 1.0
+0.9 wait painted
+1.0 screenshot {d / "memory.png"}
+1.0 state {d / "memory.json"}
+1.1 memory seen
+1.2 wait painted
+1.3 screenshot {d / "seen.png"}
+1.4 seek 2
+1.5 memory memory
+1.6 wait painted
+1.7 screenshot {d / "early.png"}
+1.7 state {d / "early.json"}
+1.8 quit
+""",
+    )
+    state = json.loads((d / "memory.json").read_text())
+    m = state["memory"]
+    assert state["errors"] == [] and m["done"] and m["error"] is None
+    assert 75 <= m["frames"] <= 82 and m["seen"] > 5000 and m["range_s"][1] <= 30.0 + 1e-6
+    drape, model, mem = (_grey(d / f"{n}.png") for n in ("drape", "model", "memory"))
+    lit = np.abs(drape - model) > 0  # where the video is draped (the sky is neither)
+    assert lit.mean() > 0.3
+
+    def corr(a, b):
+        return float(np.corrcoef(a[lit], b[lit])[0, 1])
+
+    assert corr(mem, drape) > corr(model, drape) + 0.15, (corr(mem, drape), corr(model, drape))
+    seen = np.asarray(Image.open(d / "seen.png").convert("RGB"), np.float64)
+    red = (seen[..., 0] > seen[..., 2] + 40).mean()
+    blue = (seen[..., 2] > seen[..., 0] + 40).mean()
+    assert red > 2 * blue  # looked at in the last seconds: the ramp's recent end
+    early = json.loads((d / "early.json").read_text())["memory"]
+    assert early["range_s"][1] <= 2.0 + 1e-6
+    assert np.abs(_grey(d / "early.png") - mem).mean() > 1.0

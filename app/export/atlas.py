@@ -14,11 +14,12 @@ top row first in `image`.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.ndimage import distance_transform_edt
 
-from app.scene.mesh import MeshData
+from app.scene.mesh import MeshData, Primitive
 
 MAX_SIDE = 16384  # an atlas is at most this many texels wide
 
@@ -27,7 +28,8 @@ MAX_SIDE = 16384  # an atlas is at most this many texels wide
 class Atlas:
     """texel_m: metres a texel; size: (width, height) texels; triangles (T, 3, 3) float64 ENU;
     uvs (T, 3, 2) of their corners in [0, 1] (v up); samples: pixels (N, 2) int (x, y up),
-    points (N, 3) and normals (N, 3) float32 ENU, base (N, 3) uint8 the model's colour."""
+    points (N, 3) and normals (N, 3) float32 ENU, base (N, 3) uint8 the model's colour, and
+    triangle (N,) int the triangle (of `triangles`) each sample lies on."""
 
     texel_m: float
     size: tuple[int, int]
@@ -37,15 +39,48 @@ class Atlas:
     points: np.ndarray
     normals: np.ndarray
     base: np.ndarray
+    triangle: np.ndarray
+    _nearest: np.ndarray | None = field(default=None, init=False, repr=False)
 
     def image(self, rgb: np.ndarray, seen: np.ndarray) -> np.ndarray:
         """(H, W, 3) uint8, top row first: the samples' painted colour where seen, else their
-        base colour; texels that are no sample are grey."""
+        base colour (texels that are no sample: their nearest sample's, see texture)."""
+        return np.flipud(self.texture(np.where(seen[:, None], rgb, self.base))[..., :3])
+
+    def texture(self, colours: np.ndarray) -> np.ndarray:
+        """(H, W, 4) uint8 RGBA, bottom row first (as the uvs and app.scene.mesh.Primitive
+        read it): the samples' colours (N, 3) uint8, opaque; a texel that is no sample takes
+        its nearest sample's colour (so that filtering and mipmaps never blend in a colour
+        from between the charts)."""
         w, h = self.size
-        out = np.full((h, w, 3), 128, np.uint8)
-        colour = np.where(seen[:, None], rgb, self.base)
-        out[h - 1 - self.pixels[:, 1], self.pixels[:, 0]] = colour
+        out = np.empty((h, w, 4), np.uint8)
+        out[..., 3] = 255
+        out[..., :3] = colours[self.nearest_sample()]
         return out
+
+    def nearest_sample(self) -> np.ndarray:
+        """(H, W) int: the sample nearest each texel (itself where it is one), computed once."""
+        if self._nearest is None:
+            w, h = self.size
+            index = np.full((h, w), -1, np.int64)
+            index[self.pixels[:, 1], self.pixels[:, 0]] = np.arange(len(self.pixels))
+            rows, cols = distance_transform_edt(
+                index < 0, return_distances=False, return_indices=True
+            )
+            self._nearest = index[rows, cols]
+        return self._nearest
+
+    def primitive(self, colours: np.ndarray, name: str = "memory") -> Primitive:
+        """The atlas's triangles as one textured primitive (ENU m), textured by `colours`."""
+        n = 3 * len(self.triangles)
+        return Primitive(
+            positions=self.triangles.reshape(-1, 3).astype(np.float32),
+            colors=np.ones((n, 4), np.float32),
+            indices=np.arange(n, dtype=np.uint32).reshape(-1, 3),
+            uvs=self.uvs.reshape(-1, 2).astype(np.float32),
+            texture=self.texture(colours),
+            name=name,
+        )
 
 
 def _frames(tri: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -123,7 +158,7 @@ def layout(mesh: MeshData, max_texels: int = 4_000_000) -> Atlas:
         if width * height <= max_texels and height <= MAX_SIDE:
             break
         texel *= 1.1
-    pixels, points, normals, owners, bary_all, tris = [], [], [], [], [], []
+    pixels, points, normals, owners, bary_all, tris, on = [], [], [], [], [], [], []
     uvs = np.zeros((len(tri), 3, 2))
     for t in range(len(tri)):
         w, h = sizes[t]
@@ -148,6 +183,7 @@ def layout(mesh: MeshData, max_texels: int = 4_000_000) -> Atlas:
         normals.append(np.repeat(n[t][None], int(near.sum()), axis=0))
         owners.append(np.full(int(near.sum()), owner[t]))
         tris.append(np.full(int(near.sum()), tri_index[t]))
+        on.append(np.full(int(near.sum()), t))
         bary_all.append(clamped[near])
         uvs[t] = (corners[t] + (flat[t] - lo[t]) / texel + 1.0) / [width, height]
     owner_s, bary_s, tri_s = np.concatenate(owners), np.concatenate(bary_all), np.concatenate(tris)
@@ -160,4 +196,5 @@ def layout(mesh: MeshData, max_texels: int = 4_000_000) -> Atlas:
         np.concatenate(points).astype(np.float32),
         np.concatenate(normals).astype(np.float32),
         _base_colours(mesh, owner_s, bary_s, tri_s),
+        np.concatenate(on),
     )

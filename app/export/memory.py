@@ -12,6 +12,11 @@ over (1 + range / QUALITY_RANGE_M). The rule decides what a sample keeps: newest
 that saw it, default), best (the highest quality) or first. Samples are kept in blocks of
 BLOCK consecutive ones with their bounding boxes, and a frame only looks at the blocks its
 frustum meets. The memory's size is fixed by its samples, whatever the number of frames.
+
+With a `history` (t0, t1, E), each sample also keeps, for each of E equal epochs of [t0, t1] s,
+its newest sighting in that epoch (colour and time), whatever the rule: the viewer's time slider
+shows the memory as it was at an earlier moment from them (app.export.memory_view), exact to one
+epoch, in 7 bytes a sample an epoch.
 """
 
 from __future__ import annotations
@@ -46,15 +51,20 @@ def frustum_planes(camera: Camera) -> np.ndarray:
 class SurfaceMemory:
     """points (N, 3) float32 ENU m and normals (N, 3) float32 of the samples; rgb (N, 3) uint8,
     seen (N,) bool, time (N,) float64 (NaN unseen), quality (N,) float32 (0 unseen) as painted;
+    with a history (t0, t1, epochs): history_rgb (N, E, 3) uint8 and history_dt (N, E) float32
+    (s after the epoch's start, NaN none) of each sample's newest sighting in each epoch;
     frames: how many frames painted something."""
 
     points: np.ndarray
     normals: np.ndarray
     rule: str = "newest"
+    history: tuple[float, float, int] | None = None
     rgb: np.ndarray = field(init=False)
     seen: np.ndarray = field(init=False)
     time: np.ndarray = field(init=False)
     quality: np.ndarray = field(init=False)
+    history_rgb: np.ndarray | None = field(init=False)
+    history_dt: np.ndarray | None = field(init=False)
     frames: int = 0
 
     def __post_init__(self) -> None:
@@ -67,6 +77,13 @@ class SurfaceMemory:
         self.seen = np.zeros(n, bool)
         self.time = np.full(n, np.nan)
         self.quality = np.zeros(n, np.float32)
+        self.history_rgb = self.history_dt = None
+        if self.history is not None:
+            t0, t1, epochs = self.history
+            if not (t1 >= t0 and epochs >= 1):
+                raise ValueError(f"history {self.history}: expected t0 <= t1 and epochs >= 1")
+            self.history_rgb = np.zeros((n, epochs, 3), np.uint8)
+            self.history_dt = np.full((n, epochs), np.nan, np.float32)
         starts = np.arange(0, n, BLOCK)
         self._starts = starts
         self._lo = np.array([self.points[s : s + BLOCK].min(axis=0) for s in starts]).reshape(-1, 3)
@@ -76,7 +93,17 @@ class SurfaceMemory:
     def nbytes(self) -> int:
         """Bytes held, whatever the number of frames painted."""
         arrays = (self.points, self.normals, self.rgb, self.seen, self.time, self.quality)
-        return sum(a.nbytes for a in arrays) + self._lo.nbytes + self._hi.nbytes
+        kept = () if self.history is None else (self.history_rgb, self.history_dt)
+        return sum(a.nbytes for a in (*arrays, *kept)) + self._lo.nbytes + self._hi.nbytes
+
+    def epoch_starts(self) -> np.ndarray:
+        """(E,) s: where each epoch of the history begins."""
+        t0, t1, epochs = self.history
+        return t0 + (t1 - t0) * np.arange(epochs) / epochs
+
+    def _epoch(self, time_s: float) -> int:
+        t0, t1, epochs = self.history
+        return int(np.clip((time_s - t0) / max(t1 - t0, 1e-9) * epochs, 0, epochs - 1))
 
     def _in_view(self, camera: Camera) -> np.ndarray:
         """Indices of the samples in the blocks the camera's frustum meets."""
@@ -123,21 +150,38 @@ class SurfaceMemory:
         facing = cos >= MIN_COS_INCIDENCE
         idx, cos, rng, uv = idx[facing], cos[facing], rng[facing], uv[facing]
         quality = (cos / (1.0 + rng / QUALITY_RANGE_M)).astype(np.float32)
+        colour = self._colours(rgb, uv)
+        if self.history is not None:
+            self._remember(idx, colour, time_s)
         if self.rule == "first":
             take = ~self.seen[idx]
         elif self.rule == "best":
             take = quality > self.quality[idx]
         else:
             take = np.ones(len(idx), bool)
-        idx, quality, uv = idx[take], quality[take], uv[take]
-        u, v = uv[:, 0] - 0.5, uv[:, 1] - 0.5
-        colour = np.stack(
-            [map_coordinates(rgb[..., c].astype(np.float32), [v, u], order=1, mode="nearest") for c in range(3)],
-            axis=1,
-        )  # fmt: skip
-        self.rgb[idx] = np.clip(np.round(colour), 0, 255).astype(np.uint8)
+        idx, quality = idx[take], quality[take]
+        self.rgb[idx] = colour[take]
         self.seen[idx] = True
         self.time[idx] = time_s
         self.quality[idx] = quality
         self.frames += 1
         return int(len(idx))
+
+    @staticmethod
+    def _colours(rgb: np.ndarray, uv: np.ndarray) -> np.ndarray:
+        """(n, 3) uint8: the image's colours at pixel positions uv (n, 2), bilinear."""
+        u, v = uv[:, 0] - 0.5, uv[:, 1] - 0.5
+        colour = np.stack(
+            [map_coordinates(rgb[..., c].astype(np.float32), [v, u], order=1, mode="nearest") for c in range(3)],
+            axis=1,
+        )  # fmt: skip
+        return np.clip(np.round(colour), 0, 255).astype(np.uint8)
+
+    def _remember(self, idx: np.ndarray, colour: np.ndarray, time_s: float) -> None:
+        """A sighting into its epoch's slot, where it is the newest there."""
+        e = self._epoch(time_s)
+        dt = np.float32(time_s - self.epoch_starts()[e])
+        stored = self.history_dt[idx, e]
+        newer = ~(stored > dt)  # NaN (none yet) too
+        self.history_rgb[idx[newer], e] = colour[newer]
+        self.history_dt[idx[newer], e] = dt

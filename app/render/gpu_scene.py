@@ -1,6 +1,10 @@
 """The scene's arrays on the GPU: static primitives uploaded once, and streamed 3D Tiles layers
 (app.render.tiles) whose tiles come and go with the camera. Passes ask `drawables(camera)` for
-what to draw from a camera and take each primitive's vertex array for their program."""
+what to draw from a camera and take each primitive's vertex array for their program.
+
+A scene memory (app.export.memory on an app.export.atlas) is one more primitive: the static
+triangles again, textured by the atlas; while it is shown it is drawn instead of the static
+primitives (same surfaces, so depth maps and picking are unchanged)."""
 
 from __future__ import annotations
 
@@ -12,7 +16,7 @@ import numpy as np
 from app.camera.pinhole import Camera
 from app.render.primitives import GpuPrimitive, default_anisotropy, interleave, upload
 from app.render.tiles import DEFAULT_CACHE_BYTES, GpuTileset
-from app.scene.mesh import MeshData
+from app.scene.mesh import MeshData, Primitive
 
 SETTLE_POLL_S = 0.05  # settle() waits at most this long on one tileset before looking at all again
 
@@ -36,6 +40,8 @@ class GpuScene:
         cap = DEFAULT_CACHE_BYTES if tile_cache_bytes is None else tile_cache_bytes
         self.tilesets = [GpuTileset(ctx, t, anisotropy, cap) for t in mesh.tilesets]
         self.version = 0  # bumps when streamed tiles arrive or leave
+        self.memory: GpuPrimitive | None = None  # the scene memory's atlas-textured triangles
+        self.show_memory = False  # draw the memory instead of the static primitives
         self._bounds: np.ndarray | None = None
 
     def update(self, budget_s: float = 0.008) -> bool:
@@ -54,7 +60,8 @@ class GpuScene:
         """What to draw from `camera` (an app.camera.pinhole.Camera): every static primitive, and each
         tileset's ready tiles chosen for it (focal_px: the focal length in pixels of the target
         drawn into, default the camera's). Without a camera: static primitives only."""
-        out = list(self.primitives)
+        shown = self.show_memory and self.memory is not None
+        out = [self.memory] if shown else list(self.primitives)
         if camera is not None:
             for layer in self.tilesets:
                 out += layer.drawables(camera, focal_px, key)
@@ -85,7 +92,7 @@ class GpuScene:
     def forget(self, program: moderngl.Program) -> None:
         """Release every vertex array made for `program` (call before releasing the program, so a
         later program given the same GL name never inherits them)."""
-        prims = list(self.primitives)
+        prims = list(self.primitives) + ([self.memory] if self.memory is not None else [])
         for layer in self.tilesets:
             prims += [p for _, ps in layer.resident.values() for p in ps]
         for prim in prims:
@@ -109,7 +116,25 @@ class GpuScene:
         self._bounds = None
         self.primitives[index].vbo.write(interleave(prim).tobytes())
 
+    def set_memory(self, prim: Primitive | None) -> None:
+        """The scene memory's primitive (its static triangles, atlas-textured), uploaded; None
+        releases it."""
+        if self.memory is not None:
+            self.memory.release()
+        self.memory = None if prim is None else upload(self.ctx, prim, default_anisotropy(self.ctx))
+
+    def write_memory_texture(self, texture: np.ndarray) -> None:
+        """New texels for the memory's atlas: (H, W, 4) uint8, bottom row first, its size."""
+        tex = self.memory.texture
+        if texture.shape != (tex.height, tex.width, 4):
+            raise ValueError(
+                f"memory texture {texture.shape}, expected {(tex.height, tex.width, 4)}"
+            )
+        tex.write(np.ascontiguousarray(texture).tobytes())
+        tex.build_mipmaps()
+
     def release(self) -> None:
+        self.set_memory(None)
         for p in self.primitives:
             p.release()
         self.primitives = []

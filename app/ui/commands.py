@@ -9,7 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
-from app.ui import archive, clips, control_points, live, measure
+from app.export.painting import DEFAULT_EVERY_S
+from app.ui import archive, clips, control_points, live, measure, memory
 
 LIVE_WAIT_S = 120.0  # `wait live N` gives up after this long (real seconds)
 
@@ -150,6 +151,8 @@ def _wait(v, arg, now) -> None:
         v.wait_until_synced()
     elif arg == "tiles":
         v.wait_until_tiles_loaded()
+    elif arg == "painted":
+        memory.wait_painted(v)
     elif arg.split()[:1] in (["live"], ["arrived"]) and len(arg.split()) <= 2:
         words = arg.split()
         n = int(_number(words[1])) if len(words) == 2 else 1
@@ -171,8 +174,20 @@ def _wait(v, arg, now) -> None:
             )
     else:
         raise ValueError(
-            f"expected 'solved', 'registered', 'exported', 'synced', 'tiles', 'live [N]' or 'arrived [N]', got {arg!r}"
+            f"expected 'solved', 'registered', 'exported', 'synced', 'tiles', 'painted', 'live [N]' or 'arrived [N]', got {arg!r}"
         )
+
+
+def _memory(v, arg, now) -> None:
+    """paint [RULE [EVERY_S]] | model | memory | seen | changed: the scene memory (app.ui.memory)."""
+    words = (arg or "").split()
+    if words[:1] == ["paint"] and len(words) <= 3:
+        every_s = _number(words[2]) if len(words) == 3 else DEFAULT_EVERY_S
+        memory.start(v, words[1] if len(words) >= 2 else "newest", every_s)
+    elif len(words) == 1:
+        memory.set_view(v, words[0])
+    else:
+        raise ValueError(f"expected paint [RULE], model, memory, seen or changed, got {arg!r}")
 
 
 def _export(v, arg, now) -> None:
@@ -268,6 +283,9 @@ COMMANDS: dict[str, Command] = {
         "write the viewer's state as JSON",
     ),
     "panels": Command(_set_ui(show_panels=()), False, True, "show or hide the panels"),
+    "project": Command(
+        _set_ui(settings=("enabled",)), False, True, "on | off: drape the video (the live view)"
+    ),
     "lines": Command(
         _set_ui(overlays=("frustum", "trajectory")), False, True, "frustum and trajectory lines"
     ),
@@ -276,7 +294,13 @@ COMMANDS: dict[str, Command] = {
         _wait,
         False,
         True,
-        "solved | registered | exported | synced | tiles | live [N] | arrived [N]: hold the clock until every source but the registered one is solved, the registered one too, the export or sync has finished, or the 3D Tiles this view needs are loaded; live N: hold the script until N frames of the stream have been shown; arrived N: until N more have arrived",
+        "solved | registered | exported | synced | tiles | painted | live [N] | arrived [N]: hold the clock until every source but the registered one is solved, the registered one too, the export or sync has finished, or the 3D Tiles this view needs are loaded; painted: hold the script until the scene memory is painted and shown; live N: hold the script until N frames of the stream have been shown; arrived N: until N more have arrived",
+    ),
+    "memory": Command(
+        _memory,
+        True,
+        True,
+        "paint [newest|best|first [EVERY_S]] | model | memory | seen | changed: paint what the clips saw onto the scene in the background, and show the model, the memory, when each part was seen or what changed, as at the timeline's moment",
     ),
     "export": Command(
         _export,

@@ -19,7 +19,7 @@ log = logging.getLogger("geofuse.viewer")
 LEFT_FRACTION = 0.26  # of the window's width: the left panel column
 BOTTOM_FRACTION = 0.13  # of the window's height: the timeline
 LEFT_LOWER_FRACTION = 0.45  # of the left column: Error inspection and Stats
-TOP_PANELS = ("Session", "Attitude", "Projection", "Export", "Measure")
+TOP_PANELS = ("Session", "Attitude", "Projection", "Export", "Measure", "Memory")
 LOWER_PANELS = ("Error inspection", "Stats")
 
 

@@ -23,7 +23,8 @@ from app.scene.mesh import MeshData
 from app.session.model import REGISTERED, Session
 from app.session.timeline import Timeline
 from app.simulate.sample import SAMPLE_DIR
-from app.ui import archive, clips, live, measure
+from app.ui import archive, clips, live, measure, memory
+from app.ui.memory import MemoryPainter
 from app.ui.navigation import Navigator
 
 log = logging.getLogger("geofuse.viewer")
@@ -52,6 +53,7 @@ class Loaded:
     extras_shown: tuple = ()  # what the further projectors were last given
     source_chosen: bool = False  # the user picked a source: never switched for them
     registered_said: bool = False  # the switch to `registered` (or why not) was said
+    memory: MemoryPainter | None = None  # the scene memory being painted or painted
 
     @property
     def clock(self) -> PlaybackClock:
@@ -228,6 +230,7 @@ class ViewerSessions:
     def close_session(self) -> None:
         if self.loaded is not None:
             clips.close_all(self.loaded)
+            memory.close(self.loaded)
             self.loaded.player.close()
             self.loaded.library.close()
             self.loaded.renderer.release()

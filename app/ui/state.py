@@ -54,6 +54,8 @@ class UiState:
     )
     control: ControlPicks = field(default_factory=ControlPicks)  # control points picked by hand
     measure: MeasureState = field(default_factory=MeasureState)  # point, measure and mark
+    memory_view: str = "model"  # model, memory, seen or changed (app.export.memory_view)
+    memory_rule: int = 0  # the Memory panel's rule (app.export.memory.RULES)
     archive: ArchiveOverlay | None = None  # an archive's footprints drawn (app.ui.archive)
     quit: bool = False
 

@@ -33,7 +33,7 @@ from app.playback.clock import SPEEDS
 from app.render.renderer import BACKGROUND
 from app.render.window import Window
 from app.session.model import REGISTERED
-from app.ui import clips, live, measure, panels
+from app.ui import clips, live, measure, memory, panels
 from app.ui.commands import run_command
 from app.ui.gui import Gui
 from app.ui.inputs import handle_input
@@ -231,6 +231,7 @@ class Viewer(ViewerJobs, ViewerSessions):
         reference = lib.reference()
         L.renderer.set_projector(track.frame_camera(k) if track is not None and k >= 0 else None)
         clips.update(self, now, wait)
+        memory.update(self)
         ref_track = lib.track(reference) if reference != L.source else None
         L.renderer.set_reference(
             ref_track.frame_camera(k) if ref_track is not None and k >= 0 else None
@@ -308,6 +309,7 @@ class Viewer(ViewerJobs, ViewerSessions):
                 clips=[{"name": Path(c.session.video.path).name, "visible": c.visible, "frame": c.frame, "decoder": c.player is not None, "offset_s": c.offset_s, "start_s": s.start_s, "source": c.source, "alpha": c.alpha, "frames_shown": 0 if c.player is None else len(c.player.stats.latencies), "dropped": 0 if c.player is None else c.player.stats.dropped, "latency_ms": None if c.player is None else list(c.player.stats.summary())} for c, s in zip(L.others, L.timeline.clips[1:], strict=True)],
                 extra_projectors=len(L.renderer.extras), frame_ages_s=[L.renderer.projector_age, *(e.age_s for e in L.renderer.extras)], timeline_s=None if self.current_index < 0 else float(L.timeline.clips[0].times[self.current_index]),
                 archive=None if ui.archive is None else {"path": str(ui.archive.path), "footprints": ui.archive.footprints, "clips": ui.archive.clips, "picked": ui.archive.picked, "opened": ui.archive.opened, "opened_s": ui.archive.opened_s},
+                memory=memory.state(L), memory_view=ui.memory_view,
                 sync=None if ui.sync_job is None or ui.sync_job.result is None else {"offset_s": ui.sync_job.result.offset_s, "confidence": ui.sync_job.result.confidence},
                 window_camera=_camera_state(cam),
                 projector=None if proj is None else {"position": list(proj.position), "orientation": list(proj.orientation)},

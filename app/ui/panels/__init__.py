@@ -1,5 +1,5 @@
 """The viewer's ImGui panels, one module a panel (Session, Timeline, Attitude, Projection, Error
-inspection, Stats, Export, Measure, Live (a stream), Help; widgets: what they share). Every control runs the same
+inspection, Stats, Export, Measure, Memory, Live (a stream), Help; widgets: what they share). Every control runs the same
 commands as the script (app.ui.commands) or the same Viewer methods; the docked layout is
 app.ui.gui's, keys and mouse app.ui.inputs'.
 """
@@ -15,6 +15,7 @@ from app.ui.panels import (
     inspection,
     live,
     measure,
+    memory,
     projection,
     session,
     stats,
@@ -42,5 +43,6 @@ def draw(v, gui: Gui, now: float) -> None:
         stats.draw(v)
         export.draw(v, now)
         measure.draw(v, now)
+        memory.draw(v, now)
     if v.ui.show_help:
         help.draw(v)

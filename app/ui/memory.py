@@ -1,0 +1,283 @@
+"""The scene memory in the viewer: what the open clip and the further clips on its timeline saw,
+painted onto the scene's static surfaces in the background, and shown as the Model, the Memory,
+when each part was seen ("seen at") or what changed since the model, as it was at the timeline's
+moment. The live drape (the Projection panel's "project the video") draws over any of them.
+
+A MemoryPainter thread lays out the atlas (app.export.atlas, at most max_texels texels), then
+paints the clips' frames in timeline order (every `every_s` s of each clip's video, its camera
+under the source chosen when painting began, app.export.painting) into one SurfaceMemory with a
+history of HISTORY_EPOCHS epochs over the clips' span, on an EGL context of its own; its time is
+timeline seconds. Between frames, and once
+done whenever the view or the timeline moves, it composes the atlas texture the frame loop asks
+for (app.export.memory_view); the frame loop only uploads it (`update`). The memory's size is
+fixed by the atlas, whatever the clips' length.
+"""
+
+from __future__ import annotations
+
+import heapq
+import threading
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+
+import numpy as np
+
+from app.camera.pinhole import Camera
+from app.export.atlas import Atlas, layout
+from app.export.memory import RULES, SurfaceMemory
+from app.export.memory_view import VIEWS, as_at, seen_range, view_colours
+from app.export.painting import DECODE_LONG_SIDE, DEFAULT_EVERY_S, distances, paint_frame_indices
+from app.io.video import frames_at
+from app.render.views import ModelViews
+from app.scene.mesh import MeshData
+from app.session.camera_track import CameraTrack
+from app.session.model import Session
+
+DEFAULT_MAX_TEXELS = 2_000_000  # the viewer's atlas: 0.5 m texels on the sample site
+HISTORY_EPOCHS = 16  # the time slider's memory of the past: the newest sighting in each 16th
+COMPOSE_EVERY_S = 0.25  # while painting, a new texture at most this often (real seconds)
+
+
+@dataclass(frozen=True)
+class ClipToPaint:
+    """One clip's frames for the memory: its session, its camera track, its frames' times on the
+    timeline (s, one per video frame) and what takes its cameras onto the scene."""
+
+    session: Session
+    track: CameraTrack
+    times: np.ndarray
+    move: Callable[[Camera], Camera] | None = None
+
+
+class MemoryPainter:
+    """See the module docstring. Call request/take/stop from the frame loop's thread."""
+
+    def __init__(
+        self,
+        mesh: MeshData,
+        clips: list[ClipToPaint],
+        rule: str = "newest",
+        every_s: float = DEFAULT_EVERY_S,
+        max_texels: int = DEFAULT_MAX_TEXELS,
+    ) -> None:
+        if rule not in RULES:
+            raise ValueError(f"rule {rule!r}: expected one of {', '.join(RULES)}")
+        self.mesh, self.clips, self.rule = mesh, clips, rule
+        self.every_s, self.max_texels = every_s, max_texels
+        self.atlas: Atlas | None = None  # set once laid out (read-only after)
+        self.memory: SurfaceMemory | None = None  # the painter thread's only
+        self.frames_total = 0
+        self.frames_painted = 0
+        self.done = False
+        self.error: str | None = None
+        self.range_s: tuple[float, float] | None = None  # the sightings the last texture shows
+        self._lock = threading.Lock()
+        self._wake = threading.Event()
+        self._stop = threading.Event()
+        self._request: tuple[str, float | None] = ("memory", None)
+        self._texture: np.ndarray | None = None
+        self._texture_for: tuple[str, float | None] | None = None
+        self._composed_for: tuple[tuple[str, float | None], int] | None = None
+        self.shown_for: tuple[str, float | None] | None = None  # the request of the last taken
+        self._thread = threading.Thread(target=self._run, name="geofuse-memory", daemon=True)
+
+    def start(self) -> MemoryPainter:
+        self._thread.start()
+        return self
+
+    def stop(self, timeout_s: float = 10.0) -> None:
+        self._stop.set()
+        self._wake.set()
+        self._thread.join(timeout_s)
+
+    @property
+    def progress(self) -> float:
+        return 1.0 if self.done else self.frames_painted / max(1, self.frames_total)
+
+    def request(self, view: str, at_s: float | None) -> None:
+        """The texture wanted: `view` (app.export.memory_view.VIEWS, not model) of the memory as
+        it was at at_s (timeline s; None: as it is)."""
+        if view not in VIEWS or view == "model":
+            raise ValueError(f"view {view!r}: expected one of {', '.join(VIEWS[1:])}")
+        with self._lock:
+            if self._request != (view, at_s):
+                self._request = (view, at_s)
+                self._wake.set()
+
+    def take(self) -> np.ndarray | None:
+        """The texture composed since the last take ((H, W, 4) uint8, bottom row first), or None."""
+        with self._lock:
+            tex, self._texture = self._texture, None
+            if tex is not None:
+                self.shown_for = self._texture_for
+            return tex
+
+    def current(self) -> bool:
+        """Painting is done and the last texture taken is the one last requested."""
+        with self._lock:
+            return self.done and self.shown_for == self._request and self._texture is None
+
+    # --- the painter thread ----------------------------------------------------------------------
+
+    def _run(self) -> None:
+        views = None
+        try:
+            atlas = layout(self.mesh, self.max_texels)
+            plan = [paint_frame_indices(c.track, self.every_s) for c in self.clips]
+            self.frames_total = int(sum(len(p) for p in plan))
+            if not self.frames_total:
+                raise ValueError("the clips have no frames to paint")
+            times = np.concatenate([c.times[p] for c, p in zip(self.clips, plan, strict=True)])
+            span = (float(times.min()), float(times.max()), HISTORY_EPOCHS)
+            self.memory = SurfaceMemory(atlas.points, atlas.normals, self.rule, span)
+            self.atlas = atlas
+            views = ModelViews(self.mesh)
+            last = -np.inf
+            for t, ci, k, rgb in heapq.merge(*(self._frames(c, p, i) for i, (c, p) in enumerate(zip(self.clips, plan, strict=True)))):  # fmt: skip
+                if self._stop.is_set():
+                    return
+                clip = self.clips[ci]
+                cam = clip.track.frame_camera(k)
+                cam = clip.move(cam) if clip.move is not None else cam
+                self.memory.paint(rgb, cam, distances(views, cam), t)
+                self.frames_painted += 1
+                if time.monotonic() - last >= COMPOSE_EVERY_S:
+                    self._compose()
+                    last = time.monotonic()
+            self.done = True
+            self._compose()
+        except Exception as exc:  # shown by the viewer, which goes on without a memory
+            self.error = f"scene memory: {exc}"
+            self.done = True
+            return
+        finally:
+            if views is not None:
+                views.release()
+        while not self._stop.is_set():
+            self._wake.wait(0.5)
+            self._wake.clear()
+            self._compose()
+
+    def _frames(
+        self, clip: ClipToPaint, frames: np.ndarray, index: int
+    ) -> Iterator[tuple[float, int, int, np.ndarray]]:
+        """(timeline s, clip index, frame, RGB) of one clip's frames, in time order."""
+        for k, rgb in frames_at(clip.session.video, frames, DECODE_LONG_SIDE):
+            yield float(clip.times[k]), index, int(k), rgb
+
+    def _compose(self) -> None:
+        """The texture for the current request, unless the last one composed is it and nothing
+        was painted since."""
+        with self._lock:
+            request = self._request
+        key = (request, self.frames_painted)
+        if key == self._composed_for or self.memory is None:
+            return
+        view, at_s = request
+        texture = self.atlas.texture(
+            view_colours(self.memory, self.atlas.base, view, at_s, self.atlas.triangle)
+        )
+        span = seen_range(as_at(self.memory, at_s))
+        with self._lock:
+            self._texture, self._texture_for, self.range_s = texture, request, span
+        self._composed_for = key
+
+
+# --- the viewer's side (v: app.ui.viewer.Viewer) -------------------------------------------------
+
+PAINT_WAIT_S = 900.0  # a script's `wait painted` gives up after this long (real seconds)
+
+
+def start(v, rule: str = "newest", every_s: float = DEFAULT_EVERY_S) -> None:
+    """Paint the open clip and the further clips shown on its timeline (a frame every every_s s
+    of each), each under its source's track as solved now, into a new memory (the previous one
+    is dropped)."""
+    if not every_s >= 0:
+        raise ValueError(f"EVERY_S: expected seconds >= 0, got {every_s}")
+    L = v.loaded
+    track = L.library.track(L.source)
+    if track is None:
+        raise ValueError(f"the source {L.source} is not solved yet: paint once it is")
+    todo = [ClipToPaint(L.session, track, L.timeline.clips[0].times)]
+    for clip, span in zip(L.others, L.timeline.clips[1:], strict=True):
+        other = clip.library.track(clip.source)
+        if not clip.visible:
+            continue
+        if other is None:
+            v.ui.info.append(f"scene memory: {span.name} is not solved yet and is not painted")
+            continue
+        todo.append(ClipToPaint(clip.session, other, span.times, clip.move))
+    painter = MemoryPainter(L.renderer.scene.mesh, todo, rule, every_s)  # refuses a bad rule
+    close(L)
+    L.memory = painter.start()
+    L.renderer.scene.set_memory(None)
+    if v.ui.memory_view == "model":
+        v.ui.memory_view = "memory"
+
+
+def set_view(v, view: str) -> None:
+    """Show the scene as `view` (app.export.memory_view.VIEWS); painting starts if not begun."""
+    if view not in VIEWS:
+        raise ValueError(f"expected one of {', '.join(VIEWS)}, got {view!r}")
+    v.ui.memory_view = view
+    if view != "model" and v.loaded.memory is None:
+        start(v)
+
+
+def update(v) -> None:
+    """Each frame: the memory's primitive once laid out, the texture for the view and the
+    timeline's moment asked for, the last one composed uploaded; errors shown once."""
+    L = v.loaded
+    p = L.memory
+    scene = L.renderer.scene
+    if p is None:
+        scene.show_memory = False
+        return
+    if p.error:
+        v.ui.error(p.error)
+    if scene.memory is None and p.atlas is not None:
+        scene.set_memory(p.atlas.primitive(p.atlas.base))
+    view = v.ui.memory_view
+    scene.show_memory = view != "model" and scene.memory is not None
+    if view != "model":
+        k = v.current_index
+        p.request(view, float(L.timeline.clips[0].times[k]) if k >= 0 else None)
+    texture = p.take()
+    if texture is not None and scene.memory is not None:
+        scene.write_memory_texture(texture)
+
+
+def wait_painted(v) -> None:
+    """Hold the script until the memory is painted and the view asked for is on screen."""
+    p = v.loaded.memory
+    if p is None:
+        raise ValueError("nothing is being painted: `memory paint` first")
+    v.hold_script(lambda: v.loaded is not None and p.current(), "the scene memory", PAINT_WAIT_S)
+
+
+def close(loaded) -> None:
+    if loaded.memory is not None:
+        loaded.memory.stop()
+        loaded.memory = None
+
+
+def state(loaded) -> dict | None:
+    """What a script's `state` says of the memory."""
+    p = loaded.memory
+    if p is None:
+        return None
+    m = p.memory
+    return {
+        "progress": p.progress,
+        "done": p.done,
+        "error": p.error,
+        "frames": p.frames_painted,
+        "clips": len(p.clips),
+        "rule": p.rule,
+        "texel_m": None if p.atlas is None else p.atlas.texel_m,
+        "samples": None if m is None else len(m.points),
+        "seen": None if m is None or not p.done else int(m.seen.sum()),
+        "mb": None if m is None else (m.nbytes + p.atlas.base.nbytes + p.atlas.pixels.nbytes) / 1e6,
+        "range_s": p.range_s,
+    }

@@ -1,0 +1,162 @@
+"""What the viewer shows of the scene memory (app.export.memory_view, app.render.gpu_scene): the
+memory as it was at a moment of the timeline (its history of epochs), "seen at" on its ramp,
+"changed since the model" blind to exposure and a face's light, and the memory drawn on the GPU
+in place of the model's own texture, where the frustum puts it."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from app.camera.intrinsics import Intrinsics
+from app.camera.pinhole import Camera, look_at_quat
+from app.core.settings import ProjectionSettings
+from app.export.atlas import layout
+from app.export.memory import SurfaceMemory
+from app.export.memory_view import RAMP, Snapshot, as_at, change, grey, seen_range, view_colours
+from app.render.offscreen import OffscreenTarget
+from app.render.renderer import FusionRenderer
+from app.scene import shapes
+from app.scene.mesh import MeshData
+
+SIZE = (64, 48)
+
+
+def _down(x: float = 0.0) -> Camera:
+    """A camera 20 m above (x, 0) looking straight down; its image's top towards north."""
+    w, h = SIZE
+    eye = np.array([x, 0.0, 20.0])
+    q = look_at_quat(eye, np.array([x, 0.0, 0.0]), (0.0, 1.0, 0.0))
+    return Camera.create(Intrinsics(w, h, 40.0, 40.0, w / 2, h / 2), eye, q, far=100.0)
+
+
+def _memory(rule="newest", history=(0.0, 100.0, 10)) -> SurfaceMemory:
+    """Three ground samples: under the camera, 3 m east, and 200 m away (never seen)."""
+    points = np.array([[0.0, 0.0, 0.0], [3.0, 0.0, 0.0], [200.0, 0.0, 0.0]])
+    normals = np.tile([0.0, 0.0, 1.0], (3, 1))
+    return SurfaceMemory(points, normals, rule, history)
+
+
+def _paint(memory: SurfaceMemory, colour, t: float) -> int:
+    """A flat frame from straight above at t s; the samples kept."""
+    rgb = np.tile(np.asarray(colour, np.uint8), (SIZE[1], SIZE[0], 1))
+    return memory.paint(rgb, _down(), np.full((SIZE[1], SIZE[0]), np.inf), t)
+
+
+RED, GREEN, BLUE = (220, 20, 20), (20, 220, 20), (20, 20, 220)
+
+
+def test_the_memory_as_it_was_at_a_moment():
+    """Painted red at 5 s, green at 15 s, blue at 35 s (epochs of 10 s): at 3 s nothing is seen,
+    at 10 s red, at 20 s green, at 40 s and now blue, each with its time; a sample never seen
+    stays unseen."""
+    m = _memory()
+    for colour, t in ((RED, 5.0), (GREEN, 15.0), (BLUE, 35.0)):
+        assert _paint(m, colour, t) == 2
+    for at_s, colour, t in ((10.0, RED, 5.0), (20.0, GREEN, 15.0), (40.0, BLUE, 35.0), (None, BLUE, 35.0)):  # fmt: skip
+        snap = as_at(m, at_s)
+        assert snap.seen.tolist() == [True, True, False], at_s
+        assert tuple(snap.rgb[0]) == colour and snap.time[0] == pytest.approx(t), at_s
+    assert not as_at(m, 3.0).seen.any()
+    assert seen_range(as_at(m, 20.0)) == pytest.approx((15.0, 15.0))
+
+
+def test_within_one_epoch_the_slider_shows_the_epoch_before():
+    """Green at 21 s and blue at 27 s fall in one epoch, which keeps its newest (blue): at 24 s
+    the memory shows the epoch before's newest (red at 5 s), as documented; at 28 s blue."""
+    m = _memory()
+    for colour, t in ((RED, 5.0), (GREEN, 21.0), (BLUE, 27.0)):
+        _paint(m, colour, t)
+    assert tuple(as_at(m, 24.0).rgb[0]) == RED
+    assert tuple(as_at(m, 28.0).rgb[0]) == BLUE
+
+
+def test_the_first_rule_is_exact_at_any_moment_and_the_history_is_bounded():
+    m = _memory("first")
+    before = m.nbytes
+    for k, colour in enumerate((RED, GREEN, BLUE) * 20):
+        _paint(m, colour, 5.0 + k)
+    assert m.nbytes == before  # 60 frames: the same bytes
+    assert tuple(as_at(m, 100.0).rgb[0]) == RED and not as_at(m, 4.0).seen.any()
+    with pytest.raises(ValueError, match="history"):
+        _memory(history=(10.0, 0.0, 4))
+
+
+def test_seen_at_runs_from_blue_to_red_and_leaves_the_unseen_grey():
+    points = np.array([[0.0, 0.0, 0.0], [30.0, 0.0, 0.0], [200.0, 0.0, 0.0]])
+    m = SurfaceMemory(points, np.tile([0.0, 0.0, 1.0], (3, 1)), "newest", (0.0, 10.0, 2))
+    rgb = np.full((SIZE[1], SIZE[0], 3), 100, np.uint8)
+    hole = np.full((SIZE[1], SIZE[0]), np.inf)
+    assert m.paint(rgb, _down(0.0), hole, 1.0) == 1
+    assert m.paint(rgb, _down(30.0), hole, 9.0) == 1
+    base = np.array([[200, 100, 50]] * 3, np.uint8)
+    out = view_colours(m, base, "seen")
+    assert tuple(out[0]) == tuple(RAMP[0, 1:].astype(int))  # the earliest: blue
+    assert tuple(out[1]) == tuple(RAMP[-1, 1:].astype(int))  # the latest: red
+    assert tuple(out[2]) == tuple(grey(base[2:])[0])  # never seen: the model in grey
+    assert tuple(view_colours(m, base, "seen", at_s=5.0)[1]) == tuple(grey(base[1:2])[0])
+    assert view_colours(m, base, "model") is base
+    with pytest.raises(ValueError, match="expected one of"):
+        view_colours(m, base, "heat")
+
+
+def test_changed_ignores_exposure_and_a_faces_light_and_finds_a_real_change():
+    """The model's texture seen again under another exposure on one face and another light on
+    a second is no change; a patch painted over on the second is."""
+    rng = np.random.default_rng(3)
+    n = 400
+    base = rng.integers(30, 200, (n, 3)).astype(np.uint8)
+    faces = np.repeat([0, 1], n // 2)
+    painted = base.astype(np.float64)
+    painted[faces == 0] = 1.3 * painted[faces == 0] + 10  # exposure
+    painted[faces == 1] = 0.6 * painted[faces == 1] - 5  # the face in shadow today
+    painted[350:360] = [250, 0, 250]  # something new on the second face
+    painted = np.clip(np.round(painted), 0, 255).astype(np.uint8)
+    seen = np.ones(n, bool)
+    seen[-5:] = False
+    snap = Snapshot(painted, seen, np.where(seen, 1.0, np.nan))
+    d = change(snap, base, faces)
+    assert np.median(d[:340]) < 2.0 and d[350:360].min() > 80.0 and np.all(d[-5:] == 0)
+    # one fit for both faces would call the shadow a change
+    assert np.median(change(snap, base)[200:340]) > 10.0
+
+
+def test_the_memory_is_drawn_in_place_of_the_model_where_the_frustum_says(gl_ctx):
+    """A 20 x 20 m ground, grey in the model; its memory: red east of x = 0, blue west. Seen
+    from straight above, the pixel over a point lands where the view's frustum projects it, with
+    the memory's colour there; the model is back when the memory is hidden."""
+    ground = shapes.quad([-10.0, -10.0, 0.0], [20.0, 0, 0], [0, 20.0, 0]).primitive()
+    ground.colors[:] = (0.5, 0.5, 0.5, 1.0)
+    mesh = MeshData([ground])
+    atlas = layout(mesh, 40_000)
+    colours = np.where(atlas.points[:, :1] > 0, [[255, 0, 0]], [[0, 0, 255]]).astype(np.uint8)
+    renderer = FusionRenderer(gl_ctx, mesh)
+    target = OffscreenTarget(gl_ctx, 160, 120)
+    try:
+        renderer.scene.set_memory(atlas.primitive(colours))
+        w, h = 160, 120
+        eye = np.array([0.0, 0.0, 30.0])
+        view = Camera.create(
+            Intrinsics(w, h, 100.0, 100.0, w / 2, h / 2),
+            eye,
+            look_at_quat(eye, np.zeros(3), (0.0, 1.0, 0.0)),
+            far=100.0,
+        )
+        off = ProjectionSettings(enabled=False)
+
+        def pixel(point):
+            uv, _ = view.project(np.array([point], np.float64))
+            renderer.draw(view, target.fbo, off)
+            return target.read()[int(uv[0, 1]), int(uv[0, 0])].astype(int)
+
+        renderer.scene.show_memory = True
+        east, west = pixel([4.0, 2.0, 0.0]), pixel([-4.0, -2.0, 0.0])
+        assert east[0] > 150 and east[2] < 60 and west[2] > 150 and west[0] < 60
+        renderer.scene.write_memory_texture(atlas.texture(colours[:, ::-1].copy()))
+        assert pixel([4.0, 2.0, 0.0])[2] > 150  # new texels: east is blue now
+        renderer.scene.show_memory = False
+        model = pixel([4.0, 2.0, 0.0])
+        assert abs(model[0] - model[2]) < 20  # grey: the model's own
+    finally:
+        target.release()
+        renderer.release()

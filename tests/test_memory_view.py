@@ -18,6 +18,7 @@ from app.render.offscreen import OffscreenTarget
 from app.render.renderer import FusionRenderer
 from app.scene import shapes
 from app.scene.mesh import MeshData
+from tests.conftest import ROOT
 
 SIZE = (64, 48)
 
@@ -160,3 +161,35 @@ def test_the_memory_is_drawn_in_place_of_the_model_where_the_frustum_says(gl_ctx
     finally:
         target.release()
         renderer.release()
+
+
+def test_two_clips_paint_one_memory_on_one_timeline():
+    """The sample clip twice on one timeline, the second 100 s after the first: both are painted
+    in time order into one memory, and scrubbed to 90 s (between them) the memory is exactly the
+    one the first clip alone paints."""
+    from app.session.assemble import open_session
+    from app.session.camera_track import camera_track
+    from app.ui.memory import ClipToPaint, MemoryPainter
+
+    session = open_session(ROOT / "assets/sample/session.toml")
+    track = camera_track(session, "truth")
+    times = np.asarray(session.frame_times, np.float64) - float(session.frame_times[0])
+    first = ClipToPaint(session, track, times)
+    later = ClipToPaint(session, track, times + 100.0)
+
+    def painted(clips):
+        p = MemoryPainter(session.scene(), clips, "newest", every_s=8.0, max_texels=300_000)
+        try:
+            assert p.start().wait(300) and p.error is None
+        finally:
+            p.stop()
+        return p
+
+    both, alone = painted([later, first]), painted([first])
+    assert both.frames_painted == 2 * alone.frames_painted >= 18
+    m, a = both.memory, alone.memory
+    assert np.nanmax(m.time) > 100.0 and np.nanmax(a.time) < 80.0
+    snap = as_at(m, 90.0)
+    assert np.array_equal(snap.seen, a.seen) and a.seen.sum() > 1000
+    assert np.array_equal(snap.rgb[a.seen], a.rgb[a.seen])
+    assert np.allclose(snap.time[a.seen], a.time[a.seen])

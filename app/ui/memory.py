@@ -75,6 +75,7 @@ class MemoryPainter:
         self._lock = threading.Lock()
         self._wake = threading.Event()
         self._stop = threading.Event()
+        self._finished = threading.Event()
         self._request: tuple[str, float | None] = ("memory", None)
         self._texture: np.ndarray | None = None
         self._texture_for: tuple[str, float | None] | None = None
@@ -90,6 +91,10 @@ class MemoryPainter:
         self._stop.set()
         self._wake.set()
         self._thread.join(timeout_s)
+
+    def wait(self, timeout_s: float | None = None) -> bool:
+        """Wait until painting is done (or failed); True when it is."""
+        return self._finished.wait(timeout_s)
 
     @property
     def progress(self) -> float:
@@ -145,8 +150,8 @@ class MemoryPainter:
                 if time.monotonic() - last >= COMPOSE_EVERY_S:
                     self._compose()
                     last = time.monotonic()
-            self.done = True
             self._compose()
+            self.done = True
         except Exception as exc:  # shown by the viewer, which goes on without a memory
             self.error = f"scene memory: {exc}"
             self.done = True
@@ -154,6 +159,7 @@ class MemoryPainter:
         finally:
             if views is not None:
                 views.release()
+            self._finished.set()
         while not self._stop.is_set():
             self._wake.wait(0.5)
             self._wake.clear()

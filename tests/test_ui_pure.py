@@ -125,3 +125,35 @@ def test_the_viewer_shows_registered_once_solved_unless_the_user_chose_a_source(
     assert useless.ui.info == [
         "registered used no keyframe: staying on gd-ahrs (the Attitude panel says why)"
     ]
+
+
+def test_a_session_is_read_off_the_frame_loop_and_a_failure_is_shown(tmp_path, monkeypatch):
+    """Reading what the viewer opens happens on a thread of its own: with the reader held (a
+    district's CityJSON takes seconds), `open` returns at once and the frame loop's poll installs
+    nothing; once the reader is done, the poll installs its outcome: a file that cannot be read
+    is shown as an error, runs the failure's undo and leaves no session half open."""
+    import threading
+
+    from app.core.errors import GeofuseError
+    from app.ui import sessions
+
+    release = threading.Event()
+
+    def held_reader(path, *args, **kwargs):
+        release.wait(30)
+        raise GeofuseError(f"{path}: broken JSON at line 3")
+
+    monkeypatch.setattr(sessions, "open_any", held_reader)
+    v = Viewer(Options(None))
+    undone = threading.Event()
+    assert v.open(tmp_path / "district.city.json.toml", background=True, on_fail=undone.set)
+    for _ in range(5):  # frames go by while the reader is held
+        v.poll_open()
+        assert v.ui.opening is not None and not undone.is_set() and v.ui.errors == []
+    assert not v.open(tmp_path / "other.toml", background=True)  # one at a time, said
+    assert "still opening" in v.ui.errors.pop()
+    release.set()
+    assert v.ui.opening._done.wait(30)
+    v.poll_open()
+    assert v.ui.opening is None and v.loaded is None and undone.is_set()
+    assert v.ui.errors == [f"{tmp_path / 'district.city.json.toml'}: broken JSON at line 3"]

@@ -12,6 +12,7 @@ import numpy as np
 from app.export.painting import DEFAULT_EVERY_S
 from app.ui import archive, clips, control_points, live, measure, memory
 
+OPEN_WAIT_S = 600.0  # a script's `open` waits at most this long for the reading (real seconds)
 LIVE_WAIT_S = 120.0  # `wait live N` gives up after this long (real seconds)
 
 
@@ -178,6 +179,13 @@ def _wait(v, arg, now) -> None:
         )
 
 
+def _open(v, arg, now) -> None:
+    """A session, clip, layer or stream, read in the background; the script waits for it."""
+    v.open_input(arg)
+    if v.ui.opening is not None:
+        v.hold_script(lambda: v.ui.opening is None, f"{arg} to open", OPEN_WAIT_S)
+
+
 def _memory(v, arg, now) -> None:
     """paint [RULE [EVERY_S]] | model | memory | seen | changed: the scene memory (app.ui.memory)."""
     words = (arg or "").split()
@@ -259,7 +267,7 @@ def _set_ui(**changes) -> Callable:
 COMMANDS: dict[str, Command] = {
     "quit": Command(lambda v, a, n: setattr(v.ui, "quit", True), False, False, "close the viewer"),
     "open": Command(
-        lambda v, a, n: v.open_input(a),
+        _open,
         False,
         True,
         "open a manifest or clip, or receive a stream (udp://, rtp://, rtsp://, srt://)",

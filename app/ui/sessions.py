@@ -6,6 +6,8 @@ stats and nav); the commands (app.ui.commands) call these methods on the viewer.
 from __future__ import annotations
 
 import logging
+import threading
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -29,6 +31,45 @@ from app.ui.navigation import Navigator
 
 log = logging.getLogger("geofuse.viewer")
 SOLVE_WAIT_S = 600.0  # `wait solved` gives up after this long (real seconds)
+
+
+class OpenJob:
+    """Reading a session or clip and its scene (CityJSON, DEMs, meshes: seconds for a district)
+    on a thread of its own, so that the frame loop keeps drawing; the viewer installs it (GL
+    objects, players, solvers) on the frame loop's thread once `done`. on_fail runs there when
+    it could not be read."""
+
+    def __init__(self, path: Path, srt, lens, layers, on_fail: Callable[[], None] | None = None):
+        self.path, self.on_fail = path, on_fail
+        self._args = (srt, lens, tuple(layers))
+        self.result: tuple[Session, MeshData] | None = None
+        self.error: str | None = None
+        self._done = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    @property
+    def done(self) -> bool:
+        return self._done.is_set()
+
+    def start(self) -> OpenJob:
+        self._thread = threading.Thread(target=self.run, name="geofuse-open", daemon=True)
+        self._thread.start()
+        return self
+
+    def run(self) -> None:
+        """Read (on the calling thread)."""
+        srt, lens, layers = self._args
+        try:
+            session = open_any(self.path, srt, lens=lens, layers=layers)
+            self.result = (session, session.scene())
+        except GeofuseError as exc:
+            self.error = str(exc)
+            log.error("%s", exc)
+        except Exception as exc:  # an unexpected reader failure is still only an error panel entry
+            self.error = f"{self.path}: {type(exc).__name__}: {exc}"
+            log.exception("opening %s", self.path)
+        finally:
+            self._done.set()
 
 
 @dataclass
@@ -109,12 +150,12 @@ class ViewerSessions:
         previous = self.options.lens
         self.options.lens = profile
         self.options.manifest = s.path
-        if not self.open(s.path):
-            self.options.lens = previous
+        self.open(s.path, on_fail=lambda: setattr(self.options, "lens", previous))
 
-    def add_layer(self, location: str) -> None:
-        """Reopen the clip with one more scene layer (a tileset, a DEM, a model in ECEF), as a
-        dropped or opened tileset.json or .tif does."""
+    def add_layer(self, location: str, background: bool = False) -> None:
+        """Reopen the clip with one more scene layer (a tileset, a DEM, a city, a model in ECEF),
+        as a dropped or opened tileset.json, .tif or .city.json does (background: read on a
+        thread, see open)."""
 
         s = self.loaded.session if self.loaded is not None else None
         if s is None or s.path.suffix.lower() == ".toml":
@@ -124,8 +165,7 @@ class ViewerSessions:
         previous = self.options.layers
         self.options.layers = (*previous, Layer.of(location))
         self.options.manifest = s.path
-        if not self.open(s.path):
-            self.options.layers = previous
+        self.open(s.path, background, lambda: setattr(self.options, "layers", previous))
 
     def wait_until_tiles_loaded(self) -> None:
         """Load the tiles the current view and the projector need (scripts, screenshots)."""
@@ -158,8 +198,15 @@ class ViewerSessions:
         if not all(lib.wait(SOLVE_WAIT_S, but) for lib in libraries):
             raise GeofuseError(f"the pose sources were not solved within {SOLVE_WAIT_S:g} s")
 
-    def open(self, manifest: Path | None) -> bool:
-        """Open a session or clip (the bundled sample when None); on failure keep the current one."""
+    def open(
+        self,
+        manifest: Path | None,
+        background: bool = False,
+        on_fail: Callable[[], None] | None = None,
+    ) -> bool:
+        """Open a session or clip (the bundled sample when None); on failure keep the current one
+        (and run on_fail). background: read it on a thread (OpenJob) and install it when read
+        (poll_open); True then means only that reading began."""
 
         path = Path(manifest) if manifest is not None else SAMPLE_DIR / "session.toml"
         if path.suffix.lower() == ".parquet":  # an archive of clips (geofuse index)
@@ -171,28 +218,44 @@ class ViewerSessions:
             return True
         if manifest is not None and _is_layer(path):
             try:
-                self.add_layer(str(path))
+                self.add_layer(str(path), background)
             except (ValueError, GeofuseError) as exc:
                 self.ui.error(str(exc))
                 return False
             return True
-        try:
-            own = path == self.options.manifest
-            session = open_any(
-                path,
-                self.options.srt if own else None,
-                lens=self.options.lens if own else None,
-                layers=self.options.layers if own else (),
-            )
-            mesh = session.scene()
-        except GeofuseError as exc:
-            self.ui.error(str(exc))
-            log.error("%s", exc)
+        if self.ui.opening is not None:
+            self.ui.error(f"{path}: still opening {self.ui.opening.path}; open it after")
             return False
-        except Exception as exc:  # an unexpected reader failure is still only an error panel entry
-            self.ui.error(f"{path}: {type(exc).__name__}: {exc}")
-            log.exception("opening %s", path)
+        own = path == self.options.manifest
+        job = OpenJob(
+            path,
+            self.options.srt if own else None,
+            self.options.lens if own else None,
+            self.options.layers if own else (),
+            on_fail,
+        )
+        if background:
+            self.ui.opening = job.start()
+            return True
+        job.run()
+        return self._install(job)
+
+    def poll_open(self) -> None:
+        """Install a session read in the background, once read (each frame)."""
+        job = self.ui.opening
+        if job is not None and job.done:
+            self.ui.opening = None
+            self._install(job)
+
+    def _install(self, job: OpenJob) -> bool:
+        """What a read session needs to be shown: its renderer, player, solvers, clips."""
+        if job.result is None:
+            self.ui.error(job.error or f"{job.path}: could not be opened")
+            if job.on_fail is not None:
+                job.on_fail()
             return False
+        path = job.path
+        session, mesh = job.result
         live.close(self)
         self.close_session()
         first = session.sources[0]

@@ -38,6 +38,9 @@ class UiState:
     screenshot_request: Path | None = None  # taken after this frame's panels are drawn
     state_request: Path | None = None
     open_request: str | Path | None = None  # dropped, chosen in the dialog, typed (or a URL)
+    opening: object | None = (
+        None  # a session being read in the background (app.ui.sessions.OpenJob)
+    )
     stream_url: str = "udp://0.0.0.0:5600"  # the Session panel's stream field
     export_what: int = 0  # the Export panel's choice (app.ui.panels.export.EXPORTS)
     export_path: str = ""  # the Export panel's output path ("" = a name from the session's)

@@ -207,9 +207,10 @@ class Viewer(ViewerJobs, ViewerSessions):
         if live.is_stream(text):
             live.open_stream(self, text, self.options.live)
             return True
-        return self.open(Path(text))
+        return self.open(Path(text), background=True)
 
     def _update(self, now: float) -> None:
+        self.poll_open()
         if self.live is not None:
             live.update(self)
             return
@@ -294,6 +295,7 @@ class Viewer(ViewerJobs, ViewerSessions):
             "window": list(fb),
             "view_rect": list(self.view_rect or (0, 0, *fb)),
             "clock": self.clock(),
+            "opening": None if ui.opening is None else str(ui.opening.path),
         }
         L = self.loaded
         if L is not None:

@@ -21,6 +21,8 @@ def draw(v) -> None:
         ):  # once the docks exist: the first tab, whatever was docked last
             imgui.set_next_window_focus()
     if window("Session"):
+        if ui.opening is not None:
+            imgui.text_colored(colour(AMBER), f"opening {Path(ui.opening.path).name} ...")
         if v.live is not None:
             _stream(v)
         if v.loaded is not None:

@@ -193,3 +193,49 @@ def test_two_clips_paint_one_memory_on_one_timeline():
     assert np.array_equal(snap.seen, a.seen) and a.seen.sum() > 1000
     assert np.array_equal(snap.rgb[a.seen], a.rgb[a.seen])
     assert np.allclose(snap.time[a.seen], a.time[a.seen])
+
+
+def test_under_the_best_rule_a_frame_that_agrees_with_the_model_wins(gl_ctx):
+    """A checkered ground seen from 40 m as the model shows it, then from 20 m as noise (a
+    frame misregistered, or something the model lacks): without the agreement term the nearer
+    frame wins under the best rule; with it the one that agrees stays. A flat model says
+    nothing to agree with."""
+    from app.export.memory import agreement
+    from app.export.painting import model_view, paint_one
+    from app.render.views import ModelViews
+
+    squares = (np.indices((256, 256)) // 3).sum(axis=0) % 2  # 0.47 m squares
+    checker = np.where(squares[..., None] > 0, 220, 40).astype(np.uint8).repeat(3, axis=2)
+    checker = np.dstack([checker, np.full((256, 256), 255, np.uint8)])
+    ground = shapes.quad([-20.0, -20.0, 0.0], [40.0, 0, 0], [0, 40.0, 0])
+    views = ModelViews(MeshData([ground.primitive((1, 1, 1, 1), checker)]), gl_ctx)
+    try:
+        w, h = 320, 240
+
+        def above(z):
+            eye = np.array([0.0, 0.0, z])
+            q = look_at_quat(eye, np.zeros(3), (0.0, 1.0, 0.0))
+            return Camera.create(Intrinsics(w, h, 200.0, 200.0, w / 2, h / 2), eye, q, far=100.0)
+
+        far, near = above(40.0), above(20.0)
+        agreeing = views.render(far)[0]
+        noise = np.random.default_rng(1).integers(0, 256, (h, w, 3)).astype(np.uint8)
+        _, model_near = model_view(views, near)
+        assert np.median(agreement(agreeing, model_view(views, far)[1])) > 0.95
+        assert np.median(agreement(noise, model_near)) < 0.6
+        assert np.all(agreement(noise, np.full_like(model_near, 128)) == 1.0)
+        xs = np.linspace(-4.0, 4.0, 9)
+        points = np.array([[x, y, 0.0] for x in xs for y in xs])
+        normals = np.tile([0.0, 0.0, 1.0], (len(points), 1))
+        weighed, blind = (
+            SurfaceMemory(points, normals, "best"),
+            SurfaceMemory(points, normals, "best"),
+        )
+        for t, (frame, cam) in enumerate(((agreeing, far), (noise, near)), start=1):
+            paint_one(weighed, views, frame, cam, float(t))
+            blind.paint(frame, cam, model_view(views, cam)[0], float(t))
+        assert weighed.seen.all() and blind.seen.all()
+        assert np.mean(weighed.time == 1.0) > 0.9  # the agreeing frame kept
+        assert np.all(blind.time == 2.0)  # nearer, so better, when agreement is not asked
+    finally:
+        views.release()

@@ -8,7 +8,10 @@ hides it, within a bias that grows with range (as the drape's depth test), and t
 its surface less obliquely than MIN_COS_INCIDENCE (a wall seen edge-on from a drone is a few
 pixels wide, and any error in the pose paints it with the ground beside it). Its colour is
 the frame's, bilinear; its time the frame's (UTC s); its quality in (0, 1] the incidence's cosine
-over (1 + range / QUALITY_RANGE_M). The rule decides what a sample keeps: newest (the last frame
+over (1 + range / QUALITY_RANGE_M), times the frame's agreement with the model there where one
+is given (`agreement`: how much the frame looks like the model rendered from its pose; an
+unmodelled car or a misregistered frame is still painted, but a frame that agrees wins under
+the best rule). The rule decides what a sample keeps: newest (the last frame
 that saw it, default), best (the highest quality) or first. Samples are kept in blocks of
 BLOCK consecutive ones with their bounding boxes, and a frame only looks at the blocks its
 frustum meets. The memory's size is fixed by its samples, whatever the number of frames.
@@ -23,6 +26,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import cv2
 import numpy as np
 from scipy.ndimage import map_coordinates
 
@@ -33,6 +37,9 @@ QUALITY_RANGE_M = 100.0  # quality halves at this range (head-on)
 DEPTH_BIAS_M = 0.15  # a surface point within this of the frame's distance map is the one seen,
 DEPTH_BIAS_PER_M = 0.01  # plus this much per metre of range
 BLOCK = 4096  # samples a culling block
+AGREEMENT_WINDOW = 9  # pixels (of the distance map) over which the frame and the model are compared
+AGREEMENT_MIN = 0.25  # the least a disagreeing pixel's quality is multiplied by
+FLAT_VARIANCE = 4.0  # grey levels^2: a model this flat around a pixel says nothing to agree with
 MIN_COS_INCIDENCE = (
     0.2  # surfaces seen more obliquely than 78 deg from their normal are not painted
 )
@@ -45,6 +52,26 @@ def frustum_planes(camera: Camera) -> np.ndarray:
         [m[3] + m[0], m[3] - m[0], m[3] + m[1], m[3] - m[1], m[3] + m[2], m[3] - m[2]]
     )
     return planes / np.linalg.norm(planes[:, :3], axis=1, keepdims=True)
+
+
+def agreement(frame_rgb: np.ndarray, model_rgb: np.ndarray) -> np.ndarray:
+    """(h, w) float32 in [AGREEMENT_MIN, 1], at model_rgb's size (h, w): how much the frame
+    (any size, the same view through the same pinhole) looks like the model rendered from its
+    pose, by the normalised cross-correlation of their greys over AGREEMENT_WINDOW pixels, mapped
+    0.5 + 0.5 ncc; 1 where the model is flat there (nothing to agree with)."""
+    h, w = model_rgb.shape[:2]
+    f = cv2.cvtColor(
+        cv2.resize(frame_rgb, (w, h), interpolation=cv2.INTER_AREA), cv2.COLOR_RGB2GRAY
+    )
+    m = cv2.cvtColor(np.ascontiguousarray(model_rgb), cv2.COLOR_RGB2GRAY)
+    f, m = f.astype(np.float32), m.astype(np.float32)
+    k = (AGREEMENT_WINDOW, AGREEMENT_WINDOW)
+    mf, mm = cv2.blur(f, k), cv2.blur(m, k)
+    vf = np.maximum(cv2.blur(f * f, k) - mf * mf, 0.0)
+    vm = np.maximum(cv2.blur(m * m, k) - mm * mm, 0.0)
+    ncc = (cv2.blur(f * m, k) - mf * mm) / np.sqrt(vf * vm + 1.0)
+    out = np.clip(0.5 + 0.5 * ncc, AGREEMENT_MIN, 1.0)
+    return np.where(vm < FLAT_VARIANCE, 1.0, out).astype(np.float32)
 
 
 @dataclass
@@ -116,11 +143,19 @@ class SurfaceMemory:
         blocks = [np.arange(s, min(s + BLOCK, n)) for s in self._starts[inside]]
         return np.concatenate(blocks) if blocks else np.zeros(0, np.int64)
 
-    def paint(self, rgb: np.ndarray, camera: Camera, distances: np.ndarray, time_s: float) -> int:
+    def paint(
+        self,
+        rgb: np.ndarray,
+        camera: Camera,
+        distances: np.ndarray,
+        time_s: float,
+        agreement: np.ndarray | None = None,
+    ) -> int:
         """Paint one frame: rgb (H, W, 3) uint8 (the camera's image, at any scale); distances
         (h, w) metres from the camera to the scene through each pixel of its pinhole
-        (app.render.views, any resolution: it is scaled), inf where none. Returns the samples
-        painted."""
+        (app.render.views, any resolution: it is scaled), inf where none; agreement (h, w) the
+        frame's with the model through the same pinhole pixels (`agreement`), or None. Returns
+        the samples painted."""
         idx = self._in_view(camera)
         if not len(idx):
             return 0
@@ -139,17 +174,27 @@ class SurfaceMemory:
         pin, _ = camera.pinhole().project(p)
         dh, dw = distances.shape
         sx, sy = dw / camera.intrinsics.width, dh / camera.intrinsics.height
-        nearest = map_coordinates(
-            distances, [pin[:, 1] * sy - 0.5, pin[:, 0] * sx - 0.5], order=0, mode="nearest"
-        )
+        at = [pin[:, 1] * sy - 0.5, pin[:, 0] * sx - 0.5]
+        nearest = map_coordinates(distances, at, order=0, mode="nearest")
         visible = rng <= nearest + DEPTH_BIAS_M + DEPTH_BIAS_PER_M * rng
-        idx, ray, rng, uv = idx[visible], ray[visible], rng[visible], uv[visible]
+        agree = (
+            np.ones(len(idx), np.float32)
+            if agreement is None
+            else map_coordinates(agreement, at, order=0, mode="nearest")
+        )
+        idx, ray, rng, uv, agree = (
+            idx[visible],
+            ray[visible],
+            rng[visible],
+            uv[visible],
+            agree[visible],
+        )
         if not len(idx):
             return 0
         cos = np.abs(np.einsum("ij,ij->i", ray, self.normals[idx])) / rng
         facing = cos >= MIN_COS_INCIDENCE
-        idx, cos, rng, uv = idx[facing], cos[facing], rng[facing], uv[facing]
-        quality = (cos / (1.0 + rng / QUALITY_RANGE_M)).astype(np.float32)
+        idx, cos, rng, uv, agree = idx[facing], cos[facing], rng[facing], uv[facing], agree[facing]
+        quality = (agree * cos / (1.0 + rng / QUALITY_RANGE_M)).astype(np.float32)
         colour = self._colours(rgb, uv)
         if self.history is not None:
             self._remember(idx, colour, time_s)

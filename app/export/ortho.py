@@ -203,6 +203,13 @@ class OrthoMemory:
     def quality(self) -> np.ndarray:
         return self._grid(self.memory.quality, 0.0)
 
-    def paint(self, rgb: np.ndarray, camera: Camera, distances: np.ndarray, time_s: float) -> int:
+    def paint(
+        self,
+        rgb: np.ndarray,
+        camera: Camera,
+        distances: np.ndarray,
+        time_s: float,
+        agreement: np.ndarray | None = None,
+    ) -> int:
         """Paint one frame (SurfaceMemory.paint); returns the cells painted."""
-        return self.memory.paint(rgb, camera, distances, time_s)
+        return self.memory.paint(rgb, camera, distances, time_s, agreement)

@@ -1,5 +1,5 @@
 """Painting a clip's frames into a surface memory (app.export.memory): which frames, and each
-frame's distance map for the occlusion test. Shared by the orthophoto and the painted model.
+frame's distance map for the occlusion test and its agreement with the model (the quality). Shared by the orthophoto and the painted model.
 
 Frames are taken every `every_s` seconds of video; each is decoded at most DECODE_LONG_SIDE
 pixels on its long side and its camera's distances are rendered off-screen (app.render.views)
@@ -13,7 +13,7 @@ from collections.abc import Callable
 import numpy as np
 
 from app.camera.pinhole import Camera
-from app.export.memory import SurfaceMemory
+from app.export.memory import SurfaceMemory, agreement
 from app.export.ortho import OrthoMemory
 from app.io.video import frames_at
 from app.render.views import ModelViews
@@ -36,14 +36,34 @@ def paint_frame_indices(track: CameraTrack, every_s: float) -> np.ndarray:
     return np.asarray(picked, np.int64)
 
 
-def distances(views: ModelViews, camera: Camera) -> np.ndarray:
-    """(h, w) metres from the camera through each pixel of its pinhole, at most
-    DISTANCE_LONG_SIDE px; inf where the scene is not."""
+def model_view(views: ModelViews, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
+    """The model through the camera's pinhole, at most DISTANCE_LONG_SIDE px: (h, w) metres
+    from the camera through each pixel (inf where the scene is not) and (h, w, 3) uint8 its
+    colours (the model's own, no video)."""
     i = camera.intrinsics
     small = camera.pinhole(min(1.0, DISTANCE_LONG_SIDE / max(i.width, i.height)))
-    _, positions = views.render(small)
+    rgb, positions = views.render(small)
     d = np.linalg.norm(positions - np.asarray(camera.position), axis=2)
-    return np.where(np.isfinite(d), d, np.inf)
+    return np.where(np.isfinite(d), d, np.inf), rgb
+
+
+def distances(views: ModelViews, camera: Camera) -> np.ndarray:
+    """(h, w) metres from the camera through each pixel of its pinhole (model_view)."""
+    return model_view(views, camera)[0]
+
+
+def paint_one(
+    memory: OrthoMemory | SurfaceMemory,
+    views: ModelViews,
+    rgb: np.ndarray,
+    camera: Camera,
+    time_s: float,
+) -> int:
+    """One frame painted with its occlusion test and, for a camera without a lens (whose
+    image is its pinhole's), its agreement with the model (app.export.memory.agreement)."""
+    d, model = model_view(views, camera)
+    agree = agreement(rgb, model) if camera.lens is None else None
+    return memory.paint(rgb, camera, d, time_s, agree)
 
 
 def paint_frames(
@@ -60,6 +80,6 @@ def paint_frames(
         cam = track.frame_camera(int(k))
         t = float(track.clock.session_time(float(track.clock.media_s[k])))
         utc = session.utc_of(t)
-        memory.paint(rgb, cam, distances(views, cam), utc if utc is not None else t)
+        paint_one(memory, views, rgb, cam, utc if utc is not None else t)
         if progress is not None:
             progress((n + 1) / len(frames))

@@ -27,7 +27,7 @@ from app.camera.pinhole import Camera
 from app.export.atlas import Atlas, layout
 from app.export.memory import RULES, SurfaceMemory
 from app.export.memory_view import VIEWS, as_at, seen_range, view_colours
-from app.export.painting import DECODE_LONG_SIDE, DEFAULT_EVERY_S, distances, paint_frame_indices
+from app.export.painting import DECODE_LONG_SIDE, DEFAULT_EVERY_S, paint_frame_indices, paint_one
 from app.io.video import frames_at
 from app.render.views import ModelViews
 from app.scene.mesh import MeshData
@@ -145,7 +145,7 @@ class MemoryPainter:
                 clip = self.clips[ci]
                 cam = clip.track.frame_camera(k)
                 cam = clip.move(cam) if clip.move is not None else cam
-                self.memory.paint(rgb, cam, distances(views, cam), t)
+                paint_one(self.memory, views, rgb, cam, t)
                 self.frames_painted += 1
                 if time.monotonic() - last >= COMPOSE_EVERY_S:
                     self._compose()

@@ -521,3 +521,65 @@ def test_a_citygml_texture_kept_apart_from_its_building_is_drawn(tmp_path, gl_ct
     path.write_text(text)
     frame = _frame()
     _check_wall_quadrants(read_city(path, frame), frame, gl_ctx)
+
+
+def _check_red_wall(city, frame, gl_ctx) -> None:
+    """A's south wall drawn in its material's red; its other walls in the wall kind's colour."""
+    from app.camera.intrinsics import Intrinsics
+    from app.camera.pinhole import Camera, look_at_quat
+
+    (x0, y0), _, (x1, _), _ = BUILDINGS[0].footprint
+    wall = _expected_enu(frame, (x0 + x1) / 2, y0, 106.0)
+    eye = wall + [-20.0, -30.0, 0.0]  # south-west: the south wall and the west one
+    camera = Camera.create(
+        Intrinsics(320, 240, 250.0, 250.0, 160.0, 120.0), eye, look_at_quat(eye, wall), far=2000.0
+    )
+    image = _render(gl_ctx, city.mesh, camera).astype(int)
+
+    def at(p):
+        uv, _ = camera.project(np.asarray(p)[None])
+        return image[int(uv[0, 1]), int(uv[0, 0])]
+
+    south = at(wall)
+    west = at(_expected_enu(frame, x0, y0 + 2.0, 106.0))
+    assert south[0] > 2 * south[1] and south[0] > 2 * south[2], south
+    assert min(west) > 120 and max(west) - min(west) < 60, west  # off-white, shaded
+
+
+def test_material_colours_are_drawn_where_a_surface_has_no_texture(tmp_path, gl_ctx):
+    """CityJSON materials (a theme's values per surface, or one value for all) and CityGML
+    X3DMaterials (aimed at a polygon by its gml:id, kept apart from the buildings): the
+    surface is drawn in its diffuse colour, the others by kind."""
+    from app.simulate.city import cityjson
+
+    doc = cityjson(BUILDINGS, COMPOUND, translate=(*SITE, 0.0))
+    doc["appearance"] = {
+        "materials": [
+            {"name": "red", "diffuseColor": [0.9, 0.1, 0.1]},
+            {"name": "blue", "diffuseColor": [0.1, 0.1, 0.9]},
+            {"name": "none"},
+        ]  # fmt: skip
+    }
+    solid = doc["CityObjects"]["A"]["geometry"][0]
+    values = [None for _ in solid["boundaries"][0]]
+    values[2] = 0  # the south wall (app.simulate.city.FACES)
+    values[3] = 2  # a material without a colour: drawn by kind
+    solid["material"] = {"paint": {"values": [values]}}
+    doc["CityObjects"]["B"]["geometry"][0]["material"] = {"paint": {"value": 1}}
+    path = tmp_path / "materials.city.json"
+    path.write_text(json.dumps(doc))
+    frame = _frame()
+    city = read_city(path, frame)
+    _check_red_wall(city, frame, gl_ctx)
+    colours = city.mesh.primitives[0].colors[:, :3]
+    assert np.any(np.all(np.abs(colours - [0.1, 0.1, 0.9]) < 0.01, axis=1))  # B, all of it
+
+    gml = write_citygml(tmp_path / "materials.gml", BUILDINGS, "EPSG:32632+3855")
+    appearance = (
+        '<app:appearanceMember xmlns:app="http://www.opengis.net/citygml/appearance/2.0">'
+        "<app:Appearance><app:surfaceDataMember><app:X3DMaterial>"
+        "<app:diffuseColor>0.9 0.1 0.1</app:diffuseColor><app:target>#A_p2</app:target>"
+        "</app:X3DMaterial></app:surfaceDataMember></app:Appearance></app:appearanceMember>"
+    )
+    gml.write_text(gml.read_text().replace("</core:CityModel>", appearance + "</core:CityModel>"))
+    _check_red_wall(read_city(gml, frame), frame, gl_ctx)

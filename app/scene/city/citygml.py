@@ -77,6 +77,7 @@ class CityGmlReader:
         self.textures: list[str] = []
         self._texture_ids: dict[str, int] = {}
         self.ring_textures: dict[str, tuple[int, np.ndarray]] = {}
+        self.target_colours: dict[str, tuple[float, float, float]] = {}  # X3DMaterial, by gml:id
 
     def _error(self, message: str, field: str | None = None, line: int | None = None) -> SceneError:
         return SceneError(self.path, message, field=field, line=line)
@@ -94,7 +95,19 @@ class CityGmlReader:
 
     def _read_textures(self, root: etree._Element) -> None:
         """Every ParameterizedTexture under `root`: its image, and the coordinates it gives
-        each ring (by the ring's gml:id), kept in `ring_textures`."""
+        each ring (by the ring's gml:id), kept in `ring_textures`; every X3DMaterial's diffuse
+        colour by the gml:id of each surface it targets, kept in `target_colours`."""
+        for mat in root.iter("{*}X3DMaterial"):
+            text = next((c.text for c in mat.iter("{*}diffuseColor") if c.text), None)
+            try:
+                rgb = tuple(float(v) for v in (text or "").split())
+            except ValueError:
+                rgb = ()
+            if len(rgb) != 3 or not np.all(np.isfinite(rgb)):
+                continue
+            for target in mat.iter("{*}target"):
+                if target.text:
+                    self.target_colours[target.text.strip().lstrip("#")] = rgb
         for tex in root.iter("{*}ParameterizedTexture"):
             uri = next((c.text for c in tex.iter("{*}imageURI") if c.text), None)
             if not uri:
@@ -247,6 +260,20 @@ class CityGmlReader:
             el = el.getparent()
         return lod, kind
 
+    def _colour(
+        self, polygon: etree._Element, obj: etree._Element
+    ) -> tuple[float, float, float] | None:
+        """The X3DMaterial colour targeting the polygon, or the nearest surface holding it."""
+        if not self.target_colours:
+            return None
+        for el in (polygon, *polygon.iterancestors()):
+            if el is obj:
+                return None
+            key = el.get(GML_ID) or el.get(GML32_ID)
+            if key in self.target_colours:
+                return self.target_colours[key]
+        return None
+
     def _object(
         self,
         obj: etree._Element,
@@ -279,7 +306,7 @@ class CityGmlReader:
                 rings.append(coords)
                 textures.append(self.ring_textures.get(ring.get(GML_ID) or ring.get(GML32_ID)))
             if rings:
-                surface = Surface(rings, kind_of(name, otype))
+                surface = Surface(rings, kind_of(name, otype), colour=self._colour(polygon, obj))
                 if all(
                     t is not None and len(t[1]) == len(r)
                     for t, r in zip(textures, rings, strict=True)

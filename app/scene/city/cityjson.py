@@ -42,8 +42,9 @@ Keep = Callable[[np.ndarray], bool]  # a city object's horizontal centre (CRS) -
 @dataclass
 class Header:
     """What a CityJSON file says of itself: version, CRS (as written, None if absent), the
-    vertices' transform (scale (3,), translate (3,)), geometry templates and the texture
-    images (paths as written, relative to the file)."""
+    vertices' transform (scale (3,), translate (3,)), geometry templates, the texture
+    images (paths as written, relative to the file) and the materials' diffuse colours (RGB in
+    [0, 1]; None for a material without one)."""
 
     version: str
     crs: str | None
@@ -52,6 +53,7 @@ class Header:
     templates: list[dict]
     template_vertices: np.ndarray
     textures: list[str]
+    materials: list[tuple[float, float, float] | None]
 
 
 def _lod_value(lod: object) -> float:
@@ -91,6 +93,37 @@ def _texture_values(texture: object) -> list | None:
         return None
     theme = texture[sorted(texture)[0]]
     return theme.get("values") if isinstance(theme, dict) else None
+
+
+def _diffuse(material: object) -> tuple[float, float, float] | None:
+    """A material's diffuseColor (RGB in [0, 1]), None without a usable one."""
+    try:
+        rgb = tuple(float(c) for c in material["diffuseColor"])
+    except (KeyError, TypeError, ValueError):
+        return None
+    return rgb if len(rgb) == 3 and all(np.isfinite(rgb)) else None
+
+
+def _material_index(material: object, path: tuple[int, ...]) -> int | None:
+    """The surface's material (path: its index in the boundaries' nesting) in the geometry's
+    first material theme: `value` for all its surfaces, else `values` nested as the surfaces."""
+    if not isinstance(material, dict) or not material:
+        return None
+    theme = material[sorted(material)[0]]
+    if not isinstance(theme, dict):
+        return None
+    if theme.get("value") is not None:
+        values = theme["value"]
+    else:
+        values = theme.get("values")
+        try:
+            for i in path:
+                values = None if values is None else values[i]
+        except (IndexError, TypeError):
+            return None
+    return (
+        int(values) if isinstance(values, (int, float)) and not isinstance(values, bool) else None
+    )
 
 
 def _semantic_type(semantics: dict | None, path: tuple[int, ...]) -> str | None:
@@ -174,10 +207,15 @@ class CityJsonReader:
         tv = np.asarray(templates.get("vertices-templates", []), np.float64).reshape(-1, 3)
         if self.sequence:
             textures = (get("appearance") or {}).get("textures")
+            materials = (get("appearance") or {}).get("materials")
         else:
             textures = get("appearance.textures")
+            materials = get("appearance.materials")
         images = [str(t.get("image", "")) for t in textures or [] if isinstance(t, dict)]
-        return Header(version, crs, scale, translate, templates.get("templates", []), tv, images)
+        colours = [_diffuse(m) for m in materials or []]
+        return Header(
+            version, crs, scale, translate, templates.get("templates", []), tv, images, colours
+        )
 
     # -- vertices ------------------------------------------------------------------------------
 
@@ -344,6 +382,9 @@ class CityJsonReader:
             for rings, path in _surfaces_of(boundaries, depth):
                 kind = kind_of(_semantic_type(geom.get("semantics"), path), otype)
                 surface = Surface([vertices[np.asarray(r, np.int64)] for r in rings], kind)
+                m = _material_index(geom.get("material"), path)
+                if m is not None and 0 <= m < len(self.header.materials):
+                    surface.colour = self.header.materials[m]
                 if textured is not None:
                     self._texture(surface, textured, path, uvs, where, line)
                 surfaces.append(surface)

@@ -108,12 +108,15 @@ class Surface:
     """A planar polygon: rings[0] the exterior, the others holes; each (N, 3) float64 in the
     file's CRS (x, y horizontal, z height), not closed (the first vertex is not repeated).
     texture: the index of its image among the reader's `textures` (None: untextured), uvs: its
-    rings' texture coordinates ((N, 2) each, (0, 0) the image's lower-left corner)."""
+    rings' texture coordinates ((N, 2) each, (0, 0) the image's lower-left corner); colour: its
+    material's diffuse colour (RGB in [0, 1]), drawn instead of its kind's where it has no
+    texture (None: none)."""
 
     rings: list[np.ndarray]
     kind: str
     texture: int | None = None
     uvs: list[np.ndarray] | None = None
+    colour: tuple[float, float, float] | None = None
 
 
 def footprint_centre(points: np.ndarray) -> np.ndarray:

@@ -112,19 +112,21 @@ class _Window:
 @dataclass
 class _Kept:
     """One object read: its triangles in ENU (T, 3, 3 float32), kind codes (T,), texture
-    indices (T,; -1 untextured) and texture coordinates (T, 3, 2)."""
+    indices (T,; -1 untextured), texture coordinates (T, 3, 2) and colours (T, 3 uint8: the
+    material's, else the kind's)."""
 
     obj: CityObject
     triangles: np.ndarray
     kinds: np.ndarray
     textures: np.ndarray
     uvs: np.ndarray
+    colours: np.ndarray
     distance: float
 
 
-def _triangles(obj: CityObject) -> tuple[list, list, list, list]:
-    """(triangles, kinds, textures, uvs) of an object's surfaces, as lists of arrays."""
-    tris, kinds, textures, uvs = [], [], [], []
+def _triangles(obj: CityObject) -> tuple[list, list, list, list, list]:
+    """(triangles, kinds, textures, uvs, colours) of an object's surfaces, as lists of arrays."""
+    tris, kinds, textures, uvs, colours = [], [], [], [], []
     for s in obj.surfaces:
         idx = triangle_indices(s)
         if not len(idx):
@@ -132,13 +134,15 @@ def _triangles(obj: CityObject) -> tuple[list, list, list, list]:
         used = usable_rings(s)
         tris.append(np.concatenate([s.rings[i] for i in used])[idx])
         kinds.append(np.full(len(idx), KIND_CODE[s.kind], np.uint8))
+        rgb = KIND_COLORS[KIND_CODE[s.kind]] if s.colour is None else np.asarray(s.colour)
+        colours.append(np.tile(np.round(255 * np.clip(rgb, 0, 1)).astype(np.uint8), (len(idx), 1)))
         if s.texture is not None and s.uvs is not None:
             textures.append(np.full(len(idx), s.texture, np.int32))
             uvs.append(np.concatenate([s.uvs[i] for i in used])[idx].astype(np.float32))
         else:
             textures.append(np.full(len(idx), -1, np.int32))
             uvs.append(np.zeros((len(idx), 3, 2), np.float32))
-    return tris, kinds, textures, uvs
+    return tris, kinds, textures, uvs, colours
 
 
 def _datum(path: Path, crs: pyproj.CRS, vertical: str | None, notes: Messages) -> tuple[str, float]:
@@ -246,7 +250,7 @@ def read_city(
         flat = np.concatenate([t for _, tris, *_ in pending for t in tris]).reshape(-1, 3)
         enu = placer(flat).astype(np.float32).reshape(-1, 3, 3)
         start = 0
-        for obj, tris, kinds, textures, uvs in pending:
+        for obj, tris, kinds, textures, uvs, colours in pending:
             n = sum(len(t) for t in tris)
             distance = 0.0 if window is None else window.distance(obj.centre)
             kept.append(
@@ -256,6 +260,7 @@ def read_city(
                     np.concatenate(kinds),
                     np.concatenate(textures),
                     np.concatenate(uvs),
+                    np.concatenate(colours),
                     distance,
                 )
             )
@@ -267,10 +272,10 @@ def read_city(
             trim()
 
     for obj in reader.objects(keep):
-        tris, kinds, textures, uvs = _triangles(obj)
+        tris, kinds, textures, uvs, colours = _triangles(obj)
         if not tris:
             continue
-        pending.append((obj, tris, kinds, textures, uvs))
+        pending.append((obj, tris, kinds, textures, uvs, colours))
         pending_triangles += sum(len(t) for t in tris)
         if pending_triangles >= FLUSH_TRIANGLES:
             flush()
@@ -293,17 +298,17 @@ def read_city(
 
 def _primitive(
     triangles: np.ndarray,
-    kinds: np.ndarray | None,
+    colours: np.ndarray | None,
     uvs: np.ndarray | None,
     image: np.ndarray | None,
     name: str,
 ) -> Primitive:
-    """Triangles (T, 3, 3) as a primitive: coloured by kind, or white under a texture."""
+    """Triangles (T, 3, 3) as a primitive: coloured (T, 3 uint8), or white under a texture."""
     positions = np.ascontiguousarray(triangles.reshape(-1, 3))
     n = len(positions)
     colors = np.ones((n, 4), np.float32)
-    if kinds is not None:
-        colors[:, :3] = np.repeat(KIND_COLORS[kinds], 3, axis=0)
+    if colours is not None:
+        colors[:, :3] = np.repeat(colours.astype(np.float32) / 255.0, 3, axis=0)
     return Primitive(
         positions=positions,
         colors=colors,
@@ -343,7 +348,7 @@ def _city(
     margin_m: float,
     max_triangles: int,
 ) -> City:
-    """The kept objects as primitives (one coloured by kind, one per texture image) and their
+    """The kept objects as primitives (one coloured by material or kind, one per texture image) and their
     feature table, with the layer's note."""
     parents = {k.obj.parent for k in kept if k.obj.parent is not None}
     inherited = reader.attributes_of(parents) if isinstance(reader, CityJsonReader) else {}
@@ -351,6 +356,7 @@ def _city(
     kinds = np.concatenate([k.kinds for k in kept])
     textures = np.concatenate([k.textures for k in kept])
     uvs = np.concatenate([k.uvs for k in kept])
+    colours = np.concatenate([k.colours for k in kept])
     used = set(np.unique(textures[textures >= 0]).tolist())
     images = _images(reader.texture_files(), used, notes)
     textures = np.where(np.isin(textures, list(images)), textures, -1)
@@ -362,7 +368,7 @@ def _city(
     ]
     plain = textures < 0
     if plain.any():
-        prims.append(_primitive(triangles[plain], kinds[plain], None, None, path.name))
+        prims.append(_primitive(triangles[plain], colours[plain], None, None, path.name))
     starts = np.concatenate([[0], np.cumsum([len(k.triangles) for k in kept])]).astype(np.int64)
     table = FeatureTable(
         path.name,

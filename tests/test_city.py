@@ -583,3 +583,42 @@ def test_material_colours_are_drawn_where_a_surface_has_no_texture(tmp_path, gl_
     )
     gml.write_text(gml.read_text().replace("</core:CityModel>", appearance + "</core:CityModel>"))
     _check_red_wall(read_city(gml, frame), frame, gl_ctx)
+
+
+def test_a_layer_reads_the_level_of_detail_asked_for(tmp_path):
+    """A building with an LoD 1 geometry (two of its faces) beside its LoD 2.2 one: each
+    object's highest by default, the LoD 1 one when the layer asks for lod = 1.2; a manifest's
+    `lod` reaches the layer, and is refused on a layer that is no city model."""
+    import re
+
+    from app.core.errors import ManifestError
+    from app.session.config import read_config
+    from app.simulate.city import cityjson
+    from tests.conftest import ROOT
+
+    doc = cityjson(BUILDINGS, COMPOUND, translate=(*SITE, 0.0))
+    solid = doc["CityObjects"]["A"]["geometry"][0]
+    lod1 = {"type": "MultiSurface", "lod": "1", "boundaries": solid["boundaries"][0][:2]}
+    doc["CityObjects"]["A"]["geometry"].insert(0, lod1)
+    path = tmp_path / "lods.city.json"
+    path.write_text(json.dumps(doc))
+
+    def a_triangles(**options):
+        table = read_city(path, _frame(), **options).mesh.features[0]
+        a = table.ids.index("A")
+        return int(table.starts[a + 1] - table.starts[a])
+
+    assert a_triangles() > 4 and a_triangles(max_lod=1.2) == 4
+    sample = ROOT / "assets/sample"
+    text = re.sub(
+        r'"([\w./-]+\.(?:mp4|glb|csv))"',
+        lambda m: f'"{sample / m.group(1)}"',
+        (sample / "session.toml").read_text(),
+    )
+    manifest = tmp_path / "session.toml"
+    manifest.write_text(text + f'\n[[layers]]\npath = "{path}"\nlod = 1.2\n')
+    (layer,) = [x for x in read_config(manifest).layers if x.kind == "city"]
+    assert layer.lod == 1.2
+    manifest.write_text(text.replace('up_axis = "Y"', 'up_axis = "Y"\nlod = 2'))
+    with pytest.raises(ManifestError, match=r"scene.lod.*city model's key"):
+        read_config(manifest)

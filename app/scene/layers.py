@@ -52,7 +52,8 @@ def layer_kind(location: str | Path) -> str:
 class Layer:
     """One layer. location: a file path or URL; placement: a model's (app.scene.loader); ortho,
     max_error_m: a DEM's orthophoto and largest vertical error of its mesh, m; vertical: a DEM's
-    or a city's vertical datum (None: the file's, else EGM2008)."""
+    or a city's vertical datum (None: the file's, else EGM2008); lod: a city's highest level of
+    detail read (None: each object's highest)."""
 
     location: str
     kind: str
@@ -60,6 +61,7 @@ class Layer:
     ortho: Path | None = None
     vertical: str | None = None
     max_error_m: float = DEFAULT_MAX_ERROR_M
+    lod: float | None = None
 
     @classmethod
     def of(cls, location: str | Path, **options) -> Layer:
@@ -167,7 +169,8 @@ def load_layers(
             part = MeshData(tilesets=[ts])
             notes.info(f"{layer.name}: 3D Tiles {ts.version}, streamed by level of detail")
         elif layer.kind == "city":
-            city = read_city(layer.location, frame, track_ll, layer.vertical)
+            lod = {} if layer.lod is None else {"max_lod": layer.lod}
+            city = read_city(layer.location, frame, track_ll, layer.vertical, **lod)
             part = city.mesh
             notes.extend(city.notes)
         else:

@@ -19,6 +19,8 @@ TOML reader that types and checks each key is app.session.reader).
     scale = 1.0                   # optional
     vertical = "egm2008"          # a city model's heights, optional: "ellipsoid", "egm2008" or
                                   # "egm96" (default: its CRS's vertical datum, else EGM2008)
+    lod = 1.2                     # a city model's highest level of detail read, optional
+                                  # (default: each object's highest)
 
     [[layers]]                    # optional, repeated: more layers drawn together with [scene]
     path = "city/tileset.json"    # same kinds as scene.path; a model here takes the same keys
@@ -94,8 +96,8 @@ HANDHELD_MOUNT_M = 1.5  # a hand-held or body camera's height above the ground, 
 _PLACED = {"path", "origin", "up_axis", "heading_deg", "scale"}
 KNOWN_KEYS: dict[str, set[str]] = {  # every table and key of the schema above
     "origin": {"lat", "lon", "h"},
-    "scene": _PLACED | {"vertical"},
-    "layers": _PLACED | {"vertical"},
+    "scene": _PLACED | {"vertical", "lod"},
+    "layers": _PLACED | {"vertical", "lod"},
     "dem": {"path", "ortho", "vertical", "max_error_m"},
     "clips": {"path", "offset_s", "priority", "alpha", "source"},
     "video": {"path", "start_time", "time_offset_s", "timing"},
@@ -275,7 +277,12 @@ def _layer(m: Manifest, section: str) -> tuple[Layer, tuple[float, float, float]
             else "a vertical datum is a city model's key (a DEM's is dem.vertical)",
             field=f"{section}.vertical",
         )
-    return Layer(location, kind, placement, vertical=vertical), origin
+    lod = m.number(section, "lod", None, low=0.0, high=4.0)
+    if lod is not None and kind != "city":
+        raise ManifestError(
+            m.path, "a level of detail is a city model's key", field=f"{section}.lod"
+        )
+    return Layer(location, kind, placement, vertical=vertical, lod=lod), origin
 
 
 def _layers(m: Manifest) -> list[Layer]:

@@ -167,9 +167,10 @@ def test_two_clips_paint_one_memory_on_one_timeline():
     """The sample clip twice on one timeline, the second 100 s after the first: both are painted
     in time order into one memory, and scrubbed to 90 s (between them) the memory is exactly the
     one the first clip alone paints."""
+    from app.export.painting import ClipToPaint
     from app.session.assemble import open_session
     from app.session.camera_track import camera_track
-    from app.ui.memory import ClipToPaint, MemoryPainter
+    from app.ui.memory import MemoryPainter
 
     session = open_session(ROOT / "assets/sample/session.toml")
     track = camera_track(session, "truth")

@@ -222,6 +222,21 @@ def test_export_ortho_of_a_survey_puts_the_roof_where_the_model_has_it(tmp_path)
     assert np.all(np.abs(roof[:, 1] - roof[:, 0]) < 25)  # grey
     assert np.all(grass[:, 1] > grass[:, 0] + 20)  # green
 
+    # a second clip (an orbit) paints the same orthophoto: more of the site is seen, on the
+    # same grid where it is given one
+    orbit = write_sample_session(
+        tmp_path / "o",
+        SAMPLE_SCENE,
+        SampleConfig(**{**quick_config(3.0).__dict__, "flight": "orbit"}),
+    )
+    both = tmp_path / "both.tif"
+    args[2:5] = [str(manifest), str(orbit), "--out", str(both)]
+    done = subprocess.run([sys.executable, "-m", "app", *args], check=True, capture_output=True)
+    assert "of 2 clip(s)" in done.stdout.decode()
+    with rasterio.open(both) as src:
+        seen_both = int((src.read(4) > 0).sum()) * src.res[0] ** 2
+    assert seen_both > 1.2 * int((rgba[..., 3] > 0).sum()) * 0.25
+
 
 def test_a_surface_seen_edge_on_is_not_painted(scene_views):
     """From 3 m up, the ground 21 m away is seen 82 deg from its normal (cosine 0.14): too

@@ -44,47 +44,62 @@ def _area(path: Path | None) -> tuple[float, float, float, float] | None:
     )
 
 
-def _ortho(args: argparse.Namespace, input_path: Path, suffixes, bar: ProgressBar) -> int:
-    """`export ortho`: the clip's true orthophoto (app.export.orthophoto)."""
+def _solved_further(args: argparse.Namespace, inputs: list[Path], suffixes) -> list:
+    """(session, solved track) of the further inputs, each under --source where it offers it,
+    else its own first."""
+    out = []
+    for path in inputs:
+        session, source = open_with_source(path, args, suffixes, any_source=True)
+        print_messages(session)
+        out.append((session, solved(session, source)))
+    return out
+
+
+def _ortho(args: argparse.Namespace, inputs: list[Path], suffixes, bar: ProgressBar) -> int:
+    """`export ortho`: the true orthophoto of the clips (app.export.orthophoto)."""
+    input_path = inputs[0]
     session, source = open_with_source(input_path, args, suffixes)
     print_messages(session)
+    further = _solved_further(args, inputs[1:], suffixes)
     try:
         crs = None if args.crs is None else parse_crs(args.crs)
     except ValueError as exc:
         raise GeofuseError(f"--crs: {exc}") from exc
     options = OrthoOptions(args.gsd, crs, _area(args.area), args.rule, args.every_s)
     try:
-        memory = paint_clip(session, solved(session, source), options, bar)
+        memory = paint_clip(session, solved(session, source), options, bar, further=further)
     except ValueError as exc:
         raise GeofuseError(f"export ortho {input_path}: {exc}") from exc
-    out, seen = write_orthophoto(memory, Path(args.out), list(session.inputs))
+    read = [*session.inputs, *(p for s, _ in further for p in s.inputs)]
+    out, seen = write_orthophoto(memory, Path(args.out), read)
     g = memory.grid
     covered = 100.0 * memory.seen.sum() / max(1, np.isfinite(memory.points[..., 2]).sum())
     print(
         f"wrote {out} ({g.shape[1]} x {g.shape[0]} cells of {g.gsd:g} m in {g.crs.name}, "
-        f"{covered:.0f} % of the surface seen, {memory.frames} frames, rule {memory.rule}) "
+        f"{covered:.0f} % of the surface seen, {memory.frames} frames of {len(inputs)} clip(s), rule {memory.rule}) "
         f"and {seen} (seen at, quality)"
     )
     return 0
 
 
-def _model(args: argparse.Namespace, input_path: Path, suffixes, bar: ProgressBar) -> int:
-    """`export model`: the scene with the clip painted on it (app.export.painted)."""
+def _model(args: argparse.Namespace, inputs: list[Path], suffixes, bar: ProgressBar) -> int:
+    """`export model`: the scene with the clips painted on it (app.export.painted)."""
+    input_path = inputs[0]
     session, source = open_with_source(input_path, args, suffixes)
     print_messages(session)
+    further = _solved_further(args, inputs[1:], suffixes)
     options = ModelOptions(args.rule, args.every_s, args.max_texels)
     try:
-        atlas, memory = paint_model(session, solved(session, source), options, bar)
+        atlas, memory = paint_model(session, solved(session, source), options, bar, further)
     except ValueError as exc:
         raise GeofuseError(f"export model {input_path}: {exc}") from exc
     f = session.frame
-    out = write_painted(
-        atlas, memory, (f.lat_deg, f.lon_deg, f.h_m), Path(args.out), list(session.inputs)
-    )
+    read = [*session.inputs, *(p for s, _ in further for p in s.inputs)]
+    out = write_painted(atlas, memory, (f.lat_deg, f.lon_deg, f.h_m), Path(args.out), read)
     w, h = atlas.size
     print(
         f"wrote {out} ({len(atlas.triangles):,} triangles, a {w} x {h} atlas of {atlas.texel_m:.2f} m texels, "
-        f"{100.0 * memory.seen.mean():.0f} % of the surface seen, {memory.frames} frames, rule {memory.rule}; "
+        f"{100.0 * memory.seen.mean():.0f} % of the surface seen, {memory.frames} frames of {len(inputs)} clip(s), rule {memory.rule}; "
         f"local east-north-up from {f.lat_deg:.7f}, {f.lon_deg:.7f}, {f.h_m:.2f} m, glTF Y-up)"
     )
     return 0
@@ -92,9 +107,9 @@ def _model(args: argparse.Namespace, input_path: Path, suffixes, bar: ProgressBa
 
 def run(args: argparse.Namespace) -> int:
     inputs = list(args.input)
-    if len(inputs) > 1 and args.what not in ("footprints", "video"):
+    if len(inputs) > 1 and args.what not in ("footprints", "video", "ortho", "model"):
         raise GeofuseError(
-            f"export {args.what}: one input at a time (several inputs: footprints, each with its clip, or video, all drawn)"
+            f"export {args.what}: one input at a time (several inputs: footprints, each with its clip; video, all drawn; ortho and model, all painted)"
         )
     suffixes = EXPORT_SUFFIXES[args.what]
     check_output(args.out, "--out", suffixes, [*inputs, args.srt])
@@ -111,9 +126,9 @@ def run(args: argparse.Namespace) -> int:
     )
     bar = ProgressBar(f"export {args.what}", sys.stderr)
     if args.what == "ortho":
-        return _ortho(args, inputs[0], suffixes, bar)
+        return _ortho(args, inputs, suffixes, bar)
     if args.what == "model":
-        return _model(args, inputs[0], suffixes, bar)
+        return _model(args, inputs, suffixes, bar)
     if len(inputs) == 1 or args.what == "video":
         session, source = open_with_source(inputs[0], args, suffixes)
         print_messages(session)

@@ -1,12 +1,14 @@
-"""`geofuse export ortho`: a clip's true orthophoto, painted frame by frame (app.export.ortho)
-and written as Cloud Optimized GeoTIFFs.
+"""`geofuse export ortho`: the true orthophoto of a clip, or of several on one timeline, painted
+frame by frame (app.export.ortho) and written as Cloud Optimized GeoTIFFs.
 
-Frames are taken and painted as app.export.painting does it. The area is the one the frames see (their
+Frames are taken and painted as app.export.painting does it (several clips in time order, onto
+the first one's scene). The area is the one the frames see (their
 footprints' box, or `area` given as lat/lon corners), the cell `gsd` metres (default: the
 video's median ground sampling at the footprints' centres, rounded up to 5 cm).
 
 Files: OUT.tif, RGBA uint8 (alpha 0 where the clip saw nothing), and OUT.seen.tif, float64: band
-1 the time each cell was seen (UTC s where the clip has a clock, else session s; NaN unseen),
+1 the time each cell was seen (UTC s where the clips have a clock, else seconds from the first
+frame; NaN unseen),
 band 2 its quality (0 unseen); both COGs with overviews, in the grid's CRS (the site's UTM zone
 by default). A GeoTIFF holds one sample type, so the picture and its float bands are two files.
 """
@@ -25,7 +27,13 @@ from rasterio.transform import Affine
 
 from app.core.outputs import check_output, write_via_path
 from app.export.ortho import Grid, OrthoMemory, make_grid, surface
-from app.export.painting import DEFAULT_EVERY_S, paint_frame_indices, paint_frames
+from app.export.painting import (
+    DEFAULT_EVERY_S,
+    ClipToPaint,
+    clips_on_a_timeline,
+    paint_frame_indices,
+    paint_frames,
+)
 from app.render.views import ModelViews
 from app.session.camera_track import CameraTrack
 from app.session.model import Session
@@ -53,14 +61,15 @@ def seen_path(out: Path) -> Path:
 
 
 def _ground_box(
-    track: CameraTrack, frames: np.ndarray, views: ModelViews
+    clips: list[ClipToPaint], plans: list[np.ndarray], views: ModelViews
 ) -> tuple[np.ndarray, np.ndarray, float]:
     """(lo, hi) ENU x, y of what the frames see (the surface under their image's corners and
     centre, from their distance maps), and the median ground sampling (m a video pixel) at
     their centres."""
     points, gsds = [], []
-    for k in frames[:: max(1, len(frames) // 40)]:
-        cam = track.frame_camera(int(k))
+    looked = [(c, k) for c, frames in zip(clips, plans, strict=True) for k in frames[:: max(1, len(frames) // 40)]]  # fmt: skip
+    for clip, k in looked:
+        cam = clip.camera(int(k))
         _, positions = views.render(cam.pinhole(64 / cam.intrinsics.width))
         p = positions.reshape(-1, 3)
         p = p[np.isfinite(p[:, 0])]
@@ -79,8 +88,8 @@ def _ground_box(
 
 def _grid(
     session: Session,
-    track: CameraTrack,
-    frames: np.ndarray,
+    clips: list[ClipToPaint],
+    plans: list[np.ndarray],
     views: ModelViews,
     options: OrthoOptions,
 ) -> Grid:
@@ -88,7 +97,7 @@ def _grid(
     video's ground sampling rounded up to 5 cm (the frames are looked at only when either is
     wanted)."""
     if options.area is None or options.gsd is None:
-        lo, hi, video_gsd = _ground_box(track, frames, views)
+        lo, hi, video_gsd = _ground_box(clips, plans, views)
     if options.area is not None:
         la0, lo0, la1, lo1 = options.area
         corners = session.frame.geodetic_to_enu(
@@ -105,16 +114,19 @@ def paint_clip(
     options: OrthoOptions = OrthoOptions(),
     progress: Callable[[float], None] | None = None,
     grid: Grid | None = None,
+    further: list[tuple[Session, CameraTrack]] = (),
 ) -> OrthoMemory:
-    """The orthophoto memory of a clip under one solved track (see the module docstring); on
-    `grid` when given (another clip's or source's, to compare them cell by cell)."""
-    frames = paint_frame_indices(track, options.every_s)
+    """The orthophoto memory of a clip under one solved track, with the further clips (session,
+    solved track) on its timeline (see the module docstring); on `grid` when given (another
+    clip's or source's, to compare them cell by cell)."""
+    clips, utc0 = clips_on_a_timeline([(session, track), *further])
+    plans = [paint_frame_indices(c.track, options.every_s) for c in clips]
     views = ModelViews(session.scene())
     try:
-        grid = grid or _grid(session, track, frames, views, options)
+        grid = grid or _grid(session, clips, plans, views, options)
         points, normals = surface(session.scene(), grid, session.frame)
         memory = OrthoMemory(grid, points, normals, options.rule)
-        paint_frames(session, track, memory, views, frames, progress)
+        paint_frames(memory, views, clips, options.every_s, utc0, progress)
     finally:
         views.release()
     return memory

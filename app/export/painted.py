@@ -22,7 +22,7 @@ from PIL import Image
 from app.core.outputs import check_output, write_atomically
 from app.export.atlas import Atlas, layout
 from app.export.memory import SurfaceMemory
-from app.export.painting import DEFAULT_EVERY_S, paint_frame_indices, paint_frames
+from app.export.painting import DEFAULT_EVERY_S, clips_on_a_timeline, paint_frames
 from app.render.views import ModelViews
 from app.session.camera_track import CameraTrack
 from app.session.model import Session
@@ -45,14 +45,16 @@ def paint_model(
     track: CameraTrack,
     options: ModelOptions = ModelOptions(),
     progress: Callable[[float], None] | None = None,
+    further: list[tuple[Session, CameraTrack]] = (),
 ) -> tuple[Atlas, SurfaceMemory]:
-    """The scene's atlas and what the clip painted on it under one solved track."""
+    """The scene's atlas and what the clip painted on it under one solved track, with the
+    further clips (session, solved track) on its timeline (app.export.painting)."""
     atlas = layout(session.scene(), options.max_texels)
     memory = SurfaceMemory(atlas.points, atlas.normals, options.rule)
     views = ModelViews(session.scene())
     try:
-        frames = paint_frame_indices(track, options.every_s)
-        paint_frames(session, track, memory, views, frames, progress)
+        clips, utc0 = clips_on_a_timeline([(session, track), *further])
+        paint_frames(memory, views, clips, options.every_s, utc0, progress)
     finally:
         views.release()
     return atlas, memory

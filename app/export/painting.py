@@ -1,28 +1,79 @@
-"""Painting a clip's frames into a surface memory (app.export.memory): which frames, and each
-frame's distance map for the occlusion test and its agreement with the model (the quality). Shared by the orthophoto and the painted model.
+"""Painting clips' frames into a surface memory (app.export.memory): which frames, in what
+order, and each frame's distance map for the occlusion test and its agreement with the model
+(the quality). Shared by the orthophoto, the painted model and the viewer's memory.
 
-Frames are taken every `every_s` seconds of video; each is decoded at most DECODE_LONG_SIDE
-pixels on its long side and its camera's distances are rendered off-screen (app.render.views)
-at most DISTANCE_LONG_SIDE; its time is UTC s where the clip has a clock, else session s.
+Several clips paint one memory on one timeline (app.session.timeline), their frames taken in
+time order, the further clips' cameras moved onto the first one's scene. Frames are taken every
+`every_s` seconds of each clip's video; each is decoded at most DECODE_LONG_SIDE pixels on its
+long side and its camera's distances are rendered off-screen (app.render.views) at most
+DISTANCE_LONG_SIDE. Exports give each frame its UTC time where the clips have a clock, else
+seconds on the timeline (from the first frame); the viewer, timeline seconds.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import heapq
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 
 import numpy as np
 
 from app.camera.pinhole import Camera
 from app.export.memory import SurfaceMemory, agreement
 from app.export.ortho import OrthoMemory
+from app.footage.clips import onto
 from app.io.video import frames_at
 from app.render.views import ModelViews
 from app.session.camera_track import CameraTrack
 from app.session.model import Session
+from app.session.timeline import Timeline
 
 DECODE_LONG_SIDE = 960
 DISTANCE_LONG_SIDE = 480
 DEFAULT_EVERY_S = 0.2
+
+
+@dataclass(frozen=True)
+class ClipToPaint:
+    """One clip's frames for a memory: its session, its camera track, its frames' times on the
+    timeline (s, one per video frame) and what takes its cameras onto the scene painted (None:
+    they are on it)."""
+
+    session: Session
+    track: CameraTrack
+    times: np.ndarray
+    move: Callable[[Camera], Camera] | None = None
+
+    def camera(self, k: int) -> Camera:
+        cam = self.track.frame_camera(int(k))
+        return cam if self.move is None else self.move(cam)
+
+
+def clips_on_a_timeline(
+    solved: list[tuple[Session, CameraTrack]],
+) -> tuple[list[ClipToPaint], float | None]:
+    """The clips (session, solved track; the first's scene is painted) on one timeline, and its
+    UTC (Unix s) at time 0, None where no clip has a clock."""
+    timeline = Timeline.of([s for s, _ in solved])
+    first = solved[0][0]
+    clips = [
+        ClipToPaint(s, t, span.times, None if k == 0 else onto(s, first))
+        for k, ((s, t), span) in enumerate(zip(solved, timeline.clips, strict=True))
+    ]
+    return clips, timeline.utc0
+
+
+def frames_in_time_order(
+    clips: list[ClipToPaint], plans: list[np.ndarray]
+) -> Iterator[tuple[float, int, int, np.ndarray]]:
+    """(timeline s, clip index, frame, RGB) of every clip's planned frames, in time order."""
+
+    def one(index: int) -> Iterator[tuple[float, int, int, np.ndarray]]:
+        clip = clips[index]
+        for k, rgb in frames_at(clip.session.video, plans[index], DECODE_LONG_SIDE):
+            yield float(clip.times[k]), index, int(k), rgb
+
+    return heapq.merge(*(one(i) for i in range(len(clips))), key=lambda item: item[:3])
 
 
 def paint_frame_indices(track: CameraTrack, every_s: float) -> np.ndarray:
@@ -67,19 +118,22 @@ def paint_one(
 
 
 def paint_frames(
-    session: Session,
-    track: CameraTrack,
     memory: OrthoMemory | SurfaceMemory,
     views: ModelViews,
-    frames: np.ndarray,
+    clips: list[ClipToPaint],
+    every_s: float,
+    utc0: float | None = None,
     progress: Callable[[float], None] | None = None,
-) -> None:
-    """Paint the video's frames (indices) into a memory, each with its camera's distances
-    (the occlusion test) and its time (UTC s where the clip has a clock, else session s)."""
-    for n, (k, rgb) in enumerate(frames_at(session.video, frames, DECODE_LONG_SIDE)):
-        cam = track.frame_camera(int(k))
-        t = float(track.clock.session_time(float(track.clock.media_s[k])))
-        utc = session.utc_of(t)
-        paint_one(memory, views, rgb, cam, utc if utc is not None else t)
+) -> int:
+    """Paint the clips' frames (one every every_s s of each) into a memory in time order, each
+    with its camera's occlusion test and agreement, its time utc0 + its timeline time (utc0
+    None: timeline s). Returns the frames painted."""
+    plans = [paint_frame_indices(c.track, every_s) for c in clips]
+    total = sum(len(p) for p in plans)
+    n = 0
+    for t, ci, k, rgb in frames_in_time_order(clips, plans):
+        paint_one(memory, views, rgb, clips[ci].camera(k), t if utc0 is None else utc0 + t)
+        n += 1
         if progress is not None:
-            progress((n + 1) / len(frames))
+            progress(n / total)
+    return n

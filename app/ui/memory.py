@@ -15,39 +15,27 @@ fixed by the atlas, whatever the clips' length.
 
 from __future__ import annotations
 
-import heapq
 import threading
 import time
-from collections.abc import Callable, Iterator
-from dataclasses import dataclass
 
 import numpy as np
 
-from app.camera.pinhole import Camera
 from app.export.atlas import Atlas, layout
 from app.export.memory import RULES, SurfaceMemory
 from app.export.memory_view import VIEWS, as_at, seen_range, view_colours
-from app.export.painting import DECODE_LONG_SIDE, DEFAULT_EVERY_S, paint_frame_indices, paint_one
-from app.io.video import frames_at
+from app.export.painting import (
+    DEFAULT_EVERY_S,
+    ClipToPaint,
+    frames_in_time_order,
+    paint_frame_indices,
+    paint_one,
+)
 from app.render.views import ModelViews
 from app.scene.mesh import MeshData
-from app.session.camera_track import CameraTrack
-from app.session.model import Session
 
 DEFAULT_MAX_TEXELS = 2_000_000  # the viewer's atlas: 0.5 m texels on the sample site
 HISTORY_EPOCHS = 16  # the time slider's memory of the past: the newest sighting in each 16th
 COMPOSE_EVERY_S = 0.25  # while painting, a new texture at most this often (real seconds)
-
-
-@dataclass(frozen=True)
-class ClipToPaint:
-    """One clip's frames for the memory: its session, its camera track, its frames' times on the
-    timeline (s, one per video frame) and what takes its cameras onto the scene."""
-
-    session: Session
-    track: CameraTrack
-    times: np.ndarray
-    move: Callable[[Camera], Camera] | None = None
 
 
 class MemoryPainter:
@@ -139,13 +127,10 @@ class MemoryPainter:
             self.atlas = atlas
             views = ModelViews(self.mesh)
             last = -np.inf
-            for t, ci, k, rgb in heapq.merge(*(self._frames(c, p, i) for i, (c, p) in enumerate(zip(self.clips, plan, strict=True)))):  # fmt: skip
+            for t, ci, k, rgb in frames_in_time_order(self.clips, plan):
                 if self._stop.is_set():
                     return
-                clip = self.clips[ci]
-                cam = clip.track.frame_camera(k)
-                cam = clip.move(cam) if clip.move is not None else cam
-                paint_one(self.memory, views, rgb, cam, t)
+                paint_one(self.memory, views, rgb, self.clips[ci].camera(k), t)
                 self.frames_painted += 1
                 if time.monotonic() - last >= COMPOSE_EVERY_S:
                     self._compose()
@@ -164,13 +149,6 @@ class MemoryPainter:
             self._wake.wait(0.5)
             self._wake.clear()
             self._compose()
-
-    def _frames(
-        self, clip: ClipToPaint, frames: np.ndarray, index: int
-    ) -> Iterator[tuple[float, int, int, np.ndarray]]:
-        """(timeline s, clip index, frame, RGB) of one clip's frames, in time order."""
-        for k, rgb in frames_at(clip.session.video, frames, DECODE_LONG_SIDE):
-            yield float(clip.times[k]), index, int(k), rgb
 
     def _compose(self) -> None:
         """The texture for the current request, unless the last one composed is it and nothing

@@ -21,11 +21,12 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from app.export.memory_view import VIEWS, view_colours  # noqa: E402
+from app.export.painting import ClipToPaint  # noqa: E402
 from app.render.context import create_offscreen_context  # noqa: E402
 from app.render.gpu_scene import GpuScene  # noqa: E402
 from app.session import open_session  # noqa: E402
 from app.session.camera_track import camera_track  # noqa: E402
-from app.ui.memory import ClipToPaint, MemoryPainter  # noqa: E402
+from app.ui.memory import MemoryPainter  # noqa: E402
 from bench.common import machine, median_ms, table, time_calls  # noqa: E402
 
 

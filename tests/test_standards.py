@@ -27,6 +27,7 @@ from app.geodesy.enu import LocalFrame
 from app.geodesy.geoid import undulation
 from app.io.dji_srt import read_srt, srt_fixes
 from app.scene.tiles import fetch
+from app.scene.tiles import write as tjw
 from app.scene.tiles.tileset import Tileset
 from app.simulate import drone
 from app.simulate import tileset as tw
@@ -291,14 +292,14 @@ def _local_tileset(folder: Path, children: list[dict] | None = None) -> Path:
     folder.mkdir(parents=True, exist_ok=True)
     (folder / "wall.glb").write_bytes(tw.glb(WALL_V, WALL_F))
     root = {
-        "boundingVolume": {"box": tw.box_of([-12, -12, -1], [12, 22, 21])},
+        "boundingVolume": {"box": tjw.box_of([-12, -12, -1], [12, 22, 21])},
         "geometricError": 0.0,
         "refine": "ADD",
         "content": {"uri": "wall.glb"},
     }
     if children:
         root["children"] = children
-    return tw.write_json(
+    return tjw.write_json(
         folder / "tileset.json",
         {"asset": {"version": "1.1"}, "geometricError": 10.0, "root": root},
     )
@@ -345,7 +346,7 @@ def test_what_cannot_be_drawn_is_said_by_render(tmp_path, capsys):
     folder.mkdir()
     (folder / "trees.i3dm").write_bytes(tw.other_tile(b"i3dm"))
     (folder / "cloud.pnts").write_bytes(tw.other_tile(b"pnts"))
-    box = {"box": tw.box_of([-12, -12, -1], [12, 22, 21])}
+    box = {"box": tjw.box_of([-12, -12, -1], [12, 22, 21])}
     children = [
         {"boundingVolume": box, "geometricError": 0.0, "content": {"uri": name}}
         for name in ("trees.i3dm", "cloud.pnts", "dragon_high.b3dm")
@@ -368,11 +369,11 @@ def test_geometric_error_scales_with_the_transform_and_request_volumes_hold(tmp_
     (folder / "wall.glb").write_bytes(tw.glb(WALL_V, WALL_F))
     scale = np.diag([10.0, 10.0, 10.0, 1.0])
     child = {
-        "boundingVolume": {"box": tw.box_of([-1.2, -1.2, -0.1], [1.2, 2.2, 2.1])},
-        "transform": tw.column_major(scale),
+        "boundingVolume": {"box": tjw.box_of([-1.2, -1.2, -0.1], [1.2, 2.2, 2.1])},
+        "transform": tjw.column_major(scale),
         "geometricError": 0.5,
         "content": {"uri": "wall.glb"},
-        "viewerRequestVolume": {"box": tw.box_of([-5, -5, 0], [5, 5, 50])},
+        "viewerRequestVolume": {"box": tjw.box_of([-5, -5, 0], [5, 5, 50])},
     }
     ts_path = _local_tileset(folder, [child])
     ts = Tileset(str(ts_path), LocalFrame(*ORIGIN), ORIGIN, 0.0, 1.0)

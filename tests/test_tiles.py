@@ -17,6 +17,7 @@ from app.camera.pinhole import Camera, look_at_quat
 from app.geodesy.enu import LocalFrame
 from app.scene import shapes
 from app.scene.mesh import MeshData
+from app.scene.tiles import write as tjw
 from app.scene.tiles.stream import TileStream, TileView
 from app.scene.tiles.tileset import Tileset, TilesetError
 from app.simulate import tileset as tw
@@ -55,7 +56,7 @@ def region_tile(shape_bytes_name: str, error: float = 0.0, **extra) -> dict:
 
 
 def enu_box_tile(uri: str | None, error: float = 0.0, **extra) -> dict:
-    node = {"boundingVolume": {"box": tw.box_of(LO, HI)}, "geometricError": error, **extra}
+    node = {"boundingVolume": {"box": tjw.box_of(LO, HI)}, "geometricError": error, **extra}
     if uri:
         node["content"] = {"uri": uri}
     return node
@@ -71,13 +72,13 @@ def tileset_doc(root: dict, version: str = "1.0") -> dict:
 
 def b3dm_rtc_region(d: Path) -> Path:
     (d / "wall.b3dm").write_bytes(ecef_b3dm(WALL))
-    return tw.write_json(d / "tileset.json", tileset_doc(region_tile("wall.b3dm")))
+    return tjw.write_json(d / "tileset.json", tileset_doc(region_tile("wall.b3dm")))
 
 
 def glb_box_transform(d: Path, draco: bool = False) -> Path:
     (d / "wall.glb").write_bytes(tw.glb(WALL.vertices, WALL.faces, draco=draco))
-    root = enu_box_tile("wall.glb", transform=tw.column_major(tw.enu_to_ecef_matrix(FRAME)))
-    return tw.write_json(d / "tileset.json", tileset_doc(root, "1.1"))
+    root = enu_box_tile("wall.glb", transform=tjw.column_major(tjw.enu_to_ecef_matrix(FRAME)))
+    return tjw.write_json(d / "tileset.json", tileset_doc(root, "1.1"))
 
 
 def glb_draco(d: Path) -> Path:
@@ -91,38 +92,38 @@ def external(d: Path) -> Path:
     (d / "sub" / "wall.glb").write_bytes(
         tw.glb(WALL.vertices - [5.0, 0.0, 0.0], WALL.faces)
     )  # ... back to the wall
-    tw.write_json(
+    tjw.write_json(
         d / "sub" / "tileset.json",
-        tileset_doc(enu_box_tile("wall.glb", transform=tw.column_major(shift))),
+        tileset_doc(enu_box_tile("wall.glb", transform=tjw.column_major(shift))),
     )
     root = enu_box_tile(
         None,
         100.0,
-        transform=tw.column_major(tw.enu_to_ecef_matrix(FRAME)),
+        transform=tjw.column_major(tjw.enu_to_ecef_matrix(FRAME)),
         children=[enu_box_tile("sub/tileset.json", 50.0)],
     )
-    return tw.write_json(d / "tileset.json", tileset_doc(root))
+    return tjw.write_json(d / "tileset.json", tileset_doc(root))
 
 
 def replace(d: Path) -> Path:
     (d / "coarse.b3dm").write_bytes(ecef_b3dm(NEAR_WALL))
     (d / "fine.b3dm").write_bytes(ecef_b3dm(WALL))
     root = region_tile("coarse.b3dm", 200.0, refine="REPLACE", children=[region_tile("fine.b3dm")])
-    return tw.write_json(d / "tileset.json", tileset_doc(root))
+    return tjw.write_json(d / "tileset.json", tileset_doc(root))
 
 
 def add(d: Path) -> Path:
     (d / "left.b3dm").write_bytes(ecef_b3dm(LEFT))
     (d / "right.b3dm").write_bytes(ecef_b3dm(RIGHT))
     root = region_tile("left.b3dm", 200.0, refine="ADD", children=[region_tile("right.b3dm")])
-    return tw.write_json(d / "tileset.json", tileset_doc(root))
+    return tjw.write_json(d / "tileset.json", tileset_doc(root))
 
 
 def composite(d: Path) -> Path:
     (d / "both.cmpt").write_bytes(
         tw.cmpt([ecef_b3dm(LEFT), tw.other_tile(b"i3dm"), ecef_b3dm(RIGHT, (10.0, WALL_Y, 0.0))])
     )
-    return tw.write_json(d / "tileset.json", tileset_doc(region_tile("both.cmpt")))
+    return tjw.write_json(d / "tileset.json", tileset_doc(region_tile("both.cmpt")))
 
 
 def implicit_quadtree(d: Path) -> Path:
@@ -140,7 +141,7 @@ def implicit_quadtree(d: Path) -> Path:
         "boundingVolume": {"box": [0, 0, 10, 40, 0, 0, 0, 40, 0, 0, 0, 11]},
         "geometricError": 100.0,
         "refine": "REPLACE",
-        "transform": tw.column_major(tw.enu_to_ecef_matrix(FRAME)),
+        "transform": tjw.column_major(tjw.enu_to_ecef_matrix(FRAME)),
         "content": {"uri": "content/{level}_{x}_{y}.glb"},
         "implicitTiling": {
             "subdivisionScheme": "QUADTREE",
@@ -149,7 +150,7 @@ def implicit_quadtree(d: Path) -> Path:
             "subtrees": {"uri": "subtrees/{level}.{x}.{y}.subtree"},
         },
     }
-    return tw.write_json(
+    return tjw.write_json(
         d / "tileset.json", {"asset": {"version": "1.1"}, "geometricError": 200.0, "root": root}
     )
 
@@ -163,7 +164,7 @@ def glb_y_up_ecef_root(d: Path) -> Path:
     (d / "wall.glb").write_bytes(
         tw.glb(FRAME.enu_to_ecef(WALL.vertices) - centre, WALL.faces, node_matrix=node)
     )
-    return tw.write_json(d / "tileset.json", tileset_doc(region_tile("wall.glb")))
+    return tjw.write_json(d / "tileset.json", tileset_doc(region_tile("wall.glb")))
 
 
 TILESETS = [
@@ -384,10 +385,10 @@ def test_damaged_and_unsupported_content_is_counted_never_fatal(tmp_path):
         region_tile(n)
         for n in ("good.b3dm", "cut.b3dm", "points.pnts", "meshopt.glb", "missing.b3dm", "ktx2.glb")
     ]
-    path = tw.write_json(
+    path = tjw.write_json(
         tmp_path / "tileset.json",
         tileset_doc(
-            enu_box_tile(None, 100.0, transform=tw.column_major(np.eye(4)), children=kids)
+            enu_box_tile(None, 100.0, transform=tjw.column_major(np.eye(4)), children=kids)
             | {"boundingVolume": {"region": tw.region_of(FRAME, LO, HI)}}
         ),
     )
@@ -438,7 +439,7 @@ def test_damaged_and_unsupported_content_is_counted_never_fatal(tmp_path):
     ],
 )
 def test_a_broken_tileset_names_the_file_and_the_key(tmp_path, doc, field):
-    path = tw.write_json(tmp_path / "tileset.json", doc)
+    path = tjw.write_json(tmp_path / "tileset.json", doc)
     with pytest.raises(TilesetError) as err:
         Tileset(str(path), FRAME)
     assert err.value.field == field and str(path) in str(err.value)

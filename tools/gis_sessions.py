@@ -30,6 +30,7 @@ if str(ROOT) not in sys.path:
 
 from app.geodesy import geoid  # noqa: E402
 from app.geodesy.enu import LocalFrame  # noqa: E402
+from app.scene.tiles import write as tjw  # noqa: E402
 from app.simulate import tileset as tw  # noqa: E402
 from app.simulate.sample import SAMPLE_DIR, SAMPLE_ORIGIN  # noqa: E402
 from app.simulate.terrain import write_geotiff  # noqa: E402
@@ -62,13 +63,13 @@ def tiles(out: Path) -> Path:
     (d / "stadium").mkdir(exist_ok=True)
     shutil.copy(SAMPLE_DIR / "scene.glb", d / "stadium" / "scene.glb")
     root = {
-        "boundingVolume": {"box": tw.box_of([-300, -300, -5], [300, 300, 60])},
+        "boundingVolume": {"box": tjw.box_of([-300, -300, -5], [300, 300, 60])},
         "geometricError": 0.0,
         "refine": "REPLACE",
-        "transform": tw.column_major(tw.enu_to_ecef_matrix(frame)),
+        "transform": tjw.column_major(tjw.enu_to_ecef_matrix(frame)),
         "content": {"uri": "scene.glb"},
     }
-    tw.write_json(
+    tjw.write_json(
         d / "stadium" / "tileset.json",
         {"asset": {"version": "1.1"}, "geometricError": 50.0, "root": root},
     )

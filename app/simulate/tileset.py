@@ -22,6 +22,7 @@ from PIL import Image
 from app.geodesy.enu import LocalFrame, geodetic_to_ecef
 from app.scene import shapes
 from app.scene.tiles.implicit import level_offset, morton
+from app.scene.tiles.write import write_json
 
 Z_UP_TO_Y_UP = np.array([[1.0, 0, 0], [0, 0, 1], [0, -1, 0]])  # (x, y, z) -> (x, z, -y)
 
@@ -239,24 +240,6 @@ def subtree(
     return b"subt" + struct.pack("<IQQ", 1, len(js), len(binary)) + js + binary
 
 
-def enu_to_ecef_matrix(frame: LocalFrame) -> np.ndarray:
-    """The 4x4 that takes ENU metres at `frame`'s origin to ECEF (a tileset root's transform)."""
-    m = np.eye(4)
-    m[:3, :3] = frame.rotation.T
-    m[:3, 3] = frame.origin_ecef
-    return m
-
-
-def column_major(m: np.ndarray) -> list[float]:
-    return np.asarray(m, np.float64).T.ravel().tolist()
-
-
-def write_json(path: Path, doc: dict) -> Path:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(doc, indent=1))
-    return path
-
-
 def region_of(frame: LocalFrame, lo_enu: npt.ArrayLike, hi_enu: npt.ArrayLike) -> list[float]:
     """A 3D Tiles region (rad, rad, rad, rad, m, m) enclosing an ENU box of `frame`."""
     lo, hi = np.asarray(lo_enu, np.float64), np.asarray(hi_enu, np.float64)
@@ -274,13 +257,6 @@ def region_of(frame: LocalFrame, lo_enu: npt.ArrayLike, hi_enu: npt.ArrayLike) -
         float(h.min() - 1),
         float(h.max() + 1),
     ]
-
-
-def box_of(lo_enu: npt.ArrayLike, hi_enu: npt.ArrayLike) -> list[float]:
-    """A 3D Tiles box (centre and three half-axes) of an axis-aligned box in the tile's frame."""
-    lo, hi = np.asarray(lo_enu, np.float64), np.asarray(hi_enu, np.float64)
-    c, half = (lo + hi) / 2, (hi - lo) / 2
-    return list(c) + [half[0], 0, 0, 0, half[1], 0, 0, 0, half[2]]
 
 
 # -- a generated city ------------------------------------------------------------------------

@@ -324,6 +324,7 @@ def _ground_tileset(folder: Path, north_m: float = 0.0) -> Path:
     its centre north_m north of the origin (RTC_CENTER, region volume)."""
     from app.geodesy.enu import LocalFrame
     from app.scene import shapes
+    from app.scene.tiles import write as tjw
     from app.simulate import tileset as tw
 
     frame = LocalFrame(*PHONE_ORIGIN)
@@ -333,7 +334,7 @@ def _ground_tileset(folder: Path, north_m: float = 0.0) -> Path:
         tw.b3dm(tw.glb(frame.enu_to_ecef(quad.vertices) - rtc, quad.faces), rtc)
     )
     region = tw.region_of(frame, [-200, north_m - 200, -1], [200, north_m + 200, 1])
-    return tw.write_json(
+    return tjw.write_json(
         folder / "tileset.json",
         {
             "asset": {"version": "1.0"},

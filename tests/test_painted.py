@@ -136,3 +136,45 @@ def test_export_model_writes_a_glb_any_viewer_opens(tmp_path):
     (mesh,) = loaded.geometry.values()
     assert mesh.visual.kind == "texture" and mesh.visual.material.baseColorTexture is not None
     assert len(mesh.faces) == 62
+
+
+def test_the_painted_scene_as_3d_tiles_reads_back_in_place_with_its_texels(tmp_path):
+    """The painted scene split into tiles of at most 3 triangles: geofuse's own 3D Tiles reader
+    puts every triangle back where the scene has it (1 cm, through ECEF) and each tile's own
+    atlas shows, at each triangle's middle, that triangle's painted colour."""
+    from app.export.painted_tiles import tile_groups, write_painted_tiles
+    from app.scene.tiles.stream import decode_tile
+    from app.scene.tiles.tileset import Tileset
+
+    scene = _scene()
+    atlas = layout(scene, max_texels=100_000)
+    memory = SurfaceMemory(atlas.points, atlas.normals)
+    t = len(atlas.triangles)
+    palette = np.stack([np.arange(t) * 37 % 256, np.arange(t) * 91 % 256, 255 - np.arange(t) * 13 % 256], axis=1)  # fmt: skip
+    memory.rgb[:] = palette[atlas.triangle].astype(np.uint8)
+    memory.seen[:] = True
+    assert all(len(g) <= 3 for g in tile_groups(atlas.triangles, 3))
+    frame = LocalFrame(*ORIGIN)
+    out, tiles = write_painted_tiles(
+        atlas, memory, frame, tmp_path / "tiles" / "tileset.json", [], 3
+    )
+    assert tiles == len(tile_groups(atlas.triangles, 3)) > 1
+    ts = Tileset(str(out), frame)
+    ts.expand(ts.root)
+    centres = atlas.triangles.mean(axis=1)
+    found = 0
+    for tile in ts.root.children:
+        for prim in decode_tile(ts, tile, None).primitives:
+            tri = prim.positions[prim.indices].astype(np.float64)  # (n, 3, 3) ENU
+            uv = prim.uvs[prim.indices].mean(axis=1)  # the middle's uv (v up, as Primitive)
+            h, w = prim.texture.shape[:2]
+            for k in range(len(tri)):
+                j = int(np.argmin(np.linalg.norm(centres - tri[k].mean(axis=0), axis=1)))
+                assert (
+                    np.abs(np.sort(tri[k], axis=0) - np.sort(atlas.triangles[j], axis=0)).max()
+                    < 0.01
+                )
+                texel = prim.texture[int(uv[k, 1] * h), int(uv[k, 0] * w), :3]
+                assert np.abs(texel.astype(int) - palette[j]).max() <= 1, (j, texel, palette[j])
+                found += 1
+    assert found == t

@@ -19,6 +19,7 @@ from app.export import EXPORT_SUFFIXES
 from app.export.jobs import ExportOptions, export_session, write_footprints
 from app.export.orthophoto import OrthoOptions, paint_clip, write_orthophoto
 from app.export.painted import ModelOptions, paint_model, write_painted
+from app.export.painted_tiles import write_painted_tiles
 from app.export.records import frame_records
 from app.geodesy.crs import parse_crs
 
@@ -95,11 +96,18 @@ def _model(args: argparse.Namespace, inputs: list[Path], suffixes, bar: Progress
         raise GeofuseError(f"export model {input_path}: {exc}") from exc
     f = session.frame
     read = [*session.inputs, *(p for s, _ in further for p in s.inputs)]
-    out = write_painted(atlas, memory, (f.lat_deg, f.lon_deg, f.h_m), Path(args.out), read)
     w, h = atlas.size
+    said = (
+        f"{len(atlas.triangles):,} triangles, a {w} x {h} atlas of {atlas.texel_m:.2f} m texels, "
+        f"{100.0 * memory.seen.mean():.0f} % of the surface seen, {memory.frames} frames of {len(inputs)} clip(s), rule {memory.rule}"
+    )
+    if Path(args.out).suffix.lower() == ".json":  # a 3D Tiles tileset
+        out, tiles = write_painted_tiles(atlas, memory, f, Path(args.out), read)
+        print(f"wrote {out} and {tiles} tiles beside it ({said}; placed on the globe)")
+        return 0
+    out = write_painted(atlas, memory, (f.lat_deg, f.lon_deg, f.h_m), Path(args.out), read)
     print(
-        f"wrote {out} ({len(atlas.triangles):,} triangles, a {w} x {h} atlas of {atlas.texel_m:.2f} m texels, "
-        f"{100.0 * memory.seen.mean():.0f} % of the surface seen, {memory.frames} frames of {len(inputs)} clip(s), rule {memory.rule}; "
+        f"wrote {out} ({said}; "
         f"local east-north-up from {f.lat_deg:.7f}, {f.lon_deg:.7f}, {f.h_m:.2f} m, glTF Y-up)"
     )
     return 0

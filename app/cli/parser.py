@@ -352,7 +352,7 @@ def _export(sub: Commands) -> None:
     ex.add_argument(
         "what",
         choices=sorted(EXPORT_SUFFIXES),
-        help="footprints: .geojson/.kml/.kmz; fmv-csv: .csv; klv: .ts; video: .mp4; ortho: .tif (and .seen.tif beside it); model: .glb",
+        help="footprints: .geojson/.kml/.kmz; fmv-csv: .csv; klv: .ts; video: .mp4; ortho: .tif (and .seen.tif beside it); model: .glb, or tileset.json (3D Tiles, its tiles beside it)",
     )
     ex.add_argument(
         "input",

@@ -10,5 +10,5 @@ EXPORT_SUFFIXES = {
     "klv": (".ts",),
     "video": (".mp4",),
     "ortho": (".tif", ".tiff"),
-    "model": (".glb",),
+    "model": (".glb", ".json"),
 }

@@ -99,7 +99,7 @@ def _frames(tri: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.nda
     return e1, e2, n, flat
 
 
-def _pack(sizes: np.ndarray) -> tuple[np.ndarray, int, int]:
+def pack(sizes: np.ndarray) -> tuple[np.ndarray, int, int]:
     """Shelf packing of (T, 2) chart sizes (w, h) texels: (T, 2) corners, width, height."""
     area = float(np.sum(sizes[:, 0] * sizes[:, 1]))
     width = int(min(MAX_SIDE, max(int(sizes[:, 0].max()), np.ceil(np.sqrt(area) * 1.05))))
@@ -154,7 +154,7 @@ def layout(mesh: MeshData, max_texels: int = 4_000_000) -> Atlas:
     texel = float(np.sqrt(np.sum((extent[:, 0] + 1e-3) * (extent[:, 1] + 1e-3)) / max_texels))
     while True:
         sizes = (np.ceil(extent / texel) + 2).astype(np.int64)
-        corners, width, height = _pack(sizes)
+        corners, width, height = pack(sizes)
         if width * height <= max_texels and height <= MAX_SIDE:
             break
         texel *= 1.1

@@ -60,12 +60,17 @@ def paint_model(
     return atlas, memory
 
 
-def painted_glb(atlas: Atlas, memory: SurfaceMemory, origin: tuple[float, float, float]) -> bytes:
-    """The painted scene as GLB bytes (see the module docstring)."""
-    v = atlas.triangles.reshape(-1, 3)
+def glb_bytes(triangles: np.ndarray, uvs: np.ndarray, image: np.ndarray) -> bytes:
+    """Triangles (T, 3, 3) ENU m with their uvs (T, 3, 2, v up) on an (H, W, 3) image (top row
+    first) as one textured glTF mesh, Y-up (X east, Y up, Z south), as GLB bytes."""
+    return _scene(triangles, uvs, image).export(file_type="glb")
+
+
+def _scene(triangles: np.ndarray, uvs: np.ndarray, image: np.ndarray) -> trimesh.Scene:
+    v = triangles.reshape(-1, 3)
     material = trimesh.visual.material.PBRMaterial(
         name="painted",
-        baseColorTexture=Image.fromarray(atlas.image(memory.rgb, memory.seen)),
+        baseColorTexture=Image.fromarray(image),
         baseColorFactor=[255, 255, 255, 255],
         metallicFactor=0.0,
         roughnessFactor=1.0,
@@ -73,10 +78,15 @@ def painted_glb(atlas: Atlas, memory: SurfaceMemory, origin: tuple[float, float,
     mesh = trimesh.Trimesh(
         vertices=np.column_stack([v[:, 0], v[:, 2], -v[:, 1]]),
         faces=np.arange(len(v)).reshape(-1, 3),
-        visual=trimesh.visual.TextureVisuals(uv=atlas.uvs.reshape(-1, 2), material=material),
+        visual=trimesh.visual.TextureVisuals(uv=uvs.reshape(-1, 2), material=material),
         process=False,
     )
-    scene = trimesh.Scene(mesh)
+    return trimesh.Scene(mesh)
+
+
+def painted_glb(atlas: Atlas, memory: SurfaceMemory, origin: tuple[float, float, float]) -> bytes:
+    """The painted scene as GLB bytes (see the module docstring)."""
+    scene = _scene(atlas.triangles, atlas.uvs, atlas.image(memory.rgb, memory.seen))
     scene.metadata["geofuse_origin"] = [float(x) for x in origin]
     return scene.export(file_type="glb")
 

@@ -5,11 +5,18 @@ and the time to compose each view's texture (the painter thread's work when the 
 and to build its mipmaps on upload (the frame loop's), medians of repeated runs.
 
     python bench/bench_memory.py [--every-s 0.2] [--max-texels 2000000] [--repeats 5]
+    python bench/bench_memory.py --long-minutes 20
+
+--long-minutes M: the memory over an M-minute survey flight instead (app.simulate.flights; a frame
+every EVERY_S, each a flat synthetic image of its own colour: what is measured is the memory,
+not the video), the process's resident memory (RSS) and the memory's bytes read at each quarter:
+they must not grow with the clip.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 from pathlib import Path
@@ -20,14 +27,54 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
+from app.camera.intrinsics import Intrinsics  # noqa: E402
+from app.camera.pinhole import Camera  # noqa: E402
+from app.export.atlas import layout  # noqa: E402
+from app.export.memory import SurfaceMemory  # noqa: E402
 from app.export.memory_view import VIEWS, view_colours  # noqa: E402
-from app.export.painting import ClipToPaint  # noqa: E402
+from app.export.painting import ClipToPaint, paint_one  # noqa: E402
+from app.geodesy import rotations  # noqa: E402
 from app.render.context import create_offscreen_context  # noqa: E402
 from app.render.gpu_scene import GpuScene  # noqa: E402
+from app.render.views import ModelViews  # noqa: E402
 from app.session import open_session  # noqa: E402
 from app.session.camera_track import camera_track  # noqa: E402
+from app.simulate.flights import survey  # noqa: E402
 from app.ui.memory import MemoryPainter  # noqa: E402
 from bench.common import machine, median_ms, table, time_calls  # noqa: E402
+
+
+def rss_mb() -> float:
+    """This process's resident memory now (Linux /proc), MB."""
+    pages = int(Path("/proc/self/statm").read_text().split()[1])
+    return pages * os.sysconf("SC_PAGE_SIZE") / 1e6
+
+
+def long_clip(minutes: float, every_s: float, max_texels: int) -> int:
+    """The memory over a long survey (see the module docstring): RSS and bytes at each quarter."""
+    session = open_session(ROOT / "assets/sample/session.toml")
+    scene = session.scene()
+    atlas = layout(scene, max_texels)
+    times = np.arange(0.0, minutes * 60.0, every_s)
+    memory = SurfaceMemory(atlas.points, atlas.normals, "newest", (0.0, float(times[-1]), 16))
+    views = ModelViews(scene)
+    flight = survey()
+    quats = rotations.camera_quat_from_hpr(*flight.hpr(times).T)
+    positions = flight.position(times)
+    intr = Intrinsics.from_fov(960, 540, 70.0)
+    rows, t0 = [], time.perf_counter()
+    for k, t in enumerate(times):
+        cam = Camera.create(intr, positions[k], quats[k], far=2000.0)
+        frame = np.full((540, 960, 3), (k * 7 % 256, k * 13 % 256, 200), np.uint8)
+        paint_one(memory, views, frame, cam, float(t))
+        if (k + 1) % (len(times) // 4) == 0 or k == 0:
+            rows.append([f"{t / 60:.1f}", k + 1, f"{rss_mb():.0f}", f"{memory.nbytes / 1e6:.0f}", f"{100 * memory.seen.mean():.0f}", f"{time.perf_counter() - t0:.0f}"])  # fmt: skip
+    views.release()
+    print(
+        f"# {machine()}: a {minutes:g}-minute survey, a frame every {every_s:g} s, {len(atlas.points):,} samples"
+    )
+    print(table(["minute", "frames", "RSS (MB)", "memory (MB)", "seen (%)", "elapsed (s)"], rows))
+    return 0
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -35,7 +82,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--every-s", type=float, default=0.2)
     ap.add_argument("--max-texels", type=int, default=2_000_000)
     ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--long-minutes", type=float, default=None)
     a = ap.parse_args(argv)
+    if a.long_minutes:
+        return long_clip(a.long_minutes, a.every_s, a.max_texels)
     session = open_session(ROOT / "assets/sample/session.toml")
     track = camera_track(session, "truth")
     times = np.asarray(session.frame_times, np.float64) - float(session.frame_times[0])

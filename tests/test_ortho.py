@@ -246,3 +246,71 @@ def test_a_surface_seen_edge_on_is_not_painted(scene_views):
     m.paint(_flat((90, 200, 90)), cam, distances(scene_views, cam), 5.0)
     assert not m.seen[_cell(m, 15.0, 15.0)]
     assert m.seen[_cell(m, 7.0, 7.0)]  # 9.9 m away: cosine 0.29
+
+
+def test_export_ortho_paints_a_3d_tiles_scene_as_its_model(tmp_path):
+    """The same 3 s survey, its scene the sample model wrapped as 3D Tiles: the tiles the
+    frames need are frozen and painted, and building 5's roof lands where the GLB scene puts
+    it (the orthophotos agree cell for cell where both saw)."""
+    import shutil
+
+    from app.scene.tiles import write as tjw
+    from app.simulate.sample import SAMPLE_DIR, SAMPLE_ORIGIN, SAMPLE_SCENE
+    from app.simulate.session import SampleConfig, quick_config, write_sample_session
+
+    manifest = write_sample_session(
+        tmp_path / "s",
+        SAMPLE_SCENE,
+        SampleConfig(**{**quick_config(3.0).__dict__, "flight": "survey"}),
+    )
+    tiles = tmp_path / "s" / "stadium"
+    tiles.mkdir()
+    shutil.copy(SAMPLE_DIR / "scene.glb", tiles / "scene.glb")
+    root = {
+        "boundingVolume": {"box": tjw.box_of([-300, -300, -5], [300, 300, 60])},
+        "geometricError": 0.0,
+        "refine": "REPLACE",
+        "transform": tjw.column_major(tjw.enu_to_ecef_matrix(LocalFrame(*SAMPLE_ORIGIN))),
+        "content": {"uri": "scene.glb"},
+    }
+    tjw.write_json(
+        tiles / "tileset.json", {"asset": {"version": "1.1"}, "geometricError": 50.0, "root": root}
+    )
+    text = manifest.read_text()
+    start = text.index("[scene]")
+    end = text.index("\n[", start + 1) + 1
+    lat, lon, h = SAMPLE_ORIGIN
+    tiled = tmp_path / "s" / "tiled.toml"
+    tiled.write_text(
+        text[:start]
+        + f'[origin]\nlat = {lat}\nlon = {lon}\nh = {h}\n\n[scene]\npath = "stadium/tileset.json"\n\n'
+        + text[end:]
+    )
+    outs = []
+    for m, name in ((manifest, "glb.tif"), (tiled, "tiles.tif")):
+        out = tmp_path / name
+        args = ["export", "ortho", str(m), "--out", str(out), "--source", "truth", "--gsd", "0.5"]
+        args += ["--area", str(_area_geojson(tmp_path))]
+        subprocess.run([sys.executable, "-m", "app", *args], check=True, capture_output=True)
+        with rasterio.open(out) as src:
+            outs.append(src.read().transpose(1, 2, 0).astype(int))
+    glb, tiled_rgba = outs
+    both = (glb[..., 3] == 255) & (tiled_rgba[..., 3] == 255)
+    assert both.sum() > 10_000
+    assert np.median(np.abs(glb[both, :3] - tiled_rgba[both, :3])) <= 2
+
+
+def _area_geojson(folder):
+    """A GeoJSON polygon over the sample site's middle (lat/lon), written once."""
+    import json
+
+    from app.simulate.sample import SAMPLE_ORIGIN
+
+    path = folder / "area.geojson"
+    if not path.exists():
+        frame = LocalFrame(*SAMPLE_ORIGIN)
+        ll = frame.enu_to_geodetic(np.array([[-120.0, -100.0, 0.0], [120.0, 100.0, 0.0]]))
+        (la0, lo0, _), (la1, lo1, _) = ll
+        ring = [[lo0, la0], [lo1, la0], [lo1, la1], [lo0, la1], [lo0, la0]]
+        path.write_text(json.dumps({"type": "Polygon", "coordinates": [ring]}))
+    return path

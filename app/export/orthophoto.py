@@ -33,6 +33,7 @@ from app.export.painting import (
     clips_on_a_timeline,
     paint_frame_indices,
     paint_frames,
+    scene_to_paint,
 )
 from app.render.views import ModelViews
 from app.session.camera_track import CameraTrack
@@ -121,12 +122,13 @@ def paint_clip(
     clip's or source's, to compare them cell by cell)."""
     clips, utc0 = clips_on_a_timeline([(session, track), *further])
     plans = [paint_frame_indices(c.track, options.every_s) for c in clips]
-    views = ModelViews(session.scene())
+    scene = scene_to_paint(session.scene(), clips, plans)
+    views = ModelViews(scene)
     try:
         grid = grid or _grid(session, clips, plans, views, options)
-        points, normals = surface(session.scene(), grid, session.frame)
+        points, normals = surface(scene, grid, session.frame)
         memory = OrthoMemory(grid, points, normals, options.rule)
-        paint_frames(memory, views, clips, options.every_s, utc0, progress)
+        paint_frames(memory, views, clips, plans, utc0, progress)
     finally:
         views.release()
     return memory

@@ -22,7 +22,13 @@ from PIL import Image
 from app.core.outputs import check_output, write_atomically
 from app.export.atlas import Atlas, layout
 from app.export.memory import SurfaceMemory
-from app.export.painting import DEFAULT_EVERY_S, clips_on_a_timeline, paint_frames
+from app.export.painting import (
+    DEFAULT_EVERY_S,
+    clips_on_a_timeline,
+    paint_frame_indices,
+    paint_frames,
+    scene_to_paint,
+)
 from app.render.views import ModelViews
 from app.session.camera_track import CameraTrack
 from app.session.model import Session
@@ -49,12 +55,14 @@ def paint_model(
 ) -> tuple[Atlas, SurfaceMemory]:
     """The scene's atlas and what the clip painted on it under one solved track, with the
     further clips (session, solved track) on its timeline (app.export.painting)."""
-    atlas = layout(session.scene(), options.max_texels)
+    clips, utc0 = clips_on_a_timeline([(session, track), *further])
+    plans = [paint_frame_indices(c.track, options.every_s) for c in clips]
+    scene = scene_to_paint(session.scene(), clips, plans)
+    atlas = layout(scene, options.max_texels)
     memory = SurfaceMemory(atlas.points, atlas.normals, options.rule)
-    views = ModelViews(session.scene())
+    views = ModelViews(scene)
     try:
-        clips, utc0 = clips_on_a_timeline([(session, track), *further])
-        paint_frames(memory, views, clips, options.every_s, utc0, progress)
+        paint_frames(memory, views, clips, plans, utc0, progress)
     finally:
         views.release()
     return atlas, memory

@@ -13,6 +13,7 @@ seconds on the timeline (from the first frame); the viewer, timeline seconds.
 from __future__ import annotations
 
 import heapq
+import logging
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
@@ -24,10 +25,13 @@ from app.export.ortho import OrthoMemory
 from app.footage.clips import onto
 from app.io.video import frames_at
 from app.render.views import ModelViews
+from app.scene.mesh import MeshData
+from app.scene.tiles.freeze import frozen_tiles
 from app.session.camera_track import CameraTrack
 from app.session.model import Session
 from app.session.timeline import Timeline
 
+log = logging.getLogger("geofuse.export")
 DECODE_LONG_SIDE = 960
 DISTANCE_LONG_SIDE = 480
 DEFAULT_EVERY_S = 0.2
@@ -61,6 +65,18 @@ def clips_on_a_timeline(
         for k, ((s, t), span) in enumerate(zip(solved, timeline.clips, strict=True))
     ]
     return clips, timeline.utc0
+
+
+def scene_to_paint(mesh: MeshData, clips: list[ClipToPaint], plans: list[np.ndarray]) -> MeshData:
+    """The scene a memory paints: `mesh`, its 3D Tiles layers frozen to the tiles the painted
+    frames' cameras need (app.scene.tiles.freeze; the count and bytes logged). A tileset none of
+    whose tiles loads raises FreezeError."""
+    if not mesh.tilesets:
+        return mesh
+    cameras = [c.camera(k) for c, frames in zip(clips, plans, strict=True) for k in frames]
+    frozen, tiles, nbytes = frozen_tiles(mesh, cameras)
+    log.info("3D Tiles painted: %d tiles the frames need, %.0f MB", tiles, nbytes / 1e6)
+    return frozen
 
 
 def frames_in_time_order(
@@ -121,14 +137,13 @@ def paint_frames(
     memory: OrthoMemory | SurfaceMemory,
     views: ModelViews,
     clips: list[ClipToPaint],
-    every_s: float,
+    plans: list[np.ndarray],
     utc0: float | None = None,
     progress: Callable[[float], None] | None = None,
 ) -> int:
-    """Paint the clips' frames (one every every_s s of each) into a memory in time order, each
+    """Paint the clips' planned frames (paint_frame_indices) into a memory in time order, each
     with its camera's occlusion test and agreement, its time utc0 + its timeline time (utc0
     None: timeline s). Returns the frames painted."""
-    plans = [paint_frame_indices(c.track, every_s) for c in clips]
     total = sum(len(p) for p in plans)
     n = 0
     for t, ci, k, rgb in frames_in_time_order(clips, plans):

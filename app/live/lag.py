@@ -17,7 +17,6 @@ waiting: frames the estimator has not caught up with are dropped from its queue 
 
 from __future__ import annotations
 
-import threading
 from collections import deque
 from collections.abc import Callable
 
@@ -26,6 +25,7 @@ import numpy as np
 
 from app.camera.intrinsics import Intrinsics
 from app.core.messages import Messages
+from app.core.worker import Worker
 from app.io.mavlink import MavlinkTelemetry
 from app.live.pose import MavlinkPoses
 from app.sync.fit import MAX_LAG_S, SyncResult, estimate_offset
@@ -57,7 +57,7 @@ def _principal(reference: RateCurve) -> RateCurve:
     return RateCurve(reference.t, (reference.omega @ axis)[:, None], axis)
 
 
-class LagEstimator:
+class LagEstimator(Worker):
     """See the module docstring. intrinsics: the video's assumed pinhole (display pixels)."""
 
     def __init__(
@@ -78,19 +78,8 @@ class LagEstimator:
         self.dropped = 0
         self._queue: deque[tuple[float, np.ndarray]] = deque()
         self._rates: deque[tuple[float, np.ndarray]] = deque()
-        self._wake = threading.Event()
-        self._stop = threading.Event()
         self._last_fit_t: float | None = None
-        self._thread = threading.Thread(target=self._run, name="geofuse-lag", daemon=True)
-
-    def start(self) -> LagEstimator:
-        self._thread.start()
-        return self
-
-    def stop(self, timeout_s: float = 5.0) -> None:
-        self._stop.set()
-        self._wake.set()
-        self._thread.join(timeout_s)
+        super().__init__("geofuse-lag")
 
     @property
     def lag_s(self) -> float | None:

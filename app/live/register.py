@@ -24,6 +24,7 @@ import numpy as np
 
 from app.camera.pinhole import Camera
 from app.core.messages import Messages
+from app.core.worker import Worker
 from app.geodesy import rotations
 from app.register.solve import Registrar, RegistrationSettings
 from app.scene.mesh import MeshData
@@ -68,7 +69,7 @@ def yuv_to_rgb(planes) -> np.ndarray:
     return cv2.cvtColor(stacked, cv2.COLOR_YUV2RGB_I420)
 
 
-class LiveRegistration:
+class LiveRegistration(Worker):
     """See the module docstring. mesh: the scene (textured: app.session.model.scene_refusal)."""
 
     def __init__(
@@ -84,18 +85,7 @@ class LiveRegistration:
         self._offer: tuple[float, tuple, Camera] | None = None
         self._last_offered: float | None = None
         self._busy = False
-        self._wake = threading.Event()
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, name="geofuse-register", daemon=True)
-
-    def start(self) -> LiveRegistration:
-        self._thread.start()
-        return self
-
-    def stop(self, timeout_s: float = 10.0) -> None:
-        self._stop.set()
-        self._wake.set()
-        self._thread.join(timeout_s)
+        super().__init__("geofuse-register")
 
     def offer(self, t: float, planes, prior: Camera) -> None:
         """A frame drawn (media time t s, its yuv planes, the telemetry's camera): taken as the

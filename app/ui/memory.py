@@ -20,6 +20,7 @@ import time
 
 import numpy as np
 
+from app.core.worker import Worker
 from app.export.atlas import Atlas, layout
 from app.export.memory import RULES, SurfaceMemory
 from app.export.memory_view import VIEWS, as_at, seen_range, view_colours
@@ -38,7 +39,7 @@ HISTORY_EPOCHS = 16  # the time slider's memory of the past: the newest sighting
 COMPOSE_EVERY_S = 0.25  # while painting, a new texture at most this often (real seconds)
 
 
-class MemoryPainter:
+class MemoryPainter(Worker):
     """See the module docstring. Call request/take/stop from the frame loop's thread."""
 
     def __init__(
@@ -61,24 +62,13 @@ class MemoryPainter:
         self.error: str | None = None
         self.range_s: tuple[float, float] | None = None  # the sightings the last texture shows
         self._lock = threading.Lock()
-        self._wake = threading.Event()
-        self._stop = threading.Event()
         self._finished = threading.Event()
         self._request: tuple[str, float | None] = ("memory", None)
         self._texture: np.ndarray | None = None
         self._texture_for: tuple[str, float | None] | None = None
         self._composed_for: tuple[tuple[str, float | None], int] | None = None
         self.shown_for: tuple[str, float | None] | None = None  # the request of the last taken
-        self._thread = threading.Thread(target=self._run, name="geofuse-memory", daemon=True)
-
-    def start(self) -> MemoryPainter:
-        self._thread.start()
-        return self
-
-    def stop(self, timeout_s: float = 10.0) -> None:
-        self._stop.set()
-        self._wake.set()
-        self._thread.join(timeout_s)
+        super().__init__("geofuse-memory")
 
     def wait(self, timeout_s: float | None = None) -> bool:
         """Wait until painting is done (or failed); True when it is."""

@@ -240,3 +240,43 @@ def test_under_the_best_rule_a_frame_that_agrees_with_the_model_wins(gl_ctx):
         assert np.all(blind.time == 2.0)  # nearer, so better, when agreement is not asked
     finally:
         views.release()
+
+
+def test_the_viewer_paints_a_3d_tiles_scene_from_the_tiles_its_clip_needs(tmp_path):
+    """The sample scene as 3D Tiles: the painter freezes the tiles the clip's cameras select
+    and paints them; its atlas covers the streamed layer (which the memory view then stands
+    for) and the clip paints its facade."""
+    import shutil
+
+    from app.export.painting import ClipToPaint
+    from app.geodesy.enu import LocalFrame
+    from app.scene.tiles import write as tjw
+    from app.scene.tiles.tileset import Tileset
+    from app.session.assemble import open_session
+    from app.session.camera_track import camera_track
+    from app.simulate.sample import SAMPLE_DIR, SAMPLE_ORIGIN
+    from app.ui.memory import MemoryPainter
+
+    frame = LocalFrame(*SAMPLE_ORIGIN)
+    shutil.copy(SAMPLE_DIR / "scene.glb", tmp_path / "scene.glb")
+    root = {
+        "boundingVolume": {"box": tjw.box_of([-300, -300, -5], [300, 300, 60])},
+        "geometricError": 0.0,
+        "transform": tjw.column_major(tjw.enu_to_ecef_matrix(frame)),
+        "content": {"uri": "scene.glb"},
+    }
+    tjw.write_json(
+        tmp_path / "tileset.json",
+        {"asset": {"version": "1.1"}, "geometricError": 50.0, "root": root},
+    )
+    session = open_session(ROOT / "assets/sample/session.toml")
+    track = camera_track(session, "truth")
+    times = np.asarray(session.frame_times, np.float64) - float(session.frame_times[0])
+    mesh = MeshData([], [Tileset(str(tmp_path / "tileset.json"), frame)])
+    p = MemoryPainter(mesh, [ClipToPaint(session, track, times)], "newest", 8.0, 300_000)
+    try:
+        assert p.start().wait(300) and p.error is None, p.error
+    finally:
+        p.stop()
+    assert p.covers_tiles and len(p.atlas.triangles) == session.scene().triangle_count
+    assert p.memory.seen.sum() > 1000

@@ -42,6 +42,7 @@ class GpuScene:
         self.version = 0  # bumps when streamed tiles arrive or leave
         self.memory: GpuPrimitive | None = None  # the scene memory's atlas-textured triangles
         self.show_memory = False  # draw the memory instead of the static primitives
+        self.memory_replaces_tiles = False  # ... and instead of the streamed layers too
         self._bounds: np.ndarray | None = None
 
     def update(self, budget_s: float = 0.008) -> bool:
@@ -62,7 +63,7 @@ class GpuScene:
         drawn into, default the camera's). Without a camera: static primitives only."""
         shown = self.show_memory and self.memory is not None
         out = [self.memory] if shown else list(self.primitives)
-        if camera is not None:
+        if camera is not None and not (shown and self.memory_replaces_tiles):
             for layer in self.tilesets:
                 out += layer.drawables(camera, focal_px, key)
         return out
@@ -116,9 +117,11 @@ class GpuScene:
         self._bounds = None
         self.primitives[index].vbo.write(interleave(prim).tobytes())
 
-    def set_memory(self, prim: Primitive | None) -> None:
+    def set_memory(self, prim: Primitive | None, replaces_tiles: bool = False) -> None:
         """The scene memory's primitive (its static triangles, atlas-textured), uploaded; None
-        releases it."""
+        releases it. replaces_tiles: it holds the streamed layers' tiles it needed (frozen), so
+        while shown they are not drawn."""
+        self.memory_replaces_tiles = replaces_tiles
         if self.memory is not None:
             self.memory.release()
         self.memory = None if prim is None else upload(self.ctx, prim, default_anisotropy(self.ctx))

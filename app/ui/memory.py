@@ -4,7 +4,9 @@ when each part was seen ("seen at") or what changed since the model, as it was a
 moment. The live drape (the Projection panel's "project the video") draws over any of them.
 
 A MemoryPainter thread lays out the atlas (app.export.atlas, at most max_texels texels), then
-paints the clips' frames in timeline order (every `every_s` s of each clip's video, its camera
+paints the clips' frames in timeline order (on a scene of 3D Tiles, the tiles the clips' cameras
+need, frozen: app.scene.tiles.freeze; while the memory is shown it stands for the streamed
+layers, which are not drawn) (every `every_s` s of each clip's video, its camera
 under the source chosen when painting began, app.export.painting) into one SurfaceMemory with a
 history of HISTORY_EPOCHS epochs over the clips' span, on an EGL context of its own; its time is
 timeline seconds. Between frames, and once
@@ -30,6 +32,7 @@ from app.export.painting import (
     frames_in_time_order,
     paint_frame_indices,
     paint_one,
+    scene_to_paint,
 )
 from app.render.views import ModelViews
 from app.scene.mesh import MeshData
@@ -55,6 +58,7 @@ class MemoryPainter(Worker):
         self.mesh, self.clips, self.rule = mesh, clips, rule
         self.every_s, self.max_texels = every_s, max_texels
         self.atlas: Atlas | None = None  # set once laid out (read-only after)
+        self.covers_tiles = False  # the atlas holds the 3D Tiles the clips' cameras needed
         self.memory: SurfaceMemory | None = None  # the painter thread's only
         self.frames_total = 0
         self.frames_painted = 0
@@ -106,8 +110,10 @@ class MemoryPainter(Worker):
     def _run(self) -> None:
         views = None
         try:
-            atlas = layout(self.mesh, self.max_texels)
             plan = [paint_frame_indices(c.track, self.every_s) for c in self.clips]
+            scene = scene_to_paint(self.mesh, self.clips, plan)
+            self.covers_tiles = bool(self.mesh.tilesets)
+            atlas = layout(scene, self.max_texels)
             self.frames_total = int(sum(len(p) for p in plan))
             if not self.frames_total:
                 raise ValueError("the clips have no frames to paint")
@@ -115,7 +121,7 @@ class MemoryPainter(Worker):
             span = (float(times.min()), float(times.max()), HISTORY_EPOCHS)
             self.memory = SurfaceMemory(atlas.points, atlas.normals, self.rule, span)
             self.atlas = atlas
-            views = ModelViews(self.mesh)
+            views = ModelViews(scene)
             last = -np.inf
             for t, ci, k, rgb in frames_in_time_order(self.clips, plan):
                 if self._stop.is_set():
@@ -211,7 +217,7 @@ def update(v) -> None:
     if p.error:
         v.ui.error(p.error)
     if scene.memory is None and p.atlas is not None:
-        scene.set_memory(p.atlas.primitive(p.atlas.base))
+        scene.set_memory(p.atlas.primitive(p.atlas.base), replaces_tiles=p.covers_tiles)
     view = v.ui.memory_view
     scene.show_memory = view != "model" and scene.memory is not None
     if view != "model":

@@ -1,18 +1,17 @@
 """The scene memory in the viewer: what the open clip and the further clips on its timeline saw,
-painted onto the scene's static surfaces in the background, and shown as the Model, the Memory,
-when each part was seen ("seen at") or what changed since the model, as it was at the timeline's
+painted onto the scene's surfaces in the background, and shown as the Model, the Memory, when
+each part was seen ("seen at") or what changed since the model, as it was at the timeline's
 moment. The live drape (the Projection panel's "project the video") draws over any of them.
 
 A MemoryPainter thread lays out the atlas (app.export.atlas, at most max_texels texels), then
-paints the clips' frames in timeline order (on a scene of 3D Tiles, the tiles the clips' cameras
-need, frozen: app.scene.tiles.freeze; while the memory is shown it stands for the streamed
-layers, which are not drawn) (every `every_s` s of each clip's video, its camera
-under the source chosen when painting began, app.export.painting) into one SurfaceMemory with a
-history of HISTORY_EPOCHS epochs over the clips' span, on an EGL context of its own; its time is
-timeline seconds. Between frames, and once
-done whenever the view or the timeline moves, it composes the atlas texture the frame loop asks
-for (app.export.memory_view); the frame loop only uploads it (`update`). The memory's size is
-fixed by the atlas, whatever the clips' length.
+paints the clips' frames in timeline order (a frame every `every_s` s of each clip's video, its
+camera under the source chosen when painting began; app.export.painting) into one SurfaceMemory
+with a history of HISTORY_EPOCHS epochs over the clips' span, on an EGL context of its own; its
+time is timeline seconds. On a scene of 3D Tiles it paints the tiles the clips' cameras need,
+frozen (app.scene.tiles.freeze), and while the memory is shown it stands for the streamed layers,
+which are not drawn. Between frames, and once done whenever the view or the timeline moves, it
+composes the atlas texture the frame loop asks for (app.export.memory_view); the frame loop only
+uploads it (`update`). The memory's size is fixed by the atlas, whatever the clips' length.
 """
 
 from __future__ import annotations

@@ -88,7 +88,8 @@ def write_painted_tiles(
         image, uvs = tile_atlas(atlas, texture, tris, corner, size)
         data = glb_bytes(atlas.triangles[tris], uvs, np.flipud(image)[..., :3])
         name = f"{out.stem}_{k}.glb"
-        write_atomically(out.parent / name, "--out", lambda f, d=data: f.write(d), binary=True)
+        tile = check_output(out.parent / name, "--out", (".glb",), inputs)  # never over an input
+        write_atomically(tile, "--out", lambda f, d=data: f.write(d), binary=True)
         pts = atlas.triangles[tris].reshape(-1, 3)
         children.append(
             {

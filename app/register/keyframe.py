@@ -229,10 +229,13 @@ def solve_pose(
     # Coordinates relative to the current camera position keep the solver well conditioned.
     origin = np.asarray(camera.position, np.float64)
     obj = np.ascontiguousarray(points - origin)
-    ok, rvec, tvec, inl = cv2.solvePnPRansac(
-        obj, np.ascontiguousarray(xy), np.eye(3), None, iterationsCount=500, reprojectionError=settings.ransac_px / f,
-        confidence=0.999, flags=cv2.SOLVEPNP_SQPNP,
-    )  # fmt: skip
+    try:
+        ok, rvec, tvec, inl = cv2.solvePnPRansac(
+            obj, np.ascontiguousarray(xy), np.eye(3), None, iterationsCount=500, reprojectionError=settings.ransac_px / f,
+            confidence=0.999, flags=cv2.SOLVEPNP_SQPNP,
+        )  # fmt: skip
+    except cv2.error as exc:  # SQPnP refuses some degenerate minimal sets
+        return PoseFix(False, f"the matches give no pose ({exc.err})", n, 0, float("nan"))
     if not ok or inl is None or len(inl) < settings.min_inliers:
         found = 0 if inl is None else len(inl)
         return PoseFix(
@@ -297,7 +300,8 @@ def refine(settings: MatchSettings, frame: Frame, rendering: Rendering) -> PoseF
 
 def compare(matcher: Matcher, frame: Frame, rendering: Rendering) -> PoseFix:
     """One render-and-compare step (the coarse one): features of the frame matched with those of
-    the rendering, lifted and solved for the frame's camera."""
+    the rendering, lifted and solved for the frame's camera; where that fails, the two aligned
+    densely (`align`)."""
     uv_f, desc_f = matcher.features(frame.rgb)
     uv_f = from_opencv(uv_f, frame.scale)
     on_model = np.isfinite(rendering.positions[..., 0])
@@ -307,6 +311,9 @@ def compare(matcher: Matcher, frame: Frame, rendering: Rendering) -> PoseFix:
     uv_r = from_opencv(uv_r)
     pairs = matcher.match(desc_f, desc_r)
     if len(pairs) == 0:
+        dense = align(matcher.settings, frame, rendering)
+        if dense.ok:
+            return dense
         return PoseFix(
             False,
             f"no matches ({len(uv_f)} features in the frame, {len(uv_r)} in the rendering)",
@@ -315,4 +322,67 @@ def compare(matcher: Matcher, frame: Frame, rendering: Rendering) -> PoseFix:
             float("nan"),
         )
     points, usable = rendering.lift(uv_r[pairs[:, 1]], matcher.settings.edge_m_per_m)
-    return solve_pose(frame.camera, points[usable], uv_f[pairs[usable, 0]], matcher.settings)
+    step = solve_pose(frame.camera, points[usable], uv_f[pairs[usable, 0]], matcher.settings)
+    if step.ok:
+        return step
+    dense = align(matcher.settings, frame, rendering)
+    return dense if dense.ok else step
+
+
+ALIGN_OCTAVES = 4  # the alignment runs coarse to fine over this many halvings of the image
+ALIGN_STEP_PX = 12  # the grid of rendered pixels it carries into the frame, pixels apart
+ALIGN_MAX_DEPTH_RATIO = 3.0  # only a view whose far ranges are within this of its near ones
+
+
+def align(settings: MatchSettings, frame: Frame, rendering: Rendering) -> PoseFix:
+    """A coarse step where features fail (too few matches: a flat ground with textures taken
+    again, seen from above): the rendering aligned with the frame by the homography that
+    maximises their enhanced correlation coefficient (OpenCV's ECC, blind to brightness and
+    contrast), coarse to fine over ALIGN_OCTAVES; a grid of the rendering's model pixels carried
+    into the frame by it, lifted and solved as in `compare`. A homography holds exactly for a
+    plane and nearly for a far scene, so it is tried only where the rendered ranges' 95th
+    percentile is within ALIGN_MAX_DEPTH_RATIO of their 5th (a drone's view down, not a street
+    between facades); RANSAC drops what it does not carry. Not for a camera with a lens (its
+    image is not its pinhole rendering's)."""
+    if frame.camera.lens is not None:
+        return PoseFix(False, "no dense alignment through a lens", 0, 0, float("nan"))
+    ranges = np.linalg.norm(rendering.positions - np.asarray(rendering.camera.position), axis=2)
+    ranges = ranges[np.isfinite(ranges)]
+    near, far = np.percentile(ranges, [5, 95]) if len(ranges) else (np.nan, np.nan)
+    if not far <= ALIGN_MAX_DEPTH_RATIO * near:
+        return PoseFix(False, "too deep a view to align as a plane", 0, 0, float("nan"))
+    g_r = grey(rendering.rgb).astype(np.float32)
+    h, w = g_r.shape
+    g_f = cv2.resize(grey(frame.rgb), (w, h), interpolation=cv2.INTER_AREA).astype(np.float32)
+    mask = np.isfinite(rendering.positions[..., 0]).astype(np.uint8)
+    warp = np.eye(3, dtype=np.float64)
+    criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 100, 1e-5)
+    for level in range(ALIGN_OCTAVES - 1, -1, -1):
+        s = 2**level
+        size = (max(8, w // s), max(8, h // s))
+        down = np.diag([1.0 / s, 1.0 / s, 1.0])
+        scaled = (down @ warp @ np.linalg.inv(down)).astype(np.float32)
+        try:
+            _, scaled = cv2.findTransformECC(
+                cv2.resize(g_r, size, interpolation=cv2.INTER_AREA),
+                cv2.resize(g_f, size, interpolation=cv2.INTER_AREA),
+                scaled,
+                cv2.MOTION_HOMOGRAPHY,
+                criteria,
+                cv2.resize(mask, size, interpolation=cv2.INTER_NEAREST),
+                5,
+            )
+        except cv2.error:
+            return PoseFix(False, "the rendering and the frame do not align", 0, 0, float("nan"))
+        warp = np.linalg.inv(down) @ scaled.astype(np.float64) @ down
+    ys, xs = np.mgrid[
+        ALIGN_STEP_PX // 2 : h : ALIGN_STEP_PX, ALIGN_STEP_PX // 2 : w : ALIGN_STEP_PX
+    ]
+    grid = np.column_stack([xs.ravel(), ys.ravel()]).astype(np.float64)
+    grid = grid[mask[ys.ravel(), xs.ravel()] > 0]
+    moved = np.column_stack([grid, np.ones(len(grid))]) @ warp.T
+    uv_f = from_opencv(moved[:, :2] / moved[:, 2:], frame.scale * w / frame.rgb.shape[1])
+    points, usable = rendering.lift(from_opencv(grid), settings.edge_m_per_m)
+    i = frame.camera.intrinsics
+    usable &= (uv_f[:, 0] > 0) & (uv_f[:, 0] < i.width) & (uv_f[:, 1] > 0) & (uv_f[:, 1] < i.height)
+    return solve_pose(frame.camera, points[usable], uv_f[usable], settings)

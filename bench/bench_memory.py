@@ -104,7 +104,7 @@ def main(argv: list[str] | None = None) -> int:
         print(p.error)
         return 1
     m, atlas = p.memory, p.atlas
-    held = (m.nbytes + atlas.base.nbytes + atlas.pixels.nbytes) / 1e6
+    held = p.nbytes / 1e6
     print(f"# {machine()}")
     print(
         table(

@@ -140,7 +140,17 @@ def view_colours(
         raise ValueError(f"view {view!r}: expected one of {', '.join(VIEWS)}")
     if view == "model":
         return base
-    snap = as_at(memory, at_s)
+    return snapshot_colours(as_at(memory, at_s), base, view, at_s, groups)
+
+
+def snapshot_colours(
+    snap: Snapshot,
+    base: np.ndarray,
+    view: str,
+    at_s: float | None = None,
+    groups: np.ndarray | None = None,
+) -> np.ndarray:
+    """view_colours of a snapshot already taken (as_at(memory, at_s)); view not model."""
     if view == "memory":
         return np.where(snap.seen[:, None], snap.rgb, base)
     out = grey(base)

@@ -24,13 +24,12 @@ import numpy as np
 from app.core.worker import Worker
 from app.export.atlas import Atlas, layout
 from app.export.memory import RULES, SurfaceMemory
-from app.export.memory_view import VIEWS, as_at, seen_range, view_colours
+from app.export.memory_view import VIEWS, as_at, seen_range, snapshot_colours
 from app.export.painting import (
     DEFAULT_EVERY_S,
     ClipToPaint,
-    frames_in_time_order,
     paint_frame_indices,
-    paint_one,
+    paint_frames,
     scene_to_paint,
 )
 from app.render.views import ModelViews
@@ -39,6 +38,10 @@ from app.scene.mesh import MeshData
 DEFAULT_MAX_TEXELS = 2_000_000  # the viewer's atlas: 0.5 m texels on the sample site
 HISTORY_EPOCHS = 16  # the time slider's memory of the past: the newest sighting in each 16th
 COMPOSE_EVERY_S = 0.25  # while painting, a new texture at most this often (real seconds)
+
+
+class _Stopped(Exception):
+    """The painting was asked to stop (the session closed, painting began again)."""
 
 
 class MemoryPainter(Worker):
@@ -70,12 +73,20 @@ class MemoryPainter(Worker):
         self._texture: np.ndarray | None = None
         self._texture_for: tuple[str, float | None] | None = None
         self._composed_for: tuple[tuple[str, float | None], int] | None = None
+        self._composed_at = -np.inf  # when the painting last composed (monotonic s)
         self.shown_for: tuple[str, float | None] | None = None  # the request of the last taken
         super().__init__("geofuse-memory")
 
     def wait(self, timeout_s: float | None = None) -> bool:
         """Wait until painting is done (or failed); True when it is."""
         return self._finished.wait(timeout_s)
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes the memory and its atlas's samples hold (0 before the layout)."""
+        if self.memory is None or self.atlas is None:
+            return 0
+        return self.memory.nbytes + self.atlas.base.nbytes + self.atlas.pixels.nbytes
 
     @property
     def progress(self) -> float:
@@ -121,17 +132,11 @@ class MemoryPainter(Worker):
             self.memory = SurfaceMemory(atlas.points, atlas.normals, self.rule, span)
             self.atlas = atlas
             views = ModelViews(scene)
-            last = -np.inf
-            for t, ci, k, rgb in frames_in_time_order(self.clips, plan):
-                if self._stop.is_set():
-                    return
-                paint_one(self.memory, views, rgb, self.clips[ci].camera(k), t)
-                self.frames_painted += 1
-                if time.monotonic() - last >= COMPOSE_EVERY_S:
-                    self._compose()
-                    last = time.monotonic()
+            paint_frames(self.memory, views, self.clips, plan, progress=self._painted)
             self._compose()
             self.done = True
+        except _Stopped:
+            return
         except Exception as exc:  # shown by the viewer, which goes on without a memory
             self.error = f"scene memory: {exc}"
             self.done = True
@@ -145,6 +150,16 @@ class MemoryPainter(Worker):
             self._wake.clear()
             self._compose()
 
+    def _painted(self, fraction: float) -> None:
+        """After each frame (paint_frames' progress): counted, a texture now and then; stops
+        the painting when asked to."""
+        self.frames_painted += 1
+        if self._stop.is_set():
+            raise _Stopped
+        if time.monotonic() - self._composed_at >= COMPOSE_EVERY_S:
+            self._compose()
+            self._composed_at = time.monotonic()
+
     def _compose(self) -> None:
         """The texture for the current request, unless the last one composed is it and nothing
         was painted since."""
@@ -154,10 +169,11 @@ class MemoryPainter(Worker):
         if key == self._composed_for or self.memory is None:
             return
         view, at_s = request
+        snap = as_at(self.memory, at_s)  # once: the colours and the range shown both need it
         texture = self.atlas.texture(
-            view_colours(self.memory, self.atlas.base, view, at_s, self.atlas.triangle)
+            snapshot_colours(snap, self.atlas.base, view, at_s, self.atlas.triangle)
         )
-        span = seen_range(as_at(self.memory, at_s))
+        span = seen_range(snap)
         with self._lock:
             self._texture, self._texture_for, self.range_s = texture, request, span
         self._composed_for = key
@@ -180,9 +196,9 @@ def start(v, rule: str = "newest", every_s: float = DEFAULT_EVERY_S) -> None:
         raise ValueError(f"the source {L.source} is not solved yet: paint once it is")
     todo = [ClipToPaint(L.session, track, L.timeline.clips[0].times)]
     for clip, span in zip(L.others, L.timeline.clips[1:], strict=True):
-        other = clip.library.track(clip.source)
         if not clip.visible:
             continue
+        other = clip.library.track(clip.source)
         if other is None:
             v.ui.info.append(f"scene memory: {span.name} is not solved yet and is not painted")
             continue
@@ -257,6 +273,6 @@ def state(loaded) -> dict | None:
         "texel_m": None if p.atlas is None else p.atlas.texel_m,
         "samples": None if m is None else len(m.points),
         "seen": None if m is None or not p.done else int(m.seen.sum()),
-        "mb": None if m is None else (m.nbytes + p.atlas.base.nbytes + p.atlas.pixels.nbytes) / 1e6,
+        "mb": None if m is None else p.nbytes / 1e6,
         "range_s": p.range_s,
     }

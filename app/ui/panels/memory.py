@@ -45,7 +45,7 @@ def draw(v, now: float) -> None:
 
 def _details(v, p) -> None:
     if p.atlas is not None and p.memory is not None:
-        mb = (p.memory.nbytes + p.atlas.base.nbytes + p.atlas.pixels.nbytes) / 1e6
+        mb = p.nbytes / 1e6
         imgui.text_wrapped(
             f"{len(p.atlas.points):,} surface samples at {p.atlas.texel_m:.2f} m, {mb:.0f} MB; "
             f"{len(p.clips)} clip(s), rule {p.rule}"

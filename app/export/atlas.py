@@ -29,7 +29,8 @@ class Atlas:
     """texel_m: metres a texel; size: (width, height) texels; triangles (T, 3, 3) float64 ENU;
     uvs (T, 3, 2) of their corners in [0, 1] (v up); samples: pixels (N, 2) int (x, y up),
     points (N, 3) and normals (N, 3) float32 ENU, base (N, 3) uint8 the model's colour, and
-    triangle (N,) int the triangle (of `triangles`) each sample lies on."""
+    triangle (N,) int the triangle (of `triangles`) each sample lies on; corners (T, 2) and
+    sizes (T, 2) int each triangle's chart (lower-left texel, width and height, margins in)."""
 
     texel_m: float
     size: tuple[int, int]
@@ -40,6 +41,8 @@ class Atlas:
     normals: np.ndarray
     base: np.ndarray
     triangle: np.ndarray
+    corners: np.ndarray
+    sizes: np.ndarray
     _nearest: np.ndarray | None = field(default=None, init=False, repr=False)
 
     def image(self, rgb: np.ndarray, seen: np.ndarray) -> np.ndarray:
@@ -197,4 +200,6 @@ def layout(mesh: MeshData, max_texels: int = 4_000_000) -> Atlas:
         np.concatenate(normals).astype(np.float32),
         _base_colours(mesh, owner_s, bary_s, tri_s),
         np.concatenate(on),
+        corners,
+        sizes,
     )

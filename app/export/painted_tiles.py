@@ -44,28 +44,18 @@ def tile_groups(triangles: np.ndarray, max_triangles: int = MAX_TILE_TRIANGLES) 
     return out
 
 
-def charts(atlas: Atlas) -> tuple[np.ndarray, np.ndarray]:
-    """Each triangle's chart in the atlas: (T, 2) lower-left corner and (T, 2) size, texels."""
-    w, h = atlas.size
-    px = atlas.uvs * [w, h]  # the corners' texel coordinates: chart corner + 1 + flat / texel
-    lo, hi = px.min(axis=1), px.max(axis=1)
-    corner = np.round(lo - 1.0).astype(np.int64)
-    size = np.ceil(hi - lo - 1e-6).astype(np.int64) + 2
-    return corner, size
-
-
 def tile_atlas(
-    atlas: Atlas, texture: np.ndarray, tris: np.ndarray, corner: np.ndarray, size: np.ndarray
+    atlas: Atlas, texture: np.ndarray, tris: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     """One tile's own atlas: ((h, w, 4) bottom row first, its triangles' uvs (n, 3, 2)), the
     charts of `tris` copied from the scene's texture (bottom row first) and packed again."""
-    sizes = size[tris]
+    sizes, old = atlas.sizes[tris], atlas.corners[tris]
     new, w, h = pack(sizes)
     out = np.zeros((h, w, 4), np.uint8)
-    for (nx, ny), (ox, oy), (sw, sh) in zip(new, corner[tris], sizes, strict=True):
+    for (nx, ny), (ox, oy), (sw, sh) in zip(new, old, sizes, strict=True):
         out[ny : ny + sh, nx : nx + sw] = texture[oy : oy + sh, ox : ox + sw]
     W, H = atlas.size
-    uvs = (atlas.uvs[tris] * [W, H] - corner[tris][:, None, :] + new[:, None, :]) / [w, h]
+    uvs = (atlas.uvs[tris] * [W, H] - old[:, None, :] + new[:, None, :]) / [w, h]
     return out, uvs
 
 
@@ -82,10 +72,9 @@ def write_painted_tiles(
     out = check_output(out, "--out", (".json",), inputs)
     out.parent.mkdir(parents=True, exist_ok=True)
     texture = atlas.texture(np.where(memory.seen[:, None], memory.rgb, atlas.base))
-    corner, size = charts(atlas)
     children = []
     for k, tris in enumerate(tile_groups(atlas.triangles, max_triangles)):
-        image, uvs = tile_atlas(atlas, texture, tris, corner, size)
+        image, uvs = tile_atlas(atlas, texture, tris)
         data = glb_bytes(atlas.triangles[tris], uvs, np.flipud(image)[..., :3])
         name = f"{out.stem}_{k}.glb"
         tile = check_output(out.parent / name, "--out", (".glb",), inputs)  # never over an input

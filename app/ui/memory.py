@@ -60,7 +60,6 @@ class MemoryPainter(Worker):
         self.mesh, self.clips, self.rule = mesh, clips, rule
         self.every_s, self.max_texels = every_s, max_texels
         self.atlas: Atlas | None = None  # set once laid out (read-only after)
-        self.covers_tiles = False  # the atlas holds the 3D Tiles the clips' cameras needed
         self.memory: SurfaceMemory | None = None  # the painter thread's only
         self.frames_total = 0
         self.frames_painted = 0
@@ -80,6 +79,11 @@ class MemoryPainter(Worker):
     def wait(self, timeout_s: float | None = None) -> bool:
         """Wait until painting is done (or failed); True when it is."""
         return self._finished.wait(timeout_s)
+
+    @property
+    def covers_tiles(self) -> bool:
+        """The atlas holds the 3D Tiles the clips' cameras needed (frozen), standing for them."""
+        return bool(self.mesh.tilesets)
 
     @property
     def nbytes(self) -> int:
@@ -122,7 +126,6 @@ class MemoryPainter(Worker):
         try:
             plan = [paint_frame_indices(c.track, self.every_s) for c in self.clips]
             scene = scene_to_paint(self.mesh, self.clips, plan)
-            self.covers_tiles = bool(self.mesh.tilesets)
             atlas = layout(scene, self.max_texels)
             self.frames_total = int(sum(len(p) for p in plan))
             if not self.frames_total:

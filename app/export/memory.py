@@ -195,8 +195,9 @@ class SurfaceMemory:
         facing = cos >= MIN_COS_INCIDENCE
         idx, cos, rng, uv, agree = idx[facing], cos[facing], rng[facing], uv[facing], agree[facing]
         quality = (agree * cos / (1.0 + rng / QUALITY_RANGE_M)).astype(np.float32)
-        colour = self._colours(rgb, uv)
-        if self.history is not None:
+        # the history keeps every sighting, so its colours are read for all; else only for the kept
+        colour = self._colours(rgb, uv) if self.history is not None else None
+        if colour is not None:
             self._remember(idx, colour, time_s)
         if self.rule == "first":
             take = ~self.seen[idx]
@@ -205,7 +206,7 @@ class SurfaceMemory:
         else:
             take = np.ones(len(idx), bool)
         idx, quality = idx[take], quality[take]
-        self.rgb[idx] = colour[take]
+        self.rgb[idx] = colour[take] if colour is not None else self._colours(rgb, uv[take])
         self.seen[idx] = True
         self.time[idx] = time_s
         self.quality[idx] = quality

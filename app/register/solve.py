@@ -25,6 +25,7 @@ from app.camera.pinhole import Camera
 from app.core.errors import GeofuseError
 from app.geodesy import rotations
 from app.io.video import frames_at
+from app.register.edges import EdgeSettings, fit_edges
 from app.register.fuse import (
     Correction,
     FuseSettings,
@@ -62,7 +63,10 @@ class RegistrationSettings:
     than fine_within_m and fine_within_deg, then fine steps (corners tracked, `refine`) until one
     moves it less than converge_m and converge_deg (fine=False: coarse steps only, until one moves
     it less than converge_m and converge_deg); estimate_delay: estimate and remove the frame
-    times' offset from the keyframes (app.register.fuse.estimate_delay)."""
+    times' offset from the keyframes (app.register.fuse.estimate_delay); by_geometry: align the
+    model's lines with the frame's edges (app.register.edges) instead of matching textures, with
+    `edges` its settings (an experiment: on the sample it lands farther from the truth than the
+    GNSS prior, docs/ACCURACY.md, so no source uses it)."""
 
     every_s: float = 0.5
     long_side: int = 960
@@ -72,9 +76,11 @@ class RegistrationSettings:
     fine_within_m: float = 1.0
     fine_within_deg: float = 1.0
     match: MatchSettings = field(default_factory=MatchSettings)
+    edges: EdgeSettings = field(default_factory=EdgeSettings)
     fuse: FuseSettings = field(default_factory=FuseSettings)
     estimate_delay: bool = True
     fine: bool = True
+    by_geometry: bool = False
 
 
 @dataclass(frozen=True)
@@ -199,11 +205,13 @@ class Registrar:
         mesh: MeshData,
         settings: RegistrationSettings = RegistrationSettings(),
         background: bool = False,
+        ctx: moderngl.Context | None = None,
     ) -> Registrar:
         """A registrar of single keyframes (`keyframe`) against a scene without a session (a
-        live feed's, app.live.register); `run` needs a session. Its GL context is its own."""
+        live feed's, app.live.register); `run` needs a session. ctx: a GL context to render in
+        (default: its own)."""
         self = cls.__new__(cls)
-        self._start(mesh, settings, None, background)
+        self._start(mesh, settings, ctx, background)
         self.session = None
         return self
 
@@ -231,7 +239,9 @@ class Registrar:
                 rgb, positions = self.views.render(small)
             with _lap(self.stage_s, "match"):
                 frame, rendering = Frame(frame_rgb, scale, cam), Rendering(rgb, positions, small)
-                if fine:
+                if s.by_geometry:
+                    step = fit_edges(frame, rendering, s.edges, not fine, start)[0]
+                elif fine:
                     step = refine(s.match, frame, rendering)
                 else:
                     step = compare(self.matcher, frame, rendering)

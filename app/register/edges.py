@@ -377,6 +377,19 @@ def _offset(camera: Camera, prior: Camera) -> FloatArray:
     return np.concatenate([_rotvec(turn), np.asarray(camera.position) - np.asarray(prior.position)])
 
 
+def _pairs(
+    camera: Camera, edges: ModelEdges, level: FrameEdges, gate: float
+) -> tuple[npt.NDArray[np.bool_], npt.NDArray[np.bool_], FloatArray, FloatArray]:
+    """Each model point's nearest frame edge of a like direction: (which found one within
+    `gate` of the level's pixels, which are in view; for those found: the edges' normals (M, 2)
+    and the signed point-to-line distances (M,) in full-size pixels)."""
+    uv, depth = camera.project(edges.points)
+    in_view = (depth > 0) & np.all(np.isfinite(uv), axis=1)
+    q, nq, dist = level.lookup(np.where(in_view[:, None], uv, -1.0), edges.angle)
+    found = in_view & (dist <= gate)
+    return found, in_view, nq[found], np.sum(nq[found] * (uv[found] - q[found]), axis=1)
+
+
 def _fit_level(
     camera: Camera,
     edges: ModelEdges,
@@ -392,14 +405,10 @@ def _fit_level(
     else:
         inv_prior = np.zeros((6, 6))
     for _ in range(settings.iterations):
-        uv, depth = camera.project(edges.points)
-        in_view = (depth > 0) & np.all(np.isfinite(uv), axis=1)
-        q, nq, dist = level.lookup(np.where(in_view[:, None], uv, -1.0), edges.angle)
-        found = in_view & (dist <= gate)
+        found, in_view, n, r = _pairs(camera, edges, level, gate)
         if found.sum() < 6:
             return EdgeFit(camera, int(found.sum()), int(in_view.sum()), np.inf, np.inf, np.inf)
-        p, n, x = edges.points[found], nq[found], q[found]
-        r = np.sum(n * (uv[found] - x), axis=1)  # full-size pixels
+        p = edges.points[found]
         wts = _tukey(r * level.factor, gate)
         jac = _jacobian(camera, p, n)
         k = settings.lines / (max(1.0, float(wts.sum())) * settings.noise_px**2)
@@ -413,14 +422,10 @@ def _fit_level(
         camera = _moved(camera, dx)
         if np.all(np.abs(dx) < _STEPS):
             break
-    uv, depth = camera.project(edges.points)
-    in_view = (depth > 0) & np.all(np.isfinite(uv), axis=1)
-    q, nq, dist = level.lookup(np.where(in_view[:, None], uv, -1.0), edges.angle)
-    found = in_view & (dist <= gate)
+    found, in_view, n, r = _pairs(camera, edges, level, gate)
     if found.sum() < 6:
         return EdgeFit(camera, int(found.sum()), int(in_view.sum()), np.inf, np.inf, np.inf)
-    r = np.sum(nq[found] * (uv[found] - q[found]), axis=1)
-    jac = _jacobian(camera, edges.points[found], nq[found])
+    jac = _jacobian(camera, edges.points[found], n)
     std_m, std_deg = _worst_std(jac)
     return EdgeFit(
         camera,

@@ -81,9 +81,9 @@ def _flat(colour, size=(320, 240)) -> np.ndarray:
 def test_a_texel_keeps_its_frames_colour_and_time_after_the_camera_turns_away(scene_views):
     m = _memory()
     down = _camera([0.0, 0.0, 60.0], [0.0, 0.0, 0.0])
-    assert m.paint(_flat((200, 30, 30)), down, distances(scene_views, down), 1000.0) > 0
+    assert m.memory.paint(_flat((200, 30, 30)), down, distances(scene_views, down), 1000.0) > 0
     away = _camera([0.0, 0.0, 60.0], [0.0, 200.0, 50.0])  # looking at the sky over the north
-    m.paint(_flat((30, 30, 200)), away, distances(scene_views, away), 1001.0)
+    m.memory.paint(_flat((30, 30, 200)), away, distances(scene_views, away), 1001.0)
     r, c = _cell(m, 0.0, 0.0)
     assert m.seen[r, c] and tuple(m.rgb[r, c]) == (200, 30, 30) and m.time[r, c] == 1000.0
     far = _cell(m, -39.0, 59.0)  # never in view
@@ -95,13 +95,13 @@ def test_a_hidden_surface_is_never_painted(scene_views):
     unseen while the ground in front of it and the block's roof are painted."""
     m = _memory()
     cam = _camera([0.0, 0.0, 12.0], [25.0, 25.0, 2.0], f=150.0)
-    m.paint(_flat((90, 200, 90)), cam, distances(scene_views, cam), 5.0)
+    m.memory.paint(_flat((90, 200, 90)), cam, distances(scene_views, cam), 5.0)
     assert m.seen[_cell(m, 15.0, 15.0)]  # the ground in front
     behind = [_cell(m, x, y) for x, y in ((34.0, 34.0), (36.0, 33.0), (33.0, 37.0))]
     assert not any(m.seen[rc] for rc in behind)
     # and without the depth test (no distances: nothing hides anything) it would be painted
     m2 = _memory()
-    m2.paint(_flat((90, 200, 90)), cam, np.full((240, 320), np.inf), 5.0)
+    m2.memory.paint(_flat((90, 200, 90)), cam, np.full((240, 320), np.inf), 5.0)
     assert all(m2.seen[rc] for rc in behind)
 
 
@@ -114,10 +114,10 @@ def test_the_rules_choose_as_documented(scene_views, rule, expected):
     m = _memory(rule)
     near = _camera([0.0, 0.0, 20.0], [0.0, 0.0, 0.0])
     far = _camera([-80.0, -80.0, 40.0], [0.0, 0.0, 0.0], f=600.0)
-    m.paint(_flat((200, 30, 30)), near, distances(scene_views, near), 1.0)
+    m.memory.paint(_flat((200, 30, 30)), near, distances(scene_views, near), 1.0)
     r, c = _cell(m, 0.0, 0.0)
     q_near = m.quality[r, c]
-    m.paint(_flat((30, 30, 200)), far, distances(scene_views, far), 2.0)
+    m.memory.paint(_flat((30, 30, 200)), far, distances(scene_views, far), 2.0)
     assert tuple(m.rgb[r, c]) == expected
     assert m.time[r, c] == (2.0 if rule == "newest" else 1.0)
     assert rule != "newest" or m.quality[r, c] < q_near
@@ -134,7 +134,7 @@ def test_a_painted_marker_lands_at_its_coordinates_in_the_geotiff(scene_views, t
     frame = _flat((128, 128, 128))
     yy, xx = np.mgrid[0:240, 0:320]
     frame[(xx + 0.5 - u) ** 2 + (yy + 0.5 - v) ** 2 < 2.0**2] = (255, 0, 0)
-    m.paint(frame, cam, distances(scene_views, cam), 7.0)
+    m.memory.paint(frame, cam, distances(scene_views, cam), 7.0)
     out, seen = write_orthophoto(m, tmp_path / "ortho.tif", [])
     with rasterio.open(out) as src:
         assert src.crs.to_epsg() == 32632 and src.count == 4 and src.overviews(1) is not None
@@ -167,7 +167,7 @@ def test_memory_stays_within_its_cap_on_a_long_clip(scene_views):
     tracemalloc.start()
     try:
         for k in range(600):
-            m.paint(frame, cams[k % 8], dists[k % 8], float(k))
+            m.memory.paint(frame, cams[k % 8], dists[k % 8], float(k))
         peak = tracemalloc.get_traced_memory()[1]
     finally:
         tracemalloc.stop()
@@ -243,7 +243,7 @@ def test_a_surface_seen_edge_on_is_not_painted(scene_views):
     oblique to paint (MIN_COS_INCIDENCE), while nearer ground (cosine over 0.2) is."""
     m = _memory()
     cam = _camera([0.0, 0.0, 3.0], [25.0, 25.0, 0.0], f=150.0)
-    m.paint(_flat((90, 200, 90)), cam, distances(scene_views, cam), 5.0)
+    m.memory.paint(_flat((90, 200, 90)), cam, distances(scene_views, cam), 5.0)
     assert not m.seen[_cell(m, 15.0, 15.0)]
     assert m.seen[_cell(m, 7.0, 7.0)]  # 9.9 m away: cosine 0.29
 

@@ -22,7 +22,6 @@ import numpy.typing as npt
 import pyproj
 from numba import njit
 
-from app.camera.pinhole import Camera
 from app.export.memory import SurfaceMemory
 from app.geodesy.crs import utm_zone
 from app.geodesy.enu import LocalFrame
@@ -202,14 +201,3 @@ class OrthoMemory:
     @property
     def quality(self) -> np.ndarray:
         return self._grid(self.memory.quality, 0.0)
-
-    def paint(
-        self,
-        rgb: np.ndarray,
-        camera: Camera,
-        distances: np.ndarray,
-        time_s: float,
-        agreement: np.ndarray | None = None,
-    ) -> int:
-        """Paint one frame (SurfaceMemory.paint); returns the cells painted."""
-        return self.memory.paint(rgb, camera, distances, time_s, agreement)

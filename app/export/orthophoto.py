@@ -128,7 +128,7 @@ def paint_clip(
         grid = grid or _grid(session, clips, plans, views, options)
         points, normals = surface(scene, grid, session.frame)
         memory = OrthoMemory(grid, points, normals, options.rule)
-        paint_frames(memory, views, clips, plans, utc0, progress)
+        paint_frames(memory.memory, views, clips, plans, utc0, progress)
     finally:
         views.release()
     return memory

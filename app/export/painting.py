@@ -21,7 +21,6 @@ import numpy as np
 
 from app.camera.pinhole import Camera
 from app.export.memory import SurfaceMemory, agreement
-from app.export.ortho import OrthoMemory
 from app.footage.clips import onto
 from app.io.video import frames_at
 from app.render.views import ModelViews
@@ -120,7 +119,7 @@ def distances(views: ModelViews, camera: Camera) -> np.ndarray:
 
 
 def paint_one(
-    memory: OrthoMemory | SurfaceMemory,
+    memory: SurfaceMemory,
     views: ModelViews,
     rgb: np.ndarray,
     camera: Camera,
@@ -134,7 +133,7 @@ def paint_one(
 
 
 def paint_frames(
-    memory: OrthoMemory | SurfaceMemory,
+    memory: SurfaceMemory,
     views: ModelViews,
     clips: list[ClipToPaint],
     plans: list[np.ndarray],

@@ -36,7 +36,7 @@ import numpy.typing as npt
 
 from app.camera.pinhole import Camera
 from app.geodesy import rotations
-from app.register.keyframe import Frame, PoseFix, Rendering
+from app.register.keyframe import Frame, PoseFix, Rendering, nudged
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -272,17 +272,9 @@ class FrameEdges:
 
 
 def _moved(camera: Camera, x: FloatArray) -> Camera:
-    """The camera turned by rotation vector x[:3] (rad, ENU, about its own centre) and moved by
-    x[3:] (ENU m)."""
-    q = rotations.multiply(rotations.from_rotvec(x[:3]), np.asarray(camera.orientation))
-    return Camera.create(
-        camera.intrinsics,
-        np.asarray(camera.position) + x[3:],
-        q,
-        camera.near,
-        camera.far,
-        camera.lens,
-    )
+    """The camera turned by x[:3] (rad, ENU) and moved by x[3:] (ENU m): the fit's six
+    parameters (app.register.keyframe.nudged)."""
+    return nudged(camera, x[:3], x[3:])
 
 
 _STEPS = np.array([1e-4, 1e-4, 1e-4, 1e-3, 1e-3, 1e-3])  # rad, rad, rad, m, m, m
@@ -298,13 +290,6 @@ def _jacobian(camera: Camera, points: FloatArray, normals: FloatArray) -> FloatA
         minus, _ = _moved(camera, -dx).project(points)
         cols.append(np.sum(normals * (plus - minus), axis=1) / (2 * h))
     return np.column_stack(cols)
-
-
-def _rotvec(q: FloatArray) -> FloatArray:
-    """A quaternion (w, x, y, z) as its rotation vector (rad)."""
-    q = rotations.canonical(q)
-    s = np.linalg.norm(q[1:])
-    return 2 * np.arctan2(s, q[0]) * q[1:] / s if s > 1e-12 else 2 * q[1:]
 
 
 def _tukey(r: FloatArray, c: float) -> FloatArray:
@@ -374,7 +359,12 @@ def _offset(camera: Camera, prior: Camera) -> FloatArray:
     turn = rotations.multiply(
         np.asarray(camera.orientation), rotations.conjugate(np.asarray(prior.orientation))
     )
-    return np.concatenate([_rotvec(turn), np.asarray(camera.position) - np.asarray(prior.position)])
+    return np.concatenate(
+        [
+            rotations.to_scipy(turn).as_rotvec(),
+            np.asarray(camera.position) - np.asarray(prior.position),
+        ]
+    )
 
 
 def _pairs(

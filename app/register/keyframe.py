@@ -206,6 +206,23 @@ def pose_from_cv(rvec: npt.ArrayLike, tvec: npt.ArrayLike) -> tuple[FloatArray, 
     return position, rotations.from_matrix(r_wc.T @ GL_TO_CV)
 
 
+def posed(camera: Camera, position: npt.ArrayLike, q: npt.ArrayLike) -> Camera:
+    """The camera (its intrinsics, lens and the rest) at another pose: position ENU m,
+    camera -> ENU quaternion."""
+    return replace(
+        camera,
+        position=tuple(map(float, np.asarray(position, np.float64))),
+        orientation=tuple(map(float, rotations.canonical(q))),
+    )
+
+
+def nudged(camera: Camera, rotvec: npt.ArrayLike, shift: npt.ArrayLike) -> Camera:
+    """The camera turned about its own centre by rotvec (rad, ENU axes) and moved by shift
+    (ENU m)."""
+    q = rotations.multiply(rotations.from_rotvec(rotvec), np.asarray(camera.orientation))
+    return posed(camera, np.asarray(camera.position) + np.asarray(shift, np.float64), q)
+
+
 def reprojection_px(camera: Camera, points: FloatArray, uv: FloatArray) -> FloatArray:
     """Distances (N,) in pixels between uv and where `camera` (lens included) projects points."""
     proj, depth = camera.project(points)

@@ -35,7 +35,17 @@ from app.register.fuse import (
     gate,
     retimed,
 )
-from app.register.keyframe import Frame, Matcher, MatchSettings, PoseFix, Rendering, compare, refine
+from app.register.keyframe import (
+    Frame,
+    Matcher,
+    MatchSettings,
+    PoseFix,
+    Rendering,
+    compare,
+    nudged,
+    posed,
+    refine,
+)
 from app.register.points import (
     ControlSolution,
     control_path,
@@ -167,19 +177,10 @@ def _moved(a: Camera, b: Camera) -> tuple[float, float]:
     return metres, float(np.degrees(rotations.angle_between(a.orientation, b.orientation)))
 
 
-def _posed(camera: Camera, position: np.ndarray, q: np.ndarray) -> Camera:
-    return replace(
-        camera,
-        position=tuple(map(float, position)),
-        orientation=tuple(map(float, rotations.canonical(q))),
-    )
-
-
 def _shifted(camera: Camera, correction: Correction, t: float) -> Camera:
     """The camera moved by the correction at session time t."""
     dp, dr = correction([t])
-    q = rotations.multiply(rotations.from_rotvec(dr[0]), np.asarray(camera.orientation))
-    return _posed(camera, np.asarray(camera.position) + dp[0], q)
+    return nudged(camera, dr[0], dp[0])
 
 
 class Registrar:
@@ -250,7 +251,7 @@ class Registrar:
                     break
                 return (fix or step), solved, it
             fix = step
-            nxt = _posed(cam, step.position, step.q)
+            nxt = posed(cam, step.position, step.q)
             metres, degrees = _moved(cam, nxt)
             cam = solved = nxt
             if (fine or not s.fine) and metres < s.converge_m and degrees < s.converge_deg:

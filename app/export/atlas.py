@@ -1,10 +1,12 @@
 """A texture atlas over a scene's triangles, for painting what the video saw onto every surface:
 facades as well as roofs and ground. Pure numpy.
 
-Each triangle gets a chart of its own, laid flat in its plane (its first edge along x) at one
-texel size for the whole scene, with a texel of margin; the charts are packed in shelves into
-one image. The texel size is the smallest that keeps the atlas within `max_texels` (so memory is
-bounded whatever the scene), and is reported. Every texel whose centre lies within one texel of
+Each triangle gets a chart of its own, laid flat in its plane (its first edge along x) at a
+texel size, with a texel of margin; the charts are packed in shelves into one image. The texel
+size is one for the whole scene, the smallest that keeps the atlas within `max_texels` (so
+memory is bounded whatever the scene); or each triangle's own, from what the video's pixels
+cover there (app.export.sampling), scaled up alike only where the cap needs it; it is
+reported. A paged memory (app.export.paged) lays out pages of triangles the same way. Every texel whose centre lies within one texel of
 its triangle is a surface sample: its point (the centre, pulled onto the triangle) and the
 triangle's normal, in the scene's ENU frame; its base colour is the model's own (its texture
 through its uvs, else its vertex colour), which a painted model keeps where the video saw
@@ -26,11 +28,12 @@ MAX_SIDE = 16384  # an atlas is at most this many texels wide
 
 @dataclass
 class Atlas:
-    """texel_m: metres a texel; size: (width, height) texels; triangles (T, 3, 3) float64 ENU;
+    """texel_m: metres a texel (the finest, where texels differ); size: (width, height) texels; triangles (T, 3, 3) float64 ENU;
     uvs (T, 3, 2) of their corners in [0, 1] (v up); samples: pixels (N, 2) int (x, y up),
     points (N, 3) and normals (N, 3) float32 ENU, base (N, 3) uint8 the model's colour, and
     triangle (N,) int the triangle (of `triangles`) each sample lies on; corners (T, 2) and
-    sizes (T, 2) int each triangle's chart (lower-left texel, width and height, margins in)."""
+    sizes (T, 2) int each triangle's chart (lower-left texel, width and height, margins in);
+    texels (T,) m each chart's texel size."""
 
     texel_m: float
     size: tuple[int, int]
@@ -43,7 +46,16 @@ class Atlas:
     triangle: np.ndarray
     corners: np.ndarray
     sizes: np.ndarray
+    texels: np.ndarray | None = None
     _nearest: np.ndarray | None = field(default=None, init=False, repr=False)
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes its arrays hold (the nearest-sample index too, once computed)."""
+        arrays = (self.triangles, self.uvs, self.pixels, self.points, self.normals, self.base)
+        extra = (self.triangle, self.corners, self.sizes)
+        near = 0 if self._nearest is None else self._nearest.nbytes
+        return sum(a.nbytes for a in (*arrays, *extra)) + near
 
     def image(self, rgb: np.ndarray, seen: np.ndarray) -> np.ndarray:
         """(H, W, 3) uint8, top row first: the samples' painted colour where seen, else their
@@ -141,29 +153,129 @@ def _base_colours(mesh: MeshData, owner: np.ndarray, bary: np.ndarray, tri_index
     return out
 
 
-def layout(mesh: MeshData, max_texels: int = 4_000_000) -> Atlas:
-    """The atlas of every static triangle of the scene (see the module docstring). Raises
-    ValueError for a scene without triangles."""
+@dataclass(frozen=True)
+class Triangles:
+    """A scene's static triangles to lay out: corners (T, 3, 3) float64 ENU m; owner (T,) the
+    primitive of the mesh each comes from and index (T,) its triangle there; within (T, 3, 3)
+    each corner's barycentric weights in that source triangle (the identity, until split)."""
+
+    corners: np.ndarray
+    owner: np.ndarray
+    index: np.ndarray
+    within: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.corners)
+
+    def subset(self, idx: np.ndarray) -> Triangles:
+        return Triangles(self.corners[idx], self.owner[idx], self.index[idx], self.within[idx])
+
+    def split(self, which: np.ndarray) -> tuple[Triangles, np.ndarray]:
+        """Each triangle of `which` (bool (T,)) cut in two at the middle of its longest edge
+        (same winding), the others kept: (the triangles, (T',) the old index of each)."""
+        t = self.corners
+        edge = np.stack([np.linalg.norm(t[:, (k + 1) % 3] - t[:, k], axis=1) for k in range(3)], 1)
+        a = np.argmax(edge, axis=1)
+        rows = np.arange(len(t))
+        order = np.stack([a, (a + 1) % 3, (a + 2) % 3], axis=1)  # the longest edge first
+        c = t[rows[:, None], order]
+        w = self.within[rows[:, None], order]
+        mid, wmid = (c[:, 0] + c[:, 1]) / 2, (w[:, 0] + w[:, 1]) / 2
+        first = np.stack([c[:, 0], mid, c[:, 2]], axis=1)
+        second = np.stack([mid, c[:, 1], c[:, 2]], axis=1)
+        wfirst = np.stack([w[:, 0], wmid, w[:, 2]], axis=1)
+        wsecond = np.stack([wmid, w[:, 1], w[:, 2]], axis=1)
+        keep, cut = np.flatnonzero(~which), np.flatnonzero(which)
+        old = np.concatenate([keep, cut, cut])
+        return (
+            Triangles(
+                np.concatenate([t[keep], first[cut], second[cut]]),
+                self.owner[old],
+                self.index[old],
+                np.concatenate([self.within[keep], wfirst[cut], wsecond[cut]]),
+            ),
+            old,
+        )
+
+
+def triangles_of(mesh: MeshData) -> Triangles:
+    """Every static triangle of the scene. Raises ValueError for a scene without triangles."""
     parts = [(k, p.positions.astype(np.float64)[p.indices]) for k, p in enumerate(mesh.primitives)]
     parts = [(k, t) for k, t in parts if len(t)]
     if not parts:
         raise ValueError("the scene has no triangles to paint (streamed 3D Tiles are not)")
     tri = np.concatenate([t for _, t in parts])
-    owner = np.concatenate([np.full(len(t), k) for k, t in parts])
-    tri_index = np.concatenate([np.arange(len(t)) for _, t in parts])
-    e1, e2, n, flat = _frames(tri)
-    lo = flat.min(axis=1)
-    extent = flat.max(axis=1) - lo
-    texel = float(np.sqrt(np.sum((extent[:, 0] + 1e-3) * (extent[:, 1] + 1e-3)) / max_texels))
+    return Triangles(
+        tri,
+        np.concatenate([np.full(len(t), k) for k, t in parts]),
+        np.concatenate([np.arange(len(t)) for _, t in parts]),
+        np.broadcast_to(np.eye(3), tri.shape).copy(),
+    )
+
+
+def chart_sizes(triangles: Triangles, texels: np.ndarray) -> np.ndarray:
+    """(T, 2) int each triangle's chart (w, h) texels at its texel size (T,) m, margins in."""
+    flat = _frames(triangles.corners)[3]
+    extent = flat.max(axis=1) - flat.min(axis=1)
+    return (np.ceil(extent / texels[:, None]) + 2).astype(np.int64)
+
+
+def layout(mesh: MeshData, max_texels: int = 4_000_000, texels: np.ndarray | None = None) -> Atlas:
+    """The atlas of every static triangle of the scene (see the module docstring): one texel
+    size for all, the smallest within max_texels; or, given texels (T,) m per triangle of
+    triangles_of(mesh) (app.export.sampling: what the video's pixels cover there), those,
+    scaled up alike where they would exceed max_texels. Raises ValueError for a scene without
+    triangles."""
+    tris = triangles_of(mesh)
+    extent = _extent(tris.corners)
+    if texels is None:
+        area = np.sum((extent[:, 0] + 1e-3) * (extent[:, 1] + 1e-3))
+        texels = np.full(len(tris), float(np.sqrt(area / max_texels)))
+    else:
+        texels = np.asarray(texels, np.float64)
+        need = np.sum((extent[:, 0] / texels + 2) * (extent[:, 1] / texels + 2))
+        texels = texels * max(1.0, float(np.sqrt(need / max_texels)))
     while True:
-        sizes = (np.ceil(extent / texel) + 2).astype(np.int64)
+        sizes = chart_sizes(tris, texels)
         corners, width, height = pack(sizes)
         if width * height <= max_texels and height <= MAX_SIDE:
             break
-        texel *= 1.1
-    pixels, points, normals, owners, bary_all, tris, on = [], [], [], [], [], [], []
+        texels = texels * 1.1
+    return charts(mesh, tris, texels, sizes, corners, (width, height))
+
+
+def _extent(tri: np.ndarray) -> np.ndarray:
+    flat = _frames(tri)[3]
+    return flat.max(axis=1) - flat.min(axis=1)
+
+
+def packed(mesh: MeshData, tris: Triangles, texels: np.ndarray) -> Atlas:
+    """An atlas of the triangles at their texel sizes (T,) m, packed in shelves (at most
+    MAX_SIDE wide). The page of a paged memory (app.export.paged)."""
+    sizes = chart_sizes(tris, texels)
+    corners, width, height = pack(sizes)
+    return charts(mesh, tris, texels, sizes, corners, (width, height))
+
+
+def charts(
+    mesh: MeshData,
+    tris: Triangles,
+    texels: np.ndarray,
+    sizes: np.ndarray,
+    corners: np.ndarray,
+    size: tuple[int, int],
+) -> Atlas:
+    """The atlas of the triangles, each chart (sizes (T, 2), lower-left corners (T, 2)) laid
+    out in an atlas of `size` (w, h) texels at its triangle's texel size (T,) m: its samples,
+    uvs and the model's colours."""
+    tri = tris.corners
+    e1, e2, n, flat = _frames(tri)
+    lo = flat.min(axis=1)
+    width, height = size
+    pixels, points, normals, bary_all, on = [], [], [], [], []
     uvs = np.zeros((len(tri), 3, 2))
     for t in range(len(tri)):
+        texel = texels[t]
         w, h = sizes[t]
         px, py = np.meshgrid(np.arange(w), np.arange(h))
         x2 = lo[t, 0] + (px.ravel() - 1 + 0.5) * texel
@@ -184,22 +296,24 @@ def layout(mesh: MeshData, max_texels: int = 4_000_000) -> Atlas:
         )
         points.append(tri[t, 0] + q2[near, :1] * e1[t] + q2[near, 1:] * e2[t])
         normals.append(np.repeat(n[t][None], int(near.sum()), axis=0))
-        owners.append(np.full(int(near.sum()), owner[t]))
-        tris.append(np.full(int(near.sum()), tri_index[t]))
         on.append(np.full(int(near.sum()), t))
-        bary_all.append(clamped[near])
+        bary_all.append(clamped[near] @ tris.within[t])  # in the source triangle
         uvs[t] = (corners[t] + (flat[t] - lo[t]) / texel + 1.0) / [width, height]
-    owner_s, bary_s, tri_s = np.concatenate(owners), np.concatenate(bary_all), np.concatenate(tris)
+    on_s = np.concatenate(on) if on else np.zeros(0, np.int64)
+    empty = np.zeros((0, 3))
     return Atlas(
-        texel,
+        float(np.min(texels)) if len(texels) else 0.0,
         (width, height),
         tri,
         uvs,
-        np.concatenate(pixels).astype(np.int64),
-        np.concatenate(points).astype(np.float32),
-        np.concatenate(normals).astype(np.float32),
-        _base_colours(mesh, owner_s, bary_s, tri_s),
-        np.concatenate(on),
+        np.concatenate(pixels).astype(np.int64) if pixels else np.zeros((0, 2), np.int64),
+        np.concatenate(points or [empty]).astype(np.float32),
+        np.concatenate(normals or [empty]).astype(np.float32),
+        _base_colours(
+            mesh, tris.owner[on_s], np.concatenate(bary_all or [empty]), tris.index[on_s]
+        ),
+        on_s,
         corners,
         sizes,
+        np.asarray(texels, np.float64),
     )

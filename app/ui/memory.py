@@ -3,7 +3,9 @@ painted onto the scene's surfaces in the background, and shown as the Model, the
 each part was seen ("seen at") or what changed since the model, as it was at the timeline's
 moment. The live drape (the Projection panel's "project the video") draws over any of them.
 
-A MemoryPainter thread lays out the atlas (app.export.atlas, at most max_texels texels), then
+A MemoryPainter thread lays out the atlas (app.export.atlas, at most max_texels texels, each
+triangle's texels in proportion to what the painting cameras' pixels cover there,
+app.export.sampling, scaled up alike to fit), then
 paints the clips' frames in timeline order (a frame every `every_s` s of each clip's video, its
 camera under the source chosen when painting began; app.export.painting) into one SurfaceMemory
 with a history of HISTORY_EPOCHS epochs over the clips' span, on an EGL context of its own; its
@@ -22,20 +24,22 @@ import time
 import numpy as np
 
 from app.core.worker import Worker
-from app.export.atlas import Atlas, layout
+from app.export.atlas import Atlas, layout, triangles_of
 from app.export.memory import RULES, SurfaceMemory
 from app.export.memory_view import VIEWS, as_at, seen_range, snapshot_colours
 from app.export.painting import (
+    DECODE_LONG_SIDE,
     DEFAULT_EVERY_S,
     ClipToPaint,
     paint_frame_indices,
     paint_frames,
     scene_to_paint,
 )
+from app.export.sampling import texel_targets
 from app.render.views import ModelViews
 from app.scene.mesh import MeshData
 
-DEFAULT_MAX_TEXELS = 2_000_000  # the viewer's atlas: 0.5 m texels on the sample site
+DEFAULT_MAX_TEXELS = 2_000_000  # the viewer's atlas (GPU and CPU memory bounded by it)
 HISTORY_EPOCHS = 16  # the time slider's memory of the past: the newest sighting in each 16th
 COMPOSE_EVERY_S = 0.25  # while painting, a new texture at most this often (real seconds)
 
@@ -126,7 +130,9 @@ class MemoryPainter(Worker):
         try:
             plan = [paint_frame_indices(c.track, self.every_s) for c in self.clips]
             scene = scene_to_paint(self.mesh, self.clips, plan)
-            atlas = layout(scene, self.max_texels)
+            cameras = [c.camera(int(k)) for c, p in zip(self.clips, plan, strict=True) for k in p]
+            texels = texel_targets(triangles_of(scene).corners, cameras, DECODE_LONG_SIDE)
+            atlas = layout(scene, self.max_texels, texels)
             self.frames_total = int(sum(len(p) for p in plan))
             if not self.frames_total:
                 raise ValueError("the clips have no frames to paint")

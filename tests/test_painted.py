@@ -15,7 +15,7 @@ from app.camera.intrinsics import Intrinsics
 from app.camera.pinhole import Camera, look_at_quat
 from app.export.atlas import layout
 from app.export.memory import SurfaceMemory
-from app.export.painted import painted_glb
+from app.export.painted import atlas_part, painted_glb
 from app.export.painting import distances
 from app.geodesy.enu import LocalFrame
 from app.render.views import ModelViews
@@ -99,7 +99,7 @@ def test_a_facade_is_painted_by_the_frame_that_saw_it(gl_ctx, tmp_path):
     roof = (np.abs(p[:, 2] - 5.0) < 1e-3) & (np.abs(n[:, 2]) > 0.99)  # not the walls' top rows
     north = (np.abs(p[:, 1] - 30.0) < 1e-3) & (np.abs(n[:, 1]) > 0.99)
     assert memory.seen[wall].all() and not memory.seen[roof].any() and not memory.seen[north].any()
-    data = painted_glb(atlas, memory, ORIGIN)
+    data = painted_glb([atlas_part(atlas, memory)], ORIGIN)
     assert _glb_json(data)["scenes"][0]["extras"]["geofuse_origin"] == list(ORIGIN)
     (tmp_path / "painted.glb").write_bytes(data)
     back = load_scene(tmp_path / "painted.glb", LocalFrame(*ORIGIN), Placement(ORIGIN, "Y"))
@@ -142,7 +142,7 @@ def test_the_painted_scene_as_3d_tiles_reads_back_in_place_with_its_texels(tmp_p
     """The painted scene split into tiles of at most 3 triangles: geofuse's own 3D Tiles reader
     puts every triangle back where the scene has it (1 cm, through ECEF) and each tile's own
     atlas shows, at each triangle's middle, that triangle's painted colour."""
-    from app.export.painted_tiles import tile_groups, write_painted_tiles
+    from app.export.painted_tiles import atlas_tiles, tile_groups, write_painted_tiles
     from app.scene.tiles.stream import decode_tile
     from app.scene.tiles.tileset import Tileset
 
@@ -156,7 +156,7 @@ def test_the_painted_scene_as_3d_tiles_reads_back_in_place_with_its_texels(tmp_p
     assert all(len(g) <= 3 for g in tile_groups(atlas.triangles, 3))
     frame = LocalFrame(*ORIGIN)
     out, tiles = write_painted_tiles(
-        atlas, memory, frame, tmp_path / "tiles" / "tileset.json", [], 3
+        atlas_tiles(atlas, memory, 3), frame, tmp_path / "tiles" / "tileset.json", []
     )
     assert tiles == len(tile_groups(atlas.triangles, 3)) > 1
     ts = Tileset(str(out), frame)

@@ -18,8 +18,14 @@ from app.core.progress import ProgressBar
 from app.export import EXPORT_SUFFIXES
 from app.export.jobs import ExportOptions, export_session, write_footprints
 from app.export.orthophoto import OrthoOptions, paint_clip, write_orthophoto
-from app.export.painted import ModelOptions, paint_model, write_painted
-from app.export.painted_tiles import write_painted_tiles
+from app.export.painted import (
+    ModelOptions,
+    atlas_part,
+    paint_model,
+    paint_model_paged,
+    write_painted,
+)
+from app.export.painted_tiles import atlas_tiles, page_tiles, write_painted_tiles
 from app.export.records import frame_records
 from app.geodesy.crs import parse_crs
 
@@ -89,27 +95,45 @@ def _model(args: argparse.Namespace, inputs: list[Path], suffixes, bar: Progress
     session, source = open_with_source(input_path, args, suffixes)
     print_messages(session)
     further = _solved_further(args, inputs[1:], suffixes)
-    options = ModelOptions(args.rule, args.every_s, args.max_texels)
-    try:
-        atlas, memory = paint_model(session, solved(session, source), options, bar, further)
-    except ValueError as exc:
-        raise GeofuseError(f"export model {input_path}: {exc}") from exc
+    options = ModelOptions(args.rule, args.every_s, args.max_texels, args.finest_m, args.memory_mb)
     f = session.frame
     read = [*session.inputs, *(p for s, _ in further for p in s.inputs)]
-    w, h = atlas.size
-    said = (
-        f"{len(atlas.triangles):,} triangles, a {w} x {h} atlas of {atlas.texel_m:.2f} m texels, "
-        f"{100.0 * memory.seen.mean():.0f} % of the surface seen, {memory.frames} frames of {len(inputs)} clip(s), rule {memory.rule}"
-    )
-    if Path(args.out).suffix.lower() == ".json":  # a 3D Tiles tileset
-        out, tiles = write_painted_tiles(atlas, memory, f, Path(args.out), read)
-        print(f"wrote {out} and {tiles} tiles beside it ({said}; placed on the globe)")
-        return 0
-    out = write_painted(atlas, memory, (f.lat_deg, f.lon_deg, f.h_m), Path(args.out), read)
-    print(
-        f"wrote {out} ({said}; "
-        f"local east-north-up from {f.lat_deg:.7f}, {f.lon_deg:.7f}, {f.h_m:.2f} m, glTF Y-up)"
-    )
+    origin = (f.lat_deg, f.lon_deg, f.h_m)
+    tiles = Path(args.out).suffix.lower() == ".json"  # a 3D Tiles tileset
+    try:
+        if options.max_texels is not None:
+            atlas, memory = paint_model(session, solved(session, source), options, bar, further)
+        else:
+            paged = paint_model_paged(session, solved(session, source), options, bar, further)
+    except ValueError as exc:
+        raise GeofuseError(f"export model {input_path}: {exc}") from exc
+    if options.max_texels is not None:
+        w, h = atlas.size
+        said = (
+            f"{len(atlas.triangles):,} triangles, a {w} x {h} atlas of {atlas.texel_m:.2f} m texels and coarser, "
+            f"{100.0 * memory.seen.mean():.0f} % of the surface seen, {memory.frames} frames of {len(inputs)} clip(s), rule {memory.rule}"
+        )
+        parts = atlas_tiles(atlas, memory) if tiles else [atlas_part(atlas, memory)]
+    else:
+        said = (
+            f"{len(paged.triangles):,} triangles in {len(paged.pages):,} pages of {paged.texel_m:.2f} m texels and coarser "
+            f"(the video's ground sampling), {paged.frames} frames of {len(inputs)} clip(s), rule {paged.rule}"
+        )
+        parts = page_tiles(paged)
+    try:
+        if tiles:
+            out, n = write_painted_tiles(parts, f, Path(args.out), read)
+            where = f"{n} tiles beside it"
+        else:
+            out = write_painted(parts, origin, Path(args.out), read)
+            where = f"local east-north-up from {f.lat_deg:.7f}, {f.lon_deg:.7f}, {f.h_m:.2f} m, glTF Y-up"
+        if options.max_texels is None:
+            seen, samples = paged.seen_count()
+            said += f"; {100.0 * seen / max(1, samples):.0f} % of the surface seen; paging: {paged.stats.said()}"
+    finally:
+        if options.max_texels is None:
+            paged.close()
+    print(f"wrote {out} ({said}; {where})")
     return 0
 
 

@@ -416,8 +416,21 @@ def _export(sub: Commands) -> None:
     ex.add_argument(
         "--max-texels",
         type=count(1000, 256_000_000),
-        default=4_000_000,
-        help="model: the atlas's texels at most (the texel size follows; memory ~32 bytes a texel)",
+        default=None,
+        help="model: one atlas of at most this many texels (the texel size follows; memory ~32 bytes a texel) "
+        "instead of pages at the video's ground sampling",
+    )
+    ex.add_argument(
+        "--finest-m",
+        type=number(0.001, 100.0),
+        default=0.02,
+        help="model: no texel finer than this (m) where the video sees a surface from near",
+    )
+    ex.add_argument(
+        "--memory-mb",
+        type=number(16.0, 1_000_000.0),
+        default=256.0,
+        help="model: the pages held at once (MB); past it the least recently used go to disk",
     )
     ex.add_argument(
         "--view",

@@ -54,6 +54,16 @@ def frustum_planes(camera: Camera) -> np.ndarray:
     return planes / np.linalg.norm(planes[:, :3], axis=1, keepdims=True)
 
 
+def boxes_in_frustum(camera: Camera, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """(B,) bool: which boxes (lo, hi (B, 3) ENU m corners) the camera's pinhole frustum
+    meets (conservatively: a box beside a corner of the frustum may be counted in)."""
+    inside = np.ones(len(lo), bool)
+    for a, b, c, d in frustum_planes(camera):
+        far_corner = np.where(np.array([a, b, c]) > 0, hi, lo)
+        inside &= far_corner @ np.array([a, b, c]) + d >= 0
+    return inside
+
+
 def agreement(frame_rgb: np.ndarray, model_rgb: np.ndarray) -> np.ndarray:
     """(h, w) float32 in [AGREEMENT_MIN, 1], at model_rgb's size (h, w): how much the frame
     (any size, the same view through the same pinhole) looks like the model rendered from its
@@ -134,11 +144,7 @@ class SurfaceMemory:
 
     def _in_view(self, camera: Camera) -> np.ndarray:
         """Indices of the samples in the blocks the camera's frustum meets."""
-        planes = frustum_planes(camera)
-        inside = np.ones(len(self._starts), bool)
-        for a, b, c, d in planes:
-            far_corner = np.where(np.array([a, b, c]) > 0, self._hi, self._lo)
-            inside &= far_corner @ np.array([a, b, c]) + d >= 0
+        inside = boxes_in_frustum(camera, self._lo, self._hi)
         n = len(self.points)
         blocks = [np.arange(s, min(s + BLOCK, n)) for s in self._starts[inside]]
         return np.concatenate(blocks) if blocks else np.zeros(0, np.int64)

@@ -215,8 +215,10 @@ def triangles_of(mesh: MeshData) -> Triangles:
 
 def chart_sizes(triangles: Triangles, texels: np.ndarray) -> np.ndarray:
     """(T, 2) int each triangle's chart (w, h) texels at its texel size (T,) m, margins in."""
-    flat = _frames(triangles.corners)[3]
-    extent = flat.max(axis=1) - flat.min(axis=1)
+    return _sizes(_extent(triangles.corners), texels)
+
+
+def _sizes(extent: np.ndarray, texels: np.ndarray) -> np.ndarray:
     return (np.ceil(extent / texels[:, None]) + 2).astype(np.int64)
 
 
@@ -236,7 +238,7 @@ def layout(mesh: MeshData, max_texels: int = 4_000_000, texels: np.ndarray | Non
         need = np.sum((extent[:, 0] / texels + 2) * (extent[:, 1] / texels + 2))
         texels = texels * max(1.0, float(np.sqrt(need / max_texels)))
     while True:
-        sizes = chart_sizes(tris, texels)
+        sizes = _sizes(extent, texels)  # the charts' extents computed once
         corners, width, height = pack(sizes)
         if width * height <= max_texels and height <= MAX_SIDE:
             break

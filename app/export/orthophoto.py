@@ -33,6 +33,7 @@ from app.export.painting import (
     clips_on_a_timeline,
     paint_frame_indices,
     paint_frames,
+    planned_cameras,
     scene_to_paint,
 )
 from app.render.views import ModelViews
@@ -122,7 +123,7 @@ def paint_clip(
     clip's or source's, to compare them cell by cell)."""
     clips, utc0 = clips_on_a_timeline([(session, track), *further])
     plans = [paint_frame_indices(c.track, options.every_s) for c in clips]
-    scene = scene_to_paint(session.scene(), clips, plans)
+    scene = scene_to_paint(session.scene(), planned_cameras(clips, plans))
     views = ModelViews(scene)
     try:
         grid = grid or _grid(session, clips, plans, views, options)

@@ -33,6 +33,7 @@ from app.export.painting import (
     clips_on_a_timeline,
     paint_frame_indices,
     paint_frames,
+    planned_cameras,
     scene_to_paint,
 )
 from app.export.sampling import FINEST_M, texel_targets
@@ -70,8 +71,8 @@ class _Setup:
 def _setup(session, track, options, further) -> _Setup:
     clips, utc0 = clips_on_a_timeline([(session, track), *further])
     plans = [paint_frame_indices(c.track, options.every_s) for c in clips]
-    scene = scene_to_paint(session.scene(), clips, plans)
-    cameras = [c.camera(int(k)) for c, p in zip(clips, plans, strict=True) for k in p]
+    cameras = planned_cameras(clips, plans)
+    scene = scene_to_paint(session.scene(), cameras)
 
     def texels(triangles: np.ndarray) -> np.ndarray:
         return texel_targets(triangles, cameras, DECODE_LONG_SIDE, options.finest_m)

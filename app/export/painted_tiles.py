@@ -85,10 +85,11 @@ def write_painted_tiles(
         tile = check_output(out.parent / name, "--out", (".glb",), inputs)  # never over an input
         write_atomically(tile, "--out", lambda f, d=data: f.write(d), binary=True)
         pts = triangles.reshape(-1, 3)
-        lo, hi = np.minimum(lo, pts.min(axis=0) - 0.01), np.maximum(hi, pts.max(axis=0) + 0.01)
+        tile_lo, tile_hi = pts.min(axis=0) - 0.01, pts.max(axis=0) + 0.01
+        lo, hi = np.minimum(lo, tile_lo), np.maximum(hi, tile_hi)
         children.append(
             {
-                "boundingVolume": {"box": box_of(pts.min(axis=0) - 0.01, pts.max(axis=0) + 0.01)},
+                "boundingVolume": {"box": box_of(tile_lo, tile_hi)},
                 "geometricError": 0.0,
                 "content": {"uri": name},
             }

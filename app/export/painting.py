@@ -66,13 +66,17 @@ def clips_on_a_timeline(
     return clips, timeline.utc0
 
 
-def scene_to_paint(mesh: MeshData, clips: list[ClipToPaint], plans: list[np.ndarray]) -> MeshData:
+def planned_cameras(clips: list[ClipToPaint], plans: list[np.ndarray]) -> list[Camera]:
+    """The cameras of every clip's planned frames (paint_frame_indices), clip by clip."""
+    return [c.camera(int(k)) for c, frames in zip(clips, plans, strict=True) for k in frames]
+
+
+def scene_to_paint(mesh: MeshData, cameras: list[Camera]) -> MeshData:
     """The scene a memory paints: `mesh`, its 3D Tiles layers frozen to the tiles the painted
-    frames' cameras need (app.scene.tiles.freeze; the count and bytes logged). A tileset none of
-    whose tiles loads raises FreezeError."""
+    frames' cameras (planned_cameras) need (app.scene.tiles.freeze; the count and bytes logged).
+    A tileset none of whose tiles loads raises FreezeError."""
     if not mesh.tilesets:
         return mesh
-    cameras = [c.camera(k) for c, frames in zip(clips, plans, strict=True) for k in frames]
     frozen, tiles, nbytes = frozen_tiles(mesh, cameras)
     log.info("3D Tiles painted: %d tiles the frames need, %.0f MB", tiles, nbytes / 1e6)
     return frozen

@@ -33,6 +33,7 @@ from app.export.painting import (
     ClipToPaint,
     paint_frame_indices,
     paint_frames,
+    planned_cameras,
     scene_to_paint,
 )
 from app.export.sampling import texel_targets
@@ -129,8 +130,8 @@ class MemoryPainter(Worker):
         views = None
         try:
             plan = [paint_frame_indices(c.track, self.every_s) for c in self.clips]
-            scene = scene_to_paint(self.mesh, self.clips, plan)
-            cameras = [c.camera(int(k)) for c, p in zip(self.clips, plan, strict=True) for k in p]
+            cameras = planned_cameras(self.clips, plan)
+            scene = scene_to_paint(self.mesh, cameras)
             texels = texel_targets(triangles_of(scene).corners, cameras, DECODE_LONG_SIDE)
             atlas = layout(scene, self.max_texels, texels)
             self.frames_total = int(sum(len(p) for p in plan))

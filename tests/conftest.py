@@ -23,17 +23,39 @@ def _unavailable(reason: str) -> None:
     pytest.skip(reason)
 
 
+_SHARED_GL: list = []  # what current_context() said once gl_ctx was made
+
+
 @pytest.fixture(scope="session")
 def gl_ctx():
     """One standalone EGL context for the whole session (Mesa llvmpipe without a GPU)."""
-    from app.render.context import RenderUnavailable, create_offscreen_context
+    from app.render.context import RenderUnavailable, create_offscreen_context, current_context
 
     try:
         ctx = create_offscreen_context()
     except RenderUnavailable as exc:
         _unavailable(str(exc))
+    _SHARED_GL.append(current_context())
     yield ctx
+    _SHARED_GL.clear()
     ctx.release()
+
+
+@pytest.fixture(autouse=True)
+def _shared_gl_context_stays_current():
+    """After every test the session's shared context is still current on the main thread: code
+    that makes a context of its own and leaves the caller's not current sends the next GL test's
+    calls nowhere (clears skipped, reads of uninitialised memory), a failure far from its cause."""
+    yield
+    if _SHARED_GL:
+        from app.render.context import current_context, make_current
+
+        left = current_context()
+        make_current(_SHARED_GL[0])  # one offender, one failure: the next tests start sound
+        assert left == _SHARED_GL[0], (
+            "this test left the shared GL context not current (use app.render.context.keep_current "
+            "around a context of one's own)"
+        )
 
 
 @pytest.fixture(scope="session")

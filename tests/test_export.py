@@ -293,14 +293,13 @@ def test_klv_round_trips_through_an_independent_decoder(sample, tmp_path):
                     assert m[26 + 2 * k] == pytest.approx(offset, abs=3e-6)
 
 
-def test_the_fused_video_has_every_frame_and_matches_an_offscreen_render(sample, tmp_path):
+def test_the_fused_video_has_every_frame_and_matches_an_offscreen_render(sample, tmp_path, gl_ctx):
     import av
 
     from app.camera.frame_time import frame_at
     from app.core.settings import OverlaySettings, ProjectionSettings
     from app.export.video import EXPORT_ALPHA, view_camera
     from app.io.video import read_frame
-    from app.render.context import create_offscreen_context
     from app.render.offscreen import render_to_array
     from app.render.renderer import FusionRenderer
     from app.session.camera_track import camera_track
@@ -338,8 +337,7 @@ def test_the_fused_video_has_every_frame_and_matches_an_offscreen_render(sample,
     assert len(frames) == last - first + 1
     k = first + 10
     track = camera_track(sample, "gd-ahrs")
-    ctx = create_offscreen_context()
-    renderer = FusionRenderer(ctx, sample.scene())
+    renderer = FusionRenderer(gl_ctx, sample.scene())
     try:
         renderer.set_video_frame(read_frame(sample.video.path, k, sample.video))
         projector = track.frame_camera(k)
@@ -352,6 +350,5 @@ def test_the_fused_video_has_every_frame_and_matches_an_offscreen_render(sample,
         )
     finally:
         renderer.release()
-        ctx.release()
     diff = np.abs(frames[10].astype(int) - expected.astype(int)).max(axis=2)
     assert np.median(diff) <= 8 and np.mean(diff <= 24) > 0.95  # H.264 at crf 20 on a 320x180 frame

@@ -456,3 +456,41 @@ def test_ground_at_grazing_angles_takes_the_video_without_striping(gl_ctx):
         assert np.mean(pixels.min(axis=1) > 200) > 0.99  # white (the video), not the model's blue
     finally:
         r.release()
+
+
+def test_a_private_context_leaves_the_callers_context_current(gl_ctx, tmp_path):
+    """A job that makes and releases its own context (a sample video rendered, a still) on the
+    thread of a caller holding another: afterwards the caller's clears and draws still reach its
+    own framebuffer. Without keep_current the caller's clear landed nowhere and its read gave
+    whatever memory the renderbuffer was allocated over (the flaky ortho test of stop 41)."""
+    from app.render.context import create_offscreen_context, keep_current
+    from app.simulate.video import render_video
+
+    size = (32, 24)
+    color = gl_ctx.renderbuffer(size, 4, dtype="f4")
+    fbo = gl_ctx.framebuffer([color])
+    try:
+        with keep_current():
+            other = create_offscreen_context()
+            other.clear(0.0, 0.0, 1.0, 1.0)
+            other.release()
+        fbo.use()
+        fbo.clear(1.0, 0.5, 0.25, 1.0)
+        data = np.frombuffer(fbo.read(components=4, dtype="f4"), np.float32).reshape(-1, 4)
+        assert np.all(data == [1.0, 0.5, 0.25, 1.0])
+
+        ground = shapes.quad([-5.0, -5.0, 0.0], [10.0, 0, 0], [0, 10.0, 0])
+        eye = np.array([[0.0, 0.0, 10.0]])
+        q = look_at_quat(eye[0], np.zeros(3), (0.0, 1.0, 0.0))
+        intr = Intrinsics(32, 24, 20.0, 20.0, 16.0, 12.0)
+        out = render_video(
+            tmp_path / "v.mp4", MeshData([ground.primitive()]), intr, eye, q[None], np.zeros(1)
+        )
+        assert out.stat().st_size > 0
+        fbo.use()
+        fbo.clear(0.0, 1.0, 0.0, 1.0)
+        data = np.frombuffer(fbo.read(components=4, dtype="f4"), np.float32).reshape(-1, 4)
+        assert np.all(data == [0.0, 1.0, 0.0, 1.0])
+    finally:
+        fbo.release()
+        color.release()

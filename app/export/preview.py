@@ -12,7 +12,7 @@ from app.core.settings import OverlaySettings, ProjectionSettings
 from app.export.records import FrameRecord
 from app.geodesy import rotations
 from app.geodesy.enu import LocalFrame
-from app.render.context import create_offscreen_context
+from app.render.context import create_offscreen_context, keep_current
 from app.render.offscreen import render_to_array
 from app.render.renderer import FusionRenderer
 from app.scene.mesh import MeshData
@@ -21,6 +21,7 @@ PREVIEW_FOV_DEG = 40.0
 PREVIEW_MARGIN = 1.15  # of the footprints' extent
 
 
+@keep_current()  # its own context, made and released here: the caller's stays current
 def footprint_preview(
     mesh: MeshData, frame: LocalFrame, records: list[FrameRecord], size: tuple[int, int]
 ) -> np.ndarray:

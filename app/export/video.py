@@ -24,7 +24,7 @@ from app.core.constants import VIEW_FAR_M, VIEW_NEAR_M
 from app.core.errors import GeofuseError
 from app.core.settings import OverlaySettings, ProjectionSettings
 from app.io.video import VideoInfo, media_seconds, rotate_for_display
-from app.render.context import create_offscreen_context
+from app.render.context import create_offscreen_context, keep_current
 from app.render.offscreen import OffscreenTarget, render_to_array
 from app.render.renderer import FusionRenderer
 from app.render.still import ThirdPerson
@@ -123,6 +123,7 @@ class _Frames:
         self.container.close()
 
 
+@keep_current()  # its own context, made and released here: the caller's stays current
 def export_video(
     video: VideoInfo,
     rotation_cw: int,

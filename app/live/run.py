@@ -15,7 +15,7 @@ from collections.abc import Callable
 from app.camera.intrinsics import Intrinsics
 from app.camera.pinhole import Camera
 from app.live.feed import Drawn, LiveFeed, LiveOptions, LiveRun
-from app.render.context import create_offscreen_context, wait_for_gpu
+from app.render.context import create_offscreen_context, keep_current, wait_for_gpu
 from app.render.offscreen import OffscreenTarget
 from app.render.renderer import FusionRenderer
 from app.render.still import window_camera
@@ -25,6 +25,7 @@ __all__ = ["Drawn", "LiveOptions", "LiveRun", "run_live"]
 VIEW_HFOV_DEG = 60.0  # the off-screen view, third person behind the projector
 
 
+@keep_current()  # its own context, made and released here: the caller's stays current
 def run_live(
     url: str,
     options: LiveOptions | None = None,

@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import ctypes
 import ctypes.util
+from collections.abc import Iterator
+from contextlib import contextmanager
+from typing import NamedTuple
 
 import moderngl
 
@@ -27,6 +30,62 @@ def create_offscreen_context() -> moderngl.Context:
         ) from exc
 
 
+class _Current(NamedTuple):
+    """The GL context current on a thread: which API made it current, and its handles."""
+
+    api: str  # "egl", "glx" or "" (none)
+    handles: tuple[int, ...]  # display, draw surface, read surface, context
+
+
+_EGL_DRAW, _EGL_READ = 0x3059, 0x305A
+
+
+def current_context() -> _Current:
+    """The context current on this thread, EGL's (the off-screen ones) or GLX's (a GLFW
+    window on X11), to compare or make current again."""
+    if _EGL is not None:
+        ctx = _EGL.eglGetCurrentContext()
+        if ctx:
+            draw, read = (_EGL.eglGetCurrentSurface(which) or 0 for which in (_EGL_DRAW, _EGL_READ))
+            return _Current("egl", (_EGL.eglGetCurrentDisplay() or 0, draw, read, ctx))
+    if _GLX is not None:
+        ctx = _GLX.glXGetCurrentContext()
+        if ctx:
+            g = _GLX
+            drawables = (g.glXGetCurrentDrawable() or 0, g.glXGetCurrentReadDrawable() or 0)
+            return _Current("glx", (g.glXGetCurrentDisplay() or 0, *drawables, ctx))
+    return _Current("", ())
+
+
+def make_current(saved: _Current) -> None:
+    """Make `saved` current again on this thread (nothing to do where none was)."""
+    if saved.api == "egl":
+        _EGL.eglMakeCurrent(*saved.handles)
+    elif saved.api == "glx":
+        _GLX.glXMakeContextCurrent(*saved.handles)
+
+
+@contextmanager
+def keep_current() -> Iterator[None]:
+    """Whatever GL context was current on this thread before the block is current again after
+    it. Making a context (create_offscreen_context) makes it current; without this, a caller's
+    own context (a test's shared one, a window's) stops being current, and its later GL calls
+    land nowhere or on the wrong objects: clears skipped, reads of uninitialised memory."""
+    saved = current_context()
+    try:
+        yield
+    finally:
+        make_current(saved)
+
+
+@contextmanager
+def made_current(ctx: moderngl.Context) -> Iterator[moderngl.Context]:
+    """`ctx` current inside the block, and what was current before current again after it
+    (moderngl's own `with ctx` leaves no context current when it ends)."""
+    with keep_current(), ctx:
+        yield ctx
+
+
 def describe(ctx: moderngl.Context) -> str:
     """'renderer, GL version' of a context, for logs and benchmark reports."""
     return f"{ctx.info['GL_RENDERER']}, {ctx.info['GL_VERSION']}"
@@ -45,6 +104,39 @@ def _library(soname: str, short: str) -> ctypes.CDLL | None:
 
 _LIBGL = _library("libGL.so.1", "GL")
 _GL_FINISH = getattr(_LIBGL, "glFinish", None)
+
+
+def _typed(lib: ctypes.CDLL | None, names: dict[str, tuple]) -> ctypes.CDLL | None:
+    """`lib` with each named function's (result, *arguments) ctypes declared; None if it lacks
+    one of them."""
+    if lib is None or not all(hasattr(lib, n) for n in names):
+        return None
+    for name, (result, *args) in names.items():
+        fn = getattr(lib, name)
+        fn.restype, fn.argtypes = result, args
+    return lib
+
+
+_P, _XID = ctypes.c_void_p, ctypes.c_ulong
+_EGL = _typed(
+    _library("libEGL.so.1", "EGL"),
+    {
+        "eglGetCurrentContext": (_P,),
+        "eglGetCurrentDisplay": (_P,),
+        "eglGetCurrentSurface": (_P, ctypes.c_int),
+        "eglMakeCurrent": (ctypes.c_uint, _P, _P, _P, _P),
+    },
+)
+_GLX = _typed(
+    _LIBGL,
+    {
+        "glXGetCurrentContext": (_P,),
+        "glXGetCurrentDisplay": (_P,),
+        "glXGetCurrentDrawable": (_XID,),
+        "glXGetCurrentReadDrawable": (_XID,),
+        "glXMakeContextCurrent": (ctypes.c_int, _P, _XID, _XID, _P),
+    },
+)
 
 GL_READ_FRAMEBUFFER, GL_DRAW_FRAMEBUFFER = 0x8CA8, 0x8CA9
 GL_COLOR_BUFFER_BIT, GL_NEAREST = 0x4000, 0x2600

@@ -8,7 +8,7 @@ import numpy as np
 
 from app.camera.intrinsics import Intrinsics
 from app.camera.pinhole import Camera
-from app.render.context import create_offscreen_context
+from app.render.context import create_offscreen_context, keep_current, made_current
 from app.render.gpu_scene import GpuScene
 from app.render.positions import PositionPass
 from app.scene.mesh import MeshData
@@ -36,17 +36,20 @@ class SurfaceProbe:
     """Model points (ENU m) seen at the pixels of cameras of one grid size."""
 
     def __init__(self, mesh: MeshData) -> None:
-        self.ctx = create_offscreen_context()
-        self.scene = GpuScene(self.ctx, mesh)
-        self.pass_ = PositionPass(self.ctx, self.scene)
+        with keep_current():  # its own context current only inside its methods
+            self.ctx = create_offscreen_context()
+            self.scene = GpuScene(self.ctx, mesh)
+            self.pass_ = PositionPass(self.ctx, self.scene)
 
     def points(self, camera: Camera) -> np.ndarray:
         """(H, W, 3) ENU metres at each pixel centre of `camera` (row 0 = top); NaN: no surface.
         Streamed tiles are loaded to full detail for the camera first."""
-        self.scene.settle([(camera, None, "positions")])
-        return self.pass_.render(camera)
+        with made_current(self.ctx):
+            self.scene.settle([(camera, None, "positions")])
+            return self.pass_.render(camera)
 
     def release(self) -> None:
-        self.pass_.release()
-        self.scene.release()
+        with made_current(self.ctx):
+            self.pass_.release()
+            self.scene.release()
         self.ctx.release()

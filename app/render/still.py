@@ -14,7 +14,7 @@ from app.camera.pinhole import Camera, look_at_quat
 from app.core.constants import DEFAULT_NEAR_M
 from app.core.settings import OverlaySettings, ProjectionSettings
 from app.geodesy import rotations
-from app.render.context import create_offscreen_context
+from app.render.context import create_offscreen_context, keep_current
 from app.render.offscreen import render_to_array
 from app.render.renderer import FusionRenderer
 from app.scene.mesh import MeshData
@@ -64,6 +64,7 @@ class Still:
     left_out: str | None = None
 
 
+@keep_current()  # its own context, made and released here: the caller's stays current
 def render_still(
     mesh: MeshData,
     image: npt.NDArray[np.uint8] | None,

@@ -1,8 +1,8 @@
 """The model as a camera sees it, off-screen: its colours (the model's textures and shading, no
 video) and the surface position under each pixel, for registration's render-and-compare. Owns its
 GL objects, and an EGL context of its own unless given one; call from one thread; `release()`
-frees them. Making a context makes it current on the calling thread: make one before any other
-that thread uses without `with ctx:`, or give it the context already in use."""
+frees them. Its own context is current only inside its calls: whatever the calling thread had
+current before stays current after (app.render.context.keep_current)."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ import numpy as np
 
 from app.camera.pinhole import Camera
 from app.core.settings import ProjectionSettings
-from app.render.context import create_offscreen_context, wait_for_gpu
+from app.render.context import create_offscreen_context, keep_current, made_current, wait_for_gpu
 from app.render.offscreen import OffscreenTarget
 from app.render.renderer import FusionRenderer
 from app.scene.mesh import MeshData
@@ -26,7 +26,8 @@ class ModelViews:
 
     def __init__(self, mesh: MeshData, ctx: moderngl.Context | None = None) -> None:
         self._own = ctx is None
-        self.ctx = create_offscreen_context() if ctx is None else ctx
+        with keep_current():  # its own context current only inside _current blocks
+            self.ctx = create_offscreen_context() if ctx is None else ctx
         with self._current():
             self.renderer = FusionRenderer(self.ctx, mesh)
         self._targets: dict[tuple[int, int], OffscreenTarget] = {}
@@ -34,7 +35,7 @@ class ModelViews:
     def _current(self) -> contextlib.AbstractContextManager:
         """Its own context made current for a block (the thread may use another between
         blocks); a context it was given is the caller's, already current."""
-        return self.ctx if self._own else contextlib.nullcontext()
+        return made_current(self.ctx) if self._own else contextlib.nullcontext()
 
     def render(self, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
         """((H, W, 3) uint8 RGB, (H, W, 3) ENU metres of the surface at each pixel centre, NaN

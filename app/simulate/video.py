@@ -13,13 +13,14 @@ from app.camera.intrinsics import Intrinsics
 from app.camera.pinhole import Camera
 from app.core.constants import DEFAULT_FAR_M, VIEW_NEAR_M
 from app.core.settings import ProjectionSettings
-from app.render.context import create_offscreen_context
+from app.render.context import create_offscreen_context, keep_current
 from app.render.offscreen import OffscreenTarget
 from app.render.renderer import FusionRenderer
 from app.scene.mesh import MeshData
 from app.simulate.phone import write_video
 
 
+@keep_current()  # its own context, made and released here: the caller's stays current
 def render_video(
     path: Path,
     mesh: MeshData,

@@ -4,7 +4,12 @@ against the sample model and by the model's lines against the same model with it
 removed. The video is the world that differs from the model (trees, kiosks, cars, other
 textures), so its edges hold far more than the model's lines.
 
-    python bench/bench_geometry.py [--every-s 4]
+    python bench/bench_geometry.py [--every-s 4] [--session S] [--clip]
+
+--session: another session (e.g. `geofuse simulate session --flight orbit`); --clip: also the
+whole `registered` source against the model without texture, beside the offline prior and the
+textured registration: projection error on the model at the centre line and the edges
+(app.solve.accuracy, every 10th frame), keyframes used, and the time taken.
 
 Prints per method: keyframes registered, within 0.5 m and 0.5 deg, median position and turn
 errors of the registered ones, how many ended nearer the truth than they started, s a keyframe.
@@ -31,6 +36,8 @@ from app.scene.mesh import MeshData  # noqa: E402
 from app.session import open_session  # noqa: E402
 from app.session.camera_track import camera_track, frame_clock  # noqa: E402
 from app.simulate.sample import SAMPLE_DIR  # noqa: E402
+from app.solve.accuracy import Poses, ProjectionProbe, evaluate, split_stats  # noqa: E402
+from app.solve.track import solve_track  # noqa: E402
 from bench.common import table  # noqa: E402
 from tests.test_register import _perturbed  # noqa: E402
 
@@ -38,8 +45,12 @@ from tests.test_register import _perturbed  # noqa: E402
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--every-s", type=float, default=4.0)
+    parser.add_argument(
+        "--session", type=Path, default=SAMPLE_DIR / "session.toml", help="default: the sample"
+    )
+    parser.add_argument("--clip", action="store_true", help="the whole registered source too")
     args = parser.parse_args(argv)
-    session = open_session(SAMPLE_DIR / "session.toml")
+    session = open_session(args.session)
     truth_track = replace(
         camera_track(session, "truth"), clock=frame_clock(session, true_timing=True)
     )
@@ -48,6 +59,20 @@ def main(argv: list[str] | None = None) -> int:
         {int(np.searchsorted(pts, t)) for t in np.arange(pts[0] + 2.0, pts[-1], args.every_s)}
     )
     grey = MeshData([replace(p, texture=None, uvs=None) for p in session.scene().primitives])
+    probe = ProjectionProbe(session, (64, 36))
+
+    def on_model(cams: list, truths: list) -> str:
+        """median m at the centre line and at the edges, the cameras' pixels against the
+        truth's (app.solve.accuracy)"""
+        if not cams:
+            return "-"
+        est, tru = (
+            Poses(np.array([c.position for c in cs]), np.array([c.orientation for c in cs]))
+            for cs in (cams, truths)
+        )
+        s = split_stats(*probe.errors(est, tru), 64)
+        return f"{s.centre_median:.2f} / {s.edge_median:.2f}"
+
     rows = []
     for name, mesh, settings in [
         ("texture (SIFT + fine), textured model", session.scene(), RegistrationSettings()),
@@ -55,6 +80,7 @@ def main(argv: list[str] | None = None) -> int:
     ]:
         registrar = Registrar.of_scene(mesh, settings)
         errors, nearer, t0 = [], 0, time.perf_counter()
+        solved_cams, true_cams, start_cams = [], [], []
         try:
             for k, rgb in frames_at(session.video, frames, settings.long_side):
                 truth = truth_track.frame_camera(k)
@@ -67,6 +93,9 @@ def main(argv: list[str] | None = None) -> int:
                     np.degrees(rotations.angle_between(solved.orientation, truth.orientation))
                 )
                 errors.append((m, d))
+                solved_cams.append(solved)
+                true_cams.append(truth)
+                start_cams.append(start)
                 nearer += m < float(np.linalg.norm(np.subtract(start.position, truth.position)))
         finally:
             registrar.release()
@@ -76,13 +105,47 @@ def main(argv: list[str] | None = None) -> int:
         rows.append([
             name, f"{len(e)} / {len(frames)}", f"{within} / {len(frames)}",
             f"{np.median(e[:, 0]):.2f}" if len(e) else "-", f"{np.median(e[:, 1]):.2f}" if len(e) else "-",
-            f"{nearer} / {len(e)}", f"{seconds:.2f}",
+            f"{nearer} / {len(e)}", on_model(start_cams, true_cams),
+            on_model(solved_cams, true_cams), f"{seconds:.2f}",
         ])  # fmt: skip
+    probe.release()
+    if args.clip:
+        clip_rows(session, grey)
     print(table(
-        ["method", "registered", "within 0.5 m and 0.5 deg", "median m", "median deg", "nearer than the start", "s a keyframe"],
+        ["method", "registered", "within 0.5 m and 0.5 deg", "median m", "median deg", "nearer than the start",
+         "start on the model: centre / edges m", "registered on the model", "s a keyframe"],
         rows,
     ))  # fmt: skip
     return 0
+
+
+def clip_rows(session, grey: MeshData) -> None:
+    """The whole registered source on the model without texture and on the textured one, beside
+    the offline prior: projection error on the model (m, median / p95)."""
+    rows = []
+    clip_s = float(session.video.pts_s[-1] - session.video.pts_s[0])
+    for name, sess in (
+        ("textured model", session),
+        ("model without texture", replace(session, mesh=grey)),
+    ):
+        t0 = time.perf_counter()
+        reg = solve_track(sess, "registered").registration
+        wall = time.perf_counter() - t0
+        for r in evaluate(sess, ["offline", "registered"], paper=False):
+            t = r.total
+            used = f"{reg.used} / {len(reg.keyframes)}" if r.name == "registered" else "-"
+            took = (
+                f"{wall:.0f} s ({wall / clip_s:.2f}x the clip)" if r.name == "registered" else "-"
+            )
+            rows.append([
+                name, r.name, f"{t.centre_median:.2f} / {t.centre_p95:.2f}",
+                f"{t.edge_median:.2f} / {t.edge_p95:.2f}", f"{r.attitude[0]:.2f}", used, took,
+            ])  # fmt: skip
+    print(table(
+        ["scene", "source", "centre m (median / p95)", "edges m (median / p95)", "attitude RMS deg", "keyframes used", "registered in"],
+        rows,
+    ))  # fmt: skip
+    print()
 
 
 if __name__ == "__main__":

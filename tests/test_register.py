@@ -17,7 +17,7 @@ from app.camera.intrinsics import Intrinsics
 from app.camera.lens import Lens
 from app.camera.pinhole import Camera
 from app.camera.trajectory import PoseTrack, PositionTrack
-from app.core.errors import DataFormatError, GeofuseError
+from app.core.errors import DataFormatError
 from app.geodesy import rotations
 from app.geodesy.enu import LocalFrame
 from app.io.video import frames_at
@@ -419,19 +419,24 @@ def test_keyframes_register_against_3d_tiles_and_a_dem_with_an_orthophoto(kind, 
         registrar.release()
 
 
-def test_a_scene_without_texture_is_refused_with_the_reason(sample_session):
-
+@pytest.mark.gl
+def test_a_scene_without_texture_is_registered_by_its_geometry(sample_session, gl_ctx):
+    """The grey model offers `registered`, by its lines (app.register.edges), the textured one
+    by its textures."""
     grey = replace(
         sample_session,
         mesh=MeshData(
             [replace(p, texture=None, uvs=None) for p in sample_session.scene().primitives]
         ),
     )
-    assert "registered" not in grey.sources and "registered" in sample_session.sources
-    with pytest.raises(ValueError, match="has no texture.*orthophoto"):
-        grey.check_source("registered")
-    with pytest.raises(GeofuseError, match="has no texture.*orthophoto"):
-        Registrar(grey)
+    assert "registered" in grey.sources and "registered" in sample_session.sources
+    grey.check_source("registered")
+    for session, geometry in ((grey, True), (sample_session, False)):
+        registrar = Registrar(session, ctx=gl_ctx)
+        try:
+            assert registrar.settings.by_geometry is geometry
+        finally:
+            registrar.release()
 
 
 @pytest.mark.gl

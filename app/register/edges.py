@@ -55,8 +55,8 @@ class EdgeSettings:
     level; min_points: model points that must find an edge; min_found: and the fraction of
     those in view that must; max_error_px: the RMS point-to-line distance at the end (full
     frame pixels); max_std_m / max_std_deg: the pose's worst-fixed direction, as the standard
-    deviation one pixel of noise on every point would give it, above which the step is refused
-    (not used where prior_m > 0); prior_m / prior_deg: the starting pose's standard deviations
+    deviation one pixel of noise on every point would give it (the edges alone, without the
+    prior), above which the step is refused; prior_m / prior_deg: the starting pose's standard deviations
     (position per axis, turn per axis): the fit is the most probable pose given the edges and
     that prior, so that a direction the model's lines do not fix (along the one wall in view)
     stays where the prior put it (0: no prior); noise_px / lines: the edge points' noise, and
@@ -72,10 +72,10 @@ class EdgeSettings:
     blur_px: float = 1.2
     iterations: int = 8
     min_points: int = 60
-    min_found: float = 0.35
+    min_found: float = 0.85
     max_error_px: float = 2.5
     max_std_m: float = 0.1
-    max_std_deg: float = 0.1
+    max_std_deg: float = 0.03
     prior_m: float = 3.0
     prior_deg: float = 1.5
     noise_px: float = 1.5
@@ -498,9 +498,7 @@ def _judged(fit: EdgeFit, settings: EdgeSettings) -> PoseFix:
         reason = f"only {fit.found} of {fit.in_view} model edge points found a frame edge"
     elif not fit.error_px <= settings.max_error_px:
         reason = f"edge distance {fit.error_px:.1f} px (at most {settings.max_error_px})"
-    elif settings.prior_m <= 0 and (
-        fit.std_m > settings.max_std_m or fit.std_deg > settings.max_std_deg
-    ):
+    elif fit.std_m > settings.max_std_m or fit.std_deg > settings.max_std_deg:
         reason = (
             f"the model's lines in view leave the pose unfixed ({fit.std_m:.2f} m, "
             f"{fit.std_deg:.2f} deg a pixel)"

@@ -75,8 +75,9 @@ class RegistrationSettings:
     it less than converge_m and converge_deg); estimate_delay: estimate and remove the frame
     times' offset from the keyframes (app.register.fuse.estimate_delay); by_geometry: align the
     model's lines with the frame's edges (app.register.edges) instead of matching textures, with
-    `edges` its settings (an experiment: on the sample it lands farther from the truth than the
-    GNSS prior, docs/ACCURACY.md, so no source uses it)."""
+    `edges` its settings; a scene without texture is always registered so (`by_geometry`), and
+    a keyframe whose lines leave a direction of the pose loosely fixed is refused (a street
+    along one facade, a view straight down: docs/ACCURACY.md)."""
 
     every_s: float = 0.5
     long_side: int = 960
@@ -183,6 +184,12 @@ def _shifted(camera: Camera, correction: Correction, t: float) -> Camera:
     return nudged(camera, dr[0], dp[0])
 
 
+def by_geometry(mesh: MeshData) -> bool:
+    """Whether a scene is registered by its geometry: it has no texture to match (no textured
+    primitive, no streamed tileset: tiles are taken as textured)."""
+    return not mesh.tilesets and not any(p.textured for p in mesh.primitives)
+
+
 class Registrar:
     """Registers keyframes of one session's video against its scene (owns an off-screen GL
     context: use from one thread, then `release()`)."""
@@ -219,6 +226,8 @@ class Registrar:
     def _start(self, mesh: MeshData, settings, ctx, background: bool) -> None:
         if background:
             _lower_priority()
+        if by_geometry(mesh):
+            settings = replace(settings, by_geometry=True)
         self.settings = settings
         self.views = ModelViews(mesh, ctx)
         self.matcher = Matcher(settings.match)

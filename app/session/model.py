@@ -168,8 +168,8 @@ class Session:
 
     def registration_refusal(self) -> str | None:
         """Why the video cannot be registered against this scene (None: it can): an assumed flat
-        ground has nothing to register against; a scene without texture (a grey model, a bare
-        DEM) gives the matcher nothing to match. Streamed tilesets are taken as textured."""
+        ground has nothing to register against. A scene without texture (a grey model, a city's
+        LoD2 buildings, a bare DEM) is registered by its geometry (app.register.edges)."""
         return scene_refusal(self.scene() if self.layers else None, self.layers)
 
     def utc_of(self, session_s: float) -> float | None:
@@ -246,10 +246,4 @@ def scene_refusal(mesh, layers) -> str | None:
     feed's, app.live.register)."""
     if mesh is None or not layers:
         return "the scene is an assumed flat ground: there is nothing to register the video against (name a model, tileset or DEM)"
-    if not mesh.tilesets and not any(p.textured for p in mesh.primitives):
-        names = ", ".join(layer.name for layer in layers)
-        return (
-            f"the scene ({names}) has no texture: registration matches the video against the model's textures, "
-            "and a grey model or a bare DEM has none (give the DEM an orthophoto, or use a textured model)"
-        )
     return None

@@ -23,7 +23,15 @@ def session(session_dir):
 
 
 def test_session_reads_everything(session):
-    assert session.sources == ["gd-ahrs", "gd-imu", "cf-ahrs", "cf-imu", "offline", "truth"]
+    assert session.sources == [
+        "gd-ahrs",
+        "gd-imu",
+        "cf-ahrs",
+        "cf-imu",
+        "offline",
+        "registered",
+        "truth",
+    ]  # a grey scene: by geometry
     assert len(session.frame_times) == 600
     assert session.video.rotation_cw == 90
     assert (session.intrinsics.width, session.intrinsics.height) == (36, 64)  # portrait display
@@ -79,7 +87,7 @@ def test_imu_only_session_offers_imu_filters(session_dir, tmp_path, capsys):
     text = (folder / "session.toml").read_text().replace('mag = "mag.csv"\n', "")
     (folder / "session.toml").write_text(text)
     s = open_session(folder / "session.toml")
-    assert s.sources == ["gd-imu", "cf-imu", "offline", "truth"]
+    assert s.sources == ["gd-imu", "cf-imu", "offline", "registered", "truth"]
     assert (
         main(
             [
@@ -93,7 +101,7 @@ def test_imu_only_session_offers_imu_filters(session_dir, tmp_path, capsys):
         )
         == 2
     )
-    assert "this session offers gd-imu, cf-imu, offline, truth" in capsys.readouterr().err
+    assert "this session offers gd-imu, cf-imu, offline, registered, truth" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize(

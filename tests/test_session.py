@@ -101,7 +101,9 @@ def test_imu_only_session_offers_imu_filters(session_dir, tmp_path, capsys):
         )
         == 2
     )
-    assert "this session offers gd-imu, cf-imu, offline, registered, truth" in capsys.readouterr().err
+    assert (
+        "this session offers gd-imu, cf-imu, offline, registered, truth" in capsys.readouterr().err
+    )
 
 
 @pytest.mark.parametrize(

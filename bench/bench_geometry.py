@@ -129,9 +129,11 @@ def clip_rows(session, grey: MeshData) -> None:
         ("model without texture", replace(session, mesh=grey)),
     ):
         t0 = time.perf_counter()
-        reg = solve_track(sess, "registered").registration
-        wall = time.perf_counter() - t0
-        for r in evaluate(sess, ["offline", "registered"], paper=False):
+        track = solve_track(sess, "registered")
+        wall, reg = time.perf_counter() - t0, track.registration
+        for r in evaluate(
+            sess, ["offline", "registered"], paper=False, solved={"registered": track}
+        ):
             t = r.total
             used = f"{reg.used} / {len(reg.keyframes)}" if r.name == "registered" else "-"
             took = (

@@ -141,9 +141,11 @@ def evaluate(
     grid: tuple[int, int] = (64, 36),
     paper: bool = True,
     progress: Callable[[float], None] | None = None,
+    solved: dict[str, CameraTrack] | None = None,
 ) -> list[SourceReport]:
     """Attitude RMS and projection error for each source (and the paper's pipeline);
-    progress(fraction) after each source solved and each measured (a long run on a terminal)."""
+    progress(fraction) after each source solved and each measured (a long run on a terminal);
+    solved: tracks of some sources already solved (by name), not solved again."""
     steps = 2 * len(sources) + (1 if paper and session.mag is not None else 0)
     done = [0]
 
@@ -162,7 +164,7 @@ def evaluate(
     # its pose at a frame's true time is found delay_s later on its own time axis.
     entries: list[tuple[str, Callable[[np.ndarray], Poses], np.ndarray, float]] = []
     for name in sources:
-        track = solve_track(session, name)
+        track = (solved or {}).get(name) or solve_track(session, name)
         delay = (track.registration.delay_s or 0.0) if track.registration is not None else 0.0
         step()
         entries.append(

@@ -30,7 +30,7 @@ def create_offscreen_context() -> moderngl.Context:
         ) from exc
 
 
-class _Current(NamedTuple):
+class CurrentContext(NamedTuple):
     """The GL context current on a thread: which API made it current, and its handles."""
 
     api: str  # "egl", "glx" or "" (none)
@@ -40,24 +40,24 @@ class _Current(NamedTuple):
 _EGL_DRAW, _EGL_READ = 0x3059, 0x305A
 
 
-def current_context() -> _Current:
+def current_context() -> CurrentContext:
     """The context current on this thread, EGL's (the off-screen ones) or GLX's (a GLFW
     window on X11), to compare or make current again."""
     if _EGL is not None:
         ctx = _EGL.eglGetCurrentContext()
         if ctx:
             draw, read = (_EGL.eglGetCurrentSurface(which) or 0 for which in (_EGL_DRAW, _EGL_READ))
-            return _Current("egl", (_EGL.eglGetCurrentDisplay() or 0, draw, read, ctx))
+            return CurrentContext("egl", (_EGL.eglGetCurrentDisplay() or 0, draw, read, ctx))
     if _GLX is not None:
         ctx = _GLX.glXGetCurrentContext()
         if ctx:
             g = _GLX
             drawables = (g.glXGetCurrentDrawable() or 0, g.glXGetCurrentReadDrawable() or 0)
-            return _Current("glx", (g.glXGetCurrentDisplay() or 0, *drawables, ctx))
-    return _Current("", ())
+            return CurrentContext("glx", (g.glXGetCurrentDisplay() or 0, *drawables, ctx))
+    return CurrentContext("", ())
 
 
-def make_current(saved: _Current) -> None:
+def make_current(saved: CurrentContext) -> None:
     """Make `saved` current again on this thread (nothing to do where none was)."""
     if saved.api == "egl":
         _EGL.eglMakeCurrent(*saved.handles)

@@ -7,7 +7,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from app.cli import main
 from app.geodesy import rotations
+from app.locate.location import locate
 from app.simulate.flights import (
     ORBIT_HEIGHT_M,
     ORBIT_RADIUS_M,
@@ -20,6 +22,7 @@ from app.simulate.flights import (
     orbit,
     survey,
 )
+from app.simulate.sample import SAMPLE_SCENE
 from app.simulate.session import (
     FLIGHT_OF,
     SYNC_ERROR_S,
@@ -79,9 +82,6 @@ def test_the_orbit_circles_the_hall_with_the_camera_on_it():
 def test_a_survey_session_sees_the_ground_straight_under_the_aircraft(tmp_path):
     """The session a survey writes (drone: no display rotation, GNSS heights its own): under its
     true pose, the centre pixel of a frame lies on the ground, straight under the aircraft."""
-    from app.locate.location import locate
-    from app.simulate.sample import SAMPLE_SCENE
-
     manifest = write_sample_session(
         tmp_path, SAMPLE_SCENE, SampleConfig(**{**quick_config(2.0).__dict__, "flight": "survey"})
     )
@@ -94,3 +94,33 @@ def test_a_survey_session_sees_the_ground_straight_under_the_aircraft(tmp_path):
     assert loc.enu[2] == pytest.approx(0.0, abs=0.05)  # the ground
     assert np.hypot(loc.enu[0] - below[0], loc.enu[1] - below[1]) < 0.1
     assert loc.range_m == pytest.approx(SURVEY_HEIGHT_M, abs=0.3)
+
+
+def test_an_orbit_session_on_the_sites_city_model(tmp_path):
+    """`geofuse simulate session --flight orbit --city`: the manifest names the site's LoD2
+    CityJSON written beside it (no up axis: the file's CRS places it), and the frame's centre
+    under the true pose lies on the hall's roof or walls, named as the city object it is (the
+    camera looks at the hall from 60 m: the centre ray meets the hall)."""
+    out = tmp_path / "orbit"
+    assert (
+        main(
+            [
+                "simulate",
+                "session",
+                "--out",
+                str(out),
+                "--flight",
+                "orbit",
+                "--duration",
+                "1",
+                "--city",
+            ]
+        )
+        == 0
+    )
+    text = (out / "session.toml").read_text()
+    assert 'path = "site.city.json"' in text and "up_axis" not in text
+    assert (out / "site.city.json").is_file()
+    (loc,) = locate(out / "session.toml", 0.5, [[320.0, 180.0]], attitude="truth")
+    assert loc.feature is not None and loc.feature.id == "hall"
+    assert loc.feature.surface in ("roof", "wall")

@@ -550,6 +550,11 @@ def _simulate(sub: Commands) -> None:
         action="store_true",
         help="render the video from the plain model itself (the old sample), not from a world that differs from it",
     )
+    ss.add_argument(
+        "--city",
+        action="store_true",
+        help="the session's scene is the site as a city publishes it: an untextured LoD2 CityJSON (site.city.json, written beside it; the video as without), registered by its geometry",
+    )
     ss.set_defaults(job="simulate:session")
     sy = ssub.add_parser(
         "city",

@@ -69,6 +69,7 @@ def session(args: argparse.Namespace) -> int:
             duration_s=args.duration,
             world=not args.model_world,
             flight=args.flight,
+            city=args.city,
         ),
     )
     total = sum(p.stat().st_size for p in Path(args.out).iterdir() if p.is_file())

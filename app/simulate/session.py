@@ -29,6 +29,7 @@ from app.geodesy.geomag import field_enu
 from app.scene import load_scene, shapes
 from app.scene.mesh import MeshData
 from app.simulate import flights, sensors
+from app.simulate.city import site_buildings, write_cityjson
 from app.simulate.flights import Flight
 from app.simulate.phone import Motion, body_rates, specific_force
 from app.simulate.stadium import HALL_MAX, HALL_MIN, SITE_ORIGIN
@@ -221,12 +222,21 @@ class SampleConfig:
     crf: int = 30
     world: bool = True  # render from a world that differs from the model (False: the model itself)
     flight: str = "walk"  # app.simulate.flights.FLIGHTS
+    # name the site as a city publishes it (an untextured LoD2 CityJSON in UTM + EGM2008 heights,
+    # written beside the session as CITY_NAME) as the session's scene, not the GLB
+    city: bool = False
+
+
+CITY_NAME = "site.city.json"
 
 
 def write_sample_session(
     out: str | Path, scene_path: str | Path, config: SampleConfig = SampleConfig()
 ) -> Path:
-    """Write the sample session (manifest, video, logs, truth) into `out`; returns the manifest."""
+    """Write the sample session (manifest, video, logs, truth) into `out`; returns the manifest.
+    The video is rendered from `scene_path` (or the world that differs from it); with
+    `config.city` the manifest names the sample site's LoD2 city model instead (the stadium's
+    layout: meant for the sample site)."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(config.seed)
@@ -304,15 +314,21 @@ def write_sample_session(
     _csv(out / "truth_frames.csv", ["frame", "t"], [np.arange(n), t0 + pts], ["%d", TIME_FMT])
     if config.render_video:
         render_frames(out / "clip.mp4", scene_path, pts, config.crf, config.world, flight)
-    scene_rel = Path(scene_path).resolve()
-    try:
-        scene_rel = scene_rel.relative_to(out.resolve())
-    except ValueError:
-        pass
+    if config.city:
+        buildings, relief, crs = site_buildings(frame)
+        write_cityjson(out / CITY_NAME, buildings, crs, relief=relief)
+        scene_rel, up_axis = Path(CITY_NAME), ""
+    else:
+        scene_rel, up_axis = Path(scene_path).resolve(), '\nup_axis = "Y"'
+        try:
+            scene_rel = scene_rel.relative_to(out.resolve())
+        except ValueError:
+            pass
     manifest = out / "session.toml"
     manifest.write_text(
         MANIFEST.format(
             scene=scene_rel.as_posix(),
+            up_axis=up_axis,
             origin=SITE_ORIGIN,
             start=t0 + SYNC_ERROR_S,
             hfov=HFOV_DEG,
@@ -341,8 +357,7 @@ MANIFEST = """# geofuse sample session: {what}.
 
 [scene]
 path = "{scene}"
-origin = [{origin[0]}, {origin[1]}, {origin[2]}]
-up_axis = "Y"
+origin = [{origin[0]}, {origin[1]}, {origin[2]}]{up_axis}
 
 [video]
 path = "clip.mp4"

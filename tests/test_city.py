@@ -6,6 +6,7 @@ opened in bounded memory; damaged files refused naming the file and the object."
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 import zipfile
@@ -28,6 +29,7 @@ from app.simulate.city import (
     write_cityjson,
     write_cityjsonseq,
 )
+from tests.conftest import ROOT
 
 # UTM zone 32N + EGM2008 heights, in the OGC compound URL form CityJSON files use
 COMPOUND = (
@@ -54,6 +56,17 @@ def _geodetic(x, y):
         x, y
     )
     return float(lat), float(lon)
+
+
+def sample_manifest_text() -> str:
+    """The sample session's manifest with its files named by absolute paths (to be written
+    anywhere)."""
+    sample = ROOT / "assets/sample"
+    return re.sub(
+        r'"([\w./-]+\.(?:mp4|glb|csv))"',
+        lambda m: f'"{sample / m.group(1)}"',
+        (sample / "session.toml").read_text(),
+    )
 
 
 def _frame() -> LocalFrame:
@@ -589,12 +602,10 @@ def test_a_layer_reads_the_level_of_detail_asked_for(tmp_path):
     """A building with an LoD 1 geometry (two of its faces) beside its LoD 2.2 one: each
     object's highest by default, the LoD 1 one when the layer asks for lod = 1.2; a manifest's
     `lod` reaches the layer, and is refused on a layer that is no city model."""
-    import re
 
     from app.core.errors import ManifestError
     from app.session.config import read_config
     from app.simulate.city import cityjson
-    from tests.conftest import ROOT
 
     doc = cityjson(BUILDINGS, COMPOUND, translate=(*SITE, 0.0))
     solid = doc["CityObjects"]["A"]["geometry"][0]
@@ -609,12 +620,7 @@ def test_a_layer_reads_the_level_of_detail_asked_for(tmp_path):
         return int(table.starts[a + 1] - table.starts[a])
 
     assert a_triangles() > 4 and a_triangles(max_lod=1.2) == 4
-    sample = ROOT / "assets/sample"
-    text = re.sub(
-        r'"([\w./-]+\.(?:mp4|glb|csv))"',
-        lambda m: f'"{sample / m.group(1)}"',
-        (sample / "session.toml").read_text(),
-    )
+    text = sample_manifest_text()
     manifest = tmp_path / "session.toml"
     manifest.write_text(text + f'\n[[layers]]\npath = "{path}"\nlod = 1.2\n')
     (layer,) = [x for x in read_config(manifest).layers if x.kind == "city"]

@@ -33,7 +33,14 @@ def layers(args: argparse.Namespace, placement: Placement | None = None) -> tupl
     names = list(getattr(args, "scene", None) or [])
     if getattr(args, "dem", None) is not None:
         names.append(str(args.dem))
-    return named_layers(names, args.ortho, args.dem_vertical, args.dem_error, placement)
+    return named_layers(
+        names,
+        args.ortho,
+        args.dem_vertical,
+        args.dem_error,
+        placement,
+        getattr(args, "city_theme", None),
+    )
 
 
 def projection_settings(args: argparse.Namespace) -> ProjectionSettings:

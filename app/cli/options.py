@@ -159,7 +159,8 @@ def add_projection_options(p: argparse.ArgumentParser) -> None:
 
 
 def add_layer_options(p: argparse.ArgumentParser, placed_models: bool = False) -> None:
-    """--scene (repeatable), --dem, --ortho, --dem-vertical, --dem-error: a clip's scene."""
+    """--scene (repeatable), --dem, --ortho, --dem-vertical, --city-theme, --dem-error: a
+    clip's scene."""
     what = (
         "a model (glTF/GLB, OBJ, PLY) placed by --origin, "
         if placed_models
@@ -186,6 +187,12 @@ def add_layer_options(p: argparse.ArgumentParser, placed_models: bool = False) -
         choices=("ellipsoid", "egm2008", "egm96"),
         default=None,
         help="the heights of a DEM or a city model are above this (default: the file's vertical CRS, else EGM2008)",
+    )
+    p.add_argument(
+        "--city-theme",
+        default=None,
+        metavar="NAME",
+        help="a city model's appearance theme drawn (its textures and materials; default: the first the file names)",
     )
     p.add_argument(
         "--dem-error",

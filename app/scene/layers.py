@@ -53,7 +53,8 @@ class Layer:
     """One layer. location: a file path or URL; placement: a model's (app.scene.loader); ortho,
     max_error_m: a DEM's orthophoto and largest vertical error of its mesh, m; vertical: a DEM's
     or a city's vertical datum (None: the file's, else EGM2008); lod: a city's highest level of
-    detail read (None: each object's highest)."""
+    detail read (None: each object's highest); theme: a city's appearance theme drawn (None:
+    the first the file names)."""
 
     location: str
     kind: str
@@ -62,6 +63,7 @@ class Layer:
     vertical: str | None = None
     max_error_m: float = DEFAULT_MAX_ERROR_M
     lod: float | None = None
+    theme: str | None = None
 
     @classmethod
     def of(cls, location: str | Path, **options) -> Layer:
@@ -90,10 +92,12 @@ def named_layers(
     vertical: str | None = None,
     max_error_m: float = DEFAULT_MAX_ERROR_M,
     placement: Placement | None = None,
+    theme: str | None = None,
 ) -> tuple[Layer, ...]:
     """The layers a user named (files or URLs), checked before anything loads: local files
     exist, kinds are known; a DEM takes the orthophoto, vertical datum and largest error (m)
-    given, a city the vertical datum, a model the placement. Raises SceneError naming the file
+    given, a city the vertical datum and appearance theme, a model the placement. Raises
+    SceneError naming the file
     at fault."""
     out = []
     for name in names:
@@ -103,7 +107,7 @@ def named_layers(
         if layer.kind == "dem":
             layer = Layer.of(name, ortho=ortho, vertical=vertical, max_error_m=max_error_m)
         elif layer.kind == "city":
-            layer = Layer.of(name, vertical=vertical)
+            layer = Layer.of(name, vertical=vertical, theme=theme)
         elif layer.kind in ("mesh", "tileset") and placement is not None:
             layer = Layer.of(name, placement=placement)
         out.append(layer)
@@ -170,7 +174,9 @@ def load_layers(
             notes.info(f"{layer.name}: 3D Tiles {ts.version}, streamed by level of detail")
         elif layer.kind == "city":
             lod = {} if layer.lod is None else {"max_lod": layer.lod}
-            city = read_city(layer.location, frame, track_ll, layer.vertical, **lod)
+            city = read_city(
+                layer.location, frame, track_ll, layer.vertical, theme=layer.theme, **lod
+            )
             part = city.mesh
             notes.extend(city.notes)
         else:

@@ -21,6 +21,8 @@ TOML reader that types and checks each key is app.session.reader).
                                   # "egm96" (default: its CRS's vertical datum, else EGM2008)
     lod = 1.2                     # a city model's highest level of detail read, optional
                                   # (default: each object's highest)
+    theme = "rgbTexture"          # a city model's appearance theme drawn, optional (default:
+                                  # the first the file names)
 
     [[layers]]                    # optional, repeated: more layers drawn together with [scene]
     path = "city/tileset.json"    # same kinds as scene.path; a model here takes the same keys
@@ -96,8 +98,8 @@ HANDHELD_MOUNT_M = 1.5  # a hand-held or body camera's height above the ground, 
 _PLACED = {"path", "origin", "up_axis", "heading_deg", "scale"}
 KNOWN_KEYS: dict[str, set[str]] = {  # every table and key of the schema above
     "origin": {"lat", "lon", "h"},
-    "scene": _PLACED | {"vertical", "lod"},
-    "layers": _PLACED | {"vertical", "lod"},
+    "scene": _PLACED | {"vertical", "lod", "theme"},
+    "layers": _PLACED | {"vertical", "lod", "theme"},
     "dem": {"path", "ortho", "vertical", "max_error_m"},
     "clips": {"path", "offset_s", "priority", "alpha", "source"},
     "video": {"path", "start_time", "time_offset_s", "timing"},
@@ -282,7 +284,12 @@ def _layer(m: Manifest, section: str) -> tuple[Layer, tuple[float, float, float]
         raise ManifestError(
             m.path, "a level of detail is a city model's key", field=f"{section}.lod"
         )
-    return Layer(location, kind, placement, vertical=vertical, lod=lod), origin
+    theme = m.get(section, "theme", str, None)
+    if theme is not None and kind != "city":
+        raise ManifestError(
+            m.path, "an appearance theme is a city model's key", field=f"{section}.theme"
+        )
+    return Layer(location, kind, placement, vertical=vertical, lod=lod, theme=theme), origin
 
 
 def _layers(m: Manifest) -> list[Layer]:

@@ -9,6 +9,15 @@ property around it (lod2MultiSurface, lod1Solid, ...); the object's highest LoD 
 `max_lod`) is drawn. BuildingParts are objects of their own, with their building as parent.
 Attributes: generic attributes (2.0 and 3.0 forms), simple properties (measuredHeight,
 function, yearOfConstruction...) and the address, as one line.
+
+Appearances of one theme are drawn (`theme`; by default the first the file names):
+ParameterizedTextures by their rings' texture coordinates, GeoreferencedTextures (an image laid
+on the ground plan, a roof's or a relief's orthophoto) by the file's horizontal coordinates
+through the image's georeference: inline, a referencePoint (the centre of the image's upper-left
+pixel) and an orientation (row-major A B / D E as a world file's: x = A col + B row + x0,
+y = D col + E row + y0, in the CRS's units per pixel), or the world file beside the image
+(`.pgw`, `.jgw`, `.tfw`, `.wld`...: A, D, B, E, x0, y0), which wins where preferWorldFile (by
+default true); and X3DMaterials' diffuse colours.
 """
 
 from __future__ import annotations
@@ -18,10 +27,11 @@ import zipfile
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import IO
+from typing import IO, TypeVar
 
 import numpy as np
 from lxml import etree
+from PIL import Image, UnidentifiedImageError
 
 from app.core.errors import SceneError
 from app.scene.city.cityjson import Keep
@@ -32,7 +42,9 @@ PART_NAMES = ("BuildingPart", "BridgePart", "TunnelPart")
 LOD_PATTERN = re.compile(r"^lod(\d)")
 GML_ID = "{http://www.opengis.net/gml}id"
 GML32_ID = "{http://www.opengis.net/gml/3.2}id"
+XLINK_HREF = "{http://www.w3.org/1999/xlink}href"
 MEMBERS = ("cityObjectMember", "featureMember", "member")
+T = TypeVar("T")
 GENERIC = ("stringAttribute", "intAttribute", "doubleAttribute", "dateAttribute", "uriAttribute")
 
 
@@ -68,9 +80,12 @@ class CityGmlReader:
     object is read; `objects(keep)` yields the objects whose horizontal centre `keep` accepts;
     `count`: objects with geometry seen."""
 
-    def __init__(self, path: str | Path, max_lod: float = 9.0) -> None:
+    def __init__(self, path: str | Path, max_lod: float = 9.0, theme: str | None = None) -> None:
         self.path = Path(path)
         self.max_lod = max_lod
+        self.theme = theme  # the appearance theme drawn (None: the first the file names)
+        self.themes: set[str] = set()  # the themes the appearances read name ("" unnamed)
+        self.notes: list[str] = []  # what was read but cannot be drawn, said once each
         self.count = 0
         self.crs: str | None = None
         self.version: str | None = None
@@ -78,6 +93,10 @@ class CityGmlReader:
         self._texture_ids: dict[str, int] = {}
         self.ring_textures: dict[str, tuple[int, np.ndarray]] = {}
         self.target_colours: dict[str, tuple[float, float, float]] = {}  # X3DMaterial, by gml:id
+        # GeoreferencedTexture by the gml:id of each surface it targets: (texture index, the
+        # image's pixels -> file x, y as a 2 x 3 affine matrix)
+        self.target_georef: dict[str, tuple[int, np.ndarray]] = {}
+        self._image_sizes: dict[int, tuple[int, int] | None] = {}
 
     def _error(self, message: str, field: str | None = None, line: int | None = None) -> SceneError:
         return SceneError(self.path, message, field=field, line=line)
@@ -94,10 +113,23 @@ class CityGmlReader:
         return self._texture_ids[uri]
 
     def _read_textures(self, root: etree._Element) -> None:
-        """Every ParameterizedTexture under `root`: its image, and the coordinates it gives
-        each ring (by the ring's gml:id), kept in `ring_textures`; every X3DMaterial's diffuse
-        colour by the gml:id of each surface it targets, kept in `target_colours`."""
-        for mat in root.iter("{*}X3DMaterial"):
+        """Every Appearance of the theme drawn under `root`: its ParameterizedTextures' images
+        and the coordinates they give each ring (by the ring's gml:id, `ring_textures`), its
+        GeoreferencedTextures by the gml:id of each surface they target (`target_georef`) and
+        its X3DMaterials' diffuse colours likewise (`target_colours`)."""
+        for appearance in root.iter("{*}Appearance"):
+            name = next(((c.text or "").strip() for c in appearance if _local(c) == "theme"), "")
+            self.themes.add(name)
+            if self.theme is None:
+                self.theme = name
+            if name != self.theme:
+                continue
+            self._read_materials(appearance)
+            self._read_parameterized(appearance)
+            self._read_georeferenced(appearance)
+
+    def _read_materials(self, appearance: etree._Element) -> None:
+        for mat in appearance.iter("{*}X3DMaterial"):
             text = next((c.text for c in mat.iter("{*}diffuseColor") if c.text), None)
             try:
                 rgb = tuple(float(v) for v in (text or "").split())
@@ -105,10 +137,11 @@ class CityGmlReader:
                 rgb = ()
             if len(rgb) != 3 or not np.all(np.isfinite(rgb)):
                 continue
-            for target in mat.iter("{*}target"):
-                if target.text:
-                    self.target_colours[target.text.strip().lstrip("#")] = rgb
-        for tex in root.iter("{*}ParameterizedTexture"):
+            for target in _targets(mat):
+                self.target_colours[target] = rgb
+
+    def _read_parameterized(self, appearance: etree._Element) -> None:
+        for tex in appearance.iter("{*}ParameterizedTexture"):
             uri = next((c.text for c in tex.iter("{*}imageURI") if c.text), None)
             if not uri:
                 continue
@@ -126,6 +159,79 @@ class CityGmlReader:
                     uv = uv[:-1]
                 if ring:
                     self.ring_textures[ring] = (index, uv)
+
+    def _read_georeferenced(self, appearance: etree._Element) -> None:
+        for tex in appearance.iter("{*}GeoreferencedTexture"):
+            uri = next((c.text for c in tex.iter("{*}imageURI") if c.text), None)
+            if not uri:
+                continue
+            prefer = next((c.text for c in tex if _local(c) == "preferWorldFile"), None)
+            affine = None
+            if (prefer or "true").strip().lower() in ("true", "1"):
+                affine = _world_file(self.path.parent / uri.strip())
+            affine = affine if affine is not None else self._inline_georef(tex)
+            if affine is None:
+                self.notes.append(
+                    f"{self.path.name}: GeoreferencedTexture {uri.strip()} (line {tex.sourceline}) "
+                    "not drawn: no referencePoint and orientation, and no world file beside the image"
+                )
+                continue
+            index = self._texture_index(uri.strip())
+            for target in _targets(tex):
+                self.target_georef[target] = (index, affine)
+
+    def _inline_georef(self, tex: etree._Element) -> np.ndarray | None:
+        """The 2 x 3 affine matrix (image column, row, 1 -> file x, y) of a
+        GeoreferencedTexture's referencePoint and orientation, None without both."""
+        point = next((c for c in tex if _local(c) == "referencePoint"), None)
+        matrix = next((c for c in tex if _local(c) == "orientation"), None)
+        if point is None or matrix is None:
+            return None
+        pos = next((c.text for c in point.iter("{*}pos", "{*}coordinates") if c.text), "")
+        try:
+            xy = [float(v) for v in pos.replace(",", " ").split()][:2]
+            m = [float(v) for v in (matrix.text or "").split()]
+        except ValueError as exc:
+            raise self._error(
+                f"GeoreferencedTexture: {exc} (expected numbers)", line=tex.sourceline
+            ) from exc
+        if len(xy) != 2 or len(m) != 4 or not np.all(np.isfinite([*xy, *m])):
+            raise self._error(
+                "GeoreferencedTexture: expected a 2D referencePoint and a 2 x 2 orientation",
+                line=tex.sourceline,
+            )
+        return np.array([[m[0], m[1], xy[0]], [m[2], m[3], xy[1]]])
+
+    def _image_size(self, index: int) -> tuple[int, int] | None:
+        """(width, height) of a texture image, None where it cannot be read (said when the
+        images are loaded)."""
+        if index not in self._image_sizes:
+            try:
+                with Image.open(self.texture_files()[index]) as img:
+                    self._image_sizes[index] = img.size
+            except (OSError, UnidentifiedImageError):
+                self._image_sizes[index] = None
+        return self._image_sizes[index]
+
+    def _georeferenced_uvs(
+        self, polygon: etree._Element, obj: etree._Element, rings: list[np.ndarray]
+    ) -> tuple[int, list[np.ndarray]] | None:
+        """(texture, each ring's texture coordinates) of the GeoreferencedTexture targeting the
+        polygon or a surface around it: each vertex's pixel through the inverse georeference,
+        as (s, t) with t up (CityGML's texture space: (0, 0) the image's lower-left corner)."""
+        found = _targeted(polygon, obj, self.target_georef)
+        if found is None:
+            return None
+        index, affine = found
+        size = self._image_size(index)
+        if size is None:
+            return None
+        inverse = np.linalg.inv(affine[:, :2])
+        out = []
+        for ring in rings:
+            col, row = inverse @ (ring[:, :2] - affine[:, 2]).T
+            out.append(np.column_stack([(col + 0.5) / size[0], 1.0 - (row + 0.5) / size[1]]))
+        return index, out
 
     def _global_appearances(self) -> None:
         """Appearances kept apart from the objects (CityModel/appearanceMember, often after
@@ -264,15 +370,7 @@ class CityGmlReader:
         self, polygon: etree._Element, obj: etree._Element
     ) -> tuple[float, float, float] | None:
         """The X3DMaterial colour targeting the polygon, or the nearest surface holding it."""
-        if not self.target_colours:
-            return None
-        for el in (polygon, *polygon.iterancestors()):
-            if el is obj:
-                return None
-            key = el.get(GML_ID) or el.get(GML32_ID)
-            if key in self.target_colours:
-                return self.target_colours[key]
-        return None
+        return _targeted(polygon, obj, self.target_colours)
 
     def _object(
         self,
@@ -313,6 +411,10 @@ class CityGmlReader:
                 ):
                     if len({t[0] for t in textures}) == 1:
                         surface.texture, surface.uvs = textures[0][0], [t[1] for t in textures]
+                if surface.texture is None and (
+                    georef := self._georeferenced_uvs(polygon, obj, rings)
+                ):
+                    surface.texture, surface.uvs = georef
                 surfaces.append(surface)
         if not surfaces:
             return
@@ -320,6 +422,55 @@ class CityGmlReader:
         if keep is not None and not keep(centre):
             return
         yield CityObject(oid, otype, attributes, surfaces, centre, str(top), parent)
+
+
+def _targets(surface_data: etree._Element) -> Iterator[str]:
+    """The gml:ids a surface data element (a material, a texture) targets."""
+    for target in surface_data.iter("{*}target"):
+        uri = target.get("uri") or target.get(XLINK_HREF) or target.text
+        if uri and uri.strip():
+            yield uri.strip().lstrip("#")
+
+
+def _targeted(polygon: etree._Element, obj: etree._Element, table: dict[str, T]) -> T | None:
+    """The entry of `table` (by gml:id) for the polygon, or for the nearest surface around it
+    within the object."""
+    if not table:
+        return None
+    for el in (polygon, *polygon.iterancestors()):
+        if el is obj:
+            return None
+        key = el.get(GML_ID) or el.get(GML32_ID)
+        if key in table:
+            return table[key]
+    return None
+
+
+WORLD_FILE_SUFFIXES = {
+    ".png": ".pgw",
+    ".jpg": ".jgw",
+    ".jpeg": ".jgw",
+    ".tif": ".tfw",
+    ".tiff": ".tfw",
+}
+
+
+def _world_file(image: Path) -> np.ndarray | None:
+    """The 2 x 3 affine matrix (column, row, 1 -> x, y; pixel centres) of the world file
+    beside an image (its suffix's conventional one, `.<suffix>w`, or `.wld`), None without
+    one or where it is not six numbers."""
+    suffix = image.suffix.lower()
+    names = [WORLD_FILE_SUFFIXES.get(suffix), suffix + "w", ".wld"]
+    for name in filter(None, names):
+        for candidate in (image.with_suffix(name), image.with_suffix(name.upper())):
+            if not candidate.is_file():
+                continue
+            try:
+                a, d, b, e, x0, y0 = (float(v) for v in candidate.read_text().split())
+            except ValueError:
+                return None
+            return np.array([[a, b, x0], [d, e, y0]])
+    return None
 
 
 def _attributes(obj: etree._Element) -> dict:

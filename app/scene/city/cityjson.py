@@ -87,12 +87,19 @@ def _surfaces_of(boundaries: list, depth: int) -> list[tuple[list, tuple[int, ..
     ]
 
 
-def _texture_values(texture: object) -> list | None:
-    """The `values` of a geometry's first texture theme (None without textures)."""
-    if not isinstance(texture, dict) or not texture:
+def _theme_of(themes: object, theme: str | None, seen: set[str]) -> object:
+    """A geometry's `texture` or `material` object's entry for `theme` (None: its first theme
+    by name), None where it has none; the names it holds are added to `seen`."""
+    if not isinstance(themes, dict) or not themes:
         return None
-    theme = texture[sorted(texture)[0]]
-    return theme.get("values") if isinstance(theme, dict) else None
+    seen.update(str(k) for k in themes)
+    return themes.get(theme) if theme is not None else themes[sorted(themes)[0]]
+
+
+def _texture_values(texture: object, theme: str | None, seen: set[str]) -> list | None:
+    """The `values` of a geometry's texture theme (`_theme_of`; None without textures)."""
+    chosen = _theme_of(texture, theme, seen)
+    return chosen.get("values") if isinstance(chosen, dict) else None
 
 
 def _diffuse(material: object) -> tuple[float, float, float] | None:
@@ -104,12 +111,13 @@ def _diffuse(material: object) -> tuple[float, float, float] | None:
     return rgb if len(rgb) == 3 and all(np.isfinite(rgb)) else None
 
 
-def _material_index(material: object, path: tuple[int, ...]) -> int | None:
+def _material_index(
+    material: object, path: tuple[int, ...], theme: str | None, seen: set[str]
+) -> int | None:
     """The surface's material (path: its index in the boundaries' nesting) in the geometry's
-    first material theme: `value` for all its surfaces, else `values` nested as the surfaces."""
-    if not isinstance(material, dict) or not material:
-        return None
-    theme = material[sorted(material)[0]]
+    material theme (`_theme_of`): `value` for all its surfaces, else `values` nested as the
+    surfaces."""
+    theme = _theme_of(material, theme, seen)
     if not isinstance(theme, dict):
         return None
     if theme.get("value") is not None:
@@ -147,10 +155,13 @@ class CityJsonReader:
     objects whose horizontal centre `keep` accepts; `count` is how many objects with geometry
     the file holds (known after `objects` ran)."""
 
-    def __init__(self, path: str | Path, max_lod: float = 9.0) -> None:
+    def __init__(self, path: str | Path, max_lod: float = 9.0, theme: str | None = None) -> None:
         self.path = Path(path)
         self.sequence = self.path.suffix.lower() == ".jsonl"
         self.max_lod = max_lod
+        self.theme = theme  # the appearance theme drawn (None: each geometry's first by name)
+        self.themes: set[str] = set()  # the texture and material themes the objects read name
+        self.notes: list[str] = []  # what was read but cannot be drawn (CityGmlReader's)
         self.count = 0
         self.header = self._read_header()
         self._vertices: np.ndarray | None = None
@@ -378,11 +389,11 @@ class CityJsonReader:
                 continue
             otype = str(obj.get("type", ""))
             surfaces = []
-            textured = _texture_values(geom.get("texture"))
+            textured = _texture_values(geom.get("texture"), self.theme, self.themes)
             for rings, path in _surfaces_of(boundaries, depth):
                 kind = kind_of(_semantic_type(geom.get("semantics"), path), otype)
                 surface = Surface([vertices[np.asarray(r, np.int64)] for r in rings], kind)
-                m = _material_index(geom.get("material"), path)
+                m = _material_index(geom.get("material"), path, self.theme, self.themes)
                 if m is not None and 0 <= m < len(self.header.materials):
                     surface.colour = self.header.materials[m]
                 if textured is not None:

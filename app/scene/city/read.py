@@ -194,6 +194,7 @@ def read_city(
     margin_m: float = DEFAULT_MARGIN_M,
     max_triangles: int = DEFAULT_MAX_TRIANGLES,
     max_lod: float = 9.0,
+    theme: str | None = None,
 ) -> City:
     """The city model at `path` in `frame` (see the module docstring). track_ll: (N, 2) lat,
     lon (deg) of the clip's track, None to read every object (up to max_triangles). Raises
@@ -203,7 +204,7 @@ def read_city(
         raise SceneError(path, "city model file does not exist")
     notes = Messages()
     gml = path.suffix.lower() in GML_SUFFIXES
-    reader = CityGmlReader(path, max_lod) if gml else CityJsonReader(path, max_lod)
+    reader = (CityGmlReader if gml else CityJsonReader)(path, max_lod, theme)
     track = None if track_ll is None else np.atleast_2d(np.asarray(track_ll, np.float64))
     state: dict[str, object] = {}
 
@@ -291,6 +292,15 @@ def read_city(
             path,
             f"none of its {reader.count} objects lies within {margin_m:.0f} m of the clip's track: check the file's CRS and the track",
         )
+    if theme is not None and theme not in reader.themes:
+        raise SceneError(
+            path,
+            f"no appearance theme {theme!r} among the objects read (theirs: "
+            f"{', '.join(repr(n) for n in sorted(reader.themes)) or 'none'})",
+            field="theme",
+        )
+    for note in reader.notes:
+        notes.add(note)
     return _city(
         path, reader, kept, dropped, state, notes, track is not None, margin_m, max_triangles
     )
@@ -317,6 +327,16 @@ def _primitive(
         texture=image,
         name=name,
     )
+
+
+def _themes_said(reader: CityJsonReader | CityGmlReader) -> str:
+    """The appearance themes the objects read name, and the one drawn, for the layer's note
+    (empty where there are fewer than two)."""
+    names = sorted(reader.themes)
+    if len(names) < 2:
+        return ""
+    drawn = repr(reader.theme) if reader.theme is not None else "each object's first by name"
+    return f"; appearance themes {', '.join(repr(n) for n in names)}, drawn: {drawn}"
 
 
 def _images(files: list[Path], used: set[int], notes: Messages) -> dict[int, np.ndarray]:
@@ -398,6 +418,7 @@ def _city(
     notes.info(
         f"{path.name}: {kind} {version} in {crs.name}, {len(kept):,} of {reader.count:,} objects{where} "
         f"(LoD {', '.join(lods)}), {len(triangles):,} triangles, {size / 1e6:.1f} MB, heights above {state['datum']}"
+        + _themes_said(reader)
     )
     if dropped:
         notes.add(

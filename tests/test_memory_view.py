@@ -5,6 +5,8 @@ in place of the model's own texture, where the frustum puts it."""
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import pytest
 
@@ -280,3 +282,110 @@ def test_the_viewer_paints_a_3d_tiles_scene_from_the_tiles_its_clip_needs(tmp_pa
         p.stop()
     assert p.covers_tiles and len(p.atlas.triangles) == session.scene().triangle_count
     assert p.memory.seen.sum() > 1000
+
+
+def test_a_memory_larger_than_the_atlas_is_paged_and_drawn_where_the_single_atlas_draws_it(
+    gl_ctx,
+):
+    """The sample clip (a frame every 8 s) painted twice: into one atlas, and with the atlas
+    capped far below what the video's sampling asks for, so that the viewer pages it (pages made
+    where frames met them, spilled to disk past 40 MB and read back, at most 8 MB of page textures
+    on the GPU: the nearest pages fine, the farther coarse). Seen through a painting frame's own
+    camera, the pages the view meets are composed and drawn over the model: where the memory
+    differs from the model the two renderings agree (same colours within 40 levels in 80 % of
+    those pixels), and the paged one is nearer the atlas's than the model is. Out of view, a
+    page is let go."""
+    from app.export.paged import pages_in_view
+    from app.export.painting import ClipToPaint
+    from app.session.assemble import open_session
+    from app.session.camera_track import camera_track
+    from app.ui.memory import COARSE, MemoryPainter
+
+    session = open_session(ROOT / "assets/sample/session.toml")
+    track = camera_track(session, "truth")
+    times = np.asarray(session.frame_times, np.float64) - float(session.frame_times[0])
+    clips = [ClipToPaint(session, track, times)]
+    one = MemoryPainter(session.scene(), clips, "newest", 8.0, 300_000)
+    paged = MemoryPainter(
+        session.scene(), clips, "newest", 8.0, 20_000, resident_mb=40.0, gpu_mb=8.0
+    )
+    for p in (one, paged):
+        assert p.start().wait(300) and p.error is None, p.error
+    renderer = FusionRenderer(gl_ctx, session.scene())
+    target = OffscreenTarget(gl_ctx, 320, 180)
+    try:
+        assert one.boxes is None and one.atlas is not None and paged.boxes is not None
+        stats = paged.page_stats
+        assert stats.made > 10 and stats.evicted > 0 and stats.reloaded > 0, stats.said()
+        assert paged.memory.nbytes <= 40e6  # the bound
+        assert paged.fine_pages < paged.max_pages
+        view = track.frame_camera(int(np.searchsorted(times, 32.0))).pinhole(320 / 640)
+        scene = renderer.scene
+        off = ProjectionSettings(enabled=False)
+
+        def drawn() -> np.ndarray:
+            renderer.draw(view, target.fbo, off)
+            return target.read()[..., :3].astype(int)
+
+        model = drawn()
+        one.request("memory", None)
+        texture = None
+        for _ in range(600):
+            texture = one.take() if texture is None else texture
+            if texture is not None:
+                break
+            one.wait(0.05)
+            time.sleep(0.05)
+        scene.set_memory(one.atlas.primitive(one.atlas.base))
+        scene.write_memory_texture(texture)
+        scene.show_memory = True
+        atlas_view = drawn()
+        scene.set_memory(None)
+
+        wanted = pages_in_view(view, *paged.boxes, paged.max_pages)
+        assert wanted
+        paged.request("memory", None, wanted)
+        held = {}
+        for _ in range(600):
+            taken = paged.take_pages()
+            if taken is not None:
+                held.update(taken[0])
+                for k, prim in taken[0].items():
+                    scene.put_memory_page(k, prim)
+                scene.keep_memory_pages(taken[1])
+            if paged.current():
+                break
+            time.sleep(0.05)
+        assert paged.current() and scene.memory_pages
+        assert set(scene.memory_pages) <= set(wanted)
+        assert scene.memory_pages_bytes <= 8e6
+        sizes = {k: held[k].texture.shape[0] * held[k].texture.shape[1] for k in held}
+        if len(wanted) > paged.fine_pages:  # a far page is coarse
+            far = [k for k in wanted[paged.fine_pages :] if k in sizes]
+            assert all(sizes[k] <= 512 * 512 // COARSE**2 for k in far)
+        paged_view = drawn()
+        changed = np.abs(atlas_view - model).max(axis=2) > 40
+        assert changed.mean() > 0.1
+        agree = np.abs(paged_view - atlas_view).max(axis=2)[changed] <= 40
+        assert agree.mean() > 0.8, agree.mean()
+        assert (
+            np.abs(paged_view - atlas_view)[changed].mean()
+            < np.abs(model - atlas_view)[changed].mean()
+        )
+
+        scene.show_memory = False  # hidden: the model again
+        assert np.array_equal(drawn(), model)
+        scene.show_memory = True
+        paged.request("memory", None, ())  # the view meets no page: all let go
+        for _ in range(200):
+            taken = paged.take_pages()
+            if taken is not None and not taken[1]:
+                scene.keep_memory_pages(taken[1])
+                break
+            time.sleep(0.05)
+        assert not scene.memory_pages
+    finally:
+        one.stop()
+        paged.stop()
+        target.release()
+        renderer.release()

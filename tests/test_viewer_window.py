@@ -431,3 +431,46 @@ def test_the_scene_memory_shows_what_the_video_saw_as_it_was(display, tmp_path):
     early = json.loads((d / "early.json").read_text())["memory"]
     assert early["range_s"][1] <= 2.0 + 1e-6
     assert np.abs(_grey(d / "early.png") - mem).mean() > 1.0
+
+
+def test_a_paged_scene_memory_in_the_window(display, tmp_path):
+    """`memory paint newest 4 20000`: the atlas capped far below what the video's sampling asks
+    for, the window pages the memory: the pages its view meets are composed and drawn over the
+    model, said in the state (pages made, held on the GPU within its budget), and seen through
+    the video's camera the memory looks like the video draped there more than the model does."""
+    d = tmp_path
+    run_script(
+        display,
+        d,
+        str(ROOT / "assets/sample/session.toml"),
+        f"""0.0 clock 0.0333333
+0.0 wait solved
+0.0 pause
+0.1 seek 30
+0.2 panels off
+0.2 lines off
+0.2 view phone
+0.2 alpha 1.0
+0.4 screenshot {d / "drape.png"}
+0.5 project off
+0.7 screenshot {d / "model.png"}
+0.8 memory paint newest 4.0 20000
+0.9 wait painted
+1.0 screenshot {d / "memory.png"}
+1.0 state {d / "memory.json"}
+1.1 quit
+""",
+    )
+    state = json.loads((d / "memory.json").read_text())
+    m = state["memory"]
+    assert state["errors"] == [] and m["done"] and m["error"] is None
+    pages = m["pages"]
+    assert pages is not None and pages["made"] > 5 and 0 < pages["gpu_pages"] <= pages["made"]
+    assert pages["gpu_mb"] <= 96.0
+    drape, model, mem = (_grey(d / f"{n}.png") for n in ("drape", "model", "memory"))
+    lit = np.abs(drape - model) > 0
+
+    def corr(a, b):
+        return float(np.corrcoef(a[lit], b[lit])[0, 1])
+
+    assert corr(mem, drape) > corr(model, drape) + 0.15, (corr(mem, drape), corr(model, drape))

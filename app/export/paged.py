@@ -58,6 +58,15 @@ def spatial_groups(centres: np.ndarray, weights: np.ndarray, max_weight: float) 
     return out
 
 
+def pages_in_view(camera: Camera, lo: np.ndarray, hi: np.ndarray, limit: int) -> tuple[int, ...]:
+    """The pages (boxes lo, hi (P, 3) ENU m) a camera's frustum meets, nearest first (the
+    distance from its centre to each box), at most `limit` of them."""
+    inside = np.flatnonzero(boxes_in_frustum(camera, lo, hi))
+    eye = np.asarray(camera.position, np.float64)
+    gap = np.linalg.norm(np.clip(eye, lo[inside], hi[inside]) - eye, axis=1)
+    return tuple(int(k) for k in inside[np.argsort(gap, kind="stable")][:limit])
+
+
 @dataclass(frozen=True)
 class Page:
     """triangles: indices (of PagedMemory.triangles) on the page; lo, hi (3,) ENU m their box;
@@ -161,6 +170,15 @@ class PagedMemory:
         self._touching = set()
         self.frames += n > 0
         return n
+
+    @property
+    def boxes(self) -> tuple[np.ndarray, np.ndarray]:
+        """The pages' boxes: lo, hi (P, 3) ENU m (fixed once laid out)."""
+        return self._lo, self._hi
+
+    def made(self, k: int) -> bool:
+        """Whether page k was made (a frame met it): held, or evicted to the spill directory."""
+        return k in self._resident or k in self._spilled
 
     @property
     def nbytes(self) -> int:

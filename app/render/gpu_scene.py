@@ -4,7 +4,10 @@ what to draw from a camera and take each primitive's vertex array for their prog
 
 A scene memory (app.export.memory on an app.export.atlas) is one more primitive: the static
 triangles again, textured by the atlas; while it is shown it is drawn instead of the static
-primitives (same surfaces, so depth maps and picking are unchanged)."""
+primitives (same surfaces, so depth maps and picking are unchanged). A memory in pages
+(app.export.paged) is a primitive a page, only for the pages the view needs (`put_memory_page`,
+`keep_memory_pages`): while shown they are drawn over the model in the view pass alone (overlays:
+their depth offset toward the camera), the model showing where no page is held."""
 
 from __future__ import annotations
 
@@ -43,6 +46,7 @@ class GpuScene:
         self.memory: GpuPrimitive | None = None  # the scene memory's atlas-textured triangles
         self.show_memory = False  # draw the memory instead of the static primitives
         self.memory_replaces_tiles = False  # ... and instead of the streamed layers too
+        self.memory_pages: dict[int, GpuPrimitive] = {}  # a paged memory's pages held, by index
         self._bounds: np.ndarray | None = None
 
     def update(self, budget_s: float = 0.008) -> bool:
@@ -66,6 +70,8 @@ class GpuScene:
         if camera is not None and not (shown and self.memory_replaces_tiles):
             for layer in self.tilesets:
                 out += layer.drawables(camera, focal_px, key)
+        if self.show_memory and key == "view":
+            out += list(self.memory_pages.values())
         return out
 
     def settle(
@@ -94,6 +100,7 @@ class GpuScene:
         """Release every vertex array made for `program` (call before releasing the program, so a
         later program given the same GL name never inherits them)."""
         prims = list(self.primitives) + ([self.memory] if self.memory is not None else [])
+        prims += list(self.memory_pages.values())
         for layer in self.tilesets:
             prims += [p for _, ps in layer.resident.values() for p in ps]
         for prim in prims:
@@ -136,7 +143,28 @@ class GpuScene:
         tex.write(np.ascontiguousarray(texture).tobytes())
         tex.build_mipmaps()
 
+    def put_memory_page(self, k: int, prim: Primitive) -> None:
+        """A paged memory's page k (its triangles, textured by the page's atlas at the detail
+        sent), uploaded in place of the one held."""
+        old = self.memory_pages.pop(k, None)
+        if old is not None:
+            old.release()
+        page = upload(self.ctx, prim, default_anisotropy(self.ctx))
+        page.overlay = True
+        self.memory_pages[k] = page
+
+    def keep_memory_pages(self, keep: set[int]) -> None:
+        """Release the memory pages held but not in `keep`."""
+        for k in [k for k in self.memory_pages if k not in keep]:
+            self.memory_pages.pop(k).release()
+
+    @property
+    def memory_pages_bytes(self) -> int:
+        """GPU bytes the memory pages held take (buffers, textures with their mipmaps)."""
+        return sum(p.nbytes for p in self.memory_pages.values())
+
     def release(self) -> None:
+        self.keep_memory_pages(set())
         self.set_memory(None)
         for p in self.primitives:
             p.release()

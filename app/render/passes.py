@@ -236,9 +236,11 @@ class ScenePass:
             for prim in prims:
                 p["u_has_texture"] = prim.texture is not None
                 (prim.texture or self._blank).use(0)
+                self.ctx.polygon_offset = OVERLAY_OFFSET if prim.overlay else (0.0, 0.0)
                 prim.vao(self.ctx, self.program, ("in_position", "in_uv", "in_color")).render(
                     moderngl.TRIANGLES
                 )
+            self.ctx.polygon_offset = (0.0, 0.0)
         self.triangles = sum(q.count for q in prims) // 3
         self.samples = query.samples if query is not None else None
 
@@ -251,6 +253,9 @@ class ScenePass:
 
 
 MAX_EXTRA = 7  # further projectors beside the first (shaders/scene.frag)
+# glPolygonOffset (factor, units) of an overlay primitive in the view pass: pulled toward the
+# camera, so that it wins the depth test over the surface it lies on
+OVERLAY_OFFSET = (-1.0, -4.0)
 SEAM = 0.02  # score difference over which two views blend (shaders/scene.frag, view_score)
 AGE_SCORE_PER_S = 0.6  # score lost per second of a frame's age: ties go to the most recent frame
 # Texture units of the further projectors' depth maps, videos (RGB or Y) and chroma (U, V)

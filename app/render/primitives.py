@@ -22,6 +22,9 @@ class GpuPrimitive:
     count: int
     nbytes: int = 0  # GPU memory held: buffers and texture with its mipmaps
     vaos: dict = field(default_factory=dict)
+    # drawn over coincident surfaces (a scene memory's page over the model's own triangles):
+    # the view pass offsets its depth toward the camera (OVERLAY_OFFSET)
+    overlay: bool = False
 
     def vao(
         self, ctx: moderngl.Context, program: moderngl.Program, attributes: tuple[str, ...]

@@ -187,11 +187,13 @@ def _open(v, arg, now) -> None:
 
 
 def _memory(v, arg, now) -> None:
-    """paint [RULE [EVERY_S]] | model | memory | seen | changed: the scene memory (app.ui.memory)."""
+    """paint [RULE [EVERY_S [MAX_TEXELS]]] | model | memory | seen | changed: the scene memory
+    (app.ui.memory)."""
     words = (arg or "").split()
-    if words[:1] == ["paint"] and len(words) <= 3:
-        every_s = _number(words[2]) if len(words) == 3 else DEFAULT_EVERY_S
-        memory.start(v, words[1] if len(words) >= 2 else "newest", every_s)
+    if words[:1] == ["paint"] and len(words) <= 4:
+        every_s = _number(words[2]) if len(words) >= 3 else DEFAULT_EVERY_S
+        texels = int(_number(words[3])) if len(words) == 4 else memory.DEFAULT_MAX_TEXELS
+        memory.start(v, words[1] if len(words) >= 2 else "newest", every_s, texels)
     elif len(words) == 1:
         memory.set_view(v, words[0])
     else:
@@ -308,7 +310,7 @@ COMMANDS: dict[str, Command] = {
         _memory,
         True,
         True,
-        "paint [newest|best|first [EVERY_S]] | model | memory | seen | changed: paint what the clips saw onto the scene in the background, and show the model, the memory, when each part was seen or what changed, as at the timeline's moment",
+        "paint [newest|best|first [EVERY_S [MAX_TEXELS]]] | model | memory | seen | changed: paint what the clips saw onto the scene in the background (in one atlas of at most MAX_TEXELS, 2,000,000 by default, or in pages where the video's sampling asks for more), and show the model, the memory, when each part was seen or what changed, as at the timeline's moment",
     ),
     "export": Command(
         _export,

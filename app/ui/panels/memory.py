@@ -44,7 +44,15 @@ def draw(v, now: float) -> None:
 
 
 def _details(v, p) -> None:
-    if p.atlas is not None and p.memory is not None:
+    if p.boxes is not None and p.page_stats is not None:
+        s, scene = p.page_stats, v.loaded.renderer.scene
+        imgui.text_wrapped(
+            f"in pages: {s.made:,} of {s.pages:,} painted ({p.memory.texel_m:.2f} m finest), "
+            f"{p.nbytes / 1e6:.0f} MB held, {s.evicted} spilled to disk, {s.reloaded} read back; "
+            f"{len(scene.memory_pages)} on the GPU ({scene.memory_pages_bytes / 1e6:.0f} MB); "
+            f"{len(p.clips)} clip(s), rule {p.rule}"
+        )
+    elif p.atlas is not None and p.memory is not None:
         mb = p.nbytes / 1e6
         imgui.text_wrapped(
             f"{len(p.atlas.points):,} surface samples at {p.atlas.texel_m:.2f} m, {mb:.0f} MB; "

@@ -6,11 +6,18 @@ and to build its mipmaps on upload (the frame loop's), medians of repeated runs.
 
     python bench/bench_memory.py [--every-s 0.2] [--max-texels 2000000] [--repeats 5]
     python bench/bench_memory.py --long-minutes 20
+    python bench/bench_memory.py --paged [--max-texels 100000] [--every-s 1]
 
 --long-minutes M: the memory over an M-minute survey flight instead (app.simulate.flights; a frame
 every EVERY_S, each a flat synthetic image of its own colour: what is measured is the memory,
 not the video), the process's resident memory (RSS) and the memory's bytes read at each quarter:
 they must not grow with the clip.
+
+--paged: the viewer's paged memory (--max-texels low enough that one atlas would be more than 4
+times coarser a side than the video): painted, then the pages the video's camera at mid-clip
+meets composed for a moment of the timeline (the painter's work when the slider moves: medians
+over --repeats moments), and uploaded (the frame loop's), with the pages made, spilled, read back
+and the GPU bytes held.
 """
 
 from __future__ import annotations
@@ -32,6 +39,7 @@ from app.camera.pinhole import Camera  # noqa: E402
 from app.export.atlas import layout  # noqa: E402
 from app.export.memory import SurfaceMemory  # noqa: E402
 from app.export.memory_view import VIEWS, view_colours  # noqa: E402
+from app.export.paged import pages_in_view  # noqa: E402
 from app.export.painting import ClipToPaint, paint_one  # noqa: E402
 from app.geodesy import rotations  # noqa: E402
 from app.render.context import create_offscreen_context  # noqa: E402
@@ -83,9 +91,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--max-texels", type=int, default=2_000_000)
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--long-minutes", type=float, default=None)
+    ap.add_argument("--paged", action="store_true")
     a = ap.parse_args(argv)
     if a.long_minutes:
         return long_clip(a.long_minutes, a.every_s, a.max_texels)
+    if a.paged:
+        return paged(a.every_s, a.max_texels, a.repeats)
     session = open_session(ROOT / "assets/sample/session.toml")
     track = camera_track(session, "truth")
     times = np.asarray(session.frame_times, np.float64) - float(session.frame_times[0])
@@ -129,6 +140,65 @@ def main(argv: list[str] | None = None) -> int:
     up = median_ms(time_calls(upload, a.repeats, 1))
     print(table(["view (at mid-clip)", "compose (ms)"], rows))
     print(f"upload with mipmaps: {up:.0f} ms ({ctx.info['GL_RENDERER']})")
+    scene.release()
+    ctx.release()
+    return 0
+
+
+def paged(every_s: float, max_texels: int, repeats: int) -> int:
+    """The viewer's memory in pages (module docstring)."""
+    session = open_session(ROOT / "assets/sample/session.toml")
+    track = camera_track(session, "truth")
+    times = np.asarray(session.frame_times, np.float64) - float(session.frame_times[0])
+    clip_s = float(times[-1])
+    t0 = time.perf_counter()
+    p = MemoryPainter(
+        session.scene(), [ClipToPaint(session, track, times)], "newest", every_s, max_texels
+    ).start()
+    p.wait()
+    paint_s = time.perf_counter() - t0
+    if p.error or p.boxes is None:
+        p.stop()
+        print(p.error or f"--max-texels {max_texels}: one atlas, not paged (lower it)")
+        return 1
+    view = track.frame_camera(len(times) // 2).pinhole(1280 / 640)  # a 1280 x 720 window
+    wanted = pages_in_view(view, *p.boxes, p.max_pages)
+    ctx = create_offscreen_context()
+    scene = GpuScene(ctx, session.scene())
+
+    def shown(at_s: float) -> float:
+        """Seconds until the pages for the moment at_s are composed and uploaded."""
+        start = time.perf_counter()
+        p.request("memory", at_s, wanted)
+        while True:
+            taken = p.take_pages()
+            if taken is not None:
+                for k, prim in taken[0].items():
+                    scene.put_memory_page(k, prim)
+                scene.keep_memory_pages(taken[1])
+                ctx.finish()
+            if p.current():
+                return time.perf_counter() - start
+            time.sleep(0.002)
+
+    shown(clip_s)
+    moments = [shown(clip_s * (k + 1) / (repeats + 1)) for k in range(repeats)]
+    held = len(scene.memory_pages)
+    s = p.page_stats
+    print(f"# {machine()}")
+    print(
+        table(
+            ["clip (s)", "frames", "painted in (s)", "x clip", "pages", "made", "spilled", "read back", "held (MB)", "finest texel (m)"],
+            [[f"{clip_s:.1f}", p.frames_painted, f"{paint_s:.1f}", f"{paint_s / clip_s:.2f}", s.pages, s.made, s.evicted, s.reloaded, f"{p.nbytes / 1e6:.0f}", f"{p.memory.texel_m:.3f}"]],
+        )
+    )  # fmt: skip
+    print(
+        table(
+            ["pages in view", "painted (held on the GPU)", "fine", "a moment shown (ms, median)", "GPU (MB)"],
+            [[len(wanted), held, min(held, p.fine_pages), f"{1000 * float(np.median(moments)):.0f}", f"{scene.memory_pages_bytes / 1e6:.1f}"]],
+        )
+    )  # fmt: skip
+    p.stop()
     scene.release()
     ctx.release()
     return 0

@@ -15,7 +15,8 @@ from app.camera.frame_time import frame_at
 from app.cli.common import open_with_source, print_messages, print_scene_report, solved, still_scene
 from app.core.constants import DEFAULT_NEAR_M
 from app.core.errors import DataFormatError, GeofuseError
-from app.locate.location import LOCATE_FAR_M, Location, Locator, pose_sigmas
+from app.locate.location import LOCATE_FAR_M, Location, Locator
+from app.solve.uncertainty import pose_sigmas
 
 
 def read_pixels(path: Path) -> list[tuple[float, float]]:

@@ -8,8 +8,10 @@ hides it, within a bias that grows with range (as the drape's depth test), and t
 its surface less obliquely than MIN_COS_INCIDENCE (a wall seen edge-on from a drone is a few
 pixels wide, and any error in the pose paints it with the ground beside it). Its colour is
 the frame's, bilinear; its time the frame's (UTC s); its quality in (0, 1] the incidence's cosine
-over (1 + range / QUALITY_RANGE_M), times the frame's agreement with the model there where one
-is given (`agreement`: how much the frame looks like the model rendered from its pose; an
+over (1 + range / QUALITY_RANGE_M) and over (1 + u / QUALITY_UNCERTAINTY_M), u the metres on
+the surface the pose's uncertainty explains there (the position's, and the attitude's times the
+range, in quadrature; app.solve.uncertainty), times the frame's agreement with the model there
+where one is given (`agreement`: how much the frame looks like the model rendered from its pose; an
 unmodelled car or a misregistered frame is still painted, but a frame that agrees wins under
 the best rule). The rule decides what a sample keeps: newest (the last frame
 that saw it, default), best (the highest quality) or first. Samples are kept in blocks of
@@ -34,6 +36,7 @@ from app.camera.pinhole import Camera, image_size
 
 RULES = ("newest", "best", "first")
 QUALITY_RANGE_M = 100.0  # quality halves at this range (head-on)
+QUALITY_UNCERTAINTY_M = 1.0  # ... and at this much of the pose's uncertainty on the surface
 DEPTH_BIAS_M = 0.15  # a surface point within this of the frame's distance map is the one seen,
 DEPTH_BIAS_PER_M = 0.01  # plus this much per metre of range
 BLOCK = 4096  # samples a culling block
@@ -156,12 +159,14 @@ class SurfaceMemory:
         distances: np.ndarray,
         time_s: float,
         agreement: np.ndarray | None = None,
+        sigmas: tuple[float, float] = (0.0, 0.0),
     ) -> int:
         """Paint one frame: rgb (H, W, 3) uint8 (the camera's image, at any scale); distances
         (h, w) metres from the camera to the scene through each pixel of its pinhole
         (app.render.views, any resolution: it is scaled), inf where none; agreement (h, w) the
-        frame's with the model through the same pinhole pixels (`agreement`), or None. Returns
-        the samples painted."""
+        frame's with the model through the same pinhole pixels (`agreement`), or None; sigmas:
+        the pose's uncertainty (position m, attitude deg; app.solve.uncertainty.frame_sigmas).
+        Returns the samples painted."""
         idx = self._in_view(camera)
         if not len(idx):
             return 0
@@ -200,7 +205,11 @@ class SurfaceMemory:
         cos = np.abs(np.einsum("ij,ij->i", ray, self.normals[idx])) / rng
         facing = cos >= MIN_COS_INCIDENCE
         idx, cos, rng, uv, agree = idx[facing], cos[facing], rng[facing], uv[facing], agree[facing]
-        quality = (agree * cos / (1.0 + rng / QUALITY_RANGE_M)).astype(np.float32)
+        off_m = np.hypot(sigmas[0], rng * np.radians(sigmas[1]))
+        quality = (
+            agree * cos / (1.0 + rng / QUALITY_RANGE_M) / (1.0 + off_m / QUALITY_UNCERTAINTY_M)
+        )
+        quality = quality.astype(np.float32)
         # the history keeps every sighting, so its colours are read for all; else only for the kept
         colour = self._colours(rgb, uv) if self.history is not None else None
         if colour is not None:

@@ -159,6 +159,7 @@ class PagedMemory:
         distances: np.ndarray,
         time_s: float,
         agreement: np.ndarray | None = None,
+        sigmas: tuple[float, float] = (0.0, 0.0),
     ) -> int:
         """One frame painted into every page its frustum meets (SurfaceMemory.paint's
         arguments and return)."""
@@ -166,7 +167,7 @@ class PagedMemory:
         self._touching = set()
         for k in np.flatnonzero(boxes_in_frustum(camera, self._lo, self._hi)):
             self._touching.add(int(k))
-            n += self.page(int(k))[1].paint(rgb, camera, distances, time_s, agreement)
+            n += self.page(int(k))[1].paint(rgb, camera, distances, time_s, agreement, sigmas)
         self._touching = set()
         self.frames += n > 0
         return n

@@ -29,6 +29,7 @@ from app.scene.tiles.freeze import frozen_tiles
 from app.session.camera_track import CameraTrack
 from app.session.model import Session
 from app.session.timeline import Timeline
+from app.solve.uncertainty import frame_sigmas
 
 log = logging.getLogger("geofuse.export")
 DECODE_LONG_SIDE = 960
@@ -128,12 +129,14 @@ def paint_one(
     rgb: np.ndarray,
     camera: Camera,
     time_s: float,
+    sigmas: tuple[float, float] = (0.0, 0.0),
 ) -> int:
-    """One frame painted with its occlusion test and, for a camera without a lens (whose
-    image is its pinhole's), its agreement with the model (app.export.memory.agreement)."""
+    """One frame painted with its occlusion test, its pose's uncertainty (position m, attitude
+    deg) and, for a camera without a lens (whose image is its pinhole's), its agreement with
+    the model (app.export.memory.agreement)."""
     d, model = model_view(views, camera)
     agree = agreement(rgb, model) if camera.lens is None else None
-    return memory.paint(rgb, camera, d, time_s, agree)
+    return memory.paint(rgb, camera, d, time_s, agree, sigmas)
 
 
 def paint_frames(
@@ -145,12 +148,20 @@ def paint_frames(
     progress: Callable[[float], None] | None = None,
 ) -> int:
     """Paint the clips' planned frames (paint_frame_indices) into a memory in time order, each
-    with its camera's occlusion test and agreement, its time utc0 + its timeline time (utc0
-    None: timeline s). Returns the frames painted."""
+    with its camera's occlusion test, agreement and pose uncertainty (its source's:
+    app.solve.uncertainty.frame_sigmas), its time utc0 + its timeline time (utc0 None:
+    timeline s). Returns the frames painted."""
     total = sum(len(p) for p in plans)
+    sigmas = []
+    for clip, plan in zip(clips, plans, strict=True):
+        pos, att = frame_sigmas(clip.session, clip.track, plan)
+        sigmas.append(
+            dict(zip(plan.tolist(), zip(pos.tolist(), att.tolist(), strict=True), strict=True))
+        )
     n = 0
     for t, ci, k, rgb in frames_in_time_order(clips, plans):
-        paint_one(memory, views, rgb, clips[ci].camera(k), t if utc0 is None else utc0 + t)
+        time_s = t if utc0 is None else utc0 + t
+        paint_one(memory, views, rgb, clips[ci].camera(k), time_s, sigmas[ci][k])
         n += 1
         if progress is not None:
             progress(n / total)

@@ -9,10 +9,7 @@ angle comes. A ray that meets nothing within the camera's far plane is the sky.
 The uncertainty is what the pose's error explains, in metres on the surface: the position's
 (sigma_position_m) and the attitude's (sigma_attitude_deg, times the range, stretched by the
 grazing angle: an error across a surface seen at incidence i moves the point 1 / sin(i) times
-as far), added in quadrature. The pose's errors per source (`pose_sigmas`): the truth none; the
-registered source its keyframes' reprojection error and REGISTERED_SIGMA_M; the others the GNSS
-fixes' horizontal accuracy where the receiver gave it (else GNSS_SIGMA_M) and
-FILTER_SIGMA_DEG, the attitude error the method is held to (docs/ACCURACY.md).
+as far), added in quadrature. The pose's errors per source: app.solve.uncertainty.
 
 Pixels are image coordinates of the displayed video (or still): x right, y down, (0, 0) the
 top-left corner of the top-left pixel, pixel centres at half-integers.
@@ -31,7 +28,7 @@ import numpy.typing as npt
 from app.camera.frame_time import frame_at
 from app.camera.intrinsics import Intrinsics
 from app.camera.pinhole import Camera, image_size, look_at_quat
-from app.core.constants import DEFAULT_NEAR_M, TRUTH
+from app.core.constants import DEFAULT_NEAR_M
 from app.core.errors import GeofuseError
 from app.footage.clips import open_any
 from app.geodesy.enu import LocalFrame
@@ -39,18 +36,16 @@ from app.geodesy.geoid import undulation
 from app.render.probe import SurfaceProbe
 from app.scene.city.model import Feature
 from app.scene.mesh import MeshData
-from app.session.camera_track import CameraTrack
-from app.session.model import REGISTERED, Session
+from app.session.model import Session
 from app.solve.track import solve_track
+from app.solve.uncertainty import PoseSigmas, pose_sigmas
 
 __all__ = [
     "Location",
     "Locator",
     "feature_tolerance",
-    "PoseSigmas",
     "image_size",
     "locate",
-    "pose_sigmas",
     "ray_camera",
     "video_pixel",
 ]
@@ -58,21 +53,9 @@ __all__ = [
 RAY_GRID = 3  # pixels a side of the camera along a ray: the centre, and neighbours for the normal
 RAY_FOV_DEG = 0.02  # its field of view: 3 cm across at 100 m
 LOCATE_FAR_M = 20_000.0  # a ray that meets nothing within this range is the sky
-GNSS_SIGMA_M = 3.0  # a phone's or drone's GNSS position error without its own accuracy (2-4 m)
-FILTER_SIGMA_DEG = 2.0  # the attitude error the sensor filters are held to (the paper's RMS)
-REGISTERED_SIGMA_M = 0.3  # the registered position's error on the sample (docs/ACCURACY.md)
 MIN_SIN_INCIDENCE = 0.1  # grazing views stretch the error at most 10 times
 FEATURE_TOLERANCE_M = 0.05  # a located point this near a city surface is on it, plus
 FEATURE_TOLERANCE_PER_M = 1e-3  # this much per metre of range
-
-
-@dataclass(frozen=True)
-class PoseSigmas:
-    """The pose's errors one standard deviation: position_m (ENU, each axis), attitude_deg."""
-
-    position_m: float
-    attitude_deg: float
-    why: str
 
 
 @dataclass(frozen=True)
@@ -231,23 +214,6 @@ class Locator:
 
     def release(self) -> None:
         self.probe.release()
-
-
-def pose_sigmas(session: Session, track: CameraTrack) -> PoseSigmas:
-    """The pose's errors under the track's source (see the module docstring)."""
-    if track.source == TRUTH:
-        return PoseSigmas(0.0, 0.0, "the true pose")
-    if track.source == REGISTERED and track.registration is not None:
-        errors = [k.error_px for k in track.registration.keyframes if k.used]
-        fx = track.intrinsics.fx
-        deg = math.degrees(float(np.median(errors)) / fx) if errors else FILTER_SIGMA_DEG
-        return PoseSigmas(REGISTERED_SIGMA_M, deg, "registered: the keyframes' reprojection error")
-    acc = session.gnss.h_acc
-    if acc is not None and np.isfinite(acc).any():
-        pos, why = float(np.nanmedian(acc)), "the GNSS fixes' own accuracy"
-    else:
-        pos, why = GNSS_SIGMA_M, f"a GNSS error of {GNSS_SIGMA_M:g} m"
-    return PoseSigmas(pos, FILTER_SIGMA_DEG, f"{why}, {FILTER_SIGMA_DEG:g} deg of attitude")
 
 
 def locate(

@@ -18,15 +18,14 @@ from app.core.outputs import check_output, write_atomically
 from app.geodesy.geoid import undulation
 from app.locate.location import (
     Location,
-    PoseSigmas,
     feature_tolerance,
     location_of,
-    pose_sigmas,
     ray_camera,
     video_pixel,
 )
 from app.locate.marks import KINDS, MIN_POINTS, Mark, marks_path, measure, read_marks, write_marks
 from app.scene.city.model import Feature
+from app.solve.uncertainty import PoseSigmas, pose_sigmas
 from app.ui.picking import model_point
 
 MARK_SUFFIXES = (".geojson", ".json", ".kml")

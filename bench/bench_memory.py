@@ -85,6 +85,19 @@ def long_clip(minutes: float, every_s: float, max_texels: int) -> int:
     return 0
 
 
+def _painting(every_s: float, max_texels: int):
+    """The sample walk being painted by a MemoryPainter under the true poses: (session, track,
+    the clip's length s, the perf_counter when it started, the painter)."""
+    session = open_session(ROOT / "assets/sample/session.toml")
+    track = camera_track(session, "truth")
+    times = np.asarray(session.frame_times, np.float64) - float(session.frame_times[0])
+    t0 = time.perf_counter()
+    p = MemoryPainter(
+        session.scene(), [ClipToPaint(session, track, times)], "newest", every_s, max_texels
+    ).start()
+    return session, track, float(times[-1]), t0, p
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--every-s", type=float, default=0.2)
@@ -97,14 +110,7 @@ def main(argv: list[str] | None = None) -> int:
         return long_clip(a.long_minutes, a.every_s, a.max_texels)
     if a.paged:
         return paged(a.every_s, a.max_texels, a.repeats)
-    session = open_session(ROOT / "assets/sample/session.toml")
-    track = camera_track(session, "truth")
-    times = np.asarray(session.frame_times, np.float64) - float(session.frame_times[0])
-    clip_s = float(times[-1])
-    t0 = time.perf_counter()
-    p = MemoryPainter(
-        session.scene(), [ClipToPaint(session, track, times)], "newest", a.every_s, a.max_texels
-    ).start()
+    session, track, clip_s, t0, p = _painting(a.every_s, a.max_texels)
     while p.atlas is None and not p.done:
         time.sleep(0.01)
     layout_s = time.perf_counter() - t0
@@ -147,21 +153,15 @@ def main(argv: list[str] | None = None) -> int:
 
 def paged(every_s: float, max_texels: int, repeats: int) -> int:
     """The viewer's memory in pages (module docstring)."""
-    session = open_session(ROOT / "assets/sample/session.toml")
-    track = camera_track(session, "truth")
-    times = np.asarray(session.frame_times, np.float64) - float(session.frame_times[0])
-    clip_s = float(times[-1])
-    t0 = time.perf_counter()
-    p = MemoryPainter(
-        session.scene(), [ClipToPaint(session, track, times)], "newest", every_s, max_texels
-    ).start()
+    session, track, clip_s, t0, p = _painting(every_s, max_texels)
     p.wait()
     paint_s = time.perf_counter() - t0
     if p.error or p.boxes is None:
         p.stop()
         print(p.error or f"--max-texels {max_texels}: one atlas, not paged (lower it)")
         return 1
-    view = track.frame_camera(len(times) // 2).pinhole(1280 / 640)  # a 1280 x 720 window
+    mid = len(session.frame_times) // 2
+    view = track.frame_camera(mid).pinhole(1280 / 640)  # a 1280 x 720 window
     wanted = pages_in_view(view, *p.boxes, p.max_pages)
     ctx = create_offscreen_context()
     scene = GpuScene(ctx, session.scene())

@@ -376,6 +376,22 @@ def _grey(path) -> np.ndarray:
     return np.asarray(Image.open(path).convert("L"), np.float64)
 
 
+# the sample at 30 s through the video's camera: the drape, then the model alone (the script's
+# start of the memory tests; {d}: their folder)
+MEMORY_START = """0.0 clock 0.0333333
+0.0 wait solved
+0.0 pause
+0.1 seek 30
+0.2 panels off
+0.2 lines off
+0.2 view phone
+0.2 alpha 1.0
+0.4 screenshot {d}/drape.png
+0.5 project off
+0.7 screenshot {d}/model.png
+"""
+
+
 def test_the_scene_memory_shows_what_the_video_saw_as_it_was(display, tmp_path):
     """Painted in the background (a frame a second), the memory seen through the video's camera
     looks like the video draped there (it is the video, where the frustum put it), much more than
@@ -386,18 +402,8 @@ def test_the_scene_memory_shows_what_the_video_saw_as_it_was(display, tmp_path):
         display,
         d,
         str(ROOT / "assets/sample/session.toml"),
-        f"""0.0 clock 0.0333333
-0.0 wait solved
-0.0 pause
-0.1 seek 30
-0.2 panels off
-0.2 lines off
-0.2 view phone
-0.2 alpha 1.0
-0.4 screenshot {d / "drape.png"}
-0.5 project off
-0.7 screenshot {d / "model.png"}
-0.8 memory paint newest 1.0
+        MEMORY_START.format(d=d)
+        + f"""0.8 memory paint newest 1.0
 0.9 wait painted
 1.0 screenshot {d / "memory.png"}
 1.0 state {d / "memory.json"}
@@ -443,18 +449,8 @@ def test_a_paged_scene_memory_in_the_window(display, tmp_path):
         display,
         d,
         str(ROOT / "assets/sample/session.toml"),
-        f"""0.0 clock 0.0333333
-0.0 wait solved
-0.0 pause
-0.1 seek 30
-0.2 panels off
-0.2 lines off
-0.2 view phone
-0.2 alpha 1.0
-0.4 screenshot {d / "drape.png"}
-0.5 project off
-0.7 screenshot {d / "model.png"}
-0.8 memory paint newest 4.0 20000
+        MEMORY_START.format(d=d)
+        + f"""0.8 memory paint newest 4.0 20000
 0.9 wait painted
 1.0 screenshot {d / "memory.png"}
 1.0 state {d / "memory.json"}

@@ -77,7 +77,9 @@ class RegistrationSettings:
     model's lines with the frame's edges (app.register.edges) instead of matching textures, with
     `edges` its settings; a scene without texture is always registered so (`by_geometry`), and
     a keyframe whose lines leave a direction of the pose loosely fixed is refused (a street
-    along one facade, a view straight down: docs/ACCURACY.md)."""
+    along one facade, a view straight down: docs/ACCURACY.md); geometry_fallback: where
+    matching textures finds no pose (a scene textured in part: a city's grey LoD2 buildings on
+    an orthophoto-draped terrain), align the lines from the same start."""
 
     every_s: float = 0.5
     long_side: int = 960
@@ -92,6 +94,7 @@ class RegistrationSettings:
     estimate_delay: bool = True
     fine: bool = True
     by_geometry: bool = False
+    geometry_fallback: bool = True
 
 
 @dataclass(frozen=True)
@@ -235,7 +238,24 @@ class Registrar:
 
     def keyframe(self, frame_rgb: np.ndarray, start: Camera) -> tuple[PoseFix, Camera | None, int]:
         """Render-and-compare from `start` (the frame's camera at full video size) until the pose
-        converges: (the last step's fix, the solved camera or None, renderings made)."""
+        converges: (the last step's fix, the solved camera or None, renderings made). By the
+        scene's textures, and where they find no pose by its lines (geometry_fallback); by its
+        lines alone where it has no texture."""
+        s = self.settings
+        fix, solved, renders = self._keyframe(frame_rgb, start, s.by_geometry)
+        if solved is None and not s.by_geometry and s.geometry_fallback:
+            lines, solved, more = self._keyframe(frame_rgb, start, True)
+            renders += more
+            fix = (
+                lines
+                if solved is not None
+                else replace(lines, reason=f"textures: {fix.reason}; lines: {lines.reason}")
+            )
+        return fix, solved, renders
+
+    def _keyframe(
+        self, frame_rgb: np.ndarray, start: Camera, by_geometry: bool
+    ) -> tuple[PoseFix, Camera | None, int]:
         s = self.settings
         scale = (
             frame_rgb.shape[1] / start.intrinsics.width
@@ -249,7 +269,7 @@ class Registrar:
                 rgb, positions = self.views.render(small)
             with _lap(self.stage_s, "match"):
                 frame, rendering = Frame(frame_rgb, scale, cam), Rendering(rgb, positions, small)
-                if s.by_geometry:
+                if by_geometry:
                     step = fit_edges(frame, rendering, s.edges, not fine, start)[0]
                 elif fine:
                     step = refine(s.match, frame, rendering)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import weakref
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -94,18 +95,23 @@ def open_with_source(
     return session, source
 
 
-_PRINTED: dict[int, int] = {}  # id of a session's messages -> how many this command has printed
+# id of a session's messages -> (a weak reference to them, how many this command has printed);
+# the reference tells a later object given the same id (the first one gone) from the first
+_PRINTED: dict[int, tuple[weakref.ref, int]] = {}
 
 
 def print_messages(session: Session) -> None:
     """The session's messages this command has not printed yet, each with its level ("note:" for
     information, "warning:", "error:"): called when a session opens and again after work that
     may add some (solving, registering, exporting)."""
-    key = id(session.messages)
-    new = session.messages.since(_PRINTED.get(key, 0))
+    messages = session.messages
+    ref, done = _PRINTED.get(id(messages), (None, 0))
+    if ref is None or ref() is not messages:
+        done = 0  # not printed by this command: a new object, perhaps at a freed one's address
+    new = messages.since(done)
     for message in new:
         print(message, file=sys.stderr)
-    _PRINTED[key] = _PRINTED.get(key, 0) + len(new)
+    _PRINTED[id(messages)] = (weakref.ref(messages), done + len(new))
 
 
 def print_scene_report(mesh: MeshData) -> None:

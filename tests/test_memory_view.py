@@ -125,10 +125,13 @@ def test_changed_ignores_exposure_and_a_faces_light_and_finds_a_real_change():
     assert np.median(change(snap, base)[200:340]) > 10.0
 
 
-def test_the_memory_is_drawn_in_place_of_the_model_where_the_frustum_says(gl_ctx):
+@pytest.mark.parametrize("overlay", [False, True])
+def test_the_memory_is_drawn_in_place_of_the_model_where_the_frustum_says(gl_ctx, overlay):
     """A 20 x 20 m ground, grey in the model; its memory: red east of x = 0, blue west. Seen
     from straight above, the pixel over a point lands where the view's frustum projects it, with
-    the memory's colour there; the model is back when the memory is hidden."""
+    the memory's colour there; the model is back when the memory is hidden. Drawn in place of
+    the model, or over it (as a memory holding frozen 3D Tiles is: the model and the streamed
+    tiles drawn, the memory over them in the view pass alone)."""
     ground = shapes.quad([-10.0, -10.0, 0.0], [20.0, 0, 0], [0, 20.0, 0]).primitive()
     ground.colors[:] = (0.5, 0.5, 0.5, 1.0)
     mesh = MeshData([ground])
@@ -137,7 +140,7 @@ def test_the_memory_is_drawn_in_place_of_the_model_where_the_frustum_says(gl_ctx
     renderer = FusionRenderer(gl_ctx, mesh)
     target = OffscreenTarget(gl_ctx, 160, 120)
     try:
-        renderer.scene.set_memory(atlas.primitive(colours))
+        renderer.scene.set_memory(atlas.primitive(colours), overlay=overlay)
         w, h = 160, 120
         eye = np.array([0.0, 0.0, 30.0])
         view = Camera.create(
@@ -154,6 +157,11 @@ def test_the_memory_is_drawn_in_place_of_the_model_where_the_frustum_says(gl_ctx
             return target.read()[int(uv[0, 1]), int(uv[0, 0])].astype(int)
 
         renderer.scene.show_memory = True
+        drawn = renderer.scene.drawables(view)
+        assert (drawn[-1] is renderer.scene.memory) and (len(drawn) == (2 if overlay else 1))
+        assert (
+            renderer.scene.memory not in renderer.scene.drawables(view, key="depth") or not overlay
+        )
         east, west = pixel([4.0, 2.0, 0.0]), pixel([-4.0, -2.0, 0.0])
         assert east[0] > 150 and east[2] < 60 and west[2] > 150 and west[0] < 60
         renderer.scene.write_memory_texture(atlas.texture(colours[:, ::-1].copy()))

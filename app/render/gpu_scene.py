@@ -4,7 +4,9 @@ what to draw from a camera and take each primitive's vertex array for their prog
 
 A scene memory (app.export.memory on an app.export.atlas) is one more primitive: the static
 triangles again, textured by the atlas; while it is shown it is drawn instead of the static
-primitives (same surfaces, so depth maps and picking are unchanged). A memory in pages
+primitives (same surfaces, so depth maps and picking are unchanged). Over streamed 3D Tiles it
+also holds the tiles the clips needed (frozen): it is then drawn over the scene as an overlay
+(below), the streamed layers staying where the clips never looked. A memory in pages
 (app.export.paged) is a primitive a page, only for the pages the view needs (`put_memory_page`,
 `keep_memory_pages`): while shown they are drawn over the model in the view pass alone (overlays:
 their depth offset toward the camera), the model showing where no page is held."""
@@ -45,7 +47,7 @@ class GpuScene:
         self.version = 0  # bumps when streamed tiles arrive or leave
         self.memory: GpuPrimitive | None = None  # the scene memory's atlas-textured triangles
         self.show_memory = False  # draw the memory instead of the static primitives
-        self.memory_replaces_tiles = False  # ... and instead of the streamed layers too
+        self.memory_overlay = False  # ... or over the static primitives and streamed layers
         self.memory_pages: dict[int, GpuPrimitive] = {}  # a paged memory's pages held, by index
         self._bounds: np.ndarray | None = None
 
@@ -66,11 +68,12 @@ class GpuScene:
         tileset's ready tiles chosen for it (focal_px: the focal length in pixels of the target
         drawn into, default the camera's). Without a camera: static primitives only."""
         shown = self.show_memory and self.memory is not None
-        out = [self.memory] if shown else list(self.primitives)
-        if camera is not None and not (shown and self.memory_replaces_tiles):
+        out = [self.memory] if shown and not self.memory_overlay else list(self.primitives)
+        if camera is not None:
             for layer in self.tilesets:
                 out += layer.drawables(camera, focal_px, key)
-        if self.show_memory and key == "view":
+        if self.show_memory and key == "view":  # overlays: the view pass alone
+            out += [self.memory] if shown and self.memory_overlay else []
             out += list(self.memory_pages.values())
         return out
 
@@ -124,14 +127,18 @@ class GpuScene:
         self._bounds = None
         self.primitives[index].vbo.write(interleave(prim).tobytes())
 
-    def set_memory(self, prim: Primitive | None, replaces_tiles: bool = False) -> None:
+    def set_memory(self, prim: Primitive | None, overlay: bool = False) -> None:
         """The scene memory's primitive (its static triangles, atlas-textured), uploaded; None
-        releases it. replaces_tiles: it holds the streamed layers' tiles it needed (frozen), so
-        while shown they are not drawn."""
-        self.memory_replaces_tiles = replaces_tiles
+        releases it. overlay: it also holds streamed layers' tiles (frozen: those the clips
+        needed), which need not be the ones the view streams, so while shown it is drawn over
+        the static primitives and the streamed tiles in the view pass (its depth offset toward
+        the camera) instead of in place of the static primitives."""
+        self.memory_overlay = overlay
         if self.memory is not None:
             self.memory.release()
         self.memory = None if prim is None else upload(self.ctx, prim, default_anisotropy(self.ctx))
+        if self.memory is not None:
+            self.memory.overlay = overlay
 
     def write_memory_texture(self, texture: np.ndarray) -> None:
         """New texels for the memory's atlas: (H, W, 4) uint8, bottom row first, its size."""

@@ -10,8 +10,8 @@ paints the clips' frames in timeline order (a frame every `every_s` s of each cl
 camera under the source chosen when painting began; app.export.painting) into one SurfaceMemory
 with a history of HISTORY_EPOCHS epochs over the clips' span, on an EGL context of its own; its
 time is timeline seconds. On a scene of 3D Tiles it paints the tiles the clips' cameras need,
-frozen (app.scene.tiles.freeze), and while the memory is shown it stands for the streamed layers,
-which are not drawn. Between frames, and once done whenever the view or the timeline moves, it
+frozen (app.scene.tiles.freeze), and while the memory is shown it is drawn over the streamed
+layers, which stay where the clips never looked. Between frames, and once done whenever the view or the timeline moves, it
 composes the atlas texture the frame loop asks for (app.export.memory_view); the frame loop only
 uploads it (`update`). The memory's size is fixed by the atlas, whatever the clips' length.
 
@@ -121,7 +121,8 @@ class MemoryPainter(Worker):
 
     @property
     def covers_tiles(self) -> bool:
-        """The atlas holds the 3D Tiles the clips' cameras needed (frozen), standing for them."""
+        """The atlas holds the 3D Tiles the clips' cameras needed (frozen): drawn over the
+        streamed ones (app.render.gpu_scene)."""
         return bool(self.mesh.tilesets)
 
     @property
@@ -390,7 +391,7 @@ def update(v) -> None:
         _update_pages(v, p, scene)
         return
     if scene.memory is None and p.atlas is not None:
-        scene.set_memory(p.atlas.primitive(p.atlas.base), replaces_tiles=p.covers_tiles)
+        scene.set_memory(p.atlas.primitive(p.atlas.base), overlay=p.covers_tiles)
     view = v.ui.memory_view
     scene.show_memory = view != "model" and scene.memory is not None
     if view != "model":

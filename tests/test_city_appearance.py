@@ -85,6 +85,15 @@ def test_the_cityjson_theme_asked_for_is_drawn(tmp_path, gl_ctx):
     with pytest.raises(SceneError, match=r"no appearance theme 'autumn'.*'summer', 'winter'"):
         read_city(path, frame, theme="autumn")
 
+    # the file names its default theme: drawn unless another is asked for
+    doc["appearance"]["default-theme-texture"] = "winter"
+    path.write_text(json.dumps(doc))
+    by_default = read_city(path, frame)
+    blue = _south_wall_colour(by_default, frame, gl_ctx)
+    assert blue[2] > 2 * max(blue[0], blue[1]), blue
+    assert any("drawn: 'winter', the file's default" in m for m in by_default.notes.items)
+    _check_wall_quadrants(read_city(path, frame, theme="summer"), frame, gl_ctx)
+
     # the same through a session's layer table
     manifest = tmp_path / "session.toml"
     manifest.write_text(

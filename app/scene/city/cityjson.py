@@ -87,18 +87,27 @@ def _surfaces_of(boundaries: list, depth: int) -> list[tuple[list, tuple[int, ..
     ]
 
 
-def _theme_of(themes: object, theme: str | None, seen: set[str]) -> object:
-    """A geometry's `texture` or `material` object's entry for `theme` (None: its first theme
-    by name), None where it has none; the names it holds are added to `seen`."""
+def _theme_of(
+    themes: object, theme: str | None, seen: set[str], default: Callable[[], str | None]
+) -> object:
+    """A geometry's `texture` or `material` object's entry for `theme`, None where it has none;
+    theme None: the file's default theme (`default()`, asked only where a geometry has several)
+    where the geometry has it, else its first by name. The names it holds are added to `seen`."""
     if not isinstance(themes, dict) or not themes:
         return None
     seen.update(str(k) for k in themes)
-    return themes.get(theme) if theme is not None else themes[sorted(themes)[0]]
+    if theme is not None:
+        return themes.get(theme)
+    if len(themes) > 1 and (named := default()) in themes:
+        return themes[named]
+    return themes[sorted(themes)[0]]
 
 
-def _texture_values(texture: object, theme: str | None, seen: set[str]) -> list | None:
+def _texture_values(
+    texture: object, theme: str | None, seen: set[str], default: Callable[[], str | None]
+) -> list | None:
     """The `values` of a geometry's texture theme (`_theme_of`; None without textures)."""
-    chosen = _theme_of(texture, theme, seen)
+    chosen = _theme_of(texture, theme, seen, default)
     return chosen.get("values") if isinstance(chosen, dict) else None
 
 
@@ -112,12 +121,16 @@ def _diffuse(material: object) -> tuple[float, float, float] | None:
 
 
 def _material_index(
-    material: object, path: tuple[int, ...], theme: str | None, seen: set[str]
+    material: object,
+    path: tuple[int, ...],
+    theme: str | None,
+    seen: set[str],
+    default: Callable[[], str | None],
 ) -> int | None:
     """The surface's material (path: its index in the boundaries' nesting) in the geometry's
     material theme (`_theme_of`): `value` for all its surfaces, else `values` nested as the
     surfaces."""
-    theme = _theme_of(material, theme, seen)
+    theme = _theme_of(material, theme, seen, default)
     if not isinstance(theme, dict):
         return None
     if theme.get("value") is not None:
@@ -159,9 +172,12 @@ class CityJsonReader:
         self.path = Path(path)
         self.sequence = self.path.suffix.lower() == ".jsonl"
         self.max_lod = max_lod
-        self.theme = theme  # the appearance theme drawn (None: each geometry's first by name)
+        # the appearance theme drawn (None: the file's default-theme-texture / -material where a
+        # geometry has it, else each geometry's first by name)
+        self.theme = theme
         self.themes: set[str] = set()  # the texture and material themes the objects read name
         self.notes: list[str] = []  # what was read but cannot be drawn (CityGmlReader's)
+        self._defaults: dict[str, str | None] = {}  # the file's default themes, once read
         self.count = 0
         self.header = self._read_header()
         self._vertices: np.ndarray | None = None
@@ -227,6 +243,32 @@ class CityJsonReader:
         return Header(
             version, crs, scale, translate, templates.get("templates", []), tv, images, colours
         )
+
+    def _default_theme(self, kind: str) -> str | None:
+        """The file's `appearance.default-theme-texture` or `-material` (kind), read once and
+        only when a geometry has several themes (a document is streamed for it)."""
+        key = f"default-theme-{kind}"
+        if key not in self._defaults:
+            if self.sequence:
+                with self.path.open("rb") as f:
+                    header = json.loads(f.readline())
+                value = (header.get("appearance") or {}).get(key)
+            else:
+                value = self._items(f"appearance.{key}")
+            self._defaults[key] = value if isinstance(value, str) else None
+        return self._defaults[key]
+
+    @property
+    def default_texture_theme_read(self) -> str | None:
+        """The file's default texture theme, where it names one and a geometry with several
+        themes made the reader look (None otherwise)."""
+        return self._defaults.get("default-theme-texture")
+
+    def _default_texture_theme(self) -> str | None:
+        return self._default_theme("texture")
+
+    def _default_material_theme(self) -> str | None:
+        return self._default_theme("material")
 
     # -- vertices ------------------------------------------------------------------------------
 
@@ -389,11 +431,19 @@ class CityJsonReader:
                 continue
             otype = str(obj.get("type", ""))
             surfaces = []
-            textured = _texture_values(geom.get("texture"), self.theme, self.themes)
+            textured = _texture_values(
+                geom.get("texture"), self.theme, self.themes, self._default_texture_theme
+            )
             for rings, path in _surfaces_of(boundaries, depth):
                 kind = kind_of(_semantic_type(geom.get("semantics"), path), otype)
                 surface = Surface([vertices[np.asarray(r, np.int64)] for r in rings], kind)
-                m = _material_index(geom.get("material"), path, self.theme, self.themes)
+                m = _material_index(
+                    geom.get("material"),
+                    path,
+                    self.theme,
+                    self.themes,
+                    self._default_material_theme,
+                )
                 if m is not None and 0 <= m < len(self.header.materials):
                     surface.colour = self.header.materials[m]
                 if textured is not None:

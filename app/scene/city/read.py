@@ -335,7 +335,12 @@ def _themes_said(reader: CityJsonReader | CityGmlReader) -> str:
     names = sorted(reader.themes)
     if len(names) < 2:
         return ""
-    drawn = repr(reader.theme) if reader.theme is not None else "each object's first by name"
+    if reader.theme is not None:
+        drawn = repr(reader.theme)
+    elif isinstance(reader, CityJsonReader) and reader.default_texture_theme_read:
+        drawn = f"{reader.default_texture_theme_read!r}, the file's default"
+    else:
+        drawn = "each object's first by name"
     return f"; appearance themes {', '.join(repr(n) for n in names)}, drawn: {drawn}"
 
 

@@ -447,7 +447,7 @@ def state(loaded) -> dict | None:
         "frames": p.frames_painted,
         "clips": len(p.clips),
         "rule": p.rule,
-        "texel_m": None if m is None else (p.atlas or m).texel_m,
+        "texel_m": None if m is None else (m if p.atlas is None else p.atlas).texel_m,
         "samples": None if m is None or p.boxes is not None else len(m.points),
         "seen": None if m is None or not p.done or p.boxes is not None else int(m.seen.sum()),
         "mb": None if m is None else p.nbytes / 1e6,

@@ -21,7 +21,7 @@ from pathlib import Path
 import av
 import numpy as np
 
-from app.core.errors import GeofuseError
+from app.core.worker import OneShot
 from app.sync import bearings_of, estimate_offset, gyro_rates, rate_reference, video_rates
 
 _PERCENT = re.compile(rb"(\d+(?:\.\d)?)%")
@@ -160,43 +160,31 @@ class Recorder:
             self._container.close()
 
 
-class SyncJob:
-    """`geofuse sync` for the open session on a worker thread (app.sync): the video's rotation
-    rates, the gyroscope's, and the offset between them; `curves()` gives both magnitudes for the
-    viewer's plot, on the session clock, before and after the offset."""
+class SyncJob(OneShot):
+    """`geofuse sync` for the open session on a worker thread (app.sync), started at once: the
+    video's rotation rates, the gyroscope's, and the offset between them; `curves()` gives both
+    magnitudes for the viewer's plot, on the session clock, before and after the offset."""
 
     def __init__(self, session) -> None:
         self.session = session
         self.progress = 0.0
         self.result = None
-        self.error: str | None = None
         self.video = self.gyro = None
-        self._thread = threading.Thread(target=self._run, name="geofuse-sync", daemon=True)
-        self._thread.start()
+        super().__init__("geofuse-sync")
+        self.start()
 
-    @property
-    def done(self) -> bool:
-        return not self._thread.is_alive()
+    def _failed(self) -> str:
+        return "sync failed"
 
-    def wait(self, timeout: float | None = None) -> bool:
-        self._thread.join(timeout)
-        return self.done
-
-    def _run(self) -> None:
-
+    def _work(self) -> None:
         s = self.session
-        try:
-            self.gyro = gyro_rates(s)
-            self.video = video_rates(
-                s.video, bearings_of(s), s.rotation_cw, lambda f: setattr(self, "progress", f)
-            )
-            self.result = estimate_offset(
-                self.video, self.gyro, float(s.frame_times[0] - s.video.pts_s[0])
-            )
-        except GeofuseError as exc:
-            self.error = str(exc)
-        except Exception as exc:  # shown in the viewer, which keeps running
-            self.error = f"sync failed: {type(exc).__name__}: {exc}"
+        self.gyro = gyro_rates(s)
+        self.video = video_rates(
+            s.video, bearings_of(s), s.rotation_cw, lambda f: setattr(self, "progress", f)
+        )
+        self.result = estimate_offset(
+            self.video, self.gyro, float(s.frame_times[0] - s.video.pts_s[0])
+        )
 
     def curves(self, points: int = 600) -> dict[str, tuple[np.ndarray, np.ndarray]]:
         """Rate magnitudes (rad/s) against seconds from the first frame: video before and after

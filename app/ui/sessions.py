@@ -6,7 +6,6 @@ stats and nav); the commands (app.ui.commands) call these methods on the viewer.
 from __future__ import annotations
 
 import logging
-import threading
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -15,6 +14,7 @@ import numpy as np
 
 from app.core.errors import GeofuseError
 from app.core.messages import ERROR, WARNING
+from app.core.worker import OneShot
 from app.footage.clips import open_any
 from app.playback.clock import PlaybackClock
 from app.playback.library import SolverLibrary
@@ -33,7 +33,7 @@ log = logging.getLogger("geofuse.viewer")
 SOLVE_WAIT_S = 600.0  # `wait solved` gives up after this long (real seconds)
 
 
-class OpenJob:
+class OpenJob(OneShot):
     """Reading a session or clip and its scene (CityJSON, DEMs, meshes: seconds for a district)
     on a thread of its own, so that the frame loop keeps drawing; the viewer installs it (GL
     objects, players, solvers) on the frame loop's thread once `done`. on_fail runs there when
@@ -43,33 +43,15 @@ class OpenJob:
         self.path, self.on_fail = path, on_fail
         self._args = (srt, lens, tuple(layers))
         self.result: tuple[Session, MeshData] | None = None
-        self.error: str | None = None
-        self._done = threading.Event()
-        self._thread: threading.Thread | None = None
+        super().__init__("geofuse-open")
 
-    @property
-    def done(self) -> bool:
-        return self._done.is_set()
-
-    def start(self) -> OpenJob:
-        self._thread = threading.Thread(target=self.run, name="geofuse-open", daemon=True)
-        self._thread.start()
-        return self
-
-    def run(self) -> None:
-        """Read (on the calling thread)."""
+    def _work(self) -> None:
         srt, lens, layers = self._args
-        try:
-            session = open_any(self.path, srt, lens=lens, layers=layers)
-            self.result = (session, session.scene())
-        except GeofuseError as exc:
-            self.error = str(exc)
-            log.error("%s", exc)
-        except Exception as exc:  # an unexpected reader failure is still only an error panel entry
-            self.error = f"{self.path}: {type(exc).__name__}: {exc}"
-            log.exception("opening %s", self.path)
-        finally:
-            self._done.set()
+        session = open_any(self.path, srt, lens=lens, layers=layers)
+        self.result = (session, session.scene())
+
+    def _failed(self) -> str:
+        return str(self.path)
 
 
 @dataclass

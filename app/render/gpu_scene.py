@@ -47,7 +47,6 @@ class GpuScene:
         self.version = 0  # bumps when streamed tiles arrive or leave
         self.memory: GpuPrimitive | None = None  # the scene memory's atlas-textured triangles
         self.show_memory = False  # draw the memory instead of the static primitives
-        self.memory_overlay = False  # ... or over the static primitives and streamed layers
         self.memory_pages: dict[int, GpuPrimitive] = {}  # a paged memory's pages held, by index
         self._bounds: np.ndarray | None = None
 
@@ -67,13 +66,13 @@ class GpuScene:
         """What to draw from `camera` (an app.camera.pinhole.Camera): every static primitive, and each
         tileset's ready tiles chosen for it (focal_px: the focal length in pixels of the target
         drawn into, default the camera's). Without a camera: static primitives only."""
-        shown = self.show_memory and self.memory is not None
-        out = [self.memory] if shown and not self.memory_overlay else list(self.primitives)
+        memory = self.memory if self.show_memory else None
+        out = [memory] if memory is not None and not memory.overlay else list(self.primitives)
         if camera is not None:
             for layer in self.tilesets:
                 out += layer.drawables(camera, focal_px, key)
         if self.show_memory and key == "view":  # overlays: the view pass alone
-            out += [self.memory] if shown and self.memory_overlay else []
+            out += [memory] if memory is not None and memory.overlay else []
             out += list(self.memory_pages.values())
         return out
 
@@ -133,7 +132,6 @@ class GpuScene:
         needed), which need not be the ones the view streams, so while shown it is drawn over
         the static primitives and the streamed tiles in the view pass (its depth offset toward
         the camera) instead of in place of the static primitives."""
-        self.memory_overlay = overlay
         if self.memory is not None:
             self.memory.release()
         self.memory = None if prim is None else upload(self.ctx, prim, default_anisotropy(self.ctx))

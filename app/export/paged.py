@@ -109,8 +109,10 @@ class PageStats:
 
 class PagedMemory:
     """See the module docstring. texels: a function giving the texel size (T,) m of triangles
-    (T, 3, 3) ENU m (app.export.sampling.texel_targets with the painting cameras); rule and
-    history as SurfaceMemory's. Paint it as a SurfaceMemory; close it (or use it in a with)."""
+    (T, 3, 3) ENU m (app.export.sampling.texel_targets with the painting cameras), asked for the
+    scene's triangles (unless given as scene_texels, already worked out for triangles_of(mesh))
+    and for the pieces cut from them; rule and history as SurfaceMemory's. Paint it as a
+    SurfaceMemory; close it (or use it in a with)."""
 
     def __init__(
         self,
@@ -121,12 +123,13 @@ class PagedMemory:
         page_texels: int = PAGE_TEXELS,
         resident_bytes: float = DEFAULT_RESIDENT_MB * 1e6,
         spill_dir: Path | None = None,
+        scene_texels: np.ndarray | None = None,
     ) -> None:
         if rule not in RULES:
             raise ValueError(f"rule {rule!r}: expected one of {', '.join(RULES)}")
         self.mesh, self.rule, self.history = mesh, rule, history
         self.resident_bytes = float(resident_bytes)
-        self.triangles, self.texels = _fitted(triangles_of(mesh), texels, page_texels)
+        self.triangles, self.texels = _fitted(triangles_of(mesh), texels, page_texels, scene_texels)
         sizes = chart_sizes(self.triangles, self.texels)
         area = (sizes[:, 0] * sizes[:, 1]).astype(np.float64)
         corners = self.triangles.corners
@@ -312,12 +315,15 @@ def _held_bytes(atlas: Atlas, memory: SurfaceMemory) -> int:
 
 
 def _fitted(
-    tris: Triangles, texels: Callable[[np.ndarray], np.ndarray], page_texels: int
+    tris: Triangles,
+    texels: Callable[[np.ndarray], np.ndarray],
+    page_texels: int,
+    known: np.ndarray | None = None,
 ) -> tuple[Triangles, np.ndarray]:
     """The triangles cut until each chart fits a quarter of a page's side at its texel size
-    (texels asked again for the pieces), and those sizes (T,) m."""
+    (known for `tris`, else asked; asked again for the pieces), and those sizes (T,) m."""
     side = int(np.sqrt(page_texels)) // 4
-    size = np.asarray(texels(tris.corners), np.float64)
+    size = np.asarray(texels(tris.corners) if known is None else known, np.float64)
     while True:
         big = chart_sizes(tris, size).max(axis=1) > side
         if not big.any():

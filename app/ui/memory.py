@@ -38,7 +38,7 @@ import numpy as np
 from app.core.worker import Worker
 from app.export.atlas import Atlas, chart_sizes, layout, triangles_of
 from app.export.memory import RULES, SurfaceMemory
-from app.export.memory_view import VIEWS, Snapshot, as_at, seen_range, snapshot_colours
+from app.export.memory_view import VIEWS, as_at, seen_range, snapshot_colours
 from app.export.paged import DEFAULT_RESIDENT_MB, PAGE_TEXELS, PagedMemory, pages_in_view
 from app.export.painting import (
     DECODE_LONG_SIDE,
@@ -221,6 +221,7 @@ class MemoryPainter(Worker):
                     self.rule,
                     span,
                     resident_bytes=self.resident_bytes,
+                    scene_texels=texels,  # worked out above: not again
                 )
                 self.page_stats = self.memory.stats
                 self.boxes = self.memory.boxes
@@ -264,12 +265,8 @@ class MemoryPainter(Worker):
         key = (request, self.frames_painted)
         if key == self._composed_for or self.memory is None:
             return
-        view, at_s = request
-        snap = as_at(self.memory, at_s)  # once: the colours and the range shown both need it
-        texture = self.atlas.texture(
-            snapshot_colours(snap, self.atlas.base, view, at_s, self.atlas.triangle)
-        )
-        span = seen_range(snap)
+        colours, span = _view_of(self.atlas, self.memory, *request)
+        texture = self.atlas.texture(colours)
         with self._lock:
             self._texture, self._texture_for, self.range_s = texture, request, span
         self._composed_for = key
@@ -284,7 +281,6 @@ class MemoryPainter(Worker):
         if key == self._composed_for:
             return
         memory = self.memory
-        view, at_s = request
         done, budget = {}, PAGES_WHILE_PAINTING if not self.done else len(wanted)
         keep = set()
         for rank, k in enumerate(wanted):
@@ -298,11 +294,9 @@ class MemoryPainter(Worker):
             if len(done) >= budget or self._stop.is_set():
                 break
             atlas, page = memory.page(k)
-            snap = as_at(page, at_s)
-            colours = snapshot_colours(snap, atlas.base, view, at_s, atlas.triangle)
+            colours, self._ranges[k] = _view_of(atlas, page, *request)
             done[k] = _at_detail(atlas.primitive(colours, f"memory page {k}"), coarse)
             self._sent[k] = sent_for
-            self._ranges[k] = _range_of(snap)
         else:
             self._composed_for = key
         spans = [self._ranges[k] for k in keep if self._ranges.get(k) is not None]
@@ -325,9 +319,13 @@ def _at_detail(prim: Primitive, coarse: int) -> Primitive:
     return replace(prim, texture=cv2.resize(prim.texture, size, interpolation=cv2.INTER_AREA))
 
 
-def _range_of(snap: Snapshot) -> tuple[float, float] | None:
-    span = seen_range(snap)
-    return None if span is None else (float(span[0]), float(span[1]))
+def _view_of(
+    atlas: Atlas, memory: SurfaceMemory, view: str, at_s: float | None
+) -> tuple[np.ndarray, tuple[float, float] | None]:
+    """A memory laid on `atlas` as `view` shows it at at_s: its samples' colours, and the span
+    (timeline s) of the sightings they show (seen_range; one snapshot serves both)."""
+    snap = as_at(memory, at_s)
+    return snapshot_colours(snap, atlas.base, view, at_s, atlas.triangle), seen_range(snap)
 
 
 # --- the viewer's side (v: app.ui.viewer.Viewer) -------------------------------------------------

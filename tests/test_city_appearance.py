@@ -189,7 +189,8 @@ def test_a_georeferenced_texture_lands_on_the_roof_where_its_georeference_says(t
     20 x 15 m footprint, north up. Inline (referencePoint and orientation), each quarter of the
     image lands on its quarter of the roof. A world file beside the image wins over an inline
     georeference that is wrong (preferWorldFile, by default true), and loses to it where
-    preferWorldFile is false. One with no georeference at all is said and not drawn."""
+    preferWorldFile is false. One whose orientation has no inverse is refused naming it; one
+    with no georeference at all is said and not drawn."""
     _quadrant_image(tmp_path)
     (x0, y0), _, (x1, y1), _ = ROOF
     a, e = (x1 - x0) / 64, -(y1 - y0) / 64
@@ -221,6 +222,8 @@ def test_a_georeferenced_texture_lands_on_the_roof_where_its_georeference_says(t
         _check_roof_quadrants(off, frame, gl_ctx)
 
     (tmp_path / "appearances" / "wall.pgw").unlink()
+    with pytest.raises(SceneError, match=r"GeoreferencedTexture appearances/wall.png.*inverse"):
+        city_with(_georeferenced("appearances/wall.png", _inline(x0, y1, 0.0, 0.0)))
     bare = city_with(_georeferenced("appearances/wall.png", ""))
     assert not any(p.textured for p in bare.mesh.primitives)
     assert any(

@@ -93,8 +93,8 @@ class CityGmlReader:
         self._texture_ids: dict[str, int] = {}
         self.ring_textures: dict[str, tuple[int, np.ndarray]] = {}
         self.target_colours: dict[str, tuple[float, float, float]] = {}  # X3DMaterial, by gml:id
-        # GeoreferencedTexture by the gml:id of each surface it targets: (texture index, the
-        # image's pixels -> file x, y as a 2 x 3 affine matrix)
+        # GeoreferencedTexture by the gml:id of each surface it targets: (texture index, file
+        # x, y -> the image's column, row as a 2 x 3 affine matrix: the georeference inverted)
         self.target_georef: dict[str, tuple[int, np.ndarray]] = {}
         self._image_sizes: dict[int, tuple[int, int] | None] = {}
 
@@ -176,9 +176,17 @@ class CityGmlReader:
                     "not drawn: no referencePoint and orientation, and no world file beside the image"
                 )
                 continue
+            if abs(np.linalg.det(affine[:, :2])) < 1e-12:
+                raise self._error(
+                    f"GeoreferencedTexture {uri.strip()}: its georeference maps the image to a "
+                    "line or a point (expected an orientation with an inverse)",
+                    line=tex.sourceline,
+                )
+            inverse = np.linalg.inv(affine[:, :2])
+            to_pixels = np.column_stack([inverse, -inverse @ affine[:, 2]])
             index = self._texture_index(uri.strip())
             for target in _targets(tex):
-                self.target_georef[target] = (index, affine)
+                self.target_georef[target] = (index, to_pixels)
 
     def _inline_georef(self, tex: etree._Element) -> np.ndarray | None:
         """The 2 x 3 affine matrix (image column, row, 1 -> file x, y) of a
@@ -222,14 +230,13 @@ class CityGmlReader:
         found = _targeted(polygon, obj, self.target_georef)
         if found is None:
             return None
-        index, affine = found
+        index, to_pixels = found
         size = self._image_size(index)
         if size is None:
             return None
-        inverse = np.linalg.inv(affine[:, :2])
         out = []
         for ring in rings:
-            col, row = inverse @ (ring[:, :2] - affine[:, 2]).T
+            col, row = to_pixels[:, :2] @ ring[:, :2].T + to_pixels[:, 2:]
             out.append(np.column_stack([(col + 0.5) / size[0], 1.0 - (row + 0.5) / size[1]]))
         return index, out
 

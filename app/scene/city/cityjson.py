@@ -18,6 +18,7 @@ from __future__ import annotations
 import json
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 
 import ijson
@@ -264,12 +265,6 @@ class CityJsonReader:
         themes made the reader look (None otherwise)."""
         return self._defaults.get("default-theme-texture")
 
-    def _default_texture_theme(self) -> str | None:
-        return self._default_theme("texture")
-
-    def _default_material_theme(self) -> str | None:
-        return self._default_theme("material")
-
     # -- vertices ------------------------------------------------------------------------------
 
     def _real(self, ints: np.ndarray) -> np.ndarray:
@@ -432,7 +427,10 @@ class CityJsonReader:
             otype = str(obj.get("type", ""))
             surfaces = []
             textured = _texture_values(
-                geom.get("texture"), self.theme, self.themes, self._default_texture_theme
+                geom.get("texture"),
+                self.theme,
+                self.themes,
+                partial(self._default_theme, "texture"),
             )
             for rings, path in _surfaces_of(boundaries, depth):
                 kind = kind_of(_semantic_type(geom.get("semantics"), path), otype)
@@ -442,7 +440,7 @@ class CityJsonReader:
                     path,
                     self.theme,
                     self.themes,
-                    self._default_material_theme,
+                    partial(self._default_theme, "material"),
                 )
                 if m is not None and 0 <= m < len(self.header.materials):
                     surface.colour = self.header.materials[m]

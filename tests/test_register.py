@@ -202,6 +202,36 @@ def test_corrections_are_continuous_and_fall_back_to_the_prior_far_from_keyframe
     assert np.all(empty(np.linspace(0, 20, 9))[0] == 0.0)
 
 
+def test_corrections_follow_an_error_that_moves_within_a_second_without_a_kink():
+    """The prior's error moves within a second (GNSS between its 1 Hz fixes, a drone's attitude):
+    keyframes two a second whose corrections swing 0.6 m over a 2 s period are followed, not
+    averaged away (a 1 s smoothing left 1 % of the swing: docs/ACCURACY.md); between keyframes
+    the correction stays within its neighbours' values, its rate is continuous across a
+    keyframe (no kink in the track), and it comes to rest at the last keyframe, where the held
+    value takes over."""
+    t = 10.0 + 0.5 * np.arange(12)
+    swing = 0.6 * np.sin(2 * np.pi * (t - 10.0) / 2.0 + 0.3)
+    kfs = [
+        _keyframe(i, ti, [x, 0.0, 0.0], [0.0, 0.0, 0.0]) for i, (ti, x) in enumerate(zip(t, swing))
+    ]
+    c = Correction.from_keyframes(kfs)
+    dp, _ = c(t)
+    assert np.allclose(dp[:, 0], swing, atol=0.01 * 0.6)
+    fine = np.arange(t[0], t[-1], 0.01)
+    x = c(fine)[0][:, 0]
+    for i in range(len(t) - 1):
+        inside = x[(fine >= t[i]) & (fine <= t[i + 1])]
+        lo, hi = sorted(swing[i : i + 2])
+        assert lo - 1e-9 <= inside.min() and inside.max() <= hi + 1e-9
+    h = 1e-4
+    for ti in t[1:-1]:
+        left = (c(ti)[0][0, 0] - c(ti - h)[0][0, 0]) / h
+        right = (c(ti + h)[0][0, 0] - c(ti)[0][0, 0]) / h
+        assert abs(left - right) < 0.01, (ti, left, right)
+    end = (c(t[-1])[0][0, 0] - c(t[-1] - h)[0][0, 0]) / h
+    assert abs(end) < 0.01
+
+
 # --- the whole source on a short world-versus-model session ---------------------------------------
 
 

@@ -80,6 +80,7 @@ class EdgeSettings:
     prior_deg: float = 1.5
     noise_px: float = 1.5
     lines: int = 30
+    max_move_sigmas: float = 3.0
 
 
 def _normals_map(positions: FloatArray) -> FloatArray:
@@ -484,14 +485,19 @@ def fit_edges(
         fit = _fit_level(camera, edges, level, settings, gate, prior or frame.camera)
         camera = fit.camera
     assert fit is not None
-    return _judged(fit, settings), fit
+    return _judged(fit, settings, prior or frame.camera), fit
 
 
-def _judged(fit: EdgeFit, settings: EdgeSettings) -> PoseFix:
+def _judged(fit: EdgeFit, settings: EdgeSettings, prior: Camera) -> PoseFix:
     """The fit as a PoseFix: refused (with the reason) unless enough points found an edge, the
-    residual is small and every direction of the pose is fixed."""
+    residual is small, every direction of the pose is fixed and the pose stayed within
+    max_move_sigmas of the prior."""
     nan = float("nan")
     reason = ""
+    offset = _offset(fit.camera, prior)
+    moved_deg = float(np.degrees(np.linalg.norm(offset[:3])))
+    moved_m = float(np.linalg.norm(offset[3:]))
+    k = settings.max_move_sigmas
     if fit.found < settings.min_points:
         reason = f"{fit.found} model edge points found a frame edge (need {settings.min_points})"
     elif fit.found < settings.min_found * fit.in_view:
@@ -502,6 +508,13 @@ def _judged(fit: EdgeFit, settings: EdgeSettings) -> PoseFix:
         reason = (
             f"the model's lines in view leave the pose unfixed ({fit.std_m:.2f} m, "
             f"{fit.std_deg:.2f} deg a pixel)"
+        )
+    elif settings.prior_m > 0 and (
+        moved_m > k * settings.prior_m or moved_deg > k * settings.prior_deg
+    ):
+        reason = (
+            f"the lines moved the pose {moved_m:.1f} m and {moved_deg:.1f} deg from its prior "
+            f"(at most {k * settings.prior_m:.0f} m and {k * settings.prior_deg:.1f} deg)"
         )
     if reason:
         return PoseFix(False, reason, fit.in_view, fit.found, fit.error_px if fit.found else nan)

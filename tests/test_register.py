@@ -212,7 +212,8 @@ def test_corrections_follow_an_error_that_moves_within_a_second_without_a_kink()
     t = 10.0 + 0.5 * np.arange(12)
     swing = 0.6 * np.sin(2 * np.pi * (t - 10.0) / 2.0 + 0.3)
     kfs = [
-        _keyframe(i, ti, [x, 0.0, 0.0], [0.0, 0.0, 0.0]) for i, (ti, x) in enumerate(zip(t, swing))
+        _keyframe(i, ti, [x, 0.0, 0.0], [0.0, 0.0, 0.0])
+        for i, (ti, x) in enumerate(zip(t, swing, strict=True))
     ]
     c = Correction.from_keyframes(kfs)
     dp, _ = c(t)

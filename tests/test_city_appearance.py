@@ -9,7 +9,9 @@ import json
 
 import numpy as np
 import pytest
+import rasterio
 from PIL import Image
+from rasterio.transform import from_origin
 
 from app.camera.intrinsics import Intrinsics
 from app.camera.pinhole import Camera, look_at_quat
@@ -230,6 +232,43 @@ def test_a_georeferenced_texture_lands_on_the_roof_where_its_georeference_says(t
         "GeoreferencedTexture appearances/wall.png" in m and "not drawn" in m
         for m in bare.notes.items
     )
+
+
+def test_a_geotiffs_own_georeference_lays_its_texture(tmp_path, gl_ctx):
+    """The roof's four-colour image as a GeoTIFF whose tags hold its georeference (UTM 32N, as the
+    file's coordinates): laid by them over a wrong inline georeference (preferWorldFile, by
+    default true), each quarter on its quarter of the roof. The same image georeferenced in
+    UTM 33N is refused naming both CRSs; one with no georeference and nothing inline is said and
+    not drawn."""
+    _quadrant_image(tmp_path)
+    rgb = np.asarray(Image.open(tmp_path / "appearances" / "wall.png").convert("RGB"))
+    (x0, y0), _, (x1, y1), _ = ROOF
+    a, e = (x1 - x0) / 64, -(y1 - y0) / 64
+    wrong = _inline(x0 + a / 2 + 10.0, y1 + e / 2, a, e)
+    frame = _frame()
+
+    def geotiff(name: str, crs: str | None) -> str:
+        tags = {"crs": crs, "transform": from_origin(x0, y1, a, -e)} if crs else {}
+        with rasterio.open(
+            tmp_path / "appearances" / name, "w", driver="GTiff", width=64, height=64, count=3,
+            dtype="uint8", **tags,
+        ) as dst:  # fmt: skip
+            dst.write(rgb.transpose(2, 0, 1))
+        return f"appearances/{name}"
+
+    def city_with(member: str):
+        path = write_citygml(tmp_path / "roof.gml", BUILDINGS, "EPSG:32632+3855")
+        path.write_text(path.read_text().replace("</core:CityModel>", member + "</core:CityModel>"))
+        return read_city(path, frame)
+
+    city = city_with(_georeferenced(geotiff("roof.tif", "EPSG:32632"), wrong))
+    assert sum(p.textured for p in city.mesh.primitives) == 1
+    _check_roof_quadrants(city, frame, gl_ctx)
+    with pytest.raises(SceneError, match=r"roof33.tif.*UTM zone 33N.*UTM zone 32N"):
+        city_with(_georeferenced(geotiff("roof33.tif", "EPSG:32633"), wrong))
+    bare = city_with(_georeferenced(geotiff("plain.tif", None), ""))
+    assert not any(p.textured for p in bare.mesh.primitives)
+    assert any("plain.tif" in m and "no georeference in it" in m for m in bare.notes.items)
 
 
 def test_an_appearance_theme_is_a_city_models_key(tmp_path):

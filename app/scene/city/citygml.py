@@ -16,13 +16,15 @@ on the ground plan, a roof's or a relief's orthophoto) by the file's horizontal 
 through the image's georeference: inline, a referencePoint (the centre of the image's upper-left
 pixel) and an orientation (row-major A B / D E as a world file's: x = A col + B row + x0,
 y = D col + E row + y0, in the CRS's units per pixel), or the world file beside the image
-(`.pgw`, `.jgw`, `.tfw`, `.wld`...: A, D, B, E, x0, y0), which wins where preferWorldFile (by
-default true); and X3DMaterials' diffuse colours.
+(`.pgw`, `.jgw`, `.tfw`, `.wld`...: A, D, B, E, x0, y0) or a GeoTIFF's own georeference tags
+(before its world file, as GDAL reads them; in the file's horizontal CRS, else refused), which
+win where preferWorldFile (by default true); and X3DMaterials' diffuse colours.
 """
 
 from __future__ import annotations
 
 import re
+import warnings
 import zipfile
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -30,10 +32,14 @@ from pathlib import Path
 from typing import IO, TypeVar
 
 import numpy as np
+import pyproj
+import rasterio
 from lxml import etree
 from PIL import Image, UnidentifiedImageError
+from rasterio.errors import NotGeoreferencedWarning
 
 from app.core.errors import SceneError
+from app.geodesy.crs import horizontal, parse_crs
 from app.scene.city.cityjson import Keep
 from app.scene.city.model import SURFACE_KINDS, CityObject, Surface, footprint_centre, kind_of
 
@@ -97,6 +103,8 @@ class CityGmlReader:
         # x, y -> the image's column, row as a 2 x 3 affine matrix: the georeference inverted)
         self.target_georef: dict[str, tuple[int, np.ndarray]] = {}
         self._image_sizes: dict[int, tuple[int, int] | None] = {}
+        # GeoTIFF textures' own CRS (and the line naming them), checked once an object is read
+        self._georef_crs: dict[Path, tuple[pyproj.CRS, int | None]] = {}
 
     def _error(self, message: str, field: str | None = None, line: int | None = None) -> SceneError:
         return SceneError(self.path, message, field=field, line=line)
@@ -168,12 +176,13 @@ class CityGmlReader:
             prefer = next((c.text for c in tex if _local(c) == "preferWorldFile"), None)
             affine = None
             if (prefer or "true").strip().lower() in ("true", "1"):
-                affine = _world_file(self.path.parent / uri.strip())
+                affine = self._image_georef(self.path.parent / uri.strip(), tex)
             affine = affine if affine is not None else self._inline_georef(tex)
             if affine is None:
                 self.notes.append(
                     f"{self.path.name}: GeoreferencedTexture {uri.strip()} (line {tex.sourceline}) "
-                    "not drawn: no referencePoint and orientation, and no world file beside the image"
+                    "not drawn: no referencePoint and orientation, no world file beside the "
+                    "image and no georeference in it"
                 )
                 continue
             if abs(np.linalg.det(affine[:, :2])) < 1e-12:
@@ -187,6 +196,33 @@ class CityGmlReader:
             index = self._texture_index(uri.strip())
             for target in _targets(tex):
                 self.target_georef[target] = (index, to_pixels)
+
+    def _image_georef(self, image: Path, tex: etree._Element) -> np.ndarray | None:
+        """The image's own georeference (2 x 3, as `_inline_georef`): a GeoTIFF's tags, else the
+        world file beside it (GDAL's order); None with neither. A GeoTIFF whose CRS is not the
+        file's is refused (its texture would land elsewhere), naming both."""
+        if image.suffix.lower() in (".tif", ".tiff") and image.is_file():
+            found = _geotiff_georef(image)
+            if found is not None:
+                affine, crs = found
+                if crs is not None:  # checked against the file's once an object names it
+                    self._georef_crs[image] = (crs, tex.sourceline)
+                return affine
+        return _world_file(image)
+
+    def _check_georef_crs(self, image: Path) -> None:
+        """Refuses a GeoTIFF texture georeferenced in another horizontal CRS than the file's
+        coordinates (its texture would land elsewhere), naming both."""
+        crs, line = self._georef_crs.pop(image, (None, None))
+        if crs is None or self.crs is None:
+            return
+        ours = horizontal(parse_crs(self.crs))
+        if not _same_crs(ours, horizontal(crs)):
+            raise self._error(
+                f"GeoreferencedTexture {image.name}: the image is georeferenced in {crs.name} but "
+                f"the file's coordinates are in {ours.name} (expected the same horizontal CRS)",
+                line=line,
+            )
 
     def _inline_georef(self, tex: etree._Element) -> np.ndarray | None:
         """The 2 x 3 affine matrix (image column, row, 1 -> file x, y) of a
@@ -231,6 +267,7 @@ class CityGmlReader:
         if found is None:
             return None
         index, to_pixels = found
+        self._check_georef_crs(self.texture_files()[index])
         size = self._image_size(index)
         if size is None:
             return None
@@ -460,6 +497,31 @@ WORLD_FILE_SUFFIXES = {
     ".tif": ".tfw",
     ".tiff": ".tfw",
 }
+
+
+def _geotiff_georef(image: Path) -> tuple[np.ndarray, pyproj.CRS | None] | None:
+    """(the 2 x 3 affine matrix (column, row, 1 -> x, y; pixel centres), its CRS or None) of a
+    GeoTIFF's own georeference tags, None where it has none (or is no TIFF rasterio reads)."""
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", NotGeoreferencedWarning)
+            with rasterio.open(image) as src:
+                t, crs = src.transform, src.crs
+    except rasterio.errors.RasterioError:
+        return None
+    if t.is_identity:
+        return None
+    x0, y0 = t @ (0.5, 0.5)  # the centre of the upper-left pixel
+    affine = np.array([[t.a, t.b, x0], [t.d, t.e, y0]])
+    return affine, None if crs is None else pyproj.CRS.from_user_input(crs.to_wkt())
+
+
+def _same_crs(a: pyproj.CRS, b: pyproj.CRS) -> bool:
+    """Whether two CRSs are one (by EPSG code where both have one: a GeoTIFF's WKT names its
+    parts otherwise than a srsName's)."""
+    if a.to_epsg() is not None and b.to_epsg() is not None:
+        return a.to_epsg() == b.to_epsg()
+    return a.equals(b, ignore_axis_order=True)
 
 
 def _world_file(image: Path) -> np.ndarray | None:

@@ -1,3 +1,4 @@
+import av
 import numpy as np
 import pytest
 
@@ -57,13 +58,26 @@ def test_seek_delivers_the_exact_frame_with_the_new_serial(clip):
 
 
 def test_corrupt_packets_are_skipped_and_counted(clip, tmp_path):
+    """Damage in the middle of a clip is skipped and counted, and decoding goes on to its end:
+    every frame whose packet lies before the damage is delivered, in order and once each.
+    (How many frames the damage itself costs is FFmpeg's to say: with frame threads an error
+    surfaces when a worker reports it, so the count of lost frames beside the counted packets
+    varies with the machine's load; it is not asserted.)"""
     data = bytearray(clip.read_bytes())
     rng = np.random.default_rng(3)
     # Scribble over frame data in the middle of the file; MP4 keeps its index (moov) at the end.
-    for pos in rng.integers(int(len(data) * 0.3), int(len(data) * 0.6), 40):
+    damaged = rng.integers(int(len(data) * 0.3), int(len(data) * 0.6), 40)
+    for pos in damaged:
         data[pos : pos + 8] = b"\xff" * 8
     bad = tmp_path / "bad.mp4"
     bad.write_bytes(bytes(data))
+    with av.open(str(clip)) as container:
+        stream = container.streams.video[0]
+        before = {
+            round(float(p.pts * stream.time_base) * 30)
+            for p in container.demux(stream)
+            if p.pts is not None and p.pos + p.size <= damaged.min()
+        }
     dec = Decoder(bad)
     try:
         frames = []  # up to the last frame, which the damage (30-60 % into the file) spares
@@ -71,12 +85,10 @@ def test_corrupt_packets_are_skipped_and_counted(clip, tmp_path):
             frames.append(dec.frames.get(timeout=60))
         assert dec.error is None
         assert dec.corrupt_packets > 0  # the damage was met and counted...
-        assert (
-            len(frames) > 10 and max(round(f.pts_s * 30) for f in frames) >= 55
-        )  # ...and decoding went on past it
-        assert (
-            len(frames) + dec.corrupt_packets >= 40
-        )  # frames are missing only where packets failed
+        shown = [round(f.pts_s * 30) for f in frames]
+        assert len(frames) > 10 and max(shown) >= 55  # ...and decoding went on past it
+        assert shown == sorted(set(shown))  # in order, none twice
+        assert len(before) >= 10 and before <= set(shown)  # nothing lost before the damage
     finally:
         dec.close()
 

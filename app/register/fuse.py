@@ -67,10 +67,11 @@ class FuseSettings:
     max_disagree_deg: a correction farther than this from their median is not used; smooth_s:
     Gaussian sigma (s) over the used corrections (0.1 s: at the default 0.5 s spacing each
     keyframe keeps its own, as the prior's error moves within a second; 1 s smoothed that away
-    and left the textured orbit 0.58 m off at the centre line instead of 0.10 m); hold_s: beyond the first and last used
-    keyframe the correction decays as exp(-dt / hold_s) (the GNSS error's correlation time);
-    delay_*: the time-offset estimate (estimate_delay): high-pass sigma (s), the fewest used
-    keyframes, the least RMS of the high-passed rates (rad/s), the largest offset believed (s)."""
+    and left the textured orbit 0.58 m off at the centre line instead of 0.08 m:
+    docs/ACCURACY.md); hold_s: beyond the first and last used keyframe the correction decays as
+    exp(-dt / hold_s) (the GNSS error's correlation time); delay_*: the time-offset estimate
+    (estimate_delay): high-pass sigma (s), the fewest used keyframes, the least RMS of the
+    high-passed rates (rad/s), the largest offset believed (s)."""
 
     window_s: float = 4.0
     max_disagree_m: float = 2.5

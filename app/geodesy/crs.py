@@ -75,6 +75,11 @@ def utm_zone(lat_deg: float, lon_deg: float) -> pyproj.CRS:
     return pyproj.CRS.from_epsg((32600 if lat_deg >= 0 else 32700) + zone)
 
 
+def of_raster(crs: object) -> pyproj.CRS:
+    """A rasterio CRS (a GeoTIFF's: anything with `to_wkt()`) as pyproj's."""
+    return pyproj.CRS.from_wkt(crs.to_wkt())
+
+
 def horizontal(crs: pyproj.CRS) -> pyproj.CRS:
     """The horizontal part of a CRS (the CRS itself when not compound)."""
     return crs.sub_crs_list[0] if crs.is_compound else crs

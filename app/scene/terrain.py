@@ -34,7 +34,7 @@ from scipy.ndimage import map_coordinates
 from app.core.errors import SceneError
 from app.core.messages import Messages
 from app.geodesy import geoid
-from app.geodesy.crs import horizontal, vertical_datum
+from app.geodesy.crs import horizontal, of_raster, vertical_datum
 from app.geodesy.enu import LocalFrame
 from app.scene.mesh import MeshData, Primitive
 
@@ -223,21 +223,16 @@ def _affine(t: object, col: npt.ArrayLike, row: npt.ArrayLike) -> tuple[np.ndarr
     return t.a * col + t.b * row + t.c, t.d * col + t.e * row + t.f
 
 
-def _pyproj_crs(crs: object) -> pyproj.CRS:
-    """A rasterio CRS as pyproj's."""
-    return pyproj.CRS.from_wkt(crs.to_wkt())
-
-
 def _vertical_datum(crs: object) -> str | None:
     """'egm96', 'egm2008' or 'ellipsoid' from a rasterio CRS with a vertical part; None if silent."""
     try:
-        return vertical_datum(_pyproj_crs(crs))
+        return vertical_datum(of_raster(crs))
     except pyproj.exceptions.CRSError:
         return None
 
 
 def _horizontal(crs: object) -> pyproj.CRS:
-    return horizontal(_pyproj_crs(crs))
+    return horizontal(of_raster(crs))
 
 
 def _window_around(src, track_ll: np.ndarray | None, margin_m: float):

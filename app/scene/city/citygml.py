@@ -36,10 +36,10 @@ import pyproj
 import rasterio
 from lxml import etree
 from PIL import Image, UnidentifiedImageError
-from rasterio.errors import NotGeoreferencedWarning
+from rasterio.errors import NotGeoreferencedWarning, RasterioError
 
 from app.core.errors import SceneError
-from app.geodesy.crs import horizontal, parse_crs
+from app.geodesy.crs import horizontal, of_raster, parse_crs
 from app.scene.city.cityjson import Keep
 from app.scene.city.model import SURFACE_KINDS, CityObject, Surface, footprint_centre, kind_of
 
@@ -507,20 +507,21 @@ def _geotiff_georef(image: Path) -> tuple[np.ndarray, pyproj.CRS | None] | None:
             warnings.simplefilter("ignore", NotGeoreferencedWarning)
             with rasterio.open(image) as src:
                 t, crs = src.transform, src.crs
-    except rasterio.errors.RasterioError:
+    except RasterioError:
         return None
     if t.is_identity:
         return None
     x0, y0 = t @ (0.5, 0.5)  # the centre of the upper-left pixel
     affine = np.array([[t.a, t.b, x0], [t.d, t.e, y0]])
-    return affine, None if crs is None else pyproj.CRS.from_user_input(crs.to_wkt())
+    return affine, None if crs is None else of_raster(crs)
 
 
 def _same_crs(a: pyproj.CRS, b: pyproj.CRS) -> bool:
     """Whether two CRSs are one (by EPSG code where both have one: a GeoTIFF's WKT names its
     parts otherwise than a srsName's)."""
-    if a.to_epsg() is not None and b.to_epsg() is not None:
-        return a.to_epsg() == b.to_epsg()
+    codes = a.to_epsg(), b.to_epsg()
+    if None not in codes:
+        return codes[0] == codes[1]
     return a.equals(b, ignore_axis_order=True)
 
 

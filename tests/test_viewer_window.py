@@ -376,6 +376,17 @@ def _grey(path) -> np.ndarray:
     return np.asarray(Image.open(path).convert("L"), np.float64)
 
 
+def _memory_against_the_drape(d) -> tuple[np.ndarray, float, float, float]:
+    """From the screenshots drape.png, model.png and memory.png in d (the same view): the
+    memory's grey image, the fraction of pixels where the video is draped (drape and model
+    differ; the sky is neither), and there the memory's and the model's correlation with the
+    drape."""
+    drape, model, mem = (_grey(d / f"{n}.png") for n in ("drape", "model", "memory"))
+    lit = np.abs(drape - model) > 0
+    corr = [float(np.corrcoef(x[lit], drape[lit])[0, 1]) for x in (mem, model)]
+    return mem, float(lit.mean()), corr[0], corr[1]
+
+
 # the sample at 30 s through the video's camera: the drape, then the model alone (the script's
 # start of the memory tests; {d}: their folder)
 MEMORY_START = """0.0 clock 0.0333333
@@ -422,14 +433,9 @@ def test_the_scene_memory_shows_what_the_video_saw_as_it_was(display, tmp_path):
     m = state["memory"]
     assert state["errors"] == [] and m["done"] and m["error"] is None
     assert 75 <= m["frames"] <= 82 and m["seen"] > 5000 and m["range_s"][1] <= 30.0 + 1e-6
-    drape, model, mem = (_grey(d / f"{n}.png") for n in ("drape", "model", "memory"))
-    lit = np.abs(drape - model) > 0  # where the video is draped (the sky is neither)
-    assert lit.mean() > 0.3
-
-    def corr(a, b):
-        return float(np.corrcoef(a[lit], b[lit])[0, 1])
-
-    assert corr(mem, drape) > corr(model, drape) + 0.15, (corr(mem, drape), corr(model, drape))
+    mem, lit, like_drape, like_model = _memory_against_the_drape(d)
+    assert lit > 0.3
+    assert like_drape > like_model + 0.15, (like_drape, like_model)
     seen = np.asarray(Image.open(d / "seen.png").convert("RGB"), np.float64)
     red = (seen[..., 0] > seen[..., 2] + 40).mean()
     blue = (seen[..., 2] > seen[..., 0] + 40).mean()
@@ -463,10 +469,5 @@ def test_a_paged_scene_memory_in_the_window(display, tmp_path):
     pages = m["pages"]
     assert pages is not None and pages["made"] > 5 and 0 < pages["gpu_pages"] <= pages["made"]
     assert pages["gpu_mb"] <= 96.0
-    drape, model, mem = (_grey(d / f"{n}.png") for n in ("drape", "model", "memory"))
-    lit = np.abs(drape - model) > 0
-
-    def corr(a, b):
-        return float(np.corrcoef(a[lit], b[lit])[0, 1])
-
-    assert corr(mem, drape) > corr(model, drape) + 0.15, (corr(mem, drape), corr(model, drape))
+    _, _, like_drape, like_model = _memory_against_the_drape(d)
+    assert like_drape > like_model + 0.15, (like_drape, like_model)

@@ -376,6 +376,15 @@ def _grey(path) -> np.ndarray:
     return np.asarray(Image.open(path).convert("L"), np.float64)
 
 
+def _painted_memory(d) -> dict:
+    """The memory's part of the state a script wrote to memory.json in d, checked painted
+    without an error (and the viewer without one)."""
+    state = json.loads((d / "memory.json").read_text())
+    m = state["memory"]
+    assert state["errors"] == [] and m["done"] and m["error"] is None
+    return m
+
+
 def _memory_against_the_drape(d) -> tuple[np.ndarray, float, float, float]:
     """From the screenshots drape.png, model.png and memory.png in d (the same view): the
     memory's grey image, the fraction of pixels where the video is draped (drape and model
@@ -429,9 +438,7 @@ def test_the_scene_memory_shows_what_the_video_saw_as_it_was(display, tmp_path):
 1.8 quit
 """,
     )
-    state = json.loads((d / "memory.json").read_text())
-    m = state["memory"]
-    assert state["errors"] == [] and m["done"] and m["error"] is None
+    m = _painted_memory(d)
     assert 75 <= m["frames"] <= 82 and m["seen"] > 5000 and m["range_s"][1] <= 30.0 + 1e-6
     mem, lit, like_drape, like_model = _memory_against_the_drape(d)
     assert lit > 0.3
@@ -463,9 +470,7 @@ def test_a_paged_scene_memory_in_the_window(display, tmp_path):
 1.1 quit
 """,
     )
-    state = json.loads((d / "memory.json").read_text())
-    m = state["memory"]
-    assert state["errors"] == [] and m["done"] and m["error"] is None
+    m = _painted_memory(d)
     pages = m["pages"]
     assert pages is not None and pages["made"] > 5 and 0 < pages["gpu_pages"] <= pages["made"]
     assert pages["gpu_mb"] <= 96.0

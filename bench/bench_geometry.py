@@ -9,7 +9,8 @@ textures), so its edges hold far more than the model's lines.
 --session: another session (e.g. `geofuse simulate session --flight orbit`); --clip: also the
 whole `registered` source against the model without texture, beside the offline prior and the
 textured registration: projection error on the model at the centre line and the edges
-(app.solve.accuracy, every 10th frame), keyframes used, and the time taken.
+(app.solve.accuracy, every 10th frame), keyframes used, and the time taken; and the model
+without texture's centre-line error by the pixels' range under the true pose.
 
 Prints per method: keyframes registered, within 0.5 m and 0.5 deg, median position and turn
 errors of the registered ones, how many ended nearer the truth than they started, s a keyframe.
@@ -36,7 +37,7 @@ from app.scene.mesh import MeshData  # noqa: E402
 from app.session import open_session  # noqa: E402
 from app.session.camera_track import camera_track, frame_clock  # noqa: E402
 from app.simulate.sample import SAMPLE_DIR  # noqa: E402
-from app.solve.accuracy import Poses, ProjectionProbe, evaluate, split_stats  # noqa: E402
+from app.solve.accuracy import Poses, ProjectionProbe, evaluate, poses_at, split_stats  # noqa: E402
 from app.solve.track import solve_track  # noqa: E402
 from bench.common import table  # noqa: E402
 from tests.test_register import _perturbed  # noqa: E402
@@ -122,7 +123,7 @@ def main(argv: list[str] | None = None) -> int:
 def clip_rows(session, grey: MeshData) -> None:
     """The whole registered source on the model without texture and on the textured one, beside
     the offline prior: projection error on the model (m, median / p95)."""
-    rows = []
+    rows, grey_track = [], None
     clip_s = float(session.video.pts_s[-1] - session.video.pts_s[0])
     for name, sess in (
         ("textured model", session),
@@ -131,6 +132,7 @@ def clip_rows(session, grey: MeshData) -> None:
         t0 = time.perf_counter()
         track = solve_track(sess, "registered")
         wall, reg = time.perf_counter() - t0, track.registration
+        grey_track = track
         for r in evaluate(
             sess, ["offline", "registered"], paper=False, solved={"registered": track}
         ):
@@ -148,6 +150,41 @@ def clip_rows(session, grey: MeshData) -> None:
         rows,
     ))  # fmt: skip
     print()
+    print(range_table(replace(session, mesh=grey), grey_track))
+    print()
+
+
+RANGES_M = ((0.0, 100.0), (100.0, 200.0), (200.0, 400.0), (400.0, np.inf))
+
+
+def range_table(session, track, every: int = 10, grid: tuple[int, int] = (64, 36)) -> str:
+    """The centre column's projection error (m, median / p95) by the pixels' range (m) under the
+    true pose, every `every`th frame: where a p95 comes from."""
+    truth = replace(camera_track(session, "truth"), clock=frame_clock(session, true_timing=True))
+    frames = np.arange(0, len(session.video.pts_s), every)
+    tru, est = poses_at(truth, frames), poses_at(track, frames)
+    probe = ProjectionProbe(session, grid)
+    centre = slice(grid[0] // 2 - 1, grid[0] // 2 + 1)
+    errors, ranges = [], []
+    try:
+        for k in range(len(frames)):
+            a, b = probe.points(est.enu[k], est.q[k]), probe.points(tru.enu[k], tru.q[k])
+            errors.append(np.linalg.norm(a - b, axis=2)[:, centre].ravel())
+            ranges.append(np.linalg.norm(b - tru.enu[k], axis=2)[:, centre].ravel())
+    finally:
+        probe.release()
+    e, r = np.concatenate(errors), np.concatenate(ranges)
+    ok = np.isfinite(e)
+    rows = []
+    for lo, hi in RANGES_M:
+        m = ok & (r >= lo) & (r < hi)
+        if m.any():
+            rows.append([
+                f"{lo:.0f}-{hi:.0f} m" if np.isfinite(hi) else f"over {lo:.0f} m",
+                f"{100 * m.sum() / ok.sum():.0f} %",
+                f"{np.median(e[m]):.2f} / {np.percentile(e[m], 95):.2f}",
+            ])  # fmt: skip
+    return table(["range under the true pose", "centre pixels", "model without texture, registered: m (median / p95)"], rows)  # fmt: skip
 
 
 if __name__ == "__main__":

@@ -38,7 +38,7 @@ from app.register.points import (
     solve_control,
     write_points,
 )
-from app.register.solve import Registrar, RegistrationSettings, registered_track
+from app.register.solve import Registrar, Registration, RegistrationSettings, registered_track
 from app.scene.mesh import MeshData
 from app.session import open_session
 from app.session.camera_track import camera_track, frame_clock
@@ -184,6 +184,23 @@ def test_a_keyframe_that_disagrees_with_its_neighbours_is_not_used():
     gated = gate(kfs, FuseSettings())
     assert [k.used for k in gated] == [True] * 4 + [False] + [True] * 3
     assert "disagrees with its" in gated[4].reason and "5.00 deg" in gated[4].reason
+
+
+def test_a_registration_that_used_no_keyframe_says_the_prior_stands_and_what_can_correct_it():
+    refused = [
+        replace(_keyframe(i, float(i), [0.0, 0.0, 0.0], [0.0, 0.0, 0.0], used=False), reason=why)
+        for i, why in enumerate(["the model's lines in view leave the pose unfixed (0.9 m, 2.7 deg a pixel)"] * 3 + ["edge distance 3.1 px (at most 2.5)"])
+    ]  # fmt: skip
+    line = Registration("offline", tuple(refused), {}).summary()
+    assert line.startswith(
+        "registered 0 of 4 keyframes (0 %) against the scene, correcting offline"
+    )
+    assert "4 not used (most often: the model's lines in view leave the pose unfixed)" in line
+    assert "the track is offline's" in line and "--points" in line
+    some = Registration(
+        "offline", (refused[0], _keyframe(9, 9.0, [1.0, 0.0, 0.0], [0.0, 0.0, 0.0])), {}
+    )
+    assert "the track is" not in some.summary() and "registered 1 of 2" in some.summary()
 
 
 def test_corrections_are_continuous_and_fall_back_to_the_prior_far_from_keyframes():

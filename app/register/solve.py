@@ -119,13 +119,19 @@ class Registration:
         return self.used / max(1, len(self.keyframes))
 
     def summary(self) -> str:
-        """One line for people: how many keyframes were used, and the commonest reason not."""
+        """One line for people: how many keyframes were used, the commonest reason not, and where
+        none was, that the prior stands and what can correct it."""
         n = len(self.keyframes)
         line = f"registered {self.used} of {n} keyframes ({100 * self.used_fraction:.0f} %) against the scene, correcting {self.prior}"
         reasons = [k.reason.split(" (")[0] for k in self.keyframes if not k.used]
         if reasons:
             common = max(set(reasons), key=reasons.count)
             line += f"; {len(reasons)} not used (most often: {common})"
+        if n and not self.used:
+            line += (
+                f"; the track is {self.prior}'s (control points by hand can correct it: V in the"
+                " viewer, or `geofuse register SESSION.toml --points pairs.csv`)"
+            )
         if self.delay_s is not None:
             line += f"; frame times {1000 * self.delay_s:+.1f} ms late, corrected"
         if self.control is not None:

@@ -1,7 +1,7 @@
 """Registration by geometry (app/register/edges.py) against texture matching, keyframe by
 keyframe: every 4th second of the sample, from the true pose moved 3 m and turned 2 deg, by SIFT
 against the sample model and by the model's lines against the same model with its textures
-removed. The video is the world that differs from the model (trees, kiosks, cars, other
+removed (its lines matched point by point, and as segments). The video is the world that differs from the model (trees, kiosks, cars, other
 textures), so its edges hold far more than the model's lines.
 
     python bench/bench_geometry.py [--every-s 4] [--session S] [--clip]
@@ -32,6 +32,7 @@ if str(ROOT) not in sys.path:
 
 from app.geodesy import rotations  # noqa: E402
 from app.io.video import frames_at  # noqa: E402
+from app.register.edges import EdgeSettings  # noqa: E402
 from app.register.solve import Registrar, RegistrationSettings  # noqa: E402
 from app.scene.mesh import MeshData  # noqa: E402
 from app.session import open_session  # noqa: E402
@@ -78,6 +79,14 @@ def main(argv: list[str] | None = None) -> int:
     for name, mesh, settings in [
         ("texture (SIFT + fine), textured model", session.scene(), RegistrationSettings()),
         ("geometry (edges), model without texture", grey, RegistrationSettings(by_geometry=True)),
+        (
+            "geometry (line segments), model without texture",
+            grey,
+            # LSD leaves short lines unfound: 60 % of the model's segment points must find one
+            RegistrationSettings(
+                by_geometry=True, edges=EdgeSettings(lines_by="segments", min_found=0.6)
+            ),
+        ),
     ]:
         registrar = Registrar.of_scene(mesh, settings)
         errors, nearer, t0 = [], 0, time.perf_counter()

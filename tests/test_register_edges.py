@@ -23,6 +23,7 @@ from app.geodesy import rotations
 from app.io.video import frames_at
 from app.register.edges import EdgeSettings, FrameEdges, model_edges
 from app.register.keyframe import Rendering
+from app.register.segments import FrameSegments, group_lines
 from app.register.solve import Registrar, RegistrationSettings
 from app.render.views import ModelViews
 from app.scene import load_scene, shapes
@@ -111,26 +112,89 @@ def test_frame_edges_name_the_nearest_edge_and_its_normal():
     assert not np.isfinite(none[0]) or none[0] > 100
 
 
-@pytest.mark.gl
-@pytest.mark.parametrize("seed", [1, 2, 3])
-def test_a_pose_off_by_1_5_m_and_1_5_degrees_is_recovered_from_the_edges(seed, gl_ctx):
+def test_model_points_group_into_straight_segments():
+    u = np.arange(20.5, 120.5, 2.0)
+    run = u[(u < 60) | (u > 80)]  # one line at v = 50.5 with a 20 px gap: two segments
+    uv = np.concatenate([
+        np.column_stack([run, np.full(len(run), 50.5)]),
+        np.column_stack([u, np.full(len(u), 60.5)]),  # a parallel line 10 px below: a third
+        [[200.5, 10.5], [230.5, 90.5]],  # two stray points: no segment
+    ])  # fmt: skip
+    angle = np.full(len(uv), np.pi / 2)  # horizontal lines: their normals point down
+    labels = group_lines(uv, angle)
+    assert len(set(labels[labels >= 0])) == 3 and np.all(labels[-2:] == -1)
+    first = labels[: len(run)]
+    assert len(set(first[run < 60])) == 1 and len(set(first[run > 80])) == 1
+    assert first[0] != first[-1]
+
+
+def test_frame_segments_match_a_model_line_whole_and_measure_its_distance():
+    """A horizontal step at v = 100 in the frame; the model's line 3.5 px below it, seen by a
+    level camera looking north: every point of the line pairs with the step, 3.5 px off along
+    its normal; the same line turned 20 degrees matches nothing."""
+    img = np.full((180, 320, 3), 200, np.uint8)
+    img[:100] = 40  # rows 0-99 dark: the step lies at v = 100
+    level = FrameSegments(img, 1.0)
+    camera = Camera.create(
+        Intrinsics.from_fov(320, 180, 70.0),
+        [0.0, 0.0, 0.0],
+        rotations.camera_quat_from_hpr(0.0, 0.0, 0.0),
+    )
+    for turn_deg, matched in ((0.0, True), (20.0, False)):
+        u = np.arange(60.5, 260.5, 4.0)
+        v = 103.5 + np.tan(np.radians(turn_deg)) * (u - 160.0)
+        rays = camera.pixel_rays(np.column_stack([u, v]))
+        points = rays * (10.0 / rays[:, 1:2])  # on a wall 10 m north
+        uv, _ = camera.project(points)
+        labels = group_lines(uv, np.full(len(uv), np.pi / 2 + np.radians(turn_deg)))
+        assert np.all(labels >= 0)
+        found, in_view, normals, resid = level.pairs(camera, 6.0, points, labels)
+        assert in_view.all()
+        if matched:
+            assert found.all()
+            assert np.allclose(np.abs(normals[:, 1]), 1.0, atol=0.01)
+            assert np.allclose(np.abs(resid), 3.5, atol=0.5), resid
+        else:
+            assert not found.any()
+
+
+def _on_the_clean_scene(gl_ctx, edges: EdgeSettings, seed: int):
+    """The clean scene's frame registered against its grey model from 1.5 m and 1.5 deg off:
+    (fix, pose error (m, deg) or None, renderings)."""
     truth = _truth()
     world = ModelViews(_scene(True), gl_ctx)
     try:
         frame, _ = world.render(truth)
     finally:
         world.release()
-    registrar = Registrar.of_scene(
-        _scene(False), RegistrationSettings(by_geometry=True, long_side=640), ctx=gl_ctx
-    )
+    settings = RegistrationSettings(by_geometry=True, long_side=640, edges=edges)
+    registrar = Registrar.of_scene(_scene(False), settings, ctx=gl_ctx)
     try:
-        start = _perturbed(truth, 1.5, 1.5, seed=seed)
-        fix, solved, renders = registrar.keyframe(frame, start)
+        fix, solved, renders = registrar.keyframe(frame, _perturbed(truth, 1.5, 1.5, seed=seed))
     finally:
         registrar.release()
-    assert solved is not None, fix.reason
-    metres, degrees = _pose_error(truth, solved.position, solved.orientation)
-    assert metres < 0.25 and degrees < 0.25, f"{metres:.2f} m, {degrees:.2f} deg after {renders}"
+    error = None if solved is None else _pose_error(truth, solved.position, solved.orientation)
+    return fix, error, renders
+
+
+@pytest.mark.gl
+def test_lines_matched_as_segments_recover_a_pose_on_a_clean_scene(gl_ctx):
+    """The alternative correspondence (`lines_by="segments"`, compared in docs/ACCURACY.md) on
+    the scene whose video shows exactly the model's shapes, from 1.5 m and 1.5 deg off. LSD
+    leaves short lines at the boxes' corners unfound, so 72-81 % of the model's segment points
+    find one here: the points' 85 % is lowered to 60 %, as the comparison does."""
+    edges = EdgeSettings(lines_by="segments", min_found=0.6)
+    fix, error, renders = _on_the_clean_scene(gl_ctx, edges, seed=1)
+    assert error is not None, fix.reason
+    assert error[0] < 0.25 and error[1] < 0.25, f"{error} after {renders}"
+
+
+@pytest.mark.gl
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_a_pose_off_by_1_5_m_and_1_5_degrees_is_recovered_from_the_edges(seed, gl_ctx):
+    fix, error, renders = _on_the_clean_scene(gl_ctx, EdgeSettings(), seed)
+    assert error is not None, fix.reason
+    assert error[0] < 0.25 and error[1] < 0.25, f"{error} after {renders}"
     assert fix.error_px < 1.0
 
 

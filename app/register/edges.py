@@ -19,7 +19,9 @@ edges too. One step:
    alone fixes neither distance along it nor height), where too few points find an edge, or where
    the residual stays large.
 
-The comparison with other ways (docs/ACCURACY.md, "Registration by geometry") chose this one.
+The comparison with other ways (docs/ACCURACY.md, "Registration by geometry" and "How the lines
+are matched") chose this one; the lines matched whole as segments (app.register.segments,
+`EdgeSettings.lines_by`) is the measured alternative, kept as a setting.
 
 Frames and units: poses as app.register.keyframe (ENU metres; camera -> ENU quaternions in
 OpenGL's camera axes). Pixels: this project's (u right, v down, centres at half-integers) of the
@@ -28,7 +30,9 @@ frame's camera at full size unless said.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
+from functools import partial
 
 import cv2
 import numpy as np
@@ -37,6 +41,7 @@ import numpy.typing as npt
 from app.camera.pinhole import Camera
 from app.geodesy import rotations
 from app.register.keyframe import Frame, PoseFix, Rendering, nudged
+from app.register.segments import FrameSegments, group_lines
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -60,7 +65,11 @@ class EdgeSettings:
     (position per axis, turn per axis): the fit is the most probable pose given the edges and
     that prior, so that a direction the model's lines do not fix (along the one wall in view)
     stays where the prior put it (0: no prior); noise_px / lines: the edge points' noise, and
-    how many independent measurements they are worth (points along one line share its error)."""
+    how many independent measurements they are worth (points along one line share its error);
+    max_move_sigmas: a fit that moved the pose more than this many prior standard deviations is
+    refused; lines_by: "points" (each model point's nearest frame edge of a like direction) or
+    "segments" (the model's lines matched whole to the frame's LSD segments,
+    app.register.segments), compared in docs/ACCURACY.md."""
 
     points: int = 2000
     depth_jump: float = 0.04
@@ -81,6 +90,7 @@ class EdgeSettings:
     noise_px: float = 1.5
     lines: int = 30
     max_move_sigmas: float = 3.0
+    lines_by: str = "points"
 
 
 def _normals_map(positions: FloatArray) -> FloatArray:
@@ -369,7 +379,7 @@ def _offset(camera: Camera, prior: Camera) -> FloatArray:
 
 
 def _pairs(
-    camera: Camera, edges: ModelEdges, level: FrameEdges, gate: float
+    camera: Camera, gate: float, edges: ModelEdges, level: FrameEdges
 ) -> tuple[npt.NDArray[np.bool_], npt.NDArray[np.bool_], FloatArray, FloatArray]:
     """Each model point's nearest frame edge of a like direction: (which found one within
     `gate` of the level's pixels, which are in view; for those found: the edges' normals (M, 2)
@@ -381,10 +391,16 @@ def _pairs(
     return found, in_view, nq[found], np.sum(nq[found] * (uv[found] - q[found]), axis=1)
 
 
+Pairs = Callable[
+    [Camera, float], tuple[npt.NDArray[np.bool_], npt.NDArray[np.bool_], FloatArray, FloatArray]
+]
+
+
 def _fit_level(
     camera: Camera,
     edges: ModelEdges,
-    level: FrameEdges,
+    pairs: Pairs,
+    factor: float,
     settings: EdgeSettings,
     gate: float,
     prior: Camera,
@@ -396,11 +412,11 @@ def _fit_level(
     else:
         inv_prior = np.zeros((6, 6))
     for _ in range(settings.iterations):
-        found, in_view, n, r = _pairs(camera, edges, level, gate)
+        found, in_view, n, r = pairs(camera, gate)
         if found.sum() < 6:
             return EdgeFit(camera, int(found.sum()), int(in_view.sum()), np.inf, np.inf, np.inf)
         p = edges.points[found]
-        wts = _tukey(r * level.factor, gate)
+        wts = _tukey(r * factor, gate)
         jac = _jacobian(camera, p, n)
         k = settings.lines / (max(1.0, float(wts.sum())) * settings.noise_px**2)
         a = k * jac.T @ (wts[:, None] * jac) + inv_prior
@@ -413,7 +429,7 @@ def _fit_level(
         camera = _moved(camera, dx)
         if np.all(np.abs(dx) < _STEPS):
             break
-    found, in_view, n, r = _pairs(camera, edges, level, gate)
+    found, in_view, n, r = pairs(camera, gate)
     if found.sum() < 6:
         return EdgeFit(camera, int(found.sum()), int(in_view.sum()), np.inf, np.inf, np.inf)
     jac = _jacobian(camera, edges.points[found], n)
@@ -475,14 +491,20 @@ def fit_edges(
         ), None
     pyramid = _pyramid(frame.rgb, settings.octaves)
     levels = range(settings.octaves - 1, -1, -1) if search else [0]
+    labels = group_lines(edges.uv, edges.angle) if settings.lines_by == "segments" else None
     camera, fit = frame.camera, None
     for i, lvl in enumerate(levels):
         img = pyramid[lvl]
-        level = FrameEdges(img, frame.scale * img.shape[1] / frame.rgb.shape[1], settings.blur_px)
+        factor = frame.scale * img.shape[1] / frame.rgb.shape[1]
+        level = FrameEdges(img, factor, settings.blur_px)
         if search and i == 0:
             camera = _search_shift(camera, edges, level, settings.search_px / frame.scale)
+        if labels is None:
+            pairs: Pairs = partial(_pairs, edges=edges, level=level)
+        else:
+            pairs = partial(FrameSegments(img, factor).pairs, points=edges.points, labels=labels)
         gate = settings.gate_px if search else settings.fine_gate_px
-        fit = _fit_level(camera, edges, level, settings, gate, prior or frame.camera)
+        fit = _fit_level(camera, edges, pairs, factor, settings, gate, prior or frame.camera)
         camera = fit.camera
     assert fit is not None
     return _judged(fit, settings, prior or frame.camera), fit

@@ -496,8 +496,10 @@ def fit_edges(
     for i, lvl in enumerate(levels):
         img = pyramid[lvl]
         factor = frame.scale * img.shape[1] / frame.rgb.shape[1]
-        level = FrameEdges(img, factor, settings.blur_px)
-        if search and i == 0:
+        shift = search and i == 0
+        # the frame's edges serve the shift search and the point-by-point pairs
+        level = FrameEdges(img, factor, settings.blur_px) if shift or labels is None else None
+        if shift:
             camera = _search_shift(camera, edges, level, settings.search_px / frame.scale)
         if labels is None:
             pairs: Pairs = partial(_pairs, edges=edges, level=level)

@@ -36,9 +36,15 @@ from app.register.edges import EdgeSettings  # noqa: E402
 from app.register.solve import Registrar, RegistrationSettings  # noqa: E402
 from app.scene.mesh import MeshData  # noqa: E402
 from app.session import open_session  # noqa: E402
-from app.session.camera_track import camera_track, frame_clock  # noqa: E402
 from app.simulate.sample import SAMPLE_DIR  # noqa: E402
-from app.solve.accuracy import Poses, ProjectionProbe, evaluate, poses_at, split_stats  # noqa: E402
+from app.solve.accuracy import (  # noqa: E402
+    Poses,
+    ProjectionProbe,
+    evaluate,
+    poses_at,
+    split_stats,
+    true_track,
+)
 from app.solve.track import solve_track  # noqa: E402
 from bench.common import table  # noqa: E402
 from tests.test_register import _perturbed  # noqa: E402
@@ -53,9 +59,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--clip", action="store_true", help="the whole registered source too")
     args = parser.parse_args(argv)
     session = open_session(args.session)
-    truth_track = replace(
-        camera_track(session, "truth"), clock=frame_clock(session, true_timing=True)
-    )
+    truth_track = true_track(session)
     pts = np.asarray(session.video.pts_s)
     frames = sorted(
         {int(np.searchsorted(pts, t)) for t in np.arange(pts[0] + 2.0, pts[-1], args.every_s)}
@@ -132,16 +136,14 @@ def main(argv: list[str] | None = None) -> int:
 def clip_rows(session, grey: MeshData) -> None:
     """The whole registered source on the model without texture and on the textured one, beside
     the offline prior: projection error on the model (m, median / p95)."""
-    rows, grey_track = [], None
+    rows, tracks = [], {}
     clip_s = float(session.video.pts_s[-1] - session.video.pts_s[0])
-    for name, sess in (
-        ("textured model", session),
-        ("model without texture", replace(session, mesh=grey)),
-    ):
+    grey_session = replace(session, mesh=grey)
+    for name, sess in (("textured model", session), ("model without texture", grey_session)):
         t0 = time.perf_counter()
         track = solve_track(sess, "registered")
         wall, reg = time.perf_counter() - t0, track.registration
-        grey_track = track
+        tracks[name] = track
         for r in evaluate(
             sess, ["offline", "registered"], paper=False, solved={"registered": track}
         ):
@@ -159,7 +161,7 @@ def clip_rows(session, grey: MeshData) -> None:
         rows,
     ))  # fmt: skip
     print()
-    print(range_table(replace(session, mesh=grey), grey_track))
+    print(range_table(grey_session, tracks["model without texture"]))
     print()
 
 
@@ -169,7 +171,7 @@ RANGES_M = ((0.0, 100.0), (100.0, 200.0), (200.0, 400.0), (400.0, np.inf))
 def range_table(session, track, every: int = 10, grid: tuple[int, int] = (64, 36)) -> str:
     """The centre column's projection error (m, median / p95) by the pixels' range (m) under the
     true pose, every `every`th frame: where a p95 comes from."""
-    truth = replace(camera_track(session, "truth"), clock=frame_clock(session, true_timing=True))
+    truth = true_track(session)
     frames = np.arange(0, len(session.video.pts_s), every)
     tru, est = poses_at(truth, frames), poses_at(track, frames)
     probe = ProjectionProbe(session, grid)

@@ -31,9 +31,9 @@ if str(ROOT) not in sys.path:
 
 from app.export.orthophoto import OrthoOptions, paint_clip  # noqa: E402
 from app.session import open_session  # noqa: E402
-from app.session.camera_track import camera_track, frame_clock  # noqa: E402
 from app.simulate.sample import SAMPLE_SCENE  # noqa: E402
 from app.simulate.session import SampleConfig, write_sample_session  # noqa: E402
+from app.solve.accuracy import true_track  # noqa: E402
 from app.solve.track import solve_track  # noqa: E402
 from bench.common import table  # noqa: E402
 
@@ -85,9 +85,7 @@ def main() -> int:
     clip_s = float(session.video.pts_s[-1] - session.video.pts_s[0])
     # the true poses at the frames' true times: the session's clock is 80 ms late, as phones and
     # drones are, which at 10 m/s would move the reference 0.8 m along the track
-    truth_track = replace(
-        camera_track(session, "truth"), clock=frame_clock(session, true_timing=True)
-    )
+    truth_track = true_track(session)
     t = time.perf_counter()
     reference = paint_clip(session, truth_track, OrthoOptions(gsd=0.2))
     rows = [["truth (reference)", f"{time.perf_counter() - t:.1f} s", "0", "0", "1", "-", "-"]]

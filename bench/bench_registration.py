@@ -21,7 +21,6 @@ import statistics
 import sys
 import tempfile
 import time
-from dataclasses import replace
 from pathlib import Path
 
 import av
@@ -43,8 +42,9 @@ from app.register import MatchSettings, Registrar, RegistrationSettings  # noqa:
 from app.register.solve import keyframe_indices  # noqa: E402
 from app.render.context import create_offscreen_context, describe  # noqa: E402
 from app.session import open_session  # noqa: E402
-from app.session.camera_track import camera_track, frame_clock  # noqa: E402
+from app.session.camera_track import camera_track  # noqa: E402
 from app.simulate.phone import write_video  # noqa: E402
+from app.solve.accuracy import true_track  # noqa: E402
 from app.solve.track import solve_track  # noqa: E402
 from bench.common import table  # noqa: E402
 
@@ -106,7 +106,7 @@ def perturbed(cam: Camera, metres: float, degrees: float, seed: int) -> Camera:
 
 def matchers(session) -> list[list[str]]:
     """Rows of the matcher comparison (see the module docstring)."""
-    truth = replace(camera_track(session, "truth"), clock=frame_clock(session, true_timing=True))
+    truth = true_track(session)
     idx = keyframe_indices(np.asarray(session.video.pts_s), 4.0)
     frames = dict(frames_at(session.video, idx, RegistrationSettings().long_side))
     rows = []
@@ -200,7 +200,7 @@ def main(argv: list[str] | None = None) -> int:
         fog = open_session(fogged_copy(sample, Path(tmp)))
         track = solve_track(fog, "registered")
         prior = camera_track(fog, track.registration.prior)
-        truth = replace(camera_track(fog, "truth"), clock=frame_clock(fog, true_timing=True))
+        truth = true_track(fog)
         frames = np.arange(0, truth.frame_count, 10)
         media = fog.video.pts_s[frames]
         err = {

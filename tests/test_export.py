@@ -25,6 +25,7 @@ from app.io.misb import camera_orientation
 from app.io.misb import parse as parse_klv
 from app.scene.ground_plane import ground_plane
 from app.simulate.sample import SAMPLE_DIR
+from app.solve.accuracy import true_track
 from app.solve.track import solve_frames
 
 pytestmark = pytest.mark.gl
@@ -79,10 +80,6 @@ def test_footprints_follow_the_truth(sample):
     times: each border point misses its true place by no more than the pose explains (the
     sensor's position error, plus the range times the tangent of the attitude error and half a
     degree), median over the border, on every frame whose border stays on the model."""
-    from dataclasses import replace
-
-    from app.session.camera_track import camera_track, frame_clock
-
     every = 200
     est = list(frame_records(sample, "gd-ahrs", every))
     truth = list(
@@ -90,9 +87,7 @@ def test_footprints_follow_the_truth(sample):
             sample,
             "truth",
             every,
-            track=replace(
-                camera_track(sample, "truth"), clock=frame_clock(sample, true_timing=True)
-            ),
+            track=true_track(sample),
         )
     )
     enu = lambda g: sample.frame.geodetic_to_enu(*np.asarray(g, float).T)  # noqa: E731

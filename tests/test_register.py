@@ -41,9 +41,10 @@ from app.register.points import (
 from app.register.solve import Registrar, Registration, RegistrationSettings, registered_track
 from app.scene.mesh import MeshData
 from app.session import open_session
-from app.session.camera_track import camera_track, frame_clock
+from app.session.camera_track import camera_track
 from app.simulate import session as sample
 from app.simulate.sample import SAMPLE_DIR, SAMPLE_SCENE
+from app.solve.accuracy import true_track
 from app.solve.track import solve_track
 from tests.conftest import run_viewer
 from tools import gis_sessions
@@ -52,9 +53,7 @@ ROOT = SAMPLE_DIR.parents[1]
 
 
 def _true_camera(session, k: int) -> Camera:
-    return replace(
-        camera_track(session, "truth"), clock=frame_clock(session, true_timing=True)
-    ).frame_camera(k)
+    return true_track(session).frame_camera(k)
 
 
 def _perturbed(cam: Camera, metres: float, degrees: float, seed: int) -> Camera:
@@ -273,9 +272,7 @@ def test_the_registered_track_is_smooth_and_beats_its_prior(short_session, gl_ct
         sample.SYNC_ERROR_S, abs=0.02
     )  # the manifest's start is 80 ms late
     prior = camera_track(short_session, "offline")
-    truth = replace(
-        camera_track(short_session, "truth"), clock=frame_clock(short_session, true_timing=True)
-    )
+    truth = true_track(short_session)
     frames = np.arange(0, track.frame_count)
     ours, before, true = (
         track.poses_at(track.clock.media_s[frames]),

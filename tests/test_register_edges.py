@@ -30,10 +30,10 @@ from app.scene import load_scene, shapes
 from app.scene.loader import Placement
 from app.scene.mesh import MeshData
 from app.session import open_session
-from app.session.camera_track import camera_track, frame_clock
+from app.session.camera_track import camera_track
 from app.simulate.sample import SAMPLE_DIR, SAMPLE_SCENE
 from app.simulate.session import SampleConfig, quick_config, write_sample_session
-from app.solve.accuracy import Poses, ProjectionProbe, split_stats
+from app.solve.accuracy import Poses, ProjectionProbe, split_stats, true_track
 from tests.test_register import _perturbed, _pose_error
 
 BOXES = [  # (min corner, max corner) ENU m: buildings at several distances and heights
@@ -205,9 +205,7 @@ def _grey(session) -> MeshData:
 def _keyframes(session, times_s, gl_ctx, mesh: MeshData | None = None):
     """(frame index, truth, start 3 m and 2 deg off, fix, solved) at each time, registered by
     geometry against `mesh` (default: the session's model with its textures removed)."""
-    truth_track = replace(
-        camera_track(session, "truth"), clock=frame_clock(session, true_timing=True)
-    )
+    truth_track = true_track(session)
     pts = np.asarray(session.video.pts_s)
     frames = [int(np.searchsorted(pts, t)) for t in times_s]
     mesh = _grey(session) if mesh is None else mesh
@@ -312,7 +310,7 @@ def test_where_the_textures_find_no_pose_the_lines_do(orbit, gl_ctx):
     lands within 0.3 m and 0.3 deg (measured 0.06 m, 0.09 deg; by textures alone: refused).
     Without the fallback the keyframe is refused, saying why."""
     mixed = _site(orbit, keep_texture=("ground",))
-    truth_track = replace(camera_track(orbit, "truth"), clock=frame_clock(orbit, true_timing=True))
+    truth_track = true_track(orbit)
     k = int(np.searchsorted(np.asarray(orbit.video.pts_s), 26.0))
     ((_, rgb),) = frames_at(orbit.video, [k], 960)
     truth = truth_track.frame_camera(k)
@@ -360,9 +358,7 @@ def test_lines_that_move_the_pose_beyond_what_the_prior_allows_are_refused(gl_ct
     9.2 m, 7.7 deg: two such keyframes held for 30 s left the grey walk's track 4.08 m off at
     the centre line where its prior is 2.69 m)."""
     session = open_session(SAMPLE_DIR / "session.toml")
-    truth_track = replace(
-        camera_track(session, "truth"), clock=frame_clock(session, true_timing=True)
-    )
+    truth_track = true_track(session)
     prior = camera_track(session, "offline")
     k = 1275
     ((_, rgb),) = frames_at(session.video, [k], RegistrationSettings().long_side)

@@ -51,6 +51,12 @@ def true_frame_times(session: Session) -> np.ndarray:
     return session.truth_frame_times
 
 
+def true_track(session: Session) -> CameraTrack:
+    """The session's true camera track on the frames' true clock (the moments the frames show,
+    not the file's late timestamps): the reference every figure here is measured against."""
+    return replace(camera_track(session, "truth"), clock=frame_clock(session, true_timing=True))
+
+
 def poses_at(track: CameraTrack, frames: np.ndarray) -> Poses:
     """The track's camera poses at video frames `frames` (on the track's own frame clock)."""
     p = track.poses_at(track.clock.media_s[frames], frames)
@@ -155,9 +161,9 @@ def evaluate(
             progress(done[0] / steps)
 
     t_true = true_frame_times(session)
-    true_clock, pipeline_clock = frame_clock(session, true_timing=True), frame_clock(session)
+    pipeline_clock = frame_clock(session)
     frames = np.arange(0, len(t_true), every)
-    truth_track = replace(camera_track(session, "truth"), clock=true_clock)
+    truth_track = true_track(session)
     truth = poses_at(truth_track, frames)
     # Every source is solved before the probe's GL context exists: registration makes its own.
     # A source may correct the frame times itself (registered: its track is delay_s later), so

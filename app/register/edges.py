@@ -7,14 +7,18 @@ corner, the foot of a wall on the ground, a roof's ridge). Those lines are where
 edges too. One step:
 
 1. the model's edge pixels (`model_edges`), lifted to 3D through the rendering's position map
-   (the nearer surface at a silhouette), each with its line's normal in the image;
+   (the nearer surface, carried on half a pixel to the silhouette itself), each with its line's
+   normal in the image;
 2. the frame's edges (Canny on a blurred grey image, `FrameEdges`), sorted into bins by their
    normal's direction, with a distance transform per bin that names each pixel's nearest edge;
 3. a search over image shifts at the coarsest level for where the model's edges land on the
    frame's (the truncated chamfer distance, oriented), taken as a small turn of the camera;
 4. coarse to fine over `octaves`, iterated closest points: each model point's nearest frame edge
    of a like direction within a gate, the pose moved by Gauss-Newton on the point-to-line
-   distances (Tukey weights), the correspondences found again;
+   distances (Tukey weights), the correspondences found again; the shift and each level's fit
+   kept only where they bring the model's lines nearer the frame's edges at full size (at coarse
+   levels a window row or the blur of a building's detail can pull the fit off the pose that the
+   finest level's edges prefer);
 5. refused where the model's lines in view leave a direction of the pose unfixed (one wall's foot
    alone fixes neither distance along it nor height), where too few points find an edge, or where
    the residual stays large.
@@ -67,7 +71,9 @@ class EdgeSettings:
     stays where the prior put it (0: no prior); noise_px / lines: the edge points' noise, and
     how many independent measurements they are worth (points along one line share its error);
     max_move_sigmas: a fit that moved the pose more than this many prior standard deviations is
-    refused; lines_by: "points" (each model point's nearest frame edge of a like direction) or
+    refused; guard_px: a coarse step (the shift search, a level's fit) is kept only where it
+    lowers the model points' mean distance to the frame's edges at full size, each distance
+    truncated at this many of that level's pixels (0: every step kept); lines_by: "points" (each model point's nearest frame edge of a like direction) or
     "segments" (the model's lines matched whole to the frame's LSD segments,
     app.register.segments), compared in docs/ACCURACY.md."""
 
@@ -90,6 +96,7 @@ class EdgeSettings:
     noise_px: float = 1.5
     lines: int = 30
     max_move_sigmas: float = 3.0
+    guard_px: float = 2.0
     lines_by: str = "points"
 
 
@@ -142,6 +149,9 @@ def model_edges(rendering: Rendering, settings: EdgeSettings = EdgeSettings()) -
     log_r = np.where(on, np.log(np.where(on, rng, 1.0)), np.nan)
     sil = np.zeros((h, w), bool)
     big = np.log1p(settings.depth_jump)
+    # where each silhouette pixel's boundary lies: half a pixel towards the farther side, per
+    # axis (v, u), in pixels
+    half = np.zeros((2, h, w))
     for axis in (0, 1):
         lr = log_r if axis == 1 else log_r.T
         d = np.diff(lr, axis=1)  # (., W - 1): between pixel j and j + 1
@@ -157,8 +167,13 @@ def model_edges(rendering: Rendering, settings: EdgeSettings = EdgeSettings()) -
         mark = np.zeros(lr.shape, bool)
         mark[:, :-1] |= first_near
         mark[:, 1:] |= second_near
+        toward = np.zeros(lr.shape)
+        toward[:, :-1] += 0.5 * first_near
+        toward[:, 1:] -= 0.5 * second_near
         sil |= mark if axis == 1 else mark.T
+        half[axis] = toward if axis == 1 else toward.T
     sil &= on
+    boundary = _to_boundary(pos, log_r, half, big)
     n = _normals_map(pos)
     cos_max = np.cos(np.radians(settings.crease_deg))
     crease = np.zeros((h, w), bool)
@@ -179,12 +194,39 @@ def model_edges(rendering: Rendering, settings: EdgeSettings = EdgeSettings()) -
     if len(rows) > settings.points:
         keep = np.linspace(0, len(rows) - 1, settings.points).round().astype(int)
         rows, cols = rows[keep], cols[keep]
+    on_sil = sil[rows, cols]
+    points = np.where(on_sil[:, None], boundary[rows, cols], pos[rows, cols])
     return ModelEdges(
-        pos[rows, cols],
-        np.column_stack([cols + 0.5, rows + 0.5]),
+        points,
+        np.column_stack(
+            [cols + 0.5 + on_sil * half[1, rows, cols], rows + 0.5 + on_sil * half[0, rows, cols]]
+        ),
         angle[rows, cols],
         np.where(sil[rows, cols], 0, 1).astype(np.int8),
     )
+
+
+def _to_boundary(pos: FloatArray, log_r: FloatArray, half: FloatArray, big: float) -> FloatArray:
+    """The position map (H, W, 3) moved, at silhouette pixels, to the silhouette itself: by
+    `half` (2, H, W: v, u pixels towards the farther side) times the near surface's own step a
+    pixel (taken away from the silhouette, where that neighbour lies on the same surface; else not
+    moved). A silhouette lies between a near and a far pixel, half a pixel beyond the near
+    pixel's centre; left there, every outline would be drawn half a pixel inside the model."""
+    out = pos.copy()
+    for shift, p, lr, back_t in (
+        (half[1], pos, log_r, lambda a: a),
+        (half[0].T, pos.transpose(1, 0, 2), log_r.T, lambda a: a.transpose(1, 0, 2)),
+    ):
+        # along rows of p: the step from pixel j to j + 1 where both lie on one surface
+        step = p[:, 1:] - p[:, :-1]
+        step[~(np.abs(lr[:, 1:] - lr[:, :-1]) < big)] = np.nan
+        per_px = np.full_like(p, np.nan)
+        ahead = shift[:, 1:] > 0  # the far side ahead: the step from behind
+        per_px[:, 1:][ahead] = step[ahead]
+        behind = shift[:, :-1] < 0  # the far side behind: the step from ahead
+        per_px[:, :-1][behind] = step[behind]
+        out += back_t(np.nan_to_num(shift[..., None] * per_px))
+    return out
 
 
 def _subpixel(mag: np.ndarray, angle: FloatArray, edges: np.ndarray) -> FloatArray:
@@ -429,6 +471,12 @@ def _fit_level(
         camera = _moved(camera, dx)
         if np.all(np.abs(dx) < _STEPS):
             break
+    return _assessed(camera, edges, pairs, gate)
+
+
+def _assessed(camera: Camera, edges: ModelEdges, pairs: Pairs, gate: float) -> EdgeFit:
+    """The EdgeFit of `camera` as it stands: its pairs within `gate`, their RMS distance and how
+    well they fix the pose."""
     found, in_view, n, r = pairs(camera, gate)
     if found.sum() < 6:
         return EdgeFit(camera, int(found.sum()), int(in_view.sum()), np.inf, np.inf, np.inf)
@@ -457,6 +505,18 @@ def _worst_std(jac: FloatArray) -> tuple[float, float]:
     turn = np.sqrt(max(0.0, float(np.linalg.eigvalsh(cov[:3, :3])[-1])))
     move = np.sqrt(max(0.0, float(np.linalg.eigvalsh(cov[3:, 3:])[-1])))
     return move, float(np.degrees(turn))
+
+
+def _chamfer(camera: Camera, edges: ModelEdges, level: FrameEdges, truncate: float) -> float:
+    """The model points' mean distance (the level's pixels, each truncated at `truncate`) to the
+    nearest frame edge of a like direction, over the points in view under `camera` (inf when
+    none is)."""
+    uv, depth = camera.project(edges.points)
+    in_view = (depth > 0) & np.all(np.isfinite(uv), axis=1)
+    if not in_view.any():
+        return np.inf
+    _, _, dist = level.lookup(uv[in_view], edges.angle[in_view])
+    return float(np.mean(np.minimum(dist, truncate)))
 
 
 def _pyramid(image: np.ndarray, octaves: int) -> list[np.ndarray]:
@@ -492,23 +552,45 @@ def fit_edges(
     pyramid = _pyramid(frame.rgb, settings.octaves)
     levels = range(settings.octaves - 1, -1, -1) if search else [0]
     labels = group_lines(edges.uv, edges.angle) if settings.lines_by == "segments" else None
+    guard = search and settings.guard_px > 0
+    finest = FrameEdges(pyramid[0], frame.scale, settings.blur_px) if guard else None
+
+    def kept(moved: Camera, camera: Camera, factor: float) -> Camera:
+        """A coarse step's pose where it brings the lines nearer the finest level's edges (or
+        with no guard), else the pose before it; the distances truncated at guard_px of the
+        step's own level, so that a step from far off is judged within its reach."""
+        if finest is None:
+            return moved
+        truncate = settings.guard_px * finest.factor / factor
+        before, after = (_chamfer(c, edges, finest, truncate) for c in (camera, moved))
+        return moved if after < before else camera
+
     camera, fit = frame.camera, None
     for i, lvl in enumerate(levels):
         img = pyramid[lvl]
         factor = frame.scale * img.shape[1] / frame.rgb.shape[1]
         shift = search and i == 0
         # the frame's edges serve the shift search and the point-by-point pairs
-        level = FrameEdges(img, factor, settings.blur_px) if shift or labels is None else None
+        level = None
+        if shift or labels is None:
+            level = (
+                finest
+                if lvl == 0 and finest is not None
+                else FrameEdges(img, factor, settings.blur_px)
+            )
         if shift:
-            camera = _search_shift(camera, edges, level, settings.search_px / frame.scale)
+            turned = _search_shift(camera, edges, level, settings.search_px / frame.scale)
+            camera = kept(turned, camera, factor)
         if labels is None:
             pairs: Pairs = partial(_pairs, edges=edges, level=level)
         else:
             pairs = partial(FrameSegments(img, factor).pairs, points=edges.points, labels=labels)
         gate = settings.gate_px if search else settings.fine_gate_px
         fit = _fit_level(camera, edges, pairs, factor, settings, gate, prior or frame.camera)
-        camera = fit.camera
+        camera = kept(fit.camera, camera, factor)
     assert fit is not None
+    if fit.camera is not camera:  # the last level's fit was not kept: the pose as it stands
+        fit = _assessed(camera, edges, pairs, gate)
     return _judged(fit, settings, prior or frame.camera), fit
 
 

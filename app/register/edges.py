@@ -44,7 +44,7 @@ import numpy.typing as npt
 
 from app.camera.pinhole import Camera
 from app.geodesy import rotations
-from app.register.keyframe import Frame, PoseFix, Rendering, nudged
+from app.register.keyframe import Frame, PoseFix, Rendering, nudged, projected
 from app.register.segments import FrameSegments, group_lines
 
 FloatArray = npt.NDArray[np.float64]
@@ -202,7 +202,7 @@ def model_edges(rendering: Rendering, settings: EdgeSettings = EdgeSettings()) -
             [cols + 0.5 + on_sil * half[1, rows, cols], rows + 0.5 + on_sil * half[0, rows, cols]]
         ),
         angle[rows, cols],
-        np.where(sil[rows, cols], 0, 1).astype(np.int8),
+        np.where(on_sil, 0, 1).astype(np.int8),
     )
 
 
@@ -354,8 +354,7 @@ def _search_shift(camera: Camera, edges: ModelEdges, level: FrameEdges, reach_px
     """The camera turned so that the model's edges land where the image shift (searched over
     +-reach_px full-size pixels) puts most of them near frame edges of a like direction
     (truncated chamfer distance)."""
-    uv, depth = camera.project(edges.points)
-    ok = (depth > 0) & np.all(np.isfinite(uv), axis=1)
+    uv, ok = projected(camera, edges.points)
     if ok.sum() < 10:
         return camera
     uv, angle = uv[ok], edges.angle[ok]
@@ -426,8 +425,7 @@ def _pairs(
     """Each model point's nearest frame edge of a like direction: (which found one within
     `gate` of the level's pixels, which are in view; for those found: the edges' normals (M, 2)
     and the signed point-to-line distances (M,) in full-size pixels)."""
-    uv, depth = camera.project(edges.points)
-    in_view = (depth > 0) & np.all(np.isfinite(uv), axis=1)
+    uv, in_view = projected(camera, edges.points)
     q, nq, dist = level.lookup(np.where(in_view[:, None], uv, -1.0), edges.angle)
     found = in_view & (dist <= gate)
     return found, in_view, nq[found], np.sum(nq[found] * (uv[found] - q[found]), axis=1)
@@ -511,8 +509,7 @@ def _chamfer(camera: Camera, edges: ModelEdges, level: FrameEdges, truncate: flo
     """The model points' mean distance (the level's pixels, each truncated at `truncate`) to the
     nearest frame edge of a like direction, over the points in view under `camera` (inf when
     none is)."""
-    uv, depth = camera.project(edges.points)
-    in_view = (depth > 0) & np.all(np.isfinite(uv), axis=1)
+    uv, in_view = projected(camera, edges.points)
     if not in_view.any():
         return np.inf
     _, _, dist = level.lookup(uv[in_view], edges.angle[in_view])

@@ -223,6 +223,13 @@ def nudged(camera: Camera, rotvec: npt.ArrayLike, shift: npt.ArrayLike) -> Camer
     return posed(camera, np.asarray(camera.position) + np.asarray(shift, np.float64), q)
 
 
+def projected(camera: Camera, points: FloatArray) -> tuple[FloatArray, npt.NDArray[np.bool_]]:
+    """Where `camera` projects points (N, 3) ENU m: their pixels (N, 2) and which (N,) lie in
+    front of it with finite pixels."""
+    uv, depth = camera.project(points)
+    return uv, (depth > 0) & np.all(np.isfinite(uv), axis=1)
+
+
 def reprojection_px(camera: Camera, points: FloatArray, uv: FloatArray) -> FloatArray:
     """Distances (N,) in pixels between uv and where `camera` (lens included) projects points."""
     proj, depth = camera.project(points)

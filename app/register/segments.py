@@ -19,6 +19,7 @@ import numpy as np
 import numpy.typing as npt
 
 from app.camera.pinhole import Camera
+from app.register.keyframe import projected
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -86,9 +87,9 @@ class FrameSegments:
         found a line, which are in view on a segment; for those found, the matched lines'
         normals (M, 2) and the signed point-to-line distances (M,), full-size pixels), as
         app.register.edges' nearest-edge pairs."""
-        uv, depth = camera.project(points)
+        uv, in_view = projected(camera, points)
         # a point on no segment is no candidate here
-        in_view = (depth > 0) & np.all(np.isfinite(uv), axis=1) & (labels >= 0)
+        in_view &= labels >= 0
         found = np.zeros(len(points), bool)
         normals = np.zeros((len(points), 2))
         resid = np.zeros(len(points))

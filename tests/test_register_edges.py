@@ -237,20 +237,28 @@ def _grey(session) -> MeshData:
     return MeshData([replace(p, texture=None, uvs=None) for p in session.scene().primitives])
 
 
-def _keyframes(session, times_s, gl_ctx, mesh: MeshData | None = None):
-    """(frame index, truth, start 3 m and 2 deg off, fix, solved) at each time, registered by
-    geometry against `mesh` (default: the session's model with its textures removed)."""
+def _keyframes(
+    session,
+    times_s,
+    gl_ctx,
+    mesh: MeshData | None = None,
+    settings: RegistrationSettings | None = None,
+    off: bool = True,
+):
+    """(frame index, truth, start 3 m and 2 deg off (off=False: the truth), fix, solved) at each
+    time, registered by geometry against `mesh` (default: the session's model with its textures
+    removed) with `settings` (default: RegistrationSettings())."""
     truth_track = true_track(session)
     pts = np.asarray(session.video.pts_s)
     frames = [int(np.searchsorted(pts, t)) for t in times_s]
     mesh = _grey(session) if mesh is None else mesh
-    registrar = Registrar.of_scene(mesh, RegistrationSettings(), ctx=gl_ctx)
+    registrar = Registrar.of_scene(mesh, settings or RegistrationSettings(), ctx=gl_ctx)
     out = []
     try:
         assert registrar.settings.by_geometry  # no texture: by geometry, unasked
         for k, rgb in frames_at(session.video, frames, registrar.settings.long_side):
             truth = truth_track.frame_camera(k)
-            start = _perturbed(truth, 3.0, 2.0, seed=k)
+            start = _perturbed(truth, 3.0, 2.0, seed=k) if off else truth
             fix, solved, _ = registrar.keyframe(rgb, start)
             out.append((k, truth, start, fix, solved))
     finally:
@@ -343,25 +351,18 @@ def test_coarse_steps_that_move_the_lines_off_the_frames_fine_edges_are_not_kept
     0.00 m, 0.07, 0.07 and 0.00 deg; with every coarse step kept (guard_px=0) the coarse levels,
     where window rows blur into the roof's rim, pulled them 1.94, 1.82 and 1.68 m away."""
     grey = _site(orbit, keep_texture=())
-    truth_track = true_track(orbit)
-    pts = np.asarray(orbit.video.pts_s)
-    frames = [int(np.searchsorted(pts, t)) for t in (6.0, 10.0, 14.0)]
     ends = {}
     for guard_px in (EdgeSettings().guard_px, 0.0):
-        settings = RegistrationSettings(by_geometry=True, edges=EdgeSettings(guard_px=guard_px))
-        registrar = Registrar.of_scene(grey, settings, ctx=gl_ctx)
-        try:
-            for k, rgb in frames_at(orbit.video, frames, settings.long_side):
-                truth = truth_track.frame_camera(k)
-                fix, cam, _ = registrar.keyframe(rgb, truth)
-                assert cam is not None or guard_px == 0.0, f"frame {k}: {fix.reason}"
-                ends[guard_px, k] = (
-                    (np.inf, np.inf)
-                    if cam is None
-                    else _pose_error(truth, cam.position, cam.orientation)
-                )
-        finally:
-            registrar.release()
+        settings = RegistrationSettings(edges=EdgeSettings(guard_px=guard_px))
+        done = _keyframes(orbit, [6.0, 10.0, 14.0], gl_ctx, grey, settings, off=False)
+        for k, truth, _start, fix, cam in done:
+            assert cam is not None or guard_px == 0.0, f"frame {k}: {fix.reason}"
+            ends[guard_px, k] = (
+                (np.inf, np.inf)
+                if cam is None
+                else _pose_error(truth, cam.position, cam.orientation)
+            )
+    frames = [k for k, *_ in done]
     for k in frames:
         metres, degrees = ends[EdgeSettings().guard_px, k]
         assert metres < 0.4 and degrees < 0.15, f"frame {k}: {metres:.2f} m, {degrees:.2f} deg"

@@ -4,13 +4,16 @@ against the sample model and by the model's lines against the same model with it
 removed (its lines matched point by point, and as segments). The video is the world that differs from the model (trees, kiosks, cars, other
 textures), so its edges hold far more than the model's lines.
 
-    python bench/bench_geometry.py [--every-s 4] [--session S] [--clip]
+    python bench/bench_geometry.py [--every-s 4] [--session S] [--clip [--from-truth]]
 
 --session: another session (e.g. `geofuse simulate session --flight orbit`); --clip: also the
 whole `registered` source against the model without texture, beside the offline prior and the
 textured registration: projection error on the model at the centre line and the edges
 (app.solve.accuracy, every 10th frame), keyframes used, and the time taken; and the model
-without texture's centre-line error by the pixels' range under the true pose.
+without texture's centre-line error by the pixels' range under the true pose; --from-truth:
+also a row for the model without texture whose every keyframe's search begins at the true pose
+(each fit still held to its usual start as the prior): what the lines' objective gives a
+perfect search.
 
 Prints per method: keyframes registered, within 0.5 m and 0.5 deg, median position and turn
 errors of the registered ones, how many ended nearer the truth than they started, s a keyframe.
@@ -57,6 +60,9 @@ def main(argv: list[str] | None = None) -> int:
         "--session", type=Path, default=SAMPLE_DIR / "session.toml", help="default: the sample"
     )
     parser.add_argument("--clip", action="store_true", help="the whole registered source too")
+    parser.add_argument(
+        "--from-truth", action="store_true", help="with --clip: a row begun at the true poses"
+    )
     args = parser.parse_args(argv)
     session = open_session(args.session)
     truth_track = true_track(session)
@@ -124,7 +130,7 @@ def main(argv: list[str] | None = None) -> int:
         ])  # fmt: skip
     probe.release()
     if args.clip:
-        clip_rows(session, grey)
+        clip_rows(session, grey, args.from_truth)
     print(table(
         ["method", "registered", "within 0.5 m and 0.5 deg", "median m", "median deg", "nearer than the start",
          "start on the model: centre / edges m", "registered on the model", "s a keyframe"],
@@ -133,22 +139,28 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
-def clip_rows(session, grey: MeshData) -> None:
+def clip_rows(session, grey: MeshData, from_truth: bool = False) -> None:
     """The whole registered source on the model without texture and on the textured one, beside
-    the offline prior: projection error on the model (m, median / p95)."""
+    the offline prior: projection error on the model (m, median / p95); from_truth: also the
+    model without texture with every keyframe's search begun at its true pose."""
     rows, tracks = [], {}
     clip_s = float(session.video.pts_s[-1] - session.video.pts_s[0])
     grey_session = replace(session, mesh=grey)
-    for name, sess in (("textured model", session), ("model without texture", grey_session)):
+    runs = [("textured model", session, {}), ("model without texture", grey_session, {})]
+    if from_truth:
+        begun = {"begin": true_track(session).frame_camera}
+        runs.append(("model without texture, begun at the truth", grey_session, begun))
+    for name, sess, options in runs:
         t0 = time.perf_counter()
-        track = solve_track(sess, "registered")
+        track = solve_track(sess, "registered", **options)
         wall, reg = time.perf_counter() - t0, track.registration
         tracks[name] = track
-        for r in evaluate(
-            sess, ["offline", "registered"], paper=False, solved={"registered": track}
-        ):
+        sources = ["offline", "registered"] if not options else ["registered"]
+        for r in evaluate(sess, sources, paper=False, solved={"registered": track}):
             t = r.total
-            used = f"{reg.used} / {len(reg.keyframes)}" if r.name == "registered" else "-"
+            registered = sum(k.registered for k in reg.keyframes)
+            used = f"{reg.used} / {len(reg.keyframes)} ({registered} registered)"
+            used = used if r.name == "registered" else "-"
             took = (
                 f"{wall:.0f} s ({wall / clip_s:.2f}x the clip)" if r.name == "registered" else "-"
             )

@@ -185,6 +185,27 @@ def test_a_keyframe_that_disagrees_with_its_neighbours_is_not_used():
     assert "disagrees with its" in gated[4].reason and "5.00 deg" in gated[4].reason
 
 
+def test_a_keyframe_no_registered_neighbour_confirms_is_not_used():
+    """A fit alone is not trusted: one with no registered keyframe within window_s (4 s) is set
+    aside; two that agree confirm each other; two that disagree are both set aside."""
+    alone = [_keyframe(0, 0.0, [6.0, 0.0, 0.0], [0.0, 0.0, 3.0])]
+    alone += [_keyframe(i, float(i), [0.0] * 3, [0.0] * 3, used=False) for i in range(1, 9)]
+    alone.append(_keyframe(9, 9.0, [1.0, 0.0, 0.0], [0.0, 0.0, 0.5]))  # 9 s from the other
+    gated = gate(alone, FuseSettings())
+    assert not gated[0].used and not gated[9].used
+    assert gated[0].reason == "no other keyframe within 4 s registered to confirm it"
+    assert Correction.from_keyframes(gated).t.size == 0  # the prior stands
+    pair = [
+        _keyframe(0, 0.0, [2.0, 0.0, 0.0], [0.0] * 3),
+        _keyframe(1, 3.5, [2.5, 0.0, 0.0], [0.0] * 3),
+    ]
+    assert [k.used for k in gate(pair, FuseSettings())] == [True, True]  # 0.5 m apart
+    pair[1] = _keyframe(1, 3.5, [5.0, 0.0, 0.0], [0.0] * 3)  # 3 m apart: which is right?
+    split = gate(pair, FuseSettings())
+    assert [k.used for k in split] == [False, False]
+    assert split[0].reason == "disagrees with its only neighbour by 3.00 m, 0.00 deg"
+
+
 def test_a_registration_that_used_no_keyframe_says_the_prior_stands_and_what_can_correct_it():
     refused = [
         replace(_keyframe(i, float(i), [0.0, 0.0, 0.0], [0.0, 0.0, 0.0], used=False), reason=why)

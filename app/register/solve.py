@@ -242,15 +242,19 @@ class Registrar:
         self.matcher = Matcher(settings.match)
         self.stage_s = {"render": 0.0, "match": 0.0, "decode": 0.0}
 
-    def keyframe(self, frame_rgb: np.ndarray, start: Camera) -> tuple[PoseFix, Camera | None, int]:
+    def keyframe(
+        self, frame_rgb: np.ndarray, start: Camera, begin: Camera | None = None
+    ) -> tuple[PoseFix, Camera | None, int]:
         """Render-and-compare from `start` (the frame's camera at full video size) until the pose
         converges: (the last step's fix, the solved camera or None, renderings made). By the
         scene's textures, and where they find no pose by its lines (geometry_fallback); by its
-        lines alone where it has no texture."""
+        lines alone where it has no texture. begin: where the search begins instead (the lines'
+        fit is still held to `start` as its prior; the bench begins at the true pose, to measure
+        what the lines' objective gives a perfect search)."""
         s = self.settings
-        fix, solved, renders = self._keyframe(frame_rgb, start, s.by_geometry)
+        fix, solved, renders = self._keyframe(frame_rgb, start, s.by_geometry, begin)
         if solved is None and not s.by_geometry and s.geometry_fallback:
-            lines, solved, more = self._keyframe(frame_rgb, start, True)
+            lines, solved, more = self._keyframe(frame_rgb, start, True, begin)
             renders += more
             fix = (
                 lines
@@ -260,7 +264,7 @@ class Registrar:
         return fix, solved, renders
 
     def _keyframe(
-        self, frame_rgb: np.ndarray, start: Camera, by_geometry: bool
+        self, frame_rgb: np.ndarray, start: Camera, by_geometry: bool, begin: Camera | None
     ) -> tuple[PoseFix, Camera | None, int]:
         s = self.settings
         scale = (
@@ -268,7 +272,7 @@ class Registrar:
             if start.lens is None
             else frame_rgb.shape[1] / start.lens.width
         )
-        cam, solved, fix, fine = start, None, None, False
+        cam, solved, fix, fine = begin or start, None, None, False
         for it in range(1, s.max_iterations + 1):
             small = cam.pinhole(scale)
             with _lap(self.stage_s, "render"):
@@ -299,10 +303,12 @@ class Registrar:
         prior: CameraTrack,
         progress: Callable[[float], None] | None = None,
         stop: Callable[[], bool] | None = None,
+        begin: Callable[[int], Camera] | None = None,
     ) -> Registration:
         """Every keyframe of the video registered, starting each from the prior's pose moved by
         the corrections found so far; the keyframes gated against their neighbours. stop() is
-        asked before each keyframe: True raises Cancelled."""
+        asked before each keyframe: True raises Cancelled. begin(k): where the search of the
+        keyframe at video frame k begins (keyframe's `begin`; default: its start)."""
         s = self.settings
         video = self.session.video
         idx = keyframe_indices(np.asarray(video.pts_s, np.float64), s.every_s)
@@ -320,9 +326,12 @@ class Registrar:
             prior_cam = prior.frame_camera(k)
             t = float(prior.clock.session_time([video.pts_s[k]])[0])
             so_far = Correction.from_keyframes(keyframes[-5:], s.fuse)
-            fix, solved, renders = self.keyframe(rgb, _shifted(prior_cam, so_far, t))
+            first = None if begin is None else begin(int(k))
+            fix, solved, renders = self.keyframe(rgb, _shifted(prior_cam, so_far, t), first)
             if solved is None and len(so_far.t):
-                fix, solved, more = self.keyframe(rgb, prior_cam)  # from the plain prior once more
+                fix, solved, more = self.keyframe(
+                    rgb, prior_cam, first
+                )  # the plain prior once more
                 renders += more
             keyframes.append(Keyframe(
                 int(k), t, solved is not None, "" if solved is not None else fix.reason, fix.matches, fix.inliers, fix.error_px, renders,
@@ -376,6 +385,7 @@ def registered_track(
     ctx: moderngl.Context | None = None,
     stop: Callable[[], bool] | None = None,
     background: bool = False,
+    begin: Callable[[int], Camera] | None = None,
     **track_options: object,
 ) -> CameraTrack:
     """The camera track of the `registered` source: the prior source's track (default_prior)
@@ -383,7 +393,7 @@ def registered_track(
     keyframe's outcome. Control points kept beside the input (`geofuse register --write`)
     correct the prior first. ctx: a GL context to render in (default: one of its own); stop:
     asked between keyframes, True cancels (Cancelled); background: run at a lower priority (the
-    viewer's solver thread). track_options go to app.session.camera_track.camera_track for the prior."""
+    viewer's solver thread); begin(k): where keyframe k's search begins (Registrar.run). track_options go to app.session.camera_track.camera_track for the prior."""
     prior_track = camera_track(session, prior or default_prior(session), **track_options)
     control = None
     if control_path(
@@ -393,7 +403,7 @@ def registered_track(
         prior_track = corrected_track(prior_track, control)
     registrar = Registrar(session, settings, ctx, background)
     try:
-        reg = registrar.run(prior_track, progress, stop)
+        reg = registrar.run(prior_track, progress, stop, begin)
     finally:
         registrar.release()
     keyframes = list(reg.keyframes)

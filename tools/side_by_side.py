@@ -2,7 +2,7 @@
 (white on black), with a white gap between: README's before/after pictures (docs/city.png).
 
     python tools/side_by_side.py LEFT.png RIGHT.png --labels "offline: 14.4 m median" \
-        "registered: 0.82 m median" --out docs/city.png [--width 720] [--gap 8]
+        "registered: 0.56 m median" --out docs/city.png [--width 720] [--gap 8]
 """
 
 from __future__ import annotations

@@ -155,18 +155,16 @@ def clip_rows(session, grey: MeshData, from_truth: bool = False) -> None:
         track = solve_track(sess, "registered", **options)
         wall, reg = time.perf_counter() - t0, track.registration
         tracks[name] = track
+        registered = sum(k.registered for k in reg.keyframes)
+        used = f"{reg.used} / {len(reg.keyframes)} ({registered} registered)"
+        took = f"{wall:.0f} s ({wall / clip_s:.2f}x the clip)"
         sources = ["offline", "registered"] if not options else ["registered"]
         for r in evaluate(sess, sources, paper=False, solved={"registered": track}):
-            t = r.total
-            registered = sum(k.registered for k in reg.keyframes)
-            used = f"{reg.used} / {len(reg.keyframes)} ({registered} registered)"
-            used = used if r.name == "registered" else "-"
-            took = (
-                f"{wall:.0f} s ({wall / clip_s:.2f}x the clip)" if r.name == "registered" else "-"
-            )
+            t, own = r.total, r.name == "registered"
             rows.append([
                 name, r.name, f"{t.centre_median:.2f} / {t.centre_p95:.2f}",
-                f"{t.edge_median:.2f} / {t.edge_p95:.2f}", f"{r.attitude[0]:.2f}", used, took,
+                f"{t.edge_median:.2f} / {t.edge_p95:.2f}", f"{r.attitude[0]:.2f}",
+                used if own else "-", took if own else "-",
             ])  # fmt: skip
     print(table(
         ["scene", "source", "centre m (median / p95)", "edges m (median / p95)", "attitude RMS deg", "keyframes used", "registered in"],

@@ -328,10 +328,8 @@ class Registrar:
             so_far = Correction.from_keyframes(keyframes[-5:], s.fuse)
             first = None if begin is None else begin(int(k))
             fix, solved, renders = self.keyframe(rgb, _shifted(prior_cam, so_far, t), first)
-            if solved is None and len(so_far.t):
-                fix, solved, more = self.keyframe(
-                    rgb, prior_cam, first
-                )  # the plain prior once more
+            if solved is None and len(so_far.t):  # from the plain prior once more
+                fix, solved, more = self.keyframe(rgb, prior_cam, first)
                 renders += more
             keyframes.append(Keyframe(
                 int(k), t, solved is not None, "" if solved is not None else fix.reason, fix.matches, fix.inliers, fix.error_px, renders,

@@ -26,8 +26,10 @@ def load_program(
 
 class Uniforms:
     """Sets a program's uniforms by name, leaving out those its variant lacks (a specialised
-    variant's compiler drops what it does not use) and cutting arrays to the length the program
-    keeps (the highest element it reads, plus one)."""
+    variant's compiler drops what it does not use) and fitting arrays to the length the program
+    keeps. That length is the driver's: Mesa keeps up to the highest element a variant reads
+    (EXTRA_COUNT of a MAX_EXTRA array), NVIDIA keeps the whole declared array wherever it is
+    indexed in a loop; elements beyond those given repeat the last one (never read)."""
 
     def __init__(self, program: moderngl.Program) -> None:
         self.program = program
@@ -37,7 +39,8 @@ class Uniforms:
         if member is None:
             return
         if isinstance(value, list):  # an array's elements
-            value = value[0] if member.array_length == 1 else value[: member.array_length]
+            value = _fitted(value, member.array_length)
+            value = value[0] if member.array_length == 1 else value
         member.value = value
 
     def matrices(self, name: str, matrices: list[np.ndarray]) -> None:
@@ -46,5 +49,13 @@ class Uniforms:
         member = self.program.get(name, None)
         if member is None:
             return
-        stack = np.stack([np.asarray(m, np.float32).T for m in matrices[: member.array_length]])
+        kept = _fitted(list(matrices), member.array_length)
+        stack = np.stack([np.asarray(m, np.float32).T for m in kept])
         member.write(stack.tobytes())
+
+
+def _fitted(values: list, length: int) -> list:
+    """`values` cut or padded (the last one repeated) to `length` elements."""
+    if not values:
+        raise ValueError("an array uniform needs at least one element")
+    return values[:length] + [values[-1]] * max(0, length - len(values))

@@ -8,6 +8,7 @@ The window camera and the projector (the video's camera) both use this module.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 import numpy.typing as npt
@@ -19,6 +20,11 @@ from app.geodesy import rotations
 from app.geodesy.enu import LocalFrame
 
 FloatArray = npt.NDArray[np.float64]
+
+
+def _frozen(a: FloatArray) -> FloatArray:
+    a.flags.writeable = False
+    return a
 
 
 def view_matrix(position_enu: npt.ArrayLike, q_cam_to_world: npt.ArrayLike) -> FloatArray:
@@ -100,17 +106,22 @@ class Camera:
             tuple(map(float, rs_axis)),
         )
 
-    @property
+    # The matrices are worked out once a camera (frozen: they never change) and kept read-only;
+    # a frame asks each projector's dozens of times (depth pass, reach, uniforms).
+    @cached_property
     def view(self) -> FloatArray:
-        return view_matrix(self.position, self.orientation)
+        """Camera-from-world 4x4 (read-only)."""
+        return _frozen(view_matrix(self.position, self.orientation))
 
-    @property
+    @cached_property
     def projection(self) -> FloatArray:
-        return projection_matrix(self.intrinsics, self.near, self.far)
+        """Clip-from-camera 4x4 (read-only)."""
+        return _frozen(projection_matrix(self.intrinsics, self.near, self.far))
 
-    @property
+    @cached_property
     def view_projection(self) -> FloatArray:
-        return self.projection @ self.view
+        """Clip-from-world 4x4 (read-only)."""
+        return _frozen(self.projection @ self.view)
 
     def pinhole(self, factor: float = 1.0) -> Camera:
         """The same pose through its pinhole alone (no lens), sampled at `factor` times its

@@ -14,6 +14,7 @@ camera's frustum when its clip coordinates c = VP x satisfy -c.w <= c.x, c.y, c.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 from itertools import combinations
 
 import numpy as np
@@ -62,21 +63,33 @@ def polytope_vertices(planes: npt.ArrayLike, tol: float = 1e-6) -> npt.NDArray[n
     plane's scale). Empty when the planes enclose nothing."""
     p = np.asarray(planes, np.float64)
     p = p / np.linalg.norm(p[:, :3], axis=1, keepdims=True)
-    triples = np.array(list(combinations(range(len(p)), 3)))
-    a = p[triples, :3]  # (T, 3, 3)
-    d = -p[triples, 3]  # (T, 3)
-    det = np.linalg.det(a)
+    i, j, k = _triples(len(p))
+    # Each triple's meeting point by Cramer's rule: x = (d_i (n_j x n_k) + d_j (n_k x n_i)
+    # + d_k (n_i x n_j)) / (n_i . (n_j x n_k)), with the planes n.x = d (d = -offset).
+    n, d = p[:, :3], -p[:, 3:4]
+    jk, ki, ij = np.cross(n[j], n[k]), np.cross(n[k], n[i]), np.cross(n[i], n[j])
+    det = np.einsum("ij,ij->i", n[i], jk)
     ok = np.abs(det) > 1e-9
-    x = np.linalg.solve(a[ok], d[ok][..., None])[..., 0]
+    x = (d[i] * jk + d[j] * ki + d[k] * ij)[ok] / det[ok, None]
     scale = 1.0 + np.abs(x).max(axis=1, keepdims=True)
     inside = np.all(x @ p[:, :3].T + p[:, 3] >= -tol * scale, axis=1)
     return x[inside]
 
 
+@lru_cache(maxsize=8)
+def _triples(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The indices (i, j, k) of every three of n planes."""
+    t = np.array(list(combinations(range(n), 3)))
+    return t[:, 0], t[:, 1], t[:, 2]
+
+
 def convex_hull_2d(points: npt.ArrayLike) -> npt.NDArray[np.float64]:
     """(K, 2) the convex hull of 2-D points, counter-clockwise, without repeated points
     (Andrew's monotone chain)."""
-    pts = np.unique(np.asarray(points, np.float64).reshape(-1, 2), axis=0)
+    pts = np.asarray(points, np.float64).reshape(-1, 2)
+    pts = pts[np.lexsort((pts[:, 1], pts[:, 0]))]  # by x, then y
+    if len(pts) > 1:
+        pts = pts[np.concatenate([[True], np.any(pts[1:] != pts[:-1], axis=1)])]
     if len(pts) < 3:
         return pts
 

@@ -267,3 +267,13 @@ def test_deferred_drawing_in_a_viewport_lands_where_a_whole_target_does(gl_ctx):
         whole.release()
         big.release()
         r.release()
+
+
+def test_software_rasterisers_are_told_from_gpus():
+    from app.render.context import software_rasteriser
+
+    assert software_rasteriser("llvmpipe (LLVM 15.0.6, 256 bits)")
+    assert software_rasteriser("softpipe")
+    assert not software_rasteriser("NVIDIA H100 80GB HBM3/PCIe/SSE2")
+    assert not software_rasteriser("AMD Radeon RX 7900 XTX (radeonsi, navi31, LLVM 15.0.6)")
+    assert not software_rasteriser("Mesa Intel(R) UHD Graphics 620 (KBL GT2)")

@@ -86,6 +86,16 @@ def made_current(ctx: moderngl.Context) -> Iterator[moderngl.Context]:
         yield ctx
 
 
+SOFTWARE_RASTERISERS = ("llvmpipe", "softpipe", "swrast", "software rasterizer")
+
+
+def software_rasteriser(renderer: str) -> bool:
+    """Whether a GL_RENDERER string names a rasteriser that runs on the CPU (Mesa's llvmpipe,
+    softpipe, swrast), where fill rate, not the per-projector setup, bounds a frame."""
+    text = renderer.lower()
+    return any(name in text for name in SOFTWARE_RASTERISERS)
+
+
 def describe(ctx: moderngl.Context) -> str:
     """'renderer, GL version' of a context, for logs and benchmark reports."""
     return f"{ctx.info['GL_RENDERER']}, {ctx.info['GL_VERSION']}"

@@ -6,6 +6,8 @@ CLI's still export. All GL calls happen on the thread that owns the context.
 
 from __future__ import annotations
 
+from contextlib import AbstractContextManager, nullcontext
+
 import moderngl
 import numpy as np
 import numpy.typing as npt
@@ -23,6 +25,7 @@ from app.render.overlays import (
     LineOverlay,
     frustum_segments,
 )
+from app.render.pass_timer import PassTimer
 from app.render.passes import MAX_EXTRA, DepthPass, ExtraProjector, ScenePass
 from app.render.positions import PositionPass
 from app.render.video_texture import ExtraVideo, VideoTexture, YuvPlanes
@@ -39,7 +42,10 @@ class FusionRenderer:
         """deferred: draw the projectors as deferred decals (app.render.decals), each over what
         it covers; False: the forward scene pass, every projector in every fragment (the
         full-cost path, kept as the reference and where no blit is found); None: deferred
-        where the context can."""
+        where the context can. Measured on an H100 (docs/PERFORMANCE.md, "GPU"), forward draws
+        the sample in about half the decals' time, but its full-size depth maps ask a streamed
+        city for every tile the projector sees at full detail (52 s to the first full-detail
+        frame against 0.6 s): deferred stays the default on GPUs too."""
         self.ctx = ctx
         self.scene = GpuScene(ctx, mesh)
         self.depth = DepthPass(ctx, self.scene)
@@ -58,6 +64,7 @@ class FusionRenderer:
         self.outlines: np.ndarray | None = None
         self.extras: list[_Extra] = []  # further projectors (other clips), drawn with the first
         self.deferred_pass = DeferredProjectors(ctx) if deferred_available(ctx) else None
+        self.timer: PassTimer | None = None  # set: each pass's CPU and GPU time (benchmarks)
         # Switchable between frames (benchmarks compare both in one run); never on without a pass.
         self.deferred = self.deferred_pass is not None and deferred is not False
 
@@ -222,7 +229,9 @@ class FusionRenderer:
     ) -> None:
         """Draw one frame from the window camera `view` into `fbo` (its viewport is used whole).
         Streamed tiles that finished loading are uploaded first, within a small time budget."""
-        self.scene.update()
+        section = self._section
+        with section("tiles"):
+            self.scene.update()
         truth_map = self._truth_positions(overlays)
         decals = None
         if (
@@ -231,35 +240,47 @@ class FusionRenderer:
             and truth_map is None
             and not self.scene_pass.count_samples
         ):
-            decals = self._decals(view, settings)
+            with section("depth"):  # each projector's reach, then its depth map
+                decals = self._decals(view, settings)
         if decals is not None:
-            self.deferred_pass.begin(fbo, BACKGROUND)
-            self.scene_pass.render(view, settings, None, None, None, surface=True)
-            self.deferred_pass.project(view, settings, decals)
-            self.deferred_pass.overlays()
-            self._draw_overlays(view, overlays)
-            self.deferred_pass.finish(fbo)
+            with section("scene"):
+                self.deferred_pass.begin(fbo, BACKGROUND)
+                self.scene_pass.render(view, settings, None, None, None, surface=True)
+            with section("projectors"):
+                self.deferred_pass.project(view, settings, decals)
+            with section("overlays"):
+                self.deferred_pass.overlays()
+                self._draw_overlays(view, overlays)
+                self.deferred_pass.finish(fbo)
             return
-        views = self._views(settings)
-        for v in views:
-            i = v.camera.intrinsics
-            v.depth.update(v.camera, depth_map_size(i.width, i.height, settings.depth_long_side))
+        with section("depth"):
+            views = self._views(settings)
+            for v in views:
+                i = v.camera.intrinsics
+                size = depth_map_size(i.width, i.height, settings.depth_long_side)
+                v.depth.update(v.camera, size)
         extras = [v for v in views if v.depth is not self.depth]  # the first goes on its own
-        fbo.use()
-        fbo.clear(*BACKGROUND, 1.0, depth=1.0)
-        self.scene_pass.render(
-            view,
-            settings,
-            self.projector,
-            self.depth,
-            self.video,
-            truth_map,
-            overlays.error_scale_m,
-            tuple(extras),
-            self.projector_priority,
-            self.projector_age,
-        )
-        self._draw_overlays(view, overlays)
+        with section("scene"):  # forward: the projectors are shaded in the scene pass
+            fbo.use()
+            fbo.clear(*BACKGROUND, 1.0, depth=1.0)
+            self.scene_pass.render(
+                view,
+                settings,
+                self.projector,
+                self.depth,
+                self.video,
+                truth_map,
+                overlays.error_scale_m,
+                tuple(extras),
+                self.projector_priority,
+                self.projector_age,
+            )
+        with section("overlays"):
+            self._draw_overlays(view, overlays)
+
+    def _section(self, name: str) -> AbstractContextManager[None]:
+        """The pass timer's section `name`, or nothing where no timer is set."""
+        return nullcontext() if self.timer is None else self.timer.section(name)
 
     def _views(self, settings: ProjectionSettings) -> list[ExtraProjector]:
         """The projectors this frame draws, the first (the session's video, once it has a frame)

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.common import drawing_paths, interleaved, median_ms, on_off_table, table
+from bench.common import drawing_paths, interleaved, median_ms, on_off_table, p95_ms, table
 
 CITY_ORIGIN = (47.0, 8.0, 400.0)
 
@@ -140,11 +140,11 @@ def city(
         renderer.set_video_frame(photo)
         renderer.set_projector(projector)
         first_s, loading = _first_full_frame(ctx, renderer, view, target, start)
-        steady = {}
+        steady, default = {}, renderer.deferred
         for path, flag in drawing_paths(renderer).items():
             renderer.deferred = flag
             steady[path] = _steady(ctx, renderer, view, projector, target, frames)
-        renderer.deferred = renderer.deferred_pass is not None
+        renderer.deferred = default
         layer = renderer.scene.tilesets[0]
         print(
             f"\n## A city as 3D Tiles: {stats.triangles:,} triangles in {stats.tiles} tiles, {stats.levels} levels ({stats.leaf_triangles:,} at full detail)\n"
@@ -158,7 +158,7 @@ def city(
             ["triangles in the depth map", f"{renderer.depth.triangles:,}"],
             ["tiles on the GPU / GPU memory held", f"{len(layer.resident)} / {layer.bytes_held / 2**20:.0f} MiB (cap {layer.cache_bytes / 2**20:.0f} MiB)"],
         ]))  # fmt: skip
-        out = {}
+        out: dict = {"first_full_frame_s": round(first_s, 2)}
         for path, (t_on, t_off) in steady.items():
             ratio = median_ms(t_on) / median_ms(t_off)
             out[path] = {
@@ -180,7 +180,9 @@ def city(
 
 def dem(
     ctx, photo, target, w: int, h: int, frames: int, sample_off_ms: float, samples: int = 4001
-) -> None:
+) -> dict:
+    """The generated DEM's load and frame times, projection on (depth map redrawn every frame)
+    and off, interleaved; returns the figures (seconds, milliseconds, medians and p95)."""
     import pyproj
 
     from app.geodesy.enu import LocalFrame
@@ -239,3 +241,15 @@ def dem(
             f"\nratio on/off: **{median_ms(t_on) / median_ms(t_off):.3f}**; terrain off / sample off: **{median_ms(t_off) / sample_off_ms:.2f}**"
         )
         renderer.release()
+        return {
+            "samples": samples,
+            "loaded_s": round(loaded, 2),
+            "first_frame_s": round(uploaded, 2),
+            "triangles": terrain.mesh.triangle_count,
+            "on_ms": round(median_ms(t_on), 2),
+            "off_ms": round(median_ms(t_off), 2),
+            "on_p95_ms": round(p95_ms(t_on), 2),
+            "off_p95_ms": round(p95_ms(t_off), 2),
+            "ratio": round(median_ms(t_on) / median_ms(t_off), 3),
+            "off_vs_sample_off": round(median_ms(t_off) / sample_off_ms, 2),
+        }

@@ -18,7 +18,6 @@ overflow); frames lost by the network are counted apart. Medians over --repeats 
 from __future__ import annotations
 
 import argparse
-import json
 import statistics
 import sys
 import tempfile
@@ -32,7 +31,7 @@ if str(ROOT) not in sys.path:
 
 from app.live.run import LiveOptions, run_live  # noqa: E402
 from app.simulate.feed import Sender, free_udp_port, sending_clock, write_feed  # noqa: E402
-from bench.common import machine, table  # noqa: E402
+from bench.common import machine, table, write_json  # noqa: E402
 
 JOIN_S = 4.0  # the first seconds after joining, while the display catches up the probe's burst
 
@@ -130,8 +129,7 @@ def main(argv: list[str] | None = None) -> int:
             rows,
         )
     )
-    if args.json is not None:
-        args.json.write_text(json.dumps(results, indent=1))
+    write_json(args.json, results)
     return 0
 
 

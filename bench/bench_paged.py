@@ -36,7 +36,7 @@ from app.session import open_session  # noqa: E402
 from app.session.camera_track import camera_track  # noqa: E402
 from app.simulate.flights import survey  # noqa: E402
 from bench.bench_memory import rss_mb  # noqa: E402
-from bench.common import machine, table  # noqa: E402
+from bench.common import machine, table, write_json  # noqa: E402
 
 
 def _row(name: str, paged: PagedMemory, seconds: float, clip_s: float) -> list:
@@ -55,17 +55,20 @@ def _same(a: PagedMemory, b: PagedMemory) -> bool:
     return True
 
 
-def walk(every_s: float, memory_mb: float) -> int:
+def walk(every_s: float, memory_mb: float, json_path: Path | None = None) -> int:
     session = open_session(ROOT / "assets/sample/session.toml")
     track = camera_track(session, "truth")
     clip_s = float(session.frame_times[-1] - session.frame_times[0])
-    rows, runs = [], []
+    rows, runs, figures = [], [], []
     for name, mb in (("room for all", 1e6), (f"held to {memory_mb:g} MB", memory_mb)):
         t0 = time.perf_counter()
         paged = paint_model_paged(session, track, ModelOptions(every_s=every_s, resident_mb=mb))
         seconds = time.perf_counter() - t0
         rows.append(_row(name, paged, seconds, clip_s))
         runs.append(paged)
+        figures.append({"memory": name, "painted_s": round(seconds, 2), "x_clip": round(seconds / clip_s, 3),
+                        "pages": paged.stats.pages, "evicted": paged.stats.evicted,
+                        "peak_held_mb": round(paged.stats.peak_bytes / 1e6, 1)})  # fmt: skip
     same = _same(*runs)
     for p in runs:
         p.close()
@@ -75,6 +78,8 @@ def walk(every_s: float, memory_mb: float) -> int:
     print(table(["pages", "finest texel (m)", "triangles", "pages", "made", "samples", "seen (%)", "peak held (MB)",
                  "evicted", "read back", "to disk (MB)", "painted in (s)", "x clip"], rows))  # fmt: skip
     print(f"same painting both ways: {same}")
+    write_json(json_path, {"clip_s": round(clip_s, 2), "every_s": every_s, "runs": figures,
+                           "same": same, "machine": machine()})  # fmt: skip
     return 0 if same else 1
 
 
@@ -113,10 +118,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--every-s", type=float, default=0.2)
     ap.add_argument("--memory-mb", type=float, default=None, help="default: 64 (walk), 128 (long)")
     ap.add_argument("--long-minutes", type=float, default=None)
+    ap.add_argument("--json", type=Path, default=None, help="also write the walk's figures here")
     a = ap.parse_args(argv)
     if a.long_minutes:
         return long_clip(a.long_minutes, a.every_s, a.memory_mb or 128.0)
-    return walk(a.every_s, a.memory_mb or 64.0)
+    return walk(a.every_s, a.memory_mb or 64.0, a.json)
 
 
 if __name__ == "__main__":

@@ -27,7 +27,7 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from bench.common import machine, table  # noqa: E402
+from bench.common import machine, table, write_json  # noqa: E402
 
 
 def make_1080p_clip(path: Path, seconds: float) -> Path:
@@ -116,15 +116,17 @@ def viewer_playback(
     tmp: Path,
     while_registering: bool = False,
     more: tuple[Path, ...] = (),
+    wait: bool = True,
 ) -> dict:
     """Run the viewer on `manifest`: wait for every source to be solved (with while_registering,
-    every one but `registered`, which then registers in the background during the playback),
-    play `seconds` of wall time at 1x, write its state (latency, frames shown and dropped, frame
-    times) and quit."""
+    every one but `registered`, which then registers in the background during the playback;
+    wait=False: none, all are solved while it plays), play `seconds` of wall time at 1x, write
+    its state (latency, frames shown and dropped, frame times) and quit."""
     state = tmp / f"{manifest.stem}.json"
     script = tmp / f"{manifest.stem}.txt"
-    wait = "solved" if while_registering else "registered"
-    script.write_text(f"0 wait {wait}\n0 play\n{seconds} state {state}\n{seconds} quit\n")
+    until = "solved" if while_registering else "registered"
+    first = f"0 wait {until}\n" if wait else ""
+    script.write_text(f"{first}0 play\n{seconds} state {state}\n{seconds} quit\n")
     env = dict(os.environ, DISPLAY=display, XDG_CONFIG_HOME=str(tmp / "config"))
     cmd = [
         sys.executable,
@@ -205,6 +207,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--drone-size", default="640x360", help="the further (drone) clip's frame size, WxH"
     )
+    parser.add_argument(
+        "--no-wait",
+        action="store_true",
+        help="play at once, the sources solved meanwhile (a check that it runs, not a measure)",
+    )
+    parser.add_argument("--json", type=Path, default=None, help="also write the figures here")
     args = parser.parse_args(argv)
     size = tuple(int(v) for v in args.size.split("x"))
 
@@ -214,6 +222,7 @@ def main(argv: list[str] | None = None) -> int:
     print(
         f"# playback benchmark\n\n{machine()}; the viewer's window {size[0]}x{size[1]} (default panels and depth map); {args.seconds:g} s of 1x playback each{', while the registered source is solved in the background' if args.while_registering else ', every source solved first'}\n"
     )
+    figures: dict = {"size": list(size), "seconds": args.seconds, "one_clip": {}}
     with tempfile.TemporaryDirectory() as tmp, Display() as display:
         tmp = Path(tmp)
         if not args.two_clips_only:
@@ -224,7 +233,13 @@ def main(argv: list[str] | None = None) -> int:
                 ("1080p30", sample_session_with(clip, tmp / "hd.toml")),
             ):
                 r = viewer_playback(
-                    display, manifest, args.seconds, size, tmp, args.while_registering
+                    display,
+                    manifest,
+                    args.seconds,
+                    size,
+                    tmp,
+                    args.while_registering,
+                    wait=not args.no_wait,
                 )
                 _, mean, p95 = r["latency_ms"]
                 due = r["frames_shown"] + r["dropped"]
@@ -247,13 +262,20 @@ def main(argv: list[str] | None = None) -> int:
                     else probe(clip)
                 )
                 seeks = np.asarray(seek_times(Path(info.path), info)) * 1000
+                decoded = decode_throughput(Path(info.path), info.nominal_fps)
                 decode_rows.append(
                     [
                         label,
-                        f"{decode_throughput(Path(info.path), info.nominal_fps):.1f}x",
+                        f"{decoded:.1f}x",
                         f"{np.median(seeks):.0f} / {np.percentile(seeks, 95):.0f}",
                     ]
                 )
+                figures["one_clip"][label] = {
+                    **_viewer_figures(r),
+                    "decode_x_real_time": round(decoded, 2),
+                    "seek_median_ms": round(float(np.median(seeks)), 1),
+                }
+                figures["gl"] = r.get("gl")
             print(
                 table(
                     [
@@ -279,7 +301,14 @@ def main(argv: list[str] | None = None) -> int:
         )
         drone_clip = make_drone_clip(tmp / "drone", min(args.seconds, 70.0) + 1.0, drone_size)
         r = viewer_playback(
-            display, SAMPLE_DIR / "session.toml", args.seconds, size, tmp, more=(drone_clip,)
+            display,
+            SAMPLE_DIR / "session.toml",
+            args.seconds,
+            size,
+            tmp,
+            args.while_registering,
+            more=(drone_clip,),
+            wait=not args.no_wait,
         )
         other = r["clips"][0]
         two = []
@@ -311,7 +340,31 @@ def main(argv: list[str] | None = None) -> int:
             )
         )
         print(f"\nframe time median {r['frame_ms']:.1f} ms ({1000 / r['frame_ms']:.1f} fps)")
+        figures["two_clips"] = {
+            **_viewer_figures(r),
+            "further": {
+                "frames_shown": other["frames_shown"],
+                "dropped": other["dropped"],
+                "latency_mean_ms": other["latency_ms"][1],
+                "latency_p95_ms": other["latency_ms"][2],
+            },
+        }
+        figures["gl"] = r.get("gl")
+    figures["machine"] = machine()
+    write_json(args.json, figures)
     return 0
+
+
+def _viewer_figures(r: dict) -> dict:
+    """The viewer state's playback figures (ms): frames shown and dropped, latency, frame time."""
+    return {
+        "frames_shown": r["frames_shown"],
+        "dropped": r["dropped"],
+        "latency_mean_ms": r["latency_ms"][1],
+        "latency_p95_ms": r["latency_ms"][2],
+        "frame_ms": r["frame_ms"],
+        "frame_p95_ms": r.get("frame_p95_ms"),
+    }
 
 
 if __name__ == "__main__":

@@ -46,7 +46,7 @@ from app.session.camera_track import camera_track  # noqa: E402
 from app.simulate.phone import write_video  # noqa: E402
 from app.solve.accuracy import true_track  # noqa: E402
 from app.solve.track import solve_track  # noqa: E402
-from bench.common import table  # noqa: E402
+from bench.common import table, write_json  # noqa: E402
 
 FOG_S = (20.0, 35.0)
 
@@ -146,16 +146,24 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--repeat", type=int, default=3, help="solves of the sample for the speed figures (median)"
     )
+    parser.add_argument(
+        "--every-s", type=float, default=0.5, help="seconds of video between keyframes"
+    )
     parser.add_argument("--no-fog", action="store_true", help="skip the fogged clip")
     parser.add_argument("--no-matchers", action="store_true", help="skip the matcher comparison")
+    parser.add_argument(
+        "--json", type=Path, default=None, help="also write the speed figures to this file"
+    )
     args = parser.parse_args(argv)
+    settings = RegistrationSettings(every_s=args.every_s)
 
     sample = ROOT / "assets" / "sample"
     session = open_session(sample / "session.toml")
     clip_s = float(session.video.pts_s[-1] - session.video.pts_s[0])
     ctx = create_offscreen_context()
+    gl = describe(ctx)
     print(
-        f"# registration: {sample / 'session.toml'} ({clip_s:.1f} s of video, {session.video.width}x{session.video.height}); {describe(ctx)}\n"
+        f"# registration: {sample / 'session.toml'} ({clip_s:.1f} s of video, {session.video.width}x{session.video.height}); {gl}\n"
     )
     ctx.release()
     walls, stages, reg = [], [], None
@@ -165,6 +173,7 @@ def main(argv: list[str] | None = None) -> int:
             session,
             "registered",
             progress=ProgressBar(f"registering {i + 1}/{args.repeat}", sys.stderr),
+            settings=settings,
         )
         walls.append(time.perf_counter() - t0)
         reg = track.registration
@@ -179,6 +188,16 @@ def main(argv: list[str] | None = None) -> int:
         *[[f"{k} (s, all keyframes)", f"{statistics.median(s[k] for s in stages):.1f}"] for k in ("render", "match", "decode")],
         ["renderings per keyframe (mean)", f"{np.mean([k.iterations for k in reg.keyframes]):.2f}"],
     ]))  # fmt: skip
+    write_json(args.json, {
+        "clip_s": round(clip_s, 2), "every_s": args.every_s, "repeats": args.repeat,
+        "keyframes": n, "registered": sum(k.registered for k in reg.keyframes),
+        "used": sum(k.used for k in reg.keyframes),
+        "wall_s": round(wall, 2), "wall_per_clip": round(wall / clip_s, 3),
+        "keyframes_per_s": round(n / wall, 3),
+        "stage_s": {k: round(statistics.median(s[k] for s in stages), 2) for k in ("render", "match", "decode")},
+        "renderings_per_keyframe": round(float(np.mean([k.iterations for k in reg.keyframes])), 2),
+        "gl": gl,
+    })  # fmt: skip
     if not args.no_matchers:
         print("\n## Matchers: from the true pose moved 3 m and turned 2 deg, every 4th second\n")
         print(

@@ -15,10 +15,10 @@ noise hits both alike, and their ratio is taken in the same run.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import tempfile
 import time
+from contextlib import nullcontext
 from pathlib import Path
 
 import numpy as np
@@ -35,6 +35,7 @@ from bench.common import (  # noqa: E402
     on_off_table,
     table,
     time_calls,
+    write_json,
 )
 
 
@@ -77,7 +78,15 @@ def main(argv: list[str] | None = None) -> int:
         help="only the projectors' tables: 1, 2, 4 and 8 at once, the sample and the city on/off",
     )
     parser.add_argument(
-        "--json", type=Path, default=None, help="also write the projectors' figures to this file"
+        "--terrain-only",
+        action="store_true",
+        help="only the DEM's frames, against the sample's frame time measured in the same run",
+    )
+    parser.add_argument(
+        "--json",
+        type=Path,
+        default=None,
+        help="also write the figures of --projectors-only or --terrain-only to this file",
     )
     args = parser.parse_args(argv)
     w, h = (int(v) for v in args.size.split("x"))
@@ -127,12 +136,24 @@ def main(argv: list[str] | None = None) -> int:
             figures["city"] = city
             figures["city_on_off"] = city[figures["path"]]["ratio"]
         figures["sample_on_off_ratio"] = figures["sample_on_off"][figures["path"]]["ratio"]
-        figures["machine"] = machine()
-        figures["gl"] = describe(ctx)
-        figures["view"] = [w, h]
-        if args.json is not None:
-            args.json.write_text(json.dumps(figures, indent=2) + "\n", encoding="utf-8")
-            print(f"\nwritten {args.json}")
+        figures.update(machine=machine(), gl=describe(ctx), view=[w, h])
+        write_json(args.json, figures)
+        renderer.release()
+        target.release()
+        return 0
+    if args.terrain_only:
+        from bench import bench_gis
+
+        sample = sample_on_off(ctx, renderer, view, target, args.frames)
+        path = "deferred" if renderer.deferred else "forward"
+        figures = {
+            "sample_on_off": sample,
+            "dem": bench_gis.dem(
+                ctx, photo, target, w, h, args.frames, sample[path]["off_ms"], args.dem_samples
+            ),
+        }
+        figures.update(machine=machine(), gl=describe(ctx), view=[w, h])
+        write_json(args.json, figures)
         renderer.release()
         target.release()
         return 0
@@ -287,8 +308,10 @@ def projectors(ctx, renderer, view, target, photo, frame, frames: int) -> dict:
     redrawn every frame (each projector turns by a millidegree a frame), on both drawing paths:
     the deferred decals (each projector over its reach, adaptive depth maps) and the forward
     full-cost pass. Counts, paths and moving/still frames are interleaved frame by frame in the
-    same run; ratios are taken against one projector on the same path. Raises unless every depth
-    map a moving frame claims to redraw was redrawn. Returns the medians and ratios (JSON)."""
+    same run; ratios are taken against one projector on the same path. Timed: the renderer's
+    draw to glFinish (wall), and the GPU's own time for it (a GL timer query), the cameras made
+    beforehand (the viewer takes them from its tracks). Raises unless every depth map a moving
+    frame claims to redraw was redrawn. Returns the medians and ratios (JSON)."""
     from app.core.settings import ProjectionSettings
     from app.simulate.photo import photo_camera
     from app.simulate.sample import SAMPLE_PHOTO_POSE
@@ -296,25 +319,25 @@ def projectors(ctx, renderer, view, target, photo, frame, frames: int) -> dict:
     settings = ProjectionSettings()
     counts = (1, 2, 4, 8)
     paths = drawing_paths(renderer)
+    default = renderer.deferred  # the path this context draws by default
 
     def camera(k: int, tick: int):
+        # Every moving frame turns each projector to a heading it had in none of the last 999
+        # frames (a turn that came back sooner would give a projector drawn again on its old
+        # heading its old depth map: no redraw, as the check below would say).
         pose = SAMPLE_PHOTO_POSE.__dict__
-        return photo_camera(
-            SAMPLE_PHOTO_POSE.__class__(
-                **{
-                    **pose,
-                    "heading_deg": pose["heading_deg"] + 6.0 * (k - 3.5) + 1e-3 * (tick % 2),
-                }
-            ),
-            frame,
-        )
+        heading = pose["heading_deg"] + 6.0 * (k - 3.5) + 1e-4 * (tick % 1000)
+        return photo_camera(SAMPLE_PHOTO_POSE.__class__(**{**pose, "heading_deg": heading}), frame)
 
     renderer.set_extra_projectors([(camera(k, 0), photo, 0.0) for k in range(1, max(counts))])
     extras = list(renderer.extras)
     tick = [0]
     missed = []
+    query = ctx.query(time=True)
 
-    def draw(path: str, n: int, move: bool) -> None:
+    def draw(path: str, n: int, move: bool, whole: bool = True) -> tuple[float, float]:
+        """One frame: (wall s, GPU s; 0 where `whole` is False: the pass timer's queries are
+        running, and timer queries cannot nest)."""
         tick[0] += move
         renderer.deferred = paths[path]
         renderer.extras = extras[: n - 1]
@@ -323,23 +346,30 @@ def projectors(ctx, renderer, view, target, photo, frame, frames: int) -> dict:
             e.camera = camera(k, tick[0])
         depths = [renderer.depth] + [e.depth for e in renderer.extras]
         before = [d.renders for d in depths]
-        renderer.draw(view, target.fbo, settings)
+        t0 = time.perf_counter()
+        with query if whole else nullcontext():
+            renderer.draw(view, target.fbo, settings)
         ctx.finish()
+        wall = time.perf_counter() - t0
         redrawn = sum(d.renders - b for d, b in zip(depths, before, strict=True))
         if move and redrawn != n:
             missed.append((path, n, redrawn))
+        return wall, query.elapsed / 1e9 if whole else 0.0
 
-    times = {(path, n, move): [] for path in paths for n in counts for move in (True, False)}
+    keys = [(path, n, move) for path in paths for n in counts for move in (True, False)]
+    times: dict = {key: [] for key in keys}
+    gpu: dict = {key: [] for key in keys}
     for _ in range(3):
-        for key in times:
+        for key in keys:
             draw(*key)
     for _ in range(frames):
-        for key, bucket in times.items():
-            t0 = time.perf_counter()
-            draw(*key)
-            bucket.append(time.perf_counter() - t0)
+        for key in keys:
+            wall, busy = draw(*key)
+            times[key].append(wall)
+            gpu[key].append(busy)
+    sections = _where_the_time_goes(ctx, renderer, paths, draw, max(5, frames // 4))
     renderer.extras = extras
-    renderer.deferred = renderer.deferred_pass is not None
+    renderer.deferred = default
     if missed:
         raise RuntimeError(
             f"depth maps not redrawn on moving frames (path, count, redrawn): {missed[:5]}"
@@ -348,27 +378,25 @@ def projectors(ctx, renderer, view, target, photo, frame, frames: int) -> dict:
     out: dict = {"frames": frames, "paths": {}}
     print("\n## Several projectors at once (every depth map redrawn every frame)\n")
     for path in paths:
-        base = median_ms(times[path, 1, True])
-        rows, medians, ratios = [], {}, {}
+        base, gpu_base = median_ms(times[path, 1, True]), median_ms(gpu[path, 1, True])
+        rows, medians, ratios, gpu_medians, gpu_ratios = [], {}, {}, {}, {}
         for n in counts:
             moving, still = median_ms(times[path, n, True]), median_ms(times[path, n, False])
-            medians[str(n)] = round(moving, 2)
-            ratios[str(n)] = round(moving / base, 3)
-            rows.append([n, f"{moving:.1f}", f"{moving / base:.2f}x", goal[n], f"{still:.1f}"])
-        out["paths"][path] = {"frame_median_ms": medians, "projector_ratios": ratios}
+            busy = median_ms(gpu[path, n, True])
+            medians[str(n)], ratios[str(n)] = round(moving, 2), round(moving / base, 3)
+            gpu_medians[str(n)], gpu_ratios[str(n)] = round(busy, 3), round(busy / gpu_base, 3)
+            rows.append([n, f"{moving:.2f}", f"{moving / base:.2f}x", goal[n], f"{still:.2f}",
+                         f"{busy:.3f}", f"{busy / gpu_base:.2f}x"])  # fmt: skip
+        out["paths"][path] = {
+            "frame_median_ms": medians,
+            "projector_ratios": ratios,
+            "gpu_median_ms": gpu_medians,
+            "gpu_ratios": gpu_ratios,
+            "sections": sections[path],
+        }
         print(f"### {path}\n")
-        print(
-            table(
-                [
-                    "projectors",
-                    "frame median ms",
-                    "against one (same path, same run)",
-                    "goal",
-                    "depth maps kept ms",
-                ],
-                rows,
-            )
-        )
+        print(table(["projectors", "frame median ms", "against one (same path, same run)", "goal",
+                     "depth maps kept ms", "GPU ms (timer query)", "GPU against one"], rows))  # fmt: skip
         print()
     if "forward" in out["paths"] and "deferred" in out["paths"]:
         rel = {
@@ -380,10 +408,46 @@ def projectors(ctx, renderer, view, target, photo, frame, frames: int) -> dict:
             + ", ".join(f"{n}: {r:.2f}x" for n, r in rel.items())
             + "\n"
         )
-    first = "deferred" if "deferred" in out["paths"] else "forward"
+    print(
+        "### Where the time goes (moving frames; CPU: wall time of the section, GPU: its timer query)\n"
+    )
+    print(table(["path", "projectors", "pass", "CPU median ms", "GPU median ms"], [
+        [path, n, name, f"{t['cpu_ms']:.3f}", f"{t['gpu_ms']:.3f}"]
+        for path, by_count in sections.items() for n, by_name in by_count.items()
+        for name, t in by_name.items()
+    ]))  # fmt: skip
+    print()
+    first = "deferred" if default else "forward"
     out["projector_ratios"] = out["paths"][first]["projector_ratios"]
     out["frame_median_ms"] = out["paths"][first]["frame_median_ms"]
+    out["gpu_ratios"] = out["paths"][first]["gpu_ratios"]
     out["path"] = first
+    return out
+
+
+def _where_the_time_goes(ctx, renderer, paths, draw, frames: int) -> dict:
+    """{path: {count: {pass: {"cpu_ms", "gpu_ms"}}}}: medians over `frames` moving frames of one
+    and of eight projectors, each pass timed by app.render.pass_timer."""
+    from app.render.pass_timer import PassTimer
+
+    renderer.timer = timer = PassTimer(ctx)
+    out: dict = {}
+    try:
+        for path in paths:
+            for n in (1, 8):
+                timer.clear()
+                for _ in range(frames):
+                    draw(path, n, True, whole=False)
+                    timer.end_frame()
+                out.setdefault(path, {})[str(n)] = {
+                    name: {
+                        "cpu_ms": round(median_ms(timer.cpu_s[name]), 3),
+                        "gpu_ms": round(median_ms(timer.gpu_s[name]), 3),
+                    }
+                    for name in timer.cpu_s
+                }
+    finally:
+        renderer.timer = None
     return out
 
 
@@ -394,6 +458,7 @@ def sample_on_off(ctx, renderer, view, target, frames: int) -> dict:
 
     on, off = ProjectionSettings(), ProjectionSettings(enabled=False)
     paths = drawing_paths(renderer)
+    default = renderer.deferred
     keys = [(path, s) for path in paths for s in (on, off)]
     times = {k: [] for k in range(len(keys))}
     for _ in range(3):
@@ -408,7 +473,7 @@ def sample_on_off(ctx, renderer, view, target, frames: int) -> dict:
             renderer.draw(view, target.fbo, s)
             ctx.finish()
             times[k].append(time.perf_counter() - t0)
-    renderer.deferred = renderer.deferred_pass is not None
+    renderer.deferred = default
     out = {}
     rows = []
     for i, path in enumerate(paths):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import platform
 import statistics
@@ -73,3 +74,12 @@ def drawing_paths(renderer) -> dict[str, bool]:
     if renderer.deferred_pass is None:
         paths.pop("deferred")
     return paths
+
+
+def write_json(path, figures: dict) -> None:
+    """Write a benchmark's figures to `path` (a pathlib.Path; nothing where it is None) as
+    indented JSON, and say where."""
+    if path is None:
+        return
+    path.write_text(json.dumps(figures, indent=2, default=float) + "\n", encoding="utf-8")
+    print(f"\nwritten {path}")

@@ -30,6 +30,7 @@ from app.geodesy import rotations
 from app.live.feed import LiveOptions
 from app.locate.marks import measure as measure_points
 from app.playback.clock import SPEEDS
+from app.render.context import describe
 from app.render.renderer import BACKGROUND
 from app.render.window import Window
 from app.session.model import REGISTERED
@@ -316,6 +317,8 @@ class Viewer(ViewerJobs, ViewerSessions):
                 window_camera=_camera_state(cam),
                 projector=None if proj is None else {"position": list(proj.position), "orientation": list(proj.orientation)},
                 frame_ms=float(np.median(self.stats.frame_times) * 1000) if self.stats.frame_times else None,
+                frame_p95_ms=float(np.percentile(self.stats.frame_times, 95) * 1000) if self.stats.frame_times else None,
+                gl=describe(self.window.ctx),
             )  # fmt: skip
         Path(path).write_text(json.dumps(state, indent=1))
 

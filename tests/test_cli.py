@@ -79,7 +79,7 @@ def test_render_writes_a_png(tmp_path, gl_ctx):
         ({"--scene": "missing.glb"}, "missing.glb: scene file does not exist"),
         ({"--image": "nope.png"}, "nope.png: image file does not exist"),
         ({"--alpha": "1.5"}, "argument --alpha: expected a finite number in [0, 1], got '1.5'"),
-        ({"--fov": "200"}, "argument --fov: expected a finite number in [0.5, 179]"),
+        ({"--fov": "200"}, "argument --fov: expected a finite number in [0.01, 179]"),
         ({"--far": "0"}, "argument --far"),
         ({"--origin": "95,0,0"}, "argument --origin: latitude 95 is outside [-90, 90]"),
         (

@@ -54,7 +54,7 @@ def test_a_field_of_view_no_camera_has_is_refused(session_dir, tmp_path, capsys)
     manifest = _copy(
         session_dir, tmp_path, lambda t: t.replace("hfov_deg = 60.0", "hfov_deg = 1e-300")
     )
-    with pytest.raises(ManifestError, match=r"camera.hfov_deg.*\[0.5, 179\]"):
+    with pytest.raises(ManifestError, match=r"camera.hfov_deg.*\[0.01, 179\]"):
         read_config(manifest)
     assert main(["render", "--fov", "1e-300", "--out", str(tmp_path / "x.png")]) == 2
     assert "--fov" in capsys.readouterr().err

@@ -13,9 +13,10 @@ ECEF_MIN_RADIUS_M = 6.0e6
 # Geometry checks
 EPS_DEGENERATE = 1e-12  # below this a vector or quaternion norm is treated as zero
 
-# Fields of view cameras have (degrees): a long telephoto to a wide fisheye; manifests, the CLI
-# and Intrinsics refuse others.
-FOV_RANGE_DEG = (0.5, 179.0)
+# Fields of view cameras have (degrees): a surveillance zoom lens at its longest (real FMV
+# reports 0.2-0.4 deg; below 0.01 is no lens) to a wide fisheye; manifests, the CLI and
+# Intrinsics refuse others.
+FOV_RANGE_DEG = (0.01, 179.0)
 
 # `geofuse sync --write` keeps an offset only above this confidence (the mean correlation of the
 # rate components on the fitted windows): the sample walk finds 0.99, a drone's course 0.84-0.91,

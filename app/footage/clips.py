@@ -25,7 +25,7 @@ from app.camera.intrinsics import Intrinsics
 from app.camera.lens import Lens
 from app.camera.pinhole import Camera, camera_in_frame
 from app.camera.profiles import LENS_MODES, choose_profile, video_camera
-from app.core.constants import DRONE_DEFAULT_PITCH_DEG
+from app.core.constants import DRONE_DEFAULT_PITCH_DEG, FOV_RANGE_DEG
 from app.core.errors import DataFormatError, GeofuseError, VideoError
 from app.core.messages import Messages
 from app.geodesy.enu import LocalFrame
@@ -415,12 +415,12 @@ def _klv_session(
     if attitude is None:
         raise DataFormatError(
             path,
-            "no KLV set gives the camera's attitude (platform heading, tag 5, missing or every angle in error)",
+            f"no KLV set gives the camera's attitude: {track.angle_faults() or 'no set has two distinct times'}",
             field="KLV",
         )
     if len(attitude.t) < len(track.t):
         messages.add(
-            f"{path.name}: {len(track.t) - len(attitude.t)} of {len(track.t)} KLV sets have angles in error or missing: their times are interpolated"
+            f"{path.name}: {len(track.t) - len(attitude.t)} of {len(track.t)} KLV sets give no attitude ({track.angle_faults() or 'a time repeated'}): their times are interpolated"
         )
     if len(gnss.t) < len(track.t):
         messages.add(
@@ -439,7 +439,7 @@ def _klv_session(
     _check_centre(track, path, messages)
     if hfov_deg is None and lens_path is None:
         fov = track.values("hfov_deg")
-        fov = fov[np.isfinite(fov) & (fov > 0.1)]
+        fov = fov[np.isfinite(fov) & (fov >= FOV_RANGE_DEG[0])]  # 0: not given
         if len(fov):
             hfov_deg = float(np.median(fov))
             if np.ptp(fov) > 0.5:

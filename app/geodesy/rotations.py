@@ -195,18 +195,22 @@ def wrap_degrees(a: npt.ArrayLike) -> FloatArray:
 
 class Interpolator:
     """Spherical linear interpolation of quaternions (N, 4) given at times t_source (built once,
-    queried many times); times outside the source range take the first/last quaternion. Never
-    interpolates Euler angles, so the +-180 deg heading wrap is harmless."""
+    queried many times); times outside the source range take the first/last quaternion, and a
+    single quaternion holds at every time. Never interpolates Euler angles, so the +-180 deg
+    heading wrap is harmless."""
 
     def __init__(self, t_source: npt.ArrayLike, q_source: npt.ArrayLike) -> None:
 
         self.t = np.asarray(t_source, np.float64)
-        self._slerp = Slerp(self.t, to_scipy(q_source))
+        q = np.asarray(q_source, np.float64).reshape(-1, 4)
+        self._one = canonical(q[0]) if len(q) == 1 else None
+        self._slerp = None if len(q) == 1 else Slerp(self.t, to_scipy(q))
 
     def __call__(self, t_query: npt.ArrayLike) -> FloatArray:
-        return from_scipy(
-            self._slerp(np.clip(np.asarray(t_query, np.float64), self.t[0], self.t[-1]))
-        )
+        t = np.asarray(t_query, np.float64)
+        if self._slerp is None:
+            return np.broadcast_to(self._one, (*t.shape, 4)).copy()
+        return from_scipy(self._slerp(np.clip(t, self.t[0], self.t[-1])))
 
 
 def slerp(t_source: npt.ArrayLike, q_source: npt.ArrayLike, t_query: npt.ArrayLike) -> FloatArray:

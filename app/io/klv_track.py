@@ -12,12 +12,23 @@ packets that have both; with neither it is dropped and counted.
 What is kept. A set failing its checksum is dropped and counted (never half-read); the reserved
 error codes are gaps: a set whose position is in error adds no GNSS fix, one whose angles are in
 error adds no attitude, and the rest of the set is still used.
+
+Report on change. ST 0601 lets a producer leave out of a set the items that have not changed
+since an earlier one. The platform's and the sensor's angles and the field of view (CARRIED) are
+carried forward from the last set that reported them, at most CARRY_LIMIT_S old (older: left
+out, counted and said); an error code reported is carried as the error it is. Positions and the
+frame centre are never carried: a set without them is a time without a fix, interpolated between
+the fixes around it like any gap. The version (tag 65), sent once, is carried too.
+
+Time stamps that do not move. Where every set has the one presentation time, the sets are placed
+by their Precision Time Stamps (tag 2) instead, said; where those do not move either, the KLV
+cannot be placed in time and is refused.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import av
@@ -28,7 +39,7 @@ from app.core.messages import Messages
 from app.geodesy import rotations
 from app.geodesy.enu import LocalFrame
 from app.geodesy.geoid import undulation
-from app.io.misb import KlvError, LocalSet, camera_orientation, parse, split
+from app.io.misb import TAGS, KlvError, LocalSet, camera_orientation, is_eg0104, parse, split
 from app.io.streams import FloatArray, GnssTrack, OrientationStream
 from app.io.video import VideoInfo, ffmpeg_reason, media_seconds
 
@@ -36,6 +47,9 @@ KLV_CODECS = ("klv", "smpte_klv")
 CONSISTENCY_LIMIT_DEG = 2.0  # the frame centre further than this from the optical axis: said
 PLATFORM_DESIGNATION_TAG = 10
 IMAGE_SOURCE_SENSOR_TAG = 11
+CARRIED = tuple(TAGS[tag].name for tag in (5, 6, 7, 16, 17, 18, 19, 20, 90, 91))
+ANGLE_TAGS = (5, 90, 6, 91, 7, 18, 19, 20)  # what camera_orientation composes
+CARRY_LIMIT_S = 10.0  # an item left out of a set is taken from a set at most this much older
 
 
 @dataclass
@@ -47,9 +61,34 @@ class KlvCounts:
     bad: int = 0
     untimed: int = 0
     first_error: str = ""
+    carried: int = 0  # sets that left out items an earlier set reported (report on change)
+    stale: int = 0  # sets that left out an item last reported more than CARRY_LIMIT_S before
+    stale_names: set[str] = field(default_factory=set)
+    frozen: int = 0  # sets placed by their Precision Time Stamps: every PTS was the same
+    eg0104: int = 0  # packets holding EG 0104 (the older Predator set), not read
 
     def said(self, where: str, messages: Messages) -> None:
-        """One warning per kind of fault, with its count."""
+        """One warning per kind of fault, with its count; what report on change carried, said
+        as information."""
+        if self.carried:
+            messages.info(
+                f"{where}: {self.carried} KLV set(s) leave out items an earlier set reported (ST 0601 report on change): carried forward, at most {CARRY_LIMIT_S:g} s"
+            )
+        if self.stale:
+            messages.add_once(
+                "klv-stale",
+                f"{where}: {self.stale} KLV set(s) leave out {', '.join(sorted(self.stale_names))} last reported more than {CARRY_LIMIT_S:g} s before: not carried (a gap there)",
+            )
+        if self.frozen:
+            messages.add_once(
+                "klv-frozen",
+                f"{where}: all {self.frozen} KLV sets have one presentation time: placed by their Precision Time Stamps (tag 2) instead",
+            )
+        if self.eg0104:
+            messages.add_once(
+                "klv-eg0104",
+                f"{where}: {self.eg0104} KLV packet(s) hold EG 0104 (the older Predator UAV Basic Universal Metadata Set), which geofuse does not read: they were left out",
+            )
         if self.bad:
             messages.add_once(
                 "klv-bad",
@@ -73,11 +112,16 @@ class KlvTrack:
     sets: list[LocalSet] = field(default_factory=list)
     counts: KlvCounts = field(default_factory=KlvCounts)
     _untimed: list[LocalSet] = field(default_factory=list)
+    _reported: dict[str, tuple[float, float]] = field(default_factory=dict)  # name: (t, value)
+    _version: int | None = None
 
     def add(self, payload: bytes, t: float | None) -> list[LocalSet]:
         """The sets in one KLV packet's payload, at media time t (None: the packet had no PTS,
-        kept aside for `finish`); returns the sets placed at t."""
+        kept aside for `finish`), the items they leave out carried forward; returns the sets
+        placed at t."""
         kept: list[LocalSet] = []
+        if is_eg0104(payload):
+            self.counts.eg0104 += 1
         for raw in split(payload):
             try:
                 s = parse(raw)
@@ -89,13 +133,45 @@ class KlvTrack:
             if t is None or not math.isfinite(t):
                 self._untimed.append(s)
                 continue
+            s = self._carry(s, float(t))
             self.t.append(float(t))
             self.sets.append(s)
             kept.append(s)
         return kept
 
+    def _carry(self, s: LocalSet, t: float) -> LocalSet:
+        """The set with the CARRIED items it leaves out taken from the last set that reported
+        them (at most CARRY_LIMIT_S before t), and the version it leaves out (see the module's
+        docstring); what it reports is remembered."""
+        filled: dict[str, float] = {}
+        stale = False
+        for name in CARRIED:
+            if name in s.values or name not in self._reported:
+                continue
+            t0, value = self._reported[name]
+            if 0.0 <= t - t0 <= CARRY_LIMIT_S:
+                filled[name] = value
+            elif t > t0:
+                self.counts.stale_names.add(name)
+                stale = True
+        self.counts.stale += stale
+        for name, value in s.values.items():
+            if name in CARRIED:
+                self._reported[name] = (t, value)
+        if s.version is not None:
+            self._version = s.version
+        version = s.version if s.version is not None else self._version
+        if not filled and version == s.version:
+            return s
+        if filled:
+            self.counts.carried += 1
+        return replace(s, version=version, values={**s.values, **filled})
+
     def finish(self) -> KlvTrack:
-        """Untimed sets placed by their Precision Time Stamps, everything sorted by time."""
+        """Untimed sets placed by their Precision Time Stamps, everything sorted by time; sets
+        that all share one presentation time placed by their stamps (see the module's
+        docstring)."""
+        self._unfreeze()
         stamped = [(t, s.time_us) for t, s in zip(self.t, self.sets, strict=True) if s.time_us]
         offset = (
             float(np.median([us / 1e6 - t for t, us in stamped])) if stamped else None
@@ -115,8 +191,27 @@ class KlvTrack:
         self.sets = [self.sets[i] for i in order]
         return self
 
+    def _unfreeze(self) -> None:
+        """Every set at one presentation time: their times from their Precision Time Stamps,
+        the first set's kept (KlvError when the stamps do not move either)."""
+        if len(self.t) < 2 or max(self.t) > min(self.t):
+            return
+        stamps = [s.time_us for s in self.sets]
+        if any(us is None for us in stamps) or max(stamps) == min(stamps):
+            raise KlvError(
+                f"all {len(self.t)} KLV sets have one presentation time ({self.t[0]:.3f} s) and no moving Precision Time Stamp (tag 2): the metadata cannot be placed in time"
+            )
+        first = stamps[0]
+        self.t = [self.t[0] + (us - first) / 1e6 for us in stamps]
+        self.counts.frozen = len(self.t)
+
     def times(self) -> FloatArray:
         return np.asarray(self.t, np.float64)
+
+    @property
+    def readable(self) -> int:
+        """Sets read so far, timed or waiting for `finish` to place them."""
+        return len(self.sets) + len(self._untimed)
 
     def values(self, name: str) -> FloatArray:
         """One mapped value (app.io.misb.TAGS name) of every set, NaN where absent or in error."""
@@ -178,6 +273,21 @@ class KlvTrack:
             return None
         return OrientationStream(np.asarray(t), np.asarray(q), self.path, note)
 
+    def angle_faults(self) -> str:
+        """Which angle items keep sets from an attitude: each tag missing (the heading: no
+        default) or the error code, with the number of sets; '' where none is."""
+        n, parts = len(self.sets), []
+        for tag in ANGLE_TAGS:
+            name = TAGS[tag].name
+            label = f"tag {tag} ({name.removesuffix('_deg').replace('_', ' ')})"
+            error = sum(1 for s in self.sets if not math.isfinite(s.values.get(name, 0.0)))
+            if error:
+                parts.append(f"{label} is the error code in {error} of {n} sets")
+            missing = sum(1 for s in self.sets if name not in s.values)
+            if tag == 5 and missing:
+                parts.append(f"{label} is missing from {missing} of {n} sets")
+        return "; ".join(parts)
+
     def centre_heights(self) -> FloatArray:
         """Ellipsoidal heights (m) of the frame centres (78, else 25 through the geoid)."""
         lat, lon = self.values("centre_latitude_deg"), self.values("centre_longitude_deg")
@@ -221,34 +331,49 @@ def has_klv(path: str | Path) -> bool:
 
 
 def read_klv(path: str | Path, video: VideoInfo, messages: Messages) -> KlvTrack:
-    """Every Local Set of the file's first KLV data stream on the video's media clock; faults
-    counted and said. VideoError when the file has no KLV stream or no set can be read."""
+    """Every Local Set of the file's KLV data stream on the video's media clock; faults counted
+    and said. A file with several KLV streams (a sensor's and a platform's, or two encoders'):
+    each is read, the one with the most readable sets is used and the others are said.
+    VideoError when the file has no KLV stream or no set can be read."""
     path = Path(path)
-    track = KlvTrack(str(path))
     try:
         with av.open(str(path)) as c:
             streams = klv_streams(c)
             if not streams:
                 raise VideoError(path, "no KLV data stream (MISB ST 0601 metadata)")
-            stream = streams[0]
-            tb = stream.time_base
+            tracks = {s.index: KlvTrack(str(path)) for s in streams}
             try:
-                for packet in c.demux(stream):
+                for packet in c.demux(*streams):
                     if not packet.size:
                         continue
+                    tb = packet.stream.time_base
                     t = (
                         media_seconds(packet.pts, tb, video.origin_s)
                         if packet.pts is not None
                         else None
                     )
-                    track.add(bytes(packet), t)
+                    tracks[packet.stream.index].add(bytes(packet), t)
             except av.FFmpegError:
                 messages.add(f"{path.name}: the file is cut short: the KLV read so far is used")
     except (av.FFmpegError, OSError) as exc:
         raise VideoError(path, f"cannot read the KLV stream ({ffmpeg_reason(exc)})") from exc
-    track.finish()
+    index, track = max(tracks.items(), key=lambda kv: (kv[1].readable, -kv[0]))
+    if len(tracks) > 1:
+        others = ", ".join(f"#{i} ({t.readable} sets)" for i, t in tracks.items() if i != index)
+        messages.add(
+            f"{path.name}: {len(tracks)} KLV data streams: stream #{index} ({track.readable} Local Sets) is used, not {others}"
+        )
+    try:
+        track.finish()
+    except KlvError as exc:
+        raise VideoError(path, str(exc)) from exc
     track.counts.said(path.name, messages)
     if not track.sets:
+        if track.counts.eg0104:
+            raise VideoError(
+                path,
+                f"the KLV data stream holds EG 0104 (the older Predator UAV Basic Universal Metadata Set, {track.counts.eg0104} packets), which geofuse does not read, and no MISB ST 0601 Local Set",
+            )
         raise VideoError(
             path,
             f"the KLV data stream holds no readable MISB ST 0601 Local Set ({track.counts.sets + track.counts.bad} found)",

@@ -33,6 +33,9 @@ import numpy.typing as npt
 from app.geodesy import rotations
 
 UAS_LOCAL_SET_KEY = bytes.fromhex("060E2B34020B01010E01030101000000")
+# EG 0104, the older Predator "UAV Basic Universal Metadata Set" (16-byte universal keys for its
+# items): recognised, to be named, not read.
+EG0104_KEY = bytes.fromhex("060E2B34020101010E01010201010000")
 KEY_VERSION_BYTE = 7  # the UL's version byte: any value is accepted when reading
 CHECKSUM_TAG = 1
 TIMESTAMP_TAG = 2  # Precision Time Stamp: microseconds since 1970 (UTC), uint64
@@ -208,6 +211,17 @@ def is_key(data: bytes, i: int = 0) -> bool:
         and key[:KEY_VERSION_BYTE] == UAS_LOCAL_SET_KEY[:KEY_VERSION_BYTE]
         and key[KEY_VERSION_BYTE + 1 :] == UAS_LOCAL_SET_KEY[KEY_VERSION_BYTE + 1 :]
     )
+
+
+def is_eg0104(data: bytes) -> bool:
+    """Whether a run of bytes holds an EG 0104 Universal Metadata Set (its key, any version)."""
+    i = data.find(EG0104_KEY[:KEY_VERSION_BYTE])
+    while i >= 0:
+        key = data[i : i + 16]
+        if len(key) == 16 and key[KEY_VERSION_BYTE + 1 :] == EG0104_KEY[KEY_VERSION_BYTE + 1 :]:
+            return True
+        i = data.find(EG0104_KEY[:KEY_VERSION_BYTE], i + 1)
+    return False
 
 
 def parse(packet: bytes) -> LocalSet:

@@ -19,6 +19,7 @@ import numpy as np
 
 from app.camera.intrinsics import Intrinsics
 from app.camera.pinhole import Camera
+from app.core.constants import FOV_RANGE_DEG
 from app.geodesy import rotations
 from app.geodesy.enu import LocalFrame
 from app.io.klv_track import KlvTrack
@@ -68,7 +69,7 @@ class LivePoses:
             self.t.insert(i, t)
             self.geodetic.insert(i, (float(g.lat[0]), float(g.lon[0]), float(g.h[0])))
             self.q.insert(i, q)
-            if np.isfinite(fov) and fov > 0.1:
+            if np.isfinite(fov) and fov >= FOV_RANGE_DEG[0]:  # 0: not given
                 self.hfov_deg = float(fov)
             if np.isfinite(centre):
                 self.centre_h = float(centre)

@@ -95,6 +95,7 @@ def write_video(
     frame: Callable[[int], np.ndarray] | None = None,
     crf: int = 18,
     klv: Sequence[tuple[float, bytes]] = (),
+    more_klv: Sequence[Sequence[tuple[float, bytes]]] = (),
 ) -> Path:
     """An H.264 video (MP4, or MPEG-TS for a .ts path) whose frames carry the given presentation
     times (s) and display rotation.
@@ -102,13 +103,18 @@ def write_video(
     size: the stored (coded) width and height; frame(k) returns frame k as a player displays it
     (turned by rotation_cw); by default `bar_frame`. Frames are stored turned back by rotation_cw.
     klv: (time s, payload) packets of a KLV data stream muxed beside the video at their own
-    presentation times (a set per frame, or their own rate).
+    presentation times (a set per frame, or their own rate); more_klv: further KLV streams'
+    packets, each its own data stream after the first.
     """
 
     w, h = size
     display = (h, w) if rotation_cw % 180 else (w, h)
     frame = frame or (lambda k: bar_frame(k, display))
-    pending = sorted(klv, key=lambda p: p[0])
+    each = [list(klv), *map(list, more_klv)] if klv else [list(p) for p in more_klv]
+    pending = sorted(
+        ((t, k, payload) for k, packets in enumerate(each) for t, payload in packets),
+        key=lambda p: (p[0], p[1]),
+    )
     tb = fractions.Fraction(1, 90000)
     with av.open(str(path), "w") as c:
         if creation_time:
@@ -122,13 +128,13 @@ def write_video(
             s.codec_context.options = {**s.codec_context.options, "g": "30"}
         if rotation_cw:
             s.set_display_rotation(-rotation_cw)  # FFmpeg's display matrix turns counter-clockwise
-        data = c.add_data_stream("klv") if pending else None
+        data = [c.add_data_stream("klv") for _ in each]
 
         def mux_klv(until_s: float) -> None:
             while pending and pending[0][0] <= until_s:
-                t, payload = pending.pop(0)
+                t, which, payload = pending.pop(0)
                 k = av.Packet(payload)
-                k.stream, k.time_base = data, tb
+                k.stream, k.time_base = data[which], tb
                 k.pts = k.dts = int(round(t * 90000))
                 c.mux(k)
 

@@ -7,6 +7,7 @@ known at every instant."""
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -14,17 +15,20 @@ import pytest
 from app.cli import main
 from app.core.errors import DataFormatError, VideoError
 from app.core.messages import Messages
+from app.export.records import frame_records
 from app.footage.clips import open_clip
 from app.geodesy import rotations
-from app.io.klv_track import CARRY_LIMIT_S, describe, read_klv
+from app.io.klv_track import CARRY_LIMIT_S, KlvTrack, describe, read_klv
 from app.io.misb import (
     EG0104_KEY,
+    KlvError,
     camera_orientation,
     encode,
     local_set,
     parse,
     read_ber,
     read_oid,
+    split,
 )
 from app.io.video import probe
 from app.session.camera_track import camera_track
@@ -228,3 +232,210 @@ def test_of_two_klv_streams_the_one_with_sets_is_used_and_the_other_said(tmp_pat
     assert "2 KLV data streams" in said and "(20 Local Sets) is used, not #1 (0 sets)" in said
     session = open_clip(path)
     assert np.allclose(_centre_pixel(session, 60), [SIZE[0] / 2, SIZE[1] / 2], atol=0.5)
+
+
+def test_a_long_gap_between_sparse_sets_is_crossed_straight_and_said(tmp_path):
+    """KLV every 10 s with a 98 s gap (20 s to 118 s) round the 150 m orbit: inside the gap the
+    camera lies on the straight line between the fixes around it (a cubic through those fixes'
+    velocities strays far off it), and the gap is said with its length and start."""
+    times = [0.0, 10.0, 20.0, 118.0, 128.0, 138.0]
+    path = write_video(
+        tmp_path / "sparse.ts",
+        np.arange(0.0, 140.0, 0.5),
+        SIZE,
+        0,
+        crf=35,
+        klv=[(t, _set(t)) for t in times],
+    )
+    session = open_clip(path)
+    said = " ".join(session.messages.items)
+    assert "1 gap(s) between positions, the longest 98.0 s from t = 20.0 s" in said
+    track = camera_track(session, "telemetry")
+    pts = session.video.pts_s
+    a, b = (
+        np.asarray(track.frame_camera(int(np.searchsorted(pts, t))).position) for t in (20.0, 118.0)
+    )
+    for t in (30.0, 69.0, 100.0):
+        p = np.asarray(track.frame_camera(int(np.searchsorted(pts, t))).position)
+        s = (t - 20.0) / 98.0
+        assert np.linalg.norm(p - ((1 - s) * a + s * b)) < 0.5, t
+
+
+def test_frame_centres_off_their_own_ray_are_not_taken_for_the_ground(tmp_path):
+    """Every other set names a frame centre 600 m to the side and 40 m above the real one (an
+    encoder that computes it from a stale pose): those lie far off the optical axis their own
+    angles give, are said, and the assumed ground is the good centres' height, not theirs."""
+    wrong_lat = encode(23, ORBIT.lat_deg + 600.0 / 111_000.0)
+    packets = []
+    for k in range(20):
+        t = k / 5.0
+        bad = {23: wrong_lat, 78: encode(78, ORBIT.ground_h_m + 40.0)} if k % 2 else {}
+        packets.append((t, _set(t, replace=bad)))
+    session = open_clip(_video(tmp_path / "centres.ts", packets))
+    said = " ".join(session.messages.items)
+    assert "10 of 20 KLV frame centres lie more than 2 deg off their own optical axis" in said
+    ground = float(said.split("the KLV frame centre's median height (")[1].split(" m")[0])
+    assert ground == pytest.approx(ORBIT.ground_h_m, abs=0.3)
+
+
+@pytest.mark.parametrize("suffix", [".klv", ".bin"])
+def test_a_raw_klv_file_is_read_as_telemetry_on_its_time_stamps(tmp_path, capsys, suffix):
+    """Local Sets back to back with no video (what `ffmpeg -map 0:d -f data` writes), named
+    .klv or .bin (where raw GoPro GPMF also goes): read as KLV, placed by their Precision Time
+    Stamps, the first at 0 s."""
+    path = tmp_path / f"flight{suffix}"
+    path.write_bytes(b"".join(_set(k / 5.0) for k in range(20)))
+    assert main(["telemetry", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "MISB ST 0601 KLV, raw" in out
+    assert "Local Sets: 20 samples, 5.00 Hz, 0.000..3.800 s" in out
+    assert "positions: 20 fixes" in out
+
+
+def test_raw_eg0104_is_named(tmp_path, capsys):
+    path = tmp_path / "predator.bin"
+    path.write_bytes(_eg0104_packet() * 5)
+    assert main(["telemetry", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert "predator.bin" in err and "EG 0104" in err and "Traceback" not in err
+
+
+def test_a_zoom_is_drawn_frame_by_frame_in_the_camera_and_the_footprints(tmp_path):
+    """The field of view (tags 16, 17) narrows from 40 to 4 deg over 4 s, every set aimed at the
+    orbit's centre: each frame's camera has the field of view of its moment (linear between the
+    sets), and each footprint's half-width across the centre row is the slant range times
+    tan(hfov / 2) of its own frame, so the last frame's is tan(2.15 deg) / tan(20 deg) of the
+    first's (the range is the orbit's at both; edge to edge, so that the camera's 2 deg roll
+    cancels to first order)."""
+
+    def hfov(t: float) -> float:
+        return 40.0 - 9.0 * t  # 40 deg at 0 s to 4 deg at 4 s
+
+    packets = []
+    for k in range(21):
+        t = k / 5.0
+        h = hfov(t)
+        v = math.degrees(2 * math.atan(math.tan(math.radians(h) / 2) * SIZE[1] / SIZE[0]))
+        packets.append((t, _set(t, replace={16: encode(16, h), 17: encode(17, v)})))
+    path = _video(tmp_path / "zoom.ts", packets, seconds=4.0)
+    session = open_clip(path)
+    assert any("a zoom): every frame is drawn with its own" in m for m in session.messages.items)
+    track = camera_track(session, "telemetry")
+    for k in (0, 31, 64, 119):
+        t = float(session.video.pts_s[k])
+        assert track.frame_camera(k).intrinsics.hfov_deg == pytest.approx(hfov(t), abs=0.01), k
+        # aimed at the centre, within the 0.10 deg the 2-byte heights allow (see above)
+        px_per_deg = SIZE[0] / hfov(t)
+        tol = max(0.6, 0.11 * px_per_deg)
+        assert np.allclose(_centre_pixel(session, k), [SIZE[0] / 2, SIZE[1] / 2], atol=tol), k
+    records = {r.index: r for r in frame_records(session, "telemetry", every=119, track=track)}
+    widths = {}
+    for k, r in records.items():
+        gh, gw = r.ground.shape[:2]
+        left, right = (
+            session.frame.geodetic_to_enu([p[0]], [p[1]], [ORBIT.ground_h_m])[0][:2]
+            for p in (r.ground[gh // 2, 0], r.ground[gh // 2, gw - 1])
+        )
+        widths[k] = float(np.linalg.norm(right - left)) / 2  # both sides: the roll cancels
+        assert r.hfov_deg == pytest.approx(track.frame_camera(k).intrinsics.hfov_deg, abs=1e-9)
+    t_last = float(session.video.pts_s[119])
+    want = math.tan(math.radians(hfov(t_last) / 2)) / math.tan(math.radians(20.0))
+    assert widths[119] / widths[0] == pytest.approx(want, rel=0.01)
+
+
+def test_a_dji_subtitle_whose_focal_length_changes_is_drawn_frame_by_frame(tmp_path):
+    """A DJI subtitle's focal length (35 mm equivalent, `[focal_len : 240]` in tenths) going
+    from 24 to 48 mm over the 2 s clip: each frame's field of view is 2 atan(18 / f) of its
+    moment's focal length (36 mm the full frame's width)."""
+    from app.simulate import drone
+
+    entries = drone.srt_text(2.0, 0.0).split("\n\n")
+    focal = [24.0 + 24.0 * k / (len(entries) - 1) for k in range(len(entries))]
+    text = "\n\n".join(
+        e.replace("[focal_len : 240]", f"[focal_len : {10 * f:.0f}]")
+        for e, f in zip(entries, focal, strict=True)
+    )
+    folder = tmp_path / "dji"
+    folder.mkdir()
+    video = write_video(folder / "DJI_0001.MP4", np.arange(60) / 30.0, SIZE, 0, crf=35)
+    (folder / "DJI_0001.SRT").write_text(text, encoding="utf-8")
+    session = open_clip(video)
+    assert any("a zoom): every frame is drawn with its own" in m for m in session.messages.items)
+    track = camera_track(session, session.sources[0])
+    for k in (0, 29, 59):
+        want = math.degrees(2 * math.atan(18.0 / focal[k]))
+        assert track.frame_camera(k).intrinsics.hfov_deg == pytest.approx(want, abs=0.05), k
+
+
+REAL = Path(__file__).parent / "data" / "klv"  # real samples: tests/data/klv/README.md
+
+
+def test_the_st0902_example_packet_reads_as_the_standard_prints_it():
+    """MISB ST 0902's 'dynamic only' example, as a KLV library ships it: every value as the
+    standard's example lists it (to the integer mapping's step)."""
+    s = parse((REAL / "dyn_only.bin").read_bytes())
+    assert s.time_us == 1_231_798_102_000_000  # 2009-01-12 22:08:22 UTC
+    want = {
+        "platform_heading_deg": 159.9744,
+        "platform_pitch_deg": -0.4315,
+        "platform_roll_deg": 3.4058,
+        "sensor_latitude_deg": 60.1768229,
+        "sensor_longitude_deg": 128.4267598,
+        "sensor_msl_m": 14190.72,
+        "hfov_deg": 144.5713,
+        "vfov_deg": 152.6436,
+        "sensor_azimuth_deg": 160.7192,
+        "sensor_elevation_deg": -168.7923,
+    }
+    for name, value in want.items():
+        assert s.get(name) == pytest.approx(value, abs=3e-4 * max(1.0, abs(value) / 100)), name
+
+
+def test_the_st0902_example_whose_printed_checksum_is_wrong_is_refused():
+    with pytest.raises(KlvError, match="checksum 3e1e, the set says aa43"):
+        parse((REAL / "dyn_const.bin").read_bytes())
+
+
+def test_a_real_survey_flight_reads_whole_and_its_angles_aim_at_its_own_frame_centres(capsys):
+    """A Cessna 208B's 85 s of KLV (407 sets, none failing its checksum): as raw telemetry, and
+    every set's composed optical axis (platform then sensor angles, ST 0601's definitions) points
+    at the frame centre the same set names, 0.11 deg at the median and 1.3 at worst (the sensor
+    slews while the centre is computed)."""
+    assert main(["telemetry", str(REAL / "cheyenne.bin")]) == 0
+    out = capsys.readouterr().out
+    assert "Local Sets: 407 samples" in out and "0.000..84.894 s" in out
+    track = KlvTrack(str(REAL / "cheyenne.bin"))
+    track.add((REAL / "cheyenne.bin").read_bytes(), None)
+    track.finish()
+    assert track.counts.bad == 0 and track.text(10) == "C208B"
+    off = track.centre_offsets_deg()
+    assert np.isfinite(off).all()
+    assert np.median(off) < 0.15 and off.max() < 1.3
+    fov = track.values("hfov_deg")
+    assert fov.min() == pytest.approx(0.574, abs=0.01) and fov.max() == pytest.approx(
+        40.51, abs=0.01
+    )
+
+
+def test_a_real_zooming_flight_beside_a_video_draws_each_frame_with_its_own_field_of_view(
+    tmp_path,
+):
+    """The survey's sets muxed beside a video on their own times (from their time stamps): each
+    frame's camera has the field of view the KLV gives at its moment (linear between sets), from
+    0.57 deg to 40.5 deg, and the narrowest frames open and solve."""
+    raw = (REAL / "cheyenne.bin").read_bytes()
+    sets = list(split(raw))
+    t0 = parse(sets[0]).time_us
+    packets = [((parse(s).time_us - t0) / 1e6, s) for s in sets]
+    times = np.arange(0.0, 84.5, 0.5)
+    path = write_video(tmp_path / "cessna.ts", times, SIZE, 0, crf=40, klv=packets)
+    session = open_clip(path)
+    assert session.camera.startswith("C208B")
+    track = camera_track(session, "telemetry")
+    t_klv = np.array([t for t, _ in packets])
+    fov = np.array([parse(s).get("hfov_deg") for _, s in packets])
+    got = np.array([track.frame_camera(k).intrinsics.hfov_deg for k in range(len(times))])
+    media = np.asarray(session.video.pts_s)
+    want = np.interp(media, t_klv, fov)
+    assert np.allclose(got, want, atol=0.01)
+    assert got.min() < 0.7 and got.max() > 40.0

@@ -82,6 +82,24 @@ class Intrinsics:
         return Intrinsics(width, height, self.fx * sx, self.fy * sy, self.cx * sx, self.cy * sy)
 
 
+@dataclass(frozen=True)
+class Zoom:
+    """A field of view that changes over time (a zoom lens, as FMV metadata reports it): the
+    horizontal field of view hfov_deg (N,) degrees at times t (N,) session seconds, increasing;
+    linear between them, held before the first and after the last."""
+
+    t: FloatArray
+    hfov_deg: FloatArray
+
+    def hfov_at(self, t: float) -> float:
+        """Degrees at session time t."""
+        return float(np.interp(t, self.t, self.hfov_deg))
+
+    def intrinsics_at(self, base: Intrinsics, t: float) -> Intrinsics:
+        """`base`'s image with the field of view at session time t (square pixels, centred)."""
+        return Intrinsics.from_fov(base.width, base.height, self.hfov_at(t))
+
+
 def projection_matrix(
     intr: Intrinsics, near: float = DEFAULT_NEAR_M, far: float = DEFAULT_FAR_M
 ) -> FloatArray:

@@ -5,6 +5,11 @@ Eq. 4, corrected (DESIGN.md): velocity east/north/up (m/s) at a fix becomes geod
 dphi/dt = v_N / (M + h), dlambda/dt = v_E / ((N + h) cos phi), dh/dt = v_U, with the meridian
 radius M and prime-vertical radius N (app.geodesy.enu) at the fix's latitude. Where a log has no velocity,
 it is estimated from the neighbouring fixes (central differences in the local ENU frame).
+
+Gaps. An interval between fixes longer than GAP_MIN_S and GAP_FACTOR median intervals (an
+outage, metadata sent every 30-100 s) is crossed by a straight line between its fixes, not by
+the cubic (which, with the velocities at its ends, can stray hundreds of metres across a long
+one), and the velocities are estimated within the stretches between gaps, never across one.
 """
 
 from __future__ import annotations
@@ -15,6 +20,7 @@ from functools import cached_property
 import numpy as np
 import numpy.typing as npt
 
+from app.core.constants import GAP_FACTOR, GAP_MIN_S
 from app.geodesy import rotations
 from app.geodesy.enu import LocalFrame, meridian_radius, prime_vertical_radius
 
@@ -27,6 +33,30 @@ def estimate_velocity(t: FloatArray, enu: FloatArray) -> FloatArray:
     if len(t) < 2:
         return np.zeros_like(enu)
     return np.gradient(enu, t, axis=0, edge_order=1)
+
+
+def gap_intervals(t: npt.ArrayLike) -> npt.NDArray[np.bool_]:
+    """(N-1,) which intervals between fixes at times t (s) are gaps: longer than GAP_MIN_S and
+    than GAP_FACTOR times the median interval."""
+    dt = np.diff(np.asarray(t, np.float64))
+    if len(dt) == 0:
+        return np.zeros(0, bool)
+    return dt > max(GAP_MIN_S, GAP_FACTOR * float(np.median(dt)))
+
+
+def gaps_said(t: npt.ArrayLike) -> str:
+    """One line on the gaps between fixes at times t (s) (gap_intervals): how many, the longest
+    and where it begins; '' where there is none."""
+    t = np.asarray(t, np.float64)
+    gaps = gap_intervals(t)
+    if not gaps.any():
+        return ""
+    dt = np.where(gaps, np.diff(t), 0.0)
+    k = int(np.argmax(dt))
+    return (
+        f"{int(gaps.sum())} gap(s) between positions, the longest {dt[k]:.1f} s from t = "
+        f"{t[k]:.1f} s: crossed by a straight line between the fixes around it, not a curve"
+    )
 
 
 def geodetic_rates(lat_deg: FloatArray, h_m: FloatArray, vel_enu: FloatArray) -> FloatArray:
@@ -81,7 +111,11 @@ class PositionTrack:
             raise ValueError("need at least 2 fixes with strictly increasing times")
         if vel_enu is None:
             frame = LocalFrame(float(lat[0]), float(lon[0]), float(h[0]))
-            vel = estimate_velocity(t, frame.geodetic_to_enu(lat, lon, h))
+            enu = frame.geodetic_to_enu(lat, lon, h)
+            vel = np.zeros_like(enu)
+            cuts = np.flatnonzero(gap_intervals(t)) + 1
+            for a, b in zip(np.r_[0, cuts], np.r_[cuts, len(t)], strict=True):
+                vel[a:b] = estimate_velocity(t[a:b], enu[a:b])  # within a stretch only
         else:
             vel = np.asarray(vel_enu, np.float64)
         return cls(t, lat, lon, h, vel)
@@ -97,16 +131,17 @@ class PositionTrack:
         tq = np.clip(np.atleast_1d(np.asarray(tq, np.float64)), self.t[0], self.t[-1])
         i = np.clip(np.searchsorted(self.t, tq, side="right") - 1, 0, len(self.t) - 2)
         p, rates = self._hermite_nodes
-        out = hermite(
-            self.t[i, None],
-            self.t[i + 1, None],
-            p[i],
-            p[i + 1],
-            rates[i],
-            rates[i + 1],
-            tq[:, None],
-        )
+        t0, t1 = self.t[i, None], self.t[i + 1, None]
+        out = hermite(t0, t1, p[i], p[i + 1], rates[i], rates[i + 1], tq[:, None])
+        across = self._gaps[i]
+        if across.any():  # a straight line between the fixes around a gap
+            s = (tq[across, None] - t0[across]) / (t1[across] - t0[across])
+            out[across] = (1 - s) * p[i[across]] + s * p[i[across] + 1]
         return np.column_stack([np.degrees(out[:, 0]), np.degrees(out[:, 1]), out[:, 2]])
+
+    @cached_property
+    def _gaps(self) -> npt.NDArray[np.bool_]:
+        return gap_intervals(self.t)
 
 
 # Display rotation (the clockwise "rotate" tag a phone writes) -> camera roll about the device z

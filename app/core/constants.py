@@ -10,6 +10,11 @@ WGS84_E2 = WGS84_F * (2.0 - WGS84_F)  # first eccentricity squared
 # Coordinates whose magnitude exceeds this are taken to be ECEF (metres); a local model is far smaller.
 ECEF_MIN_RADIUS_M = 6.0e6
 
+# Time series: a step longer than GAP_FACTOR median steps is a gap (said); between positions, one
+# longer than GAP_MIN_S too is crossed by a straight line, not a cubic (no bulge across an outage).
+GAP_FACTOR = 5.0
+GAP_MIN_S = 5.0
+
 # Geometry checks
 EPS_DEGENERATE = 1e-12  # below this a vector or quaternion norm is treated as zero
 

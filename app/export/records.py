@@ -123,7 +123,12 @@ class FootprintCaster:
         """(points (rows, cols, 3), hit mask) at the border-sampling grid of the real image."""
         far = max(VIEW_FAR_M, 2.0 * self.max_range_m)
         if cam.lens is None:  # a pinhole: the grid camera's own pixels are the rays, exactly
-            small = Camera.create(self.grid, cam.position, cam.orientation, VIEW_NEAR_M, far)
+            grid = (  # a zooming camera's own field of view, the same grid of samples
+                self.grid
+                if cam.intrinsics == self.intrinsics
+                else border_sampling(cam.intrinsics, *FOOTPRINT_SAMPLES)
+            )
+            small = Camera.create(grid, cam.position, cam.orientation, VIEW_NEAR_M, far)
             return landing_points(small, self.probe.points(small), self.max_range_m)
         # A real lens: rays through the image's own border (the lens's inverse), looked up in a
         # fine position map of the pinhole that encloses the image.
@@ -178,10 +183,16 @@ class FootprintCaster:
             np.concatenate([geo[:1, 1], grid[cr, cc, 1:2], border[:, 1]]),
         )
         centre_hit = bool(hit[cr, cc])
+        own = cam.lens is None and cam.intrinsics != self.intrinsics  # a zoom's frame
+        hfov, vfov = (
+            (cam.intrinsics.hfov_deg, cam.intrinsics.vfov_deg)
+            if own
+            else (self.hfov_deg, self.vfov_deg)
+        )
         return FrameRecord(
             index=index, media_s=media_s, session_s=session_s, utc_s=utc_s,
             sensor=tuple(map(float, geo[0])), hpr=tuple(map(float, rotations.hpr_from_camera_quat(cam.orientation))),
-            hfov_deg=self.hfov_deg, vfov_deg=self.vfov_deg,
+            hfov_deg=hfov, vfov_deg=vfov,
             centre=tuple(map(float, grid[cr, cc])) if centre_hit else (np.nan, np.nan, np.nan),
             slant_m=float(np.linalg.norm(pts[cr, cc] - np.asarray(cam.position))) if centre_hit else np.nan,
             corners=corners, footprint=border, clipped=not bool(hit[b[:, 0], b[:, 1]].all()),

@@ -21,10 +21,11 @@ import numpy as np
 
 from app.attitude.gopro import read_gopro
 from app.attitude.heading import heading_policy
-from app.camera.intrinsics import Intrinsics
+from app.camera.intrinsics import Intrinsics, Zoom
 from app.camera.lens import Lens
 from app.camera.pinhole import Camera, camera_in_frame
 from app.camera.profiles import LENS_MODES, choose_profile, video_camera
+from app.camera.trajectory import gaps_said
 from app.core.constants import DRONE_DEFAULT_PITCH_DEG, FOV_RANGE_DEG
 from app.core.errors import DataFormatError, GeofuseError, VideoError
 from app.core.messages import Messages
@@ -59,6 +60,8 @@ DJI_DEFAULT_FOCAL_MM = 24.0  # 35 mm equivalent focal length of most DJI main ca
 ASSUMED_DRONE_HFOV_DEG = math.degrees(2 * math.atan(18.0 / DJI_DEFAULT_FOCAL_MM))
 DJI_FOCAL_RANGE_MM = (8.0, 1200.0)  # 35 mm equivalent: a 132 deg to a 1.7 deg horizontal view
 KLV_ASSUMED_HEIGHT_M = 100.0  # a KLV clip without a frame centre: the ground this far under it
+ZOOM_STEP_DEG = 0.01  # a KLV field of view that changes more than this (deg) is drawn per frame
+ZOOM_STEP_MM = 0.05  # a DJI focal length that changes more than this (mm, 35 mm eq.): the same
 DRONE_GROUND_MARGIN_M = (
     500.0  # the assumed ground beyond a drone clip's track, plus 10x its height above the ground
 )
@@ -169,6 +172,7 @@ def _clip_session(
     layers: tuple[Layer, ...] = (),
     utc_at_zero_s: float | None = None,
     camera: str = "",
+    zoom: Zoom | None = None,
 ) -> Session:
     policy = heading_policy(
         gyr is not None, mag is not None, recorded, pitch_deg, aircraft_yaw is not None
@@ -179,7 +183,7 @@ def _clip_session(
         path.resolve(), frame, Path(layers[0].location) if layers else None, Placement(), video, video.pts_s.copy(), intr, video.rotation_cw,
         acc, gyr, mag, gnss, recorded, decl, messages, inputs=(*inputs, *(f.resolve() for layer in layers for f in layer.files())), heading=policy, device_is_camera=True,
         aircraft_yaw=aircraft_yaw, mesh=mesh, lens=lens, readout_s=readout_s, layers=tuple(layers),
-        utc_at_zero_s=utc_at_zero_s, camera=camera,
+        utc_at_zero_s=utc_at_zero_s, camera=camera, zoom=zoom,
     )  # fmt: skip
 
 
@@ -353,6 +357,7 @@ def _dji_session(
             field="focal_len",
         )
     choice = None
+    from_focal = hfov_deg is None
     if hfov_deg is None:
         hfov_deg = float(
             np.degrees(2 * np.arctan(18.0 / focal_mm))
@@ -366,6 +371,14 @@ def _dji_session(
             )
     intr, lens, lens_files = _camera_model(video, hfov_deg, lens_path, choice, messages)
     readout = _readout(None, lens, path, messages)
+    zoom = None
+    ok = np.isfinite(track.focal_len)
+    if from_focal and lens is None and ok.any() and np.ptp(track.focal_len[ok]) > ZOOM_STEP_MM:
+        fov = np.degrees(2 * np.arctan(18.0 / np.clip(track.focal_len[ok], *DJI_FOCAL_RANGE_MM)))
+        zoom = Zoom(np.asarray(track.t, np.float64)[ok], fov)
+        messages.info(
+            f"{srt.name}: the focal length changes ({track.focal_len[ok].min():g} to {track.focal_len[ok].max():g} mm equivalent, a zoom): every frame is drawn with its own field of view"
+        )
     return _clip_session(
         path,
         (path.resolve(), srt.resolve(), *lens_files),
@@ -387,6 +400,7 @@ def _dji_session(
         layers,
         _subtitle_clock(track, srt, messages),
         _dji_name(path),
+        zoom,
     )
 
 
@@ -426,6 +440,8 @@ def _klv_session(
         messages.add(
             f"{path.name}: {len(track.t) - len(gnss.t)} of {len(track.t)} KLV sets have no valid position: their times are interpolated"
         )
+    if gaps_said(gnss.t):
+        messages.add(f"{path.name}: KLV: {gaps_said(gnss.t)}")
     ground = _klv_ground(track, gnss, path, messages, bool(layers))
     frame, mesh, gnss = frame_and_ground(
         gnss,
@@ -437,14 +453,16 @@ def _klv_session(
     utc = track.utc_at_zero()
     decl = declination(frame.lat_deg, frame.lon_deg, frame.h_m, utc or video.creation_time or 0.0)
     _check_centre(track, path, messages)
+    zoom = None
     if hfov_deg is None and lens_path is None:
         fov = track.values("hfov_deg")
-        fov = fov[np.isfinite(fov) & (fov >= FOV_RANGE_DEG[0])]  # 0: not given
-        if len(fov):
-            hfov_deg = float(np.median(fov))
-            if np.ptp(fov) > 0.5:
-                messages.add(
-                    f"{path.name}: the KLV field of view changes ({fov.min():.1f} to {fov.max():.1f} deg, a zoom): the median {hfov_deg:.1f} deg is used for the whole clip"
+        ok = np.isfinite(fov) & (fov >= FOV_RANGE_DEG[0])  # 0: not given
+        if ok.any():
+            hfov_deg = float(np.median(fov[ok]))
+            if np.ptp(fov[ok]) > ZOOM_STEP_DEG:
+                zoom = Zoom(track.times()[ok], fov[ok])
+                messages.info(
+                    f"{path.name}: the KLV field of view changes ({fov[ok].min():.2f} to {fov[ok].max():.2f} deg, a zoom): every frame is drawn with its own"
                 )
         else:
             hfov_deg = ASSUMED_DRONE_HFOV_DEG
@@ -474,6 +492,7 @@ def _klv_session(
         layers=layers,
         utc_at_zero_s=utc,
         camera=camera,
+        zoom=zoom,
     )
 
 
@@ -485,7 +504,13 @@ def _klv_ground(
     position where the centre lies level with it or above, else 100 m under the lowest position.
     Said unless a scene replaces it."""
     centre = track.centre_heights()
-    centre = centre[np.isfinite(centre)]
+    off = track.centre_offsets_deg()
+    astray = np.isfinite(centre) & (off > CONSISTENCY_LIMIT_DEG)  # NaN (no pose): kept
+    if astray.any():
+        messages.add(
+            f"{path.name}: {int(astray.sum())} of {int(np.isfinite(centre).sum())} KLV frame centres lie more than {CONSISTENCY_LIMIT_DEG:g} deg off their own optical axis: their heights are not taken for the ground"
+        )
+    centre = centre[np.isfinite(centre) & ~astray]
     lowest = float(np.min(gnss.h))
     if len(centre):
         ground = min(float(np.median(centre)), lowest - HANDHELD_MOUNT_M)
@@ -510,6 +535,7 @@ def _check_centre(track: KlvTrack, path: Path, messages: Messages) -> None:
     """Says when the frame centre the KLV gives (tags 23-25) lies off the optical axis its
     angles give (median over the sets), a sign of angles or a centre computed another way."""
     off = track.centre_offsets_deg()
+    off = off[np.isfinite(off)]
     if len(off) and float(np.median(off)) > CONSISTENCY_LIMIT_DEG:
         messages.add(
             f"{path.name}: KLV consistency: the frame centre (tags 23-25) lies {np.median(off):.1f} deg (median, up to {off.max():.1f}) from the optical axis the platform and sensor angles give: the pose or the centre is wrong"

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from app.attitude.gopro import read_gopro
+from app.camera.trajectory import gaps_said
 from app.core.errors import DataFormatError
 from app.core.messages import Messages
 from app.core.outputs import CSV_SUFFIXES, check_output, write_atomically
@@ -27,10 +28,12 @@ from app.io.gpx import read_gpx
 from app.io.klv_track import (
     IMAGE_SOURCE_SENSOR_TAG,
     PLATFORM_DESIGNATION_TAG,
+    KlvTrack,
     has_klv,
     read_klv,
 )
 from app.io.klv_track import describe as describe_klv
+from app.io.misb import UAS_LOCAL_SET_KEY, KlvError, is_eg0104, is_key
 from app.io.sensorlogger import read_sensorlogger
 from app.io.streams import GAP_FACTOR
 from app.io.video import probe
@@ -69,6 +72,8 @@ def inspect(path: str | Path) -> Telemetry:
         return _gpx(path)
     if suffix in KLV_SUFFIXES or (suffix in (".mp4", ".mov") and has_klv(path)):
         return _klv(path)
+    if suffix in RAW_KLV_SUFFIXES or (suffix in RAW_GPMF_SUFFIXES and _starts_as_klv(path)):
+        return _klv_raw(path)
     if suffix in (".mp4", ".mov", ".360"):
         _refuse_dji_video(path)
         return _gopro(path)
@@ -80,12 +85,13 @@ def inspect(path: str | Path) -> Telemetry:
         return _csv(path)
     raise DataFormatError(
         path,
-        f"unknown telemetry format {suffix!r} (expected .MP4 from a GoPro, .TS with MISB KLV, raw GPMF .bin/.gpmd/.raw, .SRT, .GPX, .CSV, or a Sensor Logger folder or zip)",
+        f"unknown telemetry format {suffix!r} (expected .MP4 from a GoPro, .TS with MISB KLV, raw KLV .klv/.bin, raw GPMF .bin/.gpmd/.raw, .SRT, .GPX, .CSV, or a Sensor Logger folder or zip)",
     )
 
 
 KLV_SUFFIXES = (".ts", ".m2ts", ".mpg")  # MPEG transport streams, where MISB KLV travels
 RAW_GPMF_SUFFIXES = (".bin", ".gpmd", ".raw", ".gpmf")  # GPMF extracted from an MP4 by other tools
+RAW_KLV_SUFFIXES = (".klv",)  # Local Sets back to back: what `ffmpeg -map 0:d -f data` writes
 
 
 def _gpmf_payload(path: Path) -> Telemetry:
@@ -134,13 +140,48 @@ def _srt(path: Path) -> Telemetry:
     return out
 
 
+def _starts_as_klv(path: Path) -> bool:
+    """Whether a file begins (within its first 64 KiB) with a UAS Datalink Local Set or an EG
+    0104 set: raw KLV, not GPMF, whatever its suffix."""
+    with path.open("rb") as f:
+        head = f.read(1 << 16)
+    i = head.find(UAS_LOCAL_SET_KEY[:4])
+    return (i >= 0 and is_key(head, i)) or is_eg0104(head)
+
+
+def _klv_raw(path: Path) -> Telemetry:
+    """A file of KLV Local Sets with no video around them: their times from their Precision
+    Time Stamps (tag 2), the first set at 0 s; then as a video's KLV (_klv)."""
+    out = Telemetry(path, "MISB ST 0601 KLV, raw (no video: times from the Precision Time Stamps)")
+    track = KlvTrack(str(path))
+    track.add(path.read_bytes(), None)
+    try:
+        track.finish()
+    except KlvError as exc:
+        raise DataFormatError(path, str(exc)) from exc
+    track.counts.said(path.name, out.messages)
+    if not track.sets:
+        what = (
+            "EG 0104 (the older Predator UAV Basic Universal Metadata Set), which geofuse does not read"
+            if track.counts.eg0104
+            else "no MISB ST 0601 Local Set with a Precision Time Stamp (tag 2)"
+        )
+        raise DataFormatError(path, f"raw KLV holds {what} ({track.counts.sets} sets read)")
+    return _klv_report(out, track, np.zeros(0))
+
+
 def _klv(path: Path) -> Telemetry:
     """A video's MISB ST 0601 KLV: sets, the sensor's positions and the camera's angles (the
     platform's and the sensor's, and the composed optical axis's heading, pitch and roll)."""
     out = Telemetry(path, "MISB ST 0601 KLV in a video")
     video = probe(path)
-    track = read_klv(path, video, out.messages)
-    out.info.append(describe_klv(track, video.pts_s))
+    return _klv_report(out, read_klv(path, video, out.messages), video.pts_s)
+
+
+def _klv_report(out: Telemetry, track: KlvTrack, frame_pts_s: np.ndarray) -> Telemetry:
+    """The sets' streams, positions and angles into `out` (see _klv)."""
+    path = out.path
+    out.info.append(describe_klv(track, frame_pts_s))
     platform, sensor = track.text(PLATFORM_DESIGNATION_TAG), track.text(IMAGE_SOURCE_SENSOR_TAG)
     if platform or sensor:
         out.info.append(f"platform: {platform or 'unnamed'}; sensor: {sensor or 'unnamed'}")
@@ -150,6 +191,8 @@ def _klv(path: Path) -> Telemetry:
         out.streams.append(Stream("sensor positions (tags 13, 14, 75/15)", g.t))
         out.position = (g.t, g.lat, g.lon, g.h)
         out.height_note = "ellipsoidal (tag 75, or tag 15 above sea level through EGM2008)"
+        if gaps_said(g.t):
+            out.messages.add(f"{path.name}: KLV: {gaps_said(g.t)}")
     att = track.attitude()
     if att is not None:
         out.streams.append(Stream("camera attitude (platform then sensor angles)", att.t))

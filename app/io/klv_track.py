@@ -294,9 +294,10 @@ class KlvTrack:
         return self.heights("centre_ellipsoid_m", "centre_msl_m", lat, lon)
 
     def centre_offsets_deg(self) -> FloatArray:
-        """For every set with a pose and a frame centre: the angle (deg) between the optical axis
-        the angles give and the direction from the sensor to the frame centre (tags 23-25/78)."""
-        out = []
+        """(N,) for every set: the angle (deg) between the optical axis its angles give and the
+        direction from the sensor to the frame centre it gives (tags 23-25/78); NaN where the
+        set lacks a pose or a centre, or the centre is within 1 m of the sensor."""
+        out = np.full(len(self.sets), np.nan)
         lat, lon = self.values("sensor_latitude_deg"), self.values("sensor_longitude_deg")
         h = self.heights("sensor_ellipsoid_m", "sensor_msl_m", lat, lon)
         clat, clon = self.values("centre_latitude_deg"), self.values("centre_longitude_deg")
@@ -312,8 +313,8 @@ class KlvTrack:
             if n < 1.0:
                 continue
             axis = -rotations.to_matrix(q)[:, 2]
-            out.append(math.degrees(math.acos(float(np.clip(axis @ d / n, -1.0, 1.0)))))
-        return np.asarray(out, np.float64)
+            out[k] = math.degrees(math.acos(float(np.clip(axis @ d / n, -1.0, 1.0))))
+        return out
 
 
 def klv_streams(container) -> list:

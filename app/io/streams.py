@@ -13,11 +13,11 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
+from app.core.constants import GAP_FACTOR
 from app.core.errors import DataFormatError
 from app.core.messages import Messages
 
 FloatArray = npt.NDArray[np.float64]
-GAP_FACTOR = 5.0  # a step longer than this many median steps counts as a gap
 
 
 @dataclass(frozen=True)

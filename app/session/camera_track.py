@@ -19,7 +19,7 @@ import numpy as np
 import numpy.typing as npt
 
 from app.camera.frame_time import corrected_times
-from app.camera.intrinsics import Intrinsics
+from app.camera.intrinsics import Intrinsics, Zoom
 from app.camera.lens import Lens
 from app.camera.pinhole import Camera
 from app.camera.trajectory import PoseTrack, PositionTrack
@@ -104,6 +104,7 @@ class CameraTrack:
         0.0,
     )  # where the sensor's rows run in the displayed image (readout_axis())
     registration: Registration | None = None  # the `registered` source: every keyframe's outcome
+    zoom: Zoom | None = None  # a field of view per time: each camera's own (pinhole only)
 
     @property
     def frame_count(self) -> int:
@@ -132,8 +133,11 @@ class CameraTrack:
             turn = rotations.to_scipy(
                 rotations.multiply(rotations.conjugate(qq[0]), qq[1])
             ).as_rotvec()
+        intr = self.intrinsics
+        if self.zoom is not None and self.lens is None:
+            intr = self.zoom.intrinsics_at(intr, t)
         return Camera.create(
-            self.intrinsics, enu[0], q[0], self.near, self.far, self.lens, turn, self.readout_axis
+            intr, enu[0], q[0], self.near, self.far, self.lens, turn, self.readout_axis
         )
 
     def frame_camera(self, index: int) -> Camera:
@@ -188,7 +192,7 @@ def camera_track(
     clock = replace(frame_clock(session, true_timing), offset_s=float(time_offset_s))
     return CameraTrack(
         source, pose_track(session, source, course_pitch_deg), clock, session.intrinsics, lens=session.lens,
-        readout_s=session.readout_s, readout_axis=readout_axis(session.rotation_cw),
+        readout_s=session.readout_s, readout_axis=readout_axis(session.rotation_cw), zoom=session.zoom,
     )  # fmt: skip
 
 

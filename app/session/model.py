@@ -19,7 +19,7 @@ import numpy as np
 from app.attitude import heading
 from app.attitude.filters import estimate, resample
 from app.attitude.heading import HeadingPolicy
-from app.camera.intrinsics import Intrinsics
+from app.camera.intrinsics import Intrinsics, Zoom
 from app.camera.lens import Lens
 from app.camera.trajectory import PositionTrack, device_to_camera
 from app.core.constants import COURSE, REGISTERED, TRUTH, UNIX_TIME_FLOOR_S
@@ -86,6 +86,7 @@ class Session:
     layers: tuple = ()  # app.scene.layers.Layer: the scene's layers as named ((): an assumed ground)
     utc_at_zero_s: float | None = None  # Unix time (UTC) of session time 0, when the camera says
     camera: str = ""  # the camera as its files name it (a GoPro's model, a DJI camera); "" unknown
+    zoom: Zoom | None = None  # a field of view per time (FMV zoom); intrinsics: the median one
     further: tuple = ()  # app.session.config.ClipRef: further clips its manifest names ([[clips]])
 
     @property

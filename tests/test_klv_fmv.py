@@ -439,3 +439,42 @@ def test_a_real_zooming_flight_beside_a_video_draws_each_frame_with_its_own_fiel
     want = np.interp(media, t_klv, fov)
     assert np.allclose(got, want, atol=0.01)
     assert got.min() < 0.7 and got.max() > 40.0
+
+
+def test_a_raw_klv_file_beside_a_video_poses_it_by_time_stamps_and_creation_time(tmp_path, capsys):
+    """The video and its KLV kept apart (a raw .klv written by a KLV tool): given with --klv,
+    the sets are placed on the video's clock by their Precision Time Stamps and the video's
+    creation time (UTC), and every frame looks at the orbit's centre as when the KLV rides in
+    the video; found beside it as CLIP.klv with no creation time, the first set goes to the
+    first frame, said."""
+    from datetime import UTC, datetime
+
+    from app.simulate.feed import UTC_START_S
+
+    raw = tmp_path / "flight.klv"
+    raw.write_bytes(b"".join(_set(k / 5.0) for k in range(20)))
+    when = datetime.fromtimestamp(UTC_START_S, UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
+    video = write_video(
+        tmp_path / "video.mp4", np.arange(120) / 30.0, SIZE, 0, crf=35, creation_time=when
+    )
+    session = open_clip(video, raw)
+    said = " ".join(session.messages.items)
+    assert "raw KLV placed on the video by its creation time" in said
+    assert raw.resolve() in session.inputs
+    for k in (0, 50, 119):
+        assert np.allclose(_centre_pixel(session, k), [SIZE[0] / 2, SIZE[1] / 2], atol=0.5), k
+    out = tmp_path / "poses.csv"
+    assert main(["solve", str(video), "--klv", str(raw), "--out", str(out)]) == 0
+    assert len(out.read_text().splitlines()) == 121
+    capsys.readouterr()
+
+    beside = tmp_path / "beside"
+    beside.mkdir()
+    clip = write_video(beside / "CLIP.mp4", np.arange(60) / 30.0, SIZE, 0, crf=35)
+    (beside / "CLIP.klv").write_bytes(raw.read_bytes())
+    session = open_clip(clip)
+    assert any(
+        "no creation time: its first set is placed at the first frame" in m
+        for m in session.messages.items
+    )
+    assert np.allclose(_centre_pixel(session, 30), [SIZE[0] / 2, SIZE[1] / 2], atol=0.5)

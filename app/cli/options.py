@@ -280,8 +280,16 @@ def add_source_option(p: argparse.ArgumentParser, help: str, filter_alias: bool 
 
 
 def add_srt_option(p: argparse.ArgumentParser, help: str) -> None:
-    """--srt: a DJI clip's subtitle when it is not beside the video."""
+    """--srt: a DJI clip's subtitle when it is not beside the video; --klv, the same place: the
+    video's raw KLV (Local Sets, timed by their stamps) kept apart from it."""
     p.add_argument("--srt", type=Path, default=None, help=help)
+    p.add_argument(
+        "--klv",
+        type=Path,
+        default=None,
+        dest="srt",
+        help="the video's MISB ST 0601 KLV as a raw file (.klv/.bin), when not beside it",
+    )
 
 
 def add_lens_option(

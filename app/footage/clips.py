@@ -38,10 +38,13 @@ from app.io.klv_track import (
     CONSISTENCY_LIMIT_DEG,
     IMAGE_SOURCE_SENSOR_TAG,
     PLATFORM_DESIGNATION_TAG,
+    RAW_KLV_SUFFIXES,
     KlvTrack,
     describe,
     has_klv,
     read_klv,
+    read_raw_klv,
+    starts_as_klv,
 )
 from app.io.streams import GnssTrack, OrientationStream
 from app.io.video import VideoInfo, probe
@@ -68,9 +71,10 @@ DRONE_GROUND_MARGIN_M = (
 
 
 def find_srt(video: Path) -> Path | None:
-    """CLIP.SRT beside CLIP.MP4, in any letter case."""
-    for p in video.parent.iterdir():
-        if p.stem.lower() == video.stem.lower() and p.suffix.lower() == ".srt":
+    """CLIP.SRT (a DJI subtitle) or CLIP.KLV (the video's raw KLV) beside CLIP.MP4, in any
+    letter case."""
+    for p in sorted(video.parent.iterdir()):
+        if p.stem.lower() == video.stem.lower() and p.suffix.lower() in (".srt", *RAW_KLV_SUFFIXES):
             return p
     return None
 
@@ -84,7 +88,8 @@ def open_clip(
     layers: tuple[Layer, ...] = (),
 ) -> Session:
     """A session from a GoPro MP4, a video with MISB ST 0601 KLV (an MPEG-TS from a drone or
-    an FMV tool), or from a video with a DJI subtitle (`srt`, or found beside it).
+    an FMV tool, or its KLV as a raw file: `srt`, or CLIP.KLV beside it), or from a video with
+    a DJI subtitle (`srt`, or found beside it).
     lens: a gyroflow profile to use instead of the one chosen from the file (GoPro) or the pinhole
     field of view; hfov_deg: a pinhole field of view instead of any lens; pitch_deg: a drone
     clip's camera pitch (degrees above the horizon) when its subtitle has no gimbal attitude;
@@ -93,6 +98,8 @@ def open_clip(
     if not path.is_file():
         raise DataFormatError(path, "video file does not exist")
     srt = Path(srt) if srt is not None else find_srt(path)
+    if srt is not None and srt.is_file() and starts_as_klv(srt):  # --klv, or CLIP.KLV
+        return _klv_session(path, hfov_deg, lens, layers, raw=srt)
     if srt is not None:
         return _dji_session(path, srt, hfov_deg, pitch_deg, lens, layers)
     if has_klv(path):
@@ -409,14 +416,17 @@ def _klv_session(
     hfov_deg: float | None,
     lens_path: str | Path | None = None,
     layers: tuple[Layer, ...] = (),
+    raw: Path | None = None,
 ) -> Session:
-    """A video with MISB ST 0601 KLV: positions from the sensor's latitude, longitude and height,
-    the camera's attitude from the platform's then the sensor's angles (pose source
-    `telemetry`), the field of view from tag 16, UTC from the Precision Time Stamps."""
+    """A video with MISB ST 0601 KLV (in it, or `raw`: a file of Local Sets beside it, placed
+    by their time stamps and the video's creation time): positions from the sensor's latitude,
+    longitude and height, the camera's attitude from the platform's then the sensor's angles
+    (pose source `telemetry`), the field of view from tag 16, UTC from the Precision Time
+    Stamps."""
     messages = Messages()
     video = probe(path)
     video.note_damage(messages)
-    track = read_klv(path, video, messages)
+    track = read_raw_klv(raw, messages, video) if raw else read_klv(path, video, messages)
     messages.info(f"{path.name}: {describe(track, video.pts_s)}")
     gnss = track.gnss()
     if gnss is None:
@@ -475,7 +485,7 @@ def _klv_session(
     camera = " / ".join(x for x in (platform, sensor) if x) or "MISB KLV platform"
     return _clip_session(
         path,
-        (path.resolve(), *lens_files),
+        (path.resolve(), *((raw.resolve(),) if raw else ()), *lens_files),
         frame,
         mesh,
         video,

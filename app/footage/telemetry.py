@@ -28,12 +28,14 @@ from app.io.gpx import read_gpx
 from app.io.klv_track import (
     IMAGE_SOURCE_SENSOR_TAG,
     PLATFORM_DESIGNATION_TAG,
+    RAW_KLV_SUFFIXES,
     KlvTrack,
     has_klv,
     read_klv,
+    read_raw_klv,
+    starts_as_klv,
 )
 from app.io.klv_track import describe as describe_klv
-from app.io.misb import UAS_LOCAL_SET_KEY, KlvError, is_eg0104, is_key
 from app.io.sensorlogger import read_sensorlogger
 from app.io.streams import GAP_FACTOR
 from app.io.video import probe
@@ -72,7 +74,7 @@ def inspect(path: str | Path) -> Telemetry:
         return _gpx(path)
     if suffix in KLV_SUFFIXES or (suffix in (".mp4", ".mov") and has_klv(path)):
         return _klv(path)
-    if suffix in RAW_KLV_SUFFIXES or (suffix in RAW_GPMF_SUFFIXES and _starts_as_klv(path)):
+    if suffix in RAW_KLV_SUFFIXES or (suffix in RAW_GPMF_SUFFIXES and starts_as_klv(path)):
         return _klv_raw(path)
     if suffix in (".mp4", ".mov", ".360"):
         _refuse_dji_video(path)
@@ -91,7 +93,6 @@ def inspect(path: str | Path) -> Telemetry:
 
 KLV_SUFFIXES = (".ts", ".m2ts", ".mpg")  # MPEG transport streams, where MISB KLV travels
 RAW_GPMF_SUFFIXES = (".bin", ".gpmd", ".raw", ".gpmf")  # GPMF extracted from an MP4 by other tools
-RAW_KLV_SUFFIXES = (".klv",)  # Local Sets back to back: what `ffmpeg -map 0:d -f data` writes
 
 
 def _gpmf_payload(path: Path) -> Telemetry:
@@ -140,34 +141,11 @@ def _srt(path: Path) -> Telemetry:
     return out
 
 
-def _starts_as_klv(path: Path) -> bool:
-    """Whether a file begins (within its first 64 KiB) with a UAS Datalink Local Set or an EG
-    0104 set: raw KLV, not GPMF, whatever its suffix."""
-    with path.open("rb") as f:
-        head = f.read(1 << 16)
-    i = head.find(UAS_LOCAL_SET_KEY[:4])
-    return (i >= 0 and is_key(head, i)) or is_eg0104(head)
-
-
 def _klv_raw(path: Path) -> Telemetry:
     """A file of KLV Local Sets with no video around them: their times from their Precision
     Time Stamps (tag 2), the first set at 0 s; then as a video's KLV (_klv)."""
     out = Telemetry(path, "MISB ST 0601 KLV, raw (no video: times from the Precision Time Stamps)")
-    track = KlvTrack(str(path))
-    track.add(path.read_bytes(), None)
-    try:
-        track.finish()
-    except KlvError as exc:
-        raise DataFormatError(path, str(exc)) from exc
-    track.counts.said(path.name, out.messages)
-    if not track.sets:
-        what = (
-            "EG 0104 (the older Predator UAV Basic Universal Metadata Set), which geofuse does not read"
-            if track.counts.eg0104
-            else "no MISB ST 0601 Local Set with a Precision Time Stamp (tag 2)"
-        )
-        raise DataFormatError(path, f"raw KLV holds {what} ({track.counts.sets} sets read)")
-    return _klv_report(out, track, np.zeros(0))
+    return _klv_report(out, read_raw_klv(path, out.messages), np.zeros(0))
 
 
 def _klv(path: Path) -> Telemetry:

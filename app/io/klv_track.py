@@ -34,12 +34,22 @@ from pathlib import Path
 import av
 import numpy as np
 
-from app.core.errors import VideoError
+from app.core.errors import DataFormatError, VideoError
 from app.core.messages import Messages
 from app.geodesy import rotations
 from app.geodesy.enu import LocalFrame
 from app.geodesy.geoid import undulation
-from app.io.misb import TAGS, KlvError, LocalSet, camera_orientation, is_eg0104, parse, split
+from app.io.misb import (
+    TAGS,
+    UAS_LOCAL_SET_KEY,
+    KlvError,
+    LocalSet,
+    camera_orientation,
+    is_eg0104,
+    is_key,
+    parse,
+    split,
+)
 from app.io.streams import FloatArray, GnssTrack, OrientationStream
 from app.io.video import VideoInfo, ffmpeg_reason, media_seconds
 
@@ -378,6 +388,53 @@ def read_klv(path: str | Path, video: VideoInfo, messages: Messages) -> KlvTrack
         raise VideoError(
             path,
             f"the KLV data stream holds no readable MISB ST 0601 Local Set ({track.counts.sets + track.counts.bad} found)",
+        )
+    return track
+
+
+RAW_KLV_SUFFIXES = (".klv",)  # Local Sets back to back: what `ffmpeg -map 0:d -f data` writes
+
+
+def starts_as_klv(path: str | Path) -> bool:
+    """Whether a file begins (within its first 64 KiB) with a UAS Datalink Local Set or an EG
+    0104 set: raw KLV, whatever its suffix (.bin also holds GoPro GPMF)."""
+    with Path(path).open("rb") as f:
+        head = f.read(1 << 16)
+    i = head.find(UAS_LOCAL_SET_KEY[:4])
+    return (i >= 0 and is_key(head, i)) or is_eg0104(head)
+
+
+def read_raw_klv(path: str | Path, messages: Messages, video: VideoInfo | None = None) -> KlvTrack:
+    """A file of Local Sets with no container around them, timed by their Precision Time
+    Stamps, the first set at 0 s; beside a video, on its clock through its creation time (UTC,
+    to the second as containers store it) where it has one, said either way. DataFormatError
+    naming the file when no set can be read or placed."""
+    path = Path(path)
+    track = KlvTrack(str(path))
+    track.add(path.read_bytes(), None)
+    try:
+        track.finish()
+    except KlvError as exc:
+        raise DataFormatError(path, str(exc)) from exc
+    track.counts.said(path.name, messages)
+    if not track.sets:
+        what = (
+            "EG 0104 (the older Predator UAV Basic Universal Metadata Set), which geofuse does not read"
+            if track.counts.eg0104
+            else "no MISB ST 0601 Local Set with a Precision Time Stamp (tag 2)"
+        )
+        raise DataFormatError(path, f"raw KLV holds {what} ({track.counts.sets} sets read)")
+    if video is None:
+        return track
+    if video.creation_time is not None:
+        shift = track.sets[0].time_us / 1e6 - track.t[0] - video.creation_time
+        track.t = [t + shift for t in track.t]
+        messages.info(
+            f"{path.name}: raw KLV placed on the video by its creation time (UTC, to the second): the first set at {track.t[0]:.1f} s"
+        )
+    else:
+        messages.add(
+            f"{path.name}: raw KLV beside a video with no creation time: its first set is placed at the first frame (give a time offset if they did not start together)"
         )
     return track
 

@@ -374,21 +374,26 @@ def read_klv(path: str | Path, video: VideoInfo, messages: Messages) -> KlvTrack
         messages.add(
             f"{path.name}: {len(tracks)} KLV data streams: stream #{index} ({track.readable} Local Sets) is used, not {others}"
         )
+    return _finished(track, path, messages, VideoError, "the KLV data stream")
+
+
+def _finished(track: KlvTrack, path: Path, messages: Messages, error, what: str) -> KlvTrack:
+    """The track finished (KlvTrack.finish) and its faults said; `error` (VideoError or
+    DataFormatError) naming the file where no set can be placed, or none is ST 0601 (naming
+    EG 0104 where that is what it holds)."""
     try:
         track.finish()
     except KlvError as exc:
-        raise VideoError(path, str(exc)) from exc
+        raise error(path, str(exc)) from exc
     track.counts.said(path.name, messages)
     if not track.sets:
-        if track.counts.eg0104:
-            raise VideoError(
-                path,
-                f"the KLV data stream holds EG 0104 (the older Predator UAV Basic Universal Metadata Set, {track.counts.eg0104} packets), which geofuse does not read, and no MISB ST 0601 Local Set",
-            )
-        raise VideoError(
-            path,
-            f"the KLV data stream holds no readable MISB ST 0601 Local Set ({track.counts.sets + track.counts.bad} found)",
+        found = track.counts.sets + track.counts.bad
+        held = (
+            f"EG 0104 (the older Predator UAV Basic Universal Metadata Set, {track.counts.eg0104} packets), which geofuse does not read, and no MISB ST 0601 Local Set"
+            if track.counts.eg0104
+            else f"no readable MISB ST 0601 Local Set ({found} found)"
         )
+        raise error(path, f"{what} holds {held}")
     return track
 
 
@@ -412,18 +417,7 @@ def read_raw_klv(path: str | Path, messages: Messages, video: VideoInfo | None =
     path = Path(path)
     track = KlvTrack(str(path))
     track.add(path.read_bytes(), None)
-    try:
-        track.finish()
-    except KlvError as exc:
-        raise DataFormatError(path, str(exc)) from exc
-    track.counts.said(path.name, messages)
-    if not track.sets:
-        what = (
-            "EG 0104 (the older Predator UAV Basic Universal Metadata Set), which geofuse does not read"
-            if track.counts.eg0104
-            else "no MISB ST 0601 Local Set with a Precision Time Stamp (tag 2)"
-        )
-        raise DataFormatError(path, f"raw KLV holds {what} ({track.counts.sets} sets read)")
+    _finished(track, path, messages, DataFormatError, "the raw KLV")
     if video is None:
         return track
     if video.creation_time is not None:

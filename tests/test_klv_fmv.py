@@ -478,3 +478,32 @@ def test_a_raw_klv_file_beside_a_video_poses_it_by_time_stamps_and_creation_time
         for m in session.messages.items
     )
     assert np.allclose(_centre_pixel(session, 30), [SIZE[0] / 2, SIZE[1] / 2], atol=0.5)
+
+
+def test_frame_centres_off_the_scenes_ground_are_said(tmp_path):
+    """A DEM 60 m above the ground the KLV's frame centres name (the orbit's): the clip is
+    draped on the DEM and the disagreement said, in metres; at the centres' own height, nothing
+    is said."""
+    from app.geodesy import geoid
+    from app.scene.layers import Layer
+    from app.simulate.terrain import write_geotiff
+
+    path = _video(tmp_path / "over_dem.ts", [(k / 5.0, _set(k / 5.0)) for k in range(20)])
+    n = float(geoid.undulation(ORBIT.lat_deg, ORBIT.lon_deg))
+    step = 1.0 / 3600
+    for above, said in ((60.0, True), (0.0, False)):
+        dem = write_geotiff(
+            tmp_path / f"dem{above:.0f}.tif",
+            np.full((100, 100), ORBIT.ground_h_m - n + above),  # heights above EGM96's geoid
+            "EPSG:4326+5773",
+            ORBIT.lon_deg - 50 * step,
+            ORBIT.lat_deg + 50 * step,
+            step,
+            step,
+        )
+        session = open_clip(path, layers=(Layer.of(dem),))
+        notes = [m for m in session.messages.items if "from the scene's ground under them" in m]
+        if said:
+            assert len(notes) == 1 and "lie -60 m (median)" in notes[0]
+        else:
+            assert not notes

@@ -63,6 +63,7 @@ DJI_DEFAULT_FOCAL_MM = 24.0  # 35 mm equivalent focal length of most DJI main ca
 ASSUMED_DRONE_HFOV_DEG = math.degrees(2 * math.atan(18.0 / DJI_DEFAULT_FOCAL_MM))
 DJI_FOCAL_RANGE_MM = (8.0, 1200.0)  # 35 mm equivalent: a 132 deg to a 1.7 deg horizontal view
 KLV_ASSUMED_HEIGHT_M = 100.0  # a KLV clip without a frame centre: the ground this far under it
+CENTRE_SCENE_LIMIT_M = 20.0  # KLV frame centres this far (median) from the scene's ground: said
 ZOOM_STEP_DEG = 0.01  # a KLV field of view that changes more than this (deg) is drawn per frame
 ZOOM_STEP_MM = 0.05  # a DJI focal length that changes more than this (mm, 35 mm eq.): the same
 DRONE_GROUND_MARGIN_M = (
@@ -463,6 +464,8 @@ def _klv_session(
     utc = track.utc_at_zero()
     decl = declination(frame.lat_deg, frame.lon_deg, frame.h_m, utc or video.creation_time or 0.0)
     _check_centre(track, path, messages)
+    if layers:
+        _check_centre_on_scene(track, frame, mesh, path, messages)
     zoom = None
     if hfov_deg is None and lens_path is None:
         fov = track.values("hfov_deg")
@@ -553,6 +556,26 @@ def _check_centre(track: KlvTrack, path: Path, messages: Messages) -> None:
     elif len(off):
         messages.info(
             f"{path.name}: KLV consistency: the frame centre lies {np.median(off):.2f} deg (median) from the optical axis"
+        )
+
+
+def _check_centre_on_scene(
+    track: KlvTrack, frame: LocalFrame, mesh, path: Path, messages: Messages
+) -> None:
+    """Says when the frame centres' heights (tags 25/78) lie off the scene's ground under them
+    by more than CENTRE_SCENE_LIMIT_M (median): another ground than the scene's, or a centre
+    computed on a coarse terrain model; the scene is what the video is draped on."""
+    lat, lon = track.values("centre_latitude_deg"), track.values("centre_longitude_deg")
+    h = track.centre_heights()
+    ok = np.isfinite(lat) & np.isfinite(lon) & np.isfinite(h)
+    if not ok.any():
+        return
+    enu = frame.geodetic_to_enu(lat[ok], lon[ok], h[ok])
+    d = enu[:, 2] - ground_heights(mesh, enu[:, :2])
+    d = d[np.isfinite(d)]
+    if len(d) and float(np.median(np.abs(d))) > CENTRE_SCENE_LIMIT_M:
+        messages.add(
+            f"{path.name}: KLV consistency: the frame centres' heights (tags 25/78) lie {np.median(d):+.0f} m (median) from the scene's ground under them: the scene is draped on, the KLV's ground is not used"
         )
 
 

@@ -11,7 +11,7 @@
 #
 # Results: $OUT/device.json (every step's figures, the GPU, driver and GL strings) and
 # $OUT/device.log (every step's output); OUT defaults to out/device (out/device-dry for --dry-run).
-# The device machine reaches no network: what it needs travels in .device/ (ignored by git,
+# The device machine reaches no network: what it needs travels in .device/ (in .gitignore,
 # named in the device tool's `carry`), 64 MiB with the working tree.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -30,7 +30,6 @@ DEVICE_PYTHON=3.12
 prepare() {
     [ -x .venv/bin/python ] || make setup
     rm -rf .device && mkdir -p .device/gl .device/wheels
-    grep -qx '/.device/' .git/info/exclude 2>/dev/null || echo '/.device/' >>.git/info/exclude
     local lists=/tmp/geofuse-apt-lists
     mkdir -p "$lists/partial"
     local o="-oAPT::Architecture=amd64 -oAPT::Architectures=amd64 -oDir::State::Lists=$lists"

@@ -122,36 +122,25 @@ def main(argv: list[str] | None = None) -> int:
     )
 
     on, off = ProjectionSettings(), ProjectionSettings(enabled=False)
-    if args.projectors_only:
-        figures = projectors(ctx, renderer, view, target, photo, frame, args.frames)
-        renderer.set_extra_projectors([])
-        renderer.set_projector(projector)
-        figures["sample_on_off"] = sample_on_off(ctx, renderer, view, target, args.frames)
-        if not args.no_gis:
-            from bench import bench_gis
-
-            city = bench_gis.city(
-                ctx, photo, target, w, h, max(10, args.frames // 4), None, args.city_detail
-            )
-            figures["city"] = city
-            figures["city_on_off"] = city[figures["path"]]["ratio"]
-        figures["sample_on_off_ratio"] = figures["sample_on_off"][figures["path"]]["ratio"]
-        figures.update(machine=machine(), gl=describe(ctx), view=[w, h])
-        write_json(args.json, figures)
-        renderer.release()
-        target.release()
-        return 0
-    if args.terrain_only:
+    if args.projectors_only or args.terrain_only:
         from bench import bench_gis
 
-        sample = sample_on_off(ctx, renderer, view, target, args.frames)
-        path = "deferred" if renderer.deferred else "forward"
-        figures = {
-            "sample_on_off": sample,
-            "dem": bench_gis.dem(
-                ctx, photo, target, w, h, args.frames, sample[path]["off_ms"], args.dem_samples
-            ),
-        }
+        if args.projectors_only:
+            figures = projectors(ctx, renderer, view, target, photo, frame, args.frames)
+            renderer.set_extra_projectors([])
+            renderer.set_projector(projector)
+            figures["sample_on_off"] = sample_on_off(ctx, renderer, view, target, args.frames)
+            if not args.no_gis:
+                frames = max(10, args.frames // 4)
+                city = bench_gis.city(ctx, photo, target, w, h, frames, None, args.city_detail)
+                figures["city"] = city
+                figures["city_on_off"] = city[figures["path"]]["ratio"]
+            figures["sample_on_off_ratio"] = figures["sample_on_off"][figures["path"]]["ratio"]
+        else:
+            sample = sample_on_off(ctx, renderer, view, target, args.frames)
+            off_ms = sample["deferred" if renderer.deferred else "forward"]["off_ms"]
+            dem = bench_gis.dem(ctx, photo, target, w, h, args.frames, off_ms, args.dem_samples)
+            figures = {"sample_on_off": sample, "dem": dem}
         figures.update(machine=machine(), gl=describe(ctx), view=[w, h])
         write_json(args.json, figures)
         renderer.release()

@@ -451,9 +451,10 @@ def _klv_session(
         messages.add(
             f"{path.name}: {len(track.t) - len(gnss.t)} of {len(track.t)} KLV sets have no valid position: their times are interpolated"
         )
-    if gaps_said(gnss.t):
-        messages.add(f"{path.name}: KLV: {gaps_said(gnss.t)}")
-    ground = _klv_ground(track, gnss, path, messages, bool(layers))
+    if gaps := gaps_said(gnss.t):
+        messages.add(f"{path.name}: KLV: {gaps}")
+    off = track.centre_offsets_deg()  # each set's frame centre from its own axis, deg
+    ground = _klv_ground(track, off, gnss, path, messages, bool(layers))
     frame, mesh, gnss = frame_and_ground(
         gnss,
         ground,
@@ -463,7 +464,7 @@ def _klv_session(
     )
     utc = track.utc_at_zero()
     decl = declination(frame.lat_deg, frame.lon_deg, frame.h_m, utc or video.creation_time or 0.0)
-    _check_centre(track, path, messages)
+    _check_centre(off, path, messages)
     if layers:
         _check_centre_on_scene(track, frame, mesh, path, messages)
     zoom = None
@@ -510,14 +511,19 @@ def _klv_session(
 
 
 def _klv_ground(
-    track: KlvTrack, gnss: GnssTrack, path: Path, messages: Messages, has_scene: bool
+    track: KlvTrack,
+    off: np.ndarray,
+    gnss: GnssTrack,
+    path: Path,
+    messages: Messages,
+    has_scene: bool,
 ) -> float:
     """The assumed ground's ellipsoidal height (m): the median frame-centre height where the
     KLV gives one below the sensor (a drone), a hand-held camera's mount height under the lowest
     position where the centre lies level with it or above, else 100 m under the lowest position.
-    Said unless a scene replaces it."""
+    Centres more than CONSISTENCY_LIMIT_DEG off their own axis (off: KlvTrack.
+    centre_offsets_deg) are left out. Said unless a scene replaces it."""
     centre = track.centre_heights()
-    off = track.centre_offsets_deg()
     astray = np.isfinite(centre) & (off > CONSISTENCY_LIMIT_DEG)  # NaN (no pose): kept
     if astray.any():
         messages.add(
@@ -544,10 +550,10 @@ def _klv_ground(
     return lowest - KLV_ASSUMED_HEIGHT_M
 
 
-def _check_centre(track: KlvTrack, path: Path, messages: Messages) -> None:
-    """Says when the frame centre the KLV gives (tags 23-25) lies off the optical axis its
-    angles give (median over the sets), a sign of angles or a centre computed another way."""
-    off = track.centre_offsets_deg()
+def _check_centre(off: np.ndarray, path: Path, messages: Messages) -> None:
+    """Says when the frame centres the KLV gives (tags 23-25) lie off the optical axis their
+    sets' angles give (off: KlvTrack.centre_offsets_deg, deg; median over the sets), a sign of
+    angles or centres computed another way."""
     off = off[np.isfinite(off)]
     if len(off) and float(np.median(off)) > CONSISTENCY_LIMIT_DEG:
         messages.add(

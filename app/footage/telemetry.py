@@ -169,8 +169,8 @@ def _klv_report(out: Telemetry, track: KlvTrack, frame_pts_s: np.ndarray) -> Tel
         out.streams.append(Stream("sensor positions (tags 13, 14, 75/15)", g.t))
         out.position = (g.t, g.lat, g.lon, g.h)
         out.height_note = "ellipsoidal (tag 75, or tag 15 above sea level through EGM2008)"
-        if gaps_said(g.t):
-            out.messages.add(f"{path.name}: KLV: {gaps_said(g.t)}")
+        if gaps := gaps_said(g.t):
+            out.messages.add(f"{path.name}: KLV: {gaps}")
     att = track.attitude()
     if att is not None:
         out.streams.append(Stream("camera attitude (platform then sensor angles)", att.t))

@@ -84,25 +84,20 @@ def to_matrix(q: npt.ArrayLike) -> FloatArray:
         n = math.sqrt(float(q @ q))
         if n < EPS_DEGENERATE:
             raise ValueError("zero-norm quaternion")
-        w, x, y, z = (float(v) / n for v in q)
-        return np.array(
-            [
-                [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-            ]
-        )
+        return np.array(_matrix_rows(*(float(v) / n for v in q)))
     n = np.linalg.norm(q, axis=-1, keepdims=True)
     if np.any(n < EPS_DEGENERATE):
         raise ValueError("zero-norm quaternion")
-    w, x, y, z = np.moveaxis(q / n, -1, 0)
-    return np.stack(
-        [
-            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-        ],
-        axis=-2,
+    rows = _matrix_rows(*np.moveaxis(q / n, -1, 0))
+    return np.stack([np.stack(row, -1) for row in rows], axis=-2)
+
+
+def _matrix_rows(w, x, y, z) -> tuple:
+    """The rotation matrix of a unit quaternion's components (floats or arrays), row by row."""
+    return (
+        (1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)),
+        (2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)),
+        (2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)),
     )
 
 

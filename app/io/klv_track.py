@@ -41,12 +41,11 @@ from app.geodesy.enu import LocalFrame
 from app.geodesy.geoid import undulation
 from app.io.misb import (
     TAGS,
-    UAS_LOCAL_SET_KEY,
     KlvError,
     LocalSet,
     camera_orientation,
+    find_key,
     is_eg0104,
-    is_key,
     parse,
     split,
 )
@@ -405,8 +404,7 @@ def starts_as_klv(path: str | Path) -> bool:
     0104 set: raw KLV, whatever its suffix (.bin also holds GoPro GPMF)."""
     with Path(path).open("rb") as f:
         head = f.read(1 << 16)
-    i = head.find(UAS_LOCAL_SET_KEY[:4])
-    return (i >= 0 and is_key(head, i)) or is_eg0104(head)
+    return find_key(head) >= 0 or is_eg0104(head)
 
 
 def read_raw_klv(path: str | Path, messages: Messages, video: VideoInfo | None = None) -> KlvTrack:

@@ -203,25 +203,27 @@ def decode(tag: int, raw: bytes) -> float:
     return m.low + v * (m.high - m.low) / (2 ** (8 * size) - 1)
 
 
-def is_key(data: bytes, i: int = 0) -> bool:
-    """Whether the UAS Datalink key starts at data[i] (its version byte may be any)."""
-    key = data[i : i + 16]
+def is_key(data: bytes, i: int = 0, key: bytes = UAS_LOCAL_SET_KEY) -> bool:
+    """Whether `key` (default: the UAS Datalink key) starts at data[i], its version byte any."""
+    found = data[i : i + 16]
     return (
-        len(key) == 16
-        and key[:KEY_VERSION_BYTE] == UAS_LOCAL_SET_KEY[:KEY_VERSION_BYTE]
-        and key[KEY_VERSION_BYTE + 1 :] == UAS_LOCAL_SET_KEY[KEY_VERSION_BYTE + 1 :]
+        len(found) == 16
+        and found[:KEY_VERSION_BYTE] == key[:KEY_VERSION_BYTE]
+        and found[KEY_VERSION_BYTE + 1 :] == key[KEY_VERSION_BYTE + 1 :]
     )
+
+
+def find_key(data: bytes, start: int = 0, key: bytes = UAS_LOCAL_SET_KEY) -> int:
+    """Where `key` (any version byte) first starts in data at or after `start`; -1 if nowhere."""
+    i = data.find(key[:KEY_VERSION_BYTE], start)
+    while i >= 0 and not is_key(data, i, key):
+        i = data.find(key[:KEY_VERSION_BYTE], i + 1)
+    return i
 
 
 def is_eg0104(data: bytes) -> bool:
     """Whether a run of bytes holds an EG 0104 Universal Metadata Set (its key, any version)."""
-    i = data.find(EG0104_KEY[:KEY_VERSION_BYTE])
-    while i >= 0:
-        key = data[i : i + 16]
-        if len(key) == 16 and key[KEY_VERSION_BYTE + 1 :] == EG0104_KEY[KEY_VERSION_BYTE + 1 :]:
-            return True
-        i = data.find(EG0104_KEY[:KEY_VERSION_BYTE], i + 1)
-    return False
+    return find_key(data, key=EG0104_KEY) >= 0
 
 
 def parse(packet: bytes) -> LocalSet:
@@ -267,12 +269,9 @@ def split(data: bytes) -> Iterator[bytes]:
     skipped), each cut at the length it says; a set cut off by the end is left out."""
     i = 0
     while True:
-        i = data.find(UAS_LOCAL_SET_KEY[:KEY_VERSION_BYTE], i)
+        i = find_key(data, i)
         if i < 0:
             return
-        if not is_key(data, i):
-            i += 1
-            continue
         try:
             length, start = read_ber(data, i + 16)
         except KlvError:

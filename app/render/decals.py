@@ -73,7 +73,8 @@ class DeferredProjectors:
         self.decal_fbo: moderngl.Framebuffer | None = None  # colour + claims
         self.claims_fbo: moderngl.Framebuffer | None = None  # claims alone (cleared each frame)
         self.drawn = 0  # projectors drawn in the last frame
-        self.pixels = 0  # screen pixels their polygons covered in the last frame, summed
+        self._reach: list[np.ndarray] = []  # their polygons (window NDC), for `pixels`
+        self._viewport_size = (0, 0)
 
     def _ensure(self, size: tuple[int, int]) -> None:
         if self.size == size:
@@ -125,11 +126,12 @@ class DeferredProjectors:
 
     def project(self, view: Camera, settings: ProjectionSettings, decals: list[Decal]) -> None:
         """Draw the projectors over their reach, best first (drawing_order), after the scene."""
-        self.drawn = self.pixels = 0
+        self.drawn, self._reach = 0, []
         if not decals:
             return
         ctx = self.ctx
         vx, vy, vw, vh = self.scene_fbo.viewport
+        self._viewport_size = (vw, vh)
         i = view.intrinsics
         self.claims_fbo.use()
         self.claims_fbo.clear(depth=1.0)
@@ -176,8 +178,15 @@ class DeferredProjectors:
             self.vbo.write(fan.tobytes())
             self.vao[program.glo].render(moderngl.TRIANGLE_FAN, vertices=len(fan))
             self.drawn += 1
-            self.pixels += polygon_pixels(decal.polygon, vw, vh)
+            self._reach.append(decal.polygon)
         ctx.disable(moderngl.BLEND)
+
+    @property
+    def pixels(self) -> int:
+        """Screen pixels the last frame's reach polygons covered, summed (worked out when asked:
+        a statistic, not a cost every frame pays)."""
+        w, h = self._viewport_size
+        return sum(polygon_pixels(p, w, h) for p in self._reach)
 
     def overlays(self) -> moderngl.Framebuffer:
         """The frame's colour and scene depth, bound, for what is drawn over the scene (lines)."""

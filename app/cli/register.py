@@ -25,6 +25,9 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as exc:
         raise GeofuseError(f"--source: {exc}") from exc
     solution = solve_control(solve_track(session, source), points)
+    for note in solution.notes:
+        session.messages.add(note)
+    print_messages(session)
     print(f"{args.input}: {len(points)} control points against {source}")
     print(solution.report())
     if args.write:

@@ -18,6 +18,7 @@ from above) is written as drawn, its 3D ring.
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO
@@ -219,38 +220,117 @@ def write_marks(marks: list[Mark], frame: LocalFrame, f: IO[str], suffix: str, n
         json.dump(marks_geojson(marks, frame), f, allow_nan=False)
 
 
-def read_marks(path: str | Path, frame: LocalFrame) -> list[Mark]:
-    """Marks kept beside an input, back in `frame`'s ENU. Raises DataFormatError naming the file
-    and the feature at fault."""
+MAX_FRAME = 2**31 - 1  # a frame index above this is no video's (it overflows int32 indices)
+
+
+def _positions(kind: str, geometry: object) -> npt.NDArray[np.float64]:
+    """(N, 3) longitude, latitude (deg), ellipsoidal height (m) of a mark's geometry as
+    marks_geojson writes it (a polygon's ring without its closing point); ValueError saying what
+    is wrong: not numbers, not [lon, lat, h] positions, not finite, or off the globe."""
+    if not isinstance(geometry, dict):
+        raise ValueError("the geometry is not an object (expected a GeoJSON geometry)")
+    coords = geometry.get("coordinates")
+    if kind == "point":
+        coords = [coords]
+    elif kind == "polygon":
+        try:
+            ring = coords[0] if geometry.get("type") == "Polygon" else coords[0][0]
+            coords = ring[:-1]
+        except (IndexError, KeyError, TypeError):
+            raise ValueError(
+                "the polygon has no outer ring (expected [[[lon, lat, h], ...]])"
+            ) from None
+    try:
+        lon_lat_h = np.asarray(coords)  # numbers only make a numeric array: "14.5" does not
+    except ValueError:  # ragged
+        lon_lat_h = np.zeros(0)
+    if lon_lat_h.dtype.kind not in "iuf":
+        raise ValueError("coordinates that are not numbers (expected [lon, lat, h] positions)")
+    lon_lat_h = lon_lat_h.astype(np.float64)
+    if lon_lat_h.ndim != 2 or lon_lat_h.shape[1] != 3:
+        raise ValueError(f"the {kind}'s coordinates are not [lon, lat, h] positions")
+    if not np.isfinite(lon_lat_h).all():
+        raise ValueError("coordinates that are not finite numbers (NaN or infinite)")
+    if (np.abs(lon_lat_h[:, 0]) > 180).any() or (np.abs(lon_lat_h[:, 1]) > 90).any():
+        raise ValueError("longitude beyond [-180, 180] or latitude beyond [-90, 90] degrees")
+    return lon_lat_h
+
+
+def _mark(feature: object, frame: LocalFrame) -> Mark:
+    """One feature of a marks file as a Mark in `frame`'s ENU; ValueError saying what is wrong."""
+    if not isinstance(feature, dict) or not isinstance(feature.get("properties"), dict):
+        raise ValueError("not a GeoJSON Feature with properties")
+    props = feature["properties"]
+    kind = props.get("kind")
+    if kind not in KINDS:
+        raise ValueError(f"kind {kind!r} (expected one of {', '.join(KINDS)})")
+    lon_lat_h = _positions(kind, feature.get("geometry"))
+    index = props.get("frame")
+    if (
+        not isinstance(index, int | float)
+        or isinstance(index, bool)
+        or not 0 <= index <= MAX_FRAME
+        or index != int(index)
+    ):
+        raise ValueError(f"frame {index!r} (expected a video frame index, 0 to {MAX_FRAME})")
+    media_s = props.get("media_time_s")
+    if not isinstance(media_s, int | float) or isinstance(media_s, bool) or not media_s >= 0:
+        raise ValueError(f"media_time_s {media_s!r} (expected seconds from the first frame, >= 0)")
+    if not np.isfinite(media_s):
+        raise ValueError(f"media_time_s {media_s!r} is not finite")
+    enu = frame.geodetic_to_enu(lon_lat_h[:, 1], lon_lat_h[:, 0], lon_lat_h[:, 2])
+    try:
+        city_object = _object_of(props)
+    except (TypeError, json.JSONDecodeError) as exc:
+        raise ValueError(f"object_attributes: {exc} (expected a JSON object text)") from None
+    return Mark(
+        kind,
+        str(props.get("label", "")),
+        str(props.get("clip", "")),
+        int(index),
+        float(media_s),
+        enu,
+        city_object,
+    )
+
+
+def read_marks(
+    path: str | Path,
+    frame: LocalFrame,
+    skip: Callable[[DataFormatError], None] | None = None,
+) -> list[Mark]:
+    """Marks kept beside an input, back in `frame`'s ENU. A file that is not a marks GeoJSON
+    (not JSON, not UTF-8, no `features` list) raises DataFormatError naming the file; a feature
+    that is no mark (NaN or off-globe coordinates, a frame that is no index, a kind unknown)
+    raises one naming the file and `features[i]`, or, given `skip`, is handed to it and left
+    out (the others read)."""
     path = Path(path)
     try:
         doc = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise DataFormatError(path, f"not a marks file ({exc})") from exc
+    if not isinstance(doc, dict):
+        raise DataFormatError(
+            path, f"a JSON {type(doc).__name__} (expected a GeoJSON FeatureCollection object)"
+        )
+    features = doc.get("features", [])
+    if not isinstance(features, list):
+        raise DataFormatError(
+            path,
+            f"a {type(features).__name__} (expected a list of GeoJSON Features)",
+            field="features",
+        )
     out = []
-    for i, feature in enumerate(doc.get("features", []) if isinstance(doc, dict) else []):
+    for i, feature in enumerate(features):
         try:
-            props, geometry = feature["properties"], feature["geometry"]
-            coords = geometry["coordinates"]
-            kind = props["kind"]
-            if kind == "point":
-                coords = [coords]
-            elif kind == "polygon":
-                ring = coords[0] if geometry["type"] == "Polygon" else coords[0][0]
-                coords = ring[:-1]
-            lon_lat_h = np.asarray(coords, np.float64).reshape(-1, 3)
-            enu = frame.geodetic_to_enu(lon_lat_h[:, 1], lon_lat_h[:, 0], lon_lat_h[:, 2])
-            out.append(
-                Mark(
-                    kind,
-                    str(props.get("label", "")),
-                    str(props.get("clip", "")),
-                    int(props["frame"]),
-                    float(props["media_time_s"]),
-                    enu,
-                    _object_of(props),
-                )
+            out.append(_mark(feature, frame))
+        except ValueError as exc:
+            label = (
+                feature.get("properties", {}).get("label") if isinstance(feature, dict) else None
             )
-        except (KeyError, IndexError, TypeError, ValueError) as exc:
-            raise DataFormatError(path, f"not a mark ({exc})", field=f"features[{i}]") from exc
+            named = f" ({label!r})" if isinstance(label, str) and label else ""
+            error = DataFormatError(path, f"not a mark{named}: {exc}", field=f"features[{i}]")
+            if skip is None:
+                raise error from exc
+            skip(error)
     return out

@@ -398,6 +398,8 @@ def registered_track(
         session.path
     ).is_file():  # points given by hand: the automatic keyframes start from them
         control = solve_control(prior_track, read_points(control_path(session.path)))
+        for note in control.notes:
+            session.messages.add_once(f"control: {note}", note)
         prior_track = corrected_track(prior_track, control)
     registrar = Registrar(session, settings, ctx, background)
     try:

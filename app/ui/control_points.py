@@ -78,6 +78,8 @@ def solve(v, picks: ControlPicks) -> None:
         raise GeofuseError(f"{L.source} is not solved yet")
     points = as_points(L.session, picks)
     picks.solution = solve_control(track, points)
+    for note in picks.solution.notes:  # shown as the session's other warnings are
+        L.session.messages.add_once(f"control: {note}", note)
     out = check_output(
         control_path(L.session.path),
         "control points",

@@ -191,13 +191,18 @@ def export(v, path: Path) -> Path:
 
 
 def load(v) -> None:
-    """The marks kept beside the session's input, if any (a bad file is an error panel entry)."""
+    """The marks kept beside the session's input, if any: a file that cannot be read, and each
+    feature in it that is no mark (left out, the others read), is an error panel entry."""
     L = v.loaded
     path = marks_path(L.session.path)
     v.ui.measure = MeasureState()
     if path.is_file():
+
+        def skip(exc: DataFormatError) -> None:
+            v.ui.error(f"{exc}: left out (keeping a mark rewrites the file without it)")
+
         try:
-            v.ui.measure.marks = read_marks(path, L.session.frame)
+            v.ui.measure.marks = read_marks(path, L.session.frame, skip)
             v.ui.measure.saved = str(path)
         except DataFormatError as exc:
             v.ui.error(str(exc))

@@ -42,6 +42,7 @@ from app.core.errors import SceneError
 from app.geodesy.crs import horizontal, of_raster, parse_crs
 from app.scene.city.cityjson import Keep
 from app.scene.city.model import SURFACE_KINDS, CityObject, Surface, footprint_centre, kind_of
+from app.scene.city.paths import outside_note, texture_file
 
 SUFFIXES = (".gml", ".xml", ".zip")
 PART_NAMES = ("BuildingPart", "BridgePart", "TunnelPart")
@@ -109,10 +110,16 @@ class CityGmlReader:
     def _error(self, message: str, field: str | None = None, line: int | None = None) -> SceneError:
         return SceneError(self.path, message, field=field, line=line)
 
-    def texture_files(self) -> list[Path]:
+    @property
+    def texture_uris(self) -> list[str]:
+        """The texture images as the file names them, in the order surfaces name them."""
+        return self.textures
+
+    def texture_files(self) -> list[Path | None]:
         """The texture images (ParameterizedTexture imageURI, relative to the file), in the
-        order surfaces name them."""
-        return [self.path.parent / uri for uri in self.textures]
+        order surfaces name them; None for one outside the file's folder
+        (app.scene.city.paths: never read)."""
+        return [texture_file(self.path, uri) for uri in self.textures]
 
     def _texture_index(self, uri: str) -> int:
         if uri not in self._texture_ids:
@@ -173,10 +180,15 @@ class CityGmlReader:
             uri = next((c.text for c in tex.iter("{*}imageURI") if c.text), None)
             if not uri:
                 continue
+            image = texture_file(self.path, uri)
+            if image is None:
+                if (note := outside_note(self.path, uri)) not in self.notes:
+                    self.notes.append(note)
+                continue
             prefer = next((c.text for c in tex if _local(c) == "preferWorldFile"), None)
             affine = None
             if (prefer or "true").strip().lower() in ("true", "1"):
-                affine = self._image_georef(self.path.parent / uri.strip(), tex)
+                affine = self._image_georef(image, tex)
             affine = affine if affine is not None else self._inline_georef(tex)
             if affine is None:
                 self.notes.append(
@@ -250,11 +262,14 @@ class CityGmlReader:
         """(width, height) of a texture image, None where it cannot be read (said when the
         images are loaded)."""
         if index not in self._image_sizes:
-            try:
-                with Image.open(self.texture_files()[index]) as img:
-                    self._image_sizes[index] = img.size
-            except (OSError, UnidentifiedImageError):
-                self._image_sizes[index] = None
+            file, size = self.texture_files()[index], None
+            if file is not None:  # None: outside the file's folder, never read (said)
+                try:
+                    with Image.open(file) as img:
+                        size = img.size
+                except (OSError, UnidentifiedImageError):
+                    pass
+            self._image_sizes[index] = size
         return self._image_sizes[index]
 
     def _georeferenced_uvs(

@@ -26,6 +26,7 @@ import numpy as np
 
 from app.core.errors import SceneError
 from app.scene.city.model import CityObject, Surface, footprint_centre, kind_of
+from app.scene.city.paths import texture_file
 
 VERSIONS = ("1.0", "1.1", "2.0")
 SURFACE_DEPTH = {  # nesting of `boundaries` down to a surface (a list of rings)
@@ -55,6 +56,31 @@ class Header:
     template_vertices: np.ndarray
     textures: list[str]
     materials: list[tuple[float, float, float] | None]
+
+
+def _is_number(value: object) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool)
+
+
+def _numbers(items: object, width: int, start: int = 0) -> np.ndarray:
+    """(N, width) float64 of a JSON array of `width`-number arrays (vertices, texture
+    coordinates); ValueError naming the first item (its index from `start`) that is not
+    `width` numbers: a string such as "12.5" is refused, not converted."""
+    if not isinstance(items, list):
+        raise ValueError(f"a {type(items).__name__} (expected a list of [{width} numbers])")
+    if not items:
+        return np.zeros((0, width))
+    try:
+        out = np.asarray(items)  # numbers only give a numeric array (fast, in C)
+    except ValueError:  # ragged
+        out = None
+    if out is not None and out.dtype.kind in "iuf" and out.shape[1:] == (width,):
+        return out.astype(np.float64)
+    for i, item in enumerate(items):  # what is wrong, named
+        if not isinstance(item, list) or len(item) != width or not all(map(_is_number, item)):
+            shown = repr(item) if len(repr(item)) <= 60 else repr(item)[:57] + "..."
+            raise ValueError(f"item {start + i} is {shown} (expected {width} numbers)")
+    return np.asarray(items, np.float64)  # numbers all, some beyond int64
 
 
 def _lod_value(lod: object) -> float:
@@ -225,14 +251,24 @@ class CityJsonReader:
                 f"version {version!r} not read (expected {', '.join(VERSIONS)})", field="version"
             )
         transform = get("transform") or {}
-        scale = np.asarray(transform.get("scale", [1.0, 1.0, 1.0]), np.float64)
-        translate = np.asarray(transform.get("translate", [0.0, 0.0, 0.0]), np.float64)
-        if scale.shape != (3,) or translate.shape != (3,):
-            raise self._error("expected 3 numbers in scale and translate", field="transform")
+        try:
+            scale, translate = _numbers(
+                [transform.get("scale", [1.0] * 3), transform.get("translate", [0.0] * 3)], 3
+            )
+        except (AttributeError, ValueError):
+            raise self._error(
+                "expected 3 numbers in scale and translate", field="transform"
+            ) from None
+        if not np.isfinite([scale, translate]).all() or not scale.all():
+            raise self._error("expected finite numbers and no zero scale", field="transform")
         metadata = get("metadata") or {}
         crs = metadata.get("referenceSystem") if isinstance(metadata, dict) else None
         templates = get("geometry-templates") or {}
-        tv = np.asarray(templates.get("vertices-templates", []), np.float64).reshape(-1, 3)
+        if not isinstance(templates, dict):
+            raise self._error("expected an object", field="geometry-templates")
+        tv = self._checked(
+            templates.get("vertices-templates", []), 3, "geometry-templates.vertices-templates"
+        )
         if self.sequence:
             textures = (get("appearance") or {}).get("textures")
             materials = (get("appearance") or {}).get("materials")
@@ -267,6 +303,19 @@ class CityJsonReader:
 
     # -- vertices ------------------------------------------------------------------------------
 
+    def _checked(
+        self, items: object, width: int, field: str, line: int | None = None
+    ) -> np.ndarray:
+        """(N, width) float64 of a JSON array of `width`-number arrays held whole (a
+        CityJSONFeature's, the templates'), refused naming `field` unless numbers, all finite."""
+        try:
+            out = _numbers(items, width)
+        except ValueError as exc:
+            raise self._error(str(exc), field=field, line=line) from None
+        if not np.isfinite(out).all():
+            raise self._error("numbers that are not finite", field=field, line=line)
+        return out
+
     def _real(self, ints: np.ndarray) -> np.ndarray:
         return ints * self.header.scale + self.header.translate
 
@@ -275,10 +324,10 @@ class CityJsonReader:
         blocks, block = [], []
 
         def close(block: list) -> None:
-            a = np.asarray(block, np.float64)
-            if a.ndim != 2 or a.shape[1] != width:
-                raise self._error(f"expected {width} numbers in every item", field=field)
-            blocks.append(a)
+            try:
+                blocks.append(_numbers(block, width, VERTEX_BLOCK * len(blocks)))
+            except ValueError as exc:
+                raise self._error(str(exc), field=field) from None
 
         try:
             with self.path.open("rb") as f:
@@ -340,15 +389,13 @@ class CityJsonReader:
                     continue
                 try:
                     feature = json.loads(line)
-                    local = np.asarray(feature.get("vertices", []), np.float64).reshape(-1, 3)
-                    appearance = feature.get("appearance") or {}
-                    uvs = np.asarray(appearance.get("vertices-texture", []), np.float64)
-                    uvs = uvs.reshape(-1, 2)
                     objects = feature["CityObjects"].items()
+                    appearance = feature.get("appearance") or {}
+                    uv_items = appearance.get("vertices-texture", [])
                 except (json.JSONDecodeError, UnicodeDecodeError, AttributeError, KeyError) as exc:
                     raise self._error(f"broken CityJSONFeature: {exc}", line=number) from exc
-                except ValueError as exc:
-                    raise self._error(f"{exc} (expected [x, y, z] vertices)", line=number) from exc
+                local = self._checked(feature.get("vertices", []), 3, "vertices", number)
+                uvs = self._checked(uv_items, 2, "appearance.vertices-texture", number)
                 real = self._real(local)
                 for oid, obj in objects:
                     yield oid, obj, real, uvs, number
@@ -497,9 +544,15 @@ class CityJsonReader:
             )
         surface.texture, surface.uvs = texture, coords
 
-    def texture_files(self) -> list[Path]:
-        """The texture images, in the order surfaces name them (relative to the file)."""
-        return [self.path.parent / t for t in self.header.textures]
+    @property
+    def texture_uris(self) -> list[str]:
+        """The texture images as the file names them, in the order surfaces name them."""
+        return self.header.textures
+
+    def texture_files(self) -> list[Path | None]:
+        """The texture images (relative to the file), in the order surfaces name them; None
+        for one outside the file's folder (app.scene.city.paths: never read)."""
+        return [texture_file(self.path, t) for t in self.header.textures]
 
     def attributes_of(self, ids: set[str]) -> dict[str, dict]:
         """The attributes of the objects named (parents of the objects read), in one pass."""

@@ -42,6 +42,7 @@ from app.scene.city.model import (
     triangle_indices,
     usable_rings,
 )
+from app.scene.city.paths import outside_note
 from app.scene.mesh import MeshData, Primitive
 
 DEFAULT_MARGIN_M = 1000.0  # objects this far from the track are read
@@ -344,13 +345,19 @@ def _themes_said(reader: CityJsonReader | CityGmlReader) -> str:
     return f"; appearance themes {', '.join(repr(n) for n in names)}, drawn: {drawn}"
 
 
-def _images(files: list[Path], used: set[int], notes: Messages) -> dict[int, np.ndarray]:
+def _images(
+    reader: CityJsonReader | CityGmlReader, used: set[int], notes: Messages
+) -> dict[int, np.ndarray]:
     """The texture images used, as RGBA bottom row first (app.scene.mesh), at most
-    MAX_TEXTURE_PX a side; one that is missing or unreadable is said and its surfaces are drawn
-    by kind."""
+    MAX_TEXTURE_PX a side; one that is missing, unreadable or outside the model's folder (not
+    read: app.scene.city.paths) is said and its surfaces are drawn by kind."""
     out = {}
+    files = reader.texture_files()
     for t in sorted(used):
         file = files[t]
+        if file is None:
+            notes.add(outside_note(reader.path, reader.texture_uris[t]))
+            continue
         try:
             with Image.open(file) as img:
                 img = img.convert("RGBA")
@@ -383,7 +390,7 @@ def _city(
     uvs = np.concatenate([k.uvs for k in kept])
     colours = np.concatenate([k.colours for k in kept])
     used = set(np.unique(textures[textures >= 0]).tolist())
-    images = _images(reader.texture_files(), used, notes)
+    images = _images(reader, used, notes)
     textures = np.where(np.isin(textures, list(images)), textures, -1)
     prims = [
         _primitive(

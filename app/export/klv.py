@@ -21,7 +21,7 @@ import av
 from app.camera.frame_time import frame_of
 from app.export.records import FrameRecord
 from app.io.misb import ST0601_VERSION, encode, local_set, signed
-from app.io.video import VideoInfo
+from app.io.video import VideoInfo, demux, open_video
 
 CORNER_OFFSET_DEG = 0.075  # ST 0601 offset corners (tags 26-33) cover +-0.075 deg from the centre
 
@@ -78,7 +78,7 @@ def write_klv_ts(
     tb = Fraction(1, 90000)
     ticks = [int(round((float(video.pts_s[k]) + video.origin_s) * 90000)) for k, _ in frames]
     written = 0
-    with av.open(str(video.path)) as src, av.open(str(out), "w", format="mpegts") as dst:
+    with open_video(video.path) as src, av.open(str(out), "w", format="mpegts") as dst:
         vin = src.streams.video[0]
         vout = dst.add_stream_from_template(vin)
         data = dst.add_data_stream("klv")
@@ -95,7 +95,7 @@ def write_klv_ts(
                 if progress is not None:
                     progress(written / len(frames))
 
-        for packet in src.demux(vin):
+        for packet in demux(src, vin):
             if packet.dts is None:
                 continue
             mux_sets(float(packet.dts * vin.time_base) * 90000)

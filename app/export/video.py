@@ -23,7 +23,7 @@ from app.camera.pinhole import Camera, look_at_quat
 from app.core.constants import VIEW_FAR_M, VIEW_NEAR_M
 from app.core.errors import GeofuseError
 from app.core.settings import OverlaySettings, ProjectionSettings
-from app.io.video import VideoInfo, media_seconds, rotate_for_display
+from app.io.video import VideoInfo, decode, media_seconds, open_video, rotate_for_display
 from app.render.context import create_offscreen_context, keep_current
 from app.render.offscreen import OffscreenTarget, render_to_array
 from app.render.renderer import FusionRenderer
@@ -93,9 +93,9 @@ class _Frames:
         self._open()
 
     def _open(self) -> None:
-        self.container = av.open(str(self.clip.video.path))
+        self.container = open_video(self.clip.video.path)
         self.stream = self.container.streams.video[0]
-        self.frames = self.container.decode(self.stream)
+        self.frames = decode(self.container, self.stream)
         self.k, self.rgb = -1, None
 
     def get(self, k: int) -> np.ndarray | None:
@@ -152,7 +152,7 @@ def export_video(
     fps = Fraction(video.nominal_fps or video.average_fps or 30).limit_denominator(1001)
     readers = [_Frames(c) for c in further]
     try:
-        with av.open(str(video.path)) as src, av.open(str(out), "w") as dst:
+        with open_video(video.path) as src, av.open(str(out), "w") as dst:
             vin = src.streams.video[0]
             vin.thread_type = "AUTO"
             enc = dst.add_stream("libx264", rate=fps)
@@ -160,7 +160,7 @@ def export_video(
             enc.time_base = Fraction(1, 90000)
             enc.codec_context.time_base = enc.time_base
             enc.codec_context.options = {"preset": "veryfast", "crf": "20", "bf": "0"}
-            for frame in src.decode(vin):
+            for frame in decode(src, vin):
                 if frame.pts is None:
                     continue
                 k = frame_of(video.pts_s, media_seconds(frame.pts, vin.time_base, video.origin_s))

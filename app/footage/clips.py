@@ -429,7 +429,7 @@ def _klv_session(
     video.note_damage(messages)
     track = read_raw_klv(raw, messages, video) if raw else read_klv(path, video, messages)
     messages.info(f"{path.name}: {describe(track, video.pts_s)}")
-    gnss = track.gnss()
+    gnss = track.gnss(messages)
     if gnss is None:
         raise DataFormatError(
             path,

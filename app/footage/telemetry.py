@@ -153,6 +153,7 @@ def _klv(path: Path) -> Telemetry:
     platform's and the sensor's, and the composed optical axis's heading, pitch and roll)."""
     out = Telemetry(path, "MISB ST 0601 KLV in a video")
     video = probe(path)
+    video.note_damage(out.messages)
     return _klv_report(out, read_klv(path, video, out.messages), video.pts_s)
 
 
@@ -164,8 +165,12 @@ def _klv_report(out: Telemetry, track: KlvTrack, frame_pts_s: np.ndarray) -> Tel
     if platform or sensor:
         out.info.append(f"platform: {platform or 'unnamed'}; sensor: {sensor or 'unnamed'}")
     out.streams.append(Stream("Local Sets", track.times()))
-    g = track.gnss()
-    if g is not None:
+    g = track.gnss(out.messages)
+    if g is None:
+        out.messages.add(
+            f"{path.name}: no KLV set places the sensor (tags 13 and 14, and 75 or 15, are missing or the error code in all {len(track.sets)} sets): no positions"
+        )
+    else:
         out.streams.append(Stream("sensor positions (tags 13, 14, 75/15)", g.t))
         out.position = (g.t, g.lat, g.lon, g.h)
         out.height_note = "ellipsoidal (tag 75, or tag 15 above sea level through EGM2008)"

@@ -23,10 +23,24 @@ the fixes around it like any gap. The version (tag 65), sent once, is carried to
 Time stamps that do not move. Where every set has the one presentation time, the sets are placed
 by their Precision Time Stamps (tag 2) instead, said; where those do not move either, the KLV
 cannot be placed in time and is refused.
+
+Time stamps that run backwards or jump. A set placed by its presentation time keeps its Precision
+Time Stamp only within STAMP_LIMIT_S of what the others' say for that time (the median offset
+between the two); the others' stamps are not used (for the clip's UTC either), counted and said.
+Sets placed by their stamps alone (raw KLV, packets without a PTS, one PTS for all) keep the
+longest run of stamps that never goes backwards in the order the sets arrived, cut where
+consecutive stamps lie more than STAMP_GAP_S apart (the longest piece kept); the rest cannot be
+placed in time and are dropped, counted and said.
+
+Damage. Sets cut short (their packet ends before the length they claim) or whose length cannot be
+read are dropped and counted like sets failing their checksum, with where the first was (packet
+and byte); positions go through the plausibility gate every GNSS reader uses
+(app.io.streams.plausible_fixes: out of range, jumps) when `gnss` is given the messages.
 """
 
 from __future__ import annotations
 
+import bisect
 import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -47,10 +61,10 @@ from app.io.misb import (
     find_key,
     is_eg0104,
     parse,
-    split,
+    sets_at,
 )
-from app.io.streams import FloatArray, GnssTrack, OrientationStream
-from app.io.video import VideoInfo, ffmpeg_reason, media_seconds
+from app.io.streams import FloatArray, GnssTrack, OrientationStream, plausible_fixes
+from app.io.video import VideoInfo, demux, ffmpeg_reason, media_seconds, open_video
 
 KLV_CODECS = ("klv", "smpte_klv")
 CONSISTENCY_LIMIT_DEG = 2.0  # the frame centre further than this from the optical axis: said
@@ -59,6 +73,42 @@ IMAGE_SOURCE_SENSOR_TAG = 11
 CARRIED = tuple(TAGS[tag].name for tag in (5, 6, 7, 16, 17, 18, 19, 20, 90, 91))
 ANGLE_TAGS = (5, 90, 6, 91, 7, 18, 19, 20)  # what camera_orientation composes
 CARRY_LIMIT_S = 10.0  # an item left out of a set is taken from a set at most this much older
+STAMP_LIMIT_S = 5.0  # a Precision Time Stamp further (s) from what its PTS says is not used
+STAMP_GAP_S = 3600.0  # placed by stamps alone: consecutive stamps further apart (s) are a jump
+
+
+def steady_stamps(stamps_us: list[int | None]) -> list[bool]:
+    """Which Precision Time Stamps (microseconds since 1970; None or 0: absent, False) are
+    steady, the sets in the order they arrived: the longest run of them that never goes
+    backwards, cut where consecutive stamps lie more than STAMP_GAP_S apart, its longest piece
+    kept (a stamp running backwards, or jumping years and back, is left out)."""
+    idx = [k for k, us in enumerate(stamps_us) if us]
+    tails: list[int] = []  # the smallest stamp that ends a run of each length so far
+    ends: list[int] = []  # where (in idx) that run ends
+    before = [-1] * len(idx)  # the run's previous member (in idx)
+    for j, k in enumerate(idx):
+        n = bisect.bisect_right(tails, stamps_us[k])
+        if n == len(tails):
+            tails.append(stamps_us[k])
+            ends.append(j)
+        else:
+            tails[n], ends[n] = stamps_us[k], j
+        before[j] = ends[n - 1] if n else -1
+    run: list[int] = []
+    j = ends[-1] if ends else -1
+    while j >= 0:
+        run.append(idx[j])
+        j = before[j]
+    run.reverse()
+    pieces: list[list[int]] = [run[:1]]
+    for a, b in zip(run, run[1:], strict=False):
+        if (stamps_us[b] - stamps_us[a]) / 1e6 > STAMP_GAP_S:
+            pieces.append([])
+        pieces[-1].append(b)
+    keep = [False] * len(stamps_us)
+    for k in max(pieces, key=len):
+        keep[k] = True
+    return keep
 
 
 @dataclass
@@ -75,6 +125,17 @@ class KlvCounts:
     stale_names: set[str] = field(default_factory=set)
     frozen: int = 0  # sets placed by their Precision Time Stamps: every PTS was the same
     eg0104: int = 0  # packets holding EG 0104 (the older Predator set), not read
+    packets: int = 0  # KLV packets (payloads) read
+    cut: int = 0  # sets cut short or whose length cannot be read (a damaged packet)
+    first_cut: str = ""
+    stamps_off: int = 0  # Precision Time Stamps not used: too far from what the PTS says
+    stamps_off_s: float = 0.0  # the furthest of them (s)
+    unplaced: int = 0  # sets placed by their stamps alone, dropped: the stamps ran back or jumped
+
+    def first_fault(self) -> str:
+        """'; the first unreadable: WHERE: WHAT' of the first set dropped, or ''."""
+        first = self.first_error or self.first_cut
+        return f"; the first unreadable: {first}" if first else ""
 
     def said(self, where: str, messages: Messages) -> None:
         """One warning per kind of fault, with its count; what report on change carried, said
@@ -103,6 +164,21 @@ class KlvCounts:
                 "klv-bad",
                 f"{where}: {self.bad} KLV set(s) failed their checksum or could not be read and were dropped (first: {self.first_error})",
             )
+        if self.cut:
+            messages.add_once(
+                "klv-cut",
+                f"{where}: {self.cut} KLV set(s) dropped: cut short or claiming more bytes than their packet holds (first at {self.first_cut})",
+            )
+        if self.stamps_off:
+            messages.add_once(
+                "klv-stamps-off",
+                f"{where}: {self.stamps_off} KLV Precision Time Stamp(s) (tag 2) run backwards or jump (up to {self.stamps_off_s:.3g} s from what the presentation times say, expected within {STAMP_LIMIT_S:g} s): not used, those sets placed by their presentation times",
+            )
+        if self.unplaced:
+            messages.add_once(
+                "klv-unplaced",
+                f"{where}: {self.unplaced} KLV set(s) dropped: their Precision Time Stamps (tag 2) run backwards or jump more than {STAMP_GAP_S:g} s from the others, and nothing else places them in time",
+            )
         if self.untimed:
             messages.add_once(
                 "klv-untimed",
@@ -120,6 +196,7 @@ class KlvTrack:
     t: list[float] = field(default_factory=list)
     sets: list[LocalSet] = field(default_factory=list)
     counts: KlvCounts = field(default_factory=KlvCounts)
+    raw: bool = False  # Local Sets with no container (one payload): faults placed by byte only
     _untimed: list[LocalSet] = field(default_factory=list)
     _reported: dict[str, tuple[float, float]] = field(default_factory=dict)  # name: (t, value)
     _version: int | None = None
@@ -129,14 +206,16 @@ class KlvTrack:
         kept aside for `finish`), the items they leave out carried forward; returns the sets
         placed at t."""
         kept: list[LocalSet] = []
+        self.counts.packets += 1
         if is_eg0104(payload):
             self.counts.eg0104 += 1
-        for raw in split(payload):
+        dropped: list[tuple[int, str]] = []
+        for offset, raw in sets_at(payload, dropped):
             try:
                 s = parse(raw)
             except KlvError as exc:
                 self.counts.bad += 1
-                self.counts.first_error = self.counts.first_error or str(exc)
+                self.counts.first_error = self.counts.first_error or f"{self._where(offset)}: {exc}"
                 continue
             self.counts.sets += 1
             if t is None or not math.isfinite(t):
@@ -146,7 +225,15 @@ class KlvTrack:
             self.t.append(float(t))
             self.sets.append(s)
             kept.append(s)
+        if dropped:
+            self.counts.cut += len(dropped)
+            offset, reason = dropped[0]
+            self.counts.first_cut = self.counts.first_cut or f"{self._where(offset)}: {reason}"
         return kept
+
+    def _where(self, offset: int) -> str:
+        """Where a fault lies, for people: the byte (raw KLV) or the packet and its byte."""
+        return f"byte {offset}" if self.raw else f"packet {self.counts.packets}, byte {offset}"
 
     def _carry(self, s: LocalSet, t: float) -> LocalSet:
         """The set with the CARRIED items it leaves out taken from the last set that reported
@@ -179,8 +266,11 @@ class KlvTrack:
     def finish(self) -> KlvTrack:
         """Untimed sets placed by their Precision Time Stamps, everything sorted by time; sets
         that all share one presentation time placed by their stamps (see the module's
+        docstring). Stamps that run backwards or jump are not used (see the module's
         docstring)."""
         self._unfreeze()
+        self._drop_stray_stamps()
+        self._untimed = self._steady(self._untimed)
         stamped = [(t, s.time_us) for t, s in zip(self.t, self.sets, strict=True) if s.time_us]
         offset = (
             float(np.median([us / 1e6 - t for t, us in stamped])) if stamped else None
@@ -200,18 +290,46 @@ class KlvTrack:
         self.sets = [self.sets[i] for i in order]
         return self
 
+    def _steady(self, sets: list[LocalSet]) -> list[LocalSet]:
+        """The sets (in the order they arrived) whose Precision Time Stamps are steady
+        (steady_stamps): the others dropped and counted (unplaced); unstamped ones kept."""
+        keep = steady_stamps([s.time_us for s in sets])
+        self.counts.unplaced += sum(
+            1 for s, k in zip(sets, keep, strict=True) if s.time_us and not k
+        )
+        return [s for s, k in zip(sets, keep, strict=True) if k or not s.time_us]
+
+    def _drop_stray_stamps(self) -> None:
+        """Stamps of timed sets further than STAMP_LIMIT_S from the median offset between the
+        stamps and the presentation times: not used (the set kept, placed by its PTS)."""
+        stamped = [k for k, s in enumerate(self.sets) if s.time_us]
+        if not stamped:
+            return
+        off = np.array([self.sets[k].time_us / 1e6 - self.t[k] for k in stamped])
+        far = np.abs(off - np.median(off))
+        for k, d in zip(stamped, far, strict=True):
+            if d > STAMP_LIMIT_S:
+                self.sets[k] = replace(self.sets[k], time_us=None)
+                self.counts.stamps_off += 1
+                self.counts.stamps_off_s = max(self.counts.stamps_off_s, float(d))
+
     def _unfreeze(self) -> None:
         """Every set at one presentation time: their times from their Precision Time Stamps,
-        the first set's kept (KlvError when the stamps do not move either)."""
+        the first set's kept; sets without a stamp, or whose stamps run backwards or jump
+        (_steady), dropped and counted. KlvError when the stamps do not move either."""
         if len(self.t) < 2 or max(self.t) > min(self.t):
             return
-        stamps = [s.time_us for s in self.sets]
-        if any(us is None for us in stamps) or max(stamps) == min(stamps):
+        t0, n = self.t[0], len(self.t)
+        steady = self._steady(self.sets)
+        placed = [s for s in steady if s.time_us]
+        stamps = [s.time_us for s in placed]
+        if len(stamps) < 2 or max(stamps) == min(stamps):
             raise KlvError(
-                f"all {len(self.t)} KLV sets have one presentation time ({self.t[0]:.3f} s) and no moving Precision Time Stamp (tag 2): the metadata cannot be placed in time"
+                f"all {n} KLV sets have one presentation time ({t0:.3f} s) and no moving Precision Time Stamp (tag 2): the metadata cannot be placed in time"
             )
-        first = stamps[0]
-        self.t = [self.t[0] + (us - first) / 1e6 for us in stamps]
+        self.counts.untimed += len(steady) - len(placed)
+        self.sets = placed
+        self.t = [t0 + (us - stamps[0]) / 1e6 for us in stamps]
         self.counts.frozen = len(self.t)
 
     def times(self) -> FloatArray:
@@ -255,9 +373,11 @@ class KlvTrack:
         above_sea = self.values(msl) + undulation(np.nan_to_num(lat), np.nan_to_num(lon))
         return np.where(np.isfinite(h), h, above_sea)
 
-    def gnss(self) -> GnssTrack | None:
+    def gnss(self, messages: Messages | None = None) -> GnssTrack | None:
         """The sensor's positions (tags 13, 14, and 75 or 15): sets with any of them in error are
-        gaps. None when no set places the sensor."""
+        gaps. None when no set places the sensor. Given `messages`, the positions go through the
+        plausibility gate of every GNSS reader (app.io.streams.plausible_fixes: a latitude
+        jumping to the pole and back is dropped, said; DataFormatError when none is left)."""
         t = self.times()
         lat, lon = self.values("sensor_latitude_deg"), self.values("sensor_longitude_deg")
         h = self.heights("sensor_ellipsoid_m", "sensor_msl_m", lat, lon)
@@ -265,7 +385,8 @@ class KlvTrack:
         ok &= np.concatenate([[True], np.diff(t) > 0])  # one fix per time
         if ok.sum() == 0:
             return None
-        return GnssTrack(t[ok], lat[ok], lon[ok], h[ok], path=self.path)
+        track = GnssTrack(t[ok], lat[ok], lon[ok], h[ok], path=self.path)
+        return track if messages is None else plausible_fixes(track, messages)
 
     def attitude(
         self, note: str = "MISB ST 0601 platform and sensor angles"
@@ -334,7 +455,7 @@ def klv_streams(container) -> list:
 def has_klv(path: str | Path) -> bool:
     """Whether a video file carries a KLV data stream (False where it cannot be opened)."""
     try:
-        with av.open(str(path)) as c:
+        with open_video(path) as c:
             return bool(klv_streams(c))
     except (av.FFmpegError, OSError):
         return False
@@ -347,13 +468,13 @@ def read_klv(path: str | Path, video: VideoInfo, messages: Messages) -> KlvTrack
     VideoError when the file has no KLV stream or no set can be read."""
     path = Path(path)
     try:
-        with av.open(str(path)) as c:
+        with open_video(path) as c:
             streams = klv_streams(c)
             if not streams:
                 raise VideoError(path, "no KLV data stream (MISB ST 0601 metadata)")
             tracks = {s.index: KlvTrack(str(path)) for s in streams}
             try:
-                for packet in c.demux(*streams):
+                for packet in demux(c, *streams):
                     if not packet.size:
                         continue
                     tb = packet.stream.time_base
@@ -390,7 +511,7 @@ def _finished(track: KlvTrack, path: Path, messages: Messages, error, what: str)
         held = (
             f"EG 0104 (the older Predator UAV Basic Universal Metadata Set, {track.counts.eg0104} packets), which geofuse does not read, and no MISB ST 0601 Local Set"
             if track.counts.eg0104
-            else f"no readable MISB ST 0601 Local Set ({found} found)"
+            else f"no readable MISB ST 0601 Local Set ({found} found{track.counts.first_fault()})"
         )
         raise error(path, f"{what} holds {held}")
     return track
@@ -413,7 +534,7 @@ def read_raw_klv(path: str | Path, messages: Messages, video: VideoInfo | None =
     to the second as containers store it) where it has one, said either way. DataFormatError
     naming the file when no set can be read or placed."""
     path = Path(path)
-    track = KlvTrack(str(path))
+    track = KlvTrack(str(path), raw=True)
     track.add(path.read_bytes(), None)
     _finished(track, path, messages, DataFormatError, "the raw KLV")
     if video is None:

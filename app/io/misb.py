@@ -264,22 +264,40 @@ def parse(packet: bytes) -> LocalSet:
     return LocalSet(time_us, version, values, other)
 
 
-def split(data: bytes) -> Iterator[bytes]:
+def split(data: bytes, dropped: list[tuple[int, str]] | None = None) -> Iterator[bytes]:
     """The Local Sets in a run of bytes (a KLV packet may hold several; bytes before a key are
-    skipped), each cut at the length it says; a set cut off by the end is left out."""
-    i = 0
-    while True:
-        i = find_key(data, i)
-        if i < 0:
-            return
+    skipped), each cut at the length it says (see `sets_at`, which also gives where)."""
+    return (raw for _, raw in sets_at(data, dropped))
+
+
+def sets_at(
+    data: bytes, dropped: list[tuple[int, str]] | None = None
+) -> Iterator[tuple[int, bytes]]:
+    """(byte offset, bytes) of each Local Set in a run of bytes, cut at the length it says. A
+    set cut off by the end or by the next set's key (a set cut short), or whose length cannot
+    be read, is left out, noted in `dropped` as (byte offset of its key, what is wrong), and the
+    search goes on after its key."""
+    i = find_key(data)
+    while i >= 0:
+        after = find_key(data, i + 16)
         try:
             length, start = read_ber(data, i + 16)
-        except KlvError:
-            return
-        if start + length > len(data):
-            return
-        yield data[i : start + length]
-        i = start + length
+        except KlvError as exc:
+            reason = str(exc)
+        else:
+            end = start + length
+            if end <= len(data) and not 0 <= after < end:
+                yield i, data[i:end]
+                i = after  # -1, or a key at or after the set's end
+                continue
+            reason = (
+                f"the set says {length} bytes, the next set begins {after - start} bytes on"
+                if 0 <= after < end
+                else f"the set says {length} bytes, {len(data) - start} follow"
+            )
+        if dropped is not None:
+            dropped.append((i, reason))
+        i = after
 
 
 # --- the camera it describes -------------------------------------------------------------------

@@ -32,13 +32,41 @@ class VideoInfo:
     codec: str
     origin_s: float = 0.0  # the stream-clock seconds that are media time 0 (see media_seconds)
     declared_frames: int = 0  # frames the container's index announces (0: it does not say)
+    corrupt_packets: int = 0  # video packets the demuxer found damaged (a transport stream's)
+    undecodable_head: int = 0  # packets before the first frame that decodes, which do not
+    junk_head_bytes: int = 0  # bytes before a transport stream's first packet (damaged)
+    partial_packet_bytes: int = 0  # a transport stream's last packet, cut off after this many
 
     def note_damage(self, messages) -> None:
         """A warning when fewer frames can be read than the index announces (a file cut short
-        with its index at the front): only the frames present are used."""
+        with its index at the front): only the frames present are used; and one when packets
+        arrived damaged or the first ones do not decode (a transport stream with bytes lost or
+        flipped): what decodes is shown, the rest skipped."""
+        name = Path(self.path).name
         if self.declared_frames > len(self.pts_s) + 1:
             messages.add(
-                f"{Path(self.path).name}: the video is cut short: {len(self.pts_s)} of the {self.declared_frames} frames its index announces can be read; only those are used"
+                f"{name}: the video is cut short: {len(self.pts_s)} of the {self.declared_frames} frames its index announces can be read; only those are used"
+            )
+        if self.junk_head_bytes:
+            messages.add(
+                f"{name}: the transport stream's first {self.junk_head_bytes} bytes are not MPEG-TS packets (damaged): read from the first packet after them"
+            )
+        if self.partial_packet_bytes:
+            messages.add(
+                f"{name}: the transport stream ends {self.partial_packet_bytes} bytes into a packet: the file is cut short, what followed is lost"
+            )
+        if self.corrupt_packets or self.undecodable_head:
+            lost = [
+                f"{self.corrupt_packets} of {len(self.pts_s)} video packets arrive damaged"
+                if self.corrupt_packets
+                else "",
+                f"the first {self.undecodable_head} packets do not decode"
+                if self.undecodable_head
+                else "",
+            ]
+            messages.add_once(
+                f"video-damage:{self.path}",
+                f"{name}: the video stream is damaged ({'; '.join(x for x in lost if x)}): frames that do not decode are skipped, the others shown",
             )
 
     @property
@@ -93,6 +121,80 @@ def _creation_time(meta: dict[str, str]) -> float | None:
         return None
 
 
+# MPEG transport streams: read as such when FFmpeg's probe fails (a damaged start)
+TS_SUFFIXES = (".ts", ".m2ts", ".mts")
+
+
+def open_video(path: str | Path):
+    """The PyAV input container of a video file. A transport stream (TS_SUFFIXES) whose start is
+    damaged past FFmpeg's recognition is opened as MPEG-TS all the same (what follows may well
+    decode); av.FFmpegError or OSError where it cannot be opened."""
+    try:
+        return av.open(str(path))
+    except av.FFmpegError:
+        if Path(path).suffix.lower() not in TS_SUFFIXES:
+            raise
+    return av.open(str(path), format="mpegts")
+
+
+TS_SYNC = 0x47  # the first byte of every transport stream packet
+TS_SCAN_BYTES = 1 << 20  # how far into a damaged transport stream its first packet is looked for
+
+
+def ts_edges(path: Path) -> tuple[int, int]:
+    """(bytes before its first packet, bytes into its last packet) of a transport stream
+    (188-byte packets, or 192 with the Blu-ray time code first): where three sync bytes (0x47)
+    first follow each other a packet apart in its first TS_SCAN_BYTES; (0, 0) where none do."""
+    with path.open("rb") as f:
+        head = f.read(TS_SCAN_BYTES)
+    i = head.find(TS_SYNC)
+    while 0 <= i < len(head) - 2 * 192:
+        for size, sync in ((188, 0), (192, 4)):
+            if i >= sync and all(head[i + k * size] == TS_SYNC for k in range(3)):
+                return i - sync, (path.stat().st_size - i + sync) % size
+        i = head.find(TS_SYNC, i + 1)
+    return 0, 0
+
+
+def demux(container, *streams) -> Iterator[av.Packet]:
+    """container.demux(*streams), ending where PyAV's end-of-file flush meets a stream that
+    appeared mid-file (a damaged transport stream whose tables name a stream it did not have at
+    the start: PyAV 18 raises IndexError there, after the last packet has been read)."""
+    packets = container.demux(*streams)
+    while True:
+        try:
+            packet = next(packets)
+        except (StopIteration, IndexError):
+            return
+        yield packet
+
+
+@dataclass
+class Undecodable:
+    """Packets skipped because FFmpeg could not decode them (a damaged stream)."""
+
+    packets: int = 0
+
+
+def decode(container, stream, skipped: Undecodable | None = None) -> Iterator[av.VideoFrame]:
+    """The frames of `stream` (in an open PyAV `container`) from where it stands, a packet that
+    does not decode skipped (counted in `skipped`) rather than ending the stream; an error
+    reading the file ends it (the frames read so far stand)."""
+    packets = demux(container, stream)
+    while True:
+        try:
+            packet = next(packets)
+        except (StopIteration, av.FFmpegError):
+            return
+        try:
+            frames = packet.decode()
+        except av.FFmpegError:
+            if skipped is not None:
+                skipped.packets += 1
+            continue
+        yield from frames
+
+
 def ffmpeg_reason(exc: BaseException) -> str:
     """An FFmpeg or OS error as words for people: its message without the error number and the
     path that the caller names anyway."""
@@ -107,7 +209,7 @@ def probe(path: str | Path) -> VideoInfo:
     if not path.is_file():
         raise VideoError(path, "video file does not exist")
     try:
-        container = av.open(str(path))
+        container = open_video(path)
     except (av.FFmpegError, OSError) as exc:
         raise VideoError(path, f"not a video FFmpeg can read ({ffmpeg_reason(exc)})") from exc
     with container:
@@ -115,18 +217,22 @@ def probe(path: str | Path) -> VideoInfo:
             raise VideoError(path, "no video stream")
         stream = container.streams.video[0]
         tb = stream.time_base
-        rotation = 0
-        try:
-            first = next(container.decode(stream))
-            rotation = int(round(getattr(first, "rotation", 0) or 0))
-        except (StopIteration, av.FFmpegError) as exc:
-            raise VideoError(path, f"no decodable frame ({ffmpeg_reason(exc)})") from exc
+        head = Undecodable()
+        first = next(decode(container, stream, head), None)
+        if first is None:
+            raise VideoError(
+                path,
+                f"no decodable frame ({head.packets} video packets, none decodes; expected H.264, HEVC or another codec FFmpeg reads)",
+            )
+        rotation = int(round(getattr(first, "rotation", 0) or 0))
         container.seek(0)
         pts = []
+        corrupt = 0
         try:
-            for packet in container.demux(stream):
+            for packet in demux(container, stream):
                 if packet.pts is not None and packet.size:
                     pts.append(packet.pts)
+                    corrupt += bool(packet.is_corrupt)
         except av.FFmpegError:
             pass  # a truncated file: keep the packets read so far
         if not pts:
@@ -150,6 +256,9 @@ def probe(path: str | Path) -> VideoInfo:
             stream.codec_context.name,
             origin,
             int(stream.frames or 0),
+            corrupt,
+            head.packets,
+            *(ts_edges(path) if container.format.name == "mpegts" else (0, 0)),
         )
 
 
@@ -172,7 +281,7 @@ def decode_at(container, stream, stream_s: float, tolerance_s: float = 0.0):
             continue
         container.seek(int(seek_s / tb), stream=stream, backward=True, any_frame=False)
         first = True
-        for frame in container.decode(stream):
+        for frame in decode(container, stream):
             if frame.pts is None:
                 continue
             t = float(frame.pts * tb)
@@ -192,7 +301,7 @@ def read_frame(path: str | Path, index: int, info: VideoInfo | None = None) -> n
     if not 0 <= index < len(info.pts_s):
         raise VideoError(path, f"frame {index} out of range (0..{len(info.pts_s) - 1})")
     target = info.pts_s[index] + info.origin_s
-    with av.open(str(path)) as container:
+    with open_video(path) as container:
         stream = container.streams.video[0]
         try:
             frame = decode_at(container, stream, target, 0.5 / max(info.nominal_fps, 1.0))
@@ -208,8 +317,8 @@ def frames_at(
 ) -> Iterator[tuple[int, np.ndarray]]:
     """Frames `indices` (display order, increasing) decoded in one pass as (index, (H, W, 3) uint8
     RGB in display orientation), scaled so that the long side is at most `long_side` pixels.
-    Frames are matched to indices by presentation time; a damaged frame is skipped, a stream that
-    cannot be decoded at all raises VideoError."""
+    Frames are matched to indices by presentation time; a damaged frame (a packet that does not
+    decode) is skipped, an error converting a decoded frame raises VideoError."""
 
     wanted = sorted(set(int(i) for i in indices))
     if not wanted:
@@ -220,10 +329,10 @@ def frames_at(
     half_frame = 0.5 / max(info.nominal_fps, 1.0)
     j = 0
     try:
-        with av.open(str(path)) as container:
+        with open_video(path) as container:
             stream = container.streams.video[0]
             stream.thread_type = "AUTO"
-            for frame in container.decode(stream):
+            for frame in decode(container, stream):
                 if frame.pts is None:
                     continue
                 t = media_seconds(frame.pts, stream.time_base, info.origin_s)

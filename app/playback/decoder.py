@@ -21,7 +21,7 @@ from pathlib import Path
 import av
 import numpy as np
 
-from app.io.video import media_seconds
+from app.io.video import demux, media_seconds, open_video
 
 QUEUE_FRAMES = 12  # about 0.4 s of 30 fps video: enough to ride out decoder hiccups
 LATE_S = 0.05  # a frame this far behind the media time due is not converted nor queued
@@ -115,7 +115,7 @@ class Decoder:
     def _decode_all(self) -> None:
 
         try:
-            container = av.open(self.path)
+            container = open_video(self.path)
         except (av.FFmpegError, OSError) as exc:
             self.error = f"{self.path}: cannot open video ({exc})"
             return
@@ -153,7 +153,7 @@ class Decoder:
     def _decode_from(self, container, stream, target: float, serial: int, rate: float, bt709: bool):
         """Decode forward from the last seek; returns the next command, or None at end of stream."""
 
-        packets = container.demux(stream)
+        packets = demux(container, stream)
         delivered = False  # the first frame after a seek is always delivered
         while not self._stop.is_set():
             if not self._commands.empty():

@@ -9,13 +9,12 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-import av
 import cv2
 import numpy as np
 
 from app.core.errors import GeofuseError
 from app.geodesy import rotations
-from app.io.video import media_seconds
+from app.io.video import decode, media_seconds, open_video
 from app.sync.rates import RateCurve
 
 FLOW_WIDTH_PX = 320  # the video is reduced to this width for the flow
@@ -84,10 +83,10 @@ def video_rates(
     t_out, w_out = [], []
     prev = prev_t = None
     n = len(video.pts_s)
-    with av.open(str(video.path)) as c:
+    with open_video(video.path) as c:
         stream = c.streams.video[0]
         stream.thread_type = "AUTO"
-        for i, frame in enumerate(c.decode(stream)):
+        for i, frame in enumerate(decode(c, stream)):
             if frame.pts is None:
                 continue
             t = media_seconds(frame.pts, stream.time_base, video.origin_s)

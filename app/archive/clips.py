@@ -28,7 +28,7 @@ from app.footage.clips import open_any
 from app.geodesy import rotations
 from app.scene.layers import Layer
 
-__all__ = ["ClipResult", "clip_key", "find_clips", "fingerprint", "index_clip"]
+__all__ = ["ClipResult", "clip_key", "find_clips", "fingerprint", "index_clip", "walk_clips"]
 
 VIDEO_SUFFIXES = (".mp4", ".mov", ".ts")  # .ts: MPEG-TS with MISB KLV
 SKIPPED_TOMLS = (".geofuse.toml",)  # settings geofuse writes beside a clip, not manifests
@@ -47,10 +47,16 @@ def _manifest_video(path: Path) -> Path | None:
     return (path.parent / video["path"]).resolve()
 
 
-def find_clips(roots: list[Path]) -> list[Path]:
+NOT_A_CLIP = "not a clip (expected a video .mp4, .mov or .ts, or a session manifest .toml)"
+NOT_A_MANIFEST = "a .toml that is not a session manifest (no [video] path)"
+
+
+def walk_clips(roots: list[Path]) -> tuple[list[Path], list[tuple[Path, str]]]:
     """Every clip under the roots (files or folders, walked recursively), sorted; a manifest's
-    video is indexed through the manifest only. A .toml that is not a manifest is not a clip."""
-    manifests, videos = [], []
+    video is indexed through the manifest only. And the files passed over, each with why (a
+    .toml that is not a manifest, a file of another kind; settings geofuse writes and the
+    videos of manifests are neither)."""
+    manifests, videos, others = [], [], []
     for root in roots:
         files = [root] if root.is_file() else sorted(p for p in root.rglob("*") if p.is_file())
         for p in files:
@@ -59,10 +65,19 @@ def find_clips(roots: list[Path]) -> list[Path]:
                 manifests.append(p.resolve())
             elif p.suffix.lower() in VIDEO_SUFFIXES:
                 videos.append(p.resolve())
-    named = {_manifest_video(m) for m in manifests}
-    clips = [m for m in manifests if _manifest_video(m) is not None]
-    clips += [v for v in videos if v not in named]
-    return sorted(set(clips))
+            elif not name.endswith(SKIPPED_TOMLS):
+                others.append((p.resolve(), NOT_A_CLIP))
+    named = {m: _manifest_video(m) for m in manifests}
+    clips = [m for m, video in named.items() if video is not None]
+    clips += [v for v in videos if v not in set(named.values())]
+    others += [(m, NOT_A_MANIFEST) for m, video in named.items() if video is None]
+    return sorted(set(clips)), sorted(set(others))
+
+
+def find_clips(roots: list[Path]) -> list[Path]:
+    """Every clip under the roots (see walk_clips); a .toml that is not a manifest is not a
+    clip."""
+    return walk_clips(roots)[0]
 
 
 def fingerprint(path: Path) -> str:

@@ -15,12 +15,12 @@ from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
 
-import geopandas as gpd
 import numpy as np
 import pandas as pd
 import shapely
 from shapely.geometry.base import BaseGeometry
 
+from app.archive.store import read_footprints
 from app.core.errors import GeofuseError
 from app.geodesy.enu import METRES_PER_DEGREE, ecef_to_enu_rotation, geodetic_to_ecef
 
@@ -136,7 +136,7 @@ def find(
     which these footprints' optical axes meet the scene, else the cameras' less 2 m)."""
     minx, miny, maxx, maxy = place.bounds
     try:
-        rows = gpd.read_parquet(archive, bbox=(minx, miny, maxx, maxy))
+        rows = read_footprints(archive, (minx, miny, maxx, maxy))
         rows[list(NEEDED)]  # noqa: B018 - the columns the query reads
     except (OSError, ValueError, KeyError) as exc:
         raise GeofuseError(f"{archive}: not an archive written by `geofuse index` ({exc})") from exc

@@ -11,13 +11,17 @@ duplicate), error, size, modification time, fingerprint and facts.
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import geopandas as gpd
 import pandas as pd
 from shapely import wkb
+from shapely.errors import ShapelyError
 
 from app.archive.clips import ClipResult
+from app.core.errors import DataFormatError
+from app.io.area import non_finite
 
 __all__ = ["clips_path", "read_clips", "read_footprints", "write_archive"]
 
@@ -32,6 +36,7 @@ CLIP_COLUMNS = (
     "duration_s", "utc_start", "track_length_m", "footprints", "messages", "seconds",
     "worker_peak_mb",
 )  # fmt: skip
+KEY_COLUMNS = CLIP_COLUMNS[:6]  # what an incremental run compares: an older table holds these
 
 
 def clips_path(archive: Path) -> Path:
@@ -39,13 +44,54 @@ def clips_path(archive: Path) -> Path:
     return archive.with_name(f"{archive.stem}.clips.parquet")
 
 
-def read_footprints(archive: Path) -> gpd.GeoDataFrame:
-    return gpd.read_parquet(archive)
+def read_footprints(
+    archive: Path, bbox: tuple[float, float, float, float] | None = None
+) -> gpd.GeoDataFrame:
+    """The footprints of an archive, only those whose boxes meet bbox (longitude, latitude
+    degrees: west, south, east, north) where given. DataFormatError naming the archive and its
+    geometry column where a geometry is not WKB or has a coordinate that is NaN or infinite;
+    OSError, ValueError (pyarrow) or KeyError where the file is no GeoParquet."""
+    try:
+        with warnings.catch_warnings():  # shapely warns before it raises on bytes not WKB
+            warnings.simplefilter("ignore", RuntimeWarning)
+            rows = gpd.read_parquet(archive, bbox=bbox)
+    except ShapelyError as exc:
+        raise DataFormatError(
+            archive, f"bytes that are not WKB ({exc}), expected WKB polygons", field="geometry"
+        ) from exc
+    bad = non_finite(rows.geometry.values)
+    if len(bad):
+        first = rows.iloc[int(bad[0])]
+        raise DataFormatError(
+            archive,
+            f"{len(bad)} footprint(s) with NaN or infinite coordinates (the first: "
+            f"{first.get('clip', '?')} frame {first.get('frame', '?')}), expected longitude, "
+            "latitude in degrees",
+            field="geometry",
+        )
+    return rows
 
 
 def read_clips(archive: Path) -> pd.DataFrame:
+    """The clips table beside the archive (empty where there is none). DataFormatError naming
+    it where it is not one `geofuse index` wrote (not Parquet, or a column missing)."""
     path = clips_path(archive)
-    return pd.read_parquet(path) if path.is_file() else pd.DataFrame(columns=list(CLIP_COLUMNS))
+    if not path.is_file():
+        return pd.DataFrame(columns=list(CLIP_COLUMNS))
+    try:
+        clips = pd.read_parquet(path)
+    except (OSError, ValueError) as exc:
+        raise DataFormatError(
+            path, f"not Parquet ({exc}), expected the clips table of an archive"
+        ) from exc
+    missing = [c for c in KEY_COLUMNS if c not in clips.columns]
+    if missing:
+        raise DataFormatError(
+            path,
+            f"no column {missing[0]!r}, expected the clips table `geofuse index` writes",
+            field=missing[0],
+        )
+    return clips
 
 
 def _footprints(results: list[ClipResult]) -> gpd.GeoDataFrame:
@@ -85,7 +131,12 @@ def write_archive(
     footprints = _footprints(results)
     clips = _clips(results)
     if kept and archive.is_file():
-        old = read_footprints(archive)
+        try:
+            old = read_footprints(archive)
+        except (OSError, ValueError, KeyError) as exc:
+            raise DataFormatError(
+                archive, f"not GeoParquet ({exc}), expected an archive `geofuse index` wrote"
+            ) from exc
         old_clips = read_clips(archive)
         footprints = pd.concat([old[old["clip"].isin(kept)], footprints], ignore_index=True)
         clips = pd.concat([old_clips[old_clips["path"].isin(kept)], clips], ignore_index=True)

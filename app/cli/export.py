@@ -4,15 +4,13 @@ painted model of a session or clip (app.export.jobs, app.export.orthophoto, app.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
 import numpy as np
-import shapely.geometry
 
 from app.cli.common import open_with_source, print_messages, print_scene_report, solved
-from app.core.errors import DataFormatError, GeofuseError
+from app.core.errors import GeofuseError
 from app.core.outputs import IMAGE_SUFFIXES, check_output
 from app.core.progress import ProgressBar
 from app.export import EXPORT_SUFFIXES
@@ -28,27 +26,15 @@ from app.export.painted import (
 from app.export.painted_tiles import atlas_tiles, page_tiles, write_painted_tiles
 from app.export.records import frame_records
 from app.geodesy.crs import parse_crs
+from app.io.area import read_area
 
 
 def _area(path: Path | None) -> tuple[float, float, float, float] | None:
-    """(lat_min, lon_min, lat_max, lon_max) of a GeoJSON file's geometries (WGS84)."""
+    """(lat_min, lon_min, lat_max, lon_max) degrees: the box of a GeoJSON file's polygons."""
     if path is None:
         return None
-    try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
-        features = doc.get("features", [doc]) if isinstance(doc, dict) else []
-        geometries = [f.get("geometry", f) for f in features]
-        bounds = np.array([shapely.geometry.shape(g).bounds for g in geometries if g])
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError, AttributeError, ValueError) as exc:
-        raise DataFormatError(path, f"not a GeoJSON area ({exc})", field="--area") from exc
-    if not len(bounds):
-        raise DataFormatError(path, "no geometry (expected a polygon in WGS84)", field="--area")
-    return (
-        float(bounds[:, 1].min()),
-        float(bounds[:, 0].min()),
-        float(bounds[:, 3].max()),
-        float(bounds[:, 2].max()),
-    )
+    lon0, lat0, lon1, lat1 = read_area(path, "--area").bounds
+    return lat0, lon0, lat1, lon1
 
 
 def _solved_further(args: argparse.Namespace, inputs: list[Path], suffixes) -> list:

@@ -9,24 +9,10 @@ import sys
 import tempfile
 from pathlib import Path
 
-import shapely
-from shapely.geometry import shape
-
 from app.archive import find, place_of
-from app.core.errors import DataFormatError, GeofuseError
+from app.core.errors import GeofuseError
+from app.io.area import read_area
 from app.ui.viewer import Options, Viewer
-
-
-def _polygon(path: Path) -> shapely.Geometry:
-    try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
-        geometry = doc["features"][0]["geometry"] if "features" in doc else doc.get("geometry", doc)
-        polygon = shape(geometry)
-    except (OSError, ValueError, KeyError, IndexError, TypeError, AttributeError) as exc:
-        raise DataFormatError(path, f"expected a GeoJSON Polygon ({exc})") from exc
-    if polygon.geom_type not in ("Polygon", "MultiPolygon") or not polygon.is_valid:
-        raise DataFormatError(path, f"expected a valid Polygon, got a {polygon.geom_type}")
-    return polygon
 
 
 def run(args: argparse.Namespace) -> int:
@@ -34,7 +20,9 @@ def run(args: argparse.Namespace) -> int:
         raise GeofuseError(
             f"{args.archive}: archive does not exist (make one with `geofuse index`)"
         )
-    place = place_of(args.point, args.radius, _polygon(args.polygon) if args.polygon else None)
+    place = place_of(
+        args.point, args.radius, read_area(args.polygon, "--polygon") if args.polygon else None
+    )
     hits = find(args.archive, place, args.start, args.end)
     if args.json:
         print(json.dumps([h.as_dict() for h in hits]))

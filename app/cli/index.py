@@ -1,4 +1,6 @@
-"""`geofuse index`: folders of clips indexed into a GeoParquet archive (app.archive)."""
+"""`geofuse index`: folders of clips indexed into a GeoParquet archive (app.archive); each clip
+that failed is said with why (a warning), and a run that indexed nothing at all is an error
+(exit status 2, the archive not written)."""
 
 from __future__ import annotations
 
@@ -36,5 +38,7 @@ def run(args: argparse.Namespace) -> int:
     )
     if sys.stderr.isatty():
         print(file=sys.stderr)
+    for _, why in report.failures:
+        print(f"warning: skipped {' '.join(why.split())}", file=sys.stderr)
     print(f"wrote {out}: {report.line()}")
     return 0

@@ -19,13 +19,14 @@ from app.cli.common import (
     still_scene,
 )
 from app.core.constants import DEFAULT_NEAR_M
-from app.core.errors import GeofuseError
+from app.core.errors import GeofuseError, ManifestError
 from app.core.imageio import write_rgb
 from app.core.outputs import IMAGE_SUFFIXES, check_output
 from app.core.settings import OverlaySettings
 from app.footage.clips import onto
 from app.io.video import read_frame
 from app.render.still import render_still, window_camera
+from app.session.config import ClipRef
 from app.session.model import Session
 from app.session.timeline import Timeline
 
@@ -109,17 +110,25 @@ def _others(args: argparse.Namespace, first: Session, index: int) -> tuple[list,
     first's frame `index` on one timeline (app.session.timeline), their cameras moved into the first's
     local frame; how long before that moment each frame was taken (s); and what to say of
     them."""
-    refs = [(path, 0.0, 0.0) for path in args.session[1:]]
-    refs += [(ref.path, ref.offset_s, ref.priority) for ref in first.further]
+    refs = [ClipRef(path) for path in args.session[1:]]
+    refs += [*first.further]
     if not refs:
         return [], [], ""
-    sessions = [
-        open_with_source(path, args, IMAGE_SUFFIXES, any_source=True) for path, _, _ in refs
-    ]
-    line = Timeline.of([first, *(s for s, _ in sessions)], [0.0, *(off for _, off, _ in refs)])
+    sessions = []
+    for k, ref in enumerate(refs):
+        session, source = open_with_source(ref.path, args, IMAGE_SUFFIXES, any_source=True)
+        if ref.source is not None:  # the manifest's [[clips]] source, the clip's own to offer
+            try:
+                session.check_source(ref.source)
+            except ValueError as exc:
+                key = f"clips[{k - len(args.session) + 1}].source"
+                raise ManifestError(first.path, f"{exc} ({ref.path})", field=key) from exc
+            source = ref.source
+        sessions.append((session, source))
+    line = Timeline.of([first, *(s for s, _ in sessions)], [0.0, *(r.offset_s for r in refs)])
     t = float(line.clips[0].times[index])
     extras, ages, parts = [], [], []
-    for (s, source), span, (_, _, priority) in zip(sessions, line.clips[1:], refs, strict=True):
+    for (s, source), span, ref in zip(sessions, line.clips[1:], refs, strict=True):
         print_messages(s)
         k = span.frame_at(t)
         name = Path(s.video.path).name
@@ -127,7 +136,7 @@ def _others(args: argparse.Namespace, first: Session, index: int) -> tuple[list,
             parts.append(f"{name} has no frame then")
             continue
         cam = solved(s, source).with_clip(DEFAULT_NEAR_M, args.far).frame_camera(k)
-        extras.append((read_frame(s.video.path, k, s.video), onto(s, first)(cam), priority))
+        extras.append((read_frame(s.video.path, k, s.video), onto(s, first)(cam), ref.priority))
         ages.append(t - float(span.times[k]))
         parts.append(f"{name} frame {k}")
     return extras, ages, "; with " + ", ".join(parts)

@@ -18,6 +18,8 @@ from app.export.preview import footprint_preview
 from app.export.records import FrameRecord, frame_records
 from app.export.video import FurtherClip, export_video
 from app.footage.clips import onto
+from app.render.passes import MAX_EXTRA
+from app.render.renderer import beyond_message
 from app.session.camera_track import CameraTrack
 from app.session.model import Session
 from app.session.timeline import Timeline
@@ -88,6 +90,8 @@ def export_session(
         write_via_path(out, "--out", write_video)
         w, h = options.size
         more = f", with {len(clips)} further clips" if clips else ""
+        if len(clips) > MAX_EXTRA:  # drawn where they have a frame: the nearest in time then
+            more += f"; {beyond_message(len(clips) - MAX_EXTRA)}"
         return f"wrote {out}: {n[0]} frames, {w}x{h}, view {options.view}, attitude from {source}{more}"
     records = list(frame_records(session, source, options.every, progress=progress, track=track))
     if what == "klv":

@@ -6,6 +6,7 @@ CLI's still export. All GL calls happen on the thread that owns the context.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from contextlib import AbstractContextManager, nullcontext
 
 import moderngl
@@ -33,6 +34,31 @@ from app.scene.mesh import MeshData
 
 BACKGROUND = (0.62, 0.74, 0.86)
 PICK_DOWNSCALE = 4  # picking renders positions at a quarter of the view's resolution
+
+
+def nearest_in_time(
+    ages_s: Sequence[float], priorities: Sequence[float], limit: int = MAX_EXTRA
+) -> list[int]:
+    """Indices (in the order given) of the further projectors drawn where more than `limit` are
+    offered: those whose frames were taken nearest in time to the moment drawn (the smallest
+    |age|, s), the higher priority first where they tie, then the one offered first."""
+    nearest = sorted(range(len(ages_s)), key=lambda k: (abs(ages_s[k]), -priorities[k], k))
+    return sorted(nearest[:limit])
+
+
+def left_out_message(count: int) -> str:
+    """What drawing at most MAX_EXTRA further projectors leaves out, in a sentence: `count`
+    further clips not drawn at a moment."""
+    return (
+        f"{count} further clip(s) left out: at most {MAX_EXTRA + 1} projectors are drawn at once,"
+        f" the first clip's and the {MAX_EXTRA} further ones nearest in time to the moment drawn"
+    )
+
+
+def beyond_message(count: int) -> str:
+    """left_out_message of `count` further clips beyond MAX_EXTRA played over a span of frames:
+    left out only at the moments where more than MAX_EXTRA have a frame."""
+    return f"{left_out_message(count)} (where more than {MAX_EXTRA} further clips have a frame)"
 
 
 class FusionRenderer:
@@ -63,6 +89,8 @@ class FusionRenderer:
         self.trajectory: np.ndarray | None = None
         self.outlines: np.ndarray | None = None
         self.extras: list[_Extra] = []  # further projectors (other clips), drawn with the first
+        self.extras_offered = 0  # how many the last set_extra_projectors was given
+        self.extras_kept: list[int] = []  # which of those are drawn (nearest_in_time)
         self.deferred_pass = DeferredProjectors(ctx) if deferred_available(ctx) else None
         self.timer: PassTimer | None = None  # set: each pass's CPU and GPU time (benchmarks)
         # Switchable between frames (benchmarks compare both in one run); never on without a pass.
@@ -106,9 +134,16 @@ class FusionRenderer:
         priority), the frame a display-oriented RGB image (H, W, 3) uint8 or a playback frame's
         stored planes (turned and converted to RGB in the shader), with its opacity (default the
         settings' alpha), frustum colour and frame age (s before the drawn moment; default 0).
-        One depth map each, redrawn only when its own pose changes; at most MAX_EXTRA."""
-        if len(views) > MAX_EXTRA:
-            raise ValueError(f"at most {MAX_EXTRA + 1} projectors at once, got {len(views) + 1}")
+        One depth map each, redrawn only when its own pose changes. Beyond MAX_EXTRA, those
+        nearest in time are drawn (nearest_in_time; extras_left_out says how many are not)."""
+        ages = [0.0] * len(views) if ages_s is None else [float(a) for a in ages_s]
+        self.extras_offered = len(views)
+        self.extras_kept = nearest_in_time(ages, [priority for _, _, priority in views])
+        kept = self.extras_kept
+        views = [views[k] for k in kept]
+        ages = [ages[k] for k in kept]
+        alphas = None if alphas is None else [alphas[k] for k in kept]
+        colours = None if colours is None else [colours[k] for k in kept]
         while len(self.extras) > len(views):
             self.extras.pop().release()
         while len(self.extras) < len(views):
@@ -120,16 +155,29 @@ class FusionRenderer:
         ):
             extra.set(camera, frame, priority)
             extra.alpha = None if alphas is None else float(alphas[k])
-            extra.age_s = 0.0 if ages_s is None else float(ages_s[k])
+            extra.age_s = ages[k]
             extra.colour = FRUSTUM_COLOR if colours is None else colours[k]
 
     def set_ages(self, first_s: float, extras_s: list[float]) -> None:
         """How long before the drawn moment each projector's frame was taken (s): the first's and
         each further one's (as set_extra_projectors ordered them). Where views tie, the younger
-        wins; set every frame by a player, without uploading the frames again."""
+        wins; set every frame by a player, without uploading the frames again. extras_s may
+        also give one age for each projector offered, of which those drawn are taken."""
         self.projector_age = float(first_s)
+        if len(extras_s) == self.extras_offered != len(self.extras):
+            extras_s = [extras_s[k] for k in self.extras_kept]
         for extra, age in zip(self.extras, extras_s, strict=True):
             extra.age_s = float(age)
+
+    @property
+    def extras_left_out(self) -> int:
+        """How many further projectors the last set_extra_projectors left out (MAX_EXTRA)."""
+        return self.extras_offered - len(self.extras_kept)
+
+    @property
+    def extras_left_out_message(self) -> str | None:
+        """left_out_message of the last set_extra_projectors; None where it drew them all."""
+        return left_out_message(self.extras_left_out) if self.extras_left_out else None
 
     def set_reference(self, camera: Camera | None) -> None:
         """A second camera drawn as a frustum beside the projector's (e.g. the true pose)."""

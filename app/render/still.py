@@ -57,7 +57,8 @@ def window_camera(
 class Still:
     """A rendered still: rgb (H, W, 3) uint8; samples: how many of the scene's fragments were
     drawn (an occlusion query; 0: nothing of the scene is in the picture); left_out: what could
-    not be drawn for want of texture units, in a sentence (None: everything was)."""
+    not be drawn (beyond the projectors drawn at once, or for want of texture units), in a
+    sentence (None: everything was)."""
 
     rgb: np.ndarray
     samples: int
@@ -96,7 +97,8 @@ def render_still(
         renderer.scene_pass.count_samples = True
         rgb = render_to_array(renderer, view, settings, overlays)
         sp = renderer.scene_pass
-        return Still(rgb, int(sp.samples or 0), sp.left_out_message)
+        said = [m for m in (renderer.extras_left_out_message, sp.left_out_message) if m]
+        return Still(rgb, int(sp.samples or 0), "; ".join(said) or None)
     finally:
         renderer.release()
         ctx.release()

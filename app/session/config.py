@@ -28,6 +28,14 @@ TOML reader that types and checks each key is app.session.reader).
     path = "city/tileset.json"    # same kinds as scene.path; a model here takes the same keys
                                   # (origin, up_axis, heading_deg, scale)
 
+    [[clips]]                     # optional, repeated: further clips played with this one
+    path = "other/session.toml"   # a manifest or a camera file (its own settings live there)
+    offset_s = 0.0                # optional: its shift on the timeline (s)
+    priority = 0.0                # optional: where clips see one surface, the higher wins
+    alpha = 0.8                   # optional: its opacity 0..1 (default: the viewer's)
+    source = "gd-ahrs"            # optional: its pose source, one of ATTITUDE_SOURCES that the
+                                  # clip offers (default: its first)
+
     [dem]                         # optional: terrain from a GeoTIFF DEM in any CRS
     path = "dem.tif"
     ortho = "ortho.tif"           # optional: an orthophoto GeoTIFF draped on it
@@ -86,12 +94,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from app.core.constants import DRONE_DEFAULT_PITCH_DEG, FOV_RANGE_DEG
+from app.core.constants import COURSE, DRONE_DEFAULT_PITCH_DEG, FOV_RANGE_DEG, REGISTERED, TRUTH
 from app.core.errors import ManifestError, SceneError
 from app.geodesy.geoid import VERTICAL_DATUMS
 from app.scene import Placement
 from app.scene.layers import Layer, layer_kind
 from app.scene.tiles import fetch
+from app.session.model import FILTERS
 from app.session.reader import Manifest, array_tables, check_keys, checked_geodetic, load_manifest
 
 HANDHELD_MOUNT_M = 1.5  # a hand-held or body camera's height above the ground, metres
@@ -127,6 +136,8 @@ KNOWN_KEYS: dict[str, set[str]] = {  # every table and key of the schema above
 
 
 SENSOR_FORMATS = ("csv", "sensorlogger", "gopro", "none")
+RECORDED_SOURCES = ("camera", "phone", "telemetry")  # app.session.assemble, app.footage.clips
+ATTITUDE_SOURCES = (*FILTERS, COURSE, *RECORDED_SOURCES, REGISTERED, TRUTH)  # any clip's, named
 
 
 @dataclass(frozen=True)
@@ -327,13 +338,15 @@ def _clips(m: Manifest) -> tuple[ClipRef, ...]:
         alpha = one.get(name, "alpha", float, None)
         if alpha is not None and not 0.0 <= alpha <= 1.0:
             raise ManifestError(m.path, f"got {alpha}, expected 0 to 1", field=f"{name}.alpha")
+        named = one.get(name, "source", str, None)  # which of them the clip offers: when opened
+        source = None if named is None else one.choice(name, "source", ATTITUDE_SOURCES, named)
         out.append(
             ClipRef(
                 one.file(name, "path"),
                 one.number(name, "offset_s", 0.0, low=-1e6, high=1e6),
                 one.number(name, "priority", 0.0, low=-10.0, high=10.0),
                 alpha,
-                one.get(name, "source", str, None),
+                source,
             )
         )
     return tuple(out)

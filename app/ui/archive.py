@@ -13,7 +13,7 @@ import geopandas as gpd
 import numpy as np
 import shapely
 
-from app.archive import find, place_of, read_clips
+from app.archive import find, place_of, read_clips, read_footprints
 from app.core.errors import GeofuseError
 from app.scene.ground import ground_heights
 from app.ui.measure import refresh
@@ -78,7 +78,7 @@ def load(v, path: Path) -> None:
             float(g.lon.max()) + m,
             float(g.lat.max()) + m,
         )
-        rows = gpd.read_parquet(path, bbox=bbox)
+        rows = read_footprints(path, bbox)
         clips_seen = rows["clip"].nunique()
     except (OSError, ValueError, KeyError, AttributeError) as exc:
         raise GeofuseError(f"{path}: not an archive written by `geofuse index` ({exc})") from exc

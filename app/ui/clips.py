@@ -3,7 +3,8 @@ each with its own session, pose solver, decoder (its own worker thread) and atti
 drawn as a further projector (FusionRenderer.set_extra_projectors) on the open session's scene.
 
 Each frame, the timeline time of the frame the first clip shows says which frame every other
-clip shows (none outside its span); a clip's player follows the first's clock (seeked when it
+clip shows (none outside its span; where more than MAX_EXTRA have one, those nearest in time are
+drawn, said once as the clips are added); a clip's player follows the first's clock (seeked when it
 strays by more than STRAY_S, paused and sped with it). A hidden clip's decoder and textures are
 released; showing it again starts a new one.
 """
@@ -20,6 +21,7 @@ from app.footage.clips import onto, open_any
 from app.playback.library import SolverLibrary
 from app.playback.player import Player
 from app.render.passes import MAX_EXTRA
+from app.render.renderer import beyond_message
 from app.render.video_texture import YuvPlanes
 from app.session.config import ClipRef
 from app.session.model import Session
@@ -75,8 +77,6 @@ def add(v, path: Path, ref: ClipRef | None = None) -> None:
     L = v.loaded
     if L is None:
         raise GeofuseError("open a session first; further clips play beside it")
-    if len(L.others) >= MAX_EXTRA:
-        raise GeofuseError(f"at most {MAX_EXTRA + 1} clips at once")
     session = open_any(path)
     L.others.append(
         OtherClip(
@@ -95,6 +95,10 @@ def add(v, path: Path, ref: ClipRef | None = None) -> None:
             session.check_source(ref.source)
             clip.source = ref.source
     retime(v)
+    beyond = len(L.others) - MAX_EXTRA
+    if beyond > 0:  # said once, with how many: the warning of one clip fewer gives way
+        said = [w for w in v.ui.warnings if w != beyond_message(beyond - 1)]
+        v.ui.warnings = [*said, beyond_message(beyond)]
 
 
 def set_visible(v, index: int, on: bool) -> None:
@@ -175,6 +179,7 @@ def update(v, now: float, wait_s: float = 0.0) -> None:
             [(cam, _planes(c), prio) for cam, c, prio in views],
             [v.ui.settings.alpha if c.alpha is None else c.alpha for _, c, _ in views],
             [c.colour for _, c, _ in views],
+            ages,
         )
         L.extras_shown = tuple(key)
     L.renderer.set_ages(first_age, ages)

@@ -9,6 +9,7 @@ import sys
 from app.cli.common import layers
 from app.core.errors import GeofuseError
 from app.core.outputs import check_output
+from app.live.probe import mavlink_refusal, stream_refusal
 from app.live.run import LiveOptions, run_live
 
 
@@ -17,6 +18,10 @@ def run(args: argparse.Namespace) -> int:
         raise GeofuseError(
             f"{args.url}: expected a stream URL (udp://HOST:PORT, rtp://, rtsp://, srt://); a recorded file opens with view, solve or export"
         )
+    # a port that is not a port never opens: said now, not retried until --for ends
+    refused = stream_refusal(args.url) or (args.mavlink and mavlink_refusal(args.mavlink))
+    if refused:
+        raise GeofuseError(refused)
     record = check_output(args.record, "--record", (".ts",), []) if args.record else None
     options = LiveOptions(
         seconds=args.seconds,

@@ -22,6 +22,11 @@ the vehicle's yaw when relative); without one, the vehicle's own rotation (a cam
 the nose: said by the caller). Either goes through app.io.misb.camera_from_sensor, the
 convention KLV uses.
 
+Messages that cannot be true are dropped and counted by reason (MavlinkCounts.dropped), none
+raises: a latitude or longitude out of range (an int32 reaches 214.7 deg), a height no fix has
+(app.io.streams.HEIGHT_RANGE_M), angles that are not numbers or lie beyond +-2 pi rad (ATTITUDE
+sends -pi..pi; 0..2 pi yaws are taken), a gimbal quaternion of zero length, a field missing.
+
 Time: the autopilot's boot clock (time_boot_ms / 1000, s). Its link to the arrival clock
 (monotonic s) is the smallest arrival - boot over recent messages (the one that travelled
 fastest), as the video's jitter buffer links the video's presentation times.
@@ -40,21 +45,32 @@ import numpy as np
 
 from app.geodesy.geoid import undulation
 from app.io.misb import camera_from_sensor, ypr_matrix
+from app.io.streams import HEIGHT_RANGE_M
 
 LINK_WINDOW = 500  # messages over which the fastest sets the boot -> arrival link
 FLAG_YAW_LOCK, FLAG_YAW_IN_VEHICLE, FLAG_YAW_IN_EARTH = 16, 32, 64
 USED = ("GLOBAL_POSITION_INT", "ATTITUDE", "GIMBAL_DEVICE_ATTITUDE_STATUS", "MOUNT_STATUS")
+ANGLE_LIMIT_RAD = 2.0 * math.pi  # ATTITUDE's angles are -pi..pi; beyond +-2 pi is not an angle
+MOUNT_LIMIT_CDEG = 36_000  # MOUNT_STATUS pointing (centidegrees): beyond a turn is not an angle
 
 FloatArray = np.ndarray
 
 
+class Unusable(ValueError):
+    """A message that cannot be true; its text is the reason, read after a count ("3 ATTITUDE
+    with angles that are not numbers")."""
+
+
 def gimbal_angles(q: list[float], flags: int) -> tuple[float, float, float, bool]:
     """(yaw, pitch, roll) in degrees of a GIMBAL_DEVICE_ATTITUDE_STATUS quaternion [w, x, y, z]
-    (Rz Ry Rx in North-East-Down), and whether the yaw is relative to the vehicle's heading."""
+    (Rz Ry Rx in North-East-Down), and whether the yaw is relative to the vehicle's heading;
+    Unusable (a ValueError) for a quaternion of zero length or not a number."""
     w, x, y, z = (float(v) for v in q)
     n = math.sqrt(w * w + x * x + y * y + z * z)
     if not n or not math.isfinite(n):
-        raise ValueError("a gimbal quaternion of zero length or not a number")
+        raise Unusable(
+            "GIMBAL_DEVICE_ATTITUDE_STATUS with a quaternion of zero length or not a number"
+        )
     w, x, y, z = w / n, x / n, y / n, z / n
     yaw = math.degrees(math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z)))
     pitch = math.degrees(math.asin(max(-1.0, min(1.0, 2 * (w * y - z * x)))))
@@ -101,13 +117,56 @@ def _value_at(t: list[float], v: list, x: float) -> np.ndarray:
     return (1 - w) * np.asarray(v[i - 1], np.float64) + w * np.asarray(v[i], np.float64)
 
 
+def _position(m: dict[str, Any]) -> tuple[float, float, float, float | None]:
+    """(lat, lon deg, ellipsoidal h m, home's ellipsoidal h m or None) of a GLOBAL_POSITION_INT
+    with a fix; Unusable when out of range."""
+    kind = "GLOBAL_POSITION_INT"
+    lat, lon = m["lat"] / 1e7, m["lon"] / 1e7
+    if not (abs(lat) <= 90.0 and abs(lon) <= 180.0):
+        raise Unusable(
+            f"{kind} with a latitude or longitude out of range (expected +-90, +-180 deg)"
+        )
+    h = m["alt"] / 1000.0 + float(undulation(lat, lon))
+    home = h - m["relative_alt"] / 1000.0 if "relative_alt" in m else None
+    low, high = HEIGHT_RANGE_M
+    if not low <= h <= high or (home is not None and not low <= home <= high):
+        raise Unusable(
+            f"{kind} with a height no fix has (alt, or home's alt - relative_alt, beyond "
+            f"{low / 1000:g} to {high / 1000:g} km)"
+        )
+    return lat, lon, h, home
+
+
+def _attitude(m: dict[str, Any]) -> tuple[float, float, float]:
+    """(yaw, pitch, roll) degrees of an ATTITUDE; Unusable when not angles."""
+    rad = tuple(float(m[k]) for k in ("yaw", "pitch", "roll"))
+    if not all(math.isfinite(a) for a in rad):
+        raise Unusable("ATTITUDE with angles that are not numbers")
+    if max(abs(a) for a in rad) > ANGLE_LIMIT_RAD:
+        raise Unusable("ATTITUDE with angles beyond +-2 pi rad (expected -pi..pi)")
+    return tuple(math.degrees(a) for a in rad)
+
+
+def _mount(m: dict[str, Any]) -> tuple[float, float, float]:
+    """(yaw, pitch, roll) degrees of a MOUNT_STATUS (centidegrees c, a, b); Unusable beyond a
+    turn."""
+    cdeg = tuple(float(m[k]) for k in ("pointing_c", "pointing_a", "pointing_b"))
+    if max(abs(a) for a in cdeg) > MOUNT_LIMIT_CDEG:
+        raise Unusable("MOUNT_STATUS with angles beyond +-360 deg")
+    return tuple(a / 100.0 for a in cdeg)
+
+
 @dataclass
 class MavlinkCounts:
-    """Messages used, by type; positions without a fix; gimbal messages that could not be read."""
+    """Messages used, by type; positions without a fix; messages dropped, by reason (each
+    reason a phrase read after its count)."""
 
     used: dict[str, int] = field(default_factory=dict)
     no_fix: int = 0
-    bad: int = 0
+    dropped: dict[str, int] = field(default_factory=dict)
+
+    def drop(self, reason: str) -> None:
+        self.dropped[reason] = self.dropped.get(reason, 0) + 1
 
 
 @dataclass(frozen=True)
@@ -157,48 +216,63 @@ class MavlinkTelemetry:
             return self._pos[0] if self._pos else None
 
     def add(self, kind: str, m: dict[str, Any], arrival_s: float) -> bool:
-        """One message (`kind`: its type name; `m`: its fields) that arrived at arrival_s;
-        False when it is not one of USED or carries nothing usable (counted)."""
+        """One message (`kind`: its type name; `m`: its fields) that arrived at arrival_s
+        (monotonic s); False when it is not one of USED or carries nothing usable (counted:
+        no_fix, or dropped by reason; see the module docstring)."""
         if kind not in USED:
             return False
         with self._lock:
-            if "time_boot_ms" in m:
-                boot = float(m["time_boot_ms"]) / 1000.0
-                self._links.append(arrival_s - boot)
-            elif self._links:
-                boot = arrival_s - min(self._links)
-            else:
-                return False
-            if kind == "GLOBAL_POSITION_INT":
-                if m["lat"] == 0 and m["lon"] == 0:
-                    self.counts.no_fix += 1
-                    return False
-                lat, lon = m["lat"] / 1e7, m["lon"] / 1e7
-                n = float(undulation(lat, lon))
-                h = m["alt"] / 1000.0 + n
-                if self.home_h is None and "relative_alt" in m:
-                    self.home_h = h - m["relative_alt"] / 1000.0
-                self._insert(self._pos_t, self._pos, boot, (lat, lon, h))
-            elif kind == "ATTITUDE":
-                ypr = tuple(math.degrees(float(m[k])) for k in ("yaw", "pitch", "roll"))
-                if not all(math.isfinite(v) for v in ypr):
-                    self.counts.bad += 1
-                    return False
-                self._insert(self._att_t, self._att, boot, ypr)
-            elif kind == "GIMBAL_DEVICE_ATTITUDE_STATUS":
-                try:
-                    yaw, pitch, roll, relative = gimbal_angles(m["q"], int(m.get("flags", 0)))
-                except ValueError:
-                    self.counts.bad += 1
-                    return False
-                self._gim_relative = relative
-                self._insert(self._gim_t, self._gim, boot, (yaw, pitch, roll))
-            else:  # MOUNT_STATUS: pitch, roll, yaw in centidegrees
-                pyr = (m["pointing_c"] / 100.0, m["pointing_a"] / 100.0, m["pointing_b"] / 100.0)
-                self._gim_relative = True
-                self._insert(self._gim_t, self._gim, boot, pyr)
-            self.counts.used[kind] = self.counts.used.get(kind, 0) + 1
-            return True
+            try:
+                return self._add(kind, m, arrival_s)
+            except Unusable as exc:
+                self.counts.drop(str(exc))
+            except (KeyError, TypeError, ValueError, OverflowError):
+                self.counts.drop(f"{kind} with a field missing or not a number")
+            return False
+
+    def _add(self, kind: str, m: dict[str, Any], arrival_s: float) -> bool:
+        """add's work under the lock: each message's values read (Unusable when they cannot be
+        true) before anything is kept."""
+        if kind == "GLOBAL_POSITION_INT" and m["lat"] == 0 and m["lon"] == 0:
+            self.counts.no_fix += 1
+            return False
+        if "time_boot_ms" in m:
+            boot = float(m["time_boot_ms"]) / 1000.0
+        elif self._links:
+            boot = arrival_s - min(self._links)
+        else:  # a MOUNT_STATUS before any timed message: nothing places it yet (not a fault)
+            return False
+        if kind == "GLOBAL_POSITION_INT":
+            lat, lon, h, home = _position(m)
+            if self.home_h is None and home is not None:
+                self.home_h = home
+            self._insert(self._pos_t, self._pos, boot, (lat, lon, h))
+        elif kind == "ATTITUDE":
+            self._insert(self._att_t, self._att, boot, _attitude(m))
+        elif kind == "GIMBAL_DEVICE_ATTITUDE_STATUS":
+            yaw, pitch, roll, self._gim_relative = gimbal_angles(m["q"], int(m.get("flags", 0)))
+            self._insert(self._gim_t, self._gim, boot, (yaw, pitch, roll))
+        else:  # MOUNT_STATUS
+            pyr = _mount(m)
+            self._gim_relative = True
+            self._insert(self._gim_t, self._gim, boot, pyr)
+        if "time_boot_ms" in m:
+            self._links.append(arrival_s - boot)
+        self.counts.used[kind] = self.counts.used.get(kind, 0) + 1
+        return True
+
+    def missing(self) -> str | None:
+        """What the messages used so far lack to pose the camera (a position, an attitude or
+        both), as a phrase; None when both have arrived."""
+        with self._lock:
+            pos, att = bool(self._pos_t), bool(self._att_t)
+        if not att and not pos:
+            return "no position (GLOBAL_POSITION_INT with a fix) and no attitude (ATTITUDE): the camera cannot be placed"
+        if att and not pos:
+            return "attitudes but no position (GLOBAL_POSITION_INT with a fix): the camera cannot be placed"
+        if pos and not att:
+            return "positions but no attitude (ATTITUDE): the camera cannot be pointed"
+        return None
 
     @staticmethod
     def _insert(times: list[float], values: list, t: float, v) -> None:

@@ -37,6 +37,7 @@ from app.live.buffer import DEFAULT_DELAY_S, Arrival, JitterBuffer
 from app.live.lag import LagEstimator
 from app.live.mavlink import MavlinkReceiver
 from app.live.pose import NONE, STALE, LivePoses, MavlinkPoses
+from app.live.probe import Heard
 from app.live.receiver import Receiver
 from app.live.recorder import Recorder, SegmentRecorder
 from app.live.register import LiveCorrection, LiveRegistration
@@ -48,6 +49,7 @@ REVIEW_TOLERANCE_S = 0.02  # a reviewed frame is the first at or after the time 
 
 SILENCE_S = 10.0
 GROUND_MARGIN_M = 3000.0
+MISSING_AFTER = 50  # MAVLink messages used (2 s of ATTITUDE) before a missing kind is said
 
 
 @dataclass
@@ -64,25 +66,51 @@ class Drawn:
 
 @dataclass
 class MavlinkSummary:
-    """What a run took from MAVLink: messages used by type, the lag applied at the end and each
-    window's estimate (s, the video behind the telemetry), and the gimbal's presence."""
+    """What a run took from MAVLink: messages used by type, those dropped by reason and those
+    without a fix, the bytes that arrived and those unreadable, what the camera lacks (see
+    MavlinkTelemetry.missing), the lag applied at the end and each window's estimate (s, the
+    video behind the telemetry), and the gimbal's presence."""
 
     address: str
     used: dict[str, int] = field(default_factory=dict)
+    dropped: dict[str, int] = field(default_factory=dict)
+    no_fix: int = 0
+    bytes_received: int = 0
+    readable: int = 0  # messages of a known type, used or not
+    unreadable_bytes: int = 0
+    missing: str | None = None
     lag_s: float | None = None
     estimates_s: list[float] = field(default_factory=list)
     gimbal: bool = False
 
     def line(self) -> str:
-        used = ", ".join(f"{n} {k}" for k, n in sorted(self.used.items())) or "nothing"
+        parts = [", ".join(f"{n} {k}" for k, n in sorted(self.used.items())) or "nothing used"]
+        if not self.bytes_received:
+            parts = ["nothing arrived"]
+        elif not self.readable:
+            parts.append(
+                f"{self.bytes_received} bytes arrived but none was readable as MAVLink (expected MAVLink 1 or 2 messages)"
+            )
+        elif self.unreadable_bytes:
+            parts.append(
+                f"{self.unreadable_bytes} of {self.bytes_received} bytes unreadable (not MAVLink, of no known type, or failing its checksum)"
+            )
+        if self.dropped:
+            parts.append(
+                "dropped: " + ", ".join(f"{n} {why}" for why, n in sorted(self.dropped.items()))
+            )
+        if self.no_fix:
+            parts.append(f"{self.no_fix} positions without a fix")
+        if self.missing and self.bytes_received:
+            parts.append(self.missing)
         e = self.estimates_s
-        lag = (
+        parts.append(
             f"the video lags the telemetry by {1000 * self.lag_s:.0f} ms (the median of {len(e)} estimates, "
             f"{1000 * min(e):.0f} to {1000 * max(e):.0f} ms)"
             if self.lag_s is not None
             else "no lag estimated (the camera did not turn enough, or too short)"
         )
-        return f"MAVLink {self.address}: {used}; {lag}"
+        return f"MAVLink {self.address}: " + "; ".join(parts)
 
 
 @dataclass
@@ -99,6 +127,7 @@ class LiveRun:
     overflow: int = 0
     undecodable: int = 0
     bad_klv: int = 0
+    unreadable: Heard = field(default_factory=Heard)  # datagrams that were not MPEG-TS
     stale: int = 0
     without_pose: int = 0
     reconnects: int = 0
@@ -128,6 +157,11 @@ class LiveRun:
     def summary(self) -> str:
         """The one line `geofuse live` prints at the end."""
         mavlink = f"; {self.mavlink.line()}" if self.mavlink is not None else ""
+        heard = self.unreadable
+        if heard.datagrams and not self.received:
+            mavlink = f"; {heard.unreadable()}{mavlink}"
+        elif heard.datagrams:
+            mavlink = f"; {heard.datagrams} datagrams before it opened were not MPEG-TS{mavlink}"
         if self.registration is not None:
             mavlink += f"; {self.registration.line()}"
         return (
@@ -257,6 +291,20 @@ class LiveFeed:
         )
         self.recorder.write_set(payload, t + origin)
 
+    @property
+    def refused(self) -> str | None:
+        """Why the stream's or the MAVLink's address was refused at start (said), else None."""
+        if self.mav is not None and self.mav.refused is not None:
+            return self.mav.refused
+        return self.receiver.counts.refused
+
+    def silence(self, seconds: float) -> str:
+        """How a run that heard nothing readable for `seconds` (s) ends: silence, or only
+        datagrams that were not MPEG-TS (app.live.probe)."""
+        if self.receiver.counts.unreadable.datagrams:
+            return f"ended: nothing readable arrived for {seconds:g} s"
+        return f"ended: the stream was silent for {seconds:g} s"
+
     def silent_for(self, now: float, since: float) -> float:
         """Seconds since anything arrived (since `since` when nothing has yet)."""
         heard = self.receiver.last_arrival_s
@@ -371,22 +419,42 @@ class LiveFeed:
             wake = self.buffer.next_due()
         return wake if wake is not None else now + 0.005
 
-    def update_counts(self) -> LiveRun:
-        """The run's counts brought up to date (any time, from the drawing thread)."""
+    def update_counts(self, final: bool = False) -> LiveRun:
+        """The run's counts brought up to date (any time, from the drawing thread); final:
+        the feed has stopped (what MAVLink lacked is said now whatever came)."""
         run, c = self.run, self.receiver.counts
         run.received, run.undecodable, run.missing = c.frames, c.undecodable, c.missing
         b = self.buffer
         run.skipped, run.late, run.overflow = b.skipped, b.late, b.overflow
         run.bad_klv = self.receiver.track.counts.bad
+        run.unreadable = c.unreadable
         run.reconnects = max(c.connects - 1, 0)
         run.origin_s = self.receiver.origin_s
         if run.mavlink is not None:
-            run.mavlink.used = dict(self.poses.telemetry.counts.used)
+            self._mavlink_counts(run.mavlink, final)
             run.mavlink.gimbal = self.poses.telemetry.has_gimbal
             if self.lag is not None:
                 run.mavlink.lag_s = self.lag.lag_s
                 run.mavlink.estimates_s = [-e.offset_s for e in self.lag.estimates]
         return run
+
+    def _mavlink_counts(self, summary: MavlinkSummary, final: bool) -> None:
+        """The MAVLink's counts into `summary`; what the camera lacks said once, after
+        MISSING_AFTER messages used or at the end (nothing at all arrived, at the end)."""
+        counts, mav = self.poses.telemetry.counts, self.mav
+        summary.used, summary.dropped = dict(counts.used), dict(counts.dropped)
+        summary.no_fix = counts.no_fix
+        summary.bytes_received, summary.unreadable_bytes = mav.bytes_received, mav.unreadable_bytes
+        summary.readable = mav.readable
+        summary.missing = self.poses.telemetry.missing()
+        said = self.run.messages
+        if summary.missing and (final or sum(summary.used.values()) >= MISSING_AFTER):
+            said.add_once("mavlink-missing", f"MAVLink {mav.address}: {summary.missing}")
+        if final and not summary.bytes_received and mav.refused is None:
+            said.add_once(
+                "mavlink-nothing",
+                f"MAVLink {mav.address}: nothing arrived (is the autopilot sending there?): the camera cannot be placed",
+            )
 
     def stop(self) -> LiveRun:
         """Everything stopped and closed (the recording kept); the final counts."""
@@ -399,4 +467,4 @@ class LiveFeed:
             self.mav.stop()
         if self.recorder is not None:
             self.recorder.close()
-        return self.update_counts()
+        return self.update_counts(final=True)

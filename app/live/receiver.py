@@ -8,7 +8,10 @@ packet's (app.io.video.media_seconds), the KLV's on the same clock.
 
 Faults are said once each and counted, and none ends the thread: a packet FFmpeg cannot decode
 (lost or corrupt datagrams), a KLV set failing its checksum, a stream that cannot be opened or
-drops (reconnect with back-off: 0.5 s doubling to 8 s), a port already in use.
+drops (reconnect with back-off: 0.5 s doubling to 8 s), a port already in use. Between attempts
+to open a udp:// URL its port is listened to (app.live.probe): datagrams arriving that FFmpeg
+could not open are counted and said as such (and what they look like), not as silence. A URL
+whose port is not a port is refused at start (said, never tried).
 """
 
 from __future__ import annotations
@@ -19,7 +22,7 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from urllib.parse import parse_qsl, urlencode, urlsplit, urlunsplit
 
@@ -30,6 +33,7 @@ from app.io.klv_track import KlvTrack, klv_streams
 from app.io.video import ffmpeg_reason, media_seconds
 from app.live.buffer import Arrival, JitterBuffer
 from app.live.pose import LivePoses
+from app.live.probe import MPEG_TS, Heard, listen, stream_refusal
 from app.live.recorder import Recorder
 from app.playback.decoder import yuv_planes
 
@@ -37,6 +41,7 @@ SCHEMES = ("udp", "rtp", "rtsp", "srt", "tcp", "http", "https", "file")
 OPEN_TIMEOUT_S = 5.0
 READ_TIMEOUT_S = 2.0
 BACKOFF_S = (0.5, 1.0, 2.0, 4.0, 8.0)
+LISTEN_MIN_S = 1.0  # a udp:// port FFmpeg could not open is listened to at least this long (s)
 UDP_FIFO_PACKETS = 50_000  # FFmpeg's UDP ring (188-byte units): about 9 MB, seconds of 1080p
 
 
@@ -109,6 +114,8 @@ class ReceiverCounts:
     undecodable: int = 0  # packets FFmpeg could not decode (lost or corrupt datagrams)
     connects: int = 0
     failed_opens: int = 0
+    refused: str | None = None  # why the URL was refused at start (never tried)
+    unreadable: Heard = field(default_factory=Heard)  # datagrams heard that FFmpeg could not open
 
 
 class Receiver:
@@ -148,6 +155,13 @@ class Receiver:
         self._thread = threading.Thread(target=self._run, name="geofuse-live", daemon=True)
 
     def start(self) -> Receiver:
+        """The thread started; a URL whose port is not a port is refused instead (said as an
+        error, counts.refused set, nothing tried)."""
+        refused = stream_refusal(self.url)
+        if refused is not None:
+            self.counts.refused = refused
+            self.messages.error(refused)
+            return self
         missing = protocols_missing(self.url)
         if missing:
             self.messages.add(missing)
@@ -156,7 +170,8 @@ class Receiver:
 
     def stop(self, timeout_s: float = 5.0) -> None:
         self._stop.set()
-        self._thread.join(timeout_s)
+        if self._thread.ident is not None:
+            self._thread.join(timeout_s)
 
     @property
     def origin_s(self) -> float | None:
@@ -178,13 +193,7 @@ class Receiver:
                 )
             except (av.FFmpegError, OSError) as exc:
                 self.counts.failed_opens += 1
-                reason = _reason(exc, f"nothing arrived within {OPEN_TIMEOUT_S:g} s")
-                if "in use" in reason.lower():
-                    reason += " (another program holds the port: choose another, or stop it)"
-                self.messages.add_once(
-                    "open", f"{self.url}: cannot open the stream ({reason}); retrying"
-                )
-                self._stop.wait(BACKOFF_S[min(attempt, len(BACKOFF_S) - 1)])
+                self._failed_open(exc, BACKOFF_S[min(attempt, len(BACKOFF_S) - 1)])
                 attempt += 1
                 continue
             attempt = 0
@@ -195,6 +204,25 @@ class Receiver:
                 self._receive(container)
             if not self._stop.is_set():
                 self.messages.add_once("drop", f"{self.url}: the stream dropped; reconnecting")
+
+    def _failed_open(self, exc: BaseException, wait_s: float) -> None:
+        """An open that failed, said once, then the back-off (wait_s, s): a udp:// port is
+        listened to meanwhile, and datagrams heard there that FFmpeg could not open are said
+        as such rather than as FFmpeg's "nothing arrived" (its probe waits for more)."""
+        reason = _reason(exc, f"nothing arrived within {OPEN_TIMEOUT_S:g} s")
+        in_use = "in use" in reason.lower()
+        heard = None if in_use else listen(self.url, max(wait_s, LISTEN_MIN_S), self._stop)
+        if heard is not None and heard.datagrams and MPEG_TS not in heard.kinds:
+            self.counts.unreadable.merge(heard)
+            self.messages.add_once(
+                "unreadable", f"{self.url}: {heard.unreadable()}; still listening"
+            )
+            return
+        if in_use:
+            reason += " (another program holds the port: choose another, or stop it)"
+        self.messages.add_once("open", f"{self.url}: cannot open the stream ({reason}); retrying")
+        if heard is None:
+            self._stop.wait(wait_s)
 
     def _receive(self, container) -> None:
         video = container.streams.video[0] if container.streams.video else None

@@ -3,8 +3,8 @@
 
 The loop never waits on the network: it takes the newest frame due from the jitter buffer,
 draws it projected with the pose of its own time and records when the drawing was finished (the
-GPU waited for). It ends after `seconds`, or once the stream has been silent for `silence_s`
-(said).
+GPU waited for). It ends after `seconds`, once the stream has been silent for `silence_s`
+(said), or at once when an address was refused (said).
 """
 
 from __future__ import annotations
@@ -46,8 +46,11 @@ def run_live(
             if options.seconds is not None and now - start >= options.seconds:
                 run.ended = f"ended after {options.seconds:g} s"
                 break
+            if feed.refused is not None:
+                run.ended = "ended: the address was refused"
+                break
             if feed.silent_for(now, start) >= options.silence_s:
-                run.ended = f"ended: the stream was silent for {options.silence_s:g} s"
+                run.ended = feed.silence(options.silence_s)
                 run.messages.add(run.ended)
                 break
             if renderer is None:

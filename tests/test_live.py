@@ -10,6 +10,7 @@ import subprocess
 import sys
 import threading
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -290,3 +291,21 @@ def test_rolling_segments_start_at_keyframes_and_each_opens_as_a_clip(feed, tmp_
         assert segment.first_s == pytest.approx(clip.video.origin_s, abs=1e-6)
         assert rec.holding(segment.first_s + 0.5) is segment, k
     assert frames == 90
+
+
+def test_live_positions_that_jump_are_not_followed():
+    """A set whose latitude flicks to the pole is dropped (counted) and the next set is judged
+    against the last one kept; ten in a row that agree with each other are believed."""
+    poses = LivePoses(stale_after_s=0.1)
+    frame = LocalFrame(ORBIT.lat_deg, ORBIT.lon_deg, ORBIT.ground_h_m)
+    intr = Intrinsics.from_fov(320, 180, 50.0)
+    sets = [parse(orbit_set(ORBIT, t, 30.0)) for t in np.arange(0.0, 1.0, 0.1)]
+    pole = replace(sets[3], values={**sets[3].values, "sensor_latitude_deg": 89.9})
+    for k, s in enumerate(sets):
+        assert poses.add(k * 0.1, pole if k == 3 else s) is (k != 3)
+    assert poses.jumps == 1
+    at = poses.at(0.3, frame, intr, 1000.0).camera.position
+    assert np.linalg.norm(np.asarray(at)[:2] - ORBIT.position(0.3)[:2]) < 1.0
+    moved = [replace(s, values={**s.values, "sensor_latitude_deg": 10.0}) for s in sets]
+    kept = [poses.add(1.0 + 0.1 * k, s) for k, s in enumerate(moved)]
+    assert kept == [False] * 9 + [True] and poses.jumps == 10

@@ -266,12 +266,27 @@ def _jumps(
     for order in (idx[anchor:], idx[anchor::-1]):
         last = order[0]
         for i in order[1:]:
-            dt = abs(t[i] - t[last])
-            dn = np.radians(lat[i] - lat[last]) * 6_371_000.0
-            de = np.radians((lon[i] - lon[last] + 180.0) % 360.0 - 180.0) * 6_371_000.0 * k_lat
-            dh = h[i] - h[last] if np.isfinite(h[i]) and np.isfinite(h[last]) else 0.0
-            if np.hypot(dn, de) > MAX_SPEED_MPS * dt + 5.0 or abs(dh) > MAX_CLIMB_MPS * dt + 5.0:
+            a, b = (lat[last], lon[last], h[last]), (lat[i], lon[i], h[i])
+            if impossible_step(abs(t[i] - t[last]), a, b, k_lat):
                 out[i] = True
             else:
                 last = i
     return out
+
+
+def impossible_step(
+    dt_s: float,
+    a: tuple[float, float, float],
+    b: tuple[float, float, float],
+    cos_lat: float | None = None,
+) -> bool:
+    """Whether going from fix a to fix b (lat deg, lon deg, h m; h may be NaN) in dt_s seconds
+    is a jump: faster than MAX_SPEED_MPS across or MAX_CLIMB_MPS up or down (5 m of slack for the
+    fixes' own noise). cos_lat: the cosine of the latitude for east distances (a's by default)."""
+    k = np.cos(np.radians(a[0])) if cos_lat is None else cos_lat
+    dn = np.radians(b[0] - a[0]) * 6_371_000.0
+    de = np.radians((b[1] - a[1] + 180.0) % 360.0 - 180.0) * 6_371_000.0 * k
+    dh = b[2] - a[2] if np.isfinite(b[2]) and np.isfinite(a[2]) else 0.0
+    return bool(
+        np.hypot(dn, de) > MAX_SPEED_MPS * dt_s + 5.0 or abs(dh) > MAX_CLIMB_MPS * dt_s + 5.0
+    )

@@ -25,8 +25,10 @@ from app.geodesy.enu import LocalFrame
 from app.io.klv_track import KlvTrack
 from app.io.mavlink import MavlinkTelemetry, TelemetryPose
 from app.io.misb import LocalSet, camera_orientation
+from app.io.streams import impossible_step
 
 FRESH, STALE, NONE = "fresh", "stale", "none"
+JUMP_RUN = 10  # sets in a row that all jump from the last kept one: that one was the jump
 
 
 @dataclass(frozen=True)
@@ -50,10 +52,15 @@ class LivePoses:
         self.hfov_deg: float | None = None
         self.centre_h: float | None = None
         self.without_pose = 0  # sets that arrived with a position or angles in error
+        self.jumps = 0  # sets whose position no platform could reach from the set before it
+        self._jump_run = 0  # of them, in a row
         self._lock = threading.Lock()
 
     def add(self, t: float, s: LocalSet) -> bool:
-        """One set at media time t; False (counted) when it gives no full pose."""
+        """One set at media time t; False (counted) when it gives no full pose, or when its
+        position is a jump from the set before it in time (app.io.streams.impossible_step: a
+        latitude flicking to the pole is not followed; forward only, so the set after a jump is
+        judged against the last one kept, until JUMP_RUN sets in a row disagree with it)."""
         one = KlvTrack("", [t], [s])
         g = one.gnss()
         q = camera_orientation(s)
@@ -62,12 +69,19 @@ class LivePoses:
             return False
         fov = s.get("hfov_deg")
         centre = one.centre_heights()[0]
+        here = (float(g.lat[0]), float(g.lon[0]), float(g.h[0]))
         with self._lock:
             i = bisect.bisect_right(self.t, t)
             if i and self.t[i - 1] == t:
                 return True
+            if i and impossible_step(t - self.t[i - 1], self.geodetic[i - 1], here):
+                self._jump_run += 1
+                if self._jump_run < JUMP_RUN:
+                    self.jumps += 1
+                    return False
+            self._jump_run = 0
             self.t.insert(i, t)
-            self.geodetic.insert(i, (float(g.lat[0]), float(g.lon[0]), float(g.h[0])))
+            self.geodetic.insert(i, here)
             self.q.insert(i, q)
             if np.isfinite(fov) and fov >= FOV_RANGE_DEG[0]:  # 0: not given
                 self.hfov_deg = float(fov)

@@ -30,7 +30,8 @@ import av
 
 from app.core.messages import Messages
 from app.io.klv_track import KlvTrack, klv_streams
-from app.io.video import ffmpeg_reason, media_seconds
+from app.io.streams import MAX_SPEED_MPS
+from app.io.video import demux, ffmpeg_reason, media_seconds
 from app.live.buffer import Arrival, JitterBuffer
 from app.live.pose import LivePoses
 from app.live.probe import MPEG_TS, Heard, listen, stream_refusal
@@ -241,7 +242,7 @@ class Receiver:
         codec.thread_type = "SLICE"  # frame threads would hold frames back: latency
         wanted = [s for s in (video, klv) if s is not None]
         try:
-            for packet in container.demux(*wanted):
+            for packet in demux(container, *wanted):
                 if self._stop.is_set():
                     return
                 if packet.pts is None and packet.dts is None and not packet.size:
@@ -282,9 +283,15 @@ class Receiver:
     def _klv(self, packet) -> None:
         payload = bytes(packet)
         t = self._media(packet.pts, packet.time_base)
-        bad = self.track.counts.bad
+        bad, jumps = self.track.counts.bad, self.poses.jumps
         for s in self.track.add(payload, t):
             self.poses.add(t, s)
+        if self.poses.jumps > jumps:
+            self.messages.add_once(
+                "klv-jump",
+                f"{self.url}: KLV positions no aircraft could reach from the set before"
+                f" (faster than {MAX_SPEED_MPS:g} m/s) are not followed (counted)",
+            )
         if self.track.counts.bad > bad:
             self.messages.add_once(
                 "klv-bad", f"{self.url}: KLV sets failing their checksum are dropped (counted)"

@@ -15,6 +15,9 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 SHARED_DATA = ROOT.parent / "shared" / "data"
 IN_CI = os.environ.get("CI") == "true"
+# No test drapes a clip on a world from the user's settings (app.world): none reaches the
+# internet; tests of worlds name their own (tests/test_world.py). Subprocesses inherit it.
+os.environ["GEOFUSE_WORLD"] = "none"
 
 
 def _unavailable(reason: str) -> None:

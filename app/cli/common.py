@@ -27,14 +27,20 @@ from app.scene.mesh import MeshData
 from app.session.camera_track import CameraTrack
 from app.session.model import Session
 from app.solve.track import solve_track
+from app.world.build import world_layer
+from app.world.settings import NONE, choose_world
 
 
-def layers(args: argparse.Namespace, placement: Placement | None = None) -> tuple[Layer, ...]:
-    """The layers --scene/--dem/--ortho name, checked: files exist, kinds known."""
+def layers(
+    args: argparse.Namespace, placement: Placement | None = None, clip: bool = True
+) -> tuple[Layer, ...]:
+    """The layers --scene/--dem/--ortho name, checked: files exist, kinds known; for a clip
+    (clip: not a manifest, not a still), the world --world/--imagery/--terrain name, or with no
+    scene the settings' default (app.world.settings.choose_world)."""
     names = list(getattr(args, "scene", None) or [])
     if getattr(args, "dem", None) is not None:
         names.append(str(args.dem))
-    return named_layers(
+    named = named_layers(
         names,
         args.ortho,
         args.dem_vertical,
@@ -42,6 +48,21 @@ def layers(args: argparse.Namespace, placement: Placement | None = None) -> tupl
         placement,
         getattr(args, "city_theme", None),
     )
+    return named + _world_layers(args, bool(names), clip)
+
+
+def _world_layers(args: argparse.Namespace, scene_named: bool, clip: bool) -> tuple[Layer, ...]:
+    """The world layer of --world/--imagery/--terrain (or the settings' default), () for none;
+    refused where there is no clip's track to build it around."""
+    name, imagery, terrain = (getattr(args, k, None) for k in ("world", "imagery", "terrain"))
+    if not clip:
+        if imagery or terrain or (name is not None and name.lower() != NONE):
+            raise GeofuseError(
+                "--world/--imagery/--terrain drape a clip's track: give a clip (a manifest names its scene; a still's scene is --scene/--dem)"
+            )
+        return ()
+    world = choose_world(name, imagery, terrain, scene_named)
+    return () if world is None else (world_layer(world),)
 
 
 def projection_settings(args: argparse.Namespace) -> ProjectionSettings:
@@ -83,7 +104,7 @@ def open_with_source(
         single(getattr(args, "fov", None)),
         getattr(args, "pitch", DRONE_DEFAULT_PITCH_DEG),
         single(args.lens),
-        layers(args),
+        layers(args, clip=Path(path).suffix.lower() != ".toml"),
     )
     if getattr(args, "out", None) is not None:
         check_output(args.out, "--out", suffixes, list(session.inputs))
@@ -180,6 +201,7 @@ def still_scene(args: argparse.Namespace, what: str, far: float) -> StillScene:
             heading_deg=args.scene_heading,
             scale=args.scene_scale,
         ),
+        clip=False,
     )
     missing = [f"--{k.replace('_', '-')}" for k in ("image", "pose") if not getattr(args, k)]
     if not named:

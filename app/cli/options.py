@@ -159,8 +159,8 @@ def add_projection_options(p: argparse.ArgumentParser) -> None:
 
 
 def add_layer_options(p: argparse.ArgumentParser, placed_models: bool = False) -> None:
-    """--scene (repeatable), --dem, --ortho, --dem-vertical, --city-theme, --dem-error: a
-    clip's scene."""
+    """--scene (repeatable), --dem, --ortho, --dem-vertical, --city-theme, --world, --imagery,
+    --terrain, --dem-error: a clip's scene."""
     what = (
         "a model (glTF/GLB, OBJ, PLY) placed by --origin, "
         if placed_models
@@ -193,6 +193,24 @@ def add_layer_options(p: argparse.ArgumentParser, placed_models: bool = False) -
         default=None,
         metavar="NAME",
         help="a city model's appearance theme drawn (its textures and materials; default: the first the file names)",
+    )
+    p.add_argument(
+        "--world",
+        default=None,
+        metavar="NAME",
+        help="drape a clip with no scene on the terrain and imagery of this [[world]] of the settings file (default: its first; 'none': the flat ground)",
+    )
+    p.add_argument(
+        "--imagery",
+        default=None,
+        metavar="SRC",
+        help="imagery tiles for this run: an XYZ URL template with {z}/{x}/{y} (tms: before it for TMS rows) or an .mbtiles file",
+    )
+    p.add_argument(
+        "--terrain",
+        default=None,
+        metavar="SRC",
+        help="terrain tiles for this run: terrain-rgb: or terrarium: before a PNG URL template or an .mbtiles file (heights above EGM2008)",
     )
     p.add_argument(
         "--dem-error",

@@ -47,7 +47,7 @@ def run(args: argparse.Namespace) -> int:
             args.play,
             srt=args.srt,
             lens=args.lens,
-            layers=layers(args),
+            layers=layers(args, clip=not (paths and paths[0].suffix.lower() == ".toml")),
             more=tuple(paths[1:]),
             stream=stream,
             live=live,

@@ -25,7 +25,7 @@ from app.scene.terrain import DEFAULT_MAX_ERROR_M, DEM_SUFFIXES, read_terrain
 from app.scene.tiles import fetch
 from app.scene.tiles.tileset import Tileset, TilesetError
 
-KINDS = ("mesh", "tileset", "dem", "city")
+KINDS = ("mesh", "tileset", "dem", "city", "world")
 SCENE_FAR_M = 500.0  # a scene farther than this from the camera is misplaced, or the camera is
 
 
@@ -54,7 +54,9 @@ class Layer:
     max_error_m: a DEM's orthophoto and largest vertical error of its mesh, m; vertical: a DEM's
     or a city's vertical datum (None: the file's, else EGM2008); lod: a city's highest level of
     detail read (None: each object's highest); theme: a city's appearance theme drawn (None:
-    the first the file names)."""
+    the first the file names); world: a world's tile sources (app.world.settings.World, kind
+    "world": resolved over a clip's track into a DEM layer by app.world.build); attribution:
+    what its imagery or heights must be credited with (shown in the viewer's Session panel)."""
 
     location: str
     kind: str
@@ -64,6 +66,8 @@ class Layer:
     max_error_m: float = DEFAULT_MAX_ERROR_M
     lod: float | None = None
     theme: str | None = None
+    world: object | None = None
+    attribution: str = ""
 
     @classmethod
     def of(cls, location: str | Path, **options) -> Layer:
@@ -82,6 +86,8 @@ class Layer:
 
     def files(self) -> list[Path]:
         """Local files this layer reads (never to be written)."""
+        if self.kind == "world":
+            return []
         out = [] if fetch.is_url(self.location) else [Path(self.location)]
         return out + ([self.ortho] if self.ortho is not None else [])
 
@@ -172,6 +178,11 @@ def load_layers(
             ts = _tileset(layer, frame)
             part = MeshData(tilesets=[ts])
             notes.info(f"{layer.name}: 3D Tiles {ts.version}, streamed by level of detail")
+        elif layer.kind == "world":
+            raise SceneError(
+                layer.location,
+                "a world is built around a clip's track: open a clip with it (a still's scene is --scene/--dem)",
+            )
         elif layer.kind == "city":
             lod = {} if layer.lod is None else {"max_lod": layer.lod}
             city = read_city(

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import json
 import logging
-import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -26,6 +25,7 @@ from app.camera.intrinsics import Intrinsics
 from app.camera.pinhole import Camera
 from app.core.errors import GeofuseError
 from app.core.imageio import write_rgb
+from app.core.paths import config_dir
 from app.geodesy import rotations
 from app.live.feed import LiveOptions
 from app.locate.marks import measure as measure_points
@@ -80,12 +80,6 @@ class FixedStepClock:
 
     def advance(self) -> None:
         self.t += self.step
-
-
-def config_dir() -> Path:
-    """Where the viewer remembers its panel layout: $XDG_CONFIG_HOME/geofuse (~/.config/geofuse)."""
-    base = os.environ.get("XDG_CONFIG_HOME") or str(Path.home() / ".config")
-    return Path(base) / "geofuse"
 
 
 class Viewer(ViewerJobs, ViewerSessions):

@@ -41,6 +41,7 @@ def draw(v) -> None:
                     f"layer: {layer.name} ({layer.kind}"
                     + (f", draped with {layer.ortho.name}" if layer.ortho is not None else "")
                     + ")"
+                    + (f"; imagery and heights: {layer.attribution}" if layer.attribution else "")
                 )
             lens = s.lens
             imgui.text_wrapped(

@@ -1,0 +1,207 @@
+"""The user's world sources: `[[world]]` tables in the settings file (settings.toml in the
+platform's config folder, app.core.paths.config_dir), chosen by `--world NAME`, or given once by
+`--imagery SRC` / `--terrain SRC`.
+
+    [[world]]
+    name = "maptiler"                      # what --world names
+    imagery = "https://api.maptiler.com/tiles/satellite-v2/{z}/{x}/{y}.jpg?key={key}"
+    terrain = "terrain-rgb:https://api.maptiler.com/tiles/terrain-rgb-v2/{z}/{x}/{y}.webp?key={key}"
+    attribution = "(c) MapTiler (c) OpenStreetMap contributors"
+    datum = "egm2008"                      # the terrain's heights (default EGM2008, said)
+    key_env = "MAPTILER_KEY"               # the environment variable holding {key}
+    headers = { Referer = "https://example.org" }   # optional; values may hold {key} too
+    imagery_max_zoom = 19                  # optional
+    terrain_max_zoom = 15                  # optional
+    timeout_s = 60                         # optional: the most a fetch may take, s
+
+With no `--world`, a clip without a scene takes the first table (or the name in the environment
+variable GEOFUSE_WORLD; "none" there keeps the flat ground, as the tests set it).
+"""
+
+from __future__ import annotations
+
+import os
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+
+from app.core.errors import GeofuseError
+from app.core.paths import config_dir
+from app.world.sources import SourceError, TileSource, parse_source
+
+NONE = "none"
+ENV_WORLD = "GEOFUSE_WORLD"
+DEFAULT_TIMEOUT_S = 60.0
+KEYS = {
+    "name",
+    "imagery",
+    "terrain",
+    "attribution",
+    "datum",
+    "key_env",
+    "key",
+    "headers",
+    "imagery_max_zoom",
+    "terrain_max_zoom",
+    "timeout_s",
+}
+HOW_TO = (
+    "to drape the clip on terrain and imagery instead, name tile sources in a [[world]] table of "
+    "{path} (name, imagery, terrain, attribution) and pass --world NAME, or give --imagery URL "
+    "and --terrain terrain-rgb:URL once"
+)
+
+
+@dataclass(frozen=True)
+class World:
+    """A named world: imagery and/or terrain sources, what they must be credited with, and the
+    longest a fetch may take (s)."""
+
+    name: str
+    imagery: TileSource | None
+    terrain: TileSource | None
+    attribution: str = ""
+    timeout_s: float = DEFAULT_TIMEOUT_S
+
+
+def settings_path() -> Path:
+    """The settings file: config_dir()/settings.toml."""
+    return config_dir() / "settings.toml"
+
+
+def how_to_configure() -> str:
+    """A sentence saying how to configure a world source (for the flat ground's message)."""
+    return HOW_TO.format(path=settings_path())
+
+
+def world_tables(path: Path | None = None) -> list[dict]:
+    """The [[world]] tables of the settings file, their names and keys checked (none when the
+    file does not exist). Raises GeofuseError naming the file and the table at fault."""
+    path = path or settings_path()
+    if not path.is_file():
+        return []
+    try:
+        doc = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise GeofuseError(f"{path}: cannot read as TOML: {exc}") from exc
+    tables = doc.get("world", [])
+    if not isinstance(tables, list):
+        raise GeofuseError(f"{path}: 'world' must be [[world]] tables")
+    for i, table in enumerate(tables):
+        where = f"{path}: [[world]] {table.get('name', f'#{i + 1}')!r}"
+        unknown = set(table) - KEYS
+        if unknown:
+            raise GeofuseError(
+                f"{where}: unknown key(s) {', '.join(sorted(unknown))} (expected {', '.join(sorted(KEYS))})"
+            )
+        if not isinstance(table.get("name"), str) or not table["name"].strip():
+            raise GeofuseError(f"{where}: give it a name")
+        if table["name"].lower() == NONE:
+            raise GeofuseError(f"{where}: 'none' is kept for the flat ground")
+    return tables
+
+
+def world_of(table: dict, path: Path | None = None) -> World:
+    """The World a [[world]] table names (its key read from the environment now). Raises
+    GeofuseError naming the file and the table."""
+    try:
+        return _world(table)
+    except SourceError as exc:
+        raise GeofuseError(
+            f"{path or settings_path()}: [[world]] {table.get('name')!r}: {exc}"
+        ) from exc
+
+
+def read_worlds(path: Path | None = None) -> list[World]:
+    """Every world of the settings file (module docstring)."""
+    return [world_of(t, path) for t in world_tables(path)]
+
+
+def _key(table: dict) -> str | None:
+    env = table.get("key_env")
+    if env is None:
+        return table.get("key")
+    value = os.environ.get(str(env))
+    if not value:
+        raise SourceError(f"the environment variable {env} (key_env) is not set")
+    return value
+
+
+def _world(table: dict) -> World:
+    if not table.get("imagery") and not table.get("terrain"):
+        raise SourceError("name an imagery source, a terrain source, or both")
+    key = _key(table) if ("key_env" in table or "key" in table) else None
+    common = {
+        "attribution": str(table.get("attribution", "")),
+        "headers": {str(k): str(v) for k, v in dict(table.get("headers", {})).items()},
+        "key": key,
+    }
+    imagery = terrain = None
+    if table.get("imagery"):
+        imagery = parse_source(
+            str(table["imagery"]), "imagery", max_zoom=table.get("imagery_max_zoom"), **common
+        )
+    if table.get("terrain"):
+        terrain = parse_source(
+            str(table["terrain"]),
+            "terrain",
+            datum=table.get("datum"),
+            max_zoom=table.get("terrain_max_zoom"),
+            **common,
+        )
+    return World(
+        str(table["name"]),
+        imagery,
+        terrain,
+        common["attribution"],
+        float(table.get("timeout_s", DEFAULT_TIMEOUT_S)),
+    )
+
+
+def choose_world(
+    name: str | None = None,
+    imagery: str | None = None,
+    terrain: str | None = None,
+    scene_named: bool = False,
+) -> World | None:
+    """The world a command drapes its clip on, None for the flat ground (or the scene named).
+
+    name: --world (NAME or 'none'); imagery, terrain: --imagery, --terrain (one-off sources,
+    replacing the named world's); scene_named: a --scene/--dem was given (then no world unless
+    asked for). With none of them, GEOFUSE_WORLD's name, else the settings' first world. Raises
+    GeofuseError for an unknown name, listing the names configured."""
+    if name is not None and name.lower() == NONE:
+        if imagery or terrain:
+            raise GeofuseError("--world none keeps the flat ground: drop --imagery/--terrain")
+        return None
+    if name is None and not (imagery or terrain):
+        if scene_named:
+            return None
+        name = os.environ.get(ENV_WORLD) or None
+        if name is not None and name.lower() == NONE:
+            return None
+    tables = world_tables() if name is not None or not (imagery or terrain) else []
+    world = None
+    if name is not None:
+        table = next((t for t in tables if t["name"] == name), None)
+        if table is None:
+            names = ", ".join(t["name"] for t in tables)
+            raise GeofuseError(
+                f"--world {name}: no such world in {settings_path()} "
+                + (f"(configured: {names}, or none)" if names else "(none is configured there)")
+            )
+        world = world_of(table)
+    elif tables and not (imagery or terrain):
+        world = world_of(tables[0])
+    if not (imagery or terrain):
+        return world
+    try:
+        return World(
+            world.name if world else "given",
+            parse_source(imagery, "imagery") if imagery else world.imagery if world else None,
+            parse_source(terrain, "terrain") if terrain else world.terrain if world else None,
+            world.attribution if world else "",
+            world.timeout_s if world else DEFAULT_TIMEOUT_S,
+        )
+    except SourceError as exc:
+        raise GeofuseError(str(exc)) from exc

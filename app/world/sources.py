@@ -1,0 +1,195 @@
+"""Tile sources of a world: imagery and terrain, each from an XYZ/TMS URL template or a local
+MBTiles file.
+
+Spelling (as `--imagery`, `--terrain` and a settings file's `[[world]]` write it):
+- imagery: `https://host/{z}/{x}/{y}.jpg` (XYZ rows, from the north), `tms:https://...` or
+  `{-y}` in place of `{y}` (TMS rows, from the south), or `PATH.mbtiles` (rows are TMS there);
+- terrain: the same behind `terrain-rgb:` (Mapbox/MapTiler: height = -10000 + (R * 65536 +
+  G * 256 + B) * 0.1 m) or `terrarium:` (Tilezen/AWS: height = R * 256 + G + B / 256 - 32768 m).
+  Heights are taken as above the EGM2008 geoid unless the source says otherwise (`datum`).
+A template may hold `{key}`, and header values too: the key comes from an environment variable
+(`key_env`) or the settings, is sent with every request and is never part of a label, a message
+or a file written (`TileSource.redact`).
+"""
+
+from __future__ import annotations
+
+import urllib.parse
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from app.core.errors import GeofuseError
+
+ENCODINGS = ("terrain-rgb", "terrarium")
+DATUMS = ("egm2008", "egm96", "ellipsoid")
+DEFAULT_DATUM = "egm2008"
+MAX_ZOOM = {"imagery": 19, "terrain": 15}
+SECRET_PARAMS = ("key", "token", "access_token", "apikey", "api_key", "sessiontoken")
+TERRARIUM_NODATA = -32768.0  # (0, 0, 0): no height there
+TERRAIN_RGB_NODATA_BELOW = -9999.0  # (0, 0, 0) decodes to -10000 m: no height there
+
+
+class SourceError(GeofuseError):
+    """A tile source spelt wrongly, or missing what it needs (its key's variable)."""
+
+
+@dataclass(frozen=True)
+class TileSource:
+    """One tile source. kind: 'imagery' or 'terrain'; location: a URL template (with {z}, {x},
+    {y} or {-y}, perhaps {key}) or an MBTiles path; encoding: a terrain's 'terrain-rgb' or
+    'terrarium' (None for imagery); scheme: 'xyz' or 'tms' rows; datum: a terrain's heights are
+    above this ('egm2008', 'egm96', 'ellipsoid'); headers: (name, value) sent with every request,
+    values perhaps holding {key}; key: the secret put for {key} (never shown); max_zoom: the
+    finest level the source serves."""
+
+    kind: str
+    location: str
+    encoding: str | None = None
+    scheme: str = "xyz"
+    attribution: str = ""
+    datum: str = DEFAULT_DATUM
+    headers: tuple[tuple[str, str], ...] = ()
+    key: str | None = field(default=None, repr=False)
+    max_zoom: int = 19
+
+    @property
+    def is_mbtiles(self) -> bool:
+        return not self.location.lower().startswith(("http://", "https://"))
+
+    def url(self, z: int, x: int, y: int) -> str:
+        """The request's URL for XYZ tile (z, x, y), the key put in."""
+        row = (1 << z) - 1 - y if self.scheme == "tms" else y
+        url = (
+            self.location.replace("{z}", str(z))
+            .replace("{x}", str(x))
+            .replace("{y}", str(row))
+            .replace("{-y}", str((1 << z) - 1 - y))
+        )
+        return url.replace("{key}", urllib.parse.quote(self.key or "", safe=""))
+
+    def request_headers(self) -> dict[str, str]:
+        """The headers sent with every request, the key put in."""
+        return {k: v.replace("{key}", self.key or "") for k, v in self.headers}
+
+    @property
+    def secrets(self) -> tuple[str, ...]:
+        """What must never be written: the key, and any secret query value in the template."""
+        out = [self.key] if self.key else []
+        query = urllib.parse.urlsplit(self.location).query
+        out += [
+            v
+            for k, v in urllib.parse.parse_qsl(query)
+            if k.lower() in SECRET_PARAMS and v and "{" not in v
+        ]
+        return tuple(out)
+
+    def redact(self, text: str) -> str:
+        """`text` with every secret of this source replaced by '***'."""
+        for secret in self.secrets:
+            text = text.replace(secret, "***").replace(urllib.parse.quote(secret, safe=""), "***")
+        return text
+
+    @property
+    def label(self) -> str:
+        """The source as messages name it: its host and path (a file by its name), no query."""
+        if self.is_mbtiles:
+            return self.location.replace("\\", "/").rsplit("/", 1)[-1]
+        parts = urllib.parse.urlsplit(self.location)
+        return self.redact(f"{parts.netloc}{parts.path}")
+
+    @property
+    def identity(self) -> str:
+        """What names the source's tiles in the cache: its template or file as given, with
+        {key} unfilled and any literal secret redacted, its encoding and scheme."""
+        return self.redact(f"{self.kind}|{self.encoding}|{self.scheme}|{self.location}")
+
+
+def parse_source(
+    text: str,
+    kind: str,
+    attribution: str = "",
+    datum: str | None = None,
+    headers: dict[str, str] | None = None,
+    key: str | None = None,
+    max_zoom: int | None = None,
+) -> TileSource:
+    """A TileSource from its spelling (module docstring). kind: 'imagery' or 'terrain'. Raises
+    SourceError saying what is expected."""
+    text = text.strip()
+    encoding = None
+    scheme = "xyz"
+    for prefix in ENCODINGS:
+        if text.lower().startswith(prefix + ":"):
+            encoding, text = prefix, text[len(prefix) + 1 :]
+    if text.lower().startswith("tms:"):
+        scheme, text = "tms", text[4:]
+    what = f"{kind} source"
+    if kind == "terrain" and encoding is None:
+        raise SourceError(
+            f"{what} {_shown(text)!r}: name its encoding, e.g. terrain-rgb:URL or terrarium:URL "
+            "(PNG tiles; a local .mbtiles of them too)"
+        )
+    if kind == "imagery" and encoding is not None:
+        raise SourceError(f"{what}: {encoding}: is for terrain (--terrain), not imagery")
+    is_url = text.lower().startswith(("http://", "https://"))
+    if is_url:
+        if "{z}" not in text or "{x}" not in text or ("{y}" not in text and "{-y}" not in text):
+            raise SourceError(
+                f"{what} {_shown(text)!r}: a URL template needs {{z}}, {{x}} and {{y}} (or {{-y}})"
+            )
+    elif not text.lower().endswith(".mbtiles"):
+        raise SourceError(
+            f"{what} {_shown(text)!r}: expected an http(s) URL template with {{z}}/{{x}}/{{y}} or a local .mbtiles file"
+        )
+    else:
+        scheme = "tms"  # MBTiles rows count from the south (the spec's TMS)
+    datum = (datum or DEFAULT_DATUM).lower()
+    if datum not in DATUMS:
+        raise SourceError(f"{what}: datum {datum!r} unknown (expected one of {', '.join(DATUMS)})")
+    if ("{key}" in text or any("{key}" in v for v in (headers or {}).values())) and not key:
+        raise SourceError(
+            f"{what} {_shown(text)!r}: the template holds {{key}} but no key is given (key_env names the environment variable that holds it)"
+        )
+    return TileSource(
+        kind,
+        text,
+        encoding,
+        scheme,
+        attribution,
+        datum,
+        tuple((headers or {}).items()),
+        key,
+        max_zoom if max_zoom is not None else MAX_ZOOM[kind],
+    )
+
+
+def _shown(text: str) -> str:
+    """A location as an error names it: any secret query value redacted."""
+    return TileSource("imagery", text).redact(text)
+
+
+def decode_heights(rgb: np.ndarray, encoding: str) -> np.ndarray:
+    """Heights (m, float64, NaN where the tile says none) of an (H, W, 3) uint8 tile."""
+    c = np.asarray(rgb, np.float64)
+    r, g, b = c[..., 0], c[..., 1], c[..., 2]
+    if encoding == "terrain-rgb":
+        h = -10000.0 + (r * 65536.0 + g * 256.0 + b) * 0.1
+        return np.where(h < TERRAIN_RGB_NODATA_BELOW, np.nan, h)
+    if encoding == "terrarium":
+        h = r * 256.0 + g + b / 256.0 - 32768.0
+        return np.where(h <= TERRARIUM_NODATA, np.nan, h)
+    raise ValueError(f"unknown terrain encoding {encoding!r}")
+
+
+def encode_heights(heights: np.ndarray, encoding: str) -> np.ndarray:
+    """(H, W, 3) uint8 of heights (m): the inverse of decode_heights (to 0.1 m for Terrain-RGB,
+    1/256 m for Terrarium); for writing tiles (tests, pre-fetched archives)."""
+    h = np.asarray(heights, np.float64)
+    if encoding == "terrain-rgb":
+        v = np.round((h + 10000.0) * 10.0).astype(np.int64)
+        return np.stack([(v >> 16) & 255, (v >> 8) & 255, v & 255], axis=-1).astype(np.uint8)
+    if encoding == "terrarium":
+        v = np.round((h + 32768.0) * 256.0).astype(np.int64)
+        return np.stack([(v >> 16) & 255, (v >> 8) & 255, v & 255], axis=-1).astype(np.uint8)
+    raise ValueError(f"unknown terrain encoding {encoding!r}")

@@ -49,6 +49,7 @@ BENCHMARKS = {
     "footprints": "bench_footprints.py",
     "index": "bench_index.py",
     "live": "bench_live.py",
+    "ortho": "bench_ortho.py",
 }
 SOURCE_HELP = "attitude source (default: the first the session offers)"
 SRT_HELP = "the DJI subtitle of the clip, when not beside it"

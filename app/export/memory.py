@@ -30,9 +30,11 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
+from numba import njit
 from scipy.ndimage import map_coordinates
 
 from app.camera.pinhole import Camera, image_size
+from app.geodesy import rotations
 
 RULES = ("newest", "best", "first")
 QUALITY_RANGE_M = 100.0  # quality halves at this range (head-on)
@@ -65,6 +67,37 @@ def boxes_in_frustum(camera: Camera, lo: np.ndarray, hi: np.ndarray) -> np.ndarr
         far_corner = np.where(np.array([a, b, c]) > 0, hi, lo)
         inside &= far_corner @ np.array([a, b, c]) + d >= 0
     return inside
+
+
+@njit(cache=True)
+def _pinhole_in_image(points, idx, r, pos, k, size):  # pragma: no cover - compiled
+    """Samples points[idx] (ENU m) through a lensless camera (r: camera -> ENU rotation (3, 3),
+    pos: its position; k = (fx, fy, cx, cy) of its image, scaled by (sx, sy) to the frame's)
+    in one pass: (N, 2) frame pixels (u, v), (N,) depth along the axis (m), (N,) whether in
+    front and inside the frame of size (w, h). What Camera.project and the bounds test give."""
+    fx, fy, cx, cy, sx, sy = k
+    w, h = size
+    n = len(idx)
+    uv = np.empty((n, 2))
+    depth = np.empty(n)
+    inside = np.zeros(n, np.bool_)
+    for j in range(n):
+        i = idx[j]
+        dx = points[i, 0] - pos[0]
+        dy = points[i, 1] - pos[1]
+        dz = points[i, 2] - pos[2]
+        x = dx * r[0, 0] + dy * r[1, 0] + dz * r[2, 0]
+        y = dx * r[0, 1] + dy * r[1, 1] + dz * r[2, 1]
+        d = -(dx * r[0, 2] + dy * r[1, 2] + dz * r[2, 2])
+        depth[j] = d
+        if d > 0.0:
+            u = (fx * x / d + cx) * sx
+            v = (cy - fy * y / d) * sy
+            uv[j, 0], uv[j, 1] = u, v
+            inside[j] = u >= 0.0 and u < w and v >= 0.0 and v < h
+        else:
+            uv[j, 0], uv[j, 1] = np.nan, np.nan
+    return uv, depth, inside
 
 
 def agreement(frame_rgb: np.ndarray, model_rgb: np.ndarray) -> np.ndarray:
@@ -170,19 +203,34 @@ class SurfaceMemory:
         idx = self._in_view(camera)
         if not len(idx):
             return 0
-        p = self.points[idx].astype(np.float64)
         h, w = rgb.shape[:2]
         iw, ih = image_size(camera)
-        uv, depth = camera.project(p)
-        uv = uv * [w / iw, h / ih]  # frames may be decoded smaller than the camera's image
-        inside = (depth > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < w) & (uv[:, 1] >= 0) & (uv[:, 1] < h)
-        idx, p, uv = idx[inside], p[inside], uv[inside]
+        scale = (w / iw, h / ih)  # frames may be decoded smaller than the camera's image
+        if camera.lens is None:  # the image is the pinhole's: one compiled pass
+            i = camera.intrinsics
+            uv, depth, inside = _pinhole_in_image(
+                self.points,
+                idx,
+                rotations.to_matrix(camera.orientation),
+                np.asarray(camera.position, np.float64),
+                (i.fx, i.fy, i.cx, i.cy, *scale),
+                (float(w), float(h)),
+            )
+            idx, uv = idx[inside], uv[inside]
+            p = self.points[idx].astype(np.float64)
+        else:
+            p = self.points[idx].astype(np.float64)
+            uv, depth = camera.project(p)
+            uv = uv * scale
+            inside = (depth > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < w) & (uv[:, 1] >= 0) & (uv[:, 1] < h)  # fmt: skip
+            idx, p, uv = idx[inside], p[inside], uv[inside]
         if not len(idx):
             return 0
         ray = p - np.asarray(camera.position, np.float64)
         rng = np.linalg.norm(ray, axis=1)
         # the distance map is drawn through the camera's pinhole: where does the point fall?
-        pin, _ = camera.pinhole().project(p)
+        # (without a lens, where it falls in the image, scaled back)
+        pin = uv / scale if camera.lens is None else camera.pinhole().project(p)[0]
         dh, dw = distances.shape
         sx, sy = dw / camera.intrinsics.width, dh / camera.intrinsics.height
         at = [pin[:, 1] * sy - 0.5, pin[:, 0] * sx - 0.5]

@@ -27,11 +27,9 @@ from app.core.errors import DataFormatError, ManifestError
 from app.io.area import read_area
 from app.render.passes import MAX_EXTRA
 from app.render.renderer import nearest_in_time
-from app.render.still import render_still
-from app.scene.ground_plane import ground_plane
 from app.session.config import ATTITUDE_SOURCES, read_config
 from app.simulate.sample import SAMPLE_DIR
-from tests.test_projectors import NO_LINES, SETTINGS, TOP, _pixel_of, _ring
+from tests.test_projectors import _pixel_of, _ring, _ring_still
 
 SITE = (34.7997, 113.5299)  # lat, lon: the synthetic archive's footprints lie around it
 SQUARE = [[113.5298, 34.7996], [113.5300, 34.7996], [113.5300, 34.7998], [113.5298, 34.7998]]
@@ -385,18 +383,8 @@ def test_more_projectors_than_drawn_at_once_keep_the_nearest_in_time():
         (255, 128, 0), (128, 0, 255), (0, 128, 255), (128, 255, 0), (255, 0, 128),
     ]  # fmt: skip
     views = _ring(colours)
-    (first_img, first_cam, _), *rest = views
     ages = [0.0, 0.1, 4.0, 0.2, 0.0, 6.0, 0.3, 0.0, 5.0, 0.1]
-    still = render_still(
-        ground_plane(np.zeros(2), 0.0, 200.0),
-        first_img,
-        first_cam,
-        TOP,
-        SETTINGS,
-        NO_LINES,
-        extras=[(img, cam, 0.0) for img, cam, _ in rest],
-        ages_s=[0.0, *ages],
-    )
+    still = _ring_still(views, [0.0, *ages])
     assert still.left_out is not None and still.left_out.startswith("3 further clip(s) left out")
     for (img, _, centre), age in zip(views, [0.0, *ages], strict=True):
         shown = np.abs(still.rgb[_pixel_of(centre)].astype(int) - img[0, 0]).max() <= 3

@@ -36,21 +36,12 @@ from app.live.probe import (
 from app.live.receiver import Receiver
 from app.live.run import run_live
 from app.simulate.feed import free_udp_port, port_held
+from tests.waiting import wait_until
 
 INT32_MAX = 2**31 - 1  # a latitude field full of ones: 214.7 deg
 FIX = {"time_boot_ms": 1000, "lat": 348_000_000, "lon": 1_135_300_000, "alt": 150_000}
 LEVEL = {"time_boot_ms": 1000, "roll": 0.0, "pitch": 0.0, "yaw": 0.0}
 MAV = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
-
-
-def _wait_until(condition: Callable[[], bool], limit_s: float = 60.0) -> bool:
-    """Polls a condition (the limit only keeps a broken receiver from hanging the test)."""
-    end = time.monotonic() + limit_s
-    while not condition():
-        if time.monotonic() > end:
-            return False
-        time.sleep(0.01)
-    return True
 
 
 class Spray:
@@ -256,7 +247,7 @@ def test_garbage_datagrams_are_said_to_arrive_unreadable_not_called_silence(data
     r = Receiver(f"udp://127.0.0.1:{port}", JitterBuffer(), LivePoses(0.1), messages).start()
     try:
         with Spray(port, datagrams):
-            assert _wait_until(lambda: r.counts.unreadable.datagrams > 0), messages.items
+            assert wait_until(lambda: r.counts.unreadable.datagrams > 0), messages.items
     finally:
         r.stop()
     [said] = [m for m in messages.items if "arrived but none was readable" in m]
@@ -305,7 +296,7 @@ def test_a_hostile_autopilot_is_counted_by_reason_and_its_missing_position_said(
     try:
         with Spray(mav_port, _hostile_autopilot):
             dropped = feed.poses.telemetry.counts.dropped
-            assert _wait_until(
+            assert wait_until(
                 lambda: (
                     len(dropped) >= 4
                     and min(dropped.values()) >= 3

@@ -35,6 +35,7 @@ from app.simulate.feed import (
     sending_clock,
     write_feed,
 )
+from tests.waiting import wait_until
 
 ORBIT = Orbit()
 
@@ -104,16 +105,6 @@ def _up(ecef: np.ndarray) -> np.ndarray:
 def feed(tmp_path_factory) -> Path:
     """3 s of the orbit at 320x180, 30 fps, a KLV set per frame."""
     return write_feed(tmp_path_factory.mktemp("live") / "feed.ts", 3.0, (320, 180))
-
-
-def _wait_until(condition, limit_s: float = 60.0) -> bool:
-    """Polls a condition (the limit only keeps a broken receiver from hanging the test)."""
-    end = time.monotonic() + limit_s
-    while not condition():
-        if time.monotonic() > end:
-            return False
-        time.sleep(0.01)
-    return True
 
 
 def _run_with_sender(feed: Path, tmp_path: Path, sender_kwargs: dict, **options):
@@ -204,7 +195,7 @@ def test_a_port_already_in_use_is_said_and_the_receiver_keeps_trying():
     messages = Messages()
     r = Receiver(f"udp://127.0.0.1:{port}", JitterBuffer(), LivePoses(0.1), messages).start()
     try:
-        assert _wait_until(lambda: r.counts.failed_opens >= 1)
+        assert wait_until(lambda: r.counts.failed_opens >= 1)
         assert r.alive  # it retries with back-off instead of ending
         assert any(
             "already in use" in m and "another program holds the port" in m for m in messages.items
@@ -252,9 +243,9 @@ def test_a_recording_killed_mid_flight_is_still_a_clip(tmp_path):
     sender = Sender(feed.read_bytes(), ("127.0.0.1", port))
     try:
         assert proc.stdout.readline().startswith("receiving")  # it is about to listen
-        assert _wait_until(lambda: port_held(port), 60.0)
+        assert wait_until(lambda: port_held(port), 60.0)
         sender.start()
-        assert _wait_until(lambda: record.is_file() and record.stat().st_size > 40_000, 60.0)
+        assert wait_until(lambda: record.is_file() and record.stat().st_size > 40_000, 60.0)
         proc.kill()
         proc.wait(10)
     finally:

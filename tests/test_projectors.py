@@ -160,6 +160,22 @@ def _ring(colours: list) -> list[tuple[np.ndarray, Camera, tuple]]:
     return views
 
 
+def _ring_still(views: list, ages_s: list[float] | None = None):
+    """The still of a ring of projectors (`_ring`) seen from TOP over a ground plane: the first
+    as the session's projector, the rest as further ones."""
+    (first_img, first_cam, _), *rest = views
+    return render_still(
+        ground_plane(np.zeros(2), 0.0, 200.0),
+        first_img,
+        first_cam,
+        TOP,
+        SETTINGS,
+        NO_LINES,
+        extras=[(img, cam, 0.0) for img, cam, _ in rest],
+        ages_s=ages_s,
+    )
+
+
 def test_eight_projectors_drawn_together():
     """Eight projectors on a ring, each straight down on its own patch of ground with its own
     colour: each patch shows its colour."""
@@ -168,16 +184,7 @@ def test_eight_projectors_drawn_together():
         (255, 0, 255), (0, 255, 255), (255, 128, 0), (128, 0, 255),
     ]  # fmt: skip
     views = _ring(colours)
-    (first_img, first_cam, _), *rest = views
-    rgb = render_still(
-        ground_plane(np.zeros(2), 0.0, 200.0),
-        first_img,
-        first_cam,
-        TOP,
-        SETTINGS,
-        NO_LINES,
-        extras=[(img, cam, 0.0) for img, cam, _ in rest],
-    ).rgb
+    rgb = _ring_still(views).rgb
     for img, _, centre in views:
         assert np.abs(rgb[_pixel_of(centre)].astype(int) - img[0, 0]).max() <= 3, centre
 

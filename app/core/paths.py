@@ -15,24 +15,23 @@ def config_dir() -> Path:
     """The user's settings folder: $XDG_CONFIG_HOME/geofuse (~/.config/geofuse); on macOS
     ~/Library/Application Support/geofuse, on Windows %APPDATA%/geofuse (XDG_CONFIG_HOME wins
     everywhere when set, as tests set it)."""
-    base = os.environ.get("XDG_CONFIG_HOME")
-    if base:
-        return Path(base) / APP
-    if sys.platform == "darwin":
-        return Path.home() / "Library" / "Application Support" / APP
-    if os.name == "nt" and os.environ.get("APPDATA"):
-        return Path(os.environ["APPDATA"]) / APP
-    return Path.home() / ".config" / APP
+    return _platform_dir("XDG_CONFIG_HOME", ".config", "Application Support", "APPDATA", "")
 
 
 def cache_dir() -> Path:
     """The user's cache folder: $XDG_CACHE_HOME/geofuse (~/.cache/geofuse); on macOS
     ~/Library/Caches/geofuse, on Windows %LOCALAPPDATA%/geofuse/Cache."""
-    base = os.environ.get("XDG_CACHE_HOME")
+    return _platform_dir("XDG_CACHE_HOME", ".cache", "Caches", "LOCALAPPDATA", "Cache")
+
+
+def _platform_dir(xdg: str, home: str, library: str, windows: str, below: str) -> Path:
+    """$xdg/geofuse where set; else ~/Library/<library>/geofuse on macOS,
+    %<windows>%/geofuse[/<below>] on Windows, ~/<home>/geofuse elsewhere."""
+    base = os.environ.get(xdg)
     if base:
         return Path(base) / APP
     if sys.platform == "darwin":
-        return Path.home() / "Library" / "Caches" / APP
-    if os.name == "nt" and os.environ.get("LOCALAPPDATA"):
-        return Path(os.environ["LOCALAPPDATA"]) / APP / "Cache"
-    return Path.home() / ".cache" / APP
+        return Path.home() / "Library" / library / APP
+    if os.name == "nt" and os.environ.get(windows):
+        return Path(os.environ[windows]) / APP / below
+    return Path.home() / home / APP

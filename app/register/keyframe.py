@@ -39,8 +39,13 @@ class MatchSettings:
     of its range (occlusion edges, where a match may belong to either surface, are dropped);
     ransac_px: RANSAC's inlier threshold, pixels of the frame; min_inliers: fewer is a failure;
     max_error_px: an RMS reprojection error over the inliers above this is a failure;
-    refine_corners / refine_px: corners tracked, and the inlier threshold (frame pixels), of the
-    fine step (`refine`)."""
+    refine_corners / refine_px / refine_window: corners tracked, the inlier threshold (frame
+    pixels) and Lucas-Kanade's window (pixels a side; 13 tracks as well as 21 where the pose is
+    within a few pixels, at 0.4 of the cost: docs/PERFORMANCE.md, "Orthophotos") of the fine
+    step (`refine`); align_finest_octave: the dense alignment (`align`) stops this many
+    halvings above the rendering's size (1: half size; its pose is a coarse one, which the fine
+    step that follows brings to the full size's pixel, and the full size's ECC cost three
+    quarters of the alignment's time; 0 where coarse steps alone give the pose)."""
 
     detector: str = "sift"
     features: int = 3000
@@ -51,6 +56,8 @@ class MatchSettings:
     max_error_px: float = 2.5
     refine_corners: int = 4000
     refine_px: float = 1.5
+    refine_window: int = 13
+    align_finest_octave: int = 1
 
 
 @dataclass(frozen=True)
@@ -303,7 +310,7 @@ def refine(settings: MatchSettings, frame: Frame, rendering: Rendering) -> PoseF
     if corners is None or len(corners) < settings.min_inliers:
         return PoseFix(False, "too few corners on the rendered model to refine", 0, 0, float("nan"))
     lk = dict(
-        winSize=(21, 21),
+        winSize=(settings.refine_window, settings.refine_window),
         maxLevel=3,
         criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01),
     )
@@ -381,7 +388,9 @@ def align(settings: MatchSettings, frame: Frame, rendering: Rendering) -> PoseFi
     mask = np.isfinite(rendering.positions[..., 0]).astype(np.uint8)
     warp = np.eye(3, dtype=np.float64)
     criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 100, 1e-5)
-    for level in range(ALIGN_OCTAVES - 1, -1, -1):
+    for level in range(
+        ALIGN_OCTAVES - 1, min(settings.align_finest_octave, ALIGN_OCTAVES - 1) - 1, -1
+    ):
         s = 2**level
         size = (max(8, w // s), max(8, h // s))
         down = np.diag([1.0 / s, 1.0 / s, 1.0])

@@ -22,6 +22,7 @@ import moderngl
 import numpy as np
 
 from app.camera.pinhole import Camera
+from app.camera.trajectory import PositionTrack
 from app.core.errors import GeofuseError
 from app.geodesy import rotations
 from app.io.video import frames_at
@@ -35,6 +36,7 @@ from app.register.fuse import (
     gate,
     retimed,
 )
+from app.register.gnss import CheckSettings, GnssCheck, check_fixes, on_scene
 from app.register.keyframe import (
     Frame,
     Matcher,
@@ -79,7 +81,10 @@ class RegistrationSettings:
     a keyframe whose lines leave a direction of the pose loosely fixed is refused (a street
     along one facade, a view straight down: docs/ACCURACY.md); geometry_fallback: where
     matching textures finds no pose (a scene textured in part: a city's grey LoD2 buildings on
-    an orthophoto-draped terrain), align the lines from the same start."""
+    an orthophoto-draped terrain), align the lines from the same start; chain_m, chain_s: where
+    the prior's start lies more than chain_m metres from the position the last registered
+    keyframes (within chain_s seconds) lead to at constant velocity, the keyframe is searched
+    from the latter first (a GNSS that jumps or drags off must not lose the scene: issue 52)."""
 
     every_s: float = 0.5
     long_side: int = 960
@@ -95,6 +100,8 @@ class RegistrationSettings:
     fine: bool = True
     by_geometry: bool = False
     geometry_fallback: bool = True
+    chain_m: float = 3.0
+    chain_s: float = 3.0
 
 
 @dataclass(frozen=True)
@@ -109,6 +116,7 @@ class Registration:
     delay_s: float | None = (
         None  # how late the frame times were (s), estimated from the keyframes; None: not estimated
     )
+    gnss: GnssCheck | None = None  # the GNSS fixes tested against the keyframes (issue 52)
 
     @property
     def used(self) -> int:
@@ -185,6 +193,21 @@ def _moved(a: Camera, b: Camera) -> tuple[float, float]:
     """(metres, degrees) between two camera poses."""
     metres = float(np.linalg.norm(np.subtract(a.position, b.position)))
     return metres, float(np.degrees(rotations.angle_between(a.orientation, b.orientation)))
+
+
+def _chained(keyframes: list[Keyframe], t: float, start: Camera, within_s: float) -> Camera | None:
+    """`start` moved to where the last registered keyframes lead at session time t (s): the
+    last one's position carried on at the velocity from the one before it (ENU m, m/s), both
+    within within_s seconds; None where none is that recent."""
+    solved = [k for k in keyframes[-4:] if k.registered and t - k.time_s <= within_s]
+    if not solved:
+        return None
+    last = solved[-1]
+    p = np.asarray(last.position, np.float64)
+    if len(solved) > 1 and last.time_s > solved[-2].time_s:
+        v = (p - np.asarray(solved[-2].position)) / (last.time_s - solved[-2].time_s)
+        p = p + v * (t - last.time_s)
+    return posed(start, p, np.asarray(start.orientation))
 
 
 def _shifted(camera: Camera, correction: Correction, t: float) -> Camera:
@@ -327,7 +350,15 @@ class Registrar:
             t = float(prior.clock.session_time([video.pts_s[k]])[0])
             so_far = Correction.from_keyframes(keyframes[-5:], s.fuse)
             first = None if begin is None else begin(int(k))
-            fix, solved, renders = self.keyframe(rgb, _shifted(prior_cam, so_far, t), first)
+            start = _shifted(prior_cam, so_far, t)
+            chained = _chained(keyframes, t, start, s.chain_s)
+            fix, solved, renders = None, None, 0
+            if chained is not None and _moved(start, chained)[0] > s.chain_m:
+                # the prior moved unlike the scene (GNSS jumped or drags off): from the scene first
+                fix, solved, renders = self.keyframe(rgb, chained, first)
+            if solved is None:
+                fix, solved, more = self.keyframe(rgb, start, first)
+                renders += more
             if solved is None and len(so_far.t):  # from the plain prior once more
                 fix, solved, more = self.keyframe(rgb, prior_cam, first)
                 renders += more
@@ -407,25 +438,69 @@ def registered_track(
     finally:
         registrar.release()
     keyframes = list(reg.keyframes)
+    check = tested_fixes(session, prior_track, keyframes)
+    if check.lies:  # the prior's positions stand on the scene where the GNSS lied: no fusion across
+        prior_track = replace(
+            prior_track, poses=replace(prior_track.poses, positions=_on_scene(prior_track, check))
+        )
+        keyframes = gate(retimed(_ungated(keyframes), prior_track.poses, 0.0), settings.fuse)
+        t0 = float(session.frame_times[0])
+        for lie in check.lies:
+            session.messages.add_once(f"gnss-lie-{lie.began_s:.1f}", lie.said(t0, session.utc_of))
     delay = (
         estimate_delay(keyframes, prior_track.poses, settings.fuse)
         if settings.estimate_delay
         else None
     )
     if delay is not None:
-        keyframes = gate(
-            retimed(
-                [
-                    replace(k, used=k.registered, reason="" if k.registered else k.reason)
-                    for k in keyframes
-                ],
-                prior_track.poses,
-                delay,
-            ),
-            settings.fuse,
-        )
+        keyframes = gate(retimed(_ungated(keyframes), prior_track.poses, delay), settings.fuse)
     poses = corrected_pose_track(
         prior_track.poses, Correction.from_keyframes(keyframes, settings.fuse), delay or 0.0
     )
-    reg = replace(reg, keyframes=tuple(keyframes), control=control, delay_s=delay)
-    return replace(prior_track, source=REGISTERED, poses=poses, registration=reg)
+    reg = replace(reg, keyframes=tuple(keyframes), control=control, delay_s=delay, gnss=check)
+    return replace(
+        prior_track, source=REGISTERED, poses=poses, registration=reg, fixes=check.status
+    )
+
+
+def _ungated(keyframes: list[Keyframe]) -> list[Keyframe]:
+    """The keyframes with every registered one used again (before gating them anew)."""
+    return [
+        replace(k, used=k.registered, reason="" if k.registered else k.reason) for k in keyframes
+    ]
+
+
+def tested_fixes(
+    session: Session,
+    prior: CameraTrack,
+    keyframes: list[Keyframe],
+    settings: CheckSettings | None = None,
+) -> GnssCheck:
+    """The prior's GNSS fixes tested against the registered keyframes' positions
+    (app.register.gnss.check_fixes), with the accuracy the session's GNSS states."""
+    fixes = prior.poses.positions
+    enu = prior.poses.frame.geodetic_to_enu(fixes.lat, fixes.lon, fixes.h)
+    acc = (
+        session.gnss.h_acc
+        if session.gnss.h_acc is not None and len(session.gnss.h_acc) == len(fixes.t)
+        else None
+    )
+    # witnesses: the keyframes the gate kept (each agreeing with its neighbours), not every one
+    # registered: a run of keyframes registered wrongly on a scene of repeated textures would
+    # otherwise accuse a clean GNSS
+    solved = [k for k in keyframes if k.registered and k.used]
+    key_t = np.array([k.time_s for k in solved], np.float64)
+    key_enu = np.array([k.position for k in solved], np.float64).reshape(-1, 3)
+    return check_fixes(fixes.t, enu, acc, key_t, key_enu, settings or CheckSettings())
+
+
+def _on_scene(prior: CameraTrack, check: GnssCheck) -> PositionTrack:
+    """The prior's positions with its rejected fixes moved onto the scene (app.register.gnss.
+    on_scene): their velocities estimated from those positions, the others' kept."""
+    fixes = prior.poses.positions
+    frame = prior.poses.frame
+    enu, keep = on_scene(frame.geodetic_to_enu(fixes.lat, fixes.lon, fixes.h), check)
+    geo = frame.enu_to_geodetic(enu[keep])
+    moved = PositionTrack.from_fixes(fixes.t[keep], geo[:, 0], geo[:, 1], geo[:, 2])
+    vel = np.where(check.status.rejected[keep, None], moved.vel_enu, fixes.vel_enu[keep])
+    return replace(moved, vel_enu=vel)

@@ -18,6 +18,7 @@ from typing import Any, Protocol
 import numpy as np
 import numpy.typing as npt
 
+from app.camera.fixes import FixStatus
 from app.camera.frame_time import corrected_times
 from app.camera.intrinsics import Intrinsics, Zoom
 from app.camera.lens import Lens
@@ -80,6 +81,7 @@ class FramePoses:
     enu: FloatArray
     hpr: FloatArray
     q: FloatArray
+    gnss: npt.NDArray[np.str_] | None = None  # (F,) app.camera.fixes: used, rejected, missing
 
     def __len__(self) -> int:
         return len(self.time_s)
@@ -105,6 +107,7 @@ class CameraTrack:
     )  # where the sensor's rows run in the displayed image (readout_axis())
     registration: Registration | None = None  # the `registered` source: every keyframe's outcome
     zoom: Zoom | None = None  # a field of view per time: each camera's own (pinhole only)
+    fixes: FixStatus | None = None  # which GNSS fixes the positions stand on (None: not GNSS)
 
     @property
     def frame_count(self) -> int:
@@ -149,7 +152,8 @@ class CameraTrack:
         t = self.clock.session_time(np.atleast_1d(np.asarray(t_media, np.float64)))
         enu, geo, q = self.poses.at(t)
         idx = np.arange(len(t)) if index is None else np.asarray(index, np.int64)
-        return FramePoses(idx, t, geo, enu, rotations.hpr_from_camera_quat(q), q)
+        gnss = None if self.fixes is None else self.fixes.at(t)
+        return FramePoses(idx, t, geo, enu, rotations.hpr_from_camera_quat(q), q, gnss)
 
     def frame_poses(self, step: int = 1) -> FramePoses:
         """Poses of every `step`-th video frame."""
@@ -190,9 +194,12 @@ def camera_track(
     """Solve one source of a session into its camera track. ValueError for a source the session
     does not offer (naming those it does)."""
     clock = replace(frame_clock(session, true_timing), offset_s=float(time_offset_s))
+    poses = pose_track(session, source, course_pitch_deg)
+    fixes = None if source == TRUTH else FixStatus.all_used(poses.positions.t)
     return CameraTrack(
-        source, pose_track(session, source, course_pitch_deg), clock, session.intrinsics, lens=session.lens,
+        source, poses, clock, session.intrinsics, lens=session.lens,
         readout_s=session.readout_s, readout_axis=readout_axis(session.rotation_cw), zoom=session.zoom,
+        fixes=fixes,
     )  # fmt: skip
 
 

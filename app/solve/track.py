@@ -7,6 +7,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TextIO
 
+from app.camera.fixes import outage_said
 from app.core.outputs import CSV_SUFFIXES, check_output, write_atomically
 from app.core.progress import ProgressBar
 from app.register import registered_track
@@ -29,6 +30,7 @@ COLUMNS = (
     "qx",
     "qy",
     "qz",
+    "gnss",
 )
 PROGRESS_MIN_SAMPLES = 100_000
 
@@ -48,10 +50,28 @@ def solve_track(
     there stop() is asked between steps: True cancels (app.register.solve.Cancelled);
     background: solved beside a playing viewer, at a lower priority."""
     if source == REGISTERED:
-        return registered_track(
+        track = registered_track(
             session, progress=progress, stop=stop, background=background, **options
         )
-    return camera_track(session, source, **options)
+    else:
+        track = camera_track(session, source, **options)
+    say_outages(session, track)
+    return track
+
+
+def say_outages(session: Session, track: CameraTrack) -> None:
+    """Each stretch of the video with no GNSS fix (app.camera.fixes.FixStatus.outages) said once
+    in the session's messages, in clip time, with what carries the track through it."""
+    if track.fixes is None or len(session.frame_times) == 0:
+        return
+    t0, t1 = float(session.frame_times[0]), float(session.frame_times[-1])
+    carried = (
+        "the registered keyframes carry the track"
+        if track.registration is not None
+        else "positions there run straight between the fixes around it"
+    )
+    for a, b in track.fixes.outages(t0, t1):
+        session.messages.add_once(f"gnss-outage-{a:.1f}", f"{outage_said(a, b, t0)}: {carried}")
 
 
 def solve_frames(session: Session, source: str) -> FramePoses:
@@ -62,11 +82,13 @@ def solve_frames(session: Session, source: str) -> FramePoses:
 
 
 def csv_rows(poses: FramePoses):
-    """FramePoses as text rows in COLUMNS order (fixed precision per column)."""
+    """FramePoses as text rows in COLUMNS order (fixed precision per column; gnss: what posed the
+    frame, app.camera.fixes: used, rejected, missing; empty where the track is not GNSS's)."""
     for i in range(len(poses)):
         yield [
             int(poses.index[i]), f"{poses.time_s[i]:.6f}", f"{poses.geodetic[i, 0]:.9f}", f"{poses.geodetic[i, 1]:.9f}",
             *(f"{v:.4f}" for v in (poses.geodetic[i, 2], *poses.enu[i], *poses.hpr[i])), *(f"{v:.8f}" for v in poses.q[i]),
+            "" if poses.gnss is None else str(poses.gnss[i]),
         ]  # fmt: skip
 
 

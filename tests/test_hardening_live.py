@@ -192,6 +192,19 @@ def test_live_refuses_a_port_that_is_not_a_port_at_once_in_one_line(url, said, c
 
 
 @pytest.mark.parametrize(
+    "argv",
+    [
+        ["view", "udp://127.0.0.1:notaport"],
+        ["view", "udp://127.0.0.1:5600", "--mavlink", "udpin:0.0.0.0:99999999"],
+    ],
+)
+def test_view_refuses_a_port_that_is_not_a_port_before_a_window_opens(argv, capsys):
+    assert main(argv) == 2
+    out, err = capsys.readouterr()
+    assert out == "" and err.count("\n") == 1 and "is not a port" in err and "Traceback" not in err
+
+
+@pytest.mark.parametrize(
     "address", ["udp:127.0.0.1:notaport", "udpin:0.0.0.0:99999999", "tcp:h:-1"]
 )
 def test_live_refuses_a_mavlink_port_that_is_not_a_port(address, capsys):

@@ -9,6 +9,7 @@ from pathlib import Path
 from app.cli.common import layers
 from app.core.errors import GeofuseError
 from app.live.feed import LiveOptions
+from app.live.probe import mavlink_refusal, stream_refusal
 from app.live.receiver import protocols_missing
 from app.ui.live import is_stream
 from app.ui.script import parse_script
@@ -27,9 +28,15 @@ def run(args: argparse.Namespace) -> int:
         )
     stream = streams[0] if streams else None
     if stream is not None:
-        missing = protocols_missing(stream)
-        if missing:
-            raise GeofuseError(missing)
+        # what cannot open (a protocol FFmpeg lacks, a port that is not a port) is said before
+        # a window opens, as `geofuse live` says it
+        refused = (
+            protocols_missing(stream)
+            or stream_refusal(stream)
+            or (args.mavlink and mavlink_refusal(args.mavlink))
+        )
+        if refused:
+            raise GeofuseError(refused)
     live = LiveOptions(
         delay_s=args.buffer_ms / 1000.0,
         origin=tuple(args.origin) if args.origin else None,

@@ -407,3 +407,15 @@ def test_render_of_a_manifest_naming_ten_clips_warns_once(tmp_path, capsys):
     assert "at most 8 projectors" in warned[0]
     assert captured.out.count("clip.mp4 frame") == 10
     assert hashlib.sha256(manifest.read_bytes()).hexdigest() == digest
+
+
+@pytest.mark.gl
+def test_export_video_takes_a_further_clips_source_from_its_table(tmp_path, capsys):
+    """export video opens a manifest's further clips under their [[clips]] source as render does:
+    one the clip does not offer is refused naming the table's key, before anything is drawn."""
+    manifest = _manifest_with_clips(tmp_path / "walk", ['source = "camera"'])
+    out = tmp_path / "v.mp4"
+    argv = ["export", "video", str(manifest), "--source", "gd-ahrs", "--out", str(out)]
+    assert main(argv) == 2
+    _said(capsys.readouterr().err, str(manifest), "field 'clips[0].source'", "'camera'", "offers")
+    assert not out.exists()

@@ -14,7 +14,7 @@ import numpy as np
 from app.camera.pinhole import Camera
 from app.camera.profiles import still_camera
 from app.core.constants import DRONE_DEFAULT_PITCH_DEG
-from app.core.errors import GeofuseError
+from app.core.errors import GeofuseError, ManifestError
 from app.core.imageio import read_rgb
 from app.core.outputs import check_output
 from app.core.progress import ProgressBar
@@ -25,6 +25,7 @@ from app.scene import Placement
 from app.scene.layers import Layer, LoadedLayers, load_layers, named_layers
 from app.scene.mesh import MeshData
 from app.session.camera_track import CameraTrack
+from app.session.config import ClipRef
 from app.session.model import Session
 from app.solve.track import solve_track
 from app.world.build import world_layer
@@ -113,6 +114,22 @@ def open_with_source(
         source = session.sources[0]
     if source not in session.sources:
         raise GeofuseError(f"--source {source}: this session offers {', '.join(session.sources)}")
+    return session, source
+
+
+def open_further(
+    ref: ClipRef, args: argparse.Namespace, suffixes: tuple[str, ...], manifest: Path, key: str
+) -> tuple[Session, str]:
+    """(session, source) of a further clip: --source where it offers it, else its own first;
+    the manifest's [[clips]] `source` where it names one (ManifestError naming `key` in
+    `manifest` when the clip does not offer it)."""
+    session, source = open_with_source(ref.path, args, suffixes, any_source=True)
+    if ref.source is not None:
+        try:
+            session.check_source(ref.source)
+        except ValueError as exc:
+            raise ManifestError(manifest, f"{exc} ({ref.path})", field=key) from exc
+        source = ref.source
     return session, source
 
 

@@ -9,7 +9,13 @@ from pathlib import Path
 
 import numpy as np
 
-from app.cli.common import open_with_source, print_messages, print_scene_report, solved
+from app.cli.common import (
+    open_further,
+    open_with_source,
+    print_messages,
+    print_scene_report,
+    solved,
+)
 from app.core.errors import GeofuseError
 from app.core.outputs import IMAGE_SUFFIXES, check_output
 from app.core.progress import ProgressBar
@@ -27,6 +33,7 @@ from app.export.painted_tiles import atlas_tiles, page_tiles, write_painted_tile
 from app.export.records import frame_records
 from app.geodesy.crs import parse_crs
 from app.io.area import read_area
+from app.session.config import ClipRef
 
 
 def _area(path: Path | None) -> tuple[float, float, float, float] | None:
@@ -151,16 +158,14 @@ def run(args: argparse.Namespace) -> int:
         session, source = open_with_source(inputs[0], args, suffixes)
         print_messages(session)
         further = []
-        refs = [(p, 0.0, 0.0) for p in inputs[1:]] if args.what == "video" else []
-        refs += (
-            [(r.path, r.offset_s, r.priority) for r in session.further]
-            if args.what == "video"
-            else []
-        )
-        for path, offset, priority in refs:  # further clips drawn in the video
-            s, src = open_with_source(path, args, suffixes, any_source=True)
+        refs = [ClipRef(p) for p in inputs[1:]] if args.what == "video" else []
+        named = len(refs)
+        refs += list(session.further) if args.what == "video" else []
+        for k, ref in enumerate(refs):  # further clips drawn in the video
+            key = f"clips[{k - named}].source"  # the manifest's [[clips]] table, from 0
+            s, src = open_further(ref, args, suffixes, session.path, key)
             print_messages(s)
-            further.append((s, solved(s, src), offset, priority))
+            further.append((s, solved(s, src), ref.offset_s, ref.priority))
         line = export_session(
             args.what,
             session,

@@ -11,6 +11,7 @@ from app.camera.frame_time import frame_at
 from app.camera.intrinsics import Intrinsics
 from app.cli.common import (
     nothing_drawn,
+    open_further,
     open_with_source,
     print_messages,
     print_scene_report,
@@ -19,7 +20,7 @@ from app.cli.common import (
     still_scene,
 )
 from app.core.constants import DEFAULT_NEAR_M
-from app.core.errors import GeofuseError, ManifestError
+from app.core.errors import GeofuseError
 from app.core.imageio import write_rgb
 from app.core.outputs import IMAGE_SUFFIXES, check_output
 from app.core.settings import OverlaySettings
@@ -116,15 +117,8 @@ def _others(args: argparse.Namespace, first: Session, index: int) -> tuple[list,
         return [], [], ""
     sessions = []
     for k, ref in enumerate(refs):
-        session, source = open_with_source(ref.path, args, IMAGE_SUFFIXES, any_source=True)
-        if ref.source is not None:  # the manifest's [[clips]] source, the clip's own to offer
-            try:
-                session.check_source(ref.source)
-            except ValueError as exc:
-                key = f"clips[{k - len(args.session) + 1}].source"
-                raise ManifestError(first.path, f"{exc} ({ref.path})", field=key) from exc
-            source = ref.source
-        sessions.append((session, source))
+        key = f"clips[{k - len(args.session) + 1}].source"  # the [[clips]] table, from 0
+        sessions.append(open_further(ref, args, IMAGE_SUFFIXES, first.path, key))
     line = Timeline.of([first, *(s for s, _ in sessions)], [0.0, *(r.offset_s for r in refs)])
     t = float(line.clips[0].times[index])
     extras, ages, parts = [], [], []

@@ -13,6 +13,8 @@ import numpy as np
 import pytest
 
 from app.camera.fixes import MISSING, REJECTED, USED, FixStatus
+from app.export.gis import properties
+from app.export.records import frame_records
 from app.register.gnss import check_fixes
 from app.register.solve import registered_track
 from app.session import open_session
@@ -148,6 +150,10 @@ def test_a_jump_is_said_once_rejected_and_not_followed(solved):
     assert np.percentile(error, 99) < 2.0, np.percentile(error, 99)
     header, *rows = [COLUMNS, *csv_rows(poses)]
     assert header[-1] == "gnss" and {r[-1] for r in rows} == {USED, REJECTED}
+    # the footprints say it too, frame by frame (a `gnss` property)
+    records = list(frame_records(session, track.source, every=60, track=track))
+    assert [properties(r)["gnss"] for r in records] == [poses.gnss[r.index] for r in records]
+    assert {r.gnss for r in records} == {USED, REJECTED}
 
 
 @pytest.mark.gl

@@ -67,6 +67,7 @@ def properties(r: FrameRecord) -> dict[str, object]:
     return {
         "clip": r.clip,
         "frame": r.index,
+        "gnss": r.gnss,
         "time_s": round(r.session_s, 6),
         "media_time_s": round(r.media_s, 6),
         "utc": iso_utc(r.utc_s),

@@ -11,7 +11,7 @@ record says so (`clipped`).
 from __future__ import annotations
 
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -60,6 +60,7 @@ class FrameRecord:
     undulation: np.ndarray
     ground: np.ndarray
     clip: str = ""  # the video file the frame is from (several clips in one export)
+    gnss: str | None = None  # what its position stands on (app.camera.fixes); None: no GNSS
 
     @property
     def sensor_msl_m(self) -> float:
@@ -222,7 +223,10 @@ def frame_records(
         for n, k in enumerate(frames):
             media = float(track.clock.media_s[k])
             t = float(track.clock.session_time(media))
-            yield caster.record(track.frame_camera(k), k, media, t, session.utc_of(t), clip)
+            record = caster.record(track.frame_camera(k), k, media, t, session.utc_of(t), clip)
+            if track.fixes is not None:  # used, rejected or missing (issue 52)
+                record = replace(record, gnss=str(track.fixes.at([t])[0]))
+            yield record
             if progress is not None:
                 progress((n + 1) / len(frames))
     finally:

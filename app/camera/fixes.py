@@ -11,8 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from app.camera.trajectory import gap_intervals
-from app.core.constants import GAP_FACTOR, GAP_MIN_S
+from app.camera.trajectory import gap_intervals, gap_limit_s
 
 FloatArray = npt.NDArray[np.float64]
 USED, REJECTED, MISSING = "used", "rejected", "missing"
@@ -36,8 +35,7 @@ class FixStatus:
     @property
     def gap_limit_s(self) -> float:
         """An interval between fixes longer than this (s) is an outage (gap_intervals' rule)."""
-        dt = np.diff(self.t)
-        return max(GAP_MIN_S, GAP_FACTOR * float(np.median(dt))) if len(dt) else GAP_MIN_S
+        return gap_limit_s(self.t)
 
     def at(self, tq: npt.ArrayLike) -> npt.NDArray[np.str_]:
         """(M,) USED, REJECTED or MISSING at session times tq (s): MISSING inside an outage or

@@ -35,13 +35,17 @@ def estimate_velocity(t: FloatArray, enu: FloatArray) -> FloatArray:
     return np.gradient(enu, t, axis=0, edge_order=1)
 
 
-def gap_intervals(t: npt.ArrayLike) -> npt.NDArray[np.bool_]:
-    """(N-1,) which intervals between fixes at times t (s) are gaps: longer than GAP_MIN_S and
-    than GAP_FACTOR times the median interval."""
+def gap_limit_s(t: npt.ArrayLike) -> float:
+    """Seconds beyond which an interval between fixes at times t (s) is a gap: GAP_MIN_S, or
+    GAP_FACTOR times the median interval where that is longer."""
     dt = np.diff(np.asarray(t, np.float64))
-    if len(dt) == 0:
-        return np.zeros(0, bool)
-    return dt > max(GAP_MIN_S, GAP_FACTOR * float(np.median(dt)))
+    return max(GAP_MIN_S, GAP_FACTOR * float(np.median(dt))) if len(dt) else GAP_MIN_S
+
+
+def gap_intervals(t: npt.ArrayLike) -> npt.NDArray[np.bool_]:
+    """(N-1,) which intervals between fixes at times t (s) are gaps: longer than gap_limit_s."""
+    dt = np.diff(np.asarray(t, np.float64))
+    return dt > gap_limit_s(t)
 
 
 def gaps_said(t: npt.ArrayLike) -> str:

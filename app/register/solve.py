@@ -488,7 +488,7 @@ def tested_fixes(
     # witnesses: the keyframes the gate kept (each agreeing with its neighbours), not every one
     # registered: a run of keyframes registered wrongly on a scene of repeated textures would
     # otherwise accuse a clean GNSS
-    solved = [k for k in keyframes if k.registered and k.used]
+    solved = [k for k in keyframes if k.used]  # used: registered, and kept by the gate
     key_t = np.array([k.time_s for k in solved], np.float64)
     key_enu = np.array([k.position for k in solved], np.float64).reshape(-1, 3)
     return check_fixes(fixes.t, enu, acc, key_t, key_enu, settings or CheckSettings())

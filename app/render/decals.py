@@ -74,7 +74,6 @@ class DeferredProjectors:
         self.claims_fbo: moderngl.Framebuffer | None = None  # claims alone (cleared each frame)
         self.drawn = 0  # projectors drawn in the last frame
         self._reach: list[np.ndarray] = []  # their polygons (window NDC), for `pixels`
-        self._viewport_size = (0, 0)
 
     def _ensure(self, size: tuple[int, int]) -> None:
         if self.size == size:
@@ -130,8 +129,7 @@ class DeferredProjectors:
         if not decals:
             return
         ctx = self.ctx
-        vx, vy, vw, vh = self.scene_fbo.viewport
-        self._viewport_size = (vw, vh)
+        vx, vy, _, vh = self.scene_fbo.viewport
         i = view.intrinsics
         self.claims_fbo.use()
         self.claims_fbo.clear(depth=1.0)
@@ -185,7 +183,9 @@ class DeferredProjectors:
     def pixels(self) -> int:
         """Screen pixels the last frame's reach polygons covered, summed (worked out when asked:
         a statistic, not a cost every frame pays)."""
-        w, h = self._viewport_size
+        if not self._reach:
+            return 0
+        _, _, w, h = self.scene_fbo.viewport  # the last frame's (begin sets it)
         return sum(polygon_pixels(p, w, h) for p in self._reach)
 
     def overlays(self) -> moderngl.Framebuffer:

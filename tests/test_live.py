@@ -300,3 +300,42 @@ def test_live_positions_that_jump_are_not_followed():
     moved = [replace(s, values={**s.values, "sensor_latitude_deg": 10.0}) for s in sets]
     kept = [poses.add(1.0 + 0.1 * k, s) for k, s in enumerate(moved)]
     assert kept == [False] * 9 + [True] and poses.jumps == 10
+
+
+class _Kept:
+    """A sink that keeps what it is given (app.share.hub.Sink)."""
+
+    name = "kept"
+
+    def __init__(self):
+        self.frames, self.marks, self.closed = [], [], False
+
+    def send_frame(self, frame):
+        self.frames.append(frame)
+
+    def send_marks(self, marks):
+        self.marks.append(marks)
+
+    def close(self):
+        self.closed = True
+
+
+def test_a_feed_shares_each_drawn_frames_pose_and_point_of_interest(feed, tmp_path):
+    """`live` with a sink (issue 53): the frames shared are frames drawn, each with the pose it
+    was drawn with, its point of interest on its own optical axis, the pose source said, the
+    stream named and a picture; the sink is closed at the end."""
+    kept = _Kept()
+    run, _, cameras = _run_with_sender(feed, tmp_path, {}, sinks=(lambda messages: kept,))
+    assert kept.closed and kept.frames
+    assert len(kept.frames) <= len(cameras)
+    drawn = {round(d.pts_s, 6): cam for d, cam in cameras}
+    for f in kept.frames:
+        cam = drawn[round(f.media_s, 6)]
+        sensor = run.frame.geodetic_to_enu(*f.sensor)
+        assert np.linalg.norm(sensor - np.asarray(cam.position)) < 0.01
+        axis = cam.pixel_rays(np.array([[cam.intrinsics.width / 2, cam.intrinsics.height / 2]]))[0]
+        to_centre = run.frame.geodetic_to_enu(*f.centre) - np.asarray(cam.position)
+        off_deg = np.degrees(np.arccos(axis @ to_centre / np.linalg.norm(to_centre)))
+        assert off_deg < 0.05
+        assert (f.source, f.clip) == ("klv", run.url)
+    assert kept.frames[0].thumbnail[:2] == b"\xff\xd8"

@@ -196,6 +196,9 @@ class LiveOptions:
     hfov_deg: float | None = None
     segments: Path | None = None  # the viewer's rolling recording: a folder of segments
     register: bool = True  # register keyframes against a textured scene, forward only
+    # where the drawn frames are shared (issue 53): makers of app.share.hub.Sink, each called
+    # with the run's Messages once the scene is built
+    sinks: tuple = ()
 
 
 def scene_for(poses: LivePoses | MavlinkPoses, options: LiveOptions, messages: Messages):
@@ -349,6 +352,15 @@ class LiveFeed:
         in force, and its state (fresh, stale, none): the last camera drawn stands in for a
         missing one."""
         return self._corrected(self._telemetry_camera(t))
+
+    @property
+    def pose_source(self) -> str:
+        """What poses the frames drawn now: "registered" once live registration's correction is
+        in force, else the telemetry's own ("mavlink" or "klv")."""
+        reg = self.registration
+        if reg is not None and reg.state.shift_m is not None:
+            return "registered"
+        return "mavlink" if self.mav is not None else "klv"
 
     def _corrected(self, raw: tuple[Camera, str] | None) -> tuple[Camera | None, str]:
         if raw is None:

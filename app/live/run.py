@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from urllib.parse import urlsplit
 
 from app.camera.intrinsics import Intrinsics
 from app.camera.pinhole import Camera
@@ -19,8 +20,9 @@ from app.render.context import create_offscreen_context, keep_current, wait_for_
 from app.render.offscreen import OffscreenTarget
 from app.render.renderer import FusionRenderer
 from app.render.still import window_camera
+from app.share.hub import Offer, Share
 
-__all__ = ["Drawn", "LiveOptions", "LiveRun", "run_live"]
+__all__ = ["Drawn", "LiveOptions", "LiveRun", "offer_drawn", "open_share", "run_live"]
 
 VIEW_HFOV_DEG = 60.0  # the off-screen view, third person behind the projector
 
@@ -38,7 +40,7 @@ def run_live(
     feed = LiveFeed(url, options, clock=clock).start()
     run = feed.run
     start = clock()
-    ctx = renderer = target = None
+    ctx = renderer = target = share = None
     view_intr = Intrinsics.from_fov(*options.size, VIEW_HFOV_DEG)
     try:
         while True:
@@ -61,6 +63,8 @@ def run_live(
                 ctx = create_offscreen_context()
                 renderer = FusionRenderer(ctx, mesh)
                 target = OffscreenTarget(ctx, *options.size)
+                if options.sinks:
+                    share = open_share(feed, mesh, options.sinks)
             shown = feed.take(now)
             if shown is None:
                 time.sleep(min(max(feed.next_wake(now) - clock(), 0.0005), 0.005))
@@ -74,12 +78,48 @@ def run_live(
             wait_for_gpu(ctx)
             d = Drawn(item.pts_s, item.arrival_s, due, clock(), state)
             run.add_drawn(d)
+            if share is not None:
+                offer_drawn(share, feed, item, camera)
             if on_drawn is not None:
                 on_drawn(d, camera)
     finally:
+        if share is not None:
+            share.close()
         feed.stop()
         if renderer is not None:
             target.release()
             renderer.release()
             ctx.release()
     return run
+
+
+def open_share(feed: LiveFeed, mesh, sinks: tuple) -> Share:
+    """The sharing hub of a feed whose scene is built: its sinks made (each maker called with
+    the run's Messages) and started."""
+    messages = feed.run.messages
+    made = [make(messages) for make in sinks]
+    return Share(mesh, feed.frame, feed.intrinsics, made, messages).start()
+
+
+def offer_drawn(share: Share, feed: LiveFeed, item, camera: Camera) -> None:
+    """Hand the hub a frame just drawn (its picture only when the hub would take it now)."""
+    share.offer(
+        Offer(
+            camera,
+            feed.run.frames_drawn,
+            float(item.pts_s),
+            clip=without_credentials(feed.url),
+            source=feed.pose_source,
+            picture=item.payload if share.due() else None,
+        )
+    )
+
+
+def without_credentials(url: str) -> str:
+    """The URL with any user name and password left out (what is shared names the stream, never
+    a secret in its address)."""
+    parts = urlsplit(url)
+    if parts.username is None and parts.password is None:
+        return url
+    host = (parts.hostname or "") + (f":{parts.port}" if parts.port else "")
+    return parts._replace(netloc=host).geturl()

@@ -23,6 +23,7 @@ from app.live.buffer import Arrival
 from app.live.feed import Drawn, LiveFeed, LiveOptions, LiveRun
 from app.live.recorder import SegmentRecorder
 from app.render.renderer import FusionRenderer
+from app.scene.mesh import MeshData
 from app.ui.navigation import Navigator, chase
 
 log = logging.getLogger("geofuse.viewer")
@@ -52,6 +53,8 @@ class LiveView:
     pose_state: str = ""  # the shown frame's pose: fresh, stale (older than the buffer), none
     ended: str = ""  # why the scene could not be built (then not tried again each frame)
     pose_states: dict[str, int] = field(default_factory=dict)
+    mesh: MeshData | None = None  # the scene built around the first position
+    shown_item: Arrival | None = None  # the frame on the renderer
 
     @property
     def run(self) -> LiveRun:
@@ -143,6 +146,7 @@ def update(v) -> None:
             L.ended = str(exc)
             return
         L.renderer = FusionRenderer(v.window.ctx, mesh)
+        L.mesh = mesh
     if L.review_s is None:
         shown = feed.take(now)
         if shown is not None:
@@ -169,6 +173,7 @@ def _show(L: LiveView, item: Arrival, camera) -> None:
     L.renderer.set_video_yuv(y, u, v_, 0, y.shape[0] >= 720)
     L.renderer.set_projector(camera)
     L.shown_s = item.pts_s
+    L.shown_item = item
 
 
 def swapped(v) -> None:

@@ -34,7 +34,7 @@ from app.render.context import describe
 from app.render.renderer import BACKGROUND
 from app.render.window import Window
 from app.session.model import REGISTERED
-from app.ui import clips, live, measure, memory, panels
+from app.ui import clips, live, measure, memory, panels, share
 from app.ui.commands import run_command
 from app.ui.gui import Gui
 from app.ui.inputs import handle_input
@@ -65,6 +65,7 @@ class Options:
     more: tuple = ()  # further clips (paths) played with the first on one timeline
     stream: str | None = None  # a stream URL to receive instead of a file (app.ui.live)
     live: LiveOptions | None = None  # its options (MAVLink, field of view, buffer, origin)
+    sinks: tuple = ()  # where the shown frames are shared (app.ui.share: makers of sinks)
 
 
 class FixedStepClock:
@@ -89,6 +90,7 @@ class Viewer(ViewerJobs, ViewerSessions):
         self.loaded: Loaded | None = None
         self.live: live.LiveView | None = None  # an open stream instead of a session
         self.ui = UiState()
+        self.share = share.ViewerShare(list(options.sinks))
         self.nav = Navigator()
         self.stats = Stats()
         self.script: list[Action] = []
@@ -208,6 +210,7 @@ class Viewer(ViewerJobs, ViewerSessions):
         self.poll_open()
         if self.live is not None:
             live.update(self)
+            share.update(self)
             return
         L = self.loaded
         if L is None:
@@ -237,6 +240,7 @@ class Viewer(ViewerJobs, ViewerSessions):
         if track is not None and L.trajectory_version != (lib.version, L.source):
             L.renderer.set_trajectory(track.frame_poses(TRAJECTORY_STEP).enu)
             L.trajectory_version = (lib.version, L.source)
+        share.update(self)
 
     def _draw(self) -> None:
         fb_w, fb_h = self.window.clear(BACKGROUND)
@@ -442,6 +446,7 @@ class Viewer(ViewerJobs, ViewerSessions):
                     p95,
                     self.loaded.player.stats.dropped,
                 )
+            share.close(self.share)
             live.close(self)
             self.close_session()
             gui.shutdown()

@@ -35,6 +35,7 @@ from scipy.ndimage import map_coordinates
 
 from app.camera.pinhole import Camera, image_size
 from app.geodesy import rotations
+from app.render.coverage import frustum_planes
 
 RULES = ("newest", "best", "first")
 QUALITY_RANGE_M = 100.0  # quality halves at this range (head-on)
@@ -50,20 +51,11 @@ MIN_COS_INCIDENCE = (
 )
 
 
-def frustum_planes(camera: Camera) -> np.ndarray:
-    """(6, 4) planes (a, b, c, d) of the camera's pinhole frustum, normals inward (ENU)."""
-    m = np.asarray(camera.view_projection, np.float64)
-    planes = np.stack(
-        [m[3] + m[0], m[3] - m[0], m[3] + m[1], m[3] - m[1], m[3] + m[2], m[3] - m[2]]
-    )
-    return planes / np.linalg.norm(planes[:, :3], axis=1, keepdims=True)
-
-
 def boxes_in_frustum(camera: Camera, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     """(B,) bool: which boxes (lo, hi (B, 3) ENU m corners) the camera's pinhole frustum
     meets (conservatively: a box beside a corner of the frustum may be counted in)."""
     inside = np.ones(len(lo), bool)
-    for a, b, c, d in frustum_planes(camera):
+    for a, b, c, d in frustum_planes(camera.view_projection):  # a sign test: unnormalised
         far_corner = np.where(np.array([a, b, c]) > 0, hi, lo)
         inside &= far_corner @ np.array([a, b, c]) + d >= 0
     return inside

@@ -62,17 +62,25 @@ def boxes_in_frustum(camera: Camera, lo: np.ndarray, hi: np.ndarray) -> np.ndarr
 
 
 @njit(cache=True)
-def _pinhole_in_image(points, idx, r, pos, k, size):  # pragma: no cover - compiled
-    """Samples points[idx] (ENU m) through a lensless camera (r: camera -> ENU rotation (3, 3),
-    pos: its position; k = (fx, fy, cx, cy) of its image, scaled by (sx, sy) to the frame's)
-    in one pass: (N, 2) frame pixels (u, v), (N,) depth along the axis (m), (N,) whether in
-    front and inside the frame of size (w, h). What Camera.project and the bounds test give."""
+def _pinhole_visible(
+    points, normals, idx, r, pos, k, size, dscale, dist, agree, has_agree, sigmas
+):  # pragma: no cover - compiled
+    """SurfaceMemory._samples for a lensless camera in one pass over the samples idx: (N,)
+    which are kept (inside the frame, within the distance map's surface plus the depth bias,
+    facing the camera), (N, 2) their frame pixels, (N,) float32 quality. k = (fx, fy, cx, cy) of the
+    camera's image scaled by (sx, sy) to the frame's, size its (w, h); dscale: the distance map's pixels per camera pixel (x, y); dist and
+    agree: the distance (m) and agreement maps, looked up at the nearest pixel as scipy's
+    map_coordinates(order=0, mode="nearest") does; sigmas: (position m, attitude rad)."""
     fx, fy, cx, cy, sx, sy = k
     w, h = size
+    dsx, dsy = dscale
+    dh, dw = dist.shape
+    ah, aw = agree.shape
+    s0, s1 = sigmas
     n = len(idx)
+    keep = np.zeros(n, np.bool_)
     uv = np.empty((n, 2))
-    depth = np.empty(n)
-    inside = np.zeros(n, np.bool_)
+    quality = np.zeros(n, np.float32)
     for j in range(n):
         i = idx[j]
         dx = points[i, 0] - pos[0]
@@ -81,15 +89,33 @@ def _pinhole_in_image(points, idx, r, pos, k, size):  # pragma: no cover - compi
         x = dx * r[0, 0] + dy * r[1, 0] + dz * r[2, 0]
         y = dx * r[0, 1] + dy * r[1, 1] + dz * r[2, 1]
         d = -(dx * r[0, 2] + dy * r[1, 2] + dz * r[2, 2])
-        depth[j] = d
-        if d > 0.0:
-            u = (fx * x / d + cx) * sx
-            v = (cy - fy * y / d) * sy
-            uv[j, 0], uv[j, 1] = u, v
-            inside[j] = u >= 0.0 and u < w and v >= 0.0 and v < h
-        else:
-            uv[j, 0], uv[j, 1] = np.nan, np.nan
-    return uv, depth, inside
+        if not d > 0.0:
+            continue
+        u = (fx * x / d + cx) * sx
+        v = (cy - fy * y / d) * sy
+        if not (u >= 0.0 and u < w and v >= 0.0 and v < h):
+            continue
+        rng = np.sqrt(dx * dx + dy * dy + dz * dz)
+        row = int(np.floor((v / sy) * dsy - 0.5 + 0.5))
+        col = int(np.floor((u / sx) * dsx - 0.5 + 0.5))
+        if (
+            not rng
+            <= dist[min(max(row, 0), dh - 1), min(max(col, 0), dw - 1)]
+            + DEPTH_BIAS_M
+            + DEPTH_BIAS_PER_M * rng
+        ):
+            continue
+        cos = abs(dx * normals[i, 0] + dy * normals[i, 1] + dz * normals[i, 2]) / rng
+        if not cos >= MIN_COS_INCIDENCE:
+            continue
+        a = 1.0
+        if has_agree:
+            a = agree[min(max(row, 0), ah - 1), min(max(col, 0), aw - 1)]
+        off_m = np.hypot(s0, rng * s1)
+        quality[j] = a * cos / (1.0 + rng / QUALITY_RANGE_M) / (1.0 + off_m / QUALITY_UNCERTAINTY_M)
+        uv[j, 0], uv[j, 1] = u, v
+        keep[j] = True
+    return keep, uv, quality
 
 
 def agreement(frame_rgb: np.ndarray, model_rgb: np.ndarray) -> np.ndarray:
@@ -177,51 +203,43 @@ class SurfaceMemory:
         blocks = [np.arange(s, min(s + BLOCK, n)) for s in self._starts[inside]]
         return np.concatenate(blocks) if blocks else np.zeros(0, np.int64)
 
-    def paint(
-        self,
-        rgb: np.ndarray,
-        camera: Camera,
-        distances: np.ndarray,
-        time_s: float,
-        agreement: np.ndarray | None = None,
-        sigmas: tuple[float, float] = (0.0, 0.0),
-    ) -> int:
-        """Paint one frame: rgb (H, W, 3) uint8 (the camera's image, at any scale); distances
-        (h, w) metres from the camera to the scene through each pixel of its pinhole
-        (app.render.views, any resolution: it is scaled), inf where none; agreement (h, w) the
-        frame's with the model through the same pinhole pixels (`agreement`), or None; sigmas:
-        the pose's uncertainty (position m, attitude deg; app.solve.uncertainty.frame_sigmas).
-        Returns the samples painted."""
-        idx = self._in_view(camera)
-        if not len(idx):
-            return 0
-        h, w = rgb.shape[:2]
+    def _pinhole_samples(self, idx, frame_hw, camera, distances, agreement, sigmas):
+        """What `_samples` gives, for a lensless camera, in one compiled pass."""
+        h, w = frame_hw
+        iw, ih = image_size(camera)
+        i = camera.intrinsics
+        dh, dw = distances.shape
+        keep, uv, quality = _pinhole_visible(
+            self.points,
+            self.normals,
+            idx,
+            rotations.to_matrix(camera.orientation),
+            np.asarray(camera.position, np.float64),
+            (i.fx, i.fy, i.cx, i.cy, w / iw, h / ih),
+            (float(w), float(h)),
+            (dw / i.width, dh / i.height),
+            np.ascontiguousarray(distances),
+            np.ones((1, 1), np.float32) if agreement is None else np.ascontiguousarray(agreement),
+            agreement is not None,
+            (float(sigmas[0]), float(np.radians(sigmas[1]))),
+        )
+        return idx[keep], uv[keep], quality[keep]
+
+    def _samples(self, idx, frame_hw, camera, distances, agreement, sigmas):
+        """(indices, frame pixels (N, 2), quality (N,) float32) of the samples idx that the
+        camera sees in a frame of frame_hw (h, w): inside it, not hidden behind the distance
+        map's surface, facing it; any camera (a real lens through Camera.project)."""
+        h, w = frame_hw
         iw, ih = image_size(camera)
         scale = (w / iw, h / ih)  # frames may be decoded smaller than the camera's image
-        if camera.lens is None:  # the image is the pinhole's: one compiled pass
-            i = camera.intrinsics
-            uv, depth, inside = _pinhole_in_image(
-                self.points,
-                idx,
-                rotations.to_matrix(camera.orientation),
-                np.asarray(camera.position, np.float64),
-                (i.fx, i.fy, i.cx, i.cy, *scale),
-                (float(w), float(h)),
-            )
-            idx, uv = idx[inside], uv[inside]
-            p = self.points[idx].astype(np.float64)
-        else:
-            p = self.points[idx].astype(np.float64)
-            uv, depth = camera.project(p)
-            uv = uv * scale
-            inside = (depth > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < w) & (uv[:, 1] >= 0) & (uv[:, 1] < h)  # fmt: skip
-            idx, p, uv = idx[inside], p[inside], uv[inside]
-        if not len(idx):
-            return 0
+        p = self.points[idx].astype(np.float64)
+        uv, depth = camera.project(p)
+        uv = uv * scale
+        inside = (depth > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < w) & (uv[:, 1] >= 0) & (uv[:, 1] < h)  # fmt: skip
+        idx, p, uv = idx[inside], p[inside], uv[inside]
         ray = p - np.asarray(camera.position, np.float64)
         rng = np.linalg.norm(ray, axis=1)
         # the distance map is drawn through the camera's pinhole: where does the point fall?
-        # (without a lens, where it falls in the image, scaled back)
         pin = uv / scale if camera.lens is None else camera.pinhole().project(p)[0]
         dh, dw = distances.shape
         sx, sy = dw / camera.intrinsics.width, dh / camera.intrinsics.height
@@ -240,8 +258,6 @@ class SurfaceMemory:
             uv[visible],
             agree[visible],
         )
-        if not len(idx):
-            return 0
         cos = np.abs(np.einsum("ij,ij->i", ray, self.normals[idx])) / rng
         facing = cos >= MIN_COS_INCIDENCE
         idx, cos, rng, uv, agree = idx[facing], cos[facing], rng[facing], uv[facing], agree[facing]
@@ -249,7 +265,36 @@ class SurfaceMemory:
         quality = (
             agree * cos / (1.0 + rng / QUALITY_RANGE_M) / (1.0 + off_m / QUALITY_UNCERTAINTY_M)
         )
-        quality = quality.astype(np.float32)
+        return idx, uv, quality.astype(np.float32)
+
+    def paint(
+        self,
+        rgb: np.ndarray,
+        camera: Camera,
+        distances: np.ndarray,
+        time_s: float,
+        agreement: np.ndarray | None = None,
+        sigmas: tuple[float, float] = (0.0, 0.0),
+    ) -> int:
+        """Paint one frame: rgb (H, W, 3) uint8 (the camera's image, at any scale); distances
+        (h, w) metres from the camera to the scene through each pixel of its pinhole
+        (app.render.views, any resolution: it is scaled), inf where none; agreement (h, w) the
+        frame's with the model through the same pinhole pixels (`agreement`), or None; sigmas:
+        the pose's uncertainty (position m, attitude deg; app.solve.uncertainty.frame_sigmas).
+        Returns the samples painted."""
+        idx = self._in_view(camera)
+        if not len(idx):
+            return 0
+        if camera.lens is None:  # the image is the pinhole's: one compiled pass
+            idx, uv, quality = self._pinhole_samples(
+                idx, rgb.shape[:2], camera, distances, agreement, sigmas
+            )
+        else:
+            idx, uv, quality = self._samples(
+                idx, rgb.shape[:2], camera, distances, agreement, sigmas
+            )
+        if not len(idx):
+            return 0
         # the history keeps every sighting, so its colours are read for all; else only for the kept
         colour = self._colours(rgb, uv) if self.history is not None else None
         if colour is not None:

@@ -7,6 +7,7 @@ from __future__ import annotations
 import functools
 import http.server
 import threading
+import urllib.parse
 from pathlib import Path
 
 import numpy as np
@@ -17,6 +18,7 @@ from app.camera.pinhole import Camera, look_at_quat
 from app.geodesy.enu import LocalFrame
 from app.scene import shapes
 from app.scene.mesh import MeshData
+from app.scene.tiles import fetch
 from app.scene.tiles import write as tjw
 from app.scene.tiles.stream import TileStream, TileView
 from app.scene.tiles.tileset import Tileset, TilesetError
@@ -517,3 +519,58 @@ def test_a_worker_survives_any_failure_of_one_tile(tmp_path):
         assert len(sel.tiles) == 1
     finally:
         stream.close()
+
+
+class _Keyed(_Quiet):
+    """Answers 403 without the key, and for anything but the root without the session the
+    root's children name (as Google Photorealistic 3D Tiles does); keeps every request."""
+
+    KEY, SESSION = "k3y-Secret_9", "s3ss10n"
+    seen: list[str] = []
+
+    def do_GET(self):  # noqa: N802 - http.server's name
+        parts = urllib.parse.urlsplit(self.path)
+        query = dict(urllib.parse.parse_qsl(parts.query))
+        self.seen.append(self.path)
+        root = parts.path == "/tileset.json"
+        if query.get("key") != self.KEY or (not root and query.get("session") != self.SESSION):
+            self.send_error(403, "no key, or no session")
+            return
+        self.path = parts.path
+        super().do_GET()
+
+
+@pytest.mark.gl
+def test_a_keyed_tileset_sends_its_key_and_session_to_every_child_and_never_shows_it(
+    gl_ctx, tmp_path
+):
+    """The root asked for with ?key=K names its children with ?session=S: every request carries
+    both (a child inheriting what its parent's URL carried), the video lands on the wall as from
+    a folder, and a child that fails is named without the key."""
+    external(tmp_path)
+    doc = (tmp_path / "tileset.json").read_text()
+    (tmp_path / "tileset.json").write_text(
+        doc.replace('"sub/tileset.json"', f'"sub/tileset.json?session={_Keyed.SESSION}"')
+    )
+    _Keyed.seen = []
+    server = http.server.ThreadingHTTPServer(
+        ("127.0.0.1", 0), functools.partial(_Keyed, directory=str(tmp_path))
+    )
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    base = f"http://127.0.0.1:{server.server_address[1]}/"
+    try:
+        assert_video_lands_on_wall(gl_ctx, open_tileset(f"{base}tileset.json?key={_Keyed.KEY}"))
+        assert len(_Keyed.seen) == 3  # the root, the external tileset, the wall
+        assert all(f"key={_Keyed.KEY}" in p for p in _Keyed.seen)
+        assert all(f"session={_Keyed.SESSION}" in p for p in _Keyed.seen[1:])
+        # a child on another host gets no key; a missing one is named without it
+        assert fetch.resolve(f"{base}tileset.json?key=K", "http://127.0.0.2/a.glb") == (
+            "http://127.0.0.2/a.glb"
+        )
+        with pytest.raises(fetch.FetchError) as err:
+            fetch.read(fetch.resolve(f"{base}tileset.json?key={_Keyed.KEY}", "gone.glb"))
+        assert _Keyed.KEY not in str(err.value) and "key=***" in str(err.value)
+        assert _Keyed.KEY not in fetch.display_name(f"{base}tileset.json?key={_Keyed.KEY}")
+    finally:
+        server.shutdown()
+        server.server_close()

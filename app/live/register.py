@@ -26,6 +26,7 @@ from app.camera.pinhole import Camera
 from app.core.messages import Messages
 from app.core.worker import Worker
 from app.geodesy import rotations
+from app.playback.decoder import planes_to_rgb
 from app.register.solve import Registrar, RegistrationSettings
 from app.scene.mesh import MeshData
 
@@ -59,14 +60,6 @@ class LiveCorrection:
             f"correction {np.linalg.norm(self.shift_m):.2f} m, {np.degrees(np.linalg.norm(self.rotvec)):.2f} deg, "
             f"applied from {self.since_s:.1f} s"
         )
-
-
-def yuv_to_rgb(planes) -> np.ndarray:
-    """(H, W, 3) uint8 RGB of yuv420p planes (y (H, W), u and v (H/2, W/2)), BT.601."""
-    y, u, v = planes
-    h, w = y.shape
-    stacked = np.concatenate([y.reshape(-1), u.reshape(-1), v.reshape(-1)]).reshape(h * 3 // 2, w)
-    return cv2.cvtColor(stacked, cv2.COLOR_YUV2RGB_I420)
 
 
 class LiveRegistration(Worker):
@@ -134,7 +127,7 @@ class LiveRegistration(Worker):
             registrar.release()
 
     def _keyframe(self, registrar: Registrar, t: float, planes, prior: Camera) -> None:
-        rgb = yuv_to_rgb(planes)
+        rgb = planes_to_rgb(planes)
         long_side = max(rgb.shape[:2])
         if long_side > self.settings.long_side:
             f = self.settings.long_side / long_side

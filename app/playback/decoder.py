@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import av
+import cv2
 import numpy as np
 
 from app.io.video import demux, media_seconds, open_video
@@ -51,6 +52,15 @@ def yuv_planes(frame) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     y = a[:h]
     chroma = a[h:].reshape(2, h // 2, w // 2)
     return np.ascontiguousarray(y), np.ascontiguousarray(chroma[0]), np.ascontiguousarray(chroma[1])
+
+
+def planes_to_rgb(planes: tuple[np.ndarray, np.ndarray, np.ndarray]) -> np.ndarray:
+    """(H, W, 3) uint8 RGB of yuv420p planes (y (H, W), u and v (H/2, W/2)), BT.601, as the
+    live registration and the shared pictures read them."""
+    y, u, v = planes
+    h, w = y.shape
+    stacked = np.concatenate([y.reshape(-1), u.reshape(-1), v.reshape(-1)]).reshape(h * 3 // 2, w)
+    return cv2.cvtColor(stacked, cv2.COLOR_YUV2RGB_I420)
 
 
 class Decoder:

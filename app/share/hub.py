@@ -27,7 +27,7 @@ from app.core.messages import Messages
 from app.core.worker import Worker
 from app.export.records import FOOTPRINT_MAX_RANGE_M, FootprintCaster
 from app.geodesy.enu import LocalFrame
-from app.live.register import yuv_to_rgb
+from app.playback.decoder import planes_to_rgb
 from app.scene.mesh import MeshData
 from app.share.frames import SharedFrame, shared_frame, thumbnail_jpeg
 
@@ -196,7 +196,7 @@ class Share(Worker):
             record = replace(record, gnss=offer.gnss)
         picture = offer.picture
         if isinstance(picture, tuple):
-            picture = yuv_to_rgb(picture)
+            picture = planes_to_rgb(picture)
         thumb = thumbnail_jpeg(picture) if picture is not None else None
         shared = shared_frame(record, offer.source, thumb)
         self.last = shared

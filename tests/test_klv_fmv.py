@@ -6,7 +6,9 @@ known at every instant."""
 
 from __future__ import annotations
 
+import csv
 import math
+import struct
 from pathlib import Path
 
 import numpy as np
@@ -18,21 +20,24 @@ from app.core.messages import Messages
 from app.export.records import frame_records
 from app.footage.clips import open_clip
 from app.geodesy import rotations
+from app.geodesy.geoid import undulation
 from app.io.klv_track import CARRY_LIMIT_S, KlvTrack, describe, read_klv
 from app.io.misb import (
     EG0104_KEY,
     KlvError,
+    ber_length,
     camera_orientation,
     encode,
     local_set,
     parse,
+    parse_any,
     read_ber,
     read_oid,
     split,
 )
 from app.io.video import probe
 from app.session.camera_track import camera_track
-from app.simulate.feed import Orbit, orbit_set
+from app.simulate.feed import UTC_START_S, Orbit, orbit_set
 from app.simulate.phone import write_video
 
 ORBIT = Orbit()
@@ -145,25 +150,166 @@ def test_sets_with_one_presentation_time_and_no_moving_stamp_are_refused_in_a_li
     assert "stuck.ts" in err and "cannot be placed in time" in err and "Traceback" not in err
 
 
-def _eg0104_packet() -> bytes:
-    """An EG 0104 Universal Metadata Set: its key, a BER length and one item (a 16-byte key,
-    a length, an 8-byte IEEE double: the device latitude of the older standard)."""
-    item = bytes.fromhex("060E2B34010101030701020102020000") + bytes([8]) + b"\x40\x41" + bytes(6)
-    return EG0104_KEY + bytes([len(item)]) + item
+# EG 0104.5's items as producers write them: each a 16-byte universal key (the version byte the
+# SMPTE dictionary gives it), numbers as big-endian IEEE 754 floats (positions 8 bytes, the
+# rest 4), the time stamp microseconds since 1970 in 8 bytes, names as text.
+EG = {
+    "time": "060E2B34010101030702010101050000",
+    "heading": "060E2B34010101070701100106000000",
+    "pitch": "060E2B34010101070701100105000000",
+    "roll": "060E2B34010101070701100104000000",
+    "lat": "060E2B34010101030701020102040200",
+    "lon": "060E2B34010101030701020102060200",
+    "alt": "060E2B34010101010701020102020000",  # above sea level
+    "hfov": "060E2B34010101020420020101080000",
+    "vfov": "060E2B340101010704200201010A0100",
+    "north": "060E2B34010101010701100102000000",  # Angle to North
+    "obliquity": "060E2B34010101010701100103000000",
+    "sroll": "060E2B34010101010701100101000000",  # Sensor Roll Angle
+    "clat": "060E2B34010101010701020103020000",
+    "clon": "060E2B34010101010701020103040000",
+    "celev": "060E2B340101010A0701020103160000",  # above sea level
+    "device": "060E2B34010101010101200100000000",
+    "sensor": "060E2B34010101010420010201010000",
+}
+SENSOR_ROLL = 3.0  # deg: the EG 0104 camera's roll about its line of sight
 
 
-def test_eg0104_metadata_is_named_alone_and_beside_st0601(tmp_path, capsys):
-    path = _video(tmp_path / "predator.ts", [(k / 5.0, _eg0104_packet()) for k in range(10)])
-    with pytest.raises(VideoError, match="predator.ts.*EG 0104"):
-        read_klv(path, probe(path), Messages())
-    assert main(["telemetry", str(path)]) == 2
-    assert "EG 0104" in capsys.readouterr().err
-    both = [(k / 5.0, _set(k / 5.0)) for k in range(20)] + [(0.1, _eg0104_packet())]
-    path = _video(tmp_path / "both.ts", both)
+def _eg0104(items: dict[str, bytes]) -> bytes:
+    """An EG 0104 Universal Metadata Set: its key, a BER length, then each item's key, BER
+    length and value (no checksum: the standard has none)."""
+    body = b"".join(bytes.fromhex(EG[k]) + ber_length(len(v)) + v for k, v in items.items())
+    return EG0104_KEY + ber_length(len(body)) + body
+
+
+def _los(t: float) -> tuple[float, float]:
+    """The orbit's line of sight to its centre at t s: azimuth clockwise from north and
+    elevation above the horizon (deg)."""
+    d = -ORBIT.position(t) / np.linalg.norm(ORBIT.position(t))  # ENU, to the centre
+    return math.degrees(math.atan2(d[0], d[1])) % 360.0, math.degrees(math.asin(d[2]))
+
+
+def _eg0104_set(t: float, leave_out: tuple[str, ...] = (), replace: dict | None = None) -> bytes:
+    """The orbit's camera at t s as an EG 0104 set: the aircraft's position (height above sea
+    level through EGM2008) and attitude, and the sensor's line of sight on the orbit's centre as
+    EG 0104 gives it (Angle to North: its azimuth; Obliquity: 180 deg minus its elevation; roll
+    SENSOR_ROLL about it)."""
+    frame = ORBIT.frame()
+    lat, lon, h = (float(v) for v in frame.enu_to_geodetic(ORBIT.position(t)))
+    heading, pitch, bank, *_ = ORBIT.angles(t)
+    az, el = _los(t)
+    f4, f8 = (lambda v: struct.pack(">f", v)), (lambda v: struct.pack(">d", v))
+    msl = h - float(undulation(lat, lon))
+    centre_msl = ORBIT.ground_h_m - float(undulation(ORBIT.lat_deg, ORBIT.lon_deg))
+    items = {
+        "time": struct.pack(">Q", int(round((UTC_START_S + t) * 1e6))),
+        "device": b"Predator",
+        "sensor": b"EO Nose",
+        "heading": f4(heading),
+        "pitch": f4(pitch),
+        "roll": f4(bank),
+        "lat": f8(lat),
+        "lon": f8(lon),
+        "alt": f4(msl),
+        "hfov": f4(ORBIT.hfov_deg),
+        "vfov": f4(VFOV),
+        "north": f4(az),
+        "obliquity": f4(180.0 - el),
+        "sroll": f4(SENSOR_ROLL),
+        "clat": f8(ORBIT.lat_deg),
+        "clon": f8(ORBIT.lon_deg),
+        "celev": f4(centre_msl),
+    }
+    items = {k: (replace or {}).get(k, v) for k, v in items.items() if k not in leave_out}
+    return _eg0104(items)
+
+
+def test_an_eg0104_set_reads_as_the_camera_it_describes():
+    """At t = 0 the aircraft is 150 m east of the orbit's centre and 80 m above it: its line of
+    sight points due west (Angle to North 270 deg), atan(80 / 150) = 28.07 deg down (Obliquity
+    180 + 28.07 = 208.07 deg): the camera's heading, pitch and roll are 270, -28.07 and the
+    sensor's 3 deg, whatever the platform's own heading (0 deg, flying north) and bank."""
+    s = parse_any(_eg0104_set(0.0))
+    assert s.standard == "EG 0104" and s.time_us == int(UTC_START_S * 1e6)
+    assert s.get("los_azimuth_deg") == pytest.approx(270.0, abs=1e-4)
+    assert s.get("los_obliquity_deg") == pytest.approx(208.0725, abs=1e-4)
+    assert s.get("platform_heading_deg") == pytest.approx(0.0, abs=1e-4)
+    assert s.other[10] == b"Predator" and s.other[11] == b"EO Nose"
+    hpr = rotations.hpr_from_camera_quat(camera_orientation(s)[None])[0]
+    assert hpr == pytest.approx([270.0, -28.0725, SENSOR_ROLL], abs=1e-3)
+
+
+def test_an_eg0104_clip_poses_every_frame_as_its_camera(tmp_path, capsys):
+    """20 EG 0104 sets at 5 Hz beside a 4 s video: read into the same track as ST 0601's, every
+    frame (between sets too) looks at the orbit's centre (the principal point), its roll the
+    sensor's, the names the set gives; solved without a word of refusal."""
+    packets = [(k / 5.0, _eg0104_set(k / 5.0)) for k in range(20)]
+    path = _video(tmp_path / "predator.ts", packets)
     messages = Messages()
     track = read_klv(path, probe(path), messages)
-    assert len(track.sets) == 20 and track.counts.eg0104 == 1
-    assert any("1 KLV packet(s) hold EG 0104" in m for m in messages.items)
+    assert len(track.sets) == 20 and track.counts.eg0104 == 20 and track.counts.bad == 0
+    assert "EG 0104 (UAV Basic Universal Metadata Set)" in describe(track, probe(path).pts_s)
+    assert any("20 KLV set(s) are EG 0104" in m for m in messages.items)
+    session = open_clip(path)
+    assert session.camera == "Predator / EO Nose"
+    cameras = camera_track(session, "telemetry")
+    for k in (0, 37, 101):
+        assert np.allclose(_centre_pixel(session, k), [SIZE[0] / 2, SIZE[1] / 2], atol=0.5), k
+        roll = rotations.hpr_from_camera_quat(
+            np.asarray(cameras.frame_camera(k).orientation)[None]
+        )[0][2]
+        assert roll == pytest.approx(SENSOR_ROLL, abs=0.05), k
+    assert main(["solve", str(path), "--out", str(tmp_path / "poses.csv")]) == 0
+    assert "Traceback" not in capsys.readouterr().err
+
+
+def test_eg0104_and_st0601_sets_in_one_stream_pose_one_track(tmp_path):
+    """Sets alternate between ST 0601 and EG 0104 (an encoder mid-upgrade), the EG 0104 ones
+    leaving out what has not changed every other time (the sensor's roll about its line of
+    sight, the fields of view, the names: report on change, carried from the last EG 0104 set,
+    not from ST 0601's relative roll, 0): one track, every frame on the centre, rolled 3 deg
+    wherever an EG 0104 set poses it."""
+    packets = []
+    for k in range(20):
+        t = k / 5.0
+        if k % 2 == 0:
+            packets.append((t, _set(t)))
+        else:
+            leave = ("sroll", "hfov", "vfov", "device", "sensor") if k % 4 == 3 else ()
+            packets.append((t, _eg0104_set(t, leave)))
+    path = _video(tmp_path / "mixed.ts", packets)
+    track = read_klv(path, probe(path), Messages())
+    assert len(track.sets) == 20 and track.counts.eg0104 == 10
+    assert track.counts.carried == 5  # the EG 0104 sets at k = 3, 7, 11, 15, 19
+    assert "ST 0601.17 and 10 EG 0104 sets" in describe(track, probe(path).pts_s)
+    assert all(s.get("los_roll_deg") == pytest.approx(SENSOR_ROLL) for s in track.sets[1::2])
+    session = open_clip(path)
+    for k in (0, 21, 45, 90):  # frames beside both kinds
+        assert np.allclose(_centre_pixel(session, k), [SIZE[0] / 2, SIZE[1] / 2], atol=0.5), k
+
+
+def test_eg0104_with_a_float_of_the_wrong_length_names_the_item(tmp_path, capsys):
+    """Every set's Angle to North written in 3 bytes (no IEEE 754 float has that): each set is
+    dropped, and the refusal names the file, the item and what was expected, in one line."""
+    bad = {"north": b"\x43\x87\x00"}
+    path = _video(
+        tmp_path / "short.ts", [(k / 5.0, _eg0104_set(k / 5.0, replace=bad)) for k in range(10)]
+    )
+    with pytest.raises(VideoError) as caught:
+        read_klv(path, probe(path), Messages())
+    text = str(caught.value)
+    assert "short.ts" in text and "EG 0104 Angle to North" in text
+    assert "has 3 bytes, expected a 4- or 8-byte IEEE 754 float" in text
+    assert main(["telemetry", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert "EG 0104 Angle to North" in err and "Traceback" not in err
+
+
+def test_eg0104_without_its_line_of_sight_is_refused_naming_it(tmp_path):
+    packets = [(k / 5.0, _eg0104_set(k / 5.0, ("obliquity",))) for k in range(10)]
+    with pytest.raises(DataFormatError) as caught:
+        open_clip(_video(tmp_path / "no_obliquity.ts", packets))
+    assert "EG 0104 Obliquity Angle is missing from 10 of 10 sets" in str(caught.value)
 
 
 def test_a_sensor_angle_in_error_in_every_set_is_named_not_the_heading(tmp_path):
@@ -234,10 +380,14 @@ def test_of_two_klv_streams_the_one_with_sets_is_used_and_the_other_said(tmp_pat
     assert np.allclose(_centre_pixel(session, 60), [SIZE[0] / 2, SIZE[1] / 2], atol=0.5)
 
 
-def test_a_long_gap_between_sparse_sets_is_crossed_straight_and_said(tmp_path):
+def test_a_long_gap_between_sparse_sets_is_crossed_straight_said_once_and_marked(tmp_path, capsys):
     """KLV every 10 s with a 98 s gap (20 s to 118 s) round the 150 m orbit: inside the gap the
     camera lies on the straight line between the fixes around it (a cubic through those fixes'
-    velocities strays far off it), and the gap is said with its length and start."""
+    velocities strays far off it). The gap is said once, when the clip is solved, with its span
+    in clip time ("no GNSS from t = 20.0 s to 118.0 s (98 s)", not again in other words when
+    it is opened), and every frame inside it is marked `missing` in the solve's gnss column:
+    frames at 20.5 to 117.5 s (195 of them, every 0.5 s), while the frames at 20.0 s and
+    118.0 s, on a fix, and every other frame are `used`."""
     times = [0.0, 10.0, 20.0, 118.0, 128.0, 138.0]
     path = write_video(
         tmp_path / "sparse.ts",
@@ -248,8 +398,7 @@ def test_a_long_gap_between_sparse_sets_is_crossed_straight_and_said(tmp_path):
         klv=[(t, _set(t)) for t in times],
     )
     session = open_clip(path)
-    said = " ".join(session.messages.items)
-    assert "1 gap(s) between positions, the longest 98.0 s from t = 20.0 s" in said
+    assert not any("gap" in m for m in session.messages.items)  # said by the solve alone
     track = camera_track(session, "telemetry")
     pts = session.video.pts_s
     a, b = (
@@ -259,6 +408,19 @@ def test_a_long_gap_between_sparse_sets_is_crossed_straight_and_said(tmp_path):
         p = np.asarray(track.frame_camera(int(np.searchsorted(pts, t))).position)
         s = (t - 20.0) / 98.0
         assert np.linalg.norm(p - ((1 - s) * a + s * b)) < 0.5, t
+    out = tmp_path / "poses.csv"
+    assert main(["solve", str(path), "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    said = [line for line in err.splitlines() if "98" in line and ("gap" in line or "GNSS" in line)]
+    assert said == [
+        "warning: no GNSS from t = 20.0 s to 118.0 s (98 s): positions there run straight between the fixes around it"
+    ]
+    rows = list(csv.DictReader(out.open()))
+    t = np.array([float(r["time_s"]) for r in rows])
+    gnss = np.array([r["gnss"] for r in rows])
+    inside = (t > 20.0) & (t < 118.0)
+    assert inside.sum() == 195 and (gnss[inside] == "missing").all()
+    assert (gnss[~inside] == "used").all()
 
 
 def test_frame_centres_off_their_own_ray_are_not_taken_for_the_ground(tmp_path):
@@ -292,12 +454,14 @@ def test_a_raw_klv_file_is_read_as_telemetry_on_its_time_stamps(tmp_path, capsys
     assert "positions: 20 fixes" in out
 
 
-def test_raw_eg0104_is_named(tmp_path, capsys):
+def test_raw_eg0104_is_read_as_telemetry(tmp_path, capsys):
+    """EG 0104 sets back to back in a .bin (no video): raw KLV, placed by their time stamps."""
     path = tmp_path / "predator.bin"
-    path.write_bytes(_eg0104_packet() * 5)
-    assert main(["telemetry", str(path)]) == 2
-    err = capsys.readouterr().err
-    assert "predator.bin" in err and "EG 0104" in err and "Traceback" not in err
+    path.write_bytes(b"".join(_eg0104_set(k / 5.0) for k in range(10)))
+    assert main(["telemetry", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "MISB ST 0601 KLV, raw" in out and "Local Sets: 10 samples, 5.00 Hz" in out
+    assert "positions: 10 fixes" in out
 
 
 def test_a_zoom_is_drawn_frame_by_frame_in_the_camera_and_the_footprints(tmp_path):
@@ -507,3 +671,135 @@ def test_frame_centres_off_the_scenes_ground_are_said(tmp_path):
             assert len(notes) == 1 and "lie -60 m (median)" in notes[0]
         else:
             assert not notes
+
+
+def test_a_real_eg0104_packet_points_at_its_own_frame_centre(capsys):
+    """A Predator-era EO sensor's EG 0104.5 packet (jmisb's, tests/data/klv/README.md): the
+    sensor at 3233.5 m above sea level, its line of sight 49.41 deg from north (Angle to North)
+    and 21.33 deg down (Obliquity 201.33), rolled -1.45 deg. From the positions alone the frame
+    centre lies 49.47 deg from north, 8.26 km away: the composed axis passes within 15 m of it
+    (0.06 deg) and meets the ground there 11 m above sea level, the coastal plain north of
+    Adelaide. Read as ST 0601's relative azimuth (plus the platform's 20.01 deg heading) it
+    would miss by 20 deg. Its Frame Center Elevation (1001.7 m) is no such ground: its centre
+    lies 6.2 deg off the ray (a frame centre as a check: said, not taken for the ground). Its
+    four corners fall upper left, upper right, lower right and lower left of the composed
+    camera's picture, 0.78 deg apart across (its field of view: 0.75 deg)."""
+    from app.geodesy.enu import LocalFrame
+
+    raw = (REAL / "eg0104_jmisb.bin").read_bytes()
+    s = parse_any(raw)
+    assert s.standard == "EG 0104" and s.time_us == 1_112_376_646_437_500
+    assert s.other[11] == b"EO Nose"
+    v = s.values
+    lat, lon = v["sensor_latitude_deg"], v["sensor_longitude_deg"]
+    frame = LocalFrame(lat, lon, v["sensor_msl_m"] + float(undulation(lat, lon)))
+    r = rotations.to_matrix(camera_orientation(s))
+    axis = -r[:, 2]
+    centre = frame.geodetic_to_enu([v["centre_latitude_deg"]], [v["centre_longitude_deg"]], [0.0])
+    centre = centre[0]
+    assert math.degrees(math.atan2(centre[0], centre[1])) == pytest.approx(49.47, abs=0.01)
+    assert np.hypot(*centre[:2]) == pytest.approx(8263, abs=5)
+    reach = axis * np.hypot(*centre[:2]) / np.hypot(*axis[:2])  # the axis over the centre
+    assert np.linalg.norm(reach[:2] - centre[:2]) < 15.0
+    ground = frame.enu_to_geodetic(reach)
+    assert 0.0 < ground[2] - float(undulation(ground[0], ground[1])) < 30.0  # m above sea level
+    relative = math.degrees(math.atan2(*axis[:2])) + v["platform_heading_deg"]
+    assert relative - 49.47 == pytest.approx(20.0, abs=0.1)
+    track = KlvTrack(str(REAL / "eg0104_jmisb.bin"), raw=True)
+    track.add(raw, None)
+    track.finish()
+    assert track.centre_offsets_deg()[0] == pytest.approx(6.2, abs=0.1)
+    corners = [
+        (-34.78845688650273, 138.6373263435172),  # upper left
+        (-34.78928792493697, 138.6381960623174),  # upper right
+        (-34.79081399767026, 138.6359928154702),  # lower right
+        (-34.79000491430295, 138.6351460736271),  # lower left
+    ]
+    seen = []
+    for c in corners:
+        x, y, z = r.T @ frame.geodetic_to_enu([c[0]], [c[1]], [ground[2]])[0]
+        seen.append((math.degrees(math.atan2(x, -z)), math.degrees(math.atan2(y, -z))))
+    (ulx, uly), (urx, ury), (lrx, lry), (llx, lly) = seen
+    assert ulx < 0 < urx and llx < 0 < lrx and uly > 0 > lly and ury > 0 > lry
+    assert urx - ulx == pytest.approx(0.78, abs=0.02)
+    assert main(["telemetry", str(REAL / "eg0104_jmisb.bin")]) == 0
+    assert "EG 0104 (UAV Basic Universal Metadata Set)" in capsys.readouterr().out
+
+
+def _dji_entry(layout: str, k: int, ratio: float) -> str:
+    """Subtitle entry k (1/30 s each) in one DJI firmware's words, as real files write them, with
+    a digital zoom `ratio`; the aircraft 35 m above take-off, flying north 0.1 m a frame."""
+    start, end = k / 30.0, (k + 1) / 30.0
+
+    def stamp(s: float) -> str:
+        return f"00:00:{int(s):02d},{round(1000 * (s % 1)):03d}"
+
+    lat, lon = 34.8 + k * 1e-6, 113.53
+    head = f"{k + 1}\n{stamp(start)} --> {stamp(end)}\n"
+    when = f"2025-12-04 16:36:{51 + k // 30:02d}.{(k % 30) * 33:03d}"
+    if layout == "mini3":  # [dzoom_ratio: 10000, delta:0]: ten-thousandths, one line
+        return head + (
+            f'<font size="28">SrtCnt : {k + 1}, DiffTime : 33ms\n{when}\n'
+            f"[iso : 100] [shutter : 1/125.0] [fnum : 170] [ev : 0] [ct : 5289] [color_md : default] [focal_len : 240] "
+            f"[dzoom_ratio: {round(10000 * ratio)}, delta:0],[latitude: {lat:.6f}] [longitude: {lon:.6f}] [rel_alt: 35.000 abs_alt: 145.000] </font>\n"
+        )
+    if layout == "mini4":  # [dzoom: 1.50], and [dzoom_ratio: 15000, ...] after a blank line
+        return head + (
+            f'<font size="28">FrameCnt: {k + 1}, DiffTime: 33ms\n{when}\n'
+            f"[iso: 150] [shutter: 1/30.0] [fnum: 2.8] [ev: 0.7] [focal_len: 24.00] [dzoom: {ratio:.2f}]\n"
+            f"[latitude: {lat:.6f}] [longitude: {lon:.6f}] [rel_alt: 35.000 abs_alt: 145.000]\n"
+            f"[drone_speedx: 0.0 drone_speedy: 3.0 drone_speedz: 0.0]\n"
+            f"[drone_yaw: 0.0 drone_pitch: 0.0 drone_roll: 0.0]\n"
+            f"[gb_yaw: 0.0 gb_pitch: -30.0 gb_roll: 0.0]\n\n"
+            f"0\n[ae_meter_md : 0] [dzoom_ratio: {round(10000 * ratio)}, delta:0] [color_md : default]</font>\n"
+        )
+    # "m3t": a thermal camera's [dzoom_ratio: 1.50], the ratio itself
+    return head + (
+        f'<font size="28">FrameCnt: {k}, DiffTime: 33ms\n{when}\n'
+        f"[focal_len: 52.70] [dzoom_ratio: {ratio:.2f}], [latitude: {lat:.6f}] [longitude: {lon:.6f}]\n"
+        f"[rel_alt: 35.000 abs_alt: 145.000] [gb_yaw: 0.0 gb_pitch: -30.0 gb_roll: 0.0] [ir_gain_mode: 0]</font>\n"
+    )
+
+
+@pytest.mark.parametrize(("layout", "focal_mm"), [("mini3", 24.0), ("mini4", 24.0), ("m3t", 52.7)])
+def test_a_dji_digital_zoom_narrows_each_frame_as_its_entry_says(tmp_path, layout, focal_mm):
+    """The digital zoom going from 1x to 2x over a 2 s clip, written as each firmware writes it:
+    each frame's field of view is 2 atan(18 mm / (focal_len x ratio)) of its own entry (36 mm
+    the full frame's width): 24 mm at 1x is 73.74 deg, at 1.49x (frame 29) 53.5 deg, at 2x
+    (frame 59) 41.11 deg; the thermal camera's 52.7 mm: 37.72 deg at 1x, 19.38 deg at 2x."""
+    ratios = [1.0 + k / 59 for k in range(60)]
+    folder = tmp_path / layout
+    folder.mkdir()
+    video = write_video(folder / "DJI_0001.MP4", np.arange(60) / 30.0, SIZE, 0, crf=35)
+    text = "\n".join(_dji_entry(layout, k, r) for k, r in enumerate(ratios))
+    (folder / "DJI_0001.SRT").write_text(text, encoding="utf-8")
+    session = open_clip(video)
+    said = " ".join(session.messages.items)
+    assert "with a digital zoom of 1 to 2x, a zoom): every frame is drawn with its own" in said
+    track = camera_track(session, session.sources[0])
+    for k in (0, 29, 59):
+        ratio = round(ratios[k], 2)  # as written (mini3: to 1/10000, the others to 1/100)
+        want = math.degrees(2 * math.atan(18.0 / (focal_mm * ratio)))
+        assert track.frame_camera(k).intrinsics.hfov_deg == pytest.approx(want, abs=0.05), k
+    assert track.frame_camera(0).intrinsics.hfov_deg == pytest.approx(
+        {24.0: 73.74, 52.7: 37.72}[focal_mm], abs=0.01
+    )
+
+
+def test_a_dji_digital_zoom_no_camera_has_is_said_and_not_applied(tmp_path):
+    """An entry whose `[dzoom: 0.50]` (a zoom that would widen the picture) is said, naming the
+    field and what was expected, and left out; the others still zoom."""
+    from app.io.dji_srt import read_srt
+
+    text = "\n".join(_dji_entry("mini4", k, 1.0 + k / 9) for k in range(10))
+    text = text.replace("[dzoom: 1.44]", "[dzoom: 0.50]")
+    path = tmp_path / "DJI_0002.SRT"
+    path.write_text(text, encoding="utf-8")
+    messages = Messages()
+    track = read_srt(path, messages)
+    assert np.isnan(track.dzoom[4]) and track.dzoom[9] == pytest.approx(2.0)
+    assert any(
+        "DJI_0002.SRT: 1 entries give a digital zoom (dzoom) of 0.5" in m
+        and "expected a ratio from 1 to 200" in m
+        for m in messages.items
+    )

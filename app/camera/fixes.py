@@ -40,7 +40,9 @@ class FixStatus:
     def at(self, tq: npt.ArrayLike) -> npt.NDArray[np.str_]:
         """(M,) USED, REJECTED or MISSING at session times tq (s): MISSING inside an outage or
         farther than the gap limit beyond the first or last fix; REJECTED between fixes either
-        of which was rejected (or beyond a rejected first or last one); USED otherwise."""
+        of which was rejected (or beyond a rejected first or last one); USED otherwise. A time
+        on a fix's own time stands on that fix alone (USED or REJECTED), even at an outage's
+        edge."""
         tq = np.atleast_1d(np.asarray(tq, np.float64))
         out = np.full(len(tq), USED, dtype="<U8")
         if len(self.t) == 0:
@@ -54,6 +56,8 @@ class FixStatus:
         limit = self.gap_limit_s
         out[(~before & ~after & gaps[a]) | (before & (self.t[0] - tq > limit))] = MISSING
         out[after & (tq - self.t[-1] > limit)] = MISSING
+        on = (i >= 0) & (self.t[a] == tq)  # exactly at a fix: that fix's own verdict
+        out[on] = np.where(self.rejected[a[on]], REJECTED, USED)
         return out
 
     def outages(self, t0_s: float, t1_s: float) -> list[tuple[float, float]]:

@@ -35,14 +35,15 @@ from app.world.settings import NONE, choose_world
 def layers(
     args: argparse.Namespace, placement: Placement | None = None, clip: bool = True
 ) -> tuple[Layer, ...]:
-    """The layers --scene/--dem/--ortho name, checked: files exist, kinds known; for a clip
-    (clip: not a manifest, not a still), the world --world/--imagery/--terrain name, or with no
+    """The layers --scene/--dem/--ortho/--buildings name, checked: files exist, kinds known;
+    for a clip (clip: not a manifest, not a still), the world --world/--imagery/--terrain name, or with no
     scene the settings' default (app.world.settings.choose_world)."""
     names = list(getattr(args, "scene", None) or [])
     if getattr(args, "dem", None) is not None:
         names.append(str(args.dem))
+    buildings = list(getattr(args, "buildings", None) or [])  # drawn on the world, if any
     named = named_layers(
-        names,
+        names + buildings,
         args.ortho,
         args.dem_vertical,
         args.dem_error,
@@ -62,7 +63,7 @@ def _world_layers(args: argparse.Namespace, scene_named: bool, clip: bool) -> tu
                 "--world/--imagery/--terrain drape a clip's track: give a clip (a manifest names its scene; a still's scene is --scene/--dem)"
             )
         return ()
-    world = choose_world(name, imagery, terrain, scene_named)
+    world = choose_world(name, imagery, terrain, scene_named, getattr(args, "dem_vertical", None))
     return () if world is None else (world_layer(world),)
 
 

@@ -30,7 +30,7 @@ def run(args: argparse.Namespace) -> int:
         list(args.folders),
         out,
         args.every_s,
-        tuple(args.scene or ()),
+        tuple(args.scene or ()) + tuple(args.buildings or ()),
         args.source,
         args.workers,
         args.scheduler,

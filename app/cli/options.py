@@ -159,8 +159,8 @@ def add_projection_options(p: argparse.ArgumentParser) -> None:
 
 
 def add_layer_options(p: argparse.ArgumentParser, placed_models: bool = False) -> None:
-    """--scene (repeatable), --dem, --ortho, --dem-vertical, --city-theme, --world, --imagery,
-    --terrain, --dem-error: a clip's scene."""
+    """--scene (repeatable), --dem, --buildings, --ortho, --dem-vertical, --city-theme, --world,
+    --imagery, --terrain, --dem-error: a clip's scene."""
     what = (
         "a model (glTF/GLB, OBJ, PLY) placed by --origin, "
         if placed_models
@@ -171,13 +171,20 @@ def add_layer_options(p: argparse.ArgumentParser, placed_models: bool = False) -
         action="append",
         default=None,
         metavar="PATH|URL",
-        help=f"a scene layer, repeatable: a 3D Tiles tileset.json (folder or http(s) URL), a DEM .tif, a CityJSON (.city.json, .city.jsonl) or CityGML (.gml, .xml, .zip) city model, or {what}drawn together",
+        help=f"a scene layer, repeatable: a 3D Tiles tileset.json (folder or http(s) URL), a DEM .tif, a CityJSON (.city.json, .city.jsonl) or CityGML (.gml, .xml, .zip) city model, OpenStreetMap (.osm, .osm.pbf) or GeoParquet buildings (as --buildings), or {what}drawn together",
     )
     p.add_argument(
         "--dem",
         type=Path,
         default=None,
         help="terrain from a GeoTIFF DEM in any CRS (the same as --scene DEM.tif)",
+    )
+    p.add_argument(
+        "--buildings",
+        action="append",
+        default=None,
+        metavar="FILE",
+        help="buildings, repeatable: OpenStreetMap (.osm, .osm.pbf) or GeoParquet (Overture) footprints extruded to LoD1 from their height or levels, standing on the other layers' ground (else the clip's assumed flat ground); or any scene layer",
     )
     p.add_argument(
         "--ortho", type=Path, default=None, help="an orthophoto GeoTIFF draped on the DEM"
@@ -204,13 +211,13 @@ def add_layer_options(p: argparse.ArgumentParser, placed_models: bool = False) -
         "--imagery",
         default=None,
         metavar="SRC",
-        help="imagery tiles for this run: an XYZ URL template with {z}/{x}/{y} (tms: before it for TMS rows) or an .mbtiles file",
+        help="imagery for this run: an XYZ URL template with {z}/{x}/{y} (tms: before it for TMS rows), a WMTS capabilities URL (#layer=NAME), an .mbtiles, .pmtiles or .gpkg file, or a GeoTIFF/COG (URL or file)",
     )
     p.add_argument(
         "--terrain",
         default=None,
         metavar="SRC",
-        help="terrain tiles for this run: terrain-rgb: or terrarium: before a PNG URL template or an .mbtiles file (heights above EGM2008)",
+        help="terrain for this run: terrain-rgb: or terrarium: before a PNG URL template, a WMTS capabilities URL or an .mbtiles/.pmtiles/.gpkg file; or a DEM GeoTIFF/COG (URL or file); heights above EGM2008 unless --dem-vertical says otherwise",
     )
     p.add_argument(
         "--dem-error",

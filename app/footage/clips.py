@@ -25,7 +25,6 @@ from app.camera.intrinsics import Intrinsics, Zoom
 from app.camera.lens import Lens
 from app.camera.pinhole import Camera, camera_in_frame
 from app.camera.profiles import LENS_MODES, choose_profile, video_camera
-from app.camera.trajectory import gaps_said
 from app.core.constants import DRONE_DEFAULT_PITCH_DEG, FOV_RANGE_DEG
 from app.core.errors import DataFormatError, GeofuseError, VideoError
 from app.core.messages import Messages
@@ -130,7 +129,7 @@ def frame_and_ground(
             + how_to_configure()
         )
         return frame, ground_under_track(frame, gnss.lat, gnss.lon, ground_h, margin_m), gnss
-    mesh = load_scene_layers(layers, frame, gnss, messages)
+    mesh = load_scene_layers(layers, frame, gnss, messages, ground_h, margin_m)
     if above_takeoff:
         takeoff = ellipsoidal_ground(mesh, frame, float(gnss.lat[0]), float(gnss.lon[0]))
         if takeoff is not None:
@@ -371,26 +370,37 @@ def _dji_session(
         )
     choice = None
     from_focal = hfov_deg is None
+    effective, digital = effective_focal_mm(track)
+    ok = np.isfinite(effective)
     if hfov_deg is None:
+        eff_mm = float(np.median(effective[ok])) if ok.any() else focal_mm
         hfov_deg = float(
-            np.degrees(2 * np.arctan(18.0 / focal_mm))
+            np.degrees(2 * np.arctan(18.0 / min(eff_mm, DJI_FOCAL_RANGE_MM[1])))
         )  # 36 mm wide full frame equivalent
+        told = f"the subtitle's {focal_mm:g} mm equivalent focal length" + (
+            f" times its digital zoom, {eff_mm:.4g} mm" if digital else ""
+        )
         if lens_path is None:
             choice = _dji_profile(
-                path,
-                video,
-                f"a pinhole of {hfov_deg:.1f} deg (the subtitle's {focal_mm:g} mm equivalent focal length)",
-                messages,
+                path, video, f"a pinhole of {hfov_deg:.1f} deg ({told})", messages
             )
     intr, lens, lens_files = _camera_model(video, hfov_deg, lens_path, choice, messages)
     readout = _readout(None, lens, path, messages)
     zoom = None
-    ok = np.isfinite(track.focal_len)
-    if from_focal and lens is None and ok.any() and np.ptp(track.focal_len[ok]) > ZOOM_STEP_MM:
-        fov = np.degrees(2 * np.arctan(18.0 / np.clip(track.focal_len[ok], *DJI_FOCAL_RANGE_MM)))
+    if from_focal and lens is not None and digital:
+        messages.add(
+            f"{srt.name}: the digital zoom (dzoom, up to {np.nanmax(track.dzoom):g}x) is not applied: the lens profile describes the whole picture (give --fov for a pinhole)"
+        )
+    if from_focal and lens is None and ok.any() and np.ptp(effective[ok]) > ZOOM_STEP_MM:
+        fov = np.degrees(2 * np.arctan(18.0 / np.clip(effective[ok], *DJI_FOCAL_RANGE_MM)))
         zoom = Zoom(np.asarray(track.t, np.float64)[ok], fov)
+        ratio = (
+            f", with a digital zoom of {np.nanmin(track.dzoom):g} to {np.nanmax(track.dzoom):g}x"
+            if digital
+            else ""
+        )
         messages.info(
-            f"{srt.name}: the focal length changes ({track.focal_len[ok].min():g} to {track.focal_len[ok].max():g} mm equivalent, a zoom): every frame is drawn with its own field of view"
+            f"{srt.name}: the focal length changes ({effective[ok].min():.4g} to {effective[ok].max():.4g} mm equivalent{ratio}, a zoom): every frame is drawn with its own field of view"
         )
     return _clip_session(
         path,
@@ -415,6 +425,20 @@ def _dji_session(
         _dji_name(path),
         zoom,
     )
+
+
+def effective_focal_mm(track: SrtTrack) -> tuple[np.ndarray, bool]:
+    """((N,) each subtitle entry's effective 35 mm equivalent focal length (mm), whether any
+    entry's digital zoom is other than 1): its focal_len (DJI_DEFAULT_FOCAL_MM throughout where
+    the subtitle gives none) times its digital zoom ratio (1 where the subtitle gives none);
+    NaN where the entry lacks a focal length or, in a subtitle that gives a zoom, its zoom."""
+    focal = np.asarray(track.focal_len, np.float64)
+    if not np.isfinite(focal).any():
+        focal = np.full(len(track.t), DJI_DEFAULT_FOCAL_MM)
+    dzoom = track.dzoom if track.dzoom is not None else np.full(len(track.t), np.nan)
+    given = np.isfinite(dzoom)
+    ratio = dzoom if given.any() else np.ones(len(track.t))
+    return focal * ratio, bool(given.any() and np.any(dzoom[given] != 1.0))
 
 
 def _klv_session(
@@ -456,8 +480,8 @@ def _klv_session(
         messages.add(
             f"{path.name}: {len(track.t) - len(gnss.t)} of {len(track.t)} KLV sets have no valid position: their times are interpolated"
         )
-    if gaps := gaps_said(gnss.t):
-        messages.add(f"{path.name}: KLV: {gaps}")
+    # A gap between positions is said once, by the solve (app.solve.track.say_outages: its span
+    # in clip time and what carries the track through it), and marked on every frame in it.
     off = track.centre_offsets_deg()  # each set's frame centre from its own axis, deg
     ground = _klv_ground(track, off, gnss, path, messages, bool(layers))
     frame, mesh, gnss = frame_and_ground(
@@ -653,7 +677,7 @@ def open_any(
             if srt is not None
             else "--lens"
             if lens is not None
-            else "--scene/--dem"
+            else "--scene/--dem/--buildings"
             if layers
             else None
         )

@@ -10,7 +10,11 @@ has written over its generations (see docs/FORMATS.md for each, with the traps):
   first: the altitude carries an `M`);
 - Mavic Air 2 / Air 2S / Mini era, per frame: `SrtCnt`, `DiffTime`, `YYYY-MM-DD hh:mm:ss,mmm,uuu`,
   `[latitude: ..] [longitude: ..]` (or `longtitude`), `[altitude: ..]` or `[rel_alt: .. abs_alt: ..]`,
-  `[focal_len: ..]`, sometimes `[gb_yaw: .. gb_pitch: .. gb_roll: ..]`.
+  `[focal_len: ..]`, sometimes `[gb_yaw: .. gb_pitch: .. gb_roll: ..]`, and the digital zoom:
+  `[dzoom_ratio: 10000, delta:0]` (Mini 3 era: ten-thousandths), `[dzoom_ratio: 1.00]` (Matrice
+  3T/4T thermal: the ratio) or `[dzoom: 1.00]` (Mini 4 Pro, Air 3, Matrice 30: the ratio; their
+  entries carry both, `dzoom` read first). The ratio crops the picture: the effective focal
+  length is focal_len times it (app.footage.clips draws each frame with its own).
 
 Entries without a position are kept (time only) and counted; a file cut mid-entry keeps its complete
 entries with a warning; a byte-order mark and CR/LF line ends are accepted; one file may mix layouts.
@@ -62,6 +66,9 @@ _DRONE_BRACKET = re.compile(
     re.I,
 )
 _FOCAL = re.compile(r"focal_len\s*:\s*" + _NUM, re.I)
+_DZOOM = re.compile(r"(?<![\w])dzoom\s*:\s*" + _NUM, re.I)  # the ratio itself
+_DZOOM_RATIO = re.compile(r"dzoom_ratio\s*:\s*" + _NUM, re.I)
+DZOOM_RANGE = (1.0, 200.0)  # a digital zoom ratio a DJI camera can have (hybrid zoom to 200x)
 _DATE_DASH = re.compile(
     r"(\d{4})-(\d\d)-(\d\d)\s+(\d\d):(\d\d):(\d\d)(?:[,.](\d{1,3}))?(?:[,.](\d{1,3}))?"
 )
@@ -73,7 +80,8 @@ class SrtTrack:
     """Per entry: t (N,) seconds from the clip start (the entry's start time); lat, lon (deg; NaN
     where the entry has none); height (m) and whether it is relative to take-off; wall-clock time
     (Unix s, local time of the aircraft taken as UTC: DJI writes no zone) or NaN; gimbal and
-    aircraft pitch, roll, yaw (deg) or NaN; 35 mm equivalent focal length (mm; read in each layout's unit) or NaN."""
+    aircraft pitch, roll, yaw (deg) or NaN; 35 mm equivalent focal length (mm; read in each layout's unit) or NaN;
+    the digital zoom ratio (1: none) or NaN where the entry gives none or one outside DZOOM_RANGE."""
 
     path: str
     t: np.ndarray
@@ -87,6 +95,7 @@ class SrtTrack:
     aircraft_pry: np.ndarray
     focal_len: np.ndarray
     layouts: tuple[str, ...]
+    dzoom: np.ndarray | None = None  # (N,) the digital zoom ratio; None: a reader that had none
 
     @property
     def has_position(self) -> np.ndarray:
@@ -105,6 +114,14 @@ class SrtTrack:
 
 def _seconds(h: str, m: str, s: str, ms: str) -> float:
     return int(h) * 3600 + int(m) * 60 + int(s) + int(ms.ljust(3, "0")) / 1000.0
+
+
+def zoom_ratio(text: str) -> float:
+    """A DJI digital zoom value as a ratio: written with a decimal point it is the ratio (1.50);
+    a whole number from 1000 up is in ten-thousandths (10000: 1x, 15000: 1.5x); a smaller one
+    is the ratio (2)."""
+    value = float(text)
+    return value / 10000.0 if "." not in text and value >= 1000.0 else value
 
 
 def _entry_fields(text: str) -> tuple[dict[str, float], str]:
@@ -136,6 +153,9 @@ def _entry_fields(text: str) -> tuple[dict[str, float], str]:
         m = rx.search(text)
         if m:
             f[key] = float(m.group(1))
+    m = _DZOOM.search(text) or _DZOOM_RATIO.search(text)
+    if m:
+        f["dzoom"] = zoom_ratio(m.group(1))
     m = _FOCAL.search(text)
     if (
         m
@@ -254,6 +274,14 @@ def read_srt(path: str | Path, messages: Messages | None = None) -> SrtTrack:
     else:
         height, height_relative = np.full(len(rows), np.nan), True
     t = np.array([r[0] for r in rows])
+    dzoom = col("dzoom")
+    odd = np.isfinite(dzoom) & ((dzoom < DZOOM_RANGE[0]) | (dzoom > DZOOM_RANGE[1]))
+    if odd.any():
+        first = int(np.flatnonzero(odd)[0])
+        messages.add(
+            f"{path.name}: {int(odd.sum())} entries give a digital zoom (dzoom) of {dzoom[first]:g} or the like (first: entry {first + 1}), expected a ratio from {DZOOM_RANGE[0]:g} to {DZOOM_RANGE[1]:g}: not applied there"
+        )
+        dzoom[odd] = np.nan
     return SrtTrack(
         str(path),
         t,
@@ -267,6 +295,7 @@ def read_srt(path: str | Path, messages: Messages | None = None) -> SrtTrack:
         np.column_stack([col("Fp"), col("Fr"), col("Fy")]),
         col("focal"),
         tuple(sorted(layouts)),
+        dzoom,
     )
 
 

@@ -13,6 +13,10 @@ What is kept. A set failing its checksum is dropped and counted (never half-read
 error codes are gaps: a set whose position is in error adds no GNSS fix, one whose angles are in
 error adds no attitude, and the rest of the set is still used.
 
+EG 0104. Sets of the older Predator UAV Basic Universal Metadata Set (app.io.misb.parse_eg0104)
+are read into the same track as ST 0601's, beside them or alone, counted and said; their camera
+is their own line of sight (app.io.misb.line_of_sight_orientation).
+
 Report on change. ST 0601 lets a producer leave out of a set the items that have not changed
 since an earlier one. The platform's and the sensor's angles and the field of view (CARRIED) are
 carried forward from the last set that reported them, at most CARRY_LIMIT_S old (older: left
@@ -49,18 +53,22 @@ import av
 import numpy as np
 
 from app.core.errors import DataFormatError, VideoError
-from app.core.messages import Messages
+from app.core.messages import INFO, Messages
 from app.geodesy import rotations
 from app.geodesy.enu import LocalFrame
 from app.geodesy.geoid import undulation
 from app.io.misb import (
+    EG0104,
+    EG0104_ITEMS,
+    LOS_NAMES,
+    ST0601,
     TAGS,
     KlvError,
     LocalSet,
     camera_orientation,
     find_key,
     is_eg0104,
-    parse,
+    parse_any,
     sets_at,
 )
 from app.io.streams import FloatArray, GnssTrack, OrientationStream, plausible_fixes
@@ -70,8 +78,18 @@ KLV_CODECS = ("klv", "smpte_klv")
 CONSISTENCY_LIMIT_DEG = 2.0  # the frame centre further than this from the optical axis: said
 PLATFORM_DESIGNATION_TAG = 10
 IMAGE_SOURCE_SENSOR_TAG = 11
-CARRIED = tuple(TAGS[tag].name for tag in (5, 6, 7, 16, 17, 18, 19, 20, 90, 91))
+CARRIED = tuple(TAGS[tag].name for tag in (5, 6, 7, 16, 17, 18, 19, 20, 90, 91)) + LOS_NAMES
+# what a set of each standard can hold of CARRIED (a set is filled only with its own kind's items)
+CARRIED_BY = {
+    ST0601: CARRIED[: -len(LOS_NAMES)],
+    EG0104: tuple(n for n in CARRIED if n in {item[0] for item in EG0104_ITEMS.values()}),
+}
 ANGLE_TAGS = (5, 90, 6, 91, 7, 18, 19, 20)  # what camera_orientation composes
+EG0104_ANGLES = (  # what it composes for an EG 0104 set: name, label, whether it must be there
+    ("los_azimuth_deg", "Angle to North", True),
+    ("los_obliquity_deg", "Obliquity Angle", True),
+    ("los_roll_deg", "Sensor Roll Angle", False),
+)
 CARRY_LIMIT_S = 10.0  # an item left out of a set is taken from a set at most this much older
 STAMP_LIMIT_S = 5.0  # a Precision Time Stamp further (s) from what its PTS says is not used
 STAMP_GAP_S = 3600.0  # placed by stamps alone: consecutive stamps further apart (s) are a jump
@@ -124,7 +142,7 @@ class KlvCounts:
     stale: int = 0  # sets that left out an item last reported more than CARRY_LIMIT_S before
     stale_names: set[str] = field(default_factory=set)
     frozen: int = 0  # sets placed by their Precision Time Stamps: every PTS was the same
-    eg0104: int = 0  # packets holding EG 0104 (the older Predator set), not read
+    eg0104: int = 0  # sets read from EG 0104 (the older Predator set)
     packets: int = 0  # KLV packets (payloads) read
     cut: int = 0  # sets cut short or whose length cannot be read (a damaged packet)
     first_cut: str = ""
@@ -157,7 +175,8 @@ class KlvCounts:
         if self.eg0104:
             messages.add_once(
                 "klv-eg0104",
-                f"{where}: {self.eg0104} KLV packet(s) hold EG 0104 (the older Predator UAV Basic Universal Metadata Set), which geofuse does not read: they were left out",
+                f"{where}: {self.eg0104} KLV set(s) are EG 0104 (the older Predator UAV Basic Universal Metadata Set): read as ST 0601's items, the camera pointed by EG 0104's own angle to north, obliquity and roll",
+                INFO,
             )
         if self.bad:
             messages.add_once(
@@ -207,17 +226,16 @@ class KlvTrack:
         placed at t."""
         kept: list[LocalSet] = []
         self.counts.packets += 1
-        if is_eg0104(payload):
-            self.counts.eg0104 += 1
         dropped: list[tuple[int, str]] = []
         for offset, raw in sets_at(payload, dropped):
             try:
-                s = parse(raw)
+                s = parse_any(raw)
             except KlvError as exc:
                 self.counts.bad += 1
                 self.counts.first_error = self.counts.first_error or f"{self._where(offset)}: {exc}"
                 continue
             self.counts.sets += 1
+            self.counts.eg0104 += s.standard == EG0104
             if t is None or not math.isfinite(t):
                 self._untimed.append(s)
                 continue
@@ -241,7 +259,7 @@ class KlvTrack:
         docstring); what it reports is remembered."""
         filled: dict[str, float] = {}
         stale = False
-        for name in CARRIED:
+        for name in CARRIED_BY[s.standard]:
             if name in s.values or name not in self._reported:
                 continue
             t0, value = self._reported[name]
@@ -405,15 +423,25 @@ class KlvTrack:
 
     def angle_faults(self) -> str:
         """Which angle items keep sets from an attitude: each tag missing (the heading: no
-        default) or the error code, with the number of sets; '' where none is."""
+        default) or the error code, with the number of sets (EG 0104 sets: their angle to north
+        or obliquity missing or not a number); '' where none is."""
         n, parts = len(self.sets), []
+        eg0104 = [s for s in self.sets if s.standard == EG0104]
+        st0601 = [s for s in self.sets if s.standard != EG0104]
+        for name, label, needed in EG0104_ANGLES:
+            error = sum(1 for s in eg0104 if not math.isfinite(s.values.get(name, 0.0)))
+            if error:
+                parts.append(f"EG 0104 {label} is not a number in {error} of {n} sets")
+            missing = sum(1 for s in eg0104 if name not in s.values)
+            if needed and missing:
+                parts.append(f"EG 0104 {label} is missing from {missing} of {n} sets")
         for tag in ANGLE_TAGS:
             name = TAGS[tag].name
             label = f"tag {tag} ({name.removesuffix('_deg').replace('_', ' ')})"
-            error = sum(1 for s in self.sets if not math.isfinite(s.values.get(name, 0.0)))
+            error = sum(1 for s in st0601 if not math.isfinite(s.values.get(name, 0.0)))
             if error:
                 parts.append(f"{label} is the error code in {error} of {n} sets")
-            missing = sum(1 for s in self.sets if name not in s.values)
+            missing = sum(1 for s in st0601 if name not in s.values)
             if tag == 5 and missing:
                 parts.append(f"{label} is missing from {missing} of {n} sets")
         return "; ".join(parts)
@@ -499,8 +527,7 @@ def read_klv(path: str | Path, video: VideoInfo, messages: Messages) -> KlvTrack
 
 def _finished(track: KlvTrack, path: Path, messages: Messages, error, what: str) -> KlvTrack:
     """The track finished (KlvTrack.finish) and its faults said; `error` (VideoError or
-    DataFormatError) naming the file where no set can be placed, or none is ST 0601 (naming
-    EG 0104 where that is what it holds)."""
+    DataFormatError) naming the file where no set can be placed, or none can be read."""
     try:
         track.finish()
     except KlvError as exc:
@@ -508,12 +535,10 @@ def _finished(track: KlvTrack, path: Path, messages: Messages, error, what: str)
     track.counts.said(path.name, messages)
     if not track.sets:
         found = track.counts.sets + track.counts.bad
-        held = (
-            f"EG 0104 (the older Predator UAV Basic Universal Metadata Set, {track.counts.eg0104} packets), which geofuse does not read, and no MISB ST 0601 Local Set"
-            if track.counts.eg0104
-            else f"no readable MISB ST 0601 Local Set ({found} found{track.counts.first_fault()})"
+        raise error(
+            path,
+            f"{what} holds no readable MISB ST 0601 Local Set or EG 0104 set ({found} found{track.counts.first_fault()})",
         )
-        raise error(path, f"{what} holds {held}")
     return track
 
 
@@ -559,4 +584,9 @@ def describe(track: KlvTrack, frame_pts_s: FloatArray) -> str:
     versions = sorted({s.version for s in track.sets if s.version is not None})
     kind = "synchronous (a set per frame)" if track.synchronous(frame_pts_s) else "asynchronous"
     said = f"ST 0601.{'/'.join(map(str, versions))}" if versions else "ST 0601 (no version tag)"
+    eg0104 = sum(1 for s in track.sets if s.standard == EG0104)
+    if eg0104 == len(track.sets):
+        said = "EG 0104 (UAV Basic Universal Metadata Set)"
+    elif eg0104:
+        said += f" and {eg0104} EG 0104 sets"
     return f"MISB KLV: {len(t)} Local Sets at {rate:.1f} Hz, {kind}, {said}"

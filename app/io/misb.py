@@ -18,6 +18,21 @@ up and roll positive right wing down; the sensor's relative azimuth is clockwise
 seen from above, its relative elevation positive above the platform's longitudinal-transverse
 plane, its relative roll clockwise about the line of sight looking out (`camera_orientation`
 composes them).
+
+EG 0104 (MISB EG 0104.5, the older Predator "UAV Basic Universal Metadata Set", still in archives
+and some encoders) is read into the same LocalSet (`parse_eg0104`): its key, a BER length, then
+items each keyed by a 16-byte SMPTE universal key (the key's version byte, byte 7, any) with a
+BER length; numbers are IEEE 754 floats (4 or 8 bytes), the User Defined Time Stamp microseconds
+since 1970 (UTC) as an 8-byte integer, names text; there is no checksum. The platform's angles,
+the sensor's position (height above sea level), the fields of view, slant range and frame centre
+take the names ST 0601's tags have. The sensor's pointing is EG 0104's own, not ST 0601's: the
+Angle to North is the line of sight's azimuth clockwise from true north (ST 0601's relative
+azimuth is it minus the platform's heading), the Obliquity Angle O runs 180 deg level ahead, 270
+deg straight down, 0 deg level behind (the line of sight's elevation above the horizon is
+180 - O), and the Sensor Roll Angle turns the picture about the line of sight (clockwise looking
+out, as ST 0601's relative roll). A real EG 0104 packet (tests/data/klv/eg0104_jmisb.bin) bears
+this out: its Angle to North is the azimuth from its sensor to its frame centre within 0.06 deg,
+where taken as relative to the platform it would be 20 deg off.
 """
 
 from __future__ import annotations
@@ -33,10 +48,14 @@ import numpy.typing as npt
 from app.geodesy import rotations
 
 UAS_LOCAL_SET_KEY = bytes.fromhex("060E2B34020B01010E01030101000000")
-# EG 0104, the older Predator "UAV Basic Universal Metadata Set" (16-byte universal keys for its
-# items): recognised, to be named, not read.
+# EG 0104, the older Predator "UAV Basic Universal Metadata Set": its items are keyed by 16-byte
+# universal keys (EG0104_ITEMS), read into the same LocalSet as ST 0601's (parse_eg0104).
 EG0104_KEY = bytes.fromhex("060E2B34020101010E01010201010000")
 KEY_VERSION_BYTE = 7  # the UL's version byte: any value is accepted when reading
+ST0601, EG0104 = "ST 0601", "EG 0104"  # LocalSet.standard: which set a LocalSet was read from
+# An EG 0104 item's key: a SMPTE data dictionary element (byte 7, its version, any), then what
+# EG0104_ITEMS names by the key's last 8 bytes.
+EG0104_ITEM_PREFIX = bytes.fromhex("060E2B34010101")
 CHECKSUM_TAG = 1
 TIMESTAMP_TAG = 2  # Precision Time Stamp: microseconds since 1970 (UTC), uint64
 VERSION_TAG = 65
@@ -82,6 +101,42 @@ TAGS: dict[int, Mapping] = {
     90: Mapping("platform_pitch_full_deg", -90.0, 90.0, 4, signed=True),
     91: Mapping("platform_roll_full_deg", -90.0, 90.0, 4, signed=True),
 }
+
+
+# EG 0104.5's items read, by their universal key's last 8 bytes: (name, how the value is written,
+# EG 0104's name for it).
+# "float": IEEE 754, 4 or 8 bytes big-endian; "uint": 8 bytes, big-endian; "text": bytes kept as
+# the ST 0601 tag it answers (10 platform designation, 11 sensor, 3 mission id). Items not named
+# here (corner points, target width, dates, security) are skipped.
+EG0104_ITEMS: dict[bytes, tuple[str | int, str, str]] = {
+    bytes.fromhex(key): item
+    for key, item in {
+        "0702010101050000": ("time_us", "uint", "User Defined Time Stamp"),
+        "0701100106000000": ("platform_heading_deg", "float", "Platform Heading Angle"),
+        # floats: no +-20 / +-50 deg bound as ST 0601's tags 6, 7 have
+        "0701100105000000": ("platform_pitch_full_deg", "float", "Platform Pitch Angle"),
+        "0701100104000000": ("platform_roll_full_deg", "float", "Platform Roll Angle"),
+        "0701020102040200": ("sensor_latitude_deg", "float", "Device Latitude"),
+        "0701020102040000": ("sensor_latitude_deg", "float", "Device Latitude"),  # older key
+        "0701020102060200": ("sensor_longitude_deg", "float", "Device Longitude"),
+        "0701020102060000": ("sensor_longitude_deg", "float", "Device Longitude"),
+        "0701020102020000": ("sensor_msl_m", "float", "Device Altitude"),  # above sea level
+        "0420020101080000": ("hfov_deg", "float", "Field of View (Horizontal)"),
+        "04200201010A0100": ("vfov_deg", "float", "Field of View (Vertical)"),
+        "0701100102000000": ("los_azimuth_deg", "float", "Angle to North"),
+        "0701100103000000": ("los_obliquity_deg", "float", "Obliquity Angle"),
+        "0701100101000000": ("los_roll_deg", "float", "Sensor Roll Angle"),
+        "0701080101000000": ("slant_range_m", "float", "Slant Range"),
+        "0701020103020000": ("centre_latitude_deg", "float", "Frame Center Latitude"),
+        "0701020103040000": ("centre_longitude_deg", "float", "Frame Center Longitude"),
+        "0701020103160000": ("centre_msl_m", "float", "Frame Center Elevation"),  # above sea
+        "0101200100000000": (10, "text", "Device Designation"),
+        "0420010201010000": (11, "text", "Image Source Device"),
+        "0105050000000000": (3, "text", "Episode Number"),
+    }.items()
+}
+# The line of sight as EG 0104 gives it (see the module's docstring): read by camera_orientation.
+LOS_NAMES = ("los_azimuth_deg", "los_obliquity_deg", "los_roll_deg")
 
 
 # --- writing -----------------------------------------------------------------------------------
@@ -138,10 +193,15 @@ def checksum(data: bytes) -> int:
     return total & 0xFFFF
 
 
+def tlv(items: list[tuple[int, bytes]]) -> bytes:
+    """Tag-length-value items in order (BER-OID tags, BER lengths): a Local Set's body, or the
+    whole value of a set nested in an ST 0601 item (no key, no checksum of its own)."""
+    return b"".join(ber_oid(tag) + ber_length(len(v)) + v for tag, v in items)
+
+
 def local_set(items: list[tuple[int, bytes]]) -> bytes:
     """A whole Local Set: the key, the BER length, the items in order, the checksum last."""
-    body = b"".join(ber_oid(tag) + ber_length(len(v)) + v for tag, v in items)
-    body += bytes([CHECKSUM_TAG, 2])
+    body = tlv(items) + bytes([CHECKSUM_TAG, 2])
     head = UAS_LOCAL_SET_KEY + ber_length(len(body) + 2)
     return head + body + checksum(head + body).to_bytes(2, "big")
 
@@ -152,13 +212,15 @@ def local_set(items: list[tuple[int, bytes]]) -> bytes:
 @dataclass(frozen=True)
 class LocalSet:
     """One Local Set read: its time stamp (microseconds since 1970, UTC; None when absent), the
-    version it says (None: before tag 65 existed), the mapped values by name (NaN: the standard's
-    error code) and the raw bytes of every other tag."""
+    version it says (None: before tag 65 existed, or EG 0104), the mapped values by name (NaN:
+    the standard's error code) and the raw bytes of every other tag (EG 0104's names under the
+    ST 0601 tags they answer)."""
 
     time_us: int | None
     version: int | None
     values: dict[str, float] = field(default_factory=dict)
     other: dict[int, bytes] = field(default_factory=dict)
+    standard: str = ST0601  # or EG0104: the set it was read from
 
     def get(self, name: str) -> float:
         """A mapped value by name (TAGS), NaN when the set does not carry it or says "error"."""
@@ -226,6 +288,63 @@ def is_eg0104(data: bytes) -> bool:
     return find_key(data, key=EG0104_KEY) >= 0
 
 
+def parse_any(packet: bytes) -> LocalSet:
+    """A UAS Datalink Local Set (`parse`) or an EG 0104 set (`parse_eg0104`), by its key."""
+    return parse_eg0104(packet) if is_key(packet, key=EG0104_KEY) else parse(packet)
+
+
+def _eg0104_value(label: str, kind: str, raw: bytes, at: int) -> float | int | bytes:
+    """One EG 0104 item's value (see EG0104_ITEMS); KlvError naming it and what was expected."""
+    if kind == "text":
+        return raw
+    label = f"EG 0104 {label} (the item at byte {at})"
+    if kind == "uint":
+        if len(raw) != 8:
+            raise KlvError(f"{label} has {len(raw)} bytes, expected 8 (microseconds since 1970)")
+        return int.from_bytes(raw, "big")
+    if len(raw) not in (4, 8):
+        raise KlvError(f"{label} has {len(raw)} bytes, expected a 4- or 8-byte IEEE 754 float")
+    value = struct.unpack(">f" if len(raw) == 4 else ">d", raw)[0]
+    return value if math.isfinite(value) else math.nan
+
+
+def parse_eg0104(packet: bytes) -> LocalSet:
+    """One EG 0104 Universal Metadata Set (key first) read into a LocalSet (standard EG0104): the
+    items EG0104_ITEMS names under ST 0601's names, the line of sight under LOS_NAMES (see the
+    module's docstring). KlvError for a wrong key, a length past the end, an item whose key is
+    not a universal key, or a value of a length its kind cannot have."""
+    if not is_key(packet, key=EG0104_KEY):
+        raise KlvError("not an EG 0104 Universal Metadata Set (wrong key)")
+    length, i = read_ber(packet, 16)
+    end = i + length
+    if end > len(packet):
+        raise KlvError(f"the EG 0104 set says {length} bytes, {len(packet) - i} follow")
+    time_us: int | None = None
+    values: dict[str, float] = {}
+    other: dict[int, bytes] = {}
+    while i < end:
+        key = packet[i : i + 16]
+        if len(key) < 16 or key[:4] != EG0104_ITEM_PREFIX[:4]:
+            raise KlvError(
+                f"EG 0104 item at byte {i}: not a 16-byte universal key (06 0E 2B 34 ...)"
+            )
+        n, j = read_ber(packet, i + 16)
+        if j + n > end:
+            raise KlvError(f"EG 0104 item {key.hex()} at byte {i} runs past the set's end")
+        known = key[:7] == EG0104_ITEM_PREFIX and key[8:] in EG0104_ITEMS
+        if known:
+            name, kind, label = EG0104_ITEMS[key[8:]]
+            value = _eg0104_value(label, kind, packet[j : j + n], i)
+            if isinstance(name, int):
+                other[name] = value
+            elif name == "time_us":
+                time_us = value or None
+            else:
+                values[name] = value
+        i = j + n
+    return LocalSet(time_us, None, values, other, EG0104)
+
+
 def parse(packet: bytes) -> LocalSet:
     """One Local Set (key first) read and checked: KlvError for a wrong key, a length past the
     end, a missing checksum or one that does not match."""
@@ -270,16 +389,34 @@ def split(data: bytes, dropped: list[tuple[int, str]] | None = None) -> Iterator
     return (raw for _, raw in sets_at(data, dropped))
 
 
+class _SetFinder:
+    """Where the next set (a UAS Datalink key or an EG 0104 key, any version) starts in data,
+    asked with growing starts: each key's next place is searched again only once passed (a
+    file of one kind is not scanned to its end for the other at every set)."""
+
+    def __init__(self, data: bytes) -> None:
+        self.data = data
+        self.found = {UAS_LOCAL_SET_KEY: -2, EG0104_KEY: -2}  # -2: not searched yet
+
+    def next(self, start: int) -> int:
+        for key, at in self.found.items():
+            if at == -2 or 0 <= at < start:
+                self.found[key] = find_key(self.data, start, key)
+        places = [at for at in self.found.values() if at >= 0]
+        return min(places) if places else -1
+
+
 def sets_at(
     data: bytes, dropped: list[tuple[int, str]] | None = None
 ) -> Iterator[tuple[int, bytes]]:
     """(byte offset, bytes) of each Local Set in a run of bytes, cut at the length it says. A
     set cut off by the end or by the next set's key (a set cut short), or whose length cannot
     be read, is left out, noted in `dropped` as (byte offset of its key, what is wrong), and the
-    search goes on after its key."""
-    i = find_key(data)
+    search goes on after its key. Both UAS Datalink Local Sets and EG 0104 sets are found."""
+    finder = _SetFinder(data)
+    i = finder.next(0)
     while i >= 0:
-        after = find_key(data, i + 16)
+        after = finder.next(i + 16)
         try:
             length, start = read_ber(data, i + 16)
         except KlvError as exc:
@@ -323,7 +460,10 @@ def camera_orientation(s: LocalSet) -> FloatArray | None:
     roll: Rz Ry Rx of the aircraft in North-East-Down), then the sensor's relative rotation
     (azimuth, elevation, roll: Rz Ry Rx of the line of sight in the aircraft's frame), as ST 0601
     defines them. The full-range pitch and roll (90, 91) are used where present; a missing
-    pitch, roll or relative angle counts as 0; no heading, or any angle in error: None."""
+    pitch, roll or relative angle counts as 0; no heading, or any angle in error: None. An EG
+    0104 set: its own line of sight (`line_of_sight_orientation`)."""
+    if s.standard == EG0104:
+        return line_of_sight_orientation(s)
     heading = s.get("platform_heading_deg")
     pitch = s.values.get("platform_pitch_full_deg", s.values.get("platform_pitch_deg", 0.0))
     roll = s.values.get("platform_roll_full_deg", s.values.get("platform_roll_deg", 0.0))
@@ -334,6 +474,24 @@ def camera_orientation(s: LocalSet) -> FloatArray | None:
     if not all(math.isfinite(a) for a in angles):
         return None
     return camera_from_sensor(ypr_matrix(heading, pitch, roll) @ ypr_matrix(az, el, sroll))
+
+
+def eg0104_elevation_deg(obliquity_deg: float) -> float:
+    """The line of sight's elevation above the horizon (deg, in [-180, 180)) from EG 0104's
+    Obliquity Angle (deg: 180 level ahead, 270 straight down, 0 level behind): 180 - O."""
+    return (180.0 - obliquity_deg + 180.0) % 360.0 - 180.0
+
+
+def line_of_sight_orientation(s: LocalSet) -> FloatArray | None:
+    """Camera -> ENU quaternion [w, x, y, z] of an EG 0104 set: Rz Ry Rx in North-East-Down of
+    its line of sight's azimuth from true north (Angle to North), elevation (180 deg minus the
+    Obliquity Angle) and roll about it (Sensor Roll Angle; missing: 0). None where the azimuth
+    or the obliquity is missing or not a number."""
+    az, obliquity = s.get("los_azimuth_deg"), s.get("los_obliquity_deg")
+    roll = s.values.get("los_roll_deg", 0.0)
+    if not all(math.isfinite(a) for a in (az, obliquity, roll)):
+        return None
+    return camera_from_sensor(ypr_matrix(az, eg0104_elevation_deg(obliquity), roll))
 
 
 def camera_from_sensor(r_ned: FloatArray) -> FloatArray:

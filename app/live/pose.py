@@ -2,9 +2,11 @@
 time from the KLV sets (LivePoses) or the MAVLink messages (MavlinkPoses) that have arrived by the
 time it is drawn, never from later ones.
 
-Between two arrived sets the position is interpolated linearly and the attitude by slerp; past the
-newest set the newest is held. A pose whose newest set is older than its frame by more than the
-jitter buffer is `stale` (drawn, marked); before any set with a pose the frame has none.
+Between two arrived sets the position and the field of view (tag 16: a zoom) are interpolated
+linearly and the attitude by slerp; past the newest set the newest is held. Each frame is drawn
+with the field of view of its own moment (a set that gives none keeps the one before it; before
+any set gives one, the feed's pinhole). A pose whose newest set is older than its frame by more
+than the jitter buffer is `stale` (drawn, marked); before any set with a pose the frame has none.
 Thread-safe: the receiver adds, the drawing thread asks.
 """
 
@@ -41,6 +43,17 @@ class LivePose:
     age_s: float
 
 
+def fov_between(a: float, b: float, w: float) -> float | None:
+    """The field of view (deg) a fraction w in [0, 1] of the way from a set's (a) to the next
+    one's (b): linear where both give one, the one that does where only one does (NaN: none
+    given), None where neither does."""
+    if np.isfinite(a) and np.isfinite(b):
+        return float((1.0 - w) * a + w * b)
+    if np.isfinite(a) or np.isfinite(b):
+        return float(a if np.isfinite(a) else b)
+    return None
+
+
 class LivePoses:
     """Sets with a position and an attitude, in time order (media s)."""
 
@@ -49,7 +62,8 @@ class LivePoses:
         self.t: list[float] = []
         self.geodetic: list[tuple[float, float, float]] = []
         self.q: list[np.ndarray] = []
-        self.hfov_deg: float | None = None
+        self.fov: list[float] = []  # each set's horizontal field of view (deg), NaN: none given
+        self.hfov_deg: float | None = None  # the last field of view a set gave (deg)
         self.centre_h: float | None = None
         self.without_pose = 0  # sets that arrived with a position or angles in error
         self.jumps = 0  # sets whose position no platform could reach from the set before it
@@ -83,7 +97,10 @@ class LivePoses:
             self.t.insert(i, t)
             self.geodetic.insert(i, here)
             self.q.insert(i, q)
-            if np.isfinite(fov) and fov >= FOV_RANGE_DEG[0]:  # 0: not given
+            usable = np.isfinite(fov) and FOV_RANGE_DEG[0] <= fov <= FOV_RANGE_DEG[1]  # 0: none
+            # a set that gives none keeps the one before it (ST 0601's report on change)
+            self.fov.insert(i, float(fov) if usable else (self.fov[i - 1] if i else np.nan))
+            if usable:
                 self.hfov_deg = float(fov)
             if np.isfinite(centre):
                 self.centre_h = float(centre)
@@ -103,8 +120,18 @@ class LivePoses:
     def __len__(self) -> int:
         return len(self.t)
 
-    def at(self, t: float, frame: LocalFrame, intrinsics: Intrinsics, far: float) -> LivePose:
-        """The camera at media time t in `frame` from the sets arrived so far."""
+    def at(
+        self,
+        t: float,
+        frame: LocalFrame,
+        intrinsics: Intrinsics,
+        far: float,
+        own_fov: bool = True,
+    ) -> LivePose:
+        """The camera at media time t (s) in `frame` from the sets arrived so far: `intrinsics`'
+        image (pixels) with the field of view of that moment where the sets give one (linear
+        between two sets, the newest held past it; own_fov False: `intrinsics` as they are, a
+        field of view the user gave)."""
         with self._lock:
             if not self.t:
                 return LivePose(None, NONE, float("inf"))
@@ -116,13 +143,16 @@ class LivePoses:
             else:
                 k, w, age = i - 1, (t - self.t[i - 1]) / (self.t[i] - self.t[i - 1]), 0.0
             a = np.array(self.geodetic[k])
-            qa = self.q[k]
+            qa, fa = self.q[k], self.fov[k]
             if w > 0.0:
-                b, qb = np.array(self.geodetic[k + 1]), self.q[k + 1]
+                b, qb, fb = np.array(self.geodetic[k + 1]), self.q[k + 1], self.fov[k + 1]
             else:
-                b, qb = a, qa
+                b, qb, fb = a, qa, fa
         enu = frame.geodetic_to_enu(*(np.array([v]) for v in (1 - w) * a + w * b))[0]
         q = rotations.slerp([0.0, 1.0], np.stack([qa, qb]), [w])[0]
+        fov = fov_between(fa, fb, w)
+        if own_fov and fov is not None:
+            intrinsics = Intrinsics.from_fov(intrinsics.width, intrinsics.height, fov)
         camera = Camera.create(intrinsics, enu, q, far=far)
         return LivePose(camera, FRESH if age <= self.stale_after_s else STALE, age)
 
@@ -170,8 +200,16 @@ class MavlinkPoses:
         c = self.boot_offset()
         return None if c is None else self.telemetry.at(t + c + self.offset_s)
 
-    def at(self, t: float, frame: LocalFrame, intrinsics: Intrinsics, far: float) -> LivePose:
-        """The camera at media time t in `frame` from the messages arrived so far."""
+    def at(
+        self,
+        t: float,
+        frame: LocalFrame,
+        intrinsics: Intrinsics,
+        far: float,
+        own_fov: bool = True,
+    ) -> LivePose:
+        """The camera at media time t (s) in `frame` from the messages arrived so far, with
+        `intrinsics` as they are (MAVLink gives no field of view: own_fov has nothing to use)."""
         pose = self.telemetry_at(t)
         if pose is None:
             return LivePose(None, NONE, float("inf"))

@@ -2,9 +2,14 @@
 with its orthophoto, city models; all placed in one ENU frame into one MeshData.
 
 The kind of a layer comes from its name: a CityJSON file (`.city.json`, `.city.jsonl`, or a
-`.json` that says CityJSON) or CityGML (`.gml`, `.xml`, `.zip`) is a city, any other `.json` or
+`.json` that says CityJSON), CityGML (`.gml`, `.xml`, `.zip`) or building footprints
+(OpenStreetMap `.osm`, `.osm.pbf`, GeoParquet `.parquet`) is a city, any other `.json` or
 an http(s) URL a tileset, `.tif`/`.tiff` a DEM, `.glb`/`.gltf`/`.obj`/`.ply` a model. Tilesets,
 DEMs and cities are georeferenced by themselves; models by their placement (app.scene.loader).
+
+Footprints are extruded after every other layer is loaded, each building standing on the
+other layers' ground under it; with no other layer, on an assumed flat ground (the clip's), which
+is drawn under them.
 """
 
 from __future__ import annotations
@@ -18,7 +23,9 @@ import numpy.typing as npt
 from app.core.errors import SceneError
 from app.core.messages import Messages
 from app.geodesy.enu import LocalFrame
-from app.scene.city.read import is_city, read_city
+from app.scene.city.footprints import flat_ground, terrain_ground
+from app.scene.city.read import is_city, is_footprints, read_city
+from app.scene.ground_plane import ASSUMED_GROUND_MARGIN_M, ground_plane
 from app.scene.loader import SUPPORTED_SUFFIXES, Placement, load_scene
 from app.scene.mesh import MeshData
 from app.scene.terrain import DEFAULT_MAX_ERROR_M, DEM_SUFFIXES, read_terrain
@@ -44,7 +51,7 @@ def layer_kind(location: str | Path) -> str:
         return "mesh"
     raise SceneError(
         text,
-        f"unknown scene layer {suffix or 'without a suffix'!r} (expected a 3D Tiles tileset.json or URL, a DEM .tif, a CityJSON or CityGML city model, or {', '.join(SUPPORTED_SUFFIXES)})",
+        f"unknown scene layer {suffix or 'without a suffix'!r} (expected a 3D Tiles tileset.json or URL, a DEM .tif, a CityJSON or CityGML city model, OpenStreetMap (.osm, .osm.pbf) or GeoParquet buildings, or {', '.join(SUPPORTED_SUFFIXES)})",
     )
 
 
@@ -162,16 +169,27 @@ def _tileset(layer: Layer, frame: LocalFrame) -> Tileset:
         raise SceneError(exc.location, exc.detail, field=exc.field) from exc
 
 
+def _is_footprints(layer: Layer) -> bool:
+    return layer.kind == "city" and is_footprints(layer.location)
+
+
 def load_layers(
     layers: list[Layer] | tuple[Layer, ...],
     frame: LocalFrame,
     track_ll: npt.ArrayLike | None = None,
+    ground_h: float | None = None,
+    margin_m: float = ASSUMED_GROUND_MARGIN_M,
 ) -> LoadedLayers:
     """Every layer in `frame`, in one MeshData. track_ll: (N, 2) lat, lon (deg) of the clip's
-    track: DEMs and city models are read around it. Raises SceneError naming the file at fault."""
+    track: DEMs and city models are read around it. ground_h: the clip's assumed ground
+    (ellipsoidal m; None: the frame origin's height), where building footprints stand when no
+    other layer has ground under them, drawn margin_m (m) beyond the track and them when no
+    other layer is given (load_footprints). Raises SceneError naming the file at fault."""
     out = LoadedLayers(MeshData())
     notes = out.notes
     for layer in layers:
+        if _is_footprints(layer):
+            continue  # after the others: they stand on them
         if layer.kind == "mesh":
             part = load_scene(layer.location, frame, layer.placement)
         elif layer.kind == "tileset":
@@ -211,9 +229,60 @@ def load_layers(
                 notes.info(
                     f"{layer.name}: {lowered} terrain vertices under the models lowered below their ground, which is drawn there"
                 )
+    footprints = [layer for layer in layers if _is_footprints(layer)]
+    if footprints:
+        load_footprints(out, footprints, frame, track_ll, ground_h, margin_m)
     for _, part in out.parts:
         out.mesh = out.mesh.merged(part)
     return out
+
+
+def load_footprints(
+    out: LoadedLayers,
+    layers: list[Layer],
+    frame: LocalFrame,
+    track_ll: npt.ArrayLike | None,
+    ground_h: float | None,
+    margin_m: float,
+) -> None:
+    """Building footprint layers extruded into `out` (app.scene.city.footprints), on the
+    ground of the layers already in it; with none, on the flat ground at ground_h (ellipsoidal
+    m; None: the frame origin's height), which is then drawn beneath them and the track, margin_m
+    (m) beyond both."""
+    assumed = frame.h_m if ground_h is None else float(ground_h)
+    track = None if track_ll is None else np.atleast_2d(np.asarray(track_ll, np.float64))
+    at = (frame.lat_deg, frame.lon_deg) if track is None or not len(track) else track[0]
+    z = float(frame.geodetic_to_enu(at[0], at[1], assumed)[2])  # the flat ground's ENU height
+    terrain = MeshData()
+    for _, part in out.parts:
+        terrain = terrain.merged(part)
+    if terrain.primitives or terrain.tilesets:
+        names = ", ".join(layer.name for layer, _ in out.parts)
+        ground = terrain_ground(terrain, frame, f"the ground of {names}", assumed)
+    else:
+        ground = flat_ground(
+            frame,
+            z,
+            assumed,
+            f"an assumed flat ground at {assumed:.2f} m (ellipsoidal), drawn under them",
+        )
+    first = len(out.parts)
+    for layer in layers:
+        city = read_city(layer.location, frame, track, ground=ground)
+        out.notes.extend(city.notes)
+        out.parts.append((layer, city.mesh))
+    if terrain.primitives or terrain.tilesets:
+        return
+    corners = [part.bounds()[:, :2] for _, part in out.parts[first:]]
+    if track is not None and len(track):
+        corners.append(
+            frame.geodetic_to_enu(track[:, 0], track[:, 1], np.full(len(track), assumed))[:, :2]
+        )
+    xy = np.concatenate(corners)
+    lo, hi = xy.min(axis=0), xy.max(axis=0)
+    plane = ground_plane((lo + hi) / 2, z, float(max(hi - lo) / 2 + margin_m))
+    layer, part = out.parts[first]
+    out.parts[first] = (layer, part.merged(plane))
 
 
 MODEL_GROUND_CLEARANCE_M = (

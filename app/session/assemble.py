@@ -35,6 +35,7 @@ from app.scene.mesh import MeshData
 from app.session.config import SessionConfig, read_config
 from app.session.model import Session
 from app.sync import sync_session, synced_drift, synced_offset, timed_by
+from app.world.build import resolve_worlds
 
 
 def open_session(path: str | Path) -> Session:
@@ -209,12 +210,20 @@ def _takeoff_height(
     return value
 
 
-def load_scene_layers(layers, frame: LocalFrame, gnss: GnssTrack, messages: Messages) -> MeshData:
+def load_scene_layers(
+    layers,
+    frame: LocalFrame,
+    gnss: GnssTrack,
+    messages: Messages,
+    ground_h: float | None = None,
+    margin_m: float = ASSUMED_GROUND_MARGIN_M,
+) -> MeshData:
     """Every layer in `frame`, read around the track (app.scene.layers.load_layers), with what
     reading them found said, and a warning with the distance for each layer that lies away from
     the camera's track (a wrong origin, up axis or ECEF reading places a model thousands of
-    kilometres off: LoadedLayers.warn_far)."""
-    loaded = load_layers(layers, frame, np.column_stack([gnss.lat, gnss.lon]))
+    kilometres off: LoadedLayers.warn_far). ground_h, margin_m: the assumed ground (ellipsoidal
+    m) building footprints stand on where no other layer has ground, and its reach (m)."""
+    loaded = load_layers(layers, frame, np.column_stack([gnss.lat, gnss.lon]), ground_h, margin_m)
     loaded.warn_far(frame.geodetic_to_enu(gnss.lat, gnss.lon, gnss.h), "the camera's track")
     messages.extend(loaded.notes)
     return loaded.mesh
@@ -288,7 +297,17 @@ def _true_frame_times(cfg: SessionConfig, count: int, messages: Messages) -> np.
 def _place(cfg: SessionConfig, gnss: GnssTrack, above_takeoff: bool, messages: Messages):
     """(frame, mesh, gnss with final heights): the session's ENU frame and scene. Without any
     layer, an assumed flat ground under the track (the first fix's height less the mount height,
-    or the take-off height for heights above take-off), as for clips opened directly."""
+    or the take-off height for heights above take-off), as for clips opened directly. A
+    [world] is built around the track first (app.world.build.resolve_worlds; dropped, and said,
+    where none of its tiles could be had)."""
+    if any(layer.kind == "world" for layer in cfg.layers):
+        takeoff = cfg.gnss.takeoff_height_m or 0.0
+        ground = takeoff if above_takeoff else float(gnss.h[0]) - cfg.gnss.mount_height_m
+        h = gnss.h + takeoff if above_takeoff else gnss.h
+        layers = resolve_worlds(
+            cfg.layers, gnss.lat, gnss.lon, h, ground, ASSUMED_GROUND_MARGIN_M, messages
+        )
+        cfg = replace(cfg, layers=layers)
     if not cfg.layers:
         takeoff = cfg.gnss.takeoff_height_m or 0.0
         if above_takeoff:
@@ -316,7 +335,12 @@ def _place(cfg: SessionConfig, gnss: GnssTrack, above_takeoff: bool, messages: M
         frame = LocalFrame(*origin)
     except ValueError as exc:
         raise ManifestError(cfg.path, str(exc), field="origin") from exc
-    mesh = load_scene_layers(cfg.layers, frame, gnss, messages)
+    ground = (
+        (cfg.gnss.takeoff_height_m or 0.0)
+        if above_takeoff
+        else float(gnss.h[0]) - cfg.gnss.mount_height_m
+    )
+    mesh = load_scene_layers(cfg.layers, frame, gnss, messages, ground)
     if above_takeoff:
         gnss = replace(gnss, h=gnss.h + _takeoff_height(cfg, frame, gnss, mesh, messages))
     return frame, mesh, gnss

@@ -11,8 +11,9 @@ TOML reader that types and checks each key is app.session.reader).
                                   # assumed flat ground under the track
     path = "scene.glb"            # glTF/GLB, OBJ, PLY; or a 3D Tiles tileset.json (folder or
                                   # http(s) URL), a DEM .tif or a city model (CityJSON
-                                  # .city.json/.city.jsonl, CityGML .gml/.xml/.zip), which
-                                  # place themselves
+                                  # .city.json/.city.jsonl, CityGML .gml/.xml/.zip; building
+                                  # footprints .osm/.osm.pbf/.parquet, extruded on the other
+                                  # layers' ground), which place themselves
     origin = [34.80, 113.53, 110.0]  # a model's origin (tilesets and DEMs need none)
     up_axis = "Y"                 # optional: Y for glTF, Z otherwise
     heading_deg = 0.0             # optional
@@ -27,6 +28,12 @@ TOML reader that types and checks each key is app.session.reader).
     [[layers]]                    # optional, repeated: more layers drawn together with [scene]
     path = "city/tileset.json"    # same kinds as scene.path; a model here takes the same keys
                                   # (origin, up_axis, heading_deg, scale)
+
+    [world]                       # optional: terrain and imagery from tile services around the
+                                  # track, drawn with the layers above (app.world): a [[world]]
+    name = "maptiler"             # of the settings file by its name alone, or sources of its
+    imagery = "ortho.mbtiles"     # own as a [[world]] table gives them (files relative to the
+    terrain = "terrain-rgb:https://host/{z}/{x}/{y}.png"  # manifest; a key by key_env only)
 
     [[clips]]                     # optional, repeated: further clips played with this one
     path = "other/session.toml"   # a manifest or a camera file (its own settings live there)
@@ -95,13 +102,15 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from app.core.constants import COURSE, DRONE_DEFAULT_PITCH_DEG, FOV_RANGE_DEG, REGISTERED, TRUTH
-from app.core.errors import ManifestError, SceneError
+from app.core.errors import GeofuseError, ManifestError, SceneError
 from app.geodesy.geoid import VERTICAL_DATUMS
 from app.scene import Placement
 from app.scene.layers import Layer, layer_kind
 from app.scene.tiles import fetch
 from app.session.model import FILTERS
 from app.session.reader import Manifest, array_tables, check_keys, checked_geodetic, load_manifest
+from app.world.build import world_layer
+from app.world.settings import MANIFEST_KEYS, manifest_world
 
 HANDHELD_MOUNT_M = 1.5  # a hand-held or body camera's height above the ground, metres
 _PLACED = {"path", "origin", "up_axis", "heading_deg", "scale"}
@@ -132,6 +141,7 @@ KNOWN_KEYS: dict[str, set[str]] = {  # every table and key of the schema above
         "pitch_deg",
     },
     "truth": {"orientation", "position", "frame_times"},
+    "world": MANIFEST_KEYS,
 }
 
 
@@ -358,6 +368,12 @@ def read_config(path: str | Path) -> SessionConfig:
     check_keys(m.path, m.data, KNOWN_KEYS)
     scene = SceneConfig(*_layer(m, "scene")) if m.section("scene", required=False) else None
     layers = ([scene.layer] if scene else []) + _layers(m)
+    if m.section("world", required=False):
+        try:
+            world = manifest_world(m.section("world"), m.path.parent)
+        except GeofuseError as exc:
+            raise ManifestError(m.path, str(exc), field="world") from exc
+        layers.append(world_layer(world))
     if m.section("origin", required=False):
         origin = checked_geodetic(
             m.path, "origin", *(m.get("origin", k, float) for k in ("lat", "lon", "h"))

@@ -1,13 +1,15 @@
-"""A world's tiles over a clip's track -> a DEM and an orthophoto GeoTIFF (EPSG:3857) in the
-cache folder -> the scene's DEM layer (app.scene.terrain drapes the one on the other, in the
-session's ENU frame, with its RTIN mesh and vertical datum).
+"""A world's tiles over a clip's track -> a DEM and an orthophoto GeoTIFF (each in its source's
+CRS: EPSG:3857 for XYZ tiles, a WMTS's or GeoPackage's own grid, a GeoTIFF's own) in the cache
+folder -> the scene's DEM layer (app.scene.terrain drapes the one on the other, in the session's
+ENU frame, with its RTIN mesh and vertical datum).
 
 The area: the track's extent plus the camera's reach on the ground (the margin the assumed
-ground would have had, at most MAX_REACH_M), in Web Mercator. The levels: imagery at the
-coarsest zoom whose pixels are at most the clip's ground sampling (estimated from its height
-above the ground), terrain TERRAIN_COARSER times coarser, each within a tile budget. A tile that
-cannot be had is drawn from up to PARENT_LEVELS coarser tiles; imagery without terrain lies on
-the assumed flat ground. Everything fetched is bounded by the world's timeout_s.
+ground would have had, at most MAX_REACH_M), in the source's CRS. The levels: imagery at the
+coarsest level whose pixels are at most the clip's ground sampling (estimated from its height
+above the ground), terrain TERRAIN_COARSER times coarser, each within a tile budget (a
+GeoTIFF's window within as many pixels). A tile that cannot be had is drawn from up to
+PARENT_LEVELS coarser tiles; imagery without terrain lies on the assumed flat ground.
+Everything fetched is bounded by the world's timeout_s.
 """
 
 from __future__ import annotations
@@ -31,9 +33,12 @@ from scipy import ndimage
 from app.core.messages import Messages
 from app.core.progress import ProgressBar
 from app.scene.layers import Layer
+from app.world import grids
 from app.world import tiles as tm
 from app.world.cache import TileCache
+from app.world.cog import RasterFault, read_window
 from app.world.fetch import SourceFetcher
+from app.world.grids import GridRange, lonlat_box
 from app.world.settings import World
 from app.world.sources import TileSource, decode_heights
 
@@ -47,6 +52,7 @@ PARENT_LEVELS = 3
 FETCH_WORKERS = 8
 FLAT_GRID = 33  # samples a side of the flat DEM under imagery without terrain
 ASSUMED_TILE_PX = 256
+MAX_WINDOW_SIDE = 8192  # a GeoTIFF's window is read at most this many pixels a side
 
 
 def world_layer(world: World) -> Layer:
@@ -56,34 +62,85 @@ def world_layer(world: World) -> Layer:
     return Layer(f"world:{world.name}", "world", world=world, attribution=credit)
 
 
+Tiles = tm.TileRange | GridRange  # XYZ Web Mercator tiles, or a grid's (app.world.grids)
+
+
 @dataclass
 class Mosaic:
-    """Tiles at one zoom in one array: (H, W, 3) uint8 imagery or (H, W) float64 heights (NaN:
-    none), with the tiles it covers, each tile_px a side; counts of tiles had at their own level
+    """Tiles at one level in one array: (H, W, 3) uint8 imagery or (H, W) float64 heights (NaN:
+    none), with the tiles it covers, each tile_px wide; counts of tiles had at their own level
     and from a coarser one."""
 
     data: np.ndarray
-    tiles: tm.TileRange
+    tiles: Tiles
     tile_px: int
     own: int
     coarser: int
 
     def transform(self) -> Affine:
+        """Pixel (col, row) -> (x, y) of its corner in the tiles' CRS (crs)."""
         return Affine(*self.tiles.transform(self.tile_px))
 
+    @property
+    def crs(self) -> str:
+        return self.tiles.grid.crs if isinstance(self.tiles, GridRange) else "EPSG:3857"
 
-def _resize(tile: np.ndarray, size: int) -> np.ndarray:
-    """A tile (H, W[, 3]) resampled (bilinear) to size x size."""
-    if tile.shape[0] == size and tile.shape[1] == size:
+
+@dataclass
+class Made:
+    """A layer's raster over the clip: data as Mosaic's, the affine of its pixel corners in
+    `crs`, and what the GeoTIFF's SOURCE tag says of its level ("zoom 16", "level 4 of
+    swissgrid", "window 240x240")."""
+
+    data: np.ndarray
+    transform: Affine
+    crs: str
+    level: str
+
+
+@dataclass
+class SourcePlan:
+    """What is read of one source over a clip: tiles (TileRange or GridRange), or a GeoTIFF's
+    window over `box` (west, south, east, north deg) at pixels of needed_m (m) and at most
+    max_side a side; neither when the source cannot be opened (its fetcher says why)."""
+
+    kind: str
+    source: TileSource
+    fetcher: SourceFetcher
+    tiles: Tiles | None = None
+    box: tuple[float, float, float, float] | None = None
+    needed_m: float = 0.0
+    max_side: int = 0
+
+    @property
+    def count(self) -> int:
+        """Tiles to fetch (a window counts as one)."""
+        return self.tiles.count if self.tiles is not None else 1
+
+
+def _resize(tile: np.ndarray, size: int, width: int | None = None) -> np.ndarray:
+    """A tile (H, W[, 3]) resampled (bilinear) to size rows x width (default size) columns."""
+    width = size if width is None else width
+    if tile.shape[0] == size and tile.shape[1] == width:
         return tile
-    f = (size / tile.shape[0], size / tile.shape[1]) + ((1,) if tile.ndim == 3 else ())
+    f = (size / tile.shape[0], width / tile.shape[1]) + ((1,) if tile.ndim == 3 else ())
     out = ndimage.zoom(tile.astype(np.float64), f, order=1, mode="nearest", grid_mode=True)
     return out.astype(tile.dtype) if tile.dtype == np.uint8 else out
 
 
+def _parent_window(tiles: Tiles, z: int, x: int, y: int, k: int):
+    """(z', x', y', (row0, col0, height, width)) of the tile k levels up holding (z, x, y),
+    where the child lies in it as fractions of the parent's size; None where none holds it."""
+    if isinstance(tiles, GridRange):
+        return tiles.parent(z, x, y, k)
+    pz, px, py, col, row = tm.parent(z, x, y, k)
+    f = 1.0 / (1 << k)
+    return pz, px, py, (row * f, col * f, f, f)
+
+
 def mosaic(
     fetcher: SourceFetcher,
-    tiles: tm.TileRange,
+    tiles: Tiles,
     decode: Callable[[np.ndarray], np.ndarray],
     progress: Callable[[float], None] | None = None,
 ) -> Mosaic | None:
@@ -105,27 +162,31 @@ def mosaic(
         if (z, x, y) in got:
             continue
         for k in range(1, min(PARENT_LEVELS, z) + 1):
-            pz, px, py, col, row = tm.parent(z, x, y, k)
+            found = _parent_window(tiles, z, x, y, k)
+            if found is None:
+                continue
+            pz, px, py, (fr, fc, fh, fw) = found
             if (pz, px, py) not in parents:
                 arr = fetcher.get(pz, px, py)
                 parents[(pz, px, py)] = None if arr is None else decode(arr)
             p = parents[(pz, px, py)]
             if p is not None:
-                step = p.shape[0] / (1 << k)
-                r0, c0 = int(round(row * step)), int(round(col * step))
-                n = max(1, int(round(step)))
-                filled[(z, x, y)] = p[r0 : r0 + n, c0 : c0 + n]
+                r0, c0 = int(round(fr * p.shape[0])), int(round(fc * p.shape[1]))
+                h = max(1, int(round(fh * p.shape[0])))
+                w = max(1, int(round(fw * p.shape[1])))
+                filled[(z, x, y)] = p[r0 : r0 + h, c0 : c0 + w]
                 break
     if not got and not filled:
         return None
-    tile_px = next(iter(got.values())).shape[0] if got else ASSUMED_TILE_PX
+    tile_px = next(iter(got.values())).shape[1] if got else ASSUMED_TILE_PX
+    tile_h = max(1, int(round(tile_px * getattr(tiles, "tile_aspect", 1.0))))
     rows, cols = tiles.shape
     sample = next(iter((got or filled).values()))
-    shape = (rows * tile_px, cols * tile_px) + sample.shape[2:]
+    shape = (rows * tile_h, cols * tile_px) + sample.shape[2:]
     out = np.full(shape, np.nan if sample.dtype != np.uint8 else 128, sample.dtype)
     for (_, x, y), arr in (got | filled).items():
-        r, c = (y - tiles.y0) * tile_px, (x - tiles.x0) * tile_px
-        out[r : r + tile_px, c : c + tile_px] = _resize(arr, tile_px)
+        r, c = (y - tiles.y0) * tile_h, (x - tiles.x0) * tile_px
+        out[r : r + tile_h, c : c + tile_px] = _resize(arr, tile_h, tile_px)
     return Mosaic(out, tiles, tile_px, len(got), len(filled))
 
 
@@ -141,12 +202,10 @@ def _bounds(lat: np.ndarray, lon: np.ndarray, reach_m: float) -> tuple[float, fl
     )
 
 
-def _zoom(source: TileSource, bounds, needed_m: float, lat: float, max_tiles: int) -> int:
-    return tm.choose_zoom(bounds, needed_m, lat, ASSUMED_TILE_PX, source.max_zoom, max_tiles)
-
-
-def _write(path: Path, data: np.ndarray, transform: Affine, tags: dict[str, str]) -> Path:
-    """A GeoTIFF in EPSG:3857: (H, W) float heights (NaN nodata) or (H, W, 3) uint8 RGB."""
+def _write(
+    path: Path, data: np.ndarray, transform: Affine, tags: dict[str, str], crs: str = "EPSG:3857"
+) -> Path:
+    """A GeoTIFF in `crs`: (H, W) float heights (NaN nodata) or (H, W, 3) uint8 RGB."""
     bands = data[None] if data.ndim == 2 else np.moveaxis(data, -1, 0)
     profile = {
         "driver": "GTiff",
@@ -154,7 +213,7 @@ def _write(path: Path, data: np.ndarray, transform: Affine, tags: dict[str, str]
         "height": data.shape[0],
         "count": bands.shape[0],
         "dtype": "float32" if data.ndim == 2 else "uint8",
-        "crs": "EPSG:3857",
+        "crs": crs,
         "transform": transform,
         "compress": "deflate",
         **({"nodata": np.nan} if data.ndim == 2 else {"photometric": "RGB"}),
@@ -168,19 +227,135 @@ def _write(path: Path, data: np.ndarray, transform: Affine, tags: dict[str, str]
     return path
 
 
-def _tags(world: World, source: TileSource, z: int) -> dict[str, str]:
+def _tags(world: World, source: TileSource, z: int | str) -> dict[str, str]:
     """GeoTIFF metadata of a world's layer: its attribution (as licences require), the source
-    by its label (never its key) and zoom."""
+    by its label (never its key) and its level (a zoom, or words: Made.level)."""
     credit = world.attribution or source.attribution
+    level = f"zoom {z}" if isinstance(z, int) else z
     return {
         "TIFFTAG_COPYRIGHT": credit,
         "ATTRIBUTION": credit,
-        "SOURCE": f"{source.kind} {source.label} zoom {z}",
+        "SOURCE": f"{source.kind} {source.label} {level}",
     }
 
 
 def _safe(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]+", "_", name)[:40] or "world"
+
+
+def plan_world(
+    world: World,
+    lat: npt.ArrayLike,
+    lon: npt.ArrayLike,
+    reach_m: float,
+    height_m: float,
+    cache: TileCache,
+    deadline: float,
+    clock: Callable[[], float] = time.monotonic,
+    max_tiles: tuple[int, int] = (TERRAIN_MAX_TILES, IMAGERY_MAX_TILES),
+    max_reach_m: float = MAX_REACH_M,
+) -> list[SourcePlan]:
+    """What world_scene reads of each of the world's sources (terrain first) over the track
+    (lat, lon deg) plus reach_m (m, bounded by MIN_REACH_M and max_reach_m) for a camera
+    height_m above the ground (m): the sources opened (a WMTS's capabilities fetched, an
+    archive's pyramid read), their levels chosen within max_tiles (terrain, imagery; a
+    GeoTIFF's window within as many 256-px tiles). Close each plan's fetcher when done."""
+    lat, lon = (
+        np.atleast_1d(np.asarray(lat, np.float64)),
+        np.atleast_1d(np.asarray(lon, np.float64)),
+    )
+    lat0 = float(np.mean(lat))
+    reach = min(max(reach_m, MIN_REACH_M), max_reach_m)
+    bounds = _bounds(lat, lon, reach)
+    box = lonlat_box(lat, lon, reach)
+    needed = max(MIN_GSD_M, abs(height_m) / 1000.0)  # a 1000-px-wide view of 53 deg, nadir
+    plans = []
+    for kind, source, needed_m, budget in (
+        ("terrain", world.terrain, needed * TERRAIN_COARSER, max_tiles[0]),
+        ("imagery", world.imagery, needed, max_tiles[1]),
+    ):
+        if source is None:
+            continue
+        fetcher = SourceFetcher(source, cache, deadline, clock=clock)
+        plan = SourcePlan(kind, source, fetcher, needed_m=needed_m)
+        if source.form == "cog":
+            plan.box = box
+            plan.max_side = min(int(math.sqrt(budget)) * ASSUMED_TILE_PX, MAX_WINDOW_SIDE)
+        elif source.web_mercator:
+            if fetcher.open():
+                z = tm.choose_zoom(
+                    bounds, needed_m, lat0, ASSUMED_TILE_PX, fetcher.max_zoom(), budget
+                )
+                plan.tiles = tm.covering(bounds, z)
+        else:
+            grid = fetcher.grid()
+            if grid is not None:
+                own = grids.box_in(grid.crs, box)
+                plan.tiles = grid.covering(own, grid.choose_level(own, needed_m, budget))
+        plans.append(plan)
+    return plans
+
+
+def _read_plan(
+    plan: SourcePlan,
+    what: str,
+    lat0: float,
+    messages: Messages,
+    cache: TileCache,
+    deadline: float,
+    clock: Callable[[], float],
+    progress: Callable[[float], None],
+) -> Made | None:
+    """A plan's raster (its tiles mosaicked, or its window read), what it took said in
+    `messages`; None when nothing could be had (the fault said once)."""
+    source, fetcher = plan.source, plan.fetcher
+    label = f"{what} {plan.kind}"
+    if plan.box is not None:
+        try:
+            r = read_window(source, plan.box, plan.needed_m, plan.max_side, cache, deadline, clock)
+        except RasterFault as exc:
+            messages.add_once(
+                f"world-faults {label}",
+                source.redact(f"{label} ({source.label}): the GeoTIFF could not be read: {exc}"),
+            )
+            return None
+        finally:
+            progress(1.0)
+        h, w = r.data.shape[:2]
+        messages.info(
+            f"{label}: a {w} x {h} window of {source.label} (~{r.pixel_m:.1f} m a pixel; "
+            + ("from the cache" if r.from_cache else "read by range requests")
+            + ")"
+        )
+        return Made(r.data, r.transform, r.crs, f"window {w}x{h}")
+    if plan.tiles is None:
+        fetcher.report(messages, label)
+        return None
+    tiles = plan.tiles
+    decode = (
+        (lambda a, enc=source.encoding: decode_heights(a, enc))
+        if plan.kind == "terrain"
+        else (lambda a: a)
+    )
+    m = mosaic(fetcher, tiles, decode, progress)
+    fetcher.report(messages, label)
+    if m is None:
+        return None
+    if isinstance(tiles, GridRange):
+        west, south, east, north = tiles.bounds()
+        res_m = tiles.grid.pixel_m(tiles.z, (west + east) / 2, (south + north) / 2)
+        res_m *= tiles.matrix.tile_w / m.tile_px
+        level = f"level {tiles.matrix.ident} of {tiles.grid.name or 'its grid'}"
+    else:
+        res_m = tm.pixel_m(tiles.z, m.tile_px, lat0)
+        level = f"zoom {tiles.z}"
+    messages.info(
+        f"{label}: {m.own + m.coarser} tiles of {source.label} at {level} "
+        f"(~{res_m:.1f} m a pixel; {fetcher.requests} requests, {fetcher.from_cache} from the cache"
+        + (f", {m.coarser} drawn from a coarser level" if m.coarser else "")
+        + ")"
+    )
+    return Made(m.data, m.transform(), m.crs, level)
 
 
 def world_scene(
@@ -202,52 +377,26 @@ def world_scene(
     reach_m: the camera's reach on the ground beyond the track (m); height_m: the camera's
     typical height above the ground (m), which sets the imagery's ground sampling."""
     cache = cache or TileCache()
-    lat, lon = (
-        np.atleast_1d(np.asarray(lat, np.float64)),
-        np.atleast_1d(np.asarray(lon, np.float64)),
-    )
-    lat0 = float(np.mean(lat))
-    bounds = _bounds(lat, lon, min(max(reach_m, MIN_REACH_M), MAX_REACH_M))
-    needed = max(MIN_GSD_M, abs(height_m) / 1000.0)  # a 1000-px-wide view of 53 deg, nadir
+    lat0 = float(np.mean(np.atleast_1d(np.asarray(lat, np.float64))))
     deadline = clock() + world.timeout_s
     what = f"world {world.name}"
-    plan = []
-    if world.terrain is not None:
-        z = _zoom(world.terrain, bounds, needed * TERRAIN_COARSER, lat0, TERRAIN_MAX_TILES)
-        plan.append(("terrain", world.terrain, tm.covering(bounds, z)))
-    if world.imagery is not None:
-        z = _zoom(world.imagery, bounds, needed, lat0, IMAGERY_MAX_TILES)
-        plan.append(("imagery", world.imagery, tm.covering(bounds, z)))
-    total = sum(r.count for _, _, r in plan)
+    plans = plan_world(world, lat, lon, reach_m, height_m, cache, deadline, clock)
+    total = max(1, sum(p.count for p in plans))
     done = 0
-    made: dict[str, Mosaic] = {}
-    fetchers = []
-    for kind, source, tiles in plan:
-        fetcher = SourceFetcher(source, cache, deadline, clock=clock)
-        fetchers.append(fetcher)
-        decode = (
-            (lambda a, enc=source.encoding: decode_heights(a, enc))
-            if kind == "terrain"
-            else (lambda a: a)
-        )
-        start = done
+    made: dict[str, Made] = {}
+    for plan in plans:
 
-        def step(f: float, start: int = start, n: int = tiles.count) -> None:
+        def step(f: float, start: int = done, n: int = plan.count) -> None:
             if progress is not None:
                 progress((start + f * n) / total)
 
-        m = mosaic(fetcher, tiles, decode, step)
-        done += tiles.count
-        fetcher.close()
-        fetcher.report(messages, f"{what} {kind}")
-        if m is not None:
-            made[kind] = m
-            messages.info(
-                f"{what} {kind}: {m.own + m.coarser} tiles of {source.label} at zoom {tiles.z} "
-                f"(~{tm.pixel_m(tiles.z, m.tile_px, lat0):.1f} m a pixel; {fetcher.requests} requests, {fetcher.from_cache} from the cache"
-                + (f", {m.coarser} drawn from a coarser level" if m.coarser else "")
-                + ")"
-            )
+        try:
+            got = _read_plan(plan, what, lat0, messages, cache, deadline, clock, step)
+        finally:
+            plan.fetcher.close()
+        done += plan.count
+        if got is not None:
+            made[plan.kind] = got
     if not made:
         messages.add(
             f"{what}: no tile could be had: the video is projected on the assumed flat ground instead"
@@ -255,7 +404,7 @@ def world_scene(
         return ()
     cache.trim()
     key = hashlib.sha256(
-        repr([(s.identity, r) for _, s, r in plan] + [ground_h]).encode()
+        repr([(p.source.identity, p.tiles, p.box, p.needed_m) for p in plans] + [ground_h]).encode()
     ).hexdigest()[:16]
     folder = cache.root / "worlds" / key
     ortho = None
@@ -264,8 +413,9 @@ def world_scene(
         ortho = _write(
             folder / f"{_safe(world.name)}-imagery.tif",
             m.data,
-            m.transform(),
-            _tags(world, world.imagery, m.tiles.z),
+            m.transform,
+            _tags(world, world.imagery, m.level),
+            m.crs,
         )
     if "terrain" in made:
         m = made["terrain"]
@@ -273,16 +423,19 @@ def world_scene(
         dem = _write(
             folder / f"{_safe(world.name)}-terrain.tif",
             m.data.astype(np.float32),
-            m.transform(),
-            _tags(world, world.terrain, m.tiles.z),
+            m.transform,
+            _tags(world, world.terrain, m.level),
+            m.crs,
         )
         messages.info(
             f"{what} terrain: heights taken as above {'the ellipsoid' if datum == 'ellipsoid' else datum.upper()} "
-            "(datum in its [[world]] table says otherwise)"
+            "(datum in its [[world]] table, or --dem-vertical, says otherwise)"
         )
     else:
         m = made["imagery"]
-        west, south, east, north = m.tiles.bounds_m()
+        h, w = m.data.shape[:2]
+        west, north = m.transform.c, m.transform.f
+        east, south = m.transform @ (w, h)
         flat = np.full((FLAT_GRID, FLAT_GRID), float(ground_h), np.float32)
         step_x, step_y = (east - west) / FLAT_GRID, (north - south) / FLAT_GRID
         dem = _write(
@@ -290,10 +443,12 @@ def world_scene(
             flat,
             Affine(step_x, 0.0, west, 0.0, -step_y, north),
             {"SOURCE": "the assumed flat ground"},
+            m.crs,
         )
         datum = "ellipsoid"
         messages.add(f"{what} has no terrain source: its imagery lies on the assumed flat ground")
-    if not (world.attribution or any(s.attribution for _, s, _ in plan)):
+    sources = [p.source for p in plans]
+    if not (world.attribution or any(s.attribution for s in sources)):
         messages.add(
             f"{what}: no attribution given: credit its providers as their terms require (attribution in its [[world]] table)"
         )
@@ -303,7 +458,8 @@ def world_scene(
             "dem",
             ortho=ortho,
             vertical=datum,
-            attribution=world.attribution or next((s.attribution for _, s, _ in plan), ""),
+            attribution=world.attribution
+            or next((s.attribution for s in sources if s.attribution), ""),
         ),
     )
 

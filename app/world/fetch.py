@@ -1,5 +1,6 @@
-"""Tiles of one source, from its MBTiles file or over HTTP through the disk cache, with every
-fault said once per source and counted, never raised.
+"""Tiles of one source, from its local archive (MBTiles, PMTiles, GeoPackage) or over HTTP
+through the disk cache (XYZ/TMS templates; a WMTS layer, its capabilities read once and kept in
+the cache too), with every fault said once per source and counted, never raised.
 
 Faults: a missing tile (404: the caller draws a coarser level there, or none), a time-out, a
 server that closes mid-tile, a server that asks to slow down (429: its Retry-After honoured up
@@ -25,8 +26,11 @@ import numpy as np
 from PIL import Image, UnidentifiedImageError
 
 from app.core.messages import Messages
+from app.world.archives import ArchiveError, GeoPackageTiles, PMTiles, mbtiles_max_zoom
 from app.world.cache import TileCache
+from app.world.grids import TileGrid
 from app.world.sources import TileSource
+from app.world.wmts import WmtsError, WmtsLayer, read_layer
 
 REQUEST_TIMEOUT_S = 10.0
 RETRY_WAIT_MAX_S = 5.0
@@ -43,10 +47,17 @@ FAULTS = {
     "error": "failed (other HTTP or network errors)",
     "late": "not fetched within the time allowed",
 }
+SOURCE_FAULTS = {  # faults of the whole source, said before its tiles'
+    "capabilities": "its WMTS capabilities could not be used",
+    "archive": "the archive could not be read",
+}
+CAPABILITIES_AT = (0, 0, 0)  # where a WMTS's capabilities document is kept in the cache
 
 
 class SourceFetcher:
-    """Decoded tiles of `source` (get), counting requests, cache hits and faults."""
+    """Decoded tiles of `source` (get), counting requests, cache hits and faults. Tiles are
+    addressed as XYZ Web Mercator (z, x, y) where source.web_mercator (templates, MBTiles,
+    PMTiles), else as (level, column, row from the top) of the source's grid()."""
 
     def __init__(
         self,
@@ -67,6 +78,10 @@ class SourceFetcher:
         self.given_up = False
         self._lock = threading.Lock()
         self._db: sqlite3.Connection | None = None
+        self._archive: PMTiles | GeoPackageTiles | None = None
+        self._wmts: WmtsLayer | None = None
+        self._opened = False
+        self._open_lock = threading.Lock()
 
     # -- faults ---------------------------------------------------------------------------------
 
@@ -82,22 +97,86 @@ class SourceFetcher:
         source to the person (e.g. "world maptiler imagery")."""
         if not self.faults:
             return
+        whole = [f"{SOURCE_FAULTS[k]}: {self.first[k]}" for k in self.faults if k in SOURCE_FAULTS]
         parts = [
-            f"{n} {FAULTS[k]} (first {self.source.redact(self.first[k])})"
+            f"{n} {FAULTS[k]} (first {self.first[k]})"
             for k, n in self.faults.items()
+            if k in FAULTS
         ]
+        text = "; ".join(whole + (["tiles " + "; ".join(parts)] if parts else []))
         messages.add_once(
-            f"world-faults {what}", f"{what} ({self.source.label}): tiles " + "; ".join(parts)
+            f"world-faults {what}", self.source.redact(f"{what} ({self.source.label}): {text}")
         )
+
+    def _whole(self, kind: str, detail: str) -> None:
+        """A fault of the whole source (SOURCE_FAULTS): said with its detail; nothing more is
+        asked of it."""
+        with self._lock:
+            self.faults[kind] += 1
+            self.first.setdefault(kind, self.source.redact(detail))
+            self.given_up = True
 
     # -- reading --------------------------------------------------------------------------------
 
-    def get(self, z: int, x: int, y: int) -> np.ndarray | None:
-        """Tile (z, x, y) (XYZ rows) as an (H, W, 3) uint8 array, None where it cannot be had
-        (the fault counted)."""
-        if self.given_up:
+    def open(self) -> bool:
+        """Open the source once: its archive, or a WMTS's capabilities (fetched through the
+        cache); False where it cannot be used (the fault counted)."""
+        with self._open_lock:
+            if not self._opened:
+                self._opened = True
+                self._open_now()
+            return not self.given_up
+
+    def _open_now(self) -> None:
+        form = self.source.form
+        if form == "mbtiles" and not Path(self.source.location).is_file():
+            self._whole("archive", "no such file")
+            return
+        try:
+            if form == "pmtiles":
+                self._archive = PMTiles(self.source.location)
+            elif form == "gpkg":
+                self._archive = GeoPackageTiles(self.source.location)
+        except ArchiveError as exc:
+            self._whole("archive", str(exc))
+            return
+        if form == "wmts":
+            document = self._capabilities()
+            if document is None:
+                return
+            try:
+                self._wmts = read_layer(document, self.source.location)
+            except WmtsError as exc:
+                self.cache.drop(self._doc_identity, *CAPABILITIES_AT)
+                self._whole("capabilities", str(exc))
+
+    def grid(self) -> TileGrid | None:
+        """The source's own tile grid (a WMTS layer's TileMatrixSet, a GeoPackage's pyramid);
+        None for the XYZ Web Mercator forms (app.world.tiles) and for a source that cannot be
+        opened (the fault counted: see given_up)."""
+        if not self.open():
             return None
-        data = self._mbtiles(z, x, y) if self.source.is_mbtiles else self._http(z, x, y)
+        if self._wmts is not None:
+            return self._wmts.grid
+        if isinstance(self._archive, GeoPackageTiles):
+            return self._archive.grid
+        return None
+
+    def max_zoom(self) -> int:
+        """The finest XYZ zoom to ask for: the source's max_zoom, no finer than a local
+        archive's finest level."""
+        finest = None
+        if self.source.form == "mbtiles":
+            finest = mbtiles_max_zoom(Path(self.source.location))
+        elif self.source.form == "pmtiles" and self.open() and self._archive is not None:
+            finest = self._archive.max_zoom
+        return self.source.max_zoom if finest is None else min(self.source.max_zoom, finest)
+
+    def get(self, z: int, x: int, y: int) -> np.ndarray | None:
+        """Tile (z, x, y) as an (H, W, 3) uint8 array, None where it cannot be had (the fault
+        counted). (z, x, y): XYZ Web Mercator for templates, MBTiles and PMTiles; level (the
+        grid's index), column and row from the top of the source's grid() otherwise."""
+        data = self.get_bytes(z, x, y)
         if data is None:
             return None
         try:
@@ -107,6 +186,41 @@ class SourceFetcher:
             self.cache.drop(self.source.identity, z, x, y)
             self._fault("corrupt", z, x, y, type(exc).__name__)
             return None
+
+    def get_bytes(self, z: int, x: int, y: int, check: bool = False) -> bytes | None:
+        """Tile (z, x, y) (as get addresses it) as the source gave it (an image file's bytes),
+        None where it cannot be had (the fault counted); check: only an image that reads (a
+        corrupt one counted and dropped from the cache)."""
+        data = self._bytes(z, x, y)
+        if data is None or not check:
+            return data
+        try:
+            with Image.open(io.BytesIO(data)) as im:
+                im.verify()
+        except (UnidentifiedImageError, OSError, ValueError, SyntaxError) as exc:
+            self.cache.drop(self.source.identity, z, x, y)
+            self._fault("corrupt", z, x, y, type(exc).__name__)
+            return None
+        return data
+
+    def _bytes(self, z: int, x: int, y: int) -> bytes | None:
+        if self.given_up or not self.open():
+            return None
+        form = self.source.form
+        if form == "mbtiles" or self._archive is not None:
+            try:
+                data = self._mbtiles(z, x, y) if form == "mbtiles" else self._archive.get(z, x, y)
+            except (
+                Exception
+            ) as exc:  # a damaged archive: whatever its reader (sqlite, pmtiles) raises
+                self._whole("archive", f"{type(exc).__name__}: {str(exc)[:80]}")
+                return None
+            if data is None and form != "mbtiles":
+                self._fault("missing", z, x, y)
+            return data
+        if self._wmts is not None:
+            return self._http(z, x, y, self.source.fill(self._wmts.url(z, x, y)))
+        return self._http(z, x, y)
 
     def _mbtiles(self, z: int, x: int, y: int) -> bytes | None:
         with self._lock:
@@ -123,14 +237,49 @@ class SourceFetcher:
             return None
         return bytes(found[0])
 
-    def _http(self, z: int, x: int, y: int) -> bytes | None:
-        identity = self.source.identity
+    @property
+    def _doc_identity(self) -> str:
+        return self.source.identity + "|capabilities"
+
+    def _capabilities(self) -> bytes | None:
+        """A WMTS's capabilities document (through the cache, its secrets kept out of it)."""
+        faults = sum(self.faults.values())
+        data = self._http(
+            *CAPABILITIES_AT, self.source.fill(self.source.location.partition("#")[0]), doc=True
+        )
+        if data is None:
+            if sum(self.faults.values()) == faults:  # not said yet
+                self._whole("capabilities", "no answer")
+            return None
+        return self._unseal(data)
+
+    def _seal(self, data: bytes) -> bytes:
+        """`data` with every secret of the source replaced by a placeholder (to be kept)."""
+        for i, secret in enumerate(self.source.secrets):
+            for form in {secret, urllib.parse.quote(secret, safe="")}:
+                data = data.replace(form.encode(), f"{{secret{i}}}".encode())
+        return data
+
+    def _unseal(self, data: bytes) -> bytes:
+        for i, secret in enumerate(self.source.secrets):
+            data = data.replace(f"{{secret{i}}}".encode(), secret.encode())
+        return data
+
+    def _http(
+        self, z: int, x: int, y: int, url: str | None = None, doc: bool = False
+    ) -> bytes | None:
+        """Tile (z, x, y) from the cache or from `url` (default: the source's template's);
+        doc: the source's capabilities document (its faults said as the source's, its secrets
+        sealed in the cache)."""
+        identity = self._doc_identity if doc else self.source.identity
+        fault = self._doc_fault if doc else self._fault
+        url = url or self.source.url(z, x, y)
         cached = self.cache.get(identity, z, x, y)
         if cached is not None and cached.fresh:
             with self._lock:
                 self.from_cache += 1
             if cached.data is None:
-                self._fault("missing", z, x, y)
+                fault("missing", z, x, y)
             return cached.data
         headers = {"User-Agent": USER_AGENT, **self.source.request_headers()}
         if cached is not None and cached.etag:
@@ -138,16 +287,16 @@ class SourceFetcher:
         for attempt in range(RETRIES_429 + 1):
             left = self.deadline - self.clock()
             if left <= 0 or self.given_up:
-                self._fault("late", z, x, y)
+                fault("late", z, x, y)
                 return None
-            request = urllib.request.Request(self.source.url(z, x, y), headers=headers)
+            request = urllib.request.Request(url, headers=headers)
             with self._lock:
                 self.requests += 1
             try:
                 with urllib.request.urlopen(request, timeout=min(REQUEST_TIMEOUT_S, left)) as resp:
                     data = resp.read()
                     got = {k.lower(): v for k, v in resp.headers.items()}
-                self.cache.put(identity, z, x, y, data, got)
+                self.cache.put(identity, z, x, y, self._seal(data) if doc else data, got)
                 return data
             except urllib.error.HTTPError as exc:
                 got = {k.lower(): v for k, v in (exc.headers or {}).items()}
@@ -156,36 +305,44 @@ class SourceFetcher:
                     return cached.data
                 if exc.code == 404:
                     self.cache.put(identity, z, x, y, None, got)
-                    self._fault("missing", z, x, y)
+                    fault("missing", z, x, y)
                     return None
                 if exc.code in (401, 403):
-                    self._fault("forbidden", z, x, y, f"HTTP {exc.code}")
+                    fault("forbidden", z, x, y, f"HTTP {exc.code}")
                     return None
                 if exc.code == 429 and attempt < RETRIES_429:
                     self.sleep(min(retry_after_s(got.get("retry-after")), RETRY_WAIT_MAX_S, left))
                     continue
                 kind = "throttled" if exc.code == 429 else "error"
-                self._fault(kind, z, x, y, f"HTTP {exc.code}")
+                fault(kind, z, x, y, f"HTTP {exc.code}")
                 return None
             except TimeoutError:
-                self._fault("timeout", z, x, y)
+                fault("timeout", z, x, y)
                 return None
             except urllib.error.URLError as exc:
                 timed_out = isinstance(exc.reason, TimeoutError) or "timed out" in str(exc.reason)
                 if timed_out:
-                    self._fault("timeout", z, x, y)
+                    fault("timeout", z, x, y)
                 else:
-                    self._fault("error", z, x, y, self.source.redact(str(exc.reason)))
+                    fault("error", z, x, y, self.source.redact(str(exc.reason)))
                 return None
             except (HTTPException, ConnectionError) as exc:  # IncompleteRead, reset mid-tile
-                self._fault("closed", z, x, y, type(exc).__name__)
+                fault("closed", z, x, y, type(exc).__name__)
                 return None
         return None
+
+    def _doc_fault(self, kind: str, z: int, x: int, y: int, detail: str = "") -> None:
+        """A fault fetching the capabilities: the whole source's."""
+        text = "missing (HTTP 404)" if kind == "missing" else FAULTS[kind]
+        self._whole("capabilities", text + (f" ({detail})" if detail else ""))
 
     def close(self) -> None:
         if self._db is not None:
             self._db.close()
             self._db = None
+        if self._archive is not None:
+            self._archive.close()
+            self._archive = None
 
 
 def retry_after_s(value: str | None, now: float | None = None) -> float:

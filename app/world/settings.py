@@ -6,6 +6,8 @@ platform's config folder, app.core.paths.config_dir), chosen by `--world NAME`, 
     name = "maptiler"                      # what --world names
     imagery = "https://api.maptiler.com/tiles/satellite-v2/{z}/{x}/{y}.jpg?key={key}"
     terrain = "terrain-rgb:https://api.maptiler.com/tiles/terrain-rgb-v2/{z}/{x}/{y}.webp?key={key}"
+    # also: a WMTS capabilities URL (#layer=NAME), an .mbtiles/.pmtiles/.gpkg archive, a
+    # GeoTIFF/COG URL or file (terrain: a DEM, no encoding): app.world.sources
     attribution = "(c) MapTiler (c) OpenStreetMap contributors"
     datum = "egm2008"                      # the terrain's heights (default EGM2008, said)
     key_env = "MAPTILER_KEY"               # the environment variable holding {key}
@@ -112,6 +114,47 @@ def world_of(table: dict, path: Path | None = None) -> World:
         ) from exc
 
 
+MANIFEST_KEYS = KEYS - {"key"}  # a manifest is shared: a key only through key_env there
+
+
+def manifest_world(table: dict, folder: Path) -> World:
+    """The World a session manifest's [world] table names: `name` alone, a [[world]] of the
+    settings file; else its own sources (the [[world]] keys but a literal key), local files
+    relative to the manifest's `folder`. Raises GeofuseError saying what is wrong (the caller
+    names the manifest's key)."""
+    given = {k: v for k, v in table.items() if k != "name"}
+    if not given:
+        name = table.get("name")
+        if not isinstance(name, str) or not name.strip():
+            raise GeofuseError("name a [[world]] of the settings file, or give imagery/terrain")
+        world = choose_world(name)
+        if world is None:
+            raise GeofuseError("'none' keeps the flat ground: drop the [world] table instead")
+        return world
+    if "key" in table:
+        raise GeofuseError("no key in a manifest: key_env names the environment variable")
+    own = dict(table, name=str(table.get("name", "manifest")))
+    for kind in ("imagery", "terrain"):
+        if isinstance(own.get(kind), str):
+            own[kind] = _relative_to(own[kind], folder)
+    try:
+        return _world(own)
+    except SourceError as exc:
+        raise GeofuseError(str(exc)) from exc
+
+
+def _relative_to(text: str, folder: Path) -> str:
+    """A source's spelling with a local file resolved against `folder` (prefixes kept)."""
+    prefix = ""
+    rest = text.strip()
+    for p in ("terrain-rgb:", "terrarium:", "tms:", "wmts:"):
+        if rest.lower().startswith(p):
+            prefix, rest = prefix + rest[: len(p)], rest[len(p) :]
+    if rest.lower().startswith(("http://", "https://")) or Path(rest).is_absolute():
+        return text
+    return prefix + str((folder / rest).resolve())
+
+
 def read_worlds(path: Path | None = None) -> list[World]:
     """Every world of the settings file (module docstring)."""
     return [world_of(t, path) for t in world_tables(path)]
@@ -163,12 +206,13 @@ def choose_world(
     imagery: str | None = None,
     terrain: str | None = None,
     scene_named: bool = False,
+    datum: str | None = None,
 ) -> World | None:
     """The world a command drapes its clip on, None for the flat ground (or the scene named).
 
     name: --world (NAME or 'none'); imagery, terrain: --imagery, --terrain (one-off sources,
     replacing the named world's); scene_named: a --scene/--dem was given (then no world unless
-    asked for). With none of them, GEOFUSE_WORLD's name, else the settings' first world. Raises
+    asked for); datum: --dem-vertical, the heights of --terrain (default EGM2008). With none of them, GEOFUSE_WORLD's name, else the settings' first world. Raises
     GeofuseError for an unknown name, listing the names configured."""
     if name is not None and name.lower() == NONE:
         if imagery or terrain:
@@ -199,7 +243,11 @@ def choose_world(
         return World(
             world.name if world else "given",
             parse_source(imagery, "imagery") if imagery else world.imagery if world else None,
-            parse_source(terrain, "terrain") if terrain else world.terrain if world else None,
+            parse_source(terrain, "terrain", datum=datum)
+            if terrain
+            else world.terrain
+            if world
+            else None,
             world.attribution if world else "",
             world.timeout_s if world else DEFAULT_TIMEOUT_S,
         )

@@ -1,11 +1,18 @@
-"""Tile sources of a world: imagery and terrain, each from an XYZ/TMS URL template or a local
-MBTiles file.
+"""Tile sources of a world: imagery and terrain, each from an XYZ/TMS URL template, an OGC WMTS
+capabilities URL, a local MBTiles, GeoPackage or PMTiles archive, or a GeoTIFF/COG (over HTTP,
+read by range requests, or local).
 
 Spelling (as `--imagery`, `--terrain` and a settings file's `[[world]]` write it):
 - imagery: `https://host/{z}/{x}/{y}.jpg` (XYZ rows, from the north), `tms:https://...` or
-  `{-y}` in place of `{y}` (TMS rows, from the south), or `PATH.mbtiles` (rows are TMS there);
-- terrain: the same behind `terrain-rgb:` (Mapbox/MapTiler: height = -10000 + (R * 65536 +
-  G * 256 + B) * 0.1 m) or `terrarium:` (Tilezen/AWS: height = R * 256 + G + B / 256 - 32768 m).
+  `{-y}` in place of `{y}` (TMS rows, from the south), `PATH.mbtiles` (rows are TMS there),
+  `PATH.pmtiles` (PMTiles v3), `PATH.gpkg` (GeoPackage tiles in its own tile matrix set; a
+  table other than the first by `#table=NAME`), a WMTS capabilities URL (a GetCapabilities
+  request, a path ending in WMTSCapabilities.xml, or any URL behind `wmts:`; options after it:
+  `#layer=NAME&tilematrixset=ID&style=S&format=F`, app.world.wmts), or a GeoTIFF/COG
+  (`https://host/ortho.tif`, or a local .tif);
+- terrain: the same tiles behind `terrain-rgb:` (Mapbox/MapTiler: height = -10000 + (R * 65536 +
+  G * 256 + B) * 0.1 m) or `terrarium:` (Tilezen/AWS: height = R * 256 + G + B / 256 - 32768 m),
+  or a DEM GeoTIFF/COG as it is (`https://host/dem.tif`: its first band's heights, m).
   Heights are taken as above the EGM2008 geoid unless the source says otherwise (`datum`).
 A template may hold `{key}`, and header values too: the key comes from an environment variable
 (`key_env`) or the settings, is sent with every request and is never part of a label, a message
@@ -25,6 +32,9 @@ ENCODINGS = ("terrain-rgb", "terrarium")
 DATUMS = ("egm2008", "egm96", "ellipsoid")
 DEFAULT_DATUM = "egm2008"
 MAX_ZOOM = {"imagery": 19, "terrain": 15}
+FORMS = ("xyz", "wmts", "mbtiles", "pmtiles", "gpkg", "cog")  # how a source's tiles are had
+ARCHIVES = {".mbtiles": "mbtiles", ".pmtiles": "pmtiles", ".gpkg": "gpkg"}
+GEOTIFF_SUFFIXES = (".tif", ".tiff")
 SECRET_PARAMS = ("key", "token", "access_token", "apikey", "api_key", "sessiontoken")
 TERRARIUM_NODATA = -32768.0  # (0, 0, 0): no height there
 TERRAIN_RGB_NODATA_BELOW = -9999.0  # (0, 0, 0) decodes to -10000 m: no height there
@@ -41,7 +51,8 @@ class TileSource:
     'terrarium' (None for imagery); scheme: 'xyz' or 'tms' rows; datum: a terrain's heights are
     above this ('egm2008', 'egm96', 'ellipsoid'); headers: (name, value) sent with every request,
     values perhaps holding {key}; key: the secret put for {key} (never shown); max_zoom: the
-    finest level the source serves."""
+    finest level the source serves; form: how its tiles are had (FORMS; worked out from the
+    location when not given)."""
 
     kind: str
     location: str
@@ -52,10 +63,29 @@ class TileSource:
     headers: tuple[tuple[str, str], ...] = ()
     key: str | None = field(default=None, repr=False)
     max_zoom: int = 19
+    form: str = ""
+
+    def __post_init__(self) -> None:
+        if not self.form:
+            object.__setattr__(self, "form", location_form(self.location))
 
     @property
     def is_mbtiles(self) -> bool:
+        return self.form == "mbtiles"
+
+    @property
+    def is_local(self) -> bool:
+        """A file on this machine (an archive or a GeoTIFF), not an http(s) URL."""
         return not self.location.lower().startswith(("http://", "https://"))
+
+    @property
+    def web_mercator(self) -> bool:
+        """Tiles addressed as XYZ Web Mercator (z, x, y): XYZ/TMS templates, MBTiles, PMTiles."""
+        return self.form in ("xyz", "mbtiles", "pmtiles")
+
+    def fill(self, url: str) -> str:
+        """`url` with the key put for {key}."""
+        return url.replace("{key}", urllib.parse.quote(self.key or "", safe=""))
 
     def url(self, z: int, x: int, y: int) -> str:
         """The request's URL for XYZ tile (z, x, y), the key put in."""
@@ -66,7 +96,7 @@ class TileSource:
             .replace("{y}", str(row))
             .replace("{-y}", str((1 << z) - 1 - y))
         )
-        return url.replace("{key}", urllib.parse.quote(self.key or "", safe=""))
+        return self.fill(url)
 
     def request_headers(self) -> dict[str, str]:
         """The headers sent with every request, the key put in."""
@@ -93,10 +123,11 @@ class TileSource:
     @property
     def label(self) -> str:
         """The source as messages name it: its host and path (a file by its name), no query."""
-        if self.is_mbtiles:
+        if self.is_local:
             return self.location.replace("\\", "/").rsplit("/", 1)[-1]
         parts = urllib.parse.urlsplit(self.location)
-        return self.redact(f"{parts.netloc}{parts.path}")
+        layer = split_options(self.location)[1].get("layer") if self.form == "wmts" else None
+        return self.redact(f"{parts.netloc}{parts.path}" + (f" layer {layer}" if layer else ""))
 
     @property
     def identity(self) -> str:
@@ -122,27 +153,37 @@ def parse_source(
     for prefix in ENCODINGS:
         if text.lower().startswith(prefix + ":"):
             encoding, text = prefix, text[len(prefix) + 1 :]
+    form = ""
     if text.lower().startswith("tms:"):
         scheme, text = "tms", text[4:]
+    elif text.lower().startswith("wmts:"):
+        form, text = "wmts", text[5:]
     what = f"{kind} source"
-    if kind == "terrain" and encoding is None:
+    is_url = text.lower().startswith(("http://", "https://"))
+    if form == "wmts" and not is_url:
+        raise SourceError(f"{what} {_shown(text)!r}: wmts: goes before a capabilities URL")
+    try:
+        form = form or location_form(text)
+    except SourceError as exc:
+        raise SourceError(f"{what} {_shown(text)!r}: {exc}") from None
+    if kind == "terrain" and encoding is None and form != "cog":
         raise SourceError(
             f"{what} {_shown(text)!r}: name its encoding, e.g. terrain-rgb:URL or terrarium:URL "
-            "(PNG tiles; a local .mbtiles of them too)"
+            "(PNG tiles; a local .mbtiles, .pmtiles or .gpkg of them, or a WMTS of them, too), "
+            "or give a DEM GeoTIFF (.tif)"
         )
+    if kind == "terrain" and encoding is not None and form == "cog":
+        raise SourceError(f"{what}: a DEM GeoTIFF holds heights: drop {encoding}:")
     if kind == "imagery" and encoding is not None:
         raise SourceError(f"{what}: {encoding}: is for terrain (--terrain), not imagery")
-    is_url = text.lower().startswith(("http://", "https://"))
-    if is_url:
-        if "{z}" not in text or "{x}" not in text or ("{y}" not in text and "{-y}" not in text):
-            raise SourceError(
-                f"{what} {_shown(text)!r}: a URL template needs {{z}}, {{x}} and {{y}} (or {{-y}})"
-            )
-    elif not text.lower().endswith(".mbtiles"):
+    if form == "xyz" and (
+        "{z}" not in text or "{x}" not in text or ("{y}" not in text and "{-y}" not in text)
+    ):
         raise SourceError(
-            f"{what} {_shown(text)!r}: expected an http(s) URL template with {{z}}/{{x}}/{{y}} or a local .mbtiles file"
+            f"{what} {_shown(text)!r}: a URL template needs {{z}}, {{x}} and {{y}} (or {{-y}}); "
+            "a WMTS is named by its capabilities URL (or wmts:URL), a COG by its .tif URL"
         )
-    else:
+    if form == "mbtiles":
         scheme = "tms"  # MBTiles rows count from the south (the spec's TMS)
     datum = (datum or DEFAULT_DATUM).lower()
     if datum not in DATUMS:
@@ -161,12 +202,52 @@ def parse_source(
         tuple((headers or {}).items()),
         key,
         max_zoom if max_zoom is not None else MAX_ZOOM[kind],
+        form,
+    )
+
+
+def split_options(location: str) -> tuple[str, dict[str, str]]:
+    """(location, {option: value}) of a location with `#name=value&...` options after it (a
+    WMTS's layer, a GeoPackage's table); option names lower case."""
+    base, _, fragment = location.partition("#")
+    return base, {k.lower(): v for k, v in urllib.parse.parse_qsl(fragment)}
+
+
+def is_capabilities(url: str) -> bool:
+    """Whether an http(s) URL names a WMTS capabilities document rather than a tile template:
+    a GetCapabilities request, or a path ending in WMTSCapabilities.xml or /wmts."""
+    parts = urllib.parse.urlsplit(split_options(url)[0])
+    query = {k.lower(): v.lower() for k, v in urllib.parse.parse_qsl(parts.query)}
+    path = parts.path.lower().rstrip("/")
+    return (
+        query.get("request") == "getcapabilities"
+        or path.endswith("wmtscapabilities.xml")
+        or path.endswith("/wmts")
+    )
+
+
+def location_form(location: str) -> str:
+    """Which of FORMS a location names (module docstring); raises SourceError for none."""
+    text = location.strip()
+    if text.lower().startswith(("http://", "https://")):
+        if is_capabilities(text):
+            return "wmts"
+        path = urllib.parse.urlsplit(text).path.lower()
+        return "cog" if path.endswith(GEOTIFF_SUFFIXES) else "xyz"
+    suffix = "." + split_options(text)[0].lower().rsplit(".", 1)[-1]
+    if suffix in ARCHIVES:
+        return ARCHIVES[suffix]
+    if suffix in GEOTIFF_SUFFIXES:
+        return "cog"
+    raise SourceError(
+        "expected an http(s) URL template with {z}/{x}/{y}, a WMTS capabilities URL, a "
+        "GeoTIFF/COG (.tif, local or http(s)) or a local .mbtiles, .pmtiles or .gpkg file"
     )
 
 
 def _shown(text: str) -> str:
     """A location as an error names it: any secret query value redacted."""
-    return TileSource("imagery", text).redact(text)
+    return TileSource("imagery", text, form="xyz").redact(text)
 
 
 def decode_heights(rgb: np.ndarray, encoding: str) -> np.ndarray:

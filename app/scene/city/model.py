@@ -110,13 +110,16 @@ class Surface:
     texture: the index of its image among the reader's `textures` (None: untextured), uvs: its
     rings' texture coordinates ((N, 2) each, (0, 0) the image's lower-left corner); colour: its
     material's diffuse colour (RGB in [0, 1]), drawn instead of its kind's where it has no
-    texture (None: none)."""
+    texture (None: none); indices: (T, 3) its triangles into its rings' vertices concatenated
+    where the reader made them (an extruded block's walls: one surface of quads, not a
+    polygon), None to ear-clip the polygon (triangle_indices)."""
 
     rings: list[np.ndarray]
     kind: str
     texture: int | None = None
     uvs: list[np.ndarray] | None = None
     colour: tuple[float, float, float] | None = None
+    indices: np.ndarray | None = None
 
 
 def footprint_centre(points: np.ndarray) -> np.ndarray:
@@ -173,7 +176,10 @@ def triangle_indices(surface: Surface) -> np.ndarray:
     Three-vertex rings are taken as they are; others are ear-clipped (mapbox_earcut) in their
     own plane: the vertices are projected on the two axes most perpendicular to the Newell
     normal, so a wall is triangulated in its own plane, not squashed on the ground. A degenerate
-    ring (fewer than 3 vertices, or no area) gives no triangles."""
+    ring (fewer than 3 vertices, or no area) gives no triangles. A surface's own `indices`,
+    where its reader made them, are taken as they are."""
+    if surface.indices is not None:
+        return surface.indices
     rings = [surface.rings[i] for i in usable_rings(surface)]
     if not rings:
         return np.zeros((0, 3), np.int64)

@@ -1,10 +1,12 @@
 """A city model file as a scene layer: read around the clip's track, placed in the session's ENU
 frame, coloured by surface kind, with the table that names what each triangle is.
 
-1. The reader (CityJSON document or Sequence, CityGML, zipped or not) yields one object at a
-   time; an object is read only if its horizontal centre lies within `margin_m` of the track
-   (the track is taken into the file's CRS once), so a district of 100,000 buildings opens in
-   the memory of the part around the clip.
+1. The reader (CityJSON document or Sequence, CityGML, zipped or not; building footprints
+   from OpenStreetMap or GeoParquet, extruded to LoD1 on the ground `ground` gives:
+   app.scene.city.footprints) yields one object at a time; an object is read only if its
+   horizontal centre lies within `margin_m` of the track (the track is taken into the file's
+   CRS once), so a district of 100,000 buildings opens in the memory of the part around the
+   clip.
 2. Memory is bounded whatever the file: at most `max_triangles` triangles are kept, the objects
    nearest the track first (farther ones are dropped as nearer ones come, and that is said).
 3. Heights: the file's vertical datum from its compound CRS (EGM2008, EGM96 or a 3D geographic
@@ -34,6 +36,7 @@ from app.geodesy.enu import LocalFrame
 from app.scene.city.citygml import SUFFIXES as GML_SUFFIXES
 from app.scene.city.citygml import CityGmlReader
 from app.scene.city.cityjson import CityJsonReader
+from app.scene.city.footprints import FootprintReader, Ground, flat_ground
 from app.scene.city.model import (
     KIND_CODE,
     KIND_COLORS,
@@ -42,6 +45,8 @@ from app.scene.city.model import (
     triangle_indices,
     usable_rings,
 )
+from app.scene.city.osm import OsmReader, is_osm
+from app.scene.city.overture import ParquetReader, is_parquet
 from app.scene.city.paths import outside_note
 from app.scene.mesh import MeshData, Primitive
 
@@ -51,12 +56,17 @@ FLUSH_TRIANGLES = 50_000  # triangles placed in ENU in batches of this many
 MAX_TEXTURE_PX = 8192  # a texture image is drawn at most this many pixels a side
 
 
+def is_footprints(location: str | Path) -> bool:
+    """Building footprints to extrude: OpenStreetMap (.osm, .osm.pbf) or GeoParquet (.parquet)."""
+    return is_osm(location) or is_parquet(location)
+
+
 def is_city(location: str | Path) -> bool:
     """A CityJSON (.city.json, .city.jsonl or any .json whose start says CityJSON) or CityGML
-    (.gml, .xml, .zip) file."""
+    (.gml, .xml, .zip) file, or building footprints (is_footprints)."""
     path = Path(str(location))
     name = path.name.lower()
-    if (
+    if is_footprints(path) or (
         name.endswith((".city.json", ".city.jsonl", ".jsonl"))
         or path.suffix.lower() in GML_SUFFIXES
     ):
@@ -196,23 +206,32 @@ def read_city(
     max_triangles: int = DEFAULT_MAX_TRIANGLES,
     max_lod: float = 9.0,
     theme: str | None = None,
+    ground: Ground | None = None,
 ) -> City:
     """The city model at `path` in `frame` (see the module docstring). track_ll: (N, 2) lat,
-    lon (deg) of the clip's track, None to read every object (up to max_triangles). Raises
-    SceneError naming the file, and the object or line at fault."""
+    lon (deg) of the clip's track, None to read every object (up to max_triangles); ground:
+    what footprints stand on (None: the plane of the frame's origin; their heights are their
+    own, `vertical` does not apply). Raises SceneError naming the file, and the object or line
+    at fault."""
     path = Path(path)
     if not path.is_file():
         raise SceneError(path, "city model file does not exist")
     notes = Messages()
     gml = path.suffix.lower() in GML_SUFFIXES
-    reader = (CityGmlReader if gml else CityJsonReader)(path, max_lod, theme)
+    if is_footprints(path):
+        ground = ground or flat_ground(frame, 0.0, frame.h_m, "the plane of the frame's origin")
+        reader = (OsmReader if is_osm(path) else ParquetReader)(path, ground)
+        vertical = theme = None
+    else:
+        reader = (CityGmlReader if gml else CityJsonReader)(path, max_lod, theme)
     track = None if track_ll is None else np.atleast_2d(np.asarray(track_ll, np.float64))
     state: dict[str, object] = {}
 
     def setup() -> tuple[_Window | None, _Placer]:
         if "placer" not in state:
-            text = reader.crs if gml else reader.header.crs
-            field = "srsName" if gml else "metadata.referenceSystem"
+            is_json = isinstance(reader, CityJsonReader)
+            text = reader.header.crs if is_json else reader.crs
+            field = "metadata.referenceSystem" if is_json else "srsName"
             if not text:
                 raise SceneError(path, "the file names no CRS (expected one)", field=field)
             try:
@@ -302,6 +321,9 @@ def read_city(
         )
     for note in reader.notes:
         notes.add(note)
+    if isinstance(reader, FootprintReader):
+        for note in reader.infos:
+            notes.info(note)
     return _city(
         path, reader, kept, dropped, state, notes, track is not None, margin_m, max_triangles
     )
@@ -330,7 +352,7 @@ def _primitive(
     )
 
 
-def _themes_said(reader: CityJsonReader | CityGmlReader) -> str:
+def _themes_said(reader: CityJsonReader | CityGmlReader | FootprintReader) -> str:
     """The appearance themes the objects read name, and the one drawn, for the layer's note
     (empty where there are fewer than two)."""
     names = sorted(reader.themes)
@@ -346,7 +368,7 @@ def _themes_said(reader: CityJsonReader | CityGmlReader) -> str:
 
 
 def _images(
-    reader: CityJsonReader | CityGmlReader, used: set[int], notes: Messages
+    reader: CityJsonReader | CityGmlReader | FootprintReader, used: set[int], notes: Messages
 ) -> dict[int, np.ndarray]:
     """The texture images used, as RGBA bottom row first (app.scene.mesh), at most
     MAX_TEXTURE_PX a side; one that is missing, unreadable or outside the model's folder (not
@@ -371,7 +393,7 @@ def _images(
 
 def _city(
     path: Path,
-    reader: CityJsonReader | CityGmlReader,
+    reader: CityJsonReader | CityGmlReader | FootprintReader,
     kept: list[_Kept],
     dropped: int,
     state: dict,
@@ -423,12 +445,13 @@ def _city(
     crs = state["crs"]
     lods = sorted({k.obj.lod for k in kept if k.obj.lod})
     where = f" within {margin_m:.0f} m of the track" if windowed else ""
-    kind = "CityGML" if isinstance(reader, CityGmlReader) else "CityJSON"
-    version = (
-        reader.version if isinstance(reader, CityGmlReader) else reader.header.version
-    ) or "?"
+    if isinstance(reader, CityJsonReader):
+        kind, version = "CityJSON", reader.header.version or "?"
+    else:
+        kind = "CityGML" if isinstance(reader, CityGmlReader) else reader.format
+        version = reader.version or ("" if isinstance(reader, FootprintReader) else "?")
     notes.info(
-        f"{path.name}: {kind} {version} in {crs.name}, {len(kept):,} of {reader.count:,} objects{where} "
+        f"{path.name}: {f'{kind} {version}'.strip()} in {crs.name}, {len(kept):,} of {reader.count:,} objects{where} "
         f"(LoD {', '.join(lods)}), {len(triangles):,} triangles, {size / 1e6:.1f} MB, heights above {state['datum']}"
         + _themes_said(reader)
     )

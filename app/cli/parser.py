@@ -35,6 +35,7 @@ from app.core.constants import (
     SYNC_MIN_CONFIDENCE,
 )
 from app.export import EXPORT_SUFFIXES
+from app.share.target import CotTarget, parse_target
 
 __all__ = ["BENCHMARKS", "MAX_IMAGE_SIDE", "build_parser", "joined_negative_values"]
 
@@ -50,6 +51,8 @@ BENCHMARKS = {
     "index": "bench_index.py",
     "live": "bench_live.py",
     "ortho": "bench_ortho.py",
+    "cot": "bench_cot.py",
+    "map": "bench_web_map.py",
 }
 SOURCE_HELP = "attitude source (default: the first the session offers)"
 SRT_HELP = "the DJI subtitle of the clip, when not beside it"
@@ -60,8 +63,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser = Parser(prog="geofuse", description="Drape mobile video onto a georeferenced 3D model.")
     sub = parser.add_subparsers(dest="command", required=True)
     for command in (
-        _render, _locate, _index, _find, _view, _live, _solve, _export, _register, _sync,
-        _telemetry, _simulate, _demo, _bench,
+        _render, _locate, _index, _find, _view, _live, _serve, _solve, _export, _register, _sync,
+        _telemetry, _simulate, _demo, _bench, _cache,
     ):  # fmt: skip
         command(sub)
     return parser
@@ -177,6 +180,13 @@ def _index(sub: Commands) -> None:
         metavar="PATH|URL",
         help="a scene layer for every clip without its own (a tileset, a DEM, a model in ECEF), repeatable; default: the manifest's, else the assumed ground",
     )
+    ix.add_argument(
+        "--buildings",
+        action="append",
+        default=None,
+        metavar="FILE",
+        help="buildings for every clip without its own scene: OpenStreetMap (.osm, .osm.pbf) or GeoParquet footprints extruded to LoD1, repeatable",
+    )
     add_source_option(
         ix, "pose source for every clip (default: the first each offers)", filter_alias=False
     )
@@ -257,6 +267,7 @@ def _view(sub: Commands) -> None:
         help="with --screenshot alone: seconds to play first",
     )
     _stream_options(v)
+    _cot_options(v)
     v.set_defaults(job="view")
 
 
@@ -295,6 +306,50 @@ def _stream_options(p: argparse.ArgumentParser) -> None:
     )
 
 
+def _cot_url(text: str) -> CotTarget:
+    """A --cot target (app.share.target), refused at once in one line saying what is expected."""
+    try:
+        return parse_target(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def _cot_options(p: argparse.ArgumentParser) -> None:
+    """Cursor on Target out (geofuse view and geofuse live; app.share.tak)."""
+    p.add_argument(
+        "--cot",
+        type=_cot_url,
+        action="append",
+        default=[],
+        metavar="URL",
+        help="send the aircraft, its point of interest, the footprint and the marks as Cursor on Target to TAK: "
+        "udp://239.2.3.1:6969 (ATAK's mesh on the LAN), udp://HOST:PORT, tcp://HOST:PORT, or tls://HOST:PORT "
+        "(a TAK Server, with --cot-cert); may be given several times",
+    )
+    p.add_argument(
+        "--cot-cert",
+        type=Path,
+        default=None,
+        metavar="PATH",
+        help="a tls:// target's client certificate: PEM (with --cot-key) or PKCS#12 (.p12, its key inside; "
+        "the password from $GEOFUSE_COT_PASSWORD); or a [[tak]] table of the settings file",
+    )
+    p.add_argument("--cot-key", type=Path, default=None, metavar="PATH", help="its PEM key")
+    p.add_argument(
+        "--cot-ca",
+        type=Path,
+        default=None,
+        metavar="PATH",
+        help="the TAK Server's certificate authority: PEM or a PKCS#12 truststore (default: the system's)",
+    )
+    p.add_argument(
+        "--cot-callsign",
+        default="geofuse",
+        metavar="NAME",
+        help="the aircraft's name on the TAK map (default geofuse)",
+    )
+
+
 def _live(sub: Commands) -> None:
     li = sub.add_parser(
         "live",
@@ -315,9 +370,54 @@ def _live(sub: Commands) -> None:
         help="stop after this many seconds (default: when the stream has been silent for 10 s)",
     )
     li.add_argument("--size", type=size, default=(1280, 720), help="the drawing's WIDTHxHEIGHT")
+    li.add_argument(
+        "--restream",
+        default=None,
+        metavar="udp://HOST:PORT",
+        help="send the video on (copied) as MPEG-TS with MISB ST 0601 KLV carrying the pose each frame was drawn with: "
+        "the registered one where live registration corrected it (item 98 says so), the platform's otherwise",
+    )
     _stream_options(li)
     add_layer_options(li)
+    _cot_options(li)
     li.set_defaults(job="live")
+
+
+def _serve(sub: Commands) -> None:
+    se = sub.add_parser(
+        "serve",
+        help="a browser map of a clip played in real time, or of a live feed: the aircraft, its track, the footprint, the frame and the marks (no window)",
+    )
+    se.add_argument(
+        "input",
+        help="a session manifest or a clip (played in real time from its solved track, again and again unless --once), "
+        "or a stream to receive: udp://HOST:PORT, rtp://, rtsp://, srt://",
+    )
+    se.add_argument(
+        "--bind",
+        default="127.0.0.1:0",
+        metavar="HOST:PORT",
+        help="where the map listens (default 127.0.0.1:0: this machine only, a free port); 0.0.0.0:PORT for every network, said as a warning",
+    )
+    se.add_argument(
+        "--token",
+        default=None,
+        help="the access token every request must carry (default: a random one; 8 to 128 of A-Z a-z 0-9 . _ ~ -)",
+    )
+    se.add_argument("--once", action="store_true", help="a clip: play it once, then stop")
+    se.add_argument(
+        "--for",
+        dest="seconds",
+        type=number(0.1, 86400.0 * 30),
+        default=None,
+        help="stop after this many seconds (default: until Ctrl-C, or the end of --once)",
+    )
+    add_source_option(se, SOURCE_HELP)
+    add_srt_option(se, SRT_HELP)
+    add_lens_option(se)
+    _stream_options(se)
+    add_layer_options(se)
+    se.set_defaults(job="serve")
 
 
 def _solve(sub: Commands) -> None:
@@ -519,6 +619,64 @@ def _telemetry(sub: Commands) -> None:
         help="write the position track: time_s,latitude,longitude,height[,attitude...]",
     )
     te.set_defaults(job="telemetry")
+
+
+def _cache(sub: Commands) -> None:
+    ca = sub.add_parser(
+        "cache",
+        help="the tile cache of worlds (app.world): list it, clear it, or pre-fetch a clip's or an area's tiles for offline use",
+    )
+    ca.add_argument(
+        "clips",
+        nargs="*",
+        type=Path,
+        metavar="CLIP",
+        help="pre-fetch what these clips' scenes need",
+    )
+    ca.add_argument(
+        "--bbox",
+        type=lambda s: floats(
+            s, 4, ((-180, 180, "W"), (-90, 90, "S"), (-180, 180, "E"), (-90, 90, "N"))
+        ),
+        default=None,
+        metavar="W,S,E,N",
+        help="pre-fetch this area (degrees) instead",
+    )
+    ca.add_argument(
+        "--gsd",
+        type=number(0.05, 1000.0),
+        default=0.5,
+        metavar="M",
+        help="--bbox: the imagery's ground sampling, metres a pixel (terrain 4 times coarser; default 0.5)",
+    )
+    ca.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        metavar="AREA.mbtiles",
+        help="also write the tiles into archives that --imagery/--terrain open offline: imagery here, terrain beside it (AREA-terrain...); .gpkg for tiles not in Web Mercator",
+    )
+    ca.add_argument(
+        "--clear",
+        nargs="?",
+        const="",
+        default=None,
+        metavar="SOURCE",
+        help="remove what the cache holds (of the sources whose location holds SOURCE, or of the [[world]] SOURCE)",
+    )
+    ca.add_argument(
+        "--world",
+        default=None,
+        metavar="NAME",
+        help="the [[world]] to pre-fetch (default: the settings' first)",
+    )
+    ca.add_argument(
+        "--imagery", default=None, metavar="SRC", help="imagery to pre-fetch (as for view)"
+    )
+    ca.add_argument(
+        "--terrain", default=None, metavar="SRC", help="terrain to pre-fetch (as for view)"
+    )
+    ca.set_defaults(job="cache")
 
 
 def _simulate(sub: Commands) -> None:

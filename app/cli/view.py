@@ -11,6 +11,7 @@ from app.core.errors import GeofuseError
 from app.live.feed import LiveOptions
 from app.live.probe import mavlink_refusal, stream_refusal
 from app.live.receiver import protocols_missing
+from app.share.tak import cot_targets
 from app.ui.live import is_stream
 from app.ui.script import parse_script
 from app.ui.viewer import Options, Viewer
@@ -44,6 +45,8 @@ def run(args: argparse.Namespace) -> int:
         hfov_deg=args.fov,
         register=args.register,
     )
+    # Cursor on Target out: its certificate files checked before a window opens
+    cot = cot_targets(args.cot, args.cot_cert, args.cot_key, args.cot_ca, args.cot_callsign)
     paths = [Path(x) for x in inputs if not is_stream(x)]
     return Viewer(
         Options(
@@ -58,5 +61,6 @@ def run(args: argparse.Namespace) -> int:
             more=tuple(paths[1:]),
             stream=stream,
             live=live,
+            sinks=cot.makers(),
         )
     ).run()

@@ -13,7 +13,7 @@ from app.core.errors import GeofuseError
 from app.core.imageio import write_rgb
 from app.core.outputs import check_output, write_atomically, write_via_path
 from app.export.gis import COMPANIONS, borders_geojson, companion, track_geojson, write_records
-from app.export.klv import write_klv_ts
+from app.export.klv import is_registered, write_klv_ts
 from app.export.preview import footprint_preview
 from app.export.records import FrameRecord, frame_records
 from app.export.video import FurtherClip, export_video
@@ -95,11 +95,16 @@ def export_session(
         return f"wrote {out}: {n[0]} frames, {w}x{h}, view {options.view}, attitude from {source}{more}"
     records = list(frame_records(session, source, options.every, progress=progress, track=track))
     if what == "klv":
-        n = [0]
+        n, registered = [0], is_registered(track)
         write_via_path(
-            out, "--out", lambda tmp: n.__setitem__(0, write_klv_ts(session.video, records, tmp))
+            out,
+            "--out",
+            lambda tmp: n.__setitem__(
+                0, write_klv_ts(session.video, records, tmp, registered=registered)
+            ),
         )
-        return f"wrote {out}: the video with {n[0]} MISB ST 0601 local sets, attitude from {source}"
+        said = ", each saying so (item 98)" if registered else ""
+        return f"wrote {out}: the video with {n[0]} MISB ST 0601 local sets, attitude from {source}{said}"
     return write_footprints(records, out, options, list(session.inputs), session, source)
 
 

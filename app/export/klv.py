@@ -6,6 +6,17 @@ Each Local Set is written by app.io.misb (the key, BER lengths, ST 0601's intege
 checksum last), the module that reads them too. The camera is the platform: platform heading =
 the optical axis's heading, platform pitch and roll 0; the sensor's relative elevation and roll
 carry its pitch and roll, as a gimbal's would.
+
+Which pose a set carries is said in the set itself: a pose corrected by registration against the
+scene (the `registered` source, or a live feed's correction: app.live.register) carries ST 0601
+item 98, a Geo-Registration Local Set (MISB ST 1601.2, nested: no key, no checksum) naming the
+algorithm (its items 1 document version, 2 algorithm name, 3 algorithm version); a set without
+item 98 carries the platform's (or the phone's) own pose. Item 98 is the one ST 0601 gives for
+"these values come out of geo-registration"; the naming items (10 Platform Designation, 11 Image
+Source Sensor) name the aircraft and the sensor, which downstream tools key on, and neither
+Generic Flag Data (47) nor Positioning Method Source (124: INS and satellite systems) has a bit
+for it. `pose_items` builds the items both the file export (`frame_set`) and the live restream
+(app.live.restream) send.
 """
 
 from __future__ import annotations
@@ -18,34 +29,73 @@ from pathlib import Path
 
 import av
 
+from app import __version__
 from app.camera.frame_time import frame_of
+from app.core.constants import REGISTERED
 from app.export.records import FrameRecord
-from app.io.misb import ST0601_VERSION, encode, local_set, signed
+from app.io.misb import ST0601_VERSION, encode, local_set, signed, tlv
 from app.io.video import VideoInfo, demux, open_video
+from app.session.camera_track import CameraTrack
 
 CORNER_OFFSET_DEG = 0.075  # ST 0601 offset corners (tags 26-33) cover +-0.075 deg from the centre
+GEOREGISTRATION_TAG = 98  # ST 0601 item 98: a Geo-Registration Local Set (MISB ST 1601)
+ST1601_VERSION = 2  # the ST 1601 document version written (item 1 of the nested set)
+REGISTRATION_ALGORITHM = "geofuse render-and-compare"  # ST 1601 item 2: what corrected the pose
 
 
-def frame_set(r: FrameRecord) -> bytes:
-    """One UAS Datalink Local Set for a frame (see the module docstring for the mapping)."""
-    heading, pitch, roll = r.hpr
-    t = r.utc_s if r.utc_s is not None else r.session_s
+def georegistration_item() -> tuple[int, bytes]:
+    """ST 0601 item 98: a Geo-Registration Local Set (ST 1601.2) naming geofuse's registration."""
+    return (
+        GEOREGISTRATION_TAG,
+        tlv(
+            [
+                (1, bytes([ST1601_VERSION])),  # Document Version
+                (2, REGISTRATION_ALGORITHM.encode()),  # Algorithm Name
+                (3, __version__.encode()),  # Algorithm Version
+            ]
+        ),
+    )
+
+
+def pose_items(
+    utc_s: float,
+    sensor: tuple[float, float, float],
+    sensor_msl_m: float,
+    hpr: tuple[float, float, float],
+    fov_deg: tuple[float, float],
+    registered: bool,
+) -> list[tuple[int, bytes]]:
+    """The items of a camera's pose: its time (utc_s: Unix s), place (sensor: lat, lon deg,
+    ellipsoidal h m; sensor_msl_m: its height above mean sea level), optical axis (hpr:
+    heading, pitch, roll deg; see the module docstring for the mapping) and field of view
+    (fov_deg: horizontal, vertical deg); registered: the pose comes out of registration
+    (item 98, `georegistration_item`)."""
+    heading, pitch, roll = hpr
     items: list[tuple[int, bytes]] = [
-        (2, struct.pack(">Q", int(round(t * 1e6)))),  # Precision Time Stamp, microseconds
+        (2, struct.pack(">Q", int(round(utc_s * 1e6)))),  # Precision Time Stamp, microseconds
         (65, bytes([ST0601_VERSION])),
         (5, encode(5, heading % 360.0)),  # Platform Heading Angle
         (6, encode(6, 0.0)),  # Platform Pitch Angle
         (7, encode(7, 0.0)),  # Platform Roll Angle
-        (13, encode(13, r.sensor[0])),  # Sensor Latitude
-        (14, encode(14, r.sensor[1])),  # Sensor Longitude
-        (15, encode(15, r.sensor_msl_m)),  # Sensor True Altitude (MSL)
-        (75, encode(75, r.sensor[2])),  # Sensor Ellipsoid Height
-        (16, encode(16, r.hfov_deg)),  # Sensor Horizontal Field of View
-        (17, encode(17, r.vfov_deg)),  # Sensor Vertical Field of View
+        (13, encode(13, sensor[0])),  # Sensor Latitude
+        (14, encode(14, sensor[1])),  # Sensor Longitude
+        (15, encode(15, sensor_msl_m)),  # Sensor True Altitude (MSL)
+        (75, encode(75, sensor[2])),  # Sensor Ellipsoid Height
+        (16, encode(16, fov_deg[0])),  # Sensor Horizontal Field of View
+        (17, encode(17, fov_deg[1])),  # Sensor Vertical Field of View
         (18, encode(18, 0.0)),  # Sensor Relative Azimuth Angle
         (19, encode(19, pitch)),  # Sensor Relative Elevation Angle
         (20, encode(20, roll % 360.0)),  # Sensor Relative Roll Angle
     ]
+    return items + [georegistration_item()] if registered else items
+
+
+def frame_set(r: FrameRecord, registered: bool = False) -> bytes:
+    """One UAS Datalink Local Set for a frame (see the module docstring for the mapping);
+    registered: its pose comes out of registration (said in item 98)."""
+    t = r.utc_s if r.utc_s is not None else r.session_s
+    fov = (r.hfov_deg, r.vfov_deg)
+    items = pose_items(t, r.sensor, r.sensor_msl_m, r.hpr, fov, registered)
     if math.isfinite(r.slant_m):
         items.append((21, encode(21, r.slant_m)))  # Slant Range
         items += [
@@ -60,14 +110,27 @@ def frame_set(r: FrameRecord) -> bytes:
     return local_set(items)
 
 
+def is_registered(track: CameraTrack) -> bool:
+    """Whether a track's poses come out of registration: the `registered` source with at least
+    one keyframe used (else it is its prior's, uncorrected)."""
+    reg = track.registration
+    return (
+        track.source == REGISTERED
+        and reg is not None
+        and any(getattr(k, "used", False) for k in reg.keyframes)
+    )
+
+
 def write_klv_ts(
     video: VideoInfo,
     records: Iterable[FrameRecord],
     out: Path,
     progress: Callable[[float], None] | None = None,
+    registered: bool = False,
 ) -> int:
     """An MPEG-TS at `out`: the video's packets copied, and a KLV data stream with one Local Set
     per record at its frame's presentation time; returns the number of Local Sets written.
+    registered: the records' poses come out of registration (item 98 in every set).
 
     The sets' times come from the frame table (video.pts_s, on the stream's clock by adding
     origin_s), never from a muxed packet: the muxer rebases a packet to the output's 1/90000 time
@@ -86,7 +149,7 @@ def write_klv_ts(
         def mux_sets(until: float) -> None:
             nonlocal written
             while written < len(frames) and ticks[written] <= until:
-                k = av.Packet(frame_set(frames[written][1]))
+                k = av.Packet(frame_set(frames[written][1], registered))
                 k.stream = data
                 k.time_base = tb
                 k.pts = k.dts = ticks[written]

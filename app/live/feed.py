@@ -1,7 +1,8 @@
 """A live feed as the viewer and `geofuse live` draw it (no GL here): the receiver thread, the
 jitter buffer, the poses (the stream's KLV, or MAVLink beside it with its lag estimated), the
-recorder, and the scene around the first position; `take(now)` hands the drawing loop the frame
-due with the camera of its own time, never waiting on the network.
+recorder, the restream (app.live.restream), and the scene around the first position;
+`take(now)` hands the drawing loop the frame due with the camera of its own time, never waiting
+on the network.
 
 Poses come from the stream's own KLV, or, given `mavlink`, from MAVLink telemetry beside it
 (app.live.mavlink), its lag behind the video estimated as it flies (app.live.lag). A frame
@@ -41,6 +42,7 @@ from app.live.probe import Heard
 from app.live.receiver import Receiver
 from app.live.recorder import Recorder, SegmentRecorder
 from app.live.register import LiveCorrection, LiveRegistration
+from app.live.restream import RestreamCounts, Restreamer, Tee
 from app.playback.decoder import yuv_planes
 from app.scene.mesh import MeshData
 from app.session.model import scene_refusal
@@ -55,13 +57,15 @@ MISSING_AFTER = 50  # MAVLink messages used (2 s of ATTITUDE) before a missing k
 @dataclass
 class Drawn:
     """One frame drawn: its media time (s), when it arrived, when the jitter buffer made it due
-    and when its drawing finished (monotonic s), and the pose's state (fresh, stale, none)."""
+    and when its drawing finished (monotonic s), the pose's state (fresh, stale, none), and
+    whether live registration corrected the pose."""
 
     pts_s: float
     arrival_s: float
     due_s: float
     drawn_s: float
     pose: str
+    registered: bool = False
 
 
 @dataclass
@@ -137,6 +141,7 @@ class LiveRun:
     frame: LocalFrame | None = None  # the local ENU frame the cameras are in
     mavlink: MavlinkSummary | None = None
     registration: LiveCorrection | None = None
+    restream: RestreamCounts | None = None
     messages: Messages = field(default_factory=Messages)
 
     def add_drawn(self, d: Drawn) -> None:
@@ -164,6 +169,8 @@ class LiveRun:
             mavlink = f"; {heard.datagrams} datagrams before it opened were not MPEG-TS{mavlink}"
         if self.registration is not None:
             mavlink += f"; {self.registration.line()}"
+        if self.restream is not None:
+            mavlink += f"; {self.restream.line()}"
         return (
             f"{self.url}: {self.received} frames received ({self.missing} lost on the way), "
             f"{self.frames_drawn} drawn, "
@@ -196,6 +203,7 @@ class LiveOptions:
     hfov_deg: float | None = None
     segments: Path | None = None  # the viewer's rolling recording: a folder of segments
     register: bool = True  # register keyframes against a textured scene, forward only
+    restream: str | None = None  # udp://HOST:PORT: the video sent on with geofuse's poses as KLV
     # where the drawn frames are shared (issue 53): makers of app.share.hub.Sink, each called
     # with the run's Messages once the scene is built
     sinks: tuple = ()
@@ -245,6 +253,8 @@ class LiveFeed:
         self.intrinsics: Intrinsics | None = None
         self.last_camera: Camera | None = None
         self.registration: LiveRegistration | None = None
+        self.restream: Restreamer | None = None
+        self.registered = False  # the last frame taken was drawn with the registered pose
 
     def start(self) -> LiveFeed:
         o, messages = self.options, self.run.messages
@@ -258,12 +268,17 @@ class LiveFeed:
             self.recorder = Recorder(o.record)
         elif o.segments is not None:
             self.recorder = SegmentRecorder(o.segments)
+        sink = self.recorder
+        if o.restream is not None:  # (app.live.restream.restream_refusal checked it)
+            self.restream = Restreamer(o.restream, messages).start()
+            self.run.restream = self.restream.counts
+            sink = Tee(self.recorder, self.restream)
         self.receiver = Receiver(
             self.url,
             self.buffer,
             self.klv_poses,
             messages,
-            self.recorder,
+            sink,
             self.clock,
             self._on_frame,
             self.mav is not None,
@@ -369,7 +384,9 @@ class LiveFeed:
         return (reg.correct(raw[0]) if reg is not None else raw[0]), raw[1]
 
     def _telemetry_camera(self, t: float) -> tuple[Camera, str] | None:
-        pose = self.poses.at(t, self.frame, self.intrinsics, self.options.far_m)
+        pose = self.poses.at(  # each frame with its own moment's field of view, unless given
+            t, self.frame, self.intrinsics, self.options.far_m, self.options.hfov_deg is None
+        )
         return None if pose.camera is None else (pose.camera, pose.state)
 
     def take(self, now: float) -> tuple[Arrival, float, Camera, str] | None:
@@ -382,6 +399,8 @@ class LiveFeed:
             return None
         raw = self._telemetry_camera(item.pts_s)
         camera, state = self._corrected(raw)
+        if raw is not None:
+            self.registered = camera is not raw[0]  # (a correction makes a new camera)
         if raw is not None and self.registration is not None:
             self.registration.offer(item.pts_s, item.payload, raw[0])
         run = self.run
@@ -398,6 +417,13 @@ class LiveFeed:
             return None
         self.last_camera = camera
         return item, due, camera, state
+
+    def restream_frame(self, pts_s: float, camera: Camera) -> None:
+        """The pose a frame of media time pts_s (s) was drawn with, handed to the restream
+        (never waits; nothing without one)."""
+        origin = self.receiver.origin_s
+        if self.restream is not None and origin is not None:
+            self.restream.pose(pts_s + origin, self.frame, camera, self.registered)
 
     def discard_due(self, now: float) -> int:
         """Frames due now taken away unshown and uncounted (JitterBuffer.discard_due)."""
@@ -471,6 +497,8 @@ class LiveFeed:
     def stop(self) -> LiveRun:
         """Everything stopped and closed (the recording kept); the final counts."""
         self.receiver.stop()
+        if self.restream is not None:
+            self.restream.stop()
         if self.registration is not None:
             self.registration.stop()
         if self.lag is not None:

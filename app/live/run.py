@@ -76,8 +76,9 @@ def run_live(
             view = window_camera(camera, view_intr, None, None, options.far_m)
             renderer.draw(view, target.fbo)
             wait_for_gpu(ctx)
-            d = Drawn(item.pts_s, item.arrival_s, due, clock(), state)
+            d = Drawn(item.pts_s, item.arrival_s, due, clock(), state, feed.registered)
             run.add_drawn(d)
+            feed.restream_frame(item.pts_s, camera)
             if share is not None:
                 offer_drawn(share, feed, item, camera)
             if on_drawn is not None:

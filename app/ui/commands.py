@@ -10,10 +10,12 @@ from pathlib import Path
 import numpy as np
 
 from app.export.painting import DEFAULT_EVERY_S
-from app.ui import archive, clips, control_points, live, measure, memory
+from app.share.web import DEFAULT_BIND, parse_bind
+from app.ui import archive, clips, control_points, live, measure, memory, share
 
 OPEN_WAIT_S = 600.0  # a script's `open` waits at most this long for the reading (real seconds)
 LIVE_WAIT_S = 120.0  # `wait live N` gives up after this long (real seconds)
+SHARE_WAIT_S = 120.0  # `share wait` gives up after this long (real seconds)
 
 
 @dataclass(frozen=True)
@@ -227,6 +229,38 @@ def _live(v, arg, now) -> None:
         raise ValueError(f"expected 'back S', 'at S', 'edge' or 'close', got {arg!r}")
 
 
+def _share(v, arg, now) -> None:
+    """on [HOST:PORT] | off | wait: the browser map (app.ui.share.start_web), bound to the
+    loopback unless HOST:PORT says otherwise; stopped; wait: hold the script until a browser has
+    been sent the frame shown (on a stream, any frame)."""
+    words = (arg or "").split()
+    what = words[0] if words else ""
+    if what == "on" and len(words) <= 2:
+        bind = parse_bind(words[1]) if len(words) == 2 else DEFAULT_BIND
+        try:
+            share.start_web(v, bind)
+        except OSError as exc:
+            raise ValueError(
+                f"the browser map cannot listen on {bind[0]}:{bind[1]}: {exc.strerror or exc}"
+            ) from exc
+    elif what == "off" and len(words) == 1:
+        share.stop_web(v)
+    elif what == "wait" and len(words) == 1:
+        server = v.share.web
+        if server is None:
+            raise ValueError("the browser map is off (share on)")
+        v.hold_script(
+            lambda: (
+                server.delivered_index is not None
+                and (v.live is not None or server.delivered_index == v.current_index)
+            ),
+            "a browser to be sent the frame shown",
+            SHARE_WAIT_S,
+        )
+    else:
+        raise ValueError(f"expected 'on [HOST:PORT]', 'off' or 'wait', got {arg!r}")
+
+
 def _record(v, arg, now) -> None:
     action, _, path = (arg or "").partition(" ")
     if action == "start":
@@ -319,6 +353,12 @@ COMMANDS: dict[str, Command] = {
         "WHAT PATH: export the session (footprints, fmv-csv, klv, video) in the background",
     ),
     "record": Command(_record, True, True, "start [PATH] | stop: record what the window shows"),
+    "share": Command(
+        _share,
+        False,
+        True,
+        "on [HOST:PORT] | off | wait: the browser map of what is shown (its URL, with its access token, among the notes), bound to the loopback unless HOST:PORT says otherwise; stop it; wait: hold the script until a browser has been sent the frame shown",
+    ),
     "lens": Command(
         lambda v, a, n: v.use_lens(None if a == "auto" else Path(a)),
         True,

@@ -2,7 +2,10 @@
 marks handed to the sinks the command line named (`--cot`, a served map) or the Share toggle
 added, through one hub (app.share.hub) per open session or stream. The hub casts in its own
 thread; here only the offer is made, with the frame's picture copied when the hub would take it.
-A new session or stream closes the hub and makes another (the sinks are made again)."""
+A new session or stream closes the hub and makes another (the sinks are made again).
+
+The Share toggle (`share on|off`, the Session panel) starts the browser map (app.share.web) and
+adds its sink; the server outlives the hubs, so its URL stays the same across sessions."""
 
 from __future__ import annotations
 
@@ -16,8 +19,9 @@ from app.core.messages import Messages
 from app.live.run import offer_drawn
 from app.locate.marks import marks_geojson
 from app.share.hub import Offer, Share, Sink
+from app.share.web import DEFAULT_BIND, MapServer, web_sink_maker
 
-__all__ = ["ViewerShare", "close", "update"]
+__all__ = ["ViewerShare", "close", "start_web", "stop_web", "update"]
 
 SinkMaker = Callable[[Messages], Sink]
 
@@ -32,12 +36,32 @@ class ViewerShare:
     hub: Share | None = None
     owner: object = None
     marks_sent: list | None = None
+    made: dict = field(default_factory=dict)  # maker -> the sink it made for the open hub
+    web: MapServer | None = None  # the browser map the Share toggle started
+    web_maker: SinkMaker | None = None
 
     def add(self, make: SinkMaker) -> None:
         """Share with one more sink, from now on (the open hub gets it at once)."""
         self.makers.append(make)
         if self.hub is not None:
-            self.hub.add_sink(make(self.hub.messages))
+            sink = self.made[make] = make(self.hub.messages)
+            self.hub.add_sink(sink)
+            last = self.hub.last
+            if last is not None:  # paused, the frame shown would not be offered again
+                try:
+                    sink.send_frame(last)
+                except Exception as exc:  # a sink's fault is said, never the viewer's end
+                    self.hub.messages.add(f"sharing to {sink.name}: frame failed: {exc}")
+
+    def remove(self, make: SinkMaker) -> None:
+        """Share with the sinks of `make` no more (the open hub's closed now); the hub itself
+        closed when no maker is left."""
+        self.makers = [m for m in self.makers if m is not make]
+        sink = self.made.pop(make, None)
+        if sink is not None and self.hub is not None:
+            self.hub.remove_sink(sink)
+        if not self.makers:
+            close(self)
 
 
 def close(share: ViewerShare) -> None:
@@ -45,6 +69,39 @@ def close(share: ViewerShare) -> None:
     if share.hub is not None:
         share.hub.close()
     share.hub, share.owner, share.marks_sent = None, None, None
+    share.made = {}
+
+
+def start_web(v, bind: tuple[str, int] = DEFAULT_BIND) -> MapServer:
+    """The Share toggle on: the browser map started (its imagery the world the command line
+    named, if any) and fed from now on; its URL said among the notes. OSError where the address
+    cannot be had."""
+    share: ViewerShare = v.share
+    if share.web is not None:
+        return share.web
+    world = next((x.world for x in v.options.layers if x.kind == "world"), None)
+    server = MapServer(
+        bind,
+        imagery=None if world is None else world.imagery,
+        attribution="" if world is None else world.attribution,
+    ).start()
+    share.web, share.web_maker = server, web_sink_maker(server)
+    share.add(share.web_maker)
+    if server.warning:
+        v.ui.warnings.append(server.warning)
+    v.ui.info.append(f"sharing: the browser map is at {server.url}")
+    return server
+
+
+def stop_web(v) -> None:
+    """The Share toggle off: the browser map's sink removed and its server stopped."""
+    share: ViewerShare = v.share
+    if share.web is None:
+        return
+    share.remove(share.web_maker)
+    share.web.close()
+    v.ui.info.append(f"sharing: the browser map at {share.web.address} stopped")
+    share.web, share.web_maker = None, None
 
 
 def update(v) -> None:
@@ -70,7 +127,9 @@ def _hub(
     to the owner's own messages, which the viewer shows."""
     if share.owner is not owner:
         close(share)
-        share.hub = make([m(messages) for m in share.makers])
+        sinks = [m(messages) for m in share.makers]
+        share.made = dict(zip(share.makers, sinks, strict=True))
+        share.hub = make(sinks)
         share.owner = owner
     return share.hub
 

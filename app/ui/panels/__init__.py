@@ -1,5 +1,5 @@
 """The viewer's ImGui panels, one module a panel (Session, Timeline, Attitude, Projection, Error
-inspection, Stats, Export, Measure, Memory, Live (a stream), Help; widgets: what they share). Every control runs the same
+inspection, Stats, Export, Measure, Memory, Live (a stream), Help, Share (the browser map, drawn in Session); widgets: what they share). Every control runs the same
 commands as the script (app.ui.commands) or the same Viewer methods; the docked layout is
 app.ui.gui's, keys and mouse app.ui.inputs'.
 """

@@ -8,6 +8,7 @@ from pathlib import Path
 from imgui_bundle import imgui
 
 from app.ui.inputs import open_dialog
+from app.ui.panels import share
 from app.ui.panels.widgets import AMBER, RED, colour, run, window
 
 
@@ -70,6 +71,7 @@ def draw(v) -> None:
         imgui.same_line()
         if imgui.button("Open stream") and ui.stream_url.strip():
             run(v, "open", ui.stream_url.strip())
+        share.draw(v)
         for warning in ui.warnings[-6:]:
             imgui.text_colored(colour(AMBER), "warning:")
             imgui.same_line()

@@ -16,7 +16,7 @@ import pytest
 from app.camera.intrinsics import Intrinsics
 from app.camera.pinhole import Camera
 from app.cli import main
-from app.export.gis import FMV_FIELDS, counter_clockwise_ring
+from app.export.gis import FMV_FIELDS, FMV_HEADER, counter_clockwise_ring
 from app.export.records import FootprintCaster, frame_records
 from app.geodesy import rotations
 from app.geodesy.enu import LocalFrame
@@ -205,7 +205,9 @@ def test_kml_kmz_and_fmv_csv(sample, tmp_path):
     assert main(["export", "fmv-csv", str(SAMPLE), "--out", str(fmv), "--every", "400"]) == 0
     with fmv.open() as f:
         rows = list(csv.reader(f))
-    assert tuple(rows[0]) == FMV_FIELDS and len(rows) == 7
+    # the MISB fields first, in their order, then geofuse's own (the GNSS status)
+    assert tuple(rows[0]) == FMV_HEADER and rows[0][: len(FMV_FIELDS)] == list(FMV_FIELDS)
+    assert len(rows) == 7 and {r[-1] for r in rows[1:]} == {"used"}
     t = [int(r[0]) for r in rows[1:]]
     assert t[0] > 1.7e15 and np.all(np.diff(t) > 0)  # microseconds since the Unix epoch
     # The coordinates themselves: each row's sensor position is the solved camera's at its

@@ -1,5 +1,6 @@
 """Frame records (app.export.records) as GIS layers: GeoJSON (RFC 7946), KML and KMZ (Google
-Earth), and the metadata CSV of ArcGIS Pro's Video Multiplexer (Full Motion Video). Pure text;
+Earth), and the metadata CSV of ArcGIS Pro's Video Multiplexer (Full Motion Video: the MISB
+fields, then one column of geofuse's own after them, fmv_row). Pure text;
 files are written through app.core.outputs (checked, atomic, never over an input).
 
 Heights: GeoJSON keeps heights above the WGS84 ellipsoid (RFC 7946); KML's `absolute` and MISB's
@@ -44,6 +45,10 @@ FMV_FIELDS = (  # MISB ST 0601 names, as the Video Multiplexer's field mapping t
     "Offset Corner Latitude Point 1", "Offset Corner Longitude Point 1", "Offset Corner Latitude Point 2", "Offset Corner Longitude Point 2",
     "Offset Corner Latitude Point 3", "Offset Corner Longitude Point 3", "Offset Corner Latitude Point 4", "Offset Corner Longitude Point 4",
 )  # fmt: skip
+FMV_EXTENSIONS = (  # geofuse's own columns, after every MISB one (fmv_row)
+    "geofuse GNSS Status",
+)
+FMV_HEADER = FMV_FIELDS + FMV_EXTENSIONS
 COMPANIONS = ("_borders", "_track")  # files written beside a GeoJSON footprints file
 
 
@@ -249,7 +254,14 @@ def fmv_row(r: FrameRecord) -> list[str]:
     (UTC; the session clock where none is known); the camera is the platform (heading only: the
     sensor's elevation and roll carry the pitch and roll, as a gimbal's would); altitudes above
     mean sea level with the ellipsoid heights beside them; corners as offsets from the frame
-    centre in degrees (empty where the centre or the corner meets nothing)."""
+    centre in degrees (empty where the centre or the corner meets nothing). Then geofuse's own
+    columns (FMV_EXTENSIONS): `geofuse GNSS Status`, what posed the frame (used, rejected,
+    missing: app.camera.fixes; empty where the track stands on no GNSS). It comes last and under
+    a heading no MISB template lists, so that the fixed schema does not move: the Video
+    Multiplexer maps columns by their headings (in any order) to its field mapping template's
+    names and maps this one to nothing, readers by heading (csv.DictReader, pandas) find every
+    MISB field as before, and readers by position find the 26 MISB fields in the first 26
+    columns, in the same order."""
     t = r.utc_s if r.utc_s is not None else r.session_s
     h, p, roll = r.hpr
     c = r.corners
@@ -274,15 +286,17 @@ def fmv_row(r: FrameRecord) -> list[str]:
         r.centre[2],
     ]
     cells += [v for k in range(4) for v in (c[k, 0] - r.centre[0], c[k, 1] - r.centre[1])]
-    return [str(cells[0])] + [
+    misb = [str(cells[0])] + [
         "" if not math.isfinite(v) else f"{v:.9f}" if abs(v) <= 360 else f"{v:.3f}"
         for v in cells[1:]
     ]
+    return misb + ["" if r.gnss is None else r.gnss]
 
 
 def write_fmv_csv(records: Iterable[FrameRecord], f) -> None:
+    """The Video Multiplexer CSV: FMV_HEADER, then one fmv_row per record."""
     w = csv.writer(f)
-    w.writerow(FMV_FIELDS)
+    w.writerow(FMV_HEADER)
     for r in records:
         w.writerow(fmv_row(r))
 

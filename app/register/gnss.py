@@ -1,16 +1,23 @@
 """GNSS fixes tested against the scene (issue 52): a fix that disagrees with the registered
-keyframes beyond its stated accuracy is a lie (spoofing, a jump, a drag-off, multipath) and is
-not used; the track there stands on the scene.
+keyframes beyond its stated accuracy is a lie (spoofing, a jump, a drag-off, a frozen or replayed
+track, a height that disagrees, multipath) and is not used; the track there stands on the scene.
 
 Each fix is compared with the registered camera position at its time (linear between the two
 registered keyframes around it, when both lie within reach_s): the residual (fix - scene, ENU m)
 is median-filtered over `window` tested fixes (a keyframe registered wrongly moves one residual;
 a median keeps a jump's edge where it is), and a fix whose horizontal residual exceeds
-max(floor_m, n_sigma x its stated accuracy) raises the alarm. The lie began where the residual
-left the GNSS's own offset before it (its median 30 to 10 s before the alarm): at a jump, or as
-far back from the moment it had gone half as far as at the alarm as that moment is from the
-alarm (a drag-off grows steadily); it lasts until a tested fix agrees with the scene again. Times are session seconds;
-positions local ENU metres (app.geodesy.enu.LocalFrame).
+max(floor_m, n_sigma x its stated accuracy), or whose vertical one exceeds max(v_floor_m, n_sigma
+x v_ratio x that accuracy), raises the alarm. The lie began where the residual left the GNSS's own
+offset before it (its median 30 to 10 s before the alarm): at a jump, or as far back from the
+moment it had gone half as far as at the alarm as that moment is from the alarm (a drag-off grows
+steadily); it lasts until a tested fix agrees with the scene again. What the fixes did there names
+it (`kind`): `frozen` where the fix at the alarm and those around it have not moved (within
+still_m, for min_still_s or more: the receiver stopped while the camera flew on; it began at the
+first of them), `replayed` where the
+lie's fixes repeat, within repeat_m, earlier fixes at one steady lag (a recorded stretch played
+again; it began at the first repeated fix), `height` where only the vertical residual left its
+bounds, `disagrees` otherwise (a jump, a drag-off). Times are session seconds; positions local ENU
+metres (app.geodesy.enu.LocalFrame).
 """
 
 from __future__ import annotations
@@ -21,10 +28,14 @@ from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
+from scipy.spatial import cKDTree
 
 from app.camera.fixes import FixStatus
 
 FloatArray = npt.NDArray[np.float64]
+DISAGREES, FROZEN, REPLAYED, HEIGHT = "disagrees", "frozen", "replayed", "height"
+LIE_KINDS = (DISAGREES, FROZEN, REPLAYED, HEIGHT)
+JUMP_SHARE = 0.6  # a residual that steps by this share of its size at the alarm in one fix jumped
 
 
 @dataclass(frozen=True)
@@ -34,7 +45,14 @@ class CheckSettings:
     accuracy assumed (m, 1 sigma per axis) where the fixes state none; reach_s: a fix is tested
     where registered keyframes lie within this many seconds before and after it; baseline_s:
     the GNSS's own offset before an alarm is the median residual over the (start, end) seconds
-    before the alarm; merge_s: alarms closer than this are one lie."""
+    before the alarm; merge_s: alarms closer than this are one lie; v_ratio, v_floor_m: the
+    vertical threshold, max(v_floor_m, n_sigma x v_ratio x the horizontal accuracy) m (GNSS
+    heights are about twice as uncertain as positions); still_m: a fix within this (m, 3D) of
+    the one before it has not moved (a frozen track repeats its fix to the millimetre; a
+    receiver at rest wanders by decimetres a second); min_still_s: a frozen track has not moved
+    for this long (s), at least (a receiver repeating a fix it did not update: shorter);
+    repeat_m: a fix within this (m, 3D) of an earlier one repeats it (a replayed track);
+    replay_max_s: the farthest back (s) a replay is looked for."""
 
     window: int = 5
     n_sigma: float = 4.5
@@ -43,14 +61,22 @@ class CheckSettings:
     reach_s: float = 1.0
     baseline_s: tuple[float, float] = (30.0, 10.0)
     merge_s: float = 10.0
+    v_ratio: float = 2.0
+    v_floor_m: float = 10.0
+    still_m: float = 0.02
+    min_still_s: float = 2.0
+    repeat_m: float = 0.05
+    replay_max_s: float = 600.0
 
 
 @dataclass(frozen=True)
 class GnssLie:
     """One lie: began_s when the fixes first left their own offset by more than their accuracy,
     caught_s the first fix beyond the threshold, worst_s and worst_m where and how far (m,
-    horizontal) they disagreed most with the scene, ended_s the last rejected fix (session s);
-    offset (3,): the GNSS's own offset before it (fix - scene, ENU m)."""
+    horizontal; vertical for a `height` lie) they disagreed most with the scene, ended_s the last
+    rejected fix (session s); offset (3,): the GNSS's own offset before it (fix - scene, ENU m);
+    kind: LIE_KINDS (module docstring); replay_of_s: for a `replayed` lie, the session time of
+    the earlier fix its first fix repeats (else None)."""
 
     began_s: float
     caught_s: float
@@ -58,12 +84,16 @@ class GnssLie:
     worst_m: float
     ended_s: float
     offset: FloatArray
+    kind: str = DISAGREES
+    replay_of_s: float | None = None
 
     def said(self, t0_s: float, utc_of: Callable[[float], float | None] | None = None) -> str:
         """One line for people, clip times from the first frame's session time t0_s (s) and
-        UTC where utc_of(session s) knows it (app.session.model.Session.utc_of): "GNSS
-        disagrees with the scene from 09:47:10 (t = 30.0 s), 38 m by 09:47:30 (t = 50.0 s):
-        not used"."""
+        UTC where utc_of(session s) knows it (app.session.model.Session.utc_of), by kind:
+        "GNSS disagrees with the scene from 09:47:10 (t = 30.0 s), 38 m by 09:47:30 (t = 50.0 s):
+        not used ...", "GNSS frozen from ..., 38 m behind the scene by ...", "GNSS replays its
+        fixes of 09:46:50 (t = 10.0 s) from ..., 38 m off the scene by ...", "GNSS height
+        disagrees with the scene by 40 m from ... (the most by ...)"."""
 
         def when(t: float) -> str:
             clip = f"t = {t - t0_s:.1f} s"
@@ -72,11 +102,24 @@ class GnssLie:
                 return clip
             return f"{time.strftime('%H:%M:%S', time.gmtime(utc))} ({clip})"
 
-        return (
-            f"GNSS disagrees with the scene from {when(self.began_s)}, {self.worst_m:.0f} m by "
-            f"{when(self.worst_s)}: not used (caught at t = {self.caught_s - t0_s:.1f} s; the "
-            "track stands on the scene's registered keyframes there)"
+        tail = (
+            f": not used (caught at t = {self.caught_s - t0_s:.1f} s; the track stands on the "
+            "scene's registered keyframes there)"
         )
+        far, by = f"{self.worst_m:.0f} m", when(self.worst_s)
+        if self.kind == FROZEN:
+            return f"GNSS frozen from {when(self.began_s)}, {far} behind the scene by {by}{tail}"
+        if self.kind == REPLAYED and self.replay_of_s is not None:
+            return (
+                f"GNSS replays its fixes of {when(self.replay_of_s)} from {when(self.began_s)}, "
+                f"{far} off the scene by {by}{tail}"
+            )
+        if self.kind == HEIGHT:
+            return (
+                f"GNSS height disagrees with the scene by {far} from {when(self.began_s)} (the "
+                f"most by {by}){tail}"
+            )
+        return f"GNSS disagrees with the scene from {when(self.began_s)}, {far} by {by}{tail}"
 
 
 @dataclass(frozen=True)
@@ -87,6 +130,15 @@ class GnssCheck:
     status: FixStatus
     lies: tuple[GnssLie, ...]
     residual: FloatArray
+
+    def lie_at(self, t_s: float) -> GnssLie | None:
+        """The lie a rejected moment at session time t_s (s) belongs to: the one whose span
+        [began_s, ended_s] lies nearest (its untested edge fixes are rejected too); None where
+        there is none."""
+        if not self.lies:
+            return None
+        gap = [max(lie.began_s - t_s, t_s - lie.ended_s, 0.0) for lie in self.lies]
+        return self.lies[int(np.argmin(gap))]
 
 
 def scene_positions(
@@ -144,8 +196,13 @@ def check_fixes(
     if len(tested) == 0:
         return GnssCheck(FixStatus(t, rejected), (), residual)
     residual[tested] = running_median(raw[tested], settings.window)
-    off = np.linalg.norm(residual[tested, :2], axis=1)
-    bad = off > np.maximum(settings.floor_m, settings.n_sigma * acc[tested])
+    off_h = np.linalg.norm(residual[tested, :2], axis=1)
+    off_v = np.abs(residual[tested, 2])
+    bad_h = off_h > np.maximum(settings.floor_m, settings.n_sigma * acc[tested])
+    bad_v = off_v > np.maximum(
+        settings.v_floor_m, settings.n_sigma * settings.v_ratio * acc[tested]
+    )
+    bad = bad_h | bad_v
     lies: list[GnssLie] = []
     n = 0  # tested fixes looked at so far
     while n < len(tested):
@@ -153,15 +210,6 @@ def check_fixes(
         if len(hits) == 0:
             break
         a = n + int(hits[0])  # the alarm: index into tested
-        b0, b1 = settings.baseline_s
-        before = (t[tested] >= t[tested[a]] - b0) & (t[tested] <= t[tested[a]] - b1)
-        base = (
-            np.median(residual[tested[before]], axis=0)
-            if before.any()
-            else np.zeros(3)  # no clean stretch before it to learn the offset from
-        )
-        away = np.linalg.norm(residual[tested, :2] - base[:2], axis=1)
-        first = _onset(t[tested], away, n, a)
         last = a  # the last bad fix, the lie going on while alarms follow within merge_s
         for k in range(a + 1, len(tested)):
             if bad[k]:
@@ -170,20 +218,52 @@ def check_fixes(
                 break
         good_after = np.flatnonzero(~bad[last + 1 :])
         end = len(t) if len(good_after) == 0 else tested[last + 1 + int(good_after[0])]
+        b0, b1 = settings.baseline_s
+        before = (t[tested] >= t[tested[a]] - b0) & (t[tested] <= t[tested[a]] - b1)
+        base = (
+            np.median(residual[tested[before]], axis=0)
+            if before.any()
+            else np.zeros(3)  # no clean stretch before it to learn the offset from
+        )
+        upright = not bad_h[a : last + 1].any()  # only the height disagrees
+        away = (
+            np.abs(residual[tested, 2] - base[2])
+            if upright
+            else np.linalg.norm(residual[tested, :2] - base[:2], axis=1)
+        )
+        first = _onset(t[tested], away, n, a)
+        kind, began, replay_of = DISAGREES, None, None
+        still = _frozen_since(t, enu, int(tested[a]), settings)
+        if still is not None:
+            kind, began = FROZEN, still
+        else:
+            replay = _replayed(t, enu, int(tested[first]), end, settings)
+            if replay is not None:
+                kind = REPLAYED
+                began, replay_of = _replay_start(t, enu, *replay, settings)
+            elif upright:
+                kind = HEIGHT
+        if began is not None:  # the fixes themselves say where it began
+            first = int(np.clip(np.searchsorted(t[tested], t[began]), n, a))
         # untested fixes inside it too, and those between it and the last tested fix before it
         # that agreed (the keyframes at a jump's edge are the ones the gate drops), within merge_s
         start = tested[first] if first == 0 else tested[first - 1] + 1
         start = max(start, int(np.searchsorted(t, t[tested[first]] - settings.merge_s)))
+        if began is not None:
+            start = min(start, began)
         rejected[start:end] = True
+        off = off_v if upright else off_h
         worst = first + int(np.argmax(off[first : last + 1]))
         lies.append(
             GnssLie(
-                float(t[tested[first]]),
+                float(t[tested[first]] if began is None else t[began]),
                 float(t[tested[a]]),
                 float(t[tested[worst]]),
                 float(off[worst]),
                 float(t[end - 1]),
                 base,
+                kind,
+                replay_of,
             )
         )
         n = last + 1
@@ -192,14 +272,81 @@ def check_fixes(
 
 def _onset(t: FloatArray, away: FloatArray, n: int, a: int) -> int:
     """Where a lie caught at index a (of times t (s) and distances `away` (m) of the residual from
-    the GNSS's own offset) began, not before index n: a jump's first fix; a drag-off's, back from
-    where it was half as far as at the alarm by as long again (a ramp: half-way in time), so
-    that the GNSS's own wander does not take it back farther."""
+    the GNSS's own offset) began, not before index n: a jump's first fix (where the residual
+    stepped in one fix by more than JUMP_SHARE of its size at the alarm, caught there or a few
+    fixes on, where the GNSS's own offset kept it under the threshold at first); a drag-off's,
+    back from where it was half as far as at the alarm by as long again (a ramp: half-way in
+    time), so that the GNSS's own wander does not take it back farther."""
     half = a
     while half > n and away[half - 1] > 0.5 * away[a]:
         half -= 1
+    if half > n and away[half] - away[half - 1] > JUMP_SHARE * away[a]:
+        return half
     began = 2.0 * t[half] - t[a]
     return max(n, int(np.searchsorted(t, began - 1e-6)))
+
+
+def _frozen_since(t: FloatArray, enu: FloatArray, i: int, settings: CheckSettings) -> int | None:
+    """The first fix of a frozen run through fix i (times t (N,) s, positions enu (N, 3) m):
+    consecutive fixes within settings.still_m of each other spanning settings.min_still_s or
+    more (a receiver repeating an output it did not update is shorter); None where fix i moves."""
+    step = np.r_[np.inf, np.linalg.norm(np.diff(enu, axis=0), axis=1), np.inf]  # into fix k
+    lo, hi = i, i
+    while step[lo] <= settings.still_m:
+        lo -= 1
+    while step[hi + 1] <= settings.still_m:
+        hi += 1
+    return lo if t[hi] - t[lo] >= settings.min_still_s else None
+
+
+def _replayed(
+    t: FloatArray, enu: FloatArray, start: int, end: int, settings: CheckSettings
+) -> tuple[int, float] | None:
+    """Whether the fixes start..end-1 (times t (N,) s, positions enu (N, 3) m) begin by
+    repeating earlier ones, each within settings.repeat_m of a fix of the replay_max_s before
+    `start`, at one lag (give or take a second and two fix intervals), for min_still_s or more
+    from within merge_s of `start` (a recorded stretch played again: only its first `lag`
+    seconds repeat fixes said before, what follows was never said): (the first repeating fix,
+    the lag s); None where they do not."""
+    earlier = np.flatnonzero((t < t[start]) & (t >= t[start] - settings.replay_max_s))
+    if len(earlier) < 2 or end - start < 2:
+        return None
+    lie = np.arange(start, end)
+    d, j = cKDTree(enu[earlier]).query(enu[lie])
+    hit = lie[d <= settings.repeat_m]
+    if len(hit) < 2 or t[hit[0]] - t[start] > settings.merge_s:
+        return None
+    lag = t[hit] - t[earlier[j[d <= settings.repeat_m]]]
+    step = float(np.median(np.diff(t)))
+    steady = np.abs(lag - lag[0]) <= 1.0 + 2 * step
+    run = hit[steady]
+    # the repeating fixes follow one another from the first (a gap of a fix or two allowed)
+    gaps = np.diff(t[run]) > 3 * step
+    run = run[: int(np.argmax(gaps)) + 1] if gaps.any() else run
+    if t[run[-1]] - t[run[0]] < settings.min_still_s:
+        return None
+    return int(run[0]), float(np.median(t[run] - t[earlier[j[np.isin(lie, run)]]]))
+
+
+def _replay_start(
+    t: FloatArray, enu: FloatArray, i: int, lag_s: float, settings: CheckSettings
+) -> tuple[int, float]:
+    """(the first fix, back from fix i (one that repeats an earlier fix), that repeats the fix
+    nearest lag_s (s) before it within settings.repeat_m; the session time (s) of the fix it
+    repeats)."""
+
+    def repeats(k: int) -> int | None:
+        j = int(np.clip(np.searchsorted(t, t[k] - lag_s), 0, len(t) - 1))
+        near = [m for m in (j - 1, j, j + 1) if 0 <= m < k]
+        if not near:
+            return None
+        m = min(near, key=lambda m: abs(t[m] - (t[k] - lag_s)))
+        return m if np.linalg.norm(enu[k] - enu[m]) <= settings.repeat_m else None
+
+    first, of = i, repeats(i)
+    while first > 0 and (m := repeats(first - 1)) is not None:
+        first, of = first - 1, m
+    return first, float(t[of] if of is not None else t[first] - lag_s)
 
 
 def on_scene(enu_fix: FloatArray, check: GnssCheck) -> tuple[FloatArray, npt.NDArray[np.bool_]]:
@@ -207,9 +354,10 @@ def on_scene(enu_fix: FloatArray, check: GnssCheck) -> tuple[FloatArray, npt.NDA
     less what its lie added (its median residual less the GNSS's own offset before the lie),
     i.e. the registered position at its time carrying that offset on, so that the fused
     corrections (scene - prior) run on without a step where the lie begins; a rejected fix
-    nothing registered near (past the last keyframe) less what the lie added at the nearest
-    tested one; the others as they were; keep (N,): False for fixes of a lie none of whose fixes
-    was tested, which the track leaves out)."""
+    nothing registered near less what the lie added, linear in time between the tested fixes
+    around it (a drag-off or a frozen fix adds more every second), or at the nearest tested
+    one past the first or last; the others as they were; keep (N,): False for fixes of a lie
+    none of whose fixes was tested, which the track leaves out)."""
     t = check.status.t
     enu = np.asarray(enu_fix, np.float64).copy()
     keep = ~check.status.rejected
@@ -219,7 +367,8 @@ def on_scene(enu_fix: FloatArray, check: GnssCheck) -> tuple[FloatArray, npt.NDA
         known = np.intersect1d(inside, tested)
         if len(known) == 0:
             continue
-        nearest = known[np.abs(t[known][None, :] - t[inside][:, None]).argmin(axis=1)]
-        enu[inside] -= check.residual[nearest] - lie.offset
+        added = check.residual[known] - lie.offset  # what the lie added where tested
+        for axis in range(3):
+            enu[inside, axis] -= np.interp(t[inside], t[known], added[:, axis])
         keep[inside] = True
     return enu, keep

@@ -26,6 +26,7 @@ from app.session.model import REGISTERED, Session
 from app.session.timeline import Timeline
 from app.simulate.sample import SAMPLE_DIR
 from app.ui import archive, clips, live, measure, memory
+from app.ui.gnss import FrameGnss
 from app.ui.memory import MemoryPainter
 from app.ui.navigation import Navigator
 
@@ -77,6 +78,7 @@ class Loaded:
     source_chosen: bool = False  # the user picked a source: never switched for them
     registered_said: bool = False  # the switch to `registered` (or why not) was said
     memory: MemoryPainter | None = None  # the scene memory being painted or painted
+    gnss: FrameGnss | None = None  # the registered track's per-frame GNSS status (app.ui.gnss)
 
     @property
     def clock(self) -> PlaybackClock:

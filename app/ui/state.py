@@ -60,6 +60,9 @@ class UiState:
     memory_view: str = "model"  # model, memory, seen or changed (app.export.memory_view)
     memory_rule: int = 0  # the Memory panel's rule (app.export.memory.RULES)
     archive: ArchiveOverlay | None = None  # an archive's footprints drawn (app.ui.archive)
+    gnss_band: tuple[float, float, float, float] | None = (
+        None  # the timeline's GNSS band last drawn: x at 0 and at the end, y top and bottom (px)
+    )
     quit: bool = False
 
     def error(self, message: str) -> None:

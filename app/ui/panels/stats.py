@@ -1,5 +1,6 @@
-"""The Stats panel: frame rate and time, the decode queue, latency, dropped frames, triangles, 3D
-Tiles on the GPU."""
+"""The Stats panel: what posed the frame shown (its GNSS status under `registered`, and the lie or
+outage it is in: app.ui.gnss), frame rate and time, the decode queue, latency, dropped frames,
+triangles, 3D Tiles on the GPU."""
 
 from __future__ import annotations
 
@@ -8,7 +9,8 @@ from pathlib import Path
 import numpy as np
 from imgui_bundle import imgui
 
-from app.ui.panels.widgets import window
+from app.ui import gnss
+from app.ui.panels.widgets import colour, window
 
 
 def draw(v) -> None:
@@ -20,6 +22,7 @@ def draw(v) -> None:
             _live(v, fps, ft)
             imgui.end()
             return
+        _gnss(v)
         player = v.loaded.player
         current, mean, p95 = player.stats.summary()
         imgui.text(f"frame rate {fps:6.1f} fps   frame time {np.median(ft):5.1f} ms")
@@ -43,6 +46,21 @@ def draw(v) -> None:
                 + (f"; skipped {skipped}" if skipped else "")
             )
     imgui.end()
+
+
+def _gnss(v) -> None:
+    """The frame's GNSS status in its timeline colour, and the lie or outage it is in."""
+    L = v.loaded
+    said = gnss.frame_said(L.session, L.source, L.library.track(L.source), v.current_index)
+    for text, status in said:
+        shade = (
+            imgui.get_style_color_vec4(imgui.Col_.text_disabled)
+            if status is None
+            else colour(gnss.COLOURS[status])
+        )
+        imgui.push_style_color(imgui.Col_.text, shade)
+        imgui.text_wrapped(text)
+        imgui.pop_style_color()
 
 
 def _live(v, fps: float, ft: np.ndarray) -> None:

@@ -1,4 +1,5 @@
-"""The Timeline panel: play, pause, step, speed, loop, the scrubber, and each further clip's span."""
+"""The Timeline panel: play, pause, step, speed, loop, the scrubber (under `registered`, a band
+along its bottom coloured by what posed each frame: app.ui.gnss), and each further clip's span."""
 
 from __future__ import annotations
 
@@ -7,7 +8,10 @@ from pathlib import Path
 from imgui_bundle import imgui
 
 from app.playback.clock import SPEEDS
+from app.ui import gnss
 from app.ui.panels.widgets import colour, run, window
+
+BAND_PX = 4.0  # the GNSS band's height along the scrubber's bottom edge
 
 
 def draw(v, now: float) -> None:
@@ -37,8 +41,43 @@ def draw(v, now: float) -> None:
         changed, t = imgui.slider_float("##scrub", media, 0.0, clock.duration, "%.2f s")
         if changed or imgui.is_item_deactivated_after_edit():
             run(v, "seek", str(t), now)  # dragging scrubs; release shows the exact frame
+        _gnss_band(v)
         _spans(v)
     imgui.end()
+
+
+def _gnss_band(v) -> None:
+    """Along the scrubber (the last item drawn) a band of the frames' GNSS status under the
+    registered source (green used, red rejected, grey missing), each frame's colour under the
+    grab's position at its time; where it lies kept in v.ui.gnss_band (framebuffer pixels)."""
+    shown = gnss.shown(v.loaded)
+    if shown is None:
+        v.ui.gnss_band = None
+        return
+    lo, hi = imgui.get_item_rect_min(), imgui.get_item_rect_max()
+    grab = imgui.get_style().grab_min_size
+    duration = v.loaded.clock.duration
+    y0, y1 = hi.y - 1.0 - BAND_PX, hi.y - 1.0
+    draw = imgui.get_window_draw_list()
+    for r in shown.runs:
+        xa = gnss.slider_x(r.start_s, duration, lo.x, hi.x, grab)
+        xb = gnss.slider_x(r.end_s, duration, lo.x, hi.x, grab)
+        draw.add_rect_filled(
+            imgui.ImVec2(xa, y0),
+            imgui.ImVec2(max(xb, xa + 1.0), y1),
+            imgui.get_color_u32(colour(gnss.COLOURS[r.status])),
+        )
+    if imgui.is_item_hovered():
+        imgui.set_tooltip(
+            "GNSS per frame: green used, red rejected (it disagrees with the scene), grey missing"
+        )
+    scale = imgui.get_io().display_framebuffer_scale
+    v.ui.gnss_band = (
+        gnss.slider_x(0.0, duration, lo.x, hi.x, grab) * scale.x,
+        gnss.slider_x(duration, duration, lo.x, hi.x, grab) * scale.x,
+        y0 * scale.y,
+        y1 * scale.y,
+    )
 
 
 def _spans(v) -> None:

@@ -103,7 +103,7 @@ CASES = (
         "nothing",
         (*SOLVE[:2], "--scene", "{d}/session/scene.obj", *SOLVE[2:]),
         "error",
-        "--scene/--dem goes with a clip",
+        "--scene/--dem/--buildings goes with a clip",
     ),
     # video
     Case("video not a video", "video_not_a_video", SOLVE, "error", "clip.mp4"),

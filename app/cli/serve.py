@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import signal
 import sys
 from pathlib import Path
 
@@ -38,6 +39,9 @@ def run(args: argparse.Namespace) -> int:
         raise GeofuseError(
             f"{args.input}: no such file (expected a manifest, a clip or a stream URL)"
         )
+    # Ctrl-C is how serve stops: taken even where the shell started it with SIGINT ignored (a
+    # background job of a script), which Python would otherwise keep
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     server = _server(args)
     said = Printer(server.messages)
     print(f"the browser map: {server.url}", flush=True)

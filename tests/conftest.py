@@ -123,10 +123,15 @@ def run_viewer(
     cwd: Path | None = None,
 ):
     """`geofuse view ARGS` as a subprocess on the given X display, remembering its panel layout
-    in `config_home` (default: a fresh folder, so that no earlier run's layout is used), run in
-    `cwd` (default: the repository)."""
-    home = config_home or Path(tempfile.mkdtemp(prefix="geofuse-config-"))
-    env = dict(os.environ, DISPLAY=display, XDG_CONFIG_HOME=str(home))
+    in `config_home` (default: a fresh folder, removed once the viewer has exited, so that no
+    earlier run's layout is used and none is left behind), run in `cwd` (default: the
+    repository)."""
+    if config_home is None:
+        with tempfile.TemporaryDirectory(
+            prefix="geofuse-config-", ignore_cleanup_errors=True
+        ) as fresh:
+            return run_viewer(display, *args, timeout=timeout, config_home=Path(fresh), cwd=cwd)
+    env = dict(os.environ, DISPLAY=display, XDG_CONFIG_HOME=str(config_home))
     return subprocess.run(
         [sys.executable, "-m", "app", "view", *args],
         cwd=cwd or ROOT,
@@ -146,6 +151,19 @@ def session_dir(tmp_path_factory):
     folder = tmp_path_factory.mktemp("phone")
     write_session(folder, walking_pan(), duration_s=20.0)
     return folder
+
+
+@pytest.fixture(scope="session")
+def short_walk(tmp_path_factory) -> Path:
+    """The manifest of a 6 s world-versus-model walk (app.simulate.session.quick_config(6.0)),
+    simulated once for the modules that register against it (tests/test_register.py,
+    tests/test_hardening_inputs.py); they read it, and a test that writes a file beside it
+    (NAME.control.csv) removes it."""
+    from app.simulate import session as sample
+    from app.simulate.sample import SAMPLE_SCENE
+
+    out = tmp_path_factory.mktemp("short-walk")
+    return sample.write_sample_session(out, SAMPLE_SCENE, sample.quick_config(6.0))
 
 
 def state_camera(wc: dict):

@@ -17,17 +17,14 @@ from app.core.progress import ProgressBar
 from app.geodesy.enu import LocalFrame
 from app.scene import load_scene
 from app.session import open_session, read_config
-from app.simulate import session as sample
-from app.simulate.sample import SAMPLE_SCENE
 from tests.conftest import run_viewer
 
 
 @pytest.fixture(scope="module")
-def walk_dir(tmp_path_factory):
-    """The sample walk's first 8 s: a rendered video with a creation time, a real gyroscope."""
-    folder = tmp_path_factory.mktemp("walk")
-    sample.write_sample_session(folder, SAMPLE_SCENE, sample.quick_config(8.0))
-    return folder
+def walk_dir(short_walk):
+    """The sample walk's first 6 s (conftest's, simulated once; the tests edit copies of it): a
+    rendered video with a creation time, a real gyroscope."""
+    return short_walk.parent
 
 
 def _copy(session_dir, tmp_path, edit) -> str:

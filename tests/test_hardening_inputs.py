@@ -23,9 +23,7 @@ from app.register.points import ControlPoints, read_points, solve_control, write
 from app.scene.city.read import read_city
 from app.session import open_session
 from app.session.camera_track import camera_track
-from app.simulate import session as sample
 from app.simulate.city import Building, cityjson, write_citygml
-from app.simulate.sample import SAMPLE_SCENE
 
 HEADER = "frame,x,y,latitude,longitude,height\n"
 GOOD_ROWS = [
@@ -174,9 +172,8 @@ def test_a_pair_repeated_is_dropped_and_said(tmp_path):
 
 
 @pytest.fixture(scope="module")
-def short_session(tmp_path_factory):
-    out = tmp_path_factory.mktemp("hardening")
-    return open_session(sample.write_sample_session(out, SAMPLE_SCENE, sample.quick_config(6.0)))
+def short_session(short_walk):
+    return open_session(short_walk)  # conftest's 6 s walk, simulated once for the session
 
 
 @pytest.fixture(scope="module")

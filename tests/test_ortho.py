@@ -48,6 +48,20 @@ def scene_views(gl_ctx):
     views.release()
 
 
+@pytest.fixture(scope="module")
+def survey(tmp_path_factory):
+    """A 3 s survey of the sample site, simulated once for the module's export tests; they read
+    it (the 3D Tiles test paints a copy of its folder)."""
+    from app.simulate.sample import SAMPLE_SCENE
+    from app.simulate.session import SampleConfig, quick_config, write_sample_session
+
+    return write_sample_session(
+        tmp_path_factory.mktemp("survey"),
+        SAMPLE_SCENE,
+        SampleConfig(**{**quick_config(3.0).__dict__, "flight": "survey"}),
+    )
+
+
 def _memory(rule="newest", gsd=0.5) -> OrthoMemory:
     grid = make_grid(FRAME, (-40.0, -40.0), (60.0, 60.0), gsd)
     points, normals = surface(_scene(), grid, FRAME)
@@ -175,18 +189,14 @@ def test_memory_stays_within_its_cap_on_a_long_clip(scene_views):
     assert peak < 0.5 * held + 20e6, f"painting peaked at {peak / 1e6:.1f} MB over {held / 1e6:.1f}"
 
 
-def test_export_ortho_of_a_survey_puts_the_roof_where_the_model_has_it(tmp_path):
+def test_export_ortho_of_a_survey_puts_the_roof_where_the_model_has_it(survey, tmp_path):
     """`geofuse export ortho` on a 3 s survey (truth poses): the COG opens with rasterio in the
     site's UTM zone; where the model's surface is building 5's roof (10 m up) the picture is
     its grey roof, around it the green ground."""
     from app.simulate.sample import SAMPLE_ORIGIN, SAMPLE_SCENE
     from app.simulate.session import SampleConfig, quick_config, write_sample_session
 
-    manifest = write_sample_session(
-        tmp_path / "s",
-        SAMPLE_SCENE,
-        SampleConfig(**{**quick_config(3.0).__dict__, "flight": "survey"}),
-    )
+    manifest = survey
     out = tmp_path / "ortho.tif"
     args = [
         "export",
@@ -248,21 +258,17 @@ def test_a_surface_seen_edge_on_is_not_painted(scene_views):
     assert m.seen[_cell(m, 7.0, 7.0)]  # 9.9 m away: cosine 0.29
 
 
-def test_export_ortho_paints_a_3d_tiles_scene_as_its_model(tmp_path):
+def test_export_ortho_paints_a_3d_tiles_scene_as_its_model(survey, tmp_path):
     """The same 3 s survey, its scene the sample model wrapped as 3D Tiles: the tiles the
     frames need are frozen and painted, and building 5's roof lands where the GLB scene puts
     it (the orthophotos agree cell for cell where both saw)."""
     import shutil
 
     from app.scene.tiles import write as tjw
-    from app.simulate.sample import SAMPLE_DIR, SAMPLE_ORIGIN, SAMPLE_SCENE
-    from app.simulate.session import SampleConfig, quick_config, write_sample_session
+    from app.simulate.sample import SAMPLE_DIR, SAMPLE_ORIGIN
 
-    manifest = write_sample_session(
-        tmp_path / "s",
-        SAMPLE_SCENE,
-        SampleConfig(**{**quick_config(3.0).__dict__, "flight": "survey"}),
-    )
+    shutil.copytree(survey.parent, tmp_path / "s")  # the tileset goes beside its manifest
+    manifest = tmp_path / "s" / survey.name
     tiles = tmp_path / "s" / "stadium"
     tiles.mkdir()
     shutil.copy(SAMPLE_DIR / "scene.glb", tiles / "scene.glb")

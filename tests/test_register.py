@@ -43,7 +43,7 @@ from app.scene.mesh import MeshData
 from app.session import open_session
 from app.session.camera_track import camera_track
 from app.simulate import session as sample
-from app.simulate.sample import SAMPLE_DIR, SAMPLE_SCENE
+from app.simulate.sample import SAMPLE_DIR
 from app.solve.accuracy import true_track
 from app.solve.track import solve_track
 from tests.conftest import run_viewer
@@ -274,9 +274,8 @@ def test_corrections_follow_an_error_that_moves_within_a_second_without_a_kink()
 
 
 @pytest.fixture(scope="module")
-def short_session(tmp_path_factory):
-    out = tmp_path_factory.mktemp("registered")
-    return open_session(sample.write_sample_session(out, SAMPLE_SCENE, sample.quick_config(6.0)))
+def short_session(short_walk):
+    return open_session(short_walk)  # conftest's 6 s walk, simulated once for the session
 
 
 @pytest.mark.gl
@@ -433,23 +432,50 @@ def test_solve_offers_the_registered_source_and_says_how_much_registered(short_s
     assert direct.enu.shape[0] == len(rows) - 1
 
 
-@pytest.mark.gl
-def test_the_viewer_registers_in_the_background_and_shows_the_registered_source(
-    short_session, display, tmp_path
-):
-    """Nobody asks for `registered`: once solved in the background the viewer shows it, and says
-    so among the notes."""
-    state, shot = tmp_path / "state.json", tmp_path / "shot.png"
-    script = tmp_path / "script.txt"
-    script.write_text(
-        f"0 clock 0.05\n0 wait registered\n0.2 screenshot {shot}\n0.2 state {state}\n0.3 quit\n"
-    )
+CONTROL_PICKS = ["0.30,0.50", "0.62,0.42", "0.48,0.62", "0.72,0.58"]  # X,Y in the 3D view
+
+
+@pytest.fixture(scope="module")
+def viewer_run(short_session, display, tmp_path_factory):
+    """One viewer launch on the short session for the two viewer tests below, each checking
+    its own part: nobody asks for `registered`, and once it is solved in the background the
+    viewer shows it (shot.png, registered.json); then the offline source is chosen and four
+    control pairs are picked in the window and solved (control.json). The manifest's bytes
+    before the launch are kept to check it was never written."""
+    d = tmp_path_factory.mktemp("viewer")
+    lines = [
+        "0 clock 0.05",
+        "0 wait registered",
+        f"0.2 screenshot {d / 'shot.png'}",
+        f"0.2 state {d / 'registered.json'}",
+        "0.3 source offline",
+        "0.3 panels off",
+        "0.3 seek 2",
+        "0.3 view phone",
+    ]
+    for xy in CONTROL_PICKS:
+        lines += [f"0.4 control video {xy}", f"0.4 control model {xy}"]
+    lines += ["0.5 control solve", f"0.6 state {d / 'control.json'}", "0.7 quit"]
+    script = d / "script.txt"
+    script.write_text("\n".join(lines) + "\n")
+    before = short_session.path.read_bytes()
     result = run_viewer(
         display, str(short_session.path), "--script", str(script), "--size", "800x450"
     )
     assert result.returncode == 0, result.stderr[-3000:]
+    yield d, before
+    # the session's manifest is shared (conftest): no control points left for later registrations
+    short_session.path.with_name(short_session.path.stem + ".control.csv").unlink(missing_ok=True)
 
-    s = json.loads(state.read_text())
+
+@pytest.mark.gl
+def test_the_viewer_registers_in_the_background_and_shows_the_registered_source(
+    short_session, viewer_run
+):
+    """Nobody asks for `registered`: once solved in the background the viewer shows it, and says
+    so among the notes."""
+    d, _ = viewer_run
+    s = json.loads((d / "registered.json").read_text())
     assert s["source"] == "registered" and "registered" in s["solved"] and s["errors"] == []
     assert any(n.startswith("registered is solved: showing it instead of") for n in s["info"])
     reg = s["registration"]
@@ -507,34 +533,16 @@ def test_a_scene_without_texture_is_registered_by_its_geometry(sample_session, g
 
 @pytest.mark.gl
 def test_control_points_picked_in_the_viewer_are_solved_and_kept_beside_the_input(
-    short_session, display, tmp_path
+    short_session, viewer_run
 ):
-    """Four pairs picked in the window (a video pick, then a model pick): each video pick is the
-    pixel the projector drapes at that place, the solve reports residuals, and the points go
-    into NAME.control.csv beside the manifest (never into it)."""
-    state = tmp_path / "state.json"
-    picks = ["0.30,0.50", "0.62,0.42", "0.48,0.62", "0.72,0.58"]
-    lines = [
-        "0 clock 0.05",
-        "0 wait solved",
-        "0 source offline",
-        "0 panels off",
-        "0 seek 2",
-        "0 view phone",
-    ]
-    for xy in picks:
-        lines += [f"0.1 control video {xy}", f"0.1 control model {xy}"]
-    lines += ["0.2 control solve", f"0.3 state {state}", "0.4 quit"]
-    script = tmp_path / "script.txt"
-    script.write_text("\n".join(lines) + "\n")
-    before = short_session.path.read_bytes()
-    result = run_viewer(
-        display, str(short_session.path), "--script", str(script), "--size", "800x450"
-    )
-    assert result.returncode == 0, result.stderr[-3000:]
-    s = json.loads(state.read_text())
+    """Four pairs picked in the window (a video pick, then a model pick) under the offline
+    source: each video pick is the pixel the projector drapes at that place, the solve reports
+    residuals, and the points go into NAME.control.csv beside the manifest (never into it)."""
+    d, before = viewer_run
+    s = json.loads((d / "control.json").read_text())
     c = s["control"]
-    assert s["errors"] == [] and len(c["pairs"]) == 4 and not c["pending"]
+    assert s["source"] == "offline"
+    assert s["errors"] == [] and len(c["pairs"]) == len(CONTROL_PICKS) and not c["pending"]
     # Each video pick is where the shown pose projects the model point under the cursor.
     projector = solve_track(short_session, "offline").frame_camera(s["frame"])
     for pair in c["pairs"]:

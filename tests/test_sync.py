@@ -26,6 +26,21 @@ def sample_rates():
     return s, video_rates(s.video, bearings_of(s), s.rotation_cw), gyro_rates(s)
 
 
+@pytest.fixture(scope="module")
+def offset_at(sample_rates):
+    """estimate_offset of the sample's rates for a clip start (s), each found once: the offset
+    tests and the drift test read the same estimate of the sample as recorded."""
+    s, rates, gyro = sample_rates
+    found = {}
+
+    def at(clip_start: float):
+        if clip_start not in found:
+            found[clip_start] = estimate_offset(rates, gyro, clip_start)
+        return found[clip_start]
+
+    return at
+
+
 def test_frame_rotation_recovers_a_known_turn():
     rng = np.random.default_rng(5)
     b1 = rng.normal(size=(80, 3)) + [0, 0, 4]
@@ -38,14 +53,14 @@ def test_frame_rotation_recovers_a_known_turn():
 
 
 @pytest.mark.parametrize("shift_s", [0.0, 0.25, -0.4, 0.1, -1 / 30, 0.017])
-def test_known_offsets_are_recovered_within_10_ms(sample_rates, shift_s):
+def test_known_offsets_are_recovered_within_10_ms(sample_rates, offset_at, shift_s):
     """The video is made `shift_s` late on the session clock (its start time moved): sync must
     find the sample's own error (its start time is 80 ms off, truth_frames.csv says exactly how
     much) plus the shift."""
     s, rates, gyro = sample_rates
     truth = float(np.mean(s.truth_frame_times - s.frame_times))
     clip_start = float(s.frame_times[0] - s.video.pts_s[0]) - shift_s
-    result = estimate_offset(rates, gyro, clip_start)
+    result = offset_at(clip_start)
     assert result.offset_s == pytest.approx(truth + shift_s, abs=0.010)
     assert result.confidence > 0.9 and len(result.windows) >= 10
 
@@ -82,7 +97,7 @@ def test_sync_write_keeps_the_offset_for_an_auto_manifest(tmp_path, capsys):
     assert any("walk.geofuse.toml" in w for w in s.messages.items)
 
 
-def test_a_clock_drift_is_fitted_on_a_long_clip(sample_rates):
+def test_a_clock_drift_is_fitted_on_a_long_clip(sample_rates, offset_at):
     """The video clock running 300 ppm fast over the 80 s sample (24 ms from end to end) is seen
     as a drift of that size; the sample as recorded shows none (its per-window lags trend by
     ~-40 ppm from the walk's translation, under the 5 ms significance)."""
@@ -90,7 +105,7 @@ def test_a_clock_drift_is_fitted_on_a_long_clip(sample_rates):
 
     s, rates, gyro = sample_rates
     clip_start = float(s.frame_times[0] - s.video.pts_s[0])
-    plain = estimate_offset(rates, gyro, clip_start)
+    plain = offset_at(clip_start)  # as the offset test with no shift found it
     assert plain.drift_ppm == 0.0  # below what moves the clip's ends by 5 ms: not a drift
     fast = RateCurve(
         rates.t * (1 - 300e-6), rates.omega

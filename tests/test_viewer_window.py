@@ -47,7 +47,10 @@ def scripted(display, tmp_path_factory):
 4.8 open {bad}
 5.6 screenshot {d / "after_error.png"}
 5.6 state {d / "after_error.json"}
-5.8 quit
+5.7 sync
+5.7 wait synced
+5.8 state {d / "synced.json"}
+5.9 quit
 """
     )
     result = run_viewer(display, "--script", str(script), "--size", "960x540")
@@ -179,44 +182,51 @@ def test_the_panel_layout_is_remembered_between_runs(display, tmp_path):
     assert second["view_rect"][2] > first["view_rect"][2]  # the edited, narrower column was used
 
 
-def test_export_and_record_from_the_viewer(display, tmp_path):
+def test_export_and_record_from_the_viewer(display, tmp_path, session_dir):
     """The Export panel's commands: footprints exported in the background while the viewer runs
-    (then checked as GeoJSON), and the window recorded: the recording has the window's size and
-    one frame per drawn frame of the fixed-step clock."""
+    (then checked as GeoJSON: one footprint per video frame), and the window recorded: the
+    recording has the window's size and one frame per drawn frame of the fixed-step clock. On
+    the simulated 20 s phone session (conftest's, read only), whose every frame exports far
+    faster than the sample's 2400."""
     import av
 
+    with av.open(str(session_dir / "clip.mp4")) as c:  # every frame, counted apart from the app
+        n_frames = sum(1 for _ in c.decode(c.streams.video[0]))
+    assert n_frames == 600  # 20 s at 30 fps
     fp, rec, state = tmp_path / "fp.geojson", tmp_path / "rec.mp4", tmp_path / "s.json"
     script = tmp_path / "s.txt"
     script.write_text(
         f"0 clock 0.05\n0 wait solved\n0 export footprints {fp}\n0 record start {rec}\n0 play\n"
         f"1.0 record stop\n1.0 wait exported\n1.05 state {state}\n1.1 quit\n"
     )
-    result = run_viewer(display, "--script", str(script), "--size", "640x360")
+    result = run_viewer(
+        display, str(session_dir / "session.toml"), "--script", str(script), "--size", "640x360"
+    )
     assert result.returncode == 0, result.stderr[-2000:]
     s = json.loads(state.read_text())
-    assert s["errors"] == [] and any(n.startswith(f"recorded {rec}") for n in s["info"])
+    said = (s["errors"], s["info"])
+    assert s["errors"] == [] and any(n.startswith(f"recorded {rec}") for n in s["info"]), said
     doc = json.loads(fp.read_text())
-    assert doc["type"] == "FeatureCollection" and len(doc["features"]) == 2400  # every frame
+    assert doc["type"] == "FeatureCollection"
+    assert len(doc["features"]) == n_frames, len(doc["features"])  # every frame
     track = json.loads(fp.with_name(f"{fp.stem}_track.geojson").read_text())["features"]
-    assert len(track[0]["geometry"]["coordinates"]) == 2400
+    assert len(track[0]["geometry"]["coordinates"]) == n_frames
     with av.open(str(rec)) as c:
         frames = [f for f in c.decode(c.streams.video[0])]
     assert (frames[0].width, frames[0].height) == (640, 360)
-    assert 19 <= len(frames) <= 21  # 1 s of a 20 Hz clock
+    assert 19 <= len(frames) <= 21, len(frames)  # 1 s of a 20 Hz clock
 
 
-def test_sync_from_the_viewer_applies_the_offset(display, tmp_path):
-    """The Sync button's command: the offset found (the sample's start time is 80 ms off) becomes
-    the session's time offset, and the panel shows it."""
-    state, shot = tmp_path / "s.json", tmp_path / "sync.png"
-    script = tmp_path / "s.txt"
-    script.write_text(
-        f"0 clock 0.05\n0 wait solved\n0 sync\n0 wait synced\n0.2 screenshot {shot}\n0.2 state {state}\n0.3 quit\n"
-    )
-    result = run_viewer(display, "--script", str(script), "--size", "1280x720")
-    assert result.returncode == 0, result.stderr[-2000:]
-    s = json.loads(state.read_text())
-    assert s["errors"] == [] and s["sync"]["confidence"] > 0.9
+def test_sync_from_the_viewer_applies_the_offset(scripted):
+    """The Sync button's command (run last in the scripted session, on the sample that stayed
+    open): the offset found (the sample's start time is 80 ms off) becomes the session's time
+    offset, and no error comes with it."""
+    d, _ = scripted
+    before = json.loads((d / "after_error.json").read_text())
+    s = json.loads((d / "synced.json").read_text())
+    assert s["manifest"] == before["manifest"] and s["manifest"].endswith("session.toml")
+    assert before["time_offset_s"] == 0.0  # the offset is the sync's doing, not the manifest's
+    assert s["errors"] == before["errors"] and s["sync"]["confidence"] > 0.9
     assert (
         s["time_offset_s"] == pytest.approx(s["sync"]["offset_s"]) == pytest.approx(-0.08, abs=0.01)
     )
@@ -299,46 +309,19 @@ def test_a_tileset_session_in_the_window_matches_the_model_it_was_made_from(
     assert np.mean(stadium) > 0.8
 
 
-def test_a_dem_dropped_on_an_open_clip_becomes_its_terrain(display, tmp_path, shared_data):
-    """Opening a .tif while a clip is open adds it to the clip's scene (the clip reopens on it);
-    with a manifest open it is refused with a message, and the viewer goes on."""
-    from tests.corpus.generate import dem_under_gopro_clip
-
-    dem_under_gopro_clip(tmp_path, shared_data)
-    clip = shared_data / "real/gopro/max-heromode.mp4"
-    run_script(
-        display,
-        tmp_path,
-        str(clip),
-        f"""0.0 clock 0.0333333
-0.2 open {tmp_path / "dem.tif"}
-0.4 state {tmp_path / "with_dem.json"}
-0.5 open {ROOT / "assets/sample/session.toml"}
-0.7 open {tmp_path / "dem.tif"}
-0.9 state {tmp_path / "manifest.json"}
-1.0 quit
-""",
-    )
-    with_dem = json.loads((tmp_path / "with_dem.json").read_text())
-    assert with_dem["errors"] == [] and any("terrain of" in n for n in with_dem["info"])
-    assert with_dem["manifest"].endswith("max-heromode.mp4") and with_dem["layers"] == [
-        "dem:dem.tif"
-    ]
-    refused = json.loads((tmp_path / "manifest.json").read_text())
-    assert any("a manifest names its scene" in e for e in refused["errors"])
-    assert refused["manifest"].endswith("session.toml")
-
-
-def test_a_city_model_opened_on_a_clip_is_drawn_and_a_damaged_one_is_refused(
-    display, tmp_path, shared_data
-):
-    """Opening a CityJSON while a GoPro clip is open adds it to the clip's scene, read around
-    its track; a damaged one is refused with the file named, and the viewer goes on with the
-    scene it had."""
+@pytest.fixture(scope="module")
+def gopro_run(display, tmp_path_factory, shared_data):
+    """One viewer launch on the GoPro clip for the DEM and city tests, each checking its own
+    part: a DEM dropped on the clip (with_dem.json), then a CityJSON around its track
+    (with_city.json), then a damaged one (after.json); then the sample's manifest opened and the
+    DEM dropped on it (manifest.json)."""
     from app.footage.clips import open_any
     from app.geodesy.crs import utm_zone
     from app.simulate.city import Building, write_cityjson
+    from tests.corpus.generate import dem_under_gopro_clip
 
+    d = tmp_path_factory.mktemp("gopro")
+    dem_under_gopro_clip(d, shared_data)
     clip = shared_data / "real/gopro/max-heromode.mp4"
     frame = open_any(clip).frame
     crs = utm_zone(frame.lat_deg, frame.lon_deg)
@@ -346,51 +329,77 @@ def test_a_city_model_opened_on_a_clip_is_drawn_and_a_damaged_one_is_refused(
         frame.lon_deg, frame.lat_deg
     )
     good = write_cityjson(
-        tmp_path / "block.city.json",
+        d / "block.city.json",
         [Building.box("block", (x + 10, y + 10, x + 30, y + 25), 0.0, 15.0)],
         f"EPSG:{crs.to_epsg()}",
     )
-    broken = tmp_path / "broken.city.json"
+    broken = d / "broken.city.json"
     broken.write_text(good.read_text()[:200])
     run_script(
         display,
-        tmp_path,
+        d,
         str(clip),
         f"""0.0 clock 0.0333333
-0.2 open {good}
-0.4 state {tmp_path / "with_city.json"}
-0.5 open {broken}
-0.7 state {tmp_path / "after.json"}
-0.8 quit
+0.2 open {d / "dem.tif"}
+0.4 state {d / "with_dem.json"}
+0.5 open {good}
+0.7 state {d / "with_city.json"}
+0.8 open {broken}
+1.0 state {d / "after.json"}
+1.1 open {ROOT / "assets/sample/session.toml"}
+1.3 open {d / "dem.tif"}
+1.5 state {d / "manifest.json"}
+1.6 quit
 """,
     )
-    with_city = json.loads((tmp_path / "with_city.json").read_text())
-    assert with_city["errors"] == [] and with_city["layers"] == ["city:block.city.json"]
+    return d
+
+
+def test_a_dem_dropped_on_an_open_clip_becomes_its_terrain(gopro_run):
+    """Opening a .tif while a clip is open adds it to the clip's scene (the clip reopens on it);
+    with a manifest open it is refused with a message, and the viewer goes on."""
+    with_dem = json.loads((gopro_run / "with_dem.json").read_text())
+    assert with_dem["errors"] == [] and any("terrain of" in n for n in with_dem["info"])
+    assert with_dem["manifest"].endswith("max-heromode.mp4") and with_dem["layers"] == [
+        "dem:dem.tif"
+    ]
+    refused = json.loads((gopro_run / "manifest.json").read_text())
+    assert any("a manifest names its scene" in e for e in refused["errors"])
+    assert refused["manifest"].endswith("session.toml")
+
+
+def test_a_city_model_opened_on_a_clip_is_drawn_and_a_damaged_one_is_refused(gopro_run):
+    """Opening a CityJSON while a GoPro clip is open (its DEM dropped on it first) adds it to the
+    clip's scene, read around its track, beside the terrain; a damaged one is refused with the
+    file named, and the viewer goes on with the scene it had."""
+    with_city = json.loads((gopro_run / "with_city.json").read_text())
+    assert with_city["errors"] == [] and with_city["manifest"].endswith("max-heromode.mp4")
+    assert with_city["layers"] == ["dem:dem.tif", "city:block.city.json"]
     assert any("CityJSON 2.0" in n and "1 of 1 objects" in n for n in with_city["info"])
-    after = json.loads((tmp_path / "after.json").read_text())
+    after = json.loads((gopro_run / "after.json").read_text())
     assert any("broken.city.json" in e and "broken JSON" in e for e in after["errors"])
-    assert after["layers"] == ["city:block.city.json"]
+    assert after["layers"] == ["dem:dem.tif", "city:block.city.json"]
 
 
 def _grey(path) -> np.ndarray:
     return np.asarray(Image.open(path).convert("L"), np.float64)
 
 
-def _painted_memory(d) -> dict:
-    """The memory's part of the state a script wrote to memory.json in d, checked painted
+def _painted_memory(d, name: str = "memory") -> dict:
+    """The memory's part of the state a script wrote to {name}.json in d, checked painted
     without an error (and the viewer without one)."""
-    state = json.loads((d / "memory.json").read_text())
+    state = json.loads((d / f"{name}.json").read_text())
     m = state["memory"]
     assert state["errors"] == [] and m["done"] and m["error"] is None
     return m
 
 
-def _memory_against_the_drape(d) -> tuple[np.ndarray, float, float, float]:
-    """From the screenshots drape.png, model.png and memory.png in d (the same view): the
+def _memory_against_the_drape(d, name: str = "memory") -> tuple[np.ndarray, float, float, float]:
+    """From the screenshots drape.png, model.png and {name}.png in d (the same view): the
     memory's grey image, the fraction of pixels where the video is draped (drape and model
     differ; the sky is neither), and there the memory's and the model's correlation with the
     drape."""
-    drape, model, mem = (_grey(d / f"{n}.png") for n in ("drape", "model", "memory"))
+    drape, model, mem = (_grey(d / f"{n}.png") for n in ("drape", "model", name))
     lit = np.abs(drape - model) > 0
     corr = [float(np.corrcoef(x[lit], drape[lit])[0, 1]) for x in (mem, model)]
     return mem, float(lit.mean()), corr[0], corr[1]
@@ -412,18 +421,19 @@ MEMORY_START = """0.0 clock 0.0333333
 """
 
 
-def test_the_scene_memory_shows_what_the_video_saw_as_it_was(display, tmp_path):
-    """Painted in the background (a frame a second), the memory seen through the video's camera
-    looks like the video draped there (it is the video, where the frustum put it), much more than
-    the model does (the sample's world differs from its model); "seen at" is mostly recent there;
-    and scrubbed back to 2 s, the memory holds only what had been seen by then."""
-    d = tmp_path
+@pytest.fixture(scope="module")
+def memories(display, tmp_path_factory):
+    """One viewer run on the sample for both memory tests (each checks its own part): the
+    memory painted in one atlas (a frame every 2 s) and looked at as the memory, as "seen at",
+    and scrubbed back to 2 s; then, back at 30 s in the same view, painted again with the atlas
+    capped at 20000 texels (a frame every 4 s), so that it is paged (paged.png, paged.json)."""
+    d = tmp_path_factory.mktemp("memory")
     run_script(
         display,
         d,
         str(ROOT / "assets/sample/session.toml"),
         MEMORY_START.format(d=d)
-        + f"""0.8 memory paint newest 1.0
+        + f"""0.8 memory paint newest 2.0
 0.9 wait painted
 1.0 screenshot {d / "memory.png"}
 1.0 state {d / "memory.json"}
@@ -435,11 +445,26 @@ def test_the_scene_memory_shows_what_the_video_saw_as_it_was(display, tmp_path):
 1.6 wait painted
 1.7 screenshot {d / "early.png"}
 1.7 state {d / "early.json"}
-1.8 quit
+1.8 seek 30
+1.9 memory paint newest 4.0 20000
+2.0 wait painted
+2.1 screenshot {d / "paged.png"}
+2.1 state {d / "paged.json"}
+2.2 quit
 """,
     )
+    return d
+
+
+def test_the_scene_memory_shows_what_the_video_saw_as_it_was(memories):
+    """Painted in the background (a frame every 2 s here), the memory seen through the video's
+    camera looks like the video draped there (it is the video, where the frustum put it), much
+    more than the model does (the sample's world differs from its model); "seen at" is mostly
+    recent there; and scrubbed back to 2 s, the memory holds only what had been seen by then."""
+    d = memories
     m = _painted_memory(d)
-    assert 75 <= m["frames"] <= 82 and m["seen"] > 5000 and m["range_s"][1] <= 30.0 + 1e-6
+    # the 80 s sample's frames 2 s apart (VFR: a frame at or just after each 2 s step)
+    assert 37 <= m["frames"] <= 41 and m["seen"] > 5000 and m["range_s"][1] <= 30.0 + 1e-6
     mem, lit, like_drape, like_model = _memory_against_the_drape(d)
     assert lit > 0.3
     assert like_drape > like_model + 0.15, (like_drape, like_model)
@@ -452,27 +477,20 @@ def test_the_scene_memory_shows_what_the_video_saw_as_it_was(display, tmp_path):
     assert np.abs(_grey(d / "early.png") - mem).mean() > 1.0
 
 
-def test_a_paged_scene_memory_in_the_window(display, tmp_path):
+def test_a_paged_scene_memory_in_the_window(memories):
     """`memory paint newest 4 20000`: the atlas capped far below what the video's sampling asks
     for, the window pages the memory: the pages its view meets are composed and drawn over the
     model, said in the state (pages made, held on the GPU within its budget), and seen through
     the video's camera the memory looks like the video draped there more than the model does."""
-    d = tmp_path
-    run_script(
-        display,
-        d,
-        str(ROOT / "assets/sample/session.toml"),
-        MEMORY_START.format(d=d)
-        + f"""0.8 memory paint newest 4.0 20000
-0.9 wait painted
-1.0 screenshot {d / "memory.png"}
-1.0 state {d / "memory.json"}
-1.1 quit
-""",
-    )
-    m = _painted_memory(d)
+    d = memories
+    single = json.loads((d / "memory.json").read_text())
+    paged = json.loads((d / "paged.json").read_text())
+    # the same view as drape.png and model.png: the video's camera at the same frame
+    assert paged["frame"] == single["frame"] and paged["window_camera"] == single["window_camera"]
+    m = _painted_memory(d, "paged")
+    assert 19 <= m["frames"] <= 21  # painted again (a frame every 4 s), not the first memory
     pages = m["pages"]
     assert pages is not None and pages["made"] > 5 and 0 < pages["gpu_pages"] <= pages["made"]
     assert pages["gpu_mb"] <= 96.0
-    _, _, like_drape, like_model = _memory_against_the_drape(d)
+    _, _, like_drape, like_model = _memory_against_the_drape(d, "paged")
     assert like_drape > like_model + 0.15, (like_drape, like_model)

@@ -20,6 +20,8 @@ import numpy as np
 import numpy.typing as npt
 import pyproj
 
+from app.world.tiles import TileSpan
+
 EDGE_SAMPLES = 21  # points along each edge of a lat/lon box when it is projected into a grid's CRS
 WGS84_GEOD = pyproj.Geod(ellps="WGS84")
 M_PER_DEG_LAT = 111_320.0  # ground metres of a degree of latitude (for a reach, not a measure)
@@ -154,7 +156,7 @@ class TileGrid:
         def row(v: float) -> int:
             return min(max(int(math.floor((m.top - v) / h)), 0), m.rows - 1)
 
-        return GridRange(self, z, col(xmin), row(ymax), col(xmax), row(ymin))
+        return GridRange(z, col(xmin), row(ymax), col(xmax), row(ymin), grid=self)
 
     def pixel_m(self, z: int, x: float, y: float) -> float:
         """Ground size (m) of a pixel of level z near (x, y) CRS units."""
@@ -201,41 +203,20 @@ class TileGrid:
 
 
 @dataclass(frozen=True)
-class GridRange:
+class GridRange(TileSpan):
     """Tiles x0..x1 (columns), y0..y1 (rows from the top), inclusive, of level z of `grid`: the
     same questions answered as app.world.tiles.TileRange, in the grid's CRS."""
 
     grid: TileGrid
-    z: int
-    x0: int
-    y0: int
-    x1: int
-    y1: int
 
     @property
     def matrix(self) -> Matrix:
         return self.grid.matrices[self.z]
 
     @property
-    def shape(self) -> tuple[int, int]:
-        """(rows, columns) of tiles."""
-        return self.y1 - self.y0 + 1, self.x1 - self.x0 + 1
-
-    @property
-    def count(self) -> int:
-        rows, cols = self.shape
-        return rows * cols
-
-    @property
     def tile_aspect(self) -> float:
         """A tile's height over its width (pixels)."""
         return self.matrix.tile_h / self.matrix.tile_w
-
-    def tiles(self) -> list[tuple[int, int, int]]:
-        """Every (z, x, y), row by row from the north-west."""
-        return [
-            (self.z, x, y) for y in range(self.y0, self.y1 + 1) for x in range(self.x0, self.x1 + 1)
-        ]
 
     def bounds(self) -> tuple[float, float, float, float]:
         """(xmin, ymin, xmax, ymax) CRS units of the rectangle's outer edges."""

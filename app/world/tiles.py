@@ -40,8 +40,8 @@ def pixel_m(z: int, tile_px: int, lat_deg: float) -> float:
 
 
 @dataclass(frozen=True)
-class TileRange:
-    """Tiles x0..x1, y0..y1 (inclusive, XYZ rows) at zoom z: a rectangle of the map."""
+class TileSpan:
+    """Tiles x0..x1 (columns), y0..y1 (rows from the top), inclusive, at level z of some grid."""
 
     z: int
     x0: int
@@ -64,6 +64,11 @@ class TileRange:
         return [
             (self.z, x, y) for y in range(self.y0, self.y1 + 1) for x in range(self.x0, self.x1 + 1)
         ]
+
+
+@dataclass(frozen=True)
+class TileRange(TileSpan):
+    """Tiles x0..x1, y0..y1 (inclusive, XYZ rows) at zoom z: a rectangle of the map."""
 
     def bounds_m(self) -> tuple[float, float, float, float]:
         """(west, south, east, north) EPSG:3857 m of the rectangle's outer edges."""

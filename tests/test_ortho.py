@@ -4,6 +4,7 @@ georeference checked with rasterio, memory that does not grow with the clip."""
 
 from __future__ import annotations
 
+import re
 import subprocess
 import sys
 import tracemalloc
@@ -320,3 +321,33 @@ def _area_geojson(folder):
         ring = [[lo0, la0], [lo1, la0], [lo1, la1], [lo0, la1], [lo0, la0]]
         path.write_text(json.dumps({"type": "Polygon", "coordinates": [ring]}))
     return path
+
+
+def test_export_ortho_registers_a_keyframe_a_second_unless_told(survey, tmp_path):
+    """`export ortho --source registered` registers keyframes ORTHO_KEYFRAMES_S apart (a survey's
+    orthophoto keeps its goal at half the registration's time: docs/ACCURACY.md); --keyframes-s
+    sets it, and `export model` keeps registration's own spacing."""
+    from app.cli.export import keyframes_s
+    from app.cli.parser import build_parser
+    from app.core.constants import KEYFRAMES_S, ORTHO_KEYFRAMES_S
+    from app.register.solve import keyframe_indices
+    from app.session import open_session
+
+    parser = build_parser()
+    common = [str(survey), "--out", str(tmp_path / "x.tif")]
+    assert keyframes_s(parser.parse_args(["export", "ortho", *common])) == ORTHO_KEYFRAMES_S
+    assert keyframes_s(parser.parse_args(["export", "model", *common])) is None
+    told = parser.parse_args(["export", "ortho", *common, "--keyframes-s", "0.25"])
+    assert keyframes_s(told) == 0.25
+    with pytest.raises(SystemExit):
+        parser.parse_args(["export", "ortho", *common, "--keyframes-s", "0"])
+
+    media_s = np.asarray(open_session(survey).video.pts_s, np.float64)
+    expected = len(keyframe_indices(media_s, ORTHO_KEYFRAMES_S))
+    assert expected < len(keyframe_indices(media_s, KEYFRAMES_S))
+    out = tmp_path / "registered.tif"
+    args = ["export", "ortho", str(survey), "--out", str(out), "--source", "registered"]
+    done = subprocess.run([sys.executable, "-m", "app", *args, "--gsd", "0.5"], capture_output=True)
+    assert done.returncode == 0, done.stderr.decode()
+    assert re.search(rf"registered \d+ of {expected} keyframes", done.stderr.decode())
+    assert out.is_file()

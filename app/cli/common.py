@@ -21,12 +21,13 @@ from app.core.progress import ProgressBar
 from app.core.settings import ProjectionSettings
 from app.footage.clips import open_any
 from app.geodesy.enu import LocalFrame
+from app.register.solve import RegistrationSettings
 from app.scene import Placement
 from app.scene.layers import Layer, LoadedLayers, load_layers, named_layers
 from app.scene.mesh import MeshData
 from app.session.camera_track import CameraTrack
 from app.session.config import ClipRef
-from app.session.model import Session
+from app.session.model import REGISTERED, Session
 from app.solve.track import solve_track
 from app.world.build import world_layer
 from app.world.settings import NONE, choose_world
@@ -82,11 +83,15 @@ def projection_settings(args: argparse.Namespace) -> ProjectionSettings:
         raise GeofuseError(f"projection settings: {exc}") from exc
 
 
-def solved(session: Session, source: str) -> CameraTrack:
+def solved(session: Session, source: str, keyframes_s: float | None = None) -> CameraTrack:
     """The session's camera track under `source` (a progress bar on stderr while registering),
-    printing the registration's summary line and the messages solving raised."""
+    printing the registration's summary line and the messages solving raised. keyframes_s: the
+    `registered` source's seconds of video between keyframes (None: RegistrationSettings')."""
+    options = {}
+    if source == REGISTERED and keyframes_s is not None:
+        options["settings"] = RegistrationSettings(every_s=keyframes_s)
     track = solve_track(
-        session, source, progress=ProgressBar(f"registering ({source})", sys.stderr)
+        session, source, progress=ProgressBar(f"registering ({source})", sys.stderr), **options
     )
     if track.registration is not None:
         print(track.registration.summary(), file=sys.stderr)

@@ -16,6 +16,7 @@ from app.cli.common import (
     print_scene_report,
     solved,
 )
+from app.core.constants import ORTHO_KEYFRAMES_S
 from app.core.errors import GeofuseError
 from app.core.outputs import IMAGE_SUFFIXES, check_output
 from app.core.progress import ProgressBar
@@ -44,6 +45,15 @@ def _area(path: Path | None) -> tuple[float, float, float, float] | None:
     return lat0, lon0, lat1, lon1
 
 
+def keyframes_s(args: argparse.Namespace) -> float | None:
+    """The `registered` source's seconds between keyframes for ortho and model: --keyframes-s,
+    else ORTHO_KEYFRAMES_S for an orthophoto (a survey's poses hold the orthophoto within its
+    goal at half the registration's time: docs/ACCURACY.md), else registration's default."""
+    if args.keyframes_s is not None:
+        return args.keyframes_s
+    return ORTHO_KEYFRAMES_S if args.what == "ortho" else None
+
+
 def _solved_further(args: argparse.Namespace, inputs: list[Path], suffixes) -> list:
     """(session, solved track) of the further inputs, each under --source where it offers it,
     else its own first."""
@@ -51,7 +61,7 @@ def _solved_further(args: argparse.Namespace, inputs: list[Path], suffixes) -> l
     for path in inputs:
         session, source = open_with_source(path, args, suffixes, any_source=True)
         print_messages(session)
-        out.append((session, solved(session, source)))
+        out.append((session, solved(session, source, keyframes_s(args))))
     return out
 
 
@@ -67,7 +77,8 @@ def _ortho(args: argparse.Namespace, inputs: list[Path], suffixes, bar: Progress
         raise GeofuseError(f"--crs: {exc}") from exc
     options = OrthoOptions(args.gsd, crs, _area(args.area), args.rule, args.every_s)
     try:
-        memory = paint_clip(session, solved(session, source), options, bar, further=further)
+        track = solved(session, source, keyframes_s(args))
+        memory = paint_clip(session, track, options, bar, further=further)
     except ValueError as exc:
         raise GeofuseError(f"export ortho {input_path}: {exc}") from exc
     read = [*session.inputs, *(p for s, _ in further for p in s.inputs)]
@@ -95,9 +106,13 @@ def _model(args: argparse.Namespace, inputs: list[Path], suffixes, bar: Progress
     tiles = Path(args.out).suffix.lower() == ".json"  # a 3D Tiles tileset
     try:
         if options.max_texels is not None:
-            atlas, memory = paint_model(session, solved(session, source), options, bar, further)
+            atlas, memory = paint_model(
+                session, solved(session, source, keyframes_s(args)), options, bar, further
+            )
         else:
-            paged = paint_model_paged(session, solved(session, source), options, bar, further)
+            paged = paint_model_paged(
+                session, solved(session, source, keyframes_s(args)), options, bar, further
+            )
     except ValueError as exc:
         raise GeofuseError(f"export model {input_path}: {exc}") from exc
     if options.max_texels is not None:

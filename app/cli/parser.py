@@ -32,6 +32,8 @@ from app.core.constants import (
     DEFAULT_FAR_M,
     DRONE_DEFAULT_PITCH_DEG,
     FOV_RANGE_DEG,
+    KEYFRAMES_S,
+    ORTHO_KEYFRAMES_S,
     SYNC_MIN_CONFIDENCE,
 )
 from app.export import EXPORT_SUFFIXES
@@ -513,6 +515,12 @@ def _export(sub: Commands) -> None:
         type=number(0.0, 3600.0),
         default=0.2,
         help="ortho, model: seconds of video between frames painted (0: every frame)",
+    )
+    ex.add_argument(
+        "--keyframes-s",
+        type=number(0.05, 60.0),
+        default=None,
+        help=f"ortho, model: with --source registered, seconds of video between keyframes registered (default {ORTHO_KEYFRAMES_S:g} for ortho, {KEYFRAMES_S:g} for model)",
     )
     ex.add_argument(
         "--max-texels",

@@ -23,6 +23,7 @@ import numpy as np
 
 from app.camera.pinhole import Camera
 from app.camera.trajectory import PositionTrack
+from app.core.constants import KEYFRAMES_S
 from app.core.errors import GeofuseError
 from app.geodesy import rotations
 from app.io.video import frames_at
@@ -86,7 +87,7 @@ class RegistrationSettings:
     keyframes (within chain_s seconds) lead to at constant velocity, the keyframe is searched
     from the latter first (a GNSS that jumps or drags off must not lose the scene: issue 52)."""
 
-    every_s: float = 0.5
+    every_s: float = KEYFRAMES_S
     long_side: int = 960
     max_iterations: int = 6
     converge_m: float = 0.05

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import av
 import numpy as np
+import numpy.typing as npt
 
 from app.core.errors import VideoError
 
@@ -312,6 +313,31 @@ def read_frame(path: str | Path, index: int, info: VideoInfo | None = None) -> n
     return rotate_for_display(frame.to_ndarray(format="rgb24"), info.rotation_cw)
 
 
+def decoded_at(
+    info: VideoInfo, times_s: npt.ArrayLike, tolerance_s: float
+) -> Iterator[tuple[int, av.VideoFrame]]:
+    """The video decoded in one pass, as (k, decoded frame) for each k of `times_s` (media
+    seconds, increasing) that a frame's presentation time matches within tolerance_s; a time
+    no frame matches (a packet that does not decode) is passed over. PyAV's and the file's
+    errors (av.FFmpegError, OSError) reach the caller."""
+    times = np.asarray(times_s, np.float64)
+    j = 0
+    with open_video(Path(info.path)) as container:
+        stream = container.streams.video[0]
+        stream.thread_type = "AUTO"
+        for frame in decode(container, stream):
+            if frame.pts is None:
+                continue
+            t = media_seconds(frame.pts, stream.time_base, info.origin_s)
+            while j < len(times) and times[j] < t - tolerance_s:
+                j += 1  # that frame was not decoded (damaged): pass it over
+            if j == len(times):
+                return
+            if abs(times[j] - t) <= tolerance_s:
+                yield j, frame
+                j += 1
+
+
 def frames_at(
     info: VideoInfo, indices: Sequence[int], long_side: int | None = None
 ) -> Iterator[tuple[int, np.ndarray]]:
@@ -327,22 +353,9 @@ def frames_at(
     scale = 1.0 if long_side is None else min(1.0, long_side / max(info.width, info.height))
     size = (max(2, round(info.width * scale)), max(2, round(info.height * scale)))
     half_frame = 0.5 / max(info.nominal_fps, 1.0)
-    j = 0
     try:
-        with open_video(path) as container:
-            stream = container.streams.video[0]
-            stream.thread_type = "AUTO"
-            for frame in decode(container, stream):
-                if frame.pts is None:
-                    continue
-                t = media_seconds(frame.pts, stream.time_base, info.origin_s)
-                while j < len(wanted) and info.pts_s[wanted[j]] < t - half_frame:
-                    j += 1  # that frame was not decoded (damaged): skip it
-                if j == len(wanted):
-                    return
-                if abs(info.pts_s[wanted[j]] - t) <= half_frame:
-                    rgb = frame.reformat(width=size[0], height=size[1], format="rgb24").to_ndarray()
-                    yield wanted[j], rotate_for_display(rgb, info.rotation_cw)
-                    j += 1
+        for j, frame in decoded_at(info, [info.pts_s[i] for i in wanted], half_frame):
+            rgb = frame.reformat(width=size[0], height=size[1], format="rgb24").to_ndarray()
+            yield wanted[j], rotate_for_display(rgb, info.rotation_cw)
     except av.FFmpegError as exc:
         raise VideoError(path, f"cannot decode the video ({exc})") from exc

@@ -20,7 +20,7 @@ import av
 import numpy as np
 
 from app.core.messages import Messages
-from app.io.video import decode, media_seconds, open_video, rotate_for_display
+from app.io.video import decoded_at, rotate_for_display
 from app.locate.marks import marks_geojson, marks_path, read_marks
 from app.session.camera_track import CameraTrack
 from app.session.model import Session
@@ -61,20 +61,9 @@ def _pictures(
     step = float(np.median(np.diff(media_s))) if len(media_s) > 1 else 1.0 / 30.0
     j = 0
     try:
-        with open_video(info.path) as container:
-            stream = container.streams.video[0]
-            stream.thread_type = "AUTO"
-            for frame in decode(container, stream):
-                if frame.pts is None:
-                    continue
-                t = media_seconds(frame.pts, stream.time_base, info.origin_s)
-                while j < len(media_s) and media_s[j] < t - MATCH_TOLERANCE * step:
-                    j += 1  # not decoded (damaged): its pose is offered without a picture
-                if j == len(media_s):
-                    return
-                if abs(media_s[j] - t) <= MATCH_TOLERANCE * step:
-                    yield j, frame
-                    j += 1
+        for k, frame in decoded_at(info, media_s, MATCH_TOLERANCE * step):
+            yield k, frame  # a frame not decoded (damaged) is passed over
+            j = k + 1
     except (av.FFmpegError, OSError) as exc:
         messages.add_once(
             "replay-video", f"{Path(info.path).name}: shared without pictures from here ({exc})"

@@ -19,7 +19,6 @@ import signal
 import socket
 import subprocess
 import sys
-import tempfile
 import threading
 import urllib.error
 import urllib.request
@@ -402,9 +401,7 @@ def test_the_viewer_share_toggle_serves_the_frame_shown(display, feed, tmp_path)
 0.7 quit
 """
     )
-    env = dict(
-        os.environ, DISPLAY=display, XDG_CONFIG_HOME=tempfile.mkdtemp(prefix="geofuse-config-")
-    )
+    env = dict(os.environ, DISPLAY=display, XDG_CONFIG_HOME=str(d / "config"))
     proc = subprocess.Popen(
         [
             sys.executable,

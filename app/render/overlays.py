@@ -13,6 +13,8 @@ FRUSTUM_COLOR = (1.0, 0.85, 0.1, 1.0)
 TRAJECTORY_COLOR = (0.1, 0.9, 1.0, 1.0)
 REFERENCE_COLOR = (0.2, 1.0, 0.3, 1.0)
 OUTLINE_COLOR = (1.0, 0.55, 0.0, 1.0)  # exported footprints
+FIX_USED_COLOR = (1.0, 1.0, 1.0, 1.0)  # the GNSS fixes the track stands on
+FIX_REJECTED_COLOR = (0.92, 0.22, 0.18, 1.0)  # the fixes that lie (the timeline's colour)
 
 
 def frustum_segments(camera: Camera, length_m: float) -> np.ndarray:

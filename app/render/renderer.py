@@ -19,6 +19,8 @@ from app.render.coverage import coverage, depth_long_side
 from app.render.decals import Decal, DeferredProjectors, deferred_available
 from app.render.gpu_scene import GpuScene
 from app.render.overlays import (
+    FIX_REJECTED_COLOR,
+    FIX_USED_COLOR,
     FRUSTUM_COLOR,
     OUTLINE_COLOR,
     REFERENCE_COLOR,
@@ -87,6 +89,7 @@ class FusionRenderer:
         self._truth_map = None
         self._truth_map_camera: Camera | None = None
         self.trajectory: np.ndarray | None = None
+        self.fixes: tuple[np.ndarray, np.ndarray] | None = None  # GNSS segments: used, rejected
         self.outlines: np.ndarray | None = None
         self.extras: list[_Extra] = []  # further projectors (other clips), drawn with the first
         self.extras_offered = 0  # how many the last set_extra_projectors was given
@@ -239,6 +242,15 @@ class FusionRenderer:
         """A polyline (N, 3) ENU metres drawn by the trajectory overlay."""
         self.trajectory = None if points_enu is None else np.asarray(points_enu, np.float64)
 
+    def set_fixes(self, used_enu: npt.ArrayLike | None, rejected_enu: npt.ArrayLike = ()) -> None:
+        """The GNSS fixes drawn with the trajectory overlay: segments (2N, 3) ENU metres in pairs,
+        those the track stands on and those rejected as lies (None: none drawn)."""
+        if used_enu is None:
+            self.fixes = None
+            return
+        used = np.asarray(used_enu, np.float64).reshape(-1, 3)
+        self.fixes = (used, np.asarray(rejected_enu, np.float64).reshape(-1, 3))
+
     def settle(
         self,
         view: Camera,
@@ -385,6 +397,12 @@ class FusionRenderer:
                     self.lines.draw(vp, segments, colour, moderngl.LINES)
         if overlays.trajectory and self.trajectory is not None:
             self.lines.draw(vp, self.trajectory, TRAJECTORY_COLOR, moderngl.LINE_STRIP)
+        if overlays.trajectory and self.fixes is not None:
+            for segments, colour in zip(
+                self.fixes, (FIX_USED_COLOR, FIX_REJECTED_COLOR), strict=True
+            ):
+                if len(segments) >= 2:
+                    self.lines.draw(vp, segments, colour, moderngl.LINES)
         if self.outlines is not None and len(self.outlines) >= 2:
             self.lines.draw(vp, self.outlines, OUTLINE_COLOR, moderngl.LINES)
 

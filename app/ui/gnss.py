@@ -15,6 +15,7 @@ import numpy as np
 import numpy.typing as npt
 
 from app.camera.fixes import MISSING, REJECTED, USED, outage_said
+from app.camera.trajectory import gap_intervals
 from app.session.camera_track import CameraTrack
 from app.session.model import REGISTERED, Session
 
@@ -79,6 +80,45 @@ def runs(status: npt.ArrayLike, pts_s: npt.ArrayLike, duration_s: float) -> tupl
         hi = float(duration_s) if b == len(status) else float(pts[b])
         out.append(Run(lo, max(lo, hi), str(status[a])))
     return tuple(out)
+
+
+@dataclass(frozen=True)
+class FixLines:
+    """The GNSS fixes as line segments in the session's ENU frame (m): used (2U, 3) and rejected
+    (2R, 3), in pairs (a segment between two consecutive fixes is rejected where either is)."""
+
+    used: npt.NDArray[np.float64]
+    rejected: npt.NDArray[np.float64]
+
+
+def fix_lines(session: Session, track: CameraTrack | None) -> FixLines | None:
+    """The raw GNSS track of the session as the `registered` source judged it (its fixes as
+    given, the lying ones too: what the receiver said, beside what the scene made of it), or
+    None where the track tests no fixes or they are not the session's GNSS fixes. No segment
+    spans an outage (app.camera.trajectory.gap_intervals) or a fix without a position."""
+    if track is None or track.source != REGISTERED or track.fixes is None:
+        return None
+    gnss = session.gnss
+    if gnss is None or len(gnss.t) != len(track.fixes.t) or len(gnss.t) < 2:
+        return None
+    enu = session.frame.geodetic_to_enu(gnss.lat, gnss.lon, gnss.h)
+    return segments(enu, track.fixes.rejected, ~np.asarray(gap_intervals(gnss.t), bool))
+
+
+def segments(enu: npt.ArrayLike, rejected: npt.ArrayLike, joined: npt.ArrayLike) -> FixLines:
+    """Consecutive fixes' segments: points enu (N, 3) m, rejected (N,) each fix's verdict,
+    joined (N-1,) whether fix i and i+1 are to be joined (not across an outage); a segment with
+    a non-finite end is left out."""
+    p = np.asarray(enu, np.float64).reshape(-1, 3)
+    bad = np.asarray(rejected, bool)
+    keep = np.asarray(joined, bool) & np.isfinite(p[:-1]).all(1) & np.isfinite(p[1:]).all(1)
+    lying = bad[:-1] | bad[1:]
+
+    def pairs(mask: npt.NDArray[np.bool_]) -> npt.NDArray[np.float64]:
+        i = np.flatnonzero(mask)
+        return np.stack([p[i], p[i + 1]], axis=1).reshape(-1, 3)
+
+    return FixLines(pairs(keep & ~lying), pairs(keep & lying))
 
 
 def slider_x(t_s: float, duration_s: float, x0: float, x1: float, grab_px: float) -> float:

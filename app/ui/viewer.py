@@ -239,6 +239,8 @@ class Viewer(ViewerJobs, ViewerSessions):
         L.renderer.set_truth(truth.frame_camera(k) if truth is not None and k >= 0 else None)
         if track is not None and L.trajectory_version != (lib.version, L.source):
             L.renderer.set_trajectory(track.frame_poses(TRAJECTORY_STEP).enu)
+            fixes = gnss.fix_lines(L.session, track)
+            L.renderer.set_fixes(*((None,) if fixes is None else (fixes.used, fixes.rejected)))
             L.trajectory_version = (lib.version, L.source)
         share.update(self)
 

@@ -34,6 +34,7 @@ from app.world.sources import decode_heights, encode_heights, parse_source
 LAT0, LON0 = 46.0, 7.0  # the synthetic world's centre
 IMAGERY_Z, TERRAIN_Z = 16, 14  # the finest levels the test server says it has
 KEY = "s3cr3t-K3y-0123456789"
+GATE_LIMIT_S = 120.0  # a held request is answered after this long at most (a test that failed)
 
 
 def height(lat: np.ndarray, lon: np.ndarray) -> np.ndarray:
@@ -77,11 +78,15 @@ def png(rgb: np.ndarray) -> bytes:
 class TileServer:
     """Tiles of the synthetic world on the loopback: /img/{z}/{x}/{y}.png, /dem/{z}/{x}/{y}.png.
     faults: path -> '404', '403', 'corrupt', '429once', '429', 'slow'; need_key: every request
-    must carry ?key=KEY and X-Key: KEY (else 403); log: (path, had the key, time)."""
+    must carry ?key=KEY and X-Key: KEY (else 403); log: (path, had the key, time); gate: an
+    Event every request waits for (at most GATE_LIMIT_S) before it is answered; delay_s: added
+    to every request (a network's round trip, for benchmarks)."""
 
     def __init__(self) -> None:
         self.faults: dict[str, str] = {}
         self.need_key = False
+        self.gate: threading.Event | None = None
+        self.delay_s = 0.0
         self.log: list[tuple[str, bool, float]] = []
         server = self
 
@@ -93,6 +98,10 @@ class TileServer:
                 path, _, query = self.path.partition("?")
                 keyed = f"key={KEY}" in query and self.headers.get("X-Key") == KEY
                 server.log.append((path, keyed, time.monotonic()))
+                if server.gate is not None:
+                    server.gate.wait(GATE_LIMIT_S)
+                if server.delay_s:
+                    time.sleep(server.delay_s)
                 fault = server.faults.get(path)
                 if (server.need_key and not keyed) or fault == "403":
                     return self._send(403, b"forbidden")
@@ -409,24 +418,33 @@ def test_settings_name_worlds_and_a_missing_name_lists_them(tmp_path, monkeypatc
         choose_world(terrain="https://x/{z}/{x}/{y}.png")
 
 
-@pytest.fixture
-def drone_clip(tmp_path):
-    """A 4 s DJI clip over the synthetic world, heights above take-off (its subtitle)."""
+def write_drone_clip(folder: Path, seconds: int = 4, size: tuple[int, int] = (96, 54)) -> Path:
+    """A DJI clip of `seconds` s over the synthetic world (from its centre, 0.0002 deg north and
+    0.0003 deg east a second), heights above take-off (its subtitle); returns the video."""
     from app.simulate.phone import write_video
 
-    folder = tmp_path / "clip"
-    folder.mkdir()
-    video = write_video(folder / "DJI_0001.MP4", np.arange(120) / 30.0, (96, 54), 0)
+    folder.mkdir(parents=True, exist_ok=True)
+    video = write_video(folder / "DJI_0001.MP4", np.arange(30 * seconds) / 30.0, size, 0)
+
+    def stamp(s: int) -> str:
+        return f"{s // 3600:02d}:{s // 60 % 60:02d}:{s % 60:02d},000"
+
     entries = []
-    for i in range(4):
+    for i in range(seconds):
         lat, lon = LAT0 + 0.0002 * i, LON0 + 0.0003 * i
         entries.append(
-            f"{i + 1}\n00:00:0{i},000 --> 00:00:0{i + 1},000\n"
+            f"{i + 1}\n{stamp(i)} --> {stamp(i + 1)}\n"
             f"F/5.6, SS 400, ISO 100, EV 0, GPS ({lon:.6f}, {lat:.6f}, 15), HOME ({LON0:.6f}, {LAT0:.6f}, 0.00m), "
             f"D 0.00m, H 80.00m, H.S 0.00m/s, V.S 0.00m/s, F.PRY (0.0°, 0.0°, 45.0°), G.PRY (-60.0°, 0.0°, 45.0°)"
         )
     (folder / "DJI_0001.SRT").write_text("\n\n".join(entries) + "\n", encoding="utf-8")
     return video
+
+
+@pytest.fixture
+def drone_clip(tmp_path):
+    """A 4 s DJI clip over the synthetic world, heights above take-off (its subtitle)."""
+    return write_drone_clip(tmp_path / "clip")
 
 
 def test_a_clip_is_draped_on_the_world_and_none_keeps_the_flat_ground(

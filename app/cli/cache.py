@@ -5,6 +5,8 @@ pre-fetching a clip's or an area's tiles for offline use, perhaps into archives 
 from __future__ import annotations
 
 import argparse
+import math
+import shutil
 import sys
 from pathlib import Path
 
@@ -16,7 +18,10 @@ from app.core.outputs import check_output
 from app.core.progress import ProgressBar
 from app.footage.clips import open_any
 from app.session.model import Session
+from app.world import providers
+from app.world.build import MAX_REACH_M, world_box
 from app.world.cache import KeptSource, TileCache
+from app.world.overpass import OverpassFetch
 from app.world.prefetch import (
     ARCHIVE_SUFFIXES,
     check_archive,
@@ -30,6 +35,10 @@ WORLDS_FOLDER = "worlds"  # app.world.build keeps the scenes it built there
 
 
 def run(args: argparse.Namespace) -> int:
+    if getattr(args, "providers", None) is not None:
+        if args.clips or args.bbox is not None or args.clear is not None:
+            raise GeofuseError("--providers goes alone (no CLIP, --bbox or --clear)")
+        return _providers(args.providers)
     cache = TileCache()
     if args.clear is not None:
         if args.clips or args.bbox is not None:
@@ -44,10 +53,12 @@ def run(args: argparse.Namespace) -> int:
     out = None
     if args.out is not None:
         out = check_output(args.out, "--out", ARCHIVE_SUFFIXES, args.clips)
-    world = choose_world(args.world, args.imagery, args.terrain)
+    world = choose_world(
+        args.world, args.imagery, args.terrain, buildings=getattr(args, "buildings", None)
+    )
     if world is None:
         raise GeofuseError(
-            "nothing to pre-fetch: name the sources (--world NAME, or --imagery/--terrain SRC)"
+            "nothing to pre-fetch: name the sources (--world NAME, or --imagery/--terrain SRC, --buildings overpass:)"
         )
     areas = [_bbox_area(args.bbox, args.gsd)] if args.bbox is not None else []
     areas += [_clip_area(Path(c)) for c in args.clips]
@@ -67,7 +78,8 @@ def run(args: argparse.Namespace) -> int:
     for job in jobs:
         if job.plan.tiles is None and job.plan.box is None:  # could not be opened: say why
             job.plan.fetcher.report(messages, f"world {world.name} {job.plan.kind}")
-    print(f"geofuse cache: world {world.name}: {estimate_line(jobs)}", file=sys.stderr)
+    if jobs:
+        print(f"geofuse cache: world {world.name}: {estimate_line(jobs)}", file=sys.stderr)
     written = run_prefetch(
         jobs,
         cache,
@@ -76,6 +88,9 @@ def run(args: argparse.Namespace) -> int:
         f"world {world.name}",
         ProgressBar(f"pre-fetching world {world.name}", sys.stderr),
     )
+    if world.buildings is not None:
+        box = world_box(lat, lon, reach, math.inf if args.bbox is not None else MAX_REACH_M)
+        written += _prefetch_buildings(world, box, cache, messages, out)
     for message in messages.since(0):
         print(message, file=sys.stderr)
     fetched = sum(j.plan.fetcher.requests for j in jobs)
@@ -83,6 +98,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"{fetched} tile requests, {kept} tiles already in the cache ({cache.root})")
     for kind, path, n in written:
         what = "window" if path.suffix.lower() == ".tif" else "tile" if n == 1 else "tiles"
+        what = "answer" if kind == "buildings" else what
         print(f"wrote {path}: {n} {kind} {what}")
     if written:
         print("offline: " + _offline_options(world, written))
@@ -93,12 +109,34 @@ def _offline_options(world: World, written: list[tuple[str, Path, int]]) -> str:
     """The --imagery/--terrain that open what was written."""
     parts = []
     for kind, path, _ in written:
+        if kind == "buildings":
+            parts.append(f"--buildings {path}")
+            continue
         source = world.imagery if kind == "imagery" else world.terrain
         prefix = f"{source.encoding}:" if source is not None and source.encoding else ""
         if path.suffix.lower() == ".tif":
             prefix = ""
         parts.append(f"--{kind} {prefix}{path}")
     return " ".join(parts)
+
+
+def _prefetch_buildings(
+    world: World,
+    box: tuple[float, float, float, float],
+    cache: TileCache,
+    messages: Messages,
+    out: Path | None,
+) -> list[tuple[str, Path, int]]:
+    """The world's buildings over the (west, south, east, north) deg box fetched into the cache
+    (the query a scene over it asks: app.world.overpass); with `out`, copied beside it as
+    AREA-buildings.osm. Returns what was written, as run_prefetch does."""
+    what = f"world {world.name} buildings"
+    answer = OverpassFetch(world.buildings, cache, world.timeout_s).answer(box, messages, what)
+    if answer is None or answer.path is None or out is None:
+        return []
+    target = out.with_name(f"{out.stem}-buildings.osm")
+    shutil.copyfile(answer.path, target)
+    return [("buildings", target, 1)]
 
 
 def _bbox_area(bbox: tuple[float, ...], gsd_m: float):
@@ -125,6 +163,20 @@ def _clip_area(path: Path):
     reach = max(0.0, half - float(np.max(np.ptp(enu[:, :2], axis=0))) / 2.0)
     height = float(np.median(gnss.h)) - frame.h_m
     return gnss.lat, gnss.lon, reach, height
+
+
+def _providers(contains: str) -> int:
+    """`geofuse cache --providers [TEXT]`: the catalogue (app.world.providers), one a line."""
+    found = list(providers.catalogue(contains))
+    if not found:
+        raise GeofuseError(f"--providers {contains}: no provider's name holds it")
+    for p in found:
+        print(providers.describe(p))
+    print(
+        f"{len(found)} provider{'s' if len(found) != 1 else ''}: name one with --imagery NAME (terrain: --terrain NAME), or in a "
+        "[[world]] table; a key goes in the environment variable named, or key_env/key there"
+    )
+    return 0
 
 
 def _describe(kept: KeptSource) -> str:
@@ -170,6 +222,8 @@ def _clear(cache: TileCache, what: str) -> int:
         world = choose_world(what)
         wanted = [s.identity for s in (world.imagery, world.terrain) if s is not None]
         chosen = [k for k in kept if k.identity and any(k.identity.startswith(w) for w in wanted)]
+        if world.buildings is not None:
+            chosen += [k for k in kept if world.buildings.kept(k.identity)]
     else:
         chosen = [k for k in kept if k.identity and what in k.identity]
     if not chosen:

@@ -30,6 +30,7 @@ from app.session.config import ClipRef
 from app.session.model import REGISTERED, Session
 from app.solve.track import solve_track
 from app.world.build import world_layer
+from app.world.overpass import is_overpass
 from app.world.settings import NONE, choose_world
 
 
@@ -42,7 +43,11 @@ def layers(
     names = list(getattr(args, "scene", None) or [])
     if getattr(args, "dem", None) is not None:
         names.append(str(args.dem))
-    buildings = list(getattr(args, "buildings", None) or [])  # drawn on the world, if any
+    given = list(getattr(args, "buildings", None) or [])
+    buildings = [b for b in given if not is_overpass(b)]  # files: drawn on the world, if any
+    fetched = [b for b in given if is_overpass(b)]  # fetched over the clip's area by its world
+    if len(fetched) > 1:
+        raise GeofuseError("--buildings overpass: once (one query for the clip's area)")
     named = named_layers(
         names + buildings,
         args.ortho,
@@ -51,20 +56,24 @@ def layers(
         placement,
         getattr(args, "city_theme", None),
     )
-    return named + _world_layers(args, bool(names), clip)
+    return named + _world_layers(args, bool(names), clip, fetched[0] if fetched else None)
 
 
-def _world_layers(args: argparse.Namespace, scene_named: bool, clip: bool) -> tuple[Layer, ...]:
-    """The world layer of --world/--imagery/--terrain (or the settings' default), () for none;
-    refused where there is no clip's track to build it around."""
+def _world_layers(
+    args: argparse.Namespace, scene_named: bool, clip: bool, buildings: str | None = None
+) -> tuple[Layer, ...]:
+    """The world layer of --world/--imagery/--terrain/--buildings overpass: (or the settings'
+    default), () for none; refused where there is no clip's track to build it around."""
     name, imagery, terrain = (getattr(args, k, None) for k in ("world", "imagery", "terrain"))
     if not clip:
-        if imagery or terrain or (name is not None and name.lower() != NONE):
+        if imagery or terrain or buildings or (name is not None and name.lower() != NONE):
             raise GeofuseError(
-                "--world/--imagery/--terrain drape a clip's track: give a clip (a manifest names its scene; a still's scene is --scene/--dem)"
+                "--world/--imagery/--terrain/--buildings overpass: drape a clip's track: give a clip (a manifest names its scene; a still's scene is --scene/--dem)"
             )
         return ()
-    world = choose_world(name, imagery, terrain, scene_named, getattr(args, "dem_vertical", None))
+    world = choose_world(
+        name, imagery, terrain, scene_named, getattr(args, "dem_vertical", None), buildings
+    )
     return () if world is None else (world_layer(world),)
 
 

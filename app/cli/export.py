@@ -34,6 +34,7 @@ from app.export.painted_tiles import atlas_tiles, page_tiles, write_painted_tile
 from app.export.records import frame_records
 from app.geodesy.crs import parse_crs
 from app.io.area import read_area
+from app.scene.layers import scene_credit
 from app.session.config import ClipRef
 
 
@@ -82,7 +83,7 @@ def _ortho(args: argparse.Namespace, inputs: list[Path], suffixes, bar: Progress
     except ValueError as exc:
         raise GeofuseError(f"export ortho {input_path}: {exc}") from exc
     read = [*session.inputs, *(p for s, _ in further for p in s.inputs)]
-    out, seen = write_orthophoto(memory, Path(args.out), read)
+    out, seen = write_orthophoto(memory, Path(args.out), read, scene_credit(session.layers))
     g = memory.grid
     covered = 100.0 * memory.seen.sum() / max(1, np.isfinite(memory.points[..., 2]).sum())
     print(
@@ -104,6 +105,7 @@ def _model(args: argparse.Namespace, inputs: list[Path], suffixes, bar: Progress
     read = [*session.inputs, *(p for s, _ in further for p in s.inputs)]
     origin = (f.lat_deg, f.lon_deg, f.h_m)
     tiles = Path(args.out).suffix.lower() == ".json"  # a 3D Tiles tileset
+    credit = scene_credit(session.layers)  # its asset.copyright: the world's providers
     try:
         if options.max_texels is not None:
             atlas, memory = paint_model(
@@ -130,10 +132,10 @@ def _model(args: argparse.Namespace, inputs: list[Path], suffixes, bar: Progress
         parts = page_tiles(paged)
     try:
         if tiles:
-            out, n = write_painted_tiles(parts, f, Path(args.out), read)
+            out, n = write_painted_tiles(parts, f, Path(args.out), read, credit)
             where = f"{n} tiles beside it"
         else:
-            out = write_painted(parts, origin, Path(args.out), read)
+            out = write_painted(parts, origin, Path(args.out), read, credit)
             where = f"local east-north-up from {f.lat_deg:.7f}, {f.lon_deg:.7f}, {f.h_m:.2f} m, glTF Y-up"
         if options.max_texels is None:
             seen, samples = paged.seen_count()

@@ -10,10 +10,17 @@ import sys
 from app.archive import index_archive
 from app.core.errors import GeofuseError
 from app.core.outputs import check_output
+from app.world.overpass import is_overpass
 
 
 def run(args: argparse.Namespace) -> int:
     out = check_output(args.out, "--out", (".parquet",))
+    if any(is_overpass(b) for b in args.buildings or ()):
+        raise GeofuseError(
+            "--buildings overpass: is fetched as a clip opens (view, solve, export...): for index, "
+            "pre-fetch it (geofuse cache CLIP --buildings overpass: --out AREA.mbtiles) and give "
+            "--buildings AREA-buildings.osm"
+        )
     for folder in args.folders:
         if not folder.exists():
             raise GeofuseError(f"{folder}: no such folder or file")

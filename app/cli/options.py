@@ -183,8 +183,8 @@ def add_layer_options(p: argparse.ArgumentParser, placed_models: bool = False) -
         "--buildings",
         action="append",
         default=None,
-        metavar="FILE",
-        help="buildings, repeatable: OpenStreetMap (.osm, .osm.pbf) or GeoParquet (Overture) footprints extruded to LoD1 from their height or levels, standing on the other layers' ground (else the clip's assumed flat ground); or any scene layer",
+        metavar="FILE|overpass:",
+        help="buildings, repeatable: OpenStreetMap (.osm, .osm.pbf) or GeoParquet (Overture) footprints extruded to LoD1 from their height or levels, standing on the other layers' ground (else the clip's assumed flat ground); or any scene layer; or overpass: (overpass:URL for another instance than overpass-api.de): OpenStreetMap's buildings over the clip's area fetched once from the Overpass API (its fair use: one query a scene, at most 25 km2, kept in the tile cache for offline use)",
     )
     p.add_argument(
         "--ortho", type=Path, default=None, help="an orthophoto GeoTIFF draped on the DEM"
@@ -205,19 +205,19 @@ def add_layer_options(p: argparse.ArgumentParser, placed_models: bool = False) -
         "--world",
         default=None,
         metavar="NAME",
-        help="drape a clip with no scene on the terrain and imagery of this [[world]] of the settings file (default: its first; 'none': the flat ground)",
+        help="drape a clip with no scene on the terrain and imagery of this [[world]] of the settings file (default: its first; with none there, open keyless sources where they answer within 2 s; 'none': the flat ground)",
     )
     p.add_argument(
         "--imagery",
         default=None,
         metavar="SRC",
-        help="imagery for this run: an XYZ URL template with {z}/{x}/{y} (tms: before it for TMS rows), a WMTS capabilities URL (#layer=NAME), an .mbtiles, .pmtiles or .gpkg file, or a GeoTIFF/COG (URL or file)",
+        help="imagery for this run: an XYZ URL template with {z}/{x}/{y} (tms: before it for TMS rows), a WMTS capabilities URL (#layer=NAME), an .mbtiles, .pmtiles or .gpkg file, a GeoTIFF/COG (URL or file), or a provider's name (Esri.WorldImagery: geofuse cache --providers lists them)",
     )
     p.add_argument(
         "--terrain",
         default=None,
         metavar="SRC",
-        help="terrain for this run: terrain-rgb: or terrarium: before a PNG URL template, a WMTS capabilities URL or an .mbtiles/.pmtiles/.gpkg file; or a DEM GeoTIFF/COG (URL or file); heights above EGM2008 unless --dem-vertical says otherwise",
+        help="terrain for this run: terrain-rgb: or terrarium: before a PNG URL template, a WMTS capabilities URL or an .mbtiles/.pmtiles/.gpkg file; or a DEM GeoTIFF/COG (URL or file); heights above EGM2008 unless --dem-vertical says otherwise; or a Cesium quantized-mesh layer.json URL (heights above the ellipsoid); or a provider's name (AWS.Terrarium)",
     )
     p.add_argument(
         "--dem-error",

@@ -260,7 +260,7 @@ def _view(sub: Commands) -> None:
         "--screenshot",
         type=Path,
         default=None,
-        help="save the window to this PNG (alone: after --play seconds, then exit)",
+        help="save the window to this PNG (alone: after --play seconds and the world drawn in full, then exit)",
     )
     v.add_argument(
         "--play",
@@ -673,6 +673,14 @@ def _cache(sub: Commands) -> None:
         help="remove what the cache holds (of the sources whose location holds SOURCE, or of the [[world]] SOURCE)",
     )
     ca.add_argument(
+        "--providers",
+        nargs="?",
+        const="",
+        default=None,
+        metavar="TEXT",
+        help="list the providers --imagery/--terrain and [[world]] tables may name (those whose name holds TEXT): levels, key, attribution, and whether their terms forbid bulk download",
+    )
+    ca.add_argument(
         "--world",
         default=None,
         metavar="NAME",
@@ -683,6 +691,12 @@ def _cache(sub: Commands) -> None:
     )
     ca.add_argument(
         "--terrain", default=None, metavar="SRC", help="terrain to pre-fetch (as for view)"
+    )
+    ca.add_argument(
+        "--buildings",
+        default=None,
+        metavar="overpass:[URL]",
+        help="OpenStreetMap buildings to pre-fetch from an Overpass API (as for view; --out: AREA-buildings.osm beside)",
     )
     ca.set_defaults(job="cache")
 

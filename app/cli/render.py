@@ -27,6 +27,7 @@ from app.core.settings import OverlaySettings
 from app.footage.clips import onto
 from app.io.video import read_frame
 from app.render.still import render_still, window_camera
+from app.scene.layers import scene_credit
 from app.session.config import ClipRef
 from app.session.model import Session
 from app.session.timeline import Timeline
@@ -98,7 +99,7 @@ def _session(args: argparse.Namespace) -> int:
         extras=extras,
         ages_s=[0.0, *ages],
     )
-    out = write_rgb(args.out, still.rgb)
+    out = write_rgb(args.out, still.rgb, credit=scene_credit(session.layers))
     if still.left_out:
         print(f"warning: {still.left_out}", file=sys.stderr)
     print(f"wrote {out}: frame {index} at {pts[index]:.3f} s, attitude from {source}{said}")

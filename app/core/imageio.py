@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from PIL import Image, UnidentifiedImageError
+from PIL import Image, PngImagePlugin, UnidentifiedImageError
 
 from app.core.errors import DataFormatError
 from app.core.outputs import IMAGE_SUFFIXES, check_output, write_atomically
@@ -23,9 +23,22 @@ def read_rgb(path: str | Path) -> np.ndarray:
         raise DataFormatError(path, f"cannot read image ({exc}); expected PNG or JPEG") from exc
 
 
-def write_rgb(path: str | Path, rgb: np.ndarray, option: str = "--out") -> Path:
-    """Write (H, W, 3) uint8 RGB to PNG/JPEG by suffix, atomically (app.core.outputs); creates the folder."""
+EXIF_COPYRIGHT = 0x8298  # the EXIF/TIFF Copyright tag
+
+
+def write_rgb(path: str | Path, rgb: np.ndarray, option: str = "--out", credit: str = "") -> Path:
+    """Write (H, W, 3) uint8 RGB to PNG/JPEG by suffix, atomically (app.core.outputs); creates the folder.
+    credit: what the picture's imagery must be credited with ('' none), in a PNG's Copyright
+    text chunk or a JPEG's EXIF Copyright tag."""
     path = check_output(path, option, IMAGE_SUFFIXES)
     image = Image.fromarray(np.asarray(rgb, np.uint8))
     fmt = "PNG" if path.suffix.lower() == ".png" else "JPEG"
-    return write_atomically(path, option, lambda f: image.save(f, format=fmt), binary=True)
+    extra = {}
+    if credit and fmt == "PNG":
+        extra["pnginfo"] = PngImagePlugin.PngInfo()
+        extra["pnginfo"].add_itxt("Copyright", credit)
+    elif credit:
+        exif = Image.Exif()
+        exif[EXIF_COPYRIGHT] = credit
+        extra["exif"] = exif
+    return write_atomically(path, option, lambda f: image.save(f, format=fmt, **extra), binary=True)

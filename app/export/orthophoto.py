@@ -11,6 +11,8 @@ Files: OUT.tif, RGBA uint8 (alpha 0 where the clip saw nothing), and OUT.seen.ti
 frame; NaN unseen),
 band 2 its quality (0 unseen); both COGs with overviews, in the grid's CRS (the site's UTM zone
 by default). A GeoTIFF holds one sample type, so the picture and its float bands are two files.
+OUT.tif credits what its scene's imagery and heights came from (a world's providers:
+app.scene.layers.scene_credit) in its TIFFTAG_COPYRIGHT and ATTRIBUTION metadata.
 """
 
 from __future__ import annotations
@@ -135,9 +137,12 @@ def paint_clip(
     return memory
 
 
-def write_orthophoto(memory: OrthoMemory, out: Path, inputs: list[Path]) -> tuple[Path, Path]:
+def write_orthophoto(
+    memory: OrthoMemory, out: Path, inputs: list[Path], credit: str = ""
+) -> tuple[Path, Path]:
     """OUT.tif (RGBA uint8) and OUT.seen.tif (float64 time and quality) as COGs; atomically,
-    never over an input. Returns both paths."""
+    never over an input; credit: the scene's (scene_credit), written into OUT.tif's metadata
+    ('' none). Returns both paths."""
     out = check_output(out, "--out", (".tif", ".tiff"), inputs)
     seen = check_output(seen_path(out), "--out", (".tif",), inputs)
     g: Grid = memory.grid
@@ -163,6 +168,8 @@ def write_orthophoto(memory: OrthoMemory, out: Path, inputs: list[Path]) -> tupl
         }
         with rasterio.open(path, "w", **profile) as dst:
             dst.write(data)
+            if data.shape[0] == 4 and credit:
+                dst.update_tags(TIFFTAG_COPYRIGHT=credit, ATTRIBUTION=credit)
             if data.shape[0] == 4:
                 dst.colorinterp = [
                     ColorInterp.red,

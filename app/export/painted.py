@@ -9,7 +9,9 @@ at a time). With max_texels, one atlas (app.export.atlas) within that many texel
 The GLB is in the session's local frame (east, north, up metres from its origin, turned to
 glTF's Y-up: X east, Y up, Z south) and says that origin in its scene's extras
 (`geofuse_origin`: lat, lon, ellipsoidal h); to place it elsewhere give that origin (and
-up_axis Y) as a model's placement.
+up_axis Y) as a model's placement. Where the scene's imagery or heights came from providers
+that must be credited (a world's tiles: app.scene.layers.scene_credit), the GLB's
+`asset.copyright` says so, as glTF viewers (CesiumJS among them) show it.
 """
 
 from __future__ import annotations
@@ -126,14 +128,22 @@ def paint_model_paged(
     return paged
 
 
-def glb_bytes(triangles: np.ndarray, uvs: np.ndarray, image: np.ndarray) -> bytes:
+def glb_bytes(
+    triangles: np.ndarray, uvs: np.ndarray, image: np.ndarray, copyright: str = ""
+) -> bytes:
     """Triangles (T, 3, 3) ENU m with their uvs (T, 3, 2, v up) on an (H, W, 3) image (top row
-    first) as one textured glTF mesh, Y-up (X east, Y up, Z south), as GLB bytes."""
-    return _scene(triangles, uvs, image).export(file_type="glb")
+    first) as one textured glTF mesh, Y-up (X east, Y up, Z south), as GLB bytes; copyright:
+    its asset.copyright (what its imagery must be credited with; '' none)."""
+    return _glb(trimesh.Scene(_mesh(triangles, uvs, image)), copyright)
 
 
-def _scene(triangles: np.ndarray, uvs: np.ndarray, image: np.ndarray) -> trimesh.Scene:
-    return trimesh.Scene(_mesh(triangles, uvs, image))
+def _glb(scene: trimesh.Scene, copyright: str) -> bytes:
+    """The scene as GLB bytes, `copyright` (where given) in its asset."""
+
+    def credit(tree: dict) -> None:
+        tree.setdefault("asset", {})["copyright"] = copyright
+
+    return scene.export(file_type="glb", tree_postprocessor=credit if copyright else None)
 
 
 def _mesh(triangles: np.ndarray, uvs: np.ndarray, image: np.ndarray) -> trimesh.Trimesh:
@@ -154,14 +164,16 @@ def _mesh(triangles: np.ndarray, uvs: np.ndarray, image: np.ndarray) -> trimesh.
 
 
 def painted_glb(
-    parts: Iterable[tuple[np.ndarray, np.ndarray, np.ndarray]], origin: tuple[float, float, float]
+    parts: Iterable[tuple[np.ndarray, np.ndarray, np.ndarray]],
+    origin: tuple[float, float, float],
+    copyright: str = "",
 ) -> bytes:
     """The painted scene as GLB bytes (see the module docstring): one mesh a part (triangles
     (n, 3, 3) ENU m, uvs (n, 3, 2), RGB image top row first: one atlas, or a paged memory's
-    pages, app.export.painted_tiles)."""
+    pages, app.export.painted_tiles); copyright: its asset.copyright ('' none)."""
     scene = trimesh.Scene([_mesh(*part) for part in parts])
     scene.metadata["geofuse_origin"] = [float(x) for x in origin]
-    return scene.export(file_type="glb")
+    return _glb(scene, copyright)
 
 
 def atlas_part(atlas: Atlas, memory: SurfaceMemory) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -174,8 +186,10 @@ def write_painted(
     origin: tuple[float, float, float],
     out: Path,
     inputs: list[Path],
+    credit: str = "",
 ) -> Path:
-    """The painted GLB at `out`, atomically, never over an input."""
+    """The painted GLB at `out`, atomically, never over an input; credit: its scene's
+    (scene_credit), written as its asset.copyright."""
     out = check_output(out, "--out", (".glb",), inputs)
-    data = painted_glb(parts, origin)
+    data = painted_glb(parts, origin, credit)
     return write_atomically(out, "--out", lambda f: f.write(data), binary=True)

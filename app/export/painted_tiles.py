@@ -71,16 +71,18 @@ def page_tiles(paged: PagedMemory) -> Iterator[Tile]:
 
 
 def write_painted_tiles(
-    tiles: Iterable[Tile], frame: LocalFrame, out: Path, inputs: list[Path]
+    tiles: Iterable[Tile], frame: LocalFrame, out: Path, inputs: list[Path], credit: str = ""
 ) -> tuple[Path, int]:
     """The tileset at `out` (…/tileset.json) and its tiles (atlas_tiles, page_tiles) beside
-    it, never over an input. Returns (its path, the number of tiles)."""
+    it, never over an input; credit: the scene's (app.scene.layers.scene_credit), in each
+    tile's asset.copyright (what CesiumJS shows as the tileset's credits). Returns (its path,
+    the number of tiles)."""
     out = check_output(out, "--out", (".json",), inputs)
     out.parent.mkdir(parents=True, exist_ok=True)
     children = []
     lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
     for k, (triangles, uvs, image) in enumerate(tiles):
-        data = glb_bytes(triangles, uvs, image)
+        data = glb_bytes(triangles, uvs, image, credit)
         name = f"{out.stem}_{k}.glb"
         tile = check_output(out.parent / name, "--out", (".glb",), inputs)  # never over an input
         write_atomically(tile, "--out", lambda f, d=data: f.write(d), binary=True)

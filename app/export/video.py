@@ -136,10 +136,12 @@ def export_video(
     last: int | None = None,
     progress: Callable[[float], None] | None = None,
     further: tuple[FurtherClip, ...] = (),
+    credit: str = "",
 ) -> int:
     """Render frames first..last (inclusive) of `video` into `out` (H.264 MP4 at the clip's
     presentation times), with the further clips' frames of the same moments projected too;
-    returns the number of frames written."""
+    credit: what the scene's imagery must be credited with (app.scene.layers.scene_credit),
+    in the file's copyright metadata ('' none). Returns the number of frames written."""
 
     last = len(video.pts_s) - 1 if last is None else last
     wanted = set(range(first, last + 1))
@@ -155,6 +157,8 @@ def export_video(
         with open_video(video.path) as src, av.open(str(out), "w") as dst:
             vin = src.streams.video[0]
             vin.thread_type = "AUTO"
+            if credit:
+                dst.metadata["copyright"] = credit
             enc = dst.add_stream("libx264", rate=fps)
             enc.width, enc.height, enc.pix_fmt = size[0], size[1], "yuv420p"
             enc.time_base = Fraction(1, 90000)

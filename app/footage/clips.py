@@ -55,7 +55,7 @@ from app.scene.mesh import MeshData
 from app.session.assemble import assemble, gimbal_attitude, load_scene_layers, open_session
 from app.session.config import HANDHELD_MOUNT_M, read_config
 from app.session.model import Session
-from app.world.build import resolve_worlds
+from app.world.build import deferring, resolve_worlds
 from app.world.settings import how_to_configure
 
 DJI_DEFAULT_FOCAL_MM = 24.0  # 35 mm equivalent focal length of most DJI main cameras
@@ -122,12 +122,16 @@ def frame_and_ground(
     under the first fix, where a layer has ground there. A world layer (app.world) is built over
     the track and the margin here, or dropped when none of its tiles could be had."""
     frame = LocalFrame(float(gnss.lat[0]), float(gnss.lon[0]), float(ground_h))
-    layers = resolve_worlds(layers, gnss.lat, gnss.lon, gnss.h, ground_h, margin_m, messages)
+    background = deferring(layers)  # the viewer builds the world while the flat ground shows
+    layers = resolve_worlds(
+        layers, gnss.lat, gnss.lon, gnss.h, ground_h, margin_m, messages, above_takeoff
+    )
     if not layers:
-        messages.add(
-            "no scene given: the video is projected on an assumed flat ground with a 1 m grid; "
-            + how_to_configure()
-        )
+        if not background:
+            messages.add(
+                "no scene given: the video is projected on an assumed flat ground with a 1 m grid; "
+                + how_to_configure()
+            )
         return frame, ground_under_track(frame, gnss.lat, gnss.lon, ground_h, margin_m), gnss
     mesh = load_scene_layers(layers, frame, gnss, messages, ground_h, margin_m)
     if above_takeoff:

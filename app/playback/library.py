@@ -204,6 +204,22 @@ class SolverLibrary:
                 self._partial[REGISTERED] = 0.0
             self._submit(REGISTERED)
 
+    def use_session(self, session: Session) -> None:
+        """The session again with another scene (its world built in the background,
+        app.ui.world): `registered` is solved against it, added where only this session offers
+        it, again where it was solved or begun before (the old track stays until the new one is
+        in); a solve still queued reads this session when it runs."""
+        with self._lock:
+            self.session = session
+            added = REGISTERED in session.sources and REGISTERED not in self.order
+            begun = any(REGISTERED in d for d in (self._tracks, self._errors, self._partial))
+            if added:
+                self.order = (*self.order, REGISTERED)
+        if added:
+            self._submit(REGISTERED)
+        elif begun:
+            self.resolve_registered()
+
     def close(self, wait_s: float = 10.0) -> None:
         """Stop solving: a registration under way stops at its next keyframe; waits up to
         wait_s seconds for the worker to end (it is a daemon thread either way)."""

@@ -9,7 +9,12 @@ also holds the tiles the clips needed (frozen): it is then drawn over the scene 
 (below), the streamed layers staying where the clips never looked. A memory in pages
 (app.export.paged) is a primitive a page, only for the pages the view needs (`put_memory_page`,
 `keep_memory_pages`): while shown they are drawn over the model in the view pass alone (overlays:
-their depth offset toward the camera), the model showing where no page is held."""
+their depth offset toward the camera), the model showing where no page is held.
+
+The static primitives can be replaced while drawing (a world built in the background, its
+coarse level then its full one: app.ui.world): `stage` hands over primitives laid out by
+app.render.staging.prepare, `update` uploads them in pieces within its budget and swaps them in
+whole once complete, so no frame draws half a scene nor waits for the upload."""
 
 from __future__ import annotations
 
@@ -20,6 +25,7 @@ import numpy as np
 
 from app.camera.pinhole import Camera
 from app.render.primitives import GpuPrimitive, default_anisotropy, interleave, upload
+from app.render.staging import PreparedPrimitive, StagedScene
 from app.render.tiles import DEFAULT_CACHE_BYTES, GpuTileset
 from app.scene.mesh import MeshData, Primitive
 
@@ -49,16 +55,55 @@ class GpuScene:
         self.show_memory = False  # draw the memory instead of the static primitives
         self.memory_pages: dict[int, GpuPrimitive] = {}  # a paged memory's pages held, by index
         self._bounds: np.ndarray | None = None
+        self._anisotropy = anisotropy
+        self.staged: tuple[MeshData, StagedScene] | None = None  # static primitives on their way
+        self.swaps = 0  # static primitives replaced (stage) so far
+        self.stage_error: str | None = None  # why the last scene staged was dropped
 
     def update(self, budget_s: float = 0.008) -> bool:
         """Upload what the tile workers finished, within about budget_s seconds, and evict least
         recently used tiles over the cache cap. True when anything changed. Never waits."""
         changed = False
+        share = budget_s / max(1, len(self.tilesets) + (self.staged is not None))
         for layer in self.tilesets:
-            changed |= layer.update(budget_s / max(1, len(self.tilesets)))
+            changed |= layer.update(share)
+        if self.staged is not None:
+            try:
+                done = self.staged[1].step(share)
+            except Exception as exc:  # a driver refusing the upload: that scene only, said
+                self.unstage()
+                self.stage_error = f"the scene could not be uploaded to the GPU: {exc}"
+            else:
+                if done:
+                    self._swap(*self.staged)
+                    changed = True
         if changed:
             self.version += 1
         return changed
+
+    def stage(self, mesh: MeshData, prepared: list[PreparedPrimitive]) -> None:
+        """Replace the static primitives by `mesh`'s (prepared: app.render.staging.prepare of
+        it), uploaded in pieces by update(); what was staged before and not swapped in yet is
+        dropped. The streamed layers stay."""
+        self.unstage()
+        self.stage_error = None
+        self.staged = (mesh, StagedScene(self.ctx, prepared, self._anisotropy))
+
+    def unstage(self) -> None:
+        """Drop what is staged and not swapped in yet."""
+        if self.staged is not None:
+            self.staged[1].release()
+            self.staged = None
+
+    def _swap(self, mesh: MeshData, staged: StagedScene) -> None:
+        for p in self.primitives:
+            p.release()
+        self.primitives = staged.primitives
+        self.sources = [p for p in mesh.primitives if len(p.indices)]
+        self.mesh = MeshData(mesh.primitives, self.mesh.tilesets, mesh.features)
+        self._bounds = None
+        self.staged = None
+        self.swaps += 1
 
     def drawables(
         self, camera: Camera | None = None, focal_px: float | None = None, key: str = "view"
@@ -169,6 +214,7 @@ class GpuScene:
         return sum(p.nbytes for p in self.memory_pages.values())
 
     def release(self) -> None:
+        self.unstage()
         self.keep_memory_pages(set())
         self.set_memory(None)
         for p in self.primitives:

@@ -14,6 +14,7 @@ is drawn under them.
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -63,7 +64,9 @@ class Layer:
     detail read (None: each object's highest); theme: a city's appearance theme drawn (None:
     the first the file names); world: a world's tile sources (app.world.settings.World, kind
     "world": resolved over a clip's track into a DEM layer by app.world.build); attribution:
-    what its imagery or heights must be credited with (shown in the viewer's Session panel)."""
+    what its imagery or heights must be credited with (shown in the viewer's Session panel);
+    fetched: what a layer fetched for the clip came from (app.world.overpass), whose buildings
+    the scene opens without, saying why, where none can be drawn ('': a file the user named)."""
 
     location: str
     kind: str
@@ -75,6 +78,7 @@ class Layer:
     theme: str | None = None
     world: object | None = None
     attribution: str = ""
+    fetched: str = ""
 
     @classmethod
     def of(cls, location: str | Path, **options) -> Layer:
@@ -97,6 +101,14 @@ class Layer:
             return []
         out = [] if fetch.is_url(self.location) else [Path(self.location)]
         return out + ([self.ortho] if self.ortho is not None else [])
+
+
+def scene_credit(layers: Iterable[Layer]) -> str:
+    """What a scene of `layers` must be credited with, as its providers' licences require:
+    their attributions, each part (between ';') once, in order; '' where none has one. The
+    viewer shows it over the 3D view; exports that carry the imagery write it (app.export)."""
+    parts = (p.strip() for layer in layers for p in layer.attribution.split(";"))
+    return "; ".join(dict.fromkeys(p for p in parts if p))
 
 
 def named_layers(
@@ -268,7 +280,13 @@ def load_footprints(
         )
     first = len(out.parts)
     for layer in layers:
-        city = read_city(layer.location, frame, track, ground=ground)
+        try:
+            city = read_city(layer.location, frame, track, ground=ground)
+        except SceneError as exc:
+            if not layer.fetched:
+                raise
+            out.notes.add(f"{layer.fetched}: the scene opens without them: {exc.detail}")
+            continue
         out.notes.extend(city.notes)
         out.parts.append((layer, city.mesh))
     if terrain.primitives or terrain.tilesets:
@@ -278,9 +296,14 @@ def load_footprints(
         corners.append(
             frame.geodetic_to_enu(track[:, 0], track[:, 1], np.full(len(track), assumed))[:, :2]
         )
+    if not corners:
+        return
     xy = np.concatenate(corners)
     lo, hi = xy.min(axis=0), xy.max(axis=0)
     plane = ground_plane((lo + hi) / 2, z, float(max(hi - lo) / 2 + margin_m))
+    if len(out.parts) == first:  # every layer was a fetched one left out: the ground alone
+        out.parts.append((layers[0], plane))
+        return
     layer, part = out.parts[first]
     out.parts[first] = (layer, part.merged(plane))
 

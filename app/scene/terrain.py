@@ -61,7 +61,7 @@ class Terrain:
 # -- RTIN (right-triangulated irregular network) ------------------------------------------------
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _rtin_errors(h: np.ndarray) -> np.ndarray:
     """Per grid node, the largest vertical error of the triangles split at that node (with every
     finer level's below it): Martini's error pass over a (2^k + 1)^2 grid."""
@@ -104,7 +104,7 @@ def _rtin_errors(h: np.ndarray) -> np.ndarray:
     return errors
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _vertex(index: np.ndarray, verts: np.ndarray, nv: int, x: int, y: int) -> int:
     if index[y, x] < 0:
         verts[nv, 0] = x
@@ -114,7 +114,7 @@ def _vertex(index: np.ndarray, verts: np.ndarray, nv: int, x: int, y: int) -> in
     return nv
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _push(stack: np.ndarray, sp: int, ax: int, ay: int, bx: int, by: int, cx: int, cy: int) -> int:
     """Push the triangle (a, b, c) (grid column, row of each corner) on `stack` at `sp`; the new
     stack pointer."""
@@ -127,7 +127,7 @@ def _push(stack: np.ndarray, sp: int, ax: int, ay: int, bx: int, by: int, cx: in
     return sp + 1
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _rtin_mesh(errors: np.ndarray, max_error: float) -> tuple[np.ndarray, np.ndarray]:
     """(vertices (N, 2) int32 column, row; triangles (M, 3) int32) of the RTIN within max_error."""
     size = errors.shape[0]
@@ -169,7 +169,7 @@ def _rtin_mesh(errors: np.ndarray, max_error: float) -> tuple[np.ndarray, np.nda
     return verts[:nv], tris
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def mesh_error(h: np.ndarray, verts: np.ndarray, tris: np.ndarray) -> float:
     """The largest |mesh - sample| (m) over every grid sample, the mesh interpolated linearly
     within each triangle (vertices as column, row of the grid h)."""

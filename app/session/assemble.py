@@ -35,7 +35,7 @@ from app.scene.mesh import MeshData
 from app.session.config import SessionConfig, read_config
 from app.session.model import Session
 from app.sync import sync_session, synced_drift, synced_offset, timed_by
-from app.world.build import resolve_worlds
+from app.world.build import deferring, resolve_worlds
 
 
 def open_session(path: str | Path) -> Session:
@@ -300,13 +300,15 @@ def _place(cfg: SessionConfig, gnss: GnssTrack, above_takeoff: bool, messages: M
     or the take-off height for heights above take-off), as for clips opened directly. A
     [world] is built around the track first (app.world.build.resolve_worlds; dropped, and said,
     where none of its tiles could be had)."""
+    background = deferring(cfg.layers)  # the viewer builds the world while the flat ground shows
     if any(layer.kind == "world" for layer in cfg.layers):
         takeoff = cfg.gnss.takeoff_height_m or 0.0
         ground = takeoff if above_takeoff else float(gnss.h[0]) - cfg.gnss.mount_height_m
         h = gnss.h + takeoff if above_takeoff else gnss.h
         layers = resolve_worlds(
-            cfg.layers, gnss.lat, gnss.lon, h, ground, ASSUMED_GROUND_MARGIN_M, messages
-        )
+            cfg.layers, gnss.lat, gnss.lon, h, ground, ASSUMED_GROUND_MARGIN_M, messages,
+            above_takeoff and cfg.gnss.takeoff_height_m is None,
+        )  # fmt: skip
         cfg = replace(cfg, layers=layers)
     if not cfg.layers:
         takeoff = cfg.gnss.takeoff_height_m or 0.0
@@ -318,9 +320,10 @@ def _place(cfg: SessionConfig, gnss: GnssTrack, above_takeoff: bool, messages: M
             if cfg.origin is not None
             else LocalFrame(float(gnss.lat[0]), float(gnss.lon[0]), ground)
         )
-        messages.add(
-            "no scene given: the video is projected on an assumed flat ground with a 1 m grid"
-        )
+        if not background:
+            messages.add(
+                "no scene given: the video is projected on an assumed flat ground with a 1 m grid"
+            )
         return (
             frame,
             ground_under_track(frame, gnss.lat, gnss.lon, ground, ASSUMED_GROUND_MARGIN_M),

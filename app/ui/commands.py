@@ -11,7 +11,7 @@ import numpy as np
 
 from app.export.painting import DEFAULT_EVERY_S
 from app.share.web import DEFAULT_BIND, parse_bind
-from app.ui import archive, clips, control_points, live, measure, memory, share
+from app.ui import archive, clips, control_points, live, measure, memory, share, world
 
 OPEN_WAIT_S = 600.0  # a script's `open` waits at most this long for the reading (real seconds)
 LIVE_WAIT_S = 120.0  # `wait live N` gives up after this long (real seconds)
@@ -156,6 +156,8 @@ def _wait(v, arg, now) -> None:
         v.wait_until_tiles_loaded()
     elif arg == "painted":
         memory.wait_painted(v)
+    elif arg == "world":
+        world.wait(v)
     elif arg.split()[:1] in (["live"], ["arrived"]) and len(arg.split()) <= 2:
         words = arg.split()
         n = int(_number(words[1])) if len(words) == 2 else 1
@@ -177,7 +179,7 @@ def _wait(v, arg, now) -> None:
             )
     else:
         raise ValueError(
-            f"expected 'solved', 'registered', 'exported', 'synced', 'tiles', 'painted', 'live [N]' or 'arrived [N]', got {arg!r}"
+            f"expected 'solved', 'registered', 'exported', 'synced', 'tiles', 'painted', 'world', 'live [N]' or 'arrived [N]', got {arg!r}"
         )
 
 
@@ -338,7 +340,7 @@ COMMANDS: dict[str, Command] = {
         _wait,
         False,
         True,
-        "solved | registered | exported | synced | tiles | painted | live [N] | arrived [N]: hold the clock until every source but the registered one is solved, the registered one too, the export or sync has finished, or the 3D Tiles this view needs are loaded; painted: hold the script until the scene memory is painted and shown; live N: hold the script until N frames of the stream have been shown; arrived N: until N more have arrived",
+        "solved | registered | exported | synced | tiles | painted | world | live [N] | arrived [N]: hold the clock until every source but the registered one is solved, the registered one too, the export or sync has finished, or the 3D Tiles this view needs are loaded; painted: hold the script until the scene memory is painted and shown; world: until the clip's world is built and drawn in full; live N: hold the script until N frames of the stream have been shown; arrived N: until N more have arrived",
     ),
     "memory": Command(
         _memory,

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -25,10 +25,11 @@ from app.scene.mesh import MeshData
 from app.session.model import REGISTERED, Session
 from app.session.timeline import Timeline
 from app.simulate.sample import SAMPLE_DIR
-from app.ui import archive, clips, live, measure, memory
+from app.ui import archive, clips, live, measure, memory, world
 from app.ui.gnss import FrameGnss
 from app.ui.memory import MemoryPainter
 from app.ui.navigation import Navigator
+from app.world.build import WorldRequest, deferred_worlds
 
 log = logging.getLogger("geofuse.viewer")
 SOLVE_WAIT_S = 600.0  # `wait solved` gives up after this long (real seconds)
@@ -38,17 +39,28 @@ class OpenJob(OneShot):
     """Reading a session or clip and its scene (CityJSON, DEMs, meshes: seconds for a district)
     on a thread of its own, so that the frame loop keeps drawing; the viewer installs it (GL
     objects, players, solvers) on the frame loop's thread once `done`. on_fail runs there when
-    it could not be read."""
+    it could not be read. A world it names is not built here: it opens on the flat ground and
+    the world is built in the background once installed (app.ui.world)."""
 
-    def __init__(self, path: Path, srt, lens, layers, on_fail: Callable[[], None] | None = None):
+    def __init__(
+        self, path: Path, srt, lens, layers, on_fail: Callable[[], None] | None = None, start=None
+    ):
         self.path, self.on_fail = path, on_fail
-        self._args = (srt, lens, tuple(layers))
+        self._args = (srt, lens, tuple(layers), start)
         self.result: tuple[Session, MeshData] | None = None
+        self.worlds: list[WorldRequest] = []  # to build in the background once installed
         super().__init__("geofuse-open")
 
     def _work(self) -> None:
-        srt, lens, layers = self._args
-        session = open_any(self.path, srt, lens=lens, layers=layers)
+        srt, lens, layers, start = self._args
+        with deferred_worlds() as worlds:
+            session = open_any(self.path, srt, lens=lens, layers=layers)
+        if start is not None:  # app.session.start.StartArea: registered from it
+            session = replace(session, start=start)
+        if worlds:  # not among its layers until drawn: nothing to register against meanwhile
+            kept = tuple(layer for layer in session.layers if layer.kind != "world")
+            session = replace(session, layers=kept)
+        self.worlds = worlds
         self.result = (session, session.scene())
 
     def _failed(self) -> str:
@@ -79,6 +91,7 @@ class Loaded:
     registered_said: bool = False  # the switch to `registered` (or why not) was said
     memory: MemoryPainter | None = None  # the scene memory being painted or painted
     gnss: FrameGnss | None = None  # the registered track's per-frame GNSS status (app.ui.gnss)
+    world: world.ViewerWorld | None = None  # its world being built in the background
 
     @property
     def clock(self) -> PlaybackClock:
@@ -257,6 +270,7 @@ class ViewerSessions:
             self.ui.course_pitch_deg = session.course_pitch_deg
         self.stats = Stats()
         self.nav = home_view(session, mesh)
+        world.start(self.loaded, job.worlds)
         clips.retime(self)
         for ref in session.further:  # [[clips]] of the manifest
             try:
@@ -278,6 +292,7 @@ class ViewerSessions:
         if self.loaded is not None:
             clips.close_all(self.loaded)
             memory.close(self.loaded)
+            world.close(self.loaded)
             self.loaded.player.close()
             self.loaded.library.close()
             self.loaded.renderer.release()

@@ -34,7 +34,7 @@ from app.render.context import describe
 from app.render.renderer import BACKGROUND
 from app.render.window import Window
 from app.session.model import REGISTERED
-from app.ui import clips, gnss, live, measure, memory, panels, share
+from app.ui import clips, credit, gnss, live, measure, memory, panels, share, world
 from app.ui.commands import run_command
 from app.ui.gui import Gui
 from app.ui.inputs import handle_input
@@ -215,6 +215,7 @@ class Viewer(ViewerJobs, ViewerSessions):
         L = self.loaded
         if L is None:
             return
+        world.update(self)
         self._show_messages()
         self._prefer_registered()
         if L.player.decoder.error:
@@ -312,7 +313,7 @@ class Viewer(ViewerJobs, ViewerSessions):
                 clips=[{"name": Path(c.session.video.path).name, "visible": c.visible, "frame": c.frame, "decoder": c.player is not None, "offset_s": c.offset_s, "start_s": s.start_s, "source": c.source, "alpha": c.alpha, "frames_shown": 0 if c.player is None else len(c.player.stats.latencies), "dropped": 0 if c.player is None else c.player.stats.dropped, "latency_ms": None if c.player is None else list(c.player.stats.summary())} for c, s in zip(L.others, L.timeline.clips[1:], strict=True)],
                 extra_projectors=len(L.renderer.extras), frame_ages_s=[L.renderer.projector_age, *(e.age_s for e in L.renderer.extras)], timeline_s=None if self.current_index < 0 else float(L.timeline.clips[0].times[self.current_index]),
                 archive=None if ui.archive is None else {"path": str(ui.archive.path), "footprints": ui.archive.footprints, "clips": ui.archive.clips, "picked": ui.archive.picked, "opened": ui.archive.opened, "opened_s": ui.archive.opened_s},
-                memory=memory.state(L), memory_view=ui.memory_view,
+                memory=memory.state(L), memory_view=ui.memory_view, world=world.state(L), credit=credit.text(L),
                 sync=None if ui.sync_job is None or ui.sync_job.result is None else {"offset_s": ui.sync_job.result.offset_s, "confidence": ui.sync_job.result.confidence},
                 window_camera=_camera_state(cam),
                 projector=None if proj is None else {"position": list(proj.position), "orientation": list(proj.orientation)},
@@ -414,11 +415,13 @@ class Viewer(ViewerJobs, ViewerSessions):
                 self._draw()
                 measure.hover(self, now, gui.wants_mouse())
                 panels.draw(self, gui, now)
+                credit.draw(self)  # the providers' credit over the 3D view, panels or not
                 gui.render()
                 if (
                     self.options.screenshot is not None
                     and self.options.script is None
                     and now - start >= self.options.play_seconds
+                    and world.drawn(self.loaded)  # a world being built: once drawn in full
                 ):
                     self.ui.screenshot_request, self.ui.quit = self.options.screenshot, True
                 self._end_of_frame(now)

@@ -1,15 +1,21 @@
 """A world's tiles over a clip's track -> a DEM and an orthophoto GeoTIFF (each in its source's
-CRS: EPSG:3857 for XYZ tiles, a WMTS's or GeoPackage's own grid, a GeoTIFF's own) in the cache
-folder -> the scene's DEM layer (app.scene.terrain drapes the one on the other, in the session's
-ENU frame, with its RTIN mesh and vertical datum).
+CRS: EPSG:3857 for XYZ tiles, a WMTS's or GeoPackage's own grid, a quantized-mesh layer's
+EPSG:4326 or EPSG:3857 tiling (its meshes sampled at the DEM's pixels), a GeoTIFF's own) in the
+cache folder -> the scene's DEM layer (app.scene.terrain drapes the one on the other, in the
+session's ENU frame, with its RTIN mesh and vertical datum).
 
 The area: the track's extent plus the camera's reach on the ground (the margin the assumed
 ground would have had, at most MAX_REACH_M), in the source's CRS. The levels: imagery at the
 coarsest level whose pixels are at most the clip's ground sampling (estimated from its height
 above the ground), terrain TERRAIN_COARSER times coarser, each within a tile budget (a
 GeoTIFF's window within as many pixels). A tile that cannot be had is drawn from up to
-PARENT_LEVELS coarser tiles; imagery without terrain lies on the assumed flat ground.
+PARENT_LEVELS coarser tiles (a quantized-mesh level no finer than the finest its layer has
+tiles at over the area); imagery without terrain lies on the assumed flat ground.
 Everything fetched is bounded by the world's timeout_s.
+
+Commands that write files build the world before they go on (resolve_worlds); the viewer opens
+on the flat ground instead and builds it in the background, a coarser level first
+(deferred_worlds records what to build; app.world.background builds it).
 """
 
 from __future__ import annotations
@@ -19,8 +25,10 @@ import math
 import re
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor, as_completed
+from contextlib import contextmanager
+from contextvars import ContextVar
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -30,17 +38,18 @@ import rasterio
 from affine import Affine
 from scipy import ndimage
 
-from app.core.messages import Messages
+from app.core.messages import INFO, Messages
 from app.core.progress import ProgressBar
 from app.scene.layers import Layer
-from app.world import grids
+from app.world import defaults, grids
 from app.world import tiles as tm
 from app.world.cache import TileCache
 from app.world.cog import RasterFault, read_window
 from app.world.fetch import SourceFetcher
 from app.world.grids import GridRange, lonlat_box
-from app.world.settings import World
-from app.world.sources import TileSource, decode_heights
+from app.world.overpass import buildings_layers
+from app.world.settings import World, how_to_configure, settings_path
+from app.world.sources import QUANTIZED_MESH, TileSource, decode_heights
 
 MAX_REACH_M = 2000.0  # the area fetched reaches at most this far beyond the track, m
 MIN_REACH_M = 100.0
@@ -57,9 +66,7 @@ MAX_WINDOW_SIDE = 8192  # a GeoTIFF's window is read at most this many pixels a 
 
 def world_layer(world: World) -> Layer:
     """The layer that stands for `world` until a clip's track resolves it (resolve_worlds)."""
-    sources = [s for s in (world.imagery, world.terrain) if s is not None]
-    credit = world.attribution or "; ".join(s.attribution for s in sources if s.attribution)
-    return Layer(f"world:{world.name}", "world", world=world, attribution=credit)
+    return Layer(f"world:{world.name}", "world", world=world, attribution=world.credit)
 
 
 Tiles = tm.TileRange | GridRange  # XYZ Web Mercator tiles, or a grid's (app.world.grids)
@@ -143,14 +150,20 @@ def mosaic(
     tiles: Tiles,
     decode: Callable[[np.ndarray], np.ndarray],
     progress: Callable[[float], None] | None = None,
+    stop: Callable[[], bool] | None = None,
 ) -> Mosaic | None:
     """The tiles of `tiles` fetched (in parallel) and decoded into one Mosaic; a tile not had is
-    cut from a coarser one (up to PARENT_LEVELS up); None when no tile at all was had."""
+    cut from a coarser one (up to PARENT_LEVELS up); None when no tile at all was had, or when
+    stop() turned true (the tiles not asked for yet are not asked for)."""
     got: dict[tuple[int, int, int], np.ndarray] = {}
     todo = tiles.tiles()
     with ThreadPoolExecutor(FETCH_WORKERS) as pool:
         futures = {pool.submit(fetcher.get, *t): t for t in todo}
         for i, future in enumerate(as_completed(futures)):
+            if stop is not None and stop():
+                for f in futures:
+                    f.cancel()
+                return None
             arr = future.result()
             if arr is not None:
                 got[futures[future]] = decode(arr)
@@ -243,6 +256,18 @@ def _safe(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]+", "_", name)[:40] or "world"
 
 
+def world_box(
+    lat: npt.ArrayLike, lon: npt.ArrayLike, reach_m: float, max_reach_m: float = MAX_REACH_M
+) -> tuple[float, float, float, float]:
+    """(west, south, east, north) deg of the area a world is read over: the track (lat, lon
+    deg) plus reach_m (m, bounded by MIN_REACH_M and max_reach_m) on the ground."""
+    lat, lon = (
+        np.atleast_1d(np.asarray(lat, np.float64)),
+        np.atleast_1d(np.asarray(lon, np.float64)),
+    )
+    return lonlat_box(lat, lon, min(max(reach_m, MIN_REACH_M), max_reach_m))
+
+
 def plan_world(
     world: World,
     lat: npt.ArrayLike,
@@ -254,12 +279,14 @@ def plan_world(
     clock: Callable[[], float] = time.monotonic,
     max_tiles: tuple[int, int] = (TERRAIN_MAX_TILES, IMAGERY_MAX_TILES),
     max_reach_m: float = MAX_REACH_M,
+    coarser: int = 0,
 ) -> list[SourcePlan]:
     """What world_scene reads of each of the world's sources (terrain first) over the track
     (lat, lon deg) plus reach_m (m, bounded by MIN_REACH_M and max_reach_m) for a camera
     height_m above the ground (m): the sources opened (a WMTS's capabilities fetched, an
     archive's pyramid read), their levels chosen within max_tiles (terrain, imagery; a
-    GeoTIFF's window within as many 256-px tiles). Close each plan's fetcher when done."""
+    GeoTIFF's window within as many 256-px tiles), each `coarser` levels coarser than that
+    (a window's pixels 2**coarser times larger). Close each plan's fetcher when done."""
     lat, lon = (
         np.atleast_1d(np.asarray(lat, np.float64)),
         np.atleast_1d(np.asarray(lon, np.float64)),
@@ -267,7 +294,7 @@ def plan_world(
     lat0 = float(np.mean(lat))
     reach = min(max(reach_m, MIN_REACH_M), max_reach_m)
     bounds = _bounds(lat, lon, reach)
-    box = lonlat_box(lat, lon, reach)
+    box = world_box(lat, lon, reach_m, max_reach_m)
     needed = max(MIN_GSD_M, abs(height_m) / 1000.0)  # a 1000-px-wide view of 53 deg, nadir
     plans = []
     for kind, source, needed_m, budget in (
@@ -277,7 +304,7 @@ def plan_world(
         if source is None:
             continue
         fetcher = SourceFetcher(source, cache, deadline, clock=clock)
-        plan = SourcePlan(kind, source, fetcher, needed_m=needed_m)
+        plan = SourcePlan(kind, source, fetcher, needed_m=needed_m * 2.0**coarser)
         if source.form == "cog":
             plan.box = box
             plan.max_side = min(int(math.sqrt(budget)) * ASSUMED_TILE_PX, MAX_WINDOW_SIDE)
@@ -286,12 +313,13 @@ def plan_world(
                 z = tm.choose_zoom(
                     bounds, needed_m, lat0, ASSUMED_TILE_PX, fetcher.max_zoom(), budget
                 )
-                plan.tiles = tm.covering(bounds, z)
+                plan.tiles = tm.covering(bounds, max(0, z - coarser))
         else:
             grid = fetcher.grid()
             if grid is not None:
                 own = grids.box_in(grid.crs, box)
-                plan.tiles = grid.covering(own, grid.choose_level(own, needed_m, budget))
+                z = fetcher.finest_level(own, grid.choose_level(own, needed_m, budget))
+                plan.tiles = grid.covering(own, max(0, z - coarser))
         plans.append(plan)
     return plans
 
@@ -305,6 +333,7 @@ def _read_plan(
     deadline: float,
     clock: Callable[[], float],
     progress: Callable[[float], None],
+    stop: Callable[[], bool] | None = None,
 ) -> Made | None:
     """A plan's raster (its tiles mosaicked, or its window read), what it took said in
     `messages`; None when nothing could be had (the fault said once)."""
@@ -334,10 +363,10 @@ def _read_plan(
     tiles = plan.tiles
     decode = (
         (lambda a, enc=source.encoding: decode_heights(a, enc))
-        if plan.kind == "terrain"
+        if plan.kind == "terrain" and source.form != QUANTIZED_MESH  # meshes come as heights
         else (lambda a: a)
     )
-    m = mosaic(fetcher, tiles, decode, progress)
+    m = mosaic(fetcher, tiles, decode, progress, stop)
     fetcher.report(messages, label)
     if m is None:
         return None
@@ -369,38 +398,53 @@ def world_scene(
     cache: TileCache | None = None,
     progress: Callable[[float], None] | None = None,
     clock: Callable[[], float] = time.monotonic,
+    coarser: int = 0,
+    stop: Callable[[], bool] | None = None,
+    tiles: Callable[[int, int], None] | None = None,
 ) -> tuple[Layer, ...]:
     """The world's DEM layer (its orthophoto draped) over the track (lat, lon deg), or () when
     no tile could be had (said in `messages`, the caller keeps its flat ground).
 
     ground_h: the assumed ground's ellipsoidal height (m), under imagery without terrain;
     reach_m: the camera's reach on the ground beyond the track (m); height_m: the camera's
-    typical height above the ground (m), which sets the imagery's ground sampling."""
+    typical height above the ground (m), which sets the imagery's ground sampling; coarser:
+    levels coarser than that (plan_world; a first look: nothing said when none is had);
+    stop: () as soon as it turns true; tiles: called with (tiles done, tiles to fetch) as they
+    come. Notes said again by a second build in the same `messages` are said once."""
     cache = cache or TileCache()
     lat0 = float(np.mean(np.atleast_1d(np.asarray(lat, np.float64))))
     deadline = clock() + world.timeout_s
     what = f"world {world.name}"
-    plans = plan_world(world, lat, lon, reach_m, height_m, cache, deadline, clock)
-    total = max(1, sum(p.count for p in plans))
+    plans = plan_world(world, lat, lon, reach_m, height_m, cache, deadline, clock, coarser=coarser)
+    total = sum(p.count for p in plans)
+    if tiles is not None:
+        tiles(0, total)
     done = 0
     made: dict[str, Made] = {}
     for plan in plans:
 
         def step(f: float, start: int = done, n: int = plan.count) -> None:
             if progress is not None:
-                progress((start + f * n) / total)
+                progress((start + f * n) / max(1, total))
+            if tiles is not None:
+                tiles(int(round(start + f * n)), total)
 
+        got = None
         try:
-            got = _read_plan(plan, what, lat0, messages, cache, deadline, clock, step)
+            if stop is None or not stop():
+                got = _read_plan(plan, what, lat0, messages, cache, deadline, clock, step, stop)
         finally:
             plan.fetcher.close()
         done += plan.count
         if got is not None:
             made[plan.kind] = got
+    if stop is not None and stop():
+        return ()
     if not made:
-        messages.add(
-            f"{what}: no tile could be had: the video is projected on the assumed flat ground instead"
-        )
+        if not coarser:
+            messages.add(
+                f"{what}: no tile could be had: the video is projected on the assumed flat ground instead"
+            )
         return ()
     cache.trim()
     key = hashlib.sha256(
@@ -427,10 +471,11 @@ def world_scene(
             _tags(world, world.terrain, m.level),
             m.crs,
         )
-        messages.info(
+        text = (
             f"{what} terrain: heights taken as above {'the ellipsoid' if datum == 'ellipsoid' else datum.upper()} "
             "(datum in its [[world]] table, or --dem-vertical, says otherwise)"
         )
+        messages.add_once(text, text, INFO)
     else:
         m = made["imagery"]
         h, w = m.data.shape[:2]
@@ -446,22 +491,129 @@ def world_scene(
             m.crs,
         )
         datum = "ellipsoid"
-        messages.add(f"{what} has no terrain source: its imagery lies on the assumed flat ground")
+        text = f"{what} has no terrain source: its imagery lies on the assumed flat ground"
+        messages.add_once(text, text)
     sources = [p.source for p in plans]
     if not (world.attribution or any(s.attribution for s in sources)):
-        messages.add(
-            f"{what}: no attribution given: credit its providers as their terms require (attribution in its [[world]] table)"
-        )
+        text = f"{what}: no attribution given: credit its providers as their terms require (attribution in its [[world]] table)"
+        messages.add_once(text, text)
     return (
         Layer(
             str(dem),
             "dem",
             ortho=ortho,
             vertical=datum,
-            attribution=world.attribution
-            or next((s.attribution for s in sources if s.attribution), ""),
+            attribution=world.credit,
         ),
     )
+
+
+@dataclass(frozen=True)
+class WorldRequest:
+    """A world layer (world_layer) to build over a clip's track: lat, lon (N,) deg and h (N,)
+    ellipsoidal m of its fixes; ground_h: the assumed ground's ellipsoidal height (m); reach_m:
+    the camera's reach on the ground beyond the track (m); above_takeoff: the track's heights
+    are above a take-off assumed at ground_h, which the world's terrain is to be placed at (the
+    viewer opens such a clip on the flat ground before the terrain is had)."""
+
+    layer: Layer
+    lat: np.ndarray
+    lon: np.ndarray
+    h: np.ndarray
+    ground_h: float
+    reach_m: float
+    above_takeoff: bool = False
+
+    @property
+    def world(self) -> World:
+        return self.layer.world
+
+
+def build_world(
+    request: WorldRequest,
+    messages: Messages,
+    progress: Callable[[float], None] | None = None,
+    coarser: int = 0,
+    stop: Callable[[], bool] | None = None,
+    tiles: Callable[[int, int], None] | None = None,
+) -> tuple[Layer, ...]:
+    """The request's DEM layer built over its track (world_scene, with its progress, coarser,
+    stop and tiles), and, at the full level (coarser 0), its buildings fetched over the same
+    area (app.world.overpass), where it has them; () when none could be had."""
+    world, lat, lon = request.world, request.lat, request.lon
+    out: list[Layer] = []
+    if world.probe_s and not _default_answers(world, messages):
+        return ()
+    height = float(np.median(np.asarray(request.h, np.float64))) - float(request.ground_h)
+    if world.imagery is not None or world.terrain is not None:
+        out.extend(
+            world_scene(
+                world,
+                lat,
+                lon,
+                request.ground_h,
+                request.reach_m,
+                height,
+                messages,
+                progress=progress,
+                coarser=coarser,
+                stop=stop,
+                tiles=tiles,
+            )  # fmt: skip
+        )
+    if world.buildings is not None and not coarser and not (stop is not None and stop()):
+        box = world_box(lat, lon, request.reach_m)
+        what = f"world {world.name} buildings"
+        out.extend(
+            buildings_layers(world.buildings, box, TileCache(), messages, what, world.timeout_s)
+        )
+    return tuple(out)
+
+
+def _default_answers(world: World, messages: Messages) -> bool:
+    """Whether the default world's servers answer within its probe_s (app.world.defaults),
+    said either way (once): the sources used, or the flat ground and how to configure."""
+    sources = [s for s in (world.imagery, world.terrain) if s is not None]
+    names = ", ".join(dict.fromkeys(s.label.split("/", 1)[0] for s in sources))
+    if defaults.network_answers([s.location for s in sources], world.probe_s):
+        credit = f"; credited: {world.credit}" if world.credit else ""
+        text = (
+            f"world {world.name}: nothing configured, so the default open sources ({names}"
+            f"{credit}); others: a [[world]] table of {settings_path()}, or --imagery/--terrain "
+            "SRC (`geofuse cache --providers` lists providers by name)"
+        )
+        messages.add_once(text, text, INFO)
+        return True
+    text = (
+        f"world {world.name}: the default open sources ({names}) did not answer within "
+        f"{world.probe_s:g} s (offline?): the video is projected on the assumed flat ground; "
+        + how_to_configure()
+    )
+    messages.add_once(text, text)
+    return False
+
+
+_DEFERRED: ContextVar[list[WorldRequest] | None] = ContextVar("geofuse_worlds", default=None)
+
+
+@contextmanager
+def deferred_worlds() -> Iterator[list[WorldRequest]]:
+    """Within it, on this thread, resolve_worlds builds no world: it drops each world layer
+    (the flat ground, or the other layers, stand in) and appends what it would have built to
+    the list yielded, for a caller that builds it in the background (the viewer:
+    app.world.background). Other threads build as before."""
+    requests: list[WorldRequest] = []
+    token = _DEFERRED.set(requests)
+    try:
+        yield requests
+    finally:
+        _DEFERRED.reset(token)
+
+
+def deferring(layers: tuple[Layer, ...]) -> bool:
+    """Whether resolve_worlds would defer a world layer among `layers` (deferred_worlds): the
+    flat ground then stands in for it only until it is built, which is no cause for a warning."""
+    return _DEFERRED.get() is not None and any(layer.kind == "world" for layer in layers)
 
 
 def resolve_worlds(
@@ -472,26 +624,41 @@ def resolve_worlds(
     ground_h: float,
     reach_m: float,
     messages: Messages,
+    above_takeoff: bool = False,
 ) -> tuple[Layer, ...]:
     """`layers` with each world layer (world_layer) replaced by the DEM layer built over the
-    track (lat, lon deg, h ellipsoidal m; world_scene), or dropped when none could be built.
-    A progress bar on stderr (a terminal only) while tiles are fetched."""
+    track (lat, lon deg, h ellipsoidal m; world_scene), or dropped when none could be built,
+    and by its buildings fetched over the same area (app.world.overpass), where it has them.
+    A progress bar on stderr (a terminal only) while tiles are fetched; said that it is built
+    before the command goes on. Within deferred_worlds, recorded instead (above_takeoff: the
+    track's heights are above a take-off assumed at ground_h, see WorldRequest)."""
+    deferred = _DEFERRED.get()
+    others = any(layer.kind != "world" for layer in layers)
     out: list[Layer] = []
     for layer in layers:
         if layer.kind != "world":
             out.append(layer)
             continue
-        height = float(np.median(np.asarray(h, np.float64))) - float(ground_h)
-        out.extend(
-            world_scene(
-                layer.world,
-                lat,
-                lon,
-                ground_h,
-                reach_m,
-                height,
-                messages,
-                progress=ProgressBar(f"world {layer.world.name}", sys.stderr),
+        request = WorldRequest(
+            layer,
+            np.array(lat, np.float64),
+            np.array(lon, np.float64),
+            np.array(h, np.float64),
+            float(ground_h),
+            float(reach_m),
+            above_takeoff and not others,
+        )
+        if deferred is not None:
+            deferred.append(request)
+            messages.info(
+                f"world {layer.world.name}: built in the background; the flat ground stands in until its first tiles arrive"
             )
+            continue
+        messages.info(
+            f"world {layer.world.name}: built in full before going on (`geofuse view` streams "
+            "it in instead)"
+        )
+        out.extend(
+            build_world(request, messages, ProgressBar(f"world {layer.world.name}", sys.stderr))
         )
     return tuple(out)

@@ -1,12 +1,13 @@
 """Tiles of one source, from its local archive (MBTiles, PMTiles, GeoPackage) or over HTTP
 through the disk cache (XYZ/TMS templates; a WMTS layer, its capabilities read once and kept in
-the cache too), with every fault said once per source and counted, never raised.
+the cache too; quantized-mesh terrain, its layer.json likewise, only the tiles it says the server
+has asked for), with every fault said once per source and counted, never raised.
 
 Faults: a missing tile (404: the caller draws a coarser level there, or none), a time-out, a
 server that closes mid-tile, a server that asks to slow down (429: its Retry-After honoured up
-to RETRY_WAIT_MAX_S, twice at most), a corrupt tile (not an image), a refused key (401/403: the
-source is given up for the rest of the fetch, named without the key), a fetch that ran out of
-time. Requests carry the source's headers and key; no message holds the URL's query or the key.
+to RETRY_WAIT_MAX_S, twice at most), a corrupt tile (not an image, not a mesh), a refused key
+(401/403: the source is given up for the rest of the fetch, named without the key), a fetch that
+ran out of time. Requests carry the source's headers and key; no message holds the URL's query or the key.
 """
 
 from __future__ import annotations
@@ -29,7 +30,15 @@ from app.core.messages import Messages
 from app.world.archives import ArchiveError, GeoPackageTiles, PMTiles, mbtiles_max_zoom
 from app.world.cache import TileCache
 from app.world.grids import TileGrid
-from app.world.sources import TileSource
+from app.world.quantized import (
+    QuantizedLayer,
+    QuantizedMesh,
+    QuantizedMeshError,
+    decode_mesh,
+    tile_heights,
+)
+from app.world.quantized import read_layer as read_quantized_layer
+from app.world.sources import QUANTIZED_MESH, TileSource
 from app.world.wmts import WmtsError, WmtsLayer, read_layer
 
 REQUEST_TIMEOUT_S = 10.0
@@ -43,21 +52,24 @@ FAULTS = {
     "closed": "cut off by the server mid-tile",
     "throttled": "refused for too many requests (429) after waiting as asked",
     "corrupt": "not a readable image (corrupt)",
+    "corrupt-mesh": "not a readable quantized-mesh tile (corrupt)",
     "forbidden": "refused (401/403: check the key or the token; the source was given up)",
     "error": "failed (other HTTP or network errors)",
     "late": "not fetched within the time allowed",
 }
 SOURCE_FAULTS = {  # faults of the whole source, said before its tiles'
     "capabilities": "its WMTS capabilities could not be used",
+    "layer": "its layer.json could not be used",
     "archive": "the archive could not be read",
 }
-CAPABILITIES_AT = (0, 0, 0)  # where a WMTS's capabilities document is kept in the cache
+CAPABILITIES_AT = (0, 0, 0)  # where a WMTS's capabilities or a layer.json is kept in the cache
 
 
 class SourceFetcher:
     """Decoded tiles of `source` (get), counting requests, cache hits and faults. Tiles are
     addressed as XYZ Web Mercator (z, x, y) where source.web_mercator (templates, MBTiles,
-    PMTiles), else as (level, column, row from the top) of the source's grid()."""
+    PMTiles), else as (level, column, row from the top) of the source's grid() (a quantized-mesh
+    tile is cached and named in messages by the row its server counts, TMS or not)."""
 
     def __init__(
         self,
@@ -80,6 +92,8 @@ class SourceFetcher:
         self._db: sqlite3.Connection | None = None
         self._archive: PMTiles | GeoPackageTiles | None = None
         self._wmts: WmtsLayer | None = None
+        self._qm: QuantizedLayer | None = None
+        self._availability_lock = threading.Lock()
         self._opened = False
         self._open_lock = threading.Lock()
 
@@ -140,15 +154,20 @@ class SourceFetcher:
         except ArchiveError as exc:
             self._whole("archive", str(exc))
             return
-        if form == "wmts":
-            document = self._capabilities()
+        if form in ("wmts", QUANTIZED_MESH):
+            document = self._document()
             if document is None:
                 return
             try:
-                self._wmts = read_layer(document, self.source.location)
-            except WmtsError as exc:
+                if form == "wmts":
+                    self._wmts = read_layer(document, self.source.location)
+                else:
+                    self._qm = read_quantized_layer(
+                        document, self.source.location, self.source.max_zoom
+                    )
+            except (WmtsError, QuantizedMeshError) as exc:
                 self.cache.drop(self._doc_identity, *CAPABILITIES_AT)
-                self._whole("capabilities", str(exc))
+                self._whole(self._doc_kind, str(exc))
 
     def grid(self) -> TileGrid | None:
         """The source's own tile grid (a WMTS layer's TileMatrixSet, a GeoPackage's pyramid);
@@ -158,6 +177,8 @@ class SourceFetcher:
             return None
         if self._wmts is not None:
             return self._wmts.grid
+        if self._qm is not None:
+            return self._qm.grid
         if isinstance(self._archive, GeoPackageTiles):
             return self._archive.grid
         return None
@@ -173,9 +194,14 @@ class SourceFetcher:
         return self.source.max_zoom if finest is None else min(self.source.max_zoom, finest)
 
     def get(self, z: int, x: int, y: int) -> np.ndarray | None:
-        """Tile (z, x, y) as an (H, W, 3) uint8 array, None where it cannot be had (the fault
-        counted). (z, x, y): XYZ Web Mercator for templates, MBTiles and PMTiles; level (the
-        grid's index), column and row from the top of the source's grid() otherwise."""
+        """Tile (z, x, y) as an (H, W, 3) uint8 array (a quantized-mesh tile: its (H, W) float64
+        heights, m above the ellipsoid, sampled at its pixel centres, north row first), None
+        where it cannot be had (the fault counted). (z, x, y): XYZ Web Mercator for templates,
+        MBTiles and PMTiles; level (the grid's index), column and row from the top of the
+        source's grid() otherwise."""
+        if self.source.form == QUANTIZED_MESH:
+            mesh = self.mesh(z, x, y)
+            return None if mesh is None else tile_heights(self._qm, mesh, z, x, y)
         data = self.get_bytes(z, x, y)
         if data is None:
             return None
@@ -194,6 +220,8 @@ class SourceFetcher:
         data = self._bytes(z, x, y)
         if data is None or not check:
             return data
+        if self._qm is not None:
+            return data if self._decoded(data, z, x, y) is not None else None
         try:
             with Image.open(io.BytesIO(data)) as im:
                 im.verify()
@@ -220,7 +248,73 @@ class SourceFetcher:
             return data
         if self._wmts is not None:
             return self._http(z, x, y, self.source.fill(self._wmts.url(z, x, y)))
+        if self._qm is not None:
+            if not self.has(z, x, y):
+                return None  # the layer says the server lacks it: never asked for
+            return self._mesh_bytes(z, x, y)
         return self._http(z, x, y)
+
+    # -- quantized-mesh -------------------------------------------------------------------------
+
+    def _mesh_bytes(self, z: int, x: int, y: int) -> bytes | None:
+        """A quantized-mesh tile's bytes (grid row y from the top), the extensions used asked
+        for, cached and named by the server's row."""
+        extra = {"Accept": self._qm.accept, "Accept-Encoding": "gzip"}
+        url = self.source.fill(self._qm.url(z, x, y))
+        return self._http(z, x, self._qm.server_row(z, y), url, extra=extra)
+
+    def _decoded(self, data: bytes, z: int, x: int, y: int) -> QuantizedMesh | None:
+        """A quantized-mesh tile's mesh, None for one that does not read (counted as corrupt,
+        named by the server's row, and dropped from the cache)."""
+        try:
+            return decode_mesh(data, self._qm.little_endian_extensions)
+        except QuantizedMeshError as exc:
+            row = self._qm.server_row(z, y)
+            self.cache.drop(self.source.identity, z, x, row)
+            self._fault("corrupt-mesh", z, x, row, str(exc))
+            return None
+
+    def mesh(self, z: int, x: int, y: int) -> QuantizedMesh | None:
+        """A quantized-mesh source's tile (level z, column x, grid row y from the top) decoded,
+        None where it cannot be had (the fault counted) or the layer says it is not there."""
+        data = self._bytes(z, x, y)
+        return None if data is None else self._decoded(data, z, x, y)
+
+    def has(self, z: int, x: int, y: int) -> bool:
+        """Whether a quantized-mesh source has tile (z, x, y) (grid rows from the top), by its
+        layer.json's `available` and, where it gives availability in tile metadata, by the
+        metadata of the tiles above (fetched here, through the cache, once each). True for the
+        other forms."""
+        if self._qm is None:
+            return True
+        with self._availability_lock:
+            while True:
+                known = self._qm.available(z, x, y)
+                if known is not None:
+                    return known
+                t = self._qm.to_load(z, x, y)
+                data = self._mesh_bytes(*t)
+                mesh = None if data is None else self._decoded(data, *t)
+                try:
+                    self._qm.add_metadata(*t, None if mesh is None else mesh.metadata)
+                except QuantizedMeshError as exc:
+                    self._fault(
+                        "corrupt-mesh", t[0], t[1], self._qm.server_row(t[0], t[2]), str(exc)
+                    )
+
+    def finest_level(self, bounds: tuple[float, float, float, float], z: int) -> int:
+        """z, or for a quantized-mesh source the finest level no finer than z at which it has
+        any tile over bounds (xmin, ymin, xmax, ymax in its grid's CRS); its tiles missing
+        there are drawn from coarser ones. A layer with no tile there at all is given up (said
+        as the layer's fault)."""
+        if self._qm is None:
+            return z
+        while not any(self.has(*t) for t in self._qm.grid.covering(bounds, z).tiles()):
+            if z == 0:
+                self._whole("layer", "it lists no tile over the clip's area")
+                break
+            z -= 1
+        return z
 
     def _mbtiles(self, z: int, x: int, y: int) -> bytes | None:
         with self._lock:
@@ -241,15 +335,21 @@ class SourceFetcher:
     def _doc_identity(self) -> str:
         return self.source.identity + "|capabilities"
 
-    def _capabilities(self) -> bytes | None:
-        """A WMTS's capabilities document (through the cache, its secrets kept out of it)."""
+    @property
+    def _doc_kind(self) -> str:
+        """The SOURCE_FAULTS kind of the source's own document."""
+        return "layer" if self.source.form == QUANTIZED_MESH else "capabilities"
+
+    def _document(self) -> bytes | None:
+        """The source's own document, a WMTS's capabilities or a quantized-mesh layer.json
+        (through the cache, its secrets kept out of it)."""
         faults = sum(self.faults.values())
         data = self._http(
             *CAPABILITIES_AT, self.source.fill(self.source.location.partition("#")[0]), doc=True
         )
         if data is None:
             if sum(self.faults.values()) == faults:  # not said yet
-                self._whole("capabilities", "no answer")
+                self._whole(self._doc_kind, "no answer")
             return None
         return self._unseal(data)
 
@@ -266,11 +366,17 @@ class SourceFetcher:
         return data
 
     def _http(
-        self, z: int, x: int, y: int, url: str | None = None, doc: bool = False
+        self,
+        z: int,
+        x: int,
+        y: int,
+        url: str | None = None,
+        doc: bool = False,
+        extra: dict[str, str] | None = None,
     ) -> bytes | None:
         """Tile (z, x, y) from the cache or from `url` (default: the source's template's);
-        doc: the source's capabilities document (its faults said as the source's, its secrets
-        sealed in the cache)."""
+        doc: the source's own document (its faults said as the source's, its secrets sealed in
+        the cache); extra: headers sent besides the source's."""
         identity = self._doc_identity if doc else self.source.identity
         fault = self._doc_fault if doc else self._fault
         url = url or self.source.url(z, x, y)
@@ -281,7 +387,7 @@ class SourceFetcher:
             if cached.data is None:
                 fault("missing", z, x, y)
             return cached.data
-        headers = {"User-Agent": USER_AGENT, **self.source.request_headers()}
+        headers = {"User-Agent": USER_AGENT, **(extra or {}), **self.source.request_headers()}
         if cached is not None and cached.etag:
             headers["If-None-Match"] = cached.etag
         for attempt in range(RETRIES_429 + 1):
@@ -332,9 +438,9 @@ class SourceFetcher:
         return None
 
     def _doc_fault(self, kind: str, z: int, x: int, y: int, detail: str = "") -> None:
-        """A fault fetching the capabilities: the whole source's."""
+        """A fault fetching the source's own document: the whole source's."""
         text = "missing (HTTP 404)" if kind == "missing" else FAULTS[kind]
-        self._whole("capabilities", text + (f" ({detail})" if detail else ""))
+        self._whole(self._doc_kind, text + (f" ({detail})" if detail else ""))
 
     def close(self) -> None:
         if self._db is not None:

@@ -5,8 +5,8 @@ cache and, with an output, written into a local archive that `--imagery`/`--terr
 the network off: MBTiles for Web Mercator tiles, GeoPackage for any grid (a WMTS's national
 grid), a GeoTIFF for a GeoTIFF source's window.
 
-Providers whose usage policy forbids bulk download are refused (BULK_REFUSED_HOSTS:
-OpenStreetMap's own tile servers). The size is estimated before anything is fetched, from the
+Providers whose usage policy forbids bulk download are refused (app.world.providers.NO_BULK:
+OpenStreetMap's own tile servers, Esri's ArcGIS Online basemaps). The size is estimated before anything is fetched, from the
 tiles of the same source already in the cache (else TYPICAL_TILE_BYTES).
 """
 
@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import math
 import shutil
-import urllib.parse
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor, as_completed
 from dataclasses import dataclass, field
@@ -28,9 +27,10 @@ from app.world.build import FETCH_WORKERS, PARENT_LEVELS, SourcePlan, plan_world
 from app.world.cache import TileCache
 from app.world.cog import RasterFault, read_window
 from app.world.grids import M_PER_DEG_LAT, GridRange, Matrix, TileGrid
+from app.world.providers import bulk_refusal
 from app.world.settings import World
+from app.world.sources import QUANTIZED_MESH
 
-BULK_REFUSED_HOSTS = ("tile.openstreetmap.org", "tile.osm.org")  # their tile usage policy
 TYPICAL_TILE_BYTES = {"imagery": 25_000, "terrain": 15_000}  # with no tile in the cache yet
 MAX_PREFETCH_TILES = 50_000  # one pre-fetch asks for at most this many tiles
 ARCHIVE_SUFFIXES = (".mbtiles", ".gpkg")
@@ -65,11 +65,10 @@ def refuse_bulk(world: World) -> None:
     for source in (world.imagery, world.terrain):
         if source is None or source.is_local:
             continue
-        host = (urllib.parse.urlsplit(source.location).hostname or "").lower()
-        if any(host == h or host.endswith("." + h) for h in BULK_REFUSED_HOSTS):
+        why = bulk_refusal(source.location)
+        if why:
             raise GeofuseError(
-                f"{source.kind} {source.label}: OpenStreetMap's tile servers forbid bulk "
-                "download (their tile usage policy): pre-fetch from a provider that allows it"
+                f"{source.kind} {source.label}: {why}: pre-fetch from a provider that allows it"
             )
 
 
@@ -120,7 +119,14 @@ def plan_prefetch(
 
 def check_archive(jobs: list[Job], out: Path) -> None:
     """GeofuseError, before anything is fetched, where `out` cannot hold a job's tiles: MBTiles
-    holds Web Mercator tiles only."""
+    holds Web Mercator tiles only; neither holds quantized-mesh tiles (they stay in the cache)."""
+    for job in jobs:
+        src = job.plan.source
+        if src.form == QUANTIZED_MESH:
+            raise GeofuseError(
+                f"{src.kind} {src.label}: quantized-mesh tiles go into no archive here: "
+                "pre-fetch them into the tile cache (no --out)"
+            )
     if out.suffix.lower() != ".mbtiles":
         return
     for job in jobs:

@@ -1,14 +1,17 @@
 """The user's world sources: `[[world]]` tables in the settings file (settings.toml in the
 platform's config folder, app.core.paths.config_dir), chosen by `--world NAME`, or given once by
-`--imagery SRC` / `--terrain SRC`.
+`--imagery SRC` / `--terrain SRC` / `--buildings overpass:[URL]`.
 
     [[world]]
     name = "maptiler"                      # what --world names
     imagery = "https://api.maptiler.com/tiles/satellite-v2/{z}/{x}/{y}.jpg?key={key}"
     terrain = "terrain-rgb:https://api.maptiler.com/tiles/terrain-rgb-v2/{z}/{x}/{y}.webp?key={key}"
     # also: a WMTS capabilities URL (#layer=NAME), an .mbtiles/.pmtiles/.gpkg archive, a
-    # GeoTIFF/COG URL or file (terrain: a DEM, no encoding): app.world.sources
+    # GeoTIFF/COG URL or file (terrain: a DEM, no encoding), a quantized-mesh layer.json URL
+    # (terrain, heights above the ellipsoid), or a provider's name: imagery = "MapTiler.Satellite"
+    # (its template, levels and attribution from the catalogue: app.world.providers)
     attribution = "(c) MapTiler (c) OpenStreetMap contributors"
+    buildings = "overpass:"                # optional: OpenStreetMap buildings (app.world.overpass)
     datum = "egm2008"                      # the terrain's heights (default EGM2008, said)
     key_env = "MAPTILER_KEY"               # the environment variable holding {key}
     headers = { Referer = "https://example.org" }   # optional; values may hold {key} too
@@ -17,7 +20,8 @@ platform's config folder, app.core.paths.config_dir), chosen by `--world NAME`, 
     timeout_s = 60                         # optional: the most a fetch may take, s
 
 With no `--world`, a clip without a scene takes the first table (or the name in the environment
-variable GEOFUSE_WORLD; "none" there keeps the flat ground, as the tests set it).
+variable GEOFUSE_WORLD; "none" there keeps the flat ground, as the tests set it); with no table
+either, the default open sources where the network answers (app.world.defaults).
 """
 
 from __future__ import annotations
@@ -29,7 +33,9 @@ from pathlib import Path
 
 from app.core.errors import GeofuseError
 from app.core.paths import config_dir
-from app.world.sources import SourceError, TileSource, parse_source
+from app.world import defaults
+from app.world.overpass import OverpassSource, parse_overpass
+from app.world.sources import ENCODINGS, SourceError, TileSource, parse_source
 
 NONE = "none"
 ENV_WORLD = "GEOFUSE_WORLD"
@@ -38,6 +44,7 @@ KEYS = {
     "name",
     "imagery",
     "terrain",
+    "buildings",
     "attribution",
     "datum",
     "key_env",
@@ -49,21 +56,53 @@ KEYS = {
 }
 HOW_TO = (
     "to drape the clip on terrain and imagery instead, name tile sources in a [[world]] table of "
-    "{path} (name, imagery, terrain, attribution) and pass --world NAME, or give --imagery URL "
-    "and --terrain terrain-rgb:URL once"
+    "{path} (name, imagery, terrain, attribution) and pass --world NAME, or give --imagery SRC "
+    "and --terrain SRC once (a URL template, a file, or a provider's name: `geofuse cache "
+    "--providers` lists them)"
 )
 
 
 @dataclass(frozen=True)
 class World:
-    """A named world: imagery and/or terrain sources, what they must be credited with, and the
-    longest a fetch may take (s)."""
+    """A named world: imagery and/or terrain sources, what they must be credited with, the
+    longest a fetch may take (s), and where its buildings are fetched from (None: nowhere);
+    probe_s: the default world's (app.world.defaults): the network is asked first whether it
+    answers within this long (s), the flat ground kept where it does not (0: no probe)."""
 
     name: str
     imagery: TileSource | None
     terrain: TileSource | None
     attribution: str = ""
     timeout_s: float = DEFAULT_TIMEOUT_S
+    buildings: OverpassSource | None = None
+    probe_s: float = 0.0
+
+    @property
+    def credit(self) -> str:
+        """What the world must be credited with wherever it is shown or written: its
+        attribution, else each of its sources' (a provider's from the catalogue), once each."""
+        if self.attribution:
+            return self.attribution
+        sources = (self.imagery, self.terrain, self.buildings)
+        return "; ".join(dict.fromkeys(s.attribution for s in sources if s and s.attribution))
+
+
+def default_world() -> World:
+    """The world of a clip when nothing is configured: app.world.defaults' open sources,
+    probed before they are used (probe_s). Raises GeofuseError for a replacement spelt wrongly
+    in GEOFUSE_DEFAULT_IMAGERY/GEOFUSE_DEFAULT_TERRAIN, naming the variable."""
+    out = []
+    for kind, text, env in zip(
+        ("imagery", "terrain"),
+        defaults.spellings(),
+        (defaults.ENV_IMAGERY, defaults.ENV_TERRAIN),
+        strict=True,
+    ):
+        try:
+            out.append(parse_source(text, kind) if text else None)
+        except SourceError as exc:
+            raise GeofuseError(f"{env}: {exc}") from exc
+    return World(defaults.NAME, out[0], out[1], probe_s=defaults.PROBE_TIMEOUT_S)
 
 
 def settings_path() -> Path:
@@ -147,7 +186,7 @@ def _relative_to(text: str, folder: Path) -> str:
     """A source's spelling with a local file resolved against `folder` (prefixes kept)."""
     prefix = ""
     rest = text.strip()
-    for p in ("terrain-rgb:", "terrarium:", "tms:", "wmts:"):
+    for p in (*(e + ":" for e in ENCODINGS), "tms:", "wmts:"):
         if rest.lower().startswith(p):
             prefix, rest = prefix + rest[: len(p)], rest[len(p) :]
     if rest.lower().startswith(("http://", "https://")) or Path(rest).is_absolute():
@@ -171,8 +210,10 @@ def _key(table: dict) -> str | None:
 
 
 def _world(table: dict) -> World:
-    if not table.get("imagery") and not table.get("terrain"):
-        raise SourceError("name an imagery source, a terrain source, or both")
+    if not any(table.get(k) for k in ("imagery", "terrain", "buildings")):
+        raise SourceError(
+            "name an imagery source, a terrain source, buildings (overpass:), or some of them"
+        )
     key = _key(table) if ("key_env" in table or "key" in table) else None
     common = {
         "attribution": str(table.get("attribution", "")),
@@ -198,6 +239,7 @@ def _world(table: dict) -> World:
         terrain,
         common["attribution"],
         float(table.get("timeout_s", DEFAULT_TIMEOUT_S)),
+        parse_overpass(str(table["buildings"])) if table.get("buildings") else None,
     )
 
 
@@ -207,24 +249,29 @@ def choose_world(
     terrain: str | None = None,
     scene_named: bool = False,
     datum: str | None = None,
+    buildings: str | None = None,
 ) -> World | None:
     """The world a command drapes its clip on, None for the flat ground (or the scene named).
 
     name: --world (NAME or 'none'); imagery, terrain: --imagery, --terrain (one-off sources,
     replacing the named world's); scene_named: a --scene/--dem was given (then no world unless
-    asked for); datum: --dem-vertical, the heights of --terrain (default EGM2008). With none of them, GEOFUSE_WORLD's name, else the settings' first world. Raises
+    asked for); datum: --dem-vertical, the heights of --terrain (default EGM2008); buildings:
+    --buildings overpass:[URL] (one-off, as imagery and terrain). With none of them, GEOFUSE_WORLD's name, else the settings' first world. Raises
     GeofuseError for an unknown name, listing the names configured."""
+    given = imagery or terrain or buildings
     if name is not None and name.lower() == NONE:
-        if imagery or terrain:
-            raise GeofuseError("--world none keeps the flat ground: drop --imagery/--terrain")
+        if given:
+            raise GeofuseError(
+                "--world none keeps the flat ground: drop --imagery/--terrain/--buildings overpass:"
+            )
         return None
-    if name is None and not (imagery or terrain):
+    if name is None and not given:
         if scene_named:
             return None
         name = os.environ.get(ENV_WORLD) or None
         if name is not None and name.lower() == NONE:
             return None
-    tables = world_tables() if name is not None or not (imagery or terrain) else []
+    tables = world_tables() if name is not None or not given else []
     world = None
     if name is not None:
         table = next((t for t in tables if t["name"] == name), None)
@@ -235,9 +282,11 @@ def choose_world(
                 + (f"(configured: {names}, or none)" if names else "(none is configured there)")
             )
         world = world_of(table)
-    elif tables and not (imagery or terrain):
+    elif tables and not given:
         world = world_of(tables[0])
-    if not (imagery or terrain):
+    elif not given:
+        world = default_world()  # nothing configured: open sources, where the network answers
+    if not given:
         return world
     try:
         return World(
@@ -250,6 +299,7 @@ def choose_world(
             else None,
             world.attribution if world else "",
             world.timeout_s if world else DEFAULT_TIMEOUT_S,
+            parse_overpass(buildings) if buildings else world.buildings if world else None,
         )
     except SourceError as exc:
         raise GeofuseError(str(exc)) from exc

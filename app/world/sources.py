@@ -12,8 +12,13 @@ Spelling (as `--imagery`, `--terrain` and a settings file's `[[world]]` write it
   (`https://host/ortho.tif`, or a local .tif);
 - terrain: the same tiles behind `terrain-rgb:` (Mapbox/MapTiler: height = -10000 + (R * 65536 +
   G * 256 + B) * 0.1 m) or `terrarium:` (Tilezen/AWS: height = R * 256 + G + B / 256 - 32768 m),
-  or a DEM GeoTIFF/COG as it is (`https://host/dem.tif`: its first band's heights, m).
-  Heights are taken as above the EGM2008 geoid unless the source says otherwise (`datum`).
+  or a DEM GeoTIFF/COG as it is (`https://host/dem.tif`: its first band's heights, m), or
+  Cesium quantized-mesh by its layer.json (`https://host/terrain/layer.json`, or
+  `quantized-mesh:https://host/terrain`, the folder that holds it: app.world.quantized).
+  Heights are taken as above the EGM2008 geoid unless the source says otherwise (`datum`);
+  quantized-mesh heights as above the WGS84 ellipsoid, as the format has them.
+Either may instead be a well-known provider's name (`Esri.WorldImagery`, `AWS.Terrarium`:
+app.world.providers), its template, levels and attribution taken from the catalogue.
 A template may hold `{key}`, and header values too: the key comes from an environment variable
 (`key_env`) or the settings, is sent with every request and is never part of a label, a message
 or a file written (`TileSource.redact`).
@@ -21,18 +26,23 @@ or a file written (`TileSource.redact`).
 
 from __future__ import annotations
 
+import os
 import urllib.parse
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from app.core.errors import GeofuseError
+from app.world import providers
 
-ENCODINGS = ("terrain-rgb", "terrarium")
+QUANTIZED_MESH = "quantized-mesh"  # the encoding and the form of a layer.json's terrain
+ENCODINGS = ("terrain-rgb", "terrarium", QUANTIZED_MESH)
 DATUMS = ("egm2008", "egm96", "ellipsoid")
 DEFAULT_DATUM = "egm2008"
 MAX_ZOOM = {"imagery": 19, "terrain": 15}
-FORMS = ("xyz", "wmts", "mbtiles", "pmtiles", "gpkg", "cog")  # how a source's tiles are had
+QUANTIZED_MAX_ZOOM = 24  # a layer.json's own maxzoom and availability decide, not this
+FORMS = ("xyz", "wmts", "mbtiles", "pmtiles", "gpkg", "cog", QUANTIZED_MESH)  # how tiles are had
+LAYER_JSON = "layer.json"
 ARCHIVES = {".mbtiles": "mbtiles", ".pmtiles": "pmtiles", ".gpkg": "gpkg"}
 GEOTIFF_SUFFIXES = (".tif", ".tiff")
 SECRET_PARAMS = ("key", "token", "access_token", "apikey", "api_key", "sessiontoken")
@@ -47,12 +57,12 @@ class SourceError(GeofuseError):
 @dataclass(frozen=True)
 class TileSource:
     """One tile source. kind: 'imagery' or 'terrain'; location: a URL template (with {z}, {x},
-    {y} or {-y}, perhaps {key}) or an MBTiles path; encoding: a terrain's 'terrain-rgb' or
-    'terrarium' (None for imagery); scheme: 'xyz' or 'tms' rows; datum: a terrain's heights are
-    above this ('egm2008', 'egm96', 'ellipsoid'); headers: (name, value) sent with every request,
-    values perhaps holding {key}; key: the secret put for {key} (never shown); max_zoom: the
-    finest level the source serves; form: how its tiles are had (FORMS; worked out from the
-    location when not given)."""
+    {y} or {-y}, perhaps {key}), a layer.json URL or an MBTiles path; encoding: a terrain's
+    'terrain-rgb', 'terrarium' or 'quantized-mesh' (None for imagery); scheme: 'xyz' or 'tms'
+    rows; datum: a terrain's heights are above this ('egm2008', 'egm96', 'ellipsoid'); headers:
+    (name, value) sent with every request, values perhaps holding {key}; key: the secret put for
+    {key} (never shown); max_zoom: the finest level the source serves; form: how its tiles are
+    had (FORMS; worked out from the location when not given)."""
 
     kind: str
     location: str
@@ -148,6 +158,9 @@ def parse_source(
     """A TileSource from its spelling (module docstring). kind: 'imagery' or 'terrain'. Raises
     SourceError saying what is expected."""
     text = text.strip()
+    named = providers.find(text)  # a well-known provider by its name (app.world.providers)
+    if named is not None:
+        return _provider_source(named, kind, attribution, datum, headers, key, max_zoom)
     encoding = None
     scheme = "xyz"
     for prefix in ENCODINGS:
@@ -162,15 +175,30 @@ def parse_source(
     is_url = text.lower().startswith(("http://", "https://"))
     if form == "wmts" and not is_url:
         raise SourceError(f"{what} {_shown(text)!r}: wmts: goes before a capabilities URL")
+    if encoding == QUANTIZED_MESH:
+        if not is_url:
+            raise SourceError(
+                f"{what} {_shown(text)!r}: quantized-mesh: goes before the http(s) URL of a "
+                "layer.json or of the folder that holds it"
+            )
+        text, form = layer_json_url(text), QUANTIZED_MESH
     try:
         form = form or location_form(text)
     except SourceError as exc:
         raise SourceError(f"{what} {_shown(text)!r}: {exc}") from None
+    if form == QUANTIZED_MESH:
+        if kind == "imagery":
+            raise SourceError(
+                f"{what}: a quantized-mesh layer.json is terrain (--terrain), not imagery"
+            )
+        if encoding not in (None, QUANTIZED_MESH):
+            raise SourceError(f"{what}: a quantized-mesh layer.json holds meshes: drop {encoding}:")
+        encoding = QUANTIZED_MESH
     if kind == "terrain" and encoding is None and form != "cog":
         raise SourceError(
             f"{what} {_shown(text)!r}: name its encoding, e.g. terrain-rgb:URL or terrarium:URL "
             "(PNG tiles; a local .mbtiles, .pmtiles or .gpkg of them, or a WMTS of them, too), "
-            "or give a DEM GeoTIFF (.tif)"
+            "or give a DEM GeoTIFF (.tif) or a quantized-mesh layer.json URL"
         )
     if kind == "terrain" and encoding is not None and form == "cog":
         raise SourceError(f"{what}: a DEM GeoTIFF holds heights: drop {encoding}:")
@@ -185,7 +213,7 @@ def parse_source(
         )
     if form == "mbtiles":
         scheme = "tms"  # MBTiles rows count from the south (the spec's TMS)
-    datum = (datum or DEFAULT_DATUM).lower()
+    datum = (datum or ("ellipsoid" if form == QUANTIZED_MESH else DEFAULT_DATUM)).lower()
     if datum not in DATUMS:
         raise SourceError(f"{what}: datum {datum!r} unknown (expected one of {', '.join(DATUMS)})")
     if ("{key}" in text or any("{key}" in v for v in (headers or {}).values())) and not key:
@@ -201,9 +229,54 @@ def parse_source(
         datum,
         tuple((headers or {}).items()),
         key,
-        max_zoom if max_zoom is not None else MAX_ZOOM[kind],
+        max_zoom
+        if max_zoom is not None
+        else QUANTIZED_MAX_ZOOM
+        if form == QUANTIZED_MESH
+        else MAX_ZOOM[kind],
         form,
     )
+
+
+def _provider_source(
+    p: providers.Provider,
+    kind: str,
+    attribution: str,
+    datum: str | None,
+    headers: dict[str, str] | None,
+    key: str | None,
+    max_zoom: int | None,
+) -> TileSource:
+    """A provider of the catalogue as a source: its template, finest level, credit (the one
+    given replaces it) and terrain encoding; its key the one given, else its environment
+    variable's (providers.key_env)."""
+    if p.kind != kind:
+        raise SourceError(f"{kind} source {p.name}: it is {p.kind} (--{p.kind} {p.name})")
+    if p.key_env and not key:
+        key = os.environ.get(p.key_env) or None
+        if key is None:
+            raise SourceError(
+                f"{kind} source {p.name}: it needs a key: set the environment variable "
+                f"{p.key_env} (or name another in key_env of its [[world]] table)"
+            )
+    return parse_source(
+        p.spelling,
+        kind,
+        attribution or p.attribution,
+        datum or p.datum,
+        headers,
+        key,
+        max_zoom if max_zoom is not None else p.max_zoom,
+    )
+
+
+def layer_json_url(url: str) -> str:
+    """The layer.json URL of a quantized-mesh source spelt by its folder's URL (or by the
+    layer.json's own), its query kept."""
+    base, sep, query = url.partition("?")
+    if not base.lower().endswith("/" + LAYER_JSON):
+        base = base.rstrip("/") + "/" + LAYER_JSON
+    return base + sep + query
 
 
 def split_options(location: str) -> tuple[str, dict[str, str]]:
@@ -233,6 +306,8 @@ def location_form(location: str) -> str:
         if is_capabilities(text):
             return "wmts"
         path = urllib.parse.urlsplit(text).path.lower()
+        if path.endswith("/" + LAYER_JSON):
+            return QUANTIZED_MESH
         return "cog" if path.endswith(GEOTIFF_SUFFIXES) else "xyz"
     suffix = "." + split_options(text)[0].lower().rsplit(".", 1)[-1]
     if suffix in ARCHIVES:
@@ -241,7 +316,8 @@ def location_form(location: str) -> str:
         return "cog"
     raise SourceError(
         "expected an http(s) URL template with {z}/{x}/{y}, a WMTS capabilities URL, a "
-        "GeoTIFF/COG (.tif, local or http(s)) or a local .mbtiles, .pmtiles or .gpkg file"
+        "quantized-mesh layer.json URL, a GeoTIFF/COG (.tif, local or http(s)) or a local "
+        ".mbtiles, .pmtiles or .gpkg file"
     )
 
 

@@ -41,6 +41,7 @@ def run(args: argparse.Namespace) -> int:
         mavlink=args.mavlink,
         hfov_deg=args.fov,
         register=args.register,
+        gnss_accuracy_m=args.gnss_accuracy,
         restream=args.restream,
         sinks=cot.makers(),
     )

@@ -306,6 +306,14 @@ def _stream_options(p: argparse.ArgumentParser) -> None:
         action="store_false",
         help="a stream over a textured scene: do not register keyframes against it (by default they are, in the background, the correction applied forward)",
     )
+    p.add_argument(
+        "--gnss-accuracy",
+        type=number(0.1, 1000.0),
+        default=None,
+        metavar="M",
+        help="a stream's GNSS accuracy, metres (1 sigma per axis), where the feed states none (KLV, MAVLink without GPS_RAW_INT's h_acc): "
+        "the fixes are tested against the registered keyframes with it (default 5)",
+    )
 
 
 def _cot_url(text: str) -> CotTarget:

@@ -111,6 +111,7 @@ def _stream(args: argparse.Namespace, server: MapServer, said: Printer) -> None:
         mavlink=args.mavlink,
         hfov_deg=args.fov,
         register=args.register,
+        gnss_accuracy_m=args.gnss_accuracy,
         silence_s=math.inf,  # a link that drops comes back: keep serving
         sinks=(web_sink_maker(server),),
     )

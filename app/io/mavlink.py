@@ -16,6 +16,10 @@ Messages used (MAVLink's common set, as ArduPilot and PX4 send them):
 - MOUNT_STATUS (ArduPilot): pointing_a pitch, pointing_b roll, pointing_c yaw (centidegrees):
   pitch and roll against the horizon, yaw relative to the vehicle's heading. It has no time stamp:
   it is placed at its arrival through the clock link below.
+- GPS_RAW_INT: h_acc (mm, MAVLink 2's extension; 0: not given), the accuracy the receiver states
+  for its position, which the live GNSS test holds the fixes to (app.live.gnss_watch). Its
+  time_usec may be Unix time or boot time: it is placed at its arrival, as MOUNT_STATUS is. Its
+  eph is a dilution of precision (HDOP x 100), not metres: not used.
 
 The camera: with a gimbal, Rz(heading) Ry(pitch) Rx(roll) of the gimbal, heading = its yaw (plus
 the vehicle's yaw when relative); without one, the vehicle's own rotation (a camera fixed along
@@ -49,9 +53,16 @@ from app.io.streams import HEIGHT_RANGE_M
 
 LINK_WINDOW = 500  # messages over which the fastest sets the boot -> arrival link
 FLAG_YAW_LOCK, FLAG_YAW_IN_VEHICLE, FLAG_YAW_IN_EARTH = 16, 32, 64
-USED = ("GLOBAL_POSITION_INT", "ATTITUDE", "GIMBAL_DEVICE_ATTITUDE_STATUS", "MOUNT_STATUS")
+USED = (
+    "GLOBAL_POSITION_INT",
+    "ATTITUDE",
+    "GIMBAL_DEVICE_ATTITUDE_STATUS",
+    "MOUNT_STATUS",
+    "GPS_RAW_INT",
+)
 ANGLE_LIMIT_RAD = 2.0 * math.pi  # ATTITUDE's angles are -pi..pi; beyond +-2 pi is not an angle
 MOUNT_LIMIT_CDEG = 36_000  # MOUNT_STATUS pointing (centidegrees): beyond a turn is not an angle
+ACCURACY_LIMIT_M = 10_000.0  # GPS_RAW_INT's h_acc: UINT32_MAX mm (4,295 km) is no accuracy
 
 FloatArray = np.ndarray
 
@@ -194,6 +205,8 @@ class MavlinkTelemetry:
         self._gim_t: list[float] = []
         self._gim: list[tuple[float, float, float]] = []
         self._gim_relative = True
+        self._acc_t: list[float] = []
+        self._acc: list[float] = []  # GPS_RAW_INT's h_acc (m)
         self._links: deque[float] = deque(maxlen=LINK_WINDOW)
         self._lock = threading.Lock()
 
@@ -240,7 +253,7 @@ class MavlinkTelemetry:
             boot = float(m["time_boot_ms"]) / 1000.0
         elif self._links:
             boot = arrival_s - min(self._links)
-        else:  # a MOUNT_STATUS before any timed message: nothing places it yet (not a fault)
+        else:  # a MOUNT_STATUS or GPS_RAW_INT before any timed message: nothing places it yet
             return False
         if kind == "GLOBAL_POSITION_INT":
             lat, lon, h, home = _position(m)
@@ -252,6 +265,11 @@ class MavlinkTelemetry:
         elif kind == "GIMBAL_DEVICE_ATTITUDE_STATUS":
             yaw, pitch, roll, self._gim_relative = gimbal_angles(m["q"], int(m.get("flags", 0)))
             self._insert(self._gim_t, self._gim, boot, (yaw, pitch, roll))
+        elif kind == "GPS_RAW_INT":
+            h_acc = float(m.get("h_acc", 0) or 0) / 1000.0
+            if not 0.0 < h_acc < ACCURACY_LIMIT_M:  # not given (0), or no accuracy a fix has
+                return False
+            self._insert(self._acc_t, self._acc, boot, h_acc)
         else:  # MOUNT_STATUS
             pyr = _mount(m)
             self._gim_relative = True
@@ -302,6 +320,15 @@ class MavlinkTelemetry:
             relative = self._gim_relative
         q = camera_quat(vehicle, gimbal, relative)
         return TelemetryPose((float(lat), float(lon), float(h)), q, age, gimbal is not None)
+
+    def accuracy_at(self, boot_s: float) -> float | None:
+        """The horizontal accuracy (m) GPS_RAW_INT last stated at or before boot_s (the first
+        before any), None where none has."""
+        with self._lock:
+            if not self._acc_t:
+                return None
+            i = max(bisect.bisect_right(self._acc_t, boot_s) - 1, 0)
+            return self._acc[i]
 
     def attitude_times(self, since_s: float = -math.inf) -> FloatArray:
         """Boot times (s) of the vehicle attitudes since since_s: where the camera's rotation is

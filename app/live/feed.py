@@ -8,7 +8,9 @@ Poses come from the stream's own KLV, or, given `mavlink`, from MAVLink telemetr
 (app.live.mavlink), its lag behind the video estimated as it flies (app.live.lag). A frame
 whose pose is stale or missing is drawn with the last camera (counted, said once). Over a
 textured scene, keyframes are registered in the background and their correction applied
-forward (app.live.register); over an assumed ground or a grey model, it says why not, once.
+forward (app.live.register), and the feed's GNSS is tested against them as it arrives
+(app.live.gnss_watch: a lie said once and not followed, each frame `used`, `rejected` or
+`missing`); over an assumed ground or a grey model, it says why not, once.
 """
 
 from __future__ import annotations
@@ -35,6 +37,7 @@ from app.io.misb import camera_set
 from app.io.streams import GnssTrack
 from app.io.video import decode_at, media_seconds
 from app.live.buffer import DEFAULT_DELAY_S, Arrival, JitterBuffer
+from app.live.gnss_watch import GnssWatch
 from app.live.lag import LagEstimator
 from app.live.mavlink import MavlinkReceiver
 from app.live.pose import NONE, STALE, LivePoses, MavlinkPoses
@@ -57,8 +60,9 @@ MISSING_AFTER = 50  # MAVLink messages used (2 s of ATTITUDE) before a missing k
 @dataclass
 class Drawn:
     """One frame drawn: its media time (s), when it arrived, when the jitter buffer made it due
-    and when its drawing finished (monotonic s), the pose's state (fresh, stale, none), and
-    whether live registration corrected the pose."""
+    and when its drawing finished (monotonic s), the pose's state (fresh, stale, none),
+    whether live registration corrected the pose, and its GNSS status (app.camera.fixes:
+    used, rejected, missing; None where the fixes are not tested against the scene)."""
 
     pts_s: float
     arrival_s: float
@@ -66,6 +70,7 @@ class Drawn:
     drawn_s: float
     pose: str
     registered: bool = False
+    gnss: str | None = None
 
 
 @dataclass
@@ -141,6 +146,7 @@ class LiveRun:
     frame: LocalFrame | None = None  # the local ENU frame the cameras are in
     mavlink: MavlinkSummary | None = None
     registration: LiveCorrection | None = None
+    gnss: GnssWatch | None = None  # the fixes tested against the registered keyframes
     restream: RestreamCounts | None = None
     messages: Messages = field(default_factory=Messages)
 
@@ -169,6 +175,8 @@ class LiveRun:
             mavlink = f"; {heard.datagrams} datagrams before it opened were not MPEG-TS{mavlink}"
         if self.registration is not None:
             mavlink += f"; {self.registration.line()}"
+        if self.gnss is not None:
+            mavlink += f"; {self.gnss.line()}"
         if self.restream is not None:
             mavlink += f"; {self.restream.line()}"
         return (
@@ -189,7 +197,9 @@ class LiveOptions:
     MPEG-TS; delay_s: the jitter buffer; size: the drawing's (w, h); layers: the scene (else an
     assumed ground); origin: (lat, lon, ellipsoidal h) of the ground's origin; mavlink: a
     pymavlink connection (udp:HOST:PORT) whose telemetry poses the video; hfov_deg: the camera's
-    horizontal field of view where the feed does not say it (None: the KLV's, else 73.7 deg)."""
+    horizontal field of view where the feed does not say it (None: the KLV's, else 73.7 deg);
+    gnss_accuracy_m: the fixes' accuracy (m, 1 sigma per axis) where the feed states none
+    (None: app.register.gnss.CheckSettings.accuracy_m, 5 m)."""
 
     seconds: float | None = None
     record: Path | None = None
@@ -207,6 +217,7 @@ class LiveOptions:
     # where the drawn frames are shared (issue 53): makers of app.share.hub.Sink, each called
     # with the run's Messages once the scene is built
     sinks: tuple = ()
+    gnss_accuracy_m: float | None = None
 
 
 def scene_for(poses: LivePoses | MavlinkPoses, options: LiveOptions, messages: Messages):
@@ -255,6 +266,8 @@ class LiveFeed:
         self.registration: LiveRegistration | None = None
         self.restream: Restreamer | None = None
         self.registered = False  # the last frame taken was drawn with the registered pose
+        self.gnss: GnssWatch | None = None
+        self.gnss_now: str | None = None  # the last frame taken: its GNSS status
 
     def start(self) -> LiveFeed:
         o, messages = self.options, self.run.messages
@@ -356,8 +369,16 @@ class LiveFeed:
         if o.register:
             refusal = scene_refusal(mesh if o.layers else None, o.layers)
             if refusal is None:
-                self.registration = LiveRegistration(mesh, messages).start()
+                self.gnss = GnssWatch(messages, o.gnss_accuracy_m, utc_of=self.poses.utc_of)
+                self.registration = LiveRegistration(
+                    mesh,
+                    messages,
+                    watch=self.gnss,
+                    accuracy_at=self.poses.accuracy_at,
+                    fix_at=self._fix_at,
+                ).start()
                 self.run.registration = self.registration.state
+                self.run.gnss = self.gnss
             else:
                 messages.info(f"live registration off: {refusal}")
         return mesh
@@ -366,7 +387,7 @@ class LiveFeed:
         """The camera of media time t (s) from what has arrived, corrected by the registration
         in force, and its state (fresh, stale, none): the last camera drawn stands in for a
         missing one."""
-        return self._corrected(self._telemetry_camera(t))
+        return self._corrected(self._telemetry_camera(t), t)
 
     @property
     def pose_source(self) -> str:
@@ -377,17 +398,26 @@ class LiveFeed:
             return "registered"
         return "mavlink" if self.mav is not None else "klv"
 
-    def _corrected(self, raw: tuple[Camera, str] | None) -> tuple[Camera | None, str]:
+    def _corrected(
+        self, raw: tuple[Camera, str, float] | None, t: float
+    ) -> tuple[Camera | None, str]:
         if raw is None:
             return self.last_camera, NONE
         reg = self.registration
-        return (reg.correct(raw[0]) if reg is not None else raw[0]), raw[1]
+        return (reg.correct(raw[0], t) if reg is not None else raw[0]), raw[1]
 
-    def _telemetry_camera(self, t: float) -> tuple[Camera, str] | None:
+    def _fix_at(self, t: float) -> np.ndarray | None:
+        """The telemetry's position at media time t (ENU m), None before any."""
+        raw = self._telemetry_camera(t)
+        return None if raw is None else np.asarray(raw[0].position, np.float64)
+
+    def _telemetry_camera(self, t: float) -> tuple[Camera, str, float] | None:
+        """The telemetry's camera of media time t (s), its state and how much older than t the
+        newest pose behind it is (s); None before any."""
         pose = self.poses.at(  # each frame with its own moment's field of view, unless given
             t, self.frame, self.intrinsics, self.options.far_m, self.options.hfov_deg is None
         )
-        return None if pose.camera is None else (pose.camera, pose.state)
+        return None if pose.camera is None else (pose.camera, pose.state, pose.age_s)
 
     def take(self, now: float) -> tuple[Arrival, float, Camera, str] | None:
         """The frame due at now with when it was due, its camera and the pose's state; None
@@ -398,7 +428,7 @@ class LiveFeed:
         if item is None:
             return None
         raw = self._telemetry_camera(item.pts_s)
-        camera, state = self._corrected(raw)
+        camera, state = self._corrected(raw, item.pts_s)
         if raw is not None:
             self.registered = camera is not raw[0]  # (a correction makes a new camera)
         if raw is not None and self.registration is not None:
@@ -416,6 +446,8 @@ class LiveFeed:
         if camera is None:
             return None
         self.last_camera = camera
+        if self.gnss is not None:  # the frame's GNSS status (a pose held: as old as it is)
+            self.gnss_now = self.gnss.frame(item.pts_s, raw[2] if raw is not None else math.inf)
         return item, due, camera, state
 
     def restream_frame(self, pts_s: float, camera: Camera) -> None:

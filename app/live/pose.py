@@ -68,6 +68,7 @@ class LivePoses:
         self.without_pose = 0  # sets that arrived with a position or angles in error
         self.jumps = 0  # sets whose position no platform could reach from the set before it
         self._jump_run = 0  # of them, in a row
+        self._utc_link: float | None = None  # Unix s - media s, from the first set with a time
         self._lock = threading.Lock()
 
     def add(self, t: float, s: LocalSet) -> bool:
@@ -83,6 +84,8 @@ class LivePoses:
             return False
         fov = s.get("hfov_deg")
         centre = one.centre_heights()[0]
+        if self._utc_link is None and s.time_us is not None:
+            self._utc_link = s.time_us / 1e6 - t
         here = (float(g.lat[0]), float(g.lon[0]), float(g.h[0]))
         with self._lock:
             i = bisect.bisect_right(self.t, t)
@@ -105,6 +108,16 @@ class LivePoses:
             if np.isfinite(centre):
                 self.centre_h = float(centre)
         return True
+
+    def utc_of(self, t: float) -> float | None:
+        """The UTC (Unix s) of media time t (s) by the sets' Precision Time Stamp (tag 2),
+        None before a set gave one."""
+        return None if self._utc_link is None else t + self._utc_link
+
+    def accuracy_at(self, t: float) -> float | None:
+        """The accuracy (m) the feed states for its fix at media time t (s): ST 0601 states
+        none."""
+        return None
 
     def first(self) -> tuple[float, float, float] | None:
         """The first position (lat, lon, ellipsoidal h), None before any."""
@@ -184,6 +197,16 @@ class MavlinkPoses:
 
     def first(self) -> tuple[float, float, float] | None:
         return self.telemetry.first()
+
+    def utc_of(self, t: float) -> float | None:
+        """None: the autopilot's boot clock is not UTC."""
+        return None
+
+    def accuracy_at(self, t: float) -> float | None:
+        """The horizontal accuracy (m) GPS_RAW_INT states (h_acc) at media time t (s), None
+        where it states none or before both clocks are linked."""
+        c = self.boot_offset()
+        return None if c is None else self.telemetry.accuracy_at(t + c + self.offset_s)
 
     def ground(self) -> tuple[float, str] | None:
         h = self.telemetry.home_h

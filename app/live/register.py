@@ -1,15 +1,32 @@
 """Registration of a live feed, forward only: keyframes registered in the background against the
-scene (app.register's render-and-compare, from the pose the telemetry gives), and the correction
-they find applied to the frames drawn from then on, never to frames already drawn.
+scene (app.register's render-and-compare), and the correction they find applied to the frames
+drawn from then on, never to frames already drawn.
 
-The correction is a bias, as a GNSS position and a gimbal's angles carry one: a shift (ENU m,
-the position's) and a rotation in the camera's own frame (the angles': a gimbal's heading, pitch
-or mounting bias stays the same turn of the camera while the aircraft turns, which a rotation
-fixed in the world would not) between the telemetry's camera and the registered one. The applied
-correction is the median of the last KEEP registered keyframes' (position componentwise, rotation
-by its rotation vector); a keyframe farther than GATE_M or GATE_DEG from it, once GATED have been
-kept, is set aside (counted) as a mismatch. A keyframe is offered every `every_s` of video while
-the thread is free (never queued: the newest frame is what matters live); the display never waits.
+The correction is a bias, as a GNSS position and a gimbal's angles carry one: a shift (ENU m, the
+position's) and a rotation in the camera's own frame (the angles': a gimbal's heading, pitch or
+mounting bias stays the same turn of the camera while the aircraft turns, which a rotation fixed in
+the world would not) between the telemetry's camera and the registered one. The applied rotation is
+the median of the last KEEP kept keyframes' (by its rotation vector). The applied shift, while the
+keyframe's fix agrees with the scene, is the median of the last KEEP agreeing keyframes' within
+KEEP_S of the newest (componentwise: a GNSS wanders by about a metre in a few seconds, and an older
+keyframe's shift only lags it). Where the GNSS lies (app.live.gnss_watch: the newest keyframe's own
+fix beyond its threshold, before any alarm is said) the drawn pose stands on the scene: the shift
+is the line through the last LIE_FIT disagreeing keyframes' shifts (Theil-Sen; one: held; an axis
+moving slower than RATE_MIN_MPS: their median), carried on in time (a drag-off grows steadily, a
+jump holds) for at most HOLD_S past the newest.
+
+Each keyframe is searched from the camera drawn at its time (the telemetry's, corrected); before
+that from where the last two registered keyframes lead at constant velocity, and from where the
+last one leads carried by the telemetry's own motion since (its steps faster than any platform left
+out: a jump), each where it lies more than RegistrationSettings.chain_m from those tried after it
+(a GNSS that jumps or drags off must not lose the scene); last from the telemetry's own camera. A
+keyframe is kept where it agrees with the correction (within GATE_M of the camera drawn) or with
+the scene's own motion (within the chain's reach, chain_m plus half ACCEL_MPS2 t^2 up to
+CHAIN_MAX_M, of where the last two registered keyframes, within CHAIN_S, lead): once GATED have
+been kept, one that agrees with neither is set aside (counted) as a mismatch; once TURN_GATED have
+been kept, so is one whose rotation lies more than GATE_DEG from the rotation in force (a GNSS lie
+moves the position, never the attitude). A keyframe is offered every `every_s` of video while the
+thread is free (never queued: the newest frame is what matters live); the display never waits.
 
 One thread with its own off-screen GL context renders the scene for the matcher.
 """
@@ -17,30 +34,56 @@ One thread with its own off-screen GL context renders the scene for the matcher.
 from __future__ import annotations
 
 import threading
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
+from scipy.stats import theilslopes
 
 from app.camera.pinhole import Camera
 from app.core.messages import Messages
 from app.core.worker import Worker
 from app.geodesy import rotations
+from app.io.streams import MAX_SPEED_MPS
+from app.live.gnss_watch import GnssWatch
 from app.playback.decoder import planes_to_rgb
+from app.register.keyframe import posed
 from app.register.solve import Registrar, RegistrationSettings
 from app.scene.mesh import MeshData
 
 EVERY_S = 1.0  # a keyframe offered every this much video (s)
 KEEP = 5
+KEEP_S = 3.0  # the agreeing keyframes' shifts a median is taken of: within this of the newest (s)
 GATE_M, GATE_DEG, GATED = 2.0, 1.5, 3
+TURN_GATED = 2  # the rotation is gated once this many keyframes are kept (the attitude is not GNSS)
+CHAIN_S = 6.0  # the chain: the last two registered keyframes within this many seconds
+CHAIN_MAX_M = 10.0  # the chain's reach at most (keyframes far apart: a gate that keeps anything)
+STEP_S = 0.1  # the telemetry's motion since the last registered keyframe summed in these steps (s)
+LIE_FIT = 4  # disagreeing keyframes the shift's line is drawn through
+RATE_MIN_MPS = 0.3  # slower, a line through a few keyframes is their own noise (~0.1 m)
+HOLD_S = 5.0  # the line carried on at most this long past the newest keyframe (s)
+ACCEL_MPS2 = 3.0  # the platform's acceleration the chain allows for (a drone's weave: 3.3)
 LIVE_SETTINGS = RegistrationSettings(long_side=640, max_iterations=5)
+
+
+@dataclass(frozen=True)
+class Kept:
+    """A keyframe kept: media time (s), shift (ENU m) and rotation vector (rad, camera frame)
+    from the telemetry's camera to the registered one, and whether its fix disagreed with the
+    scene beyond the threshold (app.live.gnss_watch.Verdict.disagrees)."""
+
+    t_s: float
+    shift: np.ndarray
+    rotvec: np.ndarray
+    on_scene: bool
 
 
 @dataclass
 class LiveCorrection:
     """What registration has found so far: keyframes tried, registered, set aside; the applied
-    shift (ENU m) and rotation (rotation vector, rad, camera frame); the first media time it
-    applied from."""
+    shift (ENU m) at media time at_s, growing at rate_mps (ENU m/s, zero while the GNSS agrees)
+    and rotation (rotation vector, rad, camera frame); the first media time it applied from."""
 
     tried: int = 0
     registered: int = 0
@@ -49,7 +92,14 @@ class LiveCorrection:
     rotvec: np.ndarray | None = None
     since_s: float | None = None
     last_failure: str = ""
-    kept: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
+    kept: list[Kept] = field(default_factory=list)
+    rate_mps: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    at_s: float = 0.0
+
+    def shift_at(self, t_s: float) -> np.ndarray:
+        """The shift (ENU m) applied to the frame of media time t_s (s)."""
+        dt = float(np.clip(t_s - self.at_s, -HOLD_S, HOLD_S))
+        return self.shift_m + self.rate_mps * dt
 
     def line(self) -> str:
         if self.shift_m is None:
@@ -63,7 +113,10 @@ class LiveCorrection:
 
 
 class LiveRegistration(Worker):
-    """See the module docstring. mesh: the scene (textured: app.session.model.scene_refusal)."""
+    """See the module docstring. mesh: the scene (textured: app.session.model.scene_refusal);
+    watch: where each kept keyframe's fix is tested against the scene (None: not tested);
+    accuracy_at(media s): the accuracy (m) the feed states for its fix then, None: none;
+    fix_at(media s): the telemetry's position then (ENU m, None: none yet)."""
 
     def __init__(
         self,
@@ -71,12 +124,17 @@ class LiveRegistration(Worker):
         messages: Messages,
         every_s: float = EVERY_S,
         settings: RegistrationSettings = LIVE_SETTINGS,
+        watch: GnssWatch | None = None,
+        accuracy_at: Callable[[float], float | None] = lambda t: None,
+        fix_at: Callable[[float], np.ndarray | None] = lambda t: None,
     ) -> None:
         self.mesh, self.messages, self.every_s, self.settings = mesh, messages, every_s, settings
+        self.watch, self.accuracy_at, self.fix_at = watch, accuracy_at, fix_at
         self.state = LiveCorrection()
         self._lock = threading.Lock()
         self._offer: tuple[float, tuple, Camera] | None = None
         self._last_offered: float | None = None
+        self._solved: list[tuple[float, np.ndarray]] = []  # the last registered: (t, ENU m)
         self._busy = False
         super().__init__("geofuse-register")
 
@@ -91,12 +149,14 @@ class LiveRegistration(Worker):
         self._busy = True
         self._wake.set()
 
-    def correct(self, camera: Camera) -> Camera:
-        """The telemetry's camera moved by the correction in force (itself before any)."""
+    def correct(self, camera: Camera, t: float) -> Camera:
+        """The telemetry's camera of media time t (s) moved by the correction in force (itself
+        before any)."""
         with self._lock:
-            shift, rotvec = self.state.shift_m, self.state.rotvec
-        if shift is None:
-            return camera
+            s = self.state
+            if s.shift_m is None:
+                return camera
+            shift, rotvec = s.shift_at(t), s.rotvec
         q = rotations.multiply(
             np.asarray(camera.orientation, np.float64), rotations.from_rotvec(rotvec)
         )
@@ -126,6 +186,53 @@ class LiveRegistration(Worker):
         finally:
             registrar.release()
 
+    def _chained(self, t: float) -> tuple[np.ndarray, float] | None:
+        """(where the last two registered keyframes, within CHAIN_S of t, lead at constant
+        velocity at media time t (ENU m), how far ahead that is (s)); None where they do not."""
+        near = [(k, p) for k, p in self._solved[-2:] if t - k <= CHAIN_S]
+        if len(near) < 2 or near[1][0] <= near[0][0]:
+            return None
+        (ta, pa), (tb, pb) = near
+        return pb + (pb - pa) / (tb - ta) * (t - tb), t - tb
+
+    def _carried(self, t: float) -> np.ndarray | None:
+        """Where the last registered keyframe leads at media time t carried by the telemetry's
+        own motion since (ENU m), summed over STEP_S steps, those faster than any platform
+        (app.io.streams.MAX_SPEED_MPS: a jump) left out; None before any or without a fix."""
+        if not self._solved:
+            return None
+        t1, p1 = self._solved[-1]
+        times = np.linspace(t1, t, max(2, int(np.ceil((t - t1) / STEP_S)) + 1))
+        fixes = [self.fix_at(float(x)) for x in times]
+        if any(f is None for f in fixes):
+            return None
+        steps = np.diff(np.asarray(fixes, np.float64), axis=0)
+        dt = max(float(times[1] - times[0]), 1e-6)
+        steps[np.linalg.norm(steps[:, :2], axis=1) > MAX_SPEED_MPS * dt] = 0.0
+        return p1 + steps.sum(axis=0)
+
+    def _search(self, registrar: Registrar, rgb, t: float, prior: Camera):
+        """(the last try's fix, the solved camera or None, the camera drawn at t, the chain's
+        lead (position, seconds ahead) or None): see the module docstring's order."""
+        start = self.correct(prior, t)
+        chain = self._chained(t)
+        tries = [start]
+        heads = [chain[0]] if chain is not None else []
+        carried = self._carried(t)
+        if carried is not None:
+            heads.append(carried)
+        for head in reversed(heads):  # the chain first, then the fix's motion, then `start`
+            if all(np.linalg.norm(head - np.asarray(c.position)) > self.settings.chain_m for c in tries):  # fmt: skip
+                tries.insert(0, posed(start, head, np.asarray(start.orientation)))
+        if start is not prior:
+            tries.append(prior)
+        fix = None
+        for cam in tries:
+            fix, solved, _ = registrar.keyframe(rgb, cam)
+            if solved is not None:
+                return fix, solved, start, chain
+        return fix, None, start, chain
+
     def _keyframe(self, registrar: Registrar, t: float, planes, prior: Camera) -> None:
         rgb = planes_to_rgb(planes)
         long_side = max(rgb.shape[:2])
@@ -136,33 +243,36 @@ class LiveRegistration(Worker):
                 (round(rgb.shape[1] * f), round(rgb.shape[0] * f)),
                 interpolation=cv2.INTER_AREA,
             )
-        fix, solved, _ = registrar.keyframe(rgb, prior)
+        fix, solved, start, chain = self._search(registrar, rgb, t, prior)
         s = self.state
         s.tried += 1
         if solved is None:
             s.last_failure = fix.reason
             return
-        shift = np.asarray(solved.position) - np.asarray(prior.position)
+        where = np.asarray(solved.position, np.float64)
+        self._solved = (self._solved + [(t, where)])[-2:]
+        shift = where - np.asarray(prior.position)
         delta = rotations.multiply(
             rotations.conjugate(np.asarray(prior.orientation)), np.asarray(solved.orientation)
         )
         rotvec = rotations.to_scipy(delta).as_rotvec()
-        if (
-            len(s.kept) >= GATED
-            and s.shift_m is not None
-            and (
-                np.linalg.norm(shift - s.shift_m) > GATE_M
-                or np.degrees(np.linalg.norm(rotvec - s.rotvec)) > GATE_DEG
-            )
-        ):
+        turned = (
+            len(s.kept) >= TURN_GATED and np.degrees(np.linalg.norm(rotvec - s.rotvec)) > GATE_DEG
+        )
+        if turned or (len(s.kept) >= GATED and not self._agrees(where, start, chain)):
             s.mismatched += 1
             return
         s.registered += 1
-        s.kept = (s.kept + [(shift, rotvec)])[-KEEP:]
+        on_scene = False
+        if self.watch is not None:
+            verdict = self.watch.keyframe(t, np.asarray(prior.position), where, self.accuracy_at(t))
+            on_scene = verdict.disagrees
+        s.kept = (s.kept + [Kept(t, shift, rotvec, on_scene)])[-max(KEEP, LIE_FIT) :]
         first = s.shift_m is None
+        shift_now, rate = shift_model(s.kept)
         with self._lock:
-            s.shift_m = np.median([k[0] for k in s.kept], axis=0)
-            s.rotvec = np.median([k[1] for k in s.kept], axis=0)
+            s.shift_m, s.rate_mps, s.at_s = shift_now, rate, t
+            s.rotvec = np.median([k.rotvec for k in s.kept[-KEEP:]], axis=0)
             if first:
                 s.since_s = t
         if first:
@@ -170,3 +280,41 @@ class LiveRegistration(Worker):
                 f"registered live from {t:.1f} s: the telemetry's pose was {np.linalg.norm(shift):.1f} m and "
                 f"{np.degrees(np.linalg.norm(rotvec)):.1f} deg off; corrected from then on"
             )
+
+    def _agrees(self, where: np.ndarray, start: Camera, chain) -> bool:
+        """Whether a registered keyframe's position (ENU m) agrees with the camera drawn
+        (`start`) or with the scene's own motion (`chain`: where the last registered keyframes
+        lead, and how far ahead (s))."""
+        if np.linalg.norm(where - np.asarray(start.position)) <= GATE_M:
+            return True
+        if chain is None:
+            return False
+        reach = min(self.settings.chain_m + 0.5 * ACCEL_MPS2 * chain[1] ** 2, CHAIN_MAX_M)
+        return bool(np.linalg.norm(where - chain[0]) <= reach)
+
+
+def shift_model(kept: list[Kept]) -> tuple[np.ndarray, np.ndarray]:
+    """(the shift at the newest kept keyframe's time (ENU m), its rate (ENU m/s)) from the kept
+    keyframes (oldest first): the trailing run of those standing as the newest does (on the
+    scene or not); the median of the last KEEP of an agreeing run within KEEP_S of the newest, no
+    rate; the line through the
+    last LIE_FIT of a disagreeing run (one: held), on each axis where it moves RATE_MIN_MPS or
+    more (elsewhere their median, held)."""
+    run: list[Kept] = []
+    for k in reversed(kept):
+        if k.on_scene != kept[-1].on_scene:
+            break
+        run.insert(0, k)
+    if not kept[-1].on_scene:
+        recent = [k.shift for k in run[-KEEP:] if k.t_s >= run[-1].t_s - KEEP_S]
+        return np.median(recent, axis=0), np.zeros(3)
+    run = run[-LIE_FIT:]
+    shifts = np.array([k.shift for k in run])
+    if len(run) < 2:
+        return shifts[-1], np.zeros(3)
+    t = np.array([k.t_s for k in run]) - run[-1].t_s
+    # Theil-Sen on each axis: one keyframe registered astray among three moves neither
+    rate = np.array([theilslopes(shifts[:, j], t)[0] for j in range(3)])
+    at_newest = np.median(shifts - rate * t[:, None], axis=0)
+    steady = np.abs(rate) < RATE_MIN_MPS  # no trend: the registrations' own noise, held
+    return np.where(steady, np.median(shifts, axis=0), at_newest), np.where(steady, 0.0, rate)

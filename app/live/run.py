@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from pathlib import Path
 from urllib.parse import urlsplit
 
 from app.camera.intrinsics import Intrinsics
@@ -21,8 +22,9 @@ from app.render.offscreen import OffscreenTarget
 from app.render.renderer import FusionRenderer
 from app.render.still import window_camera
 from app.share.hub import Offer, Share
+from app.simulate.feed import Sender, free_udp_port, sending_clock
 
-__all__ = ["Drawn", "LiveOptions", "LiveRun", "offer_drawn", "open_share", "run_live"]
+__all__ = ["Drawn", "LiveOptions", "LiveRun", "offer_drawn", "open_share", "run_live", "run_sent"]
 
 VIEW_HFOV_DEG = 60.0  # the off-screen view, third person behind the projector
 
@@ -76,7 +78,9 @@ def run_live(
             view = window_camera(camera, view_intr, None, None, options.far_m)
             renderer.draw(view, target.fbo)
             wait_for_gpu(ctx)
-            d = Drawn(item.pts_s, item.arrival_s, due, clock(), state, feed.registered)
+            d = Drawn(
+                item.pts_s, item.arrival_s, due, clock(), state, feed.registered, feed.gnss_now
+            )
             run.add_drawn(d)
             feed.restream_frame(item.pts_s, camera)
             if share is not None:
@@ -92,6 +96,23 @@ def run_live(
             renderer.release()
             ctx.release()
     return run
+
+
+def run_sent(
+    path: Path,
+    options: LiveOptions,
+    on_drawn: Callable[[Drawn, Camera], None] | None = None,
+) -> LiveRun:
+    """A recorded MPEG-TS (a simulated downlink) sent to this process over the loopback in real
+    time, paced by its program clock (app.simulate.feed.Sender), from the moment run_live's
+    receiver listens, and received, drawn and summed up by run_live: what the tests and
+    benchmarks of live feeds run."""
+    port = free_udp_port()
+    sender = Sender(Path(path).read_bytes(), ("127.0.0.1", port))
+    try:
+        return run_live(f"udp://127.0.0.1:{port}", options, sending_clock(sender, port), on_drawn)
+    finally:
+        sender.stop()
 
 
 def open_share(feed: LiveFeed, mesh, sinks: tuple) -> Share:
@@ -111,6 +132,7 @@ def offer_drawn(share: Share, feed: LiveFeed, item, camera: Camera) -> None:
             float(item.pts_s),
             clip=without_credentials(feed.url),
             source=feed.pose_source,
+            gnss=feed.gnss_now,
             picture=item.payload if share.due() else None,
         )
     )

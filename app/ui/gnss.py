@@ -16,6 +16,7 @@ import numpy.typing as npt
 
 from app.camera.fixes import MISSING, REJECTED, USED, outage_said
 from app.camera.trajectory import gap_intervals
+from app.live.gnss_watch import GnssWatch
 from app.session.camera_track import CameraTrack
 from app.session.model import REGISTERED, Session
 
@@ -28,8 +29,14 @@ COLOURS: dict[str, RGBA] = {  # the timeline's band and the Stats panel's line, 
 CARRIED = "the registered keyframes carry the track"  # as app.solve.track.say_outages says it
 MEANING = {
     USED: "the fix is in the track",
-    REJECTED: "the fix disagrees with the scene: the track stands on the registered keyframes",
+    REJECTED: "the fix disagrees with the scene or the IMU's motion: the track stands on the "
+    "registered keyframes (and the IMU's motion between them)",
     MISSING: f"no fix: {CARRIED}",
+}
+LIVE_MEANING = {  # a live frame's status (app.live.gnss_watch)
+    USED: "the fix poses it, tested against the registered keyframes",
+    REJECTED: "the fix disagrees with the scene: the pose stands on the registered keyframes",
+    MISSING: "no fix: the last pose is held",
 }
 GRAB_PADDING_PX = 2.0  # ImGui's slider: its grab's centre runs this far plus half the grab in
 
@@ -195,3 +202,31 @@ def state(L, index: int, band: tuple[float, float, float, float] | None) -> dict
         "duration_s": float(L.clock.duration),
         "colours": {k: [round(255 * c) for c in rgba[:3]] for k, rgba in COLOURS.items()},
     }
+
+
+def live_said(
+    watch: GnssWatch | None, status: str | None, t_s: float
+) -> list[tuple[str, str | None]]:
+    """What the Live and Stats panels say of a stream's frame shown now (media time t_s s, its
+    GNSS status; None: none taken yet), with the status each line speaks of (None: no status):
+    the status, and while they last the lie's alarm and an outage."""
+    if watch is None:
+        return [("GNSS: not tested (live registration is off, or no textured scene to register against)", None)]  # fmt: skip
+    if status is None:
+        return [("GNSS: tested once frames are drawn", None)]
+    return [(f"GNSS this frame: {status} ({LIVE_MEANING[status]})", status), *watch.said_now(t_s)]
+
+
+def live_runs(watch: GnssWatch | None, span: tuple[float, float]) -> tuple[Run, ...]:
+    """A stream's frames in a row with one status (app.live.gnss_watch.GnssWatch.runs) over
+    the recorded span (first, last media s), on the live scrubber's time (0 at the span's first
+    second); () where the fixes are not tested."""
+    if watch is None:
+        return ()
+    t0, t1 = span
+    out = []
+    for a, b, status in list(watch.runs):
+        a, b = max(a, t0), min(b, t1)
+        if b >= a:
+            out.append(Run(a - t0, b - t0, status))
+    return tuple(out)

@@ -14,7 +14,7 @@ import logging
 import math
 import time
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -24,6 +24,7 @@ from app.live.feed import Drawn, LiveFeed, LiveOptions, LiveRun
 from app.live.recorder import SegmentRecorder
 from app.render.renderer import FusionRenderer
 from app.scene.mesh import MeshData
+from app.ui.gnss import live_said
 from app.ui.navigation import Navigator, chase
 
 log = logging.getLogger("geofuse.viewer")
@@ -155,7 +156,9 @@ def update(v) -> None:
                 v.nav = home(camera)
             _show(L, item, camera)
             L.pose_state = state
-            L.pending = Drawn(item.pts_s, item.arrival_s, due, math.nan, state)
+            L.pending = Drawn(
+                item.pts_s, item.arrival_s, due, math.nan, state, feed.registered, feed.gnss_now
+            )
             L.reviewed_s = None
         return
     feed.discard_due(now)  # arriving frames are recorded, not shown, while reviewing
@@ -183,7 +186,7 @@ def swapped(v) -> None:
         return
     shown_at = L.feed.clock()
     d = L.pending
-    L.run.add_drawn(Drawn(d.pts_s, d.arrival_s, d.due_s, shown_at, d.pose))
+    L.run.add_drawn(replace(d, drawn_s=shown_at))
     L.pose_states[d.pose] = L.pose_states.get(d.pose, 0) + 1
     L.pending = None
 
@@ -212,4 +215,5 @@ def state(v) -> dict:
         "projector": None if proj is None else {"position": list(map(float, proj.position)), "orientation": list(map(float, proj.orientation))},
         "mavlink_lag_s": None if run.mavlink is None else run.mavlink.lag_s,
         "registration": None if run.registration is None else run.registration.line(),
+        "gnss": {"frame": L.feed.gnss_now, "said": [t for t, _ in live_said(L.feed.gnss, L.feed.gnss_now, L.shown_s or 0.0)]},
     }  # fmt: skip

@@ -1,11 +1,16 @@
 """The Live panel (a stream open instead of a session): what is shown (the live edge or a moment
-under review), a scrubber over everything recorded so far, "Live" back to the edge, and what
-arrived and what was lost."""
+under review) and, beside it, "GNSS REJECTED" or "NO GNSS" while the fixes lie or are missing
+(the Stats panel says the lie), a scrubber over everything recorded so far (a band along it:
+each frame's GNSS status, green used, red rejected, grey missing), "Live" back to the edge, and
+what arrived and what was lost."""
 
 from __future__ import annotations
 
 from imgui_bundle import imgui
 
+from app.camera.fixes import MISSING, REJECTED
+from app.ui import gnss
+from app.ui.panels.timeline import band
 from app.ui.panels.widgets import AMBER, colour, run, window
 
 
@@ -23,6 +28,12 @@ def draw(v, now: float) -> None:
             imgui.same_line()
             if imgui.button("Live"):
                 run(v, "live", "edge", now)
+        if L.feed.gnss_now in (REJECTED, MISSING):  # the Stats panel says why
+            imgui.same_line()
+            imgui.text_colored(
+                colour(gnss.COLOURS[L.feed.gnss_now]),
+                "GNSS REJECTED" if L.feed.gnss_now == REJECTED else "NO GNSS",
+            )
         imgui.same_line()
         changed, on = imgui.checkbox("follow", v.nav.mode == "follow")
         if changed:
@@ -40,6 +51,9 @@ def draw(v, now: float) -> None:
             changed, t = imgui.slider_float("##live-scrub", t, span[0], span[1], "%.2f s")
             if changed:
                 run(v, "live", f"at {t}", now)
+            runs = gnss.live_runs(L.feed.gnss, span)
+            if runs:
+                band(runs, span[1] - span[0])
             imgui.text_disabled(f"recorded {span[0]:.1f} to {span[1]:.1f} s in {L.folder}/")
         imgui.text(
             f"received {r.received}  drawn {r.frames_drawn}  lost on the way {r.missing}  "

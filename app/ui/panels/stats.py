@@ -1,5 +1,5 @@
-"""The Stats panel: what posed the frame shown (its GNSS status under `registered`, and the lie or
-outage it is in: app.ui.gnss), frame rate and time, the decode queue, latency, dropped frames,
+"""The Stats panel: what posed the frame shown (its GNSS status under `registered`, or a stream's
+as its live test says it, and the lie or outage it is in: app.ui.gnss), frame rate and time, the decode queue, latency, dropped frames,
 triangles, 3D Tiles on the GPU."""
 
 from __future__ import annotations
@@ -34,6 +34,8 @@ def draw(v) -> None:
             f"dropped frames {player.stats.dropped} (decoder skipped {player.decoder.skipped})   depth redraws {v.stats.depth_redraws}"
         )
         r = v.loaded.renderer
+        if v.loaded.world is not None:
+            imgui.text_wrapped(v.loaded.world.status())
         imgui.text(
             f"triangles drawn {r.scene_pass.triangles:,}   in the depth map {r.depth.triangles:,}"
         )
@@ -51,7 +53,11 @@ def draw(v) -> None:
 def _gnss(v) -> None:
     """The frame's GNSS status in its timeline colour, and the lie or outage it is in."""
     L = v.loaded
-    said = gnss.frame_said(L.session, L.source, L.library.track(L.source), v.current_index)
+    said_lines(gnss.frame_said(L.session, L.source, L.library.track(L.source), v.current_index))
+
+
+def said_lines(said: list[tuple[str, str | None]]) -> None:
+    """Lines with the GNSS status each speaks of, in its timeline colour (None: greyed)."""
     for text, status in said:
         shade = (
             imgui.get_style_color_vec4(imgui.Col_.text_disabled)
@@ -77,3 +83,5 @@ def _live(v, fps: float, ft: np.ndarray) -> None:
     r = v.live.renderer
     if r is not None:
         imgui.text(f"triangles drawn {r.scene_pass.triangles:,}")
+    L = v.live
+    said_lines(gnss.live_said(L.feed.gnss, L.feed.gnss_now, L.shown_s or 0.0))

@@ -48,18 +48,21 @@ def draw(v, now: float) -> None:
 
 def _gnss_band(v) -> None:
     """Along the scrubber (the last item drawn) a band of the frames' GNSS status under the
-    registered source (green used, red rejected, grey missing), each frame's colour under the
-    grab's position at its time; where it lies kept in v.ui.gnss_band (framebuffer pixels)."""
+    registered source; where it lies kept in v.ui.gnss_band (framebuffer pixels)."""
     shown = gnss.shown(v.loaded)
-    if shown is None:
-        v.ui.gnss_band = None
-        return
+    v.ui.gnss_band = None if shown is None else band(shown.runs, v.loaded.clock.duration)
+
+
+def band(runs: tuple[gnss.Run, ...], duration: float) -> tuple[float, float, float, float]:
+    """Along the last item drawn (a scrubber over media time 0..duration s) a band of the
+    frames' GNSS status (green used, red rejected, grey missing), each run's colour under the
+    grab's position at its times; where it lies (x at 0 and at duration, top and bottom y;
+    framebuffer pixels). The live panel draws a stream's along its scrubber too."""
     lo, hi = imgui.get_item_rect_min(), imgui.get_item_rect_max()
     grab = imgui.get_style().grab_min_size
-    duration = v.loaded.clock.duration
     y0, y1 = hi.y - 1.0 - BAND_PX, hi.y - 1.0
     draw = imgui.get_window_draw_list()
-    for r in shown.runs:
+    for r in runs:
         xa = gnss.slider_x(r.start_s, duration, lo.x, hi.x, grab)
         xb = gnss.slider_x(r.end_s, duration, lo.x, hi.x, grab)
         draw.add_rect_filled(
@@ -69,10 +72,10 @@ def _gnss_band(v) -> None:
         )
     if imgui.is_item_hovered():
         imgui.set_tooltip(
-            "GNSS per frame: green used, red rejected (it disagrees with the scene), grey missing"
+            "GNSS per frame: green used, red rejected (it disagrees with the scene or the IMU), grey missing"
         )
     scale = imgui.get_io().display_framebuffer_scale
-    v.ui.gnss_band = (
+    return (
         gnss.slider_x(0.0, duration, lo.x, hi.x, grab) * scale.x,
         gnss.slider_x(duration, duration, lo.x, hi.x, grab) * scale.x,
         y0 * scale.y,

@@ -3,24 +3,49 @@ frozen track, a replayed track and a height lie, what it names them, how much of
 rejects, and what the lie costs the camera's position.
 
     python bench/bench_gnss_lies.py [--flights orbit survey] [--seeds 1 2] [--duration 40]
-        [--from-s 15] [--lies jump drag frozen replay height] [--json out.json]
+        [--from-s 15] [--lies jump drag1 drag drag5 frozen replay height] [--jobs 1]
+        [--json out.json] [--cases cases.jsonl] [--from-cases cases.jsonl]
 
 For each flight and seed a session is simulated (app.simulate.session: the video rendered from
 a world that differs from the model), then copies of it with the GNSS falsified from --from-s
-seconds (app.simulate.lies: a 200 m jump east, a 2 m/s drag-off east, the fix frozen, the fixes
-of 10 s before replayed, every height 40 m up) are solved with the `registered` source, and the
-clean session too. Figures per run: the lies said and the kinds they were named (frozen,
-replayed, height, disagrees), where the first was said to begin (clip s), the alarm's delay (s)
-from the moment the lie exceeds the fixes' stated accuracy (the jump's, replay's and height
-lie's start; the drag's start plus accuracy / speed; for a frozen fix the moment the true camera
-has left it by that much), the share of frames after that moment marked `rejected`, the median
-camera position error (m) against the truth over the frames after it, and the clean run's over
-the same frames; for the clean run, lies said and frames rejected (false alarms).
+seconds (app.simulate.lies: a 200 m jump east, drag-offs east at 1, 2 and 5 m/s, the fix
+frozen, the fixes of 10 s before replayed, every height 40 m up) are solved with the
+`registered` source, and the clean session too, and a copy with multipath bursts
+(app.simulate.lies' `multipath`: no lie, what a clean session in a city suffers), --jobs at a
+time. Figures per run: the lies said and the kinds they were named (frozen, replayed, height,
+disagrees), where the first was said to begin (clip s), the alarm's delay (s) from the moment
+the lie exceeds the fixes' stated accuracy (the jump's, replay's and height lie's start; the
+drag's start plus accuracy / speed; for a frozen fix the moment the true camera has left it by
+that much), the share of frames after that moment marked `rejected`, the median camera
+position error (m) and drape error (m on the model, every 15th frame) over the frames after
+it, the clean run's over the same frames, and the share of those frames whose position error
+lies within 1 and 2 of the frame's sigma (app.solve.uncertainty); for the clean and the
+multipath runs, lies said and frames rejected (false alarms). --cases keeps each case's arrays as
+it is solved (a run cut short keeps what it finished); --from-cases makes the figures from them.
+
+    python bench/bench_gnss_lies.py --live [--flights orbit survey] [--seeds 1 2]
+        [--duration 40] [--from-s 15] [--live-lies drag1 drag drag5 jump] [--accuracy 2.5]
+
+Live (forward only, app.live.gnss_watch): for each flight and seed a drone downlink over the
+sample site (app.simulate.downlink: 480x270 H.264 MPEG-TS, a KLV set per frame, the model itself
+rendered, its positions with the simulator's GNSS error: 2.5 m per axis and 4 m in height,
+correlated over 30 s) is sent over the loopback in real time to `geofuse live`'s pipeline
+(drawing 320x180 off screen, live registration on, the fixes held to --accuracy, which KLV does
+not state), clean and with each lie from --from-s (drag-offs east at 1, 2, 5 m/s, a 200 m jump
+east). Figures per feed: the lies said, when the first was caught and said to begin (flight s),
+the alarm's delay from the moment the lie exceeds the stated accuracy (as for files), how long
+after the alarm's keyframe the first frame was drawn rejected (registration's lag), the share
+of frames drawn rejected after the lie exceeds the accuracy, and the drawn camera's position
+error against the truth over those frames (median, p95) with the clean feed's over the same
+flight times; for the clean feed, lies said and frames rejected (false alarms). The keyframes'
+spacing is what the machine gives: say its load.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import multiprocessing
 import sys
 import tempfile
 from dataclasses import replace
@@ -33,21 +58,32 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from app.camera.fixes import REJECTED  # noqa: E402
+from app.live.run import LiveOptions, run_sent  # noqa: E402
 from app.session import open_session  # noqa: E402
+from app.simulate import flights, sensors  # noqa: E402
 from app.simulate import session as sample  # noqa: E402
+from app.simulate.downlink import SITE, path_of, sample_layer, write_downlinks  # noqa: E402
 from app.simulate.lies import Lie, falsify  # noqa: E402
 from app.simulate.sample import SAMPLE_SCENE  # noqa: E402
-from app.solve.accuracy import true_track  # noqa: E402
+from app.solve.accuracy import ProjectionProbe, true_track  # noqa: E402
 from app.solve.track import solve_track  # noqa: E402
+from app.solve.uncertainty import frame_sigmas  # noqa: E402
 from bench.common import table, write_json  # noqa: E402
 
 LIES = {
     "jump": Lie("jump", size_m=200.0),
+    "drag1": Lie("drag", speed_mps=1.0),
     "drag": Lie("drag", speed_mps=2.0),
+    "drag5": Lie("drag", speed_mps=5.0),
     "frozen": Lie("frozen"),
     "replay": Lie("replay", back_s=10.0),
     "height": Lie("height", height_m=40.0),
 }
+FILE_LIES = ("jump", "drag1", "drag", "drag5", "frozen", "replay")  # issue 52's cases
+DRAPE_EVERY = 15  # frames between those whose drape error is measured (0.5 s at 30 fps)
+DRAPE_GRID = (32, 18)  # pixels probed per frame (app.solve.accuracy.ProjectionProbe)
+LIVE_LIES = ("drag1", "drag", "drag5", "jump")  # of LIES: live, drag-offs at 1, 2, 5 m/s and a jump
+LIVE_VIDEO, LIVE_DRAWING = (480, 270), (320, 180)
 
 
 def exceeds_s(lie: Lie, accuracy_m: float, t: np.ndarray, true_enu: np.ndarray) -> float:
@@ -76,8 +112,11 @@ def label(lie: Lie) -> str:
 
 def run(manifest: Path) -> dict:
     """The registered track of one session: per frame its clip time (s from the simulation's
-    start), true position (ENU m), position error (m) against the truth and gnss status; the
-    lies said (when caught and began, clip s; their kinds)."""
+    start), true position (ENU m), position error (m) against the truth, its sigma (m, each
+    axis: app.solve.uncertainty.frame_sigmas) and gnss status; every DRAPE_EVERY-th frame's
+    drape error (the median distance on the model between where the frame's pixels land from
+    its camera and from the true one, app.solve.accuracy.ProjectionProbe); the lies said (when
+    caught and began, clip s; their kinds)."""
     session = open_session(manifest)
     track = solve_track(session, "registered")
     truth = true_track(session)
@@ -85,10 +124,28 @@ def run(manifest: Path) -> dict:
     ours = track.poses_at(track.clock.media_s[frames], frames)
     true = truth.poses_at(truth.clock.media_s[frames])
     check = track.registration.gnss
+    sigma, _ = frame_sigmas(session, track, frames)
+    probe = ProjectionProbe(session, DRAPE_GRID)
+    sampled = frames[::DRAPE_EVERY]
+    try:
+        drape = [
+            np.nanmedian(
+                np.linalg.norm(
+                    probe.points(ours.enu[k], ours.q[k]) - probe.points(true.enu[k], true.q[k]),
+                    axis=2,
+                )
+            )  # fmt: skip
+            for k in sampled
+        ]
+    finally:
+        probe.release()
     return {
         "t": ours.time_s - sample.START_UNIX_S,
         "true": true.enu,
         "error": np.linalg.norm(ours.enu - true.enu, axis=1),
+        "sigma": sigma,
+        "drape": np.array(drape),
+        "drape_frames": sampled,
         "gnss": ours.gnss,
         "caught": [lie.caught_s - sample.START_UNIX_S for lie in check.lies],
         "began": [lie.began_s - sample.START_UNIX_S for lie in check.lies],
@@ -97,43 +154,198 @@ def run(manifest: Path) -> dict:
     }
 
 
+def _session(job: tuple[str, int, float, str]) -> tuple[str, int]:
+    """Write one simulated session (flight, seed, duration s, folder) and its multipath copy."""
+    flight, seed, duration, folder = job
+    config = replace(sample.quick_config(duration), flight=flight, seed=seed)
+    sample.write_sample_session(Path(folder) / "clean", SAMPLE_SCENE, config)
+    falsify(Path(folder) / "clean", Path(folder) / "multipath", Lie("multipath", -1e6, seed=seed))
+    return flight, seed
+
+
+def _case(job: tuple[str, int, str, str, float]) -> tuple[str, int, str, dict]:
+    """Solve one case (flight, seed, lie name or clean/multipath, folder, lie start s)."""
+    flight, seed, name, folder, from_s = job
+    base = Path(folder)
+    if name in ("clean", "multipath"):
+        return flight, seed, name, run(base / name / "session.toml")
+    lie = replace(LIES[name], from_s=from_s)
+    return flight, seed, name, run(falsify(base / "clean", base / name, lie))
+
+
+def _within(got: dict, mask: np.ndarray, k: float) -> float:
+    """The share of frames in mask whose position error is within k sigma (each axis's, so
+    k sqrt(3) sigma in 3D)."""
+    return float(np.mean(got["error"][mask] <= k * np.sqrt(3.0) * got["sigma"][mask]))
+
+
+def _drape(got: dict, mask: np.ndarray) -> float:
+    """The median drape error (m) of the sampled frames inside mask (per frame)."""
+    inside = mask[got["drape_frames"]]
+    return float(np.nanmedian(got["drape"][inside])) if inside.any() else float("nan")
+
+
+def _read_cases(path: Path) -> dict:
+    """The cases an earlier run wrote with --cases (JSON lines), by (flight, seed, case)."""
+    done = {}
+    for line in path.read_text().splitlines():
+        case = json.loads(line)
+        lists = ("caught", "began", "kinds")
+        done[(case["flight"], case["seed"], case["case"])] = {k: np.asarray(v) if isinstance(v, list) and k not in lists else v for k, v in case.items()}  # fmt: skip
+    return done
+
+
+def files_main(args: argparse.Namespace) -> int:
+    """The measurements on files (module docstring), jobs sessions at a time; with
+    --from-cases, the figures of an earlier run's cases (the flights and seeds it finished)."""
+    if args.from_cases is not None:
+        done = _read_cases(args.from_cases)
+        names = ("clean", "multipath", *args.lies)
+        units = {(f, s) for f, s, _ in done if all((f, s, n) in done for n in names)}
+        return _figures(done, sorted(units), args)
+    with tempfile.TemporaryDirectory(prefix="gnss-lies-") as tmp:
+        units = [(f, s, args.duration, str(Path(tmp) / f"{f}-{s}")) for s in args.seeds for f in args.flights]  # fmt: skip
+        cases = [(f, s, n, d, args.from_s) for f, s, _, d in units for n in ("clean", "multipath", *args.lies)]  # fmt: skip
+        with multiprocessing.get_context("spawn").Pool(args.jobs) as pool:
+            list(pool.imap_unordered(_session, units))
+            done = {}
+            for f, s, n, got in pool.imap_unordered(_case, cases):
+                done[(f, s, n)] = got  # each said as it comes: a run cut short keeps them
+                print(f"{f} {s} {n}: caught {[round(c, 1) for c in got['caught']]} {got['kinds']}, rejected {np.mean(got['gnss'] == REJECTED):.2f}, median error {np.median(got['error']):.2f} m", file=sys.stderr, flush=True)  # fmt: skip
+                if args.cases is not None:  # every figure of the case, one JSON line
+                    with open(args.cases, "a") as out:
+                        out.write(json.dumps({"flight": f, "seed": s, "case": n} | {k: np.asarray(v).tolist() if isinstance(v, np.ndarray) else v for k, v in got.items()}) + "\n")  # fmt: skip
+    return _figures(done, sorted((f, s) for f, s, _, _ in units), args)
+
+
+def _figures(done: dict, units: list[tuple[str, int]], args: argparse.Namespace) -> int:
+    """The table and the JSON of the solved cases (by (flight, seed, case)) of each unit."""
+    rows, figures = [], []
+    for flight, seed in units:
+        clean = done[(flight, seed, "clean")]
+        for name in ("clean", "multipath"):
+            got = done[(flight, seed, name)]
+            rejected = int(np.sum(got["gnss"] == REJECTED))
+            every = np.ones(len(got["t"]), bool)
+            rows.append([flight, seed, name, len(got["caught"]), " ".join(got["kinds"]), "", "", f"{rejected} frames", f"{np.median(got['error']):.2f}", "", f"{_drape(got, every):.2f}", "", f"{100 * _within(got, every, 1):.0f} / {100 * _within(got, every, 2):.0f} %"])  # fmt: skip
+            figures.append({"flight": flight, "seed": seed, "lie": name, "alarms": len(got["caught"]), "kinds": got["kinds"], "rejected_frames": rejected, "median_error_m": float(np.median(got["error"])), "median_drape_m": _drape(got, every), "within_1_sigma": _within(got, every, 1), "within_2_sigma": _within(got, every, 2)})  # fmt: skip
+        for name in args.lies:
+            lie = replace(LIES[name], from_s=args.from_s)
+            got = done[(flight, seed, name)]
+            start = exceeds_s(lie, got["accuracy"], got["t"], got["true"])
+            after = got["t"] >= start
+            near = [k for k, c in enumerate(got["caught"]) if c >= lie.from_s - 5.0]
+            delay = got["caught"][near[0]] - start if near else None
+            began = got["began"][near[0]] if near else None
+            share = float(np.mean(got["gnss"][after] == REJECTED))
+            err, ref = float(np.median(got["error"][after])), float(np.median(clean["error"][after]))  # fmt: skip
+            drape, drape_ref = _drape(got, after), _drape(clean, after)
+            cover = (_within(got, after, 1), _within(got, after, 2))
+            rows.append([flight, seed, label(lie), len(got["caught"]), " ".join(got["kinds"]), "" if began is None else f"{began:.1f}", "none" if delay is None else f"{delay:.1f}", f"{100 * share:.0f} %", f"{err:.2f}", f"{ref:.2f}", f"{drape:.2f}", f"{drape_ref:.2f}", f"{100 * cover[0]:.0f} / {100 * cover[1]:.0f} %"])  # fmt: skip
+            figures.append({"flight": flight, "seed": seed, "lie": label(lie), "alarms": len(got["caught"]), "kinds": got["kinds"], "began_s": began, "alarm_delay_s": delay, "rejected_share": share, "median_error_m": err, "clean_median_error_m": ref, "median_drape_m": drape, "clean_median_drape_m": drape_ref, "within_1_sigma": cover[0], "within_2_sigma": cover[1]})  # fmt: skip
+    print(f"# GNSS lies: {args.duration:g} s sessions, lie from t = {args.from_s:g} s\n")
+    print(table(["flight", "seed", "GNSS", "alarms", "named", "said from (s)", "alarm delay (s)", "rejected after", "median error during the lie (m)", "clean run's (m)", "median drape error during the lie (m)", "clean run's (m)", "error within 1 / 2 sigma"], rows))  # fmt: skip
+    write_json(args.json, {"duration_s": args.duration, "from_s": args.from_s, "runs": figures})
+    return 0
+
+
+def live_run(path: Path, accuracy_m: float, flight: flights.Flight) -> dict:
+    """One downlink received live: per frame drawn its flight time (s), position error (m)
+    against the truth and gnss status; the lies said (caught, began: flight s; kinds), the
+    first frame drawn rejected (flight s), the keyframes tested (flight s)."""
+    drawn = []
+    options = LiveOptions(
+        silence_s=1.0, size=LIVE_DRAWING, layers=(sample_layer(),), gnss_accuracy_m=accuracy_m
+    )
+    run = run_sent(
+        path, options, lambda d, c: drawn.append((d.pts_s, np.asarray(c.position), d.gnss))
+    )
+    origin = run.origin_s or 0.0
+    t = np.array([p for p, _, _ in drawn]) + origin
+    truth = path_of(flight, t)[0]
+    want = run.frame.geodetic_to_enu(*SITE.enu_to_geodetic(truth).T)
+    gnss = np.array([g for _, _, g in drawn])
+    rejected = t[gnss == REJECTED]
+    watch = run.gnss
+    return {
+        "t": t,
+        "error": np.linalg.norm(np.array([p for _, p, _ in drawn]) - want, axis=1),
+        "gnss": gnss,
+        "caught": [lie.caught_s + origin for lie in watch.lies],
+        "began": [lie.began_s + origin for lie in watch.lies],
+        "kinds": [lie.kind for lie in watch.lies],
+        "first_rejected": float(rejected[0]) if len(rejected) else None,
+        "keyframes": np.array(watch.keyframe_times) + origin,
+        "summary": run.summary(),
+    }
+
+
+def live_main(args: argparse.Namespace) -> int:
+    """The live measurements (module docstring)."""
+    rows, figures = [], []
+    with tempfile.TemporaryDirectory(prefix="gnss-lies-live-") as tmp:
+        for name in args.flights:
+            flight = {"orbit": flights.orbit, "survey": flights.survey}[name]()
+            for seed in args.seeds:
+                folder = Path(tmp) / f"{name}-{seed}"
+                folder.mkdir()
+                rng = np.random.default_rng(seed)
+                t = np.arange(0.0, args.duration, 1.0 / 30.0)
+                noise = np.column_stack([sensors.gauss_markov(t, 2.5, 30.0, rng, 2), sensors.gauss_markov(t, 4.0, 30.0, rng)])  # fmt: skip
+                lies = [Lie("clean")] + [replace(LIES[k], from_s=args.from_s) for k in args.live_lies]  # fmt: skip
+                paths = write_downlinks(folder, [(lie, args.duration) for lie in lies], LIVE_VIDEO, flight, noise, sample.HFOV_DEG)  # fmt: skip
+                clean = live_run(paths[0], args.accuracy, flight)
+                spacing = float(np.median(np.diff(clean["keyframes"]))) if len(clean["keyframes"]) > 1 else float("nan")  # fmt: skip
+                n_rej = int(np.sum(clean["gnss"] == REJECTED))
+                rows.append([name, seed, "clean", len(clean["caught"]), " ".join(clean["kinds"]), "", "", "", "", f"{n_rej} frames", "", f"{np.median(clean['error']):.2f}", f"{spacing:.2f}"])  # fmt: skip
+                figures.append({"flight": name, "seed": seed, "lie": "clean", "alarms": len(clean["caught"]), "kinds": clean["kinds"], "rejected_frames": n_rej, "median_error_m": float(np.median(clean["error"])), "keyframe_spacing_s": spacing})  # fmt: skip
+                print(rows[-1], clean["summary"], file=sys.stderr)
+                for lie, path in zip(lies[1:], paths[1:], strict=True):
+                    got = live_run(path, args.accuracy, flight)
+                    start = exceeds_s(lie, args.accuracy, got["t"], None)
+                    after = got["t"] >= start
+                    near = [k for k, c in enumerate(got["caught"]) if c >= lie.from_s - 5.0]
+                    caught = got["caught"][near[0]] if near else None
+                    delay = None if caught is None else caught - start
+                    lag = None if caught is None or got["first_rejected"] is None else got["first_rejected"] - caught  # fmt: skip
+                    began = got["began"][near[0]] if near else None
+                    share = float(np.mean(got["gnss"][after] == REJECTED))
+                    err = got["error"][after]
+                    ref = np.interp(got["t"][after], clean["t"], clean["error"])
+                    spacing = float(np.median(np.diff(got["keyframes"]))) if len(got["keyframes"]) > 1 else float("nan")  # fmt: skip
+                    rows.append([name, seed, label(lie), len(got["caught"]), " ".join(got["kinds"]), "" if began is None else f"{began:.1f}", "none" if delay is None else f"{delay:.1f}", "" if lag is None else f"{lag:.1f}", f"{100 * share:.0f} %", f"{np.median(err):.2f} / {np.percentile(err, 95):.2f}", f"{np.median(ref):.2f}", "", f"{spacing:.2f}"])  # fmt: skip
+                    figures.append({"flight": name, "seed": seed, "lie": label(lie), "alarms": len(got["caught"]), "kinds": got["kinds"], "began_s": began, "alarm_delay_s": delay, "frames_after_alarm_s": lag, "rejected_share": share, "median_error_m": float(np.median(err)), "p95_error_m": float(np.percentile(err, 95)), "clean_median_error_m": float(np.median(ref)), "keyframe_spacing_s": spacing})  # fmt: skip
+                    print(rows[-1], got["summary"], file=sys.stderr)
+    print(
+        f"# GNSS lies, live: {args.duration:g} s downlinks, lie from t = {args.from_s:g} s, fixes held to {args.accuracy:g} m\n"
+    )
+    print(table(["flight", "seed", "GNSS", "alarms", "named", "said from (s)", "alarm delay (s)", "drawn rejected after (s)", "rejected after", "error during the lie, median / p95 (m)", "clean run's (m)", "clean: median error (m)", "keyframe spacing (s)"], rows))  # fmt: skip
+    write_json(args.json, {"live": True, "duration_s": args.duration, "from_s": args.from_s, "accuracy_m": args.accuracy, "runs": figures})  # fmt: skip
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--flights", nargs="+", default=["orbit", "survey"])
     parser.add_argument("--seeds", nargs="+", type=int, default=[1, 2])
     parser.add_argument("--duration", type=float, default=40.0, help="seconds of video")
     parser.add_argument("--from-s", type=float, default=15.0, help="the lie begins (clip s)")
-    parser.add_argument("--lies", nargs="+", default=list(LIES), choices=list(LIES))
+    parser.add_argument("--lies", nargs="+", default=list(FILE_LIES), choices=list(LIES))
+    parser.add_argument("--jobs", type=int, default=1, help="files: sessions solved at a time")
     parser.add_argument("--json", type=Path, default=None, help="also write the figures here")
+    parser.add_argument(
+        "--cases", type=Path, default=None, help="files: each case's arrays (JSON lines)"
+    )
+    parser.add_argument(
+        "--from-cases", type=Path, default=None, help="files: the figures of --cases', solving none"
+    )
+    parser.add_argument("--live", action="store_true", help="live downlinks, forward only")
+    parser.add_argument("--live-lies", nargs="+", default=list(LIVE_LIES), choices=LIVE_LIES)
+    parser.add_argument("--accuracy", type=float, default=2.5, help="live: the fixes' accuracy (m)")
     args = parser.parse_args(argv)
-    rows, figures = [], []
-    with tempfile.TemporaryDirectory(prefix="gnss-lies-") as tmp:
-        for flight in args.flights:
-            for seed in args.seeds:
-                base = Path(tmp) / f"{flight}-{seed}"
-                config = replace(sample.quick_config(args.duration), flight=flight, seed=seed)
-                sample.write_sample_session(base / "clean", SAMPLE_SCENE, config)
-                clean = run(base / "clean" / "session.toml")
-                rejected = int(np.sum(clean["gnss"] == REJECTED))
-                rows.append([flight, seed, "clean", len(clean["caught"]), " ".join(clean["kinds"]), "", "", f"{rejected} frames", "", f"{np.median(clean['error']):.2f}"])  # fmt: skip
-                figures.append({"flight": flight, "seed": seed, "lie": "clean", "alarms": len(clean["caught"]), "kinds": clean["kinds"], "rejected_frames": rejected, "median_error_m": float(np.median(clean["error"]))})  # fmt: skip
-                for name in args.lies:
-                    lie = replace(LIES[name], from_s=args.from_s)
-                    got = run(falsify(base / "clean", base / lie.kind, lie))
-                    start = exceeds_s(lie, got["accuracy"], got["t"], got["true"])
-                    after = got["t"] >= start
-                    near = [k for k, c in enumerate(got["caught"]) if c >= lie.from_s - 5.0]
-                    delay = got["caught"][near[0]] - start if near else None
-                    began = got["began"][near[0]] if near else None
-                    share = float(np.mean(got["gnss"][after] == REJECTED))
-                    err, ref = float(np.median(got["error"][after])), float(np.median(clean["error"][after]))  # fmt: skip
-                    rows.append([flight, seed, label(lie), len(got["caught"]), " ".join(got["kinds"]), "" if began is None else f"{began:.1f}", "none" if delay is None else f"{delay:.1f}", f"{100 * share:.0f} %", f"{err:.2f}", f"{ref:.2f}"])  # fmt: skip
-                    figures.append({"flight": flight, "seed": seed, "lie": label(lie), "alarms": len(got["caught"]), "kinds": got["kinds"], "began_s": began, "alarm_delay_s": delay, "rejected_share": share, "median_error_m": err, "clean_median_error_m": ref})  # fmt: skip
-                    print(rows[-1], file=sys.stderr)
-    print(f"# GNSS lies: {args.duration:g} s sessions, lie from t = {args.from_s:g} s\n")
-    print(table(["flight", "seed", "GNSS", "alarms", "named", "said from (s)", "alarm delay (s)", "rejected after", "median error during the lie (m)", "clean run's (m)"], rows))  # fmt: skip
-    write_json(args.json, {"duration_s": args.duration, "from_s": args.from_s, "runs": figures})
-    return 0
+    if args.live:
+        return live_main(args)
+    return files_main(args)
 
 
 if __name__ == "__main__":

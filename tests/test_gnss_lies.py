@@ -20,7 +20,7 @@ from PIL import Image
 from app.camera.fixes import MISSING, REJECTED, USED, FixStatus
 from app.export.gis import FMV_FIELDS, FMV_HEADER, properties, write_fmv_csv
 from app.export.records import frame_records
-from app.register.gnss import DISAGREES, FROZEN, HEIGHT, REPLAYED, check_fixes, on_scene
+from app.register.gnss import DISAGREES, FROZEN, HEIGHT, REPLAYED, check_fixes
 from app.register.solve import registered_track
 from app.session import open_session
 from app.simulate import sensors
@@ -29,12 +29,18 @@ from app.simulate.lies import Lie, falsify
 from app.simulate.sample import SAMPLE_SCENE
 from app.solve.accuracy import true_track
 from app.solve.track import COLUMNS, csv_rows, solve_track
+from app.solve.uncertainty import frame_sigmas
 from app.ui import gnss as viewer_gnss
 from tests.conftest import run_viewer
 
-DURATION_S = 24.0
-LIE_FROM_S = 10.0  # clip seconds (from the simulation's start)
-ALARM = re.compile(r"GNSS disagrees with the scene from .*?t = (\d+\.\d) s")
+DURATION_S = 18.0
+LIE_FROM_S = 6.0  # clip seconds (from the simulation's start); a 3 m/s drag-off passes the
+# scene's threshold (11.25 m) 3.75 s later, well before the clip's last seconds, where the gate's
+# window is one-sided
+# said against the scene, the IMU's motion (app.register.inertial) or both
+ALARM = re.compile(
+    r"GNSS disagrees with the (?:scene|IMU's motion)(?: and the IMU's motion)? from .*?t = (\d+\.\d) s"
+)
 
 
 # --- the test on its own, on synthetic fixes -------------------------------------------------------
@@ -125,24 +131,6 @@ def test_a_frozen_a_replayed_and_a_height_lie_are_caught_and_named(seed, name):
         assert abs(int(match.group(1)) - abs(lie.height_m)) <= 15
     if kind == REPLAYED:
         assert found.replay_of_s == lie.from_s - lie.back_s
-
-
-def test_a_frozen_stretch_nothing_registered_is_moved_along_with_the_camera():
-    """Where no keyframe registered (12 s) inside a frozen track, the fixes are moved onto the
-    scene by what the lie added at the tested fixes around them, linear in time: on a straight
-    flight at 6 m/s within 0.5 m of the truth (plus the GNSS's own offset); holding the nearest
-    tested fix's would leave them up to 36 m behind."""
-    t = np.arange(0.0, 90.0, 1.0)
-    kt = np.arange(0.0, 90.0, 0.5)
-    kt = kt[(kt <= 40.0) | (kt >= 52.0)]
-    line = lambda tt: np.column_stack([6.0 * tt, np.zeros(len(tt)), np.full(len(tt), 60.0)])  # noqa: E731
-    fixes = Lie("frozen", 30.0).apply(t, line(t) + [1.5, -1.0, 2.0])
-    check = check_fixes(t, fixes, np.full(len(t), 2.5), kt, line(kt))
-    assert [found.kind for found in check.lies] == [FROZEN]
-    moved, keep = on_scene(fixes, check)
-    gap = (t > 40.0) & (t < 52.0)
-    assert keep[gap].all() and not np.isfinite(check.residual[gap]).any()
-    np.testing.assert_allclose(moved[gap], line(t[gap]) + check.lies[0].offset, atol=0.5)
 
 
 def test_a_frozen_fix_with_the_camera_at_rest_and_a_repeated_output_are_no_frozen_lie():
@@ -268,6 +256,10 @@ def test_a_jump_is_said_once_rejected_and_not_followed(solved):
     records = list(frame_records(session, track.source, every=60, track=track))
     assert [properties(r)["gnss"] for r in records] == [poses.gnss[r.index] for r in records]
     assert {r.gnss for r in records} == {USED, REJECTED}
+    # each frame's position sigma, from the track the IMU carried over the fixes kept and the
+    # keyframes (app.solve.uncertainty): the true error within 3 sigma at 95 % of the frames
+    sigma, _ = frame_sigmas(session, track, poses.index)
+    assert np.mean(error <= 3.0 * np.sqrt(3.0) * sigma) >= 0.95, np.percentile(error / sigma, 95)
 
 
 @pytest.mark.gl
@@ -277,7 +269,10 @@ def test_a_drag_off_is_caught_within_seconds_and_not_followed(solved):
     alarms = _alarms(session)
     assert len(alarms) == 1 and LIE_FROM_S - 1.0 <= alarms[0] <= LIE_FROM_S + 4.0, alarms
     caught = track.registration.gnss.lies[0].caught_s - sample.START_UNIX_S
-    assert caught - (LIE_FROM_S + 2.5 / 3.0) <= 5.0
+    # caught by the scene (3 m/s is too slow a step for the IMU): the GNSS's own offset, which
+    # may point against the drag, is undone first (5.8-6.8 s at 2 m/s on 40 s sessions,
+    # docs/ACCURACY.md; 5.2 s here)
+    assert caught - (LIE_FROM_S + 2.5 / 3.0) <= 6.0
     assert (poses.gnss[t < LIE_FROM_S - 3.0] == USED).all()
     assert np.mean(poses.gnss[t >= caught] == REJECTED) >= 0.95
     during = t >= LIE_FROM_S
@@ -289,7 +284,7 @@ def test_an_outage_is_said_with_its_span_and_its_frames_missing(orbit):
     poses = solve_track(session, "offline").frame_poses()
     t = poses.time_s - sample.START_UNIX_S
     said = [m.text for m in session.messages.since(0) if m.text.startswith("no GNSS from")]
-    # the outage is [10, 16) s of the simulation; said from the last fix before it to the first
+    # the outage is [6, 12) s of the simulation; said from the last fix before it to the first
     # after it (fixes at 1 Hz, clip times from the first frame)
     span = re.match(r"no GNSS from t = (\d+\.\d) s to (\d+\.\d) s \((\d) s\)", said[0])
     assert len(said) == 1 and span, said
@@ -330,9 +325,9 @@ def test_the_viewer_says_what_posed_each_frame(orbit, display, tmp_path):
         f"""0 clock 0.0333333
 0 wait registered
 0 source registered
-0 seek 4
+0 seek 2
 0.3 state {d / "before.json"}
-0.4 seek 18
+0.4 seek 13
 0.8 screenshot {d / "inside.png"}
 0.8 state {d / "inside.json"}
 1.0 source offline
@@ -360,5 +355,5 @@ def test_the_viewer_says_what_posed_each_frame(orbit, display, tmp_path):
     def pixel(media_s: float) -> np.ndarray:
         return shot[row, int(round(x0 + (x1 - x0) * media_s / g["duration_s"]))]
 
-    for media_s, status in ((14.0, REJECTED), (20.0, REJECTED), (3.0, USED)):
+    for media_s, status in ((11.0, REJECTED), (14.5, REJECTED), (1.5, USED)):
         assert np.abs(pixel(media_s) - g["colours"][status]).max() <= 12, (media_s, pixel(media_s))

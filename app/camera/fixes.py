@@ -1,7 +1,8 @@
 """Which GNSS fixes a camera track stands on, and so what posed each frame: `used` (the fix
-is in the track), `rejected` (it disagrees with the scene's registered keyframes beyond its stated
-accuracy: the track there stands on the scene, app.register.gnss), `missing` (no fix within the
-gap limit: app.camera.trajectory.gap_intervals). Times are session seconds.
+is in the track), `rejected` (it disagrees with the scene's registered keyframes or with the
+IMU's motion beyond its stated accuracy: the track there stands on the scene, carried by the
+IMU between keyframes, app.register.gnss and app.register.inertial), `missing` (no fix within
+the gap limit: app.camera.trajectory.gap_intervals). Times are session seconds.
 """
 
 from __future__ import annotations

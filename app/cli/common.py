@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 import sys
 import weakref
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -21,6 +21,7 @@ from app.core.progress import ProgressBar
 from app.core.settings import ProjectionSettings
 from app.footage.clips import open_any
 from app.geodesy.enu import LocalFrame
+from app.io.area import read_area
 from app.register.solve import RegistrationSettings
 from app.scene import Placement
 from app.scene.layers import Layer, LoadedLayers, load_layers, named_layers
@@ -28,6 +29,7 @@ from app.scene.mesh import MeshData
 from app.session.camera_track import CameraTrack
 from app.session.config import ClipRef
 from app.session.model import REGISTERED, Session
+from app.session.start import DEFAULT_START_RADIUS_M, StartArea
 from app.solve.track import solve_track
 from app.world.build import world_layer
 from app.world.overpass import is_overpass
@@ -114,6 +116,7 @@ def open_with_source(
     """(session, source) for a command: the session or clip opened, --out (when the command
     writes one) checked against every file it reads, --source checked against what it offers
     (any_source: a further clip that does not offer it takes its own first)."""
+    start = start_area(args)
     session = open_any(
         path,
         getattr(args, "srt", None),
@@ -122,14 +125,36 @@ def open_with_source(
         single(args.lens),
         layers(args, clip=Path(path).suffix.lower() != ".toml"),
     )
+    if start is not None:  # a clip without GNSS: registered, from the area
+        session = replace(session, start=start)
     if getattr(args, "out", None) is not None:
         check_output(args.out, "--out", suffixes, list(session.inputs))
-    source = args.source or session.sources[0]
+    first = REGISTERED if start is not None and REGISTERED in session.sources else None
+    source = args.source or first or session.sources[0]
     if any_source and source not in session.sources:  # a further clip: its own first source
         source = session.sources[0]
     if source not in session.sources:
         raise GeofuseError(f"--source {source}: this session offers {', '.join(session.sources)}")
     return session, source
+
+
+def start_area(args: argparse.Namespace) -> StartArea | None:
+    """The area --near with --radius (default DEFAULT_START_RADIUS_M), or --start-area, names,
+    with --height (app.session.start.StartArea); None where neither is given. GeofuseError for
+    --radius or --height without one, --radius with --start-area."""
+    near, polygon = getattr(args, "near", None), getattr(args, "start_area", None)
+    radius, height = getattr(args, "radius", None), getattr(args, "height", None)
+    if near is None and polygon is None:
+        if radius is not None or height is not None:
+            raise GeofuseError(
+                f"{'--radius' if radius is not None else '--height'} goes with --near LAT,LON (or --start-area FILE)"
+            )
+        return None
+    if polygon is not None:
+        if radius is not None:
+            raise GeofuseError("--radius goes with --near, not with --start-area")
+        return StartArea.within(read_area(polygon, "--start-area"), height)
+    return StartArea.near(*near, radius or DEFAULT_START_RADIUS_M, height)
 
 
 def open_further(

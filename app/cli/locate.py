@@ -69,7 +69,7 @@ def run(args: argparse.Namespace) -> int:
         track = solved(session, source).with_clip(DEFAULT_NEAR_M, LOCATE_FAR_M)
         index = frame_at(pts, args.time)
         camera, mesh, frame = track.frame_camera(index), session.scene(), session.frame
-        sigmas = pose_sigmas(session, track)
+        sigmas = pose_sigmas(session, track, index)
         where = f"frame {index} at {pts[index]:.3f} s, attitude from {source}"
     else:
         scene = still_scene(args, "locate: give SESSION|CLIP --time T, or all of", LOCATE_FAR_M)

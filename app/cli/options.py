@@ -21,7 +21,7 @@ from app.core.constants import (
 )
 
 MAX_IMAGE_SIDE = 8192  # pixels: what every OpenGL 4 renderbuffer (and llvmpipe) can hold
-COMMA_OPTIONS = ("--origin", "--pose", "--view-from", "--look-at")  # values that may start with '-'
+COMMA_OPTIONS = ("--origin", "--pose", "--view-from", "--look-at", "--near")  # may start with '-'
 GEODETIC = (
     (-90.0, 90.0, "latitude"),
     (-180.0, 360.0, "longitude"),
@@ -338,3 +338,38 @@ def add_fov_option(p: argparse.ArgumentParser) -> None:
 def add_pitch_option(p: argparse.ArgumentParser, help: str) -> None:
     """--pitch: a drone clip's camera pitch (degrees above the horizon) where it wrote none."""
     p.add_argument("--pitch", type=number(-90.0, 90.0), default=DRONE_DEFAULT_PITCH_DEG, help=help)
+
+
+def add_start_options(p: argparse.ArgumentParser) -> None:
+    """--near LAT,LON with --radius M, or --start-area FILE, and --height M: where a clip with no
+    GNSS fix at all begins (its `registered` source searches the scene there for the first
+    pose: app.register.coldstart)."""
+    where = p.add_mutually_exclusive_group()
+    where.add_argument(
+        "--near",
+        type=lambda s: floats(s, 2, GEODETIC[:2]),
+        default=None,
+        metavar="LAT,LON",
+        help="a clip with no GNSS fix at all: search the scene within --radius of this place (degrees) for its first pose (the registered source)",
+    )
+    where.add_argument(
+        "--start-area",
+        type=Path,
+        default=None,
+        metavar="FILE",
+        help="as --near, within a GeoJSON polygon (or a Feature of one)",
+    )
+    p.add_argument(
+        "--radius",
+        type=number(0.0, 100_000.0, open_low=True),
+        default=None,
+        metavar="M",
+        help="with --near: metres around it (default 300)",
+    )
+    p.add_argument(
+        "--height",
+        type=number(0.0, 100_000.0, open_low=True),
+        default=None,
+        metavar="M",
+        help="with --near or --start-area: the camera's height above the ground, metres (a drone's; default: a phone's mount height)",
+    )

@@ -20,6 +20,7 @@ from app.cli.options import (
     add_projection_options,
     add_source_option,
     add_srt_option,
+    add_start_options,
     add_still_options,
     count,
     floats,
@@ -119,6 +120,7 @@ def _render(sub: Commands) -> None:
         help="far plane of both cameras, metres",
     )
     add_projection_options(r)
+    add_start_options(r)
     r.add_argument("--out", required=True, type=Path, help="output PNG")
     r.set_defaults(job="render")
 
@@ -270,6 +272,7 @@ def _view(sub: Commands) -> None:
     )
     _stream_options(v)
     _cot_options(v)
+    add_start_options(v)
     v.set_defaults(job="view")
 
 
@@ -451,6 +454,7 @@ def _solve(sub: Commands) -> None:
         so,
         f"a drone clip without gimbal attitude: the camera's pitch, degrees (default {DRONE_DEFAULT_PITCH_DEG:g})",
     )
+    add_start_options(so)
     so.add_argument("--out", type=Path, required=True)
     so.set_defaults(job="solve")
 
@@ -473,6 +477,7 @@ def _export(sub: Commands) -> None:
     )
     ex.add_argument("--out", type=Path, required=True)
     add_source_option(ex, SOURCE_HELP)
+    add_start_options(ex)
     ex.add_argument(
         "--every",
         type=count(1, 1_000_000),

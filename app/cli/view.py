@@ -6,7 +6,7 @@ import argparse
 import logging
 from pathlib import Path
 
-from app.cli.common import layers
+from app.cli.common import layers, start_area
 from app.core.errors import GeofuseError
 from app.live.feed import LiveOptions
 from app.live.probe import mavlink_refusal, stream_refusal
@@ -44,6 +44,7 @@ def run(args: argparse.Namespace) -> int:
         mavlink=args.mavlink,
         hfov_deg=args.fov,
         register=args.register,
+        gnss_accuracy_m=args.gnss_accuracy,
     )
     # Cursor on Target out: its certificate files checked before a window opens
     cot = cot_targets(args.cot, args.cot_cert, args.cot_key, args.cot_ca, args.cot_callsign)
@@ -62,5 +63,6 @@ def run(args: argparse.Namespace) -> int:
             stream=stream,
             live=live,
             sinks=cot.makers(),
+            start=start_area(args),
         )
     ).run()

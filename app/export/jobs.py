@@ -13,13 +13,14 @@ from app.core.errors import GeofuseError
 from app.core.imageio import write_rgb
 from app.core.outputs import check_output, write_atomically, write_via_path
 from app.export.gis import COMPANIONS, borders_geojson, companion, track_geojson, write_records
-from app.export.klv import is_registered, write_klv_ts
+from app.export.klv import carried_by_imu, is_registered, write_klv_ts
 from app.export.preview import footprint_preview
 from app.export.records import FrameRecord, frame_records
 from app.export.video import FurtherClip, export_video
 from app.footage.clips import onto
 from app.render.passes import MAX_EXTRA
 from app.render.renderer import beyond_message
+from app.scene.layers import scene_credit
 from app.session.camera_track import CameraTrack
 from app.session.model import Session
 from app.session.timeline import Timeline
@@ -85,6 +86,7 @@ def export_session(
                 last,
                 progress,
                 clips,
+                scene_credit(session.layers),
             )
 
         write_via_path(out, "--out", write_video)
@@ -95,15 +97,18 @@ def export_session(
         return f"wrote {out}: {n[0]} frames, {w}x{h}, view {options.view}, attitude from {source}{more}"
     records = list(frame_records(session, source, options.every, progress=progress, track=track))
     if what == "klv":
-        n, registered = [0], is_registered(track)
+        n, registered, inertial = [0], is_registered(track), carried_by_imu(track)
         write_via_path(
             out,
             "--out",
             lambda tmp: n.__setitem__(
-                0, write_klv_ts(session.video, records, tmp, registered=registered)
+                0,
+                write_klv_ts(session.video, records, tmp, registered=registered, inertial=inertial),
             ),
         )
         said = ", each saying so (item 98)" if registered else ""
+        if any(r.gnss is not None for r in records):
+            said += ", and what positioned it (item 124: GNSS, or the IMU where it was not used)"
         return f"wrote {out}: the video with {n[0]} MISB ST 0601 local sets, attitude from {source}{said}"
     return write_footprints(records, out, options, list(session.inputs), session, source)
 
@@ -138,6 +143,7 @@ def write_footprints(
                 preview_session.scene(), preview_session.frame, records, options.size
             ),
             "--preview",
+            scene_credit(preview_session.layers),
         )
     clipped = sum(r.clipped for r in records)
     clips = len({r.clip for r in records})

@@ -17,6 +17,16 @@ Source Sensor) name the aircraft and the sensor, which downstream tools key on, 
 Generic Flag Data (47) nor Positioning Method Source (124: INS and satellite systems) has a bit
 for it. `pose_items` builds the items both the file export (`frame_set`) and the live restream
 (app.live.restream) send.
+
+What positioned each frame (issue 52: the solve CSV's `gnss`, app.camera.fixes) is said in item
+124, Positioning Method Source, the one ST 0601 item whose bits name navigation sources: a frame
+whose position stands on a GNSS fix used says the satellite bit (GPS: the receivers geofuse reads
+do not name their constellations, and GPS is ST 0601's first); a frame whose fix was rejected or
+is missing, where the IMU carried the track between the keyframes and the fixes kept
+(app.register.inertial), says the INS bit alone; one with neither (no accelerometer) has no item
+124, as ST 0601 has no bit for the scene (item 98 says the registration). Rejected and missing are
+told apart only in the FMV CSV (`geofuse GNSS Status`) and the solve CSV: ST 0601 has no item
+for a fix's integrity, and geofuse adds no tag of its own.
 """
 
 from __future__ import annotations
@@ -30,6 +40,7 @@ from pathlib import Path
 import av
 
 from app import __version__
+from app.camera.fixes import USED
 from app.camera.frame_time import frame_of
 from app.core.constants import REGISTERED
 from app.export.records import FrameRecord
@@ -39,6 +50,8 @@ from app.session.camera_track import CameraTrack
 
 CORNER_OFFSET_DEG = 0.075  # ST 0601 offset corners (tags 26-33) cover +-0.075 deg from the centre
 GEOREGISTRATION_TAG = 98  # ST 0601 item 98: a Geo-Registration Local Set (MISB ST 1601)
+POSITIONING_TAG = 124  # ST 0601 item 124: Positioning Method Source, one byte of flags
+INS_BIT, GPS_BIT = 0x01, 0x02  # its bits 0 (on-board INS) and 1 (NAVSAT: GPS)
 ST1601_VERSION = 2  # the ST 1601 document version written (item 1 of the nested set)
 REGISTRATION_ALGORITHM = "geofuse render-and-compare"  # ST 1601 item 2: what corrected the pose
 
@@ -90,12 +103,27 @@ def pose_items(
     return items + [georegistration_item()] if registered else items
 
 
-def frame_set(r: FrameRecord, registered: bool = False) -> bytes:
+def positioning(gnss: str | None, inertial: bool) -> int | None:
+    """ST 0601 item 124's flags for a frame whose position stands on `gnss` (app.camera.fixes:
+    used, rejected, missing; None: not known), inertial: the IMU carried the track where the
+    fixes were not used; None where no bit fits (module docstring)."""
+    if gnss is None:
+        return None
+    if gnss == USED:
+        return GPS_BIT
+    return INS_BIT if inertial else None
+
+
+def frame_set(r: FrameRecord, registered: bool = False, inertial: bool = False) -> bytes:
     """One UAS Datalink Local Set for a frame (see the module docstring for the mapping);
-    registered: its pose comes out of registration (said in item 98)."""
+    registered: its pose comes out of registration (said in item 98); inertial: the IMU carried
+    its track where the fixes were rejected or missing (item 124, `positioning`)."""
     t = r.utc_s if r.utc_s is not None else r.session_s
     fov = (r.hfov_deg, r.vfov_deg)
     items = pose_items(t, r.sensor, r.sensor_msl_m, r.hpr, fov, registered)
+    flags = positioning(r.gnss, inertial)
+    if flags is not None:
+        items.append((POSITIONING_TAG, bytes([flags])))
     if math.isfinite(r.slant_m):
         items.append((21, encode(21, r.slant_m)))  # Slant Range
         items += [
@@ -121,16 +149,25 @@ def is_registered(track: CameraTrack) -> bool:
     )
 
 
+def carried_by_imu(track: CameraTrack) -> bool:
+    """Whether a registered track was carried by the IMU where its fixes were not used
+    (app.register.inertial: an accelerometer drove it)."""
+    carried = getattr(track.registration, "carried", None) if is_registered(track) else None
+    return carried is not None and carried.felt
+
+
 def write_klv_ts(
     video: VideoInfo,
     records: Iterable[FrameRecord],
     out: Path,
     progress: Callable[[float], None] | None = None,
     registered: bool = False,
+    inertial: bool = False,
 ) -> int:
     """An MPEG-TS at `out`: the video's packets copied, and a KLV data stream with one Local Set
     per record at its frame's presentation time; returns the number of Local Sets written.
-    registered: the records' poses come out of registration (item 98 in every set).
+    registered: the records' poses come out of registration (item 98 in every set); inertial:
+    the IMU carried the track where the fixes were not used (item 124, `positioning`).
 
     The sets' times come from the frame table (video.pts_s, on the stream's clock by adding
     origin_s), never from a muxed packet: the muxer rebases a packet to the output's 1/90000 time
@@ -149,7 +186,7 @@ def write_klv_ts(
         def mux_sets(until: float) -> None:
             nonlocal written
             while written < len(frames) and ticks[written] <= until:
-                k = av.Packet(frame_set(frames[written][1], registered))
+                k = av.Packet(frame_set(frames[written][1], registered, inertial))
                 k.stream = data
                 k.time_base = tb
                 k.pts = k.dts = ticks[written]

@@ -178,8 +178,11 @@ def read_vector(
     return checked_vector(VectorStream(kind, t, v, DEFAULT_UNIT[kind], str(path)), messages)
 
 
-def read_gnss(path: str | Path, messages: Messages | None = None) -> GnssTrack:
-    """A GNSS CSV: lat, lon, h and optional speed/bearing or vel_e/vel_n/vel_u, h_acc."""
+def read_gnss(
+    path: str | Path, messages: Messages | None = None, allow_empty: bool = False
+) -> GnssTrack:
+    """A GNSS CSV: lat, lon, h and optional speed/bearing or vel_e/vel_n/vel_u, h_acc; two fixes
+    at least, or none where allow_empty (an empty track: a clip that starts from an area)."""
     path = Path(path)
     messages = messages if messages is not None else Messages()
     columns, _, _, _ = read_table(path)
@@ -190,6 +193,8 @@ def read_gnss(path: str | Path, messages: Messages | None = None) -> GnssTrack:
         extra = ["speed", "bearing"]
     acc_col = ["h_acc"] if "h_acc" in columns else []
     t, v, _ = _timed(path, ["lat", "lon", "h", *extra, *acc_col], "GNSS", messages)
+    if allow_empty and len(t) == 0:
+        return GnssTrack(t, *np.zeros((3, 0)), path=str(path))
     require_samples(len(t), 2, path, "GNSS")
     vel = None
     if extra[:2] == ["vel_e", "vel_n"]:

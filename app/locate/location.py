@@ -243,6 +243,6 @@ def locate(
     camera = track.frame_camera(frame_at(pts, time_s))
     locator = Locator(session.scene(), session.frame)
     try:
-        return locator.locate(camera, pixels, pose_sigmas(session, track))
+        return locator.locate(camera, pixels, pose_sigmas(session, track, frame_at(pts, time_s)))
     finally:
         locator.release()

@@ -16,7 +16,9 @@ still_m, for min_still_s or more: the receiver stopped while the camera flew on;
 first of them), `replayed` where the
 lie's fixes repeat, within repeat_m, earlier fixes at one steady lag (a recorded stretch played
 again; it began at the first repeated fix), `height` where only the vertical residual left its
-bounds, `disagrees` otherwise (a jump, a drag-off). Times are session seconds; positions local ENU
+bounds, `disagrees` otherwise (a jump, a drag-off). The same forming and naming serves the test
+against the IMU's motion (app.register.inertial: its innovations as the residual, witness `imu`),
+and `merged` makes the two tests' lies one. Times are session seconds; positions local ENU
 metres (app.geodesy.enu.LocalFrame).
 """
 
@@ -35,6 +37,13 @@ from app.camera.fixes import FixStatus
 FloatArray = npt.NDArray[np.float64]
 DISAGREES, FROZEN, REPLAYED, HEIGHT = "disagrees", "frozen", "replayed", "height"
 LIE_KINDS = (DISAGREES, FROZEN, REPLAYED, HEIGHT)
+SCENE, IMU, BOTH = "scene", "imu", "scene and imu"  # what a lie was caught against
+WITNESSES = (SCENE, IMU, BOTH)
+WITNESS_WORDS = {
+    SCENE: "the scene",
+    IMU: "the IMU's motion",
+    BOTH: "the scene and the IMU's motion",
+}
 JUMP_SHARE = 0.6  # a residual that steps by this share of its size at the alarm in one fix jumped
 
 
@@ -76,7 +85,9 @@ class GnssLie:
     horizontal; vertical for a `height` lie) they disagreed most with the scene, ended_s the last
     rejected fix (session s); offset (3,): the GNSS's own offset before it (fix - scene, ENU m);
     kind: LIE_KINDS (module docstring); replay_of_s: for a `replayed` lie, the session time of
-    the earlier fix its first fix repeats (else None)."""
+    the earlier fix its first fix repeats (else None); witness (WITNESSES): what it was caught
+    against, the registered keyframes (`scene`), the motion the IMU integrates
+    (`imu`, app.register.inertial) or both."""
 
     began_s: float
     caught_s: float
@@ -86,6 +97,7 @@ class GnssLie:
     offset: FloatArray
     kind: str = DISAGREES
     replay_of_s: float | None = None
+    witness: str = SCENE
 
     def said(self, t0_s: float, utc_of: Callable[[float], float | None] | None = None) -> str:
         """One line for people, clip times from the first frame's session time t0_s (s) and
@@ -93,7 +105,8 @@ class GnssLie:
         "GNSS disagrees with the scene from 09:47:10 (t = 30.0 s), 38 m by 09:47:30 (t = 50.0 s):
         not used ...", "GNSS frozen from ..., 38 m behind the scene by ...", "GNSS replays its
         fixes of 09:46:50 (t = 10.0 s) from ..., 38 m off the scene by ...", "GNSS height
-        disagrees with the scene by 40 m from ... (the most by ...)"."""
+        disagrees with the scene by 40 m from ... (the most by ...)"; "the IMU's motion" or "the
+        scene and the IMU's motion" where the IMU caught it."""
 
         def when(t: float) -> str:
             clip = f"t = {t - t0_s:.1f} s"
@@ -102,24 +115,25 @@ class GnssLie:
                 return clip
             return f"{time.strftime('%H:%M:%S', time.gmtime(utc))} ({clip})"
 
-        tail = (
-            f": not used (caught at t = {self.caught_s - t0_s:.1f} s; the track stands on the "
-            "scene's registered keyframes there)"
-        )
-        far, by = f"{self.worst_m:.0f} m", when(self.worst_s)
+        stands = "the scene's registered keyframes"
+        if self.witness != SCENE:
+            stands += " and the IMU's motion"
+        caught = f"caught at t = {self.caught_s - t0_s:.1f} s"
+        tail = f": not used ({caught}; the track stands on {stands} there)"
+        far, by, what = f"{self.worst_m:.0f} m", when(self.worst_s), WITNESS_WORDS[self.witness]
         if self.kind == FROZEN:
-            return f"GNSS frozen from {when(self.began_s)}, {far} behind the scene by {by}{tail}"
+            return f"GNSS frozen from {when(self.began_s)}, {far} behind {what} by {by}{tail}"
         if self.kind == REPLAYED and self.replay_of_s is not None:
             return (
                 f"GNSS replays its fixes of {when(self.replay_of_s)} from {when(self.began_s)}, "
-                f"{far} off the scene by {by}{tail}"
+                f"{far} off {what} by {by}{tail}"
             )
         if self.kind == HEIGHT:
             return (
-                f"GNSS height disagrees with the scene by {far} from {when(self.began_s)} (the "
+                f"GNSS height disagrees with {what} by {far} from {when(self.began_s)} (the "
                 f"most by {by}){tail}"
             )
-        return f"GNSS disagrees with the scene from {when(self.began_s)}, {far} by {by}{tail}"
+        return f"GNSS disagrees with {what} from {when(self.began_s)}, {far} by {by}{tail}"
 
 
 @dataclass(frozen=True)
@@ -202,7 +216,32 @@ def check_fixes(
     bad_v = off_v > np.maximum(
         settings.v_floor_m, settings.n_sigma * settings.v_ratio * acc[tested]
     )
+    rejected, lies = lies_of(t, enu, residual, tested, bad_h, bad_v, settings)
+    return GnssCheck(FixStatus(t, rejected), tuple(lies), residual)
+
+
+def lies_of(
+    t: FloatArray,
+    enu: FloatArray,
+    residual: FloatArray,
+    tested: npt.NDArray[np.int64],
+    bad_h: npt.NDArray[np.bool_],
+    bad_v: npt.NDArray[np.bool_],
+    settings: CheckSettings,
+    witness: str = SCENE,
+    back_s: float | None = None,
+) -> tuple[npt.NDArray[np.bool_], list[GnssLie]]:
+    """(which fixes are rejected (N,), the lies) from the fixes' times t (N,) s and positions
+    enu (N, 3) m, their residual (N, 3) m against a witness (NaN where untested), the tested
+    fixes' indices (T,) and which of those passed the horizontal (bad_h (T,)) or vertical
+    (bad_v) threshold: alarms within merge_s are one lie; it began where the residual left
+    the GNSS's own offset before it (the module docstring) and is named by what the fixes did;
+    witness (WITNESSES): what the residual was taken against; back_s: a lie began no farther
+    than this (s) before its alarm (None: anywhere after the last lie)."""
     bad = bad_h | bad_v
+    off_h = np.linalg.norm(residual[tested, :2], axis=1)
+    off_v = np.abs(residual[tested, 2])
+    rejected = np.zeros(len(t), bool)
     lies: list[GnssLie] = []
     n = 0  # tested fixes looked at so far
     while n < len(tested):
@@ -231,7 +270,10 @@ def check_fixes(
             if upright
             else np.linalg.norm(residual[tested, :2] - base[:2], axis=1)
         )
-        first = _onset(t[tested], away, n, a)
+        earliest = n
+        if back_s is not None:
+            earliest = max(n, int(np.searchsorted(t[tested], t[tested[a]] - back_s)))
+        first = _onset(t[tested], away, earliest, a)
         kind, began, replay_of = DISAGREES, None, None
         still = _frozen_since(t, enu, int(tested[a]), settings)
         if still is not None:
@@ -264,10 +306,11 @@ def check_fixes(
                 base,
                 kind,
                 replay_of,
+                witness,
             )
         )
         n = last + 1
-    return GnssCheck(FixStatus(t, rejected), tuple(lies), residual)
+    return rejected, lies
 
 
 def _onset(t: FloatArray, away: FloatArray, n: int, a: int) -> int:
@@ -349,26 +392,37 @@ def _replay_start(
     return first, float(t[of] if of is not None else t[first] - lag_s)
 
 
-def on_scene(enu_fix: FloatArray, check: GnssCheck) -> tuple[FloatArray, npt.NDArray[np.bool_]]:
-    """The fixes moved onto the scene where rejected: (positions (N, 3) ENU m: a rejected fix
-    less what its lie added (its median residual less the GNSS's own offset before the lie),
-    i.e. the registered position at its time carrying that offset on, so that the fused
-    corrections (scene - prior) run on without a step where the lie begins; a rejected fix
-    nothing registered near less what the lie added, linear in time between the tested fixes
-    around it (a drag-off or a frozen fix adds more every second), or at the nearest tested
-    one past the first or last; the others as they were; keep (N,): False for fixes of a lie
-    none of whose fixes was tested, which the track leaves out)."""
-    t = check.status.t
-    enu = np.asarray(enu_fix, np.float64).copy()
-    keep = ~check.status.rejected
-    tested = np.flatnonzero(np.isfinite(check.residual).all(axis=1))
-    for lie in check.lies:
-        inside = np.flatnonzero((t >= lie.began_s) & (t <= lie.ended_s))
-        known = np.intersect1d(inside, tested)
-        if len(known) == 0:
-            continue
-        added = check.residual[known] - lie.offset  # what the lie added where tested
-        for axis in range(3):
-            enu[inside, axis] -= np.interp(t[inside], t[known], added[:, axis])
-        keep[inside] = True
-    return enu, keep
+def merged(scene: GnssCheck, imu: GnssCheck, merge_s: float = CheckSettings().merge_s) -> GnssCheck:
+    """Two tests of the same fixes as one: a fix either rejected is rejected; lies within
+    merge_s of each other are one (from the earlier start and alarm to the later end, the
+    larger disagreement, a named kind over `disagrees`, the GNSS's own offset the scene's,
+    both witnesses where both caught it); the residual the scene's."""
+    rejected = scene.status.rejected | imu.status.rejected
+    groups: list[list[GnssLie]] = []
+    for lie in sorted(scene.lies + imu.lies, key=lambda lie: lie.began_s):
+        if groups and lie.began_s <= max(g.ended_s for g in groups[-1]) + merge_s:
+            groups[-1].append(lie)
+        else:
+            groups.append([lie])
+    lies = []
+    for group in groups:
+        worst = max(group, key=lambda lie: lie.worst_m)
+        named = [lie for lie in group if lie.kind != DISAGREES]
+        first = named[0] if named else group[0]
+        seen = {lie.witness for lie in group}
+        witness = seen.pop() if len(seen) == 1 else BOTH
+        from_scene = [lie for lie in group if lie.witness == SCENE]
+        lies.append(
+            GnssLie(
+                min(lie.began_s for lie in group),
+                min(lie.caught_s for lie in group),
+                worst.worst_s,
+                worst.worst_m,
+                max(lie.ended_s for lie in group),
+                from_scene[0].offset if from_scene else first.offset,
+                first.kind,
+                first.replay_of_s,
+                witness,
+            )
+        )
+    return GnssCheck(FixStatus(scene.status.t, rejected), tuple(lies), scene.residual)

@@ -21,12 +21,14 @@ from dataclasses import dataclass, field, replace
 import moderngl
 import numpy as np
 
+from app.camera.fixes import USED
 from app.camera.pinhole import Camera
 from app.camera.trajectory import PositionTrack
 from app.core.constants import KEYFRAMES_S
 from app.core.errors import GeofuseError
 from app.geodesy import rotations
 from app.io.video import frames_at
+from app.register import coldstart, inertial
 from app.register.edges import EdgeSettings, fit_edges
 from app.register.fuse import (
     Correction,
@@ -37,7 +39,7 @@ from app.register.fuse import (
     gate,
     retimed,
 )
-from app.register.gnss import CheckSettings, GnssCheck, check_fixes, on_scene
+from app.register.gnss import CheckSettings, GnssCheck, check_fixes, merged
 from app.register.keyframe import (
     Frame,
     Matcher,
@@ -85,7 +87,11 @@ class RegistrationSettings:
     an orthophoto-draped terrain), align the lines from the same start; chain_m, chain_s: where
     the prior's start lies more than chain_m metres from the position the last registered
     keyframes (within chain_s seconds) lead to at constant velocity, the keyframe is searched
-    from the latter first (a GNSS that jumps or drags off must not lose the scene: issue 52)."""
+    from the latter first (a GNSS that jumps or drags off must not lose the scene: issue 52),
+    and so is one where the prior stands on no fix it used (a lie, an outage: the IMU carried
+    it); with an accelerometer the keyframes lead on by the IMU's motion, not a constant
+    velocity (app.register.inertial.chained); a pose found farther than chain_reach_m from
+    where they lead is not taken (the platform cannot be there: a false match)."""
 
     every_s: float = KEYFRAMES_S
     long_side: int = 960
@@ -103,6 +109,7 @@ class RegistrationSettings:
     geometry_fallback: bool = True
     chain_m: float = 3.0
     chain_s: float = 3.0
+    chain_reach_m: float = 10.0
 
 
 @dataclass(frozen=True)
@@ -118,6 +125,9 @@ class Registration:
         None  # how late the frame times were (s), estimated from the keyframes; None: not estimated
     )
     gnss: GnssCheck | None = None  # the GNSS fixes tested against the keyframes (issue 52)
+    # the track the IMU's motion carries over the fixes kept and the keyframes used: each
+    # frame's position sigma (app.register.inertial, app.solve.uncertainty)
+    carried: inertial.Carried | None = None
 
     @property
     def used(self) -> int:
@@ -196,16 +206,27 @@ def _moved(a: Camera, b: Camera) -> tuple[float, float]:
     return metres, float(np.degrees(rotations.angle_between(a.orientation, b.orientation)))
 
 
-def _chained(keyframes: list[Keyframe], t: float, start: Camera, within_s: float) -> Camera | None:
-    """`start` moved to where the last registered keyframes lead at session time t (s): the
-    last one's position carried on at the velocity from the one before it (ENU m, m/s), both
-    within within_s seconds; None where none is that recent."""
+def _chained(
+    keyframes: list[Keyframe],
+    t: float,
+    start: Camera,
+    within_s: float,
+    motion: inertial.Motion | None = None,
+) -> Camera | None:
+    """`start` moved to where the last registered keyframes lead at session time t (s): with
+    an accelerometer (`motion`), the last four within within_s seconds carried on by the IMU's
+    motion (app.register.inertial.chained: a turn is followed); without, the last one's
+    position carried on at the velocity from the one before it (ENU m, m/s); None where none
+    is that recent."""
     solved = [k for k in keyframes[-4:] if k.registered and t - k.time_s <= within_s]
     if not solved:
         return None
     last = solved[-1]
     p = np.asarray(last.position, np.float64)
-    if len(solved) > 1 and last.time_s > solved[-2].time_s:
+    times = [k.time_s for k in solved]
+    if motion is not None and motion.felt and len(solved) > 1 and times[-1] > times[0]:
+        p = inertial.chained(motion, times, [k.position for k in solved], t)
+    elif len(solved) > 1 and last.time_s > solved[-2].time_s:
         v = (p - np.asarray(solved[-2].position)) / (last.time_s - solved[-2].time_s)
         p = p + v * (t - last.time_s)
     return posed(start, p, np.asarray(start.orientation))
@@ -338,6 +359,7 @@ class Registrar:
         idx = keyframe_indices(np.asarray(video.pts_s, np.float64), s.every_s)
         keyframes: list[Keyframe] = []
         frames = frames_at(video, idx, s.long_side)
+        motion = inertial.motion_of(self.session, prior.poses)  # keyframes chained by the IMU
         while True:
             with _lap(self.stage_s, "decode"):
                 k, rgb = next(frames, (None, None))
@@ -352,17 +374,22 @@ class Registrar:
             so_far = Correction.from_keyframes(keyframes[-5:], s.fuse)
             first = None if begin is None else begin(int(k))
             start = _shifted(prior_cam, so_far, t)
-            chained = _chained(keyframes, t, start, s.chain_s)
+            chained = _chained(keyframes, t, start, s.chain_s, motion)
             fix, solved, renders = None, None, 0
-            if chained is not None and _moved(start, chained)[0] > s.chain_m:
-                # the prior moved unlike the scene (GNSS jumped or drags off): from the scene first
-                fix, solved, renders = self.keyframe(rgb, chained, first)
-            if solved is None:
-                fix, solved, more = self.keyframe(rgb, start, first)
+            starts = [start, prior_cam] if len(so_far.t) else [start]  # the plain prior last
+            # where the prior moved unlike the scene (GNSS jumped or drags off) or stands on no
+            # fix (rejected, missing: carried by the IMU, which drifts), from the scene first
+            trusted = prior.fixes is None or prior.fixes.at([t])[0] == USED
+            if chained is not None and (not trusted or _moved(start, chained)[0] > s.chain_m):
+                starts.insert(0, chained)
+            for searched in starts:
+                fix, solved, more = self.keyframe(rgb, searched, first)
                 renders += more
-            if solved is None and len(so_far.t):  # from the plain prior once more
-                fix, solved, more = self.keyframe(rgb, prior_cam, first)
-                renders += more
+                off = None if solved is None or chained is None else _moved(solved, chained)[0]
+                if off is not None and off > s.chain_reach_m:  # a false match on a repeated texture
+                    fix, solved = replace(fix, reason=f"found {off:.0f} m from where the last keyframes lead"), None  # fmt: skip
+                if solved is not None:
+                    break
             keyframes.append(Keyframe(
                 int(k), t, solved is not None, "" if solved is not None else fix.reason, fix.matches, fix.inliers, fix.error_px, renders,
                 np.asarray(prior_cam.position), np.asarray(prior_cam.orientation),
@@ -424,27 +451,42 @@ def registered_track(
     correct the prior first. ctx: a GL context to render in (default: one of its own); stop:
     asked between keyframes, True cancels (Cancelled); background: run at a lower priority (the
     viewer's solver thread); begin(k): where keyframe k's search begins (Registrar.run). track_options go to app.session.camera_track.camera_track for the prior."""
-    prior_track = camera_track(session, prior or default_prior(session), **track_options)
-    control = None
-    if control_path(
-        session.path
-    ).is_file():  # points given by hand: the automatic keyframes start from them
+    source, control = prior or default_prior(session), None
+    cold = coldstart.searched(session)  # no GNSS fix at all, an area to search
+    if not cold:
+        prior_track = camera_track(session, source, **track_options)
+    if not cold and control_path(session.path).is_file():
+        # points given by hand: the automatic keyframes start from them
         control = solve_control(prior_track, read_points(control_path(session.path)))
         for note in control.notes:
             session.messages.add_once(f"control: {note}", note)
         prior_track = corrected_track(prior_track, control)
+    screen = None
+    if not cold:  # the fixes tested against the IMU first: a lie it catches moves no start
+        fixes_track, screen = prior_track, inertial.screened(session, prior_track)
+        prior_track = screen.track
     registrar = Registrar(session, settings, ctx, background)
     try:
+        if cold:
+            prior_track = coldstart.started(session, source, registrar, **track_options)
         reg = registrar.run(prior_track, progress, stop, begin)
     finally:
         registrar.release()
     keyframes = list(reg.keyframes)
-    check = tested_fixes(session, prior_track, keyframes)
-    if check.lies:  # the prior's positions stand on the scene where the GNSS lied: no fusion across
-        prior_track = replace(
-            prior_track, poses=replace(prior_track.poses, positions=_on_scene(prior_track, check))
-        )
+    if cold:  # the positions are the scene's own, through the registered keyframes
+        prior_track = coldstart.on_scene(session, prior_track, keyframes)
         keyframes = gate(retimed(_ungated(keyframes), prior_track.poses, 0.0), settings.fuse)
+    check, carried = None, None
+    if screen is not None:  # the fixes tested against the keyframes, and against the IMU
+        check = merged(tested_fixes(session, fixes_track, keyframes), screen.check)
+        # where the GNSS lied or is missing the prior is carried by the IMU between the fixes
+        # kept and the keyframes: no fusion across a lie, no straight line across an outage
+        positions, carried = _carried(session, fixes_track, keyframes, check, settings)
+        if positions is not fixes_track.poses.positions or prior_track is not fixes_track:
+            poses = replace(fixes_track.poses, positions=positions)
+            prior_track = replace(fixes_track, poses=poses)
+            keyframes = gate(retimed(_ungated(keyframes), prior_track.poses, 0.0), settings.fuse)
+            carried = _carried(session, fixes_track, keyframes, check, settings)[1]
         t0 = float(session.frame_times[0])
         for lie in check.lies:
             session.messages.add_once(f"gnss-lie-{lie.began_s:.1f}", lie.said(t0, session.utc_of))
@@ -458,10 +500,11 @@ def registered_track(
     poses = corrected_pose_track(
         prior_track.poses, Correction.from_keyframes(keyframes, settings.fuse), delay or 0.0
     )
-    reg = replace(reg, keyframes=tuple(keyframes), control=control, delay_s=delay, gnss=check)
-    return replace(
-        prior_track, source=REGISTERED, poses=poses, registration=reg, fixes=check.status
+    reg = replace(
+        reg, keyframes=tuple(keyframes), control=control, delay_s=delay, gnss=check, carried=carried
     )
+    fixes = prior_track.fixes if check is None else check.status
+    return replace(prior_track, source=REGISTERED, poses=poses, registration=reg, fixes=fixes)
 
 
 def _ungated(keyframes: list[Keyframe]) -> list[Keyframe]:
@@ -495,13 +538,13 @@ def tested_fixes(
     return check_fixes(fixes.t, enu, acc, key_t, key_enu, settings or CheckSettings())
 
 
-def _on_scene(prior: CameraTrack, check: GnssCheck) -> PositionTrack:
-    """The prior's positions with its rejected fixes moved onto the scene (app.register.gnss.
-    on_scene): their velocities estimated from those positions, the others' kept."""
-    fixes = prior.poses.positions
-    frame = prior.poses.frame
-    enu, keep = on_scene(frame.geodetic_to_enu(fixes.lat, fixes.lon, fixes.h), check)
-    geo = frame.enu_to_geodetic(enu[keep])
-    moved = PositionTrack.from_fixes(fixes.t[keep], geo[:, 0], geo[:, 1], geo[:, 2])
-    vel = np.where(check.status.rejected[keep, None], moved.vel_enu, fixes.vel_enu[keep])
-    return replace(moved, vel_enu=vel)
+def _carried(
+    session: Session,
+    fixes_track: CameraTrack,
+    keyframes: list[Keyframe],
+    check: GnssCheck,
+    settings: RegistrationSettings,
+) -> tuple[PositionTrack, inertial.Carried]:
+    """app.register.inertial.carried_track under the keyframes' attitude correction."""
+    correction = Correction.from_keyframes(keyframes, settings.fuse)
+    return inertial.carried_track(session, fixes_track, keyframes, check, correction)

@@ -154,7 +154,7 @@ def _gnss(
         track = (
             read_gpx(path, messages)
             if path.suffix.lower() == ".gpx"
-            else csvlog.read_gnss(path, messages)
+            else csvlog.read_gnss(path, messages, allow_empty=cfg.origin is not None)
         )
     return replace(track, h=track.h + cfg.gnss.height_offset_m), False, None
 
@@ -342,6 +342,8 @@ def _place(cfg: SessionConfig, gnss: GnssTrack, above_takeoff: bool, messages: M
         (cfg.gnss.takeoff_height_m or 0.0)
         if above_takeoff
         else float(gnss.h[0]) - cfg.gnss.mount_height_m
+        if len(gnss.h)
+        else frame.h_m  # no fix at all (a cold start): the origin's height
     )
     mesh = load_scene_layers(cfg.layers, frame, gnss, messages, ground)
     if above_takeoff:

@@ -40,6 +40,7 @@ class Registration(Protocol):
     prior: str  # the source the keyframes corrected
     keyframes: tuple[Any, ...]  # app.register.fuse.Keyframe, one a keyframe, in time order
     delay_s: float | None  # how late the frame times were (s), when estimated
+    carried: Any  # app.register.inertial.Carried or None: each frame's position sigma (issue 52)
 
     def summary(self) -> str: ...
 
@@ -172,13 +173,19 @@ def frame_clock(session: Session, true_timing: bool = False) -> FrameClock:
     return FrameClock(np.asarray(session.video.pts_s, np.float64), np.asarray(times, np.float64))
 
 
-def pose_track(session: Session, source: str, course_pitch_deg: float | None = None) -> PoseTrack:
-    """Positions and attitude of one source (for truth: true positions too, where known)."""
+def pose_track(
+    session: Session,
+    source: str,
+    course_pitch_deg: float | None = None,
+    positions: PositionTrack | None = None,
+) -> PoseTrack:
+    """Positions and attitude of one source (for truth: true positions too, where known);
+    positions: the track's instead of the session's GNSS (a cold start's, found on the scene)."""
     t_att, q = device_attitude(session, source, course_pitch_deg)
-    if source == TRUTH and session.truth_position is not None:
+    if positions is None and source == TRUTH and session.truth_position is not None:
         g = session.truth_position
         positions = PositionTrack.from_fixes(g.t, g.lat, g.lon, g.h, g.vel_enu)
-    else:
+    elif positions is None:
         positions = session.positions()
     return PoseTrack(session.frame, positions, t_att, q, session.camera_mount())
 
@@ -190,12 +197,18 @@ def camera_track(
     course_pitch_deg: float | None = None,
     true_timing: bool = False,
     time_offset_s: float = 0.0,
+    positions: PositionTrack | None = None,
 ) -> CameraTrack:
     """Solve one source of a session into its camera track. ValueError for a source the session
-    does not offer (naming those it does)."""
+    does not offer (naming those it does). positions: the track's positions instead of the
+    session's GNSS (a cold start's: then no frame stands on a fix)."""
     clock = replace(frame_clock(session, true_timing), offset_s=float(time_offset_s))
-    poses = pose_track(session, source, course_pitch_deg)
-    fixes = None if source == TRUTH else FixStatus.all_used(poses.positions.t)
+    poses = pose_track(session, source, course_pitch_deg, positions)
+    fixes = (
+        None
+        if source == TRUTH
+        else FixStatus.all_used(poses.positions.t if positions is None else [])
+    )
     return CameraTrack(
         source, poses, clock, session.intrinsics, lens=session.lens,
         readout_s=session.readout_s, readout_axis=readout_axis(session.rotation_cw), zoom=session.zoom,

@@ -32,6 +32,7 @@ from app.io.video import VideoInfo
 from app.scene import Placement, load_scene
 from app.scene.ground import ground_heights
 from app.scene.mesh import MeshData
+from app.session.start import StartArea
 
 FILTERS = {
     "gd-ahrs": ("gd", True),
@@ -88,6 +89,7 @@ class Session:
     camera: str = ""  # the camera as its files name it (a GoPro's model, a DJI camera); "" unknown
     zoom: Zoom | None = None  # a field of view per time (FMV zoom); intrinsics: the median one
     further: tuple = ()  # app.session.config.ClipRef: further clips its manifest names ([[clips]])
+    start: StartArea | None = None  # where a clip without any GNSS fix begins (cold start)
 
     @property
     def heading_note(self) -> str:
@@ -130,6 +132,12 @@ class Session:
     @cached_property
     def _positions(self) -> PositionTrack:
         g = self.gnss
+        if len(g.t) < 2:
+            raise DataFormatError(
+                g.path,
+                f"GNSS: {len(g.t)} fix(es), a moving camera needs at least 2 fixes (a clip without GNSS"
+                " starts from an area: the registered source with --near LAT,LON --radius M)",
+            )
         h = g.h
         if self.height_mode == "ground":
             enu = self.frame.geodetic_to_enu(g.lat, g.lon, g.h)
@@ -203,8 +211,8 @@ def device_attitude(
         raise ValueError(
             "the registered source is a whole pose track, not an attitude: solve it with app.solve.track.solve_track"
         )
-    pos = session.positions()
     if source == COURSE:
+        pos = session.positions()
         pitch = session.course_pitch_deg if course_pitch_deg is None else course_pitch_deg
         ref = heading.course_attitude(
             pos.t, pos.vel_enu, pitch, session.gnss.path, session.aircraft_yaw
@@ -213,6 +221,7 @@ def device_attitude(
     if source in session.recorded:
         ref = session.recorded[source]
         if source == "camera" and session.heading_from_course:
+            pos = session.positions()
             return ref.t, heading.align_to_course(
                 pos.t, pos.vel_enu, ref.t, ref.q, session.camera_mount(), session.messages
             )
@@ -235,6 +244,7 @@ def device_attitude(
             q, resample(t, session.mag.t, session.mag.values), session.declination_deg
         )
     elif not use_mag and session.heading_from_course:
+        pos = session.positions()
         q = heading.align_to_course(
             pos.t, pos.vel_enu, t, q, session.camera_mount(), session.messages
         )

@@ -1,6 +1,8 @@
 """GNSS that fails or lies, written into a simulated session (app.simulate.session): a copy of
 the session whose gnss.csv jumps, drags off, freezes, replays an earlier stretch, lies about its
-height or stops from a given clip time, the rest (video, IMU, truth) shared with the original.
+height or stops from a given clip time, or (`multipath`, no lie: a clean session's hard case)
+suffers bursts of multipath it partly states, the rest (video, IMU, truth) shared with the
+original.
 For the tests and the bench of issue 52 (tests/test_gnss_lies.py, bench/bench_gnss_lies.py).
 
 Clip time is seconds from the simulation's first frame (app.simulate.session.START_UNIX_S);
@@ -18,10 +20,11 @@ import numpy as np
 import numpy.typing as npt
 
 from app.geodesy.enu import LocalFrame
+from app.simulate.sensors import Multipath, multipath
 from app.simulate.session import START_UNIX_S
 from app.simulate.stadium import SITE_ORIGIN
 
-KINDS = ("clean", "jump", "drag", "frozen", "replay", "height", "outage")
+KINDS = ("clean", "jump", "drag", "frozen", "replay", "height", "outage", "multipath")
 
 
 @dataclass(frozen=True)
@@ -31,8 +34,10 @@ class Lie:
     `frozen` repeats the fix at from_s (the receiver stops moving while the aircraft flies on);
     `replay` repeats the fixes of back_s seconds earlier (a recorded stretch played again);
     `height` raises every fix by height_m (up; horizontally right); `outage` removes the fixes
-    from from_s to until_s. Fixes outside [from_s, until_s) are left alone (until_s None: to the
-    end)."""
+    from from_s to until_s; `multipath` pulls the fixes off in bursts, their stated accuracy
+    grown in part (app.simulate.sensors.multipath with `bursts`, drawn from `seed`: not a lie,
+    what a clean session in a city suffers). Fixes outside [from_s, until_s) are left alone
+    (until_s None: to the end)."""
 
     kind: str
     from_s: float = 30.0
@@ -41,6 +46,8 @@ class Lie:
     speed_mps: float = 2.0
     back_s: float = 20.0
     height_m: float = 40.0
+    seed: int = 0
+    bursts: Multipath = Multipath()
 
     def __post_init__(self) -> None:
         if self.kind not in KINDS:
@@ -62,6 +69,26 @@ class Lie:
             out[:, 0] = np.where(inside, self.speed_mps * (t - self.from_s), 0.0)
         elif self.kind == "height":
             out[:, 2] = np.where(inside, self.height_m, 0.0)
+        elif self.kind == "multipath" and inside.any():
+            out[inside] = self.multipath(t[inside], np.ones(int(inside.sum())))[0]
+        return out
+
+    def multipath(
+        self, t_clip: np.ndarray, accuracy_m: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """A `multipath` lie's (extra error (N, 3) ENU m, stated accuracy (N,) m) at clip times
+        t_clip (N,) s inside it, from the clean stated accuracy (N,) m (the same bursts for the
+        same seed)."""
+        return multipath(t_clip, accuracy_m, np.random.default_rng(self.seed), self.bursts)
+
+    def accuracy(self, t_clip: npt.ArrayLike, accuracy_m: npt.ArrayLike) -> np.ndarray:
+        """(N,) the stated horizontal accuracy (m) of fixes at clip times t_clip (s) whose clean
+        one is accuracy_m (N,): a `multipath` lie's grown inside it, the others as they were."""
+        t = np.atleast_1d(np.asarray(t_clip, np.float64))
+        out = np.asarray(accuracy_m, np.float64).copy()
+        inside = self.inside(t)
+        if self.kind == "multipath" and inside.any():
+            out[inside] = self.multipath(t[inside], out[inside])[1]
         return out
 
     def source_index(self, t_clip: npt.ArrayLike) -> np.ndarray:
@@ -98,7 +125,8 @@ class Lie:
 def falsify(session_dir: str | Path, out: str | Path, lie: Lie) -> Path:
     """A copy of the simulated session in `session_dir` written to `out` with its gnss.csv
     falsified by `lie` (the video linked, not copied, where the file system allows); returns the
-    copy's manifest. A frozen fix says speed 0; a replayed one its original's speed and bearing."""
+    copy's manifest. A frozen fix says speed 0; a replayed one its original's speed and bearing;
+    under multipath the stated accuracy (h_acc) grows (Lie.accuracy)."""
     src, out = Path(session_dir), Path(out)
     out.mkdir(parents=True, exist_ok=True)
     for f in src.iterdir():
@@ -120,6 +148,10 @@ def falsify(session_dir: str | Path, out: str | Path, lie: Lie) -> Path:
     source = lie.source_index(t)
     frame = LocalFrame(*SITE_ORIGIN)
     was = [list(r) for r in body]
+    if lie.kind == "multipath" and "h_acc" in col:
+        acc = lie.accuracy(t, [float(r[col["h_acc"]]) for r in body])
+        for r, a in zip(body, acc, strict=True):
+            r[col["h_acc"]] = f"{a:.1f}"
     for i, r in enumerate(body):
         src_row = was[source[i]]
         lat, lon, h = (float(src_row[col[k]]) for k in ("lat", "lon", "h"))

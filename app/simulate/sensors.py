@@ -15,6 +15,12 @@ Sources (typical values; a phone's OS calibration removes most of the raw offset
   Gauss-Markov, sigma 2.5 m horizontal and 4 m vertical, correlation time 30 s (consistent with
   the ~5 m 95 % horizontal accuracy that Merry & Bettinger, PLoS ONE 2019, measured for phones);
   speed noise 0.15 m/s, bearing from the noisy velocity.
+- Multipath (urban canyons, under bridges, near tall buildings: issue 52): bursts of a few
+  seconds in which the fix is pulled several metres off, coming in and going over a second or
+  two; the receiver says it, in part, by a larger stated accuracy (u-blox's hAcc grows under
+  multipath, if by less than the error). Our assumption: a burst every 20 s on average, 3-8 s
+  long, 3-8 m horizontally (1.5 times that in height), its stated accuracy the clean one and half
+  the burst added in quadrature.
 - Callback clocks: each stream on its own clock with jitter of +-20 % of the period and 0.5 %
   of samples dropped, as phones deliver them (the paper's "each time any sensor callback").
 - The phone's own fused orientation: the truth with a slowly wandering heading error (sigma 3 deg,
@@ -134,3 +140,44 @@ def phone_orientation(
         rotations.to_scipy([1.0, 0, 0, 0]).from_rotvec(np.column_stack([tilt, heading]) * DEG)
     )
     return rotations.canonical(rotations.multiply(err, q_true))
+
+
+@dataclass(frozen=True)
+class Multipath:
+    """Bursts of multipath (module docstring): every_s mean seconds between burst starts,
+    length_s and size_m (min, max) of each (uniform), ramp_s to come in and go (s),
+    v_ratio: the vertical pull against the horizontal one."""
+
+    every_s: float = 20.0
+    length_s: tuple[float, float] = (3.0, 8.0)
+    size_m: tuple[float, float] = (3.0, 8.0)
+    ramp_s: float = 1.5
+    v_ratio: float = 1.5
+
+
+def multipath(
+    t: np.ndarray, accuracy_m: np.ndarray, rng: np.random.Generator, m: Multipath = Multipath()
+) -> tuple[np.ndarray, np.ndarray]:
+    """(the fixes' extra error (N, 3) ENU m, their stated horizontal accuracy (N,) m) at fix
+    times t (N,) s, from the clean stated accuracy (N,) m: bursts starting at Poisson times
+    (at least one in the span), each pulling the fix in one direction by its size under a
+    trapezoid envelope, and the stated accuracy grown by half the pull in quadrature."""
+    t = np.asarray(t, np.float64)
+    span = t[-1] - t[0]
+    starts = [t[0] + rng.uniform(0.0, max(span - m.length_s[1], 0.0))]
+    at = t[0] + rng.exponential(m.every_s)
+    while at < t[-1]:
+        starts.append(at)
+        at += rng.exponential(m.every_s)
+    out = np.zeros((len(t), 3))
+    pull = np.zeros(len(t))
+    for start in starts:
+        length = rng.uniform(*m.length_s)
+        size = rng.uniform(*m.size_m)
+        heading = rng.uniform(0.0, 2 * np.pi)
+        up = rng.choice([-1.0, 1.0]) * m.v_ratio
+        env = np.clip(np.minimum(t - start, start + length - t) / m.ramp_s, 0.0, 1.0)
+        direction = np.array([np.sin(heading), np.cos(heading), up])
+        out += (size * env)[:, None] * direction
+        pull = np.maximum(pull, size * env)
+    return out, np.hypot(np.asarray(accuracy_m, np.float64), 0.5 * pull)

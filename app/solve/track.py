@@ -70,6 +70,8 @@ def say_outages(session: Session, track: CameraTrack) -> None:
         if track.registration is not None
         else "positions there run straight between the fixes around it"
     )
+    if getattr(getattr(track.registration, "carried", None), "felt", False):
+        carried = "the registered keyframes and the IMU's motion carry the track"
     for a, b in track.fixes.outages(t0, t1):
         session.messages.add_once(f"gnss-outage-{a:.1f}", f"{outage_said(a, b, t0)}: {carried}")
 

@@ -4,9 +4,13 @@ by (app.export.memory).
 
 Per source: the truth none; `registered` its used keyframes' reprojection error (as an attitude
 error) and REGISTERED_SIGMA_M of position at a keyframe, growing back toward the prior's away
-from the keyframes as the fused correction decays (app.register.fuse: exp(-dt / hold_s)); the
-others the GNSS fixes' horizontal accuracy where the receiver gave it (else GNSS_SIGMA_M) and
-FILTER_SIGMA_DEG, the attitude error the method is held to (docs/ACCURACY.md).
+from the keyframes as the fused correction decays (app.register.fuse: exp(-dt / hold_s)); where
+the registration carried the track by the IMU (app.register.inertial, issue 52) its position's
+standard deviation at each frame instead, which grows with the time from the last keyframe or
+fix it stood on (an outage, a lie, a stretch the scene did not register) and shrinks at the
+next (and grows where the fused track stands off it); the others the GNSS fixes' horizontal
+accuracy where the receiver gave it (else GNSS_SIGMA_M) and FILTER_SIGMA_DEG, the attitude error
+the method is held to (docs/ACCURACY.md).
 """
 
 from __future__ import annotations
@@ -45,9 +49,18 @@ def _prior_sigmas(session: Session) -> PoseSigmas:
     return PoseSigmas(pos, FILTER_SIGMA_DEG, f"{why}, {FILTER_SIGMA_DEG:g} deg of attitude")
 
 
-def pose_sigmas(session: Session, track: CameraTrack) -> PoseSigmas:
-    """The pose's errors under the track's source (see the module docstring), at its keyframes
-    for `registered`."""
+def pose_sigmas(session: Session, track: CameraTrack, frame: int | None = None) -> PoseSigmas:
+    """The pose's errors under the track's source (see the module docstring): at video frame
+    `frame` where given (frame_sigmas: `registered` varies along the clip), else at its
+    keyframes for `registered`."""
+    at = _track_sigmas(session, track)
+    if frame is None or track.source != REGISTERED:
+        return at
+    pos, att = frame_sigmas(session, track, [frame])
+    return PoseSigmas(float(pos[0]), float(att[0]), f"{at.why}, at frame {frame}")
+
+
+def _track_sigmas(session: Session, track: CameraTrack) -> PoseSigmas:
     if track.source == TRUTH:
         return PoseSigmas(0.0, 0.0, "the true pose")
     if track.source == REGISTERED and track.registration is not None:
@@ -63,9 +76,13 @@ def frame_sigmas(
 ) -> tuple[np.ndarray, np.ndarray]:
     """(position m, attitude deg) one standard deviation of the track's pose at each video frame
     (N,): pose_sigmas', and for `registered` growing from the keyframes' toward the prior's
-    with the time (s) from the nearest used keyframe, as the correction decays (hold_s)."""
+    with the time (s) from the nearest used keyframe, as the correction decays (hold_s); its
+    position, where the registration carried the track by the IMU, that track's standard
+    deviation at the frame (the root mean square of its east, north and up ones), grown by how
+    far the fused track stands from it there (a multipath burst the keyframes' corrections
+    follow late: each axis's share of the distance in quadrature)."""
     frames = np.atleast_1d(np.asarray(frames, np.int64))
-    at = pose_sigmas(session, track)
+    at = _track_sigmas(session, track)
     pos = np.full(len(frames), at.position_m)
     att = np.full(len(frames), at.attitude_deg)
     reg = track.registration
@@ -77,7 +94,9 @@ def frame_sigmas(
     t_used = np.sort([k.time_s for k in used])
     gap = np.min(np.abs(t[:, None] - t_used[None, :]), axis=1)
     held = np.exp(-gap / FuseSettings().hold_s)  # how much of the correction still holds
-    return (
-        prior.position_m + (at.position_m - prior.position_m) * held,
-        prior.attitude_deg + (at.attitude_deg - prior.attitude_deg) * held,
-    )
+    pos = prior.position_m + (at.position_m - prior.position_m) * held
+    if reg.carried is not None:  # the carried track's, and how far the fused one is from it
+        p, sigma = reg.carried.at(t)
+        off = np.sum((track.poses.at(t)[0] - p) ** 2, axis=1)
+        pos = np.sqrt(np.mean(sigma**2, axis=1) + off / 3.0)
+    return pos, prior.attitude_deg + (at.attitude_deg - prior.attitude_deg) * held

@@ -230,6 +230,7 @@ class ViewerSessions:
             self.options.lens if own else None,
             self.options.layers if own else (),
             on_fail,
+            self.options.start if own else None,
         )
         if background:
             self.ui.opening = job.start()
@@ -255,7 +256,8 @@ class ViewerSessions:
         session, mesh = job.result
         live.close(self)
         self.close_session()
-        first = session.sources[0]
+        cold = session.start is not None and REGISTERED in session.sources
+        first = REGISTERED if cold else session.sources[0]  # no GNSS: only it has positions
         self.loaded = Loaded(
             session,
             FusionRenderer(self.window.ctx, mesh),

@@ -34,6 +34,7 @@ from app.render.context import describe
 from app.render.renderer import BACKGROUND
 from app.render.window import Window
 from app.session.model import REGISTERED
+from app.session.start import StartArea
 from app.ui import clips, credit, gnss, live, measure, memory, panels, share, world
 from app.ui.commands import run_command
 from app.ui.gui import Gui
@@ -66,6 +67,7 @@ class Options:
     stream: str | None = None  # a stream URL to receive instead of a file (app.ui.live)
     live: LiveOptions | None = None  # its options (MAVLink, field of view, buffer, origin)
     sinks: tuple = ()  # where the shown frames are shared (app.ui.share: makers of sinks)
+    start: StartArea | None = None  # where the clip begins without any GNSS fix (--near)
 
 
 class FixedStepClock:

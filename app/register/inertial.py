@@ -1,0 +1,663 @@
+"""GNSS fixes and registered keyframes carried by the IMU's motion (issue 52): each fix is tested
+against the motion the accelerometer integrates since the fixes before it, and where the fixes
+are rejected or missing the track is carried by that motion between the fixes and keyframes
+around, with a standard deviation that grows away from them and shrinks at each.
+
+The accelerometer's specific force, turned into the world by the track's device attitude, less
+gravity, is the platform's acceleration (`Motion`, ENU m/s^2). A linear Kalman filter per axis
+(east, north, up) over [position, velocity, the acceleration's error, the GNSS's own error] is
+driven by it. The acceleration's error walks, faster while the platform's acceleration changes
+(entering, flying and leaving a turn: an attitude filter takes part of a sustained acceleration
+for gravity, so its tilt, and so the world acceleration, errs by a share of it that follows the
+turn: on a simulated survey's 4 m/s^2 turns, 1 m/s^2 for seconds; on a steady orbit 0.3 m/s^2
+turning with the aircraft). The GNSS error is a first-order Gauss-Markov process of the fixes'
+stated accuracy (1 sigma per axis, twice that in height, correlated over gnss_tau_s, as the
+simulator's and a phone's), plus a white part: a share of that accuracy, and all of what the
+stated accuracy exceeds the fixes' usual one by (multipath comes and goes within seconds, and a
+receiver says so by a larger accuracy). A fix measures the position plus the GNSS error; a
+registered keyframe the position alone.
+
+`check_against_imu` runs the filter forward over the fixes alone. Each fix is tested before it
+is used, against the state after the fix before it and against the states windows_s seconds
+before it carried on by the IMU alone (a drag-off the one-step test would let the filter follow
+a little at a time stands out over a window): beyond n_sigma of the predicted spread
+(horizontally the chi-square of east and north, the height on its own) it is rejected and not
+used, the fixes inside a window that failed are taken back, and the filter carries on by the
+IMU until probation fixes in a row pass again. The lies are formed and named as the scene's test
+forms them (app.register.gnss.lies_of, witness `imu`): a frozen fix while the IMU says the
+platform flies on, a replay whose motion is not the platform's, a jump and a drag-off whose
+acceleration the IMU did not feel are caught so, with no scene, for as long as the IMU alone can
+tell a lie from its own drift (seconds: its spread grows as the cube of the time and faster; a
+drag-off of 1 or 2 m/s hides in the GNSS's own wander, and the scene's keyframes catch it).
+`carry` runs the filter forward and back (Rauch-Tung-Striebel) over the fixes kept and the
+registered keyframes: the position, its standard deviation per axis and the GNSS error at any
+time (`Carried`). Times are session seconds; positions local ENU metres.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from functools import cached_property
+
+import numpy as np
+import numpy.typing as npt
+
+from app.camera.fixes import FixStatus
+from app.camera.trajectory import PoseTrack, PositionTrack, gap_intervals, gap_limit_s, hermite
+from app.geodesy import rotations
+from app.geodesy.enu import LocalFrame
+from app.register.fuse import Correction, Keyframe
+from app.register.gnss import IMU, CheckSettings, GnssCheck, lies_of
+from app.session.camera_track import CameraTrack
+from app.session.model import Session
+
+FloatArray = npt.NDArray[np.float64]
+STANDARD_GRAVITY = 9.80665  # m/s^2 (the accelerometer's g, ISO 80000-3)
+
+
+@dataclass(frozen=True)
+class InertialSettings:
+    """step_s: the filter's nodes lie at most this far apart (s); acc_noise: the world
+    acceleration's white error (m/s^2/sqrt(Hz)); bias_walk: how fast its slow error walks
+    (m/s^2/sqrt(s)), plus bias_walk_per_jerk (s^2/sqrt(s)) times how fast the horizontal
+    acceleration changes (its jerk, m/s^3: the module docstring); bias0: that error's spread
+    at the start (m/s^2); no_imu_noise: the white error where there is no accelerometer
+    (m/s^2/sqrt(Hz): the platform keeps its velocity, give or take); gnss_tau_s: the GNSS
+    error's correlation time (s); white_share: its white part, a share of the stated accuracy;
+    v_ratio: the height's accuracy against the stated horizontal one; accuracy_m: the accuracy
+    (m) where the fixes state none; key_sigma_m: a registered keyframe's position error (m, each
+    axis; the registered pose's, app.solve.uncertainty); n_sigma: the IMU test's threshold
+    (standard deviations of the innovation: 5.5 is a chance of 3e-7 a fix for the horizontal
+    chi-square); v0_sigma: the velocity's spread at the start (m/s); windows_s: besides the fix
+    before, each fix is tested against the state these many seconds before it, carried by the
+    IMU alone (s); probation: after a fix failed, this many in a row must pass before one is
+    used again (a lie that the filter's growing spread lets one fix through does not pull it).
+    Tuned on simulated orbits and surveys (docs/ACCURACY.md, issue 52): no alarm on 20 clean
+    sessions with multipath bursts."""
+
+    step_s: float = 0.25
+    acc_noise: float = 0.01
+    bias_walk: float = 0.03
+    bias_walk_per_jerk: float = 0.3
+    bias0: float = 0.5
+    no_imu_noise: float = 1.0
+    gnss_tau_s: float = 30.0
+    white_share: float = 0.2
+    v_ratio: float = 2.0
+    accuracy_m: float = 5.0
+    key_sigma_m: float = 0.3
+    n_sigma: float = 5.5
+    v0_sigma: float = 2.0
+    windows_s: tuple[float, ...] = (3.0, 8.0)
+    probation: int = 3
+
+
+@dataclass(frozen=True)
+class Motion:
+    """The platform's acceleration: t (S,) session s, acc (S, 3) ENU m/s^2 (gravity removed);
+    felt: measured (False: no accelerometer, taken as zero). Integrated once: V(t) = the
+    integral of acc from t[0], X(t) = the integral of V (trapezoids between samples, the
+    acceleration zero outside them)."""
+
+    t: FloatArray
+    acc: FloatArray
+    felt: bool = True
+
+    @classmethod
+    def of(
+        cls,
+        t_acc: npt.ArrayLike,
+        acc_device: npt.ArrayLike,
+        t_att: npt.ArrayLike,
+        q_att: npt.ArrayLike,
+    ) -> Motion:
+        """From an accelerometer (times t_acc (S,) s, specific force acc_device (S, 3) m/s^2 in
+        the device frame) and the device attitude (times t_att (A,) s, device -> ENU
+        quaternions (A, 4), slerped): q f - (0, 0, g)."""
+        t = np.asarray(t_acc, np.float64)
+        q = rotations.slerp(t_att, q_att, t)
+        up = rotations.rotate(q, np.asarray(acc_device, np.float64).reshape(-1, 3))
+        return cls(t, up - [0.0, 0.0, STANDARD_GRAVITY])
+
+    @classmethod
+    def none(cls) -> Motion:
+        """No accelerometer: the acceleration taken as zero (the filter then keeps the velocity,
+        give or take InertialSettings.no_imu_noise)."""
+        return cls(np.array([0.0, 1.0]), np.zeros((2, 3)), felt=False)
+
+    @cached_property
+    def _integrals(self) -> tuple[FloatArray, FloatArray]:
+        dt = np.diff(self.t)[:, None]
+        v = np.vstack([np.zeros((1, 3)), np.cumsum(0.5 * (self.acc[1:] + self.acc[:-1]) * dt, 0)])
+        x = np.vstack([np.zeros((1, 3)), np.cumsum(0.5 * (v[1:] + v[:-1]) * dt, 0)])
+        return v, x
+
+    def integrals(self, tq: npt.ArrayLike) -> tuple[FloatArray, FloatArray]:
+        """(V (M, 3) m/s, X (M, 3) m) at session times tq (M,) s (module docstring)."""
+        tq = np.atleast_1d(np.asarray(tq, np.float64))
+        v, x = self._integrals
+        inside = np.clip(tq, self.t[0], self.t[-1])
+        vq = np.column_stack([np.interp(inside, self.t, v[:, k]) for k in range(3)])
+        # V is linear between samples, so X grows by the trapezoid of V from the sample before
+        i = np.clip(np.searchsorted(self.t, inside, side="right") - 1, 0, len(self.t) - 1)
+        xq = x[i] + 0.5 * (v[i] + vq) * (inside - self.t[i])[:, None]
+        xq += vq * (tq - inside)[:, None]  # beyond the samples: no acceleration
+        return vq, xq
+
+    def drift(self, t0: npt.ArrayLike, t1: npt.ArrayLike) -> FloatArray:
+        """(M, 3) m: how far the acceleration alone moves the platform from t0 to t1 (s, each
+        (M,)), from rest: X(t1) - X(t0) - V(t0) (t1 - t0)."""
+        t0, t1 = (
+            np.atleast_1d(np.asarray(t0, np.float64)),
+            np.atleast_1d(np.asarray(t1, np.float64)),
+        )
+        v0, x0 = self.integrals(t0)
+        _, x1 = self.integrals(t1)
+        return x1 - x0 - v0 * (t1 - t0)[:, None]
+
+    def jerk(self, tq: npt.ArrayLike, h: float = 0.25) -> FloatArray:
+        """(M,) how fast the horizontal acceleration changes (m/s^3) at times tq (s): the
+        difference of its means over the h seconds after and before, over h."""
+        tq = np.atleast_1d(np.asarray(tq, np.float64))
+        before, now, after = (self.integrals(tq + d)[0] for d in (-h, 0.0, h))
+        return np.linalg.norm(((after - now) - (now - before))[:, :2], axis=1) / (h * h)
+
+
+def chained(motion: Motion, t_key: npt.ArrayLike, p_key: npt.ArrayLike, t: float) -> FloatArray:
+    """(3,) ENU m: where the registered keyframes (times t_key (K,) s, K >= 2, positions p_key
+    (K, 3) m) lead at session time t by the IMU's motion: the position and velocity at the
+    first keyframe fitted (least squares) to p_k = p_0 + v_0 (t_k - t_0) + drift(t_0, t_k),
+    then carried to t. With no acceleration, constant velocity."""
+    tk = np.asarray(t_key, np.float64)
+    pk = np.asarray(p_key, np.float64).reshape(-1, 3)
+    d = motion.drift(np.full(len(tk), tk[0]), tk)
+    a = np.column_stack([np.ones(len(tk)), tk - tk[0]])
+    (p0, v0), *_ = np.linalg.lstsq(a, pk - d, rcond=None)
+    return p0 + v0 * (t - tk[0]) + motion.drift([tk[0]], [t])[0]
+
+
+@dataclass(frozen=True)
+class Carried:
+    """The filter's track at its nodes t (M,) s: position p (M, 3) ENU m, velocity v (M, 3) m/s,
+    the GNSS's own error e (M, 3) m (a fix there would say p + e), and the position's
+    standard deviation sigma (M, 3) m per axis; felt: an accelerometer drove it (else the
+    velocity was only held)."""
+
+    t: FloatArray
+    p: FloatArray
+    v: FloatArray
+    e: FloatArray
+    sigma: FloatArray
+    felt: bool = True
+
+    def at(self, tq: npt.ArrayLike) -> tuple[FloatArray, FloatArray]:
+        """(position (Q, 3) ENU m: cubic Hermite between the nodes on their positions and
+        velocities, held outside; sigma (Q, 3) m: linear between them) at session times tq."""
+        tq = np.clip(np.atleast_1d(np.asarray(tq, np.float64)), self.t[0], self.t[-1])
+        i = np.clip(np.searchsorted(self.t, tq, side="right") - 1, 0, len(self.t) - 2)
+        t0, t1 = self.t[i, None], self.t[i + 1, None]
+        p = hermite(t0, t1, self.p[i], self.p[i + 1], self.v[i], self.v[i + 1], tq[:, None])
+        sigma = np.column_stack([np.interp(tq, self.t, self.sigma[:, k]) for k in range(3)])
+        return p, sigma
+
+    def fix_at(self, tq: npt.ArrayLike) -> tuple[FloatArray, FloatArray]:
+        """(what an honest fix would say (Q, 3) ENU m: the position plus the GNSS's own error,
+        the velocity (Q, 3) m/s) at session times tq."""
+        tq = np.atleast_1d(np.asarray(tq, np.float64))
+        p, _ = self.at(tq)
+        e = np.column_stack([np.interp(tq, self.t, self.e[:, k]) for k in range(3)])
+        v = np.column_stack([np.interp(tq, self.t, self.v[:, k]) for k in range(3)])
+        return p + e, v
+
+
+@dataclass(frozen=True)
+class _Inputs:
+    """What the filter runs on: nodes t (M,); per interval k (t[k] -> t[k+1]) the velocity and
+    position the acceleration adds (dv, dx (M-1, 3)) and its horizontal jerk (dyn (M-1,) m/s^3);
+    per node the fix measured there (fix (M,) index, -1 none) and the keyframe (key (M,))."""
+
+    t: FloatArray
+    dv: FloatArray
+    dx: FloatArray
+    dyn: FloatArray
+    fix: npt.NDArray[np.int64]
+    key: npt.NDArray[np.int64]
+
+
+def _inputs(
+    motion: Motion,
+    t_fix: FloatArray,
+    t_key: FloatArray,
+    settings: InertialSettings,
+    span_s: tuple[float, float] | None = None,
+) -> _Inputs:
+    ends = np.concatenate([t_fix, t_key, [] if span_s is None else span_s])
+    t0, t1 = float(ends.min()), float(ends.max())
+    n = max(1, int(np.ceil((t1 - t0) / settings.step_s)))
+    t = np.unique(np.concatenate([np.linspace(t0, t1, n + 1), t_fix, t_key]))
+    v, x = motion.integrals(t)
+    dt = np.diff(t)
+    dv = np.diff(v, axis=0)
+    dx = np.diff(x, axis=0) - v[:-1] * dt[:, None]
+    dyn = motion.jerk(0.5 * (t[:-1] + t[1:])) if motion.felt else np.zeros(len(dt))
+    fix = np.full(len(t), -1)
+    fix[np.searchsorted(t, t_fix)] = np.arange(len(t_fix))
+    key = np.full(len(t), -1)
+    key[np.searchsorted(t, t_key)] = np.arange(len(t_key))
+    return _Inputs(t, dv, dx, dyn, fix, key)
+
+
+def _transition(dt: float, phi: float) -> FloatArray:
+    return np.array(
+        [
+            [1.0, dt, -0.5 * dt * dt, 0.0],
+            [0.0, 1.0, -dt, 0.0],
+            [0.0, 0.0, 1.0, 0.0],
+            [0.0, 0.0, 0.0, phi],
+        ]
+    )
+
+
+def _noise(dt: float, q_a: float, q_b: float, gm: FloatArray, phi: float) -> FloatArray:
+    """(3, 4, 4) the process noise over dt s: white acceleration q_a (m/s^2/sqrt(Hz)), its
+    error's walk q_b (m/s^2/sqrt(s)) integrated into velocity and position, the GNSS error's
+    Gauss-Markov step (stationary spread gm (3,) m)."""
+    a, b = q_a * q_a, q_b * q_b
+    q = np.zeros((4, 4))
+    q[0, 0] = a * dt**3 / 3 + b * dt**5 / 20
+    q[0, 1] = q[1, 0] = a * dt**2 / 2 + b * dt**4 / 8
+    q[0, 2] = q[2, 0] = -b * dt**3 / 6
+    q[1, 1] = a * dt + b * dt**3 / 3
+    q[1, 2] = q[2, 1] = -b * dt**2 / 2
+    q[2, 2] = b * dt
+    out = np.repeat(q[None], 3, axis=0)
+    out[:, 3, 3] = gm * gm * (1.0 - phi * phi)
+    return out
+
+
+_FIX_H = np.array([1.0, 0.0, 0.0, 1.0])  # a fix: position + the GNSS's own error
+_KEY_H = np.array([1.0, 0.0, 0.0, 0.0])  # a keyframe: the position
+
+
+def _update(x: FloatArray, p: FloatArray, h: FloatArray, z: FloatArray, r: FloatArray) -> None:
+    """Each axis's scalar measurement z (3,) = h x + noise of variance r (3,), in place (Joseph
+    form)."""
+    s = np.einsum("i,aij,j->a", h, p, h) + r
+    k = np.einsum("aij,j->ai", p, h) / s[:, None]
+    x += k * (z - x @ h)[:, None]
+    ikh = np.eye(4)[None] - k[:, :, None] * h[None, None, :]
+    p[:] = ikh @ p @ ikh.transpose(0, 2, 1) + r[:, None, None] * k[:, :, None] * k[:, None, :]
+
+
+class _Filter:
+    """The filter's steps over one set of inputs (module docstring): predict from node k-1 to
+    node k, update with a fix or a keyframe. State per axis [p, v, b, e]; x (3, 4), P (3, 4, 4)."""
+
+    def __init__(
+        self, inp: _Inputs, fix_sigma: FloatArray, felt: bool, settings: InertialSettings
+    ) -> None:
+        self.inp, self.fix_sigma, self.felt, self.s = inp, fix_sigma, felt, settings
+        # the stated accuracy above the receiver's usual one is taken as white: multipath comes
+        # and goes within seconds, and a receiver says so by a larger accuracy
+        usual = np.median(fix_sigma, axis=0) if len(fix_sigma) else np.zeros(3)
+        extra = np.maximum(fix_sigma**2 - usual**2, 0.0)
+        self.white = (settings.white_share * fix_sigma) ** 2 + extra
+        # the GNSS error's spread in force at each node: the last fix's stated one
+        last = np.maximum.accumulate(np.where(inp.fix >= 0, inp.fix, -1))
+        self.gm = (
+            fix_sigma[np.maximum(last, 0)]
+            if len(fix_sigma)
+            else np.full((len(inp.t), 3), settings.accuracy_m)
+        )
+
+    def start(self, first_enu: FloatArray | None, anchored: bool) -> tuple[FloatArray, FloatArray]:
+        """The state at the first node: at first_enu (3,) m (the first measurement; None:
+        none, anywhere), its spread three times the GNSS's, the velocity unknown (v0_sigma; 100
+        times that where no fix anchors it)."""
+        s = self.s
+        x = np.zeros((3, 4))
+        p = np.zeros((3, 4, 4))
+        sigma0 = self.gm[0]
+        p[:, 0, 0] = (3.0 * sigma0) ** 2 + 1.0
+        if first_enu is not None:
+            x[:, 0] = first_enu
+        else:  # nothing measured: anywhere
+            p[:, 0, 0] = 1e12
+        p[:, 1, 1] = s.v0_sigma**2 * (1.0 if anchored else 100.0)
+        p[:, 2, 2] = s.bias0**2 if self.felt else 0.0
+        p[:, 3, 3] = sigma0**2
+        return x, p
+
+    def predict(
+        self, x: FloatArray, p: FloatArray, k: int
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """(x, P, F) at node k from node k-1's."""
+        s, inp = self.s, self.inp
+        dt = inp.t[k] - inp.t[k - 1]
+        phi = float(np.exp(-dt / s.gnss_tau_s))
+        f = _transition(dt, phi)
+        q_a = s.acc_noise if self.felt else s.no_imu_noise
+        q_b = (s.bias_walk + s.bias_walk_per_jerk * inp.dyn[k - 1]) if self.felt else 0.0
+        x = x @ f.T
+        x[:, 0] += inp.dx[k - 1]
+        x[:, 1] += inp.dv[k - 1]
+        p = f[None] @ p @ f.T[None] + _noise(dt, q_a, q_b, self.gm[k - 1], phi)
+        return x, p, f
+
+    def fix_noise(self, j: int) -> FloatArray:
+        """(3,) fix j's white variance per axis (m^2): white_share of its stated accuracy, and
+        all of what that exceeds the fixes' median one by."""
+        return self.white[j]
+
+    def innovation(
+        self, x: FloatArray, p: FloatArray, z: FloatArray, j: int
+    ) -> tuple[FloatArray, bool, bool]:
+        """(fix j's innovation (3,) m at state x, P; whether its horizontal part (the
+        chi-square of east and north) and its height pass n_sigma)."""
+        nu = z - x @ _FIX_H
+        var = np.einsum("i,aij,j->a", _FIX_H, p, _FIX_H) + self.fix_noise(j)
+        n = self.s.n_sigma
+        return (
+            nu,
+            bool(nu[0] ** 2 / var[0] + nu[1] ** 2 / var[1] > n * n),
+            bool(abs(nu[2]) > n * np.sqrt(var[2])),
+        )
+
+
+def _smooth(
+    inp: _Inputs,
+    fix_enu: FloatArray,
+    fix_sigma: FloatArray,
+    use: npt.NDArray[np.bool_],
+    key_enu: FloatArray,
+    felt: bool,
+    settings: InertialSettings,
+) -> Carried:
+    """The filter forward over the fixes used and the keyframes, then back (Rauch-Tung-
+    Striebel)."""
+    flt = _Filter(inp, fix_sigma, felt, settings)
+    m = len(inp.t)
+    firsts = [
+        (inp.t[k], fix_enu[inp.fix[k]]) for k in range(m) if inp.fix[k] >= 0 and use[inp.fix[k]]
+    ][:1]
+    firsts += [(inp.t[k], key_enu[inp.key[k]]) for k in range(m) if inp.key[k] >= 0][:1]
+    first = min(firsts, key=lambda f: f[0])[1] if firsts else None
+    x, p = flt.start(first, anchored=bool(use.any()) or len(key_enu) > 1)
+    xs_p, ps_p = np.zeros((m, 3, 4)), np.zeros((m, 3, 4, 4))
+    xs_f, ps_f = np.zeros((m, 3, 4)), np.zeros((m, 3, 4, 4))
+    fs = np.zeros((m, 4, 4))
+    key_r = np.full(3, settings.key_sigma_m**2)
+    for k in range(m):
+        if k > 0:
+            x, p, fs[k - 1] = flt.predict(x, p, k)
+        xs_p[k], ps_p[k] = x, p
+        j, i = inp.fix[k], inp.key[k]
+        if (j >= 0 and use[j]) or i >= 0:
+            x, p = x.copy(), p.copy()
+        if j >= 0 and use[j]:
+            _update(x, p, _FIX_H, fix_enu[j], flt.fix_noise(j))
+        if i >= 0:
+            _update(x, p, _KEY_H, key_enu[i], key_r)
+        xs_f[k], ps_f[k] = x, p
+    xs, ps = xs_f.copy(), ps_f.copy()
+    for k in range(m - 2, -1, -1):
+        c = ps_f[k] @ fs[k].T[None] @ np.linalg.inv(ps_p[k + 1])
+        xs[k] = xs_f[k] + np.einsum("aij,aj->ai", c, xs[k + 1] - xs_p[k + 1])
+        ps[k] = ps_f[k] + c @ (ps[k + 1] - ps_p[k + 1]) @ c.transpose(0, 2, 1)
+    sigma = np.sqrt(np.maximum(ps[:, :, 0, 0], 0.0))
+    return Carried(inp.t, xs[:, :, 0], xs[:, :, 1], xs[:, :, 3], sigma, felt)
+
+
+def _screen(
+    inp: _Inputs, fix_enu: FloatArray, fix_sigma: FloatArray, settings: InertialSettings
+) -> tuple[FloatArray, npt.NDArray[np.bool_], npt.NDArray[np.bool_]]:
+    """The filter forward over the fixes, each tested before it is used (module docstring)
+    against the state one fix before it and against the states windows_s seconds before it
+    carried on by the IMU alone (a drag-off that the one-step test lets the filter follow a
+    little at a time stands out over a window); a fix that fails is not used, and where a
+    window's test fails, the fixes inside that window are taken back too (the filter restarts
+    from the window's start, carried by the IMU), and after a fix failed, probation fixes in a
+    row must pass before one is used again. Returns (each fix's innovation (N, 3) m against the
+    state one fix before it; whether its horizontal part failed, whether its height did (N,)
+    each)."""
+    flt = _Filter(inp, fix_sigma, True, settings)
+    m, n = len(inp.t), len(fix_enu)
+    x, p = flt.start(fix_enu[0], anchored=True)
+    xs, ps = np.zeros((m, 3, 4)), np.zeros((m, 3, 4, 4))
+    innovation = np.full((n, 3), np.nan)
+    bad_h = np.zeros(n, bool)
+    bad_v = np.zeros(n, bool)
+    passed = settings.probation  # fixes passed in a row since the last that failed
+    for k in range(m):
+        if k > 0:
+            x, p, _ = flt.predict(x, p, k)
+        j = inp.fix[k]
+        if j >= 0:
+            fail_from = None  # the earliest node a failed window began at
+            tests = [(k, x, p)]
+            for w in settings.windows_s:
+                a = int(np.searchsorted(inp.t, inp.t[k] - w, side="right")) - 1
+                if 0 <= a < k:
+                    xa, pa = xs[a], ps[a]
+                    for kk in range(a + 1, k + 1):
+                        xa, pa, _ = flt.predict(xa, pa, kk)
+                    tests.append((a, xa, pa))
+            for a, xa, pa in tests:
+                nu, h, v = flt.innovation(xa, pa, fix_enu[j], j)
+                if a == k:  # the residual said: against the state one fix before
+                    innovation[j] = nu
+                if h or v:
+                    bad_h[j] |= h
+                    bad_v[j] |= v
+                    if a < k:
+                        fail_from = a if fail_from is None else min(fail_from, a)
+            if fail_from is not None:  # take the window's fixes back: carry on from its start
+                x, p = xs[fail_from], ps[fail_from]
+                for kk in range(fail_from + 1, k + 1):
+                    x, p, _ = flt.predict(x, p, kk)
+            passed = 0 if bad_h[j] or bad_v[j] else passed + 1
+            if passed >= settings.probation:
+                x, p = x.copy(), p.copy()
+                _update(x, p, _FIX_H, fix_enu[j], flt.fix_noise(j))
+        xs[k], ps[k] = x, p
+    return innovation, bad_h, bad_v
+
+
+def _sigmas(accuracy_m: npt.ArrayLike | None, n: int, settings: InertialSettings) -> FloatArray:
+    """(N, 3) each fix's GNSS spread per axis (m): its stated horizontal accuracy (or
+    accuracy_m), v_ratio times that in height."""
+    acc = np.full(n, settings.accuracy_m)
+    if accuracy_m is not None:
+        given = np.asarray(accuracy_m, np.float64)
+        acc = np.where(np.isfinite(given) & (given > 0), given, settings.accuracy_m)
+    return np.column_stack([acc, acc, settings.v_ratio * acc])
+
+
+def check_against_imu(
+    motion: Motion,
+    t_fix: npt.ArrayLike,
+    enu_fix: npt.ArrayLike,
+    accuracy_m: npt.ArrayLike | None,
+    settings: InertialSettings = InertialSettings(),
+    check: CheckSettings | None = None,
+) -> GnssCheck:
+    """The fixes (times t_fix (N,) s, positions enu_fix (N, 3) m, stated horizontal accuracy
+    (N,) m or None) tested against the IMU's motion (module docstring): which are rejected,
+    the lies (witness `imu`; check: how alarms are merged and lies named, as the scene's test
+    does), and each fix's innovation (N, 3) m as its residual. With no accelerometer nothing
+    is tested."""
+    t = np.asarray(t_fix, np.float64)
+    enu = np.asarray(enu_fix, np.float64).reshape(-1, 3)
+    residual = np.full((len(t), 3), np.nan)
+    if not motion.felt or len(t) < 3:
+        return GnssCheck(FixStatus.all_used(t), (), residual)
+    inp = _inputs(motion, t, np.zeros(0), settings)
+    residual, bad_h, bad_v = _screen(inp, enu, _sigmas(accuracy_m, len(t), settings), settings)
+    tested = np.flatnonzero(np.isfinite(residual).all(axis=1))
+    # a lie the IMU caught began within its longest window before the alarm
+    back_s = max(settings.windows_s, default=0.0) + 1.0
+    rejected, lies = lies_of(
+        t,
+        enu,
+        residual,
+        tested,
+        bad_h[tested],
+        bad_v[tested],
+        check or CheckSettings(),
+        IMU,
+        back_s,
+    )
+    return GnssCheck(FixStatus(t, rejected), tuple(lies), residual)
+
+
+def carry(
+    motion: Motion,
+    t_fix: npt.ArrayLike,
+    enu_fix: npt.ArrayLike,
+    accuracy_m: npt.ArrayLike | None,
+    use: npt.ArrayLike,
+    t_key: npt.ArrayLike,
+    enu_key: npt.ArrayLike,
+    settings: InertialSettings = InertialSettings(),
+    span_s: tuple[float, float] | None = None,
+) -> Carried:
+    """The track the IMU's motion carries between the fixes used (times t_fix (N,) s,
+    positions enu_fix (N, 3) m, stated accuracy (N,) m or None, use (N,) bool) and the
+    registered keyframes (times t_key (K,) s, positions enu_key (K, 3) m), forward and back
+    (module docstring), over the span of both and span_s (session s)."""
+    t = np.asarray(t_fix, np.float64)
+    kt = np.asarray(t_key, np.float64)
+    order = np.argsort(kt)
+    kt = kt[order]
+    kp = np.asarray(enu_key, np.float64).reshape(-1, 3)[order]
+    inp = _inputs(motion, t, kt, settings, span_s)
+    sig = _sigmas(accuracy_m, len(t), settings)
+    enu = np.asarray(enu_fix, np.float64).reshape(-1, 3)
+    use = np.asarray(use, bool)
+    return _smooth(inp, enu, sig, use, kp, motion.felt, settings)
+
+
+def carried_positions(
+    fixes: PositionTrack,
+    carried: Carried,
+    rejected: npt.ArrayLike,
+    span_s: tuple[float, float],
+    frame: LocalFrame,
+) -> PositionTrack:
+    """The fixes (a PositionTrack) with the rejected
+    ones (N,) replaced by what an honest fix would have said there (Carried.fix_at), and
+    each outage between them (app.camera.trajectory.gap_intervals) and beyond them inside
+    span_s (the video's session seconds, farther than the gap limit) filled so at the
+    carried track's nodes, instead of crossed by a straight line; the others kept, with
+    their velocities. frame: the LocalFrame of the ENU positions."""
+    rejected = np.asarray(rejected, bool)
+    t = fixes.t
+    limit = gap_limit_s(t)
+    fill = np.zeros(len(carried.t), bool)
+    for k in np.flatnonzero(gap_intervals(t)):
+        fill |= (carried.t > t[k]) & (carried.t < t[k + 1])
+    fill |= (carried.t < t[0]) & (t[0] - span_s[0] > limit) & (carried.t >= span_s[0])
+    fill |= (carried.t > t[-1]) & (span_s[1] - t[-1] > limit) & (carried.t <= span_s[1])
+    if not rejected.any() and not fill.any():
+        return fixes
+    moved = np.concatenate([t[rejected], carried.t[fill]])
+    honest, vel = carried.fix_at(moved)
+    tt = np.concatenate([t[~rejected], moved])
+    geo = np.vstack(
+        [np.column_stack([fixes.lat, fixes.lon, fixes.h])[~rejected], frame.enu_to_geodetic(honest)]
+    )
+    v = np.vstack([fixes.vel_enu[~rejected], vel])
+    order = np.argsort(tt, kind="stable")
+    tt, geo, v = tt[order], geo[order], v[order]
+    keep = np.r_[True, np.diff(tt) > 1e-6]
+    return PositionTrack.from_fixes(tt[keep], geo[keep, 0], geo[keep, 1], geo[keep, 2], v[keep])
+
+
+def motion_of(session: Session, poses: PoseTrack, correction: Correction | None = None) -> Motion:
+    """The platform's acceleration from the session's accelerometer and the track's device
+    attitude, turned world-side by a registration's correction where given (its rotation at
+    each attitude sample: the registered attitude, whose tilt the keyframes hold);
+    Motion.none() where the session has no accelerometer."""
+    if session.acc is None or len(session.acc.t) < 2:
+        return Motion.none()
+    q = poses.q_device
+    if correction is not None and len(correction.t):
+        _, dr = correction(poses.t_att)
+        q = rotations.multiply(rotations.from_rotvec(dr), q)
+    return Motion.of(session.acc.t, session.acc.values, poses.t_att, q)
+
+
+def _fixes(
+    session: Session, track: CameraTrack
+) -> tuple[PositionTrack, FloatArray, FloatArray | None]:
+    """(the track's fixes, their ENU positions (N, 3) m, their stated accuracy (N,) m or None)."""
+    fixes = track.poses.positions
+    enu = track.poses.frame.geodetic_to_enu(fixes.lat, fixes.lon, fixes.h)
+    acc = session.gnss.h_acc
+    return fixes, enu, acc if acc is not None and len(acc) == len(fixes.t) else None
+
+
+def _video_span(session: Session) -> tuple[float, float]:
+    return float(session.frame_times[0]), float(session.frame_times[-1])
+
+
+@dataclass(frozen=True)
+class Screened:
+    """The prior before registration, its fixes tested against the IMU: track (the prior,
+    its positions carried by the IMU where its fixes were rejected or missing, which its
+    `fixes` say), check (the
+    IMU's verdict, app.register.gnss.GnssCheck), motion (the acceleration it integrated)."""
+
+    track: CameraTrack
+    check: GnssCheck
+    motion: Motion
+
+
+def screened(
+    session: Session, prior: CameraTrack, settings: InertialSettings = InertialSettings()
+) -> Screened:
+    """The prior's fixes tested against the IMU's motion (check_against_imu), and where they
+    were rejected or are missing (an outage) its positions carried by that motion between
+    the fixes around (carry over the fixes it kept): the start registration searches from,
+    which a lie the IMU caught no longer moves. A session without an accelerometer, or with
+    nothing rejected or missing, keeps its prior as it was."""
+    motion = motion_of(session, prior.poses)
+    fixes, enu, acc = _fixes(session, prior)
+    check = check_against_imu(motion, fixes.t, enu, acc, settings)
+    rejected = check.status.rejected
+    if not motion.felt or rejected.all():  # nothing to carry by, or from
+        return Screened(prior, check, motion)
+    span = _video_span(session)
+    carried = carry(motion, fixes.t, enu, acc, ~rejected, [], np.zeros((0, 3)), settings, span)
+    positions = carried_positions(fixes, carried, rejected, span, prior.poses.frame)
+    if positions is fixes:
+        return Screened(prior, check, motion)
+    poses = replace(prior.poses, positions=positions)
+    return Screened(replace(prior, poses=poses, fixes=check.status), check, motion)
+
+
+def carried_track(
+    session: Session,
+    fixes_track: CameraTrack,
+    keyframes: list[Keyframe],
+    check: GnssCheck,
+    correction: Correction,
+    settings: InertialSettings = InertialSettings(),
+) -> tuple[PositionTrack, Carried]:
+    """After registration: the track carried by the IMU's motion (under the registered
+    attitude, `correction`) over the fixes of fixes_track that `check` kept and the keyframes
+    used (module docstring), and the fixes' positions with the rejected and missing ones
+    taken from it (carried_positions; the others as they were)."""
+    motion = motion_of(session, fixes_track.poses, correction)
+    fixes, enu, acc = _fixes(session, fixes_track)
+    used = [k for k in keyframes if k.used]
+    kt = np.array([k.time_s for k in used], np.float64)
+    kp = np.array([k.position for k in used], np.float64).reshape(-1, 3)
+    span = _video_span(session)
+    rejected = check.status.rejected
+    carried = carry(motion, fixes.t, enu, acc, ~rejected, kt, kp, settings, span)
+    if rejected.all() and not len(kt):  # nothing measured it: the fixes as they were
+        return fixes, carried
+    if not motion.felt and not rejected.any():
+        return fixes, carried  # no IMU to carry an outage by: crossed as before
+    return carried_positions(fixes, carried, rejected, span, fixes_track.poses.frame), carried

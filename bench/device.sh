@@ -22,7 +22,7 @@ if [ "${1:-}" = "--prepare" ] || [ "${1:-}" = "--dry-run" ]; then MODE=${1#--}; 
 # The packages the device's image (python3 3.12 with numpy, scipy, OpenCV, Pillow, numba, h5py,
 # lxml...) lacks and the benchmarks import, at the versions `make setup` installed here.
 CARRY_PACKAGES="affine av cligj click-plugins DracoPy fastcrc geopandas glcontext ijson mapbox_earcut
-moderngl osmium owslib pmtiles pygeomag pymavlink pyproj rasterio shapely trimesh"
+moderngl osmium owslib pmtiles pygeomag pymavlink PyOpenGL pyproj rasterio shapely trimesh xyzservices"
 # EGL through libglvnd (the NVIDIA driver brings its vendor library, not the loader).
 GL_DEBS="libegl1 libglvnd0 libopengl0 libgl1 libglx0 libgles2"
 DEVICE_PYTHON=3.12

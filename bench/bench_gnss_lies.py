@@ -4,7 +4,7 @@ rejects, and what the lie costs the camera's position.
 
     python bench/bench_gnss_lies.py [--flights orbit survey] [--seeds 1 2] [--duration 40]
         [--from-s 15] [--lies jump drag1 drag drag5 frozen replay height] [--jobs 1]
-        [--json out.json] [--cases cases.jsonl] [--from-cases cases.jsonl]
+        [--json out.json] [--cases cases.jsonl] [--from-cases cases.jsonl] [--fog FROM TO]
 
 For each flight and seed a session is simulated (app.simulate.session: the video rendered from
 a world that differs from the model), then copies of it with the GNSS falsified from --from-s
@@ -22,6 +22,9 @@ it, the clean run's over the same frames, and the share of those frames whose po
 lies within 1 and 2 of the frame's sigma (app.solve.uncertainty); for the clean and the
 multipath runs, lies said and frames rejected (false alarms). --cases keeps each case's arrays as
 it is solved (a run cut short keeps what it finished); --from-cases makes the figures from them.
+--fog FROM TO greys every case's video over those media seconds (bench.bench_registration's
+fogged_copy: a stretch the scene cannot register, as sky, fog or a featureless field are), the
+clean run's too.
 
     python bench/bench_gnss_lies.py --live [--flights orbit survey] [--seeds 1 2]
         [--duration 40] [--from-s 15] [--live-lies drag1 drag drag5 jump] [--accuracy 2.5]
@@ -68,6 +71,7 @@ from app.simulate.sample import SAMPLE_SCENE  # noqa: E402
 from app.solve.accuracy import ProjectionProbe, true_track  # noqa: E402
 from app.solve.track import solve_track  # noqa: E402
 from app.solve.uncertainty import frame_sigmas  # noqa: E402
+from bench.bench_registration import fogged_copy  # noqa: E402
 from bench.common import table, write_json  # noqa: E402
 
 LIES = {
@@ -154,11 +158,18 @@ def run(manifest: Path) -> dict:
     }
 
 
-def _session(job: tuple[str, int, float, str]) -> tuple[str, int]:
-    """Write one simulated session (flight, seed, duration s, folder) and its multipath copy."""
-    flight, seed, duration, folder = job
+def _session(job: tuple[str, int, float, str, tuple[float, float] | None]) -> tuple[str, int]:
+    """Write one simulated session (flight, seed, duration s, folder, fog: its video grey over
+    these media seconds, or None) and its multipath copy."""
+    flight, seed, duration, folder, fog = job
     config = replace(sample.quick_config(duration), flight=flight, seed=seed)
-    sample.write_sample_session(Path(folder) / "clean", SAMPLE_SCENE, config)
+    clean = Path(folder) / "clean"
+    if fog is None:
+        sample.write_sample_session(clean, SAMPLE_SCENE, config)
+    else:  # every case, the clean one too, flies through the same fog
+        sample.write_sample_session(Path(folder) / "clear", SAMPLE_SCENE, config)
+        clean.mkdir(parents=True)
+        fogged_copy(Path(folder) / "clear", clean, fog)
     falsify(Path(folder) / "clean", Path(folder) / "multipath", Lie("multipath", -1e6, seed=seed))
     return flight, seed
 
@@ -204,8 +215,9 @@ def files_main(args: argparse.Namespace) -> int:
         units = {(f, s) for f, s, _ in done if all((f, s, n) in done for n in names)}
         return _figures(done, sorted(units), args)
     with tempfile.TemporaryDirectory(prefix="gnss-lies-") as tmp:
-        units = [(f, s, args.duration, str(Path(tmp) / f"{f}-{s}")) for s in args.seeds for f in args.flights]  # fmt: skip
-        cases = [(f, s, n, d, args.from_s) for f, s, _, d in units for n in ("clean", "multipath", *args.lies)]  # fmt: skip
+        fog = None if args.fog is None else tuple(args.fog)
+        units = [(f, s, args.duration, str(Path(tmp) / f"{f}-{s}"), fog) for s in args.seeds for f in args.flights]  # fmt: skip
+        cases = [(f, s, n, d, args.from_s) for f, s, _, d, _ in units for n in ("clean", "multipath", *args.lies)]  # fmt: skip
         with multiprocessing.get_context("spawn").Pool(args.jobs) as pool:
             list(pool.imap_unordered(_session, units))
             done = {}
@@ -215,7 +227,7 @@ def files_main(args: argparse.Namespace) -> int:
                 if args.cases is not None:  # every figure of the case, one JSON line
                     with open(args.cases, "a") as out:
                         out.write(json.dumps({"flight": f, "seed": s, "case": n} | {k: np.asarray(v).tolist() if isinstance(v, np.ndarray) else v for k, v in got.items()}) + "\n")  # fmt: skip
-    return _figures(done, sorted((f, s) for f, s, _, _ in units), args)
+    return _figures(done, sorted((f, s) for f, s, _, _, _ in units), args)
 
 
 def _figures(done: dict, units: list[tuple[str, int]], args: argparse.Namespace) -> int:
@@ -338,6 +350,14 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument(
         "--from-cases", type=Path, default=None, help="files: the figures of --cases', solving none"
+    )
+    parser.add_argument(
+        "--fog",
+        nargs=2,
+        type=float,
+        default=None,
+        metavar=("FROM", "TO"),
+        help="files: every case's video grey from FROM to TO s (a stretch that cannot register)",
     )
     parser.add_argument("--live", action="store_true", help="live downlinks, forward only")
     parser.add_argument("--live-lies", nargs="+", default=list(LIVE_LIES), choices=LIVE_LIES)

@@ -51,8 +51,9 @@ from bench.common import table, write_json  # noqa: E402
 FOG_S = (20.0, 35.0)
 
 
-def fogged_copy(sample: Path, out: Path) -> Path:
-    """The sample session copied into `out` with its video fogged over FOG_S (grey, no texture)."""
+def fogged_copy(sample: Path, out: Path, fog_s: tuple[float, float] = FOG_S) -> Path:
+    """The session in `sample` copied into `out` with its video fogged over fog_s (media
+    seconds from, to: grey, no texture); returns the copy's manifest."""
     for f in sample.iterdir():
         if f.is_file() and f.name != "clip.mp4":
             shutil.copy(f, out / f.name)
@@ -70,7 +71,7 @@ def fogged_copy(sample: Path, out: Path) -> Path:
     pts = np.asarray(info.pts_s)
 
     def frame(k: int) -> np.ndarray:
-        if FOG_S[0] <= pts[k] < FOG_S[1]:
+        if fog_s[0] <= pts[k] < fog_s[1]:
             return np.full_like(frames[k], 170)
         return frames[k]
 

@@ -171,7 +171,7 @@ def test_frames_say_used_rejected_and_missing_and_an_outage_when_it_ends():
 
 def test_the_drawn_shift_follows_a_drag_on_its_line_and_holds_a_jump():
     """The correction while the fix disagrees: the line through the last LIE_FIT disagreeing
-    keyframes (a drag's -2 m/s east, to be carried on), a single one held; while it agrees, the
+    keyframes (a drag's -2 m/s east, to be carried on), one or two: the newest held; while it agrees, the
     median of the agreeing run (a clean keyframe before the lie does not pull it)."""
     clean = [Kept(float(k), np.array([1.0, 0.0, 0.0]), np.zeros(3), False) for k in range(3)]
     drag = [Kept(3.0 + k, np.array([-2.0 * k, 0.0, 0.0]), np.zeros(3), True) for k in range(6)]
@@ -180,6 +180,11 @@ def test_the_drawn_shift_follows_a_drag_on_its_line_and_holds_a_jump():
     assert len(drag[-LIE_FIT:]) == LIE_FIT
     shift, rate = shift_model(clean + drag[:1])  # one keyframe on the scene: held
     assert shift == pytest.approx([0.0, 0.0, 0.0]) and rate == pytest.approx([0.0, 0.0, 0.0])
+    astray = [drag[0], Kept(3.5, np.array([3.0, 0.0, 0.0]), np.zeros(3), True)]
+    shift, rate = shift_model(clean + astray)  # two: the newest held, no line through them
+    assert shift == pytest.approx([3.0, 0.0, 0.0]) and not rate.any()
+    shift, rate = shift_model(clean + drag[:3])  # three: the line
+    assert shift == pytest.approx([-4.0, 0.0, 0.0]) and rate == pytest.approx([-2.0, 0.0, 0.0])
     back = [Kept(9.0 + k, np.array([1.2, 0.0, 0.0]), np.zeros(3), False) for k in range(2)]
     shift, rate = shift_model(clean + drag + back)
     assert shift == pytest.approx([1.2, 0.0, 0.0]) and not rate.any()

@@ -298,8 +298,10 @@ def shift_model(kept: list[Kept]) -> tuple[np.ndarray, np.ndarray]:
     keyframes (oldest first): the trailing run of those standing as the newest does (on the
     scene or not); the median of the last KEEP of an agreeing run within KEEP_S of the newest, no
     rate; the line through the
-    last LIE_FIT of a disagreeing run (one: held), on each axis where it moves RATE_MIN_MPS or
-    more (elsewhere their median, held)."""
+    last LIE_FIT of a disagreeing run, on each axis where it moves RATE_MIN_MPS or more
+    (elsewhere their median, held); fewer than three: the newest held (a line through two is
+    as wrong as either: one registered astray by 3 m half a second from the other draws a
+    6 m/s drag that the frames carry on until the next keyframe, seen under load)."""
     run: list[Kept] = []
     for k in reversed(kept):
         if k.on_scene != kept[-1].on_scene:
@@ -310,7 +312,7 @@ def shift_model(kept: list[Kept]) -> tuple[np.ndarray, np.ndarray]:
         return np.median(recent, axis=0), np.zeros(3)
     run = run[-LIE_FIT:]
     shifts = np.array([k.shift for k in run])
-    if len(run) < 2:
+    if len(run) < 3:
         return shifts[-1], np.zeros(3)
     t = np.array([k.t_s for k in run]) - run[-1].t_s
     # Theil-Sen on each axis: one keyframe registered astray among three moves neither

@@ -22,7 +22,6 @@ building is said ("no buildings in the area") and kept.
 
 from __future__ import annotations
 
-import gzip
 import hashlib
 import html
 import math
@@ -37,6 +36,7 @@ from dataclasses import dataclass
 from http.client import HTTPException
 from pathlib import Path
 
+from app.core.compression import DamagedGzip, gunzipped
 from app.core.messages import Messages
 from app.scene.layers import Layer
 from app.world.cache import TileCache
@@ -173,12 +173,10 @@ def _text(data: bytes, most: int = 200) -> str:
 def _gunzipped(raw: bytes, headers: dict[str, str]) -> bytes:
     """A body as sent, gunzipped where it is gzip (headers: keys lower case); raises _Fault for
     a damaged one."""
-    if headers.get("content-encoding", "").lower() == "gzip" or raw[:2] == b"\x1f\x8b":
-        try:
-            return gzip.decompress(raw)
-        except (OSError, EOFError) as exc:
-            raise _Fault(f"sent a damaged gzip answer ({exc})") from None
-    return raw
+    try:
+        return gunzipped(raw, headers.get("content-encoding", "").lower() == "gzip")
+    except DamagedGzip as exc:
+        raise _Fault(f"sent a damaged gzip answer ({exc})") from None
 
 
 def _http_error_text(exc: urllib.error.HTTPError) -> str:

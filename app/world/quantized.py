@@ -32,16 +32,15 @@ asked for.
 
 from __future__ import annotations
 
-import gzip
 import json
 import math
 import struct
 import urllib.parse
-import zlib
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from app.core.compression import DamagedGzip, gunzipped
 from app.world.grids import Matrix, TileGrid, to_lonlat
 from app.world.tiles import HALF_WORLD_M
 
@@ -117,11 +116,9 @@ class QuantizedMesh:
 
 def _gunzip(data: bytes) -> bytes:
     """`data` gunzipped where it starts as gzip does (servers keep tiles gzipped)."""
-    if data[:2] != b"\x1f\x8b":
-        return data
     try:
-        return gzip.decompress(data)
-    except (OSError, EOFError, zlib.error) as exc:
+        return gunzipped(data)
+    except DamagedGzip as exc:
         raise QuantizedMeshError(f"gzipped, but does not gunzip ({exc})") from None
 
 

@@ -14,12 +14,13 @@ location a message names goes through `redact`.
 
 from __future__ import annotations
 
-import gzip
 import os
 import re
 import urllib.error
 import urllib.parse
 import urllib.request
+
+from app.core.compression import DamagedGzip, gunzipped
 
 HTTP_TIMEOUT_S = 30.0
 # query parameters whose values are secrets: never in a message, a log or a file written
@@ -109,9 +110,7 @@ def read(location: str) -> bytes:
         raise FetchError(location, "file does not exist") from exc
     except OSError as exc:
         raise FetchError(location, str(exc)) from exc
-    if data[:2] == b"\x1f\x8b":
-        try:
-            data = gzip.decompress(data)
-        except (OSError, EOFError) as exc:
-            raise FetchError(location, f"damaged gzip data: {exc}") from exc
-    return data
+    try:
+        return gunzipped(data)
+    except DamagedGzip as exc:
+        raise FetchError(location, f"damaged gzip data: {exc}") from exc

@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import math
 import threading
-import time
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 
@@ -32,7 +31,15 @@ import numpy.typing as npt
 from app.camera.fixes import MISSING, REJECTED, STATES, USED, outage_said
 from app.core.constants import GAP_MIN_S
 from app.core.messages import Messages
-from app.register.gnss import DISAGREES, HEIGHT, JUMP_SHARE, CheckSettings, GnssLie, check_fixes
+from app.register.gnss import (
+    DISAGREES,
+    HEIGHT,
+    JUMP_SHARE,
+    CheckSettings,
+    GnssLie,
+    check_fixes,
+    clip_time,
+)
 
 HISTORY_S = 60.0  # keyframes tested together: the baseline's 30 s before an alarm, and more
 
@@ -46,14 +53,6 @@ class Verdict:
     lying: bool
     disagrees: bool
     threshold_m: float
-
-
-def when(t_s: float, utc_of: Callable[[float], float | None] | None) -> str:
-    """'09:47:40 (t = 40.0 s)', or 't = 40.0 s' where UTC is unknown: media time t_s (s) as the
-    lie's message says its times (GnssLie.said, the feed's first frame at 0)."""
-    clip = f"t = {t_s:.1f} s"
-    utc = None if utc_of is None else utc_of(t_s)
-    return clip if utc is None else f"{time.strftime('%H:%M:%S', time.gmtime(utc))} ({clip})"
 
 
 class GnssWatch:
@@ -192,7 +191,7 @@ class GnssWatch:
             self.lying = False
             self.lies[-1] = replace(lie, ended_s=self._last_bad_s)
             self.messages.add(
-                f"GNSS agrees with the scene again from {when(self._agree_since, self.utc_of)}: used again",
+                f"GNSS agrees with the scene again from {clip_time(self._agree_since, 0.0, self.utc_of)}: used again",
                 "info",
             )
 
@@ -227,7 +226,7 @@ class GnssWatch:
                 gone = t_s - self.outage_since
                 out.append(
                     (
-                        f"no GNSS since {when(self.outage_since, self.utc_of)} ({gone:.0f} s so far)",
+                        f"no GNSS since {clip_time(self.outage_since, 0.0, self.utc_of)} ({gone:.0f} s so far)",
                         MISSING,
                     )
                 )

@@ -78,6 +78,16 @@ class CheckSettings:
     replay_max_s: float = 600.0
 
 
+def clip_time(
+    t_s: float, t0_s: float = 0.0, utc_of: Callable[[float], float | None] | None = None
+) -> str:
+    """'09:47:40 (t = 40.0 s)', or 't = 40.0 s' where UTC is unknown: time t_s (s) as the lies'
+    messages say it, clip time from t0_s (s), UTC where utc_of(t_s) knows it."""
+    clip = f"t = {t_s - t0_s:.1f} s"
+    utc = None if utc_of is None else utc_of(t_s)
+    return clip if utc is None else f"{time.strftime('%H:%M:%S', time.gmtime(utc))} ({clip})"
+
+
 @dataclass(frozen=True)
 class GnssLie:
     """One lie: began_s when the fixes first left their own offset by more than their accuracy,
@@ -109,11 +119,7 @@ class GnssLie:
         scene and the IMU's motion" where the IMU caught it."""
 
         def when(t: float) -> str:
-            clip = f"t = {t - t0_s:.1f} s"
-            utc = None if utc_of is None else utc_of(t)
-            if utc is None:
-                return clip
-            return f"{time.strftime('%H:%M:%S', time.gmtime(utc))} ({clip})"
+            return clip_time(t, t0_s, utc_of)
 
         stands = "the scene's registered keyframes"
         if self.witness != SCENE:

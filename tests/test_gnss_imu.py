@@ -120,6 +120,18 @@ def test_a_lie_the_imu_did_not_feel_is_caught_without_a_scene(seed, name):
     assert not check.status.rejected[t < lie.from_s - 2.0].any()
 
 
+def test_a_frozen_fix_is_rejected_for_as_long_as_it_has_not_moved():
+    """Frozen from 30 s of 120: the IMU's spread grows until, 60 s on, the frozen fix would pass
+    its test again; every fix of the run that has not moved is a lie all the same (rejected to
+    the end, the lie said to last as long)."""
+    for seed in range(3):
+        t, fixes, acc = _fixes(seed, Lie("frozen", 30.0), duration_s=120.0)
+        check = check_against_imu(_circle_motion(t[0], t[-1]), t, fixes, acc)
+        [found] = check.lies
+        assert found.kind == FROZEN and found.ended_s == t[-1]
+        assert check.status.rejected[t >= 30.0].all()
+
+
 def test_a_fast_drag_off_is_caught_by_the_imu_a_slow_one_is_left_to_the_scene():
     """A 5 m/s drag-off east (a velocity step the IMU did not feel) is caught on at least 6 of
     8 tracks within 8 s; a 1 m/s one hides in the GNSS's own wander and the IMU's drift, and

@@ -281,9 +281,12 @@ def lies_of(
             earliest = max(n, int(np.searchsorted(t[tested], t[tested[a]] - back_s)))
         first = _onset(t[tested], away, earliest, a)
         kind, began, replay_of = DISAGREES, None, None
-        still = _frozen_since(t, enu, int(tested[a]), settings)
+        still = _frozen_span(t, enu, int(tested[a]), settings)
         if still is not None:
-            kind, began = FROZEN, still
+            kind, began = FROZEN, still[0]
+            # every fix of the frozen run is a lie, those a witness's growing spread lets pass too
+            end = max(end, still[1] + 1)
+            last = max(last, int(np.searchsorted(tested, still[1], side="right")) - 1)
         else:
             replay = _replayed(t, enu, int(tested[first]), end, settings)
             if replay is not None:
@@ -335,17 +338,20 @@ def _onset(t: FloatArray, away: FloatArray, n: int, a: int) -> int:
     return max(n, int(np.searchsorted(t, began - 1e-6)))
 
 
-def _frozen_since(t: FloatArray, enu: FloatArray, i: int, settings: CheckSettings) -> int | None:
-    """The first fix of a frozen run through fix i (times t (N,) s, positions enu (N, 3) m):
-    consecutive fixes within settings.still_m of each other spanning settings.min_still_s or
-    more (a receiver repeating an output it did not update is shorter); None where fix i moves."""
+def _frozen_span(
+    t: FloatArray, enu: FloatArray, i: int, settings: CheckSettings
+) -> tuple[int, int] | None:
+    """(the first fix, the last) of a frozen run through fix i (times t (N,) s, positions enu
+    (N, 3) m): consecutive fixes within settings.still_m of each other spanning
+    settings.min_still_s or more (a receiver repeating an output it did not update is
+    shorter); None where fix i moves."""
     step = np.r_[np.inf, np.linalg.norm(np.diff(enu, axis=0), axis=1), np.inf]  # into fix k
     lo, hi = i, i
     while step[lo] <= settings.still_m:
         lo -= 1
     while step[hi + 1] <= settings.still_m:
         hi += 1
-    return lo if t[hi] - t[lo] >= settings.min_still_s else None
+    return (int(lo), int(hi)) if t[hi] - t[lo] >= settings.min_still_s else None
 
 
 def _replayed(

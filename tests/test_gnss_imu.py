@@ -33,6 +33,7 @@ from app.register.inertial import (
     carry,
     chained,
     check_against_imu,
+    shifted_back,
 )
 from app.simulate import sensors
 from app.simulate.lies import Lie
@@ -305,3 +306,76 @@ def test_the_klv_says_what_positioned_each_frame():
     reg = SimpleNamespace(keyframes=(SimpleNamespace(used=True),), carried=carried)
     assert klv.carried_by_imu(SimpleNamespace(source="registered", registration=reg))
     assert not klv.carried_by_imu(SimpleNamespace(source="offline", registration=reg))
+
+
+def _carried_over_kept(t, fixes, acc, motion, check, kt=None, kp=None):
+    kt = np.zeros(0) if kt is None else kt
+    kp = np.zeros((0, 3)) if kp is None else kp
+    return carry(motion, t, fixes, acc, ~check.status.rejected, kt, kp)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_a_jump_whose_offset_holds_is_moved_back_and_carries_the_track(seed):
+    """A 200 m jump east from 30 s and no scene at all: the IMU catches it, and its fixes, moved
+    back by the jump, are honest again (the position plus the GNSS's own error): they are used
+    from the jump on, the offset found within 2.5 sigma of the fixes' accuracy (2.5 m) of the
+    200 m, and the track carried over them stays within 7.5 m (3 sigma) of the truth to the end;
+    carried by the IMU alone over the same 30 s it drifts off by more (its 0.1 m/s^2 error)."""
+    t, fixes, acc = _fixes(seed, Lie("jump", 30.0, size_m=200.0))
+    m = _circle_motion(t[0], t[-1])
+    check = check_against_imu(m, t, fixes, acc)
+    assert [found.kind for found in check.lies] == [DISAGREES]
+    alone = _carried_over_kept(t, fixes, acc, m, check)
+    back = shifted_back(m, t, fixes, acc, check, alone)
+    after = t >= 30.0
+    assert back.use[after].mean() >= 0.95 and not back.use[~after].any()
+    [lie] = back.check.lies
+    assert np.linalg.norm(lie.shift - [200.0, 0.0, 0.0]) < 2.5 * 2.5
+    assert lie.shifted_s[0] == pytest.approx(30.0, abs=1.0)
+    np.testing.assert_allclose(back.enu[back.use], fixes[back.use] - lie.shift)
+    carried = carry(m, t, back.enu, acc, ~check.status.rejected | back.use, [], np.zeros((0, 3)))
+    end = carried.t >= 30.0
+    error = np.linalg.norm(carried.p[end] - _circle(carried.t[end]), axis=1)
+    drift = np.linalg.norm(alone.p[end] - _circle(alone.t[end]), axis=1)
+    assert error.max() < 7.5 and drift.max() > error.max()
+    said = lie.said(0.0)
+    assert "not used as given" in said and re.search(r"moved back by (19\d|20\d) m \(E \+", said), (
+        said
+    )
+
+
+def test_a_drag_off_and_a_frozen_fix_are_not_moved_back():
+    """A drag-off has no step at its start and a frozen fix no steady offset: neither is moved
+    back, both stay rejected and the track stands on the IMU (and the scene) there."""
+    for lie in (Lie("drag", 30.0, speed_mps=5.0), Lie("frozen", 30.0)):
+        t, fixes, acc = _fixes(1, lie)
+        m = _circle_motion(t[0], t[-1])
+        check = check_against_imu(m, t, fixes, acc)
+        assert check.lies, lie
+        back = shifted_back(m, t, fixes, acc, check, _carried_over_kept(t, fixes, acc, m, check))
+        assert not back.use.any() and back.check is check
+        np.testing.assert_array_equal(back.enu, fixes)
+
+
+def test_a_jump_then_a_drag_off_uses_the_moved_fixes_only_until_the_drag_shows():
+    """A 100 m jump at 30 s, then from 40 s a 3 m/s drag-off on top, keyframes every 0.5 s at
+    the truth (0.1 m of noise): the jump's fixes moved back by the offset measured at its start
+    against the track the keyframes hold (within the fixes' own error) are used from the jump until the drag shows against the scene; none is
+    used once the drag has gone 5 m (the scene's floor) past its start, at 41.7 s."""
+    t, fixes, acc = _fixes(2)
+    fixes = fixes + np.where(t[:, None] >= 30.0, [100.0, 0.0, 0.0], 0.0)
+    fixes[:, 1] += np.where(t >= 40.0, 3.0 * (t - 40.0), 0.0)
+    m = _circle_motion(t[0], t[-1])
+    kt = np.arange(0.0, t[-1], 0.5)
+    kp = _circle(kt) + np.random.default_rng(2).normal(0, 0.1, (len(kt), 3))
+    check = merged(check_fixes(t, fixes, acc, kt, kp), check_against_imu(m, t, fixes, acc))
+    assert check.status.rejected[t >= 30.0].all()
+    carried = _carried_over_kept(t, fixes, acc, m, check, kt, kp)
+    back = shifted_back(m, t, fixes, acc, check, carried, t_key=kt, enu_key=kp)
+    used = t[back.use]
+    assert len(used) >= 6 and used[0] == pytest.approx(30.0, abs=1.0)
+    assert used[-1] < 40.0 + 5.0 / 3.0 + 2.0 and not back.use[t >= 45.0].any()
+    shift = [lie.shift for lie in back.check.lies if lie.shift is not None]
+    # within the fixes' own error then (a multipath burst of 5-7 m at the jump on this track)
+    bound = 2.5 * acc[(t >= 30.0) & (t <= 32.0)].max()
+    assert len(shift) == 1 and np.linalg.norm(shift[0] - [100.0, 0.0, 0.0]) < bound

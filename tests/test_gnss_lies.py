@@ -247,6 +247,11 @@ def test_a_jump_is_said_once_rejected_and_not_followed(solved):
     assert len(alarms) == 1 and abs(alarms[0] - LIE_FROM_S) <= 3.0, alarms
     assert (poses.gnss[t < LIE_FROM_S - 3.0] == USED).all()
     assert (poses.gnss[t >= LIE_FROM_S + 1.0] == REJECTED).all()
+    # its offset held: the fixes moved back by it carry the track (rejected as given), and say so
+    [lie] = track.registration.gnss.lies
+    assert lie.shift is not None and abs(np.linalg.norm(lie.shift) - 200.0) < 10.0, lie
+    said = [m.text for m in session.messages.since(0) if "moved back by" in m.text]
+    assert len(said) == 1 and "not used as given" in said[0], said
     # no interpolation across the jump: near the clean run's error everywhere, not metres off
     assert np.median(error[t >= LIE_FROM_S]) < 1.5 * np.median(clean_error[t >= LIE_FROM_S]) + 0.1
     assert np.percentile(error, 99) < 2.0, np.percentile(error, 99)

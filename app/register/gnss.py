@@ -97,7 +97,9 @@ class GnssLie:
     kind: LIE_KINDS (module docstring); replay_of_s: for a `replayed` lie, the session time of
     the earlier fix its first fix repeats (else None); witness (WITNESSES): what it was caught
     against, the registered keyframes (`scene`), the motion the IMU integrates
-    (`imu`, app.register.inertial) or both."""
+    (`imu`, app.register.inertial) or both; shift (3,) ENU m and shifted_s (first, last
+    session s): a jump whose offset held, its fixes moved back by it and used over that span
+    (app.register.inertial.shifted_back), else None."""
 
     began_s: float
     caught_s: float
@@ -108,6 +110,8 @@ class GnssLie:
     kind: str = DISAGREES
     replay_of_s: float | None = None
     witness: str = SCENE
+    shift: FloatArray | None = None
+    shifted_s: tuple[float, float] | None = None
 
     def said(self, t0_s: float, utc_of: Callable[[float], float | None] | None = None) -> str:
         """One line for people, clip times from the first frame's session time t0_s (s) and
@@ -127,6 +131,14 @@ class GnssLie:
         caught = f"caught at t = {self.caught_s - t0_s:.1f} s"
         tail = f": not used ({caught}; the track stands on {stands} there)"
         far, by, what = f"{self.worst_m:.0f} m", when(self.worst_s), WITNESS_WORDS[self.witness]
+        if self.shift is not None and self.shifted_s is not None:
+            e, n, u = self.shift
+            tail = (
+                f": not used as given ({caught}); moved back by {np.linalg.norm(self.shift):.0f} m"
+                f" (E {e:+.1f}, N {n:+.1f}, U {u:+.1f}) they agree with {what} again and carry"
+                f" the track from t = {self.shifted_s[0] - t0_s:.1f} to "
+                f"{self.shifted_s[1] - t0_s:.1f} s"
+            )
         if self.kind == FROZEN:
             return f"GNSS frozen from {when(self.began_s)}, {far} behind {what} by {by}{tail}"
         if self.kind == REPLAYED and self.replay_of_s is not None:

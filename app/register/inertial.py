@@ -47,7 +47,14 @@ from app.camera.trajectory import PoseTrack, PositionTrack, gap_intervals, gap_l
 from app.geodesy import rotations
 from app.geodesy.enu import LocalFrame
 from app.register.fuse import Correction, Keyframe
-from app.register.gnss import IMU, CheckSettings, GnssCheck, lies_of
+from app.register.gnss import (
+    DISAGREES,
+    IMU,
+    CheckSettings,
+    GnssCheck,
+    check_fixes,
+    lies_of,
+)
 from app.session.camera_track import CameraTrack
 from app.session.model import Session
 
@@ -537,6 +544,91 @@ def carry(
     return _smooth(inp, enu, sig, use, kp, motion.felt, settings)
 
 
+@dataclass(frozen=True)
+class Shifted:
+    """The fixes with each steady jump taken back off them: enu (N, 3) ENU m (a jump's fixes
+    moved back by its offset, the others as given), use (N,) which of the moved fixes agree
+    again (with the IMU's motion, and the keyframes where given) and so stand in the track,
+    check: the lies with their `shift` set where they were moved back."""
+
+    enu: FloatArray
+    use: npt.NDArray[np.bool_]
+    check: GnssCheck
+
+
+def shifted_back(
+    motion: Motion,
+    t_fix: FloatArray,
+    enu_fix: FloatArray,
+    accuracy_m: FloatArray | None,
+    check: GnssCheck,
+    carried: Carried,
+    settings: InertialSettings = InertialSettings(),
+    t_key: FloatArray | None = None,
+    enu_key: FloatArray | None = None,
+    lead_s: float = 2.0,
+) -> Shifted:
+    """A lie that jumped and then holds its offset (a spoofer that moved the whole track, a
+    datum or a base-station error) leaves honest fixes behind it: each fix moved back by the
+    jump is the position plus the GNSS's own error again. For each `disagrees` lie of check
+    whose first fixes (over lead_s s) already stand farther from the track carried over the
+    fixes kept (carried, Carried.fix_at: what an honest fix would say, from the fixes before
+    it and the keyframes) than the alarm's threshold (a jump: a drag-off starts near it), its
+    offset is their median distance from it (its first seconds only: a drag-off may follow);
+    its fixes moved back by it are tested again against the IMU's motion and the keyframes
+    (t_key (K,) s, enu_key (K, 3) m, where given), and those that pass from its start on,
+    until the first that fails (the lie moved on), are used. Times are session s, positions
+    ENU m (t_fix (N,), enu_fix (N, 3), accuracy_m (N,) m or None)."""
+    t = np.asarray(t_fix, np.float64)
+    enu = np.asarray(enu_fix, np.float64).reshape(-1, 3)
+    rejected = check.status.rejected
+    out, use = enu.copy(), np.zeros(len(t), bool)
+    sig = _sigmas(accuracy_m, len(t), settings)
+    cs = CheckSettings()
+    keys = t_key is not None and enu_key is not None and len(t_key) >= 2
+    if keys:
+        order = np.argsort(t_key)
+        kt = np.asarray(t_key, np.float64)[order]
+        kp = np.asarray(enu_key, np.float64).reshape(-1, 3)[order]
+    moved: list[tuple[int, npt.NDArray[np.int64], FloatArray]] = []
+    for n, lie in enumerate(check.lies):
+        idx = np.flatnonzero(rejected & (t >= lie.began_s - 1e-6) & (t <= lie.ended_s + 1e-6))
+        if lie.kind != DISAGREES or len(idx) < 3:
+            continue
+        lead = idx[t[idx] <= t[idx[0]] + lead_s]
+        honest, _ = carried.fix_at(t[lead])
+        d = np.median(enu[lead] - honest, axis=0)
+        acc = float(np.median(sig[idx, 0]))
+        if np.linalg.norm(d[:2]) <= max(cs.floor_m, cs.n_sigma * acc) and abs(d[2]) <= max(
+            cs.v_floor_m, cs.n_sigma * cs.v_ratio * acc
+        ):
+            continue  # no step at its start: a drag-off, whose offset does not hold
+        out[idx] = enu[idx] - d
+        moved.append((n, idx, d))
+    if not moved:
+        return Shifted(enu, use, check)
+    bad = check_against_imu(motion, t, out, accuracy_m, settings).status.rejected
+    if keys:
+        bad = bad | check_fixes(t, out, accuracy_m, kt, kp, cs).status.rejected
+    lies = list(check.lies)
+    for n, idx, d in moved:
+        ok = ~bad[idx]
+        early = np.flatnonzero(ok & (t[idx] <= t[idx[0]] + lead_s))  # edge fixes before the jump
+        if len(early):
+            first = int(early[0])
+            fails = np.flatnonzero(~ok[first:])
+            run = idx[first : first + (int(fails[0]) if len(fails) else len(idx))]
+        else:
+            run = idx[:0]
+        out[np.setdiff1d(idx, run)] = enu[np.setdiff1d(idx, run)]
+        if len(run) >= 3:
+            use[run] = True
+            lies[n] = replace(lies[n], shift=d, shifted_s=(float(t[run[0]]), float(t[run[-1]])))
+        else:
+            out[run] = enu[run]
+    return Shifted(out, use, replace(check, lies=tuple(lies)))
+
+
 def carried_positions(
     fixes: PositionTrack,
     carried: Carried,
@@ -629,11 +721,25 @@ def screened(
         return Screened(prior, check, motion)
     span = _video_span(session)
     carried = carry(motion, fixes.t, enu, acc, ~rejected, [], np.zeros((0, 3)), settings, span)
+    back = shifted_back(motion, fixes.t, enu, acc, check, carried, settings)
+    if back.use.any():  # a jump's fixes moved back carry the track, and are trusted as fixes
+        carried = carry(
+            motion,
+            fixes.t,
+            back.enu,
+            acc,
+            ~rejected | back.use,
+            [],
+            np.zeros((0, 3)),
+            settings,
+            span,
+        )
     positions = carried_positions(fixes, carried, rejected, span, prior.poses.frame)
     if positions is fixes:
         return Screened(prior, check, motion)
     poses = replace(prior.poses, positions=positions)
-    return Screened(replace(prior, poses=poses, fixes=check.status), check, motion)
+    status = replace(check.status, rejected=rejected & ~back.use)
+    return Screened(replace(prior, poses=poses, fixes=status), back.check, motion)
 
 
 def carried_track(
@@ -643,11 +749,12 @@ def carried_track(
     check: GnssCheck,
     correction: Correction,
     settings: InertialSettings = InertialSettings(),
-) -> tuple[PositionTrack, Carried]:
+) -> tuple[PositionTrack, Carried, GnssCheck]:
     """After registration: the track carried by the IMU's motion (under the registered
     attitude, `correction`) over the fixes of fixes_track that `check` kept and the keyframes
     used (module docstring), and the fixes' positions with the rejected and missing ones
-    taken from it (carried_positions; the others as they were)."""
+    taken from it (carried_positions; the others as they were); and check with each jump
+    whose fixes, moved back by it, were used (shifted_back) said so."""
     motion = motion_of(session, fixes_track.poses, correction)
     fixes, enu, acc = _fixes(session, fixes_track)
     used = [k for k in keyframes if k.used]
@@ -656,8 +763,14 @@ def carried_track(
     span = _video_span(session)
     rejected = check.status.rejected
     carried = carry(motion, fixes.t, enu, acc, ~rejected, kt, kp, settings, span)
+    if rejected.any() and (motion.felt or len(kt) >= 2):
+        back = shifted_back(motion, fixes.t, enu, acc, check, carried, settings, kt, kp)
+        if back.use.any():
+            check = back.check
+            carried = carry(motion, fixes.t, back.enu, acc, ~rejected | back.use, kt, kp, settings, span)  # fmt: skip
     if rejected.all() and not len(kt):  # nothing measured it: the fixes as they were
-        return fixes, carried
+        return fixes, carried, check
     if not motion.felt and not rejected.any():
-        return fixes, carried  # no IMU to carry an outage by: crossed as before
-    return carried_positions(fixes, carried, rejected, span, fixes_track.poses.frame), carried
+        return fixes, carried, check  # no IMU to carry an outage by: crossed as before
+    positions = carried_positions(fixes, carried, rejected, span, fixes_track.poses.frame)
+    return positions, carried, check

@@ -481,12 +481,13 @@ def registered_track(
         check = merged(tested_fixes(session, fixes_track, keyframes), screen.check)
         # where the GNSS lied or is missing the prior is carried by the IMU between the fixes
         # kept and the keyframes: no fusion across a lie, no straight line across an outage
-        positions, carried = _carried(session, fixes_track, keyframes, check, settings)
+        positions, carried, said = _carried(session, fixes_track, keyframes, check, settings)
         if positions is not fixes_track.poses.positions or prior_track is not fixes_track:
             poses = replace(fixes_track.poses, positions=positions)
             prior_track = replace(fixes_track, poses=poses)
             keyframes = gate(retimed(_ungated(keyframes), prior_track.poses, 0.0), settings.fuse)
-            carried = _carried(session, fixes_track, keyframes, check, settings)[1]
+            _, carried, said = _carried(session, fixes_track, keyframes, check, settings)
+        check = said
         t0 = float(session.frame_times[0])
         for lie in check.lies:
             session.messages.add_once(f"gnss-lie-{lie.began_s:.1f}", lie.said(t0, session.utc_of))
@@ -544,7 +545,7 @@ def _carried(
     keyframes: list[Keyframe],
     check: GnssCheck,
     settings: RegistrationSettings,
-) -> tuple[PositionTrack, inertial.Carried]:
+) -> tuple[PositionTrack, inertial.Carried, GnssCheck]:
     """app.register.inertial.carried_track under the keyframes' attitude correction."""
     correction = Correction.from_keyframes(keyframes, settings.fuse)
     return inertial.carried_track(session, fixes_track, keyframes, check, correction)

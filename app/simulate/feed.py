@@ -140,14 +140,38 @@ def free_udp_port(host: str = "127.0.0.1") -> int:
         return int(s.getsockname()[1])
 
 
+PROC_UDP = (Path("/proc/net/udp"), Path("/proc/net/udp6"))  # Linux's table of UDP sockets
+
+
 def port_held(port: int, host: str = "127.0.0.1") -> bool:
-    """Whether someone (a receiver) holds the UDP port on host."""
+    """Whether someone (a receiver) holds the UDP port on host. Where the system lists its
+    sockets (Linux's /proc/net/udp) it is read there, touching nothing: a probe that binds the
+    port itself, however briefly, can take it from a receiver binding at that moment (seen on a
+    loaded machine, where the probe's thread is set aside while it holds the port). Elsewhere
+    that probe: a bind that fails with EADDRINUSE."""
+    tables = [p for p in PROC_UDP if p.is_file()]
+    if tables:
+        return any(_listed(table, port) for table in tables)
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         try:
             s.bind((host, port))
         except OSError as exc:
             return exc.errno == errno.EADDRINUSE
     return False
+
+
+def _listed(table: Path, port: int) -> bool:
+    """Whether a /proc/net/udp(6) table lists a socket bound to the port (its local address's
+    port, hexadecimal after the colon), on any address."""
+    try:
+        lines = table.read_text().splitlines()[1:]
+    except OSError:
+        return False
+    want = f"{port:04X}"
+    return any(
+        len(fields) > 1 and fields[1].rsplit(":", 1)[-1] == want
+        for fields in (line.split() for line in lines)
+    )
 
 
 def sending_clock(sender: Sender, port: int, limit_s: float = 30.0) -> Callable[[], float]:

@@ -126,6 +126,21 @@ class Motion:
         up = rotations.rotate(q, np.asarray(acc_device, np.float64).reshape(-1, 3))
         return cls(t, up - [0.0, 0.0, STANDARD_GRAVITY])
 
+    def turned(self, rotvec: npt.ArrayLike, span_s: tuple[float, float] | None = None) -> Motion:
+        """The acceleration as it would be under an attitude turned world-side by rotvec (3,)
+        rad (a registration's rotation correction: R q f - g = R (acc + g) - g), over the
+        samples inside span_s (session s, a sample either side kept; None: all)."""
+        t, acc = self.t, self.acc
+        if span_s is not None:
+            a = max(int(np.searchsorted(t, span_s[0])) - 1, 0)
+            b = min(int(np.searchsorted(t, span_s[1], side="right")) + 1, len(t))
+            t, acc = t[a:b], acc[a:b]
+        if not self.felt or len(t) < 2:
+            return self
+        g = np.array([0.0, 0.0, STANDARD_GRAVITY])
+        q = rotations.from_rotvec(np.asarray(rotvec, np.float64).reshape(1, 3))
+        return Motion(t, rotations.rotate(np.repeat(q, len(t), 0), acc + g) - g)
+
     @classmethod
     def none(cls) -> Motion:
         """No accelerometer: the acceleration taken as zero (the filter then keeps the velocity,

@@ -212,12 +212,15 @@ def _chained(
     start: Camera,
     within_s: float,
     motion: inertial.Motion | None = None,
+    correction: Correction | None = None,
 ) -> Camera | None:
     """`start` moved to where the last registered keyframes lead at session time t (s): with
     an accelerometer (`motion`), the last four within within_s seconds carried on by the IMU's
-    motion (app.register.inertial.chained: a turn is followed); without, the last one's
-    position carried on at the velocity from the one before it (ENU m, m/s); None where none
-    is that recent."""
+    motion (app.register.inertial.chained: a turn is followed), under the attitude the
+    keyframes registered (correction's rotation at the last of them, held: the prior's tilt
+    errs in a turn, where the attitude filter takes part of the turn's acceleration for
+    gravity, and the motion with it); without, the last one's position carried on at the
+    velocity from the one before it (ENU m, m/s); None where none is that recent."""
     solved = [k for k in keyframes[-4:] if k.registered and t - k.time_s <= within_s]
     if not solved:
         return None
@@ -225,6 +228,9 @@ def _chained(
     p = np.asarray(last.position, np.float64)
     times = [k.time_s for k in solved]
     if motion is not None and motion.felt and len(solved) > 1 and times[-1] > times[0]:
+        if correction is not None and len(correction.t):
+            _, dr = correction([times[-1]])
+            motion = motion.turned(dr[0], (times[0], max(t, times[-1])))
         p = inertial.chained(motion, times, [k.position for k in solved], t)
     elif len(solved) > 1 and last.time_s > solved[-2].time_s:
         v = (p - np.asarray(solved[-2].position)) / (last.time_s - solved[-2].time_s)
@@ -374,7 +380,7 @@ class Registrar:
             so_far = Correction.from_keyframes(keyframes[-5:], s.fuse)
             first = None if begin is None else begin(int(k))
             start = _shifted(prior_cam, so_far, t)
-            chained = _chained(keyframes, t, start, s.chain_s, motion)
+            chained = _chained(keyframes, t, start, s.chain_s, motion, so_far)
             fix, solved, renders = None, None, 0
             starts = [start, prior_cam] if len(so_far.t) else [start]  # the plain prior last
             # where the prior moved unlike the scene (GNSS jumped or drags off) or stands on no

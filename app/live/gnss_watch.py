@@ -100,11 +100,8 @@ class GnssWatch:
     def threshold_m(self, accuracy_m: float) -> tuple[float, float]:
         """(horizontal, vertical) m beyond which a fix stating accuracy_m (m) disagrees: as
         app.register.gnss.check_fixes holds it."""
-        s = self.settings
-        return (
-            max(s.floor_m, s.n_sigma * accuracy_m),
-            max(s.v_floor_m, s.n_sigma * s.v_ratio * accuracy_m),
-        )
+        h, v = self.settings.thresholds(accuracy_m)
+        return float(h), float(v)
 
     def keyframe(
         self,

@@ -77,6 +77,15 @@ class CheckSettings:
     repeat_m: float = 0.05
     replay_max_s: float = 600.0
 
+    def thresholds(self, accuracy_m: npt.ArrayLike) -> tuple[FloatArray, FloatArray]:
+        """(horizontal, vertical) m beyond which a fix stating accuracy_m (m, each fix's or
+        one) disagrees: max(floor_m, n_sigma x it), max(v_floor_m, n_sigma x v_ratio x it)."""
+        acc = np.asarray(accuracy_m, np.float64)
+        return (
+            np.maximum(self.floor_m, self.n_sigma * acc),
+            np.maximum(self.v_floor_m, self.n_sigma * self.v_ratio * acc),
+        )
+
 
 def clip_time(
     t_s: float, t0_s: float = 0.0, utc_of: Callable[[float], float | None] | None = None
@@ -230,10 +239,8 @@ def check_fixes(
     residual[tested] = running_median(raw[tested], settings.window)
     off_h = np.linalg.norm(residual[tested, :2], axis=1)
     off_v = np.abs(residual[tested, 2])
-    bad_h = off_h > np.maximum(settings.floor_m, settings.n_sigma * acc[tested])
-    bad_v = off_v > np.maximum(
-        settings.v_floor_m, settings.n_sigma * settings.v_ratio * acc[tested]
-    )
+    h, v = settings.thresholds(acc[tested])
+    bad_h, bad_v = off_h > h, off_v > v
     rejected, lies = lies_of(t, enu, residual, tested, bad_h, bad_v, settings)
     return GnssCheck(FixStatus(t, rejected), tuple(lies), residual)
 

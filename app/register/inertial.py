@@ -600,11 +600,6 @@ def shifted_back(
     out, use = enu.copy(), np.zeros(len(t), bool)
     sig = _sigmas(accuracy_m, len(t), settings)
     cs = CheckSettings()
-    keys = t_key is not None and enu_key is not None and len(t_key) >= 2
-    if keys:
-        order = np.argsort(t_key)
-        kt = np.asarray(t_key, np.float64)[order]
-        kp = np.asarray(enu_key, np.float64).reshape(-1, 3)[order]
     moved: list[tuple[int, npt.NDArray[np.int64], FloatArray]] = []
     for n, lie in enumerate(check.lies):
         idx = np.flatnonzero(rejected & (t >= lie.began_s - 1e-6) & (t <= lie.ended_s + 1e-6))
@@ -613,34 +608,32 @@ def shifted_back(
         lead = idx[t[idx] <= t[idx[0]] + lead_s]
         honest, _ = carried.fix_at(t[lead])
         d = np.median(enu[lead] - honest, axis=0)
-        acc = float(np.median(sig[idx, 0]))
-        if np.linalg.norm(d[:2]) <= max(cs.floor_m, cs.n_sigma * acc) and abs(d[2]) <= max(
-            cs.v_floor_m, cs.n_sigma * cs.v_ratio * acc
-        ):
+        h, v = cs.thresholds(np.median(sig[idx, 0]))
+        if np.linalg.norm(d[:2]) <= h and abs(d[2]) <= v:
             continue  # no step at its start: a drag-off, whose offset does not hold
         out[idx] = enu[idx] - d
         moved.append((n, idx, d))
     if not moved:
         return Shifted(enu, use, check)
     bad = check_against_imu(motion, t, out, accuracy_m, settings).status.rejected
-    if keys:
-        bad = bad | check_fixes(t, out, accuracy_m, kt, kp, cs).status.rejected
+    if t_key is not None and enu_key is not None and len(t_key) >= 2:
+        bad = bad | check_fixes(t, out, accuracy_m, t_key, enu_key, cs).status.rejected
     lies = list(check.lies)
     for n, idx, d in moved:
         ok = ~bad[idx]
         early = np.flatnonzero(ok & (t[idx] <= t[idx[0]] + lead_s))  # edge fixes before the jump
+        run = idx[:0]
         if len(early):
             first = int(early[0])
             fails = np.flatnonzero(~ok[first:])
             run = idx[first : first + (int(fails[0]) if len(fails) else len(idx))]
-        else:
+        if len(run) < 3:
             run = idx[:0]
-        out[np.setdiff1d(idx, run)] = enu[np.setdiff1d(idx, run)]
-        if len(run) >= 3:
+        rest = np.setdiff1d(idx, run)
+        out[rest] = enu[rest]  # moved back but not used: as given
+        if len(run):
             use[run] = True
             lies[n] = replace(lies[n], shift=d, shifted_s=(float(t[run[0]]), float(t[run[-1]])))
-        else:
-            out[run] = enu[run]
     return Shifted(out, use, replace(check, lies=tuple(lies)))
 
 

@@ -66,6 +66,7 @@ from app.simulate.tileset import b3dm, glb, region_of  # noqa: E402
 from app.solve.accuracy import true_track  # noqa: E402
 from app.solve.track import solve_track  # noqa: E402
 from app.world.sources import encode_heights  # noqa: E402
+from app.world.tiles import pixel_m  # noqa: E402
 from bench.common import machine, table, write_json  # noqa: E402
 from tests.test_world import _tile_lat_lon  # noqa: E402
 from tests.test_world_quantized import encode_tile, layer_json  # noqa: E402
@@ -78,7 +79,6 @@ HEIGHT_CELL_M = 4.0  # the ground heights' grid, m
 AREA_MARGIN_M = 400.0  # the area served reaches this far beyond the track (within the model)
 QM_MAX_ZOOM = 17  # the finest quantized-mesh level served (geodetic tiles: ~1.3 m a vertex)
 TERRAIN_RGB_MAX_ZOOM = 17
-EQUATOR_PX_M = 2 * math.pi * 6378137.0 / 256  # a Web Mercator pixel at zoom 0 on the equator, m
 
 
 class SiteRaster:
@@ -232,8 +232,7 @@ def buildings_tileset(
 
 def zoom_for(mpp: float, lat_deg: float) -> int:
     """The Web Mercator zoom whose pixel at lat_deg is closest to mpp metres (in log)."""
-    at0 = EQUATOR_PX_M * math.cos(math.radians(lat_deg))
-    return int(round(math.log2(at0 / mpp)))
+    return int(round(math.log2(pixel_m(0, 256, lat_deg) / mpp)))
 
 
 def world_manifest(
@@ -336,7 +335,7 @@ def run_session(folder: Path, flight: str, seed: int, args: argparse.Namespace) 
     try:
         for mpp in args.mpp:
             z = zoom_for(mpp, float(origin[0]))
-            px = EQUATOR_PX_M * math.cos(math.radians(float(origin[0]))) / 2**z
+            px = pixel_m(z, 256, float(origin[0]))
             for terrain, tiles3d in [(t, b) for t in args.terrain for b in args.buildings]:
                 url = (
                     f"terrain-rgb:{server.base}/dem/{{z}}/{{x}}/{{y}}.png"

@@ -4,7 +4,7 @@ loopback, and the GNSS prior alone; camera error against the truth.
 
     python bench/bench_world_registration.py [--flights orbit survey] [--seeds 1]
         [--duration 20] [--mpp 0.3 1] [--terrain terrain-rgb quantized-mesh]
-        [--buildings 3dtiles none] [--json F]
+        [--buildings 3dtiles osm none] [--json F]
 
 For each flight and seed a session is simulated (app.simulate.session: the video rendered from
 a world that differs from its model; the manifest names the model). The model is then served
@@ -17,7 +17,10 @@ lowest surface under each point, app.scene.ground.ground_heights, on a HEIGHT_CE
 ellipsoidal heights) as Terrain-RGB PNG tiles and as quantized-mesh (tests.test_world_quantized's
 encoder, geodetic tiles, a layer.json); buildings (--buildings 3dtiles) as a 3D Tiles 1.0
 tileset (every primitive of the model but its ground, one b3dm each, textures kept), a
-[[layers]] path over HTTP; --buildings none: imagery and terrain alone. Each variant is a copy
+[[layers]] path over HTTP; --buildings osm: the model's buildings as OpenStreetMap footprints
+with a height tag, their corners a little off (osm_buildings: LoD1, untextured, what a real
+tile world mostly has), a local .osm [[layers]] path; --buildings none: imagery and terrain
+alone. Each variant is a copy
 of the manifest with [scene] replaced by [origin] (the scene's origin, so the truth's frame is
 the same) and a [world] table naming the loopback sources, its own tile cache.
 
@@ -62,6 +65,7 @@ from app.scene.mesh import MeshData  # noqa: E402
 from app.session import open_session  # noqa: E402
 from app.simulate import session as sample  # noqa: E402
 from app.simulate.sample import SAMPLE_SCENE  # noqa: E402
+from app.simulate.stadium import BUILDINGS, HALL_MAX, HALL_MIN  # noqa: E402
 from app.simulate.tileset import b3dm, glb, region_of  # noqa: E402
 from app.solve.accuracy import true_track  # noqa: E402
 from app.solve.track import solve_track  # noqa: E402
@@ -79,6 +83,8 @@ HEIGHT_CELL_M = 4.0  # the ground heights' grid, m
 AREA_MARGIN_M = 400.0  # the area served reaches this far beyond the track (within the model)
 QM_MAX_ZOOM = 17  # the finest quantized-mesh level served (geodetic tiles: ~1.3 m a vertex)
 TERRAIN_RGB_MAX_ZOOM = 17
+BUILDINGS_SAID = {"3dtiles": ", 3D Tiles buildings", "osm": ", OSM LoD1 buildings", "none": ""}
+OSM_CORNER_SD_M = 0.7  # an OpenStreetMap footprint's corners lie this far off (sd, m: traced)
 
 
 class SiteRaster:
@@ -230,6 +236,30 @@ def buildings_tileset(
     return files
 
 
+def osm_buildings(frame: LocalFrame, seed: int) -> bytes:
+    """The sample site's buildings as OpenStreetMap XML, as a mapper would have traced them: the
+    hall and app.simulate.stadium.BUILDINGS (the model's boxes, ENU m of `frame`), each a closed
+    way tagged building=yes with its height to the metre, every corner moved by a normal
+    OSM_CORNER_SD_M (m) east and north (seeded): LoD1, untextured, a little off."""
+    rng = np.random.default_rng(seed)
+    boxes = [(HALL_MIN, HALL_MAX)] + [(b.min_corner, b.max_corner) for b in BUILDINGS]
+    nodes, ways = [], []
+    for w, (lo, hi) in enumerate(boxes, start=1):
+        corners = np.array([[lo[0], lo[1]], [hi[0], lo[1]], [hi[0], hi[1]], [lo[0], hi[1]]])
+        corners = corners + rng.normal(0.0, OSM_CORNER_SD_M, corners.shape)
+        lat_lon = frame.enu_to_geodetic(np.column_stack([corners, np.zeros(4)]))[:, :2]
+        ids = [10 * w + i for i in range(4)]
+        nodes += [
+            f'  <node id="{i}" lat="{la:.8f}" lon="{lo_:.8f}"/>' for i, (la, lo_) in zip(ids, lat_lon, strict=True)
+        ]  # fmt: skip
+        refs = "".join(f'<nd ref="{i}"/>' for i in [*ids, ids[0]])
+        ways.append(
+            f'  <way id="{w}">{refs}<tag k="building" v="yes"/>'
+            f'<tag k="height" v="{round(hi[2] - lo[2]):d}"/></way>'
+        )
+    return "\n".join(['<?xml version="1.0" encoding="UTF-8"?>', '<osm version="0.6">', *nodes, *ways, "</osm>\n"]).encode()  # fmt: skip
+
+
 def zoom_for(mpp: float, lat_deg: float) -> int:
     """The Web Mercator zoom whose pixel at lat_deg is closest to mpp metres (in log)."""
     return int(round(math.log2(pixel_m(0, 256, lat_deg) / mpp)))
@@ -332,6 +362,9 @@ def run_session(folder: Path, flight: str, seed: int, args: argparse.Namespace) 
     server.files |= {
         f"/3d/{k}": v for k, v in buildings_tileset(session.mesh, session.frame).items()
     }
+    osm = folder / "buildings.osm"
+    osm.write_bytes(osm_buildings(session.frame, seed))
+    buildings = {"3dtiles": f"{server.base}/3d/tileset.json", "osm": str(osm), "none": None}
     try:
         for mpp in args.mpp:
             z = zoom_for(mpp, float(origin[0]))
@@ -350,11 +383,8 @@ def run_session(folder: Path, flight: str, seed: int, args: argparse.Namespace) 
                 if terrain == "terrain-rgb":
                     world["terrain_max_zoom"] = TERRAIN_RGB_MAX_ZOOM
                 name = f"world-z{z}-{terrain}-{tiles3d}"
-                b = f"{server.base}/3d/tileset.json" if tiles3d == "3dtiles" else None
-                manifest = world_manifest(base, name, origin, world, b)
-                label = f"tiles z{z} ({px:.2f} m/px), {terrain}" + (
-                    ", 3D Tiles buildings" if b else ""
-                )
+                manifest = world_manifest(base, name, origin, world, buildings[tiles3d])
+                label = f"tiles z{z} ({px:.2f} m/px), {terrain}{BUILDINGS_SAID[tiles3d]}"
                 try:
                     row(label, measure(manifest, "registered", folder / f"cache-{name}"))
                 except Exception as exc:  # noqa: BLE001 (the bench reports and goes on)
@@ -379,8 +409,9 @@ def main(argv: list[str] | None = None) -> int:
         choices=["terrain-rgb", "quantized-mesh"],
     )  # fmt: skip
     parser.add_argument(
-        "--buildings", nargs="+", default=["3dtiles", "none"], choices=["3dtiles", "none"],
-        help="the tile worlds with the model's buildings as 3D Tiles, without, or both",
+        "--buildings", nargs="+", default=["3dtiles", "none"], choices=list(BUILDINGS_SAID),
+        help="the tile worlds with the model's buildings as 3D Tiles, as OpenStreetMap LoD1"
+        " footprints (osm_buildings), without, or some of them",
     )  # fmt: skip
     parser.add_argument("--json", type=Path, default=None)
     args = parser.parse_args(argv)

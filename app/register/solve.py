@@ -355,17 +355,21 @@ class Registrar:
         progress: Callable[[float], None] | None = None,
         stop: Callable[[], bool] | None = None,
         begin: Callable[[int], Camera] | None = None,
+        motion: inertial.Motion | None = None,
     ) -> Registration:
         """Every keyframe of the video registered, starting each from the prior's pose moved by
         the corrections found so far; the keyframes gated against their neighbours. stop() is
         asked before each keyframe: True raises Cancelled. begin(k): where the search of the
-        keyframe at video frame k begins (keyframe's `begin`; default: its start)."""
+        keyframe at video frame k begins (keyframe's `begin`; default: its start). motion: the
+        platform's acceleration the keyframes are chained by (app.register.inertial.motion_of
+        under the prior's attitude, as `screened` found it; default: computed here)."""
         s = self.settings
         video = self.session.video
         idx = keyframe_indices(np.asarray(video.pts_s, np.float64), s.every_s)
         keyframes: list[Keyframe] = []
         frames = frames_at(video, idx, s.long_side)
-        motion = inertial.motion_of(self.session, prior.poses)  # keyframes chained by the IMU
+        if motion is None:  # keyframes chained by the IMU
+            motion = inertial.motion_of(self.session, prior.poses)
         while True:
             with _lap(self.stage_s, "decode"):
                 k, rgb = next(frames, (None, None))
@@ -475,7 +479,8 @@ def registered_track(
     try:
         if cold:
             prior_track = coldstart.started(session, source, registrar, **track_options)
-        reg = registrar.run(prior_track, progress, stop, begin)
+        motion = None if screen is None else screen.motion  # the same attitude's
+        reg = registrar.run(prior_track, progress, stop, begin, motion)
     finally:
         registrar.release()
     keyframes = list(reg.keyframes)

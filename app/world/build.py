@@ -294,7 +294,7 @@ def plan_world(
     lat0 = float(np.mean(lat))
     reach = min(max(reach_m, MIN_REACH_M), max_reach_m)
     bounds = _bounds(lat, lon, reach)
-    box = world_box(lat, lon, reach_m, max_reach_m)
+    box = lonlat_box(lat, lon, reach)
     needed = max(MIN_GSD_M, abs(height_m) / 1000.0)  # a 1000-px-wide view of 53 deg, nadir
     plans = []
     for kind, source, needed_m, budget in (

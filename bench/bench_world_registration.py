@@ -147,7 +147,7 @@ def _top_down(mesh: MeshData, box: tuple[float, float, float, float], cell: floa
                 eye = np.array(
                     [west + (c0 + pw / 2) * cell, north - (r0 + ph / 2) * cell, hi[2] + above]
                 )
-                f = above / cell
+                f = (eye[2] - lo[2]) / cell  # `cell` m a pixel on the ground (the model's lowest)
                 cam = Camera.create(
                     Intrinsics(pw, ph, f, f, pw / 2, ph / 2), eye,
                     look_at_quat(eye, eye - [0.0, 0.0, 1.0]), above - 1.0, above + (hi[2] - lo[2]) + 1.0,

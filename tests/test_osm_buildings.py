@@ -397,3 +397,63 @@ def test_a_clip_opened_with_buildings_drapes_on_their_roofs(tmp_path, drone_clip
     assert loc["range_m"] == pytest.approx(68.0, abs=0.5)
     assert "drawn under them" in captured.err and "no scene given" not in captured.err
     assert math.isclose(loc["latitude"], _ll(FRAME, (10.0, 5.0))[0, 0], abs_tol=2e-6)
+
+
+def test_roofs_show_the_orthophoto_under_them_and_walls_stay_grey(tmp_path, gl_ctx):
+    """A flat DEM at the frame's height, draped with an orthophoto red west of x = 10 m and blue
+    east of it (x = 10 m crosses Hall A, 0..20 x 0..10 m, 12 m high). Seen from 100 m straight
+    above, a point of A's roof west of the line is drawn red and one east of it blue, as the
+    ground beside A is: the roof shows the imagery under it, where the camera projects it.
+    Without the orthophoto the roof keeps its own colour; A's wall, seen from the side, is drawn
+    the same either way."""
+    from app.camera.intrinsics import Intrinsics
+    from app.camera.pinhole import Camera
+    from app.core.settings import ProjectionSettings
+    from app.geodesy import rotations
+    from app.render.offscreen import render_to_array
+    from app.render.renderer import FusionRenderer
+
+    osm = write_osm(tmp_path / "city.osm")
+    sw, ne = _ll(FRAME, (-150.0, -150.0))[0], _ll(FRAME, (150.0, 150.0))[0]
+    n = 60
+    dem = write_geotiff(tmp_path / "dem.tif", np.full((n, n), H0), "EPSG:4326", sw[1], ne[0],
+                        (ne[1] - sw[1]) / n, (ne[0] - sw[0]) / n)  # fmt: skip
+    cols = 600  # 0.5 m a pixel over the same 300 m
+    x = -150.0 + (np.arange(cols) + 0.5) * 300.0 / cols
+    rgb = np.zeros((3, cols, cols), np.uint8)
+    rgb[0][:, x < 10.0] = 220  # red west of x = 10 m
+    rgb[2][:, x >= 10.0] = 220  # blue east of it
+    ortho = write_geotiff(tmp_path / "ortho.tif", rgb, "EPSG:4326", sw[1], ne[0],
+                          (ne[1] - sw[1]) / cols, (ne[0] - sw[0]) / cols, nodata=None)  # fmt: skip
+    draped = load_layers(
+        [Layer.of(osm), Layer.of(dem, vertical="ellipsoid", ortho=ortho)], FRAME, TRACK_LL
+    )
+    plain = load_layers([Layer.of(osm), Layer.of(dem, vertical="ellipsoid")], FRAME, TRACK_LL)
+    assert "roofs (" in "\n".join(draped.notes.items) and "draped with the imagery of dem.tif" in "\n".join(draped.notes.items)  # fmt: skip
+    roof_z = 12.0
+
+    def seen(mesh: MeshData, view: Camera, points: np.ndarray) -> np.ndarray:
+        r = FusionRenderer(gl_ctx, mesh)
+        try:
+            out = render_to_array(r, view, ProjectionSettings(enabled=False)).astype(int)
+        finally:
+            r.release()
+        uv, _ = view.project(points)
+        return out[np.floor(uv[:, 1]).astype(int), np.floor(uv[:, 0]).astype(int)]
+
+    above = Camera.create(Intrinsics.from_fov(400, 400, 40), [10.0, 5.0, 100.0],
+                          rotations.camera_quat_from_hpr(0.0, -90.0, 0.0), near=1.0, far=500.0)  # fmt: skip
+    points = np.array([[3.0, 5.0, roof_z], [17.0, 5.0, roof_z], [-5.0, 5.0, 0.0], [25.0, 5.0, 0.0]])
+    red_roof, blue_roof, red_ground, blue_ground = seen(draped.mesh, above, points)
+    for red in (red_roof, red_ground):
+        assert red[0] > 150 and red[2] < 60, red
+    for blue in (blue_roof, blue_ground):
+        assert blue[2] > 150 and blue[0] < 60, blue
+    plain_roof = seen(plain.mesh, above, points[:2])  # without imagery: the roofs' own colour
+    np.testing.assert_array_equal(plain_roof[0], plain_roof[1])
+    assert np.abs(plain_roof[1] - blue_roof).max() > 60, plain_roof
+    # A's south wall from the south, low: as without the orthophoto
+    side = Camera.create(Intrinsics.from_fov(400, 300, 40), [10.0, -40.0, 6.0],
+                         rotations.camera_quat_from_hpr(0.0, 0.0, 0.0), near=1.0, far=500.0)  # fmt: skip
+    wall = np.array([[5.0, 0.0, 6.0], [15.0, 0.0, 6.0]])
+    np.testing.assert_array_equal(seen(draped.mesh, side, wall), seen(plain.mesh, side, wall))

@@ -9,7 +9,8 @@ DEMs and cities are georeferenced by themselves; models by their placement (app.
 
 Footprints are extruded after every other layer is loaded, each building standing on the
 other layers' ground under it; with no other layer, on an assumed flat ground (the clip's), which
-is drawn under them.
+is drawn under them. Where a DEM is draped with imagery, their roofs show it too
+(app.scene.city.drape).
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ import numpy.typing as npt
 from app.core.errors import SceneError
 from app.core.messages import Messages
 from app.geodesy.enu import LocalFrame
+from app.scene.city.drape import draped_roofs
 from app.scene.city.footprints import flat_ground, terrain_ground
 from app.scene.city.read import is_city, is_footprints, read_city
 from app.scene.ground_plane import ASSUMED_GROUND_MARGIN_M, ground_plane
@@ -279,6 +281,8 @@ def load_footprints(
             f"an assumed flat ground at {assumed:.2f} m (ellipsoidal), drawn under them",
         )
     first = len(out.parts)
+    # the terrain draped with an orthophoto (a DEM's, a world's): the roofs show it too
+    imagery = [p for dem, part in out.parts if dem.kind == "dem" for p in part.primitives]
     for layer in layers:
         try:
             city = read_city(layer.location, frame, track, ground=ground)
@@ -288,7 +292,13 @@ def load_footprints(
             out.notes.add(f"{layer.fetched}: the scene opens without them: {exc.detail}")
             continue
         out.notes.extend(city.notes)
-        out.parts.append((layer, city.mesh))
+        mesh, draped = draped_roofs(city.mesh, imagery)
+        if draped:
+            out.notes.info(
+                f"{layer.name}: roofs ({draped} triangles) draped with the imagery of "
+                f"{', '.join(dem.name for dem, _ in out.parts[:first] if dem.kind == 'dem')} under them"
+            )
+        out.parts.append((layer, mesh))
     if terrain.primitives or terrain.tilesets:
         return
     corners = [part.bounds()[:, :2] for _, part in out.parts[first:]]

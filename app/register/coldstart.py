@@ -568,7 +568,9 @@ class Search:
                 w_px, h_px = max(8, round(w_m / g)), max(8, round(h_m / g))
                 above = FAR_ABOVE_PER_M * max(w_m, h_m)
                 eye = np.array([west + w_px * g / 2, top - h_px * g / 2, hi[2] + above])
-                f = above / g
+                # g a cell on the ground under the tile's centre (where the frame is warped to),
+                # not at the scene's top, which the camera stands `above`
+                f = (eye[2] - float(_ground(self.mesh, eye[None, :2])[0])) / g
                 view = Camera.create(
                     Intrinsics(w_px, h_px, f, f, w_px / 2, h_px / 2), eye,
                     look_at_quat(eye, eye - [0.0, 0.0, 1.0]), above - 1.0, above + (hi[2] - lo[2]) + 1.0,

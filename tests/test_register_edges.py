@@ -21,7 +21,7 @@ from app.camera.intrinsics import Intrinsics
 from app.camera.pinhole import Camera
 from app.geodesy import rotations
 from app.io.video import frames_at
-from app.register.edges import EdgeSettings, FrameEdges, model_edges
+from app.register.edges import EdgeSettings, FrameEdges, cut_outline, model_edges
 from app.register.keyframe import Rendering
 from app.register.segments import FrameSegments, group_lines
 from app.register.solve import Registrar, RegistrationSettings
@@ -97,6 +97,32 @@ def test_the_models_lines_are_its_silhouettes_and_creases(gl_ctx):
     # and they project back onto the pixels they came from
     uv, _ = cam.project(edges.points)
     assert np.median(np.linalg.norm(uv - edges.uv, axis=1)) < 0.75
+
+
+@pytest.mark.gl
+def test_where_a_terrain_was_cut_its_border_is_no_line(gl_ctx):
+    """The same scene with its ground marked cut (as a terrain read over a window, the assumed
+    ground): the ground's far border against the sky, lines above, is none (the world goes on
+    past a terrain's window, and a frame shows no edge there), while the boxes' lines stay."""
+    plain = _scene(False)
+    cut = MeshData([replace(plain.primitives[0], cut=True), *plain.primitives[1:]])
+    outline = cut_outline(cut)
+    assert cut_outline(plain) is None and outline.length == pytest.approx(1600.0)
+    views = ModelViews(cut, gl_ctx)
+    try:
+        cam = _truth()
+        rgb, positions = views.render(cam)
+    finally:
+        views.release()
+    before = model_edges(Rendering(rgb, positions, cam))
+    after = model_edges(Rendering(rgb, positions, cam, outline))
+
+    def on_border(edges) -> np.ndarray:
+        return np.max(np.abs(edges.points[:, :2]), axis=1) > 195  # the border: 200 m
+
+    assert on_border(before).sum() > 20 and on_border(after).sum() == 0
+    # the boxes' lines: as many points or more (the sample spreads over fewer lines)
+    assert (~on_border(after)).sum() >= (~on_border(before)).sum()
 
 
 @pytest.mark.gl

@@ -41,11 +41,14 @@ from functools import partial
 import cv2
 import numpy as np
 import numpy.typing as npt
+import shapely
+from shapely.geometry.base import BaseGeometry
 
 from app.camera.pinhole import Camera
 from app.geodesy import rotations
 from app.register.keyframe import Frame, PoseFix, Rendering, nudged, projected
 from app.register.segments import FrameSegments, group_lines
+from app.scene.mesh import MeshData
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -141,13 +144,17 @@ def model_edges(rendering: Rendering, settings: EdgeSettings = EdgeSettings()) -
     """The lines of the rendered model (`ModelEdges`): pixels on the model beside the sky or
     a farther surface (range jumps by more than depth_jump; the nearer side is kept: the
     silhouette belongs to it), and pixels where the surface normal turns by more than crease_deg
-    over two pixels. At most `points` of them, spread evenly over the lines (a fixed sample)."""
+    over two pixels. At most `points` of them, spread evenly over the lines (a fixed sample).
+    Where the model ends against the sky at the outline of a cut primitive (rendering.cut: a
+    terrain read over a window), there is no line: the world goes on (within CUT_PX pixels'
+    reach on the ground of it, and a metre at least)."""
     pos = rendering.positions
     h, w = pos.shape[:2]
     rng = np.linalg.norm(pos - np.asarray(rendering.camera.position), axis=2)
     on = np.isfinite(rng)
     log_r = np.where(on, np.log(np.where(on, rng, 1.0)), np.nan)
     sil = np.zeros((h, w), bool)
+    sky_line = np.zeros((h, w), bool)
     big = np.log1p(settings.depth_jump)
     # where each silhouette pixel's boundary lies: half a pixel towards the farther side, per
     # axis (v, u), in pixels
@@ -167,12 +174,18 @@ def model_edges(rendering: Rendering, settings: EdgeSettings = EdgeSettings()) -
         mark = np.zeros(lr.shape, bool)
         mark[:, :-1] |= first_near
         mark[:, 1:] |= second_near
+        by_sky = np.zeros(lr.shape, bool)
+        by_sky[:, :-1] |= sky & np.isfinite(lr[:, :-1])
+        by_sky[:, 1:] |= sky & np.isfinite(lr[:, 1:])
+        sky_line |= by_sky if axis == 1 else by_sky.T
         toward = np.zeros(lr.shape)
         toward[:, :-1] += 0.5 * first_near
         toward[:, 1:] -= 0.5 * second_near
         sil |= mark if axis == 1 else mark.T
         half[axis] = toward if axis == 1 else toward.T
     sil &= on
+    if rendering.cut is not None:
+        sil &= ~_at_cut(pos, rng, sky_line & sil, rendering)
     boundary = _to_boundary(pos, log_r, half, big)
     n = _normals_map(pos)
     cos_max = np.cos(np.radians(settings.crease_deg))
@@ -204,6 +217,39 @@ def model_edges(rendering: Rendering, settings: EdgeSettings = EdgeSettings()) -
         angle[rows, cols],
         np.where(on_sil, 0, 1).astype(np.int8),
     )
+
+
+CUT_PX = 3.0  # a sky line this many pixels' reach from a cut outline is the model's end
+
+
+def cut_outline(mesh: MeshData) -> BaseGeometry | None:
+    """Where the scene's data ends (ENU east, north m): the outline of each cut primitive
+    (app.scene.mesh.Primitive.cut: a terrain read over a window, the assumed ground), the
+    boundary of its vertices' convex hull; None where it has none."""
+    hulls = [
+        shapely.convex_hull(shapely.multipoints(p.positions[:, :2].astype(np.float64)))
+        for p in mesh.primitives
+        if p.cut and len(p.positions) >= 3
+    ]
+    return shapely.union_all([h.boundary for h in hulls]) if hulls else None
+
+
+def _at_cut(
+    pos: FloatArray, rng: FloatArray, sky_line: np.ndarray, rendering: Rendering
+) -> np.ndarray:
+    """(H, W) the pixels of `sky_line` whose surface point lies on rendering.cut (within CUT_PX
+    pixels' reach on the ground at its range and sight line, a metre at least)."""
+    out = np.zeros(sky_line.shape, bool)
+    rows, cols = np.nonzero(sky_line)
+    if not len(rows):
+        return out
+    xy = pos[rows, cols, :2]
+    r = rng[rows, cols]
+    # a pixel's reach on the ground grows as the sight line grazes it (1 / sine of its angle)
+    grazing = np.maximum(np.abs(pos[rows, cols, 2] - rendering.camera.position[2]) / r, 0.05)
+    tol = np.maximum(1.0, CUT_PX * r / rendering.camera.intrinsics.fx / grazing)
+    out[rows, cols] = shapely.distance(shapely.points(xy), rendering.cut) <= tol
+    return out
 
 
 def _to_boundary(pos: FloatArray, log_r: FloatArray, half: FloatArray, big: float) -> FloatArray:

@@ -21,6 +21,7 @@ from dataclasses import dataclass, replace
 import cv2
 import numpy as np
 import numpy.typing as npt
+from shapely.geometry.base import BaseGeometry
 
 from app.camera.pinhole import Camera
 from app.geodesy import rotations
@@ -177,11 +178,13 @@ class Frame:
 @dataclass(frozen=True)
 class Rendering:
     """The model seen by `camera` (a pinhole): colours (H, W, 3) uint8 and the surface positions
-    (H, W, 3) ENU m under each pixel (NaN: none)."""
+    (H, W, 3) ENU m under each pixel (NaN: none); cut: where the model's data ends (the outlines
+    of its cut primitives, app.register.edges.cut_outline; None: nowhere)."""
 
     rgb: np.ndarray
     positions: FloatArray
     camera: Camera
+    cut: BaseGeometry | None = None
 
     def lift(self, uv: FloatArray, edge_m_per_m: float) -> tuple[FloatArray, npt.NDArray[np.bool_]]:
         """Model points under rendered pixels uv (N, 2), and which are usable (`lift`)."""

@@ -29,7 +29,7 @@ from app.core.errors import GeofuseError
 from app.geodesy import rotations
 from app.io.video import frames_at
 from app.register import coldstart, inertial
-from app.register.edges import EdgeSettings, fit_edges
+from app.register.edges import EdgeSettings, cut_outline, fit_edges
 from app.register.fuse import (
     Correction,
     FuseSettings,
@@ -290,6 +290,7 @@ class Registrar:
             settings = replace(settings, by_geometry=True)
         self.settings = settings
         self.views = ModelViews(mesh, ctx)
+        self.cut = cut_outline(mesh)  # where the model's data ends: no line (app.register.edges)
         self.matcher = Matcher(settings.match)
         self.stage_s = {"render": 0.0, "match": 0.0, "decode": 0.0}
 
@@ -329,7 +330,8 @@ class Registrar:
             with _lap(self.stage_s, "render"):
                 rgb, positions = self.views.render(small)
             with _lap(self.stage_s, "match"):
-                frame, rendering = Frame(frame_rgb, scale, cam), Rendering(rgb, positions, small)
+                frame = Frame(frame_rgb, scale, cam)
+                rendering = Rendering(rgb, positions, small, self.cut)
                 if by_geometry:
                     step = fit_edges(frame, rendering, s.edges, not fine, start)[0]
                 elif fine:

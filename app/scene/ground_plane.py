@@ -3,6 +3,8 @@ metric grid (1 m lines, darker every 10 m), so that distances can be read off th
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from app.scene import shapes
@@ -33,7 +35,8 @@ def ground_plane(centre_xy: np.ndarray, height_m: float, half_size_m: float) -> 
     quad = shapes.quad([cx - h, cy - h, height_m], [2 * h, 0.0, 0.0], [0.0, 2 * h, 0.0])
     # Texture coordinates in tiles, anchored at the ENU origin so the grid lines fall on whole metres.
     quad.uvs = (quad.vertices[:, :2]) / TILE_M
-    return MeshData([quad.primitive((1.0, 1.0, 1.0, 1.0), grid_tile(), name="assumed ground")])
+    plane = quad.primitive((1.0, 1.0, 1.0, 1.0), grid_tile(), name="assumed ground")
+    return MeshData([replace(plane, cut=True)])
 
 
 def ground_under_track(

@@ -20,7 +20,9 @@ class Primitive:
     positions: (N, 3) float32 ENU m; uvs: (N, 2) float32 or None; colors: (N, 4) float32 in
     [0, 1] (vertex colour times base colour); indices: (M, 3) uint32; texture: (H, W, 4) uint8,
     bottom row first, or None. Normals are not stored: the shaders derive each face's normal
-    from screen-space derivatives, which is exact for flat faces and costs no memory.
+    from screen-space derivatives, which is exact for flat faces and costs no memory. cut: its
+    outline is where its data was cut (a terrain read over a window, the assumed ground), not
+    an edge of anything in the world, which goes on beyond it.
     """
 
     positions: npt.NDArray[np.float32]
@@ -29,6 +31,7 @@ class Primitive:
     uvs: npt.NDArray[np.float32] | None = None
     texture: npt.NDArray[np.uint8] | None = None
     name: str = ""
+    cut: bool = False
 
     def __post_init__(self) -> None:
         n = len(self.positions)

@@ -418,6 +418,7 @@ def read_terrain(
         uvs,
         texture,
         name=f"terrain {path.name}",
+        cut=True,  # read over a window: the land goes on past it
     )
     cell = float(np.hypot(wt.a, wt.d))
     if horizontal.is_geographic:

@@ -55,8 +55,7 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from app.camera.intrinsics import Intrinsics  # noqa: E402
-from app.camera.pinhole import Camera, look_at_quat  # noqa: E402
+from app.camera.pinhole import looking_down  # noqa: E402
 from app.geodesy import rotations  # noqa: E402
 from app.geodesy.enu import LocalFrame  # noqa: E402
 from app.render.views import ModelViews  # noqa: E402
@@ -143,15 +142,10 @@ def _top_down(mesh: MeshData, box: tuple[float, float, float, float], cell: floa
         for r0 in range(0, h, RENDER_TILE_PX):
             for c0 in range(0, w, RENDER_TILE_PX):
                 pw, ph = min(RENDER_TILE_PX, w - c0), min(RENDER_TILE_PX, h - r0)
+                centre = (west + (c0 + pw / 2) * cell, north - (r0 + ph / 2) * cell)
                 above = FAR_ABOVE_PER_M * max(pw, ph) * cell
-                eye = np.array(
-                    [west + (c0 + pw / 2) * cell, north - (r0 + ph / 2) * cell, hi[2] + above]
-                )
-                f = (eye[2] - lo[2]) / cell  # `cell` m a pixel on the ground (the model's lowest)
-                cam = Camera.create(
-                    Intrinsics(pw, ph, f, f, pw / 2, ph / 2), eye,
-                    look_at_quat(eye, eye - [0.0, 0.0, 1.0]), above - 1.0, above + (hi[2] - lo[2]) + 1.0,
-                )  # fmt: skip
+                # `cell` m a pixel on the ground (the model's lowest)
+                cam = looking_down((pw, ph), centre, cell, lo[2], (lo[2], hi[2]), above)
                 rgb, _ = views.render(cam)
                 out[r0 : r0 + ph, c0 : c0 + pw] = rgb
     finally:

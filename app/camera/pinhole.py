@@ -210,3 +210,25 @@ def image_size(camera: Camera) -> tuple[int, int]:
     if camera.lens is not None:
         return camera.lens.width, camera.lens.height
     return camera.intrinsics.width, camera.intrinsics.height
+
+
+def looking_down(
+    size_px: tuple[int, int],
+    centre_xy: npt.ArrayLike,
+    cell_m: float,
+    ground_z: float,
+    z_range: tuple[float, float],
+    above_m: float,
+) -> Camera:
+    """A pinhole looking straight down over centre_xy (ENU east, north m), north up: size_px
+    (width, height) pixels, cell_m metres a pixel on the plane z = ground_z (ENU m). It stands
+    above_m over the scene's top (z_range: the scene's lowest and highest ENU z, m), far enough
+    for a near-orthographic view, its clip planes around the scene."""
+    w, h = size_px
+    lo_z, hi_z = z_range
+    eye = np.array([*np.asarray(centre_xy, np.float64)[:2], hi_z + above_m])
+    f = (eye[2] - ground_z) / cell_m  # cell_m a pixel on the ground, not at the scene's top
+    return Camera.create(
+        Intrinsics(w, h, f, f, w / 2, h / 2), eye,
+        look_at_quat(eye, eye - [0.0, 0.0, 1.0]), above_m - 1.0, above_m + (hi_z - lo_z) + 1.0,
+    )  # fmt: skip

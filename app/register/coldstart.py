@@ -46,7 +46,7 @@ import shapely
 from shapely.geometry.base import BaseGeometry
 
 from app.camera.intrinsics import Intrinsics
-from app.camera.pinhole import Camera, look_at_quat
+from app.camera.pinhole import Camera, looking_down
 from app.camera.trajectory import PositionTrack
 from app.core.errors import GeofuseError
 from app.core.messages import INFO
@@ -566,15 +566,11 @@ class Search:
                 top = y1 - down
                 w_m, h_m = min(tile, x1 - west), min(tile, top - y0)
                 w_px, h_px = max(8, round(w_m / g)), max(8, round(h_m / g))
+                centre = np.array([west + w_px * g / 2, top - h_px * g / 2])
+                # g a cell on the ground under the tile's centre (where the frame is warped to)
+                ground = float(_ground(self.mesh, centre[None])[0])
                 above = FAR_ABOVE_PER_M * max(w_m, h_m)
-                eye = np.array([west + w_px * g / 2, top - h_px * g / 2, hi[2] + above])
-                # g a cell on the ground under the tile's centre (where the frame is warped to),
-                # not at the scene's top, which the camera stands `above`
-                f = (eye[2] - float(_ground(self.mesh, eye[None, :2])[0])) / g
-                view = Camera.create(
-                    Intrinsics(w_px, h_px, f, f, w_px / 2, h_px / 2), eye,
-                    look_at_quat(eye, eye - [0.0, 0.0, 1.0]), above - 1.0, above + (hi[2] - lo[2]) + 1.0,
-                )  # fmt: skip
+                view = looking_down((w_px, h_px), centre, g, ground, (lo[2], hi[2]), above)
                 rgb, _ = self.views.render(view)
                 self.rendered += 1
                 grey = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY).astype(np.float32)

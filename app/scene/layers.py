@@ -282,7 +282,9 @@ def load_footprints(
         )
     first = len(out.parts)
     # the terrain draped with an orthophoto (a DEM's, a world's): the roofs show it too
-    imagery = [p for dem, part in out.parts if dem.kind == "dem" for p in part.primitives]
+    dems = [(dem, part) for dem, part in out.parts if dem.kind == "dem"]
+    imagery = [p for _, part in dems for p in part.primitives]
+    under = ", ".join(dem.name for dem, _ in dems)
     for layer in layers:
         try:
             city = read_city(layer.location, frame, track, ground=ground)
@@ -295,8 +297,7 @@ def load_footprints(
         mesh, draped = draped_roofs(city.mesh, imagery)
         if draped:
             out.notes.info(
-                f"{layer.name}: roofs ({draped} triangles) draped with the imagery of "
-                f"{', '.join(dem.name for dem, _ in out.parts[:first] if dem.kind == 'dem')} under them"
+                f"{layer.name}: roofs ({draped} triangles) draped with the imagery of {under} under them"
             )
         out.parts.append((layer, mesh))
     if terrain.primitives or terrain.tilesets:

@@ -300,6 +300,15 @@ def test_live_positions_that_jump_are_not_followed():
     moved = [replace(s, values={**s.values, "sensor_latitude_deg": 10.0}) for s in sets]
     kept = [poses.add(1.0 + 0.1 * k, s) for k, s in enumerate(moved)]
     assert kept == [False] * 9 + [True] and poses.jumps == 10
+    # between the last set kept (0.9 s) and the jumped one believed (1.9 s) the frames are drawn
+    # where the last kept set put them, never part of the way to latitude 10 (a keyframe
+    # registered there would find a shift no fix had); the jumped set's own time: the jump
+    before = np.asarray(poses.at(0.9, frame, intr, 1000.0).camera.position)
+    for t in (1.0, 1.5, 1.89):
+        assert np.allclose(poses.at(t, frame, intr, 1000.0).camera.position, before, atol=1e-6)
+    after = poses.at(1.9, frame, intr, 1000.0).camera.position
+    want = frame.geodetic_to_enu(*(np.array([v]) for v in poses.geodetic[-1]))[0]
+    assert np.allclose(after, want, atol=1e-3)
 
 
 class _Kept:

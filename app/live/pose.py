@@ -3,7 +3,9 @@ time from the KLV sets (LivePoses) or the MAVLink messages (MavlinkPoses) that h
 time it is drawn, never from later ones.
 
 Between two arrived sets the position and the field of view (tag 16: a zoom) are interpolated
-linearly and the attitude by slerp; past the newest set the newest is held. Each frame is drawn
+linearly and the attitude by slerp (across a jump no platform could make, once believed, the
+position before it is held: a frame between is not drawn part-way); past the newest set the newest
+is held. Each frame is drawn
 with the field of view of its own moment (a set that gives none keeps the one before it; before
 any set gives one, the feed's pinhole). A pose whose newest set is older than its frame by more
 than the jitter buffer is `stale` (drawn, marked); before any set with a pose the frame has none.
@@ -161,7 +163,10 @@ class LivePoses:
                 b, qb, fb = np.array(self.geodetic[k + 1]), self.q[k + 1], self.fov[k + 1]
             else:
                 b, qb, fb = a, qa, fa
-        enu = frame.geodetic_to_enu(*(np.array([v]) for v in (1 - w) * a + w * b))[0]
+            # across a jump believed (JUMP_RUN sets) the position no set gave is not drawn: the
+            # one before it held until the jumped set's time (the attitude turns as it did)
+            wp = 0.0 if w > 0.0 and impossible_step(self.t[k + 1] - self.t[k], a, b) else w
+        enu = frame.geodetic_to_enu(*(np.array([v]) for v in (1 - wp) * a + wp * b))[0]
         q = rotations.slerp([0.0, 1.0], np.stack([qa, qb]), [w])[0]
         fov = fov_between(fa, fb, w)
         if own_fov and fov is not None:

@@ -185,6 +185,15 @@ def test_the_drawn_shift_follows_a_drag_on_its_line_and_holds_a_jump():
     assert shift == pytest.approx([3.0, 0.0, 0.0]) and not rate.any()
     shift, rate = shift_model(clean + drag[:3])  # three: the line
     assert shift == pytest.approx([-4.0, 0.0, 0.0]) and rate == pytest.approx([-2.0, 0.0, 0.0])
+    # one keyframe whose fix was taken mid-jump (160 of 200 m) before two past it: Theil-Sen's
+    # line through three would be 20 m/s (the median of their slopes); they are not on it: held
+    step = [Kept(5.0 + k, np.array([-v, 0.0, 0.0]), np.zeros(3), True) for k, v in enumerate((160.0, 200.0, 200.0))]  # fmt: skip
+    shift, rate = shift_model(clean + step)
+    assert shift == pytest.approx([-200.0, 0.0, 0.0]) and not rate.any()
+    # four on a 2 m/s drag, one of them 3 m astray: the line through the other three
+    astray = [Kept(5.0 + k, np.array([-2.0 * k - 3.0 * (k == 1), 0.0, 0.0]), np.zeros(3), True) for k in range(4)]  # fmt: skip
+    shift, rate = shift_model(clean + astray)
+    assert rate[0] == pytest.approx(-2.0, abs=0.5) and shift[0] == pytest.approx(-6.0, abs=0.8)
     back = [Kept(9.0 + k, np.array([1.2, 0.0, 0.0]), np.zeros(3), False) for k in range(2)]
     shift, rate = shift_model(clean + drag + back)
     assert shift == pytest.approx([1.2, 0.0, 0.0]) and not rate.any()

@@ -11,8 +11,9 @@ keyframe's fix agrees with the scene, is the median of the last KEEP agreeing ke
 KEEP_S of the newest (componentwise: a GNSS wanders by about a metre in a few seconds, and an older
 keyframe's shift only lags it). Where the GNSS lies (app.live.gnss_watch: the newest keyframe's own
 fix beyond its threshold, before any alarm is said) the drawn pose stands on the scene: the shift
-is the line through the last LIE_FIT disagreeing keyframes' shifts (Theil-Sen; one: held; an axis
-moving slower than RATE_MIN_MPS: their median), carried on in time (a drag-off grows steadily, a
+is the line through the last LIE_FIT disagreeing keyframes' shifts (Theil-Sen; fewer than three:
+the newest held; an axis moving slower than RATE_MIN_MPS: their median; a line they do not lie on,
+LINE_M: their median), carried on in time (a drag-off grows steadily, a
 jump holds) for at most HOLD_S past the newest.
 
 Each keyframe is searched from the camera drawn at its time (the telemetry's, corrected); before
@@ -62,6 +63,7 @@ CHAIN_MAX_M = 10.0  # the chain's reach at most (keyframes far apart: a gate tha
 STEP_S = 0.1  # the telemetry's motion since the last registered keyframe summed in these steps (s)
 LIE_FIT = 4  # disagreeing keyframes the shift's line is drawn through
 RATE_MIN_MPS = 0.3  # slower, a line through a few keyframes is their own noise (~0.1 m)
+LINE_M = 1.0  # a keyframe farther than this from the line drawn through its run is off it (m)
 HOLD_S = 5.0  # the line carried on at most this long past the newest keyframe (s)
 ACCEL_MPS2 = 3.0  # the platform's acceleration the chain allows for (a drone's weave: 3.3)
 LIVE_SETTINGS = RegistrationSettings(long_side=640, max_iterations=5)
@@ -148,6 +150,11 @@ class LiveRegistration(Worker):
             self._offer = (t, tuple(np.array(p, copy=True) for p in planes), prior)
         self._busy = True
         self._wake.set()
+
+    @property
+    def busy(self) -> bool:
+        """Whether a keyframe is being registered (offered and not yet done)."""
+        return self._busy
 
     def correct(self, camera: Camera, t: float) -> Camera:
         """The telemetry's camera of media time t (s) moved by the correction in force (itself
@@ -299,9 +306,10 @@ def shift_model(kept: list[Kept]) -> tuple[np.ndarray, np.ndarray]:
     scene or not); the median of the last KEEP of an agreeing run within KEEP_S of the newest, no
     rate; the line through the
     last LIE_FIT of a disagreeing run, on each axis where it moves RATE_MIN_MPS or more
-    (elsewhere their median, held); fewer than three: the newest held (a line through two is
-    as wrong as either: one registered astray by 3 m half a second from the other draws a
-    6 m/s drag that the frames carry on until the next keyframe, seen under load)."""
+    (elsewhere their median, held), unless more of them lie LINE_M off it than one in four or
+    more (their median held); fewer than three: the newest held (a line through two is as wrong
+    as either: one registered astray by 3 m half a second from the other draws a 6 m/s drag
+    that the frames carry on until the next keyframe, seen under load)."""
     run: list[Kept] = []
     for k in reversed(kept):
         if k.on_scene != kept[-1].on_scene:
@@ -319,4 +327,13 @@ def shift_model(kept: list[Kept]) -> tuple[np.ndarray, np.ndarray]:
     rate = np.array([theilslopes(shifts[:, j], t)[0] for j in range(3)])
     at_newest = np.median(shifts - rate * t[:, None], axis=0)
     steady = np.abs(rate) < RATE_MIN_MPS  # no trend: the registrations' own noise, held
-    return np.where(steady, np.median(shifts, axis=0), at_newest), np.where(steady, 0.0, rate)
+    shift, rate = (
+        np.where(steady, np.median(shifts, axis=0), at_newest),
+        np.where(steady, 0.0, rate),
+    )
+    # a line the keyframes do not lie on (three, one of them off it; four or more, two) is no
+    # drag: one registered astray, or one whose fix was taken mid-step, drew lines of 20 m/s
+    off = np.linalg.norm(shifts - (shift + rate * t[:, None]), axis=1) > LINE_M
+    if rate.any() and off.sum() > (len(run) > 3):
+        return np.median(shifts, axis=0), np.zeros(3)
+    return shift, rate

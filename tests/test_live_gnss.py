@@ -241,7 +241,7 @@ def _received(path):
     options = LiveOptions(
         silence_s=1.0, size=(160, 90), layers=(sample_layer(),), gnss_accuracy_m=ACCURACY_M
     )
-    return run_sent(path, options, lambda d, c: drawn.append((d, c))), drawn
+    return run_sent(path, options, lambda d, c: drawn.append((d, c)), lockstep=True), drawn
 
 
 def _error_m(run, d, camera) -> float:

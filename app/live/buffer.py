@@ -124,6 +124,10 @@ class JitterBuffer:
             self.pending = self.pending[n:]
         return n
 
+    def newest_pts(self) -> float:
+        """The newest frame's presentation time (media s) pushed and kept, -inf before any."""
+        return self.pending[-1].pts_s if self.pending else self.shown_pts
+
     def next_due(self) -> float | None:
         """When the next pending frame is due (s), None when none waits."""
         return self.due_at(self.pending[0]) if self.pending else None

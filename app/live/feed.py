@@ -42,7 +42,7 @@ from app.live.lag import LagEstimator
 from app.live.mavlink import MavlinkReceiver
 from app.live.pose import NONE, STALE, LivePoses, MavlinkPoses
 from app.live.probe import Heard
-from app.live.receiver import Receiver
+from app.live.receiver import READ_TIMEOUT_S, Receiver
 from app.live.recorder import Recorder, SegmentRecorder
 from app.live.register import LiveCorrection, LiveRegistration
 from app.live.restream import RestreamCounts, Restreamer, Tee
@@ -218,6 +218,7 @@ class LiveOptions:
     # with the run's Messages once the scene is built
     sinks: tuple = ()
     gnss_accuracy_m: float | None = None
+    read_timeout_s: float = READ_TIMEOUT_S  # a read waiting longer: the stream is opened again
 
 
 def scene_for(poses: LivePoses | MavlinkPoses, options: LiveOptions, messages: Messages):
@@ -295,6 +296,7 @@ class LiveFeed:
             self.clock,
             self._on_frame,
             self.mav is not None,
+            o.read_timeout_s,
         ).start()
         return self
 

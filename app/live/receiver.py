@@ -132,11 +132,14 @@ class Receiver:
         clock: Callable[[], float] = time.monotonic,
         on_frame: Callable[[float, object], None] | None = None,
         poses_elsewhere: bool = False,
+        read_timeout_s: float = READ_TIMEOUT_S,
     ) -> None:
         """on_frame(t, luma): each decoded frame's media time (s) and luma plane, on this
         thread (the MAVLink lag estimator's feed); poses_elsewhere: the poses come from another
-        feed (MAVLink), so a video without KLV is not said to have none."""
+        feed (MAVLink), so a video without KLV is not said to have none; read_timeout_s: a read
+        waiting longer than this (s) ends the connection, and it is opened again."""
         self.url = url
+        self.read_timeout_s = read_timeout_s
         self.on_frame = on_frame
         self.poses_elsewhere = poses_elsewhere
         self.buffer = buffer
@@ -189,7 +192,7 @@ class Receiver:
             try:
                 container = av.open(
                     stream_url(self.url),
-                    timeout=(OPEN_TIMEOUT_S, READ_TIMEOUT_S),
+                    timeout=(OPEN_TIMEOUT_S, self.read_timeout_s),
                     options={"analyzeduration": "200000", "probesize": "500000"},
                 )
             except (av.FFmpegError, OSError) as exc:
@@ -258,7 +261,7 @@ class Receiver:
                     self._video(codec, packet, now)
         except av.FFmpegError as exc:
             if not self._stop.is_set():
-                reason = _reason(exc, f"nothing arrived for {READ_TIMEOUT_S:g} s")
+                reason = _reason(exc, f"nothing arrived for {self.read_timeout_s:g} s")
                 self.messages.add_once("read", f"{self.url}: reading stopped ({reason})")
 
     def _media(self, pts: int | None, time_base) -> float | None:

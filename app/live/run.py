@@ -9,8 +9,10 @@ GPU waited for). It ends after `seconds`, once the stream has been silent for `s
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 from urllib.parse import urlsplit
 
@@ -22,7 +24,7 @@ from app.render.offscreen import OffscreenTarget
 from app.render.renderer import FusionRenderer
 from app.render.still import window_camera
 from app.share.hub import Offer, Share
-from app.simulate.feed import Sender, free_udp_port, sending_clock
+from app.simulate.feed import LockstepClock, Sender, free_udp_port, sending_clock
 
 __all__ = ["Drawn", "LiveOptions", "LiveRun", "offer_drawn", "open_share", "run_live", "run_sent"]
 
@@ -35,11 +37,16 @@ def run_live(
     options: LiveOptions | None = None,
     clock: Callable[[], float] = time.monotonic,
     on_drawn: Callable[[Drawn, Camera], None] | None = None,
+    on_start: Callable[[LiveFeed], None] | None = None,
 ) -> LiveRun:
     """Receive `url` and draw it off screen until `options.seconds` or silence; see the module
-    docstring. on_drawn(d, projector): called after each frame is drawn."""
+    docstring. on_drawn(d, projector): called after each frame is drawn; on_start(feed): once
+    the feed is started, before the clock is first read."""
     options = options or LiveOptions()
-    feed = LiveFeed(url, options, clock=clock).start()
+    feed = LiveFeed(url, options, clock=clock)
+    if on_start is not None:
+        on_start(feed)
+    feed.start()
     run = feed.run
     start = clock()
     ctx = renderer = target = share = None
@@ -102,17 +109,53 @@ def run_sent(
     path: Path,
     options: LiveOptions,
     on_drawn: Callable[[Drawn, Camera], None] | None = None,
+    lockstep: bool = False,
 ) -> LiveRun:
     """A recorded MPEG-TS (a simulated downlink) sent to this process over the loopback in real
     time, paced by its program clock (app.simulate.feed.Sender), from the moment run_live's
     receiver listens, and received, drawn and summed up by run_live: what the tests and
-    benchmarks of live feeds run."""
+    benchmarks of live feeds run. lockstep (tests): sender and receiver share a clock that
+    stands still while a keyframe is being registered, a frame due is not yet drawn or the
+    receiver is behind (lockstep_cap), so the same frames are drawn with the same corrections
+    however busy the machine is."""
     port = free_udp_port()
-    sender = Sender(Path(path).read_bytes(), ("127.0.0.1", port))
+    feeds: list[LiveFeed] = []
+    clock = LockstepClock(lambda now: lockstep_cap(feeds[0], sender, now) if feeds else math.inf) if lockstep else time.monotonic  # fmt: skip
+    sender = Sender(Path(path).read_bytes(), ("127.0.0.1", port), clock=clock)
+    if lockstep:  # the receiver waits out the sender's pauses
+        options = replace(options, read_timeout_s=max(options.read_timeout_s, clock.limit_s))
     try:
-        return run_live(f"udp://127.0.0.1:{port}", options, sending_clock(sender, port), on_drawn)
+        return run_live(
+            f"udp://127.0.0.1:{port}",
+            options,
+            sending_clock(sender, port, clock=clock),
+            on_drawn,
+            feeds.append,
+        )
     finally:
         sender.stop()
+
+
+AHEAD_S = 1.0  # lockstep: the video sent ahead of the newest frame received at most (s; a
+# receiver holds 0.6 s of it while it starts)
+
+
+def lockstep_cap(feed: LiveFeed, sender: Sender, now: float) -> float:
+    """The time (clock s) a lockstep run's clock may not pass at `now`: now itself while a
+    keyframe is being registered or the receiver holds nothing within AHEAD_S of video of what
+    `sender` sent (it catches up meanwhile); else when the next frame waiting falls due (one
+    falls due at a time: each is drawn, none skipped); else no bound."""
+    reg = feed.registration
+    if reg is not None and reg.busy:
+        return now
+    with feed.receiver.lock:
+        newest = feed.buffer.newest_pts()
+        due = feed.buffer.next_due()
+    origin = feed.receiver.origin_s  # (stream s of media 0: the sender's times are the stream's)
+    held = sender.first_s if origin is None or newest == -math.inf else origin + newest
+    if sender.sent_s is not None and sender.sent_s - held > AHEAD_S:
+        return now
+    return math.inf if due is None else due
 
 
 def open_share(feed: LiveFeed, mesh, sinks: tuple) -> Share:

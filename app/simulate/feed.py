@@ -174,22 +174,58 @@ def _listed(table: Path, port: int) -> bool:
     )
 
 
-def sending_clock(sender: Sender, port: int, limit_s: float = 30.0) -> Callable[[], float]:
-    """A monotonic clock for run_live that starts `sender` the first time it is read (after the
-    receiver has started), once the receiver's socket holds `port` (a busy machine opens it
-    late; at most limit_s)."""
+def sending_clock(
+    sender: Sender,
+    port: int,
+    limit_s: float = 30.0,
+    clock: Callable[[], float] = time.monotonic,
+) -> Callable[[], float]:
+    """`clock` (monotonic s) for run_live, starting `sender` the first time it is read (after
+    the receiver has started), once the receiver's socket holds `port` (a busy machine opens it
+    late; at most limit_s of real time)."""
     started: list[bool] = []
 
-    def clock() -> float:
+    def read() -> float:
         if not started:
             started.append(True)
             end = time.monotonic() + limit_s
             while not port_held(port) and time.monotonic() < end:
                 time.sleep(0.01)
             sender.start()
-        return time.monotonic()
+        return clock()
 
-    return clock
+    return read
+
+
+class LockstepClock:
+    """A monotonic clock (s) that never passes `cap(now)`: the time the receiving side may not
+    see pass yet (a frame due then and not yet drawn, a keyframe being registered, a receiver
+    behind what was sent). Tests of live feeds give it to the sender and the receiver alike: the
+    sender paced by it waits, the receiver's jitter buffer sees one frame fall due at a time, so
+    what is drawn does not depend on how fast this machine registers or draws (latency is the
+    benchmarks'). It stands limit_s of real time at most at a stretch. Thread-safe."""
+
+    def __init__(self, cap: Callable[[float], float], limit_s: float = 20.0) -> None:
+        self.cap = cap
+        self.limit_s = limit_s
+        self.stood_s = 0.0  # the real time it stood still, in all
+        self._last: float | None = None
+        self._standing: float | None = None  # real time it began to stand
+        self._lock = threading.Lock()
+
+    def __call__(self) -> float:
+        real = time.monotonic()
+        with self._lock:
+            free = real - self.stood_s  # where it would be had it not stood since
+            last = free if self._last is None else self._last
+            stuck = self._standing is not None and real - self._standing >= self.limit_s
+            now = free if stuck else max(last, min(free, self.cap(last)))
+            if now >= free:
+                self._standing = None
+            elif self._standing is None:
+                self._standing = real
+            self.stood_s, self._last = real - now, now
+            return now
 
 
 TS_PACKET = 188
@@ -222,7 +258,9 @@ class Sender:
     """Sends an MPEG-TS over UDP in real time, paced by its program clock: 1316-byte datagrams
     as an encoder's UDP output sends them, a fraction `loss` of them dropped and a fraction
     `reorder` swapped with the next (a seeded, repeatable network). `sent` maps each video
-    frame's PTS (90 kHz) to when its last datagram left (clock s): latency is measured from it."""
+    frame's PTS (90 kHz) to when its last datagram left (clock s): latency is measured from it;
+    `sent_s` is the newest of them, media s after the first. The pace is `clock`'s: one that
+    stands still (LockstepClock) holds the sender."""
 
     def __init__(
         self,
@@ -239,6 +277,8 @@ class Sender:
         self.rng = np.random.default_rng(seed)
         self.clock = clock
         self.sent: dict[int, float] = {}
+        self.first_s: float | None = None
+        self.sent_s: float | None = None
         self.datagrams = self.dropped = 0
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self._stop = threading.Event()
@@ -276,9 +316,9 @@ class Sender:
                 pcr = _pcr(p)
                 if pcr is not None:
                     pcr0 = pcr if pcr0 is None else pcr0
-                    wait = start + (pcr - pcr0) / 90000.0 - self.clock()
-                    if wait > 0:
-                        self._stop.wait(wait)
+                    due = start + (pcr - pcr0) / 90000.0
+                    while (wait := due - self.clock()) > 0 and not self._stop.is_set():
+                        self._stop.wait(min(wait, 0.01))  # (read again: the clock may stand)
                 v = _video_pes_pts(p)
                 if v is not None:
                     pts = v
@@ -294,5 +334,7 @@ class Sender:
                     held = None
             if pts is not None:
                 self.sent[pts] = self.clock()
+                self.sent_s = pts / 90000.0
+                self.first_s = self.sent_s if self.first_s is None else self.first_s
         if held is not None:
             self.sock.sendto(held, self.address)

@@ -5,6 +5,7 @@ paces the stream) but assert only what must hold whatever the machine's speed.""
 
 from __future__ import annotations
 
+import math
 import socket
 import subprocess
 import sys
@@ -27,6 +28,7 @@ from app.live.pose import FRESH, NONE, STALE, LivePoses
 from app.live.receiver import Receiver, protocols_missing, stream_url
 from app.live.run import LiveOptions, run_live
 from app.simulate.feed import (
+    LockstepClock,
     Orbit,
     Sender,
     free_udp_port,
@@ -93,6 +95,30 @@ def test_poses_are_forward_only_and_stale_past_the_buffer():
     held = poses.at(0.35, frame, intr, 1000.0)  # past the newest set by 0.15 s: held, stale
     assert held.state == STALE and held.age_s == pytest.approx(0.15)
     assert np.allclose(held.camera.position[:2], ORBIT.position(0.2)[:2], atol=0.01)
+
+
+def test_the_lockstep_clock_stands_at_its_cap_and_goes_on_from_there():
+    """The tests' clock (app.simulate.feed.LockstepClock) on a real clock the test moves: free,
+    it keeps pace; capped, it goes as far as the cap and stands, however much real time passes;
+    let go, it goes on from where it stood (no jump); standing limit_s, it lets go."""
+    real, cap = [100.0], [math.inf]
+    clock = LockstepClock(lambda now: cap[0], limit_s=20.0, real=lambda: real[0])
+    assert clock() == 100.0
+    real[0] = 101.0
+    assert clock() == 101.0
+    cap[0] = 101.5  # a frame due at 101.5 not yet drawn
+    real[0] = 103.0
+    assert clock() == 101.5
+    real[0] = 110.0
+    assert clock() == 101.5 and clock.stood_s == pytest.approx(8.5)
+    cap[0] = math.inf  # drawn: time goes on from 101.5
+    real[0] = 111.0
+    assert clock() == pytest.approx(102.5)
+    cap[0] = 0.0  # a cap in the past: it stands where it is, never back
+    real[0] = 115.0
+    assert clock() == pytest.approx(102.5)
+    real[0] = 135.0  # stood 20 s: let go
+    assert clock() == pytest.approx(122.5)
 
 
 def _up(ecef: np.ndarray) -> np.ndarray:

@@ -203,18 +203,24 @@ class LockstepClock:
     behind what was sent). Tests of live feeds give it to the sender and the receiver alike: the
     sender paced by it waits, the receiver's jitter buffer sees one frame fall due at a time, so
     what is drawn does not depend on how fast this machine registers or draws (latency is the
-    benchmarks'). It stands limit_s of real time at most at a stretch. Thread-safe."""
+    benchmarks'). It stands limit_s of `real` time at most at a stretch. Thread-safe."""
 
-    def __init__(self, cap: Callable[[float], float], limit_s: float = 20.0) -> None:
+    def __init__(
+        self,
+        cap: Callable[[float], float],
+        limit_s: float = 20.0,
+        real: Callable[[], float] = time.monotonic,
+    ) -> None:
         self.cap = cap
         self.limit_s = limit_s
+        self.real = real
         self.stood_s = 0.0  # the real time it stood still, in all
         self._last: float | None = None
         self._standing: float | None = None  # real time it began to stand
         self._lock = threading.Lock()
 
     def __call__(self) -> float:
-        real = time.monotonic()
+        real = self.real()
         with self._lock:
             free = real - self.stood_s  # where it would be had it not stood since
             last = free if self._last is None else self._last

@@ -119,8 +119,12 @@ def run_sent(
     receiver is behind (lockstep_cap), so the same frames are drawn with the same corrections
     however busy the machine is."""
     port = free_udp_port()
-    feeds: list[LiveFeed] = []
-    clock = LockstepClock(lambda now: lockstep_cap(feeds[0], sender, now) if feeds else math.inf) if lockstep else time.monotonic  # fmt: skip
+    feeds: list[LiveFeed] = []  # (run_live's, once started)
+
+    def cap(now: float) -> float:
+        return lockstep_cap(feeds[0], sender, now) if feeds else math.inf
+
+    clock = LockstepClock(cap) if lockstep else time.monotonic
     sender = Sender(Path(path).read_bytes(), ("127.0.0.1", port), clock=clock)
     if lockstep:  # the receiver waits out the sender's pauses
         options = replace(options, read_timeout_s=max(options.read_timeout_s, clock.limit_s))
@@ -152,8 +156,8 @@ def lockstep_cap(feed: LiveFeed, sender: Sender, now: float) -> float:
         newest = feed.buffer.newest_pts()
         due = feed.buffer.next_due()
     origin = feed.receiver.origin_s  # (stream s of media 0: the sender's times are the stream's)
-    held = sender.first_s if origin is None or newest == -math.inf else origin + newest
-    if sender.sent_s is not None and sender.sent_s - held > AHEAD_S:
+    received = sender.first_s if origin is None or newest == -math.inf else origin + newest
+    if sender.sent_s is not None and sender.sent_s - received > AHEAD_S:
         return now
     return math.inf if due is None else due
 

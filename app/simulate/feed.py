@@ -265,8 +265,8 @@ class Sender:
     as an encoder's UDP output sends them, a fraction `loss` of them dropped and a fraction
     `reorder` swapped with the next (a seeded, repeatable network). `sent` maps each video
     frame's PTS (90 kHz) to when its last datagram left (clock s): latency is measured from it;
-    `sent_s` is the newest of them, media s after the first. The pace is `clock`'s: one that
-    stands still (LockstepClock) holds the sender."""
+    `first_s` and `sent_s` are the first and the newest of those PTS in seconds of the stream's
+    clock. The pace is `clock`'s: one that stands still (LockstepClock) holds the sender."""
 
     def __init__(
         self,

@@ -16,9 +16,15 @@ import pyarrow.parquet as pq
 import pytest
 from shapely.geometry import Polygon
 
+from app.camera.intrinsics import Intrinsics
+from app.camera.pinhole import Camera
 from app.cli import main
 from app.core.errors import SceneError
+from app.core.settings import ProjectionSettings
+from app.geodesy import rotations
 from app.geodesy.enu import LocalFrame
+from app.render.offscreen import render_to_array
+from app.render.renderer import FusionRenderer
 from app.scene.city.footprints import parse_length, parse_levels, vertical_extent
 from app.scene.city.model import KIND_CODE
 from app.scene.city.osm import join_rings
@@ -26,6 +32,7 @@ from app.scene.ground import ground_heights
 from app.scene.layers import Layer, layer_kind, load_layers
 from app.scene.mesh import MeshData, Primitive
 from app.session.config import read_config
+from app.simulate.phone import write_video
 from app.simulate.terrain import write_geotiff
 from tests.test_city import sample_manifest_text
 
@@ -367,7 +374,6 @@ def test_geoparquet_footprints_take_overtures_heights(tmp_path):
 @pytest.fixture
 def drone_clip(tmp_path):
     """A 4 s DJI clip hovering 80 m over building A (heights above take-off), looking down."""
-    from app.simulate.phone import write_video
 
     folder = tmp_path / "clip"
     folder.mkdir()
@@ -406,13 +412,6 @@ def test_roofs_show_the_orthophoto_under_them_and_walls_stay_grey(tmp_path, gl_c
     ground beside A is: the roof shows the imagery under it, where the camera projects it.
     Without the orthophoto the roof keeps its own colour; A's wall, seen from the side, is drawn
     the same either way."""
-    from app.camera.intrinsics import Intrinsics
-    from app.camera.pinhole import Camera
-    from app.core.settings import ProjectionSettings
-    from app.geodesy import rotations
-    from app.render.offscreen import render_to_array
-    from app.render.renderer import FusionRenderer
-
     osm = write_osm(tmp_path / "city.osm")
     sw, ne = _ll(FRAME, (-150.0, -150.0))[0], _ll(FRAME, (150.0, 150.0))[0]
     n = 60

@@ -5,9 +5,8 @@ time it is drawn, never from later ones.
 Between two arrived sets the position and the field of view (tag 16: a zoom) are interpolated
 linearly and the attitude by slerp (across a jump no platform could make, once believed, the
 position before it is held: a frame between is not drawn part-way); past the newest set the newest
-is held. Each frame is drawn
-with the field of view of its own moment (a set that gives none keeps the one before it; before
-any set gives one, the feed's pinhole). A pose whose newest set is older than its frame by more
+is held. Each frame is drawn with the field of view of its own moment (a set that gives none keeps
+the one before it; before any set gives one, the feed's pinhole). A pose whose newest set is older than its frame by more
 than the jitter buffer is `stale` (drawn, marked); before any set with a pose the frame has none.
 Thread-safe: the receiver adds, the drawing thread asks.
 """

@@ -140,8 +140,9 @@ def run_sent(
         sender.stop()
 
 
-AHEAD_S = 1.0  # lockstep: the video sent ahead of the newest frame received at most (s; a
-# receiver holds 0.6 s of it while it starts)
+# lockstep: the video sent ahead of the newest frame received at most (s; a receiver holds
+# 0.6 s of it while it starts)
+AHEAD_S = 1.0
 
 
 def lockstep_cap(feed: LiveFeed, sender: Sender, now: float) -> float:

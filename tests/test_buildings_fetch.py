@@ -20,9 +20,9 @@ import pytest
 from app.cli import main
 from app.core.errors import GeofuseError
 from app.core.messages import Messages
-from app.footage.clips import DRONE_GROUND_MARGIN_M, open_any
+from app.footage.clips import open_any
 from app.geodesy.enu import LocalFrame
-from app.world.build import MAX_REACH_M, MIN_REACH_M, world_layer
+from app.world.build import MAX_REACH_M, world_layer
 from app.world.cache import DEFAULT_FRESH_S, TileCache
 from app.world.grids import M_PER_DEG_LAT
 from app.world.overpass import (
@@ -45,7 +45,7 @@ from tests.test_world import _own_folders  # noqa: F401 (autouse: the test's own
 LAT, LON = (float(f"{v:.8f}") for v in OSM_FRAME.enu_to_geodetic(np.array([10.0, 5.0, 0.0]))[:2])
 FRAME = LocalFrame(LAT, LON, 0.0)
 HEIGHT_M = 80.0
-REACH_M = min(max(DRONE_GROUND_MARGIN_M + 10.0 * HEIGHT_M, MIN_REACH_M), MAX_REACH_M)
+REACH_M = min(500.0 + 10.0 * HEIGHT_M, MAX_REACH_M)  # a flown camera sees 500 m + 10x its height
 
 # Buildings (ENU m of FRAME): A height=12, B building:levels=5 (3 m a level), C a multipolygon
 # of one outer way, height "7.5 m"; none under the take-off point.

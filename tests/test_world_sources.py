@@ -27,6 +27,7 @@ from app.core.errors import ManifestError
 from app.core.messages import Messages
 from app.geodesy import geoid
 from app.geodesy.enu import LocalFrame
+from app.scene.ground_plane import ground_reach_m
 from app.scene.layers import load_layers
 from app.session import open_session
 from app.session.config import read_config
@@ -39,6 +40,7 @@ from app.world.settings import World
 from app.world.sources import encode_heights, parse_source
 from tests import test_world
 from tests.test_world import (
+    IMAGERY_Z,
     KEY,
     LAT0,
     LON0,
@@ -665,6 +667,53 @@ def test_a_clip_prefetched_opens_offline_from_a_manifest_world(tmp_path, dji_cli
     assert any(p.texture is not None for p in session.mesh.primitives)
 
 
+@pytest.mark.parametrize("given", [None, 600.0], ids=["camera", "reach_m"])
+def test_a_manifest_world_reaches_as_far_as_the_flown_camera_sees(given, tmp_path, dji_clip):
+    """A manifest's [world] over a flown track (the clip hovers 80 m above take-off) is fetched
+    over the track plus 500 m + 10 x 80 m = 1300 m on the ground, as the clip opened alone is,
+    not the 300 m of a hand-held one, or as far as its reach_m says: every imagery tile of that
+    area at the level taken is asked for, and none beyond it; the reach is said."""
+    xyz = TileServer()
+    try:
+        manifest = tmp_path / "clip.toml"
+        manifest.write_text(
+            f'[video]\npath = "{dji_clip}"\nstart_time = 0.0\n\n[camera]\nhfov_deg = 73.7\n\n'
+            f'[sensors]\nformat = "none"\n\n[gnss]\npath = "{dji_clip.with_suffix(".SRT")}"\n'
+            f'takeoff_height_m = 600.0\n\n[world]\nimagery = "{xyz.base}/img/{{z}}/{{x}}/{{y}}.png"\n'
+            f'imagery_max_zoom = {IMAGERY_Z}\nattribution = "(c) test"\n'
+            + (f"reach_m = {given}\n" if given else "")
+        )
+        session = open_session(manifest)
+        asked = {
+            tuple(int(v) for v in path.removesuffix(".png").split("/")[2:5])
+            for path, *_ in xyz.log
+            if path.startswith("/img/")
+        }
+    finally:
+        xyz.stop()
+    reach = given or 1300.0
+    text = "\n".join(session.messages.items)
+    whose = "its reach_m" if given else "the camera's reach"
+    assert f"world manifest: over the track plus {reach:.0f} m ({whose})" in text, text
+    (z,) = {t[0] for t in asked}
+    lat = LAT0 + 0.0002 * np.arange(4)  # the clip's fixes (tests/test_world.py write_drone_clip)
+    lon = LON0 + 0.0003 * np.arange(4)
+    x, y = tm.to_mercator(lat, lon)
+
+    def area(reach_m: float) -> tuple[float, float, float, float]:
+        grow = reach_m / math.cos(math.radians(float(lat.mean())))  # ground m -> Mercator m
+        return (x.min() - grow, y.min() - grow, x.max() + grow, y.max() + grow)
+
+    assert asked == set(tm.covering(area(reach), z).tiles()), (z, len(asked))
+    assert len(asked) > tm.covering(area(300.0), z).count  # more than a hand-held track's
+
+
+def test_a_camera_sees_300_m_held_and_500_m_plus_10x_its_height_flown():
+    assert ground_reach_m([1.5, 2.0, 9.0]) == 300.0  # a phone, a car's roof, a mast
+    assert ground_reach_m([1.5, 80.0, np.nan]) == 1300.0  # a drone hovering 80 m up
+    assert ground_reach_m([]) == 300.0  # no fix at all (a cold start)
+
+
 def test_a_manifest_world_names_a_settings_world_or_says_what_is_wrong(tmp_path, monkeypatch):
     folder = tmp_path / "config" / "geofuse"
     folder.mkdir(parents=True)
@@ -677,6 +726,8 @@ def test_a_manifest_world_names_a_settings_world_or_says_what_is_wrong(tmp_path,
         ('[world]\nimagery = "x.png"\n', "world"),
         ('[world]\nimagery = "a.mbtiles"\nkey = "abc"\n', "key_env"),
         ('[world]\nimagery = "a.mbtiles"\nkye_env = "X"\n', "unknown key"),
+        ('[world]\nimagery = "a.mbtiles"\nreach_m = -5\n', "reach_m must be a distance"),
+        ('[world]\nimagery = "a.mbtiles"\nreach_m = "far"\n', "reach_m must be a distance"),
     ):
         manifest = tmp_path / "m.toml"
         manifest.write_text(table + base)

@@ -49,7 +49,7 @@ from app.io.streams import GnssTrack, OrientationStream
 from app.io.video import VideoInfo, probe
 from app.scene import Placement
 from app.scene.ground import ellipsoidal_ground, ground_heights
-from app.scene.ground_plane import ASSUMED_GROUND_MARGIN_M, ground_under_track
+from app.scene.ground_plane import ASSUMED_GROUND_MARGIN_M, ground_reach_m, ground_under_track
 from app.scene.layers import Layer
 from app.scene.mesh import MeshData
 from app.session.assemble import assemble, gimbal_attitude, load_scene_layers, open_session
@@ -67,9 +67,6 @@ KLV_ASSUMED_HEIGHT_M = 100.0  # a KLV clip without a frame centre: the ground th
 CENTRE_SCENE_LIMIT_M = 20.0  # KLV frame centres this far (median) from the scene's ground: said
 ZOOM_STEP_DEG = 0.01  # a KLV field of view that changes more than this (deg) is drawn per frame
 ZOOM_STEP_MM = 0.05  # a DJI focal length that changes more than this (mm, 35 mm eq.): the same
-DRONE_GROUND_MARGIN_M = (
-    500.0  # the assumed ground beyond a drone clip's track, plus 10x its height above the ground
-)
 
 
 def find_srt(video: Path) -> Path | None:
@@ -345,7 +342,7 @@ def _dji_session(
     frame, mesh, gnss = frame_and_ground(
         gnss,
         ground,
-        DRONE_GROUND_MARGIN_M + 10.0 * float(np.max(heights - ground)),
+        ground_reach_m(heights - ground),
         layers,
         messages,
         track.height_relative,
@@ -491,7 +488,7 @@ def _klv_session(
     frame, mesh, gnss = frame_and_ground(
         gnss,
         ground,
-        DRONE_GROUND_MARGIN_M + 10.0 * float(np.max(gnss.h - ground)),
+        ground_reach_m(gnss.h - ground),
         layers,
         messages,
     )

@@ -6,11 +6,15 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
+import numpy.typing as npt
 
 from app.scene import shapes
 from app.scene.mesh import MeshData
 
 ASSUMED_GROUND_MARGIN_M = 300.0  # the assumed ground reaches this far beyond a hand-held track
+FLOWN_ABOVE_M = 10.0  # a track that rises this far above its ground somewhere is flown
+FLOWN_GROUND_MARGIN_M = 500.0  # a flown camera's reach: this, plus FLOWN_REACH_PER_M x its height
+FLOWN_REACH_PER_M = 10.0  # (a ray 5.7 deg below the horizon meets the ground 10x the height out)
 TILE_M = 10.0  # one texture tile covers 10 m x 10 m
 TILE_PX = 400
 
@@ -37,6 +41,18 @@ def ground_plane(centre_xy: np.ndarray, height_m: float, half_size_m: float) -> 
     quad.uvs = (quad.vertices[:, :2]) / TILE_M
     plane = quad.primitive((1.0, 1.0, 1.0, 1.0), grid_tile(), name="assumed ground")
     return MeshData([replace(plane, cut=True)])
+
+
+def ground_reach_m(heights_above_ground_m: npt.ArrayLike) -> float:
+    """How far beyond its track (m on the ground) a camera sees the ground, from its heights
+    above that ground (m): ASSUMED_GROUND_MARGIN_M for one held or mounted lower than
+    FLOWN_ABOVE_M everywhere; FLOWN_GROUND_MARGIN_M + FLOWN_REACH_PER_M x its greatest height
+    for one flown higher. The assumed ground and a world's area reach this far."""
+    above = np.asarray(heights_above_ground_m, np.float64)
+    top = float(np.nanmax(above)) if above.size and np.isfinite(above).any() else 0.0
+    if top <= FLOWN_ABOVE_M:
+        return ASSUMED_GROUND_MARGIN_M
+    return FLOWN_GROUND_MARGIN_M + FLOWN_REACH_PER_M * top
 
 
 def ground_under_track(

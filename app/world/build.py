@@ -4,8 +4,8 @@ EPSG:4326 or EPSG:3857 tiling (its meshes sampled at the DEM's pixels), a GeoTIF
 cache folder -> the scene's DEM layer (app.scene.terrain drapes the one on the other, in the
 session's ENU frame, with its RTIN mesh and vertical datum).
 
-The area: the track's extent plus the camera's reach on the ground (the margin the assumed
-ground would have had, at most MAX_REACH_M), in the source's CRS. The levels: imagery at the
+The area: the track's extent plus the camera's reach on the ground (the assumed ground's,
+app.scene.ground_plane.ground_reach_m, at most MAX_REACH_M), in the source's CRS. The levels: imagery at the
 coarsest level whose pixels are at most the clip's ground sampling (estimated from its height
 above the ground), terrain TERRAIN_COARSER times coarser, each within a tile budget (a
 GeoTIFF's window within as many pixels). A tile that cannot be had is drawn from up to
@@ -645,18 +645,21 @@ def resolve_worlds(
             np.array(lon, np.float64),
             np.array(h, np.float64),
             float(ground_h),
-            float(reach_m),
+            float(layer.world.reach(reach_m)),
             above_takeoff and not others,
         )
+        bounded = min(max(request.reach_m, MIN_REACH_M), MAX_REACH_M)
+        whose = "its reach_m" if layer.world.reach_m is not None else "the camera's reach"
+        area = f"over the track plus {bounded:.0f} m ({whose})"
         if deferred is not None:
             deferred.append(request)
             messages.info(
-                f"world {layer.world.name}: built in the background; the flat ground stands in until its first tiles arrive"
+                f"world {layer.world.name}: {area}, built in the background; the flat ground stands in until its first tiles arrive"
             )
             continue
         messages.info(
-            f"world {layer.world.name}: built in full before going on (`geofuse view` streams "
-            "it in instead)"
+            f"world {layer.world.name}: {area}, built in full before going on (`geofuse view` "
+            "streams it in instead)"
         )
         out.extend(
             build_world(request, messages, ProgressBar(f"world {layer.world.name}", sys.stderr))

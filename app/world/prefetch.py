@@ -91,7 +91,7 @@ def plan_prefetch(
         world,
         lat,
         lon,
-        reach_m,
+        reach_m if area else world.reach(reach_m),
         height_m,
         cache,
         math.inf,

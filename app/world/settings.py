@@ -18,6 +18,9 @@ platform's config folder, app.core.paths.config_dir), chosen by `--world NAME`, 
     imagery_max_zoom = 19                  # optional
     terrain_max_zoom = 15                  # optional
     timeout_s = 60                         # optional: the most a fetch may take, s
+    reach_m = 800                          # optional: fetched this far beyond the track, m
+                                           # (default: as far as the camera sees the ground,
+                                           # app.scene.ground_plane.ground_reach_m)
 
 With no `--world`, a clip without a scene takes the first table (or the name in the environment
 variable GEOFUSE_WORLD; "none" there keeps the flat ground, as the tests set it); with no table
@@ -26,6 +29,7 @@ either, the default open sources where the network answers (app.world.defaults).
 
 from __future__ import annotations
 
+import math
 import os
 import tomllib
 from dataclasses import dataclass
@@ -53,6 +57,7 @@ KEYS = {
     "imagery_max_zoom",
     "terrain_max_zoom",
     "timeout_s",
+    "reach_m",
 }
 HOW_TO = (
     "to drape the clip on terrain and imagery instead, name tile sources in a [[world]] table of "
@@ -67,7 +72,9 @@ class World:
     """A named world: imagery and/or terrain sources, what they must be credited with, the
     longest a fetch may take (s), and where its buildings are fetched from (None: nowhere);
     probe_s: the default world's (app.world.defaults): the network is asked first whether it
-    answers within this long (s), the flat ground kept where it does not (0: no probe)."""
+    answers within this long (s), the flat ground kept where it does not (0: no probe);
+    reach_m: how far beyond a clip's track it is fetched (m on the ground; None: the camera's
+    reach, as the clip's assumed ground has it)."""
 
     name: str
     imagery: TileSource | None
@@ -76,6 +83,12 @@ class World:
     timeout_s: float = DEFAULT_TIMEOUT_S
     buildings: OverpassSource | None = None
     probe_s: float = 0.0
+    reach_m: float | None = None
+
+    def reach(self, camera_m: float) -> float:
+        """How far beyond a track this world is fetched (m on the ground): its reach_m where
+        given, else camera_m, the camera's reach there."""
+        return camera_m if self.reach_m is None else self.reach_m
 
     @property
     def credit(self) -> str:
@@ -233,6 +246,14 @@ def _world(table: dict) -> World:
             max_zoom=table.get("terrain_max_zoom"),
             **common,
         )
+    reach = table.get("reach_m")
+    if reach is not None and (
+        isinstance(reach, bool)
+        or not isinstance(reach, int | float)
+        or not math.isfinite(reach)
+        or reach <= 0
+    ):
+        raise SourceError(f"reach_m must be a distance in metres above 0 (got {reach!r})")
     return World(
         str(table["name"]),
         imagery,
@@ -240,6 +261,7 @@ def _world(table: dict) -> World:
         common["attribution"],
         float(table.get("timeout_s", DEFAULT_TIMEOUT_S)),
         parse_overpass(str(table["buildings"])) if table.get("buildings") else None,
+        reach_m=None if reach is None else float(reach),
     )
 
 

@@ -22,7 +22,9 @@ from app.camera.pinhole import Camera, look_at_quat
 from app.cli.common import open_with_source, start_area
 from app.cli.parser import build_parser, joined_negative_values
 from app.core.errors import DataFormatError, GeofuseError
+from app.geodesy import rotations
 from app.geodesy.enu import LocalFrame
+from app.register import coldstart
 from app.register.coldstart import ground_footprint, scene_positions, searched
 from app.register.fuse import Keyframe
 from app.register.solve import registered_track
@@ -97,6 +99,48 @@ def test_an_area_without_the_clip_is_refused_with_a_message(no_gnss, gl_ctx):
     # centre: its nearest edge is about 2000 - 180 m east of the true start's x = 0
     edge = re.search(r"the scene's nearest edge is (\d+) m from its centre", said)
     assert edge and abs(int(edge.group(1)) - (2000 - 180)) <= 5, said
+
+
+@pytest.mark.gl
+def test_an_attitude_turned_beyond_the_tolerance_is_taken_where_two_frames_agree(
+    no_gnss, gl_ctx, monkeypatch
+):
+    """An IMU alone tilts its vertical in a turn (12-14 deg on the survey's turns): the platform's
+    attitude turned 14 deg about the east axis, every pose the search registers lies beyond the
+    10 deg it accepts; the first frame's is held, the next frame's agrees with it (the same
+    offset within 3 deg, within 30 m/s of it), and that one is taken and said."""
+    turn = rotations.from_rotvec([math.radians(14.0), 0.0, 0.0])  # about the east axis
+    plain = coldstart.attitude_track
+
+    def turned(*args, **kw):
+        track = plain(*args, **kw)
+        q = rotations.canonical(rotations.multiply(turn, track.poses.q_device))
+        return replace(track, poses=replace(track.poses, q_device=q))
+
+    monkeypatch.setattr(coldstart, "attitude_track", turned)
+    session = open_session(no_gnss)
+    d = OFF_M / math.sqrt(2.0)
+    session = replace(session, start=StartArea.near(*_near(session, d, d), 300.0, HEIGHT_M))
+    poses = registered_track(session, ctx=gl_ctx).frame_poses()
+    said = [m.text for m in session.messages.since(0) if m.text.startswith("cold start:")]
+    assert len(said) == 1 and "(t = 1.0 s)" in said[0], said  # the second frame searched
+    found = re.search(r"turned (\d+) deg from the platform's attitude, as the pose", said[0])
+    # 14 deg and the platform's own error (a few degrees): beyond the 10 deg accepted alone
+    assert found and 10 < int(found.group(1)) <= 14 + 5, said[0]
+    truth = true_track(session)
+    error = np.linalg.norm(poses.enu - truth.poses_at(truth.clock.media_s[poses.index]).enu, axis=1)
+    assert np.median(error) <= 0.45, error  # as with the platform's own attitude (above)
+
+
+def test_poses_agree_when_turned_alike_and_near_enough():
+    """Offsets 2 deg apart agree, 5 deg apart do not; a pose 40 m from the held one a second
+    later does not (30 m/s plus 5 m: 35 m), two seconds later it does (65 m)."""
+    s = coldstart.SearchSettings()
+    first = [(10.0, np.array([0.0, 0.0, 60.0]), rotations.about_z(12.0))]
+    assert coldstart.agreeing(first, 11.0, [20.0, 0.0, 60.0], rotations.about_z(14.0), s)
+    assert not coldstart.agreeing(first, 11.0, [20.0, 0.0, 60.0], rotations.about_z(17.0), s)
+    assert not coldstart.agreeing(first, 11.0, [40.0, 0.0, 60.0], rotations.about_z(12.0), s)
+    assert coldstart.agreeing(first, 12.0, [40.0, 0.0, 60.0], rotations.about_z(12.0), s)
 
 
 def test_the_options_are_parsed_and_bad_values_refused(capsys, tmp_path):

@@ -23,6 +23,9 @@ docs/ACCURACY.md "Cold start"):
   on the ground plane) is not rendered. The correlation fails here: the frame's 3D content
   (walls, roofs seen from the side) does not lie on the ground plane.
 The frames searched are the clip's first and, where none is found, those `tries` seconds later.
+A pose that passes every check but the attitude's (an IMU alone tilts its vertical in a turn)
+is held, and taken when a later frame's is turned from the platform's attitude the same way
+and lies where the first could have flown to (`agreeing`).
 
 Once found, the prior (the attitude source's track) stands at the found position (held still),
 and the keyframes after it are each searched from where the ones before lead
@@ -93,7 +96,11 @@ class SearchSettings:
     margin_m: a pose found at most this far outside the area is taken (the area is the user's
     rough idea); height_tolerance: nor one whose height above the ground differs from the
     platform's by more than this share of it, turn_tolerance_deg: nor one turned from the
-    platform's attitude by more (degrees); start_pose: the thresholds (full-size pixels) a
+    platform's attitude by more (degrees), unless it is turned by at most turned_within_deg
+    and another frame's pose agrees with it: turned from the platform's attitude the same way
+    (within agree_deg) and no farther from it than max_speed_mps for the time between them,
+    plus agree_m (an IMU alone tilts its vertical in a turn: the offset holds between frames
+    a second apart, a wrong pose's does not); start_pose: the thresholds (full-size pixels) a
     view's matches must meet to give the pose registration starts from (looser than
     registration's own: matched at a quarter of the pixels, it is only a start); tries:
     seconds after the first frame of the frames searched, in order, until one is found."""
@@ -117,6 +124,10 @@ class SearchSettings:
     margin_m: float = 50.0
     height_tolerance: float = 0.3
     turn_tolerance_deg: float = 10.0
+    turned_within_deg: float = 30.0
+    agree_deg: float = 3.0
+    max_speed_mps: float = 30.0
+    agree_m: float = 5.0
     tries: tuple[float, ...] = (0.0, 1.0, 2.0, 3.0)
     start_pose: MatchSettings = MatchSettings(min_inliers=8, ransac_px=6.0, max_error_px=5.0)
 
@@ -129,7 +140,8 @@ class ColdStart:
     (where the views stood, or the scene's ground within it); views: renderings made; seconds:
     the search's time; off_centre_m: the pose's horizontal distance from the area's centre;
     above_ground_m: its height above the scene's ground; inliers, error_px: the registration's
-    last step."""
+    last step; turned_deg: where it was taken because an earlier frame's pose agreed with it,
+    how far it is turned from the platform's attitude (deg; 0: within turn_tolerance_deg)."""
 
     ok: bool
     reason: str
@@ -147,6 +159,7 @@ class ColdStart:
     above_ground_m: float = float("nan")
     inliers: int = 0
     error_px: float = float("nan")
+    turned_deg: float = 0.0
 
     def said(self, geodetic: Callable[[FloatArray], FloatArray], t0_s: float) -> str:
         """One line for people: what was searched, in what time, and what was found (or not).
@@ -162,6 +175,12 @@ class ColdStart:
             f"cold start: {searched}: found at {lat:.6f}, {lon:.6f}, {self.above_ground_m:.0f} m above the ground"
             f" (t = {self.time_s - t0_s:.1f} s), {self.off_centre_m:.0f} m from the area's centre"
             f" ({self.inliers} inliers, {self.error_px:.2f} px)"
+            + (
+                f"; turned {self.turned_deg:.0f} deg from the platform's attitude, as the pose"
+                " an earlier frame gave"
+                if self.turned_deg
+                else ""
+            )
         )
 
 
@@ -272,6 +291,37 @@ class _Verified:
 
 
 @dataclass(frozen=True)
+class _Turned:
+    """A pose that passed every check but the turn (turned_within_deg at most): the registered
+    camera, its checks' figures, and its offset from the platform's attitude (the world-side
+    rotation, scalar-first quaternion, taking the platform's onto it)."""
+
+    verified: _Verified
+    offset: FloatArray
+
+
+def agreeing(
+    earlier: list[tuple[float, FloatArray, FloatArray]],
+    time_s: float,
+    position: npt.ArrayLike,
+    offset: npt.ArrayLike,
+    s: SearchSettings,
+) -> bool:
+    """Whether a pose held at session time time_s (s), at `position` (3,) ENU m and turned from
+    the platform's attitude by `offset` (a world-side scalar-first quaternion), agrees with one
+    of `earlier` ((session time s, position, offset) of poses held on frames searched before):
+    its offset within agree_deg of that one's, and its position within max_speed_mps for the
+    time between them plus agree_m (SearchSettings)."""
+    p = np.asarray(position, np.float64)
+    for t, at, turned_by in earlier:
+        turn = float(np.degrees(rotations.angle_between(turned_by, offset)))
+        moved = float(np.linalg.norm(np.asarray(at, np.float64) - p))
+        if turn <= s.agree_deg and moved <= s.max_speed_mps * abs(time_s - t) + s.agree_m:
+            return True
+    return False
+
+
+@dataclass(frozen=True)
 class _Ortho:
     """The scene seen from straight above, north up: grey (H, W) float32, its cell (m) and the
     ENU east, north (m) of its top-left corner."""
@@ -305,6 +355,7 @@ class Search:
         self.matcher = Matcher(MatchSettings(features=settings.features))
         self.scene_box = _scene_box(mesh)
         self.rendered = 0
+        self.turned: list[_Turned] = []  # the last frame's poses turned too far (_verify)
         self._orthos: list[_Ortho] | None = None
 
     @property
@@ -317,6 +368,7 @@ class Search:
         m2). rgb: the frame at any size; camera: its camera at full video size with the
         platform's attitude (its position is not used)."""
         s = self.settings
+        self.turned = []
         image = camera.intrinsics if camera.lens is None else camera.lens.k
         scale = min(1.0, s.long_side / max(image.width, image.height))
         small = camera.pinhole(scale)
@@ -362,6 +414,13 @@ class Search:
             )
         turn = float(np.degrees(rotations.angle_between(solved.orientation, attitude.orientation)))
         if turn > s.turn_tolerance_deg:
+            if turn <= s.turned_within_deg:  # held: another frame may agree with it
+                offset = rotations.multiply(
+                    solved.orientation, rotations.conjugate(attitude.orientation)
+                )
+                self.turned.append(
+                    _Turned(_Verified(solved, "", fix.inliers, fix.error_px), offset)
+                )
             return _Verified(None, f"a pose registered {turn:.0f} deg from the platform's attitude")
         return _Verified(solved, "", fix.inliers, fix.error_px)
 
@@ -621,16 +680,30 @@ def search_start(
         {int(min(np.searchsorted(pts, pts[0] + t), len(pts) - 1)) for t in settings.tries}
     )
     method, m2, why = PERSPECTIVE, 0.0, "no frame to search"
+    held: list[tuple[float, FloatArray, FloatArray]] = []  # poses turned too far: (t, p, offset)
     for k, rgb in frames(wanted):
+        t_k = float(prior.clock.session_time([pts[k]])[0])
         verified, method, m2 = search.frame(rgb, prior.frame_camera(k))
         why = verified.why
+        turned = 0.0
+        if verified.camera is None:  # a pose turned too far, that an earlier frame's agrees with
+            poses = [(np.asarray(x.verified.camera.position), x.offset) for x in search.turned]
+            agreed = [
+                x
+                for x, (p, q) in zip(search.turned, poses, strict=True)
+                if agreeing(held, t_k, p, q, settings)
+            ]
+            held += [(t_k, p, q) for p, q in poses]
+            if agreed:
+                verified = agreed[0].verified
+                turned = float(np.degrees(rotations.angle_between(agreed[0].offset, [1, 0, 0, 0])))
         if verified.camera is not None:
             p = np.asarray(verified.camera.position, np.float64)
             return ColdStart(
                 True, "", area, method, float(area_enu.area), m2, search.rendered, clock() - began,
-                int(k), float(prior.clock.session_time([pts[k]])[0]), p, np.asarray(verified.camera.orientation),
+                int(k), t_k, p, np.asarray(verified.camera.orientation),
                 float(np.linalg.norm(p[:2] - centre)), float(p[2] - _ground(search.mesh, p[None, :2])[0]),
-                verified.inliers, verified.error_px,
+                verified.inliers, verified.error_px, turned,
             )  # fmt: skip
         if m2 <= 0:
             break  # no scene under the area: another frame will not find one

@@ -24,10 +24,12 @@ from app.cli.parser import build_parser, joined_negative_values
 from app.core.errors import DataFormatError, GeofuseError
 from app.geodesy import rotations
 from app.geodesy.enu import LocalFrame
+from app.io.video import frames_at
 from app.register import coldstart
 from app.register.coldstart import ground_footprint, scene_positions, searched
 from app.register.fuse import Keyframe
-from app.register.solve import registered_track
+from app.register.keyframe import PoseFix, posed
+from app.register.solve import Registrar, RegistrationSettings, registered_track
 from app.session import open_session
 from app.session.start import StartArea
 from app.simulate import session as sample
@@ -130,6 +132,34 @@ def test_an_attitude_turned_beyond_the_tolerance_is_taken_where_two_frames_agree
     truth = true_track(session)
     error = np.linalg.norm(poses.enu - truth.poses_at(truth.clock.media_s[poses.index]).enu, axis=1)
     assert np.median(error) <= 0.45, error  # as with the platform's own attitude (above)
+
+
+@pytest.mark.gl
+def test_a_lost_keyframe_is_searched_for_around_where_the_track_leads(no_gnss, gl_ctx):
+    """Registration lost (no fix trusted, nothing registered for 3 s) searches the keyframe's
+    frame as a cold start does, over 30 m + 1/2 x 1 m/s^2 x (3 s)^2 = 34.5 m around where the
+    last keyframes lead: from 20 m off the truth it finds the pose (within the orbit's 0.9 m,
+    above); from 80 m off, the truth lies outside the disc and it says so."""
+    session = open_session(no_gnss)
+    truth = true_track(session)
+    registrar = Registrar(session, RegistrationSettings(), gl_ctx)
+    try:
+        k = 30  # the frame at 1 s
+        true = truth.frame_camera(k)
+        ((_, rgb),) = frames_at(session.video, [k], registrar.settings.long_side)
+        miss = PoseFix(False, "textures: 2 matches on the model (need 15)", 2, 0, np.nan)
+        for off, found in ((20.0, True), (80.0, False)):
+            near = posed(true, np.asarray(true.position) + [off, 0.0, 0.0], true.orientation)
+            t = float(session.frame_times[k])
+            fix, solved = registrar._reacquired(rgb, true, [near], 3.0, t, [], miss)
+            if found:
+                assert solved is not None and fix.ok, fix.reason
+                assert np.linalg.norm(np.asarray(solved.position) - true.position) <= 0.9
+            else:
+                assert solved is None and fix.reason.startswith(miss.reason), fix.reason
+                assert "lost 3 s, not found within 34 m" in fix.reason, fix.reason
+    finally:
+        registrar.release()
 
 
 def test_poses_agree_when_turned_alike_and_near_enough():

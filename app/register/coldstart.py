@@ -358,6 +358,25 @@ class Search:
         self.turned: list[_Turned] = []  # the last frame's poses turned too far (_verify)
         self._orthos: list[_Ortho] | None = None
 
+    def agreed(
+        self, held: list[tuple[float, FloatArray, FloatArray]], time_s: float
+    ) -> tuple[_Verified, float]:
+        """The last frame's pose turned too far (`turned`) that one of `held` agrees with
+        (`agreeing`; the frame's session time time_s, s), and how far it is turned from the
+        platform's attitude (deg); (not found, 0) where none does. The frame's turned poses are
+        added to `held` (time, position, offset) for the frames after it."""
+        poses = [(np.asarray(x.verified.camera.position), x.offset) for x in self.turned]
+        agreed = [
+            x
+            for x, (p, q) in zip(self.turned, poses, strict=True)
+            if agreeing(held, time_s, p, q, self.settings)
+        ]
+        held += [(time_s, p, q) for p, q in poses]
+        if not agreed:
+            return _Verified(None, "no pose held agrees"), 0.0
+        turn = float(np.degrees(rotations.angle_between(agreed[0].offset, [1.0, 0.0, 0.0, 0.0])))
+        return agreed[0].verified, turn
+
     @property
     def max_range_m(self) -> float:
         s = self.settings
@@ -687,16 +706,7 @@ def search_start(
         why = verified.why
         turned = 0.0
         if verified.camera is None:  # a pose turned too far, that an earlier frame's agrees with
-            poses = [(np.asarray(x.verified.camera.position), x.offset) for x in search.turned]
-            agreed = [
-                x
-                for x, (p, q) in zip(search.turned, poses, strict=True)
-                if agreeing(held, t_k, p, q, settings)
-            ]
-            held += [(t_k, p, q) for p, q in poses]
-            if agreed:
-                verified = agreed[0].verified
-                turned = float(np.degrees(rotations.angle_between(agreed[0].offset, [1, 0, 0, 0])))
+            verified, turned = search.agreed(held, t_k)
         if verified.camera is not None:
             p = np.asarray(verified.camera.position, np.float64)
             return ColdStart(

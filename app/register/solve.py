@@ -20,6 +20,7 @@ from dataclasses import dataclass, field, replace
 
 import moderngl
 import numpy as np
+import shapely
 
 from app.camera.fixes import USED
 from app.camera.pinhole import Camera
@@ -59,6 +60,7 @@ from app.register.points import (
     solve_control,
 )
 from app.render.views import ModelViews
+from app.scene.ground import ground_heights
 from app.scene.mesh import MeshData
 from app.session.camera_track import CameraTrack, camera_track
 from app.session.model import REGISTERED, Session
@@ -91,7 +93,14 @@ class RegistrationSettings:
     and so is one where the prior stands on no fix it used (a lie, an outage: the IMU carried
     it); with an accelerometer the keyframes lead on by the IMU's motion, not a constant
     velocity (app.register.inertial.chained); a pose found farther than chain_reach_m from
-    where they lead is not taken (the platform cannot be there: a false match)."""
+    where they lead is not taken (the platform cannot be there: a false match). Lost: where no
+    keyframe has registered for reacquire_after_s seconds and the prior stands on no fix it
+    used or has moved unlike the scene (farther from where the last keyframes registered lead
+    than chain_m plus what that lead may err by), a keyframe that does not register is searched
+    for as a cold start does
+    (app.register.coldstart.Search, at most every reacquire_every_s) over a disc around where
+    the last keyframes lead: reacquire_m plus half of reacquire_accel (m/s^2) times the seconds
+    lost squared, at most reacquire_max_m."""
 
     every_s: float = KEYFRAMES_S
     long_side: int = 960
@@ -110,6 +119,11 @@ class RegistrationSettings:
     chain_m: float = 3.0
     chain_s: float = 3.0
     chain_reach_m: float = 10.0
+    reacquire_after_s: float = 2.0
+    reacquire_every_s: float = 4.0
+    reacquire_m: float = 30.0
+    reacquire_accel: float = 1.0
+    reacquire_max_m: float = 300.0
 
 
 @dataclass(frozen=True)
@@ -289,6 +303,7 @@ class Registrar:
         if by_geometry(mesh):
             settings = replace(settings, by_geometry=True)
         self.settings = settings
+        self.mesh = mesh
         self.views = ModelViews(mesh, ctx)
         self.cut = cut_outline(mesh)  # where the model's data ends: no line (app.register.edges)
         self.matcher = Matcher(settings.match)
@@ -372,6 +387,8 @@ class Registrar:
         frames = frames_at(video, idx, s.long_side)
         if motion is None:  # keyframes chained by the IMU
             motion = inertial.motion_of(self.session, prior.poses)
+        last_t, searched_t = None, -np.inf  # the last keyframe registered; the last search
+        held: list = []  # poses a search held for their attitude (coldstart.Search.agreed)
         while True:
             with _lap(self.stage_s, "decode"):
                 k, rgb = next(frames, (None, None))
@@ -402,6 +419,19 @@ class Registrar:
                     fix, solved = replace(fix, reason=f"found {off:.0f} m from where the last keyframes lead"), None  # fmt: skip
                 if solved is not None:
                     break
+            lost = None if last_t is None else t - last_t
+            if solved is None and lost is not None and lost > s.reacquire_after_s - 0.05:
+                # where the last keyframes registered lead, however long ago
+                lead = _chained([k for k in keyframes if k.registered], t, start, np.inf, motion, so_far)  # fmt: skip
+                drift = s.chain_m + 0.5 * s.reacquire_accel * lost**2  # what the lead may err by
+                doubted = not trusted or (lead is not None and _moved(start, lead)[0] > drift)
+                if doubted and t - searched_t > s.reacquire_every_s - 0.05:
+                    searched_t = t  # lost: searched for, as a cold start, where the keyframes
+                    # lead and, where no fix holds the prior, where the IMU carried it
+                    near = [c for c in (lead, None if trusted else start) if c is not None]
+                    fix, solved = self._reacquired(rgb, prior_cam, near or [start], lost, t, held, fix)  # fmt: skip
+            if solved is not None:
+                last_t = t
             keyframes.append(Keyframe(
                 int(k), t, solved is not None, "" if solved is not None else fix.reason, fix.matches, fix.inliers, fix.error_px, renders,
                 np.asarray(prior_cam.position), np.asarray(prior_cam.orientation),
@@ -410,6 +440,47 @@ class Registrar:
             if progress is not None:
                 progress(len(keyframes) / len(idx))
         return Registration(prior.source, tuple(gate(keyframes, s.fuse)), dict(self.stage_s))
+
+    def _reacquired(
+        self,
+        rgb: np.ndarray,
+        prior_cam: Camera,
+        near: list[Camera],
+        lost_s: float,
+        t: float,
+        held: list,
+        fix: PoseFix,
+    ) -> tuple[PoseFix, Camera | None]:
+        """A keyframe lost for lost_s seconds searched for over a disc around each of `near`
+        (where the last keyframes lead, where the IMU carried the prior; RegistrationSettings'
+        reacquire_*), at the first one's height above the ground, with the prior's attitude
+        (prior_cam), from the first one out; a pose turned beyond the search's tolerance is
+        taken where one held from an earlier search (`held`, session times t s) agrees.
+        (fix, the pose or None); fix says what was found, or keeps the keyframe's reason."""
+        s = self.settings
+        p = np.asarray(near[0].position, np.float64)
+        ground = ground_heights(self.mesh, p[None, :2])
+        height = float(p[2] - ground[0]) if len(ground) and np.isfinite(ground[0]) else np.nan
+        if not np.isfinite(height) or height <= 0.0:
+            return fix, None
+        radius = min(s.reacquire_m + 0.5 * s.reacquire_accel * lost_s**2, s.reacquire_max_m)
+        discs = [shapely.Point(*np.asarray(c.position)[:2]).buffer(radius) for c in near]
+        search = coldstart.Search(
+            self.mesh,
+            self.views,
+            lambda frame, start: self.keyframe(frame, start)[:2],
+            shapely.union_all(discs),
+            p[:2],
+            height,
+            coldstart.SearchSettings(margin_m=0.0),  # the disc is the uncertainty already
+        )
+        verified = search.frame(rgb, prior_cam)[0]
+        if verified.camera is None:
+            verified = search.agreed(held, t)[0]
+        if verified.camera is None:
+            return replace(fix, reason=f"{fix.reason}; lost {lost_s:.0f} s, not found within {radius:.0f} m"), None  # fmt: skip
+        found = verified.camera
+        return PoseFix(True, "", verified.inliers, verified.inliers, verified.error_px, np.asarray(found.position), np.asarray(found.orientation)), found  # fmt: skip
 
     def release(self) -> None:
         self.views.release()

@@ -30,8 +30,9 @@ demo: $(APP)
 		$(PY) -m app demo; \
 	fi
 
+# Two workers, a test file each at a time (a module's fixtures built once): CI has two cores.
 test: $(TEST)
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n 2 --dist loadfile
 
 lint: $(TEST)
 	$(VENV)/bin/ruff check .

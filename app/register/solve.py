@@ -95,12 +95,12 @@ class RegistrationSettings:
     velocity (app.register.inertial.chained); a pose found farther than chain_reach_m from
     where they lead is not taken (the platform cannot be there: a false match). Lost: where no
     keyframe has registered for reacquire_after_s seconds and the prior stands on no fix it
-    used or has moved unlike the scene (farther from where the last keyframes registered lead
-    than chain_m plus what that lead may err by), a keyframe that does not register is searched
-    for as a cold start does
-    (app.register.coldstart.Search, at most every reacquire_every_s) over a disc around where
-    the last keyframes lead: reacquire_m plus half of reacquire_accel (m/s^2) times the seconds
-    lost squared, at most reacquire_max_m."""
+    used or has moved unlike the scene (farther from where the registered keyframes lead than
+    chain_m plus what that lead may err by), a keyframe that does not register is searched for
+    as a cold start does (app.register.coldstart.Search, at most every reacquire_every_s) over
+    discs around where they lead and, where no fix holds the prior, where the IMU carried it:
+    reacquire_m plus half of reacquire_accel (m/s^2) times the seconds lost squared, at most
+    reacquire_max_m."""
 
     every_s: float = KEYFRAMES_S
     long_side: int = 960
@@ -422,7 +422,7 @@ class Registrar:
             lost = None if last_t is None else t - last_t
             if solved is None and lost is not None and lost > s.reacquire_after_s - 0.05:
                 # where the last keyframes registered lead, however long ago
-                lead = _chained([k for k in keyframes if k.registered], t, start, np.inf, motion, so_far)  # fmt: skip
+                lead = _chained([kf for kf in keyframes if kf.registered], t, start, np.inf, motion, so_far)  # fmt: skip
                 drift = s.chain_m + 0.5 * s.reacquire_accel * lost**2  # what the lead may err by
                 doubted = not trusted or (lead is not None and _moved(start, lead)[0] > drift)
                 if doubted and t - searched_t > s.reacquire_every_s - 0.05:

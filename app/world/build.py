@@ -5,13 +5,13 @@ cache folder -> the scene's DEM layer (app.scene.terrain drapes the one on the o
 session's ENU frame, with its RTIN mesh and vertical datum).
 
 The area: the track's extent plus the camera's reach on the ground (the assumed ground's,
-app.scene.ground_plane.ground_reach_m, at most MAX_REACH_M), in the source's CRS. The levels: imagery at the
-coarsest level whose pixels are at most the clip's ground sampling (estimated from its height
-above the ground), terrain TERRAIN_COARSER times coarser, each within a tile budget (a
-GeoTIFF's window within as many pixels). A tile that cannot be had is drawn from up to
-PARENT_LEVELS coarser tiles (a quantized-mesh level no finer than the finest its layer has
-tiles at over the area); imagery without terrain lies on the assumed flat ground.
-Everything fetched is bounded by the world's timeout_s.
+app.scene.ground_plane.ground_reach_m, or the world's reach_m; at most MAX_REACH_M), in the
+source's CRS. The levels: imagery at the coarsest level whose pixels are at most the clip's
+ground sampling (estimated from its height above the ground), terrain TERRAIN_COARSER times
+coarser, each within a tile budget (a GeoTIFF's window within as many pixels). A tile that
+cannot be had is drawn from up to PARENT_LEVELS coarser tiles (a quantized-mesh level no finer
+than the finest its layer has tiles at over the area); imagery without terrain lies on the
+assumed flat ground. Everything fetched is bounded by the world's timeout_s.
 
 Commands that write files build the world before they go on (resolve_worlds); the viewer opens
 on the flat ground instead and builds it in the background, a coarser level first

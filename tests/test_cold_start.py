@@ -151,7 +151,8 @@ def test_a_lost_keyframe_is_searched_for_around_where_the_track_leads(no_gnss, g
         for off, found in ((20.0, True), (80.0, False)):
             near = posed(true, np.asarray(true.position) + [off, 0.0, 0.0], true.orientation)
             t = float(session.frame_times[k])
-            fix, solved = registrar._reacquired(rgb, true, [near], 3.0, t, [], miss)
+            fix, solved, radius = registrar._reacquired(rgb, true, [near], 3.0, t, [], miss)
+            assert radius == 34.5
             if found:
                 assert solved is not None and fix.ok, fix.reason
                 assert np.linalg.norm(np.asarray(solved.position) - true.position) <= 0.9

@@ -221,6 +221,11 @@ def test_a_registration_that_used_no_keyframe_says_the_prior_stands_and_what_can
         "offline", (refused[0], _keyframe(9, 9.0, [1.0, 0.0, 0.0], [0.0, 0.0, 0.0])), {}
     )
     assert "the track is" not in some.summary() and "registered 1 of 2" in some.summary()
+    assert "searched for" not in some.summary()
+    lost = replace(some, searched=((20.0, 34.5, True), (24.0, 38.0, False), (28.0, 42.0, False)))
+    assert "; lost with no fix to trust, searched for 3 times within 42 m, found again 1" in (
+        lost.summary()
+    )
 
 
 def test_corrections_are_continuous_and_fall_back_to_the_prior_far_from_keyframes():

@@ -142,6 +142,8 @@ class Registration:
     # the track the IMU's motion carries over the fixes kept and the keyframes used: each
     # frame's position sigma (app.register.inertial, app.solve.uncertainty)
     carried: inertial.Carried | None = None
+    # registration lost, searched for as a cold start: (session time s, disc radius m, found)
+    searched: tuple[tuple[float, float, bool], ...] = ()
 
     @property
     def used(self) -> int:
@@ -164,6 +166,12 @@ class Registration:
             line += (
                 f"; the track is {self.prior}'s (control points by hand can correct it: V in the"
                 " viewer, or `geofuse register SESSION.toml --points pairs.csv`)"
+            )
+        if self.searched:
+            found = sum(f for _, _, f in self.searched)
+            line += (
+                f"; lost with no fix to trust, searched for {len(self.searched)} times within "
+                f"{max(r for _, r, _ in self.searched):.0f} m, found again {found}"
             )
         if self.delay_s is not None:
             line += f"; frame times {1000 * self.delay_s:+.1f} ms late, corrected"
@@ -389,6 +397,7 @@ class Registrar:
             motion = inertial.motion_of(self.session, prior.poses)
         last_t, searched_t = None, -np.inf  # the last keyframe registered; the last search
         held: list = []  # poses a search held for their attitude (coldstart.Search.agreed)
+        searches: list[tuple[float, float, bool]] = []  # (t s, radius m, found)
         while True:
             with _lap(self.stage_s, "decode"):
                 k, rgb = next(frames, (None, None))
@@ -429,7 +438,8 @@ class Registrar:
                     searched_t = t  # lost: searched for, as a cold start, where the keyframes
                     # lead and, where no fix holds the prior, where the IMU carried it
                     near = [c for c in (lead, None if trusted else start) if c is not None]
-                    fix, solved = self._reacquired(rgb, prior_cam, near or [start], lost, t, held, fix)  # fmt: skip
+                    fix, solved, radius = self._reacquired(rgb, prior_cam, near or [start], lost, t, held, fix)  # fmt: skip
+                    searches.append((t, radius, solved is not None))
             if solved is not None:
                 last_t = t
             keyframes.append(Keyframe(
@@ -439,7 +449,12 @@ class Registrar:
             ))  # fmt: skip
             if progress is not None:
                 progress(len(keyframes) / len(idx))
-        return Registration(prior.source, tuple(gate(keyframes, s.fuse)), dict(self.stage_s))
+        return Registration(
+            prior.source,
+            tuple(gate(keyframes, s.fuse)),
+            dict(self.stage_s),
+            searched=tuple(searches),
+        )
 
     def _reacquired(
         self,
@@ -450,20 +465,21 @@ class Registrar:
         t: float,
         held: list,
         fix: PoseFix,
-    ) -> tuple[PoseFix, Camera | None]:
+    ) -> tuple[PoseFix, Camera | None, float]:
         """A keyframe lost for lost_s seconds searched for over a disc around each of `near`
         (where the last keyframes lead, where the IMU carried the prior; RegistrationSettings'
         reacquire_*), at the first one's height above the ground, with the prior's attitude
         (prior_cam), from the first one out; a pose turned beyond the search's tolerance is
         taken where one held from an earlier search (`held`, session times t s) agrees.
-        (fix, the pose or None); fix says what was found, or keeps the keyframe's reason."""
+        (fix, the pose or None, the discs' radius m); fix says what was found, or keeps the
+        keyframe's reason."""
         s = self.settings
+        radius = min(s.reacquire_m + 0.5 * s.reacquire_accel * lost_s**2, s.reacquire_max_m)
         p = np.asarray(near[0].position, np.float64)
         ground = ground_heights(self.mesh, p[None, :2])
         height = float(p[2] - ground[0]) if len(ground) and np.isfinite(ground[0]) else np.nan
         if not np.isfinite(height) or height <= 0.0:
-            return fix, None
-        radius = min(s.reacquire_m + 0.5 * s.reacquire_accel * lost_s**2, s.reacquire_max_m)
+            return fix, None, radius
         discs = [shapely.Point(*np.asarray(c.position)[:2]).buffer(radius) for c in near]
         search = coldstart.Search(
             self.mesh,
@@ -478,9 +494,9 @@ class Registrar:
         if verified.camera is None:
             verified = search.agreed(held, t)[0]
         if verified.camera is None:
-            return replace(fix, reason=f"{fix.reason}; lost {lost_s:.0f} s, not found within {radius:.0f} m"), None  # fmt: skip
+            return replace(fix, reason=f"{fix.reason}; lost {lost_s:.0f} s, not found within {radius:.0f} m"), None, radius  # fmt: skip
         found = verified.camera
-        return PoseFix(True, "", verified.inliers, verified.inliers, verified.error_px, np.asarray(found.position), np.asarray(found.orientation)), found  # fmt: skip
+        return PoseFix(True, "", verified.inliers, verified.inliers, verified.error_px, np.asarray(found.position), np.asarray(found.orientation)), found, radius  # fmt: skip
 
     def release(self) -> None:
         self.views.release()

@@ -300,14 +300,17 @@ def _place(cfg: SessionConfig, gnss: GnssTrack, above_takeoff: bool, messages: M
     or the take-off height for heights above take-off), as for clips opened directly. A
     [world] is built around the track first (app.world.build.resolve_worlds; dropped, and said,
     where none of its tiles could be had). Both reach as far beyond the track as the camera
-    sees the ground (_reach)."""
+    sees the ground: a track whose heights are above take-off is flown, and they are its
+    heights over the ground (app.scene.ground_plane.ground_reach_m, as a drone clip's); any
+    other is taken to be held at the mount height over a ground that follows it."""
     background = deferring(cfg.layers)  # the viewer builds the world while the flat ground shows
+    reach = ground_reach_m(gnss.h) if above_takeoff else ASSUMED_GROUND_MARGIN_M
     if any(layer.kind == "world" for layer in cfg.layers):
         takeoff = cfg.gnss.takeoff_height_m or 0.0
         ground = takeoff if above_takeoff else float(gnss.h[0]) - cfg.gnss.mount_height_m
         h = gnss.h + takeoff if above_takeoff else gnss.h
         layers = resolve_worlds(
-            cfg.layers, gnss.lat, gnss.lon, h, ground, _reach(h, ground, above_takeoff), messages,
+            cfg.layers, gnss.lat, gnss.lon, h, ground, reach, messages,
             above_takeoff and cfg.gnss.takeoff_height_m is None,
         )  # fmt: skip
         cfg = replace(cfg, layers=layers)
@@ -327,9 +330,7 @@ def _place(cfg: SessionConfig, gnss: GnssTrack, above_takeoff: bool, messages: M
             )
         return (
             frame,
-            ground_under_track(
-                frame, gnss.lat, gnss.lon, ground, _reach(gnss.h, ground, above_takeoff)
-            ),
+            ground_under_track(frame, gnss.lat, gnss.lon, ground, reach),
             gnss,
         )
     try:
@@ -348,20 +349,10 @@ def _place(cfg: SessionConfig, gnss: GnssTrack, above_takeoff: bool, messages: M
         if len(gnss.h)
         else frame.h_m  # no fix at all (a cold start): the origin's height
     )
-    heights = gnss.h + (cfg.gnss.takeoff_height_m or 0.0) if above_takeoff else gnss.h
-    reach = _reach(heights, ground, above_takeoff)
     mesh = load_scene_layers(cfg.layers, frame, gnss, messages, ground, reach)
     if above_takeoff:
         gnss = replace(gnss, h=gnss.h + _takeoff_height(cfg, frame, gnss, mesh, messages))
     return frame, mesh, gnss
-
-
-def _reach(heights: np.ndarray, ground: float, above_takeoff: bool) -> float:
-    """How far beyond the track the camera sees the ground (m): a track whose heights are above
-    take-off is flown, its reach from its heights (ellipsoidal m) over the ground (ellipsoidal
-    m; app.scene.ground_plane.ground_reach_m, as a drone clip's); any other is taken to be held
-    at the mount height over a ground that follows it (ASSUMED_GROUND_MARGIN_M)."""
-    return ground_reach_m(heights - ground) if above_takeoff else ASSUMED_GROUND_MARGIN_M
 
 
 def assemble(cfg: SessionConfig) -> Session:

@@ -256,6 +256,12 @@ def _safe(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]+", "_", name)[:40] or "world"
 
 
+def bounded_reach(reach_m: float, max_reach_m: float = MAX_REACH_M) -> float:
+    """A camera's reach on the ground (m) as a world is read over it: at least MIN_REACH_M, at
+    most max_reach_m."""
+    return min(max(reach_m, MIN_REACH_M), max_reach_m)
+
+
 def world_box(
     lat: npt.ArrayLike, lon: npt.ArrayLike, reach_m: float, max_reach_m: float = MAX_REACH_M
 ) -> tuple[float, float, float, float]:
@@ -265,7 +271,7 @@ def world_box(
         np.atleast_1d(np.asarray(lat, np.float64)),
         np.atleast_1d(np.asarray(lon, np.float64)),
     )
-    return lonlat_box(lat, lon, min(max(reach_m, MIN_REACH_M), max_reach_m))
+    return lonlat_box(lat, lon, bounded_reach(reach_m, max_reach_m))
 
 
 def plan_world(
@@ -292,7 +298,7 @@ def plan_world(
         np.atleast_1d(np.asarray(lon, np.float64)),
     )
     lat0 = float(np.mean(lat))
-    reach = min(max(reach_m, MIN_REACH_M), max_reach_m)
+    reach = bounded_reach(reach_m, max_reach_m)
     bounds = _bounds(lat, lon, reach)
     box = lonlat_box(lat, lon, reach)
     needed = max(MIN_GSD_M, abs(height_m) / 1000.0)  # a 1000-px-wide view of 53 deg, nadir
@@ -648,7 +654,7 @@ def resolve_worlds(
             float(layer.world.reach(reach_m)),
             above_takeoff and not others,
         )
-        bounded = min(max(request.reach_m, MIN_REACH_M), MAX_REACH_M)
+        bounded = bounded_reach(request.reach_m)
         whose = "its reach_m" if layer.world.reach_m is not None else "the camera's reach"
         area = f"over the track plus {bounded:.0f} m ({whose})"
         if deferred is not None:

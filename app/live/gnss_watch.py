@@ -42,6 +42,8 @@ from app.register.gnss import (
 )
 
 HISTORY_S = 60.0  # keyframes tested together: the baseline's 30 s before an alarm, and more
+DRIFT_S = 6.0  # a drift judged over this long (s): the newest keyframe's one-sided median lags
+# a drag by a keyframe, so 2 m/s walks the 6 m floor only over longer than files' 4 s
 
 
 @dataclass(frozen=True)
@@ -69,12 +71,14 @@ class GnssWatch:
         utc_of: Callable[[float], float | None] | None = None,
         outage_s: float = GAP_MIN_S,
         history_s: float = HISTORY_S,
+        drift_s: float = DRIFT_S,
     ) -> None:
         settings = settings or CheckSettings()
         self.messages, self.settings, self.utc_of = messages, settings, utc_of
         self.accuracy_m = settings.accuracy_m if accuracy_m is None else float(accuracy_m)
         self.outage_s, self.history_s = outage_s, history_s
-        self._test = replace(settings, reach_s=math.inf)  # each fix sampled at its keyframe
+        # each fix sampled at its keyframe
+        self._test = replace(settings, reach_s=math.inf, drift_s=drift_s)
         self._t: list[float] = []
         self._fix: list[np.ndarray] = []
         self._scene: list[np.ndarray] = []

@@ -72,8 +72,9 @@ LIVE_SETTINGS = RegistrationSettings(long_side=640, max_iterations=5)
 @dataclass(frozen=True)
 class Kept:
     """A keyframe kept: media time (s), shift (ENU m) and rotation vector (rad, camera frame)
-    from the telemetry's camera to the registered one, and whether its fix disagreed with the
-    scene beyond the threshold (app.live.gnss_watch.Verdict.disagrees)."""
+    from the telemetry's camera to the registered one, and whether the pose stands on the scene
+    there: its fix disagreed with the scene beyond the threshold, or a lie was going on
+    (app.live.gnss_watch.Verdict)."""
 
     t_s: float
     shift: np.ndarray
@@ -273,7 +274,7 @@ class LiveRegistration(Worker):
         on_scene = False
         if self.watch is not None:
             verdict = self.watch.keyframe(t, np.asarray(prior.position), where, self.accuracy_at(t))
-            on_scene = verdict.disagrees
+            on_scene = verdict.disagrees or verdict.lying  # a drift caught short of the threshold
         s.kept = (s.kept + [Kept(t, shift, rotvec, on_scene)])[-max(KEEP, LIE_FIT) :]
         first = s.shift_m is None
         shift_now, rate = shift_model(s.kept)

@@ -6,20 +6,24 @@ Each fix is compared with the registered camera position at its time (linear bet
 registered keyframes around it, when both lie within reach_s): the residual (fix - scene, ENU m)
 is median-filtered over `window` tested fixes (a keyframe registered wrongly moves one residual;
 a median keeps a jump's edge where it is), and a fix whose horizontal residual exceeds
-max(floor_m, n_sigma x its stated accuracy), or whose vertical one exceeds max(v_floor_m, n_sigma
-x v_ratio x that accuracy), raises the alarm. The lie began where the residual left the GNSS's own
-offset before it (its median 30 to 10 s before the alarm): at a jump, or as far back from the
-moment it had gone half as far as at the alarm as that moment is from the alarm (a drag-off grows
-steadily); it lasts until a tested fix agrees with the scene again. What the fixes did there names
-it (`kind`): `frozen` where the fix at the alarm and those around it have not moved (within
-still_m, for min_still_s or more: the receiver stopped while the camera flew on; it began at the
-first of them), `replayed` where the
-lie's fixes repeat, within repeat_m, earlier fixes at one steady lag (a recorded stretch played
-again; it began at the first repeated fix), `height` where only the vertical residual left its
-bounds, `disagrees` otherwise (a jump, a drag-off). The same forming and naming serves the test
-against the IMU's motion (app.register.inertial: its innovations as the residual, witness `imu`),
-and `merged` makes the two tests' lies one. Times are session seconds; positions local ENU
-metres (app.geodesy.enu.LocalFrame).
+max(floor_m, n_sigma x its stated accuracy), or whose vertical one exceeds max(v_floor_m,
+n_sigma x v_ratio x that accuracy), raises the alarm; so does one that ends a steady drift
+(`drifting`: over the drift_s before it the residual walked away from the GNSS's own offset,
+both halves of that span the same way, by more than max(drift_floor_m, drift_sigma x the
+accuracy) while the accuracy stated held: a 2 m/s drag-off is caught 3 s after it begins, not
+5.6 s when it passes 4.5 x 2.5 m). The lie began where the residual left the GNSS's own offset
+before it (its median 30 to 10 s before the alarm): at a jump, or as far back from the moment it
+had gone half as far as at the alarm as that moment is from the alarm (a drag-off grows
+steadily); it lasts until a tested fix agrees with the scene again. What the fixes did there
+names it (`kind`): `frozen` where the fix at the alarm and those around it have not moved
+(within still_m, for min_still_s or more: the receiver stopped while the camera flew on; it
+began at the first of them), `replayed` where the lie's fixes repeat, within repeat_m, earlier
+fixes at one steady lag (a recorded stretch played again; it began at the first repeated fix),
+`height` where only the vertical residual left its bounds, `disagrees` otherwise (a jump, a
+drag-off). The same forming and naming serves the test against the IMU's motion
+(app.register.inertial: its innovations as the residual, witness `imu`), and `merged` makes the
+two tests' lies one. Times are session seconds; positions local ENU metres
+(app.geodesy.enu.LocalFrame).
 """
 
 from __future__ import annotations
@@ -61,7 +65,12 @@ class CheckSettings:
     receiver at rest wanders by decimetres a second); min_still_s: a frozen track has not moved
     for this long (s), at least (a receiver repeating a fix it did not update: shorter);
     repeat_m: a fix within this (m, 3D) of an earlier one repeats it (a replayed track);
-    replay_max_s: the farthest back (s) a replay is looked for."""
+    replay_max_s: the farthest back (s) a replay is looked for; drift_s, drift_sigma,
+    drift_floor_m, drift_steady, drift_held: the drift test (`drifting`): over drift_s (s; 0:
+    none) the residual went farther from the GNSS's own offset than max(drift_floor_m,
+    drift_sigma x the largest accuracy stated there) m, each half of the span by drift_steady
+    of it or more, where the stated accuracy held within drift_held x its least (a receiver
+    that says it is less sure, under multipath, is left to the threshold)."""
 
     window: int = 5
     n_sigma: float = 4.5
@@ -76,6 +85,11 @@ class CheckSettings:
     min_still_s: float = 2.0
     repeat_m: float = 0.05
     replay_max_s: float = 600.0
+    drift_s: float = 4.0
+    drift_sigma: float = 2.4
+    drift_floor_m: float = 6.0
+    drift_steady: float = 0.25
+    drift_held: float = 1.2
 
     def thresholds(self, accuracy_m: npt.ArrayLike) -> tuple[FloatArray, FloatArray]:
         """(horizontal, vertical) m beyond which a fix stating accuracy_m (m, each fix's or
@@ -209,6 +223,12 @@ def running_median(x: FloatArray, window: int) -> FloatArray:
     return np.array([np.median(x[max(0, i - h) : i + h + 1], axis=0) for i in range(len(x))])
 
 
+def running_max(x: FloatArray, window: int) -> FloatArray:
+    """(N,) the largest of each value's centred window of `window` values (shrunk at the ends)."""
+    h = window // 2
+    return np.array([x[max(0, i - h) : i + h + 1].max() for i in range(len(x))])
+
+
 def check_fixes(
     t_fix: npt.ArrayLike,
     enu_fix: npt.ArrayLike,
@@ -239,10 +259,53 @@ def check_fixes(
     residual[tested] = running_median(raw[tested], settings.window)
     off_h = np.linalg.norm(residual[tested, :2], axis=1)
     off_v = np.abs(residual[tested, 2])
-    h, v = settings.thresholds(acc[tested])
-    bad_h, bad_v = off_h > h, off_v > v
+    # a median carries the errors of the fixes it was taken over: held to the least sure of them
+    # (as a burst of multipath ends, the newest fix states its clean accuracy again)
+    h, v = settings.thresholds(running_max(acc[tested], settings.window))
+    bad_h = (off_h > h) | drifting(t[tested], residual[tested], acc[tested], settings)
+    bad_v = off_v > v
     rejected, lies = lies_of(t, enu, residual, tested, bad_h, bad_v, settings)
     return GnssCheck(FixStatus(t, rejected), tuple(lies), residual)
+
+
+def drifting(
+    t: FloatArray, residual: FloatArray, accuracy_m: FloatArray, settings: CheckSettings
+) -> npt.NDArray[np.bool_]:
+    """(T,) which tested fixes (times t (T,) s, increasing; median-filtered residuals (T, 3) ENU
+    m; stated accuracy (T,) m) end a steady drift away from the GNSS's own offset (the median
+    residual over baseline_s before them): over the drift_s before them the horizontal residual
+    went farther from it by more than max(drift_floor_m, drift_sigma x the largest accuracy
+    stated there), each half of that span moving it by drift_steady of the whole or more the
+    same way (a drag-off walks on; the GNSS's own wander, multipath swinging it from one side
+    to the other and a registration astray do not). Where no tested fix lies within 1 s of
+    either edge or the middle, or none in the baseline's span, none is judged."""
+    out = np.zeros(len(t), bool)
+    w = settings.drift_s
+    if w <= 0 or len(t) < 3:
+        return out
+
+    def at(when: FloatArray) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.bool_]]:
+        j = np.clip(np.searchsorted(t, when), 1, len(t) - 1)
+        j = np.where(np.abs(t[j - 1] - when) < np.abs(t[j] - when), j - 1, j)
+        return j, np.abs(t[j] - when) <= 1.0
+
+    j, ok_j = at(t - w)
+    m, ok_m = at(t - w / 2)
+    r = residual[:, :2]
+    b0, b1 = settings.baseline_s
+    lo, hi = np.searchsorted(t, t - b0), np.searchsorted(t, t - b1, side="right")
+    for i in np.flatnonzero(ok_j & ok_m & (j < np.arange(len(t))) & (hi > lo)):
+        base = np.median(r[lo[i] : hi[i]], axis=0)
+        grew = np.linalg.norm(r[i] - base) - np.linalg.norm(r[j[i]] - base)
+        stated = accuracy_m[j[i] : i + 1]
+        limit = max(settings.drift_floor_m, settings.drift_sigma * stated.max())
+        if grew <= limit or stated.max() > settings.drift_held * stated.min():
+            continue
+        d = r[i] - r[j[i]]
+        u = d / np.linalg.norm(d)
+        halves = (r[m[i]] - r[j[i]]) @ u, (r[i] - r[m[i]]) @ u
+        out[i] = min(halves) >= settings.drift_steady * np.linalg.norm(d)
+    return out
 
 
 def lies_of(

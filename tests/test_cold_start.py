@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 import shapely
 
-from app.camera.fixes import MISSING
+from app.camera.fixes import MISSING, FixStatus
 from app.camera.intrinsics import Intrinsics
 from app.camera.pinhole import Camera, look_at_quat
 from app.cli.common import open_with_source, start_area
@@ -26,11 +26,12 @@ from app.geodesy import rotations
 from app.geodesy.enu import LocalFrame
 from app.io.video import frames_at
 from app.register import coldstart
-from app.register.coldstart import ground_footprint, scene_positions, searched
+from app.register.coldstart import ground_footprint, held_positions, scene_positions, searched
 from app.register.fuse import Keyframe
 from app.register.keyframe import PoseFix, posed
-from app.register.solve import Registrar, RegistrationSettings, registered_track
+from app.register.solve import Registrar, RegistrationSettings, default_prior, registered_track
 from app.session import open_session
+from app.session.camera_track import camera_track
 from app.session.start import StartArea
 from app.simulate import session as sample
 from app.simulate.lies import Lie, falsify
@@ -151,8 +152,9 @@ def test_a_lost_keyframe_is_searched_for_around_where_the_track_leads(no_gnss, g
         for off, found in ((20.0, True), (80.0, False)):
             near = posed(true, np.asarray(true.position) + [off, 0.0, 0.0], true.orientation)
             t = float(session.frame_times[k])
-            fix, solved, radius = registrar._reacquired(rgb, true, [near], 3.0, t, [], miss)
+            radius = registrar.settings.lost_radius(3.0)
             assert radius == 34.5
+            fix, solved = registrar._reacquired(rgb, true, [near], radius, t, [], miss, "lost 3 s")
             if found:
                 assert solved is not None and fix.ok, fix.reason
                 assert np.linalg.norm(np.asarray(solved.position) - true.position) <= 0.9
@@ -161,6 +163,39 @@ def test_a_lost_keyframe_is_searched_for_around_where_the_track_leads(no_gnss, g
                 assert "lost 3 s, not found within 34 m" in fix.reason, fix.reason
     finally:
         registrar.release()
+
+
+@pytest.mark.gl
+def test_a_clip_whose_gnss_begins_late_is_searched_for_around_its_first_fix(no_gnss, gl_ctx):
+    """Before any keyframe registers, where no fix holds the prior (GNSS that begins late: the
+    prior holds its first fix back over the clip), a keyframe that does not register is
+    searched for over the disc the platform flies from the nearest fix in time: 30 m + 20 m/s
+    x the seconds to it. Here the first fix comes 8 s after the clip's first frame and the
+    prior stands 150 m east of the truth: the first keyframe is searched over 30 + 20 x 8 =
+    190 m and found, those after it chained from it, every one within the orbit's 0.9 m
+    (above). With the disc shrunk to nothing the same keyframes find nothing: the search, not
+    the regular registration from 150 m off, found them (a pose it registers turned beyond the
+    search's 10 deg is refused while nothing is trusted)."""
+    session = open_session(no_gnss)
+    truth = true_track(session)
+    start = np.asarray(truth.frame_camera(0).position) + [150.0, 0.0, 0.0]
+    prior = camera_track(session, default_prior(session), positions=held_positions(session, start))
+    first_fix = float(session.frame_times[0]) + 8.0
+    prior = replace(prior, fixes=FixStatus.all_used([first_fix, first_fix + 1.0]))
+    for settings, found in ((RegistrationSettings(), True), (RegistrationSettings(unfixed_max_m=0.0), False)):  # fmt: skip
+        registrar = Registrar(session, settings, gl_ctx)
+        try:
+            reg = registrar.run(prior)
+        finally:
+            registrar.release()
+        solved = [k for k in reg.keyframes if k.registered]
+        if not found:
+            assert solved == [], [(k.time_s, k.reason) for k in reg.keyframes]
+            continue
+        assert reg.searched[0][1] == pytest.approx(190.0, abs=0.1) and reg.searched[0][2]
+        assert len(solved) >= len(reg.keyframes) - 1, [k.reason for k in reg.keyframes]
+        for k in solved:
+            assert np.linalg.norm(k.position - truth.frame_camera(k.index).position) <= 0.9
 
 
 def test_poses_agree_when_turned_alike_and_near_enough():

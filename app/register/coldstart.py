@@ -267,7 +267,10 @@ def _scene_box(mesh: MeshData) -> BaseGeometry:
 
 
 def _grid(area: BaseGeometry, spacing: float) -> FloatArray:
-    """(N, 2) points spacing metres apart inside the area (its centroid where none is)."""
+    """(N, 2) points spacing metres apart inside the area (its centroid where none is; none in
+    an empty area)."""
+    if area.is_empty:
+        return np.zeros((0, 2))
     x0, y0, x1, y1 = area.bounds
     xs = np.arange(x0 + (x1 - x0) % spacing / 2, x1, spacing)
     ys = np.arange(y0 + (y1 - y0) % spacing / 2, y1, spacing)

@@ -22,7 +22,7 @@ import moderngl
 import numpy as np
 import shapely
 
-from app.camera.fixes import USED
+from app.camera.fixes import USED, FixStatus
 from app.camera.pinhole import Camera
 from app.camera.trajectory import PositionTrack
 from app.core.constants import KEYFRAMES_S
@@ -100,7 +100,11 @@ class RegistrationSettings:
     as a cold start does (app.register.coldstart.Search, at most every reacquire_every_s) over
     discs around where they lead and, where no fix holds the prior, where the IMU carried it:
     reacquire_m plus half of reacquire_accel (m/s^2) times the seconds lost squared, at most
-    reacquire_max_m."""
+    reacquire_max_m. Before any keyframe has registered, where no fix holds the prior (a
+    clip whose GNSS begins late, or stops at its start), a keyframe that does not register is
+    searched for over the disc the platform can fly from the nearest fix in time: reacquire_m
+    plus unfixed_speed_mps times the seconds to it, at most unfixed_max_m (a cold start from
+    that fix)."""
 
     every_s: float = KEYFRAMES_S
     long_side: int = 960
@@ -124,6 +128,17 @@ class RegistrationSettings:
     reacquire_m: float = 30.0
     reacquire_accel: float = 1.0
     reacquire_max_m: float = 300.0
+    unfixed_speed_mps: float = 20.0
+    unfixed_max_m: float = 1000.0
+
+    def lost_radius(self, lost_s: float) -> float:
+        """The disc (m) a keyframe lost for lost_s seconds is searched over (the class doc)."""
+        return min(self.reacquire_m + 0.5 * self.reacquire_accel * lost_s**2, self.reacquire_max_m)
+
+    def unfixed_radius(self, away_s: float) -> float:
+        """The disc (m) around the nearest fix, away_s seconds off, that a keyframe is searched
+        over before any has registered (the class doc)."""
+        return min(self.reacquire_m + self.unfixed_speed_mps * away_s, self.unfixed_max_m)
 
 
 @dataclass(frozen=True)
@@ -428,17 +443,35 @@ class Registrar:
                     fix, solved = replace(fix, reason=f"found {off:.0f} m from where the last keyframes lead"), None  # fmt: skip
                 if solved is not None:
                     break
+            if solved is not None and last_t is None and not trusted:
+                # nothing to trust yet, neither a fix nor a keyframe: taken as a search takes
+                # it, turned as the platform is (a frame of grass registers at a wrong pose)
+                turn = float(np.degrees(rotations.angle_between(solved.orientation, prior_cam.orientation)))  # fmt: skip
+                if turn > coldstart.SearchSettings().turn_tolerance_deg:
+                    reason = f"registered {turn:.0f} deg from the platform's attitude, with no fix or keyframe to trust yet"  # fmt: skip
+                    fix, solved = replace(fix, reason=reason), None
             lost = None if last_t is None else t - last_t
+            due = t - searched_t > s.reacquire_every_s - 0.05
             if solved is None and lost is not None and lost > s.reacquire_after_s - 0.05:
                 # where the last keyframes registered lead, however long ago
                 lead = _chained([kf for kf in keyframes if kf.registered], t, start, np.inf, motion, so_far)  # fmt: skip
                 drift = s.chain_m + 0.5 * s.reacquire_accel * lost**2  # what the lead may err by
                 doubted = not trusted or (lead is not None and _moved(start, lead)[0] > drift)
-                if doubted and t - searched_t > s.reacquire_every_s - 0.05:
+                if doubted and due:
                     searched_t = t  # lost: searched for, as a cold start, where the keyframes
                     # lead and, where no fix holds the prior, where the IMU carried it
                     near = [c for c in (lead, None if trusted else start) if c is not None]
-                    fix, solved, radius = self._reacquired(rgb, prior_cam, near or [start], lost, t, held, fix)  # fmt: skip
+                    radius = s.lost_radius(lost)
+                    fix, solved = self._reacquired(rgb, prior_cam, near or [start], radius, t, held, fix, f"lost {lost:.0f} s")  # fmt: skip
+                    searches.append((t, radius, solved is not None))
+            elif solved is None and last_t is None and not trusted and due:
+                # none registered yet, no fix holding the prior (GNSS that begins late): the
+                # platform is no farther from the nearest fix than it flies in the time between
+                away = _to_fix(prior.fixes, t)
+                if away is not None:
+                    searched_t = t
+                    radius = s.unfixed_radius(away)
+                    fix, solved = self._reacquired(rgb, prior_cam, [start], radius, t, held, fix, f"{away:.0f} s from a fix")  # fmt: skip
                     searches.append((t, radius, solved is not None))
             if solved is not None:
                 last_t = t
@@ -461,25 +494,23 @@ class Registrar:
         rgb: np.ndarray,
         prior_cam: Camera,
         near: list[Camera],
-        lost_s: float,
+        radius: float,
         t: float,
         held: list,
         fix: PoseFix,
-    ) -> tuple[PoseFix, Camera | None, float]:
-        """A keyframe lost for lost_s seconds searched for over a disc around each of `near`
-        (where the last keyframes lead, where the IMU carried the prior; RegistrationSettings'
-        reacquire_*), at the first one's height above the ground, with the prior's attitude
-        (prior_cam), from the first one out; a pose turned beyond the search's tolerance is
-        taken where one held from an earlier search (`held`, session times t s) agrees.
-        (fix, the pose or None, the discs' radius m); fix says what was found, or keeps the
-        keyframe's reason."""
-        s = self.settings
-        radius = min(s.reacquire_m + 0.5 * s.reacquire_accel * lost_s**2, s.reacquire_max_m)
+        why: str,
+    ) -> tuple[PoseFix, Camera | None]:
+        """A keyframe searched for over discs of radius (m) around each of `near` (where the
+        last keyframes lead, where the IMU carried the prior, the nearest fix), at the first
+        one's height above the ground, with the prior's attitude (prior_cam), from the first
+        one out; a pose turned beyond the search's tolerance is taken where one held from an
+        earlier search (`held`, session times t s) agrees. (fix, the pose or None); fix says
+        what was found, or keeps the keyframe's reason with why it was searched ("lost 3 s")."""
         p = np.asarray(near[0].position, np.float64)
         ground = ground_heights(self.mesh, p[None, :2])
         height = float(p[2] - ground[0]) if len(ground) and np.isfinite(ground[0]) else np.nan
         if not np.isfinite(height) or height <= 0.0:
-            return fix, None, radius
+            return fix, None
         discs = [shapely.Point(*np.asarray(c.position)[:2]).buffer(radius) for c in near]
         search = coldstart.Search(
             self.mesh,
@@ -494,12 +525,21 @@ class Registrar:
         if verified.camera is None:
             verified = search.agreed(held, t)[0]
         if verified.camera is None:
-            return replace(fix, reason=f"{fix.reason}; lost {lost_s:.0f} s, not found within {radius:.0f} m"), None, radius  # fmt: skip
+            return replace(fix, reason=f"{fix.reason}; {why}, not found within {radius:.0f} m"), None  # fmt: skip
         found = verified.camera
-        return PoseFix(True, "", verified.inliers, verified.inliers, verified.error_px, np.asarray(found.position), np.asarray(found.orientation)), found, radius  # fmt: skip
+        return PoseFix(True, "", verified.inliers, verified.inliers, verified.error_px, np.asarray(found.position), np.asarray(found.orientation)), found  # fmt: skip
 
     def release(self) -> None:
         self.views.release()
+
+
+def _to_fix(fixes: FixStatus | None, t: float) -> float | None:
+    """Seconds (s) from session time t to the nearest fix not rejected, either side; None
+    where there is none."""
+    if fixes is None:
+        return None
+    kept = fixes.t[~fixes.rejected]
+    return float(np.min(np.abs(kept - t))) if len(kept) else None
 
 
 def _lower_priority() -> None:

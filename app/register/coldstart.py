@@ -198,7 +198,8 @@ class _Candidate:
 def searched(session: Session) -> bool:
     """Whether the session starts by searching its area: one is given and the clip has no GNSS
     fix at all (where it has, that is said once and the GNSS is the prior, as without an
-    area: a clip whose fixes begin late is not searched)."""
+    area: where its fixes begin late, the frames before them are searched for around the
+    first, app.register.solve.RegistrationSettings.unfixed_radius)."""
     if session.start is None:
         return False
     if len(session.gnss.t):

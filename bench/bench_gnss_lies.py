@@ -120,7 +120,8 @@ def run(manifest: Path) -> dict:
     axis: app.solve.uncertainty.frame_sigmas) and gnss status; every DRAPE_EVERY-th frame's
     drape error (the median distance on the model between where the frame's pixels land from
     its camera and from the true one, app.solve.accuracy.ProjectionProbe); the lies said (when
-    caught and began, clip s; their kinds)."""
+    caught and began, clip s; their kinds); registration's searches (clip s, the disc's radius
+    m, whether found)."""
     session = open_session(manifest)
     track = solve_track(session, "registered")
     truth = true_track(session)
@@ -154,7 +155,8 @@ def run(manifest: Path) -> dict:
         "caught": [lie.caught_s - sample.START_UNIX_S for lie in check.lies],
         "began": [lie.began_s - sample.START_UNIX_S for lie in check.lies],
         "kinds": [lie.kind for lie in check.lies],
-        "accuracy": float(np.median(session.gnss.h_acc)),
+        "accuracy": float(np.median(session.gnss.h_acc)) if len(session.gnss.t) else float("nan"),
+        "searched": [(t - sample.START_UNIX_S, r, ok) for t, r, ok in track.registration.searched],
     }
 
 

@@ -17,7 +17,7 @@ import pytest
 from app.camera.fixes import MISSING, REJECTED, USED
 from app.core.messages import Messages
 from app.io.mavlink import MavlinkTelemetry
-from app.live.gnss_watch import GnssWatch
+from app.live.gnss_watch import JUMP_FAR, GnssWatch
 from app.live.pose import JUMP_RUN
 from app.live.register import LIE_FIT, Kept, shift_model
 from app.live.run import LiveOptions, run_sent
@@ -76,11 +76,14 @@ def test_a_drag_is_said_as_it_walks_off_and_its_end_when_it_agrees():
     assert lie.worst_m == pytest.approx(38.0) and lie.worst_s == 40.0
 
 
-def test_a_jump_is_said_from_its_first_fix_one_keyframe_later():
-    """A 200 m jump east at 20 s (accuracy stated by none: the default 5 m): median(0, 0, 200)
-    at 20 s agrees, median(0, 200, 200) at 21 s does not: the alarm; the lie is dated from the
-    fix where the residual stepped (20 s). Its message is GnssLie.said's, as files say it, with
-    the feed's UTC."""
+def test_a_jump_is_said_at_its_first_keyframe():
+    """A 200 m jump east at 20 s (accuracy stated by none: the default 5 m, threshold 22.5 m):
+    the keyframe at 20 s has its own fix 200 m off, past 3 x 22.5 m (JUMP_FAR), the one before
+    within: the alarm there, the lie dated from it (the median of the newest three, (0, 0, 200)
+    -> 0, passes only at 21 s). Its message is GnssLie.said's, as files say it, with the feed's
+    UTC. The same jump within the first three keyframes tested (before live registration's gate
+    is on) waits for the median; a step after a keyframe already off is the median's, dated
+    from that keyframe."""
     t = np.arange(0.0, 40.0)
     scene = _circle(t)
     fix = scene + np.where(t >= 20, 200.0, 0.0)[:, None] * [1.0, 0.0, 0.0]
@@ -88,15 +91,24 @@ def test_a_jump_is_said_from_its_first_fix_one_keyframe_later():
     start = drone.START.timestamp()
     watch = GnssWatch(said, utc_of=lambda s: start + s)
     lying = [v.lying for v in _feed_keyframes(watch, t, fix, scene)]
-    assert lying.index(True) == 21 and all(lying[21:])
+    assert lying.index(True) == 20 and all(lying[20:])
     lie = watch.lies[0]
-    assert (lie.began_s, lie.caught_s, lie.worst_m) == (20.0, 21.0, pytest.approx(200.0))
-    want = GnssLie(20.0, 21.0, 21.0, 200.0, 21.0, np.zeros(3)).said(0.0, lambda s: start + s)
+    assert (lie.began_s, lie.caught_s, lie.worst_m) == (20.0, 20.0, pytest.approx(200.0))
+    want = GnssLie(20.0, 20.0, 20.0, 200.0, 20.0, np.zeros(3)).said(0.0, lambda s: start + s)
     assert said.items == [want]
     assert want.startswith("GNSS disagrees with the scene from 09:47:00 (t = 20.0 s), 200 m by")
     assert watch.line().endswith(
-        "GNSS disagrees from t = 20.0 s (caught at t = 21.0 s, 200 m by t = 21.0 s), going on at the end"
+        "GNSS disagrees from t = 20.0 s (caught at t = 20.0 s, 200 m by t = 20.0 s), going on at the end"
     )
+    early = scene + np.where(t >= 2, 200.0, 0.0)[:, None] * [1.0, 0.0, 0.0]  # the third keyframe
+    watch = GnssWatch(Messages())
+    assert [v.lying for v in _feed_keyframes(watch, t, early, scene)].index(True) == 3
+    ramp = scene.copy()  # 30 m off at 19 s (past 22.5 m), then 200 m: the median's alarm at 20 s
+    ramp[t == 19, 0] += 30.0  # (0, 30, 200 -> 30 m), dated from the first keyframe off, 19 s
+    ramp[t >= 20, 0] += 200.0
+    watch = GnssWatch(Messages())
+    assert [v.lying for v in _feed_keyframes(watch, t, ramp, scene)].index(True) == 20
+    assert watch.lies[0].began_s == 19.0
 
 
 def test_a_frozen_fix_is_named_frozen_from_its_first_repeat():
@@ -288,21 +300,21 @@ def test_a_lying_downlink_is_caught_live_and_not_followed(downlinks, kind):
     began, far, caught = (float(x) for x in CAUGHT.search(alarms[0]).groups())
     lie, flight = LIES[kind], run.origin_s  # media time + origin_s: the flight's time
     keys = [t + flight for t in watch.keyframe_times]  # the keyframes tested, flight s
-    # The alarm: at the second keyframe tested past the moment the lie exceeds the threshold
-    # (the median of the newest three), so within two keyframe spacings of it; at the first
-    # where a single keyframe was tested before it (the median of two). The message says tenths
-    # of a second.
+    # The alarm: a jump's at the first keyframe tested past the step (its own fix 200 m off,
+    # past JUMP_FAR thresholds, the one before within); a drag's at the second keyframe past the
+    # moment it exceeds the threshold (the median of the newest three), so within two keyframe
+    # spacings of it, or at the first where a single keyframe was tested before it (the median
+    # of two). The message says tenths of a second.
     past = [[k for k in keys if k > EXCEEDS_S[kind] + d] for d in (-BOUNDARY_S, BOUNDARY_S)]
     second = [p[1] for p in past]
     alarms_at = second + [p[0] for p in past if sum(k < p[0] for k in keys) == 1]
+    if kind == "jump":
+        alarms_at = [p[0] for p in past]
     assert any(caught + flight == pytest.approx(k, abs=0.06) for k in alarms_at), (keys, said)
     at_second = any(caught + flight == pytest.approx(k, abs=0.06) for k in second)
     before = max(k for k in keys if k < caught + flight - 0.06)
-    between = [k for k in keys if lie.from_s <= k <= EXCEEDS_S[kind] + BOUNDARY_S]
-    if kind == "jump":  # said from the first fix past the step; 200 m by the alarm, less where
-        # the median holds a keyframe whose fix the receiver drew between the last set before
-        # the step and the first it followed after it, or two keyframes only
-        assert THRESHOLD_M < far <= 200.0 and (far == 200.0 or between or not at_second)
+    if kind == "jump":  # said from the first fix past the step, 200 m off then
+        assert JUMP_FAR * THRESHOLD_M < far <= 200.5, (keys, said)
         assert any(began + flight == pytest.approx(p[0], abs=0.06) for p in past), (keys, said)
     else:  # how far it had gone by the keyframe before the alarm (the median's): 2 m/s; said
         # from half-way back in time to where it was half as far, or (keyframes too far apart

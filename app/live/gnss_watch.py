@@ -42,6 +42,8 @@ from app.register.gnss import (
 )
 
 HISTORY_S = 60.0  # keyframes tested together: the baseline's 30 s before an alarm, and more
+JUMP_FAR = 3.0  # a keyframe's own fix this many thresholds off, the one before within: a jump
+STEADY_KEYFRAMES = 3  # tested before a jump is taken from one keyframe (the gate is on by then)
 DRIFT_S = 6.0  # a drift judged over this long (s): the newest keyframe's one-sided median lags
 # a drag by a keyframe, so 2 m/s walks the 6 m floor only over longer than files' 4 s
 
@@ -143,9 +145,30 @@ class GnssWatch:
                 now = self._off(lie.kind, check.residual[-1])
                 lie = replace(lie, caught_s=float(t_s), worst_s=float(t_s), worst_m=now)
                 self._alarm(replace(lie, began_s=self._stepped(lie)))
+            elif not self.lying and self._jumped(h):
+                far = float(np.linalg.norm(raw[:2]))
+                self._alarm(GnssLie(t_s, t_s, t_s, far, t_s, self._baseline(t_s)))
             elif self.lying:
                 self._judge(t_s, bad, check.residual[-1])
             return Verdict(self.lying, disagrees, h)
+
+    def _jumped(self, threshold_m: float) -> bool:
+        """Whether the newest keyframe's own fix lies JUMP_FAR thresholds (threshold_m, m) or
+        more off the scene across, the one before it within its threshold, after
+        STEADY_KEYFRAMES tested: a jump, said at once (the median of the newest three passes it
+        one keyframe later; a keyframe registered that far astray is set aside by live
+        registration's gate before it is tested)."""
+        if len(self._t) <= STEADY_KEYFRAMES or self._dis[-2]:
+            return False
+        raw = self._fix[-1] - self._scene[-1]
+        return bool(np.linalg.norm(raw[:2]) > JUMP_FAR * threshold_m)
+
+    def _baseline(self, t_s: float) -> np.ndarray:
+        """The GNSS's own offset (ENU m) before media time t_s (s): the median fix - scene of
+        the keyframes over the settings' baseline span before it (zero where none)."""
+        b0, b1 = self.settings.baseline_s
+        raw = [f - s for t, f, s in zip(self._t, self._fix, self._scene, strict=True) if t_s - b0 <= t <= t_s - b1]  # fmt: skip
+        return np.median(raw, axis=0) if raw else np.zeros(3)
 
     @staticmethod
     def _off(kind: str, residual: np.ndarray) -> float:

@@ -15,11 +15,13 @@ import numpy as np
 import pytest
 
 from app.camera.fixes import MISSING, REJECTED, USED
+from app.camera.intrinsics import Intrinsics
+from app.camera.pinhole import Camera
 from app.core.messages import Messages
 from app.io.mavlink import MavlinkTelemetry
 from app.live.gnss_watch import JUMP_FAR, GnssWatch
 from app.live.pose import JUMP_RUN
-from app.live.register import LIE_FIT, Kept, shift_model
+from app.live.register import JUMP_EDGE_S, LIE_FIT, Kept, LiveRegistration, shift_model
 from app.live.run import LiveOptions, run_sent
 from app.register.gnss import FROZEN, GnssLie
 from app.simulate import drone, sensors
@@ -206,6 +208,31 @@ def test_frames_say_used_rejected_and_missing_and_an_outage_when_it_ends():
     assert viewer_gnss.live_said(None, None, 0.0)[0][1] is None
 
 
+def test_a_jump_in_the_telemetry_is_held_off_until_a_keyframe_past_it():
+    """The telemetry steps 200 m east at 6 s (a set believed after JUMP_RUN), the newest
+    keyframe kept at 5 s: frames from 6 s are drawn without the step (the correction less it)
+    and counted `rejected`, with a line saying why; a keyframe kept at 6.5 s ends the hold."""
+    track = {5.0: [0.0, 0.0, 60.0], 6.0 - JUMP_EDGE_S: [6.0, 0.0, 60.0], 6.0: [206.0, 0.0, 60.0]}
+    reg = LiveRegistration(
+        None, Messages(), fix_at=lambda t: np.array(track[t]),  # never started: no scene
+        jumps_between=lambda a, b: [6.0] if a < 6.0 <= b else [],
+    )  # fmt: skip
+    assert reg.held_off(7.0) is None  # no correction yet: the telemetry as it is
+    reg.state.shift_m, reg.state.rotvec, reg.state.at_s = np.array([1.0, 0, 0]), np.zeros(3), 5.0
+    assert reg.held_off(5.9) is None
+    np.testing.assert_allclose(reg.held_off(7.0), [200.0, 0.0, 0.0])
+    camera = Camera.create(Intrinsics.from_fov(64, 36, 60.0), [206.0, 0.0, 60.0], [1.0, 0, 0, 0])
+    np.testing.assert_allclose(reg.correct(camera, 7.0).position, [7.0, 0.0, 60.0])
+    reg.state.at_s = 6.5
+    assert reg.held_off(7.0) is None
+    watch = GnssWatch(Messages())
+    assert watch.frame(6.9, 0.1) == USED and watch.frame(7.0, 0.0, 200.0) == REJECTED
+    assert watch.said_now(7.0) == [
+        ("GNSS jumped 200 m as no aircraft moves: not drawn until a keyframe past it registers", REJECTED)
+    ]  # fmt: skip
+    assert watch.frame(7.1, 0.1) == USED and watch.said_now(7.1) == []
+
+
 def test_the_drawn_shift_follows_a_drag_on_its_line_and_holds_a_jump():
     """The correction while the fix disagrees: the line through the last LIE_FIT disagreeing
     keyframes (a drag's -2 m/s east, to be carried on), one or two: the newest held; while it agrees, the
@@ -322,11 +349,16 @@ def test_a_lying_downlink_is_caught_live_and_not_followed(downlinks, kind):
         if at_second:
             assert far == pytest.approx(2.0 * (before - lie.from_s), abs=0.7), (keys, said)
         assert lie.from_s - 2.0 <= began + flight <= past[1][0] + 0.06, (keys, said)
-    # The frames after the alarm are rejected: from the first the drawing loop saw rejected (not
-    # before the keyframe that raised it), to the end; none before.
+    # The frames after the lie are rejected to the end, none before: a drag's from the first the
+    # drawing loop saw rejected, not before the keyframe that raised the alarm; a jump's from the
+    # first set the receiver followed it with (its step held off, not drawn, until the keyframe
+    # past it registers: LiveRegistration.held_off), before the alarm or with it.
     status = [d.gnss for d, _ in drawn]
     first = status.index(REJECTED)
-    assert drawn[first][0].pts_s >= caught and set(status[first:]) == {REJECTED}
+    since = EXCEEDS_S[kind] - flight - 0.05 if kind == "jump" else caught
+    assert drawn[first][0].pts_s >= since and set(status[first:]) == {REJECTED}
+    if kind == "jump":
+        assert drawn[first][0].pts_s <= caught + 0.05, (drawn[first][0].pts_s, caught)
     assert set(status[:first]) == {USED}
     assert len(status) - first >= 30, (first, len(status))  # a second of frames at least
     # The drawn pose during the lie stands on the scene from the alarm on (two keyframes past

@@ -378,6 +378,7 @@ class LiveFeed:
                     watch=self.gnss,
                     accuracy_at=self.poses.accuracy_at,
                     fix_at=self._fix_at,
+                    jumps_between=getattr(self.poses, "jumps_between", lambda a, b: []),
                 ).start()
                 self.run.registration = self.registration.state
                 self.run.gnss = self.gnss
@@ -449,7 +450,13 @@ class LiveFeed:
             return None
         self.last_camera = camera
         if self.gnss is not None:  # the frame's GNSS status (a pose held: as old as it is)
-            self.gnss_now = self.gnss.frame(item.pts_s, raw[2] if raw is not None else math.inf)
+            reg = self.registration
+            jump = None if reg is None else reg.held_off(item.pts_s)
+            self.gnss_now = self.gnss.frame(
+                item.pts_s,
+                raw[2] if raw is not None else math.inf,
+                0.0 if jump is None else float(np.linalg.norm(jump)),
+            )
         return item, due, camera, state
 
     def restream_frame(self, pts_s: float, camera: Camera) -> None:

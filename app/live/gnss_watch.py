@@ -95,6 +95,7 @@ class GnssWatch:
         self.runs: list[list] = []  # [start s, end s, status]: frames drawn in a row, by status
         self.outages: list[tuple[float, float]] = []  # ended, (start, end) media s
         self.outage_since: float | None = None  # the last fix before the outage going on
+        self.held_off_m = 0.0  # the telemetry's jumps the frame drawn last did not follow (m)
         self._lock = threading.Lock()
 
     @property
@@ -219,10 +220,13 @@ class GnssWatch:
                 "info",
             )
 
-    def frame(self, t_s: float, fix_age_s: float) -> str:
+    def frame(self, t_s: float, fix_age_s: float, held_off_m: float = 0.0) -> str:
         """The status of the frame of media time t_s (s) drawn now, whose newest fix is
-        fix_age_s (s) older than it (inf: none yet): counted, and an outage said when it ends."""
+        fix_age_s (s) older than it (inf: none yet), held_off_m (m) of the telemetry's jumps not
+        drawn (app.live.register.LiveRegistration.held_off: the fix not used as given, so
+        `rejected`): counted, and an outage said when it ends."""
         with self._lock:
+            self.held_off_m = held_off_m
             if fix_age_s > self.outage_s:
                 status = MISSING
                 if self.outage_since is None:
@@ -233,7 +237,7 @@ class GnssWatch:
                     self.outages.append(span)
                     self.messages.add(outage_said(*span, 0.0))
                     self.outage_since = None
-                status = REJECTED if self.lying else USED
+                status = REJECTED if self.lying or held_off_m > 0.0 else USED
             self.frames[status] += 1
             if self.runs and self.runs[-1][2] == status and t_s >= self.runs[-1][1]:
                 self.runs[-1][1] = t_s
@@ -256,6 +260,13 @@ class GnssWatch:
                 )
             if self.lying:
                 out.append((self.lies[-1].said(0.0, self.utc_of), REJECTED))
+            elif self.held_off_m > 0.0:
+                out.append(
+                    (
+                        f"GNSS jumped {self.held_off_m:.0f} m as no aircraft moves: not drawn until a keyframe past it registers",
+                        REJECTED,
+                    )
+                )
             return out
 
     def line(self) -> str:

@@ -69,6 +69,7 @@ class LivePoses:
         self.without_pose = 0  # sets that arrived with a position or angles in error
         self.jumps = 0  # sets whose position no platform could reach from the set before it
         self._jump_run = 0  # of them, in a row
+        self.believed: list[float] = []  # media times of the sets a jump was believed at
         self._utc_link: float | None = None  # Unix s - media s, from the first set with a time
         self._lock = threading.Lock()
 
@@ -97,6 +98,7 @@ class LivePoses:
                 if self._jump_run < JUMP_RUN:
                     self.jumps += 1
                     return False
+                bisect.insort(self.believed, t)
             self._jump_run = 0
             self.t.insert(i, t)
             self.geodetic.insert(i, here)
@@ -119,6 +121,14 @@ class LivePoses:
         """The accuracy (m) the feed states for its fix at media time t (s): ST 0601 states
         none."""
         return None
+
+    def jumps_between(self, a: float, b: float) -> list[float]:
+        """Media times (s) in (a, b] of the sets a jump was believed at (JUMP_RUN sets in a row
+        from the last one kept: the drawn position steps there, app.live.register holds it off)."""
+        with self._lock:
+            return self.believed[
+                bisect.bisect_right(self.believed, a) : bisect.bisect_right(self.believed, b)
+            ]
 
     def first(self) -> tuple[float, float, float] | None:
         """The first position (lat, lon, ellipsoidal h), None before any."""

@@ -66,6 +66,7 @@ RATE_MIN_MPS = 0.3  # slower, a line through a few keyframes is their own noise 
 LINE_M = 1.0  # a keyframe farther than this from the line drawn through its run is off it (m)
 HOLD_S = 5.0  # the line carried on at most this long past the newest keyframe (s)
 ACCEL_MPS2 = 3.0  # the platform's acceleration the chain allows for (a drone's weave: 3.3)
+JUMP_EDGE_S = 1e-3  # the telemetry just before a jump's set (s): the position it stepped from
 LIVE_SETTINGS = RegistrationSettings(long_side=640, max_iterations=5)
 
 
@@ -119,7 +120,9 @@ class LiveRegistration(Worker):
     """See the module docstring. mesh: the scene (textured: app.session.model.scene_refusal);
     watch: where each kept keyframe's fix is tested against the scene (None: not tested);
     accuracy_at(media s): the accuracy (m) the feed states for its fix then, None: none;
-    fix_at(media s): the telemetry's position then (ENU m, None: none yet)."""
+    fix_at(media s): the telemetry's position then (ENU m, None: none yet); jumps_between(a, b):
+    the media times in (a, b] where the telemetry's position stepped as no platform moves
+    (app.live.pose.LivePoses.jumps_between; none: never held off)."""
 
     def __init__(
         self,
@@ -130,9 +133,11 @@ class LiveRegistration(Worker):
         watch: GnssWatch | None = None,
         accuracy_at: Callable[[float], float | None] = lambda t: None,
         fix_at: Callable[[float], np.ndarray | None] = lambda t: None,
+        jumps_between: Callable[[float, float], list[float]] = lambda a, b: [],
     ) -> None:
         self.mesh, self.messages, self.every_s, self.settings = mesh, messages, every_s, settings
         self.watch, self.accuracy_at, self.fix_at = watch, accuracy_at, fix_at
+        self.jumps_between = jumps_between
         self.state = LiveCorrection()
         self._lock = threading.Lock()
         self._offer: tuple[float, tuple, Camera] | None = None
@@ -157,14 +162,33 @@ class LiveRegistration(Worker):
         """Whether a keyframe is being registered (offered and not yet done)."""
         return self._busy
 
+    def held_off(self, t: float) -> np.ndarray | None:
+        """The telemetry's jumps (ENU m, summed) since the newest keyframe kept, up to media
+        time t (s): a step no platform makes is not drawn until a keyframe past it registers
+        (the scene says whether the fix or the track before it was right); None where there is
+        none, or no correction yet."""
+        with self._lock:
+            at = self.state.at_s if self.state.shift_m is not None else None
+        if at is None:
+            return None
+        steps = []
+        for t_jump in self.jumps_between(at, t):
+            before, after = self.fix_at(t_jump - JUMP_EDGE_S), self.fix_at(t_jump)
+            if before is not None and after is not None:
+                steps.append(np.asarray(after, np.float64) - before)
+        return np.sum(steps, axis=0) if steps else None
+
     def correct(self, camera: Camera, t: float) -> Camera:
-        """The telemetry's camera of media time t (s) moved by the correction in force (itself
-        before any)."""
+        """The telemetry's camera of media time t (s) moved by the correction in force, less
+        the jumps held off (`held_off`); itself before any correction."""
+        jump = self.held_off(t)
         with self._lock:
             s = self.state
             if s.shift_m is None:
                 return camera
             shift, rotvec = s.shift_at(t), s.rotvec
+        if jump is not None:
+            shift = shift - jump
         q = rotations.multiply(
             np.asarray(camera.orientation, np.float64), rotations.from_rotvec(rotvec)
         )

@@ -147,6 +147,11 @@ def test_solve_and_render_take_a_damaged_transport_stream(feed, kind, tmp_path, 
 
 
 def test_the_viewers_decoder_plays_a_damaged_transport_stream_to_its_end(feed, tmp_path):
+    """The viewer's decoder plays the damaged stream through to its last frame without an error.
+    How many frames the flipped bits cost depends on where they land in the encoder's bytes (a
+    keyframe hit loses its group of pictures, 30 frames here: 88 of 118 with PyAV 18.1's FFmpeg,
+    more than 90 with earlier builds), so the count asked is what a stream that lost at most one
+    second of its four still has: two thirds of the frames the container holds."""
     path = tmp_path / "flip5.ts"
     path.write_bytes(DAMAGE["flip5"](feed))
     info = probe(path)
@@ -159,7 +164,8 @@ def test_the_viewers_decoder_plays_a_damaged_transport_stream_to_its_end(feed, t
             except Exception:  # queue.Empty: at the end, nothing more comes
                 break
         assert dec.error is None
-        assert len(frames) > 90
+        assert frames and frames[-1].pts_s >= info.pts_s[-1] - 1.5 / 30.0  # (both from 0)
+        assert len(frames) >= 2 * len(info.pts_s) / 3, (len(frames), len(info.pts_s))
     finally:
         dec.close()
 

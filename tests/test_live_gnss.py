@@ -208,6 +208,22 @@ def test_frames_say_used_rejected_and_missing_and_an_outage_when_it_ends():
     assert viewer_gnss.live_said(None, None, 0.0)[0][1] is None
 
 
+def test_under_a_frozen_fix_the_shift_moves_as_the_last_two_keyframes_do():
+    """A frozen fix: the shift (scene - fix) moves as the platform does, 9 m/s east, then it
+    turns north (keyframes at 0-3 s: shifts 0, 9, 18 east, then 18 east 9 north). As a drag,
+    four keyframes off one line are no line: their median held (13.5 m east, no rate), 4.5 m
+    and more behind; frozen, the newest with the last two's rate (9 m/s north): where the
+    platform goes on."""
+    shifts = [[0, 0, 0], [9, 0, 0], [18, 0, 0], [18, 9, 0]]
+    kept = [Kept(float(t), np.array(p, float), np.zeros(3), True) for t, p in enumerate(shifts)]
+    shift, rate = shift_model(kept)
+    np.testing.assert_allclose(shift, [13.5, 0, 0])
+    np.testing.assert_allclose(rate, 0.0)
+    shift, rate = shift_model(kept, frozen=True)
+    np.testing.assert_allclose(shift, [18, 9, 0])
+    np.testing.assert_allclose(rate, [0, 9, 0])
+
+
 def test_a_jump_in_the_telemetry_is_held_off_until_a_keyframe_past_it():
     """The telemetry steps 200 m east at 6 s (a set believed after JUMP_RUN), the newest
     keyframe kept at 5 s: frames from 6 s are drawn without the step (the correction less it)

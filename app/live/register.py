@@ -49,6 +49,7 @@ from app.geodesy import rotations
 from app.io.streams import MAX_SPEED_MPS
 from app.live.gnss_watch import GnssWatch
 from app.playback.decoder import planes_to_rgb
+from app.register.gnss import FROZEN
 from app.register.keyframe import posed
 from app.register.solve import Registrar, RegistrationSettings
 from app.scene.mesh import MeshData
@@ -301,7 +302,8 @@ class LiveRegistration(Worker):
             on_scene = verdict.disagrees or verdict.lying  # a drift caught short of the threshold
         s.kept = (s.kept + [Kept(t, shift, rotvec, on_scene)])[-max(KEEP, LIE_FIT) :]
         first = s.shift_m is None
-        shift_now, rate = shift_model(s.kept)
+        frozen = self.watch is not None and self.watch.lying and self.watch.lies[-1].kind == FROZEN
+        shift_now, rate = shift_model(s.kept, frozen)
         with self._lock:
             s.shift_m, s.rate_mps, s.at_s = shift_now, rate, t
             s.rotvec = np.median([k.rotvec for k in s.kept[-KEEP:]], axis=0)
@@ -325,7 +327,7 @@ class LiveRegistration(Worker):
         return bool(np.linalg.norm(where - chain[0]) <= reach)
 
 
-def shift_model(kept: list[Kept]) -> tuple[np.ndarray, np.ndarray]:
+def shift_model(kept: list[Kept], frozen: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """(the shift at the newest kept keyframe's time (ENU m), its rate (ENU m/s)) from the kept
     keyframes (oldest first): the trailing run of those standing as the newest does (on the
     scene or not); the median of the last KEEP of an agreeing run within KEEP_S of the newest, no
@@ -334,7 +336,9 @@ def shift_model(kept: list[Kept]) -> tuple[np.ndarray, np.ndarray]:
     (elsewhere their median, held), unless more of them lie LINE_M off it than one in four or
     more (their median held); fewer than three: the newest held (a line through two is as wrong
     as either: one registered astray by 3 m half a second from the other draws a 6 m/s drag
-    that the frames carry on until the next keyframe, seen under load)."""
+    that the frames carry on until the next keyframe, seen under load). Under a frozen fix
+    (`frozen`) the shift moves as the platform does, turns and all: the newest with the rate of
+    the last two (a line through four averages a turn away, and four off one line were held)."""
     run: list[Kept] = []
     for k in reversed(kept):
         if k.on_scene != kept[-1].on_scene:
@@ -345,6 +349,8 @@ def shift_model(kept: list[Kept]) -> tuple[np.ndarray, np.ndarray]:
         return np.median(recent, axis=0), np.zeros(3)
     run = run[-LIE_FIT:]
     shifts = np.array([k.shift for k in run])
+    if frozen and len(run) >= 2:  # the fix stands still: the shift moves as the platform does
+        return shifts[-1], (shifts[-1] - shifts[-2]) / max(run[-1].t_s - run[-2].t_s, 1e-3)
     if len(run) < 3:
         return shifts[-1], np.zeros(3)
     t = np.array([k.t_s for k in run]) - run[-1].t_s

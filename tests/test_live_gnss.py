@@ -20,8 +20,8 @@ from app.camera.pinhole import Camera
 from app.core.messages import Messages
 from app.io.mavlink import MavlinkTelemetry
 from app.live.gnss_watch import JUMP_FAR, GnssWatch
-from app.live.pose import JUMP_RUN
-from app.live.register import JUMP_EDGE_S, LIE_FIT, Kept, LiveRegistration, shift_model
+from app.live.pose import JUMP_EDGE_S, JUMP_RUN
+from app.live.register import LIE_FIT, Kept, LiveRegistration, shift_model
 from app.live.run import LiveOptions, run_sent
 from app.register.gnss import FROZEN, GnssLie
 from app.simulate import drone, sensors
@@ -229,9 +229,10 @@ def test_a_jump_in_the_telemetry_is_held_off_until_a_keyframe_past_it():
     keyframe kept at 5 s: frames from 6 s are drawn without the step (the correction less it)
     and counted `rejected`, with a line saying why; a keyframe kept at 6.5 s ends the hold."""
     track = {5.0: [0.0, 0.0, 60.0], 6.0 - JUMP_EDGE_S: [6.0, 0.0, 60.0], 6.0: [206.0, 0.0, 60.0]}
+    jumps = [(6.0 - JUMP_EDGE_S, 6.0)]  # (from, to): LivePoses.jumps_between's
     reg = LiveRegistration(
         None, Messages(), fix_at=lambda t: np.array(track[t]),  # never started: no scene
-        jumps_between=lambda a, b: [6.0] if a < 6.0 <= b else [],
+        jumps_between=lambda a, b: jumps if a < 6.0 <= b else [],
     )  # fmt: skip
     assert reg.held_off(7.0) is None  # no correction yet: the telemetry as it is
     reg.state.shift_m, reg.state.rotvec, reg.state.at_s = np.array([1.0, 0, 0]), np.zeros(3), 5.0
@@ -241,6 +242,15 @@ def test_a_jump_in_the_telemetry_is_held_off_until_a_keyframe_past_it():
     np.testing.assert_allclose(reg.correct(camera, 7.0).position, [7.0, 0.0, 60.0])
     reg.state.at_s = 6.5
     assert reg.held_off(7.0) is None
+    # MAVLink draws the step as a line between two messages (6.0 to 6.2 s): held off as far as
+    # it is drawn (half of it at 6.1 s), all of it after
+    ramp = LiveRegistration(
+        None, Messages(), fix_at=lambda t: np.array([6.0 + 1000.0 * min(max(t - 6.0, 0.0), 0.2), 0.0, 60.0]),
+        jumps_between=lambda a, b: [(6.0, 6.2)] if a < 6.2 and b > 6.0 else [],
+    )  # fmt: skip
+    ramp.state.shift_m, ramp.state.rotvec, ramp.state.at_s = np.zeros(3), np.zeros(3), 5.0
+    np.testing.assert_allclose(ramp.held_off(6.1), [100.0, 0.0, 0.0])
+    np.testing.assert_allclose(ramp.held_off(7.0), [200.0, 0.0, 0.0])
     watch = GnssWatch(Messages())
     assert watch.frame(6.9, 0.1) == USED and watch.frame(7.0, 0.0, 200.0) == REJECTED
     assert watch.said_now(7.0) == [

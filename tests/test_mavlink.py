@@ -18,6 +18,7 @@ from app.geodesy import rotations
 from app.geodesy.enu import LocalFrame
 from app.geodesy.geoid import undulation
 from app.io.mavlink import MavlinkTelemetry, camera_quat, gimbal_angles
+from app.live.pose import MavlinkPoses
 from app.live.run import LiveOptions, run_live
 from app.session.camera_track import camera_track
 from app.simulate import autopilot, drone
@@ -103,6 +104,31 @@ def test_positions_heights_home_and_the_clock_link():
     assert pose.geodetic[2] == pytest.approx(150.0 + n)
     np.testing.assert_allclose(_axis(pose.q), [0.0, 0.0, -1.0], atol=1e-9)  # straight down
     assert tel.at(1.5).age_s == pytest.approx(0.5)
+
+
+def test_a_position_step_no_aircraft_makes_is_found_on_both_clocks():
+    """Positions at 5 Hz moving 2 m a message (10 m/s north), then 200 m east between boot 1.4
+    and 1.6 s (1000 m/s: a jump), then on as before: MavlinkTelemetry.jumps_between finds that
+    pair (boot s) where its end lies in the span asked or the step is under way at its end, and
+    nothing else; MavlinkPoses puts it on the media clock (video link 0 s, telemetry link 50
+    s: boot = media - 50 s)."""
+    tel = MavlinkTelemetry()
+    lat0, lon0 = 34.8, 113.53
+    m_per_deg = 111_195.0
+    for k in range(12):
+        boot = 0.6 + 0.2 * k
+        east = 200.0 if boot > 1.5 else 0.0
+        lat = lat0 + 2.0 * k / m_per_deg
+        lon = lon0 + east / (m_per_deg * np.cos(np.radians(lat0)))
+        fix = {"lat": round(lat * 1e7), "lon": round(lon * 1e7), "alt": 150_000}
+        assert tel.add(
+            "GLOBAL_POSITION_INT", {**fix, "time_boot_ms": round(1000 * boot)}, boot + 50.0
+        )
+    assert tel.jumps_between(0.0, 3.0) == [pytest.approx((1.4, 1.6))]
+    assert tel.jumps_between(1.5, 1.55) == [pytest.approx((1.4, 1.6))]  # under way
+    assert tel.jumps_between(1.6, 3.0) == [] and tel.jumps_between(0.0, 1.4) == []
+    poses = MavlinkPoses(tel, lambda: 0.0, 1.0)
+    assert poses.jumps_between(50.0, 53.0) == [pytest.approx((51.4, 51.6))]
 
 
 def test_attitudes_interpolate_the_short_way_round_north():

@@ -49,7 +49,7 @@ import numpy as np
 
 from app.geodesy.geoid import undulation
 from app.io.misb import camera_from_sensor, ypr_matrix
-from app.io.streams import HEIGHT_RANGE_M
+from app.io.streams import HEIGHT_RANGE_M, impossible_step
 
 LINK_WINDOW = 500  # messages over which the fastest sets the boot -> arrival link
 FLAG_YAW_LOCK, FLAG_YAW_IN_VEHICLE, FLAG_YAW_IN_EARTH = 16, 32, 64
@@ -320,6 +320,20 @@ class MavlinkTelemetry:
             relative = self._gim_relative
         q = camera_quat(vehicle, gimbal, relative)
         return TelemetryPose((float(lat), float(lon), float(h)), q, age, gimbal is not None)
+
+    def jumps_between(self, a_s: float, b_s: float) -> list[tuple[float, float]]:
+        """(from, to) boot times (s) of the consecutive positions between which the fix stepped
+        as no platform moves (app.io.streams.impossible_step), those ending in (a_s, b_s] or
+        under way at b_s: `at` draws the step as a line between them."""
+        with self._lock:
+            i = max(bisect.bisect_right(self._pos_t, a_s) - 1, 0)
+            j = bisect.bisect_right(self._pos_t, b_s) + 1
+            t, p = self._pos_t[i:j], self._pos[i:j]
+        return [
+            (t[k], t[k + 1])
+            for k in range(len(t) - 1)
+            if t[k + 1] > a_s and t[k] < b_s and impossible_step(t[k + 1] - t[k], p[k], p[k + 1])
+        ]
 
     def accuracy_at(self, boot_s: float) -> float | None:
         """The horizontal accuracy (m) GPS_RAW_INT last stated at or before boot_s (the first

@@ -378,7 +378,7 @@ class LiveFeed:
                     watch=self.gnss,
                     accuracy_at=self.poses.accuracy_at,
                     fix_at=self._fix_at,
-                    jumps_between=getattr(self.poses, "jumps_between", lambda a, b: []),
+                    jumps_between=self.poses.jumps_between,
                 ).start()
                 self.run.registration = self.registration.state
                 self.run.gnss = self.gnss

@@ -32,6 +32,7 @@ from app.io.streams import impossible_step
 
 FRESH, STALE, NONE = "fresh", "stale", "none"
 JUMP_RUN = 10  # sets in a row that all jump from the last kept one: that one was the jump
+JUMP_EDGE_S = 1e-3  # the drawn position just before a believed jump (s): where it stepped
 
 
 @dataclass(frozen=True)
@@ -122,13 +123,16 @@ class LivePoses:
         none."""
         return None
 
-    def jumps_between(self, a: float, b: float) -> list[float]:
-        """Media times (s) in (a, b] of the sets a jump was believed at (JUMP_RUN sets in a row
-        from the last one kept: the drawn position steps there, app.live.register holds it off)."""
+    def jumps_between(self, a: float, b: float) -> list[tuple[float, float]]:
+        """(from, to) media times (s) of the steps no platform makes drawn in (a, b]: at the
+        sets a jump was believed at (JUMP_RUN sets in a row from the last one kept), the drawn
+        position steps from its value just before (JUMP_EDGE_S) to the set's
+        (app.live.register holds it off)."""
         with self._lock:
-            return self.believed[
+            at = self.believed[
                 bisect.bisect_right(self.believed, a) : bisect.bisect_right(self.believed, b)
             ]
+        return [(t - JUMP_EDGE_S, t) for t in at]
 
     def first(self) -> tuple[float, float, float] | None:
         """The first position (lat, lon, ellipsoidal h), None before any."""
@@ -225,6 +229,16 @@ class MavlinkPoses:
     def ground(self) -> tuple[float, str] | None:
         h = self.telemetry.home_h
         return None if h is None else (h, "the home (take-off) height of GLOBAL_POSITION_INT")
+
+    def jumps_between(self, a: float, b: float) -> list[tuple[float, float]]:
+        """(from, to) media times (s) of the steps no platform makes in the positions drawn
+        over (a, b] (MavlinkTelemetry.jumps_between: drawn as a line between two messages,
+        app.live.register holds them off); none before both clocks are linked."""
+        c = self.boot_offset()
+        if c is None:
+            return []
+        c += self.offset_s
+        return [(t0 - c, t1 - c) for t0, t1 in self.telemetry.jumps_between(a + c, b + c)]
 
     def boot_offset(self) -> float | None:
         """boot - media (s) without the lag: None before both clocks are linked."""

@@ -67,7 +67,6 @@ RATE_MIN_MPS = 0.3  # slower, a line through a few keyframes is their own noise 
 LINE_M = 1.0  # a keyframe farther than this from the line drawn through its run is off it (m)
 HOLD_S = 5.0  # the line carried on at most this long past the newest keyframe (s)
 ACCEL_MPS2 = 3.0  # the platform's acceleration the chain allows for (a drone's weave: 3.3)
-JUMP_EDGE_S = 1e-3  # the telemetry just before a jump's set (s): the position it stepped from
 LIVE_SETTINGS = RegistrationSettings(long_side=640, max_iterations=5)
 
 
@@ -122,8 +121,9 @@ class LiveRegistration(Worker):
     watch: where each kept keyframe's fix is tested against the scene (None: not tested);
     accuracy_at(media s): the accuracy (m) the feed states for its fix then, None: none;
     fix_at(media s): the telemetry's position then (ENU m, None: none yet); jumps_between(a, b):
-    the media times in (a, b] where the telemetry's position stepped as no platform moves
-    (app.live.pose.LivePoses.jumps_between; none: never held off)."""
+    the (from, to) media times of the steps in the telemetry's position no platform makes,
+    drawn in (a, b] (app.live.pose: LivePoses.jumps_between, MavlinkPoses.jumps_between; none:
+    never held off)."""
 
     def __init__(
         self,
@@ -134,7 +134,7 @@ class LiveRegistration(Worker):
         watch: GnssWatch | None = None,
         accuracy_at: Callable[[float], float | None] = lambda t: None,
         fix_at: Callable[[float], np.ndarray | None] = lambda t: None,
-        jumps_between: Callable[[float, float], list[float]] = lambda a, b: [],
+        jumps_between: Callable[[float, float], list[tuple[float, float]]] = lambda a, b: [],
     ) -> None:
         self.mesh, self.messages, self.every_s, self.settings = mesh, messages, every_s, settings
         self.watch, self.accuracy_at, self.fix_at = watch, accuracy_at, fix_at
@@ -173,8 +173,8 @@ class LiveRegistration(Worker):
         if at is None:
             return None
         steps = []
-        for t_jump in self.jumps_between(at, t):
-            before, after = self.fix_at(t_jump - JUMP_EDGE_S), self.fix_at(t_jump)
+        for t0, t1 in self.jumps_between(at, t):  # as far as the step is drawn by t
+            before, after = self.fix_at(t0), self.fix_at(min(t1, t))
             if before is not None and after is not None:
                 steps.append(np.asarray(after, np.float64) - before)
         return np.sum(steps, axis=0) if steps else None

@@ -39,6 +39,7 @@ from app.register.gnss import (
     GnssLie,
     check_fixes,
     clip_time,
+    own_offset,
 )
 
 HISTORY_S = 60.0  # keyframes tested together: the baseline's 30 s before an alarm, and more
@@ -167,9 +168,9 @@ class GnssWatch:
     def _baseline(self, t_s: float) -> np.ndarray:
         """The GNSS's own offset (ENU m) before media time t_s (s): the median fix - scene of
         the keyframes over the settings' baseline span before it (zero where none)."""
-        b0, b1 = self.settings.baseline_s
-        raw = [f - s for t, f, s in zip(self._t, self._fix, self._scene, strict=True) if t_s - b0 <= t <= t_s - b1]  # fmt: skip
-        return np.median(raw, axis=0) if raw else np.zeros(3)
+        raw = np.asarray(self._fix) - np.asarray(self._scene)
+        base = own_offset(np.asarray(self._t), raw, t_s, self.settings)
+        return np.zeros(3) if base is None else base
 
     @staticmethod
     def _off(kind: str, residual: np.ndarray) -> float:

@@ -229,6 +229,17 @@ def running_max(x: FloatArray, window: int) -> FloatArray:
     return np.array([x[max(0, i - h) : i + h + 1].max() for i in range(len(x))])
 
 
+def own_offset(
+    t: FloatArray, residual: FloatArray, t_s: float, settings: CheckSettings
+) -> FloatArray | None:
+    """The GNSS's own offset before session time t_s (s): the median of the residuals
+    (N, D) m of the fixes at times t (N,) s, increasing, over settings.baseline_s (from, to s)
+    before it; None where no fix lies there."""
+    b0, b1 = settings.baseline_s
+    lo, hi = np.searchsorted(t, t_s - b0), np.searchsorted(t, t_s - b1, side="right")
+    return np.median(residual[lo:hi], axis=0) if hi > lo else None
+
+
 def check_fixes(
     t_fix: npt.ArrayLike,
     enu_fix: npt.ArrayLike,
@@ -292,10 +303,10 @@ def drifting(
     j, ok_j = at(t - w)
     m, ok_m = at(t - w / 2)
     r = residual[:, :2]
-    b0, b1 = settings.baseline_s
-    lo, hi = np.searchsorted(t, t - b0), np.searchsorted(t, t - b1, side="right")
-    for i in np.flatnonzero(ok_j & ok_m & (j < np.arange(len(t))) & (hi > lo)):
-        base = np.median(r[lo[i] : hi[i]], axis=0)
+    for i in np.flatnonzero(ok_j & ok_m & (j < np.arange(len(t)))):
+        base = own_offset(t, r, t[i], settings)
+        if base is None:
+            continue
         grew = np.linalg.norm(r[i] - base) - np.linalg.norm(r[j[i]] - base)
         stated = accuracy_m[j[i] : i + 1]
         limit = max(settings.drift_floor_m, settings.drift_sigma * stated.max())
@@ -345,13 +356,9 @@ def lies_of(
                 break
         good_after = np.flatnonzero(~bad[last + 1 :])
         end = len(t) if len(good_after) == 0 else tested[last + 1 + int(good_after[0])]
-        b0, b1 = settings.baseline_s
-        before = (t[tested] >= t[tested[a]] - b0) & (t[tested] <= t[tested[a]] - b1)
-        base = (
-            np.median(residual[tested[before]], axis=0)
-            if before.any()
-            else np.zeros(3)  # no clean stretch before it to learn the offset from
-        )
+        base = own_offset(t[tested], residual[tested], t[tested[a]], settings)
+        if base is None:  # no clean stretch before it to learn the offset from
+            base = np.zeros(3)
         upright = not bad_h[a : last + 1].any()  # only the height disagrees
         away = (
             np.abs(residual[tested, 2] - base[2])

@@ -390,7 +390,7 @@ class LiveFeed:
         """The camera of media time t (s) from what has arrived, corrected by the registration
         in force, and its state (fresh, stale, none): the last camera drawn stands in for a
         missing one."""
-        return self._corrected(self._telemetry_camera(t), t)
+        return self._corrected(self._telemetry_camera(t), t)[:2]
 
     @property
     def pose_source(self) -> str:
@@ -403,11 +403,16 @@ class LiveFeed:
 
     def _corrected(
         self, raw: tuple[Camera, str, float] | None, t: float
-    ) -> tuple[Camera | None, str]:
+    ) -> tuple[Camera | None, str, float]:
+        """(the camera drawn at media time t (s), its state, how far (m) the telemetry's jumps
+        held off in it are: LiveRegistration.corrected)."""
         if raw is None:
-            return self.last_camera, NONE
+            return self.last_camera, NONE, 0.0
         reg = self.registration
-        return (reg.correct(raw[0], t) if reg is not None else raw[0]), raw[1]
+        if reg is None:
+            return raw[0], raw[1], 0.0
+        camera, held_m = reg.corrected(raw[0], t)
+        return camera, raw[1], held_m
 
     def _fix_at(self, t: float) -> np.ndarray | None:
         """The telemetry's position at media time t (ENU m), None before any."""
@@ -431,7 +436,7 @@ class LiveFeed:
         if item is None:
             return None
         raw = self._telemetry_camera(item.pts_s)
-        camera, state = self._corrected(raw, item.pts_s)
+        camera, state, held_m = self._corrected(raw, item.pts_s)
         if raw is not None:
             self.registered = camera is not raw[0]  # (a correction makes a new camera)
         if raw is not None and self.registration is not None:
@@ -450,13 +455,8 @@ class LiveFeed:
             return None
         self.last_camera = camera
         if self.gnss is not None:  # the frame's GNSS status (a pose held: as old as it is)
-            reg = self.registration
-            jump = None if reg is None else reg.held_off(item.pts_s)
-            self.gnss_now = self.gnss.frame(
-                item.pts_s,
-                raw[2] if raw is not None else math.inf,
-                0.0 if jump is None else float(np.linalg.norm(jump)),
-            )
+            age = raw[2] if raw is not None else math.inf
+            self.gnss_now = self.gnss.frame(item.pts_s, age, held_m)
         return item, due, camera, state
 
     def restream_frame(self, pts_s: float, camera: Camera) -> None:

@@ -182,18 +182,22 @@ class LiveRegistration(Worker):
     def correct(self, camera: Camera, t: float) -> Camera:
         """The telemetry's camera of media time t (s) moved by the correction in force, less
         the jumps held off (`held_off`); itself before any correction."""
+        return self.corrected(camera, t)[0]
+
+    def corrected(self, camera: Camera, t: float) -> tuple[Camera, float]:
+        """(`correct`'s camera, how far (m) the jumps held off in it are: 0 where none is)."""
         jump = self.held_off(t)
         with self._lock:
             s = self.state
             if s.shift_m is None:
-                return camera
+                return camera, 0.0
             shift, rotvec = s.shift_at(t), s.rotvec
         if jump is not None:
             shift = shift - jump
         q = rotations.multiply(
             np.asarray(camera.orientation, np.float64), rotations.from_rotvec(rotvec)
         )
-        return Camera.create(
+        moved = Camera.create(
             camera.intrinsics,
             np.asarray(camera.position) + shift,
             q,
@@ -201,6 +205,7 @@ class LiveRegistration(Worker):
             camera.far,
             camera.lens,
         )
+        return moved, 0.0 if jump is None else float(np.linalg.norm(jump))
 
     def _run(self) -> None:
         registrar = Registrar.of_scene(self.mesh, self.settings, background=True)

@@ -124,8 +124,9 @@ def open_with_source(
         getattr(args, "pitch", DRONE_DEFAULT_PITCH_DEG),
         single(args.lens),
         layers(args, clip=Path(path).suffix.lower() != ".toml"),
+        start,
     )
-    if start is not None:  # a clip without GNSS: registered, from the area
+    if start is not None and session.start is None:  # a clip without GNSS: from the area
         session = replace(session, start=start)
     if getattr(args, "out", None) is not None:
         check_output(args.out, "--out", suffixes, list(session.inputs))

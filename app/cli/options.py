@@ -371,5 +371,5 @@ def add_start_options(p: argparse.ArgumentParser) -> None:
         type=number(0.0, 100_000.0, open_low=True),
         default=None,
         metavar="M",
-        help="with --near or --start-area: the camera's height above the ground, metres (a drone's; default: a phone's mount height)",
+        help="with --near or --start-area: the camera's height above the ground, metres (default: a DJI subtitle's height above take-off, else a phone's mount height)",
     )

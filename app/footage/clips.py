@@ -31,7 +31,7 @@ from app.core.messages import Messages
 from app.geodesy.enu import LocalFrame
 from app.geodesy.geomag import declination
 from app.io.dji_mp4 import read_dji_camera
-from app.io.dji_srt import SrtTrack, check_duration, read_srt, srt_fixes
+from app.io.dji_srt import SrtTrack, check_duration, read_srt, srt_fixes, takeoff_heights
 from app.io.gopro import global_settings
 from app.io.klv_track import (
     CONSISTENCY_LIMIT_DEG,
@@ -55,6 +55,7 @@ from app.scene.mesh import MeshData
 from app.session.assemble import assemble, gimbal_attitude, load_scene_layers, open_session
 from app.session.config import HANDHELD_MOUNT_M, read_config
 from app.session.model import Session
+from app.session.start import StartArea
 from app.world.build import deferring, resolve_worlds
 from app.world.settings import how_to_configure
 
@@ -85,6 +86,7 @@ def open_clip(
     pitch_deg: float = DRONE_DEFAULT_PITCH_DEG,
     lens: str | Path | None = None,
     layers: tuple[Layer, ...] = (),
+    start: StartArea | None = None,
 ) -> Session:
     """A session from a GoPro MP4, a video with MISB ST 0601 KLV (an MPEG-TS from a drone or
     an FMV tool, or its KLV as a raw file: `srt`, or CLIP.KLV beside it), or from a video with
@@ -92,7 +94,9 @@ def open_clip(
     lens: a gyroflow profile to use instead of the one chosen from the file (GoPro) or the pinhole
     field of view; hfov_deg: a pinhole field of view instead of any lens; pitch_deg: a drone
     clip's camera pitch (degrees above the horizon) when its subtitle has no gimbal attitude;
-    layers: the scene (tilesets, DEMs, models placed by themselves) instead of an assumed ground."""
+    layers: the scene (tilesets, DEMs, models placed by themselves) instead of an assumed ground;
+    start: where a clip without GNSS is searched for (a DJI subtitle without a position is
+    opened on it; the caller sets it on other clips)."""
     path = Path(path)
     if not path.is_file():
         raise DataFormatError(path, "video file does not exist")
@@ -100,7 +104,7 @@ def open_clip(
     if srt is not None and srt.is_file() and starts_as_klv(srt):  # --klv, or CLIP.KLV
         return _klv_session(path, hfov_deg, lens, layers, raw=srt)
     if srt is not None:
-        return _dji_session(path, srt, hfov_deg, pitch_deg, lens, layers)
+        return _dji_session(path, srt, hfov_deg, pitch_deg, lens, layers, start)
     if has_klv(path):
         return _klv_session(path, hfov_deg, lens, layers)
     return _gopro_session(path, hfov_deg, lens, layers)
@@ -186,6 +190,8 @@ def _clip_session(
     utc_at_zero_s: float | None = None,
     camera: str = "",
     zoom: Zoom | None = None,
+    start: StartArea | None = None,
+    takeoff: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> Session:
     policy = heading_policy(
         gyr is not None, mag is not None, recorded, pitch_deg, aircraft_yaw is not None
@@ -196,7 +202,8 @@ def _clip_session(
         path.resolve(), frame, Path(layers[0].location) if layers else None, Placement(), video, video.pts_s.copy(), intr, video.rotation_cw,
         acc, gyr, mag, gnss, recorded, decl, messages, inputs=(*inputs, *(f.resolve() for layer in layers for f in layer.files())), heading=policy, device_is_camera=True,
         aircraft_yaw=aircraft_yaw, mesh=mesh, lens=lens, readout_s=readout_s, layers=tuple(layers),
-        utc_at_zero_s=utc_at_zero_s, camera=camera, zoom=zoom,
+        utc_at_zero_s=utc_at_zero_s, camera=camera, zoom=zoom, start=start,
+        takeoff_heights=takeoff,
     )  # fmt: skip
 
 
@@ -319,15 +326,25 @@ def _dji_session(
     pitch_deg: float,
     lens_path: str | Path | None = None,
     layers: tuple[Layer, ...] = (),
+    start: StartArea | None = None,
 ) -> Session:
+    """A video with its DJI subtitle; one whose subtitle has no position at all is opened for a
+    search of `start` (app.register.coldstart), its scene gathered around the area."""
     messages = Messages()
-    track = read_srt(srt, messages)
+    track = read_srt(srt, messages, positioned=start is None)
     video = probe(path)
     video.note_damage(messages)
     check_duration(track, video.duration_s + 1.0 / max(video.nominal_fps, 1.0))
-    gnss = srt_fixes(track, messages)
-    heights = gnss.h
-    if track.height_relative:
+    if track.has_position.any():
+        gnss = srt_fixes(track, messages)
+        around, start = gnss, None  # a GNSS: an area given is said unused by the search
+    else:
+        around = _unfixed_area(track, srt, start, layers)
+        gnss = GnssTrack(*np.zeros((4, 0)), path=str(srt))
+    heights = around.h
+    if start is not None:  # the outline at the platform's height above an assumed 0 m ground
+        ground = 0.0
+    elif track.height_relative:
         if not layers:
             messages.info(
                 f"{srt.name}: heights are relative to take-off; the assumed ground is the take-off height (0 m)"
@@ -339,14 +356,15 @@ def _dji_session(
             messages.info(
                 f"{srt.name}: absolute heights; the assumed ground is the lowest height of the flight ({ground:.1f} m)"
             )
-    frame, mesh, gnss = frame_and_ground(
-        gnss,
+    frame, mesh, around = frame_and_ground(
+        around,
         ground,
         ground_reach_m(heights - ground),
         layers,
         messages,
-        track.height_relative,
+        track.height_relative and start is None,
     )
+    gnss = around if start is None else gnss
     when = (
         float(np.nanmin(track.wall_clock))
         if np.isfinite(track.wall_clock).any()
@@ -425,7 +443,32 @@ def _dji_session(
         _subtitle_clock(track, srt, messages),
         _dji_name(path),
         zoom,
+        start,
+        None if start is None else takeoff_heights(track, 0.0),
     )
+
+
+def _unfixed_area(
+    track: SrtTrack, srt: Path, start: StartArea, layers: tuple[Layer, ...]
+) -> GnssTrack:
+    """A track over the area's outline, at the platform's height (--height, else the subtitle's
+    greatest above take-off) for the scene to be gathered around, for a subtitle without a
+    position. DataFormatError where the clip cannot be searched for: no scene, no gimbal
+    attitude."""
+    if not layers:
+        raise DataFormatError(
+            srt,
+            "no entry has a position and no scene is given: a clip without GNSS is searched for on a scene (give --scene, --dem or --world with --near)",
+        )
+    if not track.has_gimbal:
+        raise DataFormatError(
+            srt,
+            "no entry has a position nor the gimbal's angles (gb_yaw, gb_pitch, gb_roll or G.PRY): a clip without GNSS is searched for with the camera's attitude",
+        )
+    lat, lon = start.outline()
+    high = np.nanmax(track.height) if np.isfinite(track.height).any() else 0.0
+    h = np.full(len(lat), float(start.height_m if start.height_m is not None else high))
+    return GnssTrack(np.arange(len(lat), dtype=np.float64), lat, lon, h, path=str(srt))
 
 
 def effective_focal_mm(track: SrtTrack) -> tuple[np.ndarray, bool]:
@@ -668,9 +711,10 @@ def open_any(
     pitch_deg: float = DRONE_DEFAULT_PITCH_DEG,
     lens: str | Path | None = None,
     layers: tuple[Layer, ...] = (),
+    start: StartArea | None = None,
 ) -> Session:
     """A manifest (.toml) or a clip (pitch_deg: a drone clip's camera pitch when its subtitle has
-    no gimbal attitude; layers: its scene, see open_clip)."""
+    no gimbal attitude; layers: its scene; start: an area to search, see open_clip)."""
     path = Path(path)
     if path.suffix.lower() == ".toml":
         given = (
@@ -687,7 +731,7 @@ def open_any(
                 f"{given} goes with a clip, not with a manifest (a manifest names its subtitle in [gnss], its lens as camera.lens, its scene in [scene], [[layers]] and [dem])"
             )
         return open_session(path)
-    return open_clip(path, srt, hfov_deg, pitch_deg, lens, layers)
+    return open_clip(path, srt, hfov_deg, pitch_deg, lens, layers, start)
 
 
 def open_for_sync(path: str | Path, lens: str | Path | None = None) -> tuple[Session, float]:

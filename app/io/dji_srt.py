@@ -16,7 +16,8 @@ has written over its generations (see docs/FORMATS.md for each, with the traps):
   entries carry both, `dzoom` read first). The ratio crops the picture: the effective focal
   length is focal_len times it (app.footage.clips draws each frame with its own).
 
-Entries without a position are kept (time only) and counted; a file cut mid-entry keeps its complete
+Entries without a position are kept (time only) and counted, as are those at exactly 0, 0 (what DJI
+writes while the aircraft has no fix); a file cut mid-entry keeps its complete
 entries with a warning; a byte-order mark and CR/LF line ends are accepted; one file may mix layouts.
 """
 
@@ -190,9 +191,13 @@ def _entry_fields(text: str) -> tuple[dict[str, float], str]:
     return f, layout
 
 
-def read_srt(path: str | Path, messages: Messages | None = None) -> SrtTrack:
+def read_srt(
+    path: str | Path, messages: Messages | None = None, positioned: bool = True
+) -> SrtTrack:
     """Every entry of a DJI .SRT. Raises DataFormatError naming the file and entry for an empty
-    file, a file without a single complete entry, or one without any position."""
+    file, a file without a single complete entry, or (where `positioned`) one without any
+    position; without `positioned` such a file is read (said: a clip searched for from an area,
+    app.register.coldstart)."""
     path = Path(path)
     messages = messages if messages is not None else Messages()
     if not path.is_file():
@@ -247,12 +252,15 @@ def read_srt(path: str | Path, messages: Messages | None = None) -> SrtTrack:
         return np.array([r[2].get(key, np.nan) for r in rows], np.float64)
 
     lat, lon = col("lat"), col("lon")
+    unfixed = (lat == 0.0) & (lon == 0.0)  # DJI's "no fix"
+    lat[unfixed], lon[unfixed] = np.nan, np.nan
     missing = ~(np.isfinite(lat) & np.isfinite(lon))
     if missing.all():
-        raise DataFormatError(
-            path, f"none of the {len(rows)} entries has a position (GPS, latitude/longitude)"
-        )
-    if missing.any():
+        none = f"none of the {len(rows)} entries has a position (GPS, latitude/longitude; 0, 0 is no fix)"
+        if positioned:
+            raise DataFormatError(path, none)
+        messages.add(f"{path.name}: {none}")
+    elif missing.any():
         messages.add(
             f"{path.name}: {int(missing.sum())} entries without a position (first: entry {int(np.flatnonzero(missing)[0]) + 1})"
         )
@@ -375,6 +383,16 @@ def srt_fixes(track: SrtTrack, messages: Messages, offset_s: float = 0.0) -> Gns
         GnssTrack(offset_s + track.t[ok], track.lat[ok], track.lon[ok], h, None, None, track.path),
         messages,
     )
+
+
+def takeoff_heights(track: SrtTrack, offset_s: float = 0.0) -> tuple[np.ndarray, np.ndarray] | None:
+    """(times + offset_s s, heights m) of the entries that give a height above take-off (H,
+    rel_alt, BAROMETER: the barometer's, there with or without a fix), or None (absolute heights
+    only, or none)."""
+    ok = np.isfinite(track.height)
+    if not track.height_relative or not ok.any():
+        return None
+    return offset_s + track.t[ok], track.height[ok]
 
 
 def check_duration(track: SrtTrack, video_duration_s: float, tolerance_s: float = 2.0) -> None:

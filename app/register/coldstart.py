@@ -70,7 +70,7 @@ from app.scene.ground import ground_heights
 from app.scene.mesh import MeshData
 from app.session.camera_track import CameraTrack, camera_track
 from app.session.model import Session
-from app.session.start import StartArea
+from app.session.start import HEIGHT_OVER_S, MIN_HEIGHT_M, StartArea
 
 FloatArray = npt.NDArray[np.float64]
 TOP_DOWN, PERSPECTIVE = "top-down", "perspective"
@@ -141,7 +141,9 @@ class ColdStart:
     the search's time; off_centre_m: the pose's horizontal distance from the area's centre;
     above_ground_m: its height above the scene's ground; inliers, error_px: the registration's
     last step; turned_deg: where it was taken because an earlier frame's pose agreed with it,
-    how far it is turned from the platform's attitude (deg; 0: within turn_tolerance_deg)."""
+    how far it is turned from the platform's attitude (deg; 0: within turn_tolerance_deg);
+    height_m: the platform's height above the ground searched at, height_from: where it came
+    from where the user did not give it ("": --height or a phone's mount height)."""
 
     ok: bool
     reason: str
@@ -160,6 +162,8 @@ class ColdStart:
     inliers: int = 0
     error_px: float = float("nan")
     turned_deg: float = 0.0
+    height_m: float = float("nan")
+    height_from: str = ""
 
     def said(self, geodetic: Callable[[FloatArray], FloatArray], t0_s: float) -> str:
         """One line for people: what was searched, in what time, and what was found (or not).
@@ -173,7 +177,12 @@ class ColdStart:
         lat, lon, _ = geodetic(np.asarray(self.position))
         return (
             f"cold start: {searched}: found at {lat:.6f}, {lon:.6f}, {self.above_ground_m:.0f} m above the ground"
-            f" (t = {self.time_s - t0_s:.1f} s), {self.off_centre_m:.0f} m from the area's centre"
+            + (
+                f" (searched at {self.height_m:.0f} m: {self.height_from})"
+                if self.height_from
+                else ""
+            )
+            + f" (t = {self.time_s - t0_s:.1f} s), {self.off_centre_m:.0f} m from the area's centre"
             f" ({self.inliers} inliers, {self.error_px:.2f} px)"
             + (
                 f"; turned {self.turned_deg:.0f} deg from the platform's attitude, as the pose"
@@ -212,14 +221,26 @@ def searched(session: Session) -> bool:
     return True
 
 
-def platform_height(session: Session) -> float:
-    """The camera's height above the ground (m): the area's (`--height`), else a phone's mount
-    height where the session's heights are the ground's; GeofuseError where neither is known."""
+def platform_height(session: Session) -> tuple[float, str]:
+    """(the camera's height above the ground (m), where it comes from): the area's
+    (`--height`; ""), else a subtitle's height above take-off (its median over the clip's first
+    HEIGHT_OVER_S: a search tries frames there; the take-off's ground taken for the ground
+    under the platform, said), else a phone's mount height where the session's heights are the
+    ground's (""). GeofuseError where none is known, or the subtitle's is below MIN_HEIGHT_M."""
     start = session.start
     if start is not None and start.height_m is not None:
-        return float(start.height_m)
+        return float(start.height_m), ""
+    if session.takeoff_heights is not None:
+        t, h = session.takeoff_heights
+        early = np.asarray(t) <= float(session.frame_times[0]) + HEIGHT_OVER_S
+        height = float(np.median(h[early] if early.any() else h[:1]))
+        if height < MIN_HEIGHT_M:
+            raise GeofuseError(
+                f"{session.path}: cold start: the subtitle's height above take-off is {height:.1f} m at the clip's start, too low to search the scene from (at least {MIN_HEIGHT_M:g} m): give --height M"
+            )
+        return height, "the subtitle's, above take-off"
     if session.height_mode == "ground":
-        return float(session.mount_height_m)
+        return float(session.mount_height_m), ""
     raise GeofuseError(
         f"{session.path}: cold start: the platform's height above the ground is not known: give --height M"
     )
@@ -694,7 +715,7 @@ def search_start(
     app.session.camera_track.camera_track."""
     area = session.start
     began = clock()
-    height = platform_height(session)
+    height, height_from = platform_height(session)
     area_enu, centre = area.enu_area(session.frame), area.centre_enu(session.frame)
     prior = attitude_track(session, source, centre, height, **track_options)
     search = Search(session.scene(), views, register, area_enu, centre, height, settings)
@@ -717,7 +738,7 @@ def search_start(
                 True, "", area, method, float(area_enu.area), m2, search.rendered, clock() - began,
                 int(k), t_k, p, np.asarray(verified.camera.orientation),
                 float(np.linalg.norm(p[:2] - centre)), float(p[2] - _ground(search.mesh, p[None, :2])[0]),
-                verified.inliers, verified.error_px, turned,
+                verified.inliers, verified.error_px, turned, height, height_from,
             )  # fmt: skip
         if m2 <= 0:
             break  # no scene under the area: another frame will not find one
@@ -727,8 +748,9 @@ def search_start(
     else:
         why = f"not found in the frames at t = {', '.join(f'{t:g}' for t in settings.tries)} s ({why})"
     return ColdStart(
-        False, why, area, method, float(area_enu.area), m2, search.rendered, clock() - began
-    )
+        False, why, area, method, float(area_enu.area), m2, search.rendered, clock() - began,
+        height_m=height, height_from=height_from,
+    )  # fmt: skip
 
 
 def held_positions(session: Session, enu: FloatArray) -> PositionTrack:

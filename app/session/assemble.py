@@ -22,7 +22,7 @@ from app.geodesy import rotations
 from app.geodesy.enu import LocalFrame
 from app.geodesy.geomag import declination, field_enu
 from app.io import csvlog
-from app.io.dji_srt import read_srt, srt_fixes
+from app.io.dji_srt import read_srt, srt_fixes, takeoff_heights
 from app.io.gpx import read_gpx
 from app.io.sensorlogger import read_sensorlogger
 from app.io.streams import GnssTrack, OrientationStream, VectorStream
@@ -139,16 +139,17 @@ def _gnss(
     messages: Messages,
     clip_start: float,
     recorded: dict[str, OrientationStream],
-) -> tuple[GnssTrack, bool, tuple | None]:
+) -> tuple[GnssTrack, bool, tuple | None, tuple | None]:
     """(the session's GNSS track, whether its heights are above take-off, a drone's own yaw
-    (t session s, deg) when its subtitle has one and no gimbal attitude)."""
+    (t session s, deg) when its subtitle has one and no gimbal attitude, a subtitle's heights
+    above take-off (t session s, m) where it has no position: Session.takeoff_heights)."""
     path = cfg.gnss.path
     if path is None and logged is None:
         raise ManifestError(
             cfg.path, "the sensors hold no GNSS track: give gnss.path", field="gnss.path"
         )
     if path is not None and path.suffix.lower() == ".srt":
-        return _srt_gnss(path, messages, clip_start, recorded)
+        return _srt_gnss(path, messages, clip_start, recorded, cfg.origin is not None)
     track = logged
     if path is not None:
         track = (
@@ -156,22 +157,31 @@ def _gnss(
             if path.suffix.lower() == ".gpx"
             else csvlog.read_gnss(path, messages, allow_empty=cfg.origin is not None)
         )
-    return replace(track, h=track.h + cfg.gnss.height_offset_m), False, None
+    return replace(track, h=track.h + cfg.gnss.height_offset_m), False, None, None
 
 
 def _srt_gnss(
-    path: Path, messages: Messages, clip_start: float, recorded: dict[str, OrientationStream]
-) -> tuple[GnssTrack, bool, tuple | None]:
+    path: Path,
+    messages: Messages,
+    clip_start: float,
+    recorded: dict[str, OrientationStream],
+    unfixed: bool = False,
+) -> tuple[GnssTrack, bool, tuple | None, tuple | None]:
     """A DJI subtitle as the session's GNSS (its times are the clip's, shifted to the session
-    clock) and, with gimbal angles, its `telemetry` attitude, else the aircraft's yaw."""
-    tr = read_srt(path, messages)
+    clock) and, with gimbal angles, its `telemetry` attitude, else the aircraft's yaw; unfixed
+    (a manifest with an origin): one without any position is read (no fix, its heights above
+    take-off kept for a cold start), as _gnss returns."""
+    tr = read_srt(path, messages, positioned=not unfixed)
     yaw = None
     if tr.has_gimbal:
         recorded["telemetry"] = _shifted(gimbal_attitude(tr, path), clip_start)
     elif tr.aircraft_yaw() is not None:
         t, deg = tr.aircraft_yaw()
         yaw = (t + clip_start, deg)
-    return srt_fixes(tr, messages, clip_start), bool(tr.height_relative), yaw
+    if not tr.has_position.any():
+        empty = GnssTrack(*np.zeros((4, 0)), path=str(path))
+        return empty, False, yaw, takeoff_heights(tr, clip_start)
+    return srt_fixes(tr, messages, clip_start), bool(tr.height_relative), yaw, None
 
 
 def gimbal_attitude(track, path: Path) -> OrientationStream:
@@ -376,8 +386,10 @@ def assemble(cfg: SessionConfig) -> Session:
     intr, lens = _intrinsics(cfg, w, h, rotation, messages)
 
     acc, gyr, mag, recorded, logged_gnss = _sensors(cfg, messages, clip_start)
-    gnss, above_takeoff, yaw = _gnss(cfg, logged_gnss, messages, clip_start, recorded)
-    _check_coverage(cfg, frame_times, (gyr if gyr is not None else gnss).t, messages)
+    gnss, above_takeoff, yaw, takeoff = _gnss(cfg, logged_gnss, messages, clip_start, recorded)
+    timed = gyr if gyr is not None else gnss if len(gnss.t) else recorded.get("telemetry")
+    if timed is not None:  # else a cold start with no attitude either: said when it searches
+        _check_coverage(cfg, frame_times, timed.t, messages)
     frame, mesh, gnss = _place(cfg, gnss, above_takeoff, messages)
     origin = (frame.lat_deg, frame.lon_deg, frame.h_m)
     mag = _calibrate_magnetometer(
@@ -397,5 +409,5 @@ def assemble(cfg: SessionConfig) -> Session:
         height_mode=cfg.gnss.height if cfg.layers else "gnss", mount_height_m=cfg.gnss.mount_height_m, heading=policy,
         device_is_camera=cfg.sensors.format in ("gopro", "none"),  # action cameras and drones
         aircraft_yaw=yaw, mesh=mesh, lens=lens, readout_s=_readout(cfg, lens, messages), layers=cfg.layers,
-        further=cfg.clips,
+        further=cfg.clips, takeoff_heights=takeoff,
     )  # fmt: skip

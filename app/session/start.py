@@ -18,6 +18,10 @@ from shapely.geometry.base import BaseGeometry
 from app.geodesy.enu import LocalFrame
 
 DEFAULT_START_RADIUS_M = 300.0  # --near without --radius
+HEIGHT_OVER_S = (
+    5.0  # a height the telemetry gives: its median over the clip's first seconds (searched)
+)
+MIN_HEIGHT_M = 5.0  # a platform lower than this above the ground sees too little scene to search
 CIRCLE_SEGMENTS = 64  # a circle's polygon: this many segments a quarter (shapely's buffer)
 
 
@@ -78,6 +82,15 @@ class StartArea:
             return np.asarray(enu, np.float64).reshape(-1, 3)[:, :2]
 
         return shapely.transform(self.polygon, to_enu)
+
+    def outline(self) -> tuple[np.ndarray, np.ndarray]:
+        """(lat, lon) degrees of the area's outline, its centre first (what a scene or a world
+        is gathered around where a clip has no track)."""
+        frame = LocalFrame(*self.centre, 0.0)
+        xy = shapely.get_coordinates(self.enu_area(frame))
+        enu = np.vstack([[0.0, 0.0, 0.0], np.column_stack([xy, np.zeros(len(xy))])])
+        geo = np.asarray(frame.enu_to_geodetic(enu), np.float64).reshape(-1, 3)
+        return geo[:, 0], geo[:, 1]
 
     def centre_enu(self, frame: LocalFrame) -> np.ndarray:
         """(2,) the centre's east, north (m) in `frame`."""

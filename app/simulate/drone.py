@@ -75,14 +75,21 @@ def write_video(
     )
 
 
-def srt_text(duration_s: float, lag_s: float, path_of=flight) -> str:
+def srt_text(
+    duration_s: float, lag_s: float, path_of=flight, fixed: bool = True, gimbal: bool = False
+) -> str:
     """The subtitle of the clip: one entry per frame, each carrying the position `lag_s` seconds
     older than its frame (the GNSS track lags the video), in DJI's 6 decimals; heights above
-    take-off (rel_alt) and above the ellipsoid (abs_alt)."""
+    take-off (rel_alt) and above the ellipsoid (abs_alt). fixed=False: every position 0, 0 as
+    DJI writes it without a fix (abs_alt 0; rel_alt, from the barometer, kept); gimbal: the
+    camera's angles as the Mini 3 / Mavic 3 layout adds them (gb_yaw, gb_pitch, gb_roll, deg)."""
     frame = LocalFrame(*SITE_ORIGIN)
     t = np.arange(0.0, duration_s, 1.0 / FPS)
     pos, _ = path_of(t - lag_s)
     geo = frame.enu_to_geodetic(pos)
+    if not fixed:
+        geo[:, :] = 0.0
+    _, heading = path_of(t)
 
     def stamp(s: float) -> str:
         ms = int(round(s * 1000))
@@ -95,7 +102,13 @@ def srt_text(duration_s: float, lag_s: float, path_of=flight) -> str:
             f'{k + 1}\n{stamp(tk)} --> {stamp(tk + 1.0 / FPS)}\n<font size="28">SrtCnt : {k + 1}, DiffTime : 33ms\n'
             f"{when:%Y-%m-%d %H:%M:%S},{when.microsecond // 1000:03d},{when.microsecond % 1000:03d}\n"
             f"[iso : 100] [shutter : 1/1000.0] [fnum : 280] [ev : 0] [ct : 5500] [color_md : default] [focal_len : {FOCAL_35MM * 10:.0f}] "
-            f"[latitude: {geo[k, 0]:.6f}] [longitude: {geo[k, 1]:.6f}] [rel_alt: {pos[k, 2]:.3f} abs_alt: {geo[k, 2]:.3f}] </font>\n"
+            f"[latitude: {geo[k, 0]:.6f}] [longitude: {geo[k, 1]:.6f}] [rel_alt: {pos[k, 2]:.3f} abs_alt: {geo[k, 2]:.3f}] "
+            + (
+                f"[gb_yaw: {heading[k]:.1f} gb_pitch: {PITCH_DEG:.1f} gb_roll: 0.0] "
+                if gimbal
+                else ""
+            )
+            + "</font>\n"
         )
     return "\n".join(out)
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import io
 import json
+import shutil
 import struct
 from dataclasses import dataclass
 from pathlib import Path
@@ -22,7 +23,9 @@ from PIL import Image
 from app.geodesy.enu import LocalFrame, geodetic_to_ecef
 from app.scene import shapes
 from app.scene.tiles.implicit import level_offset, morton
-from app.scene.tiles.write import write_json
+from app.scene.tiles.write import box_of, column_major, enu_to_ecef_matrix, write_json
+from app.simulate.sample import SAMPLE_SCENE
+from app.simulate.stadium import SITE_ORIGIN
 
 Z_UP_TO_Y_UP = np.array([[1.0, 0, 0], [0, 0, 1], [0, -1, 0]])  # (x, y, z) -> (x, z, -y)
 
@@ -380,3 +383,21 @@ def write_city(
 
 
 __all__ = ["b3dm", "cmpt", "geodetic_to_ecef", "glb", "subtree", "write_city"]
+
+
+def write_site(folder: Path) -> Path:
+    """The sample site's model (app.simulate.sample.SAMPLE_SCENE: glTF, Y-up) as a one-tile
+    tileset georeferenced at SITE_ORIGIN (its root's ENU -> ECEF transform): the scene a clip
+    opened straight from its files (no manifest, so no origin) can be given with --scene.
+    Returns the tileset.json's path."""
+    folder.mkdir(parents=True, exist_ok=True)
+    shutil.copyfile(SAMPLE_SCENE, folder / "site.glb")
+    root = {
+        "transform": column_major(enu_to_ecef_matrix(LocalFrame(*SITE_ORIGIN))),
+        "boundingVolume": {"box": box_of([-180.0, -180.0, 0.0], [180.0, 180.0, 48.0])},
+        "geometricError": 0.0,
+        "refine": "ADD",
+        "content": {"uri": "site.glb"},
+    }
+    doc = {"asset": {"version": "1.1"}, "geometricError": 100.0, "root": root}
+    return write_json(folder / "tileset.json", doc)

@@ -54,8 +54,8 @@ class OpenJob(OneShot):
     def _work(self) -> None:
         srt, lens, layers, start = self._args
         with deferred_worlds() as worlds:
-            session = open_any(self.path, srt, lens=lens, layers=layers)
-        if start is not None:  # app.session.start.StartArea: registered from it
+            session = open_any(self.path, srt, lens=lens, layers=layers, start=start)
+        if start is not None and session.start is None:  # app.session.start.StartArea
             session = replace(session, start=start)
         if worlds:  # not among its layers until drawn: nothing to register against meanwhile
             kept = tuple(layer for layer in session.layers if layer.kind != "world")
@@ -101,14 +101,21 @@ class Loaded:
 def home_view(session: Session, mesh: MeshData) -> Navigator:
     """Where the window camera starts: for a model of a site, south of it looking across it; on an
     assumed ground, a tileset or terrain larger than a site, behind and above the camera's track
-    so that its frustum and footprint show."""
+    so that its frustum and footprint show (without a fix, over the area a cold start searches)."""
     if (
         session.scene_path is None
         or mesh.tilesets
         or float(np.ptp(mesh.bounds()[:, :2], axis=0).max()) > 2000.0
     ):
         g = session.gnss
-        enu = session.frame.geodetic_to_enu(g.lat, g.lon, g.h)
+        if len(g.t):
+            enu = session.frame.geodetic_to_enu(g.lat, g.lon, g.h)
+        elif session.start is not None:  # no fix at all: the area searched, on the scene
+            lat, lon = session.start.outline()
+            enu = session.frame.geodetic_to_enu(lat, lon, np.full(len(lat), session.frame.h_m))
+            enu[:, 2] = mesh.bounds()[0, 2]
+        else:
+            enu = np.zeros((1, 3))
         centre = (enu.min(axis=0) + enu.max(axis=0)) / 2
         size = float(max(np.ptp(enu[:, 0]), np.ptp(enu[:, 1]), 10.0))
         eye = centre + np.array([-0.4 * size - 12.0, -0.8 * size - 25.0, 0.5 * size + 18.0])

@@ -154,7 +154,7 @@ def test_a_lost_keyframe_is_searched_for_around_where_the_track_leads(no_gnss, g
             t = float(session.frame_times[k])
             radius = registrar.settings.lost_radius(3.0)
             assert radius == 34.5
-            fix, solved = registrar._reacquired(rgb, true, [near], radius, t, [], miss, "lost 3 s")
+            fix, solved = registrar.reacquired(rgb, true, [near], radius, t, [], miss, "lost 3 s")
             if found:
                 assert solved is not None and fix.ok, fix.reason
                 assert np.linalg.norm(np.asarray(solved.position) - true.position) <= 0.9

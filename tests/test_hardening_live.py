@@ -333,8 +333,8 @@ def test_a_hostile_autopilot_is_counted_by_reason_and_its_missing_position_said(
         in said
     )
     assert (
-        f"MAVLink {address}: attitudes but no position (GLOBAL_POSITION_INT with a fix): "
-        "the camera cannot be placed"
+        f"MAVLink {address}: attitudes but no position (GLOBAL_POSITION_INT with a fix, or "
+        "HOME_POSITION and the height above it): the camera cannot be placed"
     ) in said
     line = run.mavlink.line()
     assert f"MAVLink {address}: " in line and " ATTITUDE" in line

@@ -800,6 +800,12 @@ def _simulate(sub: Commands) -> None:
         help="an autopilot's drone instead (ArduPilot, PX4): the sample site seen from a weaving flight, video without KLV; "
         "with --send, its MAVLink telemetry (GLOBAL_POSITION_INT, ATTITUDE, GIMBAL_DEVICE_ATTITUDE_STATUS) sent here beside it, 0.3 s ahead",
     )
+    sf.add_argument(
+        "--no-fix",
+        action="store_true",
+        help="with --mavlink: the autopilot has no GNSS fix (GLOBAL_POSITION_INT at 0, 0 with the barometer's height) and sends its HOME_POSITION: "
+        "`geofuse live --mavlink ... --scene ...` searches the scene around the home point",
+    )
     sf.set_defaults(job="simulate:feed")
 
 

@@ -86,6 +86,8 @@ def _address(text: str, option: str) -> tuple[str, int]:
 
 def feed(args: argparse.Namespace) -> int:
     mavlink_to = _address(args.mavlink, "--mavlink") if args.mavlink else None
+    if args.no_fix and mavlink_to is None:
+        raise GeofuseError("--no-fix goes with --mavlink (a KLV feed's positions are its own)")
     if mavlink_to is not None:
         if args.klv_hz is not None:
             raise GeofuseError("--klv-hz: an autopilot's feed (--mavlink) carries no KLV")
@@ -99,7 +101,10 @@ def feed(args: argparse.Namespace) -> int:
     sender = Sender(out.read_bytes(), (host, port), loss=args.loss)
     telemetry = None
     if mavlink_to is not None:
-        telemetry = MavlinkSender(mavlink_to, args.seconds, time.monotonic(), MAVLINK_LEAD_S)
+        telemetry = MavlinkSender(
+            mavlink_to, args.seconds, time.monotonic(), MAVLINK_LEAD_S,
+            fixed=not args.no_fix, home=args.no_fix,
+        )  # fmt: skip
         telemetry.start()
     sender.start()
     beside = f", MAVLink to {args.mavlink}" if telemetry is not None else ""

@@ -16,6 +16,12 @@ Messages used (MAVLink's common set, as ArduPilot and PX4 send them):
 - MOUNT_STATUS (ArduPilot): pointing_a pitch, pointing_b roll, pointing_c yaw (centidegrees):
   pitch and roll against the horizon, yaw relative to the vehicle's heading. It has no time stamp:
   it is placed at its arrival through the clock link below.
+- HOME_POSITION: latitude, longitude (1e-7 deg), altitude (mm above mean sea level, taken to the
+  ellipsoid as GLOBAL_POSITION_INT's): where the vehicle took off (or the home the operator set).
+  While no GLOBAL_POSITION_INT has a fix (GNSS jammed, or lost before the feed was joined) and
+  the unfixed ones still give relative_alt (the barometer's height above home), the camera stands
+  at the home point at that height, marked not fixed (`TelemetryPose.fixed`): where a live feed
+  searches the scene for it (app.live.register), never a position drawn as it is.
 - GPS_RAW_INT: h_acc (mm, MAVLink 2's extension; 0: not given), the accuracy the receiver states
   for its position, which the live GNSS test holds the fixes to (app.live.gnss_watch). Its
   time_usec may be Unix time or boot time: it is placed at its arrival, as MOUNT_STATUS is. Its
@@ -59,6 +65,7 @@ USED = (
     "GIMBAL_DEVICE_ATTITUDE_STATUS",
     "MOUNT_STATUS",
     "GPS_RAW_INT",
+    "HOME_POSITION",
 )
 ANGLE_LIMIT_RAD = 2.0 * math.pi  # ATTITUDE's angles are -pi..pi; beyond +-2 pi is not an angle
 MOUNT_LIMIT_CDEG = 36_000  # MOUNT_STATUS pointing (centidegrees): beyond a turn is not an angle
@@ -148,6 +155,18 @@ def _position(m: dict[str, Any]) -> tuple[float, float, float, float | None]:
     return lat, lon, h, home
 
 
+def _home(m: dict[str, Any]) -> tuple[float, float, float]:
+    """(lat, lon deg, ellipsoidal h m) of a HOME_POSITION; Unusable when out of range or at 0, 0
+    (no home)."""
+    lat, lon = m["latitude"] / 1e7, m["longitude"] / 1e7
+    if not (abs(lat) <= 90.0 and abs(lon) <= 180.0) or (lat == 0.0 and lon == 0.0):
+        raise Unusable("HOME_POSITION with a latitude or longitude out of range or at 0, 0")
+    h = m["altitude"] / 1000.0 + float(undulation(lat, lon))
+    if not HEIGHT_RANGE_M[0] <= h <= HEIGHT_RANGE_M[1]:
+        raise Unusable("HOME_POSITION with a height no place has")
+    return lat, lon, h
+
+
 def _attitude(m: dict[str, Any]) -> tuple[float, float, float]:
     """(yaw, pitch, roll) degrees of an ATTITUDE; Unusable when not angles."""
     rad = tuple(float(m[k]) for k in ("yaw", "pitch", "roll"))
@@ -183,12 +202,15 @@ class MavlinkCounts:
 @dataclass(frozen=True)
 class TelemetryPose:
     """The camera at a boot time: geodetic (lat, lon deg, ellipsoidal h m), camera -> ENU
-    quaternion, and how far past the newest position or attitude it lies (s, 0 when between)."""
+    quaternion, and how far past the newest position or attitude it lies (s, 0 when between);
+    fixed: False where no fix placed it (the home point at the barometer's height: see the
+    module docstring)."""
 
     geodetic: tuple[float, float, float]
     q: FloatArray
     age_s: float
     gimbal: bool
+    fixed: bool = True
 
 
 class MavlinkTelemetry:
@@ -198,6 +220,9 @@ class MavlinkTelemetry:
     def __init__(self) -> None:
         self.counts = MavlinkCounts()
         self.home_h: float | None = None  # home's ellipsoidal height (m): the take-off ground
+        self.home: tuple[float, float, float] | None = None  # HOME_POSITION's (lat, lon, h)
+        self._rel_t: list[float] = []  # heights above home of positions without a fix (m)
+        self._rel: list[float] = []
         self._pos_t: list[float] = []
         self._pos: list[tuple[float, float, float]] = []
         self._att_t: list[float] = []
@@ -220,13 +245,28 @@ class MavlinkTelemetry:
     def has_gimbal(self) -> bool:
         return bool(self._gim_t)
 
+    @property
+    def unfixed(self) -> bool:
+        """Whether the camera stands at the home point for want of any fix (module docstring)."""
+        return not self._pos_t and self.home is not None and bool(self._rel_t)
+
     def __len__(self) -> int:
-        """Poses available: positions once an attitude has arrived too."""
-        return len(self._pos_t) if self._att_t else 0
+        """Poses available: positions (or, without any fix, heights above a home point) once an
+        attitude has arrived too."""
+        if not self._att_t:
+            return 0
+        return len(self._rel_t) if self.unfixed else len(self._pos_t)
 
     def first(self) -> tuple[float, float, float] | None:
+        """The first fix (lat, lon deg, ellipsoidal h m); without any, the home point at the
+        first height above it; None before either."""
         with self._lock:
-            return self._pos[0] if self._pos else None
+            if self._pos:
+                return self._pos[0]
+            if self.unfixed:
+                lat, lon, h = self.home
+                return lat, lon, h + self._rel[0]
+            return None
 
     def add(self, kind: str, m: dict[str, Any], arrival_s: float) -> bool:
         """One message (`kind`: its type name; `m`: its fields) that arrived at arrival_s
@@ -246,8 +286,18 @@ class MavlinkTelemetry:
     def _add(self, kind: str, m: dict[str, Any], arrival_s: float) -> bool:
         """add's work under the lock: each message's values read (Unusable when they cannot be
         true) before anything is kept."""
+        if kind == "HOME_POSITION":  # no time: where home is holds until it is moved
+            self.home = _home(m)
+            if self.home_h is None:
+                self.home_h = self.home[2]
+            self.counts.used[kind] = self.counts.used.get(kind, 0) + 1
+            return True
         if kind == "GLOBAL_POSITION_INT" and m["lat"] == 0 and m["lon"] == 0:
             self.counts.no_fix += 1
+            if "relative_alt" in m and "time_boot_ms" in m:  # the barometer's, above home
+                boot = float(m["time_boot_ms"]) / 1000.0
+                self._insert(self._rel_t, self._rel, boot, float(m["relative_alt"]) / 1000.0)
+                self._links.append(arrival_s - boot)
             return False
         if "time_boot_ms" in m:
             boot = float(m["time_boot_ms"]) / 1000.0
@@ -283,11 +333,11 @@ class MavlinkTelemetry:
         """What the messages used so far lack to pose the camera (a position, an attitude or
         both), as a phrase; None when both have arrived."""
         with self._lock:
-            pos, att = bool(self._pos_t), bool(self._att_t)
+            pos, att = bool(self._pos_t) or self.unfixed, bool(self._att_t)
         if not att and not pos:
             return "no position (GLOBAL_POSITION_INT with a fix) and no attitude (ATTITUDE): the camera cannot be placed"
         if att and not pos:
-            return "attitudes but no position (GLOBAL_POSITION_INT with a fix): the camera cannot be placed"
+            return "attitudes but no position (GLOBAL_POSITION_INT with a fix, or HOME_POSITION and the height above it): the camera cannot be placed"
         if pos and not att:
             return "positions but no attitude (ATTITUDE): the camera cannot be pointed"
         return None
@@ -305,9 +355,16 @@ class MavlinkTelemetry:
         """The camera at boot_s from the messages arrived so far (positions linear, angles the
         short way round, held past the newest); None before a position and an attitude."""
         with self._lock:
-            if not self._pos_t or not self._att_t:
+            unfixed = self.unfixed
+            if not (self._pos_t or unfixed) or not self._att_t:
                 return None
-            lat, lon, h = _value_at(self._pos_t, self._pos, boot_s)
+            if unfixed:  # the home point at the barometer's height above it
+                lat, lon, h = self.home
+                h = h + float(_value_at(self._rel_t, self._rel, boot_s))
+                newest = self._rel_t[-1]
+            else:
+                lat, lon, h = _value_at(self._pos_t, self._pos, boot_s)
+                newest = self._pos_t[-1]
             vehicle = tuple(
                 _angle_at(self._att_t, [a[j] for a in self._att], boot_s) for j in range(3)
             )
@@ -316,10 +373,11 @@ class MavlinkTelemetry:
                 gimbal = tuple(
                     _angle_at(self._gim_t, [g[j] for g in self._gim], boot_s) for j in range(3)
                 )
-            age = max(boot_s - self._pos_t[-1], boot_s - self._att_t[-1], 0.0)
+            age = max(boot_s - newest, boot_s - self._att_t[-1], 0.0)
             relative = self._gim_relative
         q = camera_quat(vehicle, gimbal, relative)
-        return TelemetryPose((float(lat), float(lon), float(h)), q, age, gimbal is not None)
+        place = (float(lat), float(lon), float(h))
+        return TelemetryPose(place, q, age, gimbal is not None, not unfixed)
 
     def jumps_between(self, a_s: float, b_s: float) -> list[tuple[float, float]]:
         """(from, to) boot times (s) of the consecutive positions between which the fix stepped

@@ -49,6 +49,7 @@ from app.live.restream import RestreamCounts, Restreamer, Tee
 from app.playback.decoder import yuv_planes
 from app.scene.mesh import MeshData
 from app.session.model import scene_refusal
+from app.session.start import DEFAULT_START_RADIUS_M
 
 REVIEW_TOLERANCE_S = 0.02  # a reviewed frame is the first at or after the time asked, less this
 
@@ -312,7 +313,7 @@ class LiveFeed:
     def _record_pose(self, t: float) -> None:
         origin = self.receiver.origin_s
         pose = self.poses.telemetry_at(t)
-        if pose is None or origin is None:
+        if pose is None or origin is None or not pose.fixed:  # a home point is no position
             return
         heading, pitch, roll = rotations.hpr_from_camera_quat(pose.q[None])[0]
         payload = camera_set(
@@ -379,12 +380,28 @@ class LiveFeed:
                     accuracy_at=self.poses.accuracy_at,
                     fix_at=self._fix_at,
                     jumps_between=self.poses.jumps_between,
+                    unfixed=self._unfixed,
                 ).start()
                 self.run.registration = self.registration.state
                 self.run.gnss = self.gnss
             else:
                 messages.info(f"live registration off: {refusal}")
+        if self.mav is not None and self.poses.telemetry.unfixed:
+            lat, lon, _ = self.poses.telemetry.home
+            messages.add(
+                "MAVLink: no GNSS fix (GLOBAL_POSITION_INT at 0, 0): "
+                + (
+                    f"the camera is searched for on the scene within {DEFAULT_START_RADIUS_M:g} m of the home point {lat:.5f}, {lon:.5f} (HOME_POSITION), at the barometer's height above it; frames are drawn once it is found"
+                    if self.registration is not None
+                    else "nothing can be drawn: the camera is searched for around the home point on a textured scene (give --scene)"
+                )
+            )
         return mesh
+
+    def _unfixed(self, t: float) -> bool:
+        """Whether the telemetry's camera at media time t stands where no fix put it."""
+        raw = self._telemetry_camera(t)
+        return raw is not None and not raw[3]
 
     def camera_at(self, t: float) -> tuple[Camera | None, str]:
         """The camera of media time t (s) from what has arrived, corrected by the registration
@@ -409,6 +426,8 @@ class LiveFeed:
         if raw is None:
             return self.last_camera, NONE, 0.0
         reg = self.registration
+        if not raw[3] and (reg is None or reg.state.shift_m is None):
+            return None, NONE, 0.0  # no fix, not yet found on the scene: nothing to draw
         if reg is None:
             return raw[0], raw[1], 0.0
         camera, held_m = reg.corrected(raw[0], t)
@@ -417,15 +436,15 @@ class LiveFeed:
     def _fix_at(self, t: float) -> np.ndarray | None:
         """The telemetry's position at media time t (ENU m), None before any."""
         raw = self._telemetry_camera(t)
-        return None if raw is None else np.asarray(raw[0].position, np.float64)
+        return None if raw is None or not raw[3] else np.asarray(raw[0].position, np.float64)
 
-    def _telemetry_camera(self, t: float) -> tuple[Camera, str, float] | None:
-        """The telemetry's camera of media time t (s), its state and how much older than t the
-        newest pose behind it is (s); None before any."""
+    def _telemetry_camera(self, t: float) -> tuple[Camera, str, float, bool] | None:
+        """The telemetry's camera of media time t (s), its state, how much older than t the
+        newest pose behind it is (s) and whether a fix placed it; None before any."""
         pose = self.poses.at(  # each frame with its own moment's field of view, unless given
             t, self.frame, self.intrinsics, self.options.far_m, self.options.hfov_deg is None
         )
-        return None if pose.camera is None else (pose.camera, pose.state, pose.age_s)
+        return None if pose.camera is None else (pose.camera, pose.state, pose.age_s, pose.fixed)
 
     def take(self, now: float) -> tuple[Arrival, float, Camera, str] | None:
         """The frame due at now with when it was due, its camera and the pose's state; None
@@ -455,7 +474,7 @@ class LiveFeed:
             return None
         self.last_camera = camera
         if self.gnss is not None:  # the frame's GNSS status (a pose held: as old as it is)
-            age = raw[2] if raw is not None else math.inf
+            age = raw[2] if raw is not None and raw[3] else math.inf
             self.gnss_now = self.gnss.frame(item.pts_s, age, held_m)
         return item, due, camera, state
 

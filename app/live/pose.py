@@ -38,11 +38,13 @@ JUMP_EDGE_S = 1e-3  # the drawn position just before a believed jump (s): where 
 @dataclass(frozen=True)
 class LivePose:
     """A frame's camera (None before any pose), whether it is fresh, stale or none, and how old
-    the newest set behind it is relative to the frame (s)."""
+    the newest set behind it is relative to the frame (s); fixed: False where no fix placed it
+    (a MAVLink home point: app.io.mavlink), a camera to search around, never to draw."""
 
     camera: Camera | None
     state: str
     age_s: float
+    fixed: bool = True
 
 
 def fov_between(a: float, b: float, w: float) -> float | None:
@@ -228,7 +230,7 @@ class MavlinkPoses:
 
     def ground(self) -> tuple[float, str] | None:
         h = self.telemetry.home_h
-        return None if h is None else (h, "the home (take-off) height of GLOBAL_POSITION_INT")
+        return None if h is None else (h, "the home (take-off) height the autopilot sends")
 
     def jumps_between(self, a: float, b: float) -> list[tuple[float, float]]:
         """(from, to) media times (s) of the steps no platform makes in the positions drawn
@@ -266,4 +268,5 @@ class MavlinkPoses:
             return LivePose(None, NONE, float("inf"))
         enu = frame.geodetic_to_enu(*(np.array([v]) for v in pose.geodetic))[0]
         camera = Camera.create(intrinsics, enu, pose.q, far=far)
-        return LivePose(camera, FRESH if pose.age_s <= self.stale_after_s else STALE, pose.age_s)
+        state = FRESH if pose.age_s <= self.stale_after_s else STALE
+        return LivePose(camera, state, pose.age_s, pose.fixed)

@@ -29,6 +29,15 @@ been kept, so is one whose rotation lies more than GATE_DEG from the rotation in
 moves the position, never the attitude). A keyframe is offered every `every_s` of video while the
 thread is free (never queued: the newest frame is what matters live); the display never waits.
 
+A feed without any fix (app.io.mavlink: the camera stands at the home point, at the barometer's
+height above it, `unfixed`) is searched for as a cold start searches (app.register.coldstart,
+through Registrar.reacquired): the first keyframe over a disc of search_radius_m around the home
+point, at that height, with the telemetry's attitude; once found, the drawn pose stands on the
+scene, its shift moving as the last two keyframes do (as under a frozen fix), each keyframe
+registered from where they lead; one not registered for LOST_S is searched for again over the
+disc a lost keyframe is (RegistrationSettings.lost_radius) around where they lead. No fix is
+tested (there is none): every frame's GNSS is `missing`.
+
 One thread with its own off-screen GL context renders the scene for the matcher.
 """
 
@@ -50,9 +59,11 @@ from app.io.streams import MAX_SPEED_MPS
 from app.live.gnss_watch import GnssWatch
 from app.playback.decoder import planes_to_rgb
 from app.register.gnss import FROZEN
-from app.register.keyframe import posed
+from app.register.keyframe import PoseFix, posed
 from app.register.solve import Registrar, RegistrationSettings
+from app.scene.ground import ground_heights
 from app.scene.mesh import MeshData
+from app.session.start import DEFAULT_START_RADIUS_M
 
 EVERY_S = 1.0  # a keyframe offered every this much video (s)
 KEEP = 5
@@ -67,6 +78,8 @@ RATE_MIN_MPS = 0.3  # slower, a line through a few keyframes is their own noise 
 LINE_M = 1.0  # a keyframe farther than this from the line drawn through its run is off it (m)
 HOLD_S = 5.0  # the line carried on at most this long past the newest keyframe (s)
 ACCEL_MPS2 = 3.0  # the platform's acceleration the chain allows for (a drone's weave: 3.3)
+LOST_S = 2.0  # without a fix: a keyframe not registered for this long is searched for (s)
+UNFIXED_EVERY_S = 0.5  # without a fix a keyframe is offered this often (s): they carry the position
 LIVE_SETTINGS = RegistrationSettings(long_side=640, max_iterations=5)
 
 
@@ -123,7 +136,8 @@ class LiveRegistration(Worker):
     fix_at(media s): the telemetry's position then (ENU m, None: none yet); jumps_between(a, b):
     the (from, to) media times of the steps in the telemetry's position no platform makes,
     drawn in (a, b] (app.live.pose: LivePoses.jumps_between, MavlinkPoses.jumps_between; none:
-    never held off)."""
+    never held off); unfixed(media s): whether the telemetry's camera then stands where no fix
+    put it (a home point, searched around over search_radius_m: the module docstring)."""
 
     def __init__(
         self,
@@ -135,10 +149,14 @@ class LiveRegistration(Worker):
         accuracy_at: Callable[[float], float | None] = lambda t: None,
         fix_at: Callable[[float], np.ndarray | None] = lambda t: None,
         jumps_between: Callable[[float, float], list[tuple[float, float]]] = lambda a, b: [],
+        unfixed: Callable[[float], bool] = lambda t: False,
+        search_radius_m: float = DEFAULT_START_RADIUS_M,
     ) -> None:
         self.mesh, self.messages, self.every_s, self.settings = mesh, messages, every_s, settings
         self.watch, self.accuracy_at, self.fix_at = watch, accuracy_at, fix_at
         self.jumps_between = jumps_between
+        self.unfixed, self.search_radius_m = unfixed, search_radius_m
+        self._held: list = []  # poses a search found turned too far: (t, position, offset)
         self.state = LiveCorrection()
         self._lock = threading.Lock()
         self._offer: tuple[float, tuple, Camera] | None = None
@@ -150,7 +168,10 @@ class LiveRegistration(Worker):
     def offer(self, t: float, planes, prior: Camera) -> None:
         """A frame drawn (media time t s, its yuv planes, the telemetry's camera): taken as the
         next keyframe when every_s has passed since the last and the thread is free."""
-        if self._busy or (self._last_offered is not None and t - self._last_offered < self.every_s):
+        every = (
+            UNFIXED_EVERY_S if self.unfixed(t) else self.every_s
+        )  # no fix: the keyframes carry it
+        if self._busy or (self._last_offered is not None and t - self._last_offered < every):
             return
         self._last_offered = t
         with self._lock:
@@ -253,6 +274,29 @@ class LiveRegistration(Worker):
         """(the last try's fix, the solved camera or None, the camera drawn at t, the chain's
         lead (position, seconds ahead) or None): see the module docstring's order."""
         start = self.correct(prior, t)
+        if self.unfixed(t) and not self._solved:  # never found: around the home point
+            fix, solved = self._area(registrar, rgb, t, prior, self.search_radius_m, "no GNSS fix")
+            return fix, solved, start, None
+        fix, solved, start, chain = self._tried(registrar, rgb, t, prior, start)
+        lost = t - self._solved[-1][0] if self._solved else 0.0
+        if solved is None and self.unfixed(t) and lost >= LOST_S:
+            near = posed(start, chain[0], np.asarray(start.orientation)) if chain else start
+            radius = self.settings.lost_radius(lost)
+            fix, solved = self._area(registrar, rgb, t, near, radius, f"lost {lost:.0f} s", fix)
+        return fix, solved, start, chain
+
+    def _area(self, registrar: Registrar, rgb, t: float, around: Camera, radius: float, why: str, fix=None):  # fmt: skip
+        """(fix, the pose or None) of a keyframe searched for within radius (m) of `around`
+        (Registrar.reacquired), at its height above the scene's ground (above the frame's
+        origin, the home's ground, where the scene has none under it)."""
+        p = np.asarray(around.position, np.float64)
+        ground = ground_heights(self.mesh, p[None, :2])
+        height = p[2] - (ground[0] if len(ground) and np.isfinite(ground[0]) else 0.0)
+        fix = fix if fix is not None else PoseFix(False, why, 0, 0, float("nan"))
+        return registrar.reacquired(rgb, around, [around], radius, t, self._held, fix, why, height)
+
+    def _tried(self, registrar: Registrar, rgb, t: float, prior: Camera, start: Camera):
+        """_search's tries from the camera drawn (`start`), the chain and the telemetry's motion."""
         chain = self._chained(t)
         tries = [start]
         heads = [chain[0]] if chain is not None else []
@@ -262,7 +306,7 @@ class LiveRegistration(Worker):
         for head in reversed(heads):  # the chain first, then the fix's motion, then `start`
             if all(np.linalg.norm(head - np.asarray(c.position)) > self.settings.chain_m for c in tries):  # fmt: skip
                 tries.insert(0, posed(start, head, np.asarray(start.orientation)))
-        if start is not prior:
+        if start is not prior and not self.unfixed(t):  # (a home point is no place to try)
             tries.append(prior)
         fix = None
         for cam in tries:
@@ -282,6 +326,7 @@ class LiveRegistration(Worker):
                 interpolation=cv2.INTER_AREA,
             )
         fix, solved, start, chain = self._search(registrar, rgb, t, prior)
+        unfixed = self.unfixed(t)
         s = self.state
         s.tried += 1
         if solved is None:
@@ -294,27 +339,37 @@ class LiveRegistration(Worker):
             rotations.conjugate(np.asarray(prior.orientation)), np.asarray(solved.orientation)
         )
         rotvec = rotations.to_scipy(delta).as_rotvec()
-        turned = (
-            len(s.kept) >= TURN_GATED and np.degrees(np.linalg.norm(rotvec - s.rotvec)) > GATE_DEG
+        turned = (  # (no fix: no GNSS lie to tell from the telemetry's attitude, held in turns)
+            not unfixed
+            and len(s.kept) >= TURN_GATED
+            and np.degrees(np.linalg.norm(rotvec - s.rotvec)) > GATE_DEG
         )
         if turned or (len(s.kept) >= GATED and not self._agrees(where, start, chain)):
             s.mismatched += 1
             return
         s.registered += 1
-        on_scene = False
-        if self.watch is not None:
+        on_scene = unfixed  # no fix: the pose stands on the scene
+        if self.watch is not None and not unfixed:
             verdict = self.watch.keyframe(t, np.asarray(prior.position), where, self.accuracy_at(t))
             on_scene = verdict.disagrees or verdict.lying  # a drift caught short of the threshold
         s.kept = (s.kept + [Kept(t, shift, rotvec, on_scene)])[-max(KEEP, LIE_FIT) :]
         first = s.shift_m is None
-        frozen = self.watch is not None and self.watch.lying and self.watch.lies[-1].kind == FROZEN
+        frozen = unfixed or (
+            self.watch is not None and self.watch.lying and self.watch.lies[-1].kind == FROZEN
+        )  # the telemetry's position stands still: the shift moves as the keyframes do
         shift_now, rate = shift_model(s.kept, frozen)
         with self._lock:
             s.shift_m, s.rate_mps, s.at_s = shift_now, rate, t
             s.rotvec = np.median([k.rotvec for k in s.kept[-KEEP:]], axis=0)
             if first:
                 s.since_s = t
-        if first:
+        if first and unfixed:
+            self.messages.info(
+                f"found live at {t:.1f} s by searching {self.search_radius_m:.0f} m around the home point: "
+                f"{np.linalg.norm(shift[:2]):.0f} m from it ({fix.inliers} inliers, {fix.error_px:.2f} px); "
+                "drawn from then on, carried by the keyframes"
+            )
+        elif first:
             self.messages.info(
                 f"registered live from {t:.1f} s: the telemetry's pose was {np.linalg.norm(shift):.1f} m and "
                 f"{np.degrees(np.linalg.norm(rotvec)):.1f} deg off; corrected from then on"

@@ -110,6 +110,7 @@ def run_sent(
     options: LiveOptions,
     on_drawn: Callable[[Drawn, Camera], None] | None = None,
     lockstep: bool = False,
+    telemetry: Callable[[float, Callable[[], float]], object] | None = None,
 ) -> LiveRun:
     """A recorded MPEG-TS (a simulated downlink) sent to this process over the loopback in real
     time, paced by its program clock (app.simulate.feed.Sender), from the moment run_live's
@@ -117,9 +118,12 @@ def run_sent(
     benchmarks of live feeds run. lockstep (tests): sender and receiver share a clock that
     stands still while a keyframe is being registered, a frame due is not yet drawn or the
     receiver is behind (lockstep_cap), so the same frames are drawn with the same corrections
-    however busy the machine is."""
+    however busy the machine is. telemetry(start_s, clock): a sender of the flight's telemetry
+    beside the video (app.simulate.autopilot.MavlinkSender to options.mavlink), made and
+    started when the video's sender starts, on the same clock; stopped at the end."""
     port = free_udp_port()
     feeds: list[LiveFeed] = []  # (run_live's, once started)
+    beside: list = []
 
     def cap(now: float) -> float:
         return lockstep_cap(feeds[0], sender, now) if feeds else math.inf
@@ -132,12 +136,21 @@ def run_sent(
         return run_live(
             f"udp://127.0.0.1:{port}",
             options,
-            sending_clock(sender, port, clock=clock),
+            sending_clock(
+                sender,
+                port,
+                clock=clock,
+                on_start=None
+                if telemetry is None
+                else lambda t: beside.append(telemetry(t, clock)),
+            ),
             on_drawn,
             feeds.append,
         )
     finally:
         sender.stop()
+        for other in beside:
+            other.stop()
 
 
 # lockstep: the video sent ahead of the newest frame received at most (s; a receiver holds

@@ -462,7 +462,7 @@ class Registrar:
                     # lead and, where no fix holds the prior, where the IMU carried it
                     near = [c for c in (lead, None if trusted else start) if c is not None]
                     radius = s.lost_radius(lost)
-                    fix, solved = self._reacquired(rgb, prior_cam, near or [start], radius, t, held, fix, f"lost {lost:.0f} s")  # fmt: skip
+                    fix, solved = self.reacquired(rgb, prior_cam, near or [start], radius, t, held, fix, f"lost {lost:.0f} s")  # fmt: skip
                     searches.append((t, radius, solved is not None))
             elif solved is None and last_t is None and not trusted and due:
                 # none registered yet, no fix holding the prior (GNSS that begins late): the
@@ -471,7 +471,7 @@ class Registrar:
                 if away is not None:
                     searched_t = t
                     radius = s.unfixed_radius(away)
-                    fix, solved = self._reacquired(rgb, prior_cam, [start], radius, t, held, fix, f"{away:.0f} s from a fix")  # fmt: skip
+                    fix, solved = self.reacquired(rgb, prior_cam, [start], radius, t, held, fix, f"{away:.0f} s from a fix")  # fmt: skip
                     searches.append((t, radius, solved is not None))
             if solved is not None:
                 last_t = t
@@ -489,7 +489,7 @@ class Registrar:
             searched=tuple(searches),
         )
 
-    def _reacquired(
+    def reacquired(
         self,
         rgb: np.ndarray,
         prior_cam: Camera,
@@ -499,16 +499,20 @@ class Registrar:
         held: list,
         fix: PoseFix,
         why: str,
+        height_m: float | None = None,
     ) -> tuple[PoseFix, Camera | None]:
         """A keyframe searched for over discs of radius (m) around each of `near` (where the
-        last keyframes lead, where the IMU carried the prior, the nearest fix), at the first
-        one's height above the ground, with the prior's attitude (prior_cam), from the first
-        one out; a pose turned beyond the search's tolerance is taken where one held from an
-        earlier search (`held`, session times t s) agrees. (fix, the pose or None); fix says
-        what was found, or keeps the keyframe's reason with why it was searched ("lost 3 s")."""
+        last keyframes lead, where the IMU carried the prior, the nearest fix; a live feed's
+        home point), at the first one's height above the ground (height_m where given: the
+        platform's own), with the prior's attitude (prior_cam), from the first one out; a pose
+        turned beyond the search's tolerance is taken where one held from an earlier search
+        (`held`, session times t s) agrees. (fix, the pose or None); fix says what was found,
+        or keeps the keyframe's reason with why it was searched ("lost 3 s")."""
         p = np.asarray(near[0].position, np.float64)
         ground = ground_heights(self.mesh, p[None, :2])
         height = float(p[2] - ground[0]) if len(ground) and np.isfinite(ground[0]) else np.nan
+        if height_m is not None:
+            height = float(height_m)
         if not np.isfinite(height) or height <= 0.0:
             return fix, None
         discs = [shapely.Point(*np.asarray(c.position)[:2]).buffer(radius) for c in near]

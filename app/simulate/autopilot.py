@@ -6,7 +6,10 @@ The flight is app.simulate.drone's weave over the sample site (the video: drone.
 turns, and its gimbal holds the camera drone.PITCH_DEG below the horizon, its yaw with the
 vehicle's (GIMBAL_DEVICE_ATTITUDE_STATUS with the yaw in the vehicle frame, or ArduPilot's
 MOUNT_STATUS). Heights are sent above sea level (through EGM2008), the home at take-off on the
-ground. Messages are encoded and sent by pymavlink, as an autopilot's own would be.
+ground (HOME_ENU, sent as HOME_POSITION once a second where asked). Without a fix (`fixed` False:
+GNSS jammed) GLOBAL_POSITION_INT carries latitude and longitude 0 and only its relative_alt, the
+barometer's height above home, as ArduPilot sends it. Messages are encoded and sent by pymavlink,
+as an autopilot's own would be.
 """
 
 from __future__ import annotations
@@ -29,6 +32,9 @@ VEHICLE_PITCH_DEG = -6.0  # flying forward, nose down
 BANK_GAIN = 0.8  # roll (deg) per deg/s of turn
 BOOT_MS = 300_000  # the autopilot's boot clock at the flight's start
 RATES_HZ = {"ATTITUDE": 25.0, "GLOBAL_POSITION_INT": 10.0, "GIMBAL": 10.0}
+HOME_HZ = 1.0
+HOME_ENU = (-160.0, -160.0)  # the take-off point (ENU m about the site, on its ground): 82 m
+# south-west of where the flight's video begins
 
 
 def vehicle_state(
@@ -46,22 +52,28 @@ def vehicle_state(
     )
 
 
-def messages_at(t: float, kind: str, gimbal: str | None, mav, path_of=drone.flight) -> list:
-    """The messages of `kind` (a RATES_HZ key) the autopilot sends at flight time t s, encoded
-    by `mav` (a pymavlink MAVLink object); gimbal: 'device', 'mount' or None (no gimbal)."""
+def messages_at(
+    t: float, kind: str, gimbal: str | None, mav, path_of=drone.flight, fixed: bool = True
+) -> list:
+    """The messages of `kind` (a RATES_HZ key, or HOME_POSITION) the autopilot sends at flight
+    time t s, encoded by `mav` (a pymavlink MAVLink object); gimbal: 'device', 'mount' or None
+    (no gimbal); fixed: False, positions without a fix (the module docstring)."""
     (lat, lon, h), (yaw, pitch, roll) = vehicle_state(t, path_of)
     boot = BOOT_MS + int(round(t * 1000))
     if kind == "ATTITUDE":
         return [mav.attitude_encode(boot, *np.radians([roll, pitch, yaw]), 0.0, 0.0, 0.0)]
+    home_msl = SITE_ORIGIN[2] - float(undulation(lat, lon))
+    if kind == "HOME_POSITION":
+        home = LocalFrame(*SITE_ORIGIN).enu_to_geodetic([*HOME_ENU, 0.0])
+        ll = [int(round(float(v) * 1e7)) for v in home[:2]]
+        return [mav.home_position_encode(*ll, int(round(home_msl * 1000)), 0, 0, 0, [1, 0, 0, 0], 0, 0, 0)]  # fmt: skip
     if kind == "GLOBAL_POSITION_INT":
         msl = h - float(undulation(lat, lon))
-        home_msl = SITE_ORIGIN[2] - float(undulation(lat, lon))
+        where = (int(round(lat * 1e7)), int(round(lon * 1e7)), int(round(msl * 1000)))
         return [
             mav.global_position_int_encode(
                 boot,
-                int(round(lat * 1e7)),
-                int(round(lon * 1e7)),
-                int(round(msl * 1000)),
+                *(where if fixed else (0, 0, 0)),
                 int(round((msl - home_msl) * 1000)),
                 0,
                 0,
@@ -93,8 +105,10 @@ class MavlinkSender:
         gimbal: str | None = "device",
         clock: Callable[[], float] = time.monotonic,
         path_of=drone.flight,
+        fixed: bool = True,
+        home: bool = False,
     ) -> None:
-        self.path_of = path_of
+        self.path_of, self.fixed, self.home = path_of, fixed, home
         self.address = address
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.mav = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
@@ -109,6 +123,8 @@ class MavlinkSender:
         out = []
         for kind, hz in RATES_HZ.items():
             out += [(float(t), kind) for t in np.arange(0.0, self.seconds, 1.0 / hz)]
+        if self.home:
+            out += [(float(t), "HOME_POSITION") for t in np.arange(0.0, self.seconds, 1.0 / HOME_HZ)]  # fmt: skip
         return sorted(out)
 
     def start(self) -> MavlinkSender:
@@ -129,6 +145,6 @@ class MavlinkSender:
             wait = self.start_s + t - self.lead_s - self.clock()
             if wait > 0 and self._stop.wait(wait):
                 return
-            for m in messages_at(t, kind, self.gimbal, self.mav, self.path_of):
+            for m in messages_at(t, kind, self.gimbal, self.mav, self.path_of, self.fixed):
                 self.sock.sendto(m.pack(self.mav), self.address)
                 self.sent += 1

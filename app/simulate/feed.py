@@ -179,10 +179,12 @@ def sending_clock(
     port: int,
     limit_s: float = 30.0,
     clock: Callable[[], float] = time.monotonic,
+    on_start: Callable[[float], None] | None = None,
 ) -> Callable[[], float]:
     """`clock` (monotonic s) for run_live, starting `sender` the first time it is read (after
     the receiver has started), once the receiver's socket holds `port` (a busy machine opens it
-    late; at most limit_s of real time)."""
+    late; at most limit_s of real time); on_start(clock s): called as the sender starts (a
+    MAVLink sender started beside it)."""
     started: list[bool] = []
 
     def read() -> float:
@@ -192,6 +194,8 @@ def sending_clock(
             while not port_held(port) and time.monotonic() < end:
                 time.sleep(0.01)
             sender.start()
+            if on_start is not None:
+                on_start(clock())
         return clock()
 
     return read

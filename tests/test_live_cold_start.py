@@ -1,0 +1,121 @@
+"""A live feed with no GNSS fix (issue 52's cold start, live): a drone's video without KLV over
+the sample site, beside its autopilot's MAVLink telemetry whose GLOBAL_POSITION_INT carries
+latitude and longitude 0 (GNSS jammed) and only the barometer's height above home, and its
+HOME_POSITION, 82 m from where the video begins. Both are sent over the loopback by the test on
+one lockstep clock and drawn by `geofuse live`'s pipeline against the textured sample model:
+nothing is drawn until the scene has been searched around the home point, then every frame is
+drawn where the camera was, its GNSS `missing`."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from app.geodesy import rotations
+from app.geodesy.enu import LocalFrame
+from app.io.mavlink import MavlinkTelemetry
+from app.live.run import LiveOptions, run_sent
+from app.simulate import autopilot, drone
+from app.simulate.downlink import sample_layer
+from app.simulate.feed import free_udp_port
+from app.simulate.stadium import SITE_ORIGIN
+
+SECONDS = 12.0
+SIZE = (480, 270)
+SITE = LocalFrame(*SITE_ORIGIN)
+
+
+@pytest.fixture(scope="module")
+def downlink(tmp_path_factory):
+    """The drone's weave over the sample site, MPEG-TS without KLV."""
+    return drone.write_video(tmp_path_factory.mktemp("cold") / "downlink.ts", SECONDS, SIZE)
+
+
+def _sent(t: float, kind: str, fixed: bool) -> dict:
+    """The message of `kind` the simulated autopilot sends at flight time t, as pymavlink
+    decodes it (to_dict)."""
+    mav = autopilot.mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
+    (m,) = autopilot.messages_at(t, kind, "device", mav, fixed=fixed)
+    return mav.decode(bytearray(m.pack(mav))).to_dict()
+
+
+def test_without_a_fix_the_camera_stands_at_home_at_the_barometers_height_marked_unfixed():
+    tel = MavlinkTelemetry()
+    for t in np.arange(0.0, 2.0, 0.1):
+        for kind in ("ATTITUDE", "GLOBAL_POSITION_INT", "GIMBAL"):
+            tel.add(kind if kind != "GIMBAL" else "GIMBAL_DEVICE_ATTITUDE_STATUS", _sent(t, kind, False), 10.0 + t)  # fmt: skip
+    assert len(tel) == 0 and tel.at(301.0) is None and tel.counts.no_fix == 20
+    assert "or HOME_POSITION" in tel.missing()
+    assert tel.add("HOME_POSITION", _sent(0.0, "HOME_POSITION", False), 10.0)
+    pose = tel.at(301.0)  # boot 300 s + flight time 1 s
+    assert pose is not None and not pose.fixed and len(tel) == 20 and tel.missing() is None
+    home = SITE.enu_to_geodetic([*autopilot.HOME_ENU, 0.0])
+    assert pose.geodetic[:2] == pytest.approx(tuple(home[:2]), abs=1e-7)
+    # the barometer's height above home (the site's ground): the flight's 35 m
+    assert pose.geodetic[2] - SITE_ORIGIN[2] == pytest.approx(drone.HEIGHT_M, abs=0.01)
+    assert tel.first()[:2] == pytest.approx(tuple(home[:2]), abs=1e-7)
+    # a fix arriving ends it: the camera stands on the fixes, as fixed
+    tel.add("GLOBAL_POSITION_INT", _sent(2.0, "GLOBAL_POSITION_INT", True), 12.0)
+    assert not tel.unfixed and tel.at(302.0).fixed
+    # a home at 0, 0 is no home
+    bad = dict(_sent(0.0, "HOME_POSITION", False), latitude=0, longitude=0)
+    assert not tel.add("HOME_POSITION", bad, 10.0)
+    assert any("HOME_POSITION" in reason for reason in tel.counts.dropped)
+
+
+@pytest.mark.gl
+def test_a_mavlink_feed_without_a_fix_is_found_around_its_home_point_and_drawn_there(downlink):
+    port = free_udp_port()
+    drawn = []
+    run = run_sent(
+        downlink,
+        LiveOptions(
+            silence_s=2.0,
+            size=(160, 90),
+            layers=(sample_layer(),),
+            mavlink=f"udp:127.0.0.1:{port}",
+            hfov_deg=drone.HFOV_DEG,
+        ),
+        lambda d, c: drawn.append((d, c)),
+        lockstep=True,
+        telemetry=lambda start, clock: autopilot.MavlinkSender(
+            ("127.0.0.1", port), SECONDS, start, clock=clock, fixed=False, home=True
+        ).start(),
+    )
+    said = " ".join(run.messages.items)
+    assert "MAVLink: no GNSS fix (GLOBAL_POSITION_INT at 0, 0)" in said, said
+    assert "within 300 m of the home point" in said, said
+    reg = run.registration
+    assert reg is not None and reg.registered >= 5, (reg, said, run.summary())
+    found = [m for m in run.messages.items if "found live at" in m]
+    assert len(found) == 1, said
+    # the home point lies 82 m from where the video begins (further as the drone flies on)
+    far = float(found[0].split(" m from it")[0].rsplit(" ", 1)[1])
+    assert 80.0 <= far <= 150.0, found
+    assert drawn and min(d.pts_s for d, _ in drawn) >= reg.since_s  # nothing drawn before
+    assert run.without_pose > 0  # the frames before it, counted
+    assert {d.gnss for d, _ in drawn} == {"missing"}  # no fix stood under any frame
+    assert run.gnss is not None and not run.gnss.lies  # nothing to accuse
+
+    def error(d, cam) -> tuple[float, float]:
+        t = d.pts_s + run.origin_s  # the stream starts at flight time 0
+        pos, heading = drone.flight(np.array([t]))
+        want = run.frame.geodetic_to_enu(*SITE.enu_to_geodetic(pos).T)[0]
+        q = rotations.camera_quat_from_hpr(heading[0], drone.PITCH_DEG, 0.0)
+        return float(np.linalg.norm(np.asarray(cam.position) - want)), float(
+            np.degrees(rotations.angle_between(np.asarray(cam.orientation), q))
+        )
+
+    errors = np.array([error(d, c) for d, c in drawn])
+    assert len(errors) > 150, (len(errors), said)
+    # where it was: the keyframes (every 0.5 s without a fix) carry the position, the frames
+    # between them led on at the last two's velocity; until the second keyframe the first is
+    # held (the drone flies on at 9-12 m/s)
+    after = np.array([d.pts_s >= reg.since_s + 1.0 for d, _ in drawn])
+    assert np.median(errors[:, 0]) < 0.5 and np.percentile(errors[:, 0], 95) < 1.5, errors
+    assert errors[after, 0].max() < 1.5, errors[after]
+    # the attitude is the telemetry's, turned by the keyframes' median correction: within a
+    # degree (the video's lag behind the telemetry is estimated over 10 s windows, longer than
+    # this clip: tests/test_mavlink.py; until then the weave's turns show it; the same feed
+    # with its fixes was drawn 1.3 deg off, median, when this test was written)
+    assert np.median(errors[:, 1]) < 1.0 and errors[:, 1].max() < 2.5, errors

@@ -92,7 +92,7 @@ def test_a_mavlink_feed_without_a_fix_is_found_around_its_home_point_and_drawn_t
     # the home point lies 82 m from where the video begins (further as the drone flies on)
     far = float(found[0].split(" m from it")[0].rsplit(" ", 1)[1])
     assert 80.0 <= far <= 150.0, found
-    assert drawn and min(d.pts_s for d, _ in drawn) >= reg.since_s  # nothing drawn before
+    assert drawn and min(d.pts_s for d, _ in drawn) > reg.since_s  # nothing drawn before
     assert run.without_pose > 0  # the frames before it, counted
     assert {d.gnss for d, _ in drawn} == {"missing"}  # no fix stood under any frame
     assert run.gnss is not None and not run.gnss.lies  # nothing to accuse
@@ -109,11 +109,9 @@ def test_a_mavlink_feed_without_a_fix_is_found_around_its_home_point_and_drawn_t
     errors = np.array([error(d, c) for d, c in drawn])
     assert len(errors) > 150, (len(errors), said)
     # where it was: the keyframes (every 0.5 s without a fix) carry the position, the frames
-    # between them led on at the last two's velocity; until the second keyframe the first is
-    # held (the drone flies on at 9-12 m/s)
-    after = np.array([d.pts_s >= reg.since_s + 1.0 for d, _ in drawn])
-    assert np.median(errors[:, 0]) < 0.5 and np.percentile(errors[:, 0], 95) < 1.5, errors
-    assert errors[after, 0].max() < 1.5, errors[after]
+    # between them led on at the last two's velocity (nothing drawn before the second: one
+    # alone gives no velocity, and the drone flies on at 9-12 m/s)
+    assert np.median(errors[:, 0]) < 0.5 and errors[:, 0].max() < 1.5, errors
     # the attitude is the telemetry's, turned by the keyframes' median correction: within a
     # degree (the video's lag behind the telemetry is estimated over 10 s windows, longer than
     # this clip: tests/test_mavlink.py; until then the weave's turns show it; the same feed

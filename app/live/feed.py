@@ -44,7 +44,7 @@ from app.live.pose import NONE, STALE, LivePoses, MavlinkPoses
 from app.live.probe import Heard
 from app.live.receiver import READ_TIMEOUT_S, Receiver
 from app.live.recorder import Recorder, SegmentRecorder
-from app.live.register import LiveCorrection, LiveRegistration
+from app.live.register import CARRIED_FROM, LiveCorrection, LiveRegistration
 from app.live.restream import RestreamCounts, Restreamer, Tee
 from app.playback.decoder import yuv_planes
 from app.scene.mesh import MeshData
@@ -426,8 +426,8 @@ class LiveFeed:
         if raw is None:
             return self.last_camera, NONE, 0.0
         reg = self.registration
-        if not raw[3] and (reg is None or reg.state.shift_m is None):
-            return None, NONE, 0.0  # no fix, not yet found on the scene: nothing to draw
+        if not raw[3] and (reg is None or len(reg.state.kept) < CARRIED_FROM):
+            return None, NONE, 0.0  # no fix, not yet carried by the scene: nothing to draw
         if reg is None:
             return raw[0], raw[1], 0.0
         camera, held_m = reg.corrected(raw[0], t)

@@ -34,7 +34,8 @@ height above it, `unfixed`) is searched for as a cold start searches (app.regist
 through Registrar.reacquired): the first keyframe over a disc of search_radius_m around the home
 point, at that height, with the telemetry's attitude; once found, the drawn pose stands on the
 scene, its shift moving as the last two keyframes do (as under a frozen fix), each keyframe
-registered from where they lead; one not registered for LOST_S is searched for again over the
+registered from where they lead (frames are drawn from the second kept, CARRIED_FROM: the first
+gives no velocity); one not registered for LOST_S is searched for again over the
 disc a lost keyframe is (RegistrationSettings.lost_radius) around where they lead. No fix is
 tested (there is none): every frame's GNSS is `missing`.
 
@@ -80,6 +81,9 @@ HOLD_S = 5.0  # the line carried on at most this long past the newest keyframe (
 ACCEL_MPS2 = 3.0  # the platform's acceleration the chain allows for (a drone's weave: 3.3)
 LOST_S = 2.0  # without a fix: a keyframe not registered for this long is searched for (s)
 UNFIXED_EVERY_S = 0.5  # without a fix a keyframe is offered this often (s): they carry the position
+# without a fix, frames are drawn once this many keyframes are kept: one alone gives no velocity,
+# and the platform flies on while the next registers (10-25 m drawn off in a real-time bench)
+CARRIED_FROM = 2
 LIVE_SETTINGS = RegistrationSettings(long_side=640, max_iterations=5)
 
 

@@ -53,18 +53,25 @@ def vehicle_state(
 
 
 def messages_at(
-    t: float, kind: str, gimbal: str | None, mav, path_of=drone.flight, fixed: bool = True
+    t: float,
+    kind: str,
+    gimbal: str | None,
+    mav,
+    path_of=drone.flight,
+    fixed: bool = True,
+    home_enu: tuple[float, float] = HOME_ENU,
 ) -> list:
     """The messages of `kind` (a RATES_HZ key, or HOME_POSITION) the autopilot sends at flight
     time t s, encoded by `mav` (a pymavlink MAVLink object); gimbal: 'device', 'mount' or None
-    (no gimbal); fixed: False, positions without a fix (the module docstring)."""
+    (no gimbal); fixed: False, positions without a fix (the module docstring); home_enu: the
+    home point (ENU m about the site, on its ground)."""
     (lat, lon, h), (yaw, pitch, roll) = vehicle_state(t, path_of)
     boot = BOOT_MS + int(round(t * 1000))
     if kind == "ATTITUDE":
         return [mav.attitude_encode(boot, *np.radians([roll, pitch, yaw]), 0.0, 0.0, 0.0)]
     home_msl = SITE_ORIGIN[2] - float(undulation(lat, lon))
     if kind == "HOME_POSITION":
-        home = LocalFrame(*SITE_ORIGIN).enu_to_geodetic([*HOME_ENU, 0.0])
+        home = LocalFrame(*SITE_ORIGIN).enu_to_geodetic([*home_enu, 0.0])
         ll = [int(round(float(v) * 1e7)) for v in home[:2]]
         return [mav.home_position_encode(*ll, int(round(home_msl * 1000)), 0, 0, 0, [1, 0, 0, 0], 0, 0, 0)]  # fmt: skip
     if kind == "GLOBAL_POSITION_INT":
@@ -94,7 +101,9 @@ def messages_at(
 class MavlinkSender:
     """Sends the autopilot's telemetry for flight times 0..seconds as MAVLink 2 datagrams to
     `address` (host, port) in real time: the messages of flight time t leave at start_s + t -
-    lead_s on `clock` (lead_s > 0: the telemetry ahead of a video that left at start_s + t)."""
+    lead_s on `clock` (lead_s > 0: the telemetry ahead of a video that left at start_s + t);
+    fixed False: without a GNSS fix; home: HOME_POSITION sent too, at home_enu (the module
+    docstring)."""
 
     def __init__(
         self,
@@ -107,8 +116,9 @@ class MavlinkSender:
         path_of=drone.flight,
         fixed: bool = True,
         home: bool = False,
+        home_enu: tuple[float, float] = HOME_ENU,
     ) -> None:
-        self.path_of, self.fixed, self.home = path_of, fixed, home
+        self.path_of, self.fixed, self.home, self.home_enu = path_of, fixed, home, home_enu
         self.address = address
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.mav = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
@@ -145,6 +155,6 @@ class MavlinkSender:
             wait = self.start_s + t - self.lead_s - self.clock()
             if wait > 0 and self._stop.wait(wait):
                 return
-            for m in messages_at(t, kind, self.gimbal, self.mav, self.path_of, self.fixed):
+            for m in messages_at(t, kind, self.gimbal, self.mav, self.path_of, self.fixed, self.home_enu):  # fmt: skip
                 self.sock.sendto(m.pack(self.mav), self.address)
                 self.sent += 1

@@ -117,3 +117,46 @@ def test_a_mavlink_feed_without_a_fix_is_found_around_its_home_point_and_drawn_t
     # this clip: tests/test_mavlink.py; until then the weave's turns show it; the same feed
     # with its fixes was drawn 1.3 deg off, median, when this test was written)
     assert np.median(errors[:, 1]) < 1.0 and errors[:, 1].max() < 2.5, errors
+
+
+@pytest.mark.gl
+def test_a_fix_lost_mid_flight_is_carried_by_the_scene_not_held_nor_accused(downlink):
+    """The same flight with its fixes until 4 s, then none (GLOBAL_POSITION_INT at 0, 0): the
+    last fix is not held where the drone flew on (it drew the drape 45 m behind it and was
+    accused of freezing, before); the frames stand on the keyframes, `missing`, no alarm."""
+    port = free_udp_port()
+    drawn = []
+    run = run_sent(
+        downlink,
+        LiveOptions(
+            silence_s=2.0,
+            size=(160, 90),
+            layers=(sample_layer(),),
+            mavlink=f"udp:127.0.0.1:{port}",
+            hfov_deg=drone.HFOV_DEG,
+        ),
+        lambda d, c: drawn.append((d, c)),
+        lockstep=True,
+        telemetry=lambda start, clock: autopilot.MavlinkSender(
+            ("127.0.0.1", port), SECONDS, start, clock=clock, lost_at_s=4.0
+        ).start(),
+    )
+    said = " ".join(run.messages.items)
+    assert run.gnss is not None and not run.gnss.lies, said  # an outage is no lie
+    assert "no GNSS from t = 3." in run.summary(), run.summary()
+    assert run.stale < 30, run.summary()  # the fix's last half second (12 when written)
+    errors = []
+    for d, cam in drawn:
+        t = d.pts_s + run.origin_s
+        pos, _ = drone.flight(np.array([t]))
+        want = run.frame.geodetic_to_enu(*SITE.enu_to_geodetic(pos).T)[0]
+        errors.append((t, float(np.linalg.norm(np.asarray(cam.position) - want)), d.gnss))
+    late = [(t, m, g) for t, m, g in errors if t >= 5.0]  # a second into the outage on
+    assert len(late) > 150 and {g for _, _, g in late} == {"missing"}, said
+    metres = np.array([m for _, m, _ in late])
+    # the drone flies 9-12 m/s: held, the drape would be 10-90 m behind it by now
+    assert np.median(metres) < 0.5 and metres.max() < 1.5, late
+    # the moment the fix goes: held until it is 0.5 s old (5 of MAVLink's 10 Hz fixes), then
+    # led on by the last two keyframes until two register without it
+    onset = np.array([m for t, m, _ in errors if 3.5 <= t < 5.0])
+    assert onset.max() < 6.0, onset

@@ -55,7 +55,7 @@ import numpy as np
 
 from app.geodesy.geoid import undulation
 from app.io.misb import camera_from_sensor, ypr_matrix
-from app.io.streams import HEIGHT_RANGE_M, impossible_step
+from app.io.streams import HEIGHT_RANGE_M, impossible_step, usual_interval
 
 LINK_WINDOW = 500  # messages over which the fastest sets the boot -> arrival link
 FLAG_YAW_LOCK, FLAG_YAW_IN_VEHICLE, FLAG_YAW_IN_EARTH = 16, 32, 64
@@ -378,6 +378,11 @@ class MavlinkTelemetry:
         q = camera_quat(vehicle, gimbal, relative)
         place = (float(lat), float(lon), float(h))
         return TelemetryPose(place, q, age, gimbal is not None, not unfixed)
+
+    def fix_interval_s(self) -> float | None:
+        """The usual interval between the recent fixes (s), None before two."""
+        with self._lock:
+            return usual_interval(self._pos_t)
 
     def jumps_between(self, a_s: float, b_s: float) -> list[tuple[float, float]]:
         """(from, to) boot times (s) of the consecutive positions between which the fix stepped

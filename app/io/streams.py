@@ -59,6 +59,13 @@ class GnssTrack:
     path: str = ""  # the file it was read from (for messages)
 
 
+def usual_interval(times: npt.ArrayLike, last: int = 20) -> float | None:
+    """The median interval (s) between the last `last` of increasing times (s), None with fewer
+    than two (a live feed's fix rate: how old a fix may be before it is held, not current)."""
+    t = np.asarray(times, np.float64)[-last:]
+    return float(np.median(np.diff(t))) if len(t) >= 2 else None
+
+
 def resample(t_target: npt.ArrayLike, t_source: npt.ArrayLike, values: npt.ArrayLike) -> FloatArray:
     """Linear interpolation of (M, K) samples at t_source onto t_target (held at the ends)."""
     t_target = np.asarray(t_target, np.float64)

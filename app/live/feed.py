@@ -40,11 +40,17 @@ from app.live.buffer import DEFAULT_DELAY_S, Arrival, JitterBuffer
 from app.live.gnss_watch import GnssWatch
 from app.live.lag import LagEstimator
 from app.live.mavlink import MavlinkReceiver
-from app.live.pose import NONE, STALE, LivePoses, MavlinkPoses
+from app.live.pose import FRESH, NONE, STALE, LivePoses, MavlinkPoses
 from app.live.probe import Heard
 from app.live.receiver import READ_TIMEOUT_S, Receiver
 from app.live.recorder import Recorder, SegmentRecorder
-from app.live.register import CARRIED_FROM, LiveCorrection, LiveRegistration
+from app.live.register import (
+    CARRIED_FROM,
+    HELD_INTERVALS,
+    HELD_S,
+    LiveCorrection,
+    LiveRegistration,
+)
 from app.live.restream import RestreamCounts, Restreamer, Tee
 from app.playback.decoder import yuv_planes
 from app.scene.mesh import MeshData
@@ -399,9 +405,17 @@ class LiveFeed:
         return mesh
 
     def _unfixed(self, t: float) -> bool:
-        """Whether the telemetry's camera at media time t stands where no fix put it."""
-        raw = self._telemetry_camera(t)
-        return raw is not None and not raw[3]
+        """Whether no current fix places the telemetry's camera at media time t (`_held`)."""
+        return self._held(self._telemetry_camera(t))
+
+    def _held(self, raw: tuple[Camera, str, float, bool] | None) -> bool:
+        """Whether no current fix places the telemetry's camera `raw` (_telemetry_camera's):
+        none ever (a home point), or the newest older than HELD_S and HELD_INTERVALS of the
+        feed's usual interval between fixes (an outage: the last fix held). False without one."""
+        if raw is None or not raw[3]:
+            return raw is not None
+        usual = self.poses.fix_interval_s()
+        return raw[2] > max(HELD_S, HELD_INTERVALS * usual if usual is not None else 0.0)
 
     def camera_at(self, t: float) -> tuple[Camera | None, str]:
         """The camera of media time t (s) from what has arrived, corrected by the registration
@@ -456,8 +470,11 @@ class LiveFeed:
             return None
         raw = self._telemetry_camera(item.pts_s)
         camera, state, held_m = self._corrected(raw, item.pts_s)
+        held = self._held(raw)
         if raw is not None:
             self.registered = camera is not raw[0]  # (a correction makes a new camera)
+            if held and self.registered and state == STALE:
+                state = FRESH  # a fix held, the pose the scene's keyframes carry: not stale
         if raw is not None and self.registration is not None:
             self.registration.offer(item.pts_s, item.payload, raw[0])
         run = self.run
@@ -466,7 +483,7 @@ class LiveFeed:
             feed = "MAVLink telemetry" if self.mav is not None else "KLV"
             run.messages.add_once(
                 "stale",
-                f"frames drawn with a stale pose (the {feed} lags behind the video by more than the buffer): counted",
+                f"frames drawn with a stale pose (the {feed}'s newest older than the buffer: it lags behind the video, or stopped): counted",
             )
         elif state == NONE:
             run.without_pose += 1
@@ -475,7 +492,7 @@ class LiveFeed:
         self.last_camera = camera
         if self.gnss is not None:  # the frame's GNSS status (a pose held: as old as it is)
             age = raw[2] if raw is not None and raw[3] else math.inf
-            self.gnss_now = self.gnss.frame(item.pts_s, age, held_m)
+            self.gnss_now = self.gnss.frame(item.pts_s, age, held_m, held)
         return item, due, camera, state
 
     def restream_frame(self, pts_s: float, camera: Camera) -> None:

@@ -12,7 +12,8 @@ has agreed with the scene for merge_s (said: "GNSS agrees with the scene again f
 
 Each frame drawn gets its status (app.camera.fixes: used, rejected, missing): `missing` where
 the newest fix behind it is older than the outage limit (app.core.constants.GAP_MIN_S, the
-files' gap rule at 1 Hz fixes or faster); an outage is shown as ongoing while it lasts and said
+files' gap rule at 1 Hz fixes or faster), or held (no longer current: the scene carries the
+pose, app.live.register); an outage is shown as ongoing while it lasts and said
 with its span when a fix comes again (app.camera.fixes.outage_said). Times are media seconds of
 the feed (0: its first frame), positions local ENU metres. Thread-safe: the registration thread
 tests keyframes, the drawing thread asks per frame.
@@ -221,14 +222,18 @@ class GnssWatch:
                 "info",
             )
 
-    def frame(self, t_s: float, fix_age_s: float, held_off_m: float = 0.0) -> str:
+    def frame(
+        self, t_s: float, fix_age_s: float, held_off_m: float = 0.0, held: bool = False
+    ) -> str:
         """The status of the frame of media time t_s (s) drawn now, whose newest fix is
         fix_age_s (s) older than it (inf: none yet), held_off_m (m) of the telemetry's jumps not
         drawn (app.live.register.LiveRegistration.held_off: the fix not used as given, so
-        `rejected`): counted, and an outage said when it ends."""
+        `rejected`), held: its fix no longer current (app.live.register's HELD_S: the scene,
+        not the fix, carries it, so `missing` however young the outage): counted, and an
+        outage said when it ends."""
         with self._lock:
             self.held_off_m = held_off_m
-            if fix_age_s > self.outage_s:
+            if fix_age_s > self.outage_s or held:
                 status = MISSING
                 if self.outage_since is None:
                     self.outage_since = t_s - fix_age_s if math.isfinite(fix_age_s) else t_s

@@ -28,7 +28,7 @@ from app.geodesy.enu import LocalFrame
 from app.io.klv_track import KlvTrack
 from app.io.mavlink import MavlinkTelemetry, TelemetryPose
 from app.io.misb import LocalSet, camera_orientation
-from app.io.streams import impossible_step
+from app.io.streams import impossible_step, usual_interval
 
 FRESH, STALE, NONE = "fresh", "stale", "none"
 JUMP_RUN = 10  # sets in a row that all jump from the last kept one: that one was the jump
@@ -141,6 +141,11 @@ class LivePoses:
         with self._lock:
             return self.geodetic[0] if self.geodetic else None
 
+    def fix_interval_s(self) -> float | None:
+        """The usual interval between the recent sets (s), None before two."""
+        with self._lock:
+            return usual_interval(self.t)
+
     def ground(self) -> tuple[float, str] | None:
         """The assumed ground's ellipsoidal height (m) and where it comes from, None unknown."""
         if self.centre_h is None:
@@ -217,6 +222,9 @@ class MavlinkPoses:
 
     def first(self) -> tuple[float, float, float] | None:
         return self.telemetry.first()
+
+    def fix_interval_s(self) -> float | None:
+        return self.telemetry.fix_interval_s()
 
     def utc_of(self, t: float) -> float | None:
         """None: the autopilot's boot clock is not UTC."""

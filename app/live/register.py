@@ -29,8 +29,13 @@ been kept, so is one whose rotation lies more than GATE_DEG from the rotation in
 moves the position, never the attitude). A keyframe is offered every `every_s` of video while the
 thread is free (never queued: the newest frame is what matters live); the display never waits.
 
-A feed without any fix (app.io.mavlink: the camera stands at the home point, at the barometer's
-height above it, `unfixed`) is searched for as a cold start searches (app.register.coldstart,
+A feed without a current fix (`unfixed`: its newest held, older than HELD_S and HELD_INTERVALS of
+its usual interval, through
+an outage; or none at all, app.io.mavlink: the camera stands at the home point, at the
+barometer's height above it) is carried by the scene: a held fix is no fix to test, nor to follow
+(until CARRIED_FROM keyframes have registered since it was lost, the frames are drawn where the
+last two registered lead at their velocity).
+Where no keyframe has registered yet, it is searched for as a cold start searches (app.register.coldstart,
 through Registrar.reacquired): the first keyframe over a disc of search_radius_m around the home
 point, at that height, with the telemetry's attitude; once found, the drawn pose stands on the
 scene, its shift moving as the last two keyframes do (as under a frozen fix), each keyframe
@@ -80,6 +85,9 @@ LINE_M = 1.0  # a keyframe farther than this from the line drawn through its run
 HOLD_S = 5.0  # the line carried on at most this long past the newest keyframe (s)
 ACCEL_MPS2 = 3.0  # the platform's acceleration the chain allows for (a drone's weave: 3.3)
 LOST_S = 2.0  # without a fix: a keyframe not registered for this long is searched for (s)
+# a fix older than HELD_S and HELD_INTERVALS of the feed's usual interval is held, not current:
+# the scene carries the pose (MAVLink's 10 Hz: 0.5 s; a KLV feed's 1 Hz sets: 3 s)
+HELD_S, HELD_INTERVALS = 0.5, 3.0
 UNFIXED_EVERY_S = 0.5  # without a fix a keyframe is offered this often (s): they carry the position
 # without a fix, frames are drawn once this many keyframes are kept: one alone gives no velocity,
 # and the platform flies on while the next registers (10-25 m drawn off in a real-time bench)
@@ -212,11 +220,15 @@ class LiveRegistration(Worker):
     def corrected(self, camera: Camera, t: float) -> tuple[Camera, float]:
         """(`correct`'s camera, how far (m) the jumps held off in it are: 0 where none is)."""
         jump = self.held_off(t)
+        lead = self._chained(t) if self.unfixed(t) else None
         with self._lock:
             s = self.state
             if s.shift_m is None:
                 return camera, 0.0
             shift, rotvec = s.shift_at(t), s.rotvec
+            carried = all(k.on_scene for k in s.kept[-CARRIED_FROM:])
+            if lead is not None and not carried:  # a fix just lost: too few keyframes since to
+                shift = lead[0] - np.asarray(camera.position)  # move by; they lead at their pace
         if jump is not None:
             shift = shift - jump
         q = rotations.multiply(

@@ -5,7 +5,11 @@ real time (not lockstep: the search's time is what is measured) to `geofuse live
 registered against the textured sample model.
 
     python bench/bench_live_cold_start.py [--homes 5] [--radius 250] [--seconds 20]
-        [--size 640x360] [--seed 1] [--json out.json]
+        [--size 640x360] [--seed 1] [--lost-at S] [--json out.json]
+
+--lost-at S: the fixes are sent until flight time S and lost then (jammed in flight) instead:
+each run's figures are the drawn error from a second after S on, the largest in the second
+after S, the frames marked `missing` after S, and whether any lie was said.
 
 Each run: the home point drawn uniformly over a disc of --radius metres around where the
 video's flight begins (app.simulate.drone's weave; the search covers 300 m around the home).
@@ -41,8 +45,11 @@ from bench.common import machine, table, write_json  # noqa: E402
 SITE = LocalFrame(*SITE_ORIGIN)
 
 
-def one_run(video: Path, home_enu: tuple[float, float], seconds: float) -> dict:
-    """One jammed flight sent and received in real time; its figures."""
+def one_run(
+    video: Path, home_enu: tuple[float, float], seconds: float, lost_at: float | None = None
+) -> dict:
+    """One jammed flight (from the start, or from lost_at s) sent and received in real time; its
+    figures."""
     port = free_udp_port()
     drawn = []
     run = run_sent(
@@ -56,8 +63,8 @@ def one_run(video: Path, home_enu: tuple[float, float], seconds: float) -> dict:
         ),
         lambda d, c: drawn.append((d, c)),
         telemetry=lambda start, clock: autopilot.MavlinkSender(
-            ("127.0.0.1", port), seconds, start, clock=clock, fixed=False, home=True,
-            home_enu=home_enu,
+            ("127.0.0.1", port), seconds, start, clock=clock, fixed=lost_at is not None,
+            home=lost_at is None, home_enu=home_enu, lost_at_s=lost_at,
         ).start(),
     )  # fmt: skip
     start, _ = drone.flight(np.array([0.0]))
@@ -71,21 +78,34 @@ def one_run(video: Path, home_enu: tuple[float, float], seconds: float) -> dict:
     if not drawn:
         return out
     first = drawn[0][0]
-    errors = []
+    errors, statuses = [], []
     for d, cam in drawn:
         t = d.pts_s + run.origin_s  # the stream starts at flight time 0
         pos, heading = drone.flight(np.array([t]))
         want = run.frame.geodetic_to_enu(*SITE.enu_to_geodetic(pos).T)[0]
         q = rotations.camera_quat_from_hpr(heading[0], drone.PITCH_DEG, 0.0)
+        statuses.append(d.gnss)
         errors.append(
             (
-                d.pts_s,
+                t,
                 float(np.linalg.norm(np.asarray(cam.position) - want)),
                 float(np.degrees(rotations.angle_between(np.asarray(cam.orientation), q))),
             )
         )
     e = np.array(errors)
-    later = e[e[:, 0] >= first.pts_s + 1.0, 1]
+    if lost_at is not None:
+        after = e[:, 0] >= lost_at
+        out.update(
+            lies=len(run.gnss.lies) if run.gnss is not None else 0,
+            missing=f"{sum(s == 'missing' for s, a in zip(statuses, after, strict=True) if a)} of {int(after.sum())}",
+            onset_max_m=float(e[after & (e[:, 0] < lost_at + 1.0), 1].max()),
+            median_m=float(np.median(e[e[:, 0] >= lost_at + 1.0, 1])),
+            p95_m=float(np.percentile(e[e[:, 0] >= lost_at + 1.0, 1], 95)),
+            max_m=float(e[e[:, 0] >= lost_at + 1.0, 1].max()),
+            before_m=float(np.median(e[~after, 1])),
+        )
+        return out
+    later = e[e[:, 0] >= e[0, 0] + 1.0, 1]
     out.update(
         first_s=first.pts_s,
         wait_s=first.drawn_s - (first.arrival_s - first.pts_s),
@@ -106,6 +126,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seconds", type=float, default=20.0)
     parser.add_argument("--size", default="640x360")
     parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--lost-at", type=float, default=None, help="flight s: fixes lost then")
     parser.add_argument("--json", type=Path, default=None)
     args = parser.parse_args(argv)
     size = tuple(int(v) for v in args.size.split("x"))
@@ -117,14 +138,27 @@ def main(argv: list[str] | None = None) -> int:
         for k in range(args.homes):
             r, a = args.radius * np.sqrt(rng.uniform()), rng.uniform(0.0, 2 * np.pi)
             home = (float(start[0, 0] + r * np.cos(a)), float(start[0, 1] + r * np.sin(a)))
-            row = one_run(video, home, args.seconds)
+            row = one_run(video, home, args.seconds, args.lost_at)
             rows.append(row)
             print(k, row, flush=True)
+            if args.lost_at is not None and k + 1 >= args.homes:
+                break
 
     def f(row: dict, key: str, spec: str) -> str:
         return format(row[key], spec) if key in row else "-"
 
     print(machine())
+    if args.lost_at is not None:
+        print(
+            table(
+                ["run", "drawn error before (m, median)", "largest in the second after", "error from 1 s after: median / p95 / max (m)",
+                 "frames missing after", "lies said", "keyframes"],
+                [[k + 1, f"{r['before_m']:.2f}", f"{r['onset_max_m']:.2f}",
+                  f"{r['median_m']:.2f} / {r['p95_m']:.2f} / {r['max_m']:.2f}", r["missing"], r["lies"],
+                  f"{r['registered']} of {r['tried']}"] for k, r in enumerate(rows)],
+            )
+        )  # fmt: skip
+        return 0
     print(
         table(
             ["home from start (m)", "found", "first drawn (media s)", "wait (wall s)",

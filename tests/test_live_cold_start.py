@@ -61,12 +61,28 @@ def test_without_a_fix_the_camera_stands_at_home_at_the_barometers_height_marked
     bad = dict(_sent(0.0, "HOME_POSITION", False), latitude=0, longitude=0)
     assert not tel.add("HOME_POSITION", bad, 10.0)
     assert any("HOME_POSITION" in reason for reason in tel.counts.dropped)
+    # without a HOME_POSITION, the home the user gives (--origin) stands in, until one comes
+    assumed = MavlinkTelemetry((34.8, 113.53, 110.0))
+    for kind in ("ATTITUDE", "GLOBAL_POSITION_INT"):
+        assumed.add(kind, _sent(0.0, kind, False), 10.0)
+    pose = assumed.at(300.0)
+    assert not pose.fixed and assumed.home_from == "--origin"
+    assert pose.geodetic == pytest.approx((34.8, 113.53, 110.0 + drone.HEIGHT_M), abs=0.01)
+    assumed.add("HOME_POSITION", _sent(0.0, "HOME_POSITION", False), 10.0)
+    assert assumed.home_from == "HOME_POSITION"
+    assert assumed.at(300.0).geodetic[:2] == pytest.approx(tuple(home[:2]), abs=1e-7)
 
 
 @pytest.mark.gl
-def test_a_mavlink_feed_without_a_fix_is_found_around_its_home_point_and_drawn_there(downlink):
+@pytest.mark.parametrize("home_from", ["HOME_POSITION", "--origin"])
+def test_a_mavlink_feed_without_a_fix_is_found_around_its_home_point_and_drawn_there(
+    downlink, home_from
+):
+    """The home point as the autopilot sends it, or (PX4 sets none without a fix) as the user
+    gives it: `geofuse live ... --origin LAT,LON,H`, the take-off point and its ground."""
     port = free_udp_port()
     drawn = []
+    home = SITE.enu_to_geodetic([*autopilot.HOME_ENU, 0.0])
     run = run_sent(
         downlink,
         LiveOptions(
@@ -75,16 +91,23 @@ def test_a_mavlink_feed_without_a_fix_is_found_around_its_home_point_and_drawn_t
             layers=(sample_layer(),),
             mavlink=f"udp:127.0.0.1:{port}",
             hfov_deg=drone.HFOV_DEG,
+            origin=None if home_from == "HOME_POSITION" else tuple(float(v) for v in home),
         ),
         lambda d, c: drawn.append((d, c)),
         lockstep=True,
         telemetry=lambda start, clock: autopilot.MavlinkSender(
-            ("127.0.0.1", port), SECONDS, start, clock=clock, fixed=False, home=True
+            ("127.0.0.1", port),
+            SECONDS,
+            start,
+            clock=clock,
+            fixed=False,
+            home=home_from == "HOME_POSITION",
         ).start(),
     )
     said = " ".join(run.messages.items)
     assert "MAVLink: no GNSS fix (GLOBAL_POSITION_INT at 0, 0)" in said, said
-    assert "within 300 m of the home point" in said, said
+    assert f"within 300 m of the home point {home[0]:.5f}, {home[1]:.5f} ({home_from})" in said
+    assert ("HOME_POSITION" in run.mavlink.used) == (home_from == "HOME_POSITION")
     reg = run.registration
     assert reg is not None and reg.registered >= 5, (reg, said, run.summary())
     found = [m for m in run.messages.items if "found live at" in m]

@@ -288,7 +288,8 @@ def _stream_options(p: argparse.ArgumentParser) -> None:
         "--origin",
         type=lambda s: floats(s, 3, GEODETIC),
         default=None,
-        help="a stream's assumed ground: latitude, longitude (deg), ellipsoidal height (m) of its origin",
+        help="a stream's assumed ground: latitude, longitude (deg), ellipsoidal height (m) of its origin; "
+        "a MAVLink feed without any fix nor HOME_POSITION is searched for within 300 m of it (its take-off point)",
     )
     p.add_argument(
         "--mavlink",

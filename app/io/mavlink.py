@@ -20,7 +20,8 @@ Messages used (MAVLink's common set, as ArduPilot and PX4 send them):
   ellipsoid as GLOBAL_POSITION_INT's): where the vehicle took off (or the home the operator set).
   While no GLOBAL_POSITION_INT has a fix (GNSS jammed, or lost before the feed was joined) and
   the unfixed ones still give relative_alt (the barometer's height above home), the camera stands
-  at the home point at that height, marked not fixed (`TelemetryPose.fixed`): where a live feed
+  at the home point (without a HOME_POSITION, the one assumed: a live feed's --origin) at that
+  height, marked not fixed (`TelemetryPose.fixed`): where a live feed
   searches the scene for it (app.live.register), never a position drawn as it is.
 - GPS_RAW_INT: h_acc (mm, MAVLink 2's extension; 0: not given), the accuracy the receiver states
   for its position, which the live GNSS test holds the fixes to (app.live.gnss_watch). Its
@@ -217,10 +218,16 @@ class MavlinkTelemetry:
     """Positions, attitudes and gimbal angles on the boot clock, growing as messages arrive;
     thread-safe (a receiver adds, the drawing thread and the lag estimator ask)."""
 
-    def __init__(self) -> None:
+    def __init__(self, assumed_home: tuple[float, float, float] | None = None) -> None:
+        """assumed_home: (lat, lon deg, the ground's ellipsoidal h m) taken for home until a
+        HOME_POSITION says where it is (a live feed's --origin)."""
         self.counts = MavlinkCounts()
         self.home_h: float | None = None  # home's ellipsoidal height (m): the take-off ground
         self.home: tuple[float, float, float] | None = None  # HOME_POSITION's (lat, lon, h)
+        self.home_from = "HOME_POSITION"
+        if assumed_home is not None:
+            self.home = tuple(float(v) for v in assumed_home)
+            self.home_h, self.home_from = self.home[2], "--origin"
         self._rel_t: list[float] = []  # heights above home of positions without a fix (m)
         self._rel: list[float] = []
         self._pos_t: list[float] = []
@@ -287,7 +294,7 @@ class MavlinkTelemetry:
         """add's work under the lock: each message's values read (Unusable when they cannot be
         true) before anything is kept."""
         if kind == "HOME_POSITION":  # no time: where home is holds until it is moved
-            self.home = _home(m)
+            self.home, self.home_from = _home(m), "HOME_POSITION"
             if self.home_h is None:
                 self.home_h = self.home[2]
             self.counts.used[kind] = self.counts.used.get(kind, 0) + 1

@@ -280,7 +280,7 @@ class LiveFeed:
     def start(self) -> LiveFeed:
         o, messages = self.options, self.run.messages
         if o.mavlink is not None:
-            telemetry = MavlinkTelemetry()
+            telemetry = MavlinkTelemetry(o.origin)  # (home, where no HOME_POSITION says)
             self.poses = MavlinkPoses(telemetry, lambda: self.buffer.link_s, o.delay_s)
             self.mav = MavlinkReceiver(o.mavlink, telemetry, messages, self.clock).start()
             self.mav.wait_ready()
@@ -394,12 +394,13 @@ class LiveFeed:
                 messages.info(f"live registration off: {refusal}")
         if self.mav is not None and self.poses.telemetry.unfixed:
             lat, lon, _ = self.poses.telemetry.home
+            named = self.poses.telemetry.home_from
             messages.add(
                 "MAVLink: no GNSS fix (GLOBAL_POSITION_INT at 0, 0): "
                 + (
-                    f"the camera is searched for on the scene within {DEFAULT_START_RADIUS_M:g} m of the home point {lat:.5f}, {lon:.5f} (HOME_POSITION), at the barometer's height above it; frames are drawn once it is found"
+                    f"the camera is searched for on the scene within {DEFAULT_START_RADIUS_M:g} m of the home point {lat:.5f}, {lon:.5f} ({named}), at the barometer's height above it; frames are drawn once it is found"
                     if self.registration is not None
-                    else "nothing can be drawn: the camera is searched for around the home point on a textured scene (give --scene)"
+                    else f"nothing can be drawn: the camera is searched for around the home point ({named}) on a textured scene (give --scene)"
                 )
             )
         return mesh

@@ -20,6 +20,7 @@ from app.core.errors import DataFormatError, GeofuseError
 from app.footage.clips import open_clip
 from app.geodesy.enu import LocalFrame
 from app.io.dji_srt import read_srt, takeoff_heights
+from app.io.misb import camera_set
 from app.register.coldstart import platform_height
 from app.scene.layers import Layer
 from app.session import open_session
@@ -65,7 +66,7 @@ def test_a_dji_clip_without_a_fix_is_found_from_an_area_at_its_subtitles_height(
     said = re.search(r"cold start: .*", err)
     assert said, err
     # searched at the subtitle's 35 m above take-off (the flight's height over the site's ground)
-    assert f"searched at {drone.HEIGHT_M:.0f} m: the subtitle's, above take-off" in said[0]
+    assert f"searched at {drone.HEIGHT_M:.0f} m: the subtitle's height above take-off" in said[0]
     far = re.search(r"(\d+) m from the area's centre", said[0])
     assert far and abs(int(far.group(1)) - OFF_M) <= 2, said[0]
     with out.open() as f:
@@ -92,7 +93,7 @@ def test_the_platforms_height_is_the_subtitles_unless_given(unfixed, tmp_path):
     assert len(session.gnss.t) == 0 and session.start == area
     assert platform_height(session) == (
         pytest.approx(drone.HEIGHT_M),
-        "the subtitle's, above take-off",
+        "the subtitle's height above take-off",
     )
     given = replace(session, start=replace(area, height_m=50.0))
     assert platform_height(given) == (50.0, "")
@@ -100,7 +101,10 @@ def test_the_platforms_height_is_the_subtitles_unless_given(unfixed, tmp_path):
     low = tmp_path / "low.SRT"
     low.write_text(srt.read_text().replace("rel_alt: 35.000", "rel_alt: 1.200"))
     grounded = open_clip(video, low, layers=(Layer.of(site),), start=area)
-    with pytest.raises(GeofuseError, match=r"height above take-off is 1\.2 m .* give --height M"):
+    with pytest.raises(
+        GeofuseError,
+        match=r"height above take-off is 1\.2 m at the clip's start, too low .* give --height M",
+    ):
         platform_height(grounded)
 
 
@@ -152,7 +156,7 @@ def test_a_subtitle_at_0_0_has_no_position_and_keeps_its_barometer(tmp_path):
     )
     session = open_session(manifest)
     assert len(session.gnss.t) == 0
-    t, h = session.takeoff_heights
+    t, h = session.platform_heights.t, session.platform_heights.h
     assert t[0] == pytest.approx(1000.0) and np.all(h == drone.HEIGHT_M)
     assert "telemetry" in session.recorded
 
@@ -190,3 +194,55 @@ def test_the_viewer_opens_a_dji_clip_without_a_fix_on_the_pose_found(unfixed, di
     img = np.asarray(Image.open(out).convert("RGB"), int)
     x, y, w, h = s["view_rect"]
     assert img[y : y + h, x : x + w].std() > 15
+
+
+@pytest.fixture(scope="module")
+def unplaced_klv(tmp_path_factory):
+    """The same weave as an MPEG-TS whose KLV never places the sensor (no tags 13, 14: a
+    platform without a fix that still knows its height above the ellipsoid, tag 75)."""
+    site = LocalFrame(*SITE_ORIGIN)
+    sets = []
+    for t in np.arange(0.0, SECONDS, 1 / drone.FPS):
+        pos, heading = drone.flight(np.array([t]))
+        geodetic = tuple(float(v) for v in site.enu_to_geodetic(pos)[0])
+        hpr = (float(heading[0]), drone.PITCH_DEG, 0.0)
+        sets.append((float(t), camera_set(1.7e9 + t, geodetic, hpr, drone.HFOV_DEG, placed=False)))
+    folder = tmp_path_factory.mktemp("klv-unplaced")
+    return drone.write_video(folder / "downlink.ts", SECONDS, (320, 180), klv=sets), write_site(
+        folder / "site"
+    )
+
+
+@pytest.mark.gl
+def test_klv_that_never_places_the_sensor_is_found_from_an_area_at_its_height(
+    unplaced_klv, tmp_path, capsys
+):
+    """Its height is ellipsoidal: the search stands at it over the scene's ground at the area's
+    centre (the site's flat ground, 35 m below the flight)."""
+    video, site = unplaced_klv
+    lat, lon = _near(-OFF_M, 0.0)
+    with pytest.raises(DataFormatError, match="no KLV set places the sensor .*give --near"):
+        open_clip(video, layers=(Layer.of(site),))
+    with pytest.raises(DataFormatError, match="no scene is given"):
+        open_clip(video, start=StartArea.near(lat, lon, 300.0))
+    out = tmp_path / "solved.csv"
+    argv = ["solve", str(video), "--scene", str(site), "--near", f"{lat},{lon}", "--out", str(out)]
+    assert main(argv) == 0
+    err = capsys.readouterr().err
+    said = re.search(r"cold start: .*", err)
+    assert said and "the KLV's sensor height" in said[0], err
+    assert re.search(
+        r"searched at 35 m: the KLV's sensor height \(\d+ m\) over the scene's ground", said[0]
+    )
+    with out.open() as f:
+        rows = list(csv.DictReader(f))
+    assert {r["gnss"] for r in rows} == {"missing"}
+    frame = LocalFrame(*SITE_ORIGIN)
+    got = frame.geodetic_to_enu(
+        *(np.array([[float(r[k]) for r in rows] for k in ("latitude", "longitude", "height")]))
+    )
+    truth, _ = drone.flight(np.array([float(r["time_s"]) for r in rows]))
+    error = np.linalg.norm(got - truth, axis=1)
+    fx = 160.0 / math.tan(math.radians(drone.HFOV_DEG / 2))
+    tolerance = 3.0 * (drone.HEIGHT_M / math.sin(math.radians(-drone.PITCH_DEG))) / fx
+    assert np.median(error) <= tolerance / 2 and error.max() <= 2 * tolerance, error

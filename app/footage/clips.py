@@ -31,7 +31,7 @@ from app.core.messages import Messages
 from app.geodesy.enu import LocalFrame
 from app.geodesy.geomag import declination
 from app.io.dji_mp4 import read_dji_camera
-from app.io.dji_srt import SrtTrack, check_duration, read_srt, srt_fixes, takeoff_heights
+from app.io.dji_srt import SrtTrack, check_duration, read_srt, srt_fixes
 from app.io.gopro import global_settings
 from app.io.klv_track import (
     CONSISTENCY_LIMIT_DEG,
@@ -52,10 +52,16 @@ from app.scene.ground import ellipsoidal_ground, ground_heights
 from app.scene.ground_plane import ASSUMED_GROUND_MARGIN_M, ground_reach_m, ground_under_track
 from app.scene.layers import Layer
 from app.scene.mesh import MeshData
-from app.session.assemble import assemble, gimbal_attitude, load_scene_layers, open_session
+from app.session.assemble import (
+    assemble,
+    gimbal_attitude,
+    load_scene_layers,
+    open_session,
+    subtitle_heights,
+)
 from app.session.config import HANDHELD_MOUNT_M, read_config
 from app.session.model import Session
-from app.session.start import StartArea
+from app.session.start import ELLIPSOID, PlatformHeights, StartArea
 from app.world.build import deferring, resolve_worlds
 from app.world.settings import how_to_configure
 
@@ -102,11 +108,11 @@ def open_clip(
         raise DataFormatError(path, "video file does not exist")
     srt = Path(srt) if srt is not None else find_srt(path)
     if srt is not None and srt.is_file() and starts_as_klv(srt):  # --klv, or CLIP.KLV
-        return _klv_session(path, hfov_deg, lens, layers, raw=srt)
+        return _klv_session(path, hfov_deg, lens, layers, raw=srt, start=start)
     if srt is not None:
         return _dji_session(path, srt, hfov_deg, pitch_deg, lens, layers, start)
     if has_klv(path):
-        return _klv_session(path, hfov_deg, lens, layers)
+        return _klv_session(path, hfov_deg, lens, layers, start=start)
     return _gopro_session(path, hfov_deg, lens, layers)
 
 
@@ -191,7 +197,7 @@ def _clip_session(
     camera: str = "",
     zoom: Zoom | None = None,
     start: StartArea | None = None,
-    takeoff: tuple[np.ndarray, np.ndarray] | None = None,
+    heights: PlatformHeights | None = None,
 ) -> Session:
     policy = heading_policy(
         gyr is not None, mag is not None, recorded, pitch_deg, aircraft_yaw is not None
@@ -203,7 +209,7 @@ def _clip_session(
         acc, gyr, mag, gnss, recorded, decl, messages, inputs=(*inputs, *(f.resolve() for layer in layers for f in layer.files())), heading=policy, device_is_camera=True,
         aircraft_yaw=aircraft_yaw, mesh=mesh, lens=lens, readout_s=readout_s, layers=tuple(layers),
         utc_at_zero_s=utc_at_zero_s, camera=camera, zoom=zoom, start=start,
-        takeoff_heights=takeoff,
+        platform_heights=heights,
     )  # fmt: skip
 
 
@@ -444,7 +450,7 @@ def _dji_session(
         _dji_name(path),
         zoom,
         start,
-        None if start is None else takeoff_heights(track, 0.0),
+        None if start is None else subtitle_heights(track, 0.0),
     )
 
 
@@ -491,24 +497,32 @@ def _klv_session(
     lens_path: str | Path | None = None,
     layers: tuple[Layer, ...] = (),
     raw: Path | None = None,
+    start: StartArea | None = None,
 ) -> Session:
     """A video with MISB ST 0601 KLV (in it, or `raw`: a file of Local Sets beside it, placed
     by their time stamps and the video's creation time): positions from the sensor's latitude,
     longitude and height, the camera's attitude from the platform's then the sensor's angles
     (pose source `telemetry`), the field of view from tag 16, UTC from the Precision Time
-    Stamps."""
+    Stamps. Where no set places the sensor, `start` (an area) is searched for it, at the
+    sensor's height (tag 75, or 15 through the geoid at the area's centre) over the scene's
+    ground where no --height is given (app.register.coldstart)."""
     messages = Messages()
     video = probe(path)
     video.note_damage(messages)
     track = read_raw_klv(raw, messages, video) if raw else read_klv(path, video, messages)
     messages.info(f"{path.name}: {describe(track, video.pts_s)}")
     gnss = track.gnss(messages)
-    if gnss is None:
+    heights = None
+    if gnss is None and start is not None:
+        gnss, heights = _klv_unplaced(track, path, start, layers, messages)
+    elif gnss is None:
         raise DataFormatError(
             path,
-            "no KLV set places the sensor (tags 13, 14 and 75 or 15 missing or in error): the camera cannot be placed",
+            "no KLV set places the sensor (tags 13, 14 and 75 or 15 missing or in error): the camera cannot be placed (give --near LAT,LON and a scene to search for it)",
             field="KLV",
         )
+    else:
+        start = None  # a GNSS: an area given is said unused by the search
     attitude = track.attitude()
     if attitude is None:
         raise DataFormatError(
@@ -520,14 +534,17 @@ def _klv_session(
         messages.add(
             f"{path.name}: {len(track.t) - len(attitude.t)} of {len(track.t)} KLV sets give no attitude ({track.angle_faults() or 'a time repeated'}): their times are interpolated"
         )
-    if len(gnss.t) < len(track.t):
+    if len(gnss.t) < len(track.t) and start is None:
         messages.add(
             f"{path.name}: {len(track.t) - len(gnss.t)} of {len(track.t)} KLV sets have no valid position: their times are interpolated"
         )
     # A gap between positions is said once, by the solve (app.solve.track.say_outages: its span
     # in clip time and what carries the track through it), and marked on every frame in it.
     off = track.centre_offsets_deg()  # each set's frame centre from its own axis, deg
-    ground = _klv_ground(track, off, gnss, path, messages, bool(layers))
+    if start is None:
+        ground = _klv_ground(track, off, gnss, path, messages, bool(layers))
+    else:  # the outline at the sensor's height, its ground the scene's
+        ground = float(np.min(gnss.h)) - KLV_ASSUMED_HEIGHT_M
     frame, mesh, gnss = frame_and_ground(
         gnss,
         ground,
@@ -535,10 +552,13 @@ def _klv_session(
         layers,
         messages,
     )
+    if start is not None:
+        gnss = GnssTrack(*np.zeros((4, 0)), path=str(raw or path))
     utc = track.utc_at_zero()
     decl = declination(frame.lat_deg, frame.lon_deg, frame.h_m, utc or video.creation_time or 0.0)
-    _check_centre(off, path, messages)
-    if layers:
+    if start is None:
+        _check_centre(off, path, messages)
+    if layers and start is None:
         _check_centre_on_scene(track, frame, mesh, path, messages)
     zoom = None
     if hfov_deg is None and lens_path is None:
@@ -580,7 +600,46 @@ def _klv_session(
         utc_at_zero_s=utc,
         camera=camera,
         zoom=zoom,
+        start=start,
+        heights=heights,
     )
+
+
+def _klv_unplaced(
+    track: KlvTrack, path: Path, start: StartArea, layers: tuple[Layer, ...], messages: Messages
+) -> tuple[GnssTrack, PlatformHeights | None]:
+    """(a track over the area's outline at the sensor's height, for the scene to be gathered
+    around; the sensor's ellipsoidal heights as the platform's, None where no set gives one)
+    for KLV that never places the sensor, searched for from `start`. DataFormatError without a
+    scene, or without a height where --height is not given."""
+    if not layers:
+        raise DataFormatError(
+            path,
+            "no KLV set places the sensor and no scene is given: a clip without a position is searched for on a scene (give --scene, --dem or --world with --near)",
+            field="KLV",
+        )
+    lat, lon = start.outline()
+    clat, clon = start.centre
+    h = track.heights(
+        "sensor_ellipsoid_m",
+        "sensor_msl_m",
+        np.full(len(track.t), clat),
+        np.full(len(track.t), clon),
+    )
+    ok = np.isfinite(h)
+    if not ok.any() and start.height_m is None:
+        raise DataFormatError(
+            path,
+            "no KLV set places the sensor nor gives its height (tag 75 or 15): give --height M",
+            field="KLV",
+        )
+    messages.add(
+        f"{path.name}: no KLV set places the sensor (tags 13, 14): searched for within {start.said}"
+    )
+    heights = PlatformHeights(track.times()[ok], h[ok], ELLIPSOID, "the KLV's sensor height") if ok.any() else None  # fmt: skip
+    level = float(np.median(h[ok])) if ok.any() else KLV_ASSUMED_HEIGHT_M
+    around = GnssTrack(np.arange(len(lat), dtype=np.float64), lat, lon, np.full(len(lat), level))
+    return replace(around, path=str(path)), heights
 
 
 def _klv_ground(

@@ -507,13 +507,16 @@ def camera_set(
     hpr_deg: tuple[float, float, float],
     hfov_deg: float,
     ground_h_m: float | None = None,
+    placed: bool = True,
 ) -> bytes:
     """The Local Set of a camera at a position (lat, lon deg, ellipsoidal h m) with a heading,
     pitch and roll (deg): the platform level on that heading, the sensor's relative elevation
     and roll the camera's pitch and roll (as a gimbal on a level aircraft: ST 0601's platform
     pitch only spans +-20 deg); its field of view, UTC (utc_s: Unix seconds, tag 2), and the
     ground's ellipsoidal height as the frame centre's (tag 78). What the
-    live recorder writes for a MAVLink flight, and the simulator's downlinks."""
+    live recorder writes for a MAVLink flight, and the simulator's downlinks. placed False:
+    without the sensor's latitude and longitude (tags 13, 14; a platform without a fix that
+    still knows its height) nor a frame centre."""
     lat, lon, h = geodetic
     heading, pitch, roll = hpr_deg
     items = [
@@ -525,11 +528,10 @@ def camera_set(
         (18, encode(18, 0.0)),
         (19, encode(19, pitch)),
         (20, encode(20, roll % 360.0)),
-        (13, encode(13, lat)),
-        (14, encode(14, lon)),
+        *([(13, encode(13, lat)), (14, encode(14, lon))] if placed else []),
         (75, encode(75, h)),
         (16, encode(16, hfov_deg)),
     ]
-    if ground_h_m is not None:
+    if ground_h_m is not None and placed:
         items.append((78, encode(78, ground_h_m)))
     return local_set(items)

@@ -70,7 +70,7 @@ from app.scene.ground import ground_heights
 from app.scene.mesh import MeshData
 from app.session.camera_track import CameraTrack, camera_track
 from app.session.model import Session
-from app.session.start import HEIGHT_OVER_S, MIN_HEIGHT_M, StartArea
+from app.session.start import ELLIPSOID, HEIGHT_OVER_S, MIN_HEIGHT_M, StartArea
 
 FloatArray = npt.NDArray[np.float64]
 TOP_DOWN, PERSPECTIVE = "top-down", "perspective"
@@ -223,22 +223,32 @@ def searched(session: Session) -> bool:
 
 def platform_height(session: Session) -> tuple[float, str]:
     """(the camera's height above the ground (m), where it comes from): the area's
-    (`--height`; ""), else a subtitle's height above take-off (its median over the clip's first
-    HEIGHT_OVER_S: a search tries frames there; the take-off's ground taken for the ground
-    under the platform, said), else a phone's mount height where the session's heights are the
-    ground's (""). GeofuseError where none is known, or the subtitle's is below MIN_HEIGHT_M."""
+    (`--height`; ""), else the telemetry's (Session.platform_heights: their median over the
+    clip's first HEIGHT_OVER_S, where a search tries frames; above take-off, the take-off's
+    ground taken for the ground under the platform; ellipsoidal, less the scene's ground under
+    the area's centre; said), else a phone's mount height where the session's heights are the
+    ground's (""). GeofuseError where none is known, or the telemetry's is below MIN_HEIGHT_M."""
     start = session.start
     if start is not None and start.height_m is not None:
         return float(start.height_m), ""
-    if session.takeoff_heights is not None:
-        t, h = session.takeoff_heights
-        early = np.asarray(t) <= float(session.frame_times[0]) + HEIGHT_OVER_S
-        height = float(np.median(h[early] if early.any() else h[:1]))
+    given = session.platform_heights
+    if given is not None and start is not None:
+        early = np.asarray(given.t) <= float(session.frame_times[0]) + HEIGHT_OVER_S
+        height = float(np.median(given.h[early] if early.any() else given.h[:1]))
+        said = given.said
+        if given.above == ELLIPSOID:
+            lat, lon = start.centre
+            z = float(session.frame.geodetic_to_enu(lat, lon, height)[2])
+            ground = float(_ground(session.scene(), start.centre_enu(session.frame)[None])[0])
+            height, said = (
+                z - ground,
+                f"{said} ({height:.0f} m) over the scene's ground at the area's centre",
+            )
         if height < MIN_HEIGHT_M:
             raise GeofuseError(
-                f"{session.path}: cold start: the subtitle's height above take-off is {height:.1f} m at the clip's start, too low to search the scene from (at least {MIN_HEIGHT_M:g} m): give --height M"
+                f"{session.path}: cold start: {said} is {height:.1f} m at the clip's start, too low above the ground to search the scene from (at least {MIN_HEIGHT_M:g} m): give --height M"
             )
-        return height, "the subtitle's, above take-off"
+        return height, said
     if session.height_mode == "ground":
         return float(session.mount_height_m), ""
     raise GeofuseError(

@@ -22,7 +22,7 @@ from app.geodesy import rotations
 from app.geodesy.enu import LocalFrame
 from app.geodesy.geomag import declination, field_enu
 from app.io import csvlog
-from app.io.dji_srt import read_srt, srt_fixes, takeoff_heights
+from app.io.dji_srt import SrtTrack, read_srt, srt_fixes, takeoff_heights
 from app.io.gpx import read_gpx
 from app.io.sensorlogger import read_sensorlogger
 from app.io.streams import GnssTrack, OrientationStream, VectorStream
@@ -34,6 +34,7 @@ from app.scene.layers import load_layers
 from app.scene.mesh import MeshData
 from app.session.config import SessionConfig, read_config
 from app.session.model import Session
+from app.session.start import TAKEOFF, PlatformHeights
 from app.sync import sync_session, synced_drift, synced_offset, timed_by
 from app.world.build import deferring, resolve_worlds
 
@@ -142,7 +143,7 @@ def _gnss(
 ) -> tuple[GnssTrack, bool, tuple | None, tuple | None]:
     """(the session's GNSS track, whether its heights are above take-off, a drone's own yaw
     (t session s, deg) when its subtitle has one and no gimbal attitude, a subtitle's heights
-    above take-off (t session s, m) where it has no position: Session.takeoff_heights)."""
+    above take-off where it has no position: Session.platform_heights)."""
     path = cfg.gnss.path
     if path is None and logged is None:
         raise ManifestError(
@@ -180,8 +181,17 @@ def _srt_gnss(
         yaw = (t + clip_start, deg)
     if not tr.has_position.any():
         empty = GnssTrack(*np.zeros((4, 0)), path=str(path))
-        return empty, False, yaw, takeoff_heights(tr, clip_start)
+        return empty, False, yaw, subtitle_heights(tr, clip_start)
     return srt_fixes(tr, messages, clip_start), bool(tr.height_relative), yaw, None
+
+
+def subtitle_heights(track: SrtTrack, offset_s: float) -> PlatformHeights | None:
+    """A DJI subtitle's heights above take-off (times + offset_s s) as the platform's
+    (Session.platform_heights), None where it gives none."""
+    heights = takeoff_heights(track, offset_s)
+    if heights is None:
+        return None
+    return PlatformHeights(*heights, TAKEOFF, "the subtitle's height above take-off")
 
 
 def gimbal_attitude(track, path: Path) -> OrientationStream:
@@ -386,7 +396,7 @@ def assemble(cfg: SessionConfig) -> Session:
     intr, lens = _intrinsics(cfg, w, h, rotation, messages)
 
     acc, gyr, mag, recorded, logged_gnss = _sensors(cfg, messages, clip_start)
-    gnss, above_takeoff, yaw, takeoff = _gnss(cfg, logged_gnss, messages, clip_start, recorded)
+    gnss, above_takeoff, yaw, heights = _gnss(cfg, logged_gnss, messages, clip_start, recorded)
     timed = gyr if gyr is not None else gnss if len(gnss.t) else recorded.get("telemetry")
     if timed is not None:  # else a cold start with no attitude either: said when it searches
         _check_coverage(cfg, frame_times, timed.t, messages)
@@ -409,5 +419,5 @@ def assemble(cfg: SessionConfig) -> Session:
         height_mode=cfg.gnss.height if cfg.layers else "gnss", mount_height_m=cfg.gnss.mount_height_m, heading=policy,
         device_is_camera=cfg.sensors.format in ("gopro", "none"),  # action cameras and drones
         aircraft_yaw=yaw, mesh=mesh, lens=lens, readout_s=_readout(cfg, lens, messages), layers=cfg.layers,
-        further=cfg.clips, takeoff_heights=takeoff,
+        further=cfg.clips, platform_heights=heights,
     )  # fmt: skip

@@ -32,7 +32,7 @@ from app.io.video import VideoInfo
 from app.scene import Placement, load_scene
 from app.scene.ground import ground_heights
 from app.scene.mesh import MeshData
-from app.session.start import StartArea
+from app.session.start import PlatformHeights, StartArea
 
 FILTERS = {
     "gd-ahrs": ("gd", True),
@@ -90,8 +90,8 @@ class Session:
     zoom: Zoom | None = None  # a field of view per time (FMV zoom); intrinsics: the median one
     further: tuple = ()  # app.session.config.ClipRef: further clips its manifest names ([[clips]])
     start: StartArea | None = None  # where a clip without any GNSS fix begins (cold start)
-    # (session s, m above take-off): a subtitle's heights where it has no position (a cold start's)
-    takeoff_heights: tuple[np.ndarray, np.ndarray] | None = None
+    # the heights its telemetry gives where it has no position (a cold start's)
+    platform_heights: PlatformHeights | None = None
 
     @property
     def heading_note(self) -> str:

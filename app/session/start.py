@@ -25,6 +25,22 @@ MIN_HEIGHT_M = 5.0  # a platform lower than this above the ground sees too littl
 CIRCLE_SEGMENTS = 64  # a circle's polygon: this many segments a quarter (shapely's buffer)
 
 
+TAKEOFF, ELLIPSOID = "take-off", "ellipsoid"  # what PlatformHeights are above
+
+
+@dataclass(frozen=True)
+class PlatformHeights:
+    """The heights a clip's telemetry gives where it has no position (a cold start's, where the
+    user gives none): t (N,) session s; h (N,) m; above: TAKEOFF (a barometer's above the
+    take-off point, taken for the height above the ground) or ELLIPSOID (ellipsoidal: the
+    scene's ground under the area is taken off); said: where they come from, for messages."""
+
+    t: np.ndarray
+    h: np.ndarray
+    above: str
+    said: str
+
+
 @dataclass(frozen=True)
 class StartArea:
     """centre: (lat, lon) degrees (a polygon's: its centroid's); radius_m: a circle's radius

@@ -35,10 +35,9 @@ if str(ROOT) not in sys.path:
 
 from app.geodesy import rotations  # noqa: E402
 from app.geodesy.enu import LocalFrame  # noqa: E402
-from app.live.run import LiveOptions, run_sent  # noqa: E402
-from app.simulate import autopilot, drone  # noqa: E402
+from app.live.run import LiveOptions, run_flown  # noqa: E402
+from app.simulate import drone  # noqa: E402
 from app.simulate.downlink import sample_layer  # noqa: E402
-from app.simulate.feed import free_udp_port  # noqa: E402
 from app.simulate.stadium import SITE_ORIGIN  # noqa: E402
 from bench.common import machine, table, write_json  # noqa: E402
 
@@ -50,22 +49,13 @@ def one_run(
 ) -> dict:
     """One jammed flight (from the start, or from lost_at s) sent and received in real time; its
     figures."""
-    port = free_udp_port()
     drawn = []
-    run = run_sent(
-        video,
-        LiveOptions(
-            silence_s=2.0,
-            size=(640, 360),
-            layers=(sample_layer(),),
-            mavlink=f"udp:127.0.0.1:{port}",
-            hfov_deg=drone.HFOV_DEG,
-        ),
-        lambda d, c: drawn.append((d, c)),
-        telemetry=lambda start, clock: autopilot.MavlinkSender(
-            ("127.0.0.1", port), seconds, start, clock=clock, fixed=lost_at is not None,
-            home=lost_at is None, home_enu=home_enu, lost_at_s=lost_at,
-        ).start(),
+    options = LiveOptions(
+        silence_s=2.0, size=(640, 360), layers=(sample_layer(),), hfov_deg=drone.HFOV_DEG
+    )
+    run = run_flown(
+        video, options, seconds, lambda d, c: drawn.append((d, c)), fixed=lost_at is not None,
+        home=lost_at is None, home_enu=home_enu, lost_at_s=lost_at,
     )  # fmt: skip
     start, _ = drone.flight(np.array([0.0]))
     out = {

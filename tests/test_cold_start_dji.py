@@ -44,6 +44,28 @@ def unfixed(tmp_path_factory):
     return video, srt, write_site(folder / "site")
 
 
+# the registration's usual error: 3 pixels' footprint at the range it looks at, the ground 35 m
+# below along a 25 deg pitch (83 m), at 320 px over 73.7 deg (fx 213 px): 1.2 m
+TOLERANCE_M = (
+    3.0
+    * (drone.HEIGHT_M / math.sin(math.radians(-drone.PITCH_DEG)))
+    / (160.0 / math.tan(math.radians(drone.HFOV_DEG / 2)))
+)
+
+
+def _solved_error(out) -> np.ndarray:
+    """(F,) m: each frame of a `solve` CSV against the flight; no frame stands on a fix."""
+    with out.open() as f:
+        rows = list(csv.DictReader(f))
+    assert {r["gnss"] for r in rows} == {"missing"}
+    frame = LocalFrame(*SITE_ORIGIN)
+    got = frame.geodetic_to_enu(
+        *(np.array([[float(r[k]) for r in rows] for k in ("latitude", "longitude", "height")]))
+    )
+    truth, _ = drone.flight(np.array([float(r["time_s"]) for r in rows]))
+    return np.linalg.norm(got - truth, axis=1)
+
+
 def _near(east_m: float, north_m: float) -> tuple[float, float]:
     """(lat, lon) of the point east_m, north_m (m) from the flight's true start."""
     start, _ = drone.flight(np.array([0.0]))
@@ -69,21 +91,9 @@ def test_a_dji_clip_without_a_fix_is_found_from_an_area_at_its_subtitles_height(
     assert f"searched at {drone.HEIGHT_M:.0f} m: the subtitle's height above take-off" in said[0]
     far = re.search(r"(\d+) m from the area's centre", said[0])
     assert far and abs(int(far.group(1)) - OFF_M) <= 2, said[0]
-    with out.open() as f:
-        rows = list(csv.DictReader(f))
-    assert {r["gnss"] for r in rows} == {"missing"}  # no frame stands on a fix
-    frame = LocalFrame(*SITE_ORIGIN)
-    got = frame.geodetic_to_enu(
-        *(np.array([[float(r[k]) for r in rows] for k in ("latitude", "longitude", "height")]))
-    )
-    truth, _ = drone.flight(np.array([float(r["time_s"]) for r in rows]))
-    error = np.linalg.norm(got - truth, axis=1)
-    # the registration's usual error: 3 pixels' footprint at the range it looks at, the ground
-    # 35 m below along a 25 deg pitch (83 m), at 320 px over 73.7 deg (fx 213 px): 1.2 m
-    fx = 160.0 / math.tan(math.radians(drone.HFOV_DEG / 2))
-    tolerance = 3.0 * (drone.HEIGHT_M / math.sin(math.radians(-drone.PITCH_DEG))) / fx
-    assert error[0] <= tolerance and np.median(error) <= tolerance / 2, error
-    assert error.max() <= 2 * tolerance, error
+    error = _solved_error(out)
+    assert error[0] <= TOLERANCE_M and np.median(error) <= TOLERANCE_M / 2, error
+    assert error.max() <= 2 * TOLERANCE_M, error
 
 
 def test_the_platforms_height_is_the_subtitles_unless_given(unfixed, tmp_path):
@@ -234,15 +244,5 @@ def test_klv_that_never_places_the_sensor_is_found_from_an_area_at_its_height(
     assert re.search(
         r"searched at 35 m: the KLV's sensor height \(\d+ m\) over the scene's ground", said[0]
     )
-    with out.open() as f:
-        rows = list(csv.DictReader(f))
-    assert {r["gnss"] for r in rows} == {"missing"}
-    frame = LocalFrame(*SITE_ORIGIN)
-    got = frame.geodetic_to_enu(
-        *(np.array([[float(r[k]) for r in rows] for k in ("latitude", "longitude", "height")]))
-    )
-    truth, _ = drone.flight(np.array([float(r["time_s"]) for r in rows]))
-    error = np.linalg.norm(got - truth, axis=1)
-    fx = 160.0 / math.tan(math.radians(drone.HFOV_DEG / 2))
-    tolerance = 3.0 * (drone.HEIGHT_M / math.sin(math.radians(-drone.PITCH_DEG))) / fx
-    assert np.median(error) <= tolerance / 2 and error.max() <= 2 * tolerance, error
+    error = _solved_error(out)
+    assert np.median(error) <= TOLERANCE_M / 2 and error.max() <= 2 * TOLERANCE_M, error

@@ -14,10 +14,9 @@ import pytest
 from app.geodesy import rotations
 from app.geodesy.enu import LocalFrame
 from app.io.mavlink import MavlinkTelemetry
-from app.live.run import LiveOptions, run_sent
+from app.live.run import LiveOptions, run_flown
 from app.simulate import autopilot, drone
 from app.simulate.downlink import sample_layer
-from app.simulate.feed import free_udp_port
 from app.simulate.stadium import SITE_ORIGIN
 
 SECONDS = 12.0
@@ -29,6 +28,23 @@ SITE = LocalFrame(*SITE_ORIGIN)
 def downlink(tmp_path_factory):
     """The drone's weave over the sample site, MPEG-TS without KLV."""
     return drone.write_video(tmp_path_factory.mktemp("cold") / "downlink.ts", SECONDS, SIZE)
+
+
+def _flown(downlink, origin, **autopilot_options) -> tuple:
+    """(the run, its frames drawn as (Drawn, Camera)) of the downlink and its autopilot's
+    telemetry (autopilot_options: MavlinkSender's) sent in lockstep, drawn on the sample model."""
+    drawn = []
+    options = LiveOptions(
+        silence_s=2.0,
+        size=(160, 90),
+        layers=(sample_layer(),),
+        hfov_deg=drone.HFOV_DEG,
+        origin=origin,
+    )
+    run = run_flown(
+        downlink, options, SECONDS, lambda d, c: drawn.append((d, c)), True, **autopilot_options
+    )
+    return run, drawn
 
 
 def _sent(t: float, kind: str, fixed: bool) -> dict:
@@ -80,30 +96,9 @@ def test_a_mavlink_feed_without_a_fix_is_found_around_its_home_point_and_drawn_t
 ):
     """The home point as the autopilot sends it, or (PX4 sets none without a fix) as the user
     gives it: `geofuse live ... --origin LAT,LON,H`, the take-off point and its ground."""
-    port = free_udp_port()
-    drawn = []
     home = SITE.enu_to_geodetic([*autopilot.HOME_ENU, 0.0])
-    run = run_sent(
-        downlink,
-        LiveOptions(
-            silence_s=2.0,
-            size=(160, 90),
-            layers=(sample_layer(),),
-            mavlink=f"udp:127.0.0.1:{port}",
-            hfov_deg=drone.HFOV_DEG,
-            origin=None if home_from == "HOME_POSITION" else tuple(float(v) for v in home),
-        ),
-        lambda d, c: drawn.append((d, c)),
-        lockstep=True,
-        telemetry=lambda start, clock: autopilot.MavlinkSender(
-            ("127.0.0.1", port),
-            SECONDS,
-            start,
-            clock=clock,
-            fixed=False,
-            home=home_from == "HOME_POSITION",
-        ).start(),
-    )
+    origin = None if home_from == "HOME_POSITION" else tuple(float(v) for v in home)
+    run, drawn = _flown(downlink, origin, fixed=False, home=home_from == "HOME_POSITION")
     said = " ".join(run.messages.items)
     assert "MAVLink: no GNSS fix (GLOBAL_POSITION_INT at 0, 0)" in said, said
     assert f"within 300 m of the home point {home[0]:.5f}, {home[1]:.5f} ({home_from})" in said
@@ -147,23 +142,7 @@ def test_a_fix_lost_mid_flight_is_carried_by_the_scene_not_held_nor_accused(down
     """The same flight with its fixes until 4 s, then none (GLOBAL_POSITION_INT at 0, 0): the
     last fix is not held where the drone flew on (it drew the drape 45 m behind it and was
     accused of freezing, before); the frames stand on the keyframes, `missing`, no alarm."""
-    port = free_udp_port()
-    drawn = []
-    run = run_sent(
-        downlink,
-        LiveOptions(
-            silence_s=2.0,
-            size=(160, 90),
-            layers=(sample_layer(),),
-            mavlink=f"udp:127.0.0.1:{port}",
-            hfov_deg=drone.HFOV_DEG,
-        ),
-        lambda d, c: drawn.append((d, c)),
-        lockstep=True,
-        telemetry=lambda start, clock: autopilot.MavlinkSender(
-            ("127.0.0.1", port), SECONDS, start, clock=clock, lost_at_s=4.0
-        ).start(),
-    )
+    run, drawn = _flown(downlink, None, lost_at_s=4.0)
     said = " ".join(run.messages.items)
     assert run.gnss is not None and not run.gnss.lies, said  # an outage is no lie
     assert "no GNSS from t = 3." in run.summary(), run.summary()

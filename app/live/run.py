@@ -24,6 +24,7 @@ from app.render.offscreen import OffscreenTarget
 from app.render.renderer import FusionRenderer
 from app.render.still import window_camera
 from app.share.hub import Offer, Share
+from app.simulate.autopilot import MavlinkSender
 from app.simulate.feed import LockstepClock, Sender, free_udp_port, sending_clock
 
 __all__ = ["Drawn", "LiveOptions", "LiveRun", "offer_drawn", "open_share", "run_live", "run_sent"]
@@ -151,6 +152,27 @@ def run_sent(
         sender.stop()
         for other in beside:
             other.stop()
+
+
+def run_flown(
+    path: Path,
+    options: LiveOptions,
+    seconds: float,
+    on_drawn: Callable[[Drawn, Camera], None] | None = None,
+    lockstep: bool = False,
+    **autopilot: object,
+) -> LiveRun:
+    """run_sent of a drone's video without KLV (app.simulate.drone) with its autopilot's MAVLink
+    telemetry for `seconds` of flight beside it (app.simulate.autopilot.MavlinkSender, given
+    `autopilot`: fixed, home, home_enu, lost_at_s, ...), on the same clock, to a free port that
+    options.mavlink is set to."""
+    port = free_udp_port()
+    options = replace(options, mavlink=f"udp:127.0.0.1:{port}")
+
+    def telemetry(start: float, clock: Callable[[], float]) -> MavlinkSender:
+        return MavlinkSender(("127.0.0.1", port), seconds, start, clock=clock, **autopilot).start()
+
+    return run_sent(path, options, on_drawn, lockstep, telemetry)
 
 
 # lockstep: the video sent ahead of the newest frame received at most (s; a receiver holds

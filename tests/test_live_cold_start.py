@@ -162,3 +162,17 @@ def test_a_fix_lost_mid_flight_is_carried_by_the_scene_not_held_nor_accused(down
     # led on by the last two keyframes until two register without it
     onset = np.array([m for t, m, _ in errors if 3.5 <= t < 5.0])
     assert onset.max() < 6.0, onset
+
+
+@pytest.mark.gl
+def test_a_fixed_mavlink_feed_keeps_its_keyframes_while_the_videos_lag_is_unknown(downlink):
+    """The same flight with its fixes: until the video's lag behind the telemetry is estimated
+    (10 s windows, longer than this clip), the weave's turns show it in the telemetry's
+    attitude, and keyframes were set aside for being turned from the rotation in force (6 of
+    12). The rotation is gated once the attitude is settled."""
+    run, drawn = _flown(downlink, None)
+    said = " ".join(run.messages.items)
+    reg = run.registration
+    assert run.mavlink.lag_s is None, said  # (not estimated within the clip)
+    assert reg is not None and reg.registered >= 10 and reg.mismatched == 0, reg.line()
+    assert run.gnss is not None and not run.gnss.lies and {d.gnss for d, _ in drawn} == {"used"}

@@ -387,6 +387,7 @@ class LiveFeed:
                     fix_at=self._fix_at,
                     jumps_between=self.poses.jumps_between,
                     unfixed=self._unfixed,
+                    settled=lambda: self.lag is None or self.lag.applied,
                 ).start()
                 self.run.registration = self.registration.state
                 self.run.gnss = self.gnss

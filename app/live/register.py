@@ -25,8 +25,11 @@ keyframe is kept where it agrees with the correction (within GATE_M of the camer
 the scene's own motion (within the chain's reach, chain_m plus half ACCEL_MPS2 t^2 up to
 CHAIN_MAX_M, of where the last two registered keyframes, within CHAIN_S, lead): once GATED have
 been kept, one that agrees with neither is set aside (counted) as a mismatch; once TURN_GATED have
-been kept, so is one whose rotation lies more than GATE_DEG from the rotation in force (a GNSS lie
-moves the position, never the attitude). A keyframe is offered every `every_s` of video while the
+been kept, so is one whose rotation lies more than GATE_DEG from the median of theirs (a GNSS lie
+moves the position, never the attitude). The rotation is gated only once the telemetry's
+attitude is settled (`settled`: a MAVLink feed's once the video's lag behind it is estimated,
+until then the turns show the lag), and from the keyframes kept since: those before had the lag
+in them. A keyframe is offered every `every_s` of video while the
 thread is free (never queued: the newest frame is what matters live); the display never waits.
 
 A feed without a current fix (`unfixed`: its newest held, older than HELD_S and HELD_INTERVALS of
@@ -163,12 +166,15 @@ class LiveRegistration(Worker):
         jumps_between: Callable[[float, float], list[tuple[float, float]]] = lambda a, b: [],
         unfixed: Callable[[float], bool] = lambda t: False,
         search_radius_m: float = DEFAULT_START_RADIUS_M,
+        settled: Callable[[], bool] = lambda: True,
     ) -> None:
         self.mesh, self.messages, self.every_s, self.settings = mesh, messages, every_s, settings
         self.watch, self.accuracy_at, self.fix_at = watch, accuracy_at, fix_at
         self.jumps_between = jumps_between
         self.unfixed, self.search_radius_m = unfixed, search_radius_m
         self._held: list = []  # poses a search found turned too far: (t, position, offset)
+        self.settled = settled
+        self._settled_s: float | None = None  # media s from which the rotation is gated
         self.state = LiveCorrection()
         self._lock = threading.Lock()
         self._offer: tuple[float, tuple, Camera] | None = None
@@ -355,10 +361,13 @@ class LiveRegistration(Worker):
             rotations.conjugate(np.asarray(prior.orientation)), np.asarray(solved.orientation)
         )
         rotvec = rotations.to_scipy(delta).as_rotvec()
+        if self._settled_s is None and self.settled():
+            self._settled_s = t
+        gating = [k.rotvec for k in s.kept if self._settled_s is not None and k.t_s >= self._settled_s]  # fmt: skip
         turned = (  # (no fix: no GNSS lie to tell from the telemetry's attitude, held in turns)
             not unfixed
-            and len(s.kept) >= TURN_GATED
-            and np.degrees(np.linalg.norm(rotvec - s.rotvec)) > GATE_DEG
+            and len(gating) >= TURN_GATED
+            and np.degrees(np.linalg.norm(rotvec - np.median(gating, axis=0))) > GATE_DEG
         )
         if turned or (len(s.kept) >= GATED and not self._agrees(where, start, chain)):
             s.mismatched += 1

@@ -46,6 +46,7 @@ from app.register.gnss import (
 HISTORY_S = 60.0  # keyframes tested together: the baseline's 30 s before an alarm, and more
 JUMP_FAR = 3.0  # a keyframe's own fix this many thresholds off, the one before within: a jump
 STEADY_KEYFRAMES = 3  # tested before a jump is taken from one keyframe (the gate is on by then)
+SUSPECT_ACCURACIES = 2.5  # a fix this many stated accuracies off its own offset: keyframes sooner
 DRIFT_S = 6.0  # a drift judged over this long (s): the newest keyframe's one-sided median lags
 # a drag by a keyframe, so 2 m/s walks the 6 m floor only over longer than files' 4 s
 
@@ -99,6 +100,20 @@ class GnssWatch:
         self.outage_since: float | None = None  # the last fix before the outage going on
         self.held_off_m = 0.0  # the telemetry's jumps the frame drawn last did not follow (m)
         self._lock = threading.Lock()
+
+    @property
+    def suspect(self) -> bool:
+        """Whether the newest keyframe's fix lies farther from the scene than the GNSS's own
+        offset by more than SUSPECT_ACCURACIES of its stated accuracy, or a lie is going on:
+        keyframes are then offered more often (app.live.register), the sooner to tell a
+        drag-off from the fix's own wander. No accusation: nothing is rejected for it."""
+        with self._lock:
+            if self.lying:
+                return True
+            if len(self._t) <= STEADY_KEYFRAMES:
+                return False
+            raw = self._fix[-1] - self._scene[-1] - self._baseline(self._t[-1])
+            return bool(np.linalg.norm(raw[:2]) > SUSPECT_ACCURACIES * self._acc[-1])
 
     @property
     def keyframe_times(self) -> list[float]:

@@ -186,9 +186,9 @@ class LiveRegistration(Worker):
     def offer(self, t: float, planes, prior: Camera) -> None:
         """A frame drawn (media time t s, its yuv planes, the telemetry's camera): taken as the
         next keyframe when every_s has passed since the last and the thread is free."""
-        every = (
-            UNFIXED_EVERY_S if self.unfixed(t) else self.every_s
-        )  # no fix: the keyframes carry it
+        # no fix, or one in doubt: the keyframes carry the pose, or tell a drag-off sooner
+        doubt = self.unfixed(t) or (self.watch is not None and self.watch.suspect)
+        every = min(UNFIXED_EVERY_S, self.every_s) if doubt else self.every_s
         if self._busy or (self._last_offered is not None and t - self._last_offered < every):
             return
         self._last_offered = t

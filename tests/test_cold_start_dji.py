@@ -246,3 +246,26 @@ def test_klv_that_never_places_the_sensor_is_found_from_an_area_at_its_height(
     )
     error = _solved_error(out)
     assert np.median(error) <= TOLERANCE_M / 2 and error.max() <= 2 * TOLERANCE_M, error
+
+
+@pytest.mark.gl
+def test_the_viewer_says_an_area_with_no_scene_and_keeps_running(unfixed, display, tmp_path):
+    """The same clip given an area 2 km from the scene: the search finds no scene there; the
+    viewer says so (the Attitude panel, in red: `registered` failed and why) and keeps running
+    (the script goes on to its end)."""
+    import json
+
+    from tests.conftest import run_viewer
+
+    video, _, site = unfixed
+    lat, lon = _near(2000.0, 0.0)
+    state, script = tmp_path / "v.json", tmp_path / "s.txt"
+    script.write_text(f"0 clock 0.05\n0 wait registered\n0.2 state {state}\n0.3 quit\n")
+    result = run_viewer(
+        display, str(video), "--scene", str(site), "--near", f"{lat},{lon}",
+        "--script", str(script), "--size", "640x360",
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr[-2000:]
+    s = json.loads(state.read_text())
+    assert "the area holds no scene" in s["failed"]["registered"], s["failed"]
+    assert s["source"] == "registered" and s["errors"] == []  # nothing else went wrong

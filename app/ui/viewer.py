@@ -309,7 +309,7 @@ class Viewer(ViewerJobs, ViewerSessions):
             state.update(
                 manifest=str(L.session.path), source=L.source, lens=None if L.session.lens is None else L.session.lens.name, layers=[f"{layer.kind}:{layer.name}" for layer in L.session.layers], frame=self.current_index, due_frame=L.player.due_index(now),
                 frames_shown=len(s.latencies), dropped=s.dropped, latency_ms=list(s.summary()), skipped_by_decoder=L.player.decoder.skipped,
-                solved=L.library.solved(), alpha=ui.settings.alpha, time_offset_s=L.library.time_offset_s,
+                solved=L.library.solved(), failed=L.library.errors(), alpha=ui.settings.alpha, time_offset_s=L.library.time_offset_s,
                 registration=_registration_state(L.library.track(REGISTERED)), gnss=gnss.state(L, self.current_index, ui.gnss_band),
                 control=_control_state(ui.control), measure=_measure_state(ui.measure),
                 clips=[{"name": Path(c.session.video.path).name, "visible": c.visible, "frame": c.frame, "decoder": c.player is not None, "offset_s": c.offset_s, "start_s": s.start_s, "source": c.source, "alpha": c.alpha, "frames_shown": 0 if c.player is None else len(c.player.stats.latencies), "dropped": 0 if c.player is None else c.player.stats.dropped, "latency_ms": None if c.player is None else list(c.player.stats.summary())} for c, s in zip(L.others, L.timeline.clips[1:], strict=True)],

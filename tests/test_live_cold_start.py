@@ -14,7 +14,8 @@ import pytest
 from app.geodesy import rotations
 from app.geodesy.enu import LocalFrame
 from app.io.mavlink import MavlinkTelemetry
-from app.live.run import LiveOptions, run_flown
+from app.io.misb import camera_set
+from app.live.run import LiveOptions, run_flown, run_sent
 from app.simulate import autopilot, drone
 from app.simulate.downlink import sample_layer
 from app.simulate.stadium import SITE_ORIGIN
@@ -176,3 +177,47 @@ def test_a_fixed_mavlink_feed_keeps_its_keyframes_while_the_videos_lag_is_unknow
     assert run.mavlink.lag_s is None, said  # (not estimated within the clip)
     assert reg is not None and reg.registered >= 10 and reg.mismatched == 0, reg.line()
     assert run.gnss is not None and not run.gnss.lies and {d.gnss for d, _ in drawn} == {"used"}
+
+
+@pytest.fixture(scope="module")
+def klv_lost(tmp_path_factory):
+    """The weave as a KLV downlink whose sets stop placing the sensor at 4 s (tags 13, 14 gone:
+    jammed), their angles and height going on."""
+    sets = []
+    for t in np.arange(0.0, SECONDS, 1 / drone.FPS):
+        pos, heading = drone.flight(np.array([t]))
+        geodetic = tuple(float(v) for v in SITE.enu_to_geodetic(pos)[0])
+        hpr = (float(heading[0]), drone.PITCH_DEG, 0.0)
+        payload = camera_set(1.7e9 + t, geodetic, hpr, drone.HFOV_DEG, SITE_ORIGIN[2], t < 4.0)
+        sets.append((float(t), payload))
+    path = tmp_path_factory.mktemp("klv-lost") / "downlink.ts"
+    return drone.write_video(path, SECONDS, SIZE, klv=sets)
+
+
+@pytest.mark.gl
+def test_a_klv_feed_that_stops_placing_the_sensor_turns_with_its_angles_on_the_scene(klv_lost):
+    """The sets without a position still turn the camera (they were dropped whole, and the
+    attitude froze with the position); the position is carried by the scene, as MAVLink's."""
+    drawn = []
+    run = run_sent(
+        klv_lost,
+        LiveOptions(silence_s=2.0, size=(160, 90), layers=(sample_layer(),)),
+        lambda d, c: drawn.append((d, c)),
+        lockstep=True,
+    )
+    said = " ".join(run.messages.items)
+    assert run.gnss is not None and not run.gnss.lies, said
+    errors = []
+    for d, cam in drawn:
+        t = d.pts_s + run.origin_s
+        pos, heading = drone.flight(np.array([t]))
+        want = run.frame.geodetic_to_enu(*SITE.enu_to_geodetic(pos).T)[0]
+        q = rotations.camera_quat_from_hpr(heading[0], drone.PITCH_DEG, 0.0)
+        turned = np.degrees(rotations.angle_between(np.asarray(cam.orientation), q))
+        errors.append((t, float(np.linalg.norm(np.asarray(cam.position) - want)), turned, d.gnss))
+    late = [e for e in errors if e[0] >= 5.0]
+    assert len(late) > 150 and {e[3] for e in late} == {"missing"}, said
+    metres, degrees = np.array([e[1] for e in late]), np.array([e[2] for e in late])
+    # the weave turns 40 deg either side in 12 s: a frozen attitude would be 10-40 deg off
+    assert np.median(degrees) < 0.5 and degrees.max() < 1.5, degrees
+    assert np.median(metres) < 0.5 and metres.max() < 1.5, metres

@@ -59,7 +59,9 @@ def fov_between(a: float, b: float, w: float) -> float | None:
 
 
 class LivePoses:
-    """Sets with a position and an attitude, in time order (media s)."""
+    """Sets with a position and an attitude, in time order (media s); and every set with an
+    attitude, with or without a position (a GNSS outage: the sensor's angles go on), which
+    the camera's attitude is taken from."""
 
     def __init__(self, stale_after_s: float) -> None:
         self.stale_after_s = stale_after_s
@@ -74,6 +76,8 @@ class LivePoses:
         self._jump_run = 0  # of them, in a row
         self.believed: list[float] = []  # media times of the sets a jump was believed at
         self._utc_link: float | None = None  # Unix s - media s, from the first set with a time
+        self._att_t: list[float] = []  # the sets with an attitude, placed or not
+        self._att_q: list[np.ndarray] = []
         self._lock = threading.Lock()
 
     def add(self, t: float, s: LocalSet) -> bool:
@@ -84,6 +88,12 @@ class LivePoses:
         one = KlvTrack("", [t], [s])
         g = one.gnss()
         q = camera_orientation(s)
+        if q is not None:
+            with self._lock:
+                i = bisect.bisect_right(self._att_t, t)
+                if not (i and self._att_t[i - 1] == t):
+                    self._att_t.insert(i, t)
+                    self._att_q.insert(i, q)
         if g is None or q is None:
             self.without_pose += 1
             return False
@@ -186,13 +196,25 @@ class LivePoses:
             # across a jump believed (JUMP_RUN sets) the position no set gave is not drawn: the
             # one before it held until the jumped set's time (the attitude turns as it did)
             wp = 0.0 if w > 0.0 and impossible_step(self.t[k + 1] - self.t[k], a, b) else w
+            q = self._attitude_at(t) if self._att_t else None
         enu = frame.geodetic_to_enu(*(np.array([v]) for v in (1 - wp) * a + wp * b))[0]
-        q = rotations.slerp([0.0, 1.0], np.stack([qa, qb]), [w])[0]
+        if q is None:
+            q = rotations.slerp([0.0, 1.0], np.stack([qa, qb]), [w])[0]
         fov = fov_between(fa, fb, w)
         if own_fov and fov is not None:
             intrinsics = Intrinsics.from_fov(intrinsics.width, intrinsics.height, fov)
         camera = Camera.create(intrinsics, enu, q, far=far)
         return LivePose(camera, FRESH if age <= self.stale_after_s else STALE, age)
+
+    def _attitude_at(self, t: float) -> np.ndarray:
+        """The attitude at media time t (s) from every set that gave one (slerp between two,
+        the nearest held beyond them); under the lock."""
+        i = bisect.bisect_right(self._att_t, t)
+        if i == 0 or i == len(self._att_t):
+            return self._att_q[max(i - 1, 0)]
+        ta, tb = self._att_t[i - 1], self._att_t[i]
+        pair = np.stack([self._att_q[i - 1], self._att_q[i]])
+        return rotations.slerp([0.0, 1.0], pair, [(t - ta) / (tb - ta)])[0]
 
 
 class MavlinkPoses:

@@ -221,3 +221,42 @@ def test_a_klv_feed_that_stops_placing_the_sensor_turns_with_its_angles_on_the_s
     # the weave turns 40 deg either side in 12 s: a frozen attitude would be 10-40 deg off
     assert np.median(degrees) < 0.5 and degrees.max() < 1.5, degrees
     assert np.median(metres) < 0.5 and metres.max() < 1.5, metres
+
+
+@pytest.fixture(scope="module")
+def klv_unplaced(tmp_path_factory):
+    """The weave as a KLV downlink that never places the sensor (its angles and height only)."""
+    sets = []
+    for t in np.arange(0.0, SECONDS, 1 / drone.FPS):
+        pos, heading = drone.flight(np.array([t]))
+        geodetic = tuple(float(v) for v in SITE.enu_to_geodetic(pos)[0])
+        hpr = (float(heading[0]), drone.PITCH_DEG, 0.0)
+        sets.append((float(t), camera_set(1.7e9 + t, geodetic, hpr, drone.HFOV_DEG, placed=False)))
+    path = tmp_path_factory.mktemp("klv-unplaced") / "downlink.ts"
+    return drone.write_video(path, SECONDS, SIZE, klv=sets)
+
+
+@pytest.mark.gl
+def test_a_klv_feed_that_never_places_the_sensor_is_found_around_origin(klv_unplaced):
+    """`geofuse live URL --origin LAT,LON,H --scene ...`: the take-off point the user gives is
+    searched around at the sensor's own height (tag 75), as a MAVLink home point is."""
+    home = tuple(float(v) for v in SITE.enu_to_geodetic([*autopilot.HOME_ENU, 0.0]))
+    drawn = []
+    run = run_sent(
+        klv_unplaced,
+        LiveOptions(silence_s=2.0, size=(160, 90), layers=(sample_layer(),), origin=home),
+        lambda d, c: drawn.append((d, c)),
+        lockstep=True,
+    )
+    said = " ".join(run.messages.items)
+    assert "no KLV set places the sensor (tags 13, 14): the camera is searched for" in said, said
+    reg = run.registration
+    assert reg is not None and sum("found live at" in m for m in run.messages.items) == 1, said
+    assert drawn and min(d.pts_s for d, _ in drawn) > reg.since_s
+    assert {d.gnss for d, _ in drawn} == {"missing"} and not run.gnss.lies
+    metres = []
+    for d, cam in drawn:
+        pos, _ = drone.flight(np.array([d.pts_s + run.origin_s]))
+        want = run.frame.geodetic_to_enu(*SITE.enu_to_geodetic(pos).T)[0]
+        metres.append(float(np.linalg.norm(np.asarray(cam.position) - want)))
+    assert len(metres) > 150 and np.median(metres) < 0.5 and max(metres) < 1.5, metres

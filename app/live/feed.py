@@ -262,7 +262,7 @@ class LiveFeed:
         self.url, self.options, self.clock = url, options, clock
         self.run = run or LiveRun(url, delay_s=options.delay_s)
         self.buffer = JitterBuffer(options.delay_s)
-        self.klv_poses = LivePoses(stale_after_s=options.delay_s)
+        self.klv_poses = LivePoses(options.delay_s, options.origin)  # (where never placed)
         self.poses: LivePoses | MavlinkPoses = self.klv_poses
         self.mav: MavlinkReceiver | None = None
         self.lag: LagEstimator | None = None
@@ -393,6 +393,13 @@ class LiveFeed:
                 self.run.gnss = self.gnss
             else:
                 messages.info(f"live registration off: {refusal}")
+        if self.mav is None and self.poses.unplaced:
+            lat, lon, _ = self.options.origin
+            messages.add(
+                f"no KLV set places the sensor (tags 13, 14): the camera is searched for on the scene within {DEFAULT_START_RADIUS_M:g} m of --origin {lat:.5f}, {lon:.5f}, at the sensor's height; frames are drawn once it is found"
+                if self.registration is not None
+                else "no KLV set places the sensor: nothing can be drawn (give --origin and a textured --scene to search for it)"
+            )
         if self.mav is not None and self.poses.telemetry.unfixed:
             lat, lon, _ = self.poses.telemetry.home
             named = self.poses.telemetry.home_from

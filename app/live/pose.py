@@ -63,8 +63,14 @@ class LivePoses:
     attitude, with or without a position (a GNSS outage: the sensor's angles go on), which
     the camera's attitude is taken from."""
 
-    def __init__(self, stale_after_s: float) -> None:
+    def __init__(
+        self, stale_after_s: float, assumed_home: tuple[float, float, float] | None = None
+    ) -> None:
+        """assumed_home: (lat, lon deg, ellipsoidal h m) where a feed that never places the
+        sensor is searched for (a live feed's --origin): its camera stands there at the
+        sensor's height, not fixed (LivePose.fixed), until a set places it."""
         self.stale_after_s = stale_after_s
+        self.assumed_home = assumed_home
         self.t: list[float] = []
         self.geodetic: list[tuple[float, float, float]] = []
         self.q: list[np.ndarray] = []
@@ -78,6 +84,7 @@ class LivePoses:
         self._utc_link: float | None = None  # Unix s - media s, from the first set with a time
         self._att_t: list[float] = []  # the sets with an attitude, placed or not
         self._att_q: list[np.ndarray] = []
+        self._att_h: list[float] = []  # their sensor's ellipsoidal height (m; NaN: none given)
         self._lock = threading.Lock()
 
     def add(self, t: float, s: LocalSet) -> bool:
@@ -89,11 +96,14 @@ class LivePoses:
         g = one.gnss()
         q = camera_orientation(s)
         if q is not None:
+            lat, lon = self.assumed_home[:2] if self.assumed_home else (0.0, 0.0)
+            h = float(one.heights("sensor_ellipsoid_m", "sensor_msl_m", [lat], [lon])[0])
             with self._lock:
                 i = bisect.bisect_right(self._att_t, t)
                 if not (i and self._att_t[i - 1] == t):
                     self._att_t.insert(i, t)
                     self._att_q.insert(i, q)
+                    self._att_h.insert(i, h)
         if g is None or q is None:
             self.without_pose += 1
             return False
@@ -146,10 +156,25 @@ class LivePoses:
             ]
         return [(t - JUMP_EDGE_S, t) for t in at]
 
+    @property
+    def unplaced(self) -> bool:
+        """Whether the camera stands at the assumed home for want of any set placing the
+        sensor (its height given)."""
+        return not self.t and self.assumed_home is not None and bool(self._placeable())
+
+    def _placeable(self) -> list[int]:
+        """Indices of the attitude sets that give the sensor's height."""
+        return [i for i, h in enumerate(self._att_h) if np.isfinite(h)]
+
     def first(self) -> tuple[float, float, float] | None:
-        """The first position (lat, lon, ellipsoidal h), None before any."""
+        """The first position (lat, lon, ellipsoidal h); never placed, the assumed home at
+        the sensor's first height; None before either."""
         with self._lock:
-            return self.geodetic[0] if self.geodetic else None
+            if self.geodetic:
+                return self.geodetic[0]
+            if self.unplaced:
+                return (*self.assumed_home[:2], self._att_h[self._placeable()[0]])
+            return None
 
     def fix_interval_s(self) -> float | None:
         """The usual interval between the recent sets (s), None before two."""
@@ -163,7 +188,7 @@ class LivePoses:
         return self.centre_h, "the KLV frame centre's height"
 
     def __len__(self) -> int:
-        return len(self.t)
+        return len(self._placeable()) if self.unplaced else len(self.t)
 
     def at(
         self,
@@ -178,6 +203,8 @@ class LivePoses:
         between two sets, the newest held past it; own_fov False: `intrinsics` as they are, a
         field of view the user gave)."""
         with self._lock:
+            if not self.t and self.unplaced:
+                return self._unplaced_at(t, frame, intrinsics, far)
             if not self.t:
                 return LivePose(None, NONE, float("inf"))
             i = bisect.bisect_right(self.t, t)
@@ -205,6 +232,20 @@ class LivePoses:
             intrinsics = Intrinsics.from_fov(intrinsics.width, intrinsics.height, fov)
         camera = Camera.create(intrinsics, enu, q, far=far)
         return LivePose(camera, FRESH if age <= self.stale_after_s else STALE, age)
+
+    def _unplaced_at(
+        self, t: float, frame: LocalFrame, intrinsics: Intrinsics, far: float
+    ) -> LivePose:
+        """The camera at the assumed home, at the sensor's height and attitude of media time t
+        (s), not fixed; under the lock."""
+        k = self._placeable()
+        times = [self._att_t[i] for i in k]
+        h = float(np.interp(t, times, [self._att_h[i] for i in k]))
+        lat, lon = self.assumed_home[:2]
+        enu = frame.geodetic_to_enu(np.array([lat]), np.array([lon]), np.array([h]))[0]
+        camera = Camera.create(intrinsics, enu, self._attitude_at(t), far=far)
+        age = max(t - times[-1], times[0] - t, 0.0)
+        return LivePose(camera, FRESH if age <= self.stale_after_s else STALE, age, False)
 
     def _attitude_at(self, t: float) -> np.ndarray:
         """The attitude at media time t (s) from every set that gave one (slerp between two,

@@ -289,7 +289,7 @@ def _stream_options(p: argparse.ArgumentParser) -> None:
         type=lambda s: floats(s, 3, GEODETIC),
         default=None,
         help="a stream's assumed ground: latitude, longitude (deg), ellipsoidal height (m) of its origin; "
-        "a MAVLink feed without any fix nor HOME_POSITION is searched for within 300 m of it (its take-off point)",
+        "a feed without any fix (MAVLink without a HOME_POSITION, KLV that never places the sensor) is searched for within 300 m of it (its take-off point)",
     )
     p.add_argument(
         "--mavlink",

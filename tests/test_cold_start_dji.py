@@ -8,19 +8,20 @@ file."""
 from __future__ import annotations
 
 import csv
+import json
 import math
 import re
 from dataclasses import replace
 
 import numpy as np
 import pytest
+from PIL import Image
 
 from app.cli import main
 from app.core.errors import DataFormatError, GeofuseError
 from app.footage.clips import open_clip
 from app.geodesy.enu import LocalFrame
 from app.io.dji_srt import read_srt, takeoff_heights
-from app.io.misb import camera_set
 from app.register.coldstart import platform_height
 from app.scene.layers import Layer
 from app.session import open_session
@@ -29,6 +30,7 @@ from app.simulate import drone
 from app.simulate.sample import SAMPLE_SCENE
 from app.simulate.stadium import SITE_ORIGIN
 from app.simulate.tileset import write_site
+from tests.conftest import run_viewer
 
 SECONDS = 3.0
 OFF_M = 150.0  # the area's centre from the true start
@@ -64,6 +66,22 @@ def _solved_error(out) -> np.ndarray:
     )
     truth, _ = drone.flight(np.array([float(r["time_s"]) for r in rows]))
     return np.linalg.norm(got - truth, axis=1)
+
+
+def _viewed(display, unfixed, near: tuple[float, float], tmp_path, steps: str) -> dict:
+    """The viewer's state (a script's `state`) after `geofuse view CLIP --scene SITE --near`
+    and the script's steps once `registered` is solved (or failed); the viewer must exit 0."""
+    video, _, site = unfixed
+    state, script = tmp_path / "v.json", tmp_path / "s.txt"
+    script.write_text(
+        f"0 clock 0.05\n0 wait registered\n{steps + chr(10) if steps else ''}0.2 state {state}\n0.3 quit\n"
+    )
+    result = run_viewer(
+        display, str(video), "--scene", str(site), "--near", f"{near[0]},{near[1]}",
+        "--script", str(script), "--size", "640x360",
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr[-2000:]
+    return json.loads(state.read_text())
 
 
 def _near(east_m: float, north_m: float) -> tuple[float, float]:
@@ -176,24 +194,12 @@ def test_the_viewer_opens_a_dji_clip_without_a_fix_on_the_pose_found(unfixed, di
     """`geofuse view CLIP --scene SITE --near LAT,LON`: the viewer opens on `registered`, the
     projector at the frame shown stands where the flight was (within the registration's error),
     and the picture is drawn."""
-    import json
-
-    from PIL import Image
-
-    from tests.conftest import run_viewer
-
     video, _, site = unfixed
     lat, lon = _near(OFF_M, 0.0)
-    out, state, script = tmp_path / "v.png", tmp_path / "v.json", tmp_path / "s.txt"
-    script.write_text(
-        f"0 clock 0.05\n0 wait registered\n0 seek 1.5\n0 pause\n0.2 screenshot {out}\n0.2 state {state}\n0.3 quit\n"
+    out = tmp_path / "v.png"
+    s = _viewed(
+        display, unfixed, (lat, lon), tmp_path, f"0 seek 1.5\n0 pause\n0.2 screenshot {out}"
     )
-    result = run_viewer(
-        display, str(video), "--scene", str(site), "--near", f"{lat},{lon}",
-        "--script", str(script), "--size", "640x360",
-    )  # fmt: skip
-    assert result.returncode == 0, result.stderr[-2000:]
-    s = json.loads(state.read_text())
     assert s["source"] == "registered" and s["errors"] == [], s
     frame = s["frame"]
     session = open_clip(video, layers=(Layer.of(site),), start=StartArea.near(lat, lon, 300.0))
@@ -210,13 +216,7 @@ def test_the_viewer_opens_a_dji_clip_without_a_fix_on_the_pose_found(unfixed, di
 def unplaced_klv(tmp_path_factory):
     """The same weave as an MPEG-TS whose KLV never places the sensor (no tags 13, 14: a
     platform without a fix that still knows its height above the ellipsoid, tag 75)."""
-    site = LocalFrame(*SITE_ORIGIN)
-    sets = []
-    for t in np.arange(0.0, SECONDS, 1 / drone.FPS):
-        pos, heading = drone.flight(np.array([t]))
-        geodetic = tuple(float(v) for v in site.enu_to_geodetic(pos)[0])
-        hpr = (float(heading[0]), drone.PITCH_DEG, 0.0)
-        sets.append((float(t), camera_set(1.7e9 + t, geodetic, hpr, drone.HFOV_DEG, placed=False)))
+    sets = drone.klv_sets(SECONDS, 0.0)
     folder = tmp_path_factory.mktemp("klv-unplaced")
     return drone.write_video(folder / "downlink.ts", SECONDS, (320, 180), klv=sets), write_site(
         folder / "site"
@@ -253,19 +253,7 @@ def test_the_viewer_says_an_area_with_no_scene_and_keeps_running(unfixed, displa
     """The same clip given an area 2 km from the scene: the search finds no scene there; the
     viewer says so (the Attitude panel, in red: `registered` failed and why) and keeps running
     (the script goes on to its end)."""
-    import json
-
-    from tests.conftest import run_viewer
-
-    video, _, site = unfixed
     lat, lon = _near(2000.0, 0.0)
-    state, script = tmp_path / "v.json", tmp_path / "s.txt"
-    script.write_text(f"0 clock 0.05\n0 wait registered\n0.2 state {state}\n0.3 quit\n")
-    result = run_viewer(
-        display, str(video), "--scene", str(site), "--near", f"{lat},{lon}",
-        "--script", str(script), "--size", "640x360",
-    )  # fmt: skip
-    assert result.returncode == 0, result.stderr[-2000:]
-    s = json.loads(state.read_text())
+    s = _viewed(display, unfixed, (lat, lon), tmp_path, "")
     assert "the area holds no scene" in s["failed"]["registered"], s["failed"]
     assert s["source"] == "registered" and s["errors"] == []  # nothing else went wrong

@@ -14,7 +14,6 @@ import pytest
 from app.geodesy import rotations
 from app.geodesy.enu import LocalFrame
 from app.io.mavlink import MavlinkTelemetry
-from app.io.misb import camera_set
 from app.live.run import LiveOptions, run_flown, run_sent
 from app.simulate import autopilot, drone
 from app.simulate.downlink import sample_layer
@@ -183,13 +182,7 @@ def test_a_fixed_mavlink_feed_keeps_its_keyframes_while_the_videos_lag_is_unknow
 def klv_lost(tmp_path_factory):
     """The weave as a KLV downlink whose sets stop placing the sensor at 4 s (tags 13, 14 gone:
     jammed), their angles and height going on."""
-    sets = []
-    for t in np.arange(0.0, SECONDS, 1 / drone.FPS):
-        pos, heading = drone.flight(np.array([t]))
-        geodetic = tuple(float(v) for v in SITE.enu_to_geodetic(pos)[0])
-        hpr = (float(heading[0]), drone.PITCH_DEG, 0.0)
-        payload = camera_set(1.7e9 + t, geodetic, hpr, drone.HFOV_DEG, SITE_ORIGIN[2], t < 4.0)
-        sets.append((float(t), payload))
+    sets = drone.klv_sets(SECONDS, 4.0, SITE_ORIGIN[2])
     path = tmp_path_factory.mktemp("klv-lost") / "downlink.ts"
     return drone.write_video(path, SECONDS, SIZE, klv=sets)
 
@@ -226,14 +219,8 @@ def test_a_klv_feed_that_stops_placing_the_sensor_turns_with_its_angles_on_the_s
 @pytest.fixture(scope="module")
 def klv_unplaced(tmp_path_factory):
     """The weave as a KLV downlink that never places the sensor (its angles and height only)."""
-    sets = []
-    for t in np.arange(0.0, SECONDS, 1 / drone.FPS):
-        pos, heading = drone.flight(np.array([t]))
-        geodetic = tuple(float(v) for v in SITE.enu_to_geodetic(pos)[0])
-        hpr = (float(heading[0]), drone.PITCH_DEG, 0.0)
-        sets.append((float(t), camera_set(1.7e9 + t, geodetic, hpr, drone.HFOV_DEG, placed=False)))
     path = tmp_path_factory.mktemp("klv-unplaced") / "downlink.ts"
-    return drone.write_video(path, SECONDS, SIZE, klv=sets)
+    return drone.write_video(path, SECONDS, SIZE, klv=drone.klv_sets(SECONDS, 0.0))
 
 
 @pytest.mark.gl

@@ -11,6 +11,7 @@ sync` (the GNSS lag found from the course)."""
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
@@ -20,6 +21,7 @@ import numpy as np
 from app.camera.intrinsics import Intrinsics
 from app.geodesy import rotations
 from app.geodesy.enu import LocalFrame
+from app.io.misb import camera_set
 from app.scene import load_scene
 from app.simulate.sample import SAMPLE_DIR
 from app.simulate.stadium import SITE_ORIGIN
@@ -73,6 +75,25 @@ def write_video(
     return render_video(
         path, mesh, Intrinsics.from_fov(*size, HFOV_DEG), pos, q, t, crf=crf, klv=klv
     )
+
+
+def klv_sets(
+    duration_s: float, placed_until_s: float = math.inf, ground_h_m: float | None = None
+) -> list[tuple[float, bytes]]:
+    """The weave's MISB ST 0601 Local Sets, one per frame (time s, payload): the camera's
+    position, angles and field of view (app.io.misb.camera_set), from placed_until_s on without
+    its latitude and longitude (a platform without a fix, its angles and height going on);
+    ground_h_m: the frame centre's ellipsoidal height while placed."""
+    frame = LocalFrame(*SITE_ORIGIN)
+    out = []
+    for t in np.arange(0.0, duration_s, 1.0 / FPS):
+        pos, heading = flight(np.array([t]))
+        geodetic = tuple(float(v) for v in frame.enu_to_geodetic(pos)[0])
+        hpr = (float(heading[0]), PITCH_DEG, 0.0)
+        utc = START.timestamp() + t
+        payload = camera_set(utc, geodetic, hpr, HFOV_DEG, ground_h_m, t < placed_until_s)
+        out.append((float(t), payload))
+    return out
 
 
 def srt_text(

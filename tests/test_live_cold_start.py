@@ -30,9 +30,10 @@ def downlink(tmp_path_factory):
     return drone.write_video(tmp_path_factory.mktemp("cold") / "downlink.ts", SECONDS, SIZE)
 
 
-def _flown(downlink, origin, **autopilot_options) -> tuple:
+def _flown(downlink, origin, live: dict | None = None, **autopilot_options) -> tuple:
     """(the run, its frames drawn as (Drawn, Camera)) of the downlink and its autopilot's
-    telemetry (autopilot_options: MavlinkSender's) sent in lockstep, drawn on the sample model."""
+    telemetry (autopilot_options: MavlinkSender's) sent in lockstep, drawn on the sample model
+    (live: more LiveOptions)."""
     drawn = []
     options = LiveOptions(
         silence_s=2.0,
@@ -40,6 +41,7 @@ def _flown(downlink, origin, **autopilot_options) -> tuple:
         layers=(sample_layer(),),
         hfov_deg=drone.HFOV_DEG,
         origin=origin,
+        **(live or {}),
     )
     run = run_flown(
         downlink, options, SECONDS, lambda d, c: drawn.append((d, c)), True, **autopilot_options
@@ -247,3 +249,16 @@ def test_a_klv_feed_that_never_places_the_sensor_is_found_around_origin(klv_unpl
         want = run.frame.geodetic_to_enu(*SITE.enu_to_geodetic(pos).T)[0]
         metres.append(float(np.linalg.norm(np.asarray(cam.position) - want)))
     assert len(metres) > 150 and np.median(metres) < 0.5 and max(metres) < 1.5, metres
+
+
+@pytest.mark.gl
+def test_a_home_point_farther_than_the_search_radius_is_not_found_and_nothing_is_drawn(downlink):
+    """`--search-radius 50`: the drone flies 82-110 m from home over these 3 s, beyond the disc;
+    every search says so and no frame is drawn from a place no one found."""
+    live = {"search_radius_m": 50.0, "seconds": 3.0}
+    run, drawn = _flown(downlink, None, live, fixed=False, home=True)
+    said = " ".join(run.messages.items)
+    assert "within 50 m of the home point" in said, said
+    reg = run.registration
+    assert reg.tried >= 2 and reg.registered == 0 and "not found within 50 m" in reg.last_failure
+    assert drawn == [] and run.without_pose > 0, run.summary()

@@ -38,6 +38,7 @@ def run(args: argparse.Namespace) -> int:
         size=tuple(args.size),
         layers=layers(args),
         origin=tuple(args.origin) if args.origin else None,
+        search_radius_m=args.search_radius,
         mavlink=args.mavlink,
         hfov_deg=args.fov,
         register=args.register,

@@ -38,6 +38,7 @@ from app.core.constants import (
     SYNC_MIN_CONFIDENCE,
 )
 from app.export import EXPORT_SUFFIXES
+from app.session.start import DEFAULT_START_RADIUS_M
 from app.share.target import CotTarget, parse_target
 
 __all__ = ["BENCHMARKS", "MAX_IMAGE_SIDE", "build_parser", "joined_negative_values"]
@@ -289,7 +290,14 @@ def _stream_options(p: argparse.ArgumentParser) -> None:
         type=lambda s: floats(s, 3, GEODETIC),
         default=None,
         help="a stream's assumed ground: latitude, longitude (deg), ellipsoidal height (m) of its origin; "
-        "a feed without any fix (MAVLink without a HOME_POSITION, KLV that never places the sensor) is searched for within 300 m of it (its take-off point)",
+        "a feed without any fix (MAVLink without a HOME_POSITION, KLV that never places the sensor) is searched for within --search-radius of it (its take-off point)",
+    )
+    p.add_argument(
+        "--search-radius",
+        type=number(0.0, 100_000.0, open_low=True),
+        default=DEFAULT_START_RADIUS_M,
+        metavar="M",
+        help="a feed without any fix: how far around its home point (HOME_POSITION, else --origin) the camera is searched for, metres (default 300)",
     )
     p.add_argument(
         "--mavlink",

@@ -108,6 +108,7 @@ def _stream(args: argparse.Namespace, server: MapServer, said: Printer) -> None:
         size=STREAM_DRAWING,
         layers=layers(args),
         origin=tuple(args.origin) if args.origin else None,
+        search_radius_m=args.search_radius,
         mavlink=args.mavlink,
         hfov_deg=args.fov,
         register=args.register,

@@ -41,6 +41,7 @@ def run(args: argparse.Namespace) -> int:
     live = LiveOptions(
         delay_s=args.buffer_ms / 1000.0,
         origin=tuple(args.origin) if args.origin else None,
+        search_radius_m=args.search_radius,
         mavlink=args.mavlink,
         hfov_deg=args.fov,
         register=args.register,

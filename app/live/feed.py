@@ -226,6 +226,7 @@ class LiveOptions:
     sinks: tuple = ()
     gnss_accuracy_m: float | None = None
     read_timeout_s: float = READ_TIMEOUT_S  # a read waiting longer: the stream is opened again
+    search_radius_m: float = DEFAULT_START_RADIUS_M  # no fix at all: searched this far from home
 
 
 def scene_for(poses: LivePoses | MavlinkPoses, options: LiveOptions, messages: Messages):
@@ -387,6 +388,7 @@ class LiveFeed:
                     fix_at=self._fix_at,
                     jumps_between=self.poses.jumps_between,
                     unfixed=self._unfixed,
+                    search_radius_m=o.search_radius_m,
                     settled=lambda: self.lag is None or self.lag.applied,
                 ).start()
                 self.run.registration = self.registration.state
@@ -396,7 +398,7 @@ class LiveFeed:
         if self.mav is None and self.poses.unplaced:
             lat, lon, _ = self.options.origin
             messages.add(
-                f"no KLV set places the sensor (tags 13, 14): the camera is searched for on the scene within {DEFAULT_START_RADIUS_M:g} m of --origin {lat:.5f}, {lon:.5f}, at the sensor's height; frames are drawn once it is found"
+                f"no KLV set places the sensor (tags 13, 14): the camera is searched for on the scene within {o.search_radius_m:g} m of --origin {lat:.5f}, {lon:.5f}, at the sensor's height; frames are drawn once it is found"
                 if self.registration is not None
                 else "no KLV set places the sensor: nothing can be drawn (give --origin and a textured --scene to search for it)"
             )
@@ -406,7 +408,7 @@ class LiveFeed:
             messages.add(
                 "MAVLink: no GNSS fix (GLOBAL_POSITION_INT at 0, 0): "
                 + (
-                    f"the camera is searched for on the scene within {DEFAULT_START_RADIUS_M:g} m of the home point {lat:.5f}, {lon:.5f} ({named}), at the barometer's height above it; frames are drawn once it is found"
+                    f"the camera is searched for on the scene within {o.search_radius_m:g} m of the home point {lat:.5f}, {lon:.5f} ({named}), at the barometer's height above it; frames are drawn once it is found"
                     if self.registration is not None
                     else f"nothing can be drawn: the camera is searched for around the home point ({named}) on a textured scene (give --scene)"
                 )

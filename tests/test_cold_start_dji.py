@@ -18,7 +18,7 @@ import pytest
 from PIL import Image
 
 from app.cli import main
-from app.core.errors import DataFormatError, GeofuseError
+from app.core.errors import DataFormatError, GeofuseError, ManifestError
 from app.footage.clips import open_clip
 from app.geodesy.enu import LocalFrame
 from app.io.dji_srt import read_srt, takeoff_heights
@@ -182,6 +182,11 @@ def test_a_subtitle_at_0_0_has_no_position_and_keeps_its_barometer(tmp_path):
         f'[video]\npath = "{video}"\nstart_time = 1000.0\n\n[camera]\nhfov_deg = {drone.HFOV_DEG}\n\n'
         f'[sensors]\nformat = "none"\n\n[gnss]\npath = "{tmp_path / "DJI_0002.SRT"}"\n'
     )
+    bare = tmp_path / "bare.toml"  # the same without its scene (its origin kept): nothing to search
+    rest = manifest.read_text().split("[video]", 1)[1]
+    bare.write_text(f"[origin]\nlat = {lat}\nlon = {lon}\nh = {h0}\n\n[video]{rest}")
+    with pytest.raises(ManifestError, match="no GNSS fix at all and no scene"):
+        open_session(bare)
     session = open_session(manifest)
     assert len(session.gnss.t) == 0
     t, h = session.platform_heights.t, session.platform_heights.h

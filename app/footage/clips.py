@@ -634,7 +634,7 @@ def _klv_unplaced(
             field="KLV",
         )
     messages.add(
-        f"{path.name}: no KLV set places the sensor (tags 13, 14): searched for within {start.said}"
+        f"{path.name}: no KLV set places the sensor (tags 13, 14 and 75 or 15): searched for within {start.said}"
     )
     heights = PlatformHeights(track.times()[ok], h[ok], ELLIPSOID, "the KLV's sensor height") if ok.any() else None  # fmt: skip
     level = float(np.median(h[ok])) if ok.any() else KLV_ASSUMED_HEIGHT_M

@@ -203,8 +203,8 @@ class MavlinkCounts:
 @dataclass(frozen=True)
 class TelemetryPose:
     """The camera at a boot time: geodetic (lat, lon deg, ellipsoidal h m), camera -> ENU
-    quaternion, and how far past the newest position or attitude it lies (s, 0 when between);
-    fixed: False where no fix placed it (the home point at the barometer's height: see the
+    quaternion, and how far past the newest position or attitude it lies (s, 0 when between;
+    fix_age_s: past the newest position); fixed: False where no fix placed it (the home point at the barometer's height: see the
     module docstring)."""
 
     geodetic: tuple[float, float, float]
@@ -212,6 +212,7 @@ class TelemetryPose:
     age_s: float
     gimbal: bool
     fixed: bool = True
+    fix_age_s: float = 0.0  # how far past the newest position alone (s)
 
 
 class MavlinkTelemetry:
@@ -384,7 +385,8 @@ class MavlinkTelemetry:
             relative = self._gim_relative
         q = camera_quat(vehicle, gimbal, relative)
         place = (float(lat), float(lon), float(h))
-        return TelemetryPose(place, q, age, gimbal is not None, not unfixed)
+        fix_age = max(boot_s - newest, 0.0)
+        return TelemetryPose(place, q, age, gimbal is not None, not unfixed, fix_age)
 
     def fix_interval_s(self) -> float | None:
         """The usual interval between the recent fixes (s), None before two."""

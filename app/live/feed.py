@@ -390,30 +390,48 @@ class LiveFeed:
                     unfixed=self._unfixed,
                     search_radius_m=o.search_radius_m,
                     settled=lambda: self.lag is None or self.lag.applied,
+                    around=self._around,
                 ).start()
                 self.run.registration = self.registration.state
                 self.run.gnss = self.gnss
             else:
                 messages.info(f"live registration off: {refusal}")
+        self._say_unfixed()
+        return mesh
+
+    def _say_unfixed(self) -> None:
+        """Said once, as soon as it shows (the scene built, or later, when the first set or
+        message without a fix arrives): a camera with no fix at all, and where it is searched."""
+        o, messages = self.options, self.run.messages
+        searched = self.registration is not None
         if self.mav is None and self.poses.unplaced:
-            lat, lon, _ = self.options.origin
-            messages.add(
-                f"no KLV set places the sensor (tags 13, 14): the camera is searched for on the scene within {o.search_radius_m:g} m of --origin {lat:.5f}, {lon:.5f}, at the sensor's height; frames are drawn once it is found"
-                if self.registration is not None
-                else "no KLV set places the sensor: nothing can be drawn (give --origin and a textured --scene to search for it)"
+            lat, lon, _ = o.origin
+            messages.add_once(
+                "unfixed",
+                f"no KLV set places the sensor (tags 13, 14 and 75 or 15): the camera is searched for on the scene within {o.search_radius_m:g} m of --origin {lat:.5f}, {lon:.5f}, at the sensor's height; frames are drawn once it is found"
+                if searched
+                else "no KLV set places the sensor: nothing can be drawn (give --origin and a textured --scene to search for it)",
             )
         if self.mav is not None and self.poses.telemetry.unfixed:
             lat, lon, _ = self.poses.telemetry.home
             named = self.poses.telemetry.home_from
-            messages.add(
+            messages.add_once(
+                "unfixed",
                 "MAVLink: no GNSS fix (GLOBAL_POSITION_INT at 0, 0): "
                 + (
                     f"the camera is searched for on the scene within {o.search_radius_m:g} m of the home point {lat:.5f}, {lon:.5f} ({named}), at the barometer's height above it; frames are drawn once it is found"
-                    if self.registration is not None
+                    if searched
                     else f"nothing can be drawn: the camera is searched for around the home point ({named}) on a textured scene (give --scene)"
-                )
+                ),
             )
-        return mesh
+
+    def _around(self) -> str:
+        """What a camera without a current fix stands on, for messages."""
+        if self.mav is not None and self.poses.telemetry.unfixed:
+            return f"the home point ({self.poses.telemetry.home_from})"
+        if self.mav is None and self.poses.unplaced:
+            return "--origin"
+        return "the last fix, held"
 
     def _unfixed(self, t: float) -> bool:
         """Whether no current fix places the telemetry's camera at media time t (`_held`)."""
@@ -465,11 +483,14 @@ class LiveFeed:
 
     def _telemetry_camera(self, t: float) -> tuple[Camera, str, float, bool] | None:
         """The telemetry's camera of media time t (s), its state, how much older than t the
-        newest pose behind it is (s) and whether a fix placed it; None before any."""
+        newest position behind it is (s) and whether a fix placed it; None before any."""
         pose = self.poses.at(  # each frame with its own moment's field of view, unless given
             t, self.frame, self.intrinsics, self.options.far_m, self.options.hfov_deg is None
         )
-        return None if pose.camera is None else (pose.camera, pose.state, pose.age_s, pose.fixed)
+        if pose.camera is None:
+            return None
+        age = pose.age_s if pose.fix_age_s is None else pose.fix_age_s
+        return pose.camera, pose.state, age, pose.fixed
 
     def take(self, now: float) -> tuple[Arrival, float, Camera, str] | None:
         """The frame due at now with when it was due, its camera and the pose's state; None
@@ -482,6 +503,8 @@ class LiveFeed:
         raw = self._telemetry_camera(item.pts_s)
         camera, state, held_m = self._corrected(raw, item.pts_s)
         held = self._held(raw)
+        if raw is not None and not raw[3]:
+            self._say_unfixed()
         if raw is not None:
             self.registered = camera is not raw[0]  # (a correction makes a new camera)
             if held and self.registered and state == STALE:

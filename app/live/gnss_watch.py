@@ -244,14 +244,16 @@ class GnssWatch:
         fix_age_s (s) older than it (inf: none yet), held_off_m (m) of the telemetry's jumps not
         drawn (app.live.register.LiveRegistration.held_off: the fix not used as given, so
         `rejected`), held: its fix no longer current (app.live.register's HELD_S: the scene,
-        not the fix, carries it, so `missing` however young the outage): counted, and an
+        not the fix, carries it, so `missing`, an outage only past outage_s): counted, and an
         outage said when it ends."""
         with self._lock:
             self.held_off_m = held_off_m
-            if fix_age_s > self.outage_s or held:
+            if fix_age_s > self.outage_s:
                 status = MISSING
                 if self.outage_since is None:
                     self.outage_since = t_s - fix_age_s if math.isfinite(fix_age_s) else t_s
+            elif held:  # missing, no outage said yet: a dropout of a second is no outage
+                status = MISSING
             else:
                 if self.outage_since is not None:
                     span = (self.outage_since, t_s - fix_age_s)

@@ -45,6 +45,7 @@ class LivePose:
     state: str
     age_s: float
     fixed: bool = True
+    fix_age_s: float | None = None  # past the newest position alone (s); None: age_s
 
 
 def fov_between(a: float, b: float, w: float) -> float | None:
@@ -340,4 +341,4 @@ class MavlinkPoses:
         enu = frame.geodetic_to_enu(*(np.array([v]) for v in pose.geodetic))[0]
         camera = Camera.create(intrinsics, enu, pose.q, far=far)
         state = FRESH if pose.age_s <= self.stale_after_s else STALE
-        return LivePose(camera, state, pose.age_s, pose.fixed)
+        return LivePose(camera, state, pose.age_s, pose.fixed, pose.fix_age_s)

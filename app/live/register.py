@@ -95,6 +95,7 @@ UNFIXED_EVERY_S = 0.5  # without a fix a keyframe is offered this often (s): the
 # without a fix, frames are drawn once this many keyframes are kept: one alone gives no velocity,
 # and the platform flies on while the next registers (10-25 m drawn off in a real-time bench)
 CARRIED_FROM = 2
+HELD_POSES = 8  # turned poses a search found, kept for a later one to agree with
 LIVE_SETTINGS = RegistrationSettings(long_side=640, max_iterations=5)
 
 
@@ -103,12 +104,14 @@ class Kept:
     """A keyframe kept: media time (s), shift (ENU m) and rotation vector (rad, camera frame)
     from the telemetry's camera to the registered one, and whether the pose stands on the scene
     there: its fix disagreed with the scene beyond the threshold, or a lie was going on
-    (app.live.gnss_watch.Verdict)."""
+    (app.live.gnss_watch.Verdict), or no current fix placed it (`unfixed`: the shift stood on
+    a held fix or a home point, and means nothing once a fix is back)."""
 
     t_s: float
     shift: np.ndarray
     rotvec: np.ndarray
     on_scene: bool
+    unfixed: bool = False
 
 
 @dataclass
@@ -167,13 +170,14 @@ class LiveRegistration(Worker):
         unfixed: Callable[[float], bool] = lambda t: False,
         search_radius_m: float = DEFAULT_START_RADIUS_M,
         settled: Callable[[], bool] = lambda: True,
+        around: Callable[[], str] = lambda: "the telemetry's camera",
     ) -> None:
         self.mesh, self.messages, self.every_s, self.settings = mesh, messages, every_s, settings
         self.watch, self.accuracy_at, self.fix_at = watch, accuracy_at, fix_at
         self.jumps_between = jumps_between
         self.unfixed, self.search_radius_m = unfixed, search_radius_m
         self._held: list = []  # poses a search found turned too far: (t, position, offset)
-        self.settled = settled
+        self.settled, self.around = settled, around  # (around: what a search stood on, said)
         self._settled_s: float | None = None  # media s from which the rotation is gated
         self.state = LiveCorrection()
         self._lock = threading.Lock()
@@ -226,15 +230,19 @@ class LiveRegistration(Worker):
     def corrected(self, camera: Camera, t: float) -> tuple[Camera, float]:
         """(`correct`'s camera, how far (m) the jumps held off in it are: 0 where none is)."""
         jump = self.held_off(t)
-        lead = self._chained(t) if self.unfixed(t) else None
+        unfixed = self.unfixed(t)
+        lead = self._chained(t) if unfixed else None
         with self._lock:
             s = self.state
             if s.shift_m is None:
                 return camera, 0.0
             shift, rotvec = s.shift_at(t), s.rotvec
             carried = all(k.on_scene for k in s.kept[-CARRIED_FROM:])
-            if lead is not None and not carried:  # a fix just lost: too few keyframes since to
-                shift = lead[0] - np.asarray(camera.position)  # move by; they lead at their pace
+            if not unfixed and s.kept and s.kept[-1].unfixed:  # a fix back: the shifts stood
+                shift = np.zeros(3)  # on a held fix or a home point; the fix as it is, until a
+                # keyframe is kept under it
+            elif lead is not None and not carried:  # a fix just lost: too few keyframes since
+                shift = lead[0] - np.asarray(camera.position)  # to move by; they lead on
         if jump is not None:
             shift = shift - jump
         q = rotations.multiply(
@@ -294,18 +302,20 @@ class LiveRegistration(Worker):
 
     def _search(self, registrar: Registrar, rgb, t: float, prior: Camera):
         """(the last try's fix, the solved camera or None, the camera drawn at t, the chain's
-        lead (position, seconds ahead) or None): see the module docstring's order."""
+        lead (position, seconds ahead) or None, whether it was searched for over an area: the
+        search's own checks stand for the gate): see the module docstring's order."""
         start = self.correct(prior, t)
-        if self.unfixed(t) and not self._solved:  # never found: around the home point
+        if self.unfixed(t) and not self._solved:  # never found: around the telemetry's camera
             fix, solved = self._area(registrar, rgb, t, prior, self.search_radius_m, "no GNSS fix")
-            return fix, solved, start, None
+            return fix, solved, start, None, True
         fix, solved, start, chain = self._tried(registrar, rgb, t, prior, start)
         lost = t - self._solved[-1][0] if self._solved else 0.0
         if solved is None and self.unfixed(t) and lost >= LOST_S:
             near = posed(start, chain[0], np.asarray(start.orientation)) if chain else start
             radius = self.settings.lost_radius(lost)
             fix, solved = self._area(registrar, rgb, t, near, radius, f"lost {lost:.0f} s", fix)
-        return fix, solved, start, chain
+            return fix, solved, start, chain, True
+        return fix, solved, start, chain, False
 
     def _area(self, registrar: Registrar, rgb, t: float, around: Camera, radius: float, why: str, fix=None):  # fmt: skip
         """(fix, the pose or None) of a keyframe searched for within radius (m) of `around`
@@ -315,7 +325,9 @@ class LiveRegistration(Worker):
         ground = ground_heights(self.mesh, p[None, :2])
         height = p[2] - (ground[0] if len(ground) and np.isfinite(ground[0]) else 0.0)
         fix = fix if fix is not None else PoseFix(False, why, 0, 0, float("nan"))
-        return registrar.reacquired(rgb, around, [around], radius, t, self._held, fix, why, height)
+        found = registrar.reacquired(rgb, around, [around], radius, t, self._held, fix, why, height)
+        del self._held[:-HELD_POSES]  # (the newest: an earlier frame's pose to agree with)
+        return found
 
     def _tried(self, registrar: Registrar, rgb, t: float, prior: Camera, start: Camera):
         """_search's tries from the camera drawn (`start`), the chain and the telemetry's motion."""
@@ -347,7 +359,7 @@ class LiveRegistration(Worker):
                 (round(rgb.shape[1] * f), round(rgb.shape[0] * f)),
                 interpolation=cv2.INTER_AREA,
             )
-        fix, solved, start, chain = self._search(registrar, rgb, t, prior)
+        fix, solved, start, chain, searched = self._search(registrar, rgb, t, prior)
         unfixed = self.unfixed(t)
         s = self.state
         s.tried += 1
@@ -369,7 +381,8 @@ class LiveRegistration(Worker):
             and len(gating) >= TURN_GATED
             and np.degrees(np.linalg.norm(rotvec - np.median(gating, axis=0))) > GATE_DEG
         )
-        if turned or (len(s.kept) >= GATED and not self._agrees(where, start, chain)):
+        gated = len(s.kept) >= GATED and not searched
+        if turned or (gated and not self._agrees(where, start, chain)):
             s.mismatched += 1
             return
         s.registered += 1
@@ -377,7 +390,8 @@ class LiveRegistration(Worker):
         if self.watch is not None and not unfixed:
             verdict = self.watch.keyframe(t, np.asarray(prior.position), where, self.accuracy_at(t))
             on_scene = verdict.disagrees or verdict.lying  # a drift caught short of the threshold
-        s.kept = (s.kept + [Kept(t, shift, rotvec, on_scene)])[-max(KEEP, LIE_FIT) :]
+        kept = Kept(t, shift, rotvec, on_scene, unfixed)
+        s.kept = (s.kept + [kept])[-max(KEEP, LIE_FIT) :]
         first = s.shift_m is None
         frozen = unfixed or (
             self.watch is not None and self.watch.lying and self.watch.lies[-1].kind == FROZEN
@@ -390,7 +404,7 @@ class LiveRegistration(Worker):
                 s.since_s = t
         if first and unfixed:
             self.messages.info(
-                f"found live at {t:.1f} s by searching {self.search_radius_m:.0f} m around the home point: "
+                f"found live at {t:.1f} s by searching {self.search_radius_m:.0f} m around {self.around()}: "
                 f"{np.linalg.norm(shift[:2]):.0f} m from it ({fix.inliers} inliers, {fix.error_px:.2f} px); "
                 "drawn from then on, carried by the keyframes"
             )

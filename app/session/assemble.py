@@ -323,6 +323,12 @@ def _place(cfg: SessionConfig, gnss: GnssTrack, above_takeoff: bool, messages: M
     sees the ground: a track whose heights are above take-off is flown, and they are its
     heights over the ground (app.scene.ground_plane.ground_reach_m, as a drone clip's); any
     other is taken to be held at the mount height over a ground that follows it."""
+    if not len(gnss.t) and not any(layer.kind != "world" for layer in cfg.layers):
+        raise ManifestError(
+            cfg.path,
+            "no GNSS fix at all and no scene: a clip without GNSS is searched for on a scene ([scene] or [[layers]]; a [world] is built around a track)",
+            field="gnss.path",
+        )
     background = deferring(cfg.layers)  # the viewer builds the world while the flat ground shows
     reach = ground_reach_m(gnss.h) if above_takeoff else ASSUMED_GROUND_MARGIN_M
     if any(layer.kind == "world" for layer in cfg.layers):

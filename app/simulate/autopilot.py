@@ -102,7 +102,7 @@ class MavlinkSender:
     """Sends the autopilot's telemetry for flight times 0..seconds as MAVLink 2 datagrams to
     `address` (host, port) in real time: the messages of flight time t leave at start_s + t -
     lead_s on `clock` (lead_s > 0: the telemetry ahead of a video that left at start_s + t);
-    fixed False: without a GNSS fix (lost_at_s: from that flight time on); home: HOME_POSITION
+    fixed False: without a GNSS fix (lost_at_s: from that flight time on, until back_at_s); home: HOME_POSITION
     sent too, at home_enu (the module docstring)."""
 
     def __init__(
@@ -118,9 +118,10 @@ class MavlinkSender:
         home: bool = False,
         home_enu: tuple[float, float] = HOME_ENU,
         lost_at_s: float | None = None,
+        back_at_s: float = math.inf,
     ) -> None:
         self.path_of, self.fixed, self.home, self.home_enu = path_of, fixed, home, home_enu
-        self.lost_at_s = lost_at_s
+        self.lost_at_s, self.back_at_s = lost_at_s, back_at_s
         self.address = address
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.mav = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
@@ -157,7 +158,8 @@ class MavlinkSender:
             wait = self.start_s + t - self.lead_s - self.clock()
             if wait > 0 and self._stop.wait(wait):
                 return
-            fixed = self.fixed and (self.lost_at_s is None or t < self.lost_at_s)
+            lost = self.lost_at_s is not None and self.lost_at_s <= t < self.back_at_s
+            fixed = self.fixed and not lost
             for m in messages_at(t, kind, self.gimbal, self.mav, self.path_of, fixed, self.home_enu):  # fmt: skip
                 self.sock.sendto(m.pack(self.mav), self.address)
                 self.sent += 1

@@ -20,6 +20,7 @@ from app.playback.clock import PlaybackClock
 from app.playback.library import SolverLibrary
 from app.playback.player import Player
 from app.render.renderer import FusionRenderer
+from app.scene.ground import ground_heights
 from app.scene.layers import Layer, layer_kind
 from app.scene.mesh import MeshData
 from app.session.model import REGISTERED, Session
@@ -113,7 +114,8 @@ def home_view(session: Session, mesh: MeshData) -> Navigator:
         elif session.start is not None:  # no fix at all: the area searched, on the scene
             lat, lon = session.start.outline()
             enu = session.frame.geodetic_to_enu(lat, lon, np.full(len(lat), session.frame.h_m))
-            enu[:, 2] = mesh.bounds()[0, 2]
+            ground = ground_heights(mesh, enu[:, :2])  # (NaN off the scene: its lowest point)
+            enu[:, 2] = np.where(np.isfinite(ground), ground, mesh.bounds()[0, 2])
         else:
             enu = np.zeros((1, 3))
         centre = (enu.min(axis=0) + enu.max(axis=0)) / 2

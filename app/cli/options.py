@@ -340,6 +340,14 @@ def add_pitch_option(p: argparse.ArgumentParser, help: str) -> None:
     p.add_argument("--pitch", type=number(-90.0, 90.0), default=DRONE_DEFAULT_PITCH_DEG, help=help)
 
 
+def add_radius(p: argparse.ArgumentParser, name: str, default: float | None, help: str) -> None:
+    """An option of a search's radius (metres, positive): --radius of an area to start from,
+    --search-radius of a live feed's home point."""
+    p.add_argument(
+        name, type=number(0.0, 100_000.0, open_low=True), default=default, metavar="M", help=help
+    )
+
+
 def add_start_options(p: argparse.ArgumentParser) -> None:
     """--near LAT,LON with --radius M, or --start-area FILE, and --height M: where a clip with no
     GNSS fix at all begins (its `registered` source searches the scene there for the first
@@ -359,13 +367,7 @@ def add_start_options(p: argparse.ArgumentParser) -> None:
         metavar="FILE",
         help="as --near, within a GeoJSON polygon (or a Feature of one)",
     )
-    p.add_argument(
-        "--radius",
-        type=number(0.0, 100_000.0, open_low=True),
-        default=None,
-        metavar="M",
-        help="with --near: metres around it (default 300)",
-    )
+    add_radius(p, "--radius", None, "with --near: metres around it (default 300)")
     p.add_argument(
         "--height",
         type=number(0.0, 100_000.0, open_low=True),

@@ -18,6 +18,7 @@ from app.cli.options import (
     add_lens_option,
     add_pitch_option,
     add_projection_options,
+    add_radius,
     add_source_option,
     add_srt_option,
     add_start_options,
@@ -292,12 +293,11 @@ def _stream_options(p: argparse.ArgumentParser) -> None:
         help="a stream's assumed ground: latitude, longitude (deg), ellipsoidal height (m) of its origin; "
         "a feed without any fix (MAVLink without a HOME_POSITION, KLV that never places the sensor) is searched for within --search-radius of it (its take-off point)",
     )
-    p.add_argument(
+    add_radius(
+        p,
         "--search-radius",
-        type=number(0.0, 100_000.0, open_low=True),
-        default=DEFAULT_START_RADIUS_M,
-        metavar="M",
-        help="a feed without any fix: how far around its home point (HOME_POSITION, else --origin) the camera is searched for, metres (default 300)",
+        DEFAULT_START_RADIUS_M,
+        "a feed without any fix: how far around its home point (HOME_POSITION, else --origin) the camera is searched for, metres (default 300)",
     )
     p.add_argument(
         "--mavlink",

@@ -13,7 +13,7 @@ import numpy as np
 
 from app.camera.pinhole import Camera
 from app.camera.profiles import still_camera
-from app.core.constants import DRONE_DEFAULT_PITCH_DEG
+from app.core.constants import DEFAULT_START_RADIUS_M, DRONE_DEFAULT_PITCH_DEG
 from app.core.errors import GeofuseError, ManifestError
 from app.core.imageio import read_rgb
 from app.core.outputs import check_output
@@ -29,7 +29,7 @@ from app.scene.mesh import MeshData
 from app.session.camera_track import CameraTrack
 from app.session.config import ClipRef
 from app.session.model import REGISTERED, Session
-from app.session.start import DEFAULT_START_RADIUS_M, StartArea
+from app.session.start import StartArea
 from app.solve.track import solve_track
 from app.world.build import world_layer
 from app.world.overpass import is_overpass

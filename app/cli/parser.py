@@ -32,6 +32,7 @@ from app.cli.options import (
 )
 from app.core.constants import (
     DEFAULT_FAR_M,
+    DEFAULT_START_RADIUS_M,
     DRONE_DEFAULT_PITCH_DEG,
     FOV_RANGE_DEG,
     KEYFRAMES_S,
@@ -39,7 +40,6 @@ from app.core.constants import (
     SYNC_MIN_CONFIDENCE,
 )
 from app.export import EXPORT_SUFFIXES
-from app.session.start import DEFAULT_START_RADIUS_M
 from app.share.target import CotTarget, parse_target
 
 __all__ = ["BENCHMARKS", "MAX_IMAGE_SIDE", "build_parser", "joined_negative_values"]

@@ -51,3 +51,7 @@ DEFAULT_DEPTH_SLOPE_BIAS = 2.0  # slope-scaled part, in depth-map texels of surf
 DEFAULT_ALPHA = 1.0  # video opacity over the model: 0 = model only, 1 = video only
 
 UNIX_TIME_FLOOR_S = 946_684_800.0  # 2000-01-01: session clocks past this are Unix time (UTC)
+
+# A search for the first pose without any GNSS fix (issue 52's cold start): --near without
+# --radius, and a live feed's --search-radius around its home point (m).
+DEFAULT_START_RADIUS_M = 300.0

@@ -27,7 +27,7 @@ import numpy as np
 
 from app.camera.intrinsics import Intrinsics
 from app.camera.pinhole import Camera
-from app.core.constants import DEFAULT_FAR_M
+from app.core.constants import DEFAULT_FAR_M, DEFAULT_START_RADIUS_M
 from app.core.messages import Messages
 from app.footage.clips import ASSUMED_DRONE_HFOV_DEG, KLV_ASSUMED_HEIGHT_M, frame_and_ground
 from app.geodesy import rotations
@@ -55,7 +55,6 @@ from app.live.restream import RestreamCounts, Restreamer, Tee
 from app.playback.decoder import yuv_planes
 from app.scene.mesh import MeshData
 from app.session.model import scene_refusal
-from app.session.start import DEFAULT_START_RADIUS_M
 
 REVIEW_TOLERANCE_S = 0.02  # a reviewed frame is the first at or after the time asked, less this
 

@@ -61,6 +61,7 @@ import numpy as np
 from scipy.stats import theilslopes
 
 from app.camera.pinhole import Camera
+from app.core.constants import DEFAULT_START_RADIUS_M
 from app.core.messages import Messages
 from app.core.worker import Worker
 from app.geodesy import rotations
@@ -72,7 +73,6 @@ from app.register.keyframe import PoseFix, posed
 from app.register.solve import Registrar, RegistrationSettings
 from app.scene.ground import ground_heights
 from app.scene.mesh import MeshData
-from app.session.start import DEFAULT_START_RADIUS_M
 
 EVERY_S = 1.0  # a keyframe offered every this much video (s)
 KEEP = 5

@@ -17,7 +17,6 @@ from shapely.geometry.base import BaseGeometry
 
 from app.geodesy.enu import LocalFrame
 
-DEFAULT_START_RADIUS_M = 300.0  # --near without --radius
 HEIGHT_OVER_S = (
     5.0  # a height the telemetry gives: its median over the clip's first seconds (searched)
 )

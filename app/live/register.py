@@ -71,7 +71,6 @@ from app.playback.decoder import planes_to_rgb
 from app.register.gnss import FROZEN
 from app.register.keyframe import PoseFix, posed
 from app.register.solve import Registrar, RegistrationSettings
-from app.scene.ground import ground_heights
 from app.scene.mesh import MeshData
 
 EVERY_S = 1.0  # a keyframe offered every this much video (s)
@@ -321,11 +320,8 @@ class LiveRegistration(Worker):
         """(fix, the pose or None) of a keyframe searched for within radius (m) of `around`
         (Registrar.reacquired), at its height above the scene's ground (above the frame's
         origin, the home's ground, where the scene has none under it)."""
-        p = np.asarray(around.position, np.float64)
-        ground = ground_heights(self.mesh, p[None, :2])
-        height = p[2] - (ground[0] if len(ground) and np.isfinite(ground[0]) else 0.0)
         fix = fix if fix is not None else PoseFix(False, why, 0, 0, float("nan"))
-        found = registrar.reacquired(rgb, around, [around], radius, t, self._held, fix, why, height)
+        found = registrar.reacquired(rgb, around, [around], radius, t, self._held, fix, why, 0.0)
         del self._held[:-HELD_POSES]  # (the newest: an earlier frame's pose to agree with)
         return found
 

@@ -499,20 +499,20 @@ class Registrar:
         held: list,
         fix: PoseFix,
         why: str,
-        height_m: float | None = None,
+        off_scene_ground_m: float | None = None,
     ) -> tuple[PoseFix, Camera | None]:
         """A keyframe searched for over discs of radius (m) around each of `near` (where the
         last keyframes lead, where the IMU carried the prior, the nearest fix; a live feed's
-        home point), at the first one's height above the ground (height_m where given: the
-        platform's own), with the prior's attitude (prior_cam), from the first one out; a pose
-        turned beyond the search's tolerance is taken where one held from an earlier search
-        (`held`, session times t s) agrees. (fix, the pose or None); fix says what was found,
-        or keeps the keyframe's reason with why it was searched ("lost 3 s")."""
+        home point), at the first one's height above the scene's ground under it (where the
+        scene has none there: above off_scene_ground_m, ENU z m, and not searched where that is
+        None), with the prior's attitude (prior_cam), from the first one out; a pose turned
+        beyond the search's tolerance is taken where one held from an earlier search (`held`,
+        session times t s) agrees. (fix, the pose or None); fix says what was found, or keeps
+        the keyframe's reason with why it was searched ("lost 3 s")."""
         p = np.asarray(near[0].position, np.float64)
         ground = ground_heights(self.mesh, p[None, :2])
-        height = float(p[2] - ground[0]) if len(ground) and np.isfinite(ground[0]) else np.nan
-        if height_m is not None:
-            height = float(height_m)
+        z = float(ground[0]) if len(ground) and np.isfinite(ground[0]) else off_scene_ground_m
+        height = float(p[2] - z) if z is not None else np.nan
         if not np.isfinite(height) or height <= 0.0:
             return fix, None
         discs = [shapely.Point(*np.asarray(c.position)[:2]).buffer(radius) for c in near]

@@ -471,10 +471,8 @@ def _unfixed_area(
             srt,
             "no entry has a position nor the gimbal's angles (gb_yaw, gb_pitch, gb_roll or G.PRY): a clip without GNSS is searched for with the camera's attitude",
         )
-    lat, lon = start.outline()
     high = np.nanmax(track.height) if np.isfinite(track.height).any() else 0.0
-    h = np.full(len(lat), float(start.height_m if start.height_m is not None else high))
-    return GnssTrack(np.arange(len(lat), dtype=np.float64), lat, lon, h, path=str(srt))
+    return start.outline_track(start.height_m if start.height_m is not None else high, str(srt))
 
 
 def effective_focal_mm(track: SrtTrack) -> tuple[np.ndarray, bool]:
@@ -618,7 +616,6 @@ def _klv_unplaced(
             "no KLV set places the sensor and no scene is given: a clip without a position is searched for on a scene (give --scene, --dem or --world with --near)",
             field="KLV",
         )
-    lat, lon = start.outline()
     clat, clon = start.centre
     h = track.heights(
         "sensor_ellipsoid_m",
@@ -638,8 +635,7 @@ def _klv_unplaced(
     )
     heights = PlatformHeights(track.times()[ok], h[ok], ELLIPSOID, "the KLV's sensor height") if ok.any() else None  # fmt: skip
     level = float(np.median(h[ok])) if ok.any() else KLV_ASSUMED_HEIGHT_M
-    around = GnssTrack(np.arange(len(lat), dtype=np.float64), lat, lon, np.full(len(lat), level))
-    return replace(around, path=str(path)), heights
+    return start.outline_track(level, str(path)), heights
 
 
 def _klv_ground(

@@ -16,6 +16,7 @@ import shapely
 from shapely.geometry.base import BaseGeometry
 
 from app.geodesy.enu import LocalFrame
+from app.io.streams import GnssTrack
 
 HEIGHT_OVER_S = (
     5.0  # a height the telemetry gives: its median over the clip's first seconds (searched)
@@ -106,6 +107,14 @@ class StartArea:
         enu = np.vstack([[0.0, 0.0, 0.0], np.column_stack([xy, np.zeros(len(xy))])])
         geo = np.asarray(frame.enu_to_geodetic(enu), np.float64).reshape(-1, 3)
         return geo[:, 0], geo[:, 1]
+
+    def outline_track(self, height_m: float, path: str = "") -> GnssTrack:
+        """The outline (`outline`) as a track at height_m (m, as the clip's heights are: above
+        take-off, or ellipsoidal), one point a second: what a clip without a position has its
+        scene gathered around. path: the file it stands for (messages)."""
+        lat, lon = self.outline()
+        t = np.arange(len(lat), dtype=np.float64)
+        return GnssTrack(t, lat, lon, np.full(len(lat), float(height_m)), path=path)
 
     def centre_enu(self, frame: LocalFrame) -> np.ndarray:
         """(2,) the centre's east, north (m) in `frame`."""

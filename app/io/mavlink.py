@@ -126,7 +126,8 @@ def _angle_at(t: list[float], a: list[float], x: float) -> float:
     return a[i - 1] + w * d
 
 
-def _value_at(t: list[float], v: list, x: float) -> np.ndarray:
+def value_at(t: list[float], v: list, x: float) -> np.ndarray:
+    """The values v (per time t, increasing) at x: linear between two, the nearest held beyond."""
     i = bisect.bisect_right(t, x)
     if i == 0:
         return np.asarray(v[0], np.float64)
@@ -368,10 +369,10 @@ class MavlinkTelemetry:
                 return None
             if unfixed:  # the home point at the barometer's height above it
                 lat, lon, h = self.home
-                h = h + float(_value_at(self._rel_t, self._rel, boot_s))
+                h = h + float(value_at(self._rel_t, self._rel, boot_s))
                 newest = self._rel_t[-1]
             else:
-                lat, lon, h = _value_at(self._pos_t, self._pos, boot_s)
+                lat, lon, h = value_at(self._pos_t, self._pos, boot_s)
                 newest = self._pos_t[-1]
             vehicle = tuple(
                 _angle_at(self._att_t, [a[j] for a in self._att], boot_s) for j in range(3)

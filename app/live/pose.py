@@ -26,7 +26,7 @@ from app.core.constants import FOV_RANGE_DEG
 from app.geodesy import rotations
 from app.geodesy.enu import LocalFrame
 from app.io.klv_track import KlvTrack
-from app.io.mavlink import MavlinkTelemetry, TelemetryPose
+from app.io.mavlink import MavlinkTelemetry, TelemetryPose, value_at
 from app.io.misb import LocalSet, camera_orientation
 from app.io.streams import impossible_step, usual_interval
 
@@ -74,7 +74,6 @@ class LivePoses:
         self.assumed_home = assumed_home
         self.t: list[float] = []
         self.geodetic: list[tuple[float, float, float]] = []
-        self.q: list[np.ndarray] = []
         self.fov: list[float] = []  # each set's horizontal field of view (deg), NaN: none given
         self.hfov_deg: float | None = None  # the last field of view a set gave (deg)
         self.centre_h: float | None = None
@@ -85,7 +84,8 @@ class LivePoses:
         self._utc_link: float | None = None  # Unix s - media s, from the first set with a time
         self._att_t: list[float] = []  # the sets with an attitude, placed or not
         self._att_q: list[np.ndarray] = []
-        self._att_h: list[float] = []  # their sensor's ellipsoidal height (m; NaN: none given)
+        self._h_t: list[float] = []  # of those, the ones giving the sensor's height
+        self._h: list[float] = []  # (ellipsoidal m)
         self._lock = threading.Lock()
 
     def add(self, t: float, s: LocalSet) -> bool:
@@ -104,7 +104,10 @@ class LivePoses:
                 if not (i and self._att_t[i - 1] == t):
                     self._att_t.insert(i, t)
                     self._att_q.insert(i, q)
-                    self._att_h.insert(i, h)
+                    if np.isfinite(h):
+                        j = bisect.bisect_right(self._h_t, t)
+                        self._h_t.insert(j, t)
+                        self._h.insert(j, h)
         if g is None or q is None:
             self.without_pose += 1
             return False
@@ -126,7 +129,6 @@ class LivePoses:
             self._jump_run = 0
             self.t.insert(i, t)
             self.geodetic.insert(i, here)
-            self.q.insert(i, q)
             usable = np.isfinite(fov) and FOV_RANGE_DEG[0] <= fov <= FOV_RANGE_DEG[1]  # 0: none
             # a set that gives none keeps the one before it (ST 0601's report on change)
             self.fov.insert(i, float(fov) if usable else (self.fov[i - 1] if i else np.nan))
@@ -161,11 +163,7 @@ class LivePoses:
     def unplaced(self) -> bool:
         """Whether the camera stands at the assumed home for want of any set placing the
         sensor (its height given)."""
-        return not self.t and self.assumed_home is not None and bool(self._placeable())
-
-    def _placeable(self) -> list[int]:
-        """Indices of the attitude sets that give the sensor's height."""
-        return [i for i, h in enumerate(self._att_h) if np.isfinite(h)]
+        return not self.t and self.assumed_home is not None and bool(self._h_t)
 
     def first(self) -> tuple[float, float, float] | None:
         """The first position (lat, lon, ellipsoidal h); never placed, the assumed home at
@@ -174,7 +172,7 @@ class LivePoses:
             if self.geodetic:
                 return self.geodetic[0]
             if self.unplaced:
-                return (*self.assumed_home[:2], self._att_h[self._placeable()[0]])
+                return (*self.assumed_home[:2], self._h[0])
             return None
 
     def fix_interval_s(self) -> float | None:
@@ -189,7 +187,7 @@ class LivePoses:
         return self.centre_h, "the KLV frame centre's height"
 
     def __len__(self) -> int:
-        return len(self._placeable()) if self.unplaced else len(self.t)
+        return len(self._h_t) if self.unplaced else len(self.t)
 
     def at(
         self,
@@ -215,19 +213,16 @@ class LivePoses:
                 k, w, age = i - 1, 0.0, t - self.t[-1]
             else:
                 k, w, age = i - 1, (t - self.t[i - 1]) / (self.t[i] - self.t[i - 1]), 0.0
-            a = np.array(self.geodetic[k])
-            qa, fa = self.q[k], self.fov[k]
+            a, fa = np.array(self.geodetic[k]), self.fov[k]
             if w > 0.0:
-                b, qb, fb = np.array(self.geodetic[k + 1]), self.q[k + 1], self.fov[k + 1]
+                b, fb = np.array(self.geodetic[k + 1]), self.fov[k + 1]
             else:
-                b, qb, fb = a, qa, fa
+                b, fb = a, fa
             # across a jump believed (JUMP_RUN sets) the position no set gave is not drawn: the
             # one before it held until the jumped set's time (the attitude turns as it did)
             wp = 0.0 if w > 0.0 and impossible_step(self.t[k + 1] - self.t[k], a, b) else w
-            q = self._attitude_at(t) if self._att_t else None
+            q = self._attitude_at(t)  # (every placed set gave one: its attitude is there too)
         enu = frame.geodetic_to_enu(*(np.array([v]) for v in (1 - wp) * a + wp * b))[0]
-        if q is None:
-            q = rotations.slerp([0.0, 1.0], np.stack([qa, qb]), [w])[0]
         fov = fov_between(fa, fb, w)
         if own_fov and fov is not None:
             intrinsics = Intrinsics.from_fov(intrinsics.width, intrinsics.height, fov)
@@ -239,13 +234,11 @@ class LivePoses:
     ) -> LivePose:
         """The camera at the assumed home, at the sensor's height and attitude of media time t
         (s), not fixed; under the lock."""
-        k = self._placeable()
-        times = [self._att_t[i] for i in k]
-        h = float(np.interp(t, times, [self._att_h[i] for i in k]))
+        h = float(value_at(self._h_t, self._h, t))
         lat, lon = self.assumed_home[:2]
         enu = frame.geodetic_to_enu(np.array([lat]), np.array([lon]), np.array([h]))[0]
         camera = Camera.create(intrinsics, enu, self._attitude_at(t), far=far)
-        age = max(t - times[-1], times[0] - t, 0.0)
+        age = max(t - self._h_t[-1], self._h_t[0] - t, 0.0)
         return LivePose(camera, FRESH if age <= self.stale_after_s else STALE, age, False)
 
     def _attitude_at(self, t: float) -> np.ndarray:

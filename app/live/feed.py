@@ -276,6 +276,7 @@ class LiveFeed:
         self.registered = False  # the last frame taken was drawn with the registered pose
         self.gnss: GnssWatch | None = None
         self.gnss_now: str | None = None  # the last frame taken: its GNSS status
+        self._unfixed_said = False  # a camera without any fix, said (_say_unfixed)
 
     def start(self) -> LiveFeed:
         o, messages = self.options, self.run.messages
@@ -401,28 +402,28 @@ class LiveFeed:
     def _say_unfixed(self) -> None:
         """Said once, as soon as it shows (the scene built, or later, when the first set or
         message without a fix arrives): a camera with no fix at all, and where it is searched."""
-        o, messages = self.options, self.run.messages
-        searched = self.registration is not None
+        if self._unfixed_said:
+            return
+        o, searched = self.options, self.registration is not None
         if self.mav is None and self.poses.unplaced:
             lat, lon, _ = o.origin
-            messages.add_once(
-                "unfixed",
+            text = (
                 f"no KLV set places the sensor (tags 13, 14 and 75 or 15): the camera is searched for on the scene within {o.search_radius_m:g} m of --origin {lat:.5f}, {lon:.5f}, at the sensor's height; frames are drawn once it is found"
                 if searched
-                else "no KLV set places the sensor: nothing can be drawn (give --origin and a textured --scene to search for it)",
+                else "no KLV set places the sensor: nothing can be drawn (give --origin and a textured --scene to search for it)"
             )
-        if self.mav is not None and self.poses.telemetry.unfixed:
+        elif self.mav is not None and self.poses.telemetry.unfixed:
             lat, lon, _ = self.poses.telemetry.home
             named = self.poses.telemetry.home_from
-            messages.add_once(
-                "unfixed",
-                "MAVLink: no GNSS fix (GLOBAL_POSITION_INT at 0, 0): "
-                + (
-                    f"the camera is searched for on the scene within {o.search_radius_m:g} m of the home point {lat:.5f}, {lon:.5f} ({named}), at the barometer's height above it; frames are drawn once it is found"
-                    if searched
-                    else f"nothing can be drawn: the camera is searched for around the home point ({named}) on a textured scene (give --scene)"
-                ),
+            text = "MAVLink: no GNSS fix (GLOBAL_POSITION_INT at 0, 0): " + (
+                f"the camera is searched for on the scene within {o.search_radius_m:g} m of the home point {lat:.5f}, {lon:.5f} ({named}), at the barometer's height above it; frames are drawn once it is found"
+                if searched
+                else f"nothing can be drawn: the camera is searched for around the home point ({named}) on a textured scene (give --scene)"
             )
+        else:
+            return
+        self.run.messages.add(text)
+        self._unfixed_said = True
 
     def _around(self) -> str:
         """What a camera without a current fix stands on, for messages."""
@@ -461,10 +462,11 @@ class LiveFeed:
         return "mavlink" if self.mav is not None else "klv"
 
     def _corrected(
-        self, raw: tuple[Camera, str, float] | None, t: float
+        self, raw: tuple[Camera, str, float, bool] | None, t: float, held: bool | None = None
     ) -> tuple[Camera | None, str, float]:
         """(the camera drawn at media time t (s), its state, how far (m) the telemetry's jumps
-        held off in it are: LiveRegistration.corrected)."""
+        held off in it are: LiveRegistration.corrected); held: `_held(raw)` where the caller
+        has it."""
         if raw is None:
             return self.last_camera, NONE, 0.0
         reg = self.registration
@@ -472,7 +474,7 @@ class LiveFeed:
             return None, NONE, 0.0  # no fix, not yet carried by the scene: nothing to draw
         if reg is None:
             return raw[0], raw[1], 0.0
-        camera, held_m = reg.corrected(raw[0], t)
+        camera, held_m = reg.corrected(raw[0], t, self._held(raw) if held is None else held)
         return camera, raw[1], held_m
 
     def _fix_at(self, t: float) -> np.ndarray | None:
@@ -500,8 +502,8 @@ class LiveFeed:
         if item is None:
             return None
         raw = self._telemetry_camera(item.pts_s)
-        camera, state, held_m = self._corrected(raw, item.pts_s)
-        held = self._held(raw)
+        held = self._held(raw)  # (once a frame: the registration is told it, not asked)
+        camera, state, held_m = self._corrected(raw, item.pts_s, held)
         if raw is not None and not raw[3]:
             self._say_unfixed()
         if raw is not None:
@@ -509,7 +511,7 @@ class LiveFeed:
             if held and self.registered and state == STALE:
                 state = FRESH  # a fix held, the pose the scene's keyframes carry: not stale
         if raw is not None and self.registration is not None:
-            self.registration.offer(item.pts_s, item.payload, raw[0])
+            self.registration.offer(item.pts_s, item.payload, raw[0], held)
         run = self.run
         if state == STALE:
             run.stale += 1

@@ -99,6 +99,7 @@ class GnssWatch:
         self.outages: list[tuple[float, float]] = []  # ended, (start, end) media s
         self.outage_since: float | None = None  # the last fix before the outage going on
         self.held_off_m = 0.0  # the telemetry's jumps the frame drawn last did not follow (m)
+        self._far_off = False  # the newest keyframe's fix far off its own offset (`suspect`)
         self._lock = threading.Lock()
 
     @property
@@ -108,12 +109,14 @@ class GnssWatch:
         keyframes are then offered more often (app.live.register), the sooner to tell a
         drag-off from the fix's own wander. No accusation: nothing is rejected for it."""
         with self._lock:
-            if self.lying:
-                return True
-            if len(self._t) <= STEADY_KEYFRAMES:
-                return False
-            raw = self._fix[-1] - self._scene[-1] - self._baseline(self._t[-1])
-            return bool(np.linalg.norm(raw[:2]) > SUSPECT_ACCURACIES * self._acc[-1])
+            return self.lying or self._far_off
+
+    def _newest_far_off(self) -> bool:
+        """`suspect`'s test of the newest keyframe, made as it is tested (under the lock)."""
+        if len(self._t) <= STEADY_KEYFRAMES:
+            return False
+        raw = self._fix[-1] - self._scene[-1] - self._baseline(self._t[-1])
+        return bool(np.linalg.norm(raw[:2]) > SUSPECT_ACCURACIES * self._acc[-1])
 
     @property
     def keyframe_times(self) -> list[float]:
@@ -153,6 +156,7 @@ class GnssWatch:
                 for kept in (self._t, self._fix, self._scene, self._acc, self._dis):
                     kept.pop(0)
             self.tested += 1
+            self._far_off = self._newest_far_off()
             if len(self._t) < 2:
                 return Verdict(self.lying, disagrees, h)
             t = np.array(self._t)

@@ -52,6 +52,7 @@ One thread with its own off-screen GL context renders the scene for the matcher.
 
 from __future__ import annotations
 
+import math
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -186,14 +187,19 @@ class LiveRegistration(Worker):
         self._busy = False
         super().__init__("geofuse-register")
 
-    def offer(self, t: float, planes, prior: Camera) -> None:
-        """A frame drawn (media time t s, its yuv planes, the telemetry's camera): taken as the
-        next keyframe when every_s has passed since the last and the thread is free."""
-        # no fix, or one in doubt: the keyframes carry the pose, or tell a drag-off sooner
-        doubt = self.unfixed(t) or (self.watch is not None and self.watch.suspect)
-        every = min(UNFIXED_EVERY_S, self.every_s) if doubt else self.every_s
-        if self._busy or (self._last_offered is not None and t - self._last_offered < every):
+    def offer(self, t: float, planes, prior: Camera, unfixed: bool | None = None) -> None:
+        """A frame drawn (media time t s, its yuv planes, the telemetry's camera; unfixed: the
+        caller's `unfixed(t)` where it has it): taken as the next keyframe when every_s has
+        passed since the last (UNFIXED_EVERY_S while no fix is current or the watch is in
+        doubt) and the thread is free."""
+        since = math.inf if self._last_offered is None else t - self._last_offered
+        if self._busy or since < min(UNFIXED_EVERY_S, self.every_s):
             return
+        if since < self.every_s:  # sooner only where the keyframes carry the pose (no fix) or
+            # tell a drag-off sooner (a fix in doubt): asked only then, not on every frame
+            unfixed = self.unfixed(t) if unfixed is None else unfixed
+            if not (unfixed or (self.watch is not None and self.watch.suspect)):
+                return
         self._last_offered = t
         with self._lock:
             self._offer = (t, tuple(np.array(p, copy=True) for p in planes), prior)
@@ -226,10 +232,13 @@ class LiveRegistration(Worker):
         the jumps held off (`held_off`); itself before any correction."""
         return self.corrected(camera, t)[0]
 
-    def corrected(self, camera: Camera, t: float) -> tuple[Camera, float]:
-        """(`correct`'s camera, how far (m) the jumps held off in it are: 0 where none is)."""
+    def corrected(
+        self, camera: Camera, t: float, unfixed: bool | None = None
+    ) -> tuple[Camera, float]:
+        """(`correct`'s camera, how far (m) the jumps held off in it are: 0 where none is);
+        unfixed: the caller's `unfixed(t)` where it has it."""
         jump = self.held_off(t)
-        unfixed = self.unfixed(t)
+        unfixed = self.unfixed(t) if unfixed is None else unfixed
         lead = self._chained(t) if unfixed else None
         with self._lock:
             s = self.state

@@ -140,7 +140,7 @@ def _gnss(
     messages: Messages,
     clip_start: float,
     recorded: dict[str, OrientationStream],
-) -> tuple[GnssTrack, bool, tuple | None, tuple | None]:
+) -> tuple[GnssTrack, bool, tuple | None, PlatformHeights | None]:
     """(the session's GNSS track, whether its heights are above take-off, a drone's own yaw
     (t session s, deg) when its subtitle has one and no gimbal attitude, a subtitle's heights
     above take-off where it has no position: Session.platform_heights)."""
@@ -167,7 +167,7 @@ def _srt_gnss(
     clip_start: float,
     recorded: dict[str, OrientationStream],
     unfixed: bool = False,
-) -> tuple[GnssTrack, bool, tuple | None, tuple | None]:
+) -> tuple[GnssTrack, bool, tuple | None, PlatformHeights | None]:
     """A DJI subtitle as the session's GNSS (its times are the clip's, shifted to the session
     clock) and, with gimbal angles, its `telemetry` attitude, else the aircraft's yaw; unfixed
     (a manifest with an origin): one without any position is read (no fix, its heights above

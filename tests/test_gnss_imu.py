@@ -220,6 +220,27 @@ def test_the_uncertainty_grows_in_an_outage_and_drops_at_a_keyframe():
     assert (np.diff(alone.sigma[after, 0]) >= 0).all() and alone.sigma[-1, 0] > 20.0
 
 
+def test_without_an_accelerometer_the_track_is_carried_by_the_fixes_and_keyframes():
+    """No accelerometer (a drone clip: Motion.none()): the acceleration's error is then no
+    state and its spread stays 0, which left the smoother's predicted covariance singular (a
+    LinAlgError on every DJI clip registered with its fixes). The straight 10 m/s flight's
+    fixes to 20 s and from 40 s, keyframes through the gap: the track follows them there
+    (within 0.5 m), and its sigma is finite, grows away from them and shrinks at them."""
+    t = np.arange(0.0, 60.0, 1.0)
+    rng = np.random.default_rng(5)
+    fixes = _line(t) + rng.normal(0.0, 1.0, (len(t), 3))
+    use = (t <= 20.0) | (t >= 40.0)
+    kt = np.arange(0.0, 60.0, 0.5)
+    kp = _line(kt) + rng.normal(0.0, 0.05, (len(kt), 3))
+    c = carry(Motion.none(), t, fixes, None, use, kt, kp, span_s=(0.0, 59.0))
+    assert not c.felt and np.isfinite(c.p).all() and np.isfinite(c.sigma).all()
+    gap = (c.t > 20.0) & (c.t < 40.0)
+    np.testing.assert_allclose(c.p[gap], _line(c.t[gap]), atol=0.5)
+    sparse = carry(Motion.none(), t, fixes, None, use, kt[kt <= 20.0], kp[kt <= 20.0])
+    middle = sparse.sigma[np.argmin(np.abs(sparse.t - 30.0)), 0]
+    assert middle > 2.0 * sparse.sigma[np.argmin(np.abs(sparse.t - 10.0)), 0]
+
+
 def test_a_frozen_stretch_nothing_registered_is_carried_by_the_imu():
     """A frozen fix from 30 s on a straight 6 m/s flight, no keyframe from 40 to 52 s: the
     rejected fixes are replaced by where an honest fix would have been (the position the IMU

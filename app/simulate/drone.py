@@ -97,19 +97,27 @@ def klv_sets(
 
 
 def srt_text(
-    duration_s: float, lag_s: float, path_of=flight, fixed: bool = True, gimbal: bool = False
+    duration_s: float,
+    lag_s: float,
+    path_of=flight,
+    fixed: bool = True,
+    gimbal: bool = False,
+    outage: tuple[float, float] | None = None,
 ) -> str:
     """The subtitle of the clip: one entry per frame, each carrying the position `lag_s` seconds
     older than its frame (the GNSS track lags the video), in DJI's 6 decimals; heights above
     take-off (rel_alt) and above the ellipsoid (abs_alt). fixed=False: every position 0, 0 as
     DJI writes it without a fix (abs_alt 0; rel_alt, from the barometer, kept); gimbal: the
-    camera's angles as the Mini 3 / Mavic 3 layout adds them (gb_yaw, gb_pitch, gb_roll, deg)."""
+    camera's angles as the Mini 3 / Mavic 3 layout adds them (gb_yaw, gb_pitch, gb_roll, deg);
+    outage: (from, until) s of the clip whose entries have no fix (0, 0, as fixed=False)."""
     frame = LocalFrame(*SITE_ORIGIN)
     t = np.arange(0.0, duration_s, 1.0 / FPS)
     pos, _ = path_of(t - lag_s)
     geo = frame.enu_to_geodetic(pos)
     if not fixed:
         geo[:, :] = 0.0
+    if outage is not None:
+        geo[(t >= outage[0]) & (t < outage[1])] = 0.0
     _, heading = path_of(t)
 
     def stamp(s: float) -> str:

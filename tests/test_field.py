@@ -51,6 +51,26 @@ def test_a_bad_first_fix_does_not_condemn_the_rest():
     assert list(kept.t) == list(t[1:])
 
 
+@pytest.mark.parametrize("jump_at_s", [8.0, 16.0])
+def test_a_step_that_holds_is_kept_for_the_checks_to_name(jump_at_s):
+    """A receiver spoofed 200 m east from jump_at_s of a 24 s track at 30 Hz (a DJI subtitle):
+    every fix is kept, on either side of the median, and the note says no jump: which side lies
+    is for the checks against the scene and the IMU to tell. Dropping them as jumps had kept
+    the median's side and condemned the other's fixes for 1.4 s around the step (honest ones,
+    where the lie held the median). A 200 m spike of 1 s is still a jump."""
+    t = np.arange(0.0, 24.0, 1.0 / 30.0)
+    enu = np.column_stack([9.0 * t, np.zeros(len(t)), np.zeros(len(t))])
+    enu[t >= jump_at_s, 0] += 200.0
+    messages = Messages()
+    kept = plausible_fixes(_track(t, enu), messages)
+    assert len(kept.t) == len(t) and not messages.items
+    spiked = enu.copy()
+    spiked[(t >= 4.0) & (t < 5.0), 0] += 200.0
+    messages = Messages()
+    kept = plausible_fixes(_track(t, spiked), messages)
+    assert len(kept.t) == len(t) - 30 and "30 jumps" in messages.items[0]
+
+
 def test_the_receivers_own_fix_type_and_dop_are_used():
     t = np.arange(6.0)
     g = _track(t, np.column_stack([t, t, np.zeros(6)]))

@@ -132,6 +132,7 @@ DEAD_SENSOR = {"acc": 0.5, "mag": 0.5}  # median norm (m/s^2, uT) below which a 
 SENSOR_LIMIT = {"gyr": 70.0, "acc": 500.0, "mag": 5000.0}
 MAX_SPEED_MPS = 150.0  # horizontal: no phone, car, action camera or small drone moves faster
 MAX_CLIMB_MPS = 60.0  # vertical speed beyond which a height is a jump, not motion
+STEP_S = 2.0  # s: fixes that hold together this long after an impossible step are a step, kept
 MAX_DOP = 5.0  # fixes with a worse dilution of precision are not positions to use
 HEIGHT_RANGE_M = (-1_000.0, 20_000.0)  # ellipsoidal heights a fix can have
 
@@ -259,7 +260,12 @@ def _jumps(
 ) -> npt.NDArray[np.bool_]:
     """Fixes whose speed from the last accepted fix is impossible: one pass forward and one
     backward from the fix nearest the track's median position (so a bad first fix cannot condemn
-    all the others), in local metres."""
+    all the others), in local metres. A step is not a jump: where the fixes from an impossible
+    one on hold together for STEP_S (a receiver spoofed 200 m away, or honest again after a
+    lie), they are all kept, for the checks against the scene and the IMU to tell which side
+    lies (dropping them kept whichever side held the median and condemned the other side's
+    fixes until the time since made the step look possible: 1.4 s of honest fixes before a
+    200 m jump, at 30 Hz)."""
     out = np.zeros(len(t), bool)
     idx = np.flatnonzero(keep)
     if len(idx) < 2:
@@ -270,15 +276,28 @@ def _jumps(
             np.hypot(lat[idx] - np.median(lat[idx]), (lon[idx] - np.median(lon[idx])) * k_lat)
         )
     )
+    at = lambda i: (lat[i], lon[i], h[i])  # noqa: E731
     for order in (idx[anchor:], idx[anchor::-1]):
         last = order[0]
-        for i in order[1:]:
-            a, b = (lat[last], lon[last], h[last]), (lat[i], lon[i], h[i])
-            if impossible_step(abs(t[i] - t[last]), a, b, k_lat):
-                out[i] = True
-            else:
-                last = i
+        for n in range(1, len(order)):
+            i = order[n]
+            if impossible_step(abs(t[i] - t[last]), at(last), at(i), k_lat):
+                out[i] = not _holds(t, order[n:], at, k_lat)
+                if out[i]:
+                    continue
+            last = i
     return out
+
+
+def _holds(t: FloatArray, run: npt.NDArray[np.int64], at, cos_lat: float) -> bool:
+    """Whether the fixes `run` (indices in a pass's order, from an impossible one) go on
+    without an impossible step among themselves for STEP_S or more: a step, not a spike."""
+    for p, q in zip(run[:-1], run[1:], strict=True):
+        if impossible_step(abs(t[q] - t[p]), at(p), at(q), cos_lat):
+            return False
+        if abs(t[q] - t[run[0]]) >= STEP_S:
+            return True
+    return False
 
 
 def impossible_step(

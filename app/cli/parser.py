@@ -297,7 +297,7 @@ def _stream_options(p: argparse.ArgumentParser) -> None:
         p,
         "--search-radius",
         DEFAULT_START_RADIUS_M,
-        "a feed without any fix: how far around its home point (HOME_POSITION, else --origin) the camera is searched for, metres (default 300)",
+        "a feed without any fix: how far around its home point (HOME_POSITION, else --origin) the camera is searched for first, metres (default 300; each search that misses doubles it, up to 1000)",
     )
     p.add_argument(
         "--mavlink",

@@ -40,7 +40,10 @@ barometer's height above it) is carried by the scene: a held fix is no fix to te
 last two registered lead at their velocity).
 Where no keyframe has registered yet, it is searched for as a cold start searches (app.register.coldstart,
 through Registrar.reacquired): the first keyframe over a disc of search_radius_m around the home
-point, at that height, with the telemetry's attitude; once found, the drawn pose stands on the
+point, at that height, with the telemetry's attitude, each search that misses widening the disc
+WIDEN times, up to the settings' unfixed_max_m (a stream joined mid-flight: the aircraft may be
+farther from home than the disc asked; what a search costs grows with the scene inside the
+disc, not with its area); once found, the drawn pose stands on the
 scene, its shift moving as the last two keyframes do (as under a frozen fix), each keyframe
 registered from where they lead (frames are drawn from the second kept, CARRIED_FROM: the first
 gives no velocity); one not registered for LOST_S is searched for again over the
@@ -63,7 +66,7 @@ from scipy.stats import theilslopes
 
 from app.camera.pinhole import Camera
 from app.core.constants import DEFAULT_START_RADIUS_M
-from app.core.messages import Messages
+from app.core.messages import INFO, Messages
 from app.core.worker import Worker
 from app.geodesy import rotations
 from app.io.streams import MAX_SPEED_MPS
@@ -96,6 +99,7 @@ UNFIXED_EVERY_S = 0.5  # without a fix a keyframe is offered this often (s): the
 # and the platform flies on while the next registers (10-25 m drawn off in a real-time bench)
 CARRIED_FROM = 2
 HELD_POSES = 8  # turned poses a search found, kept for a later one to agree with
+WIDEN = 2.0  # never found: each search that misses widens the disc around home this many times
 LIVE_SETTINGS = RegistrationSettings(long_side=640, max_iterations=5)
 
 
@@ -176,6 +180,7 @@ class LiveRegistration(Worker):
         self.watch, self.accuracy_at, self.fix_at = watch, accuracy_at, fix_at
         self.jumps_between = jumps_between
         self.unfixed, self.search_radius_m = unfixed, search_radius_m
+        self.radius_m = search_radius_m  # the disc searched around home now (widened: WIDEN)
         self._held: list = []  # poses a search found turned too far: (t, position, offset)
         self.settled, self.around = settled, around  # (around: what a search stood on, said)
         self._settled_s: float | None = None  # media s from which the rotation is gated
@@ -314,7 +319,16 @@ class LiveRegistration(Worker):
         search's own checks stand for the gate): see the module docstring's order."""
         start = self.correct(prior, t)
         if self.unfixed(t) and not self._solved:  # never found: around the telemetry's camera
-            fix, solved = self._area(registrar, rgb, t, prior, self.search_radius_m, "no GNSS fix")
+            radius = self.radius_m
+            fix, solved = self._area(registrar, rgb, t, prior, radius, "no GNSS fix")
+            widest = max(self.search_radius_m, self.settings.unfixed_max_m)
+            if solved is None and radius < widest:
+                self.radius_m = min(radius * WIDEN, widest)
+                self.messages.add_once(
+                    f"live-widen-{self.radius_m:.0f}",
+                    f"not found within {radius:.0f} m of {self.around()}: searching within {self.radius_m:.0f} m",
+                    INFO,
+                )
             return fix, solved, start, None, True
         fix, solved, start, chain = self._tried(registrar, rgb, t, prior, start)
         lost = t - self._solved[-1][0] if self._solved else 0.0
@@ -409,7 +423,7 @@ class LiveRegistration(Worker):
                 s.since_s = t
         if first and unfixed:
             self.messages.info(
-                f"found live at {t:.1f} s by searching {self.search_radius_m:.0f} m around {self.around()}: "
+                f"found live at {t:.1f} s by searching {self.radius_m:.0f} m around {self.around()}: "
                 f"{np.linalg.norm(shift[:2]):.0f} m from it ({fix.inliers} inliers, {fix.error_px:.2f} px); "
                 "drawn from then on, carried by the keyframes"
             )

@@ -8,6 +8,7 @@ smoother's covariance without an accelerometer was singular)."""
 from __future__ import annotations
 
 import csv
+import re
 
 import numpy as np
 import pytest
@@ -15,6 +16,7 @@ import pytest
 from app.cli import main
 from app.geodesy.enu import LocalFrame
 from app.simulate import drone
+from app.simulate.lies import Lie
 from app.simulate.stadium import SITE_ORIGIN
 from app.simulate.tileset import write_site
 from tests.test_cold_start_dji import TOLERANCE_M
@@ -32,12 +34,21 @@ def clip(tmp_path_factory):
     return video, write_site(folder / "site")
 
 
-def _solved(clip, tmp_path, outage=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """`geofuse solve CLIP --scene SITE --source registered` with the subtitle beside the clip:
-    (clip times s, each frame's distance m from the flight, its gnss status)."""
+def _solved(
+    clip, tmp_path, outage=None, lie: Lie | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`geofuse solve CLIP --scene SITE --source registered` with the subtitle beside the clip
+    (its fixes lied about by `lie`): (clip times s, each frame's distance m from the flight, its
+    gnss status)."""
     video, site = clip
+
+    def told(t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        pos, heading = drone.flight(t)
+        return (pos if lie is None else lie.apply(t, pos)), heading
+
     srt = video.with_suffix(".SRT")
-    srt.write_text(drone.srt_text(SECONDS, 0.0, gimbal=True, outage=outage), encoding="utf-8")
+    text = drone.srt_text(SECONDS, 0.0, path_of=told, gimbal=True, outage=outage)
+    srt.write_text(text, encoding="utf-8")
     out = tmp_path / "track.csv"
     args = ["solve", str(video), "--scene", str(site), "--source", "registered", "--out", str(out)]
     assert main(args) == 0
@@ -70,3 +81,25 @@ def test_a_stretch_without_a_fix_is_carried_by_the_keyframes(clip, tmp_path, cap
     assert np.linalg.norm(line - truth, axis=1).max() > 5 * TOLERANCE_M
     said = capsys.readouterr().err
     assert "no GNSS from t = 1.0 s to 7.0 s (6 s): the registered keyframes carry the track" in said
+
+
+@pytest.mark.parametrize("lie", [Lie("jump", 3.0, size_m=200.0), Lie("frozen", 3.0)])
+def test_a_lying_subtitle_is_caught_by_the_scene_alone(clip, tmp_path, capsys, lie):
+    """No IMU to tell: the scene's keyframes catch a 200 m jump at once and a frozen fix once
+    the drone is 4.5 times the assumed 5 m accuracy from it (22.5 m at 9-12 m/s: 1.9-2.5 s),
+    say when it began, reject the fixes from then and none before, and the track stays on the
+    flight. Before: the honest fixes within 2.5 s before the jump were rejected too (the gate
+    had set aside the keyframes at its edge, leaving them untested), and the frozen fix was
+    never caught (the keyframes, their corrections growing at the drone's speed, each
+    disagreed with its neighbours' median and none was left to witness)."""
+    t, error, gnss = _solved(clip, tmp_path, lie=lie)
+    said = capsys.readouterr().err
+    name = "disagrees with the scene" if lie.kind == "jump" else "frozen"
+    began = re.search(rf"GNSS {name} from \S+ \(t = (\d+\.\d) s\)", said)
+    caught = re.search(r"caught at t = (\d+\.\d) s", said)
+    assert began and caught, said
+    assert lie.from_s - 0.5 <= float(began.group(1)) <= lie.from_s + 0.1
+    assert float(caught.group(1)) <= lie.from_s + (0.1 if lie.kind == "jump" else 3.0)
+    assert set(gnss[t < lie.from_s - 0.5]) == {"used"}
+    assert set(gnss[t >= float(caught.group(1))]) == {"rejected"}
+    assert error.max() < TOLERANCE_M and np.median(error) < TOLERANCE_M / 4

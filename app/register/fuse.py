@@ -88,7 +88,10 @@ def gate(keyframes: list[Keyframe], settings: FuseSettings = FuseSettings()) -> 
     """The keyframes, with those that no registered neighbour within window_s confirms marked
     unused and the reason given: one whose correction is farther than max_disagree_m or
     max_disagree_deg from its neighbours' median (from its only neighbour's: then both are set
-    aside, as neither can be told right), and one with no registered neighbour at all. A lone
+    aside, as neither can be told right) and, in metres, from the robust line through them
+    (four at least: a correction that moves steadily, where the prior drags off the flight or
+    stands still while it flies on, a lie no IMU screened out, agrees with its neighbours'
+    line, not their median), and one with no registered neighbour at all. A lone
     fit is not trusted: on the sample walk against its model without texture, each keyframe
     started at its true pose, the only one the lines accepted ended 6.8 m off and, used alone,
     moved the whole track (docs/ACCURACY.md, "A keyframe alone")."""
@@ -106,6 +109,8 @@ def gate(keyframes: list[Keyframe], settings: FuseSettings = FuseSettings()) -> 
             )
             continue
         off_m = float(np.linalg.norm(dp[i] - np.median(dp[near], axis=0)))
+        if off_m > settings.max_disagree_m and len(near) >= 4:  # or on their steady line
+            off_m = min(off_m, float(np.linalg.norm(dp[i] - _on_line(t[near] - t[i], dp[near]))))
         off_deg = float(np.linalg.norm(dr[i] - np.median(dr[near], axis=0)))
         if off_m > settings.max_disagree_m or off_deg > settings.max_disagree_deg:
             whom = "its only neighbour" if len(near) == 1 else f"its {len(near)} neighbours"
@@ -149,6 +154,15 @@ class Correction:
         )
         fade = np.exp(-outside / self.hold_s)[:, None]
         return dp * fade, dr * fade
+
+
+def _on_line(dt: FloatArray, x: FloatArray) -> FloatArray:
+    """The value at dt = 0 of the robust line through x (N, 3) at times dt (N,) s (Theil-Sen:
+    each axis's slope the median of the pairs', its intercept the median of the rest)."""
+    i, j = np.triu_indices(len(dt), 1)
+    apart = dt[j] != dt[i]
+    slope = np.median((x[j[apart]] - x[i[apart]]) / (dt[j[apart]] - dt[i[apart]])[:, None], axis=0)
+    return np.median(x - dt[:, None] * slope, axis=0)
 
 
 def _between(t: FloatArray, x: FloatArray, tq: FloatArray) -> FloatArray:

@@ -630,6 +630,15 @@ def registered_track(
             poses = replace(fixes_track.poses, positions=positions)
             prior_track = replace(fixes_track, poses=poses)
             keyframes = gate(retimed(_ungated(keyframes), prior_track.poses, 0.0), settings.fuse)
+            if not screen.motion.felt and check.lies:
+                # no IMU screened the prior: the keyframes that the lie's own corrections made
+                # disagree with their neighbours (at its edge) witness again, under the prior
+                # the scene now carries, and the fixes they see are tested anew (else the
+                # honest ones before a jump, untested, are taken into the lie)
+                check = merged(tested_fixes(session, fixes_track, keyframes), screen.check)
+                positions, _, _ = _carried(session, fixes_track, keyframes, check, settings)
+                prior_track = replace(fixes_track, poses=replace(fixes_track.poses, positions=positions))  # fmt: skip
+                keyframes = gate(retimed(_ungated(keyframes), prior_track.poses, 0.0), settings.fuse)  # fmt: skip
             _, carried, said = _carried(session, fixes_track, keyframes, check, settings)
         check = said
         t0 = float(session.frame_times[0])

@@ -15,10 +15,12 @@ import pytest
 
 from app.cli import main
 from app.geodesy.enu import LocalFrame
+from app.scene.layers import Layer
 from app.simulate import drone
 from app.simulate.lies import Lie
 from app.simulate.stadium import SITE_ORIGIN
 from app.simulate.tileset import write_site
+from app.ui.sessions import OpenJob
 from tests.test_cold_start_dji import TOLERANCE_M
 
 SECONDS = 8.0
@@ -35,11 +37,11 @@ def clip(tmp_path_factory):
 
 
 def _solved(
-    clip, tmp_path, outage=None, lie: Lie | None = None
+    clip, tmp_path, outage=None, lie: Lie | None = None, more: tuple[str, ...] = ()
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """`geofuse solve CLIP --scene SITE --source registered` with the subtitle beside the clip
-    (its fixes lied about by `lie`): (clip times s, each frame's distance m from the flight, its
-    gnss status)."""
+    """`geofuse solve CLIP --scene SITE --source registered` (and `more` options) with the
+    subtitle beside the clip (its fixes lied about by `lie`): (clip times s, each frame's
+    distance m from the flight, its gnss status)."""
     video, site = clip
 
     def told(t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -51,7 +53,7 @@ def _solved(
     srt.write_text(text, encoding="utf-8")
     out = tmp_path / "track.csv"
     args = ["solve", str(video), "--scene", str(site), "--source", "registered", "--out", str(out)]
-    assert main(args) == 0
+    assert main([*args, *more]) == 0
     with out.open() as f:
         rows = list(csv.DictReader(f))
     t = np.array([float(r["time_s"]) for r in rows])
@@ -103,3 +105,40 @@ def test_a_lying_subtitle_is_caught_by_the_scene_alone(clip, tmp_path, capsys, l
     assert set(gnss[t < lie.from_s - 0.5]) == {"used"}
     assert set(gnss[t >= float(caught.group(1))]) == {"rejected"}
     assert error.max() < TOLERANCE_M and np.median(error) < TOLERANCE_M / 4
+
+
+def test_a_stated_accuracy_catches_a_drag_off_sooner(clip, tmp_path, capsys):
+    """DJI states no accuracy, so the checks assume 5 m: a 2 m/s drag-off from 2 s must pass
+    4.5 times that (or walk 12 m in 4 s) before it is caught, too late for this 8 s clip.
+    `--gnss-accuracy 1.5` (the receiver's own, as its maker states it) is said, and catches it
+    within 5 s of passing 1.5 m; the frames from the alarm are rejected, the track stays on the
+    flight."""
+    lie = Lie("drag", 2.0, speed_mps=2.0)
+    caught = {}
+    for more in ((), ("--gnss-accuracy", "1.5")):
+        t, error, gnss = _solved(clip, tmp_path, lie=lie, more=more)
+        said = capsys.readouterr().err
+        when = re.search(r"GNSS disagrees with the scene from .*caught at t = (\d+\.\d) s", said)
+        caught[more] = float(when.group(1)) if when else np.inf
+        assert error.max() < TOLERANCE_M
+    stated = ("--gnss-accuracy", "1.5")
+    assert "GNSS accuracy 1.5 m (--gnss-accuracy) for the 240 of 240 fixes that state none" in said
+    assert caught[stated] <= lie.from_s + 1.5 / lie.speed_mps + 5.0 and caught[stated] < caught[()]
+    assert set(gnss[t >= caught[stated]]) == {"rejected"} and set(gnss[t < lie.from_s]) == {"used"}
+
+
+def test_the_viewer_opens_a_clip_with_the_accuracy_stated(clip):
+    """`geofuse view CLIP --gnss-accuracy 1.5`: the viewer's opening job states it on every
+    fix the subtitle gives none for, and says so; without it the fixes state none."""
+    video, site = clip
+    video.with_suffix(".SRT").write_text(drone.srt_text(SECONDS, 0.0, gimbal=True))
+    stated, plain = (
+        OpenJob(video, None, None, (Layer.of(site),), accuracy_m=a) for a in (1.5, None)
+    )
+    for job in (stated, plain):
+        job.run()
+        assert job.error is None, job.error
+    session = stated.result[0]
+    assert np.array_equal(session.gnss.h_acc, np.full(len(session.gnss.t), 1.5))
+    assert any("GNSS accuracy 1.5 m (--gnss-accuracy)" in m for m in session.messages.items)
+    assert plain.result[0].gnss.h_acc is None

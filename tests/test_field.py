@@ -13,7 +13,7 @@ from app.core.errors import DataFormatError
 from app.core.messages import Messages
 from app.geodesy import rotations
 from app.geodesy.enu import LocalFrame
-from app.io.streams import GnssTrack, plausible_fixes
+from app.io.streams import GnssTrack, plausible_fixes, with_accuracy
 from app.session import open_session
 from app.simulate.phone import walking_pan, write_session
 
@@ -201,3 +201,14 @@ def test_a_gltf_with_y_up_ecef_lands_where_it_belongs(tmp_path):
     scene.export(path)
     placed = load_scene(path, frame)
     np.testing.assert_allclose(placed.primitives[0].positions, local, atol=0.01)
+
+
+def test_a_stated_accuracy_fills_only_the_fixes_that_state_none():
+    t = np.arange(4.0)
+    g = _track(t, np.column_stack([t, t, np.zeros(4)]))
+    filled, n = with_accuracy(g, 2.0)
+    assert n == 4 and list(filled.h_acc) == [2.0] * 4
+    g = GnssTrack(g.t, g.lat, g.lon, g.h, None, np.array([0.8, np.nan, 0.0, 3.0]), g.path)
+    filled, n = with_accuracy(g, 2.0)
+    assert n == 2 and list(filled.h_acc) == [0.8, 2.0, 2.0, 3.0]
+    assert with_accuracy(filled, 9.0) == (filled, 0)

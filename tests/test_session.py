@@ -126,6 +126,10 @@ def test_imu_only_session_offers_imu_filters(session_dir, tmp_path, capsys):
             "field 'gnss_typo': unknown table [gnss_typo]; did you mean 'gnss'?",
         ),
         (lambda t: t[: t.index("[gnss]")], "field 'gnss': missing section [gnss]"),
+        (
+            lambda t: t.replace("[gnss]\n", "[gnss]\naccuracy_m = 0\n"),
+            "field 'gnss.accuracy_m': got 0.0, expected a finite number in [0.1, 1000]",
+        ),
         (lambda t: t + "\n[[[", "not valid TOML"),
     ],
 )

@@ -128,6 +128,7 @@ def open_with_source(
     )
     if start is not None and session.start is None:  # a clip without GNSS: from the area
         session = replace(session, start=start)
+    session = session.stating_accuracy(getattr(args, "gnss_accuracy", None), "--gnss-accuracy")
     if getattr(args, "out", None) is not None:
         check_output(args.out, "--out", suffixes, list(session.inputs))
     first = REGISTERED if start is not None and REGISTERED in session.sources else None

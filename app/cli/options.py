@@ -348,6 +348,18 @@ def add_radius(p: argparse.ArgumentParser, name: str, default: float | None, hel
     )
 
 
+def add_gnss_accuracy_option(p: argparse.ArgumentParser) -> None:
+    """--gnss-accuracy M: the fixes' accuracy where they state none (a clip's, a stream's)."""
+    p.add_argument(
+        "--gnss-accuracy",
+        type=number(0.1, 1000.0),
+        default=None,
+        metavar="M",
+        help="the GNSS's accuracy, metres (1 sigma per axis), where its fixes state none (a DJI subtitle, GPX, KLV, MAVLink without GPS_RAW_INT's h_acc): "
+        "the fixes are tested against the registered keyframes and the IMU with it (default 5; a receiver you know better than that catches a lie sooner)",
+    )
+
+
 def add_start_options(p: argparse.ArgumentParser) -> None:
     """--near LAT,LON with --radius M, or --start-area FILE, and --height M: where a clip with no
     GNSS fix at all begins (its `registered` source searches the scene there for the first

@@ -14,6 +14,7 @@ from app.cli.options import (
     MAX_IMAGE_SIDE,
     Parser,
     add_fov_option,
+    add_gnss_accuracy_option,
     add_layer_options,
     add_lens_option,
     add_pitch_option,
@@ -123,6 +124,7 @@ def _render(sub: Commands) -> None:
     )
     add_projection_options(r)
     add_start_options(r)
+    add_gnss_accuracy_option(r)
     r.add_argument("--out", required=True, type=Path, help="output PNG")
     r.set_defaults(job="render")
 
@@ -280,6 +282,7 @@ def _view(sub: Commands) -> None:
 
 def _stream_options(p: argparse.ArgumentParser) -> None:
     """What a stream needs beside its URL (geofuse live, and geofuse view URL)."""
+    add_gnss_accuracy_option(p)
     p.add_argument(
         "--buffer-ms",
         type=number(0.0, 5000.0),
@@ -317,14 +320,6 @@ def _stream_options(p: argparse.ArgumentParser) -> None:
         dest="register",
         action="store_false",
         help="a stream over a textured scene: do not register keyframes against it (by default they are, in the background, the correction applied forward)",
-    )
-    p.add_argument(
-        "--gnss-accuracy",
-        type=number(0.1, 1000.0),
-        default=None,
-        metavar="M",
-        help="a stream's GNSS accuracy, metres (1 sigma per axis), where the feed states none (KLV, MAVLink without GPS_RAW_INT's h_acc): "
-        "the fixes are tested against the registered keyframes with it (default 5)",
     )
 
 
@@ -464,6 +459,7 @@ def _solve(sub: Commands) -> None:
         f"a drone clip without gimbal attitude: the camera's pitch, degrees (default {DRONE_DEFAULT_PITCH_DEG:g})",
     )
     add_start_options(so)
+    add_gnss_accuracy_option(so)
     so.add_argument("--out", type=Path, required=True)
     so.set_defaults(job="solve")
 
@@ -487,6 +483,7 @@ def _export(sub: Commands) -> None:
     ex.add_argument("--out", type=Path, required=True)
     add_source_option(ex, SOURCE_HELP)
     add_start_options(ex)
+    add_gnss_accuracy_option(ex)
     ex.add_argument(
         "--every",
         type=count(1, 1_000_000),

@@ -7,7 +7,7 @@ gyroscope rad/s, magnetometer uT.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -57,6 +57,18 @@ class GnssTrack:
     vel_enu: FloatArray | None = None
     h_acc: FloatArray | None = None
     path: str = ""  # the file it was read from (for messages)
+
+
+def with_accuracy(track: GnssTrack, accuracy_m: float) -> tuple[GnssTrack, int]:
+    """(the track with accuracy_m (m, 1 sigma per axis) as the stated horizontal accuracy of
+    every fix that states none (no h_acc, or a non-finite or non-positive one), how many fixes
+    took it)."""
+    n = len(track.t)
+    given = np.full(n, np.nan) if track.h_acc is None else np.asarray(track.h_acc, np.float64)
+    none = ~(np.isfinite(given) & (given > 0))
+    if not none.any():
+        return track, 0
+    return replace(track, h_acc=np.where(none, float(accuracy_m), given)), int(none.sum())
 
 
 def usual_interval(times: npt.ArrayLike, last: int = 20) -> float | None:

@@ -426,4 +426,4 @@ def assemble(cfg: SessionConfig) -> Session:
         device_is_camera=cfg.sensors.format in ("gopro", "none"),  # action cameras and drones
         aircraft_yaw=yaw, mesh=mesh, lens=lens, readout_s=_readout(cfg, lens, messages), layers=cfg.layers,
         further=cfg.clips, platform_heights=heights,
-    )  # fmt: skip
+    ).stating_accuracy(cfg.gnss.accuracy_m, "[gnss] accuracy_m")  # fmt: skip

@@ -85,6 +85,8 @@ TOML reader that types and checks each key is app.session.reader).
     height = "gnss"               # or "ground": the model's ground under each fix + mount height
     mount_height_m = 1.5          # with height = "ground": camera above the ground (hand-held 1.5)
     pitch_deg = -30.0             # a DJI subtitle without gimbal attitude: the camera's pitch
+    accuracy_m = 2.0              # optional: the fixes' horizontal accuracy (m, 1 sigma per
+                                  # axis) where they state none (DJI, GPX); default: 5 assumed
 
     [truth]                       # optional, for simulated sessions
     orientation = "truth.csv"     # device -> ENU quaternions (t, qw, qx, qy, qz)
@@ -139,6 +141,7 @@ KNOWN_KEYS: dict[str, set[str]] = {  # every table and key of the schema above
         "height",
         "mount_height_m",
         "pitch_deg",
+        "accuracy_m",
     },
     "truth": {"orientation", "position", "frame_times"},
     "world": MANIFEST_KEYS,
@@ -220,6 +223,7 @@ class GnssConfig:
     height: str  # "gnss" or "ground"
     mount_height_m: float
     pitch_deg: float  # a subtitle without gimbal attitude: the camera's assumed pitch
+    accuracy_m: float | None = None  # the fixes' accuracy (m) where they state none
 
 
 @dataclass(frozen=True)
@@ -467,6 +471,7 @@ def read_config(path: str | Path) -> SessionConfig:
             high=90.0,
             required_section=False,
         ),
+        m.number("gnss", "accuracy_m", None, low=0.1, high=1000.0, required_section=False),
     )
     truth = TruthConfig(
         *(

@@ -10,7 +10,7 @@ are compared with (app.playback.library).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 from pathlib import Path
 
@@ -27,7 +27,7 @@ from app.core.errors import DataFormatError
 from app.core.messages import Messages
 from app.geodesy import rotations
 from app.geodesy.enu import LocalFrame
-from app.io.streams import GnssTrack, OrientationStream, VectorStream
+from app.io.streams import GnssTrack, OrientationStream, VectorStream, with_accuracy
 from app.io.video import VideoInfo
 from app.scene import Placement, load_scene
 from app.scene.ground import ground_heights
@@ -104,6 +104,24 @@ class Session:
     @property
     def course_pitch_deg(self) -> float | None:
         return self.heading.course_pitch_deg
+
+    def stating_accuracy(self, accuracy_m: float | None, given_by: str) -> Session:
+        """This session with accuracy_m (m, 1 sigma per axis; None: as it is) as the stated
+        horizontal accuracy of its GNSS fixes that state none (a DJI subtitle, a GPX file: the
+        checks against the scene and the IMU assume CheckSettings.accuracy_m, 5 m, otherwise),
+        said in its messages with what gave it (given_by: an option, a manifest key)."""
+        if accuracy_m is None or not len(self.gnss.t):
+            return self
+        gnss, filled = with_accuracy(self.gnss, accuracy_m)
+        if not filled:
+            self.messages.info(
+                f"{given_by} {accuracy_m:g} m: every GNSS fix states its own accuracy, kept"
+            )
+            return self
+        self.messages.info(
+            f"GNSS accuracy {accuracy_m:g} m ({given_by}) for the {filled} of {len(gnss.t)} fixes that state none: their tests against the scene and the IMU use it"
+        )
+        return replace(self, gnss=gnss)
 
     def camera_mount(self) -> np.ndarray:
         """Quaternion of the camera (of the displayed video) in the device frame: a phone's back

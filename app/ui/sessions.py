@@ -44,20 +44,28 @@ class OpenJob(OneShot):
     the world is built in the background once installed (app.ui.world)."""
 
     def __init__(
-        self, path: Path, srt, lens, layers, on_fail: Callable[[], None] | None = None, start=None
+        self,
+        path: Path,
+        srt,
+        lens,
+        layers,
+        on_fail: Callable[[], None] | None = None,
+        start=None,
+        accuracy_m: float | None = None,
     ):
         self.path, self.on_fail = path, on_fail
-        self._args = (srt, lens, tuple(layers), start)
+        self._args = (srt, lens, tuple(layers), start, accuracy_m)
         self.result: tuple[Session, MeshData] | None = None
         self.worlds: list[WorldRequest] = []  # to build in the background once installed
         super().__init__("geofuse-open")
 
     def _work(self) -> None:
-        srt, lens, layers, start = self._args
+        srt, lens, layers, start, accuracy_m = self._args
         with deferred_worlds() as worlds:
             session = open_any(self.path, srt, lens=lens, layers=layers, start=start)
         if start is not None and session.start is None:  # app.session.start.StartArea
             session = replace(session, start=start)
+        session = session.stating_accuracy(accuracy_m, "--gnss-accuracy")
         if worlds:  # not among its layers until drawn: nothing to register against meanwhile
             kept = tuple(layer for layer in session.layers if layer.kind != "world")
             session = replace(session, layers=kept)
@@ -240,6 +248,7 @@ class ViewerSessions:
             self.options.layers if own else (),
             on_fail,
             self.options.start if own else None,
+            self.options.live.gnss_accuracy_m if own and self.options.live is not None else None,
         )
         if background:
             self.ui.opening = job.start()

@@ -185,6 +185,30 @@ def test_a_keyframe_that_disagrees_with_its_neighbours_is_not_used():
     assert "disagrees with its" in gated[4].reason and "5.00 deg" in gated[4].reason
 
 
+def test_a_prior_that_swerves_or_drags_keeps_keyframes_on_the_flights_path():
+    """Keyframes every 0.5 s registered on a flight's curve (the weave: 9 m/s east, swinging
+    north): where the prior swerves 10 m off for 3 s (a multipath burst) the corrections swerve
+    with it and disagree with their neighbours' median, but the registered positions lie on the
+    path the others fly, so they are used; where it walks off at 2 m/s to the clip's end (a
+    drag no IMU screened) they lie on their neighbours' line. A false match 5 m off the path,
+    its prior like its neighbours', is still set aside."""
+    t = np.arange(0.0, 12.0, 0.5)
+    path = np.column_stack([9.0 * t, 14.0 * np.sin(2 * np.pi * t / 12.0), np.full(len(t), 35.0)])
+    q = rotations.camera_quat_from_hpr(90.0, -25.0, 0.0)
+    burst = np.where((t >= 4.0) & (t < 7.0), 10.0, 0.0)[:, None] * [0.6, 0.8, 0.0]
+
+    def keyframes(prior: np.ndarray, position: np.ndarray) -> list[Keyframe]:
+        return [Keyframe(i, float(t[i]), True, "", 50, 40, 0.8, 2, prior[i], q, position[i], q) for i in range(len(t))]  # fmt: skip
+
+    assert all(k.used for k in gate(keyframes(path + burst, path), FuseSettings()))
+    drag = np.clip(t - 8.0, 0.0, None)[:, None] * [2.0, 0.0, 0.0]
+    assert all(k.used for k in gate(keyframes(path + drag, path), FuseSettings()))
+    false = path.copy()
+    false[10] += [0.0, 5.0, 0.0]
+    gated = gate(keyframes(path, false), FuseSettings())
+    assert [k.index for k in gated if not k.used] == [10] and "5.00 m" in gated[10].reason
+
+
 def test_a_keyframe_no_registered_neighbour_confirms_is_not_used():
     """A fit alone is not trusted: one with no registered keyframe within window_s (4 s) is set
     aside; two that agree confirm each other; two that disagree are both set aside."""

@@ -63,7 +63,8 @@ class Keyframe:
 
 @dataclass(frozen=True)
 class FuseSettings:
-    """window_s: neighbours within this many seconds judge a keyframe; max_disagree_m /
+    """window_s: neighbours within this many seconds judge a keyframe (path_s: those whose
+    positions judge it, `gate`); max_disagree_m /
     max_disagree_deg: a correction farther than this from their median is not used; smooth_s:
     Gaussian sigma (s) over the used corrections (0.1 s: at the default 0.5 s spacing each
     keyframe keeps its own, as the prior's error moves within a second; 1 s smoothed that away
@@ -74,6 +75,7 @@ class FuseSettings:
     high-passed rates (rad/s), the largest offset believed (s)."""
 
     window_s: float = 4.0
+    path_s: float = 2.0
     max_disagree_m: float = 2.5
     max_disagree_deg: float = 1.5
     smooth_s: float = 0.1
@@ -91,7 +93,11 @@ def gate(keyframes: list[Keyframe], settings: FuseSettings = FuseSettings()) -> 
     aside, as neither can be told right) and, in metres, from the robust line through them
     (four at least: a correction that moves steadily, where the prior drags off the flight or
     stands still while it flies on, a lie no IMU screened out, agrees with its neighbours'
-    line, not their median), and one with no registered neighbour at all. A lone
+    line, not their median) and whose position lies farther than max_disagree_m off the path
+    its neighbours' positions fly (a quadratic through those within path_s, two at least on
+    each side: where the prior itself swerves, under a multipath burst or across an outage it
+    runs straight through, the corrections swerve with it and the registered positions do
+    not; a false match stands off that path), and one with no registered neighbour at all. A lone
     fit is not trusted: on the sample walk against its model without texture, each keyframe
     started at its true pose, the only one the lines accepted ended 6.8 m off and, used alone,
     moved the whole track (docs/ACCURACY.md, "A keyframe alone")."""
@@ -100,6 +106,7 @@ def gate(keyframes: list[Keyframe], settings: FuseSettings = FuseSettings()) -> 
     corr = [k.correction() for k in solved]
     dp = np.array([c[0] for c in corr])
     dr = np.degrees(np.array([c[1] for c in corr]))
+    pos = np.array([k.position for k in solved], np.float64).reshape(-1, 3)
     bad: dict[int, str] = {}
     for i, k in enumerate(solved):
         near = np.flatnonzero((np.abs(t - t[i]) <= settings.window_s) & (np.arange(len(t)) != i))
@@ -111,6 +118,8 @@ def gate(keyframes: list[Keyframe], settings: FuseSettings = FuseSettings()) -> 
         off_m = float(np.linalg.norm(dp[i] - np.median(dp[near], axis=0)))
         if off_m > settings.max_disagree_m and len(near) >= 4:  # or on their steady line
             off_m = min(off_m, float(np.linalg.norm(dp[i] - _on_line(t[near] - t[i], dp[near]))))
+        if off_m > settings.max_disagree_m:  # or on the path their positions fly
+            off_m = min(off_m, _off_path(t - t[i], pos, i, settings.path_s))
         off_deg = float(np.linalg.norm(dr[i] - np.median(dr[near], axis=0)))
         if off_m > settings.max_disagree_m or off_deg > settings.max_disagree_deg:
             whom = "its only neighbour" if len(near) == 1 else f"its {len(near)} neighbours"
@@ -154,6 +163,17 @@ class Correction:
         )
         fade = np.exp(-outside / self.hold_s)[:, None]
         return dp * fade, dr * fade
+
+
+def _off_path(dt: FloatArray, pos: FloatArray, i: int, path_s: float) -> float:
+    """How far (m) keyframe i's position lies from the quadratic in time through the other
+    keyframes' positions (pos (K, 3) ENU m at dt (K,) s from it) within path_s either side
+    (two at least on each side; inf where there are fewer)."""
+    near = np.flatnonzero((np.abs(dt) <= path_s) & (np.arange(len(dt)) != i))
+    if (dt[near] < 0).sum() < 2 or (dt[near] > 0).sum() < 2:
+        return float("inf")
+    coef = np.polyfit(dt[near], pos[near], 2)
+    return float(np.linalg.norm(pos[i] - coef[-1]))
 
 
 def _on_line(dt: FloatArray, x: FloatArray) -> FloatArray:

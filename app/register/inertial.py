@@ -42,7 +42,7 @@ from functools import cached_property
 import numpy as np
 import numpy.typing as npt
 
-from app.camera.fixes import USED, FixStatus
+from app.camera.fixes import FixStatus
 from app.camera.trajectory import PoseTrack, PositionTrack, gap_intervals, gap_limit_s, hermite
 from app.geodesy import rotations
 from app.geodesy.enu import LocalFrame
@@ -78,10 +78,7 @@ class InertialSettings:
     chi-square); v0_sigma: the velocity's spread at the start (m/s); windows_s: besides the fix
     before, each fix is tested against the state these many seconds before it, carried by the
     IMU alone (s); probation: after a fix failed, this many in a row must pass before one is
-    used again (a lie that the filter's growing spread lets one fix through does not pull it);
-    confirm_s, confirm_m: without an IMU, where no fix holds the track, a keyframe registered
-    there carries it when a smooth flight through the registered keyframes within confirm_s
-    either side passes within confirm_m of it (`confirmed`).
+    used again (a lie that the filter's growing spread lets one fix through does not pull it).
     Tuned on simulated orbits and surveys (docs/ACCURACY.md, issue 52): no alarm on 20 clean
     sessions with multipath bursts."""
 
@@ -100,8 +97,6 @@ class InertialSettings:
     v0_sigma: float = 2.0
     windows_s: tuple[float, ...] = (3.0, 8.0)
     probation: int = 3
-    confirm_s: float = 2.0
-    confirm_m: float = 3.0
 
 
 @dataclass(frozen=True)
@@ -758,38 +753,6 @@ def screened(
     return Screened(replace(prior, poses=poses, fixes=status), back.check, motion)
 
 
-def confirmed(
-    keyframes: list[Keyframe], status: FixStatus, settings: InertialSettings = InertialSettings()
-) -> list[Keyframe]:
-    """The keyframes that carry a track without an IMU: those used, and, where no fix holds the
-    track (status: rejected or missing there), those registered whose position a smooth flight
-    confirms: a quadratic in time through the other registered keyframes within
-    settings.confirm_s either side (three at least) passes within settings.confirm_m of it
-    (twice: the second time without the ones the first set aside). Where the prior runs
-    straight between the fixes around an outage, the gate's test of each keyframe's correction
-    against its neighbours' sets right poses aside (the corrections follow the flight's curve);
-    their positions, chained, are what carries the track there."""
-    registered = [k for k in keyframes if k.registered]
-    if not registered:
-        return []
-    t = np.array([k.time_s for k in registered], np.float64)
-    p = np.array([k.position for k in registered], np.float64)
-    unheld = status.at(t) != USED
-    ok = np.array([k.used for k in registered]) | unheld
-    for _ in range(2):
-        agree = ok.copy()
-        for i in np.flatnonzero(unheld & ok):
-            near = np.flatnonzero(ok & (np.abs(t - t[i]) <= settings.confirm_s))
-            near = near[near != i]
-            if len(near) < 3:
-                agree[i] = False
-                continue
-            coef = np.polyfit(t[near] - t[i], p[near], 2)
-            agree[i] = bool(np.linalg.norm(p[i] - coef[-1]) <= settings.confirm_m)
-        ok = agree
-    return [k for k, keep in zip(registered, ok, strict=True) if keep]
-
-
 def carried_track(
     session: Session,
     fixes_track: CameraTrack,
@@ -808,8 +771,6 @@ def carried_track(
     span = _video_span(session)
     outages = check.status.outages(*span)
     used = [k for k in keyframes if k.used]
-    if not motion.felt and (outages or check.status.rejected.any()):
-        used = confirmed(keyframes, check.status, settings)
     kt = np.array([k.time_s for k in used], np.float64)
     kp = np.array([k.position for k in used], np.float64).reshape(-1, 3)
     rejected = check.status.rejected

@@ -4,13 +4,16 @@ The simulated DJI weave (app.simulate.drone: 35 m up, eastward at 9 m/s along th
 south side, --duration s, 640x360) is rendered once; its subtitle (gimbal angles, a fix per frame
 as DJI writes it) is written per seed with the GNSS's own error (Gauss-Markov, --noise m per
 axis, 30 s) and per case with a lie from --from-s (app.simulate.lies: a 200 m jump east,
-drag-offs east at 1, 2 and 5 m/s, a frozen fix, a replay of 10 s before; `outage`: no fix, DJI's
-0, 0, for 8 s). Each case is solved as `registered` against the site written as a tileset, from
+drag-offs east at 1, 2 and 5 m/s, a frozen fix, a replay of 10 s before, or of --from-s less
+2 s where that is less; `outage`: no fix, DJI's 0, 0, for 8 s; `multipath`: no lie, bursts that
+pull the fixes 3-8 m off, which a DJI subtitle cannot say it is less sure of). Each case is solved as `registered` against the site written as a tileset, from
 the clip and its subtitle alone (app.footage.clips.open_clip), and compared frame by frame with
-the flight. DJI states no accuracy, so the checks assume CheckSettings.accuracy_m (5 m); a lie's
-alarm delay counts from the moment it exceeds that (as bench_gnss_lies does).
+the flight. DJI states no accuracy, so the checks assume CheckSettings.accuracy_m (5 m), or
+what --gnss-accuracy states (the user's `--gnss-accuracy`); a lie's alarm delay counts from the
+moment it exceeds that (as bench_gnss_lies does).
 
     python bench/bench_dji_lies.py --seeds 1 2 3
+    python bench/bench_dji_lies.py --seeds 1 2 3 --gnss-accuracy 1.5
 
 Figures per case: the lies said, when the first was caught and said to begin (clip s), the
 alarm's delay, the share of frames marked rejected after the lie exceeds the accuracy (missing,
@@ -45,7 +48,7 @@ from app.solve.track import solve_track  # noqa: E402
 from bench.bench_gnss_lies import LIES, exceeds_s, label  # noqa: E402
 from bench.common import table, write_json  # noqa: E402
 
-CASES = ("clean", "jump", "drag1", "drag", "drag5", "frozen", "replay", "outage")
+CASES = ("clean", "multipath", "jump", "drag1", "drag", "drag5", "frozen", "replay", "outage")
 OUTAGE_S = 8.0
 SIZE = (640, 360)
 
@@ -68,10 +71,12 @@ def subtitle(path: Path, duration_s: float, noise: np.ndarray, lie: Lie | None) 
     return path
 
 
-def solved(video: Path, srt: Path, site: Path) -> dict:
-    """The registered track of the clip with this subtitle: per frame its clip time (s),
-    true position (ENU m about the site origin), error (m), gnss status; the lies said."""
+def solved(video: Path, srt: Path, site: Path, accuracy_m: float | None) -> dict:
+    """The registered track of the clip with this subtitle (its fixes' accuracy accuracy_m, m,
+    as --gnss-accuracy states it; None: none): per frame its clip time (s), true position (ENU
+    m about the site origin), error (m), gnss status; the lies said."""
     session = open_clip(video, srt, layers=(Layer.of(site),))
+    session = session.stating_accuracy(accuracy_m, "--gnss-accuracy")
     track = solve_track(session, "registered")
     poses = track.frame_poses()
     t0 = float(session.frame_times[0])
@@ -97,9 +102,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--from-s", type=float, default=8.0, help="the lie's start, clip s")
     ap.add_argument("--noise", type=float, default=1.5, help="the GNSS's own error, m per axis")
     ap.add_argument("--cases", nargs="+", default=list(CASES), choices=CASES)
+    ap.add_argument("--gnss-accuracy", type=float, help="m: the fixes' accuracy, as stated")
     ap.add_argument("--json", type=Path, help="write the figures here")
     args = ap.parse_args(argv)
-    accuracy = CheckSettings().accuracy_m
+    accuracy = args.gnss_accuracy or CheckSettings().accuracy_m
     rows, figures = [], []
     with tempfile.TemporaryDirectory(prefix="dji-lies-") as tmp:
         folder = Path(tmp)
@@ -116,16 +122,19 @@ def main(argv: list[str] | None = None) -> int:
             for case in ["clean", *(c for c in args.cases if c != "clean")]:
                 if case == "clean":
                     lie = None
+                elif case == "multipath":
+                    lie = Lie("multipath", -1e6, seed=seed)
                 elif case == "outage":
                     lie = Lie("outage", args.from_s, until_s=args.from_s + OUTAGE_S)
-                else:
+                else:  # a replay of what came before the clip would replay its first fix
                     lie = replace(LIES[case], from_s=args.from_s)
+                    lie = replace(lie, back_s=min(lie.back_s, args.from_s - 2.0))
                 srt = subtitle(folder / f"{seed}-{case}.SRT", args.duration, noise, lie)
-                got = done[case] = solved(video, srt, site)
+                got = done[case] = solved(video, srt, site, args.gnss_accuracy)
                 t, err = got["t"], got["error"]
                 before = int(np.sum((got["gnss"] == REJECTED) & (t < args.from_s - 0.5)))
-                if lie is None:
-                    rows.append([seed, "clean", len(got["caught"]), "", "", "", "", before, f"{np.median(err):.2f} / {np.percentile(err, 95):.2f}", ""])  # fmt: skip
+                if lie is None or lie.kind == "multipath":
+                    rows.append([seed, case, len(got["caught"]), "", "", "", "", before, f"{np.median(err):.2f} / {np.percentile(err, 95):.2f}", ""])  # fmt: skip
                     figures.append({"seed": seed, "case": case, "alarms": len(got["caught"]), "rejected_before": before, "median_error_m": float(np.median(err))})  # fmt: skip
                     continue
                 clean = done["clean"]
@@ -143,9 +152,12 @@ def main(argv: list[str] | None = None) -> int:
                 rows.append([seed, name, len(got["caught"]), " ".join(got["kinds"]), "" if began is None else f"{began:.1f}", "" if lie.kind == "outage" else ("none" if delay is None else f"{delay:.1f}"), f"{100 * share:.0f} %", before, f"{np.median(e):.2f} / {np.percentile(e, 95):.2f}", f"{np.median(ref):.2f} / {np.percentile(ref, 95):.2f}"])  # fmt: skip
                 figures.append({"seed": seed, "case": case, "alarms": len(got["caught"]), "kinds": got["kinds"], "began_s": began, "alarm_delay_s": delay, "marked_share": share, "rejected_before": before, "median_error_m": float(np.median(e)), "p95_error_m": float(np.percentile(e, 95)), "clean_median_error_m": float(np.median(ref))})  # fmt: skip
                 print(f"seed {seed} {name}: done", file=sys.stderr, flush=True)
-    print(f"# A DJI clip's GNSS lying, no IMU: {args.duration:g} s weave, lie from t = {args.from_s:g} s, GNSS error {args.noise:g} m\n")  # fmt: skip
+    stated = (
+        f"stated {args.gnss_accuracy:g} m" if args.gnss_accuracy else "none stated: 5 m assumed"
+    )
+    print(f"# A DJI clip's GNSS lying, no IMU: {args.duration:g} s weave, lie from t = {args.from_s:g} s, GNSS error {args.noise:g} m, accuracy {stated}\n")  # fmt: skip
     print(table(["seed", "GNSS", "alarms", "named", "said from (s)", "alarm delay (s)", "marked after (rejected; outage: missing)", "rejected before the lie (frames)", "error during the lie, median / p95 (m)", "clean run's (m)"], rows))  # fmt: skip
-    write_json(args.json, {"duration_s": args.duration, "from_s": args.from_s, "noise_m": args.noise, "runs": figures})  # fmt: skip
+    write_json(args.json, {"duration_s": args.duration, "from_s": args.from_s, "noise_m": args.noise, "accuracy_m": args.gnss_accuracy, "runs": figures})  # fmt: skip
     return 0
 
 

@@ -95,19 +95,20 @@ def gate(keyframes: list[Keyframe], settings: FuseSettings = FuseSettings()) -> 
     stands still while it flies on, a lie no IMU screened out, agrees with its neighbours'
     line, not their median) and whose position lies farther than max_disagree_m off the path
     its neighbours' positions fly (a quadratic through those within path_s, two at least on
-    each side: where the prior itself swerves, under a multipath burst or across an outage it
+    each side, that passes within max_disagree_m / 3 of them, RMS: where the prior itself swerves, under a multipath burst or across an outage it
     runs straight through, the corrections swerve with it and the registered positions do
     not; a false match stands off that path), and one with no registered neighbour at all. A lone
     fit is not trusted: on the sample walk against its model without texture, each keyframe
     started at its true pose, the only one the lines accepted ended 6.8 m off and, used alone,
     moved the whole track (docs/ACCURACY.md, "A keyframe alone")."""
-    solved = [k for k in keyframes if k.used]
+    finite = {k.index for k in keyframes if k.used and np.isfinite(k.position).all() and np.isfinite(k.q).all()}  # fmt: skip
+    solved = [k for k in keyframes if k.index in finite]
     t = np.array([k.time_s for k in solved])
     corr = [k.correction() for k in solved]
     dp = np.array([c[0] for c in corr])
     dr = np.degrees(np.array([c[1] for c in corr]))
     pos = np.array([k.position for k in solved], np.float64).reshape(-1, 3)
-    bad: dict[int, str] = {}
+    bad = {k.index: "registered at a non-finite pose" for k in keyframes if k.used and k.index not in finite}  # fmt: skip
     for i, k in enumerate(solved):
         near = np.flatnonzero((np.abs(t - t[i]) <= settings.window_s) & (np.arange(len(t)) != i))
         if len(near) == 0:
@@ -119,9 +120,11 @@ def gate(keyframes: list[Keyframe], settings: FuseSettings = FuseSettings()) -> 
         if off_m > settings.max_disagree_m and len(near) >= 4:  # or on their steady line
             off_m = min(off_m, float(np.linalg.norm(dp[i] - _on_line(t[near] - t[i], dp[near]))))
         if off_m > settings.max_disagree_m:  # or on the path their positions fly
-            off_m = min(off_m, _off_path(t - t[i], pos, i, settings.path_s))
+            off_m = min(
+                off_m, _off_path(t - t[i], pos, i, settings.path_s, settings.max_disagree_m)
+            )
         off_deg = float(np.linalg.norm(dr[i] - np.median(dr[near], axis=0)))
-        if off_m > settings.max_disagree_m or off_deg > settings.max_disagree_deg:
+        if not off_m <= settings.max_disagree_m or not off_deg <= settings.max_disagree_deg:
             whom = "its only neighbour" if len(near) == 1 else f"its {len(near)} neighbours"
             bad[k.index] = f"disagrees with {whom} by {off_m:.2f} m, {off_deg:.2f} deg"
     return [replace(k, used=False, reason=bad[k.index]) if k.index in bad else k for k in keyframes]
@@ -165,22 +168,30 @@ class Correction:
         return dp * fade, dr * fade
 
 
-def _off_path(dt: FloatArray, pos: FloatArray, i: int, path_s: float) -> float:
+def _off_path(dt: FloatArray, pos: FloatArray, i: int, path_s: float, within_m: float) -> float:
     """How far (m) keyframe i's position lies from the quadratic in time through the other
-    keyframes' positions (pos (K, 3) ENU m at dt (K,) s from it) within path_s either side
-    (two at least on each side; inf where there are fewer)."""
+    keyframes' positions (pos (K, 3) ENU m at dt (K,) s from it) within path_s either side:
+    inf where fewer than two lie on either side, or where the quadratic misses its own points
+    by more than within_m / 3 (RMS): a run of false matches among them bends it their way."""
     near = np.flatnonzero((np.abs(dt) <= path_s) & (np.arange(len(dt)) != i))
-    if (dt[near] < 0).sum() < 2 or (dt[near] > 0).sum() < 2:
+    before, after = np.unique(dt[near][dt[near] < 0]), np.unique(dt[near][dt[near] > 0])
+    if len(before) < 2 or len(after) < 2:
         return float("inf")
     coef = np.polyfit(dt[near], pos[near], 2)
+    misses = np.linalg.norm(np.vander(dt[near], 3) @ coef - pos[near], axis=1)
+    if np.sqrt(np.mean(misses**2)) > within_m / 3:
+        return float("inf")
     return float(np.linalg.norm(pos[i] - coef[-1]))
 
 
 def _on_line(dt: FloatArray, x: FloatArray) -> FloatArray:
     """The value at dt = 0 of the robust line through x (N, 3) at times dt (N,) s (Theil-Sen:
-    each axis's slope the median of the pairs', its intercept the median of the rest)."""
+    each axis's slope the median of the pairs', its intercept the median of the rest); NaN
+    where no two times differ."""
     i, j = np.triu_indices(len(dt), 1)
     apart = dt[j] != dt[i]
+    if not apart.any():
+        return np.full(x.shape[1], np.nan)
     slope = np.median((x[j[apart]] - x[i[apart]]) / (dt[j[apart]] - dt[i[apart]])[:, None], axis=0)
     return np.median(x - dt[:, None] * slope, axis=0)
 

@@ -769,10 +769,14 @@ def carried_track(
     motion = motion_of(session, fixes_track.poses, correction)
     fixes, enu, acc = _fixes(session, fixes_track)
     span = _video_span(session)
-    outages = check.status.outages(*span)
     used = [k for k in keyframes if k.used]
     kt = np.array([k.time_s for k in used], np.float64)
     kp = np.array([k.position for k in used], np.float64).reshape(-1, 3)
+    filled = span  # where rejected and missing fixes are filled from the carried track
+    if not motion.felt and len(fixes.t):  # no IMU: only between what measured the track
+        ends = np.concatenate([fixes.t[[0, -1]], kt[[0, -1]] if len(kt) else []])
+        filled = (max(span[0], float(ends.min())), min(span[1], float(ends.max())))
+    outages = check.status.outages(*filled) if filled[1] > filled[0] else []
     rejected = check.status.rejected
     carried = carry(motion, fixes.t, enu, acc, ~rejected, kt, kp, settings, span)
     if rejected.any() and (motion.felt or len(kt) >= 2):
@@ -784,5 +788,5 @@ def carried_track(
         return fixes, carried, check
     if not motion.felt and not rejected.any() and not outages:
         return fixes, carried, check  # nothing to carry: the fixes as they were
-    positions = carried_positions(fixes, carried, rejected, span, fixes_track.poses.frame)
+    positions = carried_positions(fixes, carried, rejected, filled, fixes_track.poses.frame)
     return positions, carried, check

@@ -54,8 +54,8 @@ def test_a_bad_first_fix_does_not_condemn_the_rest():
 @pytest.mark.parametrize("jump_at_s", [8.0, 16.0])
 def test_a_step_that_holds_is_kept_for_the_checks_to_name(jump_at_s):
     """A receiver spoofed 200 m east from jump_at_s of a 24 s track at 30 Hz (a DJI subtitle):
-    every fix is kept, on either side of the median, and the note says no jump: which side lies
-    is for the checks against the scene and the IMU to tell. Dropping them as jumps had kept
+    every fix is kept, on either side of the median, and the note says so, not a jump: which
+    side lies is for the checks against the scene and the IMU to tell. Dropping them as jumps had kept
     the median's side and condemned the other's fixes for 1.4 s around the step (honest ones,
     where the lie held the median). A 200 m spike of 1 s is still a jump."""
     t = np.arange(0.0, 24.0, 1.0 / 30.0)
@@ -63,12 +63,22 @@ def test_a_step_that_holds_is_kept_for_the_checks_to_name(jump_at_s):
     enu[t >= jump_at_s, 0] += 200.0
     messages = Messages()
     kept = plausible_fixes(_track(t, enu), messages)
-    assert len(kept.t) == len(t) and not messages.items
+    assert len(kept.t) == len(t)
+    (note,) = messages.items
+    assert (
+        f"step faster than 150 m/s 1 time(s) and hold there (first at t = {jump_at_s:.1f} s" in note
+    )
     spiked = enu.copy()
     spiked[(t >= 4.0) & (t < 5.0), 0] += 200.0
     messages = Messages()
     kept = plausible_fixes(_track(t, spiked), messages)
-    assert len(kept.t) == len(t) - 30 and "30 jumps" in messages.items[0]
+    assert len(kept.t) == len(t) - 30 and "30 jumps" in " ".join(messages.items)
+    # a 1 Hz receiver's glitch of 3 fixes (2 s) is a spike, not a step
+    slow = np.arange(20.0)
+    glitch = np.column_stack([9.0 * slow, np.zeros(20), np.zeros(20)])
+    glitch[8:11, 0] += 500.0
+    kept = plausible_fixes(_track(slow, glitch), Messages())
+    assert list(np.setdiff1d(slow, kept.t)) == [8.0, 9.0, 10.0]
 
 
 def test_the_receivers_own_fix_type_and_dop_are_used():

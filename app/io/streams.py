@@ -145,6 +145,7 @@ SENSOR_LIMIT = {"gyr": 70.0, "acc": 500.0, "mag": 5000.0}
 MAX_SPEED_MPS = 150.0  # horizontal: no phone, car, action camera or small drone moves faster
 MAX_CLIMB_MPS = 60.0  # vertical speed beyond which a height is a jump, not motion
 STEP_S = 2.0  # s: fixes that hold together this long after an impossible step are a step, kept
+STEP_FIXES = 5  # and at least this many of them (a 1 Hz receiver's glitch of 3 fixes is a spike)
 MAX_DOP = 5.0  # fixes with a worse dilution of precision are not positions to use
 HEIGHT_RANGE_M = (-1_000.0, 20_000.0)  # ellipsoidal heights a fix can have
 
@@ -246,7 +247,14 @@ def plausible_fixes(
         if poor.any():
             notes.append(f"{int(poor.sum())} with DOP above {MAX_DOP:g}")
         keep &= ~poor
-    jumps = _jumps(t, lat, lon, h, keep)
+    jumps, steps = _jumps(t, lat, lon, h, keep)
+    if steps:
+        first = min(steps)
+        messages.add(
+            f"{path.name}: the fixes step faster than {MAX_SPEED_MPS:g} m/s {len(steps)} time(s) and hold there "
+            f"(first at t = {t[first]:.1f} s, fix {first + 1}): kept, for the checks against the scene and the IMU "
+            "to tell which side lies (`registered`, or an IMU's sources)"
+        )
     if jumps.any():
         notes.append(
             f"{int(jumps.sum())} jumps (faster than {MAX_SPEED_MPS:g} m/s or climbing faster than {MAX_CLIMB_MPS:g} m/s)"
@@ -269,7 +277,7 @@ def plausible_fixes(
 
 def _jumps(
     t: FloatArray, lat: FloatArray, lon: FloatArray, h: FloatArray, keep: npt.NDArray[np.bool_]
-) -> npt.NDArray[np.bool_]:
+) -> tuple[npt.NDArray[np.bool_], list[int]]:
     """Fixes whose speed from the last accepted fix is impossible: one pass forward and one
     backward from the fix nearest the track's median position (so a bad first fix cannot condemn
     all the others), in local metres. A step is not a jump: where the fixes from an impossible
@@ -279,9 +287,10 @@ def _jumps(
     fixes until the time since made the step look possible: 1.4 s of honest fixes before a
     200 m jump, at 30 Hz)."""
     out = np.zeros(len(t), bool)
+    steps: list[int] = []
     idx = np.flatnonzero(keep)
     if len(idx) < 2:
-        return out
+        return out, steps
     k_lat = np.cos(np.radians(np.median(lat[idx])))
     anchor = int(
         np.argmin(
@@ -297,17 +306,19 @@ def _jumps(
                 out[i] = not _holds(t, order[n:], at, k_lat)
                 if out[i]:
                     continue
+                steps.append(int(i))
             last = i
-    return out
+    return out, sorted(set(steps))
 
 
 def _holds(t: FloatArray, run: npt.NDArray[np.int64], at, cos_lat: float) -> bool:
     """Whether the fixes `run` (indices in a pass's order, from an impossible one) go on
-    without an impossible step among themselves for STEP_S or more: a step, not a spike."""
-    for p, q in zip(run[:-1], run[1:], strict=True):
+    without an impossible step among themselves for STEP_S or more, STEP_FIXES fixes at least:
+    a step, not a spike."""
+    for n, (p, q) in enumerate(zip(run[:-1], run[1:], strict=True), 2):
         if impossible_step(abs(t[q] - t[p]), at(p), at(q), cos_lat):
             return False
-        if abs(t[q] - t[run[0]]) >= STEP_S:
+        if abs(t[q] - t[run[0]]) >= STEP_S and n >= STEP_FIXES:
             return True
     return False
 

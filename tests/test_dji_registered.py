@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from app.cli import main
+from app.footage.clips import open_clip
 from app.geodesy.enu import LocalFrame
 from app.scene.layers import Layer
 from app.simulate import drone
@@ -142,3 +143,19 @@ def test_the_viewer_opens_a_clip_with_the_accuracy_stated(clip):
     assert np.array_equal(session.gnss.h_acc, np.full(len(session.gnss.t), 1.5))
     assert any("GNSS accuracy 1.5 m (--gnss-accuracy)" in m for m in session.messages.items)
     assert plain.result[0].gnss.h_acc is None
+
+
+def test_an_option_states_the_accuracy_over_the_manifests(clip):
+    """A manifest's [gnss] accuracy_m, then --gnss-accuracy: the option's replaces it on the
+    fixes that stated none, and says so."""
+    video, _ = clip
+    srt = video.with_suffix(".SRT")
+    srt.write_text(drone.srt_text(SECONDS, 0.0, gimbal=True))
+    session = open_clip(video, srt).stating_accuracy(2.0, "[gnss] accuracy_m")
+    assert set(session.gnss.h_acc) == {2.0}
+    session = session.stating_accuracy(1.5, "--gnss-accuracy")
+    assert set(session.gnss.h_acc) == {1.5} and session.own_accuracy is None
+    assert (
+        "GNSS accuracy 1.5 m (--gnss-accuracy, over [gnss] accuracy_m)"
+        in session.messages.items[-1]
+    )

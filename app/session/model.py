@@ -92,6 +92,10 @@ class Session:
     start: StartArea | None = None  # where a clip without any GNSS fix begins (cold start)
     # the heights its telemetry gives where it has no position (a cold start's)
     platform_heights: PlatformHeights | None = None
+    # an accuracy stated for the fixes that state none (stating_accuracy): what stated it, and
+    # the receiver's own accuracies before it did
+    accuracy_by: str = ""
+    own_accuracy: np.ndarray | None = None
 
     @property
     def heading_note(self) -> str:
@@ -109,19 +113,22 @@ class Session:
         """This session with accuracy_m (m, 1 sigma per axis; None: as it is) as the stated
         horizontal accuracy of its GNSS fixes that state none (a DJI subtitle, a GPX file: the
         checks against the scene and the IMU assume CheckSettings.accuracy_m, 5 m, otherwise),
-        said in its messages with what gave it (given_by: an option, a manifest key)."""
+        said in its messages with what gave it (given_by: an option, a manifest key); a later
+        statement (an option over the manifest's key) replaces an earlier one."""
         if accuracy_m is None or not len(self.gnss.t):
             return self
-        gnss, filled = with_accuracy(self.gnss, accuracy_m)
+        own = self.own_accuracy if self.accuracy_by else self.gnss.h_acc
+        gnss, filled = with_accuracy(replace(self.gnss, h_acc=own), accuracy_m)
         if not filled:
             self.messages.info(
                 f"{given_by} {accuracy_m:g} m: every GNSS fix states its own accuracy, kept"
             )
             return self
+        over = f", over {self.accuracy_by}" if self.accuracy_by else ""
         self.messages.info(
-            f"GNSS accuracy {accuracy_m:g} m ({given_by}) for the {filled} of {len(gnss.t)} fixes that state none: their tests against the scene and the IMU use it"
+            f"GNSS accuracy {accuracy_m:g} m ({given_by}{over}) for the {filled} of {len(gnss.t)} fixes that state none: their tests against the scene and the IMU use it"
         )
-        return replace(self, gnss=gnss)
+        return replace(self, gnss=gnss, accuracy_by=given_by, own_accuracy=own)
 
     def camera_mount(self) -> np.ndarray:
         """Quaternion of the camera (of the displayed video) in the device frame: a phone's back

@@ -77,7 +77,10 @@ def add(v, path: Path, ref: ClipRef | None = None) -> None:
     L = v.loaded
     if L is None:
         raise GeofuseError("open a session first; further clips play beside it")
-    session = open_any(path)
+    live = v.options.live  # --gnss-accuracy, for every clip on the timeline
+    session = open_any(path).stating_accuracy(
+        None if live is None else live.gnss_accuracy_m, "--gnss-accuracy"
+    )
     L.others.append(
         OtherClip(
             session,

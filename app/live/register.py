@@ -40,8 +40,8 @@ barometer's height above it) is carried by the scene: a held fix is no fix to te
 last two registered lead at their velocity).
 Where no keyframe has registered yet, it is searched for as a cold start searches (app.register.coldstart,
 through Registrar.reacquired): the first keyframe over a disc of search_radius_m around the home
-point, at that height, with the telemetry's attitude, each search that misses widening the disc
-WIDEN times, up to the settings' unfixed_max_m (a stream joined mid-flight: the aircraft may be
+point, at that height, with the telemetry's attitude, each search that ran over the scene and
+missed widening the disc WIDEN times, up to the settings' unfixed_max_m (a stream joined mid-flight: the aircraft may be
 farther from home than the disc asked; what a search costs grows with the scene inside the
 disc, not with its area); once found, the drawn pose stands on the
 scene, its shift moving as the last two keyframes do (as under a frozen fix), each keyframe
@@ -320,9 +320,12 @@ class LiveRegistration(Worker):
         start = self.correct(prior, t)
         if self.unfixed(t) and not self._solved:  # never found: around the telemetry's camera
             radius = self.radius_m
-            fix, solved = self._area(registrar, rgb, t, prior, radius, "no GNSS fix")
+            asked = PoseFix(False, "no GNSS fix", 0, 0, float("nan"))
+            fix, solved = self._area(registrar, rgb, t, prior, radius, "no GNSS fix", asked)
             widest = max(self.search_radius_m, self.settings.unfixed_max_m)
-            if solved is None and radius < widest:
+            # widened only after a search that ran over the scene and missed (not where the
+            # camera stands on the ground, or no scene lies under it: the fix is returned as is)
+            if solved is None and fix is not asked and radius < widest:
                 self.radius_m = min(radius * WIDEN, widest)
                 self.messages.add_once(
                     f"live-widen-{self.radius_m:.0f}",

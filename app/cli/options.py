@@ -356,7 +356,7 @@ def add_gnss_accuracy_option(p: argparse.ArgumentParser) -> None:
         default=None,
         metavar="M",
         help="the GNSS's accuracy, metres (1 sigma per axis), where its fixes state none (a DJI subtitle, GPX, KLV, MAVLink without GPS_RAW_INT's h_acc): "
-        "the fixes are tested against the registered keyframes and the IMU with it (default 5; a receiver you know better than that catches a lie sooner)",
+        "the fixes are tested against the registered keyframes and the IMU with it (default 5; a smaller one catches a drag-off sooner, under open sky only: fixes that state no accuracy cannot say they grew less sure, so a multipath burst is then taken for a lie)",
     )
 
 

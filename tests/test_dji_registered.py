@@ -24,6 +24,8 @@ from app.simulate.tileset import write_site
 from app.ui.sessions import OpenJob
 from tests.test_cold_start_dji import TOLERANCE_M
 
+pytestmark = pytest.mark.gl  # the clip is rendered, and registered, off screen
+
 SECONDS = 8.0
 OUTAGE = (1.0, 7.0)  # s of the clip without a fix (longer than the gap rule's 5 s), through the
 # weave's swing 14 m north and back

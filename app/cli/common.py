@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 import sys
 import weakref
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -125,10 +125,8 @@ def open_with_source(
         single(args.lens),
         layers(args, clip=Path(path).suffix.lower() != ".toml"),
         start,
+        getattr(args, "gnss_accuracy", None),
     )
-    if start is not None and session.start is None:  # a clip without GNSS: from the area
-        session = replace(session, start=start)
-    session = session.stating_accuracy(getattr(args, "gnss_accuracy", None), "--gnss-accuracy")
     if getattr(args, "out", None) is not None:
         check_output(args.out, "--out", suffixes, list(session.inputs))
     first = REGISTERED if start is not None and REGISTERED in session.sources else None

@@ -767,10 +767,28 @@ def open_any(
     lens: str | Path | None = None,
     layers: tuple[Layer, ...] = (),
     start: StartArea | None = None,
+    accuracy_m: float | None = None,
 ) -> Session:
     """A manifest (.toml) or a clip (pitch_deg: a drone clip's camera pitch when its subtitle has
-    no gimbal attitude; layers: its scene; start: an area to search, see open_clip)."""
-    path = Path(path)
+    no gimbal attitude; layers: its scene; start: an area to search, see open_clip, the
+    session's own where it names none; accuracy_m: --gnss-accuracy, m, for the fixes that state
+    none: Session.stating_accuracy)."""
+    session = _opened(Path(path), srt, hfov_deg, pitch_deg, lens, layers, start)
+    if start is not None and session.start is None:  # a clip with no GNSS fix: from the area
+        session = replace(session, start=start)
+    return session.stating_accuracy(accuracy_m, "--gnss-accuracy")
+
+
+def _opened(
+    path: Path,
+    srt: str | Path | None,
+    hfov_deg: float | None,
+    pitch_deg: float,
+    lens: str | Path | None,
+    layers: tuple[Layer, ...],
+    start: StartArea | None,
+) -> Session:
+    """open_any's session as the manifest or the clip gives it."""
     if path.suffix.lower() == ".toml":
         given = (
             "--srt"

@@ -77,10 +77,7 @@ def add(v, path: Path, ref: ClipRef | None = None) -> None:
     L = v.loaded
     if L is None:
         raise GeofuseError("open a session first; further clips play beside it")
-    live = v.options.live  # --gnss-accuracy, for every clip on the timeline
-    session = open_any(path).stating_accuracy(
-        None if live is None else live.gnss_accuracy_m, "--gnss-accuracy"
-    )
+    session = open_any(path, accuracy_m=v.options.gnss_accuracy_m)  # every clip on the timeline
     L.others.append(
         OtherClip(
             session,

@@ -62,10 +62,9 @@ class OpenJob(OneShot):
     def _work(self) -> None:
         srt, lens, layers, start, accuracy_m = self._args
         with deferred_worlds() as worlds:
-            session = open_any(self.path, srt, lens=lens, layers=layers, start=start)
-        if start is not None and session.start is None:  # app.session.start.StartArea
-            session = replace(session, start=start)
-        session = session.stating_accuracy(accuracy_m, "--gnss-accuracy")
+            session = open_any(
+                self.path, srt, lens=lens, layers=layers, start=start, accuracy_m=accuracy_m
+            )
         if worlds:  # not among its layers until drawn: nothing to register against meanwhile
             kept = tuple(layer for layer in session.layers if layer.kind != "world")
             session = replace(session, layers=kept)
@@ -248,7 +247,7 @@ class ViewerSessions:
             self.options.layers if own else (),
             on_fail,
             self.options.start if own else None,
-            self.options.live.gnss_accuracy_m if own and self.options.live is not None else None,
+            self.options.gnss_accuracy_m if own else None,
         )
         if background:
             self.ui.opening = job.start()

@@ -69,6 +69,11 @@ class Options:
     sinks: tuple = ()  # where the shown frames are shared (app.ui.share: makers of sinks)
     start: StartArea | None = None  # where the clip begins without any GNSS fix (--near)
 
+    @property
+    def gnss_accuracy_m(self) -> float | None:
+        """--gnss-accuracy (m): the accuracy of the fixes that state none, for every clip."""
+        return None if self.live is None else self.live.gnss_accuracy_m
+
 
 class FixedStepClock:
     """A clock a script controls: `now()` stays put within a frame; `advance()` moves it by step s."""

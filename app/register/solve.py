@@ -619,7 +619,7 @@ def registered_track(
     keyframes = list(reg.keyframes)
     if cold:  # the positions are the scene's own, through the registered keyframes
         prior_track = coldstart.on_scene(session, prior_track, keyframes)
-        keyframes = gate(retimed(_ungated(keyframes), prior_track.poses, 0.0), settings.fuse)
+        keyframes = _regated(keyframes, prior_track, settings)
     check, carried = None, None
     if screen is not None:  # the fixes tested against the keyframes, and against the IMU
         check = merged(tested_fixes(session, fixes_track, keyframes), screen.check)
@@ -627,9 +627,8 @@ def registered_track(
         # kept and the keyframes: no fusion across a lie, no straight line across an outage
         positions, carried, said = _carried(session, fixes_track, keyframes, check, settings)
         if positions is not fixes_track.poses.positions or prior_track is not fixes_track:
-            poses = replace(fixes_track.poses, positions=positions)
-            prior_track = replace(fixes_track, poses=poses)
-            keyframes = gate(retimed(_ungated(keyframes), prior_track.poses, 0.0), settings.fuse)
+            prior_track = _placed(fixes_track, positions)
+            keyframes = _regated(keyframes, prior_track, settings)
             if not screen.motion.felt and check.lies:
                 # no IMU screened the prior: the keyframes that the lie's own corrections made
                 # disagree with their neighbours (at its edge) witness again, under the prior
@@ -637,8 +636,8 @@ def registered_track(
                 # honest ones before a jump, untested, are taken into the lie)
                 check = merged(tested_fixes(session, fixes_track, keyframes), screen.check)
                 positions, _, _ = _carried(session, fixes_track, keyframes, check, settings)
-                prior_track = replace(fixes_track, poses=replace(fixes_track.poses, positions=positions))  # fmt: skip
-                keyframes = gate(retimed(_ungated(keyframes), prior_track.poses, 0.0), settings.fuse)  # fmt: skip
+                prior_track = _placed(fixes_track, positions)
+                keyframes = _regated(keyframes, prior_track, settings)
             _, carried, said = _carried(session, fixes_track, keyframes, check, settings)
         check = said
         t0 = float(session.frame_times[0])
@@ -650,7 +649,7 @@ def registered_track(
         else None
     )
     if delay is not None:
-        keyframes = gate(retimed(_ungated(keyframes), prior_track.poses, delay), settings.fuse)
+        keyframes = _regated(keyframes, prior_track, settings, delay)
     poses = corrected_pose_track(
         prior_track.poses, Correction.from_keyframes(keyframes, settings.fuse), delay or 0.0
     )
@@ -659,6 +658,22 @@ def registered_track(
     )
     fixes = prior_track.fixes if check is None else check.status
     return replace(prior_track, source=REGISTERED, poses=poses, registration=reg, fixes=fixes)
+
+
+def _regated(
+    keyframes: list[Keyframe],
+    prior: CameraTrack,
+    settings: RegistrationSettings,
+    delay_s: float = 0.0,
+) -> list[Keyframe]:
+    """The keyframes gated anew against the prior's poses, their frame times delay_s late
+    (every registered one a candidate again)."""
+    return gate(retimed(_ungated(keyframes), prior.poses, delay_s), settings.fuse)
+
+
+def _placed(track: CameraTrack, positions: PositionTrack) -> CameraTrack:
+    """The track with its positions replaced (its attitude as it was)."""
+    return replace(track, poses=replace(track.poses, positions=positions))
 
 
 def _ungated(keyframes: list[Keyframe]) -> list[Keyframe]:

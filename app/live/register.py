@@ -41,10 +41,10 @@ last two registered lead at their velocity).
 Where no keyframe has registered yet, it is searched for as a cold start searches (app.register.coldstart,
 through Registrar.reacquired): the first keyframe over a disc of search_radius_m around the home
 point, at that height, with the telemetry's attitude, each search that ran over the scene and
-missed widening the disc WIDEN times, up to the settings' unfixed_max_m (a stream joined mid-flight: the aircraft may be
-farther from home than the disc asked; what a search costs grows with the scene inside the
-disc, not with its area); once found, the drawn pose stands on the
-scene, its shift moving as the last two keyframes do (as under a frozen fix), each keyframe
+missed widening the disc WIDEN times, up to the settings' unfixed_max_m (a stream joined
+mid-flight: the aircraft may be farther from home than the disc asked; what a search costs
+grows with the scene inside the disc, not with its area); once found, the drawn pose stands on
+the scene, its shift moving as the last two keyframes do (as under a frozen fix), each keyframe
 registered from where they lead (frames are drawn from the second kept, CARRIED_FROM: the first
 gives no velocity); one not registered for LOST_S is searched for again over the
 disc a lost keyframe is (RegistrationSettings.lost_radius) around where they lead. No fix is

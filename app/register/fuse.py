@@ -95,12 +95,13 @@ def gate(keyframes: list[Keyframe], settings: FuseSettings = FuseSettings()) -> 
     stands still while it flies on, a lie no IMU screened out, agrees with its neighbours'
     line, not their median) and whose position lies farther than max_disagree_m off the path
     its neighbours' positions fly (a quadratic through those within path_s, two at least on
-    each side, that passes within max_disagree_m / 3 of them, RMS: where the prior itself swerves, under a multipath burst or across an outage it
-    runs straight through, the corrections swerve with it and the registered positions do
-    not; a false match stands off that path), and one with no registered neighbour at all. A lone
-    fit is not trusted: on the sample walk against its model without texture, each keyframe
-    started at its true pose, the only one the lines accepted ended 6.8 m off and, used alone,
-    moved the whole track (docs/ACCURACY.md, "A keyframe alone")."""
+    each side, that passes within max_disagree_m / 3 of them, RMS: where the prior itself
+    swerves, under a multipath burst or across an outage it runs straight through, the
+    corrections swerve with it and the registered positions do not; a false match stands off
+    that path), and one with no registered neighbour at all. A lone fit is not trusted: on
+    the sample walk against its model without texture, each keyframe started at its true pose,
+    the only one the lines accepted ended 6.8 m off and, used alone, moved the whole track
+    (docs/ACCURACY.md, "A keyframe alone")."""
     finite = {k.index for k in keyframes if k.used and np.isfinite(k.position).all() and np.isfinite(k.q).all()}  # fmt: skip
     solved = [k for k in keyframes if k.index in finite]
     t = np.array([k.time_s for k in solved])

@@ -155,9 +155,10 @@ class MavlinkSender:
 
     def _run(self) -> None:
         for t, kind in self._schedule():
-            wait = self.start_s + t - self.lead_s - self.clock()
-            if wait > 0 and self._stop.wait(wait):
-                return
+            due = self.start_s + t - self.lead_s
+            while (wait := due - self.clock()) > 0:
+                if self._stop.wait(min(wait, 0.01)):  # (read again: the clock may stand)
+                    return
             lost = self.lost_at_s is not None and self.lost_at_s <= t < self.back_at_s
             fixed = self.fixed and not lost
             for m in messages_at(t, kind, self.gimbal, self.mav, self.path_of, fixed, self.home_enu):  # fmt: skip

@@ -112,7 +112,8 @@ def test_a_lying_subtitle_is_caught_by_the_scene_alone(clip, tmp_path, capsys, l
 
 def test_a_stated_accuracy_catches_a_drag_off_sooner(clip, tmp_path, capsys):
     """DJI states no accuracy, so the checks assume 5 m: a 2 m/s drag-off from 2 s must pass
-    4.5 times that (or walk 12 m in 4 s) before it is caught, too late for this 8 s clip.
+    4.5 times that (or walk 12 m in 4 s, or in 8 s) before it is caught, too late for this 8 s
+    clip.
     `--gnss-accuracy 1.5` (the receiver's own, as its maker states it) is said, and catches it
     within 5 s of passing 1.5 m; the frames from the alarm are rejected, the track stays on the
     flight."""

@@ -70,7 +70,12 @@ class CheckSettings:
     none) the residual went farther from the GNSS's own offset than max(drift_floor_m,
     drift_sigma x the largest accuracy stated there) m, each half of the span by drift_steady
     of it or more, where the stated accuracy held within drift_held x its least (a receiver
-    that says it is less sure, under multipath, is left to the threshold)."""
+    that says it is less sure, under multipath, is left to the threshold); walk_s, walk_floor_m,
+    walk_pieces, walk_steady: the longer walk test (`drifting`; walk_s 0: none), over walk_s
+    (s) in walk_pieces pieces each moving it by walk_steady of the whole or more, beyond
+    max(walk_floor_m, drift_sigma x the accuracy) m: a slow drag-off, 2 m/s against the 12 m
+    that fixes stating no accuracy are held to, which the halves' 4 s never see walk that far
+    (a 24 s DJI clip's: caught 4.8-5.2 s after it passed 5 m, not 7.7-9.5 s: docs/ACCURACY.md)."""
 
     window: int = 5
     n_sigma: float = 4.5
@@ -90,6 +95,10 @@ class CheckSettings:
     drift_floor_m: float = 6.0
     drift_steady: float = 0.25
     drift_held: float = 1.2
+    walk_s: float = 8.0
+    walk_floor_m: float = 8.0
+    walk_pieces: int = 4
+    walk_steady: float = 0.15
 
     def thresholds(self, accuracy_m: npt.ArrayLike) -> tuple[FloatArray, FloatArray]:
         """(horizontal, vertical) m beyond which a fix stating accuracy_m (m, each fix's or
@@ -288,34 +297,60 @@ def drifting(
     went farther from it by more than max(drift_floor_m, drift_sigma x the largest accuracy
     stated there), each half of that span moving it by drift_steady of the whole or more the
     same way (a drag-off walks on; the GNSS's own wander, multipath swinging it from one side
-    to the other and a registration astray do not). Where no tested fix lies within 1 s of
-    either edge or the middle, or none in the baseline's span, none is judged."""
+    to the other and a registration astray do not); or, the same limit, over the walk_s before
+    them in walk_pieces pieces each moving it by walk_steady of the whole or more (a slow
+    drag-off walks on for longer: multipath comes in within one piece, then holds). Where no
+    tested fix lies within 1 s of a piece's edge, or none in the baseline's span, none is
+    judged."""
     out = np.zeros(len(t), bool)
-    w = settings.drift_s
-    if w <= 0 or len(t) < 3:
-        return out
+    for span_s, pieces, steady, floor_m in (
+        (settings.drift_s, 2, settings.drift_steady, settings.drift_floor_m),
+        (settings.walk_s, settings.walk_pieces, settings.walk_steady, settings.walk_floor_m),
+    ):
+        if span_s > 0 and len(t) > pieces:
+            r = residual[:, :2]
+            out |= _walked(t, r, accuracy_m, settings, span_s, pieces, steady, floor_m)
+    return out
+
+
+def _walked(
+    t: FloatArray,
+    r: FloatArray,
+    accuracy_m: FloatArray,
+    settings: CheckSettings,
+    span_s: float,
+    pieces: int,
+    steady: float,
+    floor_m: float,
+) -> npt.NDArray[np.bool_]:
+    """(T,) which fixes end a walk (`drifting`) over span_s (s) in `pieces` pieces, each
+    moving the horizontal residual r (T, 2) m by `steady` of the whole or more the same way,
+    by more than max(floor_m, drift_sigma x the largest accuracy stated over it)."""
+    out = np.zeros(len(t), bool)
 
     def at(when: FloatArray) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.bool_]]:
         j = np.clip(np.searchsorted(t, when), 1, len(t) - 1)
         j = np.where(np.abs(t[j - 1] - when) < np.abs(t[j] - when), j - 1, j)
         return j, np.abs(t[j] - when) <= 1.0
 
-    j, ok_j = at(t - w)
-    m, ok_m = at(t - w / 2)
-    r = residual[:, :2]
-    for i in np.flatnonzero(ok_j & ok_m & (j < np.arange(len(t)))):
+    # the pieces' edges, from the span's start to the fix judged: (pieces, T) indices
+    edges = [at(t - span_s * (1.0 - k / pieces)) for k in range(pieces)]
+    idx = np.array([e[0] for e in edges] + [np.arange(len(t))])
+    ok = np.logical_and.reduce([e[1] for e in edges]) & (idx[0] < np.arange(len(t)))
+    for i in np.flatnonzero(ok):
         base = own_offset(t, r, t[i], settings)
         if base is None:
             continue
-        grew = np.linalg.norm(r[i] - base) - np.linalg.norm(r[j[i]] - base)
-        stated = accuracy_m[j[i] : i + 1]
-        limit = max(settings.drift_floor_m, settings.drift_sigma * stated.max())
+        j = idx[0, i]
+        grew = np.linalg.norm(r[i] - base) - np.linalg.norm(r[j] - base)
+        stated = accuracy_m[j : i + 1]
+        limit = max(floor_m, settings.drift_sigma * stated.max())
         if grew <= limit or stated.max() > settings.drift_held * stated.min():
             continue
-        d = r[i] - r[j[i]]
+        d = r[i] - r[j]
         u = d / np.linalg.norm(d)
-        halves = (r[m[i]] - r[j[i]]) @ u, (r[i] - r[m[i]]) @ u
-        out[i] = min(halves) >= settings.drift_steady * np.linalg.norm(d)
+        moved = np.diff(r[idx[:, i]], axis=0) @ u
+        out[i] = moved.min() >= steady * np.linalg.norm(d)
     return out
 
 

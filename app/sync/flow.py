@@ -40,6 +40,22 @@ def frame_rotation(b1: np.ndarray, b2: np.ndarray) -> np.ndarray | None:
     return _kabsch(b1[keep], b2[keep]) if keep.sum() >= MIN_TRACKS else r
 
 
+def tracked(
+    prev: np.ndarray, grey: np.ndarray, scale: float, features: int = MAX_FEATURES
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """(where (N, 2) display pixels, where in `grey` (N, 2)) of the corners of grey image `prev`
+    tracked into `grey` by sparse optical flow (both reduced by `scale` from the display
+    pixels); None when fewer than MIN_TRACKS are."""
+    pts = cv2.goodFeaturesToTrack(prev, features, 0.01, 6)
+    if pts is None or len(pts) < MIN_TRACKS:
+        return None
+    nxt, ok, _ = cv2.calcOpticalFlowPyrLK(prev, grey, pts, None, winSize=(15, 15), maxLevel=3)
+    ok = ok.ravel() == 1
+    if ok.sum() < MIN_TRACKS:
+        return None
+    return (pts[ok, 0, :] + 0.5) / scale, (nxt[ok, 0, :] + 0.5) / scale
+
+
 def pair_rotation(
     prev: np.ndarray,
     grey: np.ndarray,
@@ -50,16 +66,10 @@ def pair_rotation(
     `prev` to `grey` (a copy reduced by `scale` from the display pixels `bearings` takes), by
     sparse optical flow; None when too few features are tracked. Divided by the frames' time
     step it is the rate at their mid time (video_rates, and the live feed's lag: app.live.lag)."""
-    pts = cv2.goodFeaturesToTrack(prev, MAX_FEATURES, 0.01, 6)
-    if pts is None or len(pts) < MIN_TRACKS:
+    pairs = tracked(prev, grey, scale)
+    if pairs is None:
         return None
-    nxt, ok, _ = cv2.calcOpticalFlowPyrLK(prev, grey, pts, None, winSize=(15, 15), maxLevel=3)
-    ok = ok.ravel() == 1
-    if ok.sum() < MIN_TRACKS:
-        return None
-    p1 = (pts[ok, 0, :] + 0.5) / scale  # display pixels of the full video
-    p2 = (nxt[ok, 0, :] + 0.5) / scale
-    rot = frame_rotation(bearings(p1), bearings(p2))
+    rot = frame_rotation(bearings(pairs[0]), bearings(pairs[1]))
     if rot is None:
         return None
     # b2 = D^T b1 for a body turn D: the camera's rotation is -rotvec(R).

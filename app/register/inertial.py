@@ -46,6 +46,7 @@ from app.camera.fixes import FixStatus
 from app.camera.trajectory import PoseTrack, PositionTrack, gap_intervals, gap_limit_s, hermite
 from app.geodesy import rotations
 from app.geodesy.enu import LocalFrame
+from app.register.flow_motion import Flow, video_flow
 from app.register.fuse import Correction, Keyframe
 from app.register.gnss import (
     DISAGREES,
@@ -236,7 +237,8 @@ class Carried:
 class _Inputs:
     """What the filter runs on: nodes t (M,); per interval k (t[k] -> t[k+1]) the velocity and
     position the acceleration adds (dv, dx (M-1, 3)) and its horizontal jerk (dyn (M-1,) m/s^3);
-    per node the fix measured there (fix (M,) index, -1 none) and the keyframe (key (M,))."""
+    per node the fix measured there (fix (M,) index, -1 none), the keyframe (key (M,)) and the
+    velocity the video's own motion measured (vel (M,): app.register.flow_motion)."""
 
     t: FloatArray
     dv: FloatArray
@@ -244,6 +246,7 @@ class _Inputs:
     dyn: FloatArray
     fix: npt.NDArray[np.int64]
     key: npt.NDArray[np.int64]
+    vel: npt.NDArray[np.int64]
 
 
 def _inputs(
@@ -252,11 +255,14 @@ def _inputs(
     t_key: FloatArray,
     settings: InertialSettings,
     span_s: tuple[float, float] | None = None,
+    t_vel: FloatArray | None = None,
 ) -> _Inputs:
+    t_vel = np.zeros(0) if t_vel is None else t_vel
     ends = np.concatenate([t_fix, t_key, [] if span_s is None else span_s])
     t0, t1 = float(ends.min()), float(ends.max())
     n = max(1, int(np.ceil((t1 - t0) / settings.step_s)))
-    t = np.unique(np.concatenate([np.linspace(t0, t1, n + 1), t_fix, t_key]))
+    t_vel = t_vel[(t_vel >= t0) & (t_vel <= t1)]
+    t = np.unique(np.concatenate([np.linspace(t0, t1, n + 1), t_fix, t_key, t_vel]))
     v, x = motion.integrals(t)
     dt = np.diff(t)
     dv = np.diff(v, axis=0)
@@ -266,7 +272,9 @@ def _inputs(
     fix[np.searchsorted(t, t_fix)] = np.arange(len(t_fix))
     key = np.full(len(t), -1)
     key[np.searchsorted(t, t_key)] = np.arange(len(t_key))
-    return _Inputs(t, dv, dx, dyn, fix, key)
+    vel = np.full(len(t), -1)
+    vel[np.searchsorted(t, t_vel)] = np.arange(len(t_vel))
+    return _Inputs(t, dv, dx, dyn, fix, key, vel)
 
 
 def _transition(dt: float, phi: float) -> FloatArray:
@@ -299,6 +307,7 @@ def _noise(dt: float, q_a: float, q_b: float, gm: FloatArray, phi: float) -> Flo
 
 _FIX_H = np.array([1.0, 0.0, 0.0, 1.0])  # a fix: position + the GNSS's own error
 _KEY_H = np.array([1.0, 0.0, 0.0, 0.0])  # a keyframe: the position
+_VEL_H = np.array([0.0, 1.0, 0.0, 0.0])  # the video's own motion: the velocity
 
 
 def _update(x: FloatArray, p: FloatArray, h: FloatArray, z: FloatArray, r: FloatArray) -> None:
@@ -394,9 +403,10 @@ def _smooth(
     key_enu: FloatArray,
     felt: bool,
     settings: InertialSettings,
+    flow: Flow | None = None,
 ) -> Carried:
-    """The filter forward over the fixes used and the keyframes, then back (Rauch-Tung-
-    Striebel)."""
+    """The filter forward over the fixes used, the keyframes and the video's own velocities
+    (flow), then back (Rauch-Tung-Striebel)."""
     flt = _Filter(inp, fix_sigma, felt, settings)
     m = len(inp.t)
     firsts = [
@@ -413,13 +423,16 @@ def _smooth(
         if k > 0:
             x, p, fs[k - 1] = flt.predict(x, p, k)
         xs_p[k], ps_p[k] = x, p
-        j, i = inp.fix[k], inp.key[k]
-        if (j >= 0 and use[j]) or i >= 0:
+        j, i, u = inp.fix[k], inp.key[k], inp.vel[k]
+        if (j >= 0 and use[j]) or i >= 0 or u >= 0:
             x, p = x.copy(), p.copy()
         if j >= 0 and use[j]:
             _update(x, p, _FIX_H, fix_enu[j], flt.fix_noise(j))
         if i >= 0:
             _update(x, p, _KEY_H, key_enu[i], key_r)
+        if u >= 0 and flow is not None:  # horizontal: the height's spread left as it is
+            r = np.array([flow.sigma[u] ** 2, flow.sigma[u] ** 2, 1e12])
+            _update(x, p, _VEL_H, flow.v[u], r)
         xs_f[k], ps_f[k] = x, p
     xs, ps = xs_f.copy(), ps_f.copy()
     # no accelerometer: the acceleration's error is no state (its spread stays 0), so the
@@ -545,21 +558,25 @@ def carry(
     enu_key: npt.ArrayLike,
     settings: InertialSettings = InertialSettings(),
     span_s: tuple[float, float] | None = None,
+    flow: Flow | None = None,
 ) -> Carried:
     """The track the IMU's motion carries between the fixes used (times t_fix (N,) s,
     positions enu_fix (N, 3) m, stated accuracy (N,) m or None, use (N,) bool) and the
     registered keyframes (times t_key (K,) s, positions enu_key (K, 3) m), forward and back
-    (module docstring), over the span of both and span_s (session s)."""
+    (module docstring), over the span of both and span_s (session s); flow: velocities the
+    video's own motion measured, where there is no IMU (app.register.flow_motion)."""
     t = np.asarray(t_fix, np.float64)
     kt = np.asarray(t_key, np.float64)
     order = np.argsort(kt)
     kt = kt[order]
     kp = np.asarray(enu_key, np.float64).reshape(-1, 3)[order]
-    inp = _inputs(motion, t, kt, settings, span_s)
+    inp = _inputs(motion, t, kt, settings, span_s, None if flow is None else flow.t)
     sig = _sigmas(accuracy_m, len(t), settings)
     enu = np.asarray(enu_fix, np.float64).reshape(-1, 3)
     use = np.asarray(use, bool)
-    return _smooth(inp, enu, sig, use, kp, motion.felt, settings)
+    if flow is not None:  # those the nodes kept (inside the span), in node order
+        flow = flow.within(inp.t[0], inp.t[-1])
+    return _smooth(inp, enu, sig, use, kp, motion.felt, settings, flow)
 
 
 @dataclass(frozen=True)
@@ -778,12 +795,18 @@ def carried_track(
         filled = (max(span[0], float(ends.min())), min(span[1], float(ends.max())))
     outages = check.status.outages(*filled) if filled[1] > filled[0] else []
     rejected = check.status.rejected
-    carried = carry(motion, fixes.t, enu, acc, ~rejected, kt, kp, settings, span)
+    used, used_enu = ~rejected, enu
+    carried = carry(motion, fixes.t, enu, acc, used, kt, kp, settings, span)
     if rejected.any() and (motion.felt or len(kt) >= 2):
         back = shifted_back(motion, fixes.t, enu, acc, check, carried, settings, kt, kp)
         if back.use.any():
-            check = back.check
-            carried = carry(motion, fixes.t, back.enu, acc, ~rejected | back.use, kt, kp, settings, span)  # fmt: skip
+            check, used, used_enu = back.check, ~rejected | back.use, back.enu
+            carried = carry(motion, fixes.t, used_enu, acc, used, kt, kp, settings, span)
+    if not motion.felt:  # no IMU: the video's own motion where nothing measured the track
+        t_m, p_m = np.concatenate([fixes.t[used], kt]), np.vstack([used_enu[used], kp])
+        flow = video_flow(session, fixes_track, correction, t_m, p_m, filled)
+        if flow is not None:
+            carried = carry(motion, fixes.t, used_enu, acc, used, kt, kp, settings, span, flow)
     if rejected.all() and not len(kt):  # nothing measured it: the fixes as they were
         return fixes, carried, check
     if not motion.felt and not rejected.any() and not outages:

@@ -1,0 +1,74 @@
+"""The camera's own motion seen in the video (app.register.flow_motion): a step per metre of
+height from corners met with a level ground, checked on rays made by hand, and the height that
+scales it fitted to where the track was measured."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from app.geodesy import rotations
+from app.register.flow_motion import FlowSteps, ground_step, height
+
+OPENGL = np.array([1.0, -1.0, -1.0])  # OpenGL camera axes <-> OpenCV's (its own inverse)
+
+
+def _bearings(points: np.ndarray, camera: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Unit bearings (OpenCV camera axes) from a camera at `camera` (ENU m) with attitude q
+    (camera -> ENU, OpenGL axes) to `points` (N, 3)."""
+    d = rotations.rotate(rotations.conjugate(q), points - camera) * OPENGL
+    return d / np.linalg.norm(d, axis=1, keepdims=True)
+
+
+def _ground(n: int = 60, seed: int = 0) -> np.ndarray:
+    """Points of a level ground 35 m below the cameras, ahead and around (ENU m)."""
+    rng = np.random.default_rng(seed)
+    return np.column_stack([rng.uniform(-40, 40, n), rng.uniform(10, 70, n), np.full(n, -35.0)])
+
+
+@pytest.mark.parametrize(
+    ("hpr1", "hpr2"),
+    [((0.0, -90.0, 0.0), (0.0, -90.0, 0.0)), ((10.0, -40.0, 2.0), (16.0, -37.0, -1.0))],
+)
+def test_a_step_over_level_ground_is_the_cameras_move_per_metre_of_height(hpr1, hpr2):
+    """Straight down, and looking 40 deg down while turning 6 deg between the frames: the
+    camera moves 3.5 m east and 1.4 m north 35 m above the ground, so 0.1 and 0.04 per metre;
+    corners in the sky (above the horizon) and near it (under 10 deg down) are left out."""
+    q1, q2 = (rotations.camera_quat_from_hpr(*hpr) for hpr in (hpr1, hpr2))
+    c1, c2 = np.zeros(3), np.array([3.5, 1.4, 0.0])
+    ground = _ground()
+    sky = np.column_stack([np.linspace(-30, 30, 20), np.full(20, 60.0), np.full(20, 30.0)])
+    far = np.column_stack([np.linspace(-30, 30, 20), np.full(20, 400.0), np.full(20, -35.0)])
+    points = np.vstack([ground, sky, far])
+    b1, b2 = _bearings(points, c1, q1), _bearings(points, c2, q2)
+    seen = (b1[:, 2] > 0) & (b2[:, 2] > 0)  # in front of both cameras
+    step = ground_step(b1[seen], b2[seen], q1, q2)
+    assert step == pytest.approx([0.1, 0.04], abs=1e-9)
+    # a corner that is not on the ground (a roof 10 m up) is outvoted by the ground's
+    roofs = ground[:15] + [0.0, 0.0, 10.0]
+    mixed = np.vstack([ground, roofs])
+    b1, b2 = _bearings(mixed, c1, q1), _bearings(mixed, c2, q2)
+    assert ground_step(b1, b2, q1, q2) == pytest.approx([0.1, 0.04], abs=0.01)
+    # the sky alone gives no step, nor the ground 400 m off (5 deg down)
+    for alone in (sky, far):
+        b1, b2 = _bearings(alone, c1, q1), _bearings(alone, c2, q2)
+        seen = (b1[:, 2] > 0) & (b2[:, 2] > 0)
+        assert ground_step(b1[seen], b2[seen], q1, q2) is None
+
+
+def test_the_height_scales_the_steps_to_where_the_track_was_measured():
+    """Steps of 0.3 m per metre of height, where the track moved 10.5 m each (35 m up): 35 m;
+    only those known count; too few known, or a track that moved across the steps, none."""
+    n = 12
+    step = np.tile([0.3, 0.0], (n, 1)) + np.random.default_rng(1).normal(0, 0.01, (n, 2))
+    steps = FlowSteps(np.arange(n) * 0.1, np.full(n, 0.1), step)
+    moved = 35.0 * step
+    known = np.ones(n, bool)
+    assert height(steps, moved, known) == pytest.approx(35.0)
+    moved[:4] = [100.0, 0.0]  # where the track was not measured: not counted
+    known[:4] = False
+    assert height(steps, moved, known) == pytest.approx(35.0)
+    known[:8] = False  # 4 known: too few
+    assert height(steps, moved, known) is None
+    across = np.column_stack([np.zeros(n), np.full(n, 10.5)])  # the track went north
+    assert height(steps, across, np.ones(n, bool)) is None

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from app.geodesy import rotations
-from app.register.flow_motion import FlowSteps, ground_step, height
+from app.register.flow_motion import FlowSteps, ground_step, height, stretch_velocities
 
 OPENGL = np.array([1.0, -1.0, -1.0])  # OpenGL camera axes <-> OpenCV's (its own inverse)
 
@@ -72,3 +72,27 @@ def test_the_height_scales_the_steps_to_where_the_track_was_measured():
     assert height(steps, moved, known) is None
     across = np.column_stack([np.zeros(n), np.full(n, 10.5)])  # the track went north
     assert height(steps, across, np.ones(n, bool)) is None
+
+
+def test_a_stretch_is_scaled_from_both_sides_or_left_to_the_carry():
+    """Steps every 0.1 s over 0-9 s, the track measured over 0-3 s and 6-9 s, moving 10 m/s
+    east: the stretch 3-6 s gets one velocity per 0.5 s, the height running from the one fitted
+    before (35 m) to the one after (40 m: the steps there a little shorter); measured on one side
+    only (the clip's end), or the two heights 1.5 times apart, it is left to the carry."""
+    t = np.arange(0.05, 9.0, 0.1)
+    rate = np.where(t[:, None] < 4.5, [10.0 / 35.0, 0.0], [10.0 / 40.0, 0.0])
+    steps = FlowSteps(t, np.full(len(t), 0.1), rate * 0.1)
+    moved = np.tile([1.0, 0.0], (len(t), 1))
+    known = (t < 3.0) | (t > 6.0)
+    got = stretch_velocities(steps, moved, known, 3.0, 6.0)
+    assert got is not None
+    flow, h_a, h_b = got
+    assert (h_a, h_b) == pytest.approx((35.0, 40.0))
+    assert len(flow.t) == 6 and np.all(np.diff(flow.t) > 0)
+    # the height runs linearly across: 35 -> 40 m over 3 s, on steps of 10/35 then 10/40
+    h = 35.0 + (flow.t - 3.0) / 3.0 * 5.0
+    want = h * np.where(flow.t < 4.5, 10.0 / 35.0, 10.0 / 40.0)
+    assert flow.v[:, 0] == pytest.approx(want, rel=0.02) and np.all(flow.v[:, 1:] == 0.0)
+    assert stretch_velocities(steps, moved, t < 3.0, 3.0, 6.0) is None
+    far = moved * np.where(t > 6.0, 1.6, 1.0)[:, None]  # 64 m after, 35 m before
+    assert stretch_velocities(steps, far, known, 3.0, 6.0) is None

@@ -12,7 +12,8 @@ more; a roof's corners disagree, the ground's majority holds). That is a step pe
 height above the ground: the height is fitted (`height`) on each side of the stretch, over the
 MARGIN_S where fixes or keyframes measured the track (how far it moved against the steps' sum),
 and runs linearly from one to the other across it, so that neither the ground's height nor the
-scene is needed inside it. One velocity per BIN_S (ENU m/s, horizontal; the scale errs for
+scene is needed inside it; a stretch with no measurement after it (the clip's end) or before, or
+whose two heights disagree, is left to the carry (no scale checks the video's motion there). One velocity per BIN_S (ENU m/s, horizontal; the scale errs for
 seconds at a time, so its steps are not independent) joins the carry
 (app.register.inertial.carry) as a measurement with a spread of SPEED_SHARE of the speed plus
 SPEED_FLOOR_MPS. On the simulated DJI weave with its keyframes lost over a 6 s outage the
@@ -51,6 +52,7 @@ LOST_S = 1.0  # a frame farther than this (s) from every fix used and keyframe k
 # measured: the video's own motion is sought there ...
 MEASURED_S = 0.25  # ... and its height fitted where measurements lie 2 x this apart or closer,
 MARGIN_S = 3.0  # within this (s) either side
+HEIGHTS_AGREE = 1.5  # the heights fitted either side agree within this ratio
 _OPENGL = np.array([1.0, -1.0, -1.0])  # OpenCV camera axes (x right, y down, z ahead) -> OpenGL's
 
 
@@ -202,7 +204,7 @@ def video_flow(
     flows, said = [], []
     for a, b in runs:
         span = f"t = {a - t0:.1f} to {b - t0:.1f} s"
-        fitted = _carried_over(steps, moved, known, a, b)
+        fitted = stretch_velocities(steps, moved, known, a, b)
         if fitted is None:
             said.append(f"{span} (its motion could not be scaled to the track around)")
         else:
@@ -211,7 +213,7 @@ def video_flow(
     carries = (
         ": the video's own motion carries the track there, scaled where the track was measured"
         if flows
-        else ": the track runs smoothly between the measurements around"
+        else ": the track there stands on the measurements around alone"
     )
     session.messages.add_once(
         f"flow-{spans}", "no fix and no registered keyframe over " + ", ".join(said) + carries
@@ -221,20 +223,19 @@ def video_flow(
     return Flow(*(np.concatenate([getattr(f, k) for f in flows]) for k in ("t", "v", "sigma")))
 
 
-def _carried_over(
+def stretch_velocities(
     steps: FlowSteps, moved: FloatArray, known: npt.NDArray[np.bool_], a: float, b: float
 ) -> tuple[Flow, float, float] | None:
     """(the velocities over the stretch a..b s (session), one per BIN_S, and the heights (m)
-    fitted before and after it: linear between them across it, either alone where the other
-    side has none) from the steps, how far the track moved over each (moved (P, 2) m) and where
-    it was measured (known (P,)); None where neither side could be fitted."""
+    fitted before and after it: linear between them across it) from the steps, how far the
+    track moved over each (moved (P, 2) m) and where it was measured (known (P,)); None where
+    either side could not be fitted, or the two disagree by more than HEIGHTS_AGREE times (a
+    stretch measured on one side only is dead reckoning from a scale nothing checks)."""
     before = known & (steps.t < a) & (steps.t >= a - MARGIN_S)
     after = known & (steps.t > b) & (steps.t <= b + MARGIN_S)
     h_a, h_b = height(steps, moved, before), height(steps, moved, after)
-    if h_a is None and h_b is None:
-        return None
-    h_a = h_b if h_a is None else h_a
-    h_b = h_a if h_b is None else h_b
+    if h_a is None or h_b is None or max(h_a, h_b) > HEIGHTS_AGREE * min(h_a, h_b):
+        return None  # the scale unknown on one side (dead reckoning on): not trusted
     inside = (steps.t >= a) & (steps.t <= b)
     if not inside.any():
         return None

@@ -20,7 +20,7 @@ from functools import cached_property
 import numpy as np
 import numpy.typing as npt
 
-from app.core.constants import GAP_FACTOR, GAP_MIN_S
+from app.core.constants import GAP_FACTOR, GAP_MIN_S, MAX_SPEED_MPS
 from app.geodesy import rotations
 from app.geodesy.enu import LocalFrame, meridian_radius, prime_vertical_radius
 
@@ -46,6 +46,15 @@ def gap_intervals(t: npt.ArrayLike) -> npt.NDArray[np.bool_]:
     """(N-1,) which intervals between fixes at times t (s) are gaps: longer than gap_limit_s."""
     dt = np.diff(np.asarray(t, np.float64))
     return dt > gap_limit_s(t)
+
+
+def breaks(t: npt.ArrayLike, enu: npt.ArrayLike) -> npt.NDArray[np.bool_]:
+    """(N-1,) which intervals between fixes at times t (s), positions enu (N, 3) m, no curve
+    crosses: gaps (gap_intervals) and steps faster than MAX_SPEED_MPS horizontally (a jump the
+    readers kept: app.io.streams.plausible_fixes)."""
+    t = np.asarray(t, np.float64)
+    moved = np.linalg.norm(np.diff(np.asarray(enu, np.float64)[:, :2], axis=0), axis=1)
+    return gap_intervals(t) | (moved > MAX_SPEED_MPS * np.diff(t))
 
 
 def gaps_said(t: npt.ArrayLike) -> str:
@@ -117,7 +126,7 @@ class PositionTrack:
             frame = LocalFrame(float(lat[0]), float(lon[0]), float(h[0]))
             enu = frame.geodetic_to_enu(lat, lon, h)
             vel = np.zeros_like(enu)
-            cuts = np.flatnonzero(gap_intervals(t)) + 1
+            cuts = np.flatnonzero(breaks(t, enu)) + 1
             for a, b in zip(np.r_[0, cuts], np.r_[cuts, len(t)], strict=True):
                 vel[a:b] = estimate_velocity(t[a:b], enu[a:b])  # within a stretch only
         else:
@@ -138,14 +147,15 @@ class PositionTrack:
         t0, t1 = self.t[i, None], self.t[i + 1, None]
         out = hermite(t0, t1, p[i], p[i + 1], rates[i], rates[i + 1], tq[:, None])
         across = self._gaps[i]
-        if across.any():  # a straight line between the fixes around a gap
+        if across.any():  # a straight line between the fixes around a gap or a step
             s = (tq[across, None] - t0[across]) / (t1[across] - t0[across])
             out[across] = (1 - s) * p[i[across]] + s * p[i[across] + 1]
         return np.column_stack([np.degrees(out[:, 0]), np.degrees(out[:, 1]), out[:, 2]])
 
     @cached_property
     def _gaps(self) -> npt.NDArray[np.bool_]:
-        return gap_intervals(self.t)
+        frame = LocalFrame(float(self.lat[0]), float(self.lon[0]), float(self.h[0]))
+        return breaks(self.t, frame.geodetic_to_enu(self.lat, self.lon, self.h))
 
 
 # Display rotation (the clockwise "rotate" tag a phone writes) -> camera roll about the device z

@@ -14,6 +14,10 @@ ECEF_MIN_RADIUS_M = 6.0e6
 # longer than GAP_MIN_S too is crossed by a straight line, not a cubic (no bulge across an outage).
 GAP_FACTOR = 5.0
 GAP_MIN_S = 5.0
+# Horizontal speed (m/s) no phone, car, action camera or small drone reaches: a step between two
+# fixes faster than this is a jump (the readers drop a spike and keep a step that holds), and
+# positions are not curved across it (no bulge either side of a step kept).
+MAX_SPEED_MPS = 150.0
 
 # Geometry checks
 EPS_DEGENERATE = 1e-12  # below this a vector or quaternion norm is treated as zero

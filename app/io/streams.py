@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
-from app.core.constants import GAP_FACTOR
+from app.core.constants import GAP_FACTOR, MAX_SPEED_MPS
 from app.core.errors import DataFormatError
 from app.core.messages import Messages
 
@@ -142,7 +142,6 @@ DEAD_SENSOR = {"acc": 0.5, "mag": 0.5}  # median norm (m/s^2, uT) below which a 
 # Norms no sensor of a phone, action camera or drone reports (rad/s, m/s^2, uT): twice a 2000 deg/s
 # gyroscope's range, 50 g, a hundred times the Earth's field; samples beyond are not measurements.
 SENSOR_LIMIT = {"gyr": 70.0, "acc": 500.0, "mag": 5000.0}
-MAX_SPEED_MPS = 150.0  # horizontal: no phone, car, action camera or small drone moves faster
 MAX_CLIMB_MPS = 60.0  # vertical speed beyond which a height is a jump, not motion
 STEP_S = 2.0  # s: fixes that hold together this long after an impossible step are a step, kept
 STEP_FIXES = 5  # and at least this many of them (a 1 Hz receiver's glitch of 3 fixes is a spike)

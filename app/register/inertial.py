@@ -29,8 +29,9 @@ platform flies on, a replay whose motion is not the platform's, a jump and a dra
 acceleration the IMU did not feel are caught so, with no scene, for as long as the IMU alone can
 tell a lie from its own drift (seconds: its spread grows as the cube of the time and faster; a
 drag-off of 1 or 2 m/s hides in the GNSS's own wander, and the scene's keyframes catch it).
-`carry` runs the filter forward and back (Rauch-Tung-Striebel) over the fixes kept and the
-registered keyframes: the position, its standard deviation per axis and the GNSS error at any
+`carry` runs the filter forward and back (Rauch-Tung-Striebel) over the fixes kept, the
+registered keyframes and, without an IMU, the velocities the video's own motion measured where
+neither reaches (app.register.flow_motion): the position, its standard deviation per axis and the GNSS error at any
 time (`Carried`). Times are session seconds; positions local ENU metres.
 """
 
@@ -780,8 +781,9 @@ def carried_track(
 ) -> tuple[PositionTrack, Carried, GnssCheck]:
     """After registration: the track carried by the IMU's motion (under the registered
     attitude, `correction`) over the fixes of fixes_track that `check` kept and the keyframes
-    used (module docstring), and the fixes' positions with the rejected and missing ones
-    taken from it (carried_positions; the others as they were); and check with each jump
+    used (module docstring), and without an IMU by the video's own motion where neither
+    measures it (app.register.flow_motion); the fixes' positions with the rejected and missing
+    ones taken from it (carried_positions; the others as they were); and check with each jump
     whose fixes, moved back by it, were used (shifted_back) said so."""
     motion = motion_of(session, fixes_track.poses, correction)
     fixes, enu, acc = _fixes(session, fixes_track)

@@ -84,7 +84,7 @@ def test_a_stretch_is_scaled_from_both_sides_or_left_to_the_carry():
     steps = FlowSteps(t, np.full(len(t), 0.1), rate * 0.1)
     moved = np.tile([1.0, 0.0], (len(t), 1))
     known = (t < 3.0) | (t > 6.0)
-    got = stretch_velocities(steps, moved, known, 3.0, 6.0)
+    got = stretch_velocities(steps, [(moved, known)], 3.0, 6.0)
     assert got is not None
     flow, h_a, h_b = got
     assert (h_a, h_b) == pytest.approx((35.0, 40.0))
@@ -93,6 +93,8 @@ def test_a_stretch_is_scaled_from_both_sides_or_left_to_the_carry():
     h = 35.0 + (flow.t - 3.0) / 3.0 * 5.0
     want = h * np.where(flow.t < 4.5, 10.0 / 35.0, 10.0 / 40.0)
     assert flow.v[:, 0] == pytest.approx(want, rel=0.02) and np.all(flow.v[:, 1:] == 0.0)
-    assert stretch_velocities(steps, moved, t < 3.0, 3.0, 6.0) is None
+    assert stretch_velocities(steps, [(moved, t < 3.0)], 3.0, 6.0) is None
     far = moved * np.where(t > 6.0, 1.6, 1.0)[:, None]  # 64 m after, 35 m before
-    assert stretch_velocities(steps, far, known, 3.0, 6.0) is None
+    assert stretch_velocities(steps, [(far, known)], 3.0, 6.0) is None
+    # a second kind of measurement (the fixes) fits a side the first (the keyframes) does not
+    assert stretch_velocities(steps, [(moved, t < 3.0), (moved, known)], 3.0, 6.0) is not None

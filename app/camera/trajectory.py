@@ -20,7 +20,7 @@ from functools import cached_property
 import numpy as np
 import numpy.typing as npt
 
-from app.core.constants import GAP_FACTOR, GAP_MIN_S, MAX_SPEED_MPS
+from app.core.constants import GAP_FACTOR, GAP_MIN_S, JUMP_SLACK_M, MAX_SPEED_MPS
 from app.geodesy import rotations
 from app.geodesy.enu import LocalFrame, meridian_radius, prime_vertical_radius
 
@@ -50,11 +50,11 @@ def gap_intervals(t: npt.ArrayLike) -> npt.NDArray[np.bool_]:
 
 def breaks(t: npt.ArrayLike, enu: npt.ArrayLike) -> npt.NDArray[np.bool_]:
     """(N-1,) which intervals between fixes at times t (s), positions enu (N, 3) m, no curve
-    crosses: gaps (gap_intervals) and steps faster than MAX_SPEED_MPS horizontally (a jump the
-    readers kept: app.io.streams.plausible_fixes)."""
+    crosses: gaps (gap_intervals) and steps faster than MAX_SPEED_MPS horizontally, by
+    JUMP_SLACK_M more (a jump the readers kept: app.io.streams.plausible_fixes)."""
     t = np.asarray(t, np.float64)
     moved = np.linalg.norm(np.diff(np.asarray(enu, np.float64)[:, :2], axis=0), axis=1)
-    return gap_intervals(t) | (moved > MAX_SPEED_MPS * np.diff(t))
+    return gap_intervals(t) | (moved > MAX_SPEED_MPS * np.diff(t) + JUMP_SLACK_M)
 
 
 def gaps_said(t: npt.ArrayLike) -> str:

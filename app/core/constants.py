@@ -18,6 +18,7 @@ GAP_MIN_S = 5.0
 # fixes faster than this is a jump (the readers drop a spike and keep a step that holds), and
 # positions are not curved across it (no bulge either side of a step kept).
 MAX_SPEED_MPS = 150.0
+JUMP_SLACK_M = 5.0  # a step must exceed MAX_SPEED_MPS x its time by this too (the fixes' noise)
 
 # Geometry checks
 EPS_DEGENERATE = 1e-12  # below this a vector or quaternion norm is treated as zero

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
-from app.core.constants import GAP_FACTOR, MAX_SPEED_MPS
+from app.core.constants import GAP_FACTOR, JUMP_SLACK_M, MAX_SPEED_MPS
 from app.core.errors import DataFormatError
 from app.core.messages import Messages
 
@@ -336,5 +336,6 @@ def impossible_step(
     de = np.radians((b[1] - a[1] + 180.0) % 360.0 - 180.0) * 6_371_000.0 * k
     dh = b[2] - a[2] if np.isfinite(b[2]) and np.isfinite(a[2]) else 0.0
     return bool(
-        np.hypot(dn, de) > MAX_SPEED_MPS * dt_s + 5.0 or abs(dh) > MAX_CLIMB_MPS * dt_s + 5.0
+        np.hypot(dn, de) > MAX_SPEED_MPS * dt_s + JUMP_SLACK_M
+        or abs(dh) > MAX_CLIMB_MPS * dt_s + JUMP_SLACK_M
     )

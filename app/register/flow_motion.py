@@ -31,6 +31,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
+from app.camera.fixes import USED, FixStatus
 from app.core.errors import GeofuseError
 from app.geodesy import rotations
 from app.io.video import VideoInfo, frames_at
@@ -100,7 +101,7 @@ def flow_steps(
     whose corners do not track, or look too little down, gives no step."""
     ts, dts, steps = [], [], []
     prev = None
-    for i, rgb in frames_at(video, [int(i) for i in indices]):
+    for i, rgb in frames_at(video, [int(i) for i in indices], long_side=2 * FLOW_WIDTH_PX):
         scale = FLOW_WIDTH_PX / rgb.shape[1]
         size = (FLOW_WIDTH_PX, max(2, round(rgb.shape[0] * scale)))
         grey = cv2.cvtColor(cv2.resize(rgb, size, interpolation=cv2.INTER_AREA), cv2.COLOR_RGB2GRAY)
@@ -155,25 +156,29 @@ def video_flow(
     session: Session,
     track: CameraTrack,
     correction: Correction,
-    measured_s: FloatArray,
-    measured_enu: FloatArray,
+    fixes: tuple[FloatArray, FloatArray],
+    keys: tuple[FloatArray, FloatArray],
     filled: tuple[float, float],
-) -> Flow | None:
-    """The velocities the video's own motion measures (module docstring) over the stretches of
-    `filled` (session s) farther than LOST_S from every measurement (the fixes used and the
-    keyframes kept: times measured_s (M,) s, positions measured_enu (M, 3) ENU m), said to the
-    session's messages with the heights fitted. The camera's attitude is the track's under the
-    registration's correction. None where there is no such stretch, or none could be scaled
-    (said)."""
-    order = np.argsort(measured_s)
-    measured = np.asarray(measured_s, np.float64)[order]
-    where = np.asarray(measured_enu, np.float64).reshape(-1, 3)[order]
-    if len(measured) < 2:
-        return None
+    status: FixStatus,
+) -> tuple[Flow | None, str]:
+    """(the velocities the video's own motion measures (module docstring), what to say of them)
+    over the stretches of `filled` (session s) whose frames are not posed by a fix (`status`
+    not used at their time: the carry fills them) and lie farther than LOST_S from every
+    measurement: the fixes used and the keyframes kept, each (times (M,) s, positions (M, 3)
+    ENU m). The camera's attitude is the track's under the registration's correction. (None,
+    "") where there is no such stretch; (None, what was said) where none could be scaled."""
+    t_m = np.concatenate([fixes[0], keys[0]])
+    if len(t_m) < 2:
+        return None, ""
     times = np.asarray(session.frame_times, np.float64)
-    lost = (_farther(times, measured) > LOST_S) & (times >= filled[0]) & (times <= filled[1])
+    lost = (
+        (_farther(times, np.sort(t_m)) > LOST_S)
+        & (times >= filled[0])
+        & (times <= filled[1])
+        & (status.at(times) != USED)
+    )
     if not lost.any():
-        return None
+        return None, ""
     runs = _runs(times, lost)
     near = np.zeros(len(times), bool)
     for a, b in runs:
@@ -191,20 +196,16 @@ def video_flow(
         steps = flow_steps(
             session.video, times, indices, attitude, bearings_of(session), session.intrinsics.width
         )
-    except GeofuseError as exc:
-        session.messages.add_once(
-            f"flow-{spans}", f"the video's own motion over {spans} could not be read ({exc})"
-        )
-        return None
-    # how far the measurements moved over each step (linear between them)
-    ends = (steps.t - steps.dt / 2, steps.t + steps.dt / 2)
-    at = [np.column_stack([np.interp(e, measured, where[:, k]) for k in (0, 1)]) for e in ends]
-    moved = at[1] - at[0]
-    known = _between(ends[0], measured) & _between(ends[1], measured)
+    except (GeofuseError, OSError, cv2.error) as exc:
+        return None, f"the video's own motion over {spans} could not be read ({exc})"
+    # how far the track moved over each step, where it was measured: by the keyframes (the
+    # fixes carry the GNSS's own error, which a line through both would zig-zag by), else by
+    # the fixes
+    measured = [_moved(steps, *keys), _moved(steps, *fixes)]
     flows, said = [], []
     for a, b in runs:
         span = f"t = {a - t0:.1f} to {b - t0:.1f} s"
-        fitted = stretch_velocities(steps, moved, known, a, b)
+        fitted = stretch_velocities(steps, measured, a, b)
         if fitted is None:
             said.append(f"{span} (its motion could not be scaled to the track around)")
         else:
@@ -215,27 +216,53 @@ def video_flow(
         if flows
         else ": the track there stands on the measurements around alone"
     )
-    session.messages.add_once(
-        f"flow-{spans}", "no fix and no registered keyframe over " + ", ".join(said) + carries
-    )
+    text = "no fix and no registered keyframe over " + ", ".join(said) + carries
     if not flows:
-        return None
-    return Flow(*(np.concatenate([getattr(f, k) for f in flows]) for k in ("t", "v", "sigma")))
+        return None, text
+    keys_ = ("t", "v", "sigma")
+    return Flow(*(np.concatenate([getattr(f, k) for f in flows]) for k in keys_)), text
+
+
+def _moved(
+    steps: FlowSteps, t_m: FloatArray, p_m: FloatArray
+) -> tuple[FloatArray, npt.NDArray[np.bool_]]:
+    """(how far the measurements at times t_m (M,) s, positions p_m (M, 3) ENU m moved over
+    each step (P, 2) east, north m, linear between them; where both its ends lie between two
+    of them 2 MEASURED_S apart or closer (P,))."""
+    known = np.zeros(len(steps.t), bool)
+    if len(t_m) < 2:
+        return np.zeros((len(steps.t), 2)), known
+    order = np.argsort(t_m)
+    t_m, p_m = np.asarray(t_m, np.float64)[order], np.asarray(p_m, np.float64)[order]
+    ends = (steps.t - steps.dt / 2, steps.t + steps.dt / 2)
+    at = [np.column_stack([np.interp(e, t_m, p_m[:, k]) for k in (0, 1)]) for e in ends]
+    return at[1] - at[0], _between(ends[0], t_m) & _between(ends[1], t_m)
 
 
 def stretch_velocities(
-    steps: FlowSteps, moved: FloatArray, known: npt.NDArray[np.bool_], a: float, b: float
+    steps: FlowSteps,
+    measured: list[tuple[FloatArray, npt.NDArray[np.bool_]]],
+    a: float,
+    b: float,
 ) -> tuple[Flow, float, float] | None:
     """(the velocities over the stretch a..b s (session), one per BIN_S, and the heights (m)
-    fitted before and after it: linear between them across it) from the steps, how far the
-    track moved over each (moved (P, 2) m) and where it was measured (known (P,)); None where
-    either side could not be fitted, or the two disagree by more than HEIGHTS_AGREE times (a
-    stretch measured on one side only is dead reckoning from a scale nothing checks)."""
-    before = known & (steps.t < a) & (steps.t >= a - MARGIN_S)
-    after = known & (steps.t > b) & (steps.t <= b + MARGIN_S)
-    h_a, h_b = height(steps, moved, before), height(steps, moved, after)
+    fitted before and after it: linear between them across it) from the steps and how far the
+    track moved over each where it was measured (`measured`: (moved (P, 2) m, known (P,)) by
+    one kind of measurement, the first that fits on a side). None where either side
+    could not be fitted, or the two disagree by more than HEIGHTS_AGREE times (a stretch
+    measured on one side only is dead reckoning from a scale nothing checks)."""
+
+    def fitted(side: npt.NDArray[np.bool_]) -> float | None:
+        for moved, known in measured:
+            h = height(steps, moved, known & side)
+            if h is not None:
+                return h
+        return None
+
+    h_a = fitted((steps.t < a) & (steps.t >= a - MARGIN_S))
+    h_b = fitted((steps.t > b) & (steps.t <= b + MARGIN_S))
     if h_a is None or h_b is None or max(h_a, h_b) > HEIGHTS_AGREE * min(h_a, h_b):
-        return None  # the scale unknown on one side (dead reckoning on): not trusted
+        return None
     inside = (steps.t >= a) & (steps.t <= b)
     if not inside.any():
         return None

@@ -297,11 +297,12 @@ def drifting(
     went farther from it by more than max(drift_floor_m, drift_sigma x the largest accuracy
     stated there), each half of that span moving it by drift_steady of the whole or more the
     same way (a drag-off walks on; the GNSS's own wander, multipath swinging it from one side
-    to the other and a registration astray do not); or, the same limit, over the walk_s before
-    them in walk_pieces pieces each moving it by walk_steady of the whole or more (a slow
-    drag-off walks on for longer: multipath comes in within one piece, then holds). Where no
-    tested fix lies within 1 s of a piece's edge, or none in the baseline's span, none is
-    judged."""
+    to the other and a registration astray do not); or over the walk_s before them by more
+    than max(walk_floor_m, drift_sigma x that accuracy), in walk_pieces pieces each moving it by
+    walk_steady of the whole or more (a slow drag-off walks on for longer: multipath comes in
+    within a piece or two, then holds). Either only where the stated accuracy held within
+    drift_held x its least over the span. Where no tested fix lies within 1 s of a piece's
+    edge, or none in the baseline's span, none is judged."""
     out = np.zeros(len(t), bool)
     for span_s, pieces, steady, floor_m in (
         (settings.drift_s, 2, settings.drift_steady, settings.drift_floor_m),

@@ -205,7 +205,8 @@ class Carried:
     """The filter's track at its nodes t (M,) s: position p (M, 3) ENU m, velocity v (M, 3) m/s,
     the GNSS's own error e (M, 3) m (a fix there would say p + e), and the position's
     standard deviation sigma (M, 3) m per axis; felt: an accelerometer drove it (else the
-    velocity was only held)."""
+    velocity was only held); said: a line on the video's own motion where it joined, or could
+    not (app.register.flow_motion), for the caller to say once."""
 
     t: FloatArray
     p: FloatArray
@@ -213,6 +214,7 @@ class Carried:
     e: FloatArray
     sigma: FloatArray
     felt: bool = True
+    said: str = ""  # what the video's own motion did where nothing else measured the track
 
     def at(self, tq: npt.ArrayLike) -> tuple[FloatArray, FloatArray]:
         """(position (Q, 3) ENU m: cubic Hermite between the nodes on their positions and
@@ -804,11 +806,15 @@ def carried_track(
         if back.use.any():
             check, used, used_enu = back.check, ~rejected | back.use, back.enu
             carried = carry(motion, fixes.t, used_enu, acc, used, kt, kp, settings, span)
-    if not motion.felt:  # no IMU: the video's own motion where nothing measured the track
-        t_m, p_m = np.concatenate([fixes.t[used], kt]), np.vstack([used_enu[used], kp])
-        flow = video_flow(session, fixes_track, correction, t_m, p_m, filled)
+    if not motion.felt and (rejected.any() or outages):
+        # no IMU: the video's own motion where nothing measured the track the carry fills
+        fixed = (fixes.t[used], used_enu[used])
+        flow, said = video_flow(
+            session, fixes_track, correction, fixed, (kt, kp), filled, check.status
+        )
         if flow is not None:
             carried = carry(motion, fixes.t, used_enu, acc, used, kt, kp, settings, span, flow)
+        carried = replace(carried, said=said)
     if rejected.all() and not len(kt):  # nothing measured it: the fixes as they were
         return fixes, carried, check
     if not motion.felt and not rejected.any() and not outages:

@@ -643,6 +643,8 @@ def registered_track(
         t0 = float(session.frame_times[0])
         for lie in check.lies:
             session.messages.add_once(f"gnss-lie-{lie.began_s:.1f}", lie.said(t0, session.utc_of))
+        if carried.said:  # the final carry's: the earlier ones stood on keyframes gated since
+            session.messages.add_once(f"flow-{carried.said}", carried.said)
     delay = (
         estimate_delay(keyframes, prior_track.poses, settings.fuse)
         if settings.estimate_delay

@@ -99,9 +99,11 @@ def flow_steps(
     attitude(t (M,) s) -> (M, 4) camera -> ENU; bearings: display pixels (N, 2) -> unit
     bearings (N, 3) in OpenCV camera axes; display_width: the display's width (px). A pair
     whose corners do not track, or look too little down, gives no step."""
+    wanted = [int(i) for i in indices]
+    q_of = dict(zip(wanted, attitude(np.asarray(frame_times, np.float64)[wanted]), strict=True))
     ts, dts, steps = [], [], []
     prev = None
-    for i, rgb in frames_at(video, [int(i) for i in indices], long_side=2 * FLOW_WIDTH_PX):
+    for i, rgb in frames_at(video, wanted, long_side=2 * FLOW_WIDTH_PX):
         scale = FLOW_WIDTH_PX / rgb.shape[1]
         size = (FLOW_WIDTH_PX, max(2, round(rgb.shape[0] * scale)))
         grey = cv2.cvtColor(cv2.resize(rgb, size, interpolation=cv2.INTER_AREA), cv2.COLOR_RGB2GRAY)
@@ -109,13 +111,13 @@ def flow_steps(
         if prev is not None and t > prev[0]:
             pairs = tracked(prev[1], grey, FLOW_WIDTH_PX / display_width)
             if pairs is not None:
-                q = attitude(np.array([prev[0], t]))
-                step = ground_step(bearings(pairs[0]), bearings(pairs[1]), q[0], q[1])
+                b1, b2 = bearings(pairs[0]), bearings(pairs[1])
+                step = ground_step(b1, b2, q_of[prev[2]], q_of[i])
                 if step is not None:
                     ts.append(0.5 * (prev[0] + t))
                     dts.append(t - prev[0])
                     steps.append(step)
-        prev = (t, grey)
+        prev = (t, grey, i)
     return FlowSteps(np.array(ts), np.array(dts), np.array(steps).reshape(-1, 2))
 
 
@@ -191,7 +193,8 @@ def video_flow(
         return rotations.multiply(rotations.from_rotvec(dr), q)
 
     t0 = float(times[0])
-    spans = ", ".join(f"t = {a - t0:.1f} to {b - t0:.1f} s" for a, b in runs)
+    named = [f"t = {a - t0:.1f} to {b - t0:.1f} s" for a, b in runs]
+    spans = ", ".join(named)
     try:
         steps = flow_steps(
             session.video, times, indices, attitude, bearings_of(session), session.intrinsics.width
@@ -203,8 +206,7 @@ def video_flow(
     # the fixes
     measured = [_moved(steps, *keys), _moved(steps, *fixes)]
     flows, said = [], []
-    for a, b in runs:
-        span = f"t = {a - t0:.1f} to {b - t0:.1f} s"
+    for (a, b), span in zip(runs, named, strict=True):
         fitted = stretch_velocities(steps, measured, a, b)
         if fitted is None:
             said.append(f"{span} (its motion could not be scaled to the track around)")

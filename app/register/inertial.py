@@ -790,9 +790,9 @@ def carried_track(
     motion = motion_of(session, fixes_track.poses, correction)
     fixes, enu, acc = _fixes(session, fixes_track)
     span = _video_span(session)
-    used = [k for k in keyframes if k.used]
-    kt = np.array([k.time_s for k in used], np.float64)
-    kp = np.array([k.position for k in used], np.float64).reshape(-1, 3)
+    kept = [k for k in keyframes if k.used]
+    kt = np.array([k.time_s for k in kept], np.float64)
+    kp = np.array([k.position for k in kept], np.float64).reshape(-1, 3)
     filled = span  # where rejected and missing fixes are filled from the carried track
     if not motion.felt and len(fixes.t):  # no IMU: only between what measured the track
         ends = np.concatenate([fixes.t[[0, -1]], kt[[0, -1]] if len(kt) else []])

@@ -10,10 +10,10 @@ import pytest
 from app.core.errors import DataFormatError, VideoError
 from app.core.messages import Messages
 from app.geodesy import rotations
-from app.io import csvlog
+from app.io import csvlog, video
 from app.io.gpx import read_gpx
 from app.io.sensorlogger import read_sensorlogger
-from app.io.video import probe, read_frame
+from app.io.video import decode, frames_at, probe, read_frame
 from app.simulate.phone import write_video
 
 
@@ -235,3 +235,28 @@ def test_bad_videos(tmp_path):
         assert len(info.pts_s) <= 20
     except VideoError as exc:
         assert "cut.mp4" in str(exc)
+
+
+@pytest.mark.parametrize("suffix", [".mp4", ".ts"])
+def test_frames_late_in_a_video_are_sought_not_decoded_up_to(tmp_path, suffix, monkeypatch):
+    """Frames wanted 15 s into a 20 s clip: the same pixels as decoding it from the start, from
+    the keyframe before them (an MP4's index; a transport stream's timestamps) rather than
+    through the 450 frames before them."""
+    times = np.arange(600) / 30.0
+    path = write_video(tmp_path / f"clip{suffix}", times, (96, 64), 0)
+    info = probe(path)
+    late = list(range(450, 600, 7))
+    from_start = dict(frames_at(info, [0, *late]))
+    decoded = []
+
+    def counted(container, stream, skipped=None):
+        for frame in decode(container, stream, skipped):
+            decoded.append(frame.pts)
+            yield frame
+
+    monkeypatch.setattr(video, "decode", counted)
+    sought = dict(frames_at(info, late))
+    assert sorted(sought) == late
+    for i in late:
+        np.testing.assert_array_equal(sought[i], from_start[i])
+    assert len(decoded) < 600 - 450 + 260, len(decoded)  # at most a GOP before (x264's 250)

@@ -3,6 +3,7 @@ creation time. Decodes only the first frame (for its rotation side data); the re
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from datetime import datetime
@@ -313,29 +314,78 @@ def read_frame(path: str | Path, index: int, info: VideoInfo | None = None) -> n
     return rotate_for_display(frame.to_ndarray(format="rgb24"), info.rotation_cw)
 
 
+SEEK_AFTER_S = 2.0  # a first time wanted this far (s) into the video is sought, not decoded to
+SEEK_BACK_S = (0.0, 2.0, 10.0)  # sought this much (s) before it, until a frame lands before it
+
+
 def decoded_at(
     info: VideoInfo, times_s: npt.ArrayLike, tolerance_s: float
 ) -> Iterator[tuple[int, av.VideoFrame]]:
     """The video decoded in one pass, as (k, decoded frame) for each k of `times_s` (media
     seconds, increasing) that a frame's presentation time matches within tolerance_s; a time
-    no frame matches (a packet that does not decode) is passed over. PyAV's and the file's
+    no frame matches (a packet that does not decode) is passed over. Where the first time lies
+    past SEEK_AFTER_S the decoding starts at the keyframe before it (a stretch at minute 25 does
+    not decode the 25 minutes before it): sought SEEK_BACK_S before it in turn until the first
+    frame decoded lies before it (a transport stream has no index: FFmpeg's search by its
+    timestamps may land past the time asked), else from the start. PyAV's and the file's
     errors (av.FFmpegError, OSError) reach the caller."""
     times = np.asarray(times_s, np.float64)
-    j = 0
+    if not len(times):
+        return
+    start = float(times[0]) - tolerance_s
     with open_video(Path(info.path)) as container:
         stream = container.streams.video[0]
         stream.thread_type = "AUTO"
-        for frame in decode(container, stream):
-            if frame.pts is None:
-                continue
-            t = media_seconds(frame.pts, stream.time_base, info.origin_s)
-            while j < len(times) and times[j] < t - tolerance_s:
-                j += 1  # that frame was not decoded (damaged): pass it over
-            if j == len(times):
+        for back in SEEK_BACK_S if start > SEEK_AFTER_S else ():
+            frames = _timed(container, stream, info.origin_s, max(start - back, 0.0))
+            first = next(frames, None)
+            if first is None:
+                break  # not to be sought: from the start
+            if first[0] <= times[0] + tolerance_s:
+                yield from _matched(itertools.chain([first], frames), times, tolerance_s)
                 return
-            if abs(times[j] - t) <= tolerance_s:
-                yield j, frame
-                j += 1
+    with open_video(Path(info.path)) as container:
+        stream = container.streams.video[0]
+        stream.thread_type = "AUTO"
+        yield from _matched(_timed(container, stream, info.origin_s), times, tolerance_s)
+
+
+def _timed(
+    container, stream, origin_s: float, from_s: float | None = None
+) -> Iterator[tuple[float, av.VideoFrame]]:
+    """(media seconds, frame) of `stream` in the container, from the keyframe at or before
+    media time from_s (s; None: from where it stands). Nothing where it cannot be sought."""
+    if from_s is not None:
+        try:
+            container.seek(
+                int((from_s + origin_s) / stream.time_base),
+                stream=stream,
+                backward=True,
+                any_frame=False,
+            )
+        except av.FFmpegError:
+            return
+    for frame in decode(container, stream):
+        if frame.pts is not None:
+            yield media_seconds(frame.pts, stream.time_base, origin_s), frame
+
+
+def _matched(
+    frames: Iterator[tuple[float, av.VideoFrame]],
+    times: npt.NDArray[np.float64],
+    tolerance_s: float,
+) -> Iterator[tuple[int, av.VideoFrame]]:
+    """(k, frame) for each k of `times` (increasing, s) that a frame's time matches within
+    tolerance_s (decoded_at)."""
+    j = 0
+    for t, frame in frames:
+        while j < len(times) and times[j] < t - tolerance_s:
+            j += 1  # that frame was not decoded (damaged): pass it over
+        if j == len(times):
+            return
+        if abs(times[j] - t) <= tolerance_s:
+            yield j, frame
+            j += 1
 
 
 def frames_at(

@@ -175,10 +175,12 @@ def test_where_no_keyframe_registers_either_the_videos_own_motion_carries_the_tr
     """The same outage (1-7 s), its keyframes lost too (a model with a hole there, glare): with
     no IMU only the video's own motion tells where the drone went between the fixes before and
     after. Its steps, scaled by the camera's height fitted where fixes and keyframes measured the
-    track, carry it through the weave's swing: the median error from 2 to 6 s (farther than a
-    second from any measurement) falls from 3.95 m (the smoother's constant velocity: what
-    the track did before) to 2.2 m, and the worst from 6.3 m to 2.8 m, when this was written;
-    and it is said, with the heights fitted (30 to 35 m; the drone flies 35 m up)."""
+    track, carry it through the weave's swing over the whole stretch between the measurements:
+    the median error from 2 to 6 s (farther than a second from any measurement) is 0.9 m
+    against 4.1 m for the smoother's constant velocity (what the track did before), the worst
+    1.1 m against 5.0 m, when this was written; it is said, with the span and the heights
+    fitted (30 to 35 m; the drone flies 35 m up); and the carry's standard deviation there
+    covers the error, with the video's motion and without."""
     video, site = clip
     srt = video.with_suffix(".SRT")
     srt.write_text(drone.srt_text(SECONDS, 0.0, gimbal=True, outage=OUTAGE), encoding="utf-8")
@@ -190,19 +192,25 @@ def test_where_no_keyframe_registers_either_the_videos_own_motion_carries_the_tr
     prior = camera_track(session, default_prior(session))
     correction = Correction.from_keyframes(lost, RegistrationSettings().fuse)
 
-    def error() -> tuple[tuple[float, float], str]:
+    def error() -> tuple[tuple[float, float], float, str]:
+        """((median, worst) horizontal error (m) from 2 to 6 s, the worst of error / sigma
+        there (the horizontal standard deviation), what was said)."""
         positions, carried, _ = inertial.carried_track(session, prior, lost, reg.gnss, correction)
         t = positions.t - t0
         got = LocalFrame(*SITE_ORIGIN).geodetic_to_enu(positions.lat, positions.lon, positions.h)
-        off = np.linalg.norm((got - drone.flight(t)[0])[:, :2], axis=1)[(t >= 2.0) & (t <= 6.0)]
-        return (float(np.median(off)), float(off.max())), carried.said
+        inside = (t >= 2.0) & (t <= 6.0)
+        off = np.linalg.norm((got - drone.flight(t)[0])[:, :2], axis=1)[inside]
+        _, sigma = carried.at(positions.t[inside])
+        ratio = float((off / np.linalg.norm(sigma[:, :2], axis=1)).max())
+        return (float(np.median(off)), float(off.max())), ratio, carried.said
 
-    carried, said = error()
-    assert "no fix and no registered keyframe over t = 2.0 to 6.0 s" in said, said
+    carried, carried_ratio, said = error()
+    assert "no fix and no registered keyframe over t = 1.0 to 7.0 s" in said, said
     assert "the video's own motion carries the track there" in said
     heights = re.search(r"the camera (\d+) to (\d+) m above ground", said)
     assert heights and all(25 <= int(h) <= 40 for h in heights.groups()), said
     monkeypatch.setattr(inertial, "video_flow", lambda *args: (None, ""))  # the same without it
-    smoothed, _ = error()
-    assert smoothed[0] > 3.0 and smoothed[1] > 5.0  # the swing a smooth track cuts
-    assert carried[0] < 0.65 * smoothed[0] and carried[1] < 0.5 * smoothed[1], (carried, smoothed)
+    smoothed, smoothed_ratio, _ = error()
+    assert smoothed[0] > 3.0 and smoothed[1] > 4.0  # the swing a smooth track cuts
+    assert carried[0] < 0.4 * smoothed[0] and carried[1] < 0.4 * smoothed[1], (carried, smoothed)
+    assert carried_ratio < 1.5 and smoothed_ratio < 1.5, (carried_ratio, smoothed_ratio)

@@ -28,6 +28,7 @@ clean run's too.
 
     python bench/bench_gnss_lies.py --live [--flights orbit survey] [--seeds 1 2]
         [--duration 40] [--from-s 15] [--live-lies drag1 drag drag5 jump frozen] [--accuracy 2.5]
+        [--fog FROM TO]
 
 Live (forward only, app.live.gnss_watch): for each flight and seed a drone downlink over the
 sample site (app.simulate.downlink: 480x270 H.264 MPEG-TS, a KLV set per frame, the model itself
@@ -41,7 +42,8 @@ after the alarm's keyframe the first frame was drawn rejected (registration's la
 of frames drawn rejected after the lie exceeds the accuracy, and the drawn camera's position
 error against the truth over those frames (median, p95) with the clean feed's over the same
 flight times; for the clean feed, lies said and frames rejected (false alarms). The keyframes'
-spacing is what the machine gives: say its load.
+spacing is what the machine gives: say its load. --fog FROM TO: every feed's video grey over
+those seconds (app.simulate.downlink's fog_s), the clean one's too.
 """
 
 from __future__ import annotations
@@ -192,7 +194,7 @@ def _case(job: tuple[str, int, str, str, float]) -> tuple[str, int, str, dict]:
     return flight, seed, name, run(falsify(base / "clean", base / name, lie))
 
 
-def _within(got: dict, mask: np.ndarray, k: float) -> float:
+def within(got: dict, mask: np.ndarray, k: float) -> float:
     """The share of frames in mask whose position error is within k sigma (each axis's, so
     k sqrt(3) sigma in 3D)."""
     return float(np.mean(got["error"][mask] <= k * np.sqrt(3.0) * got["sigma"][mask]))
@@ -247,8 +249,8 @@ def _figures(done: dict, units: list[tuple[str, int]], args: argparse.Namespace)
             got = done[(flight, seed, name)]
             rejected = int(np.sum(got["gnss"] == REJECTED))
             every = np.ones(len(got["t"]), bool)
-            rows.append([flight, seed, name, len(got["caught"]), " ".join(got["kinds"]), "", "", f"{rejected} frames", f"{np.median(got['error']):.2f}", "", f"{_drape(got, every):.2f}", "", f"{100 * _within(got, every, 1):.0f} / {100 * _within(got, every, 2):.0f} %"])  # fmt: skip
-            figures.append({"flight": flight, "seed": seed, "lie": name, "alarms": len(got["caught"]), "kinds": got["kinds"], "rejected_frames": rejected, "median_error_m": float(np.median(got["error"])), "median_drape_m": _drape(got, every), "within_1_sigma": _within(got, every, 1), "within_2_sigma": _within(got, every, 2)})  # fmt: skip
+            rows.append([flight, seed, name, len(got["caught"]), " ".join(got["kinds"]), "", "", f"{rejected} frames", f"{np.median(got['error']):.2f}", "", f"{_drape(got, every):.2f}", "", f"{100 * within(got, every, 1):.0f} / {100 * within(got, every, 2):.0f} %"])  # fmt: skip
+            figures.append({"flight": flight, "seed": seed, "lie": name, "alarms": len(got["caught"]), "kinds": got["kinds"], "rejected_frames": rejected, "median_error_m": float(np.median(got["error"])), "median_drape_m": _drape(got, every), "within_1_sigma": within(got, every, 1), "within_2_sigma": within(got, every, 2)})  # fmt: skip
         for name in args.lies:
             lie = replace(LIES[name], from_s=args.from_s)
             got = done[(flight, seed, name)]
@@ -260,7 +262,7 @@ def _figures(done: dict, units: list[tuple[str, int]], args: argparse.Namespace)
             share = float(np.mean(got["gnss"][after] == REJECTED))
             err, ref = float(np.median(got["error"][after])), float(np.median(clean["error"][after]))  # fmt: skip
             drape, drape_ref = _drape(got, after), _drape(clean, after)
-            cover = (_within(got, after, 1), _within(got, after, 2))
+            cover = (within(got, after, 1), within(got, after, 2))
             rows.append([flight, seed, label(lie), len(got["caught"]), " ".join(got["kinds"]), "" if began is None else f"{began:.1f}", "none" if delay is None else f"{delay:.1f}", f"{100 * share:.0f} %", f"{err:.2f}", f"{ref:.2f}", f"{drape:.2f}", f"{drape_ref:.2f}", f"{100 * cover[0]:.0f} / {100 * cover[1]:.0f} %"])  # fmt: skip
             figures.append({"flight": flight, "seed": seed, "lie": label(lie), "alarms": len(got["caught"]), "kinds": got["kinds"], "began_s": began, "alarm_delay_s": delay, "rejected_share": share, "median_error_m": err, "clean_median_error_m": ref, "median_drape_m": drape, "clean_median_drape_m": drape_ref, "within_1_sigma": cover[0], "within_2_sigma": cover[1]})  # fmt: skip
     print(f"# GNSS lies: {args.duration:g} s sessions, lie from t = {args.from_s:g} s\n")
@@ -294,6 +296,9 @@ def live_run(path: Path, accuracy_m: float, flight: flights.Flight) -> dict:
         "gnss": gnss,
         "caught": [lie.caught_s + origin for lie in watch.lies],
         "began": [lie.began_s + origin for lie in watch.lies],
+        "unseen": [
+            None if lie.unseen_from_s is None else lie.unseen_from_s + origin for lie in watch.lies
+        ],
         "kinds": [lie.kind for lie in watch.lies],
         "first_rejected": float(rejected[0]) if len(rejected) else None,
         "keyframes": np.array(watch.keyframe_times) + origin,
@@ -314,7 +319,8 @@ def live_main(args: argparse.Namespace) -> int:
                 t = np.arange(0.0, args.duration, 1.0 / 30.0)
                 noise = np.column_stack([sensors.gauss_markov(t, 2.5, 30.0, rng, 2), sensors.gauss_markov(t, 4.0, 30.0, rng)])  # fmt: skip
                 lies = [Lie("clean")] + [replace(LIES[k], from_s=args.from_s) for k in args.live_lies]  # fmt: skip
-                paths = write_downlinks(folder, [(lie, args.duration) for lie in lies], LIVE_VIDEO, flight, noise, sample.HFOV_DEG)  # fmt: skip
+                fog = None if args.fog is None else tuple(args.fog)
+                paths = write_downlinks(folder, [(lie, args.duration) for lie in lies], LIVE_VIDEO, flight, noise, sample.HFOV_DEG, fog_s=fog)  # fmt: skip
                 clean = live_run(paths[0], args.accuracy, flight)
                 spacing = float(np.median(np.diff(clean["keyframes"]))) if len(clean["keyframes"]) > 1 else float("nan")  # fmt: skip
                 n_rej = int(np.sum(clean["gnss"] == REJECTED))
@@ -330,15 +336,17 @@ def live_main(args: argparse.Namespace) -> int:
                     delay = None if caught is None else caught - start
                     lag = None if caught is None or got["first_rejected"] is None else got["first_rejected"] - caught  # fmt: skip
                     began = got["began"][near[0]] if near else None
+                    unseen = got["unseen"][near[0]] if near else None
                     share = float(np.mean(got["gnss"][after] == REJECTED))
                     err = got["error"][after]
                     ref = np.interp(got["t"][after], clean["t"], clean["error"])
                     spacing = float(np.median(np.diff(got["keyframes"]))) if len(got["keyframes"]) > 1 else float("nan")  # fmt: skip
-                    rows.append([name, seed, label(lie), len(got["caught"]), " ".join(got["kinds"]), "" if began is None else f"{began:.1f}", "none" if delay is None else f"{delay:.1f}", "" if lag is None else f"{lag:.1f}", f"{100 * share:.0f} %", f"{np.median(err):.2f} / {np.percentile(err, 95):.2f}", f"{np.median(ref):.2f}", "", f"{spacing:.2f}"])  # fmt: skip
-                    figures.append({"flight": name, "seed": seed, "lie": label(lie), "alarms": len(got["caught"]), "kinds": got["kinds"], "began_s": began, "alarm_delay_s": delay, "frames_after_alarm_s": lag, "rejected_share": share, "median_error_m": float(np.median(err)), "p95_error_m": float(np.percentile(err, 95)), "clean_median_error_m": float(np.median(ref)), "keyframe_spacing_s": spacing})  # fmt: skip
+                    rows.append([name, seed, label(lie), len(got["caught"]), " ".join(got["kinds"]), "" if began is None else (f"{began:.1f}" if unseen is None else f"{unseen:.1f} to {began:.1f}"), "none" if delay is None else f"{delay:.1f}", "" if lag is None else f"{lag:.1f}", f"{100 * share:.0f} %", f"{np.median(err):.2f} / {np.percentile(err, 95):.2f}", f"{np.median(ref):.2f}", "", f"{spacing:.2f}"])  # fmt: skip
+                    figures.append({"flight": name, "seed": seed, "lie": label(lie), "alarms": len(got["caught"]), "kinds": got["kinds"], "began_s": began, "unseen_from_s": unseen, "alarm_delay_s": delay, "frames_after_alarm_s": lag, "rejected_share": share, "median_error_m": float(np.median(err)), "p95_error_m": float(np.percentile(err, 95)), "clean_median_error_m": float(np.median(ref)), "keyframe_spacing_s": spacing})  # fmt: skip
                     print(rows[-1], got["summary"], file=sys.stderr)
+    fogged = "" if args.fog is None else f", video grey from {args.fog[0]:g} to {args.fog[1]:g} s"
     print(
-        f"# GNSS lies, live: {args.duration:g} s downlinks, lie from t = {args.from_s:g} s, fixes held to {args.accuracy:g} m\n"
+        f"# GNSS lies, live: {args.duration:g} s downlinks, lie from t = {args.from_s:g} s, fixes held to {args.accuracy:g} m{fogged}\n"
     )
     print(table(["flight", "seed", "GNSS", "alarms", "named", "said from (s)", "alarm delay (s)", "drawn rejected after (s)", "rejected after", "error during the lie, median / p95 (m)", "clean run's (m)", "clean: median error (m)", "keyframe spacing (s)"], rows))  # fmt: skip
     write_json(args.json, {"live": True, "duration_s": args.duration, "from_s": args.from_s, "accuracy_m": args.accuracy, "runs": figures})  # fmt: skip
@@ -366,7 +374,7 @@ def main(argv: list[str] | None = None) -> int:
         type=float,
         default=None,
         metavar=("FROM", "TO"),
-        help="files: every case's video grey from FROM to TO s (a stretch that cannot register)",
+        help="every case's video grey from FROM to TO s (a stretch that cannot register)",
     )
     parser.add_argument("--live", action="store_true", help="live downlinks, forward only")
     parser.add_argument("--live-lies", nargs="+", default=list(LIVE_LIES[:4]), choices=LIVE_LIES)

@@ -168,6 +168,50 @@ def test_a_burst_of_multipath_the_receiver_states_raises_no_alarm_as_it_ends():
     assert verdicts[20].threshold_m == pytest.approx(20.7) and verdicts[24].threshold_m == 11.25
 
 
+@pytest.mark.parametrize("kind", ["drag", "jump"])
+def test_a_lie_begun_where_no_keyframe_registered_is_said_so(kind):
+    """Fog from 12 to 26 s: no keyframe registers, so nothing tests the fixes, and the viewer
+    says so while it lasts. A 2 m/s drag-off east from 15 s (accuracy 2 m, threshold 9 m) is
+    22 m off at the first keyframe after the fog and caught at the second (the median of the
+    newest three, 0, 22, 24 m: 22 m): it began unseen, some time between the last keyframe before the
+    fog and the first after it, and is said so (not "from 26 s"). A 200 m jump at 15 s is
+    caught at 26 s (JUMP_FAR), but the telemetry's own step was held off from the frame at
+    15 s (app.live.register: drawn rejected from there), which dates it. The summary names the
+    untested span either way."""
+    said = Messages()
+    watch = GnssWatch(said)
+    lie = {"drag": lambda t: 2.0 * max(t - 15.0, 0.0), "jump": lambda t: 200.0 * (t >= 15.0)}[kind]
+    keyframes = [float(t) for t in range(0, 13)] + [float(t) for t in range(26, 40)]
+    for t in np.arange(0.0, 40.0, 0.1).round(1):
+        if t in keyframes:
+            scene = _circle(np.array([t]))[0]
+            watch.keyframe(t, scene + [lie(t), 0.0, 0.0], scene, 2.0)
+        held = 200.0 if kind == "jump" and 15.0 <= t < 26.0 else 0.0
+        watch.frame(float(t), 0.0, held)
+        if t == 20.0:
+            assert watch.said_now(t)[0] == (
+                "GNSS untested since t = 12.0 s (8 s): no keyframe has registered, so a lie "
+                "would not be seen",
+                USED,
+            )
+    assert len(watch.lies) == 1
+    got = watch.lies[0]
+    untested = "GNSS untested from t = 12.0 to 26.0 s (14 s: no keyframe registered)"
+    assert untested in watch.line()
+    if kind == "drag":
+        assert (got.unseen_from_s, got.began_s, got.caught_s) == (12.0, 26.0, 27.0)
+        assert said.items[0].startswith(
+            "GNSS disagrees with the scene from some time between t = 12.0 s and t = 26.0 s "
+            "(no keyframe registered between), 22 m by t = 27.0 s"
+        ), said.items
+        assert (
+            "GNSS disagrees from between t = 12.0 and 26.0 s (caught at t = 27.0 s" in watch.line()
+        )
+    else:
+        assert (got.unseen_from_s, got.began_s, got.caught_s) == (None, 15.0, 26.0)
+        assert said.items[0].startswith("GNSS disagrees with the scene from t = 15.0 s, 200 m")
+
+
 def test_frames_say_used_rejected_and_missing_and_an_outage_when_it_ends():
     """Frames at 10 Hz: fixes fresh to 30 s, none from 30 s to 42 s (the frame's newest fix
     ever older: missing once 5 s old, GAP_MIN_S), then a lie: keyframes at 43, 44 and 45 s

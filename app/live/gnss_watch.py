@@ -49,6 +49,8 @@ STEADY_KEYFRAMES = 3  # tested before a jump is taken from one keyframe (the gat
 SUSPECT_ACCURACIES = 2.5  # a fix this many stated accuracies off its own offset: keyframes sooner
 DRIFT_S = 6.0  # a drift judged over this long (s): the newest keyframe's one-sided median lags
 # a drag by a keyframe, so 2 m/s walks the 6 m floor only over longer than files' 4 s
+UNSEEN_S = 5.0  # keyframes tested farther apart than this (s): the fixes went untested between
+# (fog, sky, a featureless field: nothing registered), so a lie caught after began unseen
 
 
 @dataclass(frozen=True)
@@ -98,6 +100,8 @@ class GnssWatch:
         self.runs: list[list] = []  # [start s, end s, status]: frames drawn in a row, by status
         self.outages: list[tuple[float, float]] = []  # ended, (start, end) media s
         self.outage_since: float | None = None  # the last fix before the outage going on
+        self.unseen: list[tuple[float, float]] = []  # (last, next) keyframes UNSEEN_S apart
+        self._held_since: float | None = None  # the first frame of the last held-off jump
         self.held_off_m = 0.0  # the telemetry's jumps the frame drawn last did not follow (m)
         self._far_off = False  # the newest keyframe's fix far off its own offset (`suspect`)
         self._lock = threading.Lock()
@@ -147,6 +151,8 @@ class GnssWatch:
         raw = fix - scene
         disagrees = bool(np.linalg.norm(raw[:2]) > h or abs(raw[2]) > v)
         with self._lock:
+            if self._t and t_s - self._t[-1] > UNSEEN_S:
+                self.unseen.append((self._t[-1], float(t_s)))
             self._t.append(float(t_s))
             self._fix.append(fix)
             self._scene.append(scene)
@@ -215,7 +221,28 @@ class GnssWatch:
         jumped = np.linalg.norm(step[:2]) > JUMP_SHARE * lie.worst_m
         return self._t[first] if jumped else lie.began_s
 
+    def _dated(self, lie: GnssLie) -> GnssLie:
+        """A lie caught now (began_s where the test put it), dated anew where the keyframes
+        before it left the fixes untested: where the run of keyframes whose own fixes disagree
+        (or the newest) follows the one before it by more than UNSEEN_S and the test puts the
+        start after that one, the lie began unseen between the two (`unseen_from_s`, began_s
+        the first that saw it), unless the telemetry's own jump was held off from a frame
+        between them (a jump: dated from that frame)."""
+        first = len(self._t) - 1
+        while first > 0 and self._dis[first] and self._dis[first - 1]:
+            first -= 1
+        if first == 0:
+            return lie
+        before, after = self._t[first - 1], self._t[first]
+        if after - before <= UNSEEN_S or lie.began_s < before:
+            return lie
+        held = self._held_since
+        if held is not None and before < held <= after:
+            return replace(lie, began_s=held)
+        return replace(lie, began_s=after, unseen_from_s=before)
+
     def _alarm(self, lie: GnssLie) -> None:
+        lie = self._dated(lie)
         self.lying, self._agree_since, self._last_bad_s = True, None, lie.caught_s
         self.lies.append(lie)
         self.messages.add(lie.said(0.0, self.utc_of))
@@ -251,6 +278,8 @@ class GnssWatch:
         not the fix, carries it, so `missing`, an outage only past outage_s): counted, and an
         outage said when it ends."""
         with self._lock:
+            if held_off_m > 0.0 and self.held_off_m <= 0.0:  # (kept once it ends: the
+                self._held_since = float(t_s)  # keyframe that ends it may be tested after)
             self.held_off_m = held_off_m
             if fix_age_s > self.outage_s:
                 status = MISSING
@@ -287,7 +316,16 @@ class GnssWatch:
                 )
             if self.lying:
                 out.append((self.lies[-1].said(0.0, self.utc_of), REJECTED))
-            elif self.held_off_m > 0.0:
+            elif self._t and self.outage_since is None and t_s - self._t[-1] > UNSEEN_S:
+                since = clip_time(self._t[-1], 0.0, self.utc_of)
+                gone = t_s - self._t[-1]
+                out.append(
+                    (
+                        f"GNSS untested since {since} ({gone:.0f} s): no keyframe has registered, so a lie would not be seen",
+                        USED,
+                    )
+                )
+            if not self.lying and self.held_off_m > 0.0:
                 out.append(
                     (
                         f"GNSS jumped {self.held_off_m:.0f} m as no aircraft moves: not drawn until a keyframe past it registers",
@@ -307,10 +345,17 @@ class GnssWatch:
             for k, lie in enumerate(self.lies):
                 going = self.lying and k == len(self.lies) - 1
                 end = "going on at the end" if going else f"to t = {lie.ended_s:.1f} s"
+                began = f"t = {lie.began_s:.1f} s"
+                if lie.unseen_from_s is not None:
+                    began = f"between t = {lie.unseen_from_s:.1f} and {lie.began_s:.1f} s"
                 parts.append(
-                    f"GNSS {lie.kind} from t = {lie.began_s:.1f} s (caught at t = "
+                    f"GNSS {lie.kind} from {began} (caught at t = "
                     f"{lie.caught_s:.1f} s, {lie.worst_m:.0f} m by t = {lie.worst_s:.1f} s), {end}"
                 )
+            parts += [
+                f"GNSS untested from t = {a:.1f} to {b:.1f} s ({b - a:.0f} s: no keyframe registered)"
+                for a, b in self.unseen
+            ]
             parts += [outage_said(a, b, 0.0) for a, b in self.outages]
             if self.outage_since is not None:
                 parts.append(f"no GNSS from t = {self.outage_since:.1f} s to the end")

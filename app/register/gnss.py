@@ -131,7 +131,9 @@ class GnssLie:
     against, the registered keyframes (`scene`), the motion the IMU integrates
     (`imu`, app.register.inertial) or both; shift (3,) ENU m and shifted_s (first, last
     session s): a jump whose offset held, its fixes moved back by it and used over that span
-    (app.register.inertial.shifted_back), else None."""
+    (app.register.inertial.shifted_back), else None; unseen_from_s: a lie caught live after a
+    stretch where no keyframe tested the fixes (app.live.gnss_watch) began after this (session
+    s) and by began_s, unseen between (else None)."""
 
     began_s: float
     caught_s: float
@@ -144,6 +146,7 @@ class GnssLie:
     witness: str = SCENE
     shift: FloatArray | None = None
     shifted_s: tuple[float, float] | None = None
+    unseen_from_s: float | None = None
 
     def said(self, t0_s: float, utc_of: Callable[[float], float | None] | None = None) -> str:
         """One line for people, clip times from the first frame's session time t0_s (s) and
@@ -157,6 +160,12 @@ class GnssLie:
         def when(t: float) -> str:
             return clip_time(t, t0_s, utc_of)
 
+        since = when(self.began_s)
+        if self.unseen_from_s is not None:
+            since = (
+                f"some time between {when(self.unseen_from_s)} and {since} (no keyframe "
+                "registered between)"
+            )
         stands = "the scene's registered keyframes"
         if self.witness != SCENE:
             stands += " and the IMU's motion"
@@ -172,18 +181,17 @@ class GnssLie:
                 f"{self.shifted_s[1] - t0_s:.1f} s"
             )
         if self.kind == FROZEN:
-            return f"GNSS frozen from {when(self.began_s)}, {far} behind {what} by {by}{tail}"
+            return f"GNSS frozen from {since}, {far} behind {what} by {by}{tail}"
         if self.kind == REPLAYED and self.replay_of_s is not None:
             return (
-                f"GNSS replays its fixes of {when(self.replay_of_s)} from {when(self.began_s)}, "
+                f"GNSS replays its fixes of {when(self.replay_of_s)} from {since}, "
                 f"{far} off {what} by {by}{tail}"
             )
         if self.kind == HEIGHT:
             return (
-                f"GNSS height disagrees with {what} by {far} from {when(self.began_s)} (the "
-                f"most by {by}){tail}"
+                f"GNSS height disagrees with {what} by {far} from {since} (the most by {by}){tail}"
             )
-        return f"GNSS disagrees with {what} from {when(self.began_s)}, {far} by {by}{tail}"
+        return f"GNSS disagrees with {what} from {since}, {far} by {by}{tail}"
 
 
 @dataclass(frozen=True)

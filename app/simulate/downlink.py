@@ -35,6 +35,7 @@ from app.simulate.stadium import SITE_ORIGIN
 from app.simulate.video import render_video
 
 SITE = LocalFrame(*SITE_ORIGIN)
+FOG_GREY = 170  # a fogged frame's every pixel (no texture to match)
 
 
 def sample_layer() -> Layer:
@@ -74,10 +75,12 @@ def write_downlinks(
     noise_enu: npt.ArrayLike | None = None,
     hfov_deg: float = drone.HFOV_DEG,
     crf: int = 20,
+    fog_s: tuple[float, float] | None = None,
 ) -> list[Path]:
     """One .ts per (lie, seconds) in `folder` (named by position and kind), each the flight's
     first `seconds` at drone.FPS, `size` (w, h) pixels; noise_enu (N, 3) m: GNSS error added to
-    every frame's position before the lie (N: the longest feed's frames; None: none)."""
+    every frame's position before the lie (N: the longest feed's frames; None: none); fog_s:
+    (from, to) s of video drawn grey (what sky, fog or a featureless field give a matcher)."""
     longest = max(seconds for _, seconds in lies)
     t = np.arange(0.0, longest, 1.0 / drone.FPS)
     pos, hpr = path_of(flight, t)
@@ -88,6 +91,8 @@ def write_downlinks(
     )
 
     def keep(rgb: np.ndarray, k: int) -> np.ndarray:
+        if fog_s is not None and fog_s[0] <= t[k] < fog_s[1]:
+            rgb = np.full_like(rgb, FOG_GREY)
         frames[k] = rgb
         return rgb
 

@@ -18,7 +18,9 @@ moment it exceeds that (as bench_gnss_lies does).
 Figures per case: the lies said, when the first was caught and said to begin (clip s), the
 alarm's delay, the share of frames marked rejected after the lie exceeds the accuracy (missing,
 for the outage), frames marked rejected before the lie began (honest fixes accused), the position
-error during the lie (median, p95) and the clean run's over the same frames.
+error during the lie (median, p95) and the clean run's over the same frames, and the share of
+those frames (all, for the clean and multipath runs) whose error lies within 1 and 2 of the
+frame's sigma (app.solve.uncertainty.frame_sigmas: each axis's, so k sqrt(3) sigma in 3D).
 """
 
 from __future__ import annotations
@@ -45,7 +47,8 @@ from app.simulate.lies import Lie  # noqa: E402
 from app.simulate.stadium import SITE_ORIGIN  # noqa: E402
 from app.simulate.tileset import write_site  # noqa: E402
 from app.solve.track import solve_track  # noqa: E402
-from bench.bench_gnss_lies import LIES, exceeds_s, label  # noqa: E402
+from app.solve.uncertainty import frame_sigmas  # noqa: E402
+from bench.bench_gnss_lies import LIES, exceeds_s, label, within  # noqa: E402
 from bench.common import table, write_json  # noqa: E402
 
 CASES = ("clean", "multipath", "jump", "drag1", "drag", "drag5", "frozen", "replay", "outage")
@@ -74,7 +77,8 @@ def subtitle(path: Path, duration_s: float, noise: np.ndarray, lie: Lie | None) 
 def solved(video: Path, srt: Path, site: Path, accuracy_m: float | None) -> dict:
     """The registered track of the clip with this subtitle (its fixes' accuracy accuracy_m, m,
     as --gnss-accuracy states it; None: none): per frame its clip time (s), true position (ENU
-    m about the site origin), error (m), gnss status; the lies said."""
+    m about the site origin), error (m), its sigma (m, each axis: app.solve.uncertainty), gnss
+    status; the lies said."""
     session = open_clip(video, srt, layers=(Layer.of(site),))
     session = session.stating_accuracy(accuracy_m, "--gnss-accuracy")
     track = solve_track(session, "registered")
@@ -88,6 +92,7 @@ def solved(video: Path, srt: Path, site: Path, accuracy_m: float | None) -> dict
         "t": t,
         "true": true,
         "error": np.linalg.norm(got - true, axis=1),
+        "sigma": frame_sigmas(session, track, np.arange(len(t)))[0],
         "gnss": poses.gnss,
         "caught": [lie.caught_s - t0 for lie in lies],
         "began": [lie.began_s - t0 for lie in lies],
@@ -134,7 +139,10 @@ def main(argv: list[str] | None = None) -> int:
                 t, err = got["t"], got["error"]
                 before = int(np.sum((got["gnss"] == REJECTED) & (t < args.from_s - 0.5)))
                 if lie is None or lie.kind == "multipath":
-                    rows.append([seed, case, len(got["caught"]), "", "", "", "", before, f"{np.median(err):.2f} / {np.percentile(err, 95):.2f}", ""])  # fmt: skip
+                    sure = (
+                        f"{100 * within(got, t >= 0, 1):.0f} / {100 * within(got, t >= 0, 2):.0f} %"
+                    )
+                    rows.append([seed, case, len(got["caught"]), "", "", "", "", before, f"{np.median(err):.2f} / {np.percentile(err, 95):.2f}", "", sure])  # fmt: skip
                     figures.append({"seed": seed, "case": case, "alarms": len(got["caught"]), "rejected_before": before, "median_error_m": float(np.median(err))})  # fmt: skip
                     continue
                 clean = done["clean"]
@@ -149,14 +157,15 @@ def main(argv: list[str] | None = None) -> int:
                 began = got["began"][near[0]] if near else None
                 share = float(np.mean(got["gnss"][after] == marked))
                 e, ref = err[after], clean["error"][after]
-                rows.append([seed, name, len(got["caught"]), " ".join(got["kinds"]), "" if began is None else f"{began:.1f}", "" if lie.kind == "outage" else ("none" if delay is None else f"{delay:.1f}"), f"{100 * share:.0f} %", before, f"{np.median(e):.2f} / {np.percentile(e, 95):.2f}", f"{np.median(ref):.2f} / {np.percentile(ref, 95):.2f}"])  # fmt: skip
+                sure = f"{100 * within(got, after, 1):.0f} / {100 * within(got, after, 2):.0f} %"
+                rows.append([seed, name, len(got["caught"]), " ".join(got["kinds"]), "" if began is None else f"{began:.1f}", "" if lie.kind == "outage" else ("none" if delay is None else f"{delay:.1f}"), f"{100 * share:.0f} %", before, f"{np.median(e):.2f} / {np.percentile(e, 95):.2f}", f"{np.median(ref):.2f} / {np.percentile(ref, 95):.2f}", sure])  # fmt: skip
                 figures.append({"seed": seed, "case": case, "alarms": len(got["caught"]), "kinds": got["kinds"], "began_s": began, "alarm_delay_s": delay, "marked_share": share, "rejected_before": before, "median_error_m": float(np.median(e)), "p95_error_m": float(np.percentile(e, 95)), "clean_median_error_m": float(np.median(ref))})  # fmt: skip
                 print(f"seed {seed} {name}: done", file=sys.stderr, flush=True)
     stated = (
         f"stated {args.gnss_accuracy:g} m" if args.gnss_accuracy else "none stated: 5 m assumed"
     )
     print(f"# A DJI clip's GNSS lying, no IMU: {args.duration:g} s weave, lie from t = {args.from_s:g} s, GNSS error {args.noise:g} m, accuracy {stated}\n")  # fmt: skip
-    print(table(["seed", "GNSS", "alarms", "named", "said from (s)", "alarm delay (s)", "marked after (rejected; outage: missing)", "rejected before the lie (frames)", "error during the lie, median / p95 (m)", "clean run's (m)"], rows))  # fmt: skip
+    print(table(["seed", "GNSS", "alarms", "named", "said from (s)", "alarm delay (s)", "marked after (rejected; outage: missing)", "rejected before the lie (frames)", "error during the lie, median / p95 (m)", "clean run's (m)", "error within 1 / 2 sigma"], rows))  # fmt: skip
     write_json(args.json, {"duration_s": args.duration, "from_s": args.from_s, "noise_m": args.noise, "accuracy_m": args.gnss_accuracy, "runs": figures})  # fmt: skip
     return 0
 

@@ -244,7 +244,8 @@ class _Inputs:
     """What the filter runs on: nodes t (M,); per interval k (t[k] -> t[k+1]) the velocity and
     position the acceleration adds (dv, dx (M-1, 3)) and its horizontal jerk (dyn (M-1,) m/s^3);
     per node the fix measured there (fix (M,) index, -1 none), the keyframe (key (M,)) and the
-    velocity the video's own motion measured (vel (M,): app.register.flow_motion)."""
+    velocity the video's own motion measured (vel (M,) index into flow: those of
+    app.register.flow_motion's inside the nodes' span, None where there are none)."""
 
     t: FloatArray
     dv: FloatArray
@@ -253,6 +254,7 @@ class _Inputs:
     fix: npt.NDArray[np.int64]
     key: npt.NDArray[np.int64]
     vel: npt.NDArray[np.int64]
+    flow: Flow | None = None
 
 
 def _inputs(
@@ -261,13 +263,13 @@ def _inputs(
     t_key: FloatArray,
     settings: InertialSettings,
     span_s: tuple[float, float] | None = None,
-    t_vel: FloatArray | None = None,
+    flow: Flow | None = None,
 ) -> _Inputs:
-    t_vel = np.zeros(0) if t_vel is None else t_vel
     ends = np.concatenate([t_fix, t_key, [] if span_s is None else span_s])
     t0, t1 = float(ends.min()), float(ends.max())
     n = max(1, int(np.ceil((t1 - t0) / settings.step_s)))
-    t_vel = t_vel[(t_vel >= t0) & (t_vel <= t1)]
+    flow = None if flow is None else flow.within(t0, t1)
+    t_vel = np.zeros(0) if flow is None else flow.t
     t = np.unique(np.concatenate([np.linspace(t0, t1, n + 1), t_fix, t_key, t_vel]))
     v, x = motion.integrals(t)
     dt = np.diff(t)
@@ -280,7 +282,7 @@ def _inputs(
     key[np.searchsorted(t, t_key)] = np.arange(len(t_key))
     vel = np.full(len(t), -1)
     vel[np.searchsorted(t, t_vel)] = np.arange(len(t_vel))
-    return _Inputs(t, dv, dx, dyn, fix, key, vel)
+    return _Inputs(t, dv, dx, dyn, fix, key, vel, flow)
 
 
 def _transition(dt: float, phi: float) -> FloatArray:
@@ -409,10 +411,9 @@ def _smooth(
     key_enu: FloatArray,
     felt: bool,
     settings: InertialSettings,
-    flow: Flow | None = None,
 ) -> Carried:
     """The filter forward over the fixes used, the keyframes and the video's own velocities
-    (flow), then back (Rauch-Tung-Striebel)."""
+    (inp.flow), then back (Rauch-Tung-Striebel)."""
     flt = _Filter(inp, fix_sigma, felt, settings)
     m = len(inp.t)
     firsts = [
@@ -436,7 +437,8 @@ def _smooth(
             _update(x, p, _FIX_H, fix_enu[j], flt.fix_noise(j))
         if i >= 0:
             _update(x, p, _KEY_H, key_enu[i], key_r)
-        if u >= 0 and flow is not None:  # horizontal: the height's spread left as it is
+        if u >= 0 and inp.flow is not None:  # horizontal: the height's spread left as it is
+            flow = inp.flow
             r = np.array([flow.sigma[u] ** 2, flow.sigma[u] ** 2, 1e12])
             _update(x, p, _VEL_H, flow.v[u], r)
         xs_f[k], ps_f[k] = x, p
@@ -576,13 +578,11 @@ def carry(
     order = np.argsort(kt)
     kt = kt[order]
     kp = np.asarray(enu_key, np.float64).reshape(-1, 3)[order]
-    inp = _inputs(motion, t, kt, settings, span_s, None if flow is None else flow.t)
+    inp = _inputs(motion, t, kt, settings, span_s, flow)
     sig = _sigmas(accuracy_m, len(t), settings)
     enu = np.asarray(enu_fix, np.float64).reshape(-1, 3)
     use = np.asarray(use, bool)
-    if flow is not None:  # those the nodes kept (inside the span), in node order
-        flow = flow.within(inp.t[0], inp.t[-1])
-    return _smooth(inp, enu, sig, use, kp, motion.felt, settings, flow)
+    return _smooth(inp, enu, sig, use, kp, motion.felt, settings)
 
 
 @dataclass(frozen=True)

@@ -1,14 +1,19 @@
 """The camera's own motion seen in the video (app.register.flow_motion): a step per metre of
-height from corners met with a level ground, checked on rays made by hand, and the height that
-scales it fitted to where the track was measured."""
+height from corners met with a level ground, checked on rays made by hand, the height that
+scales it fitted to where the track was measured, and the corners tracked once for a solve's
+carries."""
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 
 from app.geodesy import rotations
+from app.io.video import frames_at, probe
+from app.register import flow_motion
 from app.register.flow_motion import FlowSteps, ground_step, height, stretch_velocities
+from app.simulate.phone import write_video
 
 OPENGL = np.array([1.0, -1.0, -1.0])  # OpenGL camera axes <-> OpenCV's (its own inverse)
 
@@ -98,3 +103,50 @@ def test_a_stretch_is_scaled_from_both_sides_or_left_to_the_carry():
     assert stretch_velocities(steps, [(far, known)], 3.0, 6.0) is None
     # a second kind of measurement (the fixes) fits a side the first (the keyframes) does not
     assert stretch_velocities(steps, [(moved, t < 3.0), (moved, known)], 3.0, 6.0) is not None
+
+
+def test_the_corners_are_tracked_once_for_a_solves_carries(tmp_path, monkeypatch):
+    """A textured ground slides 3 px a frame under a camera looking straight down (60 deg
+    across 160 px: f = 80 / tan 30 deg = 138.6 px): each step is 3 / 138.6 = 0.0217 per metre
+    of height, across the image. Asked again with the same `Seen` (a solve's next carry), under
+    the camera turned 90 deg about the vertical (another attitude correction), nothing is
+    decoded again and the steps turn with it."""
+    rng = np.random.default_rng(1)
+    noise = rng.uniform(0, 255, (40, 80)).astype(np.float32)
+    texture = cv2.resize(noise, (320, 120), interpolation=cv2.INTER_CUBIC)
+    texture = texture.clip(0, 255).astype(np.uint8)
+
+    def frame(k: int) -> np.ndarray:
+        grey = texture[:, 120 - 3 * k : 280 - 3 * k]
+        return np.repeat(grey[:, :, None], 3, axis=2)
+
+    times = np.arange(12) / 30.0
+    video = probe(write_video(tmp_path / "ground.mp4", times, (160, 120), 0, frame=frame, crf=10))
+    f = 80.0 / np.tan(np.radians(30.0))
+
+    def bearings(px: np.ndarray) -> np.ndarray:
+        d = np.column_stack([(px[:, 0] - 80.0) / f, (px[:, 1] - 60.0) / f, np.ones(len(px))])
+        return d / np.linalg.norm(d, axis=1, keepdims=True)
+
+    def looking(heading: float):
+        q = rotations.camera_quat_from_hpr(heading, -90.0, 0.0)
+        return lambda t: np.repeat(np.asarray(q)[None], len(t), axis=0)
+
+    decoded = []
+
+    def counted(*args, **kwargs):
+        decoded.append(args[1])
+        return frames_at(*args, **kwargs)
+
+    monkeypatch.setattr(flow_motion, "frames_at", counted)
+    seen = flow_motion.Seen()
+    first = flow_motion.flow_steps(video, times, range(12), looking(0.0), bearings, 160, seen)
+    assert len(decoded) == 1 and len(first.t) == 11
+    np.testing.assert_allclose(np.linalg.norm(first.step, axis=1), 3.0 / f, rtol=0.05)
+    turned = flow_motion.flow_steps(video, times, range(12), looking(90.0), bearings, 160, seen)
+    assert len(decoded) == 1  # the corners of the first call
+    np.testing.assert_allclose(turned.t, first.t)
+    # turned 90 deg about the vertical: each step turns with the camera (east <-> north)
+    np.testing.assert_allclose(np.abs(turned.step), np.abs(first.step[:, ::-1]), atol=1e-9)
+    flow_motion.flow_steps(video, times, range(0, 12, 2), looking(0.0), bearings, 160, seen)
+    assert len(decoded) == 2  # other pairs: decoded again

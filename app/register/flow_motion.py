@@ -28,7 +28,7 @@ OpenGL camera axes (app.geodesy.rotations).
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
@@ -89,6 +89,43 @@ class FlowSteps:
     step: FloatArray
 
 
+@dataclass
+class Seen:
+    """Corners tracked between a solve's frames, kept across its carries (each asks for its
+    stretches again under another attitude correction, and decoding costs seconds a minute):
+    per (frame, next frame) index pair their bearings (b1, b2 (N, 3) unit, OpenCV camera axes),
+    None where they did not track; the frames decoded, and those asked for."""
+
+    pairs: dict[tuple[int, int], tuple[FloatArray, FloatArray] | None] = field(default_factory=dict)
+    decoded: set[int] = field(default_factory=set)
+    asked: set[int] = field(default_factory=set)
+
+    def track(
+        self,
+        video: VideoInfo,
+        frame_times: FloatArray,
+        wanted: list[int],
+        bearings: Callable[[np.ndarray], np.ndarray],
+        display_width: int,
+    ) -> None:
+        """Frames `wanted` (increasing) decoded in one pass, reduced to FLOW_WIDTH_PX, and the
+        corners tracked between each and the one decoded before it (app.sync.flow.tracked)."""
+        prev = None
+        for i, rgb in frames_at(video, wanted, long_side=2 * FLOW_WIDTH_PX):
+            scale = FLOW_WIDTH_PX / rgb.shape[1]
+            size = (FLOW_WIDTH_PX, max(2, round(rgb.shape[0] * scale)))
+            small = cv2.resize(rgb, size, interpolation=cv2.INTER_AREA)
+            grey = cv2.cvtColor(small, cv2.COLOR_RGB2GRAY)
+            self.decoded.add(i)
+            if prev is not None and frame_times[i] > frame_times[prev[0]]:
+                pairs = tracked(prev[1], grey, FLOW_WIDTH_PX / display_width)
+                self.pairs[(prev[0], i)] = (
+                    None if pairs is None else (bearings(pairs[0]), bearings(pairs[1]))
+                )
+            prev = (i, grey)
+        self.asked.update(wanted)
+
+
 def flow_steps(
     video: VideoInfo,
     frame_times: FloatArray,
@@ -96,31 +133,36 @@ def flow_steps(
     attitude: Callable[[FloatArray], FloatArray],
     bearings: Callable[[np.ndarray], np.ndarray],
     display_width: int,
+    seen: Seen | None = None,
 ) -> FlowSteps:
     """The steps between consecutive frames of `indices` (increasing) of `video` (VideoInfo;
     decoded in one pass, reduced to FLOW_WIDTH_PX), at session times frame_times (F,) s, under
     attitude(t (M,) s) -> (M, 4) camera -> ENU; bearings: display pixels (N, 2) -> unit
-    bearings (N, 3) in OpenCV camera axes; display_width: the display's width (px). A pair
-    whose corners do not track, or look too little down, gives no step."""
+    bearings (N, 3) in OpenCV camera axes; display_width: the display's width (px); seen: the
+    corners an earlier call tracked (decoded again only where a pair is not among them). A
+    pair whose corners do not track, or look too little down, gives no step."""
+    seen = Seen() if seen is None else seen
+
+    def pairs_of(wanted: list[int]) -> list[tuple[int, int]]:
+        got = [i for i in wanted if i in seen.decoded]
+        ends = zip(got, got[1:], strict=False)
+        return [(a, b) for a, b in ends if frame_times[b] > frame_times[a]]
+
     wanted = [int(i) for i in indices]
-    q_of = dict(zip(wanted, attitude(np.asarray(frame_times, np.float64)[wanted]), strict=True))
+    pairs = pairs_of(wanted)
+    if not set(wanted) <= seen.asked or any(p not in seen.pairs for p in pairs):
+        seen.track(video, frame_times, wanted, bearings, display_width)
+        pairs = pairs_of(wanted)
+    ends = sorted({i for pair in pairs for i in pair})
+    q_of = dict(zip(ends, attitude(np.asarray(frame_times, np.float64)[ends]), strict=True))
     ts, dts, steps = [], [], []
-    prev = None
-    for i, rgb in frames_at(video, wanted, long_side=2 * FLOW_WIDTH_PX):
-        scale = FLOW_WIDTH_PX / rgb.shape[1]
-        size = (FLOW_WIDTH_PX, max(2, round(rgb.shape[0] * scale)))
-        grey = cv2.cvtColor(cv2.resize(rgb, size, interpolation=cv2.INTER_AREA), cv2.COLOR_RGB2GRAY)
-        t = float(frame_times[i])
-        if prev is not None and t > prev[0]:
-            pairs = tracked(prev[1], grey, FLOW_WIDTH_PX / display_width)
-            if pairs is not None:
-                b1, b2 = bearings(pairs[0]), bearings(pairs[1])
-                step = ground_step(b1, b2, q_of[prev[2]], q_of[i])
-                if step is not None:
-                    ts.append(0.5 * (prev[0] + t))
-                    dts.append(t - prev[0])
-                    steps.append(step)
-        prev = (t, grey, i)
+    for a, b in pairs:
+        corners = seen.pairs[(a, b)]
+        step = None if corners is None else ground_step(*corners, q_of[a], q_of[b])
+        if step is not None:
+            ts.append(0.5 * (frame_times[a] + frame_times[b]))
+            dts.append(frame_times[b] - frame_times[a])
+            steps.append(step)
     return FlowSteps(np.array(ts), np.array(dts), np.array(steps).reshape(-1, 2))
 
 
@@ -165,13 +207,16 @@ def video_flow(
     keys: tuple[FloatArray, FloatArray],
     filled: tuple[float, float],
     status: FixStatus,
+    seen: Seen | None = None,
 ) -> tuple[Flow | None, str]:
     """(the velocities the video's own motion measures (module docstring), what to say of them)
     over the stretches of `filled` (session s) whose frames are not posed by a fix (`status`
     not used at their time: the carry fills them) and lie farther than LOST_S from every
     measurement, each from the measurement before them to the one after: the fixes used and
-    the keyframes kept, each (times (M,) s, positions (M, 3) ENU m). The camera's attitude is the track's under the registration's correction. (None,
-    "") where there is no such stretch; (None, what was said) where none could be scaled."""
+    the keyframes kept, each (times (M,) s, positions (M, 3) ENU m). The camera's attitude is
+    the track's under the registration's correction; seen: the corners a solve's earlier
+    carries tracked (flow_steps). (None, "") where there is no such stretch; (None, what was
+    said) where none could be scaled."""
     t_m = np.concatenate([fixes[0], keys[0]])
     if len(t_m) < 2:
         return None, ""
@@ -203,7 +248,13 @@ def video_flow(
     spans = ", ".join(named)
     try:
         steps = flow_steps(
-            session.video, times, indices, attitude, bearings_of(session), session.intrinsics.width
+            session.video,
+            times,
+            indices,
+            attitude,
+            bearings_of(session),
+            session.intrinsics.width,
+            seen,
         )
     except (GeofuseError, OSError, cv2.error) as exc:
         return None, f"the video's own motion over {spans} could not be read ({exc})"

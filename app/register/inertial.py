@@ -47,7 +47,7 @@ from app.camera.fixes import FixStatus
 from app.camera.trajectory import PoseTrack, PositionTrack, gap_intervals, gap_limit_s, hermite
 from app.geodesy import rotations
 from app.geodesy.enu import LocalFrame
-from app.register.flow_motion import Flow, video_flow
+from app.register.flow_motion import Flow, Seen, video_flow
 from app.register.fuse import Correction, Keyframe
 from app.register.gnss import (
     DISAGREES,
@@ -783,13 +783,15 @@ def carried_track(
     check: GnssCheck,
     correction: Correction,
     settings: InertialSettings = InertialSettings(),
+    seen: Seen | None = None,
 ) -> tuple[PositionTrack, Carried, GnssCheck]:
     """After registration: the track carried by the IMU's motion (under the registered
     attitude, `correction`) over the fixes of fixes_track that `check` kept and the keyframes
     used (module docstring), and without an IMU by the video's own motion where neither
     measures it (app.register.flow_motion); the fixes' positions with the rejected and missing
     ones taken from it (carried_positions; the others as they were); and check with each jump
-    whose fixes, moved back by it, were used (shifted_back) said so."""
+    whose fixes, moved back by it, were used (shifted_back) said so; seen: the corners the
+    video's motion tracked in a solve's earlier carries (app.register.flow_motion.Seen)."""
     motion = motion_of(session, fixes_track.poses, correction)
     fixes, enu, acc = _fixes(session, fixes_track)
     span = _video_span(session)
@@ -813,7 +815,7 @@ def carried_track(
         # no IMU: the video's own motion where nothing measured the track the carry fills
         fixed = (fixes.t[used], used_enu[used])
         flow, said = video_flow(
-            session, fixes_track, correction, fixed, (kt, kp), filled, check.status
+            session, fixes_track, correction, fixed, (kt, kp), filled, check.status, seen
         )
         if flow is not None:
             carried = carry(motion, fixes.t, used_enu, acc, used, kt, kp, settings, span, flow)

@@ -31,6 +31,7 @@ from app.geodesy import rotations
 from app.io.video import frames_at
 from app.register import coldstart, inertial
 from app.register.edges import EdgeSettings, cut_outline, fit_edges
+from app.register.flow_motion import Seen
 from app.register.fuse import (
     Correction,
     FuseSettings,
@@ -625,7 +626,8 @@ def registered_track(
         check = merged(tested_fixes(session, fixes_track, keyframes), screen.check)
         # where the GNSS lied or is missing the prior is carried by the IMU between the fixes
         # kept and the keyframes: no fusion across a lie, no straight line across an outage
-        positions, carried, said = _carried(session, fixes_track, keyframes, check, settings)
+        seen = Seen()  # the video's own motion, tracked once for the carries below
+        positions, carried, said = _carried(session, fixes_track, keyframes, check, settings, seen)
         if positions is not fixes_track.poses.positions or prior_track is not fixes_track:
             prior_track = _placed(fixes_track, positions)
             keyframes = _regated(keyframes, prior_track, settings)
@@ -635,10 +637,10 @@ def registered_track(
                 # the scene now carries, and the fixes they see are tested anew (else the
                 # honest ones before a jump, untested, are taken into the lie)
                 check = merged(tested_fixes(session, fixes_track, keyframes), screen.check)
-                positions, _, _ = _carried(session, fixes_track, keyframes, check, settings)
+                positions, _, _ = _carried(session, fixes_track, keyframes, check, settings, seen)
                 prior_track = _placed(fixes_track, positions)
                 keyframes = _regated(keyframes, prior_track, settings)
-            _, carried, said = _carried(session, fixes_track, keyframes, check, settings)
+            _, carried, said = _carried(session, fixes_track, keyframes, check, settings, seen)
         check = said
         t0 = float(session.frame_times[0])
         for lie in check.lies:
@@ -715,7 +717,9 @@ def _carried(
     keyframes: list[Keyframe],
     check: GnssCheck,
     settings: RegistrationSettings,
+    seen: Seen,
 ) -> tuple[PositionTrack, inertial.Carried, GnssCheck]:
-    """app.register.inertial.carried_track under the keyframes' attitude correction."""
+    """app.register.inertial.carried_track under the keyframes' attitude correction (seen:
+    the corners the video's motion tracked in the solve's carries so far)."""
     correction = Correction.from_keyframes(keyframes, settings.fuse)
-    return inertial.carried_track(session, fixes_track, keyframes, check, correction)
+    return inertial.carried_track(session, fixes_track, keyframes, check, correction, seen=seen)

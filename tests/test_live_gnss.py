@@ -212,6 +212,46 @@ def test_a_lie_begun_where_no_keyframe_registered_is_said_so(kind):
         assert said.items[0].startswith("GNSS disagrees with the scene from t = 15.0 s, 200 m")
 
 
+def _watched(lie, keyframes, fix_age=lambda t: 0.0, held=lambda t: 0.0) -> GnssWatch:
+    """A watch fed frames at 10 Hz over 0-100 s and keyframes at `keyframes` (s) on the circle,
+    their fixes lie(t) m east of the scene (accuracy 2 m), each frame's fix fix_age(t) s old and
+    held_off(t) m of the telemetry held off."""
+    watch = GnssWatch(Messages())
+    for t in np.arange(0.0, 100.0, 0.1).round(1):
+        if t in keyframes:
+            scene = _circle(np.array([t]))[0]
+            watch.keyframe(t, scene + [lie(t), 0.0, 0.0], scene, 2.0)
+        watch.frame(float(t), fix_age(t), held(t))
+    return watch
+
+
+def test_what_dates_a_lie_after_a_blind_stretch_and_what_does_not():
+    """An outage is no blind stretch: fixes missing 12-26 s, then 40 m off from their return
+    (jammed, then spoofed), is said from the fixes' return, and no span is said untested. A fog
+    longer than the watch's history (12-80 s) still dates a drag-off within it. A glitch held
+    off and let go before the fog ended (0.3 s at 14 s) does not date a drag-off from 20 s."""
+    before, after = [float(t) for t in range(0, 13)], [float(t) for t in range(26, 40)]
+    spoofed = _watched(
+        lambda t: 40.0 * (t >= 26.0),
+        before + after,
+        fix_age=lambda t: t - 12.0 if 12.0 <= t < 26.0 else 0.0,
+    )
+    assert spoofed.outages == [(12.0, 26.0)] and spoofed.unseen == []
+    got = spoofed.lies[0]
+    assert got.unseen_from_s is None and got.began_s == 26.0, got
+    assert "untested" not in spoofed.line()
+    long_fog = _watched(lambda t: 2.0 * max(t - 15.0, 0.0), before + [float(t) for t in range(80, 95)])  # fmt: skip
+    got = long_fog.lies[0]
+    assert (got.unseen_from_s, got.began_s) == (12.0, 80.0), got
+    glitch = _watched(
+        lambda t: 2.0 * max(t - 20.0, 0.0),
+        before + after,
+        held=lambda t: 50.0 if 14.0 <= t < 14.3 else 0.0,
+    )
+    got = glitch.lies[0]
+    assert (got.unseen_from_s, got.began_s) == (12.0, 26.0), got
+
+
 def test_frames_say_used_rejected_and_missing_and_an_outage_when_it_ends():
     """Frames at 10 Hz: fixes fresh to 30 s, none from 30 s to 42 s (the frame's newest fix
     ever older: missing once 5 s old, GAP_MIN_S), then a lie: keyframes at 43, 44 and 45 s

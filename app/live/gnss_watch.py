@@ -51,6 +51,7 @@ DRIFT_S = 6.0  # a drift judged over this long (s): the newest keyframe's one-si
 # a drag by a keyframe, so 2 m/s walks the 6 m floor only over longer than files' 4 s
 UNSEEN_S = 5.0  # keyframes tested farther apart than this (s): the fixes went untested between
 # (fog, sky, a featureless field: nothing registered), so a lie caught after began unseen
+HELD_LATE_S = 1.0  # a held-off jump still drawn held this close (s) to the keyframe past it
 
 
 @dataclass(frozen=True)
@@ -100,8 +101,8 @@ class GnssWatch:
         self.runs: list[list] = []  # [start s, end s, status]: frames drawn in a row, by status
         self.outages: list[tuple[float, float]] = []  # ended, (start, end) media s
         self.outage_since: float | None = None  # the last fix before the outage going on
-        self.unseen: list[tuple[float, float]] = []  # (last, next) keyframes UNSEEN_S apart
-        self._held_since: float | None = None  # the first frame of the last held-off jump
+        self.unseen: list[tuple[float, float]] = []  # (from, to) s: no keyframe tested fixes
+        self._held: list[float] | None = None  # [first, last] frame of the last held-off jump
         self.held_off_m = 0.0  # the telemetry's jumps the frame drawn last did not follow (m)
         self._far_off = False  # the newest keyframe's fix far off its own offset (`suspect`)
         self._lock = threading.Lock()
@@ -151,8 +152,9 @@ class GnssWatch:
         raw = fix - scene
         disagrees = bool(np.linalg.norm(raw[:2]) > h or abs(raw[2]) > v)
         with self._lock:
-            if self._t and t_s - self._t[-1] > UNSEEN_S:
-                self.unseen.append((self._t[-1], float(t_s)))
+            since = self._untested_since()
+            if since is not None and t_s - since > UNSEEN_S:
+                self.unseen.append((since, float(t_s)))
             self._t.append(float(t_s))
             self._fix.append(fix)
             self._scene.append(scene)
@@ -221,25 +223,32 @@ class GnssWatch:
         jumped = np.linalg.norm(step[:2]) > JUMP_SHARE * lie.worst_m
         return self._t[first] if jumped else lie.began_s
 
+    def _untested_since(self) -> float | None:
+        """Since when (media s) the fixes have gone untested: the last keyframe tested, or the
+        end of an outage after it (no fix to test before); None before any keyframe and while an
+        outage goes on. Under the lock."""
+        if not self._t or self.outage_since is not None:
+            return None
+        return max([self._t[-1], *(b for _, b in self.outages)])
+
     def _dated(self, lie: GnssLie) -> GnssLie:
-        """A lie caught now (began_s where the test put it), dated anew where the keyframes
-        before it left the fixes untested: where the run of keyframes whose own fixes disagree
-        (or the newest) follows the one before it by more than UNSEEN_S and the test puts the
-        start after that one, the lie began unseen between the two (`unseen_from_s`, began_s
-        the first that saw it), unless the telemetry's own jump was held off from a frame
-        between them (a jump: dated from that frame)."""
+        """A lie caught now (began_s where the test put it), dated anew where the fixes went
+        untested before it: where the run of keyframes whose own fixes disagree (or the newest)
+        begins an `unseen` span and the test puts the start inside it, the lie began unseen
+        within it (`unseen_from_s`, began_s the first keyframe that saw it), unless the
+        telemetry's own jump was held off from a frame inside it until that keyframe (a jump:
+        dated from that frame; a glitch held off and let go earlier dates nothing)."""
         first = len(self._t) - 1
         while first > 0 and self._dis[first] and self._dis[first - 1]:
             first -= 1
-        if first == 0:
+        after = self._t[first]
+        span = next((a for a, b in reversed(self.unseen) if b == after), None)
+        if span is None or lie.began_s < span:
             return lie
-        before, after = self._t[first - 1], self._t[first]
-        if after - before <= UNSEEN_S or lie.began_s < before:
-            return lie
-        held = self._held_since
-        if held is not None and before < held <= after:
-            return replace(lie, began_s=held)
-        return replace(lie, began_s=after, unseen_from_s=before)
+        held = self._held
+        if held is not None and span < held[0] <= after and held[1] >= after - HELD_LATE_S:
+            return replace(lie, began_s=held[0])
+        return replace(lie, began_s=after, unseen_from_s=span)
 
     def _alarm(self, lie: GnssLie) -> None:
         lie = self._dated(lie)
@@ -278,8 +287,11 @@ class GnssWatch:
         not the fix, carries it, so `missing`, an outage only past outage_s): counted, and an
         outage said when it ends."""
         with self._lock:
-            if held_off_m > 0.0 and self.held_off_m <= 0.0:  # (kept once it ends: the
-                self._held_since = float(t_s)  # keyframe that ends it may be tested after)
+            if held_off_m > 0.0:  # (kept once it ends: the keyframe past it is tested after)
+                if self.held_off_m > 0.0 and self._held is not None:
+                    self._held[1] = float(t_s)
+                else:
+                    self._held = [float(t_s), float(t_s)]
             self.held_off_m = held_off_m
             if fix_age_s > self.outage_s:
                 status = MISSING
@@ -316,9 +328,8 @@ class GnssWatch:
                 )
             if self.lying:
                 out.append((self.lies[-1].said(0.0, self.utc_of), REJECTED))
-            elif self._t and self.outage_since is None and t_s - self._t[-1] > UNSEEN_S:
-                since = clip_time(self._t[-1], 0.0, self.utc_of)
-                gone = t_s - self._t[-1]
+            elif (since_s := self._untested_since()) is not None and t_s - since_s > UNSEEN_S:
+                since, gone = clip_time(since_s, 0.0, self.utc_of), t_s - since_s
                 out.append(
                     (
                         f"GNSS untested since {since} ({gone:.0f} s): no keyframe has registered, so a lie would not be seen",

@@ -94,36 +94,45 @@ class Seen:
     """Corners tracked between a solve's frames, kept across its carries (each asks for its
     stretches again under another attitude correction, and decoding costs seconds a minute):
     per (frame, next frame) index pair their bearings (b1, b2 (N, 3) unit, OpenCV camera axes),
-    None where they did not track; the frames decoded, and those asked for."""
+    None where they did not track (or a frame did not decode, or the times do not increase)."""
 
     pairs: dict[tuple[int, int], tuple[FloatArray, FloatArray] | None] = field(default_factory=dict)
-    decoded: set[int] = field(default_factory=set)
-    asked: set[int] = field(default_factory=set)
 
     def track(
         self,
         video: VideoInfo,
         frame_times: FloatArray,
-        wanted: list[int],
+        wanted: list[tuple[int, int]],
         bearings: Callable[[np.ndarray], np.ndarray],
         display_width: int,
     ) -> None:
-        """Frames `wanted` (increasing) decoded in one pass, reduced to FLOW_WIDTH_PX, and the
-        corners tracked between each and the one decoded before it (app.sync.flow.tracked)."""
-        prev = None
-        for i, rgb in frames_at(video, wanted, long_side=2 * FLOW_WIDTH_PX):
+        """The pairs `wanted` (increasing) not yet tracked: their frames decoded in one pass,
+        reduced to FLOW_WIDTH_PX, and the corners tracked from each pair's first to its second
+        (app.sync.flow.tracked)."""
+        need = [p for p in wanted if p not in self.pairs]
+        if not need:
+            return
+        frames = sorted({i for p in need for i in p})
+        starts = {a: b for a, b in need}
+        open_: dict[int, np.ndarray] = {}  # the first frames of pairs whose second is to come
+        for i, rgb in frames_at(video, frames, long_side=2 * FLOW_WIDTH_PX):
             scale = FLOW_WIDTH_PX / rgb.shape[1]
             size = (FLOW_WIDTH_PX, max(2, round(rgb.shape[0] * scale)))
             small = cv2.resize(rgb, size, interpolation=cv2.INTER_AREA)
             grey = cv2.cvtColor(small, cv2.COLOR_RGB2GRAY)
-            self.decoded.add(i)
-            if prev is not None and frame_times[i] > frame_times[prev[0]]:
-                pairs = tracked(prev[1], grey, FLOW_WIDTH_PX / display_width)
-                self.pairs[(prev[0], i)] = (
-                    None if pairs is None else (bearings(pairs[0]), bearings(pairs[1]))
+            for a in [a for a in open_ if starts[a] == i]:
+                corners = None
+                if frame_times[i] > frame_times[a]:
+                    corners = tracked(open_.pop(a), grey, FLOW_WIDTH_PX / display_width)
+                else:
+                    open_.pop(a)
+                self.pairs[(a, i)] = (
+                    None if corners is None else (bearings(corners[0]), bearings(corners[1]))
                 )
-            prev = (i, grey)
-        self.asked.update(wanted)
+            if i in starts:
+                open_[i] = grey
+        for p in need:  # a frame that did not decode: no step
+            self.pairs.setdefault(p, None)
 
 
 def flow_steps(
@@ -139,26 +148,18 @@ def flow_steps(
     decoded in one pass, reduced to FLOW_WIDTH_PX), at session times frame_times (F,) s, under
     attitude(t (M,) s) -> (M, 4) camera -> ENU; bearings: display pixels (N, 2) -> unit
     bearings (N, 3) in OpenCV camera axes; display_width: the display's width (px); seen: the
-    corners an earlier call tracked (decoded again only where a pair is not among them). A
-    pair whose corners do not track, or look too little down, gives no step."""
+    corners earlier calls tracked (only the pairs not among them are decoded). A pair whose
+    corners do not track, or look too little down, gives no step."""
     seen = Seen() if seen is None else seen
-
-    def pairs_of(wanted: list[int]) -> list[tuple[int, int]]:
-        got = [i for i in wanted if i in seen.decoded]
-        ends = zip(got, got[1:], strict=False)
-        return [(a, b) for a, b in ends if frame_times[b] > frame_times[a]]
-
     wanted = [int(i) for i in indices]
-    pairs = pairs_of(wanted)
-    if not set(wanted) <= seen.asked or any(p not in seen.pairs for p in pairs):
-        seen.track(video, frame_times, wanted, bearings, display_width)
-        pairs = pairs_of(wanted)
-    ends = sorted({i for pair in pairs for i in pair})
+    pairs = list(zip(wanted, wanted[1:], strict=False))
+    seen.track(video, frame_times, pairs, bearings, display_width)
+    pairs = [p for p in pairs if seen.pairs[p] is not None]
+    ends = sorted({i for p in pairs for i in p})
     q_of = dict(zip(ends, attitude(np.asarray(frame_times, np.float64)[ends]), strict=True))
     ts, dts, steps = [], [], []
     for a, b in pairs:
-        corners = seen.pairs[(a, b)]
-        step = None if corners is None else ground_step(*corners, q_of[a], q_of[b])
+        step = ground_step(*seen.pairs[(a, b)], q_of[a], q_of[b])
         if step is not None:
             ts.append(0.5 * (frame_times[a] + frame_times[b]))
             dts.append(frame_times[b] - frame_times[a])
@@ -236,7 +237,9 @@ def video_flow(
     near = np.zeros(len(times), bool)
     for a, b in runs:
         near |= (times >= a - MARGIN_S) & (times <= b + MARGIN_S)
-    indices = np.flatnonzero(near)[::STRIDE]
+    # every STRIDE-th frame of the video (not of the stretch: a solve's carries, whose
+    # stretches move by a frame or two, ask for the same pairs, tracked once: Seen)
+    indices = np.flatnonzero(near & (np.arange(len(times)) % STRIDE == 0))
 
     def attitude(t: FloatArray) -> FloatArray:
         _, _, q = track.poses.at(t)

@@ -245,7 +245,7 @@ class _Inputs:
     position the acceleration adds (dv, dx (M-1, 3)) and its horizontal jerk (dyn (M-1,) m/s^3);
     per node the fix measured there (fix (M,) index, -1 none), the keyframe (key (M,)) and the
     velocity the video's own motion measured (vel (M,) index into flow: those of
-    app.register.flow_motion's inside the nodes' span, None where there are none)."""
+    app.register.flow_motion's inside the nodes' span; None where none was given)."""
 
     t: FloatArray
     dv: FloatArray

@@ -260,3 +260,34 @@ def test_frames_late_in_a_video_are_sought_not_decoded_up_to(tmp_path, suffix, m
     for i in late:
         np.testing.assert_array_equal(sought[i], from_start[i])
     assert len(decoded) < 600 - 450 + 260, len(decoded)  # at most a GOP before (x264's 250)
+
+
+def test_a_seek_that_lands_past_the_frames_wanted_backs_off(tmp_path, monkeypatch):
+    """FFmpeg's search in a file without an index may land past the time asked: the first seek
+    here lands 3 s late (its frames before that dropped), so decoded_at seeks 2 s earlier, and
+    gives the same pixels as a decode from the start; seeks that always land past the first
+    frame wanted (15 s) back off 2 s, then 10 s, and end in a decode from the start."""
+    path = write_video(tmp_path / "clip.ts", np.arange(600) / 30.0, (96, 64), 0)
+    info = probe(path)
+    late = list(range(450, 600, 7))
+    from_start = dict(frames_at(info, [0, *late]))
+    timed, asked = video._timed, []
+
+    def landing_late(container, stream, origin_s, from_s=None, always=False):
+        asked.append(from_s)
+        frames = timed(container, stream, origin_s, from_s)
+        if from_s is None or (len(asked) > 1 and not always):
+            yield from frames
+            return
+        lands = 16.0 if always else from_s + 3.0  # (always: past the first frame wanted)
+        yield from ((t, f) for t, f in frames if t >= lands)
+
+    monkeypatch.setattr(video, "_timed", landing_late)
+    sought = dict(frames_at(info, late))
+    assert asked == pytest.approx([14.983, 12.983], abs=1e-3)  # the second, 2 s back, lands
+    for i in late:
+        np.testing.assert_array_equal(sought[i], from_start[i])
+    asked.clear()
+    monkeypatch.setattr(video, "_timed", lambda *args, **kw: landing_late(*args, **kw, always=True))
+    assert sorted(dict(frames_at(info, late))) == late
+    assert asked[:3] == pytest.approx([14.983, 12.983, 4.983], abs=1e-3) and asked[3:] == [None]

@@ -16,7 +16,8 @@ import pytest
 from app.cli import main
 from app.footage.clips import open_clip
 from app.geodesy.enu import LocalFrame
-from app.register import inertial
+from app.io.video import frames_at
+from app.register import flow_motion, inertial
 from app.register.fuse import Correction
 from app.register.solve import RegistrationSettings, default_prior
 from app.scene.layers import Layer
@@ -214,3 +215,35 @@ def test_where_no_keyframe_registers_either_the_videos_own_motion_carries_the_tr
     assert smoothed[0] > 3.0 and smoothed[1] > 4.0  # the swing a smooth track cuts
     assert carried[0] < 0.4 * smoothed[0] and carried[1] < 0.4 * smoothed[1], (carried, smoothed)
     assert carried_ratio < 1.5 and smoothed_ratio < 1.5, (carried_ratio, smoothed_ratio)
+
+
+def test_a_solves_carries_track_the_videos_motion_once(clip, monkeypatch):
+    """The carries of one solve (app.register.solve.registered_track: up to three, their
+    keyframes gated anew) share the corners tracked (flow_motion.Seen): asked again, or with
+    the keyframes after the outage set aside (the fixes there still bound the stretch, and the
+    frames lie on the same grid), a carry decodes nothing: 80 frames once, where each carry
+    decoded them before."""
+    video, site = clip
+    srt = video.with_suffix(".SRT")
+    srt.write_text(drone.srt_text(SECONDS, 0.0, gimbal=True, outage=OUTAGE), encoding="utf-8")
+    session = open_clip(video, srt, layers=(Layer.of(site),))
+    reg = solve_track(session, "registered").registration
+    t0 = float(session.frame_times[0])
+    prior = camera_track(session, default_prior(session))
+    lost = [k for k in reg.keyframes if not OUTAGE[0] <= k.time_s - t0 <= OUTAGE[1]]
+    fewer = [k for k in lost if k.time_s - t0 < OUTAGE[1]]  # those after the outage set aside
+    decoded = []
+
+    def counted(info, indices, *args, **kwargs):
+        decoded.append(len(indices))
+        return frames_at(info, indices, *args, **kwargs)
+
+    monkeypatch.setattr(flow_motion, "frames_at", counted)
+    seen = flow_motion.Seen()
+    for keyframes in (lost, lost, fewer):
+        correction = Correction.from_keyframes(keyframes, RegistrationSettings().fuse)
+        _, carried, _ = inertial.carried_track(
+            session, prior, keyframes, reg.gnss, correction, seen=seen
+        )
+        assert "the video's own motion carries the track there" in carried.said
+    assert len(decoded) == 1 and decoded[0] > 40, decoded

@@ -31,8 +31,8 @@ tell a lie from its own drift (seconds: its spread grows as the cube of the time
 drag-off of 1 or 2 m/s hides in the GNSS's own wander, and the scene's keyframes catch it).
 `carry` runs the filter forward and back (Rauch-Tung-Striebel) over the fixes kept, the
 registered keyframes and, without an IMU, the velocities the video's own motion measured where
-neither reaches (app.register.flow_motion): the position, its standard deviation per axis and the GNSS error at any
-time (`Carried`). Times are session seconds; positions local ENU metres.
+neither reaches (app.register.flow_motion): the position, its standard deviation per axis and
+the GNSS error at any time (`Carried`). Times are session seconds; positions local ENU metres.
 """
 
 from __future__ import annotations
@@ -73,9 +73,8 @@ class InertialSettings:
     at the start (m/s^2); no_imu_noise: the white error where there is no accelerometer
     (m/s^2/sqrt(Hz): the platform keeps its velocity, give or take; a drone weaving at 9 m/s,
     4 m/s^2 at most, is carried 6 s between the measurements around with a median error of
-    1.1 times its standard deviation at 2, 2.4 times at 1: docs/ACCURACY.md);
-    gnss_tau_s: the GNSS
-    error's correlation time (s); white_share: its white part, a share of the stated accuracy;
+    1.1 times its standard deviation at 2, 2.4 times at 1: docs/ACCURACY.md); gnss_tau_s: the
+    GNSS error's correlation time (s); white_share: its white part, a share of the stated accuracy;
     v_ratio: the height's accuracy against the stated horizontal one; accuracy_m: the accuracy
     (m) where the fixes state none; key_sigma_m: a registered keyframe's position error (m, each
     axis; the registered pose's, app.solve.uncertainty); n_sigma: the IMU test's threshold
@@ -805,21 +804,21 @@ def carried_track(
     outages = check.status.outages(*filled) if filled[1] > filled[0] else []
     rejected = check.status.rejected
     used, used_enu = ~rejected, enu
-    carried = carry(motion, fixes.t, enu, acc, used, kt, kp, settings, span)
     if rejected.any() and (motion.felt or len(kt) >= 2):
-        back = shifted_back(motion, fixes.t, enu, acc, check, carried, settings, kt, kp)
+        first = carry(motion, fixes.t, enu, acc, used, kt, kp, settings, span)
+        back = shifted_back(motion, fixes.t, enu, acc, check, first, settings, kt, kp)
         if back.use.any():
             check, used, used_enu = back.check, ~rejected | back.use, back.enu
-            carried = carry(motion, fixes.t, used_enu, acc, used, kt, kp, settings, span)
+    flow, said = None, ""
     if not motion.felt and (rejected.any() or outages):
         # no IMU: the video's own motion where nothing measured the track the carry fills
         fixed = (fixes.t[used], used_enu[used])
         flow, said = video_flow(
             session, fixes_track, correction, fixed, (kt, kp), filled, check.status, seen
         )
-        if flow is not None:
-            carried = carry(motion, fixes.t, used_enu, acc, used, kt, kp, settings, span, flow)
-        carried = replace(carried, said=said)
+    # the one carry kept: over the fixes used (some moved back), the keyframes and the flow
+    carried = carry(motion, fixes.t, used_enu, acc, used, kt, kp, settings, span, flow)
+    carried = replace(carried, said=said)
     if rejected.all() and not len(kt):  # nothing measured it: the fixes as they were
         return fixes, carried, check
     if not motion.felt and not rejected.any() and not outages:

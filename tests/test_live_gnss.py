@@ -18,12 +18,14 @@ from app.camera.fixes import MISSING, REJECTED, USED
 from app.camera.intrinsics import Intrinsics
 from app.camera.pinhole import Camera
 from app.core.messages import Messages
+from app.geodesy import rotations
 from app.io.mavlink import MavlinkTelemetry
 from app.live.gnss_watch import JUMP_FAR, GnssWatch
 from app.live.pose import JUMP_EDGE_S, JUMP_RUN
 from app.live.register import LIE_FIT, Kept, LiveRegistration, shift_model
 from app.live.run import LiveOptions, run_sent
 from app.register.gnss import FROZEN, GnssLie
+from app.register.keyframe import PoseFix
 from app.simulate import drone, sensors
 from app.simulate.downlink import SITE, sample_layer, write_downlinks
 from app.simulate.lies import Lie
@@ -306,6 +308,57 @@ def test_under_a_frozen_fix_the_shift_moves_as_the_last_two_keyframes_do():
     shift, rate = shift_model(kept, frozen=True)
     np.testing.assert_allclose(shift, [18, 9, 0])
     np.testing.assert_allclose(rate, [0, 9, 0])
+
+
+class _Registered:
+    """A stand-in for the live registrar: each keyframe registers where the test says (ENU m),
+    turned by the angle it says (deg, about the camera's z) from the telemetry's attitude."""
+
+    def __init__(self) -> None:
+        self.at: tuple[np.ndarray, float] = (np.zeros(3), 0.0)
+
+    def keyframe(self, rgb, start: Camera):
+        where, turn_deg = self.at
+        q = rotations.multiply(np.asarray(start.orientation), rotations.from_rotvec([0, 0, np.radians(turn_deg)]))  # fmt: skip
+        solved = Camera.create(start.intrinsics, where, q, start.near, start.far)
+        return PoseFix(True, "", 80, 60, 0.5), solved, None
+
+
+def _gated(after: list[tuple[float, np.ndarray, float]]) -> tuple[LiveRegistration, list[bool]]:
+    """Keyframes of a flight east at 10 m/s (70 m up) registered where it was at 0-3 s under a
+    clean fix, then none (a fog) while the fix drags north at 2 m/s from 5 s, then `after`:
+    (media s, offset from the truth (ENU m), turned (deg)) each; whether each of those was kept."""
+    truth = lambda t: np.array([10.0 * t, 0.0, 70.0])  # noqa: E731
+    fix = lambda t: truth(t) + [0.0, 2.0 * max(t - 5.0, 0.0), 0.0]  # noqa: E731
+    reg = LiveRegistration(None, Messages(), fix_at=fix)  # never started: no scene
+    registrar, planes = _Registered(), (np.zeros((8, 8), np.uint8), np.zeros((4, 4), np.uint8), np.zeros((4, 4), np.uint8))  # fmt: skip
+    intrinsics = Intrinsics.from_fov(64, 36, 60.0)
+    kept = []
+    for t, off, turn in [(float(t), np.zeros(3), 0.0) for t in range(4)] + after:
+        registrar.at = (truth(t) + off, turn)
+        before = reg.state.registered
+        reg._keyframe(registrar, t, planes, Camera.create(intrinsics, fix(t), [1.0, 0, 0, 0]))
+        kept.append(reg.state.registered > before)
+    assert kept[:4] == [True] * 4
+    return reg, kept[4:]
+
+
+def test_after_a_blind_stretch_the_second_keyframe_is_kept_and_one_astray_leads_nothing():
+    """After 11 s with no keyframe the drawn camera is 20 m off (the drag), no chain is left:
+    the first keyframe is set aside (it agrees with nothing), the second kept where it lies
+    within reach of where the first leads carried by the fix's own motion (2 m off: the drag's
+    second). One registered astray and turned (5 deg: a GNSS lie never turns the camera) leads
+    no chain: the keyframe after it is kept on the first's lead, two seconds on. One astray but
+    not turned, 15 m off that lead, is still set aside. (On the code before, the second needed
+    a third, and the one astray took the chain with it: 17 s kept nothing.)"""
+    on = np.zeros(3)  # registered where the camera was
+    _, kept = _gated([(15.0, on, 0.0), (16.0, on, 0.0)])
+    assert kept == [False, True]
+    astray = np.array([30.0, -40.0, -70.0])
+    _, kept = _gated([(15.0, on, 0.0), (16.0, astray, 5.0), (17.0, on, 0.0)])
+    assert kept == [False, False, True]
+    _, kept = _gated([(15.0, on, 0.0), (16.0, np.array([0.0, 15.0, 0.0]), 0.0)])
+    assert kept == [False, False]
 
 
 def test_a_jump_in_the_telemetry_is_held_off_until_a_keyframe_past_it():

@@ -23,10 +23,11 @@ out: a jump), each where it lies more than RegistrationSettings.chain_m from tho
 (a GNSS that jumps or drags off must not lose the scene); last from the telemetry's own camera. A
 keyframe is kept where it agrees with the correction (within GATE_M of the camera drawn) or with
 the scene's own motion (within the chain's reach, chain_m plus half ACCEL_MPS2 t^2 up to
-CHAIN_MAX_M, of where the last two registered keyframes, within CHAIN_S, lead): once GATED have
-been kept, one that agrees with neither is set aside (counted) as a mismatch; once TURN_GATED have
-been kept, so is one whose rotation lies more than GATE_DEG from the median of theirs (a GNSS lie
-moves the position, never the attitude). The rotation is gated only once the telemetry's
+CHAIN_MAX_M, of where the last two registered keyframes, within CHAIN_S, lead, or where the last
+one leads carried by the telemetry's motion): once GATED have been kept, one that agrees with none
+is set aside (counted) as a mismatch; once TURN_GATED have been kept, so is one whose rotation
+lies more than GATE_DEG from the median of theirs (a GNSS lie moves the position, never the
+attitude: such a keyframe registered astray, and leads no chain). The rotation is gated only once the telemetry's
 attitude is settled (`settled`: a MAVLink feed's once the video's lag behind it is estimated,
 until then the turns show the lag), and from the keyframes kept since: those before had the lag
 in them. A keyframe is offered every `every_s` of video while the
@@ -389,7 +390,6 @@ class LiveRegistration(Worker):
             s.last_failure = fix.reason
             return
         where = np.asarray(solved.position, np.float64)
-        self._solved = (self._solved + [(t, where)])[-2:]
         shift = where - np.asarray(prior.position)
         delta = rotations.multiply(
             rotations.conjugate(np.asarray(prior.orientation)), np.asarray(solved.orientation)
@@ -404,7 +404,10 @@ class LiveRegistration(Worker):
             and np.degrees(np.linalg.norm(rotvec - np.median(gating, axis=0))) > GATE_DEG
         )
         gated = len(s.kept) >= GATED and not searched
-        if turned or (gated and not self._agrees(where, start, chain)):
+        agrees = not gated or self._agrees(where, start, chain, t)
+        if not turned:  # (turned: registered astray, its position no lead for the next)
+            self._solved = (self._solved + [(t, where)])[-2:]
+        if turned or not agrees:
             s.mismatched += 1
             return
         s.registered += 1
@@ -436,16 +439,24 @@ class LiveRegistration(Worker):
                 f"{np.degrees(np.linalg.norm(rotvec)):.1f} deg off; corrected from then on"
             )
 
-    def _agrees(self, where: np.ndarray, start: Camera, chain) -> bool:
-        """Whether a registered keyframe's position (ENU m) agrees with the camera drawn
-        (`start`) or with the scene's own motion (`chain`: where the last registered keyframes
-        lead, and how far ahead (s))."""
+    def _agrees(self, where: np.ndarray, start: Camera, chain, t: float) -> bool:
+        """Whether a keyframe of media time t (s) registered at `where` (ENU m) agrees with the
+        camera drawn (`start`), with the scene's own motion (`chain`: where the last two
+        registered keyframes lead, and how far ahead (s)), or with where the last one, within
+        CHAIN_S, leads carried by the telemetry's own motion (`_carried`: after a stretch
+        where none registered, the second keyframe needs no third to be kept; a drag moves
+        that lead by its speed times the gap, 2 m in a second at 2 m/s)."""
         if np.linalg.norm(where - np.asarray(start.position)) <= GATE_M:
             return True
-        if chain is None:
-            return False
-        reach = min(self.settings.chain_m + 0.5 * ACCEL_MPS2 * chain[1] ** 2, CHAIN_MAX_M)
-        return bool(np.linalg.norm(where - chain[0]) <= reach)
+        leads = [chain] if chain is not None else []
+        if self._solved and t - self._solved[-1][0] <= CHAIN_S:
+            carried = self._carried(t)
+            if carried is not None:
+                leads.append((carried, t - self._solved[-1][0]))
+        return any(
+            np.linalg.norm(where - lead) <= min(self.settings.chain_m + 0.5 * ACCEL_MPS2 * ahead**2, CHAIN_MAX_M)
+            for lead, ahead in leads
+        )  # fmt: skip
 
 
 def shift_model(kept: list[Kept], frozen: bool = False) -> tuple[np.ndarray, np.ndarray]:

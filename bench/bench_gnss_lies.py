@@ -324,7 +324,7 @@ def live_main(args: argparse.Namespace) -> int:
                 clean = live_run(paths[0], args.accuracy, flight)
                 spacing = float(np.median(np.diff(clean["keyframes"]))) if len(clean["keyframes"]) > 1 else float("nan")  # fmt: skip
                 n_rej = int(np.sum(clean["gnss"] == REJECTED))
-                rows.append([name, seed, "clean", len(clean["caught"]), " ".join(clean["kinds"]), "", "", "", "", f"{n_rej} frames", "", f"{np.median(clean['error']):.2f}", f"{spacing:.2f}"])  # fmt: skip
+                rows.append([name, seed, "clean", len(clean["caught"]), " ".join(clean["kinds"]), "", "", "", f"{n_rej} frames", "", "", f"{np.median(clean['error']):.2f}", f"{spacing:.2f}"])  # fmt: skip
                 figures.append({"flight": name, "seed": seed, "lie": "clean", "alarms": len(clean["caught"]), "kinds": clean["kinds"], "rejected_frames": n_rej, "median_error_m": float(np.median(clean["error"])), "keyframe_spacing_s": spacing})  # fmt: skip
                 print(rows[-1], clean["summary"], file=sys.stderr)
                 for lie, path in zip(lies[1:], paths[1:], strict=True):

@@ -65,6 +65,9 @@ def test_a_step_kept_between_fixes_is_not_curved_either_side():
     want = np.where(tq < 9.0, 0.0, np.where(tq >= 10.0, 200.0, 200.0 * (tq - 9.0)))
     np.testing.assert_allclose(got[:, 1], want, atol=1e-3)
     np.testing.assert_allclose(got[:, 0], 10.0 * tq, atol=1e-3)
+    # the breaks found while estimating the velocities are those found afresh from the fixes
+    given = PositionTrack.from_fixes(t, llh[:, 0], llh[:, 1], llh[:, 2], track.vel_enu)
+    np.testing.assert_allclose(given.geodetic_at(tq), track.geodetic_at(tq), atol=1e-9)
 
 
 def test_slerp_crosses_the_heading_wrap():

@@ -122,16 +122,18 @@ class PositionTrack:
         t, lat, lon, h = (np.asarray(a, np.float64) for a in (t, lat, lon, h))
         if len(t) < 2 or np.any(np.diff(t) <= 0):
             raise ValueError("need at least 2 fixes with strictly increasing times")
-        if vel_enu is None:
-            frame = LocalFrame(float(lat[0]), float(lon[0]), float(h[0]))
-            enu = frame.geodetic_to_enu(lat, lon, h)
-            vel = np.zeros_like(enu)
-            cuts = np.flatnonzero(breaks(t, enu)) + 1
-            for a, b in zip(np.r_[0, cuts], np.r_[cuts, len(t)], strict=True):
-                vel[a:b] = estimate_velocity(t[a:b], enu[a:b])  # within a stretch only
-        else:
-            vel = np.asarray(vel_enu, np.float64)
-        return cls(t, lat, lon, h, vel)
+        if vel_enu is not None:
+            return cls(t, lat, lon, h, np.asarray(vel_enu, np.float64))
+        frame = LocalFrame(float(lat[0]), float(lon[0]), float(h[0]))
+        enu = frame.geodetic_to_enu(lat, lon, h)
+        vel = np.zeros_like(enu)
+        gaps = breaks(t, enu)
+        cuts = np.flatnonzero(gaps) + 1
+        for a, b in zip(np.r_[0, cuts], np.r_[cuts, len(t)], strict=True):
+            vel[a:b] = estimate_velocity(t[a:b], enu[a:b])  # within a stretch only
+        track = cls(t, lat, lon, h, vel)
+        track.__dict__["_gaps"] = gaps  # the cached breaks (_gaps), found once here
+        return track
 
     @cached_property
     def _hermite_nodes(self) -> tuple[FloatArray, FloatArray]:
@@ -154,6 +156,7 @@ class PositionTrack:
 
     @cached_property
     def _gaps(self) -> npt.NDArray[np.bool_]:
+        """(N-1,) the intervals no curve crosses (breaks), in the frame at the first fix."""
         frame = LocalFrame(float(self.lat[0]), float(self.lon[0]), float(self.h[0]))
         return breaks(self.t, frame.geodetic_to_enu(self.lat, self.lon, self.h))
 

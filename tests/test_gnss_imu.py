@@ -379,6 +379,46 @@ def test_a_drag_off_and_a_frozen_fix_are_not_moved_back():
         back = shifted_back(m, t, fixes, acc, check, _carried_over_kept(t, fixes, acc, m, check))
         assert not back.use.any() and back.check is check
         np.testing.assert_array_equal(back.enu, fixes)
+        # the drag-off's fixes are named for `carry` to learn its line; a frozen fix's are not
+        after = check.status.rejected & (t >= check.lies[0].began_s)
+        assert ((back.drags.lie[after] == 0) if lie.kind == "drag" else (back.drags.lie < 0)).all()
+        assert (back.drags.lie[t < 25.0] < 0).all()
+        assert back.drags.steady_s[0] == check.lies[0].caught_s
+
+
+@pytest.mark.parametrize("seed", range(1, 5))
+def test_a_drag_offs_fixes_less_its_line_carry_the_track_where_nothing_registers(seed):
+    """A 5 m/s drag-off east from 20 s; keyframes every 0.5 s at the truth (0.1 m of noise) to
+    35 s, then none for 24 s (a turn over grass). Carried by the IMU alone (its 0.1 m/s^2
+    error) the track drifts 16-23 m off by the end, its sigma 54 m; carried on the drag's
+    fixes less the drag's line (learnt from the keyframes under it, and the IMU), it stays
+    closer all through the blind stretch, its sigma under half the IMU's and still covering
+    the error (within the norm of the per-axis sigma)."""
+    t, fixes, acc = _fixes(seed, Lie("drag", 20.0, speed_mps=5.0))
+    m = _circle_motion(t[0], t[-1])
+    kt = np.arange(0.0, 35.0, 0.5)
+    kp = _circle(kt) + np.random.default_rng(seed).normal(0, 0.1, (len(kt), 3))
+    check = merged(check_fixes(t, fixes, acc, kt, kp), check_against_imu(m, t, fixes, acc))
+    assert [lie.kind for lie in check.lies] == [DISAGREES]
+    alone = _carried_over_kept(t, fixes, acc, m, check, kt, kp)
+    back = shifted_back(m, t, fixes, acc, check, alone, t_key=kt, enu_key=kp)
+    assert not back.use.any() and (back.drags.lie[t > 25.0] == 0).all()
+    dragged = carry(m, t, fixes, acc, ~check.status.rejected, kt, kp, drags=back.drags)
+    blind = alone.t >= 35.0
+    np.testing.assert_array_equal(dragged.t, alone.t)
+    err = {
+        name: np.linalg.norm(c.p[blind] - _circle(c.t[blind]), axis=1)
+        for name, c in (("alone", alone), ("dragged", dragged))
+    }
+    sigma = {
+        name: np.linalg.norm(c.sigma[blind], axis=1)
+        for name, c in (("alone", alone), ("dragged", dragged))
+    }
+    assert err["alone"].max() > 15.0
+    assert err["dragged"].max() < err["alone"].max()
+    assert np.median(err["dragged"]) < np.median(err["alone"])
+    assert sigma["dragged"][-1] < 0.5 * sigma["alone"][-1]
+    assert (err["dragged"] <= sigma["dragged"]).all()
 
 
 def test_a_jump_then_a_drag_off_uses_the_moved_fixes_only_until_the_drag_shows():

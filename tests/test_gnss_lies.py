@@ -374,6 +374,9 @@ def test_a_drag_off_is_caught_within_seconds_and_not_followed(solved):
     # may point against the drag, is undone first (5.8-6.8 s at 2 m/s on 40 s sessions,
     # docs/ACCURACY.md; 5.2 s here)
     assert caught - (LIE_FROM_S + 2.5 / 3.0) <= 6.0
+    # its fixes, less the drag's line, carry the track where no keyframe registers, and say so
+    said = track.registration.gnss.lies[0].said(0.0)
+    assert "not used as given" in said and "the fixes' motion less the drag's line" in said, said
     assert (poses.gnss[t < LIE_FROM_S - 3.0] == USED).all()
     assert np.mean(poses.gnss[t >= caught] == REJECTED) >= 0.95
     during = t >= LIE_FROM_S

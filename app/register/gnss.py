@@ -133,7 +133,8 @@ class GnssLie:
     session s): a jump whose offset held, its fixes moved back by it and used over that span
     (app.register.inertial.shifted_back), else None; unseen_from_s: a lie caught live after a
     stretch where no keyframe tested the fixes (app.live.gnss_watch) began after this (session
-    s) and by began_s, unseen between (else None)."""
+    s) and by began_s, unseen between (else None); dragged: a drag-off whose fixes, less its
+    line, carry the track where no keyframe registered (app.register.inertial.shifted_back)."""
 
     began_s: float
     caught_s: float
@@ -147,6 +148,7 @@ class GnssLie:
     shift: FloatArray | None = None
     shifted_s: tuple[float, float] | None = None
     unseen_from_s: float | None = None
+    dragged: bool = False
 
     def said(self, t0_s: float, utc_of: Callable[[float], float | None] | None = None) -> str:
         """One line for people, clip times from the first frame's session time t0_s (s) and
@@ -171,6 +173,11 @@ class GnssLie:
             stands += " and the IMU's motion"
         caught = f"caught at t = {self.caught_s - t0_s:.1f} s"
         tail = f": not used ({caught}; the track stands on {stands} there)"
+        if self.dragged:
+            tail = (
+                f": not used as given ({caught}; the track stands on {stands} there, and where"
+                " none registered on the fixes' motion less the drag's line)"
+            )
         far, by, what = f"{self.worst_m:.0f} m", when(self.worst_s), WITNESS_WORDS[self.witness]
         if self.shift is not None and self.shifted_s is not None:
             e, n, u = self.shift

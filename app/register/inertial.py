@@ -32,7 +32,10 @@ drag-off of 1 or 2 m/s hides in the GNSS's own wander, and the scene's keyframes
 `carry` runs the filter forward and back (Rauch-Tung-Striebel) over the fixes kept, the
 registered keyframes and, without an IMU, the velocities the video's own motion measured where
 neither reaches (app.register.flow_motion): the position, its standard deviation per axis and
-the GNSS error at any time (`Carried`). Times are session seconds; positions local ENU metres.
+the GNSS error at any time (`Carried`). With an IMU, a drag-off's fixes are used too, as the
+position plus the GNSS error plus the drag's offset, whose offset and rate are two more states
+learnt from the keyframes under it and the IMU: where no keyframe registers (a turn over
+grass), its fixes' motion less the drag's line carries the track, not the IMU alone. Times are session seconds; positions local ENU metres.
 """
 
 from __future__ import annotations
@@ -82,8 +85,11 @@ class InertialSettings:
     chi-square); v0_sigma: the velocity's spread at the start (m/s); windows_s: besides the fix
     before, each fix is tested against the state these many seconds before it, carried by the
     IMU alone (s); probation: after a fix failed, this many in a row must pass before one is
-    used again (a lie that the filter's growing spread lets one fix through does not pull it).
-    Tuned on simulated orbits and surveys (docs/ACCURACY.md, issue 52): no alarm on 20 clean
+    used again (a lie that the filter's growing spread lets one fix through does not pull it);
+    drag_speed0: a drag-off's rate's spread where it begins (m/s, each axis); how fast that
+    rate walks (m/s/sqrt(s)): drag_walk_onset until its alarm (it began somewhere between
+    where it was dated and there), drag_walk after; its offset's spread where it begins: twice
+    the fix's accuracy (`carry`'s drags). Tuned on simulated orbits and surveys (docs/ACCURACY.md, issue 52): no alarm on 20 clean
     sessions with multipath bursts."""
 
     step_s: float = 0.25
@@ -101,6 +107,9 @@ class InertialSettings:
     v0_sigma: float = 2.0
     windows_s: tuple[float, ...] = (3.0, 8.0)
     probation: int = 3
+    drag_speed0: float = 10.0
+    drag_walk_onset: float = 1.0
+    drag_walk: float = 0.1
 
 
 @dataclass(frozen=True)
@@ -239,6 +248,16 @@ class Carried:
 
 
 @dataclass(frozen=True)
+class Drags:
+    """The drag-offs among the fixes: lie (N,) the one each fix belongs to (an index into
+    steady_s; -1: none), steady_s (L,) from when each one's rate is taken as steady (its
+    alarm, session s: it began somewhere between where it was dated and there)."""
+
+    lie: npt.NDArray[np.int64]
+    steady_s: FloatArray
+
+
+@dataclass(frozen=True)
 class _Inputs:
     """What the filter runs on: nodes t (M,); per interval k (t[k] -> t[k+1]) the velocity and
     position the acceleration adds (dv, dx (M-1, 3)) and its horizontal jerk (dyn (M-1,) m/s^3);
@@ -315,6 +334,12 @@ def _noise(dt: float, q_a: float, q_b: float, gm: FloatArray, phi: float) -> Flo
 _FIX_H = np.array([1.0, 0.0, 0.0, 1.0])  # a fix: position + the GNSS's own error
 _KEY_H = np.array([1.0, 0.0, 0.0, 0.0])  # a keyframe: the position
 _VEL_H = np.array([0.0, 1.0, 0.0, 0.0])  # the video's own motion: the velocity
+_DRAG_H = np.array([1.0, 0.0, 0.0, 1.0, 1.0, 0.0])  # a dragged fix: + the drag's offset
+
+
+def _sized(h: FloatArray, n: int) -> FloatArray:
+    """h (4,) padded with zeros to the filter's n states (the drag's offset and rate unseen)."""
+    return np.concatenate([h, np.zeros(n - len(h))])
 
 
 def _update(x: FloatArray, p: FloatArray, h: FloatArray, z: FloatArray, r: FloatArray) -> None:
@@ -323,18 +348,29 @@ def _update(x: FloatArray, p: FloatArray, h: FloatArray, z: FloatArray, r: Float
     s = np.einsum("i,aij,j->a", h, p, h) + r
     k = np.einsum("aij,j->ai", p, h) / s[:, None]
     x += k * (z - x @ h)[:, None]
-    ikh = np.eye(4)[None] - k[:, :, None] * h[None, None, :]
+    ikh = np.eye(len(h))[None] - k[:, :, None] * h[None, None, :]
     p[:] = ikh @ p @ ikh.transpose(0, 2, 1) + r[:, None, None] * k[:, :, None] * k[:, None, :]
 
 
 class _Filter:
     """The filter's steps over one set of inputs (module docstring): predict from node k-1 to
-    node k, update with a fix or a keyframe. State per axis [p, v, b, e]; x (3, 4), P (3, 4, 4)."""
+    node k, update with a fix or a keyframe. State per axis [p, v, b, e]; x (3, 4), P (3, 4, 4);
+    where drag_nodes is given, two more: a drag-off's offset and rate [d, w] (its fixes measure
+    p + e + d), which start afresh at each node it marks (drag_nodes[0] (M,) bool: offset 0
+    give or take twice the fix's accuracy, rate 0 give or take drag_speed0), the rate walking
+    by drag_nodes[1] (M,) m/s/sqrt(s) into each node."""
 
     def __init__(
-        self, inp: _Inputs, fix_sigma: FloatArray, felt: bool, settings: InertialSettings
+        self,
+        inp: _Inputs,
+        fix_sigma: FloatArray,
+        felt: bool,
+        settings: InertialSettings,
+        drag_nodes: tuple[npt.NDArray[np.bool_], FloatArray] | None = None,
     ) -> None:
         self.inp, self.fix_sigma, self.felt, self.s = inp, fix_sigma, felt, settings
+        self.drag_nodes = drag_nodes
+        self.size = 4 if drag_nodes is None else 6
         # the stated accuracy above the receiver's usual one is taken as white: multipath comes
         # and goes within seconds, and a receiver says so by a larger accuracy
         usual = np.median(fix_sigma, axis=0) if len(fix_sigma) else np.zeros(3)
@@ -353,8 +389,8 @@ class _Filter:
         none, anywhere), its spread three times the GNSS's, the velocity unknown (v0_sigma; 100
         times that where no fix anchors it)."""
         s = self.s
-        x = np.zeros((3, 4))
-        p = np.zeros((3, 4, 4))
+        x = np.zeros((3, self.size))
+        p = np.zeros((3, self.size, self.size))
         sigma0 = self.gm[0]
         p[:, 0, 0] = (3.0 * sigma0) ** 2 + 1.0
         if first_enu is not None:
@@ -364,6 +400,9 @@ class _Filter:
         p[:, 1, 1] = s.v0_sigma**2 * (1.0 if anchored else 100.0)
         p[:, 2, 2] = s.bias0**2 if self.felt else 0.0
         p[:, 3, 3] = sigma0**2
+        if self.drag_nodes is not None and self.drag_nodes[0][0]:
+            p[:, 4, 4] = (2.0 * sigma0) ** 2
+            p[:, 5, 5] = s.drag_speed0**2
         return x, p
 
     def predict(
@@ -376,11 +415,35 @@ class _Filter:
         f = _transition(dt, phi)
         q_a = s.acc_noise if self.felt else s.no_imu_noise
         q_b = (s.bias_walk + s.bias_walk_per_jerk * inp.dyn[k - 1]) if self.felt else 0.0
+        q = _noise(dt, q_a, q_b, self.gm[k - 1], phi)
+        if self.drag_nodes is not None:
+            f, q = self._dragged(f, q, dt, k)
         x = x @ f.T
         x[:, 0] += inp.dx[k - 1]
         x[:, 1] += inp.dv[k - 1]
-        p = f[None] @ p @ f.T[None] + _noise(dt, q_a, q_b, self.gm[k - 1], phi)
+        p = f[None] @ p @ f.T[None] + q
         return x, p, f
+
+    def _dragged(
+        self, f: FloatArray, q: FloatArray, dt: float, k: int
+    ) -> tuple[FloatArray, FloatArray]:
+        """(F (6, 6), Q (3, 6, 6)): f and q with the drag's offset and rate, its offset carried
+        on by its rate, which walks; both drawn afresh where a drag-off begins at node k."""
+        s = self.s
+        f6, q6 = np.eye(6), np.zeros((3, 6, 6))
+        f6[:4, :4], q6[:, :4, :4] = f, q
+        f6[4, 5] = dt
+        starts, walk = self.drag_nodes
+        w = walk[k] ** 2
+        q6[:, 4, 4] += w * dt**3 / 3
+        q6[:, 4, 5] += w * dt**2 / 2
+        q6[:, 5, 4] += w * dt**2 / 2
+        q6[:, 5, 5] += w * dt
+        if starts[k]:
+            f6[4:, :] = 0.0
+            q6[:, 4, 4] += (2.0 * self.gm[k]) ** 2
+            q6[:, 5, 5] += s.drag_speed0**2
+        return f6, q6
 
     def fix_noise(self, j: int) -> FloatArray:
         """(3,) fix j's white variance per axis (m^2): white_share of its stated accuracy, and
@@ -388,18 +451,36 @@ class _Filter:
         return self.white[j]
 
     def innovation(
-        self, x: FloatArray, p: FloatArray, z: FloatArray, j: int
+        self, x: FloatArray, p: FloatArray, z: FloatArray, j: int, h: FloatArray = _FIX_H
     ) -> tuple[FloatArray, bool, bool]:
-        """(fix j's innovation (3,) m at state x, P; whether its horizontal part (the
-        chi-square of east and north) and its height pass n_sigma)."""
-        nu = z - x @ _FIX_H
-        var = np.einsum("i,aij,j->a", _FIX_H, p, _FIX_H) + self.fix_noise(j)
+        """(fix j's innovation (3,) m at state x, P (h: what it measures); whether its
+        horizontal part (the chi-square of east and north) and its height pass n_sigma)."""
+        nu = z - x @ h
+        var = np.einsum("i,aij,j->a", h, p, h) + self.fix_noise(j)
         n = self.s.n_sigma
         return (
             nu,
             bool(nu[0] ** 2 / var[0] + nu[1] ** 2 / var[1] > n * n),
             bool(abs(nu[2]) > n * np.sqrt(var[2])),
         )
+
+
+def _drag_nodes(
+    inp: _Inputs, drags: Drags | None, settings: InertialSettings
+) -> tuple[npt.NDArray[np.bool_], FloatArray] | None:
+    """(the nodes each drag-off begins at (its first fix's) (M,), the walk of its rate into
+    each node (M,) m/s/sqrt(s): drag_walk_onset inside a drag before its steady_s, else
+    drag_walk) for _Filter; None where no fix is dragged."""
+    if drags is None or not (drags.lie >= 0).any():
+        return None
+    node = np.where(inp.fix >= 0, drags.lie[np.maximum(inp.fix, 0)], -1)
+    at = np.flatnonzero(node >= 0)
+    starts = np.zeros(len(inp.t), bool)
+    starts[at[np.r_[True, node[at][1:] != node[at][:-1]]]] = True
+    current = np.maximum.accumulate(np.where(starts, np.arange(len(inp.t)), -1))
+    lie = np.where(current >= 0, node[np.maximum(current, 0)], -1)
+    onset = (lie >= 0) & (inp.t < drags.steady_s[np.maximum(lie, 0)])
+    return starts, np.where(onset, settings.drag_walk_onset, settings.drag_walk)
 
 
 def _smooth(
@@ -410,36 +491,49 @@ def _smooth(
     key_enu: FloatArray,
     felt: bool,
     settings: InertialSettings,
+    drags: Drags | None = None,
 ) -> Carried:
     """The filter forward over the fixes used, the keyframes and the video's own velocities
-    (inp.flow), then back (Rauch-Tung-Striebel)."""
-    flt = _Filter(inp, fix_sigma, felt, settings)
+    (inp.flow), then back (Rauch-Tung-Striebel); drags: the drag-offs' fixes not used, each
+    measured with its drag's offset (_Filter) unless it fails the IMU's test (n_sigma)
+    against the state before it (the drag left its line)."""
     m = len(inp.t)
+    drag = np.full(len(fix_enu), -1) if drags is None else drags.lie
+    flt = _Filter(inp, fix_sigma, felt, settings, _drag_nodes(inp, drags, settings))
+    fix_h, key_h, vel_h = (_sized(h, flt.size) for h in (_FIX_H, _KEY_H, _VEL_H))
     firsts = [
         (inp.t[k], fix_enu[inp.fix[k]]) for k in range(m) if inp.fix[k] >= 0 and use[inp.fix[k]]
     ][:1]
     firsts += [(inp.t[k], key_enu[inp.key[k]]) for k in range(m) if inp.key[k] >= 0][:1]
     first = min(firsts, key=lambda f: f[0])[1] if firsts else None
     x, p = flt.start(first, anchored=bool(use.any()) or len(key_enu) > 1)
-    xs_p, ps_p = np.zeros((m, 3, 4)), np.zeros((m, 3, 4, 4))
-    xs_f, ps_f = np.zeros((m, 3, 4)), np.zeros((m, 3, 4, 4))
-    fs = np.zeros((m, 4, 4))
+    n = flt.size
+    xs_p, ps_p = np.zeros((m, 3, n)), np.zeros((m, 3, n, n))
+    xs_f, ps_f = np.zeros((m, 3, n)), np.zeros((m, 3, n, n))
+    fs = np.zeros((m, n, n))
     key_r = np.full(3, settings.key_sigma_m**2)
     for k in range(m):
         if k > 0:
             x, p, fs[k - 1] = flt.predict(x, p, k)
         xs_p[k], ps_p[k] = x, p
         j, i, u = inp.fix[k], inp.key[k], inp.vel[k]
-        if (j >= 0 and use[j]) or i >= 0 or u >= 0:
+        fixed = j >= 0 and use[j]
+        on_line = j >= 0 and not fixed and drag[j] >= 0
+        if on_line:
+            _, off_h, off_v = flt.innovation(x, p, fix_enu[j], j, _DRAG_H)
+            on_line = not (off_h or off_v)
+        if fixed or on_line or i >= 0 or u >= 0:
             x, p = x.copy(), p.copy()
-        if j >= 0 and use[j]:
-            _update(x, p, _FIX_H, fix_enu[j], flt.fix_noise(j))
+        if fixed:
+            _update(x, p, fix_h, fix_enu[j], flt.fix_noise(j))
+        if on_line:
+            _update(x, p, _DRAG_H, fix_enu[j], flt.fix_noise(j))
         if i >= 0:
-            _update(x, p, _KEY_H, key_enu[i], key_r)
+            _update(x, p, key_h, key_enu[i], key_r)
         if u >= 0 and inp.flow is not None:  # horizontal: the height's spread left as it is
             flow = inp.flow
             r = np.array([flow.sigma[u] ** 2, flow.sigma[u] ** 2, 1e12])
-            _update(x, p, _VEL_H, flow.v[u], r)
+            _update(x, p, vel_h, flow.v[u], r)
         xs_f[k], ps_f[k] = x, p
     xs, ps = xs_f.copy(), ps_f.copy()
     # no accelerometer: the acceleration's error is no state (its spread stays 0), so the
@@ -566,12 +660,16 @@ def carry(
     settings: InertialSettings = InertialSettings(),
     span_s: tuple[float, float] | None = None,
     flow: Flow | None = None,
+    drags: Drags | None = None,
 ) -> Carried:
     """The track the IMU's motion carries between the fixes used (times t_fix (N,) s,
     positions enu_fix (N, 3) m, stated accuracy (N,) m or None, use (N,) bool) and the
     registered keyframes (times t_key (K,) s, positions enu_key (K, 3) m), forward and back
     (module docstring), over the span of both and span_s (session s); flow: velocities the
-    video's own motion measured, where there is no IMU (app.register.flow_motion)."""
+    video's own motion measured, where there is no IMU (app.register.flow_motion); drags: the
+    drag-offs among the fixes not used (Shifted.drags): their motion less the drag's, a line
+    the filter learns from the keyframes and the IMU, carries the track where nothing else
+    measures it (_Filter)."""
     t = np.asarray(t_fix, np.float64)
     kt = np.asarray(t_key, np.float64)
     order = np.argsort(kt)
@@ -581,7 +679,7 @@ def carry(
     sig = _sigmas(accuracy_m, len(t), settings)
     enu = np.asarray(enu_fix, np.float64).reshape(-1, 3)
     use = np.asarray(use, bool)
-    return _smooth(inp, enu, sig, use, kp, motion.felt, settings)
+    return _smooth(inp, enu, sig, use, kp, motion.felt, settings, drags)
 
 
 @dataclass(frozen=True)
@@ -589,11 +687,15 @@ class Shifted:
     """The fixes with each steady jump taken back off them: enu (N, 3) ENU m (a jump's fixes
     moved back by its offset, the others as given), use (N,) which of the moved fixes agree
     again (with the IMU's motion, and the keyframes where given) and so stand in the track,
-    check: the lies with their `shift` set where they were moved back."""
+    check: the lies with their `shift` set where they were moved back; drags: the drag-offs
+    (`disagrees` lies with no step at their start), indexed as check.lies, their rates steady
+    from their alarms (`carry` learns each one's line and carries the track on their fixes'
+    motion less it)."""
 
     enu: FloatArray
     use: npt.NDArray[np.bool_]
     check: GnssCheck
+    drags: Drags
 
 
 def shifted_back(
@@ -623,6 +725,8 @@ def shifted_back(
     enu = np.asarray(enu_fix, np.float64).reshape(-1, 3)
     rejected = check.status.rejected
     out, use = enu.copy(), np.zeros(len(t), bool)
+    dragged = np.full(len(t), -1)
+    steady = np.array([lie.caught_s for lie in check.lies], np.float64)
     sig = _sigmas(accuracy_m, len(t), settings)
     cs = CheckSettings()
     moved: list[tuple[int, npt.NDArray[np.int64], FloatArray]] = []
@@ -635,11 +739,12 @@ def shifted_back(
         d = np.median(enu[lead] - honest, axis=0)
         h, v = cs.thresholds(np.median(sig[idx, 0]))
         if np.linalg.norm(d[:2]) <= h and abs(d[2]) <= v:
-            continue  # no step at its start: a drag-off, whose offset does not hold
+            dragged[idx] = n  # no step at its start: a drag-off, whose offset does not hold
+            continue
         out[idx] = enu[idx] - d
         moved.append((n, idx, d))
     if not moved:
-        return Shifted(enu, use, check)
+        return Shifted(enu, use, check, Drags(dragged, steady))
     bad = check_against_imu(motion, t, out, accuracy_m, settings).status.rejected
     if t_key is not None and enu_key is not None and len(t_key) >= 2:
         bad = bad | check_fixes(t, out, accuracy_m, t_key, enu_key, cs).status.rejected
@@ -659,7 +764,7 @@ def shifted_back(
         if len(run):
             use[run] = True
             lies[n] = replace(lies[n], shift=d, shifted_s=(float(t[run[0]]), float(t[run[-1]])))
-    return Shifted(out, use, replace(check, lies=tuple(lies)))
+    return Shifted(out, use, replace(check, lies=tuple(lies)), Drags(dragged, steady))
 
 
 def carried_positions(
@@ -789,8 +894,10 @@ def carried_track(
     used (module docstring), and without an IMU by the video's own motion where neither
     measures it (app.register.flow_motion); the fixes' positions with the rejected and missing
     ones taken from it (carried_positions; the others as they were); and check with each jump
-    whose fixes, moved back by it, were used (shifted_back) said so; seen: the corners the
-    video's motion tracked in a solve's earlier carries (app.register.flow_motion.Seen)."""
+    whose fixes, moved back by it, were used (shifted_back) said so, and each drag-off whose
+    fixes, less its line, carry the track where no keyframe registered (Shifted.drags); seen:
+    the corners the video's motion tracked in a solve's earlier carries
+    (app.register.flow_motion.Seen)."""
     motion = motion_of(session, fixes_track.poses, correction)
     fixes, enu, acc = _fixes(session, fixes_track)
     span = _video_span(session)
@@ -803,12 +910,16 @@ def carried_track(
         filled = (max(span[0], float(ends.min())), min(span[1], float(ends.max())))
     outages = check.status.outages(*filled) if filled[1] > filled[0] else []
     rejected = check.status.rejected
-    used, used_enu = ~rejected, enu
+    used, used_enu, drags = ~rejected, enu, None
     if rejected.any() and (motion.felt or len(kt) >= 2):
         first = carry(motion, fixes.t, enu, acc, used, kt, kp, settings, span)
         back = shifted_back(motion, fixes.t, enu, acc, check, first, settings, kt, kp)
         if back.use.any():
             check, used, used_enu = back.check, ~rejected | back.use, back.enu
+        if motion.felt:  # (without an IMU a drag's rate is not told from the platform's own)
+            drags = back.drags
+            lies = [replace(lie, dragged=bool((drags.lie == n).any())) for n, lie in enumerate(check.lies)]  # fmt: skip
+            check = replace(check, lies=tuple(lies))
     flow, said = None, ""
     if not motion.felt and (rejected.any() or outages):
         # no IMU: the video's own motion where nothing measured the track the carry fills
@@ -817,7 +928,7 @@ def carried_track(
             session, fixes_track, correction, fixed, (kt, kp), filled, check.status, seen
         )
     # the one carry kept: over the fixes used (some moved back), the keyframes and the flow
-    carried = carry(motion, fixes.t, used_enu, acc, used, kt, kp, settings, span, flow)
+    carried = carry(motion, fixes.t, used_enu, acc, used, kt, kp, settings, span, flow, drags)
     carried = replace(carried, said=said)
     if rejected.all() and not len(kt):  # nothing measured it: the fixes as they were
         return fixes, carried, check

@@ -14,7 +14,8 @@ accuracy) while the accuracy stated held: a 2 m/s drag-off is caught 3 s after i
 5.6 s when it passes 4.5 x 2.5 m). The lie began where the residual left the GNSS's own offset
 before it (its median 30 to 10 s before the alarm): at a jump, or as far back from the moment it
 had gone half as far as at the alarm as that moment is from the alarm (a drag-off grows
-steadily); it lasts until a tested fix agrees with the scene again. What the fixes did there
+steadily); it lasts until a tested fix agrees with the scene again: within release_sigma (3)
+times its accuracy of the GNSS's own offset before it, not merely under the alarm's threshold. What the fixes did there
 names it (`kind`): `frozen` where the fix at the alarm and those around it have not moved
 (within still_m, for min_still_s or more: the receiver stopped while the camera flew on; it
 began at the first of them), `replayed` where the lie's fixes repeat, within repeat_m, earlier
@@ -30,7 +31,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import numpy.typing as npt
@@ -75,7 +76,11 @@ class CheckSettings:
     (s) in walk_pieces pieces each moving it by walk_steady of the whole or more, beyond
     max(walk_floor_m, drift_sigma x the accuracy) m: a slow drag-off, 2 m/s against the 12 m
     that fixes stating no accuracy are held to, which the halves' 4 s never see walk that far
-    (a 24 s DJI clip's: caught 4.8-5.2 s after it passed 5 m, not 7.7-9.5 s: docs/ACCURACY.md)."""
+    (a 24 s DJI clip's: caught 4.8-5.2 s after it passed 5 m, not 7.7-9.5 s: docs/ACCURACY.md);
+    release_sigma: a lie goes on while its fixes stand farther from the GNSS's own offset
+    before it than the threshold taken at this many sigma instead of n_sigma (trust comes
+    back more slowly than it went: a drag-off's median residual lags, and its fixes wander
+    back under the alarm's threshold for a fix or two)."""
 
     window: int = 5
     n_sigma: float = 4.5
@@ -99,6 +104,7 @@ class CheckSettings:
     walk_floor_m: float = 8.0
     walk_pieces: int = 4
     walk_steady: float = 0.15
+    release_sigma: float = 3.0
 
     def thresholds(self, accuracy_m: npt.ArrayLike) -> tuple[FloatArray, FloatArray]:
         """(horizontal, vertical) m beyond which a fix stating accuracy_m (m, each fix's or
@@ -299,7 +305,11 @@ def check_fixes(
     h, v = settings.thresholds(running_max(acc[tested], settings.window))
     bad_h = (off_h > h) | drifting(t[tested], residual[tested], acc[tested], settings)
     bad_v = off_v > v
-    rejected, lies = lies_of(t, enu, residual, tested, bad_h, bad_v, settings)
+    # a lie goes on while its fixes stand farther than release_sigma off the GNSS's own offset
+    limits = replace(settings, n_sigma=settings.release_sigma).thresholds(
+        running_max(acc[tested], settings.window)
+    )
+    rejected, lies = lies_of(t, enu, residual, tested, bad_h, bad_v, settings, limits=limits)
     return GnssCheck(FixStatus(t, rejected), tuple(lies), residual)
 
 
@@ -380,6 +390,7 @@ def lies_of(
     settings: CheckSettings,
     witness: str = SCENE,
     back_s: float | None = None,
+    limits: tuple[FloatArray, FloatArray] | None = None,
 ) -> tuple[npt.NDArray[np.bool_], list[GnssLie]]:
     """(which fixes are rejected (N,), the lies) from the fixes' times t (N,) s and positions
     enu (N, 3) m, their residual (N, 3) m against a witness (NaN where untested), the tested
@@ -387,7 +398,11 @@ def lies_of(
     (bad_v) threshold: alarms within merge_s are one lie; it began where the residual left
     the GNSS's own offset before it (the module docstring) and is named by what the fixes did;
     witness (WITNESSES): what the residual was taken against; back_s: a lie began no farther
-    than this (s) before its alarm (None: anywhere after the last lie)."""
+    than this (s) before its alarm (None: anywhere after the last lie); limits: the tested
+    fixes' (horizontal, vertical) thresholds (T,) m each, where given a lie goes on while its
+    fixes stand farther than these from the GNSS's own offset before it (a drag-off whose
+    median residual lags or whose fix happens to wander back under the threshold for a fix or
+    two, and which no keyframe tests after, is not ended there), until one comes back."""
     bad = bad_h | bad_v
     off_h = np.linalg.norm(residual[tested, :2], axis=1)
     off_v = np.abs(residual[tested, 2])
@@ -399,17 +414,21 @@ def lies_of(
         if len(hits) == 0:
             break
         a = n + int(hits[0])  # the alarm: index into tested
-        last = a  # the last bad fix, the lie going on while alarms follow within merge_s
-        for k in range(a + 1, len(tested)):
-            if bad[k]:
-                last = k
-            elif t[tested[k]] - t[tested[last]] > settings.merge_s:
-                break
-        good_after = np.flatnonzero(~bad[last + 1 :])
-        end = len(t) if len(good_after) == 0 else tested[last + 1 + int(good_after[0])]
         base = own_offset(t[tested], residual[tested], t[tested[a]], settings)
         if base is None:  # no clean stretch before it to learn the offset from
             base = np.zeros(3)
+        off = bad.copy()  # the fixes that keep the lie going
+        if limits is not None:
+            off[a:] |= np.linalg.norm(residual[tested[a:], :2] - base[:2], axis=1) > limits[0][a:]
+            off[a:] |= np.abs(residual[tested[a:], 2] - base[2]) > limits[1][a:]
+        last = a  # the last bad fix, the lie going on while alarms follow within merge_s
+        for k in range(a + 1, len(tested)):
+            if off[k]:
+                last = k
+            elif t[tested[k]] - t[tested[last]] > settings.merge_s:
+                break
+        good_after = np.flatnonzero(~off[last + 1 :])
+        end = len(t) if len(good_after) == 0 else tested[last + 1 + int(good_after[0])]
         upright = not bad_h[a : last + 1].any()  # only the height disagrees
         away = (
             np.abs(residual[tested, 2] - base[2])

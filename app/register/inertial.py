@@ -35,7 +35,8 @@ neither reaches (app.register.flow_motion): the position, its standard deviation
 the GNSS error at any time (`Carried`). With an IMU, a drag-off's fixes are used too, as the
 position plus the GNSS error plus the drag's offset, whose offset and rate are two more states
 learnt from the keyframes under it and the IMU: where no keyframe registers (a turn over
-grass), its fixes' motion less the drag's line carries the track, not the IMU alone. Times are session seconds; positions local ENU metres.
+grass), its fixes' motion less the drag's line carries the track, not the IMU alone. Times
+are session seconds; positions local ENU metres.
 """
 
 from __future__ import annotations
@@ -89,7 +90,8 @@ class InertialSettings:
     drag_speed0: a drag-off's rate's spread where it begins (m/s, each axis); how fast that
     rate walks (m/s/sqrt(s)): drag_walk_onset until its alarm (it began somewhere between
     where it was dated and there), drag_walk after; its offset's spread where it begins: twice
-    the fix's accuracy (`carry`'s drags). Tuned on simulated orbits and surveys (docs/ACCURACY.md, issue 52): no alarm on 20 clean
+    the fix's accuracy (`carry`'s drags). Tuned on simulated orbits and surveys
+    (docs/ACCURACY.md, issue 52): no alarm on 20 clean
     sessions with multipath bursts."""
 
     step_s: float = 0.25

@@ -15,10 +15,10 @@ accuracy) while the accuracy stated held: a 2 m/s drag-off is caught 3 s after i
 before it (its median 30 to 10 s before the alarm): at a jump, or as far back from the moment it
 had gone half as far as at the alarm as that moment is from the alarm (a drag-off grows
 steadily); it lasts until a tested fix agrees with the scene again: within release_sigma (3)
-times its accuracy of the GNSS's own offset before it, not merely under the alarm's threshold. What the fixes did there
-names it (`kind`): `frozen` where the fix at the alarm and those around it have not moved
-(within still_m, for min_still_s or more: the receiver stopped while the camera flew on; it
-began at the first of them), `replayed` where the lie's fixes repeat, within repeat_m, earlier
+times its accuracy of the GNSS's own offset before it, not merely under the alarm's threshold.
+What the fixes did there names it (`kind`): `frozen` where the fix at the alarm and those around
+it have not moved (within still_m, for min_still_s or more: the receiver stopped while the
+camera flew on; it began at the first of them), `replayed` where the lie's fixes repeat, within repeat_m, earlier
 fixes at one steady lag (a recorded stretch played again; it began at the first repeated fix),
 `height` where only the vertical residual left its bounds, `disagrees` otherwise (a jump, a
 drag-off). The same forming and naming serves the test against the IMU's motion
@@ -140,7 +140,7 @@ class GnssLie:
     (app.register.inertial.shifted_back), else None; unseen_from_s: a lie caught live after a
     stretch where no keyframe tested the fixes (app.live.gnss_watch) began after this (session
     s) and by began_s, unseen between (else None); dragged: a drag-off whose fixes, less its
-    line, carry the track where no keyframe registered (app.register.inertial.shifted_back)."""
+    line, carry the track where no keyframe registered (app.register.inertial.carried_track)."""
 
     began_s: float
     caught_s: float
@@ -302,13 +302,12 @@ def check_fixes(
     off_v = np.abs(residual[tested, 2])
     # a median carries the errors of the fixes it was taken over: held to the least sure of them
     # (as a burst of multipath ends, the newest fix states its clean accuracy again)
-    h, v = settings.thresholds(running_max(acc[tested], settings.window))
+    held = running_max(acc[tested], settings.window)
+    h, v = settings.thresholds(held)
     bad_h = (off_h > h) | drifting(t[tested], residual[tested], acc[tested], settings)
     bad_v = off_v > v
     # a lie goes on while its fixes stand farther than release_sigma off the GNSS's own offset
-    limits = replace(settings, n_sigma=settings.release_sigma).thresholds(
-        running_max(acc[tested], settings.window)
-    )
+    limits = replace(settings, n_sigma=settings.release_sigma).thresholds(held)
     rejected, lies = lies_of(t, enu, residual, tested, bad_h, bad_v, settings, limits=limits)
     return GnssCheck(FixStatus(t, rejected), tuple(lies), residual)
 

@@ -22,7 +22,7 @@ it, the clean run's over the same frames, and the share of those frames whose po
 lies within 1 and 2 of the frame's sigma (app.solve.uncertainty); for the clean and the
 multipath runs, lies said and frames rejected (false alarms). --cases keeps each case's arrays as
 it is solved (a run cut short keeps what it finished); --from-cases makes the figures from them.
---fog FROM TO greys every case's video over those media seconds (bench.bench_registration's
+--fog FROM TO greys every case's video over those media seconds (app.simulate.fog's
 fogged_copy: a stretch the scene cannot register, as sky, fog or a featureless field are), the
 clean run's too.
 
@@ -68,12 +68,12 @@ from app.session import open_session  # noqa: E402
 from app.simulate import flights, sensors  # noqa: E402
 from app.simulate import session as sample  # noqa: E402
 from app.simulate.downlink import SITE, path_of, sample_layer, write_downlinks  # noqa: E402
+from app.simulate.fog import fogged_copy  # noqa: E402
 from app.simulate.lies import Lie, falsify  # noqa: E402
 from app.simulate.sample import SAMPLE_SCENE  # noqa: E402
 from app.solve.accuracy import ProjectionProbe, true_track  # noqa: E402
 from app.solve.track import solve_track  # noqa: E402
 from app.solve.uncertainty import frame_sigmas  # noqa: E402
-from bench.bench_registration import fogged_copy  # noqa: E402
 from bench.common import table, write_json  # noqa: E402
 
 LIES = {

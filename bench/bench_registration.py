@@ -16,14 +16,12 @@ with and without the fine step (corners tracked by Lucas-Kanade): how many land 
 from __future__ import annotations
 
 import argparse
-import shutil
 import statistics
 import sys
 import tempfile
 import time
 from pathlib import Path
 
-import av
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -33,58 +31,18 @@ if str(ROOT) not in sys.path:
 from app.camera.pinhole import Camera  # noqa: E402
 from app.core.progress import ProgressBar  # noqa: E402
 from app.geodesy import rotations  # noqa: E402
-from app.io.video import (  # noqa: E402
-    frames_at,  # noqa: E402
-    probe,
-    rotate_for_display,
-)
+from app.io.video import frames_at  # noqa: E402
 from app.register import MatchSettings, Registrar, RegistrationSettings  # noqa: E402
 from app.register.solve import keyframe_indices  # noqa: E402
 from app.render.context import create_offscreen_context, describe  # noqa: E402
 from app.session import open_session  # noqa: E402
 from app.session.camera_track import camera_track  # noqa: E402
-from app.simulate.phone import write_video  # noqa: E402
+from app.simulate.fog import fogged_copy  # noqa: E402
 from app.solve.accuracy import true_track  # noqa: E402
 from app.solve.track import solve_track  # noqa: E402
 from bench.common import table, write_json  # noqa: E402
 
 FOG_S = (20.0, 35.0)
-
-
-def fogged_copy(sample: Path, out: Path, fog_s: tuple[float, float] = FOG_S) -> Path:
-    """The session in `sample` copied into `out` with its video fogged over fog_s (media
-    seconds from, to: grey, no texture); returns the copy's manifest."""
-    for f in sample.iterdir():
-        if f.is_file() and f.name != "clip.mp4":
-            shutil.copy(f, out / f.name)
-    text = (
-        (out / "session.toml")
-        .read_text()
-        .replace('path = "scene.glb"', f'path = "{(sample / "scene.glb").as_posix()}"')
-    )
-    (out / "session.toml").write_text(text)
-    info = probe(sample / "clip.mp4")
-    frames = []
-    with av.open(str(sample / "clip.mp4")) as c:
-        for fr in c.decode(video=0):
-            frames.append(rotate_for_display(fr.to_ndarray(format="rgb24"), info.rotation_cw))
-    pts = np.asarray(info.pts_s)
-
-    def frame(k: int) -> np.ndarray:
-        if fog_s[0] <= pts[k] < fog_s[1]:
-            return np.full_like(frames[k], 170)
-        return frames[k]
-
-    write_video(
-        out / "clip.mp4",
-        pts,
-        (info.width, info.height),
-        info.rotation_cw,
-        creation_time="2025-11-15T09:46:40Z",
-        frame=frame,
-        crf=30,
-    )
-    return out / "session.toml"
 
 
 def perturbed(cam: Camera, metres: float, degrees: float, seed: int) -> Camera:
@@ -217,7 +175,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.no_fog:
         return 0
     with tempfile.TemporaryDirectory() as tmp:
-        fog = open_session(fogged_copy(sample, Path(tmp)))
+        fog = open_session(fogged_copy(sample, Path(tmp), FOG_S))
         track = solve_track(fog, "registered")
         prior = camera_track(fog, track.registration.prior)
         truth = true_track(fog)

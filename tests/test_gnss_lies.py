@@ -29,7 +29,7 @@ from app.register.gnss import (
     check_fixes,
     drifting,
 )
-from app.register.solve import registered_track
+from app.register.solve import Registrar, registered_track
 from app.session import open_session
 from app.simulate import sensors
 from app.simulate import session as sample
@@ -410,6 +410,40 @@ def test_a_drag_off_is_caught_within_seconds_and_not_followed(solved):
     assert np.mean(poses.gnss[t >= caught] == REJECTED) >= 0.95
     during = t >= LIE_FROM_S
     assert np.median(error[during]) < 1.5 * np.median(clean_error[during]) + 0.1
+
+
+@pytest.mark.gl
+def test_keyframes_a_lie_lost_register_again_from_the_track_carried_through_it(solved, gl_ctx):
+    # where a first pass started keyframes from the lying fixes and lost them (over a survey's
+    # turn, bench/bench_gnss_lies.py: a 5 m/s drag 70 m off by the time the scene came back),
+    # they are registered again from the track the scene and the IMU carried through the lie
+    session, track, _, _, _ = solved("drag")
+    reg = track.registration
+    [lie] = reg.gnss.lies
+    lost_from = sample.START_UNIX_S + LIE_FROM_S + 4.0
+    lost = [
+        replace(k, used=False, position=None, q=None, reason="lost") if k.time_s >= lost_from else k
+        for k in reg.keyframes
+    ]
+    registrar = Registrar(session, ctx=gl_ctx)
+    try:
+        again = registrar.retried(lost, track, [(lie.began_s, lie.ended_s)], reg.carried)
+        assert registrar.retried(lost, track, [], reg.carried) is lost  # no lie: none tried
+    finally:
+        registrar.release()
+    assert all(a is b for a, b in zip(again, lost, strict=True) if b.time_s < lost_from)
+    found = [a for a in again if a.time_s >= lost_from and a.registered]
+    assert len(found) >= 0.9 * sum(k.time_s >= lost_from for k in lost) and all(
+        a.used for a in found
+    )
+    truth = true_track(session)
+    true = truth.poses_at(truth.clock.media_s[[a.index for a in found]])
+    off = np.linalg.norm(np.array([a.position for a in found]) - true.enu, axis=1)
+    assert np.median(off) < 0.3 and off.max() < 1.0, off
+    # a solve says how many it took so; a clean one had none to take
+    said = replace(reg, retried=tuple(a.time_s for a in found)).summary()
+    assert f"{len(found)} lost under a GNSS lie registered again" in said, said
+    assert solved("clean")[1].registration.retried == ()
 
 
 def test_an_outage_is_said_with_its_span_and_its_frames_missing(orbit):

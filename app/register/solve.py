@@ -160,6 +160,9 @@ class Registration:
     carried: inertial.Carried | None = None
     # registration lost, searched for as a cold start: (session time s, disc radius m, found)
     searched: tuple[tuple[float, float, bool], ...] = ()
+    # keyframes a GNSS lie lost, registered again from the track carried through it and used
+    # (session s)
+    retried: tuple[float, ...] = ()
 
     @property
     def used(self) -> int:
@@ -189,6 +192,8 @@ class Registration:
                 f"; lost with no fix to trust, searched for {len(self.searched)} times within "
                 f"{max(r for _, r, _ in self.searched):.0f} m, found again {found}"
             )
+        if self.retried:
+            line += f"; {len(self.retried)} lost under a GNSS lie registered again from the track carried through it"  # fmt: skip
         if self.delay_s is not None:
             line += f"; frame times {1000 * self.delay_s:+.1f} ms late, corrected"
         if self.control is not None:
@@ -534,6 +539,46 @@ class Registrar:
         found = verified.camera
         return PoseFix(True, "", verified.inliers, verified.inliers, verified.error_px, np.asarray(found.position), np.asarray(found.orientation)), found  # fmt: skip
 
+    def retried(
+        self,
+        keyframes: list[Keyframe],
+        prior: CameraTrack,
+        spans: list[tuple[float, float]],
+        carried: inertial.Carried,
+    ) -> list[Keyframe]:
+        """The keyframes inside spans (session s: where the GNSS lied, and the first pass
+        started them from its fixes) that no fused track takes, registered again from the
+        prior's pose (the track the scene and the IMU carry there) under the keyframes'
+        correction; one found farther from the prior than chain_reach_m plus three of the
+        carry's horizontal sigma (m) is not taken. Those that register replace their first
+        pass's, used again (gate them); the list itself where none does."""
+        s = self.settings
+        video = self.session.video
+        todo = {
+            kf.index: n
+            for n, kf in enumerate(keyframes)
+            if not kf.used and any(a <= kf.time_s <= b for a, b in spans)
+        }
+        if not todo:
+            return keyframes
+        correction = Correction.from_keyframes(keyframes, s.fuse)
+        out, found = list(keyframes), False
+        for k, rgb in frames_at(video, sorted(todo), s.long_side):
+            kf = keyframes[todo[k]]
+            prior_cam = prior.frame_camera(k)
+            sigma = np.hypot(*carried.at([kf.time_s])[1][0, :2])
+            for start in (_shifted(prior_cam, correction, kf.time_s), prior_cam):
+                fix, solved, renders = self.keyframe(rgb, start)
+                if solved is not None and _moved(solved, prior_cam)[0] <= s.chain_reach_m + 3.0 * sigma:  # fmt: skip
+                    out[todo[k]] = Keyframe(
+                        int(k), kf.time_s, True, "", fix.matches, fix.inliers, fix.error_px, kf.iterations + renders,
+                        np.asarray(prior_cam.position), np.asarray(prior_cam.orientation),
+                        np.asarray(solved.position), np.asarray(solved.orientation),
+                    )  # fmt: skip
+                    found = True
+                    break
+        return out if found else keyframes
+
     def release(self) -> None:
         self.views.release()
 
@@ -615,38 +660,17 @@ def registered_track(
             prior_track = coldstart.started(session, source, registrar, **track_options)
         motion = None if screen is None else screen.motion  # the same attitude's
         reg = registrar.run(prior_track, progress, stop, begin, motion)
+        keyframes = list(reg.keyframes)
+        if cold:  # the positions are the scene's own, through the registered keyframes
+            prior_track = coldstart.on_scene(session, prior_track, keyframes)
+            keyframes = _regated(keyframes, prior_track, settings)
+        check, carried, retried = None, None, ()
+        if screen is not None:
+            prior_track, keyframes, check, carried, retried = _witnessed(
+                session, fixes_track, prior_track, keyframes, screen, settings, registrar
+            )
     finally:
         registrar.release()
-    keyframes = list(reg.keyframes)
-    if cold:  # the positions are the scene's own, through the registered keyframes
-        prior_track = coldstart.on_scene(session, prior_track, keyframes)
-        keyframes = _regated(keyframes, prior_track, settings)
-    check, carried = None, None
-    if screen is not None:  # the fixes tested against the keyframes, and against the IMU
-        check = merged(tested_fixes(session, fixes_track, keyframes), screen.check)
-        # where the GNSS lied or is missing the prior is carried by the IMU between the fixes
-        # kept and the keyframes: no fusion across a lie, no straight line across an outage
-        seen = Seen()  # the video's own motion, tracked once for the carries below
-        positions, carried, said = _carried(session, fixes_track, keyframes, check, settings, seen)
-        if positions is not fixes_track.poses.positions or prior_track is not fixes_track:
-            prior_track = _placed(fixes_track, positions)
-            keyframes = _regated(keyframes, prior_track, settings)
-            if not screen.motion.felt and check.lies:
-                # no IMU screened the prior: the keyframes that the lie's own corrections made
-                # disagree with their neighbours (at its edge) witness again, under the prior
-                # the scene now carries, and the fixes they see are tested anew (else the
-                # honest ones before a jump, untested, are taken into the lie)
-                check = merged(tested_fixes(session, fixes_track, keyframes), screen.check)
-                positions, _, _ = _carried(session, fixes_track, keyframes, check, settings, seen)
-                prior_track = _placed(fixes_track, positions)
-                keyframes = _regated(keyframes, prior_track, settings)
-            _, carried, said = _carried(session, fixes_track, keyframes, check, settings, seen)
-        check = said
-        t0 = float(session.frame_times[0])
-        for lie in check.lies:
-            session.messages.add_once(f"gnss-lie-{lie.began_s:.1f}", lie.said(t0, session.utc_of))
-        if carried.said:  # the final carry's: the earlier ones stood on keyframes gated since
-            session.messages.add_once(f"flow-{carried.said}", carried.said)
     delay = (
         estimate_delay(keyframes, prior_track.poses, settings.fuse)
         if settings.estimate_delay
@@ -658,10 +682,68 @@ def registered_track(
         prior_track.poses, Correction.from_keyframes(keyframes, settings.fuse), delay or 0.0
     )
     reg = replace(
-        reg, keyframes=tuple(keyframes), control=control, delay_s=delay, gnss=check, carried=carried
+        reg,
+        keyframes=tuple(keyframes),
+        control=control,
+        delay_s=delay,
+        gnss=check,
+        carried=carried,
+        retried=retried,
     )
     fixes = prior_track.fixes if check is None else check.status
     return replace(prior_track, source=REGISTERED, poses=poses, registration=reg, fixes=fixes)
+
+
+def _witnessed(
+    session: Session,
+    fixes_track: CameraTrack,
+    prior_track: CameraTrack,
+    keyframes: list[Keyframe],
+    screen: inertial.Screened,
+    settings: RegistrationSettings,
+    registrar: Registrar,
+) -> tuple[CameraTrack, list[Keyframe], GnssCheck, inertial.Carried, tuple[float, ...]]:
+    """The fixes tested against the keyframes and against the IMU (screen), and the track
+    carried through what they reject: (the prior placed on that carry, the keyframes gated
+    under it, the check as said, the carry, the session times (s) of the keyframes a lie lost
+    that registered again from the carry: Registrar.retried); the lies said in the session's
+    messages."""
+    check = merged(tested_fixes(session, fixes_track, keyframes), screen.check)
+    # where the GNSS lied or is missing the prior is carried by the IMU between the fixes
+    # kept and the keyframes: no fusion across a lie, no straight line across an outage
+    seen = Seen()  # the video's own motion, tracked once for the carries below
+    positions, carried, said = _carried(session, fixes_track, keyframes, check, settings, seen)
+    retried: tuple[float, ...] = ()
+    if positions is not fixes_track.poses.positions or prior_track is not fixes_track:
+        prior_track = _placed(fixes_track, positions)
+        keyframes = _regated(keyframes, prior_track, settings)
+        if not screen.motion.felt and check.lies:
+            # no IMU screened the prior: the keyframes that the lie's own corrections made
+            # disagree with their neighbours (at its edge) witness again, under the prior
+            # the scene now carries, and the fixes they see are tested anew (else the
+            # honest ones before a jump, untested, are taken into the lie)
+            check = merged(tested_fixes(session, fixes_track, keyframes), screen.check)
+            positions, _, _ = _carried(session, fixes_track, keyframes, check, settings, seen)
+            prior_track = _placed(fixes_track, positions)
+            keyframes = _regated(keyframes, prior_track, settings)
+        spans = [(lie.began_s, lie.ended_s) for lie in check.lies]
+        again = registrar.retried(keyframes, prior_track, spans, carried) if spans else keyframes
+        if again is not keyframes:  # some registered: the fixes they see tested, carried anew
+            again_s = {b.time_s for a, b in zip(keyframes, again, strict=True) if b is not a}
+            keyframes = _regated(again, prior_track, settings)
+            check = merged(tested_fixes(session, fixes_track, keyframes), screen.check)
+            positions, _, _ = _carried(session, fixes_track, keyframes, check, settings, seen)
+            prior_track = _placed(fixes_track, positions)
+            keyframes = _regated(keyframes, prior_track, settings)
+            retried = tuple(k.time_s for k in keyframes if k.used and k.time_s in again_s)
+        _, carried, said = _carried(session, fixes_track, keyframes, check, settings, seen)
+    check = said
+    t0 = float(session.frame_times[0])
+    for lie in check.lies:
+        session.messages.add_once(f"gnss-lie-{lie.began_s:.1f}", lie.said(t0, session.utc_of))
+    if carried.said:  # the final carry's: the earlier ones stood on keyframes gated since
+        session.messages.add_once(f"flow-{carried.said}", carried.said)
+    return prior_track, keyframes, check, carried, retried
 
 
 def _regated(

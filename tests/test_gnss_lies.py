@@ -29,7 +29,7 @@ from app.register.gnss import (
     check_fixes,
     drifting,
 )
-from app.register.solve import Registrar, registered_track
+from app.register.solve import Cancelled, Registrar, registered_track
 from app.session import open_session
 from app.simulate import sensors
 from app.simulate import session as sample
@@ -429,6 +429,8 @@ def test_keyframes_a_lie_lost_register_again_from_the_track_carried_through_it(s
     try:
         again = registrar.retried(lost, track, [(lie.began_s, lie.ended_s)], reg.carried)
         assert registrar.retried(lost, track, [], reg.carried) is lost  # no lie: none tried
+        with pytest.raises(Cancelled):  # the viewer closed the session
+            registrar.retried(lost, track, [(lie.began_s, lie.ended_s)], reg.carried, lambda: True)
     finally:
         registrar.release()
     assert all(a is b for a, b in zip(again, lost, strict=True) if b.time_s < lost_from)

@@ -545,13 +545,15 @@ class Registrar:
         prior: CameraTrack,
         spans: list[tuple[float, float]],
         carried: inertial.Carried,
+        stop: Callable[[], bool] | None = None,
     ) -> list[Keyframe]:
         """The keyframes inside spans (session s: where the GNSS lied, and the first pass
         started them from its fixes) that no fused track takes, registered again from the
         prior's pose (the track the scene and the IMU carry there) under the keyframes'
         correction; one found farther from the prior than chain_reach_m plus three of the
         carry's horizontal sigma (m) is not taken. Those that register replace their first
-        pass's, used again (gate them); the list itself where none does."""
+        pass's, used again (gate them); the list itself where none does. stop() is asked before
+        each: True raises Cancelled."""
         s = self.settings
         video = self.session.video
         todo = {
@@ -564,6 +566,8 @@ class Registrar:
         correction = Correction.from_keyframes(keyframes, s.fuse)
         out, found = list(keyframes), False
         for k, rgb in frames_at(video, sorted(todo), s.long_side):
+            if stop is not None and stop():
+                raise Cancelled(f"registration of {video.path} cancelled while keyframes a lie lost were tried again")  # fmt: skip
             kf = keyframes[todo[k]]
             prior_cam = prior.frame_camera(k)
             sigma = np.hypot(*carried.at([kf.time_s])[1][0, :2])
@@ -667,7 +671,7 @@ def registered_track(
         check, carried, retried = None, None, ()
         if screen is not None:
             prior_track, keyframes, check, carried, retried = _witnessed(
-                session, fixes_track, prior_track, keyframes, screen, settings, registrar
+                session, fixes_track, prior_track, keyframes, screen, settings, registrar, stop
             )
     finally:
         registrar.release()
@@ -702,12 +706,13 @@ def _witnessed(
     screen: inertial.Screened,
     settings: RegistrationSettings,
     registrar: Registrar,
+    stop: Callable[[], bool] | None = None,
 ) -> tuple[CameraTrack, list[Keyframe], GnssCheck, inertial.Carried, tuple[float, ...]]:
     """The fixes tested against the keyframes and against the IMU (screen), and the track
     carried through what they reject: (the prior placed on that carry, the keyframes gated
     under it, the check as said, the carry, the session times (s) of the keyframes a lie lost
-    that registered again from the carry: Registrar.retried); the lies said in the session's
-    messages."""
+    that registered again from the carry: Registrar.retried, asking stop()); the lies said in
+    the session's messages."""
     check = merged(tested_fixes(session, fixes_track, keyframes), screen.check)
     # where the GNSS lied or is missing the prior is carried by the IMU between the fixes
     # kept and the keyframes: no fusion across a lie, no straight line across an outage
@@ -727,7 +732,7 @@ def _witnessed(
             prior_track = _placed(fixes_track, positions)
             keyframes = _regated(keyframes, prior_track, settings)
         spans = [(lie.began_s, lie.ended_s) for lie in check.lies]
-        again = registrar.retried(keyframes, prior_track, spans, carried) if spans else keyframes
+        again = registrar.retried(keyframes, prior_track, spans, carried, stop) if spans else keyframes  # fmt: skip
         if again is not keyframes:  # some registered: the fixes they see tested, carried anew
             again_s = {b.time_s for a, b in zip(keyframes, again, strict=True) if b is not a}
             keyframes = _regated(again, prior_track, settings)

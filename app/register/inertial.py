@@ -715,10 +715,11 @@ def shifted_back(
     """A lie that jumped and then holds its offset (a spoofer that moved the whole track, a
     datum or a base-station error) leaves honest fixes behind it: each fix moved back by the
     jump is the position plus the GNSS's own error again. For each `disagrees` lie of check
-    whose first fixes (over lead_s s) already stand farther from the track carried over the
-    fixes kept (carried, Carried.fix_at: what an honest fix would say, from the fixes before
-    it and the keyframes) than the alarm's threshold (a jump: a drag-off starts near it), its
-    offset is their median distance from it (its first seconds only: a drag-off may follow);
+    whose first fix already stands farther from the track carried over the fixes kept
+    (carried, Carried.fix_at: what an honest fix would say, from the fixes before it and the
+    keyframes) than the alarm's threshold (a jump: a drag-off starts near it), its offset is
+    its first fixes' (over lead_s s) median distance from it (its first seconds only: a
+    drag-off may follow);
     its fixes moved back by it are tested again against the IMU's motion and the keyframes
     (t_key (K,) s, enu_key (K, 3) m, where given), and those that pass from its start on,
     until the first that fails (the lie moved on), are used. Times are session s, positions
@@ -740,7 +741,8 @@ def shifted_back(
         honest, _ = carried.fix_at(t[lead])
         d = np.median(enu[lead] - honest, axis=0)
         h, v = cs.thresholds(np.median(sig[idx, 0]))
-        if np.linalg.norm(d[:2]) <= h and abs(d[2]) <= v:
+        step = enu[lead[0]] - honest[0]  # (its first fix: a drag-off dated late has walked on)
+        if np.linalg.norm(step[:2]) <= h and abs(step[2]) <= v:
             dragged[idx] = n  # no step at its start: a drag-off, whose offset does not hold
             continue
         out[idx] = enu[idx] - d

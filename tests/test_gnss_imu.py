@@ -7,6 +7,7 @@ flight's true acceleration plus a slowly turning error of 0.1 m/s^2 (a phone's 1
 from __future__ import annotations
 
 import re
+from dataclasses import replace
 from types import SimpleNamespace
 
 import numpy as np
@@ -304,6 +305,25 @@ def test_two_witnesses_of_one_lie_are_said_once():
     assert re.match(r"GNSS frozen from t = 30\.0 s, 120 m behind the scene and the IMU's motion by t = 50\.0 s", text), text  # fmt: skip
     assert "the scene's registered keyframes and the IMU's motion there" in text
     assert GnssLie(5.0, 5.0, 6.0, 40.0, 7.0, off, witness=SCENE).said(0.0).startswith("GNSS disagrees with the scene from")  # fmt: skip
+    # a drag-off both caught: it began where the scene's residual left the GNSS's own offset,
+    # not where the IMU's, which is no distance walked, was read back to (survey seed 5's 5 m/s
+    # drag from 15 s was said from 9 s); the fixes only the IMU's start took in are kept
+    scene = GnssCheck(
+        FixStatus(t, t >= 15.0),
+        (GnssLie(16.0, 18.0, 50.0, 120.0, 59.0, off, DISAGREES),),
+        np.zeros((len(t), 3)),
+    )
+    imu = GnssCheck(
+        FixStatus(t, t >= 9.0),
+        (GnssLie(9.0, 18.0, 40.0, 60.0, 59.0, np.zeros(3), DISAGREES, witness=IMU),),
+        np.zeros((len(t), 3)),
+    )
+    [lie] = merged(scene, imu).lies
+    assert (lie.began_s, lie.caught_s, lie.witness) == (16.0, 18.0, BOTH)
+    assert list(t[merged(scene, imu).status.rejected][:2]) == [15.0, 16.0]
+    # one the scene dates after the IMU's alarm begins no later than that alarm
+    late = replace(scene, lies=(replace(scene.lies[0], began_s=20.0, caught_s=21.0),))
+    assert merged(late, imu).lies[0].began_s == 18.0
 
 
 def test_multipath_bursts_are_seeded_and_stated():

@@ -564,9 +564,14 @@ def _replay_start(
 
 def merged(scene: GnssCheck, imu: GnssCheck, merge_s: float = CheckSettings().merge_s) -> GnssCheck:
     """Two tests of the same fixes as one: a fix either rejected is rejected; lies within
-    merge_s of each other are one (from the earlier start and alarm to the later end, the
-    larger disagreement, a named kind over `disagrees`, the GNSS's own offset the scene's,
-    both witnesses where both caught it); the residual the scene's."""
+    merge_s of each other are one (from the earlier alarm to the later end, the larger
+    disagreement, a named kind over `disagrees`, the GNSS's own offset the scene's, both
+    witnesses where both caught it). It began where a named kind's fixes say (the earlier),
+    else where the scene's residual left the GNSS's own offset (no later than the alarm: the
+    IMU's residual is no distance from where the platform is, and a drag-off's ramp cannot be
+    read back from it), else at the earlier start; the fixes before that which only the IMU's
+    lie took in are not rejected. The residual the scene's."""
+    t = scene.status.t
     rejected = scene.status.rejected | imu.status.rejected
     groups: list[list[GnssLie]] = []
     for lie in sorted(scene.lies + imu.lies, key=lambda lie: lie.began_s):
@@ -582,10 +587,20 @@ def merged(scene: GnssCheck, imu: GnssCheck, merge_s: float = CheckSettings().me
         seen = {lie.witness for lie in group}
         witness = seen.pop() if len(seen) == 1 else BOTH
         from_scene = [lie for lie in group if lie.witness == SCENE]
+        caught = min(lie.caught_s for lie in group)
+        if named:
+            began = min(lie.began_s for lie in named)
+        elif from_scene:
+            began = min(min(lie.began_s for lie in from_scene), caught)
+        else:
+            began = min(lie.began_s for lie in group)
+        earliest = min(lie.began_s for lie in group)
+        if earliest < began:  # the IMU's start, earlier: its fixes before this one are kept
+            rejected &= ~((t >= earliest) & (t < began) & ~scene.status.rejected)
         lies.append(
             GnssLie(
-                min(lie.began_s for lie in group),
-                min(lie.caught_s for lie in group),
+                began,
+                caught,
                 worst.worst_s,
                 worst.worst_m,
                 max(lie.ended_s for lie in group),

@@ -6,7 +6,10 @@ by what the keyframes before it found; render the model there (colour and positi
 app.render.views) with the clip's lens's enclosing pinhole at about the video's resolution;
 match the frame against the rendering and solve the pose (app.register.keyframe); render again
 at the solved pose until it moves less than converge_m and converge_deg, at most max_iterations
-renderings. Times are session seconds, poses ENU metres and camera -> ENU quaternions.
+renderings. Then the GNSS fixes are tested against the keyframes and the IMU, the track is
+carried through what they reject (app.register.inertial), and the keyframes a lie lost (started
+from its fixes) are registered once more from that carried track. Times are session seconds,
+poses ENU metres and camera -> ENU quaternions.
 """
 
 from __future__ import annotations

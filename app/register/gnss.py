@@ -50,6 +50,11 @@ WITNESS_WORDS = {
     BOTH: "the scene and the IMU's motion",
 }
 JUMP_SHARE = 0.6  # a residual that steps by this share of its size at the alarm in one fix jumped
+# between tested fixes farther apart than STEP_GAP_S (s: keyframes lost over a turn, fog) a
+# rise is a step only if faster than a drag-off walks (DRAG_MAX_MPS, m/s); else it crossed
+# half-way somewhere inside the gap, where a straight line between them says
+STEP_GAP_S = 1.5
+DRAG_MAX_MPS = 10.0
 
 
 @dataclass(frozen=True)
@@ -484,15 +489,22 @@ def _onset(t: FloatArray, away: FloatArray, n: int, a: int) -> int:
     """Where a lie caught at index a (of times t (s) and distances `away` (m) of the residual from
     the GNSS's own offset) began, not before index n: a jump's first fix (where the residual
     stepped in one fix by more than JUMP_SHARE of its size at the alarm, caught there or a few
-    fixes on, where the GNSS's own offset kept it under the threshold at first); a drag-off's,
-    back from where it was half as far as at the alarm by as long again (a ramp: half-way in
-    time), so that the GNSS's own wander does not take it back farther."""
+    fixes on, where the GNSS's own offset kept it under the threshold at first; across a gap
+    in the tested fixes, faster than DRAG_MAX_MPS); a drag-off's, back from where it was half
+    as far as at the alarm by as long again (a ramp: half-way in time; inside a gap, where a
+    straight line between the fixes either side crossed half-way), so that the GNSS's own
+    wander does not take it back farther."""
     half = a
     while half > n and away[half - 1] > 0.5 * away[a]:
         half -= 1
-    if half > n and away[half] - away[half - 1] > JUMP_SHARE * away[a]:
-        return half
-    began = 2.0 * t[half] - t[a]
+    crossed = float(t[half])
+    if half > n:
+        rise, gap = away[half] - away[half - 1], t[half] - t[half - 1]
+        if rise > JUMP_SHARE * away[a] and (gap <= STEP_GAP_S or rise > DRAG_MAX_MPS * gap):
+            return half
+        if gap > STEP_GAP_S and rise > 0.0:
+            crossed = float(t[half - 1] + gap * (0.5 * away[a] - away[half - 1]) / rise)
+    began = 2.0 * crossed - t[a]
     return max(n, int(np.searchsorted(t, began - 1e-6)))
 
 

@@ -600,13 +600,11 @@ def merged(scene: GnssCheck, imu: GnssCheck, merge_s: float = CheckSettings().me
         witness = seen.pop() if len(seen) == 1 else BOTH
         from_scene = [lie for lie in group if lie.witness == SCENE]
         caught = min(lie.caught_s for lie in group)
+        began = earliest = min(lie.began_s for lie in group)
         if named:
             began = min(lie.began_s for lie in named)
         elif from_scene:
             began = min(min(lie.began_s for lie in from_scene), caught)
-        else:
-            began = min(lie.began_s for lie in group)
-        earliest = min(lie.began_s for lie in group)
         if earliest < began:  # the IMU's start, earlier: its fixes before this one are kept
             rejected &= ~((t >= earliest) & (t < began) & ~scene.status.rejected)
         lies.append(
@@ -622,4 +620,4 @@ def merged(scene: GnssCheck, imu: GnssCheck, merge_s: float = CheckSettings().me
                 witness,
             )
         )
-    return GnssCheck(FixStatus(scene.status.t, rejected), tuple(lies), scene.residual)
+    return GnssCheck(FixStatus(t, rejected), tuple(lies), scene.residual)

@@ -403,8 +403,7 @@ class _Filter:
         p[:, 2, 2] = s.bias0**2 if self.felt else 0.0
         p[:, 3, 3] = sigma0**2
         if self.drag_nodes is not None and self.drag_nodes[0][0]:
-            p[:, 4, 4] = (2.0 * sigma0) ** 2
-            p[:, 5, 5] = s.drag_speed0**2
+            p[:, 4, 4], p[:, 5, 5] = self._drag_spread(0)
         return x, p
 
     def predict(
@@ -431,7 +430,6 @@ class _Filter:
     ) -> tuple[FloatArray, FloatArray]:
         """(F (6, 6), Q (3, 6, 6)): f and q with the drag's offset and rate, its offset carried
         on by its rate, which walks; both drawn afresh where a drag-off begins at node k."""
-        s = self.s
         f6, q6 = np.eye(6), np.zeros((3, 6, 6))
         f6[:4, :4], q6[:, :4, :4] = f, q
         f6[4, 5] = dt
@@ -443,9 +441,15 @@ class _Filter:
         q6[:, 5, 5] += w * dt
         if starts[k]:
             f6[4:, :] = 0.0
-            q6[:, 4, 4] += (2.0 * self.gm[k]) ** 2
-            q6[:, 5, 5] += s.drag_speed0**2
+            offset, rate = self._drag_spread(k)
+            q6[:, 4, 4] += offset
+            q6[:, 5, 5] += rate
         return f6, q6
+
+    def _drag_spread(self, k: int) -> tuple[FloatArray, float]:
+        """(the offset's variance (3,) m^2, the rate's (m/s)^2) of a drag-off that begins at
+        node k: twice the fix's accuracy then, and drag_speed0."""
+        return (2.0 * self.gm[k]) ** 2, self.s.drag_speed0**2
 
     def fix_noise(self, j: int) -> FloatArray:
         """(3,) fix j's white variance per axis (m^2): white_share of its stated accuracy, and

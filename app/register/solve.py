@@ -716,7 +716,7 @@ def _witnessed(
     under it, the check as said, the carry, the session times (s) of the keyframes a lie lost
     that registered again from the carry: Registrar.retried, asking stop()); the lies said in
     the session's messages."""
-    check = merged(tested_fixes(session, fixes_track, keyframes), screen.check)
+    check = _tested(session, fixes_track, keyframes, screen)
     # where the GNSS lied or is missing the prior is carried by the IMU between the fixes
     # kept and the keyframes: no fusion across a lie, no straight line across an outage
     seen = Seen()  # the video's own motion, tracked once for the carries below
@@ -730,19 +730,16 @@ def _witnessed(
             # disagree with their neighbours (at its edge) witness again, under the prior
             # the scene now carries, and the fixes they see are tested anew (else the
             # honest ones before a jump, untested, are taken into the lie)
-            check = merged(tested_fixes(session, fixes_track, keyframes), screen.check)
-            positions, _, _ = _carried(session, fixes_track, keyframes, check, settings, seen)
-            prior_track = _placed(fixes_track, positions)
-            keyframes = _regated(keyframes, prior_track, settings)
+            check, prior_track, keyframes = _recarried(
+                session, fixes_track, keyframes, screen, settings, seen
+            )
         spans = [(lie.began_s, lie.ended_s) for lie in check.lies]
         again = registrar.retried(keyframes, prior_track, spans, carried, stop) if spans else keyframes  # fmt: skip
         if again is not keyframes:  # some registered: the fixes they see tested, carried anew
             again_s = {b.time_s for a, b in zip(keyframes, again, strict=True) if b is not a}
-            keyframes = _regated(again, prior_track, settings)
-            check = merged(tested_fixes(session, fixes_track, keyframes), screen.check)
-            positions, _, _ = _carried(session, fixes_track, keyframes, check, settings, seen)
-            prior_track = _placed(fixes_track, positions)
-            keyframes = _regated(keyframes, prior_track, settings)
+            check, prior_track, keyframes = _recarried(
+                session, fixes_track, _regated(again, prior_track, settings), screen, settings, seen
+            )
             retried = tuple(k.time_s for k in keyframes if k.used and k.time_s in again_s)
         _, carried, said = _carried(session, fixes_track, keyframes, check, settings, seen)
     check = said
@@ -752,6 +749,33 @@ def _witnessed(
     if carried.said:  # the final carry's: the earlier ones stood on keyframes gated since
         session.messages.add_once(f"flow-{carried.said}", carried.said)
     return prior_track, keyframes, check, carried, retried
+
+
+def _tested(
+    session: Session,
+    fixes_track: CameraTrack,
+    keyframes: list[Keyframe],
+    screen: inertial.Screened,
+) -> GnssCheck:
+    """The fixes tested against the keyframes (tested_fixes), merged with the IMU's test."""
+    return merged(tested_fixes(session, fixes_track, keyframes), screen.check)
+
+
+def _recarried(
+    session: Session,
+    fixes_track: CameraTrack,
+    keyframes: list[Keyframe],
+    screen: inertial.Screened,
+    settings: RegistrationSettings,
+    seen: Seen,
+) -> tuple[GnssCheck, CameraTrack, list[Keyframe]]:
+    """The fixes the keyframes witness tested anew (_tested), the track carried through what
+    they reject and the keyframes gated under it: (the check, the prior placed on the carry,
+    the keyframes)."""
+    check = _tested(session, fixes_track, keyframes, screen)
+    positions, _, _ = _carried(session, fixes_track, keyframes, check, settings, seen)
+    prior_track = _placed(fixes_track, positions)
+    return check, prior_track, _regated(keyframes, prior_track, settings)
 
 
 def _regated(

@@ -574,11 +574,13 @@ class Registrar:
             kf = keyframes[todo[k]]
             prior_cam = prior.frame_camera(k)
             sigma = np.hypot(*carried.at([kf.time_s])[1][0, :2])
+            renders = kf.iterations
             for start in (_shifted(prior_cam, correction, kf.time_s), prior_cam):
-                fix, solved, renders = self.keyframe(rgb, start)
+                fix, solved, more = self.keyframe(rgb, start)
+                renders += more
                 if solved is not None and _moved(solved, prior_cam)[0] <= s.chain_reach_m + 3.0 * sigma:  # fmt: skip
                     out[todo[k]] = Keyframe(
-                        int(k), kf.time_s, True, "", fix.matches, fix.inliers, fix.error_px, kf.iterations + renders,
+                        int(k), kf.time_s, True, "", fix.matches, fix.inliers, fix.error_px, renders,
                         np.asarray(prior_cam.position), np.asarray(prior_cam.orientation),
                         np.asarray(solved.position), np.asarray(solved.orientation),
                     )  # fmt: skip

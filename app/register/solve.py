@@ -549,14 +549,19 @@ class Registrar:
         spans: list[tuple[float, float]],
         carried: inertial.Carried,
         stop: Callable[[], bool] | None = None,
+        motion: inertial.Motion | None = None,
     ) -> list[Keyframe]:
         """The keyframes inside spans (session s: where the GNSS lied, and the first pass
-        started them from its fixes) that no fused track takes, registered again from the
-        prior's pose (the track the scene and the IMU carry there) under the keyframes'
-        correction; one found farther from the prior than chain_reach_m plus three of the
-        carry's horizontal sigma (m) is not taken. Those that register replace their first
-        pass's, used again (gate them); the list itself where none does. stop() is asked before
-        each: True raises Cancelled."""
+        started them from its fixes) that no fused track takes, registered again in time order:
+        from where the keyframes registered within chain_s before lead (_chained, by `motion`:
+        those used and those this found), then from the prior's pose (the track the scene and
+        the IMU carry there) under the keyframes' correction, then from the prior alone. A pose
+        farther than chain_reach_m from where those keyframes lead is not taken (a false match
+        on a repeated texture, a period away: the carry may stand half of one off), nor, where
+        none leads, one farther from the prior than chain_reach_m plus three of the carry's
+        horizontal sigma (m). Those that register replace their first pass's, used again (gate
+        them); the list itself where none does. stop() is asked before each: True raises
+        Cancelled."""
         s = self.settings
         video = self.session.video
         todo = {
@@ -567,24 +572,30 @@ class Registrar:
         if not todo:
             return keyframes
         correction = Correction.from_keyframes(keyframes, s.fuse)
-        out, found = list(keyframes), False
+        out, found = list(keyframes), set()
         for k, rgb in frames_at(video, sorted(todo), s.long_side):
             if stop is not None and stop():
                 raise Cancelled(f"registration of {video.path} cancelled while keyframes a lie lost were tried again")  # fmt: skip
             kf = keyframes[todo[k]]
             prior_cam = prior.frame_camera(k)
-            sigma = np.hypot(*carried.at([kf.time_s])[1][0, :2])
+            behind = [b for b in out if b.time_s < kf.time_s and (b.used or b.index in found)]
+            chained = _chained(behind, kf.time_s, prior_cam, s.chain_s, motion, correction)
+            if chained is None:
+                lead, reach = prior_cam, s.chain_reach_m + 3.0 * np.hypot(*carried.at([kf.time_s])[1][0, :2])  # fmt: skip
+            else:
+                lead, reach = chained, s.chain_reach_m
+            starts = [_shifted(prior_cam, correction, kf.time_s), prior_cam]
             renders = kf.iterations
-            for start in (_shifted(prior_cam, correction, kf.time_s), prior_cam):
+            for start in starts if chained is None else [chained, *starts]:
                 fix, solved, more = self.keyframe(rgb, start)
                 renders += more
-                if solved is not None and _moved(solved, prior_cam)[0] <= s.chain_reach_m + 3.0 * sigma:  # fmt: skip
+                if solved is not None and _moved(solved, lead)[0] <= reach:
                     out[todo[k]] = Keyframe(
                         int(k), kf.time_s, True, "", fix.matches, fix.inliers, fix.error_px, renders,
                         np.asarray(prior_cam.position), np.asarray(prior_cam.orientation),
                         np.asarray(solved.position), np.asarray(solved.orientation),
                     )  # fmt: skip
-                    found = True
+                    found.add(int(k))
                     break
         return out if found else keyframes
 
@@ -736,7 +747,7 @@ def _witnessed(
                 session, fixes_track, keyframes, screen, settings, seen
             )
         spans = [(lie.began_s, lie.ended_s) for lie in check.lies]
-        again = registrar.retried(keyframes, prior_track, spans, carried, stop) if spans else keyframes  # fmt: skip
+        again = registrar.retried(keyframes, prior_track, spans, carried, stop, screen.motion) if spans else keyframes  # fmt: skip
         if again is not keyframes:  # some registered: the fixes they see tested, carried anew
             again_s = {b.time_s for a, b in zip(keyframes, again, strict=True) if b is not a}
             check, prior_track, keyframes = _recarried(

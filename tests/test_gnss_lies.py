@@ -20,6 +20,7 @@ from PIL import Image
 from app.camera.fixes import MISSING, REJECTED, USED, FixStatus
 from app.export.gis import FMV_FIELDS, FMV_HEADER, properties, write_fmv_csv
 from app.export.records import frame_records
+from app.register import solve
 from app.register.gnss import (
     DISAGREES,
     FROZEN,
@@ -29,6 +30,7 @@ from app.register.gnss import (
     check_fixes,
     drifting,
 )
+from app.register.keyframe import PoseFix, posed
 from app.register.solve import Cancelled, Registrar, registered_track
 from app.session import open_session
 from app.simulate import sensors
@@ -465,6 +467,78 @@ def test_keyframes_a_lie_lost_register_again_from_the_track_carried_through_it(s
     said = replace(reg, retried=tuple(a.time_s for a in found)).summary()
     assert f"{len(found)} lost under a GNSS lie registered again" in said, said
     assert solved("clean")[1].registration.retried == ()
+
+
+@pytest.mark.gl
+def test_keyframes_tried_again_follow_those_found_before_not_a_carry_half_a_period_off(
+    solved, gl_ctx, monkeypatch
+):
+    """A scene whose texture repeats every 14 m east, where a keyframe lands on the copy
+    nearest its start (bench/bench_gnss_lies.py, survey seed 4 at 5 m/s: 14 m), and a track
+    carried through the lie 8 m east of the truth, past half a period. Started from that carry
+    alone every keyframe lands a period east, within the carry's reach; started first from
+    where the keyframes found before lead, each lands on the truth. Where the copy is all that
+    registers, it is refused while those keyframes lead (within chain_s of the last), taken
+    from the carry after."""
+    session, track, _, _, _ = solved("drag")
+    reg = track.registration
+    [lie] = reg.gnss.lies
+    spans = [(lie.began_s, lie.ended_s)]
+    truth = true_track(session)
+    index = np.array([k.index for k in reg.keyframes])
+    true_enu = dict(zip(index, truth.poses_at(truth.clock.media_s[index]).enu, strict=True))
+    period, east = 14.0, np.array([1.0, 0.0, 0.0])
+
+    class Carried:  # the track carried through the lie, 8 m east of where the platform is
+        def frame_camera(self, k: int):
+            cam = track.frame_camera(k)
+            return posed(cam, np.asarray(cam.position) + 8.0 * east, cam.orientation)
+
+    def nearest_copy(k, start, first=None):  # where a registration from `start` lands
+        copy = np.round((np.asarray(start.position)[0] - true_enu[k][0]) / period)
+        return _landed(start, true_enu[k] + copy * period * east)
+
+    def copy_only(k, start, first=None):
+        return _landed(start, true_enu[k] + period * east)
+
+    monkeypatch.setattr(solve, "frames_at", lambda video, idx, side: ((k, k) for k in idx))
+    lost_from = sample.START_UNIX_S + LIE_FROM_S + 4.0
+    lost = [
+        replace(k, used=False, position=None, q=None, reason="lost") if k.time_s >= lost_from else k
+        for k in reg.keyframes
+    ]
+    none_before = [replace(k, used=False) if k.time_s < lost_from else k for k in lost]
+    registrar = Registrar(session, ctx=gl_ctx)
+    try:
+        registrar.keyframe = nearest_copy
+        led = registrar.retried(lost, Carried(), spans, reg.carried)
+        unled = registrar.retried(none_before, Carried(), spans, reg.carried)
+        registrar.keyframe = copy_only
+        copies = registrar.retried(lost, Carried(), spans, reg.carried)
+    finally:
+        registrar.release()
+
+    def east_of_truth(keyframes):
+        return np.array([k.position[0] - true_enu[k.index][0] for k in keyframes if k.time_s >= lost_from])  # fmt: skip
+
+    assert np.abs(east_of_truth(led)).max() < 1e-6  # each led to the truth by the ones before
+    assert np.allclose(
+        east_of_truth([k for k in unled if k.registered]), period
+    )  # the carry's pick
+    last_used = max(k.time_s for k in lost if k.used)
+    chain_s = registrar.settings.chain_s
+    reach = [k.time_s - last_used <= chain_s for k in copies if k.time_s >= lost_from]
+    taken = [k.registered for k in copies if k.time_s >= lost_from]
+    assert any(reach) and not all(reach)
+    assert taken == [not r for r in reach], (reach, taken)
+
+
+def _landed(start, position):
+    """(fix, camera, renderings) of a registration that landed at `position` (ENU m) with the
+    start's attitude: Registrar.keyframe's outcome."""
+    cam = posed(start, position, start.orientation)
+    fix = PoseFix(True, "", 40, 30, 0.5, np.asarray(cam.position), np.asarray(cam.orientation))
+    return fix, cam, 1
 
 
 def test_an_outage_is_said_with_its_span_and_its_frames_missing(orbit):

@@ -70,6 +70,8 @@ from app.session.camera_track import CameraTrack, camera_track
 from app.session.model import REGISTERED, Session
 
 BACKGROUND_NICE = 10  # a background registration's thread priority (Linux nice value)
+# keyframes a lie lost tried again from the carry, then from each carry those found make anew
+RETRY_ROUNDS = 3
 
 
 class Cancelled(GeofuseError):
@@ -743,17 +745,21 @@ def _witnessed(
             # disagree with their neighbours (at its edge) witness again, under the prior
             # the scene now carries, and the fixes they see are tested anew (else the
             # honest ones before a jump, untested, are taken into the lie)
-            check, prior_track, keyframes = _recarried(
+            check, prior_track, keyframes, carried = _recarried(
                 session, fixes_track, keyframes, screen, settings, seen
             )
-        spans = [(lie.began_s, lie.ended_s) for lie in check.lies]
-        again = registrar.retried(keyframes, prior_track, spans, carried, stop, screen.motion) if spans else keyframes  # fmt: skip
-        if again is not keyframes:  # some registered: the fixes they see tested, carried anew
-            again_s = {b.time_s for a, b in zip(keyframes, again, strict=True) if b is not a}
-            check, prior_track, keyframes = _recarried(
+        again_s: set[float] = set()
+        for _ in range(RETRY_ROUNDS):  # again from each carry the ones found make anew
+            spans = [(lie.began_s, lie.ended_s) for lie in check.lies]
+            again = registrar.retried(keyframes, prior_track, spans, carried, stop, screen.motion) if spans else keyframes  # fmt: skip
+            if again is keyframes:
+                break
+            # some registered: the fixes they see tested, carried anew
+            again_s |= {b.time_s for a, b in zip(keyframes, again, strict=True) if b is not a}
+            check, prior_track, keyframes, carried = _recarried(
                 session, fixes_track, _regated(again, prior_track, settings), screen, settings, seen
             )
-            retried = tuple(k.time_s for k in keyframes if k.used and k.time_s in again_s)
+        retried = tuple(k.time_s for k in keyframes if k.used and k.time_s in again_s)
         _, carried, said = _carried(session, fixes_track, keyframes, check, settings, seen)
     check = said
     t0 = float(session.frame_times[0])
@@ -781,14 +787,14 @@ def _recarried(
     screen: inertial.Screened,
     settings: RegistrationSettings,
     seen: Seen,
-) -> tuple[GnssCheck, CameraTrack, list[Keyframe]]:
+) -> tuple[GnssCheck, CameraTrack, list[Keyframe], inertial.Carried]:
     """The fixes the keyframes witness tested anew (_tested), the track carried through what
     they reject and the keyframes gated under it: (the check, the prior placed on the carry,
-    the keyframes)."""
+    the keyframes, the carry)."""
     check = _tested(session, fixes_track, keyframes, screen)
-    positions, _, _ = _carried(session, fixes_track, keyframes, check, settings, seen)
+    positions, carried, _ = _carried(session, fixes_track, keyframes, check, settings, seen)
     prior_track = _placed(fixes_track, positions)
-    return check, prior_track, _regated(keyframes, prior_track, settings)
+    return check, prior_track, _regated(keyframes, prior_track, settings), carried
 
 
 def _regated(

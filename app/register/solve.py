@@ -8,8 +8,9 @@ match the frame against the rendering and solve the pose (app.register.keyframe)
 at the solved pose until it moves less than converge_m and converge_deg, at most max_iterations
 renderings. Then the GNSS fixes are tested against the keyframes and the IMU, the track is
 carried through what they reject (app.register.inertial), and the keyframes a lie lost (started
-from its fixes) are registered once more from that carried track. Times are session seconds,
-poses ENU metres and camera -> ENU quaternions.
+from its fixes) are registered once more, led by the keyframes found before them and by that
+carried track, and again from each carry the found ones make (RETRY_ROUNDS). Times are session
+seconds, poses ENU metres and camera -> ENU quaternions.
 """
 
 from __future__ import annotations

@@ -324,6 +324,25 @@ def test_two_witnesses_of_one_lie_are_said_once():
     # one the scene dates after the IMU's alarm begins no later than that alarm
     late = replace(scene, lies=(replace(scene.lies[0], began_s=20.0, caught_s=21.0),))
     assert merged(late, imu).lies[0].began_s == 18.0
+    # a jump inside a stretch that registered nothing (fog over 12-30 s): the scene dates it
+    # by the line across the stretch (11 s), the IMU caught the step at the fix it stepped at
+    # (15 s): it began there, and the fixes before it are kept
+    fog = GnssCheck(
+        FixStatus(t, t >= 11.0),
+        (GnssLie(11.0, 31.0, 31.0, 196.0, 59.0, off, DISAGREES),),
+        np.where(((t >= 12.0) & (t < 31.0))[:, None], np.nan, 0.0) * np.ones((1, 3)),
+    )
+    step = GnssCheck(
+        FixStatus(t, t >= 15.0),
+        (GnssLie(15.0, 15.0, 15.0, 900.0, 59.0, np.zeros(3), DISAGREES, witness=IMU),),
+        np.zeros((len(t), 3)),
+    )
+    both = merged(fog, step)
+    assert [(lie.began_s, lie.caught_s) for lie in both.lies] == [(15.0, 15.0)]
+    np.testing.assert_array_equal(both.status.rejected, t >= 15.0)
+    # one the IMU caught only after it began is no step: the scene's start holds
+    ramp = replace(step, lies=(replace(step.lies[0], caught_s=17.0),))
+    assert merged(fog, ramp).lies[0].began_s == 11.0
 
 
 def test_multipath_bursts_are_seeded_and_stated():

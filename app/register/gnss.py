@@ -579,10 +579,11 @@ def merged(scene: GnssCheck, imu: GnssCheck, merge_s: float = CheckSettings().me
     merge_s of each other are one (from the earlier alarm to the later end, the larger
     disagreement, a named kind over `disagrees`, the GNSS's own offset the scene's, both
     witnesses where both caught it). It began where a named kind's fixes say (the earlier),
-    else where the scene's residual left the GNSS's own offset (no later than the alarm: the
-    IMU's residual is no distance from where the platform is, and a drag-off's ramp cannot be
-    read back from it), else at the earlier start; the fixes before that which only the IMU's
-    lie took in are not rejected. The residual the scene's."""
+    else where the IMU caught a step at the fix it stepped at (a jump), else where the scene's
+    residual left the GNSS's own offset (no later than the alarm: the IMU's residual is no
+    distance from where the platform is, and a drag-off's ramp cannot be read back from it),
+    else at the earlier start; the fixes before that which only the IMU's lie took in (before
+    a step, every one) are not rejected. The residual the scene's."""
     t = scene.status.t
     rejected = scene.status.rejected | imu.status.rejected
     groups: list[list[GnssLie]] = []
@@ -599,14 +600,21 @@ def merged(scene: GnssCheck, imu: GnssCheck, merge_s: float = CheckSettings().me
         seen = {lie.witness for lie in group}
         witness = seen.pop() if len(seen) == 1 else BOTH
         from_scene = [lie for lie in group if lie.witness == SCENE]
+        # a step the IMU caught at the fix it stepped at (a jump): its start is exact, where
+        # the scene may have tested no fix (fog: a jump inside it dated by the line across)
+        stepped = [lie for lie in group if lie.witness == IMU and lie.caught_s <= lie.began_s]
         caught = min(lie.caught_s for lie in group)
         began = earliest = min(lie.began_s for lie in group)
         if named:
             began = min(lie.began_s for lie in named)
+        elif stepped:
+            began = min(lie.began_s for lie in stepped)
         elif from_scene:
             began = min(min(lie.began_s for lie in from_scene), caught)
-        if earliest < began:  # the IMU's start, earlier: its fixes before this one are kept
-            rejected &= ~((t >= earliest) & (t < began) & ~scene.status.rejected)
+        if earliest < began:  # an earlier start: the fixes before this one are kept that
+            # only it took in (the IMU's), or all (before a step the IMU saw at its fix)
+            kept = ~scene.status.rejected | bool(stepped and not named)
+            rejected &= ~((t >= earliest) & (t < began) & kept)
         lies.append(
             GnssLie(
                 began,

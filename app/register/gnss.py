@@ -85,7 +85,11 @@ class CheckSettings:
     release_sigma: a lie goes on while its fixes stand farther from the GNSS's own offset
     before it than the threshold taken at this many sigma instead of n_sigma (trust comes
     back more slowly than it went: a drag-off's median residual lags, and its fixes wander
-    back under the alarm's threshold for a fix or two)."""
+    back under the alarm's threshold for a fix or two); onset_fit_s, onset_min_mps: where the
+    fixes after an alarm are known (a file), a drag-off is dated by how far it had gone along
+    its walk (`_walk`: its line fitted over up to onset_fit_s (s) of tested fixes from the
+    alarm on, walking at onset_min_mps (m/s) or more), not by its distance from the GNSS's
+    own offset, which the GNSS's wander across the walk moves as well."""
 
     window: int = 5
     n_sigma: float = 4.5
@@ -110,6 +114,8 @@ class CheckSettings:
     walk_pieces: int = 4
     walk_steady: float = 0.15
     release_sigma: float = 3.0
+    onset_fit_s: float = 10.0
+    onset_min_mps: float = 0.3
 
     def thresholds(self, accuracy_m: npt.ArrayLike) -> tuple[FloatArray, FloatArray]:
         """(horizontal, vertical) m beyond which a fix stating accuracy_m (m, each fix's or
@@ -313,7 +319,9 @@ def check_fixes(
     bad_v = off_v > v
     # a lie goes on while its fixes stand farther than release_sigma off the GNSS's own offset
     limits = replace(settings, n_sigma=settings.release_sigma).thresholds(held)
-    rejected, lies = lies_of(t, enu, residual, tested, bad_h, bad_v, settings, limits=limits)
+    rejected, lies = lies_of(
+        t, enu, residual, tested, bad_h, bad_v, settings, limits=limits, along_walk=True
+    )
     return GnssCheck(FixStatus(t, rejected), tuple(lies), residual)
 
 
@@ -395,6 +403,7 @@ def lies_of(
     witness: str = SCENE,
     back_s: float | None = None,
     limits: tuple[FloatArray, FloatArray] | None = None,
+    along_walk: bool = False,
 ) -> tuple[npt.NDArray[np.bool_], list[GnssLie]]:
     """(which fixes are rejected (N,), the lies) from the fixes' times t (N,) s and positions
     enu (N, 3) m, their residual (N, 3) m against a witness (NaN where untested), the tested
@@ -406,7 +415,11 @@ def lies_of(
     fixes' (horizontal, vertical) thresholds (T,) m each, where given a lie goes on while its
     fixes stand farther than these from the GNSS's own offset before it (a drag-off whose
     median residual lags or whose fix happens to wander back under the threshold for a fix or
-    two, and which no keyframe tests after, is not ended there), until one comes back."""
+    two, and which no keyframe tests after, is not ended there), until one comes back;
+    along_walk: a lie that walks (a drag-off) is dated by how far it had gone along its walk,
+    taken from the fixes after its alarm (`_walk`: a file's), not by its distance from the
+    GNSS's own offset, which the GNSS's own wander across the walk moves as well (the
+    scene's test of a file: 6 m across a 1 m/s drag said it from 10 s before it began)."""
     bad = bad_h | bad_v
     off_h = np.linalg.norm(residual[tested, :2], axis=1)
     off_v = np.abs(residual[tested, 2])
@@ -457,6 +470,10 @@ def lies_of(
                 began, replay_of = _replay_start(t, enu, *replay, settings)
             elif upright:
                 kind = HEIGHT
+        along = _walk(t[tested], residual[tested], a, last, settings) if along_walk else None
+        if kind == DISAGREES and along is not None:  # along a drag-off's walk, not across it
+            away = (residual[tested, :2] - base[:2]) @ along
+            first = _onset(t[tested], away, earliest, a)
         if began is not None:  # the fixes themselves say where it began
             first = int(np.clip(np.searchsorted(t[tested], t[began]), n, a))
         # untested fixes inside it too, and those between it and the last tested fix before it
@@ -506,6 +523,23 @@ def _onset(t: FloatArray, away: FloatArray, n: int, a: int) -> int:
             crossed = float(t[half - 1] + gap * (0.5 * away[a] - away[half - 1]) / rise)
     began = 2.0 * crossed - t[a]
     return max(n, int(np.searchsorted(t, began - 1e-6)))
+
+
+def _walk(
+    t: FloatArray, residual: FloatArray, a: int, last: int, settings: CheckSettings
+) -> FloatArray | None:
+    """The direction (2,) (east, north unit vector) in which a lie caught at index a (of the
+    tested fixes' times t (s) and residuals (T, 3) m) walks: its horizontal residual's line
+    fitted over the fixes from the alarm to onset_fit_s after it, not past its last bad fix
+    (index `last`); None where those span under 2 s or walk slower than onset_min_mps (m/s)."""
+    after = np.arange(a, last + 1)
+    after = after[t[after] <= t[a] + settings.onset_fit_s]
+    if len(after) < 3 or t[after[-1]] - t[after[0]] < 2.0:
+        return None
+    dt = t[after] - t[a]
+    fit = np.linalg.lstsq(np.column_stack([np.ones(len(dt)), dt]), residual[after, :2], rcond=None)  # fmt: skip
+    speed = float(np.linalg.norm(fit[0][1]))
+    return None if speed < settings.onset_min_mps else fit[0][1] / speed
 
 
 def _frozen_span(

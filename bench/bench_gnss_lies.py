@@ -28,7 +28,7 @@ clean run's too.
 
     python bench/bench_gnss_lies.py --live [--flights orbit survey] [--seeds 1 2]
         [--duration 40] [--from-s 15] [--live-lies drag1 drag drag5 jump frozen] [--accuracy 2.5]
-        [--fog FROM TO]
+        [--fog FROM TO] [--recorded]
 
 Live (forward only, app.live.gnss_watch): for each flight and seed a drone downlink over the
 sample site (app.simulate.downlink: 480x270 H.264 MPEG-TS, a KLV set per frame, the model itself
@@ -43,7 +43,11 @@ of frames drawn rejected after the lie exceeds the accuracy, and the drawn camer
 error against the truth over those frames (median, p95) with the clean feed's over the same
 flight times; for the clean feed, lies said and frames rejected (false alarms). The keyframes'
 spacing is what the machine gives: say its load. --fog FROM TO: every feed's video grey over
-those seconds (app.simulate.downlink's fog_s), the clean one's too.
+those seconds (app.simulate.downlink's fog_s), the clean one's too. --recorded: each feed is
+also recorded as it arrives (`geofuse live --record`) and the recording, once the feed ends,
+solved as a file (forward and backward: `geofuse solve REC.ts --scene ... --gnss-accuracy`),
+with the same figures beside the live ones: what an operator reviewing the flight afterwards
+gets.
 """
 
 from __future__ import annotations
@@ -63,9 +67,10 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from app.camera.fixes import REJECTED  # noqa: E402
+from app.footage.clips import open_any  # noqa: E402
 from app.live.run import LiveOptions, run_sent  # noqa: E402
 from app.session import open_session  # noqa: E402
-from app.simulate import flights, sensors  # noqa: E402
+from app.simulate import drone, flights, sensors  # noqa: E402
 from app.simulate import session as sample  # noqa: E402
 from app.simulate.downlink import SITE, path_of, sample_layer, write_downlinks  # noqa: E402
 from app.simulate.fog import fogged_copy  # noqa: E402
@@ -271,13 +276,20 @@ def _figures(done: dict, units: list[tuple[str, int]], args: argparse.Namespace)
     return 0
 
 
-def live_run(path: Path, accuracy_m: float, flight: flights.Flight) -> dict:
+def live_run(
+    path: Path, accuracy_m: float, flight: flights.Flight, record: Path | None = None
+) -> dict:
     """One downlink received live: per frame drawn its flight time (s), position error (m)
     against the truth and gnss status; the lies said (caught, began: flight s; kinds), the
-    first frame drawn rejected (flight s), the keyframes tested (flight s)."""
+    first frame drawn rejected (flight s), the keyframes tested (flight s). record: where the
+    feed is recorded as it arrives."""
     drawn = []
     options = LiveOptions(
-        silence_s=1.0, size=LIVE_DRAWING, layers=(sample_layer(),), gnss_accuracy_m=accuracy_m
+        silence_s=1.0,
+        size=LIVE_DRAWING,
+        layers=(sample_layer(),),
+        gnss_accuracy_m=accuracy_m,
+        record=record,
     )
     run = run_sent(
         path, options, lambda d, c: drawn.append((d.pts_s, np.asarray(c.position), d.gnss))
@@ -306,9 +318,40 @@ def live_run(path: Path, accuracy_m: float, flight: flights.Flight) -> dict:
     }
 
 
+def recorded_run(path: Path, accuracy_m: float, flight: flights.Flight) -> dict:
+    """A live feed's recording solved as a file (the `registered` source, its fixes held to
+    accuracy_m, the sample model as its scene): per frame its flight time (s), position error
+    (m) against the truth and gnss status; the lies said (caught, began: flight s)."""
+    session = open_any(path, hfov_deg=sample.HFOV_DEG, layers=(sample_layer(),), accuracy_m=accuracy_m)  # fmt: skip
+    track = solve_track(session, "registered")
+    frames = np.arange(track.frame_count)
+    ours = track.poses_at(track.clock.media_s[frames], frames)
+    utc = session.utc_of(0.0)  # the KLV's own clock: session time 0 in Unix seconds
+    if utc is None:
+        raise ValueError(f"{path}: its KLV carries no time, so its frames cannot be put on the flight")  # fmt: skip
+    t0 = drone.START.timestamp() - utc  # the flight's start, session s
+    t = ours.time_s - t0
+    want = session.frame.geodetic_to_enu(*SITE.enu_to_geodetic(path_of(flight, t)[0]).T)
+    lies = track.registration.gnss.lies
+    return {
+        "t": t,
+        "true": want,
+        "error": np.linalg.norm(ours.enu - want, axis=1),
+        "gnss": ours.gnss,
+        "caught": [lie.caught_s - t0 for lie in lies],
+        "began": [lie.began_s - t0 for lie in lies],
+        "kinds": [lie.kind for lie in lies],
+    }
+
+
 def live_main(args: argparse.Namespace) -> int:
     """The live measurements (module docstring)."""
     rows, figures = [], []
+
+    def recording(path: Path) -> Path | None:
+        """Where --recorded records the feed sent from `path` (None: not recorded)."""
+        return path.with_name(f"{path.stem}-recorded.ts") if args.recorded else None
+
     with tempfile.TemporaryDirectory(prefix="gnss-lies-live-") as tmp:
         for name in args.flights:
             flight = {"orbit": flights.orbit, "survey": flights.survey}[name]()
@@ -321,14 +364,19 @@ def live_main(args: argparse.Namespace) -> int:
                 lies = [Lie("clean")] + [replace(LIES[k], from_s=args.from_s) for k in args.live_lies]  # fmt: skip
                 fog = None if args.fog is None else tuple(args.fog)
                 paths = write_downlinks(folder, [(lie, args.duration) for lie in lies], LIVE_VIDEO, flight, noise, sample.HFOV_DEG, fog_s=fog)  # fmt: skip
-                clean = live_run(paths[0], args.accuracy, flight)
+                clean = live_run(paths[0], args.accuracy, flight, recording(paths[0]))
                 spacing = float(np.median(np.diff(clean["keyframes"]))) if len(clean["keyframes"]) > 1 else float("nan")  # fmt: skip
                 n_rej = int(np.sum(clean["gnss"] == REJECTED))
                 rows.append([name, seed, "clean", len(clean["caught"]), " ".join(clean["kinds"]), "", "", "", f"{n_rej} frames", "", "", f"{np.median(clean['error']):.2f}", f"{spacing:.2f}"])  # fmt: skip
                 figures.append({"flight": name, "seed": seed, "lie": "clean", "alarms": len(clean["caught"]), "kinds": clean["kinds"], "rejected_frames": n_rej, "median_error_m": float(np.median(clean["error"])), "keyframe_spacing_s": spacing})  # fmt: skip
+                if args.recorded:
+                    solved = recorded_run(recording(paths[0]), args.accuracy, flight)
+                    n_rej = int(np.sum(solved["gnss"] == REJECTED))
+                    rows[-1] += [f"{len(solved['caught'])} alarms, {n_rej} frames", "", ""]
+                    figures[-1]["recorded"] = {"alarms": len(solved["caught"]), "rejected_frames": n_rej, "median_error_m": float(np.median(solved["error"]))}  # fmt: skip
                 print(rows[-1], clean["summary"], file=sys.stderr)
                 for lie, path in zip(lies[1:], paths[1:], strict=True):
-                    got = live_run(path, args.accuracy, flight)
+                    got = live_run(path, args.accuracy, flight, recording(path))
                     start = exceeds_s(lie, args.accuracy, got["t"], got["true"])
                     after = got["t"] >= start
                     near = [k for k, c in enumerate(got["caught"]) if c >= lie.from_s - 5.0]
@@ -343,12 +391,24 @@ def live_main(args: argparse.Namespace) -> int:
                     spacing = float(np.median(np.diff(got["keyframes"]))) if len(got["keyframes"]) > 1 else float("nan")  # fmt: skip
                     rows.append([name, seed, label(lie), len(got["caught"]), " ".join(got["kinds"]), "" if began is None else (f"{began:.1f}" if unseen is None else f"{unseen:.1f} to {began:.1f}"), "none" if delay is None else f"{delay:.1f}", "" if lag is None else f"{lag:.1f}", f"{100 * share:.0f} %", f"{np.median(err):.2f} / {np.percentile(err, 95):.2f}", f"{np.median(ref):.2f}", "", f"{spacing:.2f}"])  # fmt: skip
                     figures.append({"flight": name, "seed": seed, "lie": label(lie), "alarms": len(got["caught"]), "kinds": got["kinds"], "began_s": began, "unseen_from_s": unseen, "alarm_delay_s": delay, "frames_after_alarm_s": lag, "rejected_share": share, "median_error_m": float(np.median(err)), "p95_error_m": float(np.percentile(err, 95)), "clean_median_error_m": float(np.median(ref)), "keyframe_spacing_s": spacing})  # fmt: skip
+                    if args.recorded:  # the same feed's recording, solved afterwards
+                        solved = recorded_run(recording(path), args.accuracy, flight)
+                        after = solved["t"] >= start
+                        near = [k for k, c in enumerate(solved["caught"]) if c >= lie.from_s - 5.0]
+                        began = solved["began"][near[0]] if near else None
+                        share = float(np.mean(solved["gnss"][after] == REJECTED))
+                        err = solved["error"][after]
+                        rows[-1] += ["none" if began is None else f"{began:.1f}", f"{100 * share:.0f} %", f"{np.median(err):.2f} / {np.percentile(err, 95):.2f}"]  # fmt: skip
+                        figures[-1]["recorded"] = {"alarms": len(solved["caught"]), "began_s": began, "rejected_share": share, "median_error_m": float(np.median(err)), "p95_error_m": float(np.percentile(err, 95))}  # fmt: skip
                     print(rows[-1], got["summary"], file=sys.stderr)
     fogged = "" if args.fog is None else f", video grey from {args.fog[0]:g} to {args.fog[1]:g} s"
     print(
         f"# GNSS lies, live: {args.duration:g} s downlinks, lie from t = {args.from_s:g} s, fixes held to {args.accuracy:g} m{fogged}\n"
     )
-    print(table(["flight", "seed", "GNSS", "alarms", "named", "said from (s)", "alarm delay (s)", "drawn rejected after (s)", "rejected after", "error during the lie, median / p95 (m)", "clean run's (m)", "clean: median error (m)", "keyframe spacing (s)"], rows))  # fmt: skip
+    head = ["flight", "seed", "GNSS", "alarms", "named", "said from (s)", "alarm delay (s)", "drawn rejected after (s)", "rejected after", "error during the lie, median / p95 (m)", "clean run's (m)", "clean: median error (m)", "keyframe spacing (s)"]  # fmt: skip
+    if args.recorded:
+        head += ["recorded, solved after: said from (s)", "rejected after", "error during the lie, median / p95 (m)"]  # fmt: skip
+    print(table(head, rows))
     write_json(args.json, {"live": True, "duration_s": args.duration, "from_s": args.from_s, "accuracy_m": args.accuracy, "runs": figures})  # fmt: skip
     return 0
 
@@ -379,6 +439,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--live", action="store_true", help="live downlinks, forward only")
     parser.add_argument("--live-lies", nargs="+", default=list(LIVE_LIES[:4]), choices=LIVE_LIES)
     parser.add_argument("--accuracy", type=float, default=2.5, help="live: the fixes' accuracy (m)")
+    parser.add_argument(
+        "--recorded",
+        action="store_true",
+        help="live: also record each feed and solve its recording as a file afterwards",
+    )
     args = parser.parse_args(argv)
     if args.live:
         return live_main(args)

@@ -5,7 +5,8 @@ whose KLV jumps 200 m or drags off at 2 m/s, sent over the loopback by the test 
 `geofuse live`'s pipeline against the textured sample model: the alarm said once at the second
 keyframe past the moment the lie exceeds the threshold, the frames after it `rejected`, and the
 drawn pose standing on the scene, as close to the truth as before the lie. (A clean feed raises
-no alarm: tests/test_live_register.py.)"""
+no alarm: tests/test_live_register.py.) The recording of each, solved afterwards as a file,
+rejects the frames drawn `used` before the alarm too."""
 
 from __future__ import annotations
 
@@ -18,6 +19,7 @@ from app.camera.fixes import MISSING, REJECTED, USED
 from app.camera.intrinsics import Intrinsics
 from app.camera.pinhole import Camera
 from app.core.messages import Messages
+from app.footage.clips import open_any
 from app.geodesy import rotations
 from app.io.mavlink import MavlinkTelemetry
 from app.live.gnss_watch import JUMP_FAR, GnssWatch
@@ -29,6 +31,7 @@ from app.register.keyframe import PoseFix
 from app.simulate import drone, sensors
 from app.simulate.downlink import SITE, sample_layer, write_downlinks
 from app.simulate.lies import Lie
+from app.solve.track import solve_track
 from app.ui import gnss as viewer_gnss
 
 NOT_USED = "not used (caught at t = {:.1f} s; the track stands on the scene's registered keyframes there)"  # fmt: skip
@@ -463,10 +466,14 @@ def downlinks(tmp_path_factory):
     return dict(zip(kinds, paths, strict=True))
 
 
-def _received(path):
+def _received(path, record=None):
     drawn = []
     options = LiveOptions(
-        silence_s=1.0, size=(160, 90), layers=(sample_layer(),), gnss_accuracy_m=ACCURACY_M
+        silence_s=1.0,
+        size=(160, 90),
+        layers=(sample_layer(),),
+        gnss_accuracy_m=ACCURACY_M,
+        record=record,
     )
     return run_sent(path, options, lambda d, c: drawn.append((d, c)), lockstep=True), drawn
 
@@ -480,8 +487,8 @@ def _error_m(run, d, camera) -> float:
 
 @pytest.mark.gl
 @pytest.mark.parametrize("kind", list(LIES))
-def test_a_lying_downlink_is_caught_live_and_not_followed(downlinks, kind):
-    run, drawn = _received(downlinks[kind])
+def test_a_lying_downlink_is_caught_live_and_not_followed(downlinks, kind, tmp_path):
+    run, drawn = _received(downlinks[kind], tmp_path / "recorded.ts")
     said = "\n".join(run.messages.items)
     watch, reg = run.gnss, run.registration
     assert watch is not None and reg is not None and reg.registered >= 3, (said, run.summary())
@@ -542,3 +549,25 @@ def test_a_lying_downlink_is_caught_live_and_not_followed(downlinks, kind):
         f"GNSS disagrees from t = {began:.1f} s (caught at t = {caught:.1f} s, " in summary
     ), summary
     assert summary.endswith("going on at the end; ended: the stream was silent for 1 s"), summary
+    # The recording (`geofuse live --record`), solved afterwards as a file (`geofuse solve
+    # REC.ts --scene ... --gnss-accuracy 1`), forward and backward: the same lie said once,
+    # from where it began (a drag: within 2 s; a jump: at its step), and every frame of the
+    # recording from where it exceeds the threshold `rejected`, those drawn `used` before the
+    # live alarm too; none before it began (but the fixes of the median's window at a jump's
+    # edge), and the track there on the scene.
+    session = open_any(tmp_path / "recorded.ts", layers=(sample_layer(),), accuracy_m=ACCURACY_M)
+    track = solve_track(session, "registered")
+    [again] = track.registration.gnss.lies
+    to_flight = session.utc_of(0.0) - drone.START.timestamp()  # session s -> flight s
+    assert abs(again.began_s + to_flight - lie.from_s) <= (2.0 if kind == "drag" else 0.1), again
+    frames = np.arange(track.frame_count)
+    poses = track.poses_at(track.clock.media_s[frames], frames)
+    t = poses.time_s + to_flight
+    live_used = [d.pts_s + flight for d, _ in drawn if d.gnss == USED and d.pts_s + flight > EXCEEDS_S[kind]]  # fmt: skip
+    assert kind == "jump" or live_used, "the live drawing used none after the threshold"
+    assert (poses.gnss[t > EXCEEDS_S[kind] + BOUNDARY_S] == REJECTED).all()
+    assert (poses.gnss[t < lie.from_s - 0.5] == USED).all()
+    pos, _ = drone.flight(t)
+    want = session.frame.geodetic_to_enu(*SITE.enu_to_geodetic(pos).T)
+    during = np.linalg.norm(poses.enu - want, axis=1)[t > EXCEEDS_S[kind]]
+    assert np.median(during) <= max(1.5 * ref, ref + 0.15), (np.median(during), ref)

@@ -122,6 +122,23 @@ def test_a_slow_drag_off_over_a_gap_in_the_keyframes_is_dated_inside_the_gap(see
             assert found.caught_s >= 46.0 and -5.0 <= found.began_s - lie.from_s <= 4.0, found
 
 
+@pytest.mark.parametrize("speed", [1.0, 2.0, 5.0])
+def test_a_drag_off_without_noise_is_said_from_the_first_fix_at_or_after_it_began(speed):
+    """By hand: fixes at 1 Hz where the camera was, keyframes every 0.5 s exact, a drag-off from
+    30.0, 30.3, 30.6 or 30.9 s: the half-way moment lies between two fixes, where the straight
+    line between them crosses it, and the lie is said from the first fix at or after where it
+    began (31 s; 30 s for one from 30.0). Taking the first fix past half-way dated each a fix
+    or two late (32 s)."""
+    t = np.arange(0.0, 80.0)
+    truth = np.column_stack([6.0 * t, np.zeros_like(t), np.full_like(t, 60.0)])
+    kt = np.arange(0.0, 80.0, 0.5)
+    keys = np.column_stack([6.0 * kt, np.zeros_like(kt), np.full_like(kt, 60.0)])
+    for began in (30.0, 30.3, 30.6, 30.9):
+        fixes = Lie("drag", began, speed_mps=speed).apply(t, truth)
+        [lie] = check_fixes(t, fixes, np.full(len(t), 2.5), kt, keys).lies
+        assert lie.began_s == np.ceil(began), (began, lie)
+
+
 def test_a_drag_off_is_dated_by_how_far_it_had_gone_along_its_walk_not_across_it():
     """A drone downlink's fixes (a KLV set per frame, 30 Hz; stated 2.5 m; the live bench's GNSS
     error, 2.5 m per axis correlated over 30 s) dragged east from 10 s, keyframes every 0.5 s

@@ -14,7 +14,8 @@ accuracy) while the accuracy stated held: a 2 m/s drag-off is caught 3 s after i
 5.6 s when it passes 4.5 x 2.5 m). The lie began where the residual left the GNSS's own offset
 before it (its median 30 to 10 s before the alarm): at a jump, or as far back from the moment it
 had gone half as far as at the alarm as that moment is from the alarm (a drag-off grows
-steadily); it lasts until a tested fix agrees with the scene again: within release_sigma (3)
+steadily; in a file, how far it had gone is taken along the way its fixes walk after the
+alarm, so that the GNSS's own wander across it does not count); it lasts until a tested fix agrees with the scene again: within release_sigma (3)
 times its accuracy of the GNSS's own offset before it, not merely under the alarm's threshold.
 What the fixes did there names it (`kind`): `frozen` where the fix at the alarm and those around
 it have not moved (within still_m, for min_still_s or more: the receiver stopped while the
@@ -55,6 +56,9 @@ JUMP_SHARE = 0.6  # a residual that steps by this share of its size at the alarm
 # half-way somewhere inside the gap, where a straight line between them says
 STEP_GAP_S = 1.5
 DRAG_MAX_MPS = 10.0
+# a lie whose fixes walk within acos(WALK_ALONG) of the way it had gone from the GNSS's own
+# offset at its alarm is a drag-off walking: a file's is dated along that walk (lies_of)
+WALK_ALONG = 0.5
 
 
 @dataclass(frozen=True)
@@ -455,7 +459,7 @@ def lies_of(
         earliest = n
         if back_s is not None:
             earliest = max(n, int(np.searchsorted(t[tested], t[tested[a]] - back_s)))
-        first = _onset(t[tested], away, earliest, a)
+        first, stepped = _onset(t[tested], away, earliest, a)
         kind, began, replay_of = DISAGREES, None, None
         still = _frozen_span(t, enu, int(tested[a]), settings)
         if still is not None:
@@ -470,10 +474,13 @@ def lies_of(
                 began, replay_of = _replay_start(t, enu, *replay, settings)
             elif upright:
                 kind = HEIGHT
-        along = _walk(t[tested], residual[tested], a, last, settings) if along_walk else None
-        if kind == DISAGREES and along is not None:  # along a drag-off's walk, not across it
-            away = (residual[tested, :2] - base[:2]) @ along
-            first = _onset(t[tested], away, earliest, a)
+        along = None
+        if along_walk and kind == DISAGREES and not stepped:
+            along = _walk(t[tested], residual[tested], a, last, settings)
+        gone = residual[tested[a], :2] - base[:2]
+        if along is not None and gone @ along >= WALK_ALONG * np.linalg.norm(gone):
+            # a drag-off walking the way it had gone: dated along its walk, not across it
+            first = _onset(t[tested], (residual[tested, :2] - base[:2]) @ along, earliest, a)[0]
         if began is not None:  # the fixes themselves say where it began
             first = int(np.clip(np.searchsorted(t[tested], t[began]), n, a))
         # untested fixes inside it too, and those between it and the last tested fix before it
@@ -502,15 +509,16 @@ def lies_of(
     return rejected, lies
 
 
-def _onset(t: FloatArray, away: FloatArray, n: int, a: int) -> int:
+def _onset(t: FloatArray, away: FloatArray, n: int, a: int) -> tuple[int, bool]:
     """Where a lie caught at index a (of times t (s) and distances `away` (m) of the residual from
     the GNSS's own offset) began, not before index n: a jump's first fix (where the residual
     stepped in one fix by more than JUMP_SHARE of its size at the alarm, caught there or a few
     fixes on, where the GNSS's own offset kept it under the threshold at first; across a gap
     in the tested fixes, faster than DRAG_MAX_MPS); a drag-off's, back from where it was half
-    as far as at the alarm by as long again (a ramp: half-way in time; inside a gap, where a
-    straight line between the fixes either side crossed half-way), so that the GNSS's own
-    wander does not take it back farther."""
+    as far as at the alarm by as long again (a ramp: half-way in time), that moment where a
+    straight line between the fixes either side of it crossed half-way (inside a gap too; the
+    first fix past it would date a drag-off a fix late, twice over), so that the GNSS's own
+    wander does not take it back farther. (That index, whether it stepped there.)"""
     half = a
     while half > n and away[half - 1] > 0.5 * away[a]:
         half -= 1
@@ -518,11 +526,11 @@ def _onset(t: FloatArray, away: FloatArray, n: int, a: int) -> int:
     if half > n:
         rise, gap = away[half] - away[half - 1], t[half] - t[half - 1]
         if rise > JUMP_SHARE * away[a] and (gap <= STEP_GAP_S or rise > DRAG_MAX_MPS * gap):
-            return half
-        if gap > STEP_GAP_S and rise > 0.0:
+            return half, True
+        if rise > 0.0:  # between the fixes either side, not at the first past it
             crossed = float(t[half - 1] + gap * (0.5 * away[a] - away[half - 1]) / rise)
     began = 2.0 * crossed - t[a]
-    return max(n, int(np.searchsorted(t, began - 1e-6)))
+    return max(n, int(np.searchsorted(t, began - 1e-6))), False
 
 
 def _walk(

@@ -15,8 +15,9 @@ accuracy) while the accuracy stated held: a 2 m/s drag-off is caught 3 s after i
 before it (its median 30 to 10 s before the alarm): at a jump, or as far back from the moment it
 had gone half as far as at the alarm as that moment is from the alarm (a drag-off grows
 steadily; in a file, how far it had gone is taken along the way its fixes walk after the
-alarm, so that the GNSS's own wander across it does not count); it lasts until a tested fix agrees with the scene again: within release_sigma (3)
-times its accuracy of the GNSS's own offset before it, not merely under the alarm's threshold.
+alarm, so that the GNSS's own wander across it does not count); it lasts until a tested fix
+agrees with the scene again: within release_sigma (3) times its accuracy of the GNSS's own
+offset before it, not merely under the alarm's threshold.
 What the fixes did there names it (`kind`): `frozen` where the fix at the alarm and those around
 it have not moved (within still_m, for min_still_s or more: the receiver stopped while the
 camera flew on; it began at the first of them), `replayed` where the lie's fixes repeat, within repeat_m, earlier

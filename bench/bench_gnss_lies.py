@@ -68,6 +68,7 @@ if str(ROOT) not in sys.path:
 
 from app.camera.fixes import REJECTED  # noqa: E402
 from app.footage.clips import open_any  # noqa: E402
+from app.geodesy.enu import LocalFrame  # noqa: E402
 from app.live.run import LiveOptions, run_sent  # noqa: E402
 from app.session import open_session  # noqa: E402
 from app.simulate import drone, flights, sensors  # noqa: E402
@@ -125,6 +126,18 @@ def label(lie: Lie) -> str:
         "replay": f"replay of {lie.back_s:g} s before",
         "height": f"height {lie.height_m:+g} m",
     }[lie.kind]
+
+
+def said_near(got: dict, lie: Lie) -> int | None:
+    """The index (into a run's `caught`) of the first lie said from 5 s before `lie` began on;
+    None where none was."""
+    return next((k for k, c in enumerate(got["caught"]) if c >= lie.from_s - 5.0), None)
+
+
+def flight_enu(frame: LocalFrame, flight: flights.Flight, t: np.ndarray) -> np.ndarray:
+    """Where the simulated downlink's camera was at flight times t (N,) s: (N, 3) ENU m of
+    `frame` (a live run's or a recording's session frame)."""
+    return frame.geodetic_to_enu(*SITE.enu_to_geodetic(path_of(flight, t)[0]).T)
 
 
 def run(manifest: Path) -> dict:
@@ -261,9 +274,9 @@ def _figures(done: dict, units: list[tuple[str, int]], args: argparse.Namespace)
             got = done[(flight, seed, name)]
             start = exceeds_s(lie, got["accuracy"], got["t"], got["true"])
             after = got["t"] >= start
-            near = [k for k, c in enumerate(got["caught"]) if c >= lie.from_s - 5.0]
-            delay = got["caught"][near[0]] - start if near else None
-            began = got["began"][near[0]] if near else None
+            near = said_near(got, lie)
+            delay = None if near is None else got["caught"][near] - start
+            began = None if near is None else got["began"][near]
             share = float(np.mean(got["gnss"][after] == REJECTED))
             err, ref = float(np.median(got["error"][after])), float(np.median(clean["error"][after]))  # fmt: skip
             drape, drape_ref = _drape(got, after), _drape(clean, after)
@@ -296,8 +309,7 @@ def live_run(
     )
     origin = run.origin_s or 0.0
     t = np.array([p for p, _, _ in drawn]) + origin
-    truth = path_of(flight, t)[0]
-    want = run.frame.geodetic_to_enu(*SITE.enu_to_geodetic(truth).T)
+    want = flight_enu(run.frame, flight, t)
     gnss = np.array([g for _, _, g in drawn])
     rejected = t[gnss == REJECTED]
     watch = run.gnss
@@ -331,7 +343,7 @@ def recorded_run(path: Path, accuracy_m: float, flight: flights.Flight) -> dict:
         raise ValueError(f"{path}: its KLV carries no time, so its frames cannot be put on the flight")  # fmt: skip
     t0 = drone.START.timestamp() - utc  # the flight's start, session s
     t = ours.time_s - t0
-    want = session.frame.geodetic_to_enu(*SITE.enu_to_geodetic(path_of(flight, t)[0]).T)
+    want = flight_enu(session.frame, flight, t)
     lies = track.registration.gnss.lies
     return {
         "t": t,
@@ -379,12 +391,12 @@ def live_main(args: argparse.Namespace) -> int:
                     got = live_run(path, args.accuracy, flight, recording(path))
                     start = exceeds_s(lie, args.accuracy, got["t"], got["true"])
                     after = got["t"] >= start
-                    near = [k for k, c in enumerate(got["caught"]) if c >= lie.from_s - 5.0]
-                    caught = got["caught"][near[0]] if near else None
+                    near = said_near(got, lie)
+                    caught = None if near is None else got["caught"][near]
                     delay = None if caught is None else caught - start
                     lag = None if caught is None or got["first_rejected"] is None else got["first_rejected"] - caught  # fmt: skip
-                    began = got["began"][near[0]] if near else None
-                    unseen = got["unseen"][near[0]] if near else None
+                    began = None if near is None else got["began"][near]
+                    unseen = None if near is None else got["unseen"][near]
                     share = float(np.mean(got["gnss"][after] == REJECTED))
                     err = got["error"][after]
                     ref = np.interp(got["t"][after], clean["t"], clean["error"])
@@ -394,8 +406,8 @@ def live_main(args: argparse.Namespace) -> int:
                     if args.recorded:  # the same feed's recording, solved afterwards
                         solved = recorded_run(recording(path), args.accuracy, flight)
                         after = solved["t"] >= start
-                        near = [k for k, c in enumerate(solved["caught"]) if c >= lie.from_s - 5.0]
-                        began = solved["began"][near[0]] if near else None
+                        near = said_near(solved, lie)
+                        began = None if near is None else solved["began"][near]
                         share = float(np.mean(solved["gnss"][after] == REJECTED))
                         err = solved["error"][after]
                         rows[-1] += ["none" if began is None else f"{began:.1f}", f"{100 * share:.0f} %", f"{np.median(err):.2f} / {np.percentile(err, 95):.2f}"]  # fmt: skip

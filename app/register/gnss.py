@@ -475,13 +475,13 @@ def lies_of(
                 began, replay_of = _replay_start(t, enu, *replay, settings)
             elif upright:
                 kind = HEIGHT
-        along = None
         if along_walk and kind == DISAGREES and not stepped:
             along = _walk(t[tested], residual[tested], a, last, settings)
-        gone = residual[tested[a], :2] - base[:2]
-        if along is not None and gone @ along >= WALK_ALONG * np.linalg.norm(gone):
-            # a drag-off walking the way it had gone: dated along its walk, not across it
-            first = _onset(t[tested], (residual[tested, :2] - base[:2]) @ along, earliest, a)[0]
+            gone = residual[tested[a], :2] - base[:2]
+            if along is not None and gone @ along >= WALK_ALONG * np.linalg.norm(gone):
+                # a drag-off walking the way it had gone: dated along its walk, not across it
+                along_away = (residual[tested, :2] - base[:2]) @ along
+                first = _onset(t[tested], along_away, earliest, a)[0]
         if began is not None:  # the fixes themselves say where it began
             first = int(np.clip(np.searchsorted(t[tested], t[began]), n, a))
         # untested fixes inside it too, and those between it and the last tested fix before it

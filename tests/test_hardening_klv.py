@@ -161,7 +161,7 @@ def test_the_viewers_decoder_plays_a_damaged_transport_stream_to_its_end(feed, t
         # at_end is set once the last frame is queued; up to a queue's worth may still wait in it
         while dec.error is None and not (dec.at_end and dec.frames.empty()):
             try:
-                frames.append(dec.frames.get(timeout=5.0))
+                frames.append(dec.frames.get(timeout=30.0))
             except Exception:  # queue.Empty: at the end, nothing more comes
                 break
         assert dec.error is None

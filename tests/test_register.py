@@ -38,7 +38,13 @@ from app.register.points import (
     solve_control,
     write_points,
 )
-from app.register.solve import Registrar, Registration, RegistrationSettings, registered_track
+from app.register.solve import (
+    Registrar,
+    Registration,
+    RegistrationSettings,
+    keyframe_indices,
+    registered_track,
+)
 from app.scene.mesh import MeshData
 from app.session import open_session
 from app.session.camera_track import camera_track
@@ -299,6 +305,18 @@ def test_corrections_follow_an_error_that_moves_within_a_second_without_a_kink()
     assert abs(end) < 0.01
 
 
+def test_keyframes_fall_every_spacing_and_on_the_last_frame_where_the_video_ends_well_after():
+    """Every every_s from the first frame; the last frame too where the video runs on more than
+    half a spacing after the last of those (an 8 s clip at 30 fps, keyframes every 0.5 s: 7.5 s
+    and its last frame, 7.97 s), not where it ends within half a spacing (7.2 s: 7.0 s is the
+    last)."""
+    media_s = np.arange(240) / 30.0
+    got = keyframe_indices(media_s, 0.5)
+    assert list(got) == [*range(0, 240, 15), 239]
+    assert list(keyframe_indices(media_s[:217], 0.5)) == list(range(0, 217, 15))
+    assert list(keyframe_indices(media_s, 4.0)) == [0, 120, 239]
+
+
 # --- the whole source on a short world-versus-model session ---------------------------------------
 
 
@@ -315,7 +333,8 @@ def test_the_registered_track_is_smooth_and_beats_its_prior(short_session, gl_ct
     )
     reg = track.registration
     assert track.source == "registered" and reg.prior == "offline"
-    assert fractions[-1] == 1.0 and len(reg.keyframes) == 12
+    # every 0.5 s from 0 to 5.5 s, and the last frame (5.97 s): 13
+    assert fractions[-1] == 1.0 and len(reg.keyframes) == 13
     assert reg.used_fraction >= 0.75, reg.summary()
     assert reg.delay_s == pytest.approx(
         sample.SYNC_ERROR_S, abs=0.02
@@ -508,8 +527,8 @@ def test_the_viewer_registers_in_the_background_and_shows_the_registered_source(
     assert s["source"] == "registered" and "registered" in s["solved"] and s["errors"] == []
     assert any(n.startswith("registered is solved: showing it instead of") for n in s["info"])
     reg = s["registration"]
-    assert reg["prior"] == "offline" and reg["keyframes"] == 12 and reg["used"] >= 9
-    assert reg["summary"].startswith(f"registered {reg['used']} of 12 keyframes")
+    assert reg["prior"] == "offline" and reg["keyframes"] == 13 and reg["used"] >= 10
+    assert reg["summary"].startswith(f"registered {reg['used']} of 13 keyframes")
     # The projector is the registered track's camera at the frame shown.
     track = solve_track(short_session, "offline")
     assert (

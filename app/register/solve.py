@@ -242,10 +242,15 @@ def keyframe_plot(reg: Registration, t0: float) -> KeyframePlot:
 
 
 def keyframe_indices(media_s: np.ndarray, every_s: float) -> np.ndarray:
-    """Video frames (indices into media_s, increasing) nearest to every every_s seconds."""
+    """Video frames (indices into media_s, increasing) nearest to every every_s seconds, and the
+    last frame where the video ends more than half a spacing after the last of those: else its
+    last frames would be carried past everything that measured them (where their fixes are
+    rejected or missing, a weave's curve left as a straight line)."""
     if every_s <= 0:
         raise ValueError(f"keyframe spacing must be positive, got {every_s} s")
     targets = np.arange(media_s[0], media_s[-1] + 1e-9, every_s)
+    if media_s[-1] - targets[-1] > every_s / 2:
+        targets = np.append(targets, media_s[-1])
     return np.unique(np.clip(np.searchsorted(media_s, targets), 0, len(media_s) - 1))
 
 

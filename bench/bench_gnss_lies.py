@@ -134,6 +134,14 @@ def said_near(got: dict, lie: Lie) -> int | None:
     return next((k for k, c in enumerate(got["caught"]) if c >= lie.from_s - 5.0), None)
 
 
+def after_lie(got: dict, lie: Lie, start: float) -> tuple[int | None, float, np.ndarray]:
+    """Of a run (live or a recording solved) against `lie`, whose fixes exceed their accuracy
+    from `start` s: (the index of the lie said near it (said_near), the share of frames from
+    `start` on marked rejected, their errors (m))."""
+    after = got["t"] >= start
+    return said_near(got, lie), float(np.mean(got["gnss"][after] == REJECTED)), got["error"][after]
+
+
 def flight_enu(frame: LocalFrame, flight: flights.Flight, t: np.ndarray) -> np.ndarray:
     """Where the simulated downlink's camera was at flight times t (N,) s: (N, 3) ENU m of
     `frame` (a live run's or a recording's session frame)."""
@@ -391,25 +399,20 @@ def live_main(args: argparse.Namespace) -> int:
                     got = live_run(path, args.accuracy, flight, recording(path))
                     start = exceeds_s(lie, args.accuracy, got["t"], got["true"])
                     after = got["t"] >= start
-                    near = said_near(got, lie)
+                    near, share, err = after_lie(got, lie, start)
                     caught = None if near is None else got["caught"][near]
                     delay = None if caught is None else caught - start
                     lag = None if caught is None or got["first_rejected"] is None else got["first_rejected"] - caught  # fmt: skip
                     began = None if near is None else got["began"][near]
                     unseen = None if near is None else got["unseen"][near]
-                    share = float(np.mean(got["gnss"][after] == REJECTED))
-                    err = got["error"][after]
                     ref = np.interp(got["t"][after], clean["t"], clean["error"])
                     spacing = float(np.median(np.diff(got["keyframes"]))) if len(got["keyframes"]) > 1 else float("nan")  # fmt: skip
                     rows.append([name, seed, label(lie), len(got["caught"]), " ".join(got["kinds"]), "" if began is None else (f"{began:.1f}" if unseen is None else f"{unseen:.1f} to {began:.1f}"), "none" if delay is None else f"{delay:.1f}", "" if lag is None else f"{lag:.1f}", f"{100 * share:.0f} %", f"{np.median(err):.2f} / {np.percentile(err, 95):.2f}", f"{np.median(ref):.2f}", "", f"{spacing:.2f}"])  # fmt: skip
                     figures.append({"flight": name, "seed": seed, "lie": label(lie), "alarms": len(got["caught"]), "kinds": got["kinds"], "began_s": began, "unseen_from_s": unseen, "alarm_delay_s": delay, "frames_after_alarm_s": lag, "rejected_share": share, "median_error_m": float(np.median(err)), "p95_error_m": float(np.percentile(err, 95)), "clean_median_error_m": float(np.median(ref)), "keyframe_spacing_s": spacing})  # fmt: skip
                     if args.recorded:  # the same feed's recording, solved afterwards
                         solved = recorded_run(recording(path), args.accuracy, flight)
-                        after = solved["t"] >= start
-                        near = said_near(solved, lie)
+                        near, share, err = after_lie(solved, lie, start)
                         began = None if near is None else solved["began"][near]
-                        share = float(np.mean(solved["gnss"][after] == REJECTED))
-                        err = solved["error"][after]
                         rows[-1] += ["none" if began is None else f"{began:.1f}", f"{100 * share:.0f} %", f"{np.median(err):.2f} / {np.percentile(err, 95):.2f}"]  # fmt: skip
                         figures[-1]["recorded"] = {"alarms": len(solved["caught"]), "began_s": began, "rejected_share": share, "median_error_m": float(np.median(err)), "p95_error_m": float(np.percentile(err, 95))}  # fmt: skip
                     print(rows[-1], got["summary"], file=sys.stderr)

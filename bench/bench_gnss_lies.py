@@ -282,11 +282,10 @@ def _figures(done: dict, units: list[tuple[str, int]], args: argparse.Namespace)
             got = done[(flight, seed, name)]
             start = exceeds_s(lie, got["accuracy"], got["t"], got["true"])
             after = got["t"] >= start
-            near = said_near(got, lie)
+            near, share, during = after_lie(got, lie, start)
             delay = None if near is None else got["caught"][near] - start
             began = None if near is None else got["began"][near]
-            share = float(np.mean(got["gnss"][after] == REJECTED))
-            err, ref = float(np.median(got["error"][after])), float(np.median(clean["error"][after]))  # fmt: skip
+            err, ref = float(np.median(during)), float(np.median(clean["error"][after]))
             drape, drape_ref = _drape(got, after), _drape(clean, after)
             cover = (within(got, after, 1), within(got, after, 2))
             rows.append([flight, seed, label(lie), len(got["caught"]), " ".join(got["kinds"]), "" if began is None else f"{began:.1f}", "none" if delay is None else f"{delay:.1f}", f"{100 * share:.0f} %", f"{err:.2f}", f"{ref:.2f}", f"{drape:.2f}", f"{drape_ref:.2f}", f"{100 * cover[0]:.0f} / {100 * cover[1]:.0f} %"])  # fmt: skip
